@@ -1,0 +1,1 @@
+"""uavmm package."""
