@@ -1,0 +1,309 @@
+"""Class-wise memory maps on the global tile grid (paper section IV), plus the joint layer.
+
+Arrays in, arrays out: no I/O. A map is a UAV-centric, north-aligned window of global Web-Mercator
+cells (shared.tiles) holding, per class, evidence in [0, 1] that decays with time.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from shared.tiles import TileGrid
+
+FloatArray = NDArray[np.float64]
+
+
+@dataclass(frozen=True, slots=True)
+class MemoryMapConfig:
+    """Memory-map parameters, in metres and seconds so they hold across cameras and frame rates.
+
+    window_m: edge of the UAV-centric square window (paper: c = 300 m); evidence outside is forgotten.
+    radius_m: truncation radius of the Gaussian each box stamps (paper: 6 m).
+    sigma_m: standard deviation of that Gaussian (default radius / 2).
+    gain_per_s: evidence added per second of observation per unit confidence (the paper's s per
+        frame = gain_per_s * frame interval; frame-rate independent: at 30 fps and 0.6 /s, s = 0.02).
+    half_life_s: time for unrefreshed evidence to halve (the paper's forgetting factor per frame is
+        phi = 0.5 ** (frame interval / half_life_s)).
+    max_step_s: the longest frame interval one update counts as observation time (a gap after
+        dropped frames decays the map for the whole gap but adds one normal update).
+    recentre_m: how far the UAV may drift from the window centre before the window is moved.
+    """
+
+    window_m: float = 300.0
+    radius_m: float = 6.0
+    sigma_m: float | None = None
+    gain_per_s: float = 0.6
+    half_life_s: float = 1.0
+    max_step_s: float = 0.2
+    recentre_m: float = 10.0
+
+    def __post_init__(self) -> None:
+        for name in ("window_m", "radius_m", "gain_per_s", "half_life_s", "max_step_s"):
+            value = getattr(self, name)
+            if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
+                raise ValueError(f"MemoryMapConfig.{name} must be a finite number > 0, got {value!r}")
+        if self.sigma_m is not None and not (math.isfinite(self.sigma_m) and self.sigma_m > 0):
+            raise ValueError(f"MemoryMapConfig.sigma_m must be > 0, got {self.sigma_m!r}")
+        if not (math.isfinite(self.recentre_m) and 0 <= self.recentre_m < self.window_m / 2):
+            raise ValueError(f"MemoryMapConfig.recentre_m must be in [0, window_m / 2), got {self.recentre_m!r}")
+
+    @property
+    def sigma(self) -> float:
+        return self.radius_m / 2.0 if self.sigma_m is None else self.sigma_m
+
+    def phi(self, dt_s: float) -> float:
+        """Forgetting factor for an elapsed time dt_s (seconds)."""
+        return 0.5 ** (max(dt_s, 0.0) / self.half_life_s)
+
+
+def gaussian_kernel_1d(radius_cells: int, sigma_cells: float) -> NDArray[np.float32]:
+    """(2 * radius_cells + 1,) float32 Gaussian with peak 1, truncated at radius_cells."""
+    x = np.arange(-radius_cells, radius_cells + 1, dtype=np.float64)
+    return np.exp(-0.5 * (x / sigma_cells) ** 2).astype(np.float32)
+
+
+class MemoryMap:
+    """Per-class evidence maps over one moving window of global cells.
+
+    Use per frame: advance(t, lat, lon) (decay + move the window), values_at(...) to boost with
+    the map from before this frame, then add(...) with the original confidences.
+    """
+
+    def __init__(self, config: MemoryMapConfig | None = None, grid: TileGrid | None = None) -> None:
+        self.config = config or MemoryMapConfig()
+        self.grid = grid or TileGrid()
+        self._maps: dict[str, NDArray[np.float32]] = {}
+        self._gx0 = 0  # global cell of the window's north-west corner
+        self._gy0 = 0
+        self._size = 0  # window edge in cells
+        self._cell_m = 0.0
+        self._t: float | None = None
+        self._kernel: tuple[int, NDArray[np.float32]] | None = None
+
+    # ------------------------------------------------------------------ state
+    @property
+    def classes(self) -> list[str]:
+        return list(self._maps)
+
+    @property
+    def t(self) -> float | None:
+        """Time (s) of the last advance(), or None before the first."""
+        return self._t
+
+    @property
+    def origin(self) -> tuple[int, int]:
+        """Global cell (gx0, gy0) of the window's north-west corner."""
+        return self._gx0, self._gy0
+
+    @property
+    def size_cells(self) -> int:
+        return self._size
+
+    @property
+    def cell_m(self) -> float:
+        return self._cell_m
+
+    def layer(self, cls: str) -> NDArray[np.float32] | None:
+        """The (size, size) float32 map of a class (a view: do not modify), or None."""
+        return self._maps.get(cls)
+
+    def reset(self) -> None:
+        """Forget everything (e.g. at the start of another video)."""
+        self._maps.clear()
+        self._t = None
+        self._size = 0
+
+    # ------------------------------------------------------------------ time and window
+    def advance(self, t: float, lat: float, lon: float) -> float:
+        """Move to time t (s) with the UAV at (lat, lon): decay by the elapsed time, recentre.
+
+        Returns the elapsed time in seconds (0 at the first call). Time going backwards is
+        treated as no elapsed time.
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"t must be finite, got {t!r}")
+        dt = 0.0 if self._t is None else max(0.0, t - self._t)
+        self._t = t if self._t is None else max(self._t, t)
+        if dt > 0 and self._maps:
+            phi = np.float32(self.config.phi(dt))
+            for m in self._maps.values():
+                m *= phi
+        self._place_window(lat, lon)
+        return dt
+
+    def _place_window(self, lat: float, lon: float) -> None:
+        cell_m = float(self.grid.cell_size_m(lat))
+        gx, gy = self.grid.latlon_to_cell(lat, lon)
+        size = int(math.ceil(self.config.window_m / cell_m))
+        if self._size == 0 or abs(size - self._size) > max(2, self._size // 50):
+            self._size, self._cell_m = size, cell_m
+            self._set_origin(int(math.floor(gx)) - size // 2, int(math.floor(gy)) - size // 2, reset=True)
+            return
+        self._cell_m = cell_m
+        cx, cy = self._gx0 + self._size / 2, self._gy0 + self._size / 2
+        dx = self._wrap(float(gx) - cx)
+        if math.hypot(dx, float(gy) - cy) * cell_m > self.config.recentre_m:
+            self._set_origin(int(math.floor(gx)) - self._size // 2, int(math.floor(gy)) - self._size // 2)
+
+    def _wrap(self, dx: float | NDArray) -> float | NDArray:
+        cells = self.grid.world_cells
+        return (dx + cells / 2) % cells - cells / 2
+
+    def _set_origin(self, gx0: int, gy0: int, reset: bool = False) -> None:
+        shift_x = int(self._wrap(gx0 - self._gx0))
+        shift_y = gy0 - self._gy0
+        self._gx0, self._gy0 = gx0 % self.grid.world_cells, gy0
+        s = self._size
+        for cls, old in list(self._maps.items()):
+            new = np.zeros((s, s), dtype=np.float32)
+            if not reset and abs(shift_x) < s and abs(shift_y) < s and old.shape == new.shape:
+                # new[r, c] = old[r + shift_y, c + shift_x] where both exist; the rest is forgotten.
+                r0, r1 = max(0, -shift_y), min(s, s - shift_y)
+                c0, c1 = max(0, -shift_x), min(s, s - shift_x)
+                new[r0:r1, c0:c1] = old[r0 + shift_y:r1 + shift_y, c0 + shift_x:c1 + shift_x]
+            self._maps[cls] = new
+
+    def local_indices(
+        self, gx: ArrayLike, gy: ArrayLike
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.bool_]]:
+        """Global cell coordinates (continuous or integer) -> window (row, col) and inside mask."""
+        col = np.floor(self._wrap(np.asarray(gx, dtype=np.float64) - self._gx0)).astype(np.int64)
+        row = np.floor(np.asarray(gy, dtype=np.float64) - self._gy0).astype(np.int64)
+        inside = (col >= 0) & (col < self._size) & (row >= 0) & (row < self._size)
+        return row, col, inside
+
+    # ------------------------------------------------------------------ read and write
+    def values_at(self, cls: str, gx: ArrayLike, gy: ArrayLike) -> NDArray[np.float32]:
+        """Map values at global cells (N,) -> (N,) float32; 0 outside the window or for unseen classes."""
+        gx_arr = np.atleast_1d(np.asarray(gx, dtype=np.float64))
+        gy = np.atleast_1d(np.asarray(gy, dtype=np.float64))
+        out = np.zeros(gx_arr.shape, dtype=np.float32)
+        m = self._maps.get(cls)
+        if m is None or gx_arr.size == 0:
+            return out
+        row, col, inside = self.local_indices(gx_arr, gy)
+        out[inside] = m[row[inside], col[inside]]
+        return out
+
+    def _kernel_for(self) -> tuple[int, NDArray[np.float32]]:
+        radius = max(1, int(round(self.config.radius_m / self._cell_m)))
+        if self._kernel is None or self._kernel[0] != radius:
+            sigma_cells = self.config.sigma / self._cell_m
+            self._kernel = (radius, gaussian_kernel_1d(radius, sigma_cells))
+        return self._kernel
+
+    def add(self, cls: str, gx: ArrayLike, gy: ArrayLike, amplitudes: ArrayLike) -> int:
+        """Stamp a truncated Gaussian of peak `amplitude` at each global cell, then clip at 1.
+
+        gx, gy, amplitudes: (N,). Points outside the window are ignored. All stamps are written as
+        an impulse image over their bounding region and spread with one separable filter
+        (cv2.sepFilter2D), which costs the same for 10 or 10,000 boxes. Returns the number stamped.
+        """
+        if self._size == 0:
+            raise RuntimeError("MemoryMap.add before advance(): the window is not placed yet")
+        amp = np.atleast_1d(np.asarray(amplitudes, dtype=np.float32))
+        row, col, inside = self.local_indices(np.atleast_1d(gx), np.atleast_1d(gy))
+        keep = inside & np.isfinite(amp) & (amp > 0)
+        if not keep.any():
+            return 0
+        row, col, amp = row[keep], col[keep], amp[keep]
+        m = self._maps.get(cls)
+        if m is None:
+            m = self._maps[cls] = np.zeros((self._size, self._size), dtype=np.float32)
+        radius, kernel = self._kernel_for()
+        r0 = max(int(row.min()) - radius, 0)
+        r1 = min(int(row.max()) + radius + 1, self._size)
+        c0 = max(int(col.min()) - radius, 0)
+        c1 = min(int(col.max()) + radius + 1, self._size)
+        impulses = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+        np.add.at(impulses, (row - r0, col - c0), amp)
+        spread = cv2.sepFilter2D(impulses, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
+        roi = m[r0:r1, c0:c1]
+        roi += spread
+        np.minimum(roi, 1.0, out=roi)
+        return int(keep.sum())
+
+    # ------------------------------------------------------------------ tiles
+    def tiles(self, cls: str, *, min_value: float = 0.0) -> list[tuple[int, int, NDArray[np.float32]]]:
+        """The window of a class cut into grid tiles: [(x, y, (n, n) float32)], cells outside 0.
+
+        Every tile the window overlaps is returned (empty ones too: "covered, nothing seen") unless
+        min_value > 0, which drops tiles whose maximum is below it.
+        """
+        m = self._maps.get(cls)
+        n = self.grid.n
+        if self._size == 0:
+            return []
+        out = []
+        tx0, ty0 = self._gx0 // n, self._gy0 // n
+        tx1, ty1 = (self._gx0 + self._size - 1) // n, (self._gy0 + self._size - 1) // n
+        side = self.grid.tiles_per_side
+        for ty in range(max(ty0, 0), min(ty1, side - 1) + 1):
+            for tx in range(tx0, tx1 + 1):
+                tile = np.zeros((n, n), dtype=np.float32)
+                if m is not None:
+                    # overlap of tile cells [tx*n, tx*n+n) with window cells [gx0, gx0+size)
+                    gxa, gya = max(tx * n, self._gx0), max(ty * n, self._gy0)
+                    gxb = min(tx * n + n, self._gx0 + self._size)
+                    gyb = min(ty * n + n, self._gy0 + self._size)
+                    tile[gya - ty * n:gyb - ty * n, gxa - tx * n:gxb - tx * n] = \
+                        m[gya - self._gy0:gyb - self._gy0, gxa - self._gx0:gxb - self._gx0]
+                if min_value > 0 and tile.max() < min_value:
+                    continue
+                out.append((tx % side, ty, tile))
+        return out
+
+
+class JointLayer:
+    """Latest joint (fused) tiles received from the fusion server, per class, with their times.
+
+    values_at() reads them like a memory map; tiles older than ttl_s count as absent (0).
+    """
+
+    def __init__(self, grid: TileGrid | None = None, ttl_s: float = 3.0) -> None:
+        if not (math.isfinite(ttl_s) and ttl_s > 0):
+            raise ValueError(f"ttl_s must be > 0, got {ttl_s!r}")
+        self.grid = grid or TileGrid()
+        self.ttl_s = ttl_s
+        self._tiles: dict[tuple[str, int, int], tuple[NDArray[np.float32], float]] = {}
+
+    def __len__(self) -> int:
+        return len(self._tiles)
+
+    def update(self, cls: str, x: int, y: int, values: NDArray[np.float32], t: float) -> None:
+        """Store a joint tile (n, n) float32 in [0, 1] received at time t (seconds)."""
+        n = self.grid.n
+        if values.shape != (n, n):
+            raise ValueError(f"joint tile must be ({n}, {n}), got {values.shape}")
+        self._tiles[(cls, int(x), int(y))] = (values.astype(np.float32, copy=False), float(t))
+
+    def prune(self, now: float) -> int:
+        """Drop tiles older than ttl_s; returns how many were dropped."""
+        old = [k for k, (_, t) in self._tiles.items() if now - t > self.ttl_s]
+        for k in old:
+            del self._tiles[k]
+        return len(old)
+
+    def values_at(self, cls: str, gx: ArrayLike, gy: ArrayLike, now: float) -> NDArray[np.float32]:
+        """Joint values at global cells (N,) -> (N,) float32; 0 where no fresh tile exists."""
+        gx_i = np.floor(np.atleast_1d(np.asarray(gx, dtype=np.float64))).astype(np.int64)
+        gy_i = np.floor(np.atleast_1d(np.asarray(gy, dtype=np.float64))).astype(np.int64)
+        out = np.zeros(gx_i.shape, dtype=np.float32)
+        if not self._tiles or gx_i.size == 0:
+            return out
+        n = self.grid.n
+        tx, ty = gx_i // n, gy_i // n
+        keys = tx * (1 << 32) + ty
+        for key in np.unique(keys):
+            x, y = int(key >> 32), int(key & 0xFFFFFFFF)
+            entry = self._tiles.get((cls, x, y))
+            if entry is None or now - entry[1] > self.ttl_s:
+                continue
+            sel = keys == key
+            out[sel] = entry[0][gy_i[sel] - y * n, gx_i[sel] - x * n]
+        return out

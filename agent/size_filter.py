@@ -1,0 +1,225 @@
+"""Distance-size filter (paper section IV-A): drop boxes whose size is implausible for their range.
+
+The fit is camera-independent: a box's metric diameter = pixel diagonal x slant range / focal
+length, modelled per class as log-normal with mean and spread depending on the viewing depression.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+log = logging.getLogger(__name__)
+
+FORMAT = "uavmm-size-filter"
+VERSION = 1
+#: Depression-angle knots (degrees) of the fitted curves.
+KNOTS_DEG = np.arange(0.0, 90.0 + 1e-9, 5.0)
+
+
+@dataclass(frozen=True, slots=True)
+class SizeBand:
+    """One class's model: log metric diameter ~ N(mean(d), std(d)^2), d = depression in degrees.
+
+    depression_deg, mean_log_m, std_log: (K,) knots, interpolated linearly and held at the ends.
+    """
+
+    depression_deg: tuple[float, ...]
+    mean_log_m: tuple[float, ...]
+    std_log: tuple[float, ...]
+    samples: int = 0
+
+    def __post_init__(self) -> None:
+        k = len(self.depression_deg)
+        if k == 0 or len(self.mean_log_m) != k or len(self.std_log) != k:
+            raise ValueError("SizeBand needs equally long, non-empty depression/mean/std knots")
+        if not all(math.isfinite(v) for v in (*self.depression_deg, *self.mean_log_m, *self.std_log)):
+            raise ValueError("SizeBand knots must be finite")
+        if any(s <= 0 for s in self.std_log):
+            raise ValueError("SizeBand std_log must be > 0")
+        if list(self.depression_deg) != sorted(self.depression_deg):
+            raise ValueError("SizeBand depression_deg must be increasing")
+
+    def mean_std(self, depression_deg: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        d = np.asarray(depression_deg, dtype=np.float64)
+        return (np.interp(d, self.depression_deg, self.mean_log_m),
+                np.interp(d, self.depression_deg, self.std_log))
+
+    def bounds_m(self, depression_deg: ArrayLike, k: float) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """Accepted metric diameter range (lo, hi) in metres at the given depressions."""
+        mean, std = self.mean_std(depression_deg)
+        return np.exp(mean - k * std), np.exp(mean + k * std)
+
+
+def _upright_prior(width_m: float, depth_m: float, height_m: float, std_log: float) -> SizeBand:
+    """Prior for a box-shaped object: its image extent seen at each depression."""
+    d = np.radians(KNOTS_DEG)
+    vertical = height_m * np.cos(d) + depth_m * np.sin(d)  # extent along the image's v axis
+    diag = np.sqrt(width_m**2 + vertical**2)
+    return SizeBand(tuple(KNOTS_DEG.tolist()), tuple(np.log(diag).tolist()), (std_log,) * len(KNOTS_DEG))
+
+
+# Built-in priors for users with no fit: nominal object dimensions (metres) and a wide spread,
+# because detectors' boxes are loose and telemetry errors scale the range. Classes of
+# SeaDronesSee and of person datasets (POG, VisDrone "pedestrian"/"people").
+BUILTIN_PRIORS: dict[str, SizeBand] = {
+    "person": _upright_prior(0.5, 0.3, 1.7, 0.35),
+    "pedestrian": _upright_prior(0.5, 0.3, 1.7, 0.35),
+    "people": _upright_prior(0.5, 0.3, 1.7, 0.35),
+    "swimmer": _upright_prior(0.5, 0.5, 0.3, 0.35),
+    "buoy": _upright_prior(0.6, 0.6, 0.6, 0.4),
+    "life_saving_appliances": _upright_prior(0.8, 0.8, 0.3, 0.45),
+    "jetski": _upright_prior(1.2, 3.0, 1.0, 0.4),
+    "boat": _upright_prior(2.5, 6.0, 1.5, 0.55),
+    "car": _upright_prior(1.8, 4.5, 1.5, 0.4),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class SizeFilter:
+    """Per-class size bands; a box outside mean +- k * std (in log metric diameter) is dropped.
+
+    Classes without a band pass unfiltered (logged once per class).
+    """
+
+    bands: dict[str, SizeBand] = field(default_factory=dict)
+    k: float = 3.0
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.k) and self.k > 0):
+            raise ValueError(f"SizeFilter.k must be > 0, got {self.k!r}")
+
+    @classmethod
+    def builtin(cls, k: float = 3.0) -> SizeFilter:
+        """The documented built-in priors (BUILTIN_PRIORS)."""
+        return cls(dict(BUILTIN_PRIORS), k)
+
+    def accept(
+        self, cls_names: list[str] | NDArray, diag_px: ArrayLike, slant_range_m: ArrayLike,
+        depression_deg: ArrayLike, focal_px: float,
+    ) -> NDArray[np.bool_]:
+        """Which boxes are plausible: (N,) bool.
+
+        cls_names: (N,) class name per box; diag_px: (N,) box diagonal in pixels; slant_range_m and
+        depression_deg: (N,) of the box's ground point (NaN = unknown: accepted, nothing to test);
+        focal_px: the camera's focal length in pixels.
+        """
+        names = np.asarray(cls_names)
+        diag = np.asarray(diag_px, dtype=np.float64)
+        rng = np.asarray(slant_range_m, dtype=np.float64)
+        dep = np.asarray(depression_deg, dtype=np.float64)
+        ok = np.ones(diag.shape, dtype=bool)
+        known = np.isfinite(rng) & np.isfinite(dep)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_size = np.log(diag * rng / focal_px)
+        for name in np.unique(names):
+            sel = (names == name) & known
+            if not sel.any():
+                continue
+            band = self.bands.get(str(name))
+            if band is None:
+                _warn_unfiltered(str(name))
+                continue
+            mean, std = band.mean_std(dep[sel])
+            ok[sel] = np.abs(log_size[sel] - mean) <= self.k * std
+        return ok
+
+    # ---------------------------------------------------------------- persistence
+    def to_dict(self) -> dict[str, Any]:
+        return {
+            "format": FORMAT, "version": VERSION, "k": self.k,
+            "classes": {
+                name: {"depression_deg": list(b.depression_deg), "mean_log_m": list(b.mean_log_m),
+                       "std_log": list(b.std_log), "samples": b.samples}
+                for name, b in self.bands.items()
+            },
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any], *, source: str = "<size filter>") -> SizeFilter:
+        if not isinstance(d, dict) or d.get("format") != FORMAT:
+            raise ValueError(f"{source}: not a size-filter file (expected format {FORMAT!r})")
+        if d.get("version") != VERSION:
+            raise ValueError(f"{source}: unsupported size-filter version {d.get('version')!r} (this is {VERSION})")
+        try:
+            bands = {
+                str(name): SizeBand(tuple(map(float, b["depression_deg"])), tuple(map(float, b["mean_log_m"])),
+                                    tuple(map(float, b["std_log"])), int(b.get("samples", 0)))
+                for name, b in d["classes"].items()
+            }
+            return cls(bands, float(d.get("k", 3.0)))
+        except (KeyError, TypeError, AttributeError, ValueError) as exc:
+            raise ValueError(f"{source}: malformed size-filter file: {exc!r}") from None
+
+    def save(self, path: str | Path) -> None:
+        Path(path).write_text(json.dumps(self.to_dict(), indent=1))
+
+    @classmethod
+    def load(cls, path: str | Path) -> SizeFilter:
+        path = Path(path)
+        try:
+            d = json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"size-filter file {path} does not exist") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"size-filter file {path} is not JSON: {exc}") from None
+        return cls.from_dict(d, source=str(path))
+
+
+_warned: set[str] = set()
+
+
+def _warn_unfiltered(name: str) -> None:
+    if name not in _warned:
+        _warned.add(name)
+        log.warning("size filter: no band for class %r; its boxes pass unfiltered", name)
+
+
+def fit_band(depression_deg: ArrayLike, log_size_m: ArrayLike, *, min_samples: int = 20,
+             min_std: float = 0.08) -> SizeBand:
+    """Fit one class's band from samples: robust mean and spread per depression knot.
+
+    Each knot takes the samples within +-7.5 degrees (Gaussian weights, sigma 5 degrees) and their
+    weighted median and 1.4826 * weighted MAD; knots with fewer than min_samples effective samples
+    borrow the nearest fitted knot. A non-parametric heteroscedastic regression: like the paper's
+    Gaussian process it gives mean and spread as smooth functions of the geometry, with no
+    assumption about their shape. min_std floors the spread (telemetry noise alone gives ~0.05).
+    """
+    dep = np.asarray(depression_deg, dtype=np.float64)
+    y = np.asarray(log_size_m, dtype=np.float64)
+    good = np.isfinite(dep) & np.isfinite(y)
+    dep, y = dep[good], y[good]
+    if len(y) < min_samples:
+        raise ValueError(f"size filter fit needs at least {min_samples} samples, got {len(y)}")
+    means = np.full(len(KNOTS_DEG), np.nan)
+    stds = np.full(len(KNOTS_DEG), np.nan)
+    for i, knot in enumerate(KNOTS_DEG):
+        w = np.exp(-0.5 * ((dep - knot) / 5.0) ** 2)
+        w[np.abs(dep - knot) > 7.5] = 0.0
+        if w.sum() < min_samples * 0.5:  # effective count
+            continue
+        med = _weighted_quantile(y, w, 0.5)
+        mad = _weighted_quantile(np.abs(y - med), w, 0.5)
+        means[i], stds[i] = med, max(1.4826 * mad, min_std)
+    fitted = np.flatnonzero(np.isfinite(means))
+    if len(fitted) == 0:
+        raise ValueError("size filter fit: no depression range has enough samples")
+    missing = np.flatnonzero(~np.isfinite(means))
+    for i in missing:
+        j = fitted[np.argmin(np.abs(fitted - i))]
+        means[i], stds[i] = means[j], stds[j] * 1.5  # less sure away from the data
+    return SizeBand(tuple(KNOTS_DEG.tolist()), tuple(means.tolist()), tuple(stds.tolist()), int(len(y)))
+
+
+def _weighted_quantile(values: NDArray, weights: NDArray, q: float) -> float:
+    order = np.argsort(values)
+    v, w = values[order], weights[order]
+    cw = np.cumsum(w)
+    return float(np.interp(q * cw[-1], cw, v))

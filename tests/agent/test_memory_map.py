@@ -1,0 +1,271 @@
+"""Memory map and detection pipeline: boosting order, per-class maps, window, forgetting, joint layer."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agent.memory_map import JointLayer, MemoryMap, MemoryMapConfig
+from agent.pipeline import DetectionPipeline, PipelineConfig
+from shared.geo import Camera, Pose, latlon_to_pixel, local_to_latlon
+from shared.tiles import TileGrid
+
+LAT, LON = 48.0, 9.0
+GRID = TileGrid()
+CAM = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+CLASSES = {1: "person", 2: "swimmer"}
+
+
+def cell_of(east_m: float, north_m: float, lat0: float = LAT, lon0: float = LON):
+    lat, lon = local_to_latlon(east_m, north_m, lat0, lon0)
+    return GRID.latlon_to_cell(lat, lon)
+
+
+# ----------------------------------------------------------------------------- MemoryMap
+
+def test_stamp_peak_equals_amplitude_and_is_truncated_at_radius():
+    mm = MemoryMap(MemoryMapConfig(radius_m=6.0))
+    mm.advance(0.0, LAT, LON)
+    gx, gy = cell_of(0.0, 0.0)
+    mm.add("person", [gx], [gy], [0.3])
+    assert mm.values_at("person", [gx], [gy])[0] == pytest.approx(0.3, rel=1e-5)
+    # Falls off with distance, nothing beyond the radius (square truncation: check along an axis).
+    near = mm.values_at("person", *cell_of(3.0, 0.0))[0]
+    far = mm.values_at("person", *cell_of(8.0, 0.0))[0]
+    assert 0.0 < near < 0.3
+    assert far == 0.0
+
+
+def test_map_is_clipped_at_one():
+    mm = MemoryMap()
+    mm.advance(0.0, LAT, LON)
+    gx, gy = cell_of(5.0, 5.0)
+    mm.add("person", [gx] * 50, [gy] * 50, [0.9] * 50)
+    assert mm.values_at("person", [gx], [gy])[0] == pytest.approx(1.0)
+    assert mm.layer("person").max() <= 1.0
+
+
+def test_one_map_per_class():
+    mm = MemoryMap()
+    mm.advance(0.0, LAT, LON)
+    gx, gy = cell_of(0.0, 10.0)
+    mm.add("person", [gx], [gy], [0.5])
+    assert mm.values_at("person", [gx], [gy])[0] > 0.4
+    assert mm.values_at("swimmer", [gx], [gy])[0] == 0.0
+    assert mm.classes == ["person"]
+
+
+@pytest.mark.parametrize("dt", [1 / 30, 0.5, 2.0])
+def test_decay_follows_elapsed_time_not_calls(dt):
+    cfg = MemoryMapConfig(half_life_s=1.0)
+    mm = MemoryMap(cfg)
+    mm.advance(0.0, LAT, LON)
+    gx, gy = cell_of(0.0, 0.0)
+    mm.add("person", [gx], [gy], [0.8])
+    mm.advance(dt, LAT, LON)
+    assert mm.values_at("person", [gx], [gy])[0] == pytest.approx(0.8 * 0.5**dt, rel=1e-5)
+    # One call after a long gap decays as much as many small steps.
+    mm2 = MemoryMap(cfg)
+    mm2.advance(0.0, LAT, LON)
+    mm2.add("person", [gx], [gy], [0.8])
+    for k in range(1, 31):
+        mm2.advance(dt * k / 30, LAT, LON)
+    assert mm2.values_at("person", [gx], [gy])[0] == pytest.approx(0.8 * 0.5**dt, rel=1e-4)
+
+
+def test_window_moves_with_uav_and_forgets_what_leaves():
+    cfg = MemoryMapConfig(window_m=100.0, recentre_m=5.0, half_life_s=1e6)
+    mm = MemoryMap(cfg)
+    mm.advance(0.0, LAT, LON)
+    behind = cell_of(0.0, -30.0)   # will leave the window
+    ahead = cell_of(0.0, 40.0)     # will stay
+    mm.add("person", [behind[0], ahead[0]], [behind[1], ahead[1]], [0.5, 0.5])
+    # Fly 60 m north in small steps.
+    for k in range(1, 61):
+        lat, lon = local_to_latlon(0.0, float(k), LAT, LON)
+        mm.advance(k * 0.1, float(lat), float(lon))
+    assert mm.values_at("person", [ahead[0]], [ahead[1]])[0] == pytest.approx(0.5, rel=1e-4)
+    assert mm.values_at("person", [behind[0]], [behind[1]])[0] == 0.0
+    # Even flying back does not bring forgotten evidence back.
+    for k in range(59, -1, -1):
+        lat, lon = local_to_latlon(0.0, float(k), LAT, LON)
+        mm.advance(10 + (60 - k) * 0.1, float(lat), float(lon))
+    assert mm.values_at("person", [behind[0]], [behind[1]])[0] == 0.0
+
+
+def test_window_edge_matches_config():
+    mm = MemoryMap(MemoryMapConfig(window_m=300.0))
+    mm.advance(0.0, LAT, LON)
+    assert mm.size_cells * mm.cell_m == pytest.approx(300.0, abs=mm.cell_m)
+    assert mm.cell_m == pytest.approx(0.597 * math.cos(math.radians(LAT)), rel=1e-3)
+
+
+def test_add_before_advance_is_an_error():
+    with pytest.raises(RuntimeError, match="advance"):
+        MemoryMap().add("person", [0], [0], [1.0])
+
+
+def test_tiles_carry_the_window_values():
+    mm = MemoryMap(MemoryMapConfig(window_m=300.0))
+    mm.advance(0.0, LAT, LON)
+    gx, gy = cell_of(20.0, -15.0)
+    mm.add("person", [gx], [gy], [0.7])
+    tiles = mm.tiles("person")
+    assert 4 <= len(tiles) <= 16
+    n = GRID.n
+    tx, ty = int(gx) // n, int(gy) // n
+    (tile,) = [t for x, y, t in tiles if (x, y) == (tx, ty)]
+    assert tile[int(gy) - ty * n, int(gx) - tx * n] == pytest.approx(0.7, rel=1e-5)
+    assert sum(float(t.sum()) for _, _, t in tiles) == pytest.approx(float(mm.layer("person").sum()), rel=1e-5)
+    assert len(mm.tiles("person", min_value=0.1)) in (1, 2, 4)
+
+
+@settings(max_examples=30, deadline=None)
+@given(e=st.floats(-140, 140), nn=st.floats(-140, 140), amp=st.floats(0.01, 1.0))
+def test_values_round_trip_through_add(e, nn, amp):
+    mm = MemoryMap()
+    mm.advance(0.0, LAT, LON)
+    gx, gy = cell_of(e, nn)
+    mm.add("swimmer", [gx], [gy], [amp])
+    assert mm.values_at("swimmer", [gx], [gy])[0] == pytest.approx(amp, rel=1e-5)
+
+
+# ----------------------------------------------------------------------------- JointLayer
+
+def test_joint_layer_reads_fresh_tiles_only():
+    jl = JointLayer(GRID, ttl_s=2.0)
+    gx, gy = cell_of(0.0, 0.0)
+    x, y = int(gx) // GRID.n, int(gy) // GRID.n
+    tile = np.zeros((GRID.n, GRID.n), np.float32)
+    tile[int(gy) - y * GRID.n, int(gx) - x * GRID.n] = 0.6
+    jl.update("person", x, y, tile, t=10.0)
+    assert jl.values_at("person", [gx], [gy], now=11.0)[0] == pytest.approx(0.6)
+    assert jl.values_at("swimmer", [gx], [gy], now=11.0)[0] == 0.0
+    assert jl.values_at("person", [gx], [gy], now=12.5)[0] == 0.0
+    assert jl.prune(now=12.5) == 1 and len(jl) == 0
+    with pytest.raises(ValueError, match="joint tile"):
+        jl.update("person", x, y, np.zeros((3, 3), np.float32), t=0.0)
+
+
+# ----------------------------------------------------------------------------- pipeline
+
+POSE = Pose(lat=LAT, lon=LON, height_m=40.0, pitch_deg=60.0, heading_deg=30.0)
+
+
+def object_box(east: float, north: float, pose: Pose = POSE, size_px: float = 30.0) -> np.ndarray:
+    lat, lon = local_to_latlon(np.array([east]), np.array([north]), LAT, LON)
+    uv, ok = latlon_to_pixel(lat, lon, CAM, pose)
+    assert ok[0]
+    u, v = uv[0]
+    # a person-sized box standing on its ground point ("auto" anchor ~ bottom at 60 deg pitch)
+    return np.array([[u - size_px / 4, v - size_px * 0.75, u + size_px / 4, v + size_px * 0.25]], np.float32)
+
+
+def frame(pipe: DetectionPipeline, box: np.ndarray, score: float, t: float, pose: Pose | None = POSE, cls: int = 1):
+    return pipe.process(box, np.array([score], np.float32), np.array([cls]), pose, t)
+
+
+def test_boost_uses_map_from_before_the_update():
+    pipe = DetectionPipeline(CAM, CLASSES)
+    box = object_box(5.0, 25.0)
+    first = frame(pipe, box, 0.4, 0.0)
+    assert first.scores[0] == pytest.approx(0.4)  # nothing in the map yet: this frame's own box not used
+    second = frame(pipe, box, 0.4, 1 / 30)
+    assert second.scores[0] > 0.4
+    assert second.raw_scores[0] == pytest.approx(0.4)
+
+
+def test_map_is_updated_with_original_not_boosted_confidence():
+    cfg = PipelineConfig()
+    a = DetectionPipeline(CAM, CLASSES, cfg)
+    box = object_box(0.0, 30.0)
+    for k in range(5):
+        frame(a, box, 0.5, k / 30)
+    gx, gy = GRID.latlon_to_cell(*local_to_latlon(0.0, 30.0, LAT, LON))
+    # Replay by hand with the original confidences: same map.
+    mm = MemoryMap(cfg.memory)
+    gxa, gya = GRID.latlon_to_cell(*_ground_of(box, POSE, cfg))
+    for k in range(5):
+        mm.advance(k / 30, LAT, LON)
+        mm.add("person", gxa, gya, cfg.memory.gain_per_s * (1 / 30) * np.array([0.5]))
+    assert mm.values_at("person", [gx], [gy])[0] > 0.05
+    assert a.memory.values_at("person", [gx], [gy])[0] == pytest.approx(mm.values_at("person", [gx], [gy])[0], rel=1e-5)
+
+
+def _ground_of(box, pose, cfg):
+    from agent.pipeline import box_anchor_points
+    from shared.geo import pixel_to_latlon
+
+    lat, lon, _ = pixel_to_latlon(box_anchor_points(box, cfg.anchor, pose.pitch_deg), CAM, pose)
+    return lat, lon
+
+
+def test_classes_do_not_boost_each_other():
+    pipe = DetectionPipeline(CAM, CLASSES)
+    box = object_box(0.0, 30.0)
+    for k in range(10):
+        frame(pipe, box, 0.6, k / 30, cls=1)
+    swimmer = frame(pipe, box, 0.3, 10 / 30, cls=2)
+    assert swimmer.scores[0] == pytest.approx(0.3)
+
+
+def test_frames_without_meta_pass_through_unboosted():
+    pipe = DetectionPipeline(CAM, CLASSES)
+    box = object_box(0.0, 30.0)
+    for k in range(10):
+        frame(pipe, box, 0.6, k / 30)
+    before = pipe.memory.layer("person").copy()
+    res = frame(pipe, box, 0.3, 10 / 30, pose=None)
+    assert res.scores[0] == pytest.approx(0.3)
+    assert np.isnan(res.lat[0])
+    np.testing.assert_array_equal(pipe.memory.layer("person"), before)
+
+
+def test_no_memory_is_the_baseline_with_same_filter_and_nms():
+    base = DetectionPipeline(CAM, CLASSES, PipelineConfig(use_memory=False))
+    box = object_box(0.0, 30.0)
+    for k in range(10):
+        res = frame(base, box, 0.6, k / 30)
+        assert res.scores[0] == pytest.approx(0.6)
+    assert base.memory.classes == []
+
+
+def test_size_filter_drops_implausible_boxes_only():
+    pipe = DetectionPipeline(CAM, CLASSES)
+    good = object_box(0.0, 30.0, size_px=40.0)
+    huge = object_box(0.0, 30.0, size_px=600.0)   # a "person" 15 m tall
+    tiny = object_box(0.0, 30.0, size_px=1.0)
+    res = pipe.process(np.vstack([good, huge + [[700, 0, 700, 0]], tiny + [[-500, 0, -500, 0]]]),
+                       np.array([0.5, 0.9, 0.9], np.float32), np.array([1, 1, 1]), POSE, 0.0)
+    assert res.n_size_filtered == 2
+    assert len(res) == 1 and res.raw_scores[0] == pytest.approx(0.5)
+
+
+def test_joint_map_boosts_an_object_the_uav_never_saw():
+    joint = JointLayer(GRID, ttl_s=5.0)
+    pipe = DetectionPipeline(CAM, CLASSES, joint=joint)
+    gx, gy = GRID.latlon_to_cell(*_ground_of(object_box(0.0, 30.0), POSE, pipe.config))
+    x, y = int(gx[0]) // GRID.n, int(gy[0]) // GRID.n
+    tile = np.zeros((GRID.n, GRID.n), np.float32)
+    tile[int(gy[0]) - y * GRID.n, int(gx[0]) - x * GRID.n] = 0.5
+    joint.update("person", x, y, tile, t=0.0)
+    res = frame(pipe, object_box(0.0, 30.0), 0.2, 0.1)
+    assert res.scores[0] == pytest.approx(0.7, rel=1e-4)
+    local_only = DetectionPipeline(CAM, CLASSES, PipelineConfig(joint_mode="local"), joint=joint)
+    assert frame(local_only, object_box(0.0, 30.0), 0.2, 0.1).scores[0] == pytest.approx(0.2)
+
+
+def test_bad_input_is_named():
+    pipe = DetectionPipeline(CAM, CLASSES)
+    with pytest.raises(ValueError, match="unknown class id"):
+        pipe.process(np.zeros((1, 4)), np.ones(1), np.array([7]), POSE, 0.0)
+    with pytest.raises(ValueError, match="differ in length"):
+        pipe.process(np.zeros((2, 4)), np.ones(1), np.array([1]), POSE, 0.0)
+    with pytest.raises(ValueError, match="anchor"):
+        PipelineConfig(anchor="top")
+    with pytest.raises(ValueError, match="half_life_s"):
+        MemoryMapConfig(half_life_s=0)
