@@ -192,7 +192,7 @@ def test_map_is_updated_with_original_not_boosted_confidence():
     for k in range(5):
         mm.advance(k / 30, LAT, LON)
         mm.add("person", gxa, gya, cfg.memory.gain_per_s * (1 / 30) * np.array([0.5]))
-    assert mm.values_at("person", [gx], [gy])[0] > 0.05
+    assert mm.values_at("person", [gx], [gy])[0] > 0.02
     assert a.memory.values_at("person", [gx], [gy])[0] == pytest.approx(mm.values_at("person", [gx], [gy])[0], rel=1e-5)
 
 
