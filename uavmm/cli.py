@@ -62,6 +62,96 @@ def _run_sim(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------------- boost
+
+def _add_pipeline_options(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("memory map (defaults: the best measured; see docs/memory-map.md)")
+    g.add_argument("--config", type=Path, default=None, help="JSON file of pipeline/memory settings")
+    g.add_argument("--window-m", type=float, default=None, help="memory window edge, metres (300)")
+    g.add_argument("--radius-m", type=float, default=None, help="Gaussian truncation radius, metres (6)")
+    g.add_argument("--gain-per-s", type=float, default=None, help="evidence per second per unit confidence")
+    g.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life, seconds")
+    g.add_argument("--boost-weight", type=float, default=None, help="c_hat = c + w * p (1)")
+    g.add_argument("--anchor", choices=["auto", "center", "bottom"], default=None, help="box ground point")
+    g.add_argument("--nms-iou", type=float, default=None, help="NMS IoU threshold (0.5)")
+    g.add_argument("--max-detections", type=int, default=None, help="detections kept per frame (100)")
+    g.add_argument("--size-filter", type=Path, default=None,
+                   help="fitted size-filter file (uavmm fit-size-filter); default: built-in priors")
+    g.add_argument("--size-filter-k", type=float, default=None, help="band half-width in std (3)")
+    g.add_argument("--no-size-filter", action="store_true", help="do not filter boxes by size")
+
+
+def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
+    from agent.boost import load_config
+    from agent.size_filter import SizeFilter
+
+    overrides = {
+        "window_m": args.window_m, "radius_m": args.radius_m, "gain_per_s": args.gain_per_s,
+        "half_life_s": args.half_life_s, "boost_weight": args.boost_weight, "anchor": args.anchor,
+        "nms_iou": args.nms_iou, "max_detections": args.max_detections,
+    }
+    cfg = load_config(args.config, overrides)
+    import dataclasses
+
+    cfg = dataclasses.replace(cfg, use_memory=use_memory and cfg.use_memory,
+                              use_size_filter=cfg.use_size_filter and not args.no_size_filter)
+    size_filter = SizeFilter.load(args.size_filter) if args.size_filter else SizeFilter.builtin()
+    if args.size_filter_k is not None:
+        size_filter = dataclasses.replace(size_filter, k=args.size_filter_k)
+    return cfg, size_filter
+
+
+def _add_boost(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "boost", help="memory-map boosting of pre-NMS detections (or the single-frame baseline)",
+        description="Georeference each pre-NMS box, drop implausible sizes, boost its confidence by the "
+                    "class's memory map at its ground cell, update the map, then NMS. Writes a COCO "
+                    "result list. --no-memory gives the single-frame baseline (same filter and NMS).",
+    )
+    p.add_argument("--frames", type=Path, required=True, help="IMAGES.json (COCO with SeaDronesSee meta)")
+    p.add_argument("--candidates", type=Path, required=True, help="PRE_NMS.json (COCO result list)")
+    p.add_argument("--camera", type=Path, required=True, help="CAMERA.json (width, height, fx, fy, cx, cy)")
+    p.add_argument("--out", type=Path, required=True, help="RESULTS.json to write")
+    p.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting")
+    _add_pipeline_options(p)
+    p.set_defaults(handler=_run_boost)
+
+
+def _run_boost(args: argparse.Namespace) -> int:
+    from agent.boost import boost_dataset, write_results
+
+    cfg, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
+    results, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter)
+    write_results(results, args.out)
+    print(f"wrote {len(results)} detections to {args.out}: " + ", ".join(f"{k}={v}" for k, v in stats.items()))
+    return 0
+
+
+def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "fit-size-filter", help="fit the distance-size filter from a dataset with meta",
+        description="Fit per class the metric box diameter (pixels x range / focal length) as a function "
+                    "of the viewing depression from ground-truth boxes, and save it for --size-filter.",
+    )
+    p.add_argument("--frames", type=Path, required=True, help="IMAGES.json with annotations and meta")
+    p.add_argument("--camera", type=Path, required=True, help="CAMERA.json")
+    p.add_argument("--out", type=Path, required=True, help="size-filter JSON to write")
+    p.add_argument("--k", type=float, default=3.0, help="band half-width in standard deviations (3)")
+    p.add_argument("--anchor", choices=["auto", "center", "bottom"], default="auto")
+    p.set_defaults(handler=_run_fit_size_filter)
+
+
+def _run_fit_size_filter(args: argparse.Namespace) -> int:
+    from agent.size_filter_fit import fit_from_dataset
+
+    sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor)
+    sf.save(args.out)
+    for name, row in report.items():
+        print(f"{name}: " + ", ".join(f"{k}={v}" for k, v in row.items()))
+    print(f"wrote {args.out}")
+    return 0
+
+
 # --------------------------------------------------------------------------------------------- bench
 
 def _add_bench(sub: argparse._SubParsersAction) -> None:
@@ -95,7 +185,9 @@ def _run_bench(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------------- main
 
-COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (_add_sim, _add_bench)
+COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
+    _add_sim, _add_boost, _add_fit_size_filter, _add_bench,
+)
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -1,0 +1,131 @@
+"""`uavmm boost`: run the memory-map pipeline (or the single-frame baseline) over a dataset.
+
+Reads IMAGES.json + PRE_NMS.json + CAMERA.json, writes a COCO result list.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import time
+from pathlib import Path
+from typing import Any
+
+from agent.dataset import Candidates, Dataset, iter_video_frames, read_json
+from agent.memory_map import MemoryMapConfig
+from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
+from agent.size_filter import SizeFilter
+from shared.geo import Camera
+
+log = logging.getLogger(__name__)
+
+
+def config_from_dict(d: dict[str, Any], base: PipelineConfig | None = None) -> PipelineConfig:
+    """A PipelineConfig from a flat or nested mapping ({"memory": {...}, "nms_iou": ...}).
+
+    Unknown keys raise ValueError listing the valid ones.
+    """
+    base = base or PipelineConfig()
+    if not isinstance(d, dict):
+        raise ValueError(f"config must be a JSON object, got {type(d).__name__}")
+    mem_fields = {f.name for f in dataclasses.fields(MemoryMapConfig)}
+    pipe_fields = {f.name for f in dataclasses.fields(PipelineConfig)} - {"memory"}
+    mem_kw: dict[str, Any] = {}
+    pipe_kw: dict[str, Any] = {}
+    for key, value in d.items():
+        if key == "memory":
+            if not isinstance(value, dict):
+                raise ValueError("config 'memory' must be an object")
+            for k2, v2 in value.items():
+                if k2 not in mem_fields:
+                    raise ValueError(f"unknown memory setting {k2!r}; valid: {', '.join(sorted(mem_fields))}")
+                mem_kw[k2] = v2
+        elif key in mem_fields:
+            mem_kw[key] = value
+        elif key in pipe_fields:
+            pipe_kw[key] = value
+        else:
+            valid = ", ".join(sorted(pipe_fields | mem_fields))
+            raise ValueError(f"unknown setting {key!r}; valid: {valid}")
+    memory = dataclasses.replace(base.memory, **mem_kw)
+    return dataclasses.replace(base, memory=memory, **pipe_kw)
+
+
+def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> PipelineConfig:
+    """Config file (JSON) then command-line overrides (None values ignored)."""
+    cfg = PipelineConfig()
+    if path is not None:
+        cfg = config_from_dict(read_json(path, "config"), cfg)
+    if overrides:
+        cfg = config_from_dict({k: v for k, v in overrides.items() if v is not None}, cfg)
+    return cfg
+
+
+def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, config: PipelineConfig,
+                 size_filter: SizeFilter | None = None, *, video_ids: list[int] | None = None,
+                 on_frame=None) -> dict[str, Any]:
+    """Run the pipeline over every video; on_frame(frame, result) is called per frame.
+
+    Returns counts: frames, frames_without_pose, candidates, size_filtered, detections, seconds.
+    """
+    stats = {"frames": 0, "frames_without_pose": 0, "candidates": 0, "size_filtered": 0, "detections": 0}
+    problems: list[str] = []
+    t0 = time.perf_counter()
+    pipeline_time = 0.0
+    for video_id in video_ids if video_ids is not None else list(dataset.videos):
+        if video_id not in dataset.videos:
+            raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
+        pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
+        for frame in iter_video_frames(dataset, camera, video_id, problems=problems):
+            if pipe.camera != frame.camera:
+                pipe.camera = frame.camera
+            boxes, scores, cids = candidates.get(frame.image.id)
+            t1 = time.perf_counter()
+            result = pipe.process(boxes, scores, cids, frame.pose, frame.t)
+            pipeline_time += time.perf_counter() - t1
+            stats["frames"] += 1
+            stats["frames_without_pose"] += frame.pose is None
+            stats["candidates"] += result.n_candidates
+            stats["size_filtered"] += result.n_size_filtered
+            stats["detections"] += len(result)
+            if on_frame is not None:
+                on_frame(frame, result)
+    if problems:
+        log.warning("%d frame(s) had unusable meta and were not boosted; first: %s", len(problems), problems[0])
+    stats["frames_with_bad_meta"] = len(problems)
+    stats["seconds"] = round(time.perf_counter() - t0, 3)
+    stats["pipeline_ms_per_frame"] = round(1000 * pipeline_time / max(stats["frames"], 1), 3)
+    return stats
+
+
+def results_to_coco(image_id: int, result: FrameResult) -> list[dict[str, Any]]:
+    """One frame's detections as COCO result entries (bbox [x, y, w, h])."""
+    b = result.boxes_xyxy
+    return [
+        {"image_id": image_id, "category_id": int(c),
+         "bbox": [round(float(x1), 2), round(float(y1), 2), round(float(x2 - x1), 2), round(float(y2 - y1), 2)],
+         "score": round(float(s), 5)}
+        for (x1, y1, x2, y2), s, c in zip(b, result.scores, result.class_ids, strict=True)
+    ]
+
+
+def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path,
+                  config: PipelineConfig, size_filter: SizeFilter | None = None) -> tuple[list[dict], dict]:
+    """Load the three files, run, and return (COCO results, stats)."""
+    dataset = Dataset.load(images_path)
+    candidates = Candidates.load(candidates_path, dataset)
+    camera = Camera.from_file(camera_path)
+    results: list[dict[str, Any]] = []
+    stats = run_pipeline(dataset, candidates, camera, config, size_filter,
+                         on_frame=lambda frame, res: results.extend(results_to_coco(frame.image.id, res)))
+    stats["skipped_candidates"] = candidates.skipped
+    return results, stats
+
+
+def write_results(results: list[dict[str, Any]], out_path: str | Path) -> None:
+    """Write atomically: a failed run never leaves a truncated results file."""
+    out_path = Path(out_path)
+    tmp = out_path.with_name(out_path.name + ".tmp")
+    tmp.write_text(json.dumps(results))
+    tmp.replace(out_path)
