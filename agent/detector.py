@@ -1,0 +1,674 @@
+"""Detector backends: YOLO-family ONNX models run with onnxruntime, returning pre-NMS candidates.
+
+The memory map needs every candidate box above a low confidence threshold (not the NMS survivors),
+so the detector decodes the raw head output and leaves NMS to a later stage.
+
+Supported raw output layouts (the first model output, batch 1):
+
+``"v5"``: ``[1, N, 5 + C]``
+    YOLOv5/v7 exports: per candidate cx, cy, w, h (input pixels), objectness, C class
+    probabilities; score = objectness x class probability.
+``"v8"``: ``[1, 4 + C, N]``
+    YOLOv8/v11 (ultralytics) exports: per candidate (column) cx, cy, w, h, C class probabilities;
+    no objectness.
+
+``layout="auto"`` decides from the output shape ``[1, A, B]``: when the number of classes C is known
+(``class_names`` argument or the model's ``names`` metadata) it picks ``"v8"`` if ``A == 4 + C`` and
+``"v5"`` if ``B == 5 + C``; otherwise ``"v8"`` if ``4 < A < B`` (a YOLOv8 head has far fewer channels
+than candidates, e.g. 84 x 8400) and ``"v5"`` if ``A > B > 5`` (e.g. 25200 x 85). Pass
+``layout="v5"`` or ``"v8"`` when a model breaks that rule (e.g. fewer candidates than channels).
+
+Usage::
+
+    detector = make_detector("onnx-yolo", model_path="yolov8n.onnx", conf_threshold=0.01)
+    detections = detector(frame_bgr)          # Detections: boxes_xyxy, scores, class_ids
+    names = detector.class_names
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import logging
+import os
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+__all__ = [
+    "DETECTOR_BACKENDS",
+    "Detections",
+    "LetterboxTransform",
+    "OnnxYoloDetector",
+    "decode_raw_output",
+    "letterbox",
+    "load_class_names",
+    "make_detector",
+]
+
+logger = logging.getLogger(__name__)
+
+LAYOUTS = ("auto", "v5", "v8")
+PAD_VALUE = 114  # ultralytics' letterbox grey
+
+
+# --------------------------------------------------------------------------------------------------
+# Detections
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class Detections:
+    """Detection candidates of one image.
+
+    Attributes
+    ----------
+    boxes_xyxy : np.ndarray
+        (N, 4) float32 boxes ``x1, y1, x2, y2`` in original-image pixels (u right, v down, origin
+        at the top-left corner of the top-left pixel).
+    scores : np.ndarray
+        (N,) float32 confidences in 0..1.
+    class_ids : np.ndarray
+        (N,) int32 class indices into the detector's ``class_names``.
+
+    Inputs are converted to these dtypes; mismatched lengths or shapes raise ``ValueError``.
+    Equality is identity (arrays do not compare to a single bool).
+    """
+
+    boxes_xyxy: np.ndarray
+    scores: np.ndarray
+    class_ids: np.ndarray
+
+    def __post_init__(self) -> None:
+        boxes = np.asarray(self.boxes_xyxy, dtype=np.float32)
+        scores = np.asarray(self.scores, dtype=np.float32)
+        class_ids = np.asarray(self.class_ids, dtype=np.int32)
+        if boxes.size == 0 and boxes.ndim != 2:
+            boxes = boxes.reshape(0, 4)
+        if boxes.ndim != 2 or boxes.shape[1] != 4:
+            raise ValueError(f"boxes_xyxy must have shape (N, 4), got {boxes.shape}")
+        n = boxes.shape[0]
+        if scores.shape != (n,):
+            raise ValueError(f"scores must have shape ({n},) to match boxes_xyxy, got {scores.shape}")
+        if class_ids.shape != (n,):
+            raise ValueError(f"class_ids must have shape ({n},) to match boxes_xyxy, got {class_ids.shape}")
+        object.__setattr__(self, "boxes_xyxy", boxes)
+        object.__setattr__(self, "scores", scores)
+        object.__setattr__(self, "class_ids", class_ids)
+
+    def __len__(self) -> int:
+        return int(self.scores.shape[0])
+
+    def __repr__(self) -> str:
+        return f"Detections(n={len(self)})"
+
+    @classmethod
+    def empty(cls) -> Detections:
+        """No detections: shapes (0, 4), (0,), (0,)."""
+        return cls(np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int32))
+
+    @classmethod
+    def concat(cls, parts: Sequence[Detections]) -> Detections:
+        """Concatenate several ``Detections`` in order (an empty sequence gives :meth:`empty`)."""
+        if not parts:
+            return cls.empty()
+        return cls(
+            np.concatenate([p.boxes_xyxy for p in parts]),
+            np.concatenate([p.scores for p in parts]),
+            np.concatenate([p.class_ids for p in parts]),
+        )
+
+    def select(self, mask_or_indices: np.ndarray) -> Detections:
+        """Subset by a (N,) bool mask or an integer index array (order of the indices kept)."""
+        sel = np.asarray(mask_or_indices)
+        if sel.dtype == bool and sel.shape != (len(self),):
+            raise ValueError(f"boolean mask must have shape ({len(self)},), got {sel.shape}")
+        return Detections(self.boxes_xyxy[sel], self.scores[sel], self.class_ids[sel])
+
+
+# --------------------------------------------------------------------------------------------------
+# Letterbox
+# --------------------------------------------------------------------------------------------------
+
+
+@dataclass(frozen=True, slots=True)
+class LetterboxTransform:
+    """How an image was placed in the network input: ``u_in = u * scale_x + pad_left``.
+
+    Attributes
+    ----------
+    scale_x, scale_y : float
+        Resized size over original size per axis (``new_w / width``, ``new_h / height``): the
+        actual scales of the resized content, which differ from the nominal gain by rounding.
+    pad_left, pad_top : int
+        Pixels of padding before the content, in input pixels.
+    width, height : int
+        Original image size in pixels.
+    """
+
+    scale_x: float
+    scale_y: float
+    pad_left: int
+    pad_top: int
+    width: int
+    height: int
+
+    def unmap_boxes(self, boxes_xyxy: np.ndarray) -> np.ndarray:
+        """Map (N, 4) float boxes from input pixels back to original pixels, clipped to the image.
+
+        Subtracts the padding, divides by the per-axis scale and clips x to [0, width] and y to
+        [0, height] (pixel-edge coordinates). Returns a new (N, 4) float32 array.
+        """
+        boxes = np.asarray(boxes_xyxy, dtype=np.float32)
+        offset = np.array([self.pad_left, self.pad_top, self.pad_left, self.pad_top], np.float32)
+        inv_scale = np.array(
+            [1 / self.scale_x, 1 / self.scale_y, 1 / self.scale_x, 1 / self.scale_y], np.float32
+        )
+        out = (boxes - offset) * inv_scale
+        upper = np.array([self.width, self.height, self.width, self.height], np.float32)
+        return np.clip(out, 0.0, upper, out=out)
+
+
+def letterbox(
+    image: np.ndarray,
+    new_shape: tuple[int, int],
+    *,
+    stride: int = 32,
+    auto: bool = False,
+    pad_value: int = PAD_VALUE,
+) -> tuple[np.ndarray, LetterboxTransform]:
+    """Resize keeping the aspect ratio and pad, as ultralytics' ``LetterBox`` (scale-up allowed).
+
+    Parameters
+    ----------
+    image : np.ndarray
+        (H, W, C) uint8 image.
+    new_shape : (int, int)
+        Target (height, width) in pixels.
+    stride : int
+        With ``auto``, the padded size is the smallest multiple of ``stride`` holding the content.
+    auto : bool
+        Minimal stride-aligned padding (rectangular inference, dynamic-shape models only) instead
+        of padding to ``new_shape``.
+    pad_value : int
+        Grey level of the padding (114 as in ultralytics).
+
+    Returns
+    -------
+    padded : np.ndarray
+        (H', W', C) uint8, the content centred: the odd pixel of padding, if any, goes to the
+        bottom/right (ultralytics' ``round(d -/+ 0.1)``).
+    transform : LetterboxTransform
+        The mapping, for :meth:`LetterboxTransform.unmap_boxes`.
+    """
+    height, width = image.shape[:2]
+    gain = min(new_shape[0] / height, new_shape[1] / width)
+    # at least one pixel, so that extreme aspect ratios (e.g. 1 x 5000) still resize
+    new_w, new_h = max(int(round(width * gain)), 1), max(int(round(height * gain)), 1)
+    dw, dh = new_shape[1] - new_w, new_shape[0] - new_h
+    if auto:
+        dw, dh = dw % stride, dh % stride
+    left, right = int(round(dw / 2 - 0.1)), int(round(dw / 2 + 0.1))
+    top, bottom = int(round(dh / 2 - 0.1)), int(round(dh / 2 + 0.1))
+    resized = image if (new_w, new_h) == (width, height) else cv2.resize(
+        image, (new_w, new_h), interpolation=cv2.INTER_LINEAR
+    )
+    padded = cv2.copyMakeBorder(
+        resized, top, bottom, left, right, cv2.BORDER_CONSTANT, value=(pad_value,) * 3
+    )
+    transform = LetterboxTransform(
+        scale_x=new_w / width, scale_y=new_h / height, pad_left=left, pad_top=top, width=width, height=height
+    )
+    return padded, transform
+
+
+# --------------------------------------------------------------------------------------------------
+# Class names
+# --------------------------------------------------------------------------------------------------
+
+
+def _names_from_mapping(mapping: Mapping[Any, Any]) -> list[str]:
+    """{0: 'person', '1': 'car'} -> ['person', 'car']; missing indices become 'classK'."""
+    by_index = {int(k): str(v) for k, v in mapping.items()}
+    if not by_index:
+        return []
+    if min(by_index) < 0:
+        raise ValueError(f"class indices must be >= 0, got {min(by_index)}")
+    return [by_index.get(i, f"class{i}") for i in range(max(by_index) + 1)]
+
+
+def load_class_names(path: str | os.PathLike[str]) -> list[str]:
+    """Read class names from a file.
+
+    ``.json``: a list of names or an ``{index: name}`` object. Anything else: a text file with one
+    name per line (surrounding whitespace stripped, blank lines skipped), as ``coco.names``.
+    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` for unusable content.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"class names file not found: {path}")
+    text = path.read_text(encoding="utf-8")
+    if path.suffix.lower() == ".json":
+        content = json.loads(text)
+        if isinstance(content, dict):
+            return _names_from_mapping(content)
+        if isinstance(content, list) and all(isinstance(n, str) for n in content):
+            return list(content)
+        raise ValueError(f"{path}: expected a JSON list of names or an {{index: name}} object")
+    return [line.strip() for line in text.splitlines() if line.strip()]
+
+
+def _names_from_metadata(metadata: Mapping[str, str]) -> list[str] | None:
+    """Class names from ultralytics' ``names`` custom metadata (a Python dict literal), if valid."""
+    raw = metadata.get("names")
+    if raw is None:
+        return None
+    try:
+        value = ast.literal_eval(raw)  # literals only: never evaluates code
+        if isinstance(value, dict):
+            return _names_from_mapping(value)
+        if isinstance(value, list | tuple) and all(isinstance(n, str) for n in value):
+            return list(value)
+    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+        pass
+    logger.warning("ignoring unparseable 'names' metadata in the model: %.80r", raw)
+    return None
+
+
+def _resolve_class_names(arg: Sequence[str] | Mapping[int, str] | str | os.PathLike[str] | None) -> list[str] | None:
+    if arg is None:
+        return None
+    if isinstance(arg, str | os.PathLike):
+        return load_class_names(arg)
+    if isinstance(arg, Mapping):
+        return _names_from_mapping(arg)
+    return [str(n) for n in arg]
+
+
+# --------------------------------------------------------------------------------------------------
+# Decoding
+# --------------------------------------------------------------------------------------------------
+
+
+def _detect_layout(shape: tuple[int, ...], num_classes: int | None) -> str:
+    """Choose "v5" or "v8" for a raw output shape (see the module docstring); ValueError if neither."""
+    expected = "[1, N, 5 + C] (YOLOv5/v7, layout='v5') or [1, 4 + C, N] (YOLOv8/v11, layout='v8')"
+    if len(shape) != 3 or shape[0] != 1:
+        raise ValueError(f"unsupported model output shape {list(shape)}: expected {expected}")
+    a, b = shape[1], shape[2]
+    if num_classes is not None:
+        v8, v5 = a == 4 + num_classes, b == 5 + num_classes
+        if v8 and not v5:
+            return "v8"
+        if v5 and not v8:
+            return "v5"
+        if not (v8 or v5):
+            raise ValueError(
+                f"unsupported model output shape {list(shape)} for {num_classes} classes: expected {expected}"
+            )
+    if 4 < a < b:
+        return "v8"
+    if a > b > 5:
+        return "v5"
+    raise ValueError(
+        f"cannot tell the layout of model output shape {list(shape)}: expected {expected}; "
+        "pass layout='v5' or layout='v8'"
+    )
+
+
+def _check_layout(shape: tuple[int, ...], layout: str) -> int:
+    """Validate a shape against an explicit layout; returns the number of classes C."""
+    expected = "[1, N, 5 + C]" if layout == "v5" else "[1, 4 + C, N]"
+    ok = len(shape) == 3 and shape[0] == 1 and (shape[2] > 5 if layout == "v5" else shape[1] > 4)
+    if not ok:
+        raise ValueError(f"model output shape {list(shape)} does not fit layout={layout!r}: expected {expected}")
+    return shape[2] - 5 if layout == "v5" else shape[1] - 4
+
+
+def _top_k(scores: np.ndarray, k: int) -> np.ndarray:
+    """Ascending indices of the k largest scores (all indices if there are at most k)."""
+    if scores.shape[0] <= k:
+        return np.arange(scores.shape[0])
+    return np.sort(np.argpartition(scores, scores.shape[0] - k)[-k:])
+
+
+def decode_raw_output(
+    raw: np.ndarray,
+    layout: str,
+    conf_threshold: float,
+    *,
+    multi_label: bool = False,
+    max_candidates: int = 30000,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Decode a raw YOLO head output into candidates in input pixels (no NMS).
+
+    Parameters
+    ----------
+    raw : np.ndarray
+        ``[1, N, 5 + C]`` (``layout="v5"``) or ``[1, 4 + C, N]`` (``layout="v8"``), float; boxes
+        cx, cy, w, h in input pixels, probabilities in 0..1.
+    layout : {"v5", "v8"}
+    conf_threshold : float
+        Keep pairs with score >= this (v5 score = objectness x class probability).
+    multi_label : bool
+        False: one pair per candidate, its best class. True: every (candidate, class) pair above
+        the threshold.
+    max_candidates : int
+        Keep at most this many pairs, the highest-scoring (``np.argpartition``, no full sort).
+
+    Returns
+    -------
+    boxes_xyxy : (M, 4) float32 in input pixels
+    scores : (M,) float32
+    class_ids : (M,) int32
+        In candidate order (then class order with ``multi_label``).
+    """
+    out = raw[0]
+    if layout == "v8":
+        cls = out[4:]  # (C, N)
+        best = cls.max(axis=0)
+        keep = np.flatnonzero(best >= conf_threshold)
+        cls_kept = cls[:, keep].T  # (K, C)
+        boxes_cxcywh = out[:4, keep].T
+    else:
+        # score = obj * cls; with obj >= 0, the best class is argmax(cls) and best = obj * max(cls).
+        obj = out[:, 4]
+        best = obj * out[:, 5:].max(axis=1)
+        keep = np.flatnonzero(best >= conf_threshold)
+        cls_kept = out[keep, 5:] * obj[keep, None]
+        boxes_cxcywh = out[keep, :4]
+    if multi_label:
+        rows, class_ids = np.nonzero(cls_kept >= conf_threshold)  # row-major: candidate, then class
+        scores = cls_kept[rows, class_ids]
+    else:
+        rows = np.arange(keep.shape[0])
+        class_ids = cls_kept.argmax(axis=1) if cls_kept.shape[0] else np.zeros(0, np.intp)
+        scores = best[keep]
+    if scores.shape[0] > max_candidates:
+        top = _top_k(scores, max_candidates)
+        rows, class_ids, scores = rows[top], class_ids[top], scores[top]
+    cxcywh = boxes_cxcywh[rows].astype(np.float32, copy=False)
+    half_wh = cxcywh[:, 2:4] * 0.5
+    boxes = np.concatenate([cxcywh[:, :2] - half_wh, cxcywh[:, :2] + half_wh], axis=1)
+    return boxes, scores.astype(np.float32, copy=False), class_ids.astype(np.int32, copy=False)
+
+
+# --------------------------------------------------------------------------------------------------
+# Detector
+# --------------------------------------------------------------------------------------------------
+
+
+def _static_dim(dim: Any) -> int | None:
+    return dim if isinstance(dim, int) and dim > 0 else None
+
+
+def _as_hw(size: int | Sequence[int]) -> tuple[int, int]:
+    if isinstance(size, int | np.integer):
+        hw = (int(size), int(size))
+    else:
+        hw = tuple(int(s) for s in size)
+    if len(hw) != 2 or min(hw) <= 0:
+        raise ValueError(f"input_size must be a positive int or (height, width), got {size!r}")
+    return hw  # type: ignore[return-value]
+
+
+class OnnxYoloDetector:
+    """YOLO-family ONNX model (raw, pre-NMS output) run with onnxruntime; returns all candidates.
+
+    Parameters
+    ----------
+    model_path : str or PathLike
+        ONNX file with one image input ``[1, 3, H, W]`` (float32 or float16, RGB in 0..1) whose
+        first output is a raw head output in one of the layouts of the module docstring.
+    class_names : sequence of str, {index: name} mapping, path, or None
+        Overrides the model's ``names`` metadata; a ``str``/path is read with
+        :func:`load_class_names`. Default: the metadata, else ``class0, class1, ...``.
+    input_size : int or (height, width), optional
+        Network input size in pixels. Default: the model's static input size, else 640. Must
+        agree with a static input size.
+    conf_threshold : float
+        Keep candidates with score >= this (0..1; low on purpose: the memory map re-scores them).
+    max_candidates : int
+        Keep at most this many candidates per image, the highest-scoring.
+    intra_op_threads, inter_op_threads : int
+        onnxruntime thread pools.
+    providers : sequence of str
+        onnxruntime execution providers, in order of preference.
+    layout : {"auto", "v5", "v8"}
+        Output layout; "auto" decides from the output shape (module docstring).
+    multi_label : bool
+        Return every (box, class) pair above the threshold instead of the best class per box.
+    rect : bool
+        Minimal stride-aligned padding instead of padding to ``input_size`` (models with dynamic
+        height/width only); the stride is the model's ``stride`` metadata, else 32.
+
+    Raises
+    ------
+    FileNotFoundError
+        The model file does not exist.
+    ValueError
+        Bad arguments, an input that is not ``[1, 3, H, W]``, an output shape that fits no layout,
+        or class names that disagree with the model's number of classes.
+    """
+
+    def __init__(
+        self,
+        model_path: str | os.PathLike[str],
+        *,
+        class_names: Sequence[str] | Mapping[int, str] | str | os.PathLike[str] | None = None,
+        input_size: int | Sequence[int] | None = None,
+        conf_threshold: float = 0.01,
+        max_candidates: int = 30000,
+        intra_op_threads: int = 2,
+        inter_op_threads: int = 1,
+        providers: Sequence[str] = ("CPUExecutionProvider",),
+        layout: str = "auto",
+        multi_label: bool = False,
+        rect: bool = False,
+    ) -> None:
+        import onnxruntime as ort  # heavy import kept out of module import time
+
+        self.model_path = Path(model_path)
+        if not self.model_path.is_file():
+            raise FileNotFoundError(f"ONNX model not found: {self.model_path}")
+        if layout not in LAYOUTS:
+            raise ValueError(f"layout must be one of {LAYOUTS}, got {layout!r}")
+        if not 0.0 <= conf_threshold <= 1.0:
+            raise ValueError(f"conf_threshold must be in 0..1, got {conf_threshold}")
+        if max_candidates < 1:
+            raise ValueError(f"max_candidates must be >= 1, got {max_candidates}")
+        self.conf_threshold = float(conf_threshold)
+        self.max_candidates = int(max_candidates)
+        self.multi_label = bool(multi_label)
+
+        options = ort.SessionOptions()
+        options.intra_op_num_threads = int(intra_op_threads)
+        options.inter_op_num_threads = int(inter_op_threads)
+        options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
+        options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
+        self._session = ort.InferenceSession(str(self.model_path), options, providers=list(providers))
+
+        model_input = self._session.get_inputs()[0]
+        shape = list(model_input.shape)
+        if len(shape) != 4 or _static_dim(shape[1]) not in (3, None) or _static_dim(shape[0]) not in (1, None):
+            raise ValueError(f"model input {model_input.name!r} has shape {shape}: expected [1, 3, H, W]")
+        self._input_name = model_input.name
+        self._input_dtype = np.float16 if model_input.type == "tensor(float16)" else np.float32
+        static_hw = (_static_dim(shape[2]), _static_dim(shape[3]))
+        self._dynamic_input = None in static_hw
+        if input_size is None:
+            self.input_size = static_hw if not self._dynamic_input else (640, 640)  # type: ignore[assignment]
+        else:
+            self.input_size = _as_hw(input_size)
+            if not self._dynamic_input and self.input_size != static_hw:
+                raise ValueError(
+                    f"input_size {self.input_size} disagrees with the model's static input size {static_hw}"
+                )
+        if rect and not self._dynamic_input:
+            raise ValueError("rect=True needs a model with dynamic input height/width")
+        self.rect = bool(rect)
+
+        metadata = dict(self._session.get_modelmeta().custom_metadata_map)
+        try:
+            self.stride = max(int(ast.literal_eval(metadata.get("stride", "32"))), 1)
+        except (ValueError, SyntaxError, TypeError):
+            self.stride = 32
+        user_names = _resolve_class_names(class_names)
+        self._names_from_user = user_names is not None
+        self._names = user_names if user_names is not None else _names_from_metadata(metadata)
+
+        self._requested_layout = layout
+        self._layout: str | None = None
+        self._num_classes: int | None = None
+        self._resolved_shape: tuple[int, ...] | None = None
+        output_shape = tuple(self._session.get_outputs()[0].shape)
+        if all(_static_dim(d) is not None for d in output_shape):
+            self._resolve_output(output_shape)  # fail fast on unsupported static shapes
+        logger.info(
+            "loaded %s: input %s %s, layout %s, %s classes",
+            self.model_path.name,
+            self._input_name,
+            self.input_size,
+            self._layout or "(decided at first run)",
+            self._num_classes if self._num_classes is not None else "?",
+        )
+
+    # ---- properties ------------------------------------------------------------------------------
+
+    @property
+    def class_names(self) -> list[str]:
+        """Class names indexed by ``Detections.class_ids`` (a copy).
+
+        If the model's output shape is symbolic and no names were given, the first access runs
+        one inference on a blank image to learn the number of classes.
+        """
+        if self._num_classes is None and self._names is None:
+            self(np.full((*self.input_size, 3), PAD_VALUE, np.uint8))
+        if self._names is None:
+            assert self._num_classes is not None
+            return [f"class{i}" for i in range(self._num_classes)]
+        return list(self._names)
+
+    @property
+    def layout(self) -> str | None:
+        """"v5" or "v8" (None until the first run for a model with a symbolic output shape)."""
+        return self._layout
+
+    # ---- pipeline --------------------------------------------------------------------------------
+
+    def preprocess(self, image_bgr: np.ndarray) -> tuple[np.ndarray, LetterboxTransform]:
+        """Letterbox and convert a BGR image to the network input.
+
+        Parameters
+        ----------
+        image_bgr : np.ndarray
+            (H, W, 3) uint8 BGR image.
+
+        Returns
+        -------
+        blob : np.ndarray
+            (1, 3, h, w) float32 (or float16) RGB in 0..1, NCHW.
+        transform : LetterboxTransform
+
+        Raises
+        ------
+        TypeError
+            Not a numpy array, or dtype other than uint8.
+        ValueError
+            Shape other than (H, W, 3) with H, W >= 1.
+        """
+        if not isinstance(image_bgr, np.ndarray):
+            raise TypeError(f"image must be a numpy array, got {type(image_bgr).__name__}")
+        if image_bgr.dtype != np.uint8:
+            raise TypeError(f"image must be uint8 (H, W, 3) BGR, got dtype {image_bgr.dtype}")
+        if image_bgr.ndim != 3 or image_bgr.shape[2] != 3 or min(image_bgr.shape[:2]) < 1:
+            raise ValueError(f"image must have shape (H, W, 3) BGR, got {image_bgr.shape}")
+        padded, transform = letterbox(image_bgr, self.input_size, stride=self.stride, auto=self.rect)
+        blob = np.empty((1, 3, *padded.shape[:2]), dtype=self._input_dtype)
+        # BGR -> RGB, HWC -> CHW and /255 in one pass into the output buffer.
+        np.multiply(padded[..., ::-1].transpose(2, 0, 1), np.float32(1 / 255), out=blob[0], casting="unsafe")
+        return blob, transform
+
+    def infer(self, blob: np.ndarray) -> np.ndarray:
+        """Run the network: (1, 3, h, w) input -> the first raw output as float32."""
+        return np.asarray(self._session.run(None, {self._input_name: blob})[0], dtype=np.float32)
+
+    def decode(self, raw: np.ndarray, transform: LetterboxTransform) -> Detections:
+        """Raw output -> :class:`Detections` in original-image pixels (threshold, top-k, un-letterbox).
+
+        Boxes that end up with zero area after clipping to the image (entirely in the padding or
+        outside the image) are dropped.
+        """
+        layout = self._resolve_output(tuple(raw.shape))
+        boxes, scores, class_ids = decode_raw_output(
+            raw, layout, self.conf_threshold, multi_label=self.multi_label, max_candidates=self.max_candidates
+        )
+        boxes = transform.unmap_boxes(boxes)
+        inside = (boxes[:, 2] > boxes[:, 0]) & (boxes[:, 3] > boxes[:, 1])
+        if not inside.all():
+            boxes, scores, class_ids = boxes[inside], scores[inside], class_ids[inside]
+        return Detections(boxes, scores, class_ids)
+
+    def __call__(self, image_bgr: np.ndarray) -> Detections:
+        """Detect in one image.
+
+        Parameters
+        ----------
+        image_bgr : np.ndarray
+            (H, W, 3) uint8 BGR image (OpenCV's order).
+
+        Returns
+        -------
+        Detections
+            All candidates with score >= ``conf_threshold`` (at most ``max_candidates``), boxes
+            in original-image pixels clipped to the image, in the model's candidate order. No NMS.
+        """
+        blob, transform = self.preprocess(image_bgr)
+        return self.decode(self.infer(blob), transform)
+
+    # ---- helpers ---------------------------------------------------------------------------------
+
+    def _resolve_output(self, shape: tuple[int, ...]) -> str:
+        """Decide (once) and validate the layout for an output shape; checks the class count."""
+        if shape == self._resolved_shape:
+            return self._layout  # type: ignore[return-value]
+        names_count = len(self._names) if self._names is not None else None
+        if self._requested_layout == "auto":
+            layout = _detect_layout(shape, names_count)
+        else:
+            layout = self._requested_layout
+        num_classes = _check_layout(shape, layout)
+        if names_count is not None and names_count != num_classes:
+            source = "class_names" if self._names_from_user else "the model's 'names' metadata"
+            raise ValueError(
+                f"{source} has {names_count} names but the model output {list(shape)} "
+                f"(layout {layout!r}) has {num_classes} classes"
+            )
+        self._layout, self._num_classes, self._resolved_shape = layout, num_classes, shape
+        return layout
+
+
+# --------------------------------------------------------------------------------------------------
+# Registry
+# --------------------------------------------------------------------------------------------------
+
+DETECTOR_BACKENDS: dict[str, Callable[..., Callable[[np.ndarray], Detections]]] = {
+    "onnx-yolo": OnnxYoloDetector,
+}
+
+
+def make_detector(name: str, **kwargs: Any) -> Callable[[np.ndarray], Detections]:
+    """Create a detector backend by registry name (see ``DETECTOR_BACKENDS``).
+
+    Raises ``ValueError`` listing the valid names for an unknown ``name``.
+    """
+    try:
+        backend = DETECTOR_BACKENDS[name]
+    except KeyError:
+        valid = ", ".join(sorted(DETECTOR_BACKENDS))
+        raise ValueError(f"unknown detector backend {name!r}; valid names: {valid}") from None
+    return backend(**kwargs)
