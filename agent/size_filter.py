@@ -117,19 +117,27 @@ class SizeFilter:
         dep = np.asarray(depression_deg, dtype=np.float64)
         ok = np.ones(diag.shape, dtype=bool)
         known = np.isfinite(rng) & np.isfinite(dep)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            log_size = np.log(diag * rng / focal_px)
         for name in np.unique(names):
             sel = (names == name) & known
-            if not sel.any():
-                continue
-            band = self.bands.get(str(name))
-            if band is None:
-                _warn_unfiltered(str(name))
-                continue
-            mean, std = band.mean_std(dep[sel])
-            ok[sel] = np.abs(log_size[sel] - mean) <= self.k * std
+            if sel.any():
+                ok[sel] = self.accept_class(str(name), diag[sel], rng[sel], dep[sel], focal_px)
         return ok
+
+    def accept_class(self, name: str, diag_px: ArrayLike, slant_range_m: ArrayLike,
+                     depression_deg: ArrayLike, focal_px: float) -> NDArray[np.bool_]:
+        """accept() for boxes of one class: (N,) bool; NaN range or depression is accepted."""
+        diag = np.asarray(diag_px, dtype=np.float64)
+        band = self.bands.get(name)
+        if band is None:
+            _warn_unfiltered(name)
+            return np.ones(diag.shape, dtype=bool)
+        rng = np.asarray(slant_range_m, dtype=np.float64)
+        dep = np.asarray(depression_deg, dtype=np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_size = np.log(diag * rng / focal_px)
+        mean, std = band.mean_std(dep)
+        inside = np.abs(log_size - mean) <= self.k * std
+        return inside | ~(np.isfinite(rng) & np.isfinite(dep))
 
     # ---------------------------------------------------------------- persistence
     def to_dict(self) -> dict[str, Any]:

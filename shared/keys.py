@@ -1,0 +1,232 @@
+"""Zenoh key space of uav-memory-maps (DESIGN.md section 4): key builders, selectors and a parser.
+
+Every key lives under one prefix (default ``uavmm/v1``); names (UAV ids, class names) are single key
+chunks, so they are validated here and by the message codecs with the same rule (:func:`name_problem`).
+"""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+import numpy as np
+
+__all__ = [
+    "DEFAULT_PREFIX",
+    "JOINT_UAV",
+    "KEY_KINDS",
+    "MAX_NAME_LEN",
+    "MAX_ZOOM",
+    "KeySpace",
+    "ParsedKey",
+    "name_problem",
+    "validate_name",
+]
+
+DEFAULT_PREFIX = "uavmm/v1"
+#: Value of the ``uav`` field of messages published by the fusion server (and of ParsedKey.uav for
+#: ``joint/...`` keys), so "message uav equals key uav" is one uniform check.
+JOINT_UAV = "joint"
+MAX_NAME_LEN = 128
+MAX_ZOOM = 24
+KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks")
+
+# Characters with a meaning in Zenoh key expressions ('/' separates chunks, the rest are wildcards or
+# reserved); '@' is refused only as the first character because Zenoh treats '@...' chunks as verbatim
+# chunks that wildcards never match.
+_FORBIDDEN_CHARS = frozenset("/*$?#")
+_DECIMAL = re.compile(r"(?:0|[1-9][0-9]*)\Z")
+
+
+def name_problem(value: object) -> str | None:
+    """Say why ``value`` is not a valid UAV id or class name, or return None when it is valid.
+
+    A valid name is a ``str`` of 1..128 characters, all printable, none of them whitespace or one of
+    ``/ * $ ? #``, and not starting with ``@``. Such a name is exactly one Zenoh key chunk.
+    """
+    if not isinstance(value, str):
+        return f"must be a str, got {type(value).__name__}"
+    if not value:
+        return "must not be empty"
+    if len(value) > MAX_NAME_LEN:
+        return f"must have at most {MAX_NAME_LEN} characters, got {len(value)}"
+    if value.startswith("@"):
+        return f"must not start with '@', got {value!r}"
+    for char in value:
+        if char in _FORBIDDEN_CHARS:
+            return f"must not contain {char!r}, got {value!r}"
+        if char.isspace() or not char.isprintable():
+            return f"must not contain whitespace or non-printable characters, got {value!r}"
+    return None
+
+
+def validate_name(value: object, field: str) -> str:
+    """Return ``value`` if it is a valid name (see :func:`name_problem`), else raise ValueError.
+
+    ``field`` names the argument in the error message, e.g. ``"uav"`` or ``"cls"``.
+    """
+    problem = name_problem(value)
+    if problem is not None:
+        raise ValueError(f"{field} {problem}")
+    return value  # type: ignore[return-value]
+
+
+def _validate_int(value: object, field: str, low: int, high: int) -> int:
+    # bool is an int subclass but never a valid coordinate
+    if isinstance(value, bool) or not isinstance(value, int | np.integer):
+        raise ValueError(f"{field} must be an int, got {type(value).__name__} {value!r}")
+    value = int(value)  # type: ignore[arg-type]
+    if not low <= value <= high:
+        raise ValueError(f"{field} must be in {low}..{high}, got {value}")
+    return value
+
+
+def _validate_tile(z: object, x: object, y: object) -> tuple[int, int, int]:
+    z = _validate_int(z, "z", 0, MAX_ZOOM)
+    side = 1 << z
+    x = _validate_int(x, "x", 0, side - 1)
+    y = _validate_int(y, "y", 0, side - 1)
+    return z, x, y
+
+
+def _name_or_star(value: object, field: str) -> str:
+    if value == "*":
+        return "*"
+    return validate_name(value, field)
+
+
+@dataclass(frozen=True, slots=True)
+class ParsedKey:
+    """A key of the key space taken apart by :meth:`KeySpace.parse`.
+
+    kind: one of ``KEY_KINDS``. ``uav`` is the UAV id, or ``"joint"`` for ``joint/...`` keys.
+    ``cls``, ``z``, ``x``, ``y`` are set for tile keys and None otherwise.
+    """
+
+    kind: str
+    uav: str
+    cls: str | None = None
+    z: int | None = None
+    x: int | None = None
+    y: int | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class KeySpace:
+    """Builders and parser for the keys under one prefix.
+
+    prefix: one or more non-empty key chunks separated by ``/`` (default ``uavmm/v1``), without
+    wildcards and without a leading or trailing ``/``.
+
+    Builders that take ``uav="*"`` (or ``cls="*"``) return a selector for all UAVs (classes); every
+    other name must pass :func:`validate_name`. All builders raise ValueError naming the bad field.
+    """
+
+    prefix: str = DEFAULT_PREFIX
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.prefix, str) or not self.prefix:
+            raise ValueError(f"prefix must be a non-empty str, got {self.prefix!r}")
+        for chunk in self.prefix.split("/"):
+            problem = name_problem(chunk)
+            if problem is not None:
+                raise ValueError(f"prefix chunk {chunk!r} of {self.prefix!r} {problem}")
+
+    # ---- per-UAV keys -------------------------------------------------------------------------
+    def uav_tile(self, uav: str, cls: str, z: int, x: int, y: int) -> str:
+        """Key of one tile of one UAV: ``{prefix}/uav/{uav}/tiles/{cls}/{z}/{x}/{y}``."""
+        uav = validate_name(uav, "uav")
+        cls = validate_name(cls, "cls")
+        z, x, y = _validate_tile(z, x, y)
+        return f"{self.prefix}/uav/{uav}/tiles/{cls}/{z}/{x}/{y}"
+
+    def uav_tiles_all(self, uav: str = "*", cls: str | None = None) -> str:
+        """Selector of tiles: ``{prefix}/uav/{uav}/tiles/**``, or ``.../tiles/{cls}/**`` with ``cls``."""
+        uav = _name_or_star(uav, "uav")
+        if cls is None:
+            return f"{self.prefix}/uav/{uav}/tiles/**"
+        cls = _name_or_star(cls, "cls")
+        return f"{self.prefix}/uav/{uav}/tiles/{cls}/**"
+
+    def uav_state(self, uav: str) -> str:
+        """Key of a UAV's state message: ``{prefix}/uav/{uav}/state`` (``uav="*"``: all UAVs)."""
+        return f"{self.prefix}/uav/{_name_or_star(uav, 'uav')}/state"
+
+    def uav_tracks(self, uav: str) -> str:
+        """Key of a UAV's local tracks: ``{prefix}/uav/{uav}/tracks`` (``uav="*"``: all UAVs)."""
+        return f"{self.prefix}/uav/{_name_or_star(uav, 'uav')}/tracks"
+
+    def uav_alive(self, uav: str) -> str:
+        """Key of a UAV's liveliness token: ``{prefix}/uav/{uav}/alive`` (``uav="*"``: all UAVs)."""
+        return f"{self.prefix}/uav/{_name_or_star(uav, 'uav')}/alive"
+
+    def uav_all(self) -> str:
+        """Selector of everything the agents publish: ``{prefix}/uav/**``."""
+        return f"{self.prefix}/uav/**"
+
+    # ---- fusion (joint) keys ------------------------------------------------------------------
+    def joint_tile(self, cls: str, z: int, x: int, y: int) -> str:
+        """Key of one fused tile: ``{prefix}/joint/tiles/{cls}/{z}/{x}/{y}``."""
+        cls = validate_name(cls, "cls")
+        z, x, y = _validate_tile(z, x, y)
+        return f"{self.prefix}/joint/tiles/{cls}/{z}/{x}/{y}"
+
+    def joint_tiles_all(self, cls: str = "*") -> str:
+        """Selector of fused tiles: ``{prefix}/joint/tiles/{cls}/**`` (``cls="*"``: all classes)."""
+        return f"{self.prefix}/joint/tiles/{_name_or_star(cls, 'cls')}/**"
+
+    def joint_tracks(self) -> str:
+        """Key of the global tracks: ``{prefix}/joint/tracks``."""
+        return f"{self.prefix}/joint/tracks"
+
+    def joint_all(self) -> str:
+        """Selector (and queryable) of everything the fusion server publishes: ``{prefix}/joint/**``."""
+        return f"{self.prefix}/joint/**"
+
+    # ---- parser ------------------------------------------------------------------------------
+    def parse(self, key: str) -> ParsedKey:
+        """Take a concrete key of this key space apart.
+
+        Raises ValueError for anything that :meth:`uav_tile`, :meth:`uav_state`, :meth:`uav_tracks`,
+        :meth:`uav_alive`, :meth:`joint_tile` or :meth:`joint_tracks` would not build: another
+        prefix, wildcards, unknown layout, invalid names, non-canonical integers (``"07"``, ``"+7"``)
+        and tiles outside the zoom level.
+        """
+        if not isinstance(key, str):
+            raise ValueError(f"key must be a str, got {type(key).__name__}")
+        head = self.prefix + "/"
+        if not key.startswith(head):
+            raise ValueError(f"key {key!r} is not under prefix {self.prefix!r}")
+        parts = key[len(head) :].split("/")
+        try:
+            return self._parse_parts(parts)
+        except ValueError as exc:
+            raise ValueError(f"key {key!r}: {exc}") from None
+
+    def _parse_parts(self, parts: list[str]) -> ParsedKey:
+        if parts[0] == "uav" and len(parts) >= 3:
+            uav = validate_name(parts[1], "uav")
+            rest = parts[2:]
+            if len(rest) == 1 and rest[0] in ("state", "tracks", "alive"):
+                return ParsedKey(kind=f"uav_{rest[0]}", uav=uav)
+            if len(rest) == 5 and rest[0] == "tiles":
+                cls, z, x, y = self._parse_tile(rest[1:])
+                return ParsedKey(kind="uav_tile", uav=uav, cls=cls, z=z, x=x, y=y)
+        elif parts[0] == "joint":
+            if parts[1:] == ["tracks"]:
+                return ParsedKey(kind="joint_tracks", uav=JOINT_UAV)
+            if len(parts) == 6 and parts[1] == "tiles":
+                cls, z, x, y = self._parse_tile(parts[2:])
+                return ParsedKey(kind="joint_tile", uav=JOINT_UAV, cls=cls, z=z, x=x, y=y)
+        raise ValueError(f"unknown key layout {'/'.join(parts)!r}")
+
+    @staticmethod
+    def _parse_tile(parts: list[str]) -> tuple[str, int, int, int]:
+        cls = validate_name(parts[0], "cls")
+        numbers = []
+        for field, text in zip(("z", "x", "y"), parts[1:], strict=True):
+            if not _DECIMAL.match(text):
+                raise ValueError(f"{field} must be a canonical decimal integer, got {text!r}")
+            numbers.append(int(text))
+        z, x, y = _validate_tile(*numbers)
+        return cls, z, x, y

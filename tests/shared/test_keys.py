@@ -1,0 +1,171 @@
+"""Tests of the Zenoh key space: builders, selectors, parser and name validation."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import zenoh
+from hypothesis import given
+from hypothesis import strategies as st
+
+from shared.keys import KeySpace, ParsedKey, name_problem, validate_name
+
+KS = KeySpace()
+
+# printable, no whitespace, none of / * $ ? #, not starting with '@'
+name_chars = st.characters(
+    min_codepoint=33, max_codepoint=0x2FF, blacklist_characters="/*$?#", blacklist_categories=("Cc", "Z")
+)
+names = st.text(name_chars, min_size=1, max_size=20).filter(lambda s: s.isprintable() and not s.startswith("@"))
+
+
+def tiles_at(z: int) -> st.SearchStrategy[tuple[int, int, int]]:
+    return st.tuples(st.just(z), st.integers(0, 2**z - 1), st.integers(0, 2**z - 1))
+
+
+tiles = st.integers(0, 24).flatmap(tiles_at)
+
+
+def test_builders_produce_the_documented_keys() -> None:
+    assert KS.uav_tile("uav1", "person", 18, 137625, 91125) == "uavmm/v1/uav/uav1/tiles/person/18/137625/91125"
+    assert KS.uav_tiles_all() == "uavmm/v1/uav/*/tiles/**"
+    assert KS.uav_tiles_all("uav1") == "uavmm/v1/uav/uav1/tiles/**"
+    assert KS.uav_tiles_all("*", "person") == "uavmm/v1/uav/*/tiles/person/**"
+    assert KS.uav_state("uav1") == "uavmm/v1/uav/uav1/state"
+    assert KS.uav_state("*") == "uavmm/v1/uav/*/state"
+    assert KS.uav_tracks("uav1") == "uavmm/v1/uav/uav1/tracks"
+    assert KS.uav_alive("uav1") == "uavmm/v1/uav/uav1/alive"
+    assert KS.uav_all() == "uavmm/v1/uav/**"
+    assert KS.joint_tile("person", 18, 1, 2) == "uavmm/v1/joint/tiles/person/18/1/2"
+    assert KS.joint_tiles_all() == "uavmm/v1/joint/tiles/*/**"
+    assert KS.joint_tracks() == "uavmm/v1/joint/tracks"
+    assert KS.joint_all() == "uavmm/v1/joint/**"
+
+
+def test_custom_prefix_is_used_everywhere() -> None:
+    ks = KeySpace("demo/a/v1")
+    assert ks.uav_state("u") == "demo/a/v1/uav/u/state"
+    assert ks.parse("demo/a/v1/joint/tracks") == ParsedKey(kind="joint_tracks", uav="joint")
+    with pytest.raises(ValueError, match="prefix"):
+        ks.parse("uavmm/v1/joint/tracks")
+
+
+@pytest.mark.parametrize("prefix", ["", "/uavmm", "uavmm/", "uavmm//v1", "uavmm/*", "uavmm/**", "a b", "a/@b"])
+def test_bad_prefix_is_rejected(prefix: str) -> None:
+    with pytest.raises(ValueError, match="prefix"):
+        KeySpace(prefix)
+
+
+def test_numpy_integers_are_accepted_as_tile_coordinates() -> None:
+    assert KS.uav_tile("u", "c", np.int64(3), np.int32(1), np.uint16(7)) == "uavmm/v1/uav/u/tiles/c/3/1/7"
+
+
+@given(uav=names, cls=names, tile=tiles)
+def test_tile_keys_round_trip_through_parse(uav: str, cls: str, tile: tuple[int, int, int]) -> None:
+    z, x, y = tile
+    assert KS.parse(KS.uav_tile(uav, cls, z, x, y)) == ParsedKey("uav_tile", uav, cls, z, x, y)
+    assert KS.parse(KS.joint_tile(cls, z, x, y)) == ParsedKey("joint_tile", "joint", cls, z, x, y)
+
+
+@given(uav=names)
+def test_uav_keys_round_trip_through_parse(uav: str) -> None:
+    assert KS.parse(KS.uav_state(uav)) == ParsedKey("uav_state", uav)
+    assert KS.parse(KS.uav_tracks(uav)) == ParsedKey("uav_tracks", uav)
+    assert KS.parse(KS.uav_alive(uav)) == ParsedKey("uav_alive", uav)
+
+
+@given(uav=names, cls=names, tile=tiles)
+def test_keys_are_valid_zenoh_keys_matched_by_the_selectors(uav: str, cls: str, tile: tuple[int, int, int]) -> None:
+    key = zenoh.KeyExpr(KS.uav_tile(uav, cls, *tile))
+    assert zenoh.KeyExpr(KS.uav_tiles_all()).includes(key)
+    assert zenoh.KeyExpr(KS.uav_tiles_all(uav, cls)).includes(key)
+    assert zenoh.KeyExpr(KS.uav_all()).includes(key)
+    assert not zenoh.KeyExpr(KS.joint_all()).includes(key)
+    joint = zenoh.KeyExpr(KS.joint_tile(cls, *tile))
+    assert zenoh.KeyExpr(KS.joint_all()).includes(joint)
+    assert zenoh.KeyExpr(KS.joint_tiles_all()).includes(joint)
+    assert zenoh.KeyExpr(KS.joint_all()).includes(zenoh.KeyExpr(KS.joint_tracks()))
+    assert zenoh.KeyExpr(KS.uav_state("*")).includes(zenoh.KeyExpr(KS.uav_state(uav)))
+
+
+BAD_NAMES = ["", "a/b", "a*", "$a", "a?", "a#b", "a b", "a\tb", "a\nb", "a\x00", "\x7f", "@admin", "x" * 129, 5, None]
+
+
+@pytest.mark.parametrize("bad", BAD_NAMES)
+def test_bad_names_are_rejected_naming_the_field(bad: object) -> None:
+    assert name_problem(bad) is not None
+    with pytest.raises(ValueError, match="uav"):
+        KS.uav_state(bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="cls"):
+        KS.uav_tile("u", bad, 1, 0, 0)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="cls"):
+        KS.joint_tile(bad, 1, 0, 0)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize("good", ["uav1", "person", "a-b_c.d", "M\u00fcller", "a@b", "x" * 128])
+def test_good_names_pass(good: str) -> None:
+    assert name_problem(good) is None
+    assert validate_name(good, "uav") == good
+
+
+@pytest.mark.parametrize(
+    ("z", "x", "y", "field"),
+    [
+        (25, 0, 0, "z"),
+        (-1, 0, 0, "z"),
+        (3, 8, 0, "x"),
+        (3, 0, 8, "y"),
+        (3, -1, 0, "x"),
+        (True, 0, 0, "z"),
+        (3, 1.0, 0, "x"),
+        (3, 0, "1", "y"),
+    ],
+)
+def test_tile_coordinates_are_validated(z: object, x: object, y: object, field: str) -> None:
+    with pytest.raises(ValueError, match=f"^{field} "):
+        KS.uav_tile("u", "c", z, x, y)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=f"^{field} "):
+        KS.joint_tile("c", z, x, y)  # type: ignore[arg-type]
+
+
+@pytest.mark.parametrize(
+    "key",
+    [
+        "uavmm/v2/uav/a/state",
+        "uavmm/v1",
+        "uavmm/v1/",
+        "uavmm/v1/uav/a",
+        "uavmm/v1/uav/a/",
+        "uavmm/v1/uav/a/state/",
+        "uavmm/v1/uav/a/status",
+        "uavmm/v1/uav//state",
+        "uavmm/v1/uav/*/state",
+        "uavmm/v1/uav/a/tiles/person/18/1",
+        "uavmm/v1/uav/a/tiles/person/18/1/2/3",
+        "uavmm/v1/uav/a/tiles/person/18/1/x",
+        "uavmm/v1/uav/a/tiles/person/018/1/2",
+        "uavmm/v1/uav/a/tiles/person/+18/1/2",
+        "uavmm/v1/uav/a/tiles/person/18/-1/2",
+        "uavmm/v1/uav/a/tiles/person/ 18/1/2",
+        "uavmm/v1/uav/a/tiles/person/25/0/0",
+        "uavmm/v1/uav/a/tiles/person/3/8/0",
+        "uavmm/v1/uav/a/tiles/**",
+        "uavmm/v1/uav/a b/state",
+        "uavmm/v1/joint",
+        "uavmm/v1/joint/tracks/x",
+        "uavmm/v1/joint/tiles/person/3/0",
+        "uavmm/v1/joint/tiles/*/3/0/0",
+        "uavmm/v1/joint/**",
+        "uavmm/v1/other/tracks",
+        "uavmm/v1uav/a/state",
+        "",
+    ],
+)
+def test_parse_rejects_keys_outside_the_space(key: str) -> None:
+    with pytest.raises(ValueError):
+        KS.parse(key)
+
+
+def test_parse_rejects_non_strings() -> None:
+    with pytest.raises(ValueError, match="str"):
+        KS.parse(b"uavmm/v1/joint/tracks")  # type: ignore[arg-type]
