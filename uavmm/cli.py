@@ -6,6 +6,7 @@ Argument parsing lives here; each handler imports its module lazily and calls a 
 from __future__ import annotations
 
 import argparse
+import importlib
 import logging
 import sys
 from collections.abc import Callable, Sequence
@@ -152,6 +153,54 @@ def _run_fit_size_filter(args: argparse.Namespace) -> int:
     return 0
 
 
+# --------------------------------------------------------------------------------------------- eval
+
+def _add_eval(sub: argparse._SubParsersAction) -> None:
+    p = sub.add_parser(
+        "eval", help="the paper's tables on simulated data: baseline beside memory map",
+        description="Simulate each scenario for each seed (cached under --out/data), run the single-frame "
+                    "baseline and the memory map, score with pycocotools (AP50, AR@100), and write "
+                    "report.json and report.md to --out. Progress goes to stderr.",
+    )
+    p.add_argument("--scenarios", default="sea,grass", help="comma-separated scenarios (sea,grass)")
+    p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (0,1,2)")
+    p.add_argument("--frames", type=int, default=None, help="frames per video (scenario default)")
+    p.add_argument("--noise-scales", default="1,2", help="telemetry noise multipliers (1,2)")
+    p.add_argument("--ablations", action="store_true", help="also sweep half-life, radius, gain, filter")
+    p.add_argument("--out", type=Path, default=Path("out/eval"), help="report directory (out/eval)")
+    p.set_defaults(handler=_run_eval)
+
+
+def _csv_list(text: str, kind: type, flag: str) -> list:
+    try:
+        values = [kind(x) for x in text.split(",") if x.strip()]
+    except ValueError:
+        raise CliError(f"{flag}: expected a comma-separated list of {kind.__name__}, got {text!r}") from None
+    if not values:
+        raise CliError(f"{flag}: empty list")
+    return values
+
+
+def _run_eval(args: argparse.Namespace) -> int:
+    from sim.evaluate import run_eval, stderr_progress
+    from sim.scenarios import get_scenario
+
+    scenarios = _csv_list(args.scenarios, str, "--scenarios")
+    for name in scenarios:
+        get_scenario(name)  # unknown names fail before any work
+    seeds = _csv_list(args.seeds, int, "--seeds")
+    if any(s < 0 for s in seeds):
+        raise CliError("--seeds must be >= 0")
+    if args.frames is not None and args.frames < 1:
+        raise CliError(f"--frames must be >= 1, got {args.frames}")
+    noise = tuple(_csv_list(args.noise_scales, float, "--noise-scales"))
+    report = run_eval(scenarios, seeds, frames=args.frames, noise_scales=noise, ablations=args.ablations,
+                      out_dir=args.out, progress=stderr_progress)
+    print((args.out / "report.md").read_text())
+    print(f"reports: {args.out / 'report.md'}, {args.out / 'report.json'} ({report['seconds']} s)")
+    return 0
+
+
 # --------------------------------------------------------------------------------------------- bench
 
 def _add_bench(sub: argparse._SubParsersAction) -> None:
@@ -186,8 +235,11 @@ def _run_bench(args: argparse.Namespace) -> int:
 # --------------------------------------------------------------------------------------------- main
 
 COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
-    _add_sim, _add_boost, _add_fit_size_filter, _add_bench,
+    _add_sim, _add_boost, _add_fit_size_filter, _add_eval, _add_bench,
 )
+#: Modules that add their own subcommands: each has register(subparsers) and sets `handler`
+#: (a function of the parsed Namespace returning an exit code) on its parser.
+COMMAND_MODULES: tuple[str, ...] = ()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -200,6 +252,8 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for add in COMMANDS:
         add(sub)
+    for module in COMMAND_MODULES:
+        importlib.import_module(module).register(sub)
     return parser
 
 
