@@ -16,6 +16,7 @@ from numpy.typing import ArrayLike, NDArray
 from shared.tiles import TileGrid
 
 FloatArray = NDArray[np.float64]
+STAMP_MODES = ("sum", "max")
 
 
 @dataclass(frozen=True, slots=True)
@@ -32,6 +33,9 @@ class MemoryMapConfig:
     max_step_s: the longest frame interval one update counts as observation time (a gap after
         dropped frames decays the map for the whole gap but adds one normal update).
     recentre_m: how far the UAV may drift from the window centre before the window is moved.
+    stamp: "sum" (the paper: every pre-NMS box adds its Gaussian, so a detector that emits 30 boxes
+        per object adds 30x the evidence) or "max" (per cell and frame the strongest box counts once:
+        the evidence no longer depends on how many candidates a detector emits per object).
     """
 
     window_m: float = 300.0
@@ -41,8 +45,11 @@ class MemoryMapConfig:
     half_life_s: float = 1.0
     max_step_s: float = 0.2
     recentre_m: float = 10.0
+    stamp: str = "sum"
 
     def __post_init__(self) -> None:
+        if self.stamp not in STAMP_MODES:
+            raise ValueError(f"MemoryMapConfig.stamp must be one of {', '.join(STAMP_MODES)}, got {self.stamp!r}")
         for name in ("window_m", "radius_m", "gain_per_s", "half_life_s", "max_step_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -221,7 +228,10 @@ class MemoryMap:
         c0 = max(int(col.min()) - radius, 0)
         c1 = min(int(col.max()) + radius + 1, self._size)
         impulses = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
-        np.add.at(impulses, (row - r0, col - c0), amp)
+        if self.config.stamp == "max":
+            np.maximum.at(impulses, (row - r0, col - c0), amp)
+        else:
+            np.add.at(impulses, (row - r0, col - c0), amp)
         spread = cv2.sepFilter2D(impulses, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
         roi = m[r0:r1, c0:c1]
         roi += spread

@@ -19,6 +19,7 @@ from shared.tiles import TileGrid
 
 ANCHORS = ("auto", "center", "bottom")
 JOINT_MODES = ("max", "local", "joint", "mean")
+BOOST_MODES = ("add", "logodds")
 #: Observation time credited to the first frame of a video (no previous frame to measure from).
 FIRST_FRAME_INTERVAL_S = 1.0 / 30.0
 
@@ -28,6 +29,8 @@ class PipelineConfig:
     """Pipeline parameters (defaults: the best measured on the simulator; see docs/memory-map.md).
 
     boost_weight: c_hat = c + boost_weight * p (paper: 1).
+    boost_mode: "add" (the paper: c + w p) or "logodds" (logit(c_hat) = logit(c) + w * logodds_scale * p:
+        a Bayesian update that moves mid-confidence boxes most and keeps c_hat in (0, 1)).
     use_memory: False gives the single-frame baseline (same filter and NMS, no boosting).
     use_size_filter: apply the distance-size filter.
     anchor: where on a box its ground point is: "center" (the paper), "bottom" (feet of an upright
@@ -42,6 +45,8 @@ class PipelineConfig:
 
     memory: MemoryMapConfig = field(default_factory=MemoryMapConfig)
     boost_weight: float = 1.0
+    boost_mode: str = "add"
+    logodds_scale: float = 4.0
     use_memory: bool = True
     use_size_filter: bool = True
     anchor: str = "auto"
@@ -54,6 +59,8 @@ class PipelineConfig:
     def __post_init__(self) -> None:
         if self.anchor not in ANCHORS:
             raise ValueError(f"anchor must be one of {', '.join(ANCHORS)}, got {self.anchor!r}")
+        if self.boost_mode not in BOOST_MODES:
+            raise ValueError(f"boost_mode must be one of {', '.join(BOOST_MODES)}, got {self.boost_mode!r}")
         if self.joint_mode not in JOINT_MODES:
             raise ValueError(f"joint_mode must be one of {', '.join(JOINT_MODES)}, got {self.joint_mode!r}")
         if not (0.0 < self.nms_iou <= 1.0):
@@ -226,7 +233,13 @@ class DetectionPipeline:
                     p = np.where(pj > 0, pj, p)
                 else:
                     p = 0.5 * (p + pj)
-            boosted[idx[sel]] = conf[idx[sel]] + cfg.boost_weight * p
+            c = conf[idx[sel]]
+            if cfg.boost_mode == "add":
+                boosted[idx[sel]] = c + cfg.boost_weight * p
+            else:
+                cc = np.clip(c, 1e-6, 1 - 1e-6)
+                logit = np.log(cc / (1 - cc)) + cfg.boost_weight * cfg.logodds_scale * p
+                boosted[idx[sel]] = 1.0 / (1.0 + np.exp(-logit))
             # The update uses the detector's confidence, not the boosted one (paper IV).
-            self.memory.add(name, gx[sel], gy[sel], cfg.memory.gain_per_s * step_s * conf[idx[sel]])
+            self.memory.add(name, gx[sel], gy[sel], cfg.memory.gain_per_s * step_s * c)
         return boosted
