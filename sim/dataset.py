@@ -1,0 +1,207 @@
+"""Write a simulated scenario as a SeaDronesSee-compatible dataset (DESIGN.md 6).
+
+Files: ``images.json`` (COCO ground truth with per-image SeaDronesSee ``meta`` from the noisy telemetry and
+the true ``lat``/``lon`` of every annotation), ``camera.json``, ``pre_nms.json`` (all detector candidates)
+and ``truth.json`` (true poses, scenario settings, realised telemetry biases, occlusion facts). Files are
+written to a temporary folder first and moved in only when everything succeeded.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import shutil
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sim.noise import format_time
+from sim.scenarios import START_UNIX_S, Scenario
+from sim.simulator import FrameSample, Simulation
+
+logger = logging.getLogger(__name__)
+
+DATASET_FILES = ("images.json", "camera.json", "pre_nms.json", "truth.json")
+
+
+class _Progress:
+    """A one-line progress bar on stderr, only when stderr is a terminal."""
+
+    def __init__(self, label: str, total: int, enabled: bool) -> None:
+        self.label, self.total = label, total
+        self.enabled = enabled and sys.stderr.isatty()
+        self._last = 0.0
+
+    def update(self, done: int) -> None:
+        now = time.monotonic()
+        if not self.enabled or (now - self._last < 0.1 and done < self.total):
+            return
+        self._last = now
+        width = 30
+        filled = int(width * done / max(self.total, 1))
+        sys.stderr.write(f"\r{self.label} [{'#' * filled}{'.' * (width - filled)}] {done}/{self.total} frames")
+        sys.stderr.flush()
+
+    def close(self) -> None:
+        if self.enabled:
+            self.enabled = False
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+def _spec_dict(obj: Any) -> dict[str, Any]:
+    d = dataclasses.asdict(obj)
+    d["type"] = type(obj).__name__
+    return d
+
+
+def _prepare_output(out: Path) -> tuple[bool, Path]:
+    """Create `out` if needed and a temporary folder inside it; OSError naming the path if not writable."""
+    created = not out.exists()
+    try:
+        if out.exists() and not out.is_dir():
+            raise NotADirectoryError(f"{out} exists and is not a directory")
+        out.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=".sim-tmp-", dir=out))
+    except OSError as exc:
+        raise OSError(f"output directory {out} is not writable: {exc.strerror or exc}") from exc
+    return created, tmp
+
+
+def _candidate_lines(image_id: int, fs: FrameSample) -> list[str]:
+    c = fs.candidates
+    boxes = np.round(c.boxes_xywh, 2).tolist()
+    scores = np.round(c.scores, 4).tolist()
+    cats = c.category_ids.tolist()
+    return [f'{{"image_id": {image_id}, "category_id": {k}, "bbox": [{b[0]}, {b[1]}, {b[2]}, {b[3]}], '
+            f'"score": {s}}}' for b, s, k in zip(boxes, scores, cats, strict=True)]
+
+
+def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 0, frames: int | None = None,
+                  noise_scale: float = 1.0, progress: bool = True) -> dict[str, Any]:
+    """Simulate `scenario` and write its dataset to `out_dir`.
+
+    Parameters
+    ----------
+    scenario : str or Scenario
+        A name of `sim.scenarios.SCENARIOS` (or a Scenario, e.g. one with tuned emulator parameters).
+    out_dir : str or Path
+        Output folder, created if needed; existing dataset files in it are replaced.
+    seed : int
+        Non-negative seed.
+    frames : int, optional
+        Frames per video (default: the scenario's).
+    noise_scale : float
+        Telemetry noise multiplier (1 = realistic consumer drone, 2 = doubled).
+    progress : bool
+        Show a progress bar on stderr (only when stderr is a terminal).
+
+    Returns
+    -------
+    dict
+        Summary: ``scenario, seed, out_dir, videos, images, annotations, candidates,
+        images_without_meta, blurred_images, occluded_objects, seconds``.
+
+    Raises
+    ------
+    ValueError
+        Unknown scenario (the message lists the valid ones), seed not a non-negative int, frames < 1.
+    OSError
+        `out_dir` cannot be created or written (the message names the path).
+    """
+    started = time.perf_counter()
+    sim = Simulation(scenario, seed=seed, frames=frames, noise_scale=noise_scale)
+    out = Path(out_dir)
+    created, tmp = _prepare_output(out)
+    bar = _Progress(f"sim {sim.scenario.name}", sim.n_frames_total, progress)
+    try:
+        images: list[dict[str, Any]] = []
+        annotations: list[dict[str, Any]] = []
+        poses: list[dict[str, Any]] = []
+        occluded_boxes: list[dict[str, Any]] = []
+        cand_lines: list[str] = []
+        n_missing = n_blurred = 0
+        for fs in sim.frames():
+            video = sim.videos[fs.video_id - 1]
+            images.append({
+                "id": fs.image_id, "file_name": f"{video.name}/{fs.frame_index:06d}.jpg",
+                "width": sim.camera.width, "height": sim.camera.height, "video_id": fs.video_id,
+                "frame_index": fs.frame_index, "date_time": fs.date_time, "meta": fs.meta,
+            })
+            for o in fs.objects:
+                if o.visible:
+                    x, y, w, h = (round(v, 2) for v in o.bbox_xywh)  # type: ignore[union-attr]
+                    annotations.append({
+                        "id": len(annotations) + 1, "image_id": fs.image_id, "category_id": o.category_id,
+                        "bbox": [x, y, w, h], "area": round(w * h, 2), "iscrowd": 0, "track_id": o.track_id,
+                        "lat": round(o.lat, 9), "lon": round(o.lon, 9),
+                    })
+                elif o.in_view and o.occluded:
+                    occluded_boxes.append({"image_id": fs.image_id, "video_id": fs.video_id, "uav": fs.uav,
+                                           "track_id": o.track_id, "lat": round(o.lat, 9), "lon": round(o.lon, 9),
+                                           "bbox": [round(v, 2) for v in o.bbox_xywh]})  # type: ignore[union-attr]
+            p = fs.true_pose
+            poses.append({"image_id": fs.image_id, "video_id": fs.video_id, "uav": fs.uav,
+                          "frame_index": fs.frame_index, "t": round(fs.t, 6), "lat": p.lat, "lon": p.lon,
+                          "height_m": p.height_m, "pitch_deg": p.pitch_deg, "heading_deg": p.heading_deg,
+                          "blurred": fs.blurred})
+            cand_lines.extend(_candidate_lines(fs.image_id, fs))
+            n_missing += fs.meta is None
+            n_blurred += fs.blurred
+            bar.update(fs.image_id)
+        bar.close()
+        facts = sim.facts()
+        sc = sim.scenario
+        coco = {
+            "info": {"description": f"uav-memory-maps simulated scenario {sc.name!r} (seed {sim.seed})",
+                     "version": "1", "date_created": format_time(START_UNIX_S)},
+            "images": images, "annotations": annotations, "categories": sim.categories,
+            "videos": [{"id": v.id, "name": v.name, "uav": v.uav} for v in sim.videos],
+        }
+        truth = {
+            "scenario": {
+                "name": sc.name, "description": sc.description, "fps": sc.fps, "simultaneous": sc.simultaneous,
+                "camera_preset": sc.camera_preset, "world": _spec_dict(sc.world),
+                "flights": [_spec_dict(f) for f in sc.flights], "emulator": _spec_dict(sc.emulator),
+                "noise_base": _spec_dict(sc.noise),
+            },
+            "seed": sim.seed, "frames_per_video": sim.frames_per_video, "noise_scale": sim.noise_scale,
+            "noise": _spec_dict(sim.noise),
+            "videos": [{**dataclasses.asdict(v), **fv}
+                       for v, fv in zip(sim.videos, _by_video(facts, sim), strict=True)],
+            "occlusion": facts["occlusion"], "occluded_boxes": occluded_boxes,
+            "trees": facts["trees"], "clutter": facts["clutter"], "poses": poses,
+        }
+        (tmp / "images.json").write_text(json.dumps(coco))
+        (tmp / "camera.json").write_text(json.dumps(sim.camera.to_dict(), indent=2))
+        (tmp / "pre_nms.json").write_text("[" + ",\n".join(cand_lines) + "]\n")
+        (tmp / "truth.json").write_text(json.dumps(truth))
+        for name in DATASET_FILES:
+            os.replace(tmp / name, out / name)
+    except BaseException:
+        bar.close()
+        shutil.rmtree(tmp, ignore_errors=True)
+        if created:
+            shutil.rmtree(out, ignore_errors=True)
+        raise
+    shutil.rmtree(tmp, ignore_errors=True)
+    summary = {
+        "scenario": sim.scenario.name, "seed": sim.seed, "out_dir": str(out), "videos": len(sim.videos),
+        "images": len(images), "annotations": len(annotations), "candidates": len(cand_lines),
+        "images_without_meta": int(n_missing), "blurred_images": int(n_blurred),
+        "occluded_objects": len(facts["occlusion"]), "seconds": round(time.perf_counter() - started, 3),
+    }
+    logger.info("wrote %s: %s", out, summary)
+    return summary
+
+
+def _by_video(facts: dict[str, Any], sim: Simulation) -> list[dict[str, Any]]:
+    by_id = {f["video_id"]: f for f in facts["videos"]}
+    return [{k: val for k, val in by_id[v.id].items() if k not in ("video_id", "name", "uav", "kind", "group")}
+            for v in sim.videos]

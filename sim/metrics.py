@@ -1,0 +1,186 @@
+"""Detection evaluation helpers: COCO AP50 / AR@100 (pycocotools), pre-NMS recall and the NMS baseline.
+
+Inputs are the dataset layout of DESIGN.md 6: an ``images.json`` COCO ground truth (path or dict) and COCO
+result lists ``[{image_id, category_id, bbox: [x, y, w, h], score}]`` (list or path to a JSON file).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import logging
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+logger = logging.getLogger(__name__)
+
+
+def _load_json(obj: Any, what: str) -> Any:
+    if isinstance(obj, (str, Path)):
+        path = Path(obj)
+        try:
+            return json.loads(path.read_text())
+        except FileNotFoundError:
+            raise ValueError(f"{what} file {path} does not exist") from None
+        except json.JSONDecodeError as exc:
+            raise ValueError(f"{what} file {path} is not valid JSON: {exc}") from None
+    return obj
+
+
+def _load_images(images_json: str | Path | dict[str, Any]) -> dict[str, Any]:
+    gt = _load_json(images_json, "images")
+    if not isinstance(gt, dict) or "images" not in gt or "annotations" not in gt:
+        raise ValueError("images JSON must be a COCO dict with 'images' and 'annotations'")
+    return gt
+
+
+def _load_results(results: str | Path | Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
+    res = _load_json(results, "results")
+    if not isinstance(res, list):
+        raise ValueError(f"results must be a list of COCO result dicts, got {type(res).__name__}")
+    return res
+
+
+def coco_detection_metrics(images_json: str | Path | dict[str, Any],
+                           results: str | Path | Sequence[dict[str, Any]], *,
+                           image_ids: Iterable[int] | None = None) -> dict[str, float]:
+    """COCO bounding-box metrics of `results` against the ground truth, as the paper reports them.
+
+    Parameters
+    ----------
+    images_json : path or dict
+        COCO ground truth (``images``, ``annotations``, ``categories``).
+    results : path or list of dict
+        ``{image_id, category_id, bbox [x, y, w, h], score}``; not modified.
+    image_ids : iterable of int, optional
+        Evaluate only these images (default: all images of the ground truth).
+
+    Returns
+    -------
+    dict
+        ``AP50`` (AP at IoU 0.5), ``AP`` (IoU 0.5:0.95) and ``AR100`` (recall averaged over IoU 0.5:0.95,
+        at most 100 detections per image), all areas, as FRACTIONS in [0, 1] (pycocotools' scale; multiply
+        by 100 for the paper's tables). With no results, or no ground truth, every value is 0.
+    """
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    gt = _load_images(images_json)
+    res = [dict(r) for r in _load_results(results)]  # loadRes writes into the dicts
+    ids = sorted({int(i["id"]) for i in gt["images"]}) if image_ids is None else sorted({int(i) for i in image_ids})
+    if ids:
+        id_set = set(ids)
+        res = [r for r in res if int(r["image_id"]) in id_set]
+    if not res or not ids:
+        return {"AP50": 0.0, "AP": 0.0, "AR100": 0.0}
+    with contextlib.redirect_stdout(io.StringIO()):
+        coco_gt = COCO()
+        coco_gt.dataset = {"images": gt["images"], "annotations": gt["annotations"],
+                           "categories": gt.get("categories", [])}
+        coco_gt.createIndex()
+        coco_dt = coco_gt.loadRes(res)
+        ev = COCOeval(coco_gt, coco_dt, "bbox")
+        ev.params.imgIds = ids
+        ev.evaluate()
+        ev.accumulate()
+        ev.summarize()
+    stats = [max(float(s), 0.0) for s in ev.stats]  # -1 (no ground truth) -> 0
+    return {"AP50": stats[1], "AP": stats[0], "AR100": stats[8]}
+
+
+def _iou_matrix(a_xywh: np.ndarray, b_xywh: np.ndarray) -> np.ndarray:
+    """(A, 4) x (B, 4) COCO boxes -> (A, B) IoU."""
+    ax0, ay0 = a_xywh[:, 0:1], a_xywh[:, 1:2]
+    ax1, ay1 = ax0 + a_xywh[:, 2:3], ay0 + a_xywh[:, 3:4]
+    bx0, by0 = b_xywh[None, :, 0], b_xywh[None, :, 1]
+    bx1, by1 = bx0 + b_xywh[None, :, 2], by0 + b_xywh[None, :, 3]
+    iw = np.clip(np.minimum(ax1, bx1) - np.maximum(ax0, bx0), 0.0, None)
+    ih = np.clip(np.minimum(ay1, by1) - np.maximum(ay0, by0), 0.0, None)
+    inter = iw * ih
+    union = a_xywh[:, 2:3] * a_xywh[:, 3:4] + (b_xywh[:, 2] * b_xywh[:, 3])[None, :] - inter
+    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+def _group_by_image(results: Sequence[dict[str, Any]]) -> dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """image_id -> (boxes (K, 4), scores (K,), category_ids (K,)) arrays."""
+    if not results:
+        return {}
+    img = np.fromiter((int(r["image_id"]) for r in results), dtype=np.int64, count=len(results))
+    boxes = np.array([r["bbox"] for r in results], dtype=np.float64).reshape(-1, 4)
+    scores = np.fromiter((float(r["score"]) for r in results), dtype=np.float64, count=len(results))
+    cats = np.fromiter((int(r["category_id"]) for r in results), dtype=np.int64, count=len(results))
+    order = np.argsort(img, kind="stable")
+    img, boxes, scores, cats = img[order], boxes[order], scores[order], cats[order]
+    uniq, starts = np.unique(img, return_index=True)
+    ends = np.append(starts[1:], len(img))
+    return {int(u): (boxes[s:e], scores[s:e], cats[s:e]) for u, s, e in zip(uniq, starts, ends, strict=True)}
+
+
+def prenms_recall(images_json: str | Path | dict[str, Any], candidates: str | Path | Sequence[dict[str, Any]],
+                  iou: float = 0.5, *, score_threshold: float = 0.0) -> float:
+    """Fraction of ground-truth boxes matched by at least one candidate of the same class with IoU >= iou.
+
+    Parameters
+    ----------
+    images_json : path or dict
+        COCO ground truth; ``iscrowd`` annotations are ignored.
+    candidates : path or list of dict
+        COCO results (pre-NMS candidates, or an NMS output for post-NMS recall).
+    iou : float
+        IoU needed for a match.
+    score_threshold : float
+        Only candidates with score >= this count (e.g. 0.25 for the recall "after NMS" of PAPER.md 2).
+
+    Returns
+    -------
+    float
+        Recall in [0, 1]; NaN when there is no ground truth.
+    """
+    gt = _load_images(images_json)
+    cands = [c for c in _load_results(candidates) if float(c["score"]) >= score_threshold]
+    by_image = _group_by_image(cands)
+    anns = [a for a in gt["annotations"] if not a.get("iscrowd", 0)]
+    if not anns:
+        return float("nan")
+    gt_by_image = _group_by_image([{**a, "score": 1.0} for a in anns])
+    matched = 0
+    for image_id, (g_boxes, _, g_cats) in gt_by_image.items():
+        if image_id not in by_image:
+            continue
+        c_boxes, _, c_cats = by_image[image_id]
+        ious = _iou_matrix(g_boxes, c_boxes)
+        ok = (ious >= iou) & (g_cats[:, None] == c_cats[None, :])
+        matched += int(ok.any(axis=1).sum())
+    return matched / len(anns)
+
+
+def baseline_nms(candidates: str | Path | Sequence[dict[str, Any]], iou: float = 0.5) -> list[dict[str, Any]]:
+    """The single-frame baseline: class-wise NMS per image (cv2.dnn.NMSBoxesBatched), every score kept.
+
+    Parameters
+    ----------
+    candidates : path or list of dict
+        COCO results ``{image_id, category_id, bbox [x, y, w, h], score}``.
+    iou : float
+        NMS IoU threshold.
+
+    Returns
+    -------
+    list of dict
+        The kept candidates (new dicts, ``bbox`` as floats), in image order then by descending score.
+    """
+    out: list[dict[str, Any]] = []
+    for image_id, (boxes, scores, cats) in sorted(_group_by_image(_load_results(candidates)).items()):
+        # cv2 keeps scores strictly above the threshold: pass one below every score to keep them all.
+        below = float(min(scores.min(), 0.0)) - 1.0
+        keep = np.asarray(cv2.dnn.NMSBoxesBatched(boxes.tolist(), scores.tolist(), cats.tolist(),
+                                                  below, float(iou)), dtype=np.int64).ravel()
+        keep = keep[np.argsort(-scores[keep], kind="stable")]
+        out.extend({"image_id": image_id, "category_id": int(cats[k]), "bbox": [float(x) for x in boxes[k]],
+                    "score": float(scores[k])} for k in keep)
+    return out

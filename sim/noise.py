@@ -1,0 +1,209 @@
+"""Telemetry noise as consumer drones have it: per-flight bias, AR(1) jitter, latency, 10 Hz sample-and-hold.
+
+`TelemetryNoise` holds the levels (defaults: a consumer DJI drone); `TelemetryStream` turns a flight's true
+states into the noisy SeaDronesSee ``meta`` dicts attached to video frames.
+
+Model, per flight (video):
+- bias: constant, drawn once from N(0, level) (GPS: a horizontal vector whose RMS length is `gps_bias_m`);
+- jitter: per telemetry sample, AR(1) with correlation time `jitter_corr_s` and stationary std = level
+  (GPS: RMS horizontal length `gps_jitter_m`);
+- timing: telemetry is sampled at `telemetry_hz` (random phase) and lags the frames by `time_offset_s`; a
+  frame gets the newest sample measured at or before its time minus the offset (sample and hold);
+- dropouts: a frame has no meta (None) with probability `missing_meta_rate`.
+The compass (aircraft) heading shares the heading bias and jitter (the gimbal yaw is referenced to it).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, fields, replace
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+
+from shared.geo import local_to_latlon
+from sim.flight import Flight, FlightState
+
+
+def format_time(t_s: float) -> str:
+    """UNIX seconds -> ISO 8601 UTC with milliseconds, e.g. ``2023-06-01T10:00:00.033Z``."""
+    ms = int(round(t_s * 1000.0))
+    stamp = datetime.fromtimestamp(ms // 1000, tz=timezone.utc)
+    return stamp.strftime("%Y-%m-%dT%H:%M:%S") + f".{ms % 1000:03d}Z"
+
+
+@dataclass(frozen=True, slots=True)
+class TelemetryNoise:
+    """Telemetry error levels (1-sigma unless stated); see the module docstring for the model.
+
+    Attributes
+    ----------
+    gps_bias_m, gps_jitter_m : float
+        RMS horizontal (2-D) GPS bias per flight and jitter per sample, metres.
+    heading_bias_deg, heading_jitter_deg : float
+        Gimbal (and compass) heading bias and jitter, degrees.
+    pitch_bias_deg, pitch_jitter_deg : float
+        Gimbal pitch bias and jitter, degrees (the reported pitch is clamped to 0..90).
+    height_bias_m, height_jitter_m : float
+        Barometric height bias and jitter, metres.
+    speed_jitter_mps : float
+        Jitter of each velocity component, m/s.
+    time_offset_s : float
+        Telemetry lag behind the frames, seconds (constant).
+    telemetry_hz : float
+        Telemetry sample rate (frames run at the scenario's fps; sample and hold in between).
+    jitter_corr_s : float
+        Correlation time of the AR(1) jitter, seconds.
+    missing_meta_rate : float
+        Probability that a frame has no meta at all.
+    """
+
+    gps_bias_m: float = 1.5
+    gps_jitter_m: float = 0.3
+    heading_bias_deg: float = 2.0
+    heading_jitter_deg: float = 0.5
+    pitch_bias_deg: float = 0.5
+    pitch_jitter_deg: float = 0.3
+    height_bias_m: float = 1.0
+    height_jitter_m: float = 0.2
+    speed_jitter_mps: float = 0.1
+    time_offset_s: float = 0.05
+    telemetry_hz: float = 10.0
+    jitter_corr_s: float = 0.5
+    missing_meta_rate: float = 0.0
+
+    def __post_init__(self) -> None:
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise ValueError(f"TelemetryNoise.{f.name}={value!r} must be a finite number >= 0")
+        if self.telemetry_hz <= 0 or self.jitter_corr_s <= 0:
+            raise ValueError("TelemetryNoise.telemetry_hz and jitter_corr_s must be > 0")
+        if self.missing_meta_rate > 1:
+            raise ValueError(f"TelemetryNoise.missing_meta_rate={self.missing_meta_rate!r} must be in [0, 1]")
+
+    def scaled(self, k: float) -> TelemetryNoise:
+        """The same noise with every bias, jitter and the time offset multiplied by k (k >= 0).
+
+        The telemetry rate, correlation time and dropout rate are kept.
+        """
+        if not math.isfinite(k) or k < 0:
+            raise ValueError(f"noise scale must be a finite number >= 0, got {k!r}")
+        keep = {"telemetry_hz", "jitter_corr_s", "missing_meta_rate"}
+        return replace(self, **{f.name: getattr(self, f.name) * k for f in fields(self) if f.name not in keep})
+
+
+def _wrap360(deg: float) -> float:
+    """Degrees wrapped to [0, 360) after rounding to 3 decimals (359.9999 must not become 360.0)."""
+    return round(deg % 360.0, 3) % 360.0
+
+
+# channel order of the bias/jitter vectors
+_CH = ("east", "north", "heading", "pitch", "height", "v_east", "v_north", "v_up")
+
+
+class TelemetryStream:
+    """Noisy telemetry of one flight, generated on the fly and deterministically from `rng`.
+
+    Parameters
+    ----------
+    noise : TelemetryNoise
+        Levels (already scaled).
+    flight : Flight
+        The true trajectory.
+    rng : numpy.random.Generator
+        Private generator of this stream.
+    origin_lat, origin_lon : float
+        World origin of the flight's local metres.
+    t0_unix_s : float
+        UNIX time of the flight's t = 0 (the first frame).
+
+    Attributes
+    ----------
+    bias : dict
+        The realised per-flight biases (east_m, north_m, heading_deg, pitch_deg, height_m).
+    phase_s : float
+        Time of the first telemetry sample after t = 0, seconds.
+    """
+
+    def __init__(self, noise: TelemetryNoise, flight: Flight, rng: np.random.Generator,
+                 origin_lat: float, origin_lon: float, t0_unix_s: float) -> None:
+        self.noise, self.flight = noise, flight
+        self.origin = (origin_lat, origin_lon)
+        self.t0_unix_s = t0_unix_s
+        self._rng = rng
+        # Draw standard normals and scale them, so the same seed with a larger scale gives scaled errors.
+        z = rng.standard_normal(5)
+        g = noise.gps_bias_m / math.sqrt(2.0)
+        self._bias = np.array([g * z[0], g * z[1], noise.heading_bias_deg * z[2],
+                               noise.pitch_bias_deg * z[3], noise.height_bias_m * z[4], 0.0, 0.0, 0.0])
+        gj = noise.gps_jitter_m / math.sqrt(2.0)
+        sj = noise.speed_jitter_mps
+        self._sigma = np.array([gj, gj, noise.heading_jitter_deg, noise.pitch_jitter_deg,
+                                noise.height_jitter_m, sj, sj, sj])
+        self.phase_s = float(rng.uniform(0.0, 1.0 / noise.telemetry_hz))
+        self._a = math.exp(-1.0 / (noise.telemetry_hz * noise.jitter_corr_s))
+        self._z = rng.standard_normal(len(_CH))  # stationary start
+        self._k: int | None = None
+        self._missing_rng = np.random.default_rng(rng.integers(0, 2**63))
+        self.bias = {"east_m": float(self._bias[0]), "north_m": float(self._bias[1]),
+                     "heading_deg": float(self._bias[2]), "pitch_deg": float(self._bias[3]),
+                     "height_m": float(self._bias[4])}
+
+    def _advance(self, k: int) -> None:
+        if self._k is None:
+            self._k = k
+            return
+        for _ in range(max(0, k - self._k)):
+            self._z = self._a * self._z + math.sqrt(1.0 - self._a * self._a) * self._rng.standard_normal(len(_CH))
+        self._k = max(self._k, k)
+
+    def sample_time(self, t_s: float) -> float:
+        """Flight time (s) at which the telemetry attached to the frame at t_s was measured."""
+        k = math.floor((t_s - self.noise.time_offset_s - self.phase_s) * self.noise.telemetry_hz + 1e-9)
+        return self.phase_s + k / self.noise.telemetry_hz
+
+    def meta(self, t_s: float) -> tuple[dict[str, Any] | None, FlightState]:
+        """The SeaDronesSee meta for the frame at flight time t_s (frames must come in time order).
+
+        Returns
+        -------
+        meta : dict or None
+            Fields ``gps_latitude, gps_latitude_ref, gps_longitude, gps_longitude_ref, altitude,
+            gimbal_pitch, compass_heading, gimbal_heading, speed, xspeed, yspeed, zspeed, date_time``:
+            positive lat/lon with N/S/E/W refs, altitude = height above ground (m), gimbal_pitch =
+            depression (deg, 0..90), headings in [0, 360), speeds m/s with xspeed north, yspeed east,
+            zspeed down (DJI), date_time the sample's stamp on the video clock. None for a dropout.
+        state : FlightState
+            The true state at the sample time (what the meta measures, before noise).
+        """
+        ts = self.sample_time(t_s)
+        k = round((ts - self.phase_s) * self.noise.telemetry_hz)
+        self._advance(k)
+        missing = self._missing_rng.uniform() < self.noise.missing_meta_rate
+        st = self.flight.state(ts)
+        err = self._bias + self._sigma * self._z
+        if missing:
+            return None, st
+        lat_arr, lon_arr = local_to_latlon(st.east_m + err[0], st.north_m + err[1], *self.origin)
+        lat, lon = float(lat_arr), float(lon_arr)
+        height = max(st.height_m + err[4], 0.1)
+        pitch = min(max(st.pitch_deg + err[3], 0.0), 90.0)
+        ve, vn, vu = st.vel_east_mps + err[5], st.vel_north_mps + err[6], st.vel_up_mps + err[7]
+        meta = {
+            "gps_latitude": round(abs(lat), 8),
+            "gps_latitude_ref": "N" if lat >= 0 else "S",
+            "gps_longitude": round(abs(lon), 8),
+            "gps_longitude_ref": "E" if lon >= 0 else "W",
+            "altitude": round(height, 3),
+            "gimbal_pitch": round(pitch, 3),
+            "compass_heading": _wrap360(st.aircraft_heading_deg + err[2]),
+            "gimbal_heading": _wrap360(st.heading_deg + err[2]),
+            "speed": round(math.hypot(ve, vn), 3),
+            "xspeed": round(vn, 3),
+            "yspeed": round(ve, 3),
+            "zspeed": round(-vu, 3),
+            "date_time": format_time(self.t0_unix_s + ts + self.noise.time_offset_s),
+        }
+        return meta, st
