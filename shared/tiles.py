@@ -240,12 +240,15 @@ class TileGrid:
         gy_north = float(_lat_to_unit_y(north)) * cells
         gy_south = float(_lat_to_unit_y(south)) * cells
 
-        gx0 = math.floor(float(gx) - half_cells_x)
-        width = max(math.ceil(float(gx) + half_cells_x) - gx0, 1)
+        # A square edge within float noise of a cell border includes the neighbour: a superset is
+        # harmless, a missed cell is not (regression: a 3 nm square on the equator lost its south row).
+        eps = 1e-9
+        gx0 = math.floor(float(gx) - half_cells_x - eps)
+        width = max(math.ceil(float(gx) + half_cells_x + eps) - gx0, 1)
         if width >= cells:
             gx0, width = 0, cells
-        gy0 = min(max(math.floor(gy_north), 0), cells - 1)
-        gy1 = min(max(math.ceil(gy_south), gy0 + 1), cells)
+        gy0 = min(max(math.floor(gy_north - eps), 0), cells - 1)
+        gy1 = min(max(math.ceil(gy_south + eps), gy0 + 1), cells)
         return CellWindow(gx0=gx0 % cells, gy0=gy0, width=width, height=gy1 - gy0, grid=self)
 
     def tiles_within(self, lat: float, lon: float, radius_m: float) -> list[tuple[int, int]]:

@@ -1,0 +1,338 @@
+"""Benchmark of the fusion server: how many UAVs one `uavmm fusion` process sustains, and UAV bandwidth.
+
+A real `uavmm fusion` subprocess is fed by a load-generator process (N simulated UAVs, each putting
+9 tiles of 1 class at 5 Hz, values changing every cycle); this process subscribes to the joint tiles
+and measures agent put -> joint tile received (the joint tile's ``t`` is the newest fused tile's
+``t``, stamped at put). A load is sustained when p99 <= 50 ms and >= 95 % of the expected joint
+tiles arrive. Baseline in the same run: the raw Zenoh put -> receive rate of the same payloads.
+Bandwidth: bytes per second one agent publishes with 20 objects in view (agent.memory_map tiles,
+state and tracks at 5 Hz), against the 100 kB/s budget. Loopback, shared memory off.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import multiprocessing as mp
+import os
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+
+DESCRIPTION = "UAVs one fusion process sustains at p99 put->joint <= 50 ms vs raw zenoh rate; bytes/s per UAV"
+
+log = logging.getLogger(__name__)
+
+RATE_HZ = 5.0
+TILES_PER_UAV = 9
+P99_BUDGET_S = 0.050
+BYTES_BUDGET = 100_000.0
+_REPO = Path(__file__).resolve().parents[1]
+_BASE_X, _BASE_Y = 137_700, 91_400  # z18 tiles near 47.7 N 9.3 E
+_NO_SHM = "transport/shared_memory/enabled:false"
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _zenoh_config(mode: str, *, connect: str | None = None, listen: str | None = None):
+    import zenoh
+
+    conf = zenoh.Config()
+    conf.insert_json5("mode", json.dumps(mode))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    conf.insert_json5("transport/shared_memory/enabled", "false")
+    if connect:
+        conf.insert_json5("connect/endpoints", json.dumps([connect]))
+        conf.insert_json5("connect/timeout_ms", "5000")
+        conf.insert_json5("connect/exit_on_failure", "true")
+    if listen:
+        conf.insert_json5("listen/endpoints", json.dumps([listen]))
+    return conf
+
+
+def _uav_tiles(i: int, shared_pairs: bool) -> list[tuple[int, int]]:
+    """The 3 x 3 tile block of UAV i; with shared_pairs UAVs 2k and 2k+1 cover the same block."""
+    block = i // 2 if shared_pairs else i
+    x0 = _BASE_X + 4 * (block % 50)
+    y0 = _BASE_Y + 4 * (block // 50)
+    return [(x0 + dx, y0 + dy) for dy in range(3) for dx in range(3)]
+
+
+def _blob_cells(n: int = 256, count: int = 3, radius: int = 7) -> np.ndarray:
+    """Row-major indices of ``count`` discs of ``radius`` cells: the non-zero cells of a tile."""
+    rng = np.random.default_rng(1)
+    mask = np.zeros((n, n), bool)
+    rows, cols = np.ogrid[:n, :n]
+    for r, c in rng.integers(radius, n - radius, size=(count, 2)):
+        mask |= (rows - r) ** 2 + (cols - c) ** 2 <= radius**2
+    return np.flatnonzero(mask)
+
+
+def _load_generator(endpoint: str, prefix: str, n_uavs: int, duration_s: float, start_wall: float,
+                    shared_pairs: bool, out: Any) -> None:
+    """Child process: N UAVs putting 9 tiles each at 5 Hz from ``start_wall`` for ``duration_s``."""
+    import zenoh
+
+    from shared.keys import KeySpace
+    from shared.tilecodec import encode_tile_sparse
+
+    keys = KeySpace()
+    idx = _blob_cells()
+    base_val = (np.arange(idx.size) % 200 + 30).astype(np.int64)
+    lag_max = 0.0
+    puts = 0
+    with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
+        uavs = []
+        for i in range(n_uavs):
+            uav = f"{prefix}{i}"
+            pubs = [(x, y, session.declare_publisher(keys.uav_tile(uav, "person", 18, x, y),
+                                                     congestion_control=zenoh.CongestionControl.BLOCK))
+                    for x, y in _uav_tiles(i, shared_pairs)]
+            uavs.append((uav, pubs))
+        period = 1.0 / RATE_HZ
+        cycles = int(duration_s * RATE_HZ)
+        events = sorted((start_wall + k * period + (i / n_uavs) * period, k, i)
+                        for k in range(cycles) for i in range(n_uavs))
+        for when, k, i in events:
+            delay = when - time.time()
+            if delay > 0:
+                time.sleep(delay)
+            else:
+                lag_max = max(lag_max, -delay)
+            uav, pubs = uavs[i]
+            val = (base_val + 7 * k + i) % 225 + 30
+            for x, y, pub in pubs:
+                pub.put(encode_tile_sparse(uav, "person", 18, x, y, 256, time.time(), k + 1, idx, val))
+                puts += 1
+        time.sleep(0.3)
+    out.put({"puts": puts, "lag_max_s": lag_max})
+
+
+class _JointLatency:
+    """Subscriber callback: put time (the joint tile's ``t``) and latency of every non-empty joint tile."""
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.samples: list[tuple[float, float]] = []  # (put wall time, latency)
+
+    def __call__(self, sample) -> None:
+        now = time.time()
+        record = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
+        if record.get("idx", b"x") == b"" or not record.get("val"):
+            return  # an empty "nobody covers this any more" tile carries no agent put
+        with self.lock:
+            self.samples.append((record["t"], now - record["t"]))
+
+    def window(self, t0: float, t1: float) -> np.ndarray:
+        """Latencies of the tiles put in [t0, t1)."""
+        with self.lock:
+            return np.array([lat for put, lat in self.samples if t0 <= put < t1])
+
+
+def _start_fusion(port: int, db_dir: str) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "uavmm", "fusion", "--listen", f"tcp/127.0.0.1:{port}", "--no-http",
+           "--db", os.path.join(db_dir, "bench.sqlite"), "--no-multicast-scouting", "--cfg", _NO_SHM]
+    env = {**os.environ, "PYTHONPATH": str(_REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.Popen(cmd, cwd=_REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    line = proc.stdout.readline()  # printed once the node is up
+    if "uavmm fusion" not in line:
+        proc.kill()
+        raise RuntimeError(f"uavmm fusion did not start: {line!r}")
+    return proc
+
+
+def _run_load(ctx, endpoint: str, receiver: _JointLatency, n_uavs: int, duration_s: float, step: int,
+              shared_pairs: bool = False) -> dict[str, float]:
+    out = ctx.Queue()
+    start = time.time() + 1.5  # the child needs ~1 s to import and declare its publishers
+    proc = ctx.Process(target=_load_generator,
+                       args=(endpoint, f"s{step}u", n_uavs, duration_s, start, shared_pairs, out))
+    proc.start()
+    proc.join(timeout=duration_s + 60)
+    report = out.get(timeout=5) if proc.exitcode == 0 else {"puts": 0, "lag_max_s": float("inf")}
+    warm = 0.6
+    t0, t1 = start + warm, start + duration_s
+    lat = receiver.window(t0, t1)
+    period = 1.0 / RATE_HZ
+    puts_in_window = sum(1 for k in range(int(duration_s * RATE_HZ)) for i in range(n_uavs)
+                         if t0 <= start + k * period + (i / n_uavs) * period < t1)
+    expected = puts_in_window * TILES_PER_UAV
+    if shared_pairs:
+        expected /= 2  # two UAVs per tile, still at most 5 joint publications per tile a second
+    return {
+        "n": n_uavs,
+        "p50": float(np.quantile(lat, 0.5)) if lat.size else float("inf"),
+        "p99": float(np.quantile(lat, 0.99)) if lat.size else float("inf"),
+        "received_ratio": lat.size / expected,
+        "lag_max_s": report["lag_max_s"],
+    }
+
+
+def _raw_zenoh_rate(ctx, duration_s: float) -> float:
+    """Messages per second from a publisher process to a subscriber here, same payloads, BLOCK."""
+    import zenoh
+
+    port = _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    count = [0]
+    first: list[float] = []
+    last = [0.0]
+
+    def on_sample(_sample) -> None:
+        now = time.perf_counter()
+        if not first:
+            first.append(now)
+        count[0] += 1
+        last[0] = now
+
+    with zenoh.open(_zenoh_config("peer", listen=endpoint)) as session:
+        sub = session.declare_subscriber("bench/raw/**", on_sample)
+        proc = ctx.Process(target=_raw_publisher, args=(endpoint, duration_s))
+        proc.start()
+        proc.join(timeout=duration_s + 60)
+        time.sleep(0.2)
+        sub.undeclare()
+    if count[0] < 2:
+        return 0.0
+    return (count[0] - 1) / (last[0] - first[0])
+
+
+def _raw_publisher(endpoint: str, duration_s: float) -> None:
+    import zenoh
+
+    from shared.tilecodec import encode_tile_sparse
+
+    idx = _blob_cells()
+    payloads = [encode_tile_sparse("u", "person", 18, _BASE_X, _BASE_Y, 256, time.time(), k + 1, idx,
+                                   (np.arange(idx.size) + k) % 225 + 30) for k in range(16)]
+    with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
+        pub = session.declare_publisher("bench/raw/tile", congestion_control=zenoh.CongestionControl.BLOCK)
+        time.sleep(0.5)
+        end = time.perf_counter() + duration_s
+        k = 0
+        while time.perf_counter() < end:
+            pub.put(payloads[k & 15])
+            k += 1
+        time.sleep(0.3)
+
+
+def uav_bytes_per_s(objects: int = 20, seconds: float = 3.0) -> dict[str, float]:
+    """Bytes/s one agent publishes at 5 Hz with ``objects`` in view: tiles of its memory map
+    (agent.memory_map, 30 fps of ~10 candidate boxes per object), a state and a tracks message."""
+    from agent.memory_map import MemoryMap
+    from shared.messages import CameraInfo, StateMessage, TrackItem, TracksMessage, encode_state, encode_tracks
+    from shared.tilecodec import TileMessage, encode_tile
+    from shared.tiles import TileGrid
+
+    grid = TileGrid()
+    lat0, lon0 = 47.67, 9.27
+    rng = np.random.default_rng(0)
+    m_per_deg = 111_320.0
+    obj_n = rng.uniform(-100, 100, objects)
+    obj_e = rng.uniform(-100, 100, objects)
+    mm = MemoryMap(grid=grid)
+    fps = 30.0
+    for f in range(int(seconds * fps)):
+        mm.advance(f / fps, lat0, lon0)
+        jitter_n = obj_n[:, None] + rng.normal(0, 0.5, (objects, 10))
+        jitter_e = obj_e[:, None] + rng.normal(0, 0.5, (objects, 10))
+        lat = lat0 + jitter_n / m_per_deg
+        lon = lon0 + jitter_e / (m_per_deg * np.cos(np.radians(lat0)))
+        gx, gy = grid.latlon_to_cell(lat.ravel(), lon.ravel())
+        mm.add("person", gx, gy, rng.uniform(0.05, 0.6, gx.size))
+    tiles = mm.tiles("person")
+    tile_bytes = sum(len(encode_tile(TileMessage("uav-1", "person", 18, x, y, grid.n, 1.0, 1, v)))
+                     for x, y, v in tiles)
+    camera = CameraInfo(width=3840, height=2160, fx=2900.0, fy=2900.0, cx=1920.0, cy=1080.0)
+    state = encode_state(StateMessage("uav-1", 1.0, lat0, lon0, 40.0, 45.0, 140.0,
+                                      tuple((lat0 + i * 1e-4, lon0) for i in range(4)), camera))
+    tracks = encode_tracks(TracksMessage("uav-1", 1.0, tuple(
+        TrackItem(i, "person", lat0 + obj_n[i] / m_per_deg, lon0, 0.8, (0.1, 0.2)) for i in range(objects))))
+    per_cycle = tile_bytes + len(state) + len(tracks)
+    return {"tiles": len(tiles), "tile_bytes": tile_bytes, "bytes_per_s": per_cycle * RATE_HZ,
+            "bytes_per_s_tiles_1hz": tile_bytes + (len(state) + len(tracks)) * RATE_HZ}
+
+
+def run(quick: bool = False) -> list[dict[str, Any]]:
+    ctx = mp.get_context("spawn")  # never fork after zenoh.open
+    steps = [2, 10] if quick else [10, 20, 30, 40, 50, 60, 80, 100, 130, 160, 200]
+    duration_s = 2.5 if quick else 5.0
+    raw_rate = _raw_zenoh_rate(ctx, 1.0 if quick else 3.0)
+    raw_uavs = raw_rate / (RATE_HZ * TILES_PER_UAV)
+    rows: list[dict[str, Any]] = [
+        {"case": "raw zenoh put->receive, sparse tile payloads, BLOCK", "value": raw_rate, "unit": "msg/s"},
+    ]
+    import zenoh
+
+    port = _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    sustained = 0
+    results = []
+    with tempfile.TemporaryDirectory() as db_dir:
+        fusion = _start_fusion(port, db_dir)
+        try:
+            with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
+                receiver = _JointLatency()
+                sub = session.declare_subscriber("uavmm/v1/joint/tiles/**", receiver)
+                for step, n in enumerate(steps):
+                    result = _run_load(ctx, endpoint, receiver, n, duration_s, step)
+                    results.append(result)
+                    ok = (result["p99"] <= P99_BUDGET_S and result["received_ratio"] >= 0.95
+                          and result["lag_max_s"] <= P99_BUDGET_S)
+                    log.info("fusion bench: %s -> %s", result, "ok" if ok else "not sustained")
+                    rows.append({
+                        "case": f"{n} UAVs x 9 tiles @5 Hz: p99 put->joint (p50 {result['p50'] * 1e3:.1f} ms, "
+                                f"{result['received_ratio']:.0%} received)",
+                        "value": result["p99"] * 1e3, "unit": "ms", "baseline_name": "budget 50 ms",
+                        "ratio": result["p99"] / P99_BUDGET_S,
+                    })
+                    if not ok:
+                        break
+                    sustained = n
+                    time.sleep(2.5)  # let the previous UAVs' tiles expire (TTL 2 s)
+                pair_n = 4 if quick else 20
+                pairs = _run_load(ctx, endpoint, receiver, pair_n, duration_s, len(steps) + 1, shared_pairs=True)
+                rows.append({
+                    "case": f"{pair_n} UAVs, 2 per tile (rate limit 5 Hz/tile): p99 put->joint "
+                            f"(p50 {pairs['p50'] * 1e3:.1f} ms)",
+                    "value": pairs["p99"] * 1e3, "unit": "ms", "baseline_name": "budget 50 ms",
+                    "ratio": pairs["p99"] / P99_BUDGET_S,
+                })
+                sub.undeclare()
+        finally:
+            fusion.terminate()
+            try:
+                fusion.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                fusion.kill()
+    capped = sustained == steps[-1]
+    rows.append({
+        "case": "UAVs sustained, p99 <= 50 ms" + (" (largest load tried)" if capped else ""),
+        "value": float(sustained), "unit": "UAVs",
+        "baseline_name": f"raw zenoh = {raw_uavs:.0f} UAV-equivalents",
+        "ratio": sustained / raw_uavs if raw_uavs else None,
+    })
+    bandwidth = uav_bytes_per_s()
+    rows.append({
+        "case": f"bytes/s per UAV, 20 objects in view ({bandwidth['tiles']} tiles, state, tracks @5 Hz)",
+        "value": bandwidth["bytes_per_s"] / 1000.0, "unit": "kB/s", "baseline_name": "budget 100 kB/s",
+        "ratio": bandwidth["bytes_per_s"] / BYTES_BUDGET,
+    })
+    rows.append({
+        "case": "bytes/s per UAV, same, tiles at 1 Hz (state, tracks @5 Hz)",
+        "value": bandwidth["bytes_per_s_tiles_1hz"] / 1000.0, "unit": "kB/s", "baseline_name": "budget 100 kB/s",
+        "ratio": bandwidth["bytes_per_s_tiles_1hz"] / BYTES_BUDGET,
+    })
+    return rows

@@ -1,0 +1,206 @@
+"""The read-only REST API of the fusion server (DESIGN.md 7), a FastAPI app over a running server.
+
+Endpoints: ``/healthz``, ``/v1/uavs``, ``/v1/map``, ``/v1/tiles/{cls}/{z}/{x}/{y}.png``,
+``/v1/objects``, ``/v1/tracks``, ``/metrics``, ``/`` and the extension ``/v1/joint/tiles``.
+Bad parameters get a 400 (or FastAPI's 422 for wrong types) with a message saying what is wrong.
+"""
+
+from __future__ import annotations
+
+import time
+from importlib import resources
+from typing import TYPE_CHECKING, Any, Literal
+
+import numpy as np
+from fastapi import FastAPI, HTTPException, Query
+from fastapi.responses import HTMLResponse, PlainTextResponse, Response
+
+from fusion_server.peaks import find_peaks, peaks_geojson
+from fusion_server.render import AGGREGATIONS, COLORMAPS, BBox, parse_bbox, paste_window, tile_bytes, window_for_bbox
+from shared.keys import name_problem
+
+if TYPE_CHECKING:
+    from fusion_server.server import FusionServer
+
+__all__ = ["create_app"]
+
+_BBOX_HELP = "minlon,minlat,maxlon,maxlat in degrees (WGS84)"
+
+
+def _bbox(text: str | None) -> BBox | None:
+    if text is None:
+        return None
+    try:
+        return parse_bbox(text)
+    except ValueError as exc:
+        raise HTTPException(status_code=400, detail=f"bad bbox: {exc}") from None
+
+
+def _check_cls(server: FusionServer, cls: str, *, must_exist: bool = True) -> str:
+    problem = name_problem(cls)
+    if problem is not None:
+        raise HTTPException(status_code=400, detail=f"bad cls: {problem}")
+    if must_exist and cls not in server.classes():
+        known = ", ".join(sorted(server.classes())) or "none yet"
+        raise HTTPException(status_code=404, detail=f"unknown class {cls!r}; classes with data: {known}")
+    return cls
+
+
+def _index_html() -> str:
+    try:
+        return resources.files("fusion_server").joinpath("static/index.html").read_text(encoding="utf-8")
+    except (FileNotFoundError, OSError):
+        return "<!doctype html><title>uavmm fusion</title><p>uavmm fusion server: see <a href='/docs'>/docs</a>."
+
+
+def create_app(server: FusionServer) -> FastAPI:
+    """The FastAPI app serving ``server``'s state (read-only)."""
+    app = FastAPI(
+        title="uavmm fusion server",
+        version="1",
+        description="Joint memory map, global tracks and UAV status of a uav-memory-maps fusion server.",
+    )
+    grid = server.settings.grid
+
+    @app.get("/", response_class=HTMLResponse, summary="Live map page")
+    def index() -> str:
+        return _index_html()
+
+    @app.get("/healthz", summary="Liveness and a short status")
+    def healthz() -> dict[str, Any]:
+        return {
+            "status": "ok" if server.zenoh_open() else "degraded",
+            "zenoh": "open" if server.zenoh_open() else "closed",
+            "uptime_s": round(time.monotonic() - server.started, 3),
+            "uavs_online": len(server.uavs.online()),
+            "classes": sorted(server.classes()),
+            **server.joint.stats(),
+            "global_tracks": len(server.tracker),
+        }
+
+    @app.get("/v1/uavs", summary="The UAVs: liveliness, last seen, last state, message rates")
+    def uavs() -> list[dict[str, Any]]:
+        return server.uavs.snapshot(server.joint.uav_tile_counts())
+
+    @app.get("/v1/map", summary="Joint map window over a bbox (grid geometry + values)")
+    def joint_map(
+        cls: str = Query(..., description="class name, e.g. person"),
+        bbox: str = Query(..., description=_BBOX_HELP),
+        encoding: Literal["dense", "sparse"] = Query("dense", description="dense rows or sparse non-zero cells"),
+    ) -> dict[str, Any]:
+        _check_cls(server, cls)
+        box = _bbox(bbox)
+        assert box is not None
+        window = window_for_bbox(grid, box)
+        cells = window.width * window.height
+        if cells > server.settings.map_max_cells:
+            raise HTTPException(
+                status_code=400,
+                detail=f"bbox covers {window.width} x {window.height} = {cells} cells, at most "
+                f"{server.settings.map_max_cells} allowed: use a smaller bbox (or the PNG tiles)",
+            )
+        n = grid.n
+        tiles = server.joint.tiles_in_range(
+            cls, window.gx0 // n, (window.gx0 + window.width - 1) // n,
+            window.gy0 // n, (window.gy0 + window.height - 1) // n,
+        )
+        values = paste_window(window, tiles)
+        north, west = grid.cell_to_latlon(window.gx0, window.gy0)
+        south, east = grid.cell_to_latlon(window.gx0 + window.width, window.gy0 + window.height)
+        centre_lat = (box.min_lat + box.max_lat) / 2
+        body: dict[str, Any] = {
+            "cls": cls,
+            "z": grid.z,
+            "n": grid.n,
+            "gx0": window.gx0,
+            "gy0": window.gy0,
+            "width": window.width,
+            "height": window.height,
+            "bbox": [float(west), float(south), float(east), float(north)],
+            "cell_size_m": float(grid.cell_size_m(centre_lat)),
+            "t": max((t.t for t in tiles), default=None),
+            "encoding": encoding,
+        }
+        scaled = np.round(values.astype(np.float64) / 255.0, 4)
+        if encoding == "dense":
+            body["values"] = scaled.tolist()
+        else:
+            rows, cols = np.nonzero(values)
+            body["cells"] = {"row": rows.tolist(), "col": cols.tolist(), "value": scaled[rows, cols].tolist()}
+        return body
+
+    @app.get(
+        "/v1/tiles/{cls}/{z}/{x}/{y}.png",
+        summary="Heatmap PNG tile of the joint map for slippy-map viewers",
+        response_class=Response,
+        responses={200: {"content": {"image/png": {}}}},
+    )
+    def tile_png(
+        cls: str,
+        z: int,
+        x: int,
+        y: int,
+        agg: str = Query("max", description=f"downsampling at zooms below the grid's: {', '.join(AGGREGATIONS)}"),
+        cmap: str = Query("inferno", description=f"colormap: {', '.join(COLORMAPS)}"),
+    ) -> Response:
+        # a well-formed class without data yet gets a transparent tile, so map viewers show no errors
+        _check_cls(server, cls, must_exist=False)
+        try:
+            png = tile_bytes(server.joint.tiles_in_range, grid, cls, z, x, y, agg=agg, cmap=cmap)
+        except ValueError as exc:
+            raise HTTPException(status_code=400, detail=str(exc)) from None
+        return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
+
+    @app.get("/v1/objects", summary="Fused object candidates (joint map peaks) as GeoJSON")
+    def objects(
+        cls: str | None = Query(None, description="class name (default: all classes)"),
+        bbox: str | None = Query(None, description=_BBOX_HELP + " (default: everywhere)"),
+        min_score: float = Query(0.5, ge=0.0, le=1.0, description="lowest peak value in [0, 1]"),
+        limit: int = Query(1000, ge=1, le=100_000, description="most features returned"),
+    ) -> dict[str, Any]:
+        box = _bbox(bbox)
+        classes = [_check_cls(server, cls)] if cls is not None else sorted(server.classes())
+        peaks = []
+        for name in classes:
+            if box is not None:
+                window = window_for_bbox(grid, box)
+                n = grid.n
+                # one tile of margin so peaks at the bbox edge see their neighbours
+                tiles = server.joint.tiles_in_range(
+                    name, window.gx0 // n - 1, (window.gx0 + window.width - 1) // n + 1,
+                    window.gy0 // n - 1, (window.gy0 + window.height - 1) // n + 1,
+                )
+            else:
+                tiles = server.joint.tiles(name)
+            peaks.extend(find_peaks(tiles, grid, min_score, bbox=box, limit=limit))
+        peaks.sort(key=lambda p: -p.score)
+        return peaks_geojson(peaks[:limit])
+
+    @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history")
+    def tracks(
+        include_ended: bool = Query(False, description="also list recently ended tracks"),
+        history: bool = Query(True, description="include each track's (t, lat, lon) history"),
+    ) -> dict[str, Any]:
+        features = []
+        for record in server.tracker.records(include_ended=include_ended):
+            feature = record.to_geojson()
+            if not history:
+                del feature["properties"]["history"]
+            features.append(feature)
+        return {"type": "FeatureCollection", "features": features}
+
+    @app.get("/v1/joint/tiles", summary="Index of the current joint tiles (extension)")
+    def joint_tiles(cls: str | None = Query(None, description="class name (default: all)")) -> list[dict[str, Any]]:
+        if cls is not None:
+            _check_cls(server, cls, must_exist=False)
+        return [
+            {"cls": t.cls, "z": t.z, "x": t.x, "y": t.y, "t": t.t, "seq": t.seq, "uavs": list(t.uavs),
+             "max": round(float(t.values.max()) / 255.0, 4)}
+            for t in sorted(server.joint.tiles(cls), key=lambda t: t.key)
+        ]
+
+    @app.get("/metrics", response_class=PlainTextResponse, summary="Prometheus metrics")
+    def metrics() -> PlainTextResponse:
+        return PlainTextResponse(server.prometheus(), media_type="text/plain; version=0.0.4; charset=utf-8")
+
+    return app

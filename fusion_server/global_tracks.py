@@ -1,0 +1,410 @@
+"""Global tracks: the UAVs' local tracks associated on the ground into global ids, with history.
+
+Per class, a UAV's new local tracks are assigned to the nearest global tracks (metres on the ground,
+gated, ``scipy.optimize.linear_sum_assignment``); a local id once mapped keeps its global id; a
+global track survives while any UAV reports it, then for ``hold_s``, so a UAV that finds the object
+again re-adopts its global id. No I/O: the Zenoh side feeds it, persistence drains its changes.
+"""
+
+from __future__ import annotations
+
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from shared.messages import MAX_MEMBERS, JointTrackItem, JointTracksMessage, TracksMessage
+
+__all__ = ["GlobalTrack", "GlobalTracker", "TrackRecord", "ground_distance_m"]
+
+_M_PER_DEG_LAT = 111_320.0
+_MAX_MEMBERS_KEPT = min(MAX_MEMBERS, 256)
+
+
+def ground_distance_m(lat1, lon1, lat2, lon2) -> np.ndarray:
+    """Ground distance in metres between points (degrees, broadcastable), equirectangular.
+
+    Accurate to well under 1 % at association distances (up to kilometres); longitudes differing
+    by more than 180 deg are wrapped.
+    """
+    lat1, lon1, lat2, lon2 = (np.asarray(v, dtype=np.float64) for v in (lat1, lon1, lat2, lon2))
+    dlon = (lon2 - lon1 + 180.0) % 360.0 - 180.0
+    east = dlon * _M_PER_DEG_LAT * np.cos(np.radians(0.5 * (lat1 + lat2)))
+    north = (lat2 - lat1) * _M_PER_DEG_LAT
+    return np.hypot(east, north)
+
+
+@dataclass(slots=True)
+class _Member:
+    lat: float
+    lon: float
+    score: float
+    vel_en: tuple[float, float]
+    received: float  # monotonic
+    active: bool = True
+
+
+@dataclass(slots=True)
+class GlobalTrack:
+    """One global track. Positions in degrees, velocities (east, north) m/s, times epoch seconds.
+
+    members: every local track it absorbed, ``(uav, local_id) -> observation``, insertion ordered;
+    ``active`` members are the ones their UAV still reports. lost_since: monotonic time the last
+    active member was lost (None while tracked). history: (t, lat, lon) rows, oldest first, bounded.
+    """
+
+    gid: int
+    cls: str
+    lat: float
+    lon: float
+    score: float
+    vel_en: tuple[float, float]
+    created: float
+    last_update: float
+    members: dict[tuple[str, int], _Member] = field(default_factory=dict)
+    lost_since: float | None = None
+    history: deque = field(default_factory=deque)
+    ended: float | None = None
+
+    def active_members(self) -> list[tuple[str, int]]:
+        """(uav, local_id) of the members their UAVs currently report."""
+        return [key for key, member in self.members.items() if member.active]
+
+    def to_record(self) -> TrackRecord:
+        """A plain copy for persistence and for the REST API."""
+        return TrackRecord(
+            gid=self.gid,
+            cls=self.cls,
+            lat=self.lat,
+            lon=self.lon,
+            score=self.score,
+            vel_en=self.vel_en,
+            created=self.created,
+            last_update=self.last_update,
+            members=tuple(self.members),
+            active=tuple(self.active_members()),
+            ended=self.ended,
+            history=tuple(self.history),
+        )
+
+
+@dataclass(frozen=True, slots=True)
+class TrackRecord:
+    """Immutable view of a global track (see :class:`GlobalTrack`); ``ended`` is None while alive."""
+
+    gid: int
+    cls: str
+    lat: float
+    lon: float
+    score: float
+    vel_en: tuple[float, float]
+    created: float
+    last_update: float
+    members: tuple[tuple[str, int], ...]
+    active: tuple[tuple[str, int], ...] = ()
+    ended: float | None = None
+    history: tuple[tuple[float, float, float], ...] = ()
+
+    @property
+    def status(self) -> str:
+        """"tracked" (a UAV reports it), "lost" (held, nobody reports it) or "ended"."""
+        if self.ended is not None:
+            return "ended"
+        return "tracked" if self.active else "lost"
+
+    def to_geojson(self) -> dict[str, Any]:
+        """A GeoJSON Point Feature; properties hold gid, cls, score, vel_en, members, history, times."""
+        return {
+            "type": "Feature",
+            "id": self.gid,
+            "geometry": {"type": "Point", "coordinates": [self.lon, self.lat]},
+            "properties": {
+                "gid": self.gid,
+                "cls": self.cls,
+                "score": self.score,
+                "vel_en": list(self.vel_en),
+                "status": self.status,
+                "created": self.created,
+                "last_update": self.last_update,
+                "ended": self.ended,
+                "members": [list(m) for m in self.members],
+                "active_members": [list(m) for m in self.active],
+                "history": [list(row) for row in self.history],
+            },
+        }
+
+
+class GlobalTracker:
+    """Associates local tracks into global tracks. Thread-safe (one lock).
+
+    gate_m: largest ground distance at which a new local track joins a global track. hold_s: how long
+    a global track nobody reports is kept. member_ttl_s: a UAV's member counts as lost when its UAV
+    sent no tracks message for that long. history_len / history_interval_s: at most that many
+    history rows per track, one per interval. max_ended: ended tracks kept in memory for the API.
+    """
+
+    def __init__(
+        self,
+        *,
+        gate_m: float = 10.0,
+        hold_s: float = 10.0,
+        member_ttl_s: float = 2.0,
+        history_len: int = 600,
+        history_interval_s: float = 1.0,
+        max_ended: int = 1000,
+        next_gid: int = 1,
+        clock=time.monotonic,
+        wall=time.time,
+    ) -> None:
+        self.gate_m = gate_m
+        self.hold_s = hold_s
+        self.member_ttl_s = member_ttl_s
+        self.history_len = history_len
+        self.history_interval_s = history_interval_s
+        self._clock = clock
+        self._wall = wall
+        self._lock = threading.Lock()
+        self._tracks: dict[int, GlobalTrack] = {}
+        self._local: dict[tuple[str, int], int] = {}
+        self._ended: deque[TrackRecord] = deque(maxlen=max_ended)
+        self._next_gid = next_gid
+        self._dirty: set[int] = set()  # for persistence
+        self._history_out: list[tuple[int, float, float, float]] = []
+        self._ended_pending: dict[int, TrackRecord] = {}
+        self.version = 0  # increases on every change, for rate-limited publishing
+
+    # ---- input ---------------------------------------------------------------------------------
+    def update(self, msg: TracksMessage, now: float | None = None) -> bool:
+        """Take one UAV's local tracks; returns True if the global tracks changed."""
+        now = self._clock() if now is None else now
+        wall = self._wall()
+        uav = msg.uav
+        with self._lock:
+            touched: set[int] = set()
+            claimed: set[int] = set()
+            unmatched = []
+            for item in msg.tracks:
+                key = (uav, item.id)
+                gid = self._local.get(key)
+                track = self._tracks.get(gid) if gid is not None else None
+                if track is None or track.cls != item.cls or gid in claimed:
+                    unmatched.append(item)
+                    continue
+                track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
+                claimed.add(gid)
+            for cls in sorted({item.cls for item in unmatched}):
+                items = [item for item in unmatched if item.cls == cls]
+                self._associate(uav, items, claimed, now, wall)
+            touched |= claimed
+            reported = {item.id for item in msg.tracks}
+            for gid, track in self._tracks.items():
+                for (member_uav, local_id), member in track.members.items():
+                    if member_uav == uav and member.active and local_id not in reported:
+                        member.active = False
+                        touched.add(gid)
+            for gid in touched:
+                self._refresh(self._tracks[gid], now, wall)
+            if touched:
+                self.version += 1
+            return bool(touched)
+
+    def _associate(self, uav: str, items: list, claimed: set[int], now: float, wall: float) -> None:
+        candidates = [t for gid, t in self._tracks.items() if t.cls == items[0].cls and gid not in claimed]
+        assigned: dict[int, GlobalTrack] = {}
+        if candidates:
+            lat = np.array([item.lat for item in items])
+            lon = np.array([item.lon for item in items])
+            t_lat, t_lon = self._predicted(candidates, now)
+            cost = ground_distance_m(lat[:, None], lon[:, None], t_lat[None, :], t_lon[None, :])
+            gated = np.where(cost <= self.gate_m, cost, 1e9)
+            rows, cols = linear_sum_assignment(gated)
+            for r, c in zip(rows, cols, strict=True):
+                if cost[r, c] <= self.gate_m:
+                    assigned[int(r)] = candidates[int(c)]
+        for i, item in enumerate(items):
+            track = assigned.get(i)
+            if track is None:
+                track = GlobalTrack(
+                    gid=self._next_gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score,
+                    vel_en=item.vel_en, created=wall, last_update=wall,
+                    history=deque(maxlen=self.history_len),
+                )
+                self._tracks[track.gid] = track
+                self._next_gid += 1
+            key = (uav, item.id)
+            track.members.pop(key, None)  # re-insert: most recent last
+            track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
+            self._trim_members(track)
+            self._local[key] = track.gid
+            claimed.add(track.gid)
+
+    def _predicted(self, tracks: list[GlobalTrack], now: float) -> tuple[np.ndarray, np.ndarray]:
+        # a lost track is extrapolated with its last velocity (for at most hold_s) so a UAV that
+        # finds a moving object again still falls inside the gate
+        lat = np.array([t.lat for t in tracks])
+        lon = np.array([t.lon for t in tracks])
+        dt = np.array([min(now - t.lost_since, self.hold_s) if t.lost_since is not None else 0.0 for t in tracks])
+        ve = np.array([t.vel_en[0] for t in tracks])
+        vn = np.array([t.vel_en[1] for t in tracks])
+        lat2 = lat + vn * dt / _M_PER_DEG_LAT
+        lon2 = lon + ve * dt / (_M_PER_DEG_LAT * np.maximum(np.cos(np.radians(lat)), 1e-6))
+        return lat2, lon2
+
+    def _trim_members(self, track: GlobalTrack) -> None:
+        while len(track.members) > _MAX_MEMBERS_KEPT:
+            oldest = next((k for k, m in track.members.items() if not m.active), None)
+            if oldest is None:
+                break
+            del track.members[oldest]
+            if self._local.get(oldest) == track.gid:
+                del self._local[oldest]
+
+    def _refresh(self, track: GlobalTrack, now: float, wall: float) -> None:
+        active = [m for m in track.members.values() if m.active]
+        if active:
+            weights = np.array([max(m.score, 1e-3) for m in active])
+            weights /= weights.sum()
+            track.lat = float(np.dot(weights, [m.lat for m in active]))
+            track.lon = float(np.dot(weights, [m.lon for m in active]))
+            track.vel_en = (
+                float(np.dot(weights, [m.vel_en[0] for m in active])),
+                float(np.dot(weights, [m.vel_en[1] for m in active])),
+            )
+            track.score = float(max(m.score for m in active))
+            track.last_update = wall
+            track.lost_since = None
+            last = track.history[-1][0] if track.history else -math.inf
+            if wall - last >= self.history_interval_s:
+                row = (wall, track.lat, track.lon)
+                track.history.append(row)
+                self._history_out.append((track.gid, *row))
+        elif track.lost_since is None:
+            track.lost_since = now
+        self._dirty.add(track.gid)
+
+    def expire(self, now: float | None = None) -> bool:
+        """Lose members whose UAV went quiet, end tracks held longer than hold_s; True if changed."""
+        now = self._clock() if now is None else now
+        wall = self._wall()
+        changed = False
+        with self._lock:
+            for gid, track in list(self._tracks.items()):
+                stale = [m for m in track.members.values() if m.active and now - m.received > self.member_ttl_s]
+                for member in stale:
+                    member.active = False
+                if stale:
+                    self._refresh(track, now, wall)
+                    changed = True
+                if track.lost_since is not None and now - track.lost_since > self.hold_s:
+                    self._end(gid, wall)
+                    changed = True
+            if changed:
+                self.version += 1
+        return changed
+
+    def uav_lost(self, uav: str, now: float | None = None) -> bool:
+        """Mark every member of ``uav`` lost (its liveliness token went away); True if changed."""
+        now = self._clock() if now is None else now
+        wall = self._wall()
+        changed = False
+        with self._lock:
+            for track in self._tracks.values():
+                hit = False
+                for (member_uav, _), member in track.members.items():
+                    if member_uav == uav and member.active:
+                        member.active = False
+                        hit = True
+                if hit:
+                    self._refresh(track, now, wall)
+                    changed = True
+            if changed:
+                self.version += 1
+        return changed
+
+    def _end(self, gid: int, wall: float) -> None:
+        track = self._tracks.pop(gid)
+        track.ended = wall
+        for key in track.members:
+            if self._local.get(key) == gid:
+                del self._local[key]
+        record = track.to_record()
+        self._ended.append(record)
+        self._dirty.add(gid)
+        self._ended_pending[gid] = record
+
+    # ---- restore / persistence -----------------------------------------------------------------
+    def restore(self, records: Iterable[TrackRecord], now: float | None = None) -> int:
+        """Load tracks saved by a previous run: alive ones are held as lost (hold_s from now) so
+        UAVs re-adopt them; their members' local ids keep their global ids. Returns the count."""
+        now = self._clock() if now is None else now
+        count = 0
+        with self._lock:
+            for rec in records:
+                self._next_gid = max(self._next_gid, rec.gid + 1)
+                if rec.ended is not None:
+                    self._ended.append(rec)
+                    continue
+                track = GlobalTrack(
+                    gid=rec.gid, cls=rec.cls, lat=rec.lat, lon=rec.lon, score=rec.score, vel_en=rec.vel_en,
+                    created=rec.created, last_update=rec.last_update, lost_since=now,
+                    history=deque(rec.history, maxlen=self.history_len),
+                )
+                for key in rec.members:
+                    track.members[key] = _Member(rec.lat, rec.lon, rec.score, rec.vel_en, now, active=False)
+                    self._local[key] = rec.gid
+                self._tracks[rec.gid] = track
+                count += 1
+            self.version += 1
+        return count
+
+    def drain_changes(self) -> tuple[list[TrackRecord], list[tuple[int, float, float, float]]]:
+        """Tracks changed (or ended) since the last call, and new history rows (gid, t, lat, lon)."""
+        with self._lock:
+            records = []
+            for gid in self._dirty:
+                track = self._tracks.get(gid)
+                if track is not None:
+                    records.append(track.to_record())
+                elif gid in self._ended_pending:
+                    records.append(self._ended_pending[gid])
+            self._dirty.clear()
+            self._ended_pending.clear()
+            history, self._history_out = self._history_out, []
+            return records, history
+
+    @property
+    def next_gid(self) -> int:
+        """The global id the next new track gets."""
+        with self._lock:
+            return self._next_gid
+
+    # ---- reading -------------------------------------------------------------------------------
+    def records(self, include_ended: bool = False) -> list[TrackRecord]:
+        """Current global tracks (tracked and lost), plus recently ended ones if asked, by gid."""
+        with self._lock:
+            rows = [track.to_record() for track in self._tracks.values()]
+            if include_ended:
+                rows.extend(self._ended)
+        return sorted(rows, key=lambda r: r.gid)
+
+    def joint_message(self) -> JointTracksMessage:
+        """The ``joint/tracks`` message: every current global track with the local ids it absorbed."""
+        with self._lock:
+            items = tuple(
+                JointTrackItem(
+                    gid=t.gid, cls=t.cls, lat=t.lat, lon=t.lon, score=min(max(t.score, 0.0), 1.0),
+                    vel_en=t.vel_en, members=tuple(t.members),
+                )
+                for t in sorted(self._tracks.values(), key=lambda t: t.gid)
+            )
+        return JointTracksMessage(t=self._wall(), tracks=items)
+
+    def __len__(self) -> int:
+        with self._lock:
+            return len(self._tracks)

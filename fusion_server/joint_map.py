@@ -1,0 +1,323 @@
+"""The joint map: the UAVs' latest tiles and their fusion into joint tiles, with no I/O.
+
+Per (uav, cls, tile) the latest tile and its receive time are kept; a UAV covers a tile while that
+tile is younger than the time to live. :meth:`JointMap.step` fuses the tiles that changed (at most
+``max_hz`` times a second per tile), expires old ones and returns the joint tile messages to publish,
+including one empty tile for a joint tile nobody covers any more. Thread-safe: one internal lock.
+"""
+
+from __future__ import annotations
+
+import heapq
+import math
+import threading
+import time
+from collections.abc import Iterable
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from fusion_server.rules import FusionRule
+from shared.keys import JOINT_UAV
+from shared.tilecodec import encode_tile_sparse
+from shared.tiles import TileGrid
+
+__all__ = ["JointMap", "JointTile", "JointUpdate", "TileKey", "encode_joint_tile"]
+
+#: (cls, z, x, y) of a tile.
+TileKey = tuple[str, int, int, int]
+_MAX_CLASSES = 1024
+#: Publications a tile may make in a burst above its max_hz average (absorbs jitter of the agents).
+_BURST = 2.0
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class JointTile:
+    """One fused tile as published.
+
+    values: (n, n) uint8, read-only (value = byte / 255). t: newest ``t`` (seconds since the epoch) of
+    the UAV tiles fused into it. seq: the server's publish counter. payload: the encoded tile message
+    (``uav = "joint"``). uavs: the UAVs covering it when it was fused (empty for a tile restored from
+    the database). updated: wall time of the fusion, seconds since the epoch.
+    """
+
+    cls: str
+    z: int
+    x: int
+    y: int
+    values: NDArray[np.uint8]
+    t: float
+    seq: int
+    payload: bytes
+    uavs: tuple[str, ...]
+    updated: float
+
+    @property
+    def key(self) -> TileKey:
+        """(cls, z, x, y)."""
+        return (self.cls, self.z, self.x, self.y)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class JointUpdate:
+    """A joint tile message to publish.
+
+    tile: the new joint tile, or None when the tile was dropped (``payload`` is then an empty tile
+    telling subscribers to clear it). pending_since: monotonic time of the oldest change not yet
+    published (a receive or an expiry), so ``publish time - pending_since`` is the fusion latency.
+    """
+
+    key: TileKey
+    payload: bytes
+    tile: JointTile | None
+    pending_since: float
+
+
+@dataclass(slots=True)
+class _UavTile:
+    values: NDArray[np.uint8]
+    t: float
+    seq: int
+    received: float  # monotonic
+
+
+def encode_joint_tile(key: TileKey, n: int, values: NDArray[np.uint8], t: float, seq: int) -> bytes:
+    """Tile message bytes (``uav = "joint"``) of (n, n) uint8 ``values``, sparse or dense."""
+    flat = values.reshape(-1)
+    idx = np.flatnonzero(flat != 0)  # on a bool array: ~10x faster than flatnonzero on uint8
+    cls, z, x, y = key
+    return encode_tile_sparse(JOINT_UAV, cls, z, x, y, n, t, seq, idx, flat[idx])
+
+
+class JointMap:
+    """Latest per-UAV tiles and the fused joint tiles of one grid.
+
+    grid: the only grid accepted (tiles of other z or n are the caller's to reject). rule: a
+    :mod:`fusion_server.rules` function. ttl_s: how long a tile counts as covering after it was
+    received. max_hz: most joint publications per tile and second. max_uav_tiles: bound on the
+    stored UAV tiles (memory: n*n bytes each); max_hz is an average (token bucket, burst of 2), so
+    a tile updated at exactly max_hz is never delayed by jitter. clock: monotonic seconds; wall: epoch seconds.
+    """
+
+    def __init__(
+        self,
+        grid: TileGrid,
+        rule: FusionRule,
+        ttl_s: float,
+        max_hz: float,
+        *,
+        max_uav_tiles: int = 20_000,
+        clock=time.monotonic,
+        wall=time.time,
+    ) -> None:
+        self.grid = grid
+        self.rule = rule
+        self.ttl_s = float(ttl_s)
+        self.max_hz = float(max_hz)
+        self.max_uav_tiles = int(max_uav_tiles)
+        self._clock = clock
+        self._wall = wall
+        self._lock = threading.Lock()
+        self._covers: dict[TileKey, dict[str, _UavTile]] = {}
+        self._n_uav_tiles = 0
+        self._joint: dict[TileKey, JointTile] = {}
+        self._dirty: dict[TileKey, float] = {}
+        # token bucket per tile: (tokens, time of the last refill); rate max_hz, burst _BURST, so the
+        # average rate is capped while a put arriving a little early (jitter) is not held back
+        self._buckets: dict[TileKey, tuple[float, float]] = {}
+        # (expiry, key, uav or None for a restored tile, received); validated when popped
+        self._expiries: list[tuple[float, TileKey, str | None, float]] = []
+        # increasing across restarts: a restarted server's seq continues above the old one's
+        self._seq = time.time_ns() // 1000
+        self._wake = threading.Condition(self._lock)
+        self._poked = False
+        self._classes: set[str] = set()  # every class seen since start (bounded)
+
+    # ---- input ---------------------------------------------------------------------------------
+    def put(self, uav: str, key: TileKey, values: NDArray[np.uint8], t: float, seq: int,
+            now: float | None = None) -> str | None:
+        """Store a UAV's tile; return None when accepted, else the reason it was not.
+
+        values: (n, n) uint8 of the grid's n (not copied: the caller must not change it). Reasons:
+        "stale" (not newer than the stored tile: seq and t both not greater), "too_many_tiles" (the
+        store is full). Wakes a thread blocked in :meth:`wait`.
+        """
+        now = self._clock() if now is None else now
+        with self._lock:
+            per_uav = self._covers.get(key)
+            old = per_uav.get(uav) if per_uav is not None else None
+            if old is not None and seq <= old.seq and t <= old.t:
+                return "stale"
+            if old is None and self._n_uav_tiles >= self.max_uav_tiles:
+                return "too_many_tiles"
+            if per_uav is None:
+                per_uav = self._covers[key] = {}
+            if old is None:
+                self._n_uav_tiles += 1
+            per_uav[uav] = _UavTile(values, float(t), int(seq), now)
+            if len(self._classes) < _MAX_CLASSES:
+                self._classes.add(key[0])
+            heapq.heappush(self._expiries, (now + self.ttl_s, key, uav, now))
+            self._dirty.setdefault(key, now)
+            self._poked = True
+            self._wake.notify_all()
+        return None
+
+    def restore(self, tiles: Iterable[JointTile], keep_s: float, now: float | None = None) -> int:
+        """Serve joint tiles loaded from the database until ``keep_s`` after ``now``.
+
+        They are replaced as soon as a UAV covers them, and dropped (empty tile published) after
+        ``keep_s`` unless one does. Returns the number restored.
+        """
+        now = self._clock() if now is None else now
+        count = 0
+        with self._lock:
+            for tile in tiles:
+                if tile.key in self._joint:
+                    continue
+                self._joint[tile.key] = tile
+                self._classes.add(tile.cls)
+                self._seq = max(self._seq, tile.seq + 1)
+                heapq.heappush(self._expiries, (now + keep_s, tile.key, None, now))
+                count += 1
+        return count
+
+    # ---- fusion --------------------------------------------------------------------------------
+    def wait(self, timeout_s: float) -> None:
+        """Block until :meth:`put` (or :meth:`poke`) is called or ``timeout_s`` passes.
+
+        For the publishing thread: a put since the last wait returns at once.
+        """
+        with self._lock:
+            if not self._poked and timeout_s > 0:
+                self._wake.wait(timeout_s)
+            self._poked = False
+
+    def poke(self) -> None:
+        """Wake a thread blocked in :meth:`wait` (e.g. to shut down)."""
+        with self._lock:
+            self._poked = True
+            self._wake.notify_all()
+
+    def step(self, now: float | None = None) -> tuple[list[JointUpdate], float | None]:
+        """Expire old tiles, fuse the changed tiles that may be published now.
+
+        Returns the updates to publish (joint tiles whose values changed, empty tiles for dropped
+        ones) and the monotonic time of the next thing to do (None: nothing pending).
+        """
+        now = self._clock() if now is None else now
+        updates: list[JointUpdate] = []
+        with self._lock:
+            self._expire(now)
+            next_due = math.inf
+            for key in list(self._dirty):
+                tokens = self._tokens(key, now)
+                if tokens < 1.0:
+                    next_due = min(next_due, now + (1.0 - tokens) / self.max_hz)
+                    continue
+                pending_since = self._dirty.pop(key)
+                update = self._fuse(key, pending_since, now)
+                if update is not None:
+                    updates.append(update)
+                    if update.tile is not None:
+                        self._buckets[key] = (tokens - 1.0, now)
+            if self._expiries:
+                next_due = min(next_due, self._expiries[0][0])
+        return updates, (None if next_due == math.inf else next_due)
+
+    def _tokens(self, key: TileKey, now: float) -> float:
+        bucket = self._buckets.get(key)
+        if bucket is None:
+            return _BURST
+        tokens, stamp = bucket
+        return min(_BURST, tokens + (now - stamp) * self.max_hz)
+
+    def _expire(self, now: float) -> None:
+        heap = self._expiries
+        while heap and heap[0][0] <= now:
+            expiry, key, uav, received = heapq.heappop(heap)
+            if uav is None:  # a restored tile's grace time is over: recompute from real coverage
+                self._dirty.setdefault(key, expiry)
+                continue
+            per_uav = self._covers.get(key)
+            entry = per_uav.get(uav) if per_uav is not None else None
+            if entry is None or entry.received != received:
+                continue  # replaced by a newer tile: its own heap entry decides
+            del per_uav[uav]
+            self._n_uav_tiles -= 1
+            if not per_uav:
+                del self._covers[key]
+            self._dirty.setdefault(key, expiry)
+
+    def _fuse(self, key: TileKey, pending_since: float, now: float) -> JointUpdate | None:
+        per_uav = self._covers.get(key)
+        previous = self._joint.get(key)
+        n = self.grid.n
+        if not per_uav:
+            if previous is None:
+                return None
+            del self._joint[key]
+            self._buckets.pop(key, None)
+            self._seq += 1
+            empty = np.zeros((n, n), dtype=np.uint8)
+            return JointUpdate(key, encode_joint_tile(key, n, empty, self._wall(), self._seq), None, pending_since)
+        entries = list(per_uav.values())
+        if len(entries) == 1:
+            values = entries[0].values  # every rule maps one layer to itself
+        else:
+            values = self.rule(np.stack([e.values for e in entries]))
+        t = max(e.t for e in entries)
+        uavs = tuple(sorted(per_uav))
+        if previous is not None and np.array_equal(previous.values, values):
+            return None
+        values = values.copy() if len(entries) == 1 else values
+        values.flags.writeable = False
+        self._seq += 1
+        payload = encode_joint_tile(key, n, values, t, self._seq)
+        cls, z, x, y = key
+        tile = JointTile(cls, z, x, y, values, t, self._seq, payload, uavs, self._wall())
+        self._joint[key] = tile
+        return JointUpdate(key, payload, tile, pending_since)
+
+    # ---- reading -------------------------------------------------------------------------------
+    def get(self, key: TileKey) -> JointTile | None:
+        """The current joint tile at key, or None."""
+        with self._lock:
+            return self._joint.get(key)
+
+    def tiles(self, cls: str | None = None) -> list[JointTile]:
+        """Snapshot of the current joint tiles (of one class, or all)."""
+        with self._lock:
+            if cls is None:
+                return list(self._joint.values())
+            return [tile for tile in self._joint.values() if tile.cls == cls]
+
+    def tiles_in_range(self, cls: str, x0: int, x1: int, y0: int, y1: int) -> list[JointTile]:
+        """Joint tiles of ``cls`` at the grid's zoom with x0 <= x <= x1 and y0 <= y <= y1."""
+        z = self.grid.z
+        if (x1 - x0 + 1) * (y1 - y0 + 1) <= 64:
+            with self._lock:
+                found = (self._joint.get((cls, z, x, y)) for y in range(y0, y1 + 1) for x in range(x0, x1 + 1))
+                return [tile for tile in found if tile is not None]
+        with self._lock:
+            return [t for t in self._joint.values() if t.cls == cls and x0 <= t.x <= x1 and y0 <= t.y <= y1]
+
+    def classes(self) -> set[str]:
+        """Classes seen since start (in UAV tiles or restored joint tiles), at most 1024."""
+        with self._lock:
+            return set(self._classes)
+
+    def uav_tile_counts(self) -> dict[str, int]:
+        """Number of tiles each UAV currently covers (fresh tiles only)."""
+        counts: dict[str, int] = {}
+        with self._lock:
+            for per_uav in self._covers.values():
+                for uav in per_uav:
+                    counts[uav] = counts.get(uav, 0) + 1
+        return counts
+
+    def stats(self) -> dict[str, int]:
+        """Sizes: joint tiles, stored UAV tiles, tiles waiting to be fused."""
+        with self._lock:
+            return {"joint_tiles": len(self._joint), "uav_tiles": self._n_uav_tiles, "pending": len(self._dirty)}

@@ -1,0 +1,161 @@
+"""The fusion server process: its components wired together, the Zenoh node and the HTTP thread.
+
+``with FusionServer(settings) as server: server.start()`` restores the database, opens Zenoh and
+serves the REST API on ``server.url``; leaving the block shuts everything down and flushes the
+database. :func:`run` does that until a stop event is set (the CLI sets it on SIGINT/SIGTERM).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable
+
+import uvicorn
+
+from fusion_server.api import create_app
+from fusion_server.config import FusionSettings, zenoh_config
+from fusion_server.global_tracks import GlobalTracker
+from fusion_server.joint_map import JointMap
+from fusion_server.metrics import FusionMetrics
+from fusion_server.persistence import FusionStore
+from fusion_server.rules import get_fusion_rule
+from fusion_server.uav_registry import UavRegistry
+from fusion_server.validation import MessageValidator
+from fusion_server.zenoh_node import FusionNode
+
+__all__ = ["FusionServer", "HttpThread", "run"]
+
+log = logging.getLogger(__name__)
+
+
+class HttpThread:
+    """uvicorn serving an ASGI app from a background thread; port 0 picks a free port."""
+
+    def __init__(self, app, host: str, port: int) -> None:
+        config = uvicorn.Config(app, host=host, port=port, log_level="warning", lifespan="off", access_log=False)
+        self._server = uvicorn.Server(config)
+        self._thread = threading.Thread(target=self._server.run, name="uavmm-fusion-http", daemon=True)
+        self.host = host
+        self.port = port
+
+    def start(self, timeout_s: float = 10.0) -> None:
+        """Start serving; raises OSError if the server did not come up within timeout_s."""
+        self._thread.start()
+        deadline = time.monotonic() + timeout_s
+        while not self._server.started:
+            if not self._thread.is_alive() or time.monotonic() > deadline:
+                raise OSError(f"HTTP server could not listen on {self.host}:{self.port}")
+            time.sleep(0.01)
+        sockets = [s for server in self._server.servers for s in server.sockets]
+        if sockets:
+            self.port = sockets[0].getsockname()[1]
+
+    def stop(self) -> None:
+        """Stop serving and wait for the thread."""
+        self._server.should_exit = True
+        self._thread.join(timeout=10.0)
+
+
+class FusionServer:
+    """All components of one fusion server, built from validated settings."""
+
+    def __init__(self, settings: FusionSettings) -> None:
+        self.settings = settings
+        self.started = time.monotonic()
+        keys = settings.keys
+        grid = settings.grid
+        self.metrics = FusionMetrics()
+        self.joint = JointMap(grid, get_fusion_rule(settings.fusion_rule), settings.ttl_s, settings.joint_max_hz,
+                              max_uav_tiles=settings.max_uav_tiles)
+        self.tracker = GlobalTracker(
+            gate_m=settings.track_gate_m, hold_s=settings.track_hold_s, member_ttl_s=settings.ttl_s,
+            history_len=settings.track_history_len, history_interval_s=settings.track_history_interval_s,
+        )
+        self.uavs = UavRegistry(max_uavs=settings.max_uavs)
+        self.store = (
+            FusionStore(settings.db_path, flush_interval_s=settings.persist_interval_s,
+                        history_len=settings.track_history_len)
+            if settings.db_path is not None
+            else None
+        )
+        self.node = FusionNode(
+            zenoh_config(settings.zenoh), keys, MessageValidator(keys, grid), self.joint, self.tracker,
+            self.uavs, self.metrics, self.store, tracks_max_hz=settings.tracks_max_hz,
+            persist_interval_s=settings.persist_interval_s,
+        )
+        self.app = create_app(self)
+        self.http: HttpThread | None = None
+
+    def start(self, *, http: bool = True) -> None:
+        """Restore the database, open Zenoh, start publishing and (if ``http``) the REST API."""
+        if self.store is not None:
+            restored = self.store.load()
+            grace = self.settings.restore_grace_s or self.settings.ttl_s
+            n_tracks = self.tracker.restore(restored.tracks)
+            n_tiles = self.joint.restore(restored.joint_tiles, grace)
+            log.info("restored %d global tracks and %d joint tiles from %s", n_tracks, n_tiles, self.store.path)
+            self.store.start()
+        self.node.start()
+        if http:
+            self.http = HttpThread(self.app, self.settings.http_host, self.settings.http_port)
+            self.http.start()
+
+    def close(self) -> None:
+        """Stop HTTP, close Zenoh, flush and close the database (idempotent)."""
+        if self.http is not None:
+            self.http.stop()
+            self.http = None
+        self.node.close()
+        if self.store is not None:
+            self.store.close()
+            self.store = None
+
+    def __enter__(self) -> FusionServer:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- read side for the API -----------------------------------------------------------------
+    @property
+    def url(self) -> str | None:
+        """Base URL of the REST API and map page, or None when HTTP is off."""
+        if self.http is None:
+            return None
+        host = self.http.host
+        shown = "127.0.0.1" if host in ("0.0.0.0", "") else f"[{host}]" if ":" in host else host
+        return f"http://{shown}:{self.http.port}/"
+
+    def zenoh_open(self) -> bool:
+        """Whether the Zenoh session is open."""
+        session = self.node.session
+        return session is not None and not session.is_closed()
+
+    def classes(self) -> set[str]:
+        """Classes present in the joint map or the UAVs' tiles."""
+        return self.joint.classes()
+
+    def prometheus(self) -> str:
+        """Prometheus text of all metrics, with the gauges of the joint map, UAVs and tracks."""
+        stats = self.joint.stats()
+        gauges = {
+            "uavmm_fusion_uavs_online": ("UAVs whose liveliness token is present.", len(self.uavs.online())),
+            "uavmm_fusion_joint_tiles": ("Joint tiles currently published.", stats["joint_tiles"]),
+            "uavmm_fusion_uav_tiles": ("Fresh UAV tiles held for fusion.", stats["uav_tiles"]),
+            "uavmm_fusion_global_tracks": ("Global tracks (tracked or held).", len(self.tracker)),
+        }
+        return self.metrics.prometheus(gauges)
+
+
+def run(settings: FusionSettings, stop: threading.Event,
+        on_ready: Callable[[FusionServer], None] | None = None) -> None:
+    """Run a fusion server until ``stop`` is set, then shut it down cleanly."""
+    with FusionServer(settings) as server:
+        server.start()
+        if on_ready is not None:
+            on_ready(server)
+        while not stop.wait(0.5):
+            pass
+        log.info("shutting down")

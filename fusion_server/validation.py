@@ -1,0 +1,140 @@
+"""Validation of every message the agents publish (DESIGN.md 4): key, payload schema, key/payload agreement.
+
+:meth:`MessageValidator.validate` turns ``(key, payload)`` into a decoded message or raises
+:class:`Rejected` with a short machine-readable ``reason`` (for the rejection counters).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from shared.keys import KeySpace, ParsedKey
+from shared.messages import (
+    DEFAULT_MAX_STATE_BYTES,
+    MESSAGE_ERROR_REASONS,
+    MessageError,
+    StateMessage,
+    TracksMessage,
+    decode_state,
+    decode_tracks,
+)
+from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, TileMessage, decode_tile
+from shared.tiles import TileGrid
+
+__all__ = ["REJECT_REASONS", "MessageValidator", "Received", "Rejected"]
+
+#: Reasons of this module on top of the codecs' ``MESSAGE_ERROR_REASONS``, plus those of the
+#: server ("stale", "too_many_tiles", "too_many_uavs", "unexpected_delete", "internal_error").
+REJECT_REASONS = frozenset(
+    {
+        "bad_key",  # not a key of the key space (wrong prefix, shape, names, numbers)
+        "unexpected_key",  # a valid key nobody may put on (e.g. a put on .../alive)
+        "uav_mismatch",  # the message's uav differs from the key's: a UAV publishes under its own key only
+        "tile_mismatch",  # cls/z/x/y of a tile differ from its key
+        "wrong_grid",  # z or n differ from the server's grid
+        "stale",  # not newer than the stored tile of that UAV
+        "too_many_tiles",
+        "too_many_uavs",
+        "unexpected_delete",  # a DELETE sample on an agent key
+        "internal_error",  # a bug: counted, logged with a traceback, never raised into Zenoh
+    }
+    | MESSAGE_ERROR_REASONS
+)
+
+
+class Rejected(Exception):
+    """A message the server drops. reason: one of REJECT_REASONS; kind: "tile", "state",
+    "tracks" or "unknown" (the key could not tell); detail: human-readable text."""
+
+    def __init__(self, reason: str, detail: str, kind: str = "unknown") -> None:
+        super().__init__(detail)
+        self.reason = reason
+        self.kind = kind
+
+
+@dataclass(frozen=True, slots=True)
+class Received:
+    """A valid message. kind: "tile", "state" or "tracks"; key: the parsed key; nbytes: payload size."""
+
+    kind: str
+    key: ParsedKey
+    message: TileMessage | StateMessage | TracksMessage
+    nbytes: int
+
+
+_KINDS = {"uav_tile": "tile", "uav_state": "state", "uav_tracks": "tracks"}
+
+
+class MessageValidator:
+    """Checks agent messages against the key space and the shared grid.
+
+    keys: the key space; grid: the accepted (z, n). The max_* arguments bound payload sizes in bytes.
+    """
+
+    def __init__(
+        self,
+        keys: KeySpace,
+        grid: TileGrid,
+        *,
+        max_tile_bytes: int = DEFAULT_MAX_TILE_BYTES,
+        max_state_bytes: int = DEFAULT_MAX_STATE_BYTES,
+        max_tracks_bytes: int = 1024 * 1024,
+    ) -> None:
+        self.keys = keys
+        self.grid = grid
+        self.max_tile_bytes = max_tile_bytes
+        self.max_state_bytes = max_state_bytes
+        self.max_tracks_bytes = max_tracks_bytes
+
+    def parse_key(self, key: str) -> tuple[ParsedKey, str]:
+        """The parsed key and its message kind; Rejected("bad_key" | "unexpected_key") otherwise."""
+        try:
+            parsed = self.keys.parse(key)
+        except ValueError as exc:
+            raise Rejected("bad_key", str(exc)[:200]) from None
+        kind = _KINDS.get(parsed.kind)
+        if kind is None:
+            raise Rejected("unexpected_key", f"nobody may put on {key[:200]!r}")
+        return parsed, kind
+
+    def max_bytes(self, kind: str) -> int:
+        """Largest accepted payload of a message kind ("tile", "state", "tracks"), bytes."""
+        return {"tile": self.max_tile_bytes, "state": self.max_state_bytes}.get(kind, self.max_tracks_bytes)
+
+    def validate(self, key: str, payload) -> Received:
+        """Decode and check one message published on ``key``; raise Rejected when it is invalid.
+
+        payload: bytes, or an object with ``len()`` and ``to_bytes()`` (a ``zenoh.ZBytes``), whose
+        size is checked before it is copied out.
+        """
+        parsed, kind = self.parse_key(key)
+        if not isinstance(payload, bytes | bytearray | memoryview):
+            size = len(payload)
+            if size > self.max_bytes(kind):
+                raise Rejected("too_large", f"payload has {size} bytes, limit {self.max_bytes(kind)}", kind)
+            payload = payload.to_bytes()
+        try:
+            if kind == "tile":
+                message = decode_tile(payload, max_bytes=self.max_tile_bytes)
+            elif kind == "state":
+                message = decode_state(payload, max_bytes=self.max_state_bytes)
+            else:
+                message = decode_tracks(payload, max_bytes=self.max_tracks_bytes)
+        except MessageError as exc:
+            raise Rejected(exc.reason, str(exc)[:200], kind) from None
+        if message.uav != parsed.uav:
+            raise Rejected("uav_mismatch", f"message uav {message.uav!r} published under {parsed.uav!r}", kind)
+        if kind == "tile":
+            assert isinstance(message, TileMessage)
+            if (message.cls, message.z, message.x, message.y) != (parsed.cls, parsed.z, parsed.x, parsed.y):
+                raise Rejected(
+                    "tile_mismatch",
+                    f"tile {message.cls}/{message.z}/{message.x}/{message.y} on key "
+                    f"{parsed.cls}/{parsed.z}/{parsed.x}/{parsed.y}",
+                    kind,
+                )
+            if message.z != self.grid.z or message.n != self.grid.n:
+                raise Rejected(
+                    "wrong_grid", f"tile z={message.z} n={message.n}, server grid z={self.grid.z} n={self.grid.n}", kind
+                )
+        return Received(kind, parsed, message, len(payload))

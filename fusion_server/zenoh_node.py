@@ -1,0 +1,284 @@
+"""The fusion server's Zenoh side: subscriptions, liveliness, the joint queryable and the publisher thread.
+
+Callbacks validate every sample and feed the joint map, the global tracker and the UAV registry;
+they count and log (rate-limited) what they drop and never raise. One thread fuses and publishes
+joint tiles and joint tracks (``CongestionControl.BLOCK``) and hands changes to persistence.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from typing import TYPE_CHECKING
+
+import numpy as np
+import zenoh
+
+from fusion_server.joint_map import JointMap, TileKey
+from fusion_server.validation import MessageValidator, Rejected
+from shared.messages import StateMessage, TracksMessage, encode_joint_tracks
+from shared.tilecodec import TileMessage
+
+if TYPE_CHECKING:
+    from fusion_server.global_tracks import GlobalTracker
+    from fusion_server.metrics import FusionMetrics
+    from fusion_server.persistence import FusionStore
+    from fusion_server.uav_registry import UavRegistry
+    from shared.keys import KeySpace
+
+__all__ = ["FusionNode", "RateLimitedLog"]
+
+log = logging.getLogger(__name__)
+
+#: Housekeeping period of the publisher thread (track expiry, joint tracks, persistence), seconds.
+_TICK_S = 0.05
+
+
+class RateLimitedLog:
+    """Logs a warning per reason at most once every ``interval_s`` seconds, with the count suppressed."""
+
+    def __init__(self, logger: logging.Logger, interval_s: float = 10.0) -> None:
+        self.logger = logger
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warning(self, reason: str, message: str, *args: object) -> None:
+        """Log ``message % args`` under ``reason`` unless one was logged less than interval_s ago."""
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(reason)
+            if last is not None and now - last < self.interval_s:
+                self._suppressed[reason] = self._suppressed.get(reason, 0) + 1
+                return
+            self._last[reason] = now
+            suppressed = self._suppressed.pop(reason, 0)
+        suffix = f" ({suppressed} more like it suppressed)" if suppressed else ""
+        self.logger.warning(message + suffix, *args)
+
+
+class FusionNode:
+    """One Zenoh session of the fusion server.
+
+    conf: the Zenoh config. keys: the key space. tracks_max_hz: most joint tracks messages a second.
+    store: persistence, or None. The components are shared with the REST API.
+    """
+
+    def __init__(
+        self,
+        conf: zenoh.Config,
+        keys: KeySpace,
+        validator: MessageValidator,
+        joint: JointMap,
+        tracker: GlobalTracker,
+        uavs: UavRegistry,
+        metrics: FusionMetrics,
+        store: FusionStore | None = None,
+        *,
+        tracks_max_hz: float = 5.0,
+        persist_interval_s: float = 0.5,
+    ) -> None:
+        self.conf = conf
+        self.keys = keys
+        self.validator = validator
+        self.joint = joint
+        self.tracker = tracker
+        self.uavs = uavs
+        self.metrics = metrics
+        self.store = store
+        self.tracks_min_interval_s = 1.0 / tracks_max_hz
+        self.persist_interval_s = persist_interval_s
+        self.session: zenoh.Session | None = None
+        self._declared: list = []
+        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._tracks_publisher: zenoh.Publisher | None = None
+        self._tracks_payload = encode_joint_tracks(tracker.joint_message())
+        self._tracks_key = keys.joint_tracks()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        self._reject_log = RateLimitedLog(log)
+
+    # ---- lifecycle -----------------------------------------------------------------------------
+    def start(self) -> None:
+        """Open the session, declare the subscribers and the queryable, start the publisher thread.
+
+        Raises zenoh.ZError when the session cannot be opened (e.g. the listen port is taken).
+        """
+        self.session = zenoh.open(self.conf)
+        session = self.session
+        self._tracks_publisher = session.declare_publisher(
+            self._tracks_key, congestion_control=zenoh.CongestionControl.BLOCK
+        )
+        # keep references: declared entities are undeclared when garbage-collected
+        self._declared = [
+            session.declare_subscriber(self.keys.uav_all(), self._on_sample),
+            session.liveliness().declare_subscriber(self.keys.uav_alive("*"), self._on_alive, history=True),
+            session.declare_queryable(self.keys.joint_all(), self._on_query),
+        ]
+        self._thread = threading.Thread(target=self._run, name="uavmm-fusion-publisher", daemon=True)
+        self._thread.start()
+        log.info("fusion node %s up, subscribed to %s", session.zid(), self.keys.uav_all())
+
+    def close(self) -> None:
+        """Stop the publisher thread and close the session (idempotent)."""
+        self._stop.set()
+        self.joint.poke()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+            self._thread = None
+        if self.session is not None:
+            for entity in self._declared:
+                try:
+                    entity.undeclare()
+                except zenoh.ZError:
+                    pass
+            self._declared = []
+            self._publishers.clear()
+            self.session.close()
+            self.session = None
+
+    # ---- callbacks (Zenoh threads; never raise) ------------------------------------------------
+    def _reject(self, kind: str, reason: str, key: str, detail: object) -> None:
+        self.metrics.reject(kind, reason)
+        self._reject_log.warning(reason, "dropped %s message on %.120s: %s: %.200s", kind, key, reason, detail)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = "?"
+        try:
+            key = str(sample.key_expr)
+            if sample.kind != zenoh.SampleKind.PUT:
+                kind = "unknown"
+                try:
+                    kind = self.validator.parse_key(key)[1]
+                except Rejected:
+                    pass
+                self._reject(kind, "unexpected_delete", key, "DELETE sample")
+                return
+            received = self.validator.validate(key, sample.payload)
+            message = received.message
+            if not self.uavs.message(received.key.uav, received.kind, received.nbytes,
+                                     message if isinstance(message, StateMessage) else None):
+                self._reject(received.kind, "too_many_uavs", key, "UAV registry full")
+                return
+            if isinstance(message, TileMessage):
+                values = np.rint(message.values * np.float32(255.0)).astype(np.uint8)
+                tile_key: TileKey = (message.cls, message.z, message.x, message.y)
+                reason = self.joint.put(message.uav, tile_key, values, message.t, message.seq)
+                if reason is not None:
+                    self._reject("tile", reason, key, f"seq {message.seq}")
+                    return
+            elif isinstance(message, TracksMessage):
+                self.tracker.update(message)
+                self.joint.poke()
+            self.metrics.message(received.kind, received.nbytes)
+        except Rejected as exc:
+            self._reject(exc.kind, exc.reason, key, exc)
+        except Exception:  # a bug must not take the subscriber down: count it, log it
+            self.metrics.reject("unknown", "internal_error")
+            log.exception("internal error handling a sample on %.120s", key)
+
+    def _on_alive(self, sample: zenoh.Sample) -> None:
+        key = "?"
+        try:
+            key = str(sample.key_expr)
+            try:
+                parsed = self.keys.parse(key)
+            except ValueError as exc:
+                self._reject("alive", "bad_key", key, exc)
+                return
+            if parsed.kind != "uav_alive":
+                self._reject("alive", "unexpected_key", key, "not an alive key")
+                return
+            online = sample.kind == zenoh.SampleKind.PUT
+            if not self.uavs.alive(parsed.uav, online):
+                self._reject("alive", "too_many_uavs", key, "UAV registry full")
+                return
+            self.metrics.message("alive", 0)
+            log.info("UAV %s %s", parsed.uav, "online" if online else "offline")
+            if not online and self.tracker.uav_lost(parsed.uav):
+                self.joint.poke()
+        except Exception:
+            self.metrics.reject("alive", "internal_error")
+            log.exception("internal error handling liveliness on %.120s", key)
+
+    def _on_query(self, query: zenoh.Query) -> None:
+        try:
+            selector = query.key_expr
+            for tile in self.joint.tiles():
+                tile_key = self.keys.joint_tile(tile.cls, tile.z, tile.x, tile.y)
+                if selector.intersects(tile_key):
+                    query.reply(tile_key, tile.payload)
+            if selector.intersects(self._tracks_key):
+                query.reply(self._tracks_key, self._tracks_payload)
+            self.metrics.query()
+        except Exception:
+            log.exception("internal error answering a query")
+
+    # ---- publisher thread ----------------------------------------------------------------------
+    def _publisher(self, key: str) -> zenoh.Publisher:
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            assert self.session is not None
+            # BLOCK: a joint tile must arrive (the default DROP loses some under load)
+            publisher = self._publishers[key] = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK
+            )
+        return publisher
+
+    def _publish_tiles(self) -> float | None:
+        updates, next_due = self.joint.step()
+        for update in updates:
+            cls, z, x, y = update.key
+            key = self.keys.joint_tile(cls, z, x, y)
+            self._publisher(key).put(update.payload)
+            dropped = update.tile is None
+            if dropped:
+                publisher = self._publishers.pop(key)
+                publisher.undeclare()
+            self.metrics.published(time.monotonic() - update.pending_since, dropped=dropped)
+            if self.store is not None:
+                self.store.save_joint(update.key, update.tile)
+        return next_due
+
+    def _publish_tracks(self) -> None:
+        payload = encode_joint_tracks(self.tracker.joint_message())
+        self._tracks_payload = payload
+        assert self._tracks_publisher is not None
+        self._tracks_publisher.put(payload)
+        self.metrics.tracks_sent()
+
+    def _run(self) -> None:
+        tracks_version = -1
+        last_tracks = -float("inf")
+        next_housekeeping = 0.0
+        next_persist = time.monotonic() + self.persist_interval_s
+        while not self._stop.is_set():
+            try:
+                next_due = self._publish_tiles()
+                now = time.monotonic()
+                if now >= next_housekeeping:
+                    self.tracker.expire(now)
+                    next_housekeeping = now + _TICK_S
+                if self.tracker.version != tracks_version and now - last_tracks >= self.tracks_min_interval_s:
+                    tracks_version = self.tracker.version
+                    last_tracks = now
+                    self._publish_tracks()
+                if self.store is not None and now >= next_persist:
+                    records, history = self.tracker.drain_changes()
+                    self.store.save_tracks(records, history, self.tracker.next_gid)
+                    next_persist = now + self.persist_interval_s
+                timeout = _TICK_S if next_due is None else min(_TICK_S, next_due - time.monotonic())
+                self.joint.wait(max(timeout, 0.0))
+            except zenoh.ZError:
+                if self._stop.is_set():
+                    return
+                log.exception("publishing failed")
+                self._stop.wait(0.5)
+            except Exception:
+                log.exception("internal error in the publisher thread")
+                self._stop.wait(0.5)
+        if self.store is not None:
+            records, history = self.tracker.drain_changes()
+            self.store.save_tracks(records, history, self.tracker.next_gid)

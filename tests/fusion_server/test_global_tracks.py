@@ -1,0 +1,133 @@
+"""GlobalTracker: gated association into global ids, keeping ids, holding lost tracks, re-adoption."""
+
+import numpy as np
+import pytest
+
+from fusion_server.global_tracks import GlobalTracker, ground_distance_m
+from shared.messages import TrackItem, TracksMessage
+
+LAT, LON = 47.67, 9.27
+M_LAT = 1.0 / 111_320.0  # degrees of latitude per metre
+
+
+class Clock:
+    def __init__(self) -> None:
+        self.now = 0.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def msg(uav: str, *items: tuple[int, float, float], cls: str = "person") -> TracksMessage:
+    """items: (local id, metres north of LAT, metres east of LON)."""
+    m_lon = M_LAT / np.cos(np.radians(LAT))
+    return TracksMessage(uav=uav, t=0.0, tracks=tuple(
+        TrackItem(id=i, cls=cls, lat=LAT + n * M_LAT, lon=LON + e * m_lon, score=0.9, vel_en=(0.0, 0.0))
+        for i, n, e in items
+    ))
+
+
+@pytest.fixture
+def clock() -> Clock:
+    return Clock()
+
+
+@pytest.fixture
+def tracker(clock: Clock) -> GlobalTracker:
+    return GlobalTracker(gate_m=5.0, hold_s=10.0, member_ttl_s=2.0, history_interval_s=0.0,
+                         clock=clock, wall=clock)
+
+
+def gids(tracker: GlobalTracker) -> dict[tuple[str, int], int]:
+    return {m: r.gid for r in tracker.records() for m in r.active}
+
+
+def test_ground_distance_is_metres():
+    assert ground_distance_m(LAT, LON, LAT + 10 * M_LAT, LON) == pytest.approx(10.0, rel=1e-3)
+
+
+def test_two_uavs_seeing_one_object_share_a_global_id_and_far_objects_do_not(tracker):
+    tracker.update(msg("a", (1, 0.0, 0.0), (2, 50.0, 0.0)))
+    tracker.update(msg("b", (7, 1.0, 1.0), (8, -40.0, 0.0)))
+    ids = gids(tracker)
+    assert ids[("a", 1)] == ids[("b", 7)]
+    assert len({ids[("a", 2)], ids[("b", 8)], ids[("a", 1)]}) == 3
+    joint = tracker.joint_message()
+    shared = next(t for t in joint.tracks if t.gid == ids[("a", 1)])
+    assert set(shared.members) == {("a", 1), ("b", 7)}
+    assert shared.lat == pytest.approx(LAT + 0.5 * M_LAT, abs=1e-9)  # mean of the two reports
+
+
+def test_classes_never_associate(tracker):
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    tracker.update(msg("b", (1, 0.0, 0.0), cls="boat"))
+    assert len(tracker.records()) == 2
+
+
+def test_a_mapped_local_id_keeps_its_global_id_even_when_it_moves_away(tracker):
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    first = gids(tracker)[("a", 1)]
+    tracker.update(msg("a", (1, 30.0, 0.0)))
+    assert gids(tracker)[("a", 1)] == first
+
+
+def test_track_survives_while_another_uav_reports_it_then_for_the_hold_time(tracker, clock):
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    tracker.update(msg("b", (5, 0.5, 0.0)))
+    gid = gids(tracker)[("a", 1)]
+    clock.now = 1.0
+    tracker.update(msg("a"))  # a lost it
+    tracker.update(msg("b", (5, 0.5, 0.0)))
+    rec = tracker.records()[0]
+    assert rec.gid == gid and rec.status == "tracked" and rec.active == (("b", 5),)
+    clock.now = 2.0
+    tracker.update(msg("b"))  # nobody reports it: held
+    assert tracker.records()[0].status == "lost"
+    clock.now = 11.0
+    tracker.expire()
+    assert tracker.records()[0].status == "lost"
+    clock.now = 12.5
+    tracker.expire()
+    assert tracker.records() == []
+    assert [r.status for r in tracker.records(include_ended=True)] == ["ended"]
+
+
+def test_a_returning_uav_readopts_the_global_id_with_a_new_local_id(tracker, clock):
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    gid = gids(tracker)[("a", 1)]
+    clock.now = 1.0
+    tracker.update(msg("a"))
+    clock.now = 5.0
+    tracker.update(msg("a", (42, 1.0, -1.0)))
+    assert gids(tracker)[("a", 42)] == gid
+    assert set(tracker.records()[0].members) == {("a", 1), ("a", 42)}
+
+
+def test_members_of_a_silent_uav_are_lost_after_the_member_ttl(tracker, clock):
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    clock.now = 2.5
+    assert tracker.expire()
+    assert tracker.records()[0].status == "lost"
+
+
+def test_history_is_bounded(clock):
+    tracker = GlobalTracker(history_len=5, history_interval_s=0.0, clock=clock, wall=clock)
+    for i in range(20):
+        clock.now = float(i)
+        tracker.update(msg("a", (1, float(i), 0.0)))
+    history = tracker.records()[0].history
+    assert len(history) == 5 and history[-1][0] == 19.0
+
+
+def test_restore_holds_tracks_and_keeps_the_local_id_mapping(tracker, clock):
+    tracker.update(msg("a", (1, 0.0, 0.0)), now=0.0)
+    saved, history = tracker.drain_changes()
+    assert history and saved
+    clock.now = 100.0
+    fresh = GlobalTracker(gate_m=5.0, hold_s=10.0, clock=clock, wall=clock)
+    assert fresh.restore(saved) == 1
+    assert fresh.records()[0].status == "lost"
+    fresh.update(msg("a", (1, 20.0, 0.0)))  # same local id, outside the gate: still the same gid
+    assert gids(fresh)[("a", 1)] == saved[0].gid
+    fresh.update(msg("b", (3, 0.0, 50.0)))
+    assert max(r.gid for r in fresh.records()) == saved[0].gid + 1

@@ -1,0 +1,108 @@
+"""JointMap: fusion over the UAVs covering a tile, time to live, rate limit, drop with an empty tile."""
+
+import numpy as np
+
+from fusion_server.joint_map import JointMap
+from fusion_server.rules import get_fusion_rule
+from shared.tilecodec import decode_tile
+from shared.tiles import TileGrid
+
+GRID = TileGrid(18, 8)
+KEY = ("person", 18, 100, 200)
+
+
+def layer(value: int) -> np.ndarray:
+    return np.full((8, 8), value, dtype=np.uint8)
+
+
+def make(ttl_s=2.0, max_hz=5.0, rule="mean", **kw) -> JointMap:
+    return JointMap(GRID, get_fusion_rule(rule), ttl_s, max_hz, clock=lambda: 0.0, wall=lambda: 1e9, **kw)
+
+
+def test_mean_where_two_cover_single_value_where_one_covers():
+    jm = make()
+    a = np.zeros((8, 8), np.uint8)
+    a[:, :4] = 100
+    b = np.zeros((8, 8), np.uint8)
+    b[:, 2:] = 200
+    jm.put("a", KEY, a, t=10.0, seq=1, now=0.0)
+    jm.put("b", KEY, b, t=11.0, seq=1, now=0.0)
+    updates, _ = jm.step(now=0.0)
+    assert len(updates) == 1
+    tile = updates[0].tile
+    assert tile.uavs == ("a", "b")
+    # a covers the tile everywhere (with zeros on the right), so the mean halves b's 200 there
+    np.testing.assert_array_equal(tile.values[0], [50, 50, 150, 150, 100, 100, 100, 100])
+    assert tile.t == 11.0
+    msg = decode_tile(updates[0].payload)
+    assert (msg.uav, msg.cls, msg.z, msg.x, msg.y, msg.n) == ("joint", "person", 18, 100, 200, 8)
+    np.testing.assert_allclose(msg.values, tile.values / 255.0, atol=1e-6)
+
+
+def test_tile_expires_after_ttl_and_the_drop_is_published_once_as_empty():
+    jm = make(ttl_s=2.0)
+    jm.put("a", KEY, layer(100), t=1.0, seq=1, now=0.0)
+    jm.put("b", KEY, layer(200), t=1.0, seq=1, now=1.0)
+    jm.step(now=1.0)
+    assert jm.get(KEY).values[0, 0] == 150
+    updates, _ = jm.step(now=2.5)  # a's tile (received at 0) expired at 2.0
+    assert [u.tile.values[0, 0] for u in updates] == [200]
+    updates, _ = jm.step(now=3.5)  # b's expired at 3.0: nobody covers the tile
+    assert len(updates) == 1 and updates[0].tile is None
+    empty = decode_tile(updates[0].payload)
+    assert not empty.values.any()
+    assert jm.get(KEY) is None
+    assert jm.step(now=10.0)[0] == []
+
+
+def test_publications_per_tile_are_rate_limited_and_not_lost():
+    jm = make(max_hz=5.0)  # a token bucket: 5 per second on average, bursts of 2
+    published = []
+    for i, now in enumerate([0.0, 0.05, 0.1]):
+        jm.put("a", KEY, layer(10 + i), t=float(i), seq=i + 1, now=now)
+        updates, next_due = jm.step(now=now)
+        published += [(now, int(u.tile.values[0, 0])) for u in updates]
+    assert published == [(0.0, 10), (0.05, 11)]
+    assert next_due is not None and abs(next_due - 0.2) < 1e-9  # 0.25 tokens at 0.1: 0.75 / 5 Hz to go
+    updates, _ = jm.step(now=0.2)
+    assert [u.tile.values[0, 0] for u in updates] == [12]
+    assert updates[0].pending_since == 0.1
+
+
+def test_a_tile_updated_at_max_hz_with_jitter_is_never_held_back():
+    jm = make(max_hz=5.0)
+    for k in range(50):
+        now = 0.2 * k + (0.01 if k % 2 else -0.01)
+        jm.put("a", KEY, layer(k % 200 + 1), t=float(k), seq=k + 1, now=now)
+        assert len(jm.step(now=now)[0]) == 1
+
+
+def test_unchanged_values_are_not_republished():
+    jm = make()
+    jm.put("a", KEY, layer(10), t=1.0, seq=1, now=0.0)
+    jm.step(now=0.0)
+    jm.put("a", KEY, layer(10), t=2.0, seq=2, now=1.0)
+    assert jm.step(now=1.0)[0] == []
+
+
+def test_stale_and_repeated_tiles_are_refused_and_the_store_is_bounded():
+    jm = make(max_uav_tiles=2)
+    assert jm.put("a", KEY, layer(10), t=5.0, seq=5, now=0.0) is None
+    assert jm.put("a", KEY, layer(10), t=5.0, seq=5, now=0.0) == "stale"
+    assert jm.put("a", KEY, layer(10), t=4.0, seq=4, now=0.0) == "stale"
+    # an agent restart resets seq but its clock moves on: accepted
+    assert jm.put("a", KEY, layer(10), t=6.0, seq=0, now=0.0) is None
+    assert jm.put("b", KEY, layer(10), t=1.0, seq=1, now=0.0) is None
+    assert jm.put("c", KEY, layer(10), t=1.0, seq=1, now=0.0) == "too_many_tiles"
+
+
+def test_restored_tiles_are_served_then_dropped_unless_covered():
+    jm = make(ttl_s=1.0)
+    jm.put("a", KEY, layer(10), t=1.0, seq=1, now=0.0)
+    old = jm.step(now=0.0)[0][0].tile
+    fresh = make(ttl_s=1.0)
+    assert fresh.restore([old], keep_s=3.0, now=0.0) == 1
+    assert fresh.get(KEY) is old
+    assert fresh.step(now=2.0)[0] == []
+    updates, _ = fresh.step(now=3.5)
+    assert updates[0].tile is None and fresh.get(KEY) is None

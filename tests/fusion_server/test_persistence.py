@@ -1,0 +1,61 @@
+"""FusionStore: tracks, bounded history and joint tiles survive a reopen; writes are batched."""
+
+import numpy as np
+
+from fusion_server.global_tracks import TrackRecord
+from fusion_server.joint_map import JointTile, encode_joint_tile
+from fusion_server.persistence import FusionStore
+
+
+def record(gid: int, ended: float | None = None) -> TrackRecord:
+    return TrackRecord(gid=gid, cls="person", lat=47.0 + gid, lon=9.0, score=0.8, vel_en=(1.0, -2.0), created=1.0,
+                       last_update=2.0, members=(("a", 3), ("b", 9)), ended=ended)
+
+
+def joint_tile(value: int = 50) -> JointTile:
+    key = ("person", 18, 5, 6)
+    values = np.full((16, 16), value, np.uint8)
+    payload = encode_joint_tile(key, 16, values, 123.0, 77)
+    return JointTile(*key, values, 123.0, 77, payload, ("a",), 124.0)
+
+
+def test_tracks_history_and_joint_tiles_survive_reopening(tmp_path):
+    path = tmp_path / "sub" / "f.sqlite"
+    store = FusionStore(path, flush_interval_s=0.05, history_len=10)
+    store.start()
+    store.save_tracks([record(1), record(2, ended=5.0)], [(1, float(t), 47.0, 9.0) for t in range(100)], next_gid=3)
+    store.save_joint(("person", 18, 5, 6), joint_tile())
+    store.save_joint(("person", 18, 7, 7), joint_tile())
+    store.save_joint(("person", 18, 7, 7), None)  # dropped before the flush: never written
+    store.close()
+    assert (path.parent / "f.sqlite").exists()
+    restored = FusionStore(path, history_len=10).load()
+    assert [r.gid for r in restored.tracks] == [1, 2]
+    assert restored.tracks[0].members == (("a", 3), ("b", 9))
+    assert restored.tracks[0].vel_en == (1.0, -2.0)
+    assert restored.tracks[1].ended == 5.0
+    assert [row[0] for row in restored.tracks[0].history] == [float(t) for t in range(90, 100)]
+    assert restored.next_gid == 3
+    (tile,) = restored.joint_tiles
+    assert tile.key == ("person", 18, 5, 6) and tile.seq == 77 and int(tile.values[3, 3]) == 50
+
+
+def test_wal_mode_and_a_fresh_file_loads_empty(tmp_path):
+    import sqlite3
+
+    store = FusionStore(tmp_path / "x.sqlite")
+    restored = store.load()
+    assert restored.tracks == [] and restored.joint_tiles == [] and restored.next_gid == 1
+    mode = sqlite3.connect(tmp_path / "x.sqlite").execute("PRAGMA journal_mode").fetchone()[0]
+    assert mode == "wal"
+
+
+def test_load_returns_alive_tracks_and_only_the_most_recent_ended_ones(tmp_path):
+    store = FusionStore(tmp_path / "f.sqlite", load_ended=2)
+    store.save_tracks([record(1)] + [record(g, ended=float(g)) for g in range(2, 7)],
+                      [(g, 1.0, 47.0, 9.0) for g in range(1, 7)], next_gid=7)
+    store.close()
+    restored = FusionStore(tmp_path / "f.sqlite", load_ended=2).load()
+    assert [r.gid for r in restored.tracks] == [1, 5, 6]
+    assert all(len(r.history) == 1 for r in restored.tracks)
+    assert restored.next_gid == 7
