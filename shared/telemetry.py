@@ -202,6 +202,19 @@ def _clamp_pitch(depression_deg: float, tolerance_deg: float, what: str) -> floa
     )
 
 
+def _pitch_or_none(depression_deg: float, what: str) -> float | None:
+    """A record's pitch, or None (with a warning) when the camera looks up or past nadir.
+
+    A pilot tilting the gimbal above the horizon for a moment is normal flying: those samples
+    have no ground view (no pose), the rest of the flight stays usable.
+    """
+    try:
+        return _clamp_pitch(depression_deg, PITCH_TOLERANCE_DEG, what)
+    except ValueError as err:
+        logger.warning("%s: no pose for this sample", err)
+        return None
+
+
 # ---------------------------------------------------------------------------------------------
 # Dates
 # ---------------------------------------------------------------------------------------------
@@ -844,10 +857,9 @@ def _srt_gimbal(block: _SrtBlock, source: str) -> tuple[float | None, float | No
         return None, None, 0.0
     pitch = None
     if raw_pitch is not None:
-        try:
-            pitch = pitch_from_dji(raw_pitch)
-        except ValueError as err:
-            raise _srt_error(source, pitch_line, str(err)) from None
+        if not math.isfinite(raw_pitch):
+            raise _srt_error(source, pitch_line, f"gimbal pitch {raw_pitch!r} is not finite")
+        pitch = _pitch_or_none(-raw_pitch, f"{source}:{pitch_line}: DJI gimbal pitch {raw_pitch:g}")
     return pitch, heading, roll
 
 
@@ -1106,13 +1118,10 @@ def _csv_pitch(
         if value is None:
             out.append(None)
             continue
-        try:
-            if dji:
-                out.append(pitch_from_dji(value))
-            else:
-                out.append(_clamp_pitch(value, PITCH_TOLERANCE_DEG, f"pitch {value:g}"))
-        except ValueError as err:
-            raise ValueError(f"{source}:{line}: column {column.name!r}: {err}") from None
+        if not math.isfinite(value):
+            raise ValueError(f"{source}:{line}: column {column.name!r}: pitch {value!r} is not finite")
+        depression = -value if dji else value
+        out.append(_pitch_or_none(depression, f"{source}:{line}: column {column.name!r}: pitch {value:g}"))
     return out
 
 

@@ -329,8 +329,6 @@ def test_gps_fix_missing_blocks_at_zero_zero_are_skipped_with_a_warning(caplog):
             MATRICE_30_SRT.replace("00:00:00,198 --> 00:00:00,396", "00:00:0x,198 --> 00:00:00,396"),
             r"flight\.srt:8: malformed subtitle timing",
         ),
-        (MATRICE_30_SRT.replace("gb_pitch: -9.1", "gb_pitch: 12.0", 1), r"flight\.srt:5: .*outside 0\.\.90"),
-        (MATRICE_30_SRT.replace("gb_pitch: -9.1", "gb_pitch: -93.0", 1), r"flight\.srt:5: .*outside 0\.\.90"),
         (MINI_3_SRT.replace("rel_alt: 30.300 ", ""), r"flight\.srt:5: only absolute altitude .*height_offset_m"),
         (MAVIC_MINI_SRT.replace("H 12.40m, ", ""), r"flight\.srt:2: block has no height"),
         (MATRICE_30_SRT.replace("2025-04-09 09:15:02.837\n", ""), r"flight\.srt:8: some blocks have a date"),
@@ -1029,3 +1027,19 @@ def test_property_junk_csv_raises_only_value_error(header, rows):
     except ValueError:
         return
     assert len(records) == len(rows)
+
+
+@pytest.mark.parametrize("gb_pitch", ["12.0", "-93.0"])
+def test_srt_camera_tilted_up_or_past_nadir_gives_no_pitch_for_that_sample_only(gb_pitch, caplog):
+    records = parse_srt(MATRICE_30_SRT.replace("gb_pitch: -9.1", f"gb_pitch: {gb_pitch}", 1), source="flight.srt")
+    assert records[0].pitch_deg is None
+    assert all(r.pitch_deg is not None for r in records[1:])
+    assert "flight.srt:5" in caplog.text
+    with pytest.raises(ValueError, match="no gimbal pitch"):
+        records[0].to_pose()
+
+
+def test_csv_camera_tilted_up_gives_no_pitch_for_that_row():
+    text = "time,lat,lon,height_m,gb_pitch,heading\n0,47.0,9.0,30,-45,10\n1,47.0,9.0,30,15,10\n"
+    records = parse_csv(text)
+    assert records[0].pitch_deg == pytest.approx(45.0) and records[1].pitch_deg is None
