@@ -642,8 +642,6 @@ def test_csv_iso_timestamps_are_epoch_seconds():
         ("time,lat,lon,height\n0,1,2,30\n\n1,1,2\n", r"data\.csv:4: 3 cells"),
         ("time,lat,lon,height\n0,,2,30\n", r"data\.csv:2: column 'lat' is empty"),
         ("time,lat,lon,height\n0,95,2,30\n", r"data\.csv:2: Telemetry\.lat"),
-        ("time,lat,lon,height,pitch\n0,1,2,30,-45\n1,1,2,30,20\n", r"data\.csv:3: column 'pitch'"),
-        ("time,lat,lon,height,pitch\n0,1,2,30,95\n", r"data\.csv:2: column 'pitch'"),
         ("time,lat,lon,height,frame\n0,1,2,30,1.5\n", r"data\.csv:2: column 'frame'"),
         ("time(fortnight),lat,lon,height\n0,1,2,30\n", r"column 'time\(fortnight\)': unknown unit"),
         ("time,lat,Lat,lon,height\n0,1,1,2,30\n", r"same field"),
