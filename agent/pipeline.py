@@ -188,14 +188,7 @@ class DetectionPipeline:
             east, north, valid = pixel_to_local(box_anchor_points(boxes, cfg.anchor, pose.pitch_deg),
                                                 self.camera, pose, max_range_m=cfg.range_limit_m)
             if cfg.use_size_filter:
-                slant = np.sqrt(east**2 + north**2 + pose.height_m**2)
-                depression = np.degrees(np.arcsin(pose.height_m / slant))
-                diag = np.hypot(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1])
-                ok = np.ones(n, dtype=bool)
-                for cid in np.unique(cids):
-                    sel = cids == cid
-                    ok[sel] = self.size_filter.accept_class(self.class_names[int(cid)], diag[sel], slant[sel],
-                                                            depression[sel], self._focal_px)
+                ok = self.plausible(boxes, cids, east, north, pose)
                 n_filtered = int((~ok).sum())
                 if n_filtered:
                     boxes, conf, boosted, cids = boxes[ok], conf[ok], boosted[ok], cids[ok]
@@ -209,6 +202,22 @@ class DetectionPipeline:
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         return FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
                            n, n_filtered, n_geo)
+
+    def plausible(self, boxes_xyxy: NDArray, class_ids: NDArray, east_m: NDArray, north_m: NDArray,
+                  pose: Pose) -> NDArray[np.bool_]:
+        """The size filter's decision per box, (N,) bool; boxes without a ground point pass.
+
+        east_m, north_m: (N,) ground point of each box's anchor (pixel_to_local), NaN where none.
+        """
+        slant = np.sqrt(east_m**2 + north_m**2 + pose.height_m**2)
+        depression = np.degrees(np.arcsin(pose.height_m / slant))
+        diag = np.hypot(boxes_xyxy[:, 2] - boxes_xyxy[:, 0], boxes_xyxy[:, 3] - boxes_xyxy[:, 1])
+        ok = np.ones(len(diag), dtype=bool)
+        for cid in np.unique(class_ids):
+            sel = class_ids == cid
+            ok[sel] = self.size_filter.accept_class(self.class_names[int(cid)], diag[sel], slant[sel],
+                                                    depression[sel], self._focal_px)
+        return ok
 
     def _boost_and_update(self, conf, boosted, cids, valid, lat, lon, pose: Pose, t: float):
         cfg = self.config

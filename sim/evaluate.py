@@ -17,6 +17,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from agent.boost import results_to_coco, run_pipeline
 from agent.dataset import Candidates, Dataset
 from agent.pipeline import PipelineConfig
@@ -98,6 +100,52 @@ def evaluate_detection(data_dir: Path, variants: Iterable[Variant], *,
     return out
 
 
+def size_filter_table(data_dir: Path, config: PipelineConfig | None = None,
+                      size_filter: SizeFilter | None = None) -> dict[str, int]:
+    """The paper's Table I: candidates the size filter removes, split into true and false positives.
+
+    A removed candidate is a true positive when it overlaps a ground-truth box of its class in its
+    image with IoU >= 0.5.
+    """
+    from agent.dataset import iter_video_frames
+    from agent.pipeline import DetectionPipeline, box_anchor_points
+    from shared.geo import pixel_to_local
+
+    config = config or PipelineConfig()
+    dataset = Dataset.load(data_dir / "images.json")
+    candidates = Candidates.load(data_dir / "pre_nms.json", dataset)
+    camera = Camera.from_file(data_dir / "camera.json")
+    gt: dict[int, list[tuple[int, list[float]]]] = {}
+    for a in dataset.coco.get("annotations", []):
+        gt.setdefault(a["image_id"], []).append((a["category_id"], a["bbox"]))
+    counts = {"candidates": 0, "removed": 0, "removed_true_positives": 0, "removed_false_positives": 0}
+    for video_id in dataset.videos:
+        pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
+        for frame in iter_video_frames(dataset, camera, video_id):
+            boxes, _, cids = candidates.get(frame.image.id)
+            counts["candidates"] += len(cids)
+            if frame.pose is None or not len(cids):
+                continue
+            pipe.camera = frame.camera
+            east, north, _ = pixel_to_local(box_anchor_points(boxes, config.anchor, frame.pose.pitch_deg),
+                                            frame.camera, frame.pose, max_range_m=config.range_limit_m)
+            removed = ~pipe.plausible(boxes, cids, east, north, frame.pose)
+            if not removed.any():
+                continue
+            tp = np.zeros(int(removed.sum()), dtype=bool)
+            rb, rc = boxes[removed], cids[removed]
+            for cat, (x, y, w, h) in gt.get(frame.image.id, []):
+                ix = np.clip(np.minimum(rb[:, 2], x + w) - np.maximum(rb[:, 0], x), 0, None)
+                iy = np.clip(np.minimum(rb[:, 3], y + h) - np.maximum(rb[:, 1], y), 0, None)
+                inter = ix * iy
+                union = (rb[:, 2] - rb[:, 0]) * (rb[:, 3] - rb[:, 1]) + w * h - inter
+                tp |= (rc == cat) & (inter >= 0.5 * union)
+            counts["removed"] += len(tp)
+            counts["removed_true_positives"] += int(tp.sum())
+            counts["removed_false_positives"] += int((~tp).sum())
+    return counts
+
+
 def _mean_sd(values: list[float]) -> tuple[float, float]:
     return (statistics.fmean(values), statistics.stdev(values) if len(values) > 1 else 0.0)
 
@@ -110,6 +158,7 @@ def run_eval(scenarios: list[str], seeds: list[int], *, frames: int | None = Non
     cache = out_dir / "data"
     variants = default_variants() + (ablation_variants() if ablations else [])
     rows: list[dict[str, Any]] = []
+    size_filter: dict[str, dict[str, int]] = {}
     jobs = [(s, seed, k) for s in scenarios for k in noise_scales for seed in seeds]
     t0 = time.perf_counter()
     for i, (scenario, seed, noise) in enumerate(jobs):
@@ -120,9 +169,14 @@ def run_eval(scenarios: list[str], seeds: list[int], *, frames: int | None = Non
         vs = variants if noise == 1.0 else default_variants()
         for name, m in evaluate_detection(data_dir, vs).items():
             rows.append({"scenario": scenario, "seed": seed, "noise_scale": noise, "variant": name, **m})
+        if noise == noise_scales[0]:
+            table = size_filter[scenario] = size_filter.get(scenario, {})
+            for k, v in size_filter_table(data_dir).items():
+                table[k] = table.get(k, 0) + v
     summary = summarise(rows)
     report = {"scenarios": scenarios, "seeds": seeds, "frames": frames, "noise_scales": list(noise_scales),
-              "rows": rows, "summary": summary, "seconds": round(time.perf_counter() - t0, 1)}
+              "rows": rows, "summary": summary, "size_filter": size_filter,
+              "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(markdown_report(report))
     return report
@@ -165,6 +219,15 @@ def markdown_report(report: dict[str, Any]) -> str:
             f"{s['AR100']:.1f} +- {s['AR100_sd']:.1f} | {s['dAP50']:+.1f} | {s['dAR100']:+.1f} | "
             f"{s['prenms_recall']:.1f} | {s['pipeline_ms_per_frame']:.2f} |"
         )
+    if report.get("size_filter"):
+        lines += ["", "Distance-size filter (the paper's Table I): candidates removed, true vs false positives "
+                  "(IoU >= 0.5 with a ground-truth box), summed over seeds.", "",
+                  "| scenario | candidates | removed | removed % | false positives | true positives |",
+                  "|---|---|---|---|---|---|"]
+        for scenario, t in report["size_filter"].items():
+            pct = 100 * t["removed"] / max(t["candidates"], 1)
+            lines.append(f"| {scenario} | {t['candidates']} | {t['removed']} | {pct:.1f} | "
+                         f"{t['removed_false_positives']} | {t['removed_true_positives']} |")
     return "\n".join(lines) + "\n"
 
 
