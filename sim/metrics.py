@@ -159,6 +159,58 @@ def prenms_recall(images_json: str | Path | dict[str, Any], candidates: str | Pa
     return matched / len(anns)
 
 
+def pr_curve(images_json: str | Path | dict[str, Any], results: str | Path | Sequence[dict[str, Any]],
+             iou: float = 0.5) -> dict[str, np.ndarray]:
+    """Precision-recall curve at one IoU: arrays over detections sorted by score (descending).
+
+    Greedy one-to-one matching per image and class in score order (as COCO does). Returns
+    {"scores", "precision", "recall"}, each (D,) float64; recall is NaN without ground truth.
+    """
+    gt = _load_images(images_json)
+    dets = list(_load_results(results))
+    anns = [a for a in gt["annotations"] if not a.get("iscrowd", 0)]
+    gt_by_image = _group_by_image([{**a, "score": 1.0} for a in anns])
+    all_scores: list[np.ndarray] = []
+    all_tp: list[np.ndarray] = []
+    for image_id, (d_boxes, d_scores, d_cats) in _group_by_image(dets).items():
+        tp = np.zeros(len(d_scores), dtype=bool)
+        if image_id in gt_by_image:
+            g_boxes, _, g_cats = gt_by_image[image_id]
+            ious = _iou_matrix(d_boxes, g_boxes)
+            ious[d_cats[:, None] != g_cats[None, :]] = 0.0
+            taken = np.zeros(len(g_boxes), dtype=bool)
+            for i in np.argsort(-d_scores, kind="stable"):
+                cand = np.where(taken, -1.0, ious[i])
+                j = int(np.argmax(cand)) if len(cand) else -1
+                if j >= 0 and cand[j] >= iou:
+                    taken[j] = tp[i] = True
+        all_scores.append(d_scores)
+        all_tp.append(tp)
+    scores = np.concatenate(all_scores) if all_scores else np.zeros(0)
+    tps = np.concatenate(all_tp) if all_tp else np.zeros(0, dtype=bool)
+    order = np.argsort(-scores, kind="stable")
+    cum_tp = np.cumsum(tps[order])
+    precision = cum_tp / np.arange(1, len(order) + 1)
+    recall = cum_tp / len(anns) if anns else np.full(len(order), np.nan)
+    return {"scores": scores[order], "precision": precision, "recall": recall}
+
+
+def operating_point(images_json: str | Path | dict[str, Any], results: str | Path | Sequence[dict[str, Any]],
+                    score_threshold: float = 0.25, iou: float = 0.5) -> dict[str, float]:
+    """Precision and recall of the detections a deployment keeps (score >= score_threshold)."""
+    curve = pr_curve(images_json, results, iou)
+    k = int(np.searchsorted(-curve["scores"], -score_threshold, side="right"))
+    if k == 0:
+        return {"precision": 1.0, "recall": 0.0}
+    return {"precision": float(curve["precision"][k - 1]), "recall": float(curve["recall"][k - 1])}
+
+
+def recall_at_precision(curve: dict[str, np.ndarray], precision: float) -> float:
+    """Highest recall of a PR curve (pr_curve) whose precision is at least `precision`; 0 if none."""
+    ok = curve["precision"] >= precision
+    return float(curve["recall"][ok].max()) if ok.any() else 0.0
+
+
 def baseline_nms(candidates: str | Path | Sequence[dict[str, Any]], iou: float = 0.5) -> list[dict[str, Any]]:
     """The single-frame baseline: class-wise NMS per image (cv2.dnn.NMSBoxesBatched), every score kept.
 
