@@ -192,6 +192,7 @@ class Frame:
     pose: Pose | None
     t: float
     camera: Camera
+    pose_t: float | None = None  # time of the telemetry sample behind the pose (may lag t)
 
 
 def frame_pose(image: ImageRecord) -> tuple[Pose | None, float | None, str | None]:
@@ -213,7 +214,7 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
                       problems: list[str] | None = None) -> Iterator[Frame]:
     """Frames of one video in frame order, with pose and time.
 
-    Time: the meta's date_time, else the image's date_time, else the previous frame's time plus
+    Time: the image's date_time (the frame clock), else the meta's, else the previous frame's time plus
     the frame-index step / fps (frame_index / fps for the first); a frame whose
     meta cannot be used (missing gimbal angles, garbage values) gets pose None and its problem is
     appended to `problems` (when given). The camera is rescaled when the image size differs.
@@ -225,18 +226,22 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         key = (image.width, image.height)
         if key not in cameras:
             cameras[key] = camera if key == (camera.width, camera.height) else camera.scaled(*key)
-        pose, t, problem = frame_pose(image)
+        pose, pose_t, problem = frame_pose(image)
         if problem is not None and problems is not None:
             problems.append(f"image {image.id}: {problem}")
-        if t is None and image.date_time:
+        # The frame's own clock first: telemetry at 10 Hz repeats its time for 3 frames at 30 fps.
+        t = None
+        if image.date_time:
             try:
                 t = parse_datetime(image.date_time)
             except ValueError:
                 t = None
+        if t is None:
+            t = pose_t
         if t is None or not math.isfinite(t):
             # No clock on this frame: continue the last one by the frame-index step.
             t = image.frame_index / fps if t_prev is None else t_prev + (image.frame_index - i_prev) / fps
         if t_prev is not None and t < t_prev:
             t = t_prev  # non-monotonic clocks: never run the memory backwards
         t_prev, i_prev = t, image.frame_index
-        yield Frame(image, pose, t, cameras[key])
+        yield Frame(image, pose, t, cameras[key], pose_t)

@@ -45,7 +45,7 @@ class PipelineConfig:
 
     memory: MemoryMapConfig = field(default_factory=MemoryMapConfig)
     boost_weight: float = 1.0
-    boost_mode: str = "add"
+    boost_mode: str = "logodds"
     logodds_scale: float = 4.0
     use_memory: bool = True
     use_size_filter: bool = True
@@ -155,7 +155,11 @@ class DetectionPipeline:
         self.grid = grid or TileGrid()
         self.memory = MemoryMap(self.config.memory, self.grid)
         self.joint = joint
-        self._focal_px = math.sqrt(camera.fx * camera.fy)
+
+    @property
+    def _focal_px(self) -> float:
+        # from the current camera: callers swap cameras when a video's resolution differs
+        return math.sqrt(self.camera.fx * self.camera.fy)
 
     def reset(self) -> None:
         """Forget the memory (start of another video)."""

@@ -18,6 +18,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "geo": "benchmarks.bench_geo",
     "memory_map": "benchmarks.bench_memory_map",
     "fusion": "benchmarks.bench_fusion",
+    "tracker": "benchmarks.bench_tracker",
 }
 
 

@@ -41,12 +41,24 @@ def test_stamp_peak_equals_amplitude_and_is_truncated_at_radius():
 
 
 def test_map_is_clipped_at_one():
-    mm = MemoryMap()
+    mm = MemoryMap(MemoryMapConfig(stamp="sum"))
     mm.advance(0.0, LAT, LON)
     gx, gy = cell_of(5.0, 5.0)
     mm.add("person", [gx] * 50, [gy] * 50, [0.9] * 50)
     assert mm.values_at("person", [gx], [gy])[0] == pytest.approx(1.0)
     assert mm.layer("person").max() <= 1.0
+
+
+def test_max_stamping_counts_a_cluster_once_sum_stamping_adds_it_up():
+    gx, gy = cell_of(5.0, 5.0)
+    values = {}
+    for stamp in ("max", "sum"):
+        mm = MemoryMap(MemoryMapConfig(stamp=stamp))
+        mm.advance(0.0, LAT, LON)
+        mm.add("person", [gx] * 5, [gy] * 5, [0.1, 0.05, 0.1, 0.02, 0.03])
+        values[stamp] = mm.values_at("person", [gx], [gy])[0]
+    assert values["max"] == pytest.approx(0.1, rel=1e-5)
+    assert values["sum"] == pytest.approx(0.3, rel=1e-5)
 
 
 def test_one_map_per_class():
@@ -254,7 +266,11 @@ def test_joint_map_boosts_an_object_the_uav_never_saw():
     tile[int(gy[0]) - y * GRID.n, int(gx[0]) - x * GRID.n] = 0.5
     joint.update("person", x, y, tile, t=0.0)
     res = frame(pipe, object_box(0.0, 30.0), 0.2, 0.1)
-    assert res.scores[0] == pytest.approx(0.7, rel=1e-4)
+    # default log-odds boost: logit(c_hat) = logit(0.2) + 4 * 1.0 * 0.5
+    expected = 1 / (1 + math.exp(-(math.log(0.2 / 0.8) + 4 * 0.5)))
+    assert res.scores[0] == pytest.approx(expected, rel=1e-4)
+    add = DetectionPipeline(CAM, CLASSES, PipelineConfig(boost_mode="add"), joint=joint)
+    assert frame(add, object_box(0.0, 30.0), 0.2, 0.1).scores[0] == pytest.approx(0.7, rel=1e-4)
     local_only = DetectionPipeline(CAM, CLASSES, PipelineConfig(joint_mode="local"), joint=joint)
     assert frame(local_only, object_box(0.0, 30.0), 0.2, 0.1).scores[0] == pytest.approx(0.2)
 

@@ -1,0 +1,365 @@
+"""Frame sources of the live agent: a simulator scenario, a dataset directory, or a video + telemetry + model.
+
+Each source yields :class:`SourceFrame` objects (time, pose or None, pre-NMS candidates, camera) in
+time order and knows its class names; pacing to real time is the agent's job (`agent.node`).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Protocol
+
+import numpy as np
+from numpy.typing import NDArray
+
+from shared.geo import Camera, Pose
+from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, parse_datetime
+
+log = logging.getLogger(__name__)
+
+__all__ = [
+    "DATASET_FILES",
+    "DatasetSource",
+    "FrameSource",
+    "SimSource",
+    "SourceFrame",
+    "VideoSource",
+    "pose_from_meta",
+]
+
+#: Files a dataset directory must hold (the layout `uavmm sim --out` writes).
+DATASET_FILES = ("images.json", "pre_nms.json", "camera.json")
+#: Frames whose poses are interpolated at once by the video source.
+_POSE_BATCH = 256
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class SourceFrame:
+    """One frame ready for the pipeline.
+
+    Attributes
+    ----------
+    index : int
+        0-based frame index within the source.
+    t : float
+        Frame time, seconds, on the source's clock (UNIX epoch for the simulator and for datasets
+        with dates); non-decreasing.
+    pose : Pose or None
+        Camera pose from the frame's telemetry; None when the frame has none (no memory-map help).
+    pose_t : float or None
+        Time the telemetry behind ``pose`` was measured, seconds (None without pose).
+    boxes_xyxy : (N, 4) float32
+        Pre-NMS candidate boxes, pixels.
+    scores : (N,) float32
+        Detector confidences in [0, 1].
+    class_ids : (N,) int64
+        Keys of the source's ``class_names``.
+    camera : Camera
+        Intrinsics of this frame (datasets may rescale per image size).
+    """
+
+    index: int
+    t: float
+    pose: Pose | None
+    pose_t: float | None
+    boxes_xyxy: NDArray[np.float32]
+    scores: NDArray[np.float32]
+    class_ids: NDArray[np.int64]
+    camera: Camera
+
+
+class FrameSource(Protocol):
+    """What the agent needs from a source: a name, class names, a camera and the frames."""
+
+    name: str
+    class_names: dict[int, str]
+    camera: Camera
+
+    def frames(self) -> Iterator[SourceFrame]:
+        """Yield the frames in time order (each call starts again from the first frame)."""
+        ...
+
+    def close(self) -> None:
+        """Release files and models (idempotent)."""
+        ...
+
+
+def pose_from_meta(meta: dict | None, frame_index: int | None = None) -> tuple[Pose | None, float | None, str | None]:
+    """Pose and telemetry time from a SeaDronesSee ``meta`` dict: (pose, pose_t, problem).
+
+    meta None gives (None, None, None); unusable meta (missing gimbal angles, values out of range)
+    gives (None, None, problem text) instead of raising.
+    """
+    if meta is None:
+        return None, None, None
+    try:
+        tel = from_seadronessee_meta(meta, frame_index)
+        assert tel is not None
+        return tel.to_pose(), tel.t, None
+    except ValueError as exc:
+        return None, None, str(exc)
+
+
+def _empty_candidates() -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]:
+    return np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64)
+
+
+# ---------------------------------------------------------------------------------------------
+# Simulator
+# ---------------------------------------------------------------------------------------------
+
+class SimSource:
+    """One UAV of a simulator scenario, frame by frame.
+
+    Parameters
+    ----------
+    scenario : str or sim.scenarios.Scenario
+        A `sim.scenarios` name (ValueError listing the valid ones otherwise) or a scenario object.
+    seed : int
+        Simulation seed: agents flying UAVs of one scenario must use the same seed to share a world.
+    uav_index : int
+        Which of the scenario's flights this agent flies, 0-based (``coop`` has two simultaneous
+        UAVs; in the other scenarios each flight is a separate video over its own world).
+    frames : int, optional
+        Frames of the flight (default: the scenario's).
+    noise_scale : float
+        Telemetry noise multiplier.
+
+    Candidates and pose come from the simulated detector and the NOISY telemetry (the meta a real
+    UAV would log); the true pose is not used.
+    """
+
+    def __init__(self, scenario, *, seed: int = 0, uav_index: int = 0, frames: int | None = None,
+                 noise_scale: float = 1.0) -> None:
+        from sim.simulator import Simulation  # the simulator is only needed by this source
+
+        self.sim = Simulation(scenario, seed=seed, frames=frames, noise_scale=noise_scale)
+        n = len(self.sim.videos)
+        if isinstance(uav_index, bool) or not isinstance(uav_index, int) or not 0 <= uav_index < n:
+            uavs = ", ".join(f"{i}={v.uav}" for i, v in enumerate(self.sim.videos))
+            raise ValueError(f"uav_index must be in 0..{n - 1} for scenario {self.sim.scenario.name!r} ({uavs}), "
+                             f"got {uav_index!r}")
+        self.video = self.sim.videos[uav_index]
+        self.name = f"sim:{self.sim.scenario.name}:{self.video.name}"
+        self.camera = self.sim.camera
+        self.class_names = {int(c["id"]): str(c["name"]) for c in self.sim.categories}
+        self.fps = self.sim.scenario.fps
+        self.problems = 0
+
+    def frames(self) -> Iterator[SourceFrame]:
+        """Frames of the chosen flight; the other flights of the scenario are simulated and skipped."""
+        index = 0
+        group_of = {v.id: v.group for v in self.sim.videos}
+        for fs in self.sim.frames():
+            if fs.video_id != self.video.id:
+                if index and group_of[fs.video_id] != self.video.group:
+                    break  # our flight is over; the flights of later groups follow
+                continue
+            pose, pose_t, problem = pose_from_meta(fs.meta, fs.frame_index)
+            if problem is not None:
+                self.problems += 1
+                log.debug("frame %d: unusable meta: %s", fs.frame_index, problem)
+            c = fs.candidates
+            xywh = np.asarray(c.boxes_xywh, dtype=np.float32).reshape(-1, 4)
+            boxes = np.column_stack([xywh[:, :2], xywh[:, :2] + xywh[:, 2:]]).astype(np.float32)
+            yield SourceFrame(index, float(fs.t), pose, pose_t, boxes, np.asarray(c.scores, np.float32),
+                              np.asarray(c.category_ids, np.int64), self.camera)
+            index += 1
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Dataset directory
+# ---------------------------------------------------------------------------------------------
+
+class DatasetSource:
+    """One video of a dataset directory: ``images.json`` + ``pre_nms.json`` + ``camera.json``.
+
+    Parameters
+    ----------
+    directory : path
+        The directory (`uavmm sim --out` writes this layout). Missing files raise ValueError naming them.
+    video_id : int, optional
+        Which video to play (default: the first); ValueError listing the known ids otherwise.
+
+    Frame times are the images' own ``date_time`` when it parses (else the telemetry's, else the
+    frame index / 30 fps); the pose time is the telemetry's, as in `uavmm track`.
+    """
+
+    def __init__(self, directory: str | Path, *, video_id: int | None = None) -> None:
+        from agent.dataset import Candidates, Dataset
+
+        self.directory = Path(directory)
+        if not self.directory.is_dir():
+            raise ValueError(f"dataset directory {self.directory} does not exist")
+        missing = [name for name in DATASET_FILES if not (self.directory / name).is_file()]
+        if missing:
+            raise ValueError(f"dataset directory {self.directory} lacks {', '.join(missing)} "
+                             f"(expected {', '.join(DATASET_FILES)})")
+        self.dataset = Dataset.load(self.directory / "images.json")
+        self.candidates = Candidates.load(self.directory / "pre_nms.json", self.dataset)
+        self.camera = Camera.from_file(self.directory / "camera.json")
+        if not self.dataset.videos:
+            raise ValueError(f"{self.directory / 'images.json'} has no images")
+        if video_id is None:
+            video_id = next(iter(self.dataset.videos))
+        if video_id not in self.dataset.videos:
+            raise ValueError(f"unknown video id {video_id}; known: {sorted(self.dataset.videos)}")
+        self.video_id = video_id
+        self.class_names = dict(self.dataset.categories)
+        self.name = f"dataset:{self.directory.name}:video{video_id}"
+        self.problems: list[str] = []
+
+    def frames(self) -> Iterator[SourceFrame]:
+        """Frames of the chosen video in frame order."""
+        from agent.dataset import iter_video_frames
+
+        t_prev = -math.inf
+        for index, frame in enumerate(iter_video_frames(self.dataset, self.camera, self.video_id,
+                                                        problems=self.problems)):
+            t = frame.t
+            if frame.image.date_time:  # the frame's own clock (telemetry stamps repeat at 10 Hz)
+                try:
+                    t = parse_datetime(frame.image.date_time)
+                except ValueError:
+                    t = frame.t
+            if not math.isfinite(t):
+                t = frame.t
+            t = max(t, t_prev)
+            t_prev = t
+            boxes, scores, cids = self.candidates.get(frame.image.id)
+            yield SourceFrame(index, t, frame.pose, frame.t if frame.pose is not None else None,
+                              boxes, scores, cids, frame.camera)
+
+    def close(self) -> None:
+        """Nothing to release."""
+
+
+# ---------------------------------------------------------------------------------------------
+# Video file + telemetry + ONNX model
+# ---------------------------------------------------------------------------------------------
+
+class VideoSource:
+    """A video file read with OpenCV, its telemetry interpolated to the frame times, an ONNX detector.
+
+    Parameters
+    ----------
+    video : path
+        Anything ``cv2.VideoCapture`` opens (a file; a stream URL works too but has no telemetry sync).
+    telemetry : path
+        ``.srt`` (DJI), ``.csv`` or SeaDronesSee ``.json`` (`shared.telemetry.read_telemetry`).
+    model : path
+        ONNX YOLO model with raw (pre-NMS) output (`agent.detector.OnnxYoloDetector`).
+    camera : path
+        Camera JSON; rescaled when the video's frame size differs.
+    telemetry_offset_s : float, optional
+        Telemetry time of video time 0, seconds (default: the first telemetry record's time).
+    class_names : path or list, optional
+        Overrides the model's class names.
+    conf_threshold : float
+        Lowest candidate confidence kept from the detector.
+    max_gap_s : float
+        Frames farther than this from any telemetry record get no pose.
+    pitch_deg, heading_deg : float, optional
+        Fixed gimbal angles for telemetry without them.
+    """
+
+    def __init__(self, video: str | Path, telemetry: str | Path, model: str | Path, camera: str | Path, *,
+                 telemetry_offset_s: float | None = None, class_names=None, conf_threshold: float = 0.01,
+                 max_gap_s: float = 1.0, pitch_deg: float | None = None, heading_deg: float | None = None) -> None:
+        import cv2
+
+        from agent.detector import OnnxYoloDetector
+        from shared.telemetry import read_telemetry
+
+        for what, path in (("video", video), ("telemetry", telemetry), ("model", model), ("camera", camera)):
+            if not Path(path).is_file():
+                raise ValueError(f"{what} file {path} does not exist")
+        self.video_path = Path(video)
+        self.records: list[Telemetry] = read_telemetry(telemetry)
+        if not self.records:
+            raise ValueError(f"telemetry file {telemetry} holds no records")
+        self.records.sort(key=lambda r: r.t)
+        self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
+        self.camera_file = Camera.from_file(camera)
+        capture = cv2.VideoCapture(str(self.video_path))
+        if not capture.isOpened():
+            raise ValueError(f"video file {self.video_path} cannot be opened by OpenCV")
+        width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
+        height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
+        fps = float(capture.get(cv2.CAP_PROP_FPS))
+        capture.release()
+        self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
+        same_size = (width, height) in ((0, 0), (self.camera_file.width, self.camera_file.height))
+        self.camera = self.camera_file if same_size else self.camera_file.scaled(width, height)
+        self.detector = OnnxYoloDetector(model, class_names=class_names, conf_threshold=conf_threshold)
+        self.class_names = dict(enumerate(self.detector.class_names))
+        self.telemetry_offset_s = self.records[0].t if telemetry_offset_s is None else float(telemetry_offset_s)
+        self.max_gap_s = float(max_gap_s)
+        self.pitch_deg = pitch_deg
+        self.heading_deg = heading_deg
+        self.name = f"video:{self.video_path.name}"
+        self.problems = 0
+
+    def _pose(self, tel: Telemetry | None) -> Pose | None:
+        if tel is None:
+            return None
+        try:
+            return tel.to_pose(self.pitch_deg, self.heading_deg)
+        except ValueError as exc:
+            self.problems += 1
+            log.debug("no pose at t=%.3f: %s", tel.t, exc)
+            return None
+
+    def poses_at(self, times: NDArray[np.float64]) -> list[tuple[Pose | None, float | None]]:
+        """Poses interpolated to telemetry times (N,) -> [(pose or None, pose time or None)].
+
+        Only the records bracketing the times are interpolated, so long flights cost the same per frame.
+        """
+        lo = max(int(np.searchsorted(self._record_t, times[0] - self.max_gap_s, side="left")) - 1, 0)
+        hi = int(np.searchsorted(self._record_t, times[-1] + self.max_gap_s, side="right")) + 1
+        records = self.records[lo:hi]
+        if not records:
+            return [(None, None)] * len(times)
+        out: list[tuple[Pose | None, float | None]] = []
+        for t, tel in zip(times, interpolate(records, times, extrapolate_s=self.max_gap_s), strict=True):
+            pose = self._pose(tel)
+            out.append((pose, float(t) if pose is not None else None))
+        return out
+
+    def frames(self) -> Iterator[SourceFrame]:
+        """Decode and detect every frame of the video; frame i is at telemetry time offset + i / fps."""
+        import cv2
+
+        capture = cv2.VideoCapture(str(self.video_path))
+        if not capture.isOpened():
+            raise ValueError(f"video file {self.video_path} cannot be opened by OpenCV")
+        try:
+            index = 0
+            poses: list[tuple[Pose | None, float | None]] = []
+            while True:
+                ok, image = capture.read()
+                if not ok:
+                    break
+                if index % _POSE_BATCH == 0:
+                    times = self.telemetry_offset_s + (index + np.arange(_POSE_BATCH)) / self.fps
+                    poses = self.poses_at(times)
+                pose, pose_t = poses[index % _POSE_BATCH]
+                if (image.shape[1], image.shape[0]) != (self.camera.width, self.camera.height):
+                    self.camera = self.camera_file.scaled(image.shape[1], image.shape[0])
+                dets = self.detector(image)
+                yield SourceFrame(index, self.telemetry_offset_s + index / self.fps, pose, pose_t, dets.boxes_xyxy,
+                                  dets.scores, dets.class_ids.astype(np.int64), self.camera)
+                index += 1
+        finally:
+            capture.release()
+
+    def close(self) -> None:
+        """Drop the model session."""
+        self.detector = None  # type: ignore[assignment]

@@ -1,0 +1,342 @@
+"""Run the detection pipeline and the GPS tracker over a dataset; write MOTChallenge and GeoJSON tracks.
+
+The file-facing edge of `agent.tracker` (which takes arrays only), used by `uavmm track` and the
+tracking evaluation.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import os
+import re
+import tempfile
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from agent.dataset import Candidates, Dataset, Frame, iter_video_frames, read_json
+from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
+from agent.size_filter import SizeFilter
+from agent.tracker import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
+from shared.geo import Camera
+
+log = logging.getLogger(__name__)
+
+
+def tracker_config_from_dict(d: Any, base: TrackerConfig | None = None) -> TrackerConfig:
+    """A TrackerConfig from a JSON mapping of its fields (metres, seconds, degrees).
+
+    ``class_motion`` is a mapping {class name: {accel_sigma_mps2, max_speed_mps, reid_spread_mps,
+    persistence_s}} merged over the base's; ``default_motion`` such a mapping. Unknown keys raise
+    ValueError listing the valid ones; bad values the config's own ValueError.
+    """
+    base = base or TrackerConfig()
+    if not isinstance(d, dict):
+        raise ValueError(f"tracker config must be a JSON object, got {type(d).__name__}")
+    names = {f.name for f in dataclasses.fields(TrackerConfig)}
+    motion_fields = {f.name for f in dataclasses.fields(ClassMotion)}
+
+    def motion(value: Any, what: str, start: ClassMotion) -> ClassMotion:
+        if not isinstance(value, dict):
+            raise ValueError(f"{what} must be an object of {', '.join(sorted(motion_fields))}")
+        unknown = set(value) - motion_fields
+        if unknown:
+            raise ValueError(f"unknown {what} setting(s) {sorted(unknown)}; valid: {', '.join(sorted(motion_fields))}")
+        return dataclasses.replace(start, **value)
+
+    kw: dict[str, Any] = {}
+    for key, value in d.items():
+        if key not in names:
+            raise ValueError(f"unknown tracker setting {key!r}; valid: {', '.join(sorted(names))}")
+        if key == "class_motion":
+            if not isinstance(value, dict):
+                raise ValueError("tracker setting 'class_motion' must be an object {class name: {...}}")
+            merged = dict(base.class_motion)
+            for cls_name, m in value.items():
+                merged[cls_name] = motion(m, f"class_motion[{cls_name!r}]", merged.get(cls_name, base.default_motion))
+            kw[key] = tuple(merged.items())
+        elif key == "default_motion":
+            kw[key] = motion(value, "default_motion", base.default_motion)
+        else:
+            kw[key] = value
+    return dataclasses.replace(base, **kw)
+
+
+def load_tracker_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> TrackerConfig:
+    """Tracker settings file (JSON) then command-line overrides (None values ignored)."""
+    cfg = TrackerConfig()
+    if path is not None:
+        cfg = tracker_config_from_dict(read_json(path, "tracker config"), cfg)
+    if overrides:
+        cfg = tracker_config_from_dict({k: v for k, v in overrides.items() if v is not None}, cfg)
+    return cfg
+
+
+@dataclass(frozen=True, slots=True)
+class TrackRow:
+    """One reported track in one frame: `frame_index` (0-based), image id, time (s) and the track."""
+
+    frame_index: int
+    image_id: int
+    t: float
+    track: TrackOutput
+
+
+def frame_time_s(frame: Frame) -> float:
+    """The frame's own clock, seconds (`iter_video_frames` puts the image's date_time in `frame.t`)."""
+    return frame.t
+
+
+def memory_evidence(pipeline: DetectionPipeline) -> Callable[[int, np.ndarray, np.ndarray], np.ndarray]:
+    """An evidence function for `GpsTracker` reading the pipeline's memory map at lat/lon points."""
+
+    def evidence_at(class_id: int, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
+        gx, gy = pipeline.grid.latlon_to_cell(lat, lon)
+        return pipeline.memory.values_at(pipeline.class_names[class_id], gx, gy)
+
+    return evidence_at
+
+
+def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_id: int,
+                pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
+                size_filter: SizeFilter | None = None, *,
+                on_frame: Callable[[Frame, FrameResult, list[TrackOutput]], None] | None = None,
+                stats: dict[str, Any] | None = None) -> list[TrackRow]:
+    """Run pipeline and tracker over one video.
+
+    Parameters
+    ----------
+    dataset, candidates, camera
+        The loaded IMAGES.json, PRE_NMS.json and CAMERA.json.
+    video_id : int
+        A key of `dataset.videos`; ValueError listing the known ones otherwise.
+    pipeline_config : PipelineConfig
+        `use_memory=False` gives our tracker on single-frame detections.
+    tracker_config : TrackerConfig, optional
+    size_filter : SizeFilter, optional
+    on_frame : callable, optional
+        Called per frame with (frame, pipeline result, all active tracks).
+    stats : dict, optional
+        Counters added in place: frames, frames_without_pose, detections, pipeline_s, tracker_s,
+        reidentified.
+
+    Returns
+    -------
+    list of TrackRow
+        The reported tracks (`GpsTracker.report`: confirmed, matched, good quality) of every frame,
+        in frame order.
+    """
+    if video_id not in dataset.videos:
+        raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
+    pipe = DetectionPipeline(camera, dataset.categories, pipeline_config, size_filter=size_filter)
+    tracker = GpsTracker(tracker_config, dataset.categories, evidence_at=memory_evidence(pipe))
+    rows: list[TrackRow] = []
+    counts = {"frames": 0, "frames_without_pose": 0, "detections": 0, "pipeline_s": 0.0, "tracker_s": 0.0}
+    t_prev = -math.inf
+    for frame in iter_video_frames(dataset, camera, video_id):
+        if pipe.camera != frame.camera:
+            pipe.camera = frame.camera
+        boxes, scores, cids = candidates.get(frame.image.id)
+        t0 = time.perf_counter()
+        result = pipe.process(boxes, scores, cids, frame.pose, frame.t)
+        t1 = time.perf_counter()
+        t = max(frame_time_s(frame), t_prev)
+        t_prev = t
+        tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t)
+        counts["tracker_s"] += time.perf_counter() - t1
+        counts["pipeline_s"] += t1 - t0
+        counts["frames"] += 1
+        counts["frames_without_pose"] += frame.pose is None
+        counts["detections"] += len(result)
+        rows.extend(TrackRow(frame.image.frame_index, frame.image.id, t, tr) for tr in tracker.report(tracks))
+        if on_frame is not None:
+            on_frame(frame, result, tracks)
+    if stats is not None:
+        for k, v in counts.items():
+            stats[k] = stats.get(k, 0) + v
+        stats["reidentified"] = stats.get("reidentified", 0) + tracker.n_reidentified
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# Output files
+# ---------------------------------------------------------------------------------------------
+
+def video_name(dataset: Dataset, video_id: int) -> str:
+    """A file-name-safe name of a video: its name in the COCO `videos` list, else ``video<id>``."""
+    for v in dataset.coco.get("videos") or []:
+        if isinstance(v, dict) and v.get("id") == video_id and isinstance(v.get("name"), str) and v["name"]:
+            safe = re.sub(r"[^A-Za-z0-9._-]+", "_", v["name"]).strip("._")
+            if safe:
+                return safe
+    return f"video{video_id}"
+
+
+def mot_output_paths(out: str | Path, dataset: Dataset, video_ids: list[int]) -> dict[int, Path]:
+    """Where each video's MOT file goes (see docs/tracking.md).
+
+    - `out` an existing directory, or written with a trailing slash: ``out/<video name>.txt`` per
+      video (the MOTChallenge / TrackEval layout);
+    - else `out` is a file: with one video, that file; with several, one file per video beside it,
+      ``<stem>_<video name><suffix>``.
+    """
+    text = str(out)
+    path = Path(out)
+    if path.is_dir() or text.endswith(("/", os.sep)):
+        return {v: path / f"{video_name(dataset, v)}.txt" for v in video_ids}
+    if len(video_ids) == 1:
+        return {video_ids[0]: path}
+    suffix = path.suffix or ".txt"
+    return {v: path.with_name(f"{path.stem}_{video_name(dataset, v)}{suffix}") for v in video_ids}
+
+
+def check_writable(path: str | Path, *, create_dir: bool = False) -> None:
+    """Fail early (OSError naming the path) if a file cannot be written at `path`."""
+    path = Path(path)
+    parent = path.parent
+    if create_dir:
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as exc:
+            raise OSError(f"cannot create output directory {parent}: {exc.strerror or exc}") from None
+    if path.is_dir():
+        raise IsADirectoryError(f"output {path} is a directory, expected a file")
+    if not parent.is_dir():
+        raise FileNotFoundError(f"output directory {parent} does not exist (for {path})")
+    try:
+        fd, tmp = tempfile.mkstemp(prefix=".uavmm-write-test-", dir=parent)
+    except OSError as exc:
+        raise OSError(f"cannot write {path}: {exc.strerror or exc}") from None
+    os.close(fd)
+    os.unlink(tmp)
+
+
+def _write_atomic(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    tmp.replace(path)
+
+
+def mot_lines(rows: list[TrackRow]) -> list[str]:
+    """MOTChallenge rows ``frame,id,x,y,w,h,score,-1,-1,-1`` (frame = frame_index + 1), sorted."""
+    lines = []
+    for r in sorted(rows, key=lambda r: (r.frame_index, r.track.id)):
+        x1, y1, x2, y2 = r.track.box_xyxy
+        lines.append(f"{r.frame_index + 1},{r.track.id},{x1:.2f},{y1:.2f},{x2 - x1:.2f},{y2 - y1:.2f},"
+                     f"{r.track.score:.5f},-1,-1,-1")
+    return lines
+
+
+def write_mot(rows: list[TrackRow], path: str | Path) -> int:
+    """Write one video's rows as a MOTChallenge text file (atomically); returns the row count."""
+    lines = mot_lines(rows)
+    _write_atomic(Path(path), "".join(line + "\n" for line in lines))
+    return len(lines)
+
+
+def read_mot(path: str | Path) -> np.ndarray:
+    """Read a MOTChallenge file into an (N, 10) float64 array (frame, id, x, y, w, h, score, ...)."""
+    path = Path(path)
+    text = path.read_text()
+    if not text.strip():
+        return np.zeros((0, 10))
+    try:
+        arr = np.loadtxt(path, delimiter=",", ndmin=2, dtype=np.float64)
+    except ValueError as exc:
+        raise ValueError(f"{path} is not a MOTChallenge file: {exc}") from None
+    if arr.shape[1] < 6:
+        raise ValueError(f"{path}: expected at least 6 comma-separated columns, got {arr.shape[1]}")
+    return arr
+
+
+def geojson_tracks(rows_by_video: dict[int, list[TrackRow]], class_names: dict[int, str]) -> dict[str, Any]:
+    """Tracks as a GeoJSON FeatureCollection: one feature per (video, track).
+
+    Geometry: a LineString of [lon, lat] (filtered positions at the frames the track was reported),
+    or a Point when it was reported once. Properties: ``id, video_id, cls, cls_name, frames``
+    (0-based frame indices), ``times`` (UNIX s), ``scores`` and ``vel_en`` (m/s, per position).
+    """
+    features = []
+    for video_id, rows in rows_by_video.items():
+        by_track: dict[int, list[TrackRow]] = {}
+        for r in rows:
+            if math.isfinite(r.track.lat) and math.isfinite(r.track.lon):
+                by_track.setdefault(r.track.id, []).append(r)
+        for tid, trs in sorted(by_track.items()):
+            coords = [[round(r.track.lon, 8), round(r.track.lat, 8)] for r in trs]
+            geometry = ({"type": "Point", "coordinates": coords[0]} if len(coords) == 1
+                        else {"type": "LineString", "coordinates": coords})
+            cls = trs[0].track.cls
+            features.append({
+                "type": "Feature", "geometry": geometry,
+                "properties": {
+                    "id": tid, "video_id": video_id, "cls": cls, "cls_name": class_names.get(cls, str(cls)),
+                    "frames": [r.frame_index for r in trs], "times": [round(r.t, 3) for r in trs],
+                    "scores": [round(r.track.score, 4) for r in trs],
+                    "vel_en": [[round(r.track.vel_en[0], 3), round(r.track.vel_en[1], 3)] for r in trs],
+                },
+            })
+    return {"type": "FeatureCollection", "features": features}
+
+
+def write_geojson(rows_by_video: dict[int, list[TrackRow]], class_names: dict[int, str], path: str | Path) -> int:
+    """Write `geojson_tracks` to path (atomically); returns the number of features."""
+    collection = geojson_tracks(rows_by_video, class_names)
+    _write_atomic(Path(path), json.dumps(collection))
+    return len(collection["features"])
+
+
+def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path, out: str | Path,
+                  pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
+                  size_filter: SizeFilter | None = None, *, video_id: int | None = None,
+                  geojson_path: str | Path | None = None) -> dict[str, Any]:
+    """Load the three files, track every video (or `video_id`), write MOT files (and GeoJSON).
+
+    Output paths are checked before any work: an unknown video id raises ValueError, an unwritable
+    output OSError. Returns a summary: ``files`` {video_id: path}, ``rows``, ``tracks`` (distinct ids
+    per video), ``geojson``, timing and counters.
+    """
+    dataset = Dataset.load(images_path)
+    if video_id is not None and video_id not in dataset.videos:
+        raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
+    video_ids = [video_id] if video_id is not None else list(dataset.videos)
+    if not video_ids:
+        raise ValueError(f"{images_path}: no images, nothing to track")
+    paths = mot_output_paths(out, dataset, video_ids)
+    out_is_dir = Path(out).is_dir() or str(out).endswith(("/", os.sep))
+    for p in paths.values():
+        check_writable(p, create_dir=out_is_dir)
+    if geojson_path is not None:
+        check_writable(geojson_path)
+    candidates = Candidates.load(candidates_path, dataset)
+    camera = Camera.from_file(camera_path)
+    stats: dict[str, Any] = {}
+    rows_by_video: dict[int, list[TrackRow]] = {}
+    t0 = time.perf_counter()
+    for v in video_ids:
+        rows_by_video[v] = track_video(dataset, candidates, camera, v, pipeline_config, tracker_config, size_filter,
+                                       stats=stats)
+    summary: dict[str, Any] = {"files": {}, "rows": 0, "tracks": {}}
+    for v, rows in rows_by_video.items():
+        summary["rows"] += write_mot(rows, paths[v])
+        summary["files"][v] = str(paths[v])
+        summary["tracks"][v] = len({r.track.id for r in rows})
+    if geojson_path is not None:
+        summary["geojson"] = str(geojson_path)
+        summary["geojson_features"] = write_geojson(rows_by_video, dataset.categories, geojson_path)
+    frames = max(stats.get("frames", 0), 1)
+    summary.update({
+        "frames": stats.get("frames", 0), "frames_without_pose": stats.get("frames_without_pose", 0),
+        "reidentified": stats.get("reidentified", 0),
+        "pipeline_ms_per_frame": round(1000 * stats.get("pipeline_s", 0.0) / frames, 3),
+        "tracker_ms_per_frame": round(1000 * stats.get("tracker_s", 0.0) / frames, 3),
+        "seconds": round(time.perf_counter() - t0, 3), "skipped_candidates": candidates.skipped,
+    })
+    return summary

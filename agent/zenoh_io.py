@@ -1,0 +1,430 @@
+"""The agent's Zenoh side: liveliness, publishers on a background thread, joint tiles/tracks in, late-join query.
+
+The detection loop never waits for the network: it hands encoded messages to :meth:`AgentLink.submit`
+(latest message per key wins while the network is slow) and a publisher thread puts them with
+``CongestionControl.BLOCK``. Subscriber callbacks validate every joint message, count and log what they
+drop, and never raise; the loop takes the decoded joint tiles with :meth:`AgentLink.drain_joint_tiles`.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections import Counter, OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+import msgpack
+import numpy as np
+import zenoh
+from numpy.typing import NDArray
+
+from agent.zenoh_config import open_session
+from shared.keys import JOINT_UAV, KeySpace
+from shared.messages import (
+    VERSION,
+    JointTracksMessage,
+    MessageError,
+    TracksMessage,
+    decode_joint_tracks,
+)
+from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, decode_tile
+from shared.tiles import TileGrid
+
+__all__ = ["AgentLink", "JointTileUpdate", "encode_tracks_with_gid"]
+
+log = logging.getLogger(__name__)
+
+#: Largest joint tracks payload accepted, bytes.
+MAX_JOINT_TRACKS_BYTES = 8 * 1024 * 1024
+#: How often the publisher thread looks for new routers/peers (to query the joint map again), seconds.
+_CONNECTIVITY_CHECK_S = 0.5
+
+
+def encode_tracks_with_gid(msg: TracksMessage, gids: dict[int, int]) -> bytes:
+    """msgpack bytes of a local tracks message whose items may carry an optional ``gid``.
+
+    ``gid`` (the global id the agent adopted for that local track, see docs/agent.md) is a compatible
+    extension of the DESIGN.md tracks message: decoders ignore unknown keys. msg is validated by its
+    own constructor; gids maps local track id -> global id (ints in 0..2**63-1), absent ids get no gid.
+    """
+    tracks = []
+    for item in msg.tracks:
+        record = item.to_dict()
+        gid = gids.get(item.id)
+        if gid is not None:
+            record["gid"] = int(gid)
+        tracks.append(record)
+    return msgpack.packb({"v": VERSION, "uav": msg.uav, "t": float(msg.t), "tracks": tracks}, use_bin_type=True)
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class JointTileUpdate:
+    """A joint tile received from the fusion server.
+
+    cls, x, y: the tile (of the agent's grid zoom). values: (n, n) float32 in [0, 1].
+    age_s: wall seconds since it was received (at the time it was drained).
+    """
+
+    cls: str
+    x: int
+    y: int
+    values: NDArray[np.float32]
+    age_s: float
+
+
+class _RateLimitedWarning:
+    """At most one warning per reason every interval_s, with the number suppressed in between."""
+
+    def __init__(self, interval_s: float = 10.0) -> None:
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._suppressed: Counter[str] = Counter()
+        self._lock = threading.Lock()
+
+    def __call__(self, reason: str, message: str, *args: object) -> None:
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(reason)
+            if last is not None and now - last < self.interval_s:
+                self._suppressed[reason] += 1
+                return
+            self._last[reason] = now
+            suppressed = self._suppressed.pop(reason, 0)
+        log.warning(message + (f" ({suppressed} more suppressed)" if suppressed else ""), *args)
+
+
+class AgentLink:
+    """One agent's Zenoh session.
+
+    Parameters
+    ----------
+    conf : zenoh.Config
+        From `agent.zenoh_config.agent_zenoh_config`.
+    keys : KeySpace
+    uav : str
+        This UAV's id (a valid key chunk).
+    grid : TileGrid
+        Joint tiles of another zoom or cell count are rejected ("wrong_grid").
+    max_publishers : int
+        Declared tile publishers kept (least recently used ones are undeclared beyond it).
+    max_tile_bytes : int
+        Largest joint tile payload accepted.
+
+    Use: ``open()``, ``query_joint()``, then per publish cycle ``submit(...)``; per frame
+    ``drain_joint_tiles()`` and ``joint_tracks()``; ``close()`` at the end. ``stats()`` gives the counters.
+    """
+
+    def __init__(self, conf: zenoh.Config, keys: KeySpace, uav: str, grid: TileGrid, *,
+                 max_publishers: int = 1024, max_tile_bytes: int = DEFAULT_MAX_TILE_BYTES) -> None:
+        self.conf = conf
+        self.keys = keys
+        self.uav = uav
+        self.grid = grid
+        self.max_publishers = max_publishers
+        self.max_tile_bytes = max_tile_bytes
+        self.session: zenoh.Session | None = None
+        self._declared: list[Any] = []
+        self._token: zenoh.LivelinessToken | None = None
+        self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
+        self._lock = threading.Lock()
+        self._outbox: dict[str, tuple[str, bytes]] = {}
+        self._wake = threading.Condition(self._lock)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        # joint tiles: (cls, x, y) -> (values, monotonic receive time, seq, t)
+        self._joint_tiles: dict[tuple[str, int, int], tuple[NDArray[np.float32], float, int, float]] = {}
+        self._joint_pending: set[tuple[str, int, int]] = set()
+        self._joint_tracks: tuple[JointTracksMessage, float] | None = None
+        self._counts: Counter[str] = Counter()
+        self._bytes: Counter[str] = Counter()
+        self._rejects: Counter[str] = Counter()
+        self._warn = _RateLimitedWarning()
+        self._known_remotes: set[str] = set()
+
+    # ---- lifecycle -----------------------------------------------------------------------------
+    def open(self, stop: threading.Event | None = None, *, timeout_s: float | None = None) -> bool:
+        """Open the session (retrying a client until its router answers), declare the liveliness
+        token and the subscribers, start the publisher thread. Returns False when ``stop`` was set or
+        ``timeout_s`` passed before the session opened."""
+        session = open_session(self.conf, stop, timeout_s=timeout_s)
+        if session is None:
+            return False
+        self.session = session
+        self._token = session.liveliness().declare_token(self.keys.uav_alive(self.uav))
+        # keep references: declared entities are undeclared when garbage-collected
+        self._declared = [
+            session.declare_subscriber(self.keys.joint_tiles_all(), self._on_sample),
+            session.declare_subscriber(self.keys.joint_tracks(), self._on_sample),
+        ]
+        self._known_remotes = self._remotes()
+        self._thread = threading.Thread(target=self._run, name=f"uavmm-agent-{self.uav}-publisher", daemon=True)
+        self._thread.start()
+        log.info("agent %s: zenoh session %s open (%d router/peer connections)", self.uav, session.zid(),
+                 len(self._known_remotes))
+        return True
+
+    def close(self) -> None:
+        """Send what is queued, stop the publisher thread and close the session (idempotent); the
+        liveliness token goes with the session."""
+        self._stop.set()
+        with self._lock:
+            self._wake.notify_all()
+        if self._thread is not None:
+            self._thread.join(timeout=10.0)
+            self._thread = None
+        if self.session is not None:
+            self._publishers.clear()
+            self._declared = []
+            self._token = None
+            try:
+                self.session.close()
+            except zenoh.ZError as exc:
+                log.warning("closing the zenoh session: %s", exc)
+            self.session = None
+
+    def __enter__(self) -> AgentLink:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ---- late join -----------------------------------------------------------------------------
+    def query_joint(self, timeout_s: float = 2.0) -> int:
+        """Ask the fusion server's queryable for the current joint tiles and tracks and wait for them.
+
+        Replies go through the same validation as published samples. Returns the number of replies
+        (0 when no fusion server answers; the call returns as soon as all queryables replied).
+        """
+        if self.session is None:
+            raise RuntimeError("AgentLink.query_joint before open()")
+        self._count("queries")
+        replies = self.session.get(self.keys.joint_all(), timeout=timeout_s)
+        n = 0
+        for reply in replies:
+            n += 1
+            self._on_reply(reply)
+        log.info("agent %s: joint query answered with %d replies", self.uav, n)
+        return n
+
+    def _query_async(self) -> None:
+        assert self.session is not None
+        self._count("queries")
+        self.session.get(self.keys.joint_all(), self._on_reply, timeout=5.0)
+
+    def _remotes(self) -> set[str]:
+        if self.session is None:
+            return set()
+        info = self.session.info
+        return {str(z) for z in info.routers_zid()} | {str(z) for z in info.peers_zid()}
+
+    # ---- outgoing ------------------------------------------------------------------------------
+    def submit(self, messages: list[tuple[str, str, bytes]]) -> None:
+        """Queue messages ``(kind, key, payload)`` for the publisher thread; never blocks on the network.
+
+        A message replaces one still queued under the same key (counted as "coalesced"): when the
+        link is slower than the publish rate the newest state of each tile is what gets through.
+        """
+        with self._lock:
+            for kind, key, payload in messages:
+                if key in self._outbox:
+                    self._counts["coalesced"] += 1
+                self._outbox[key] = (kind, payload)
+            self._wake.notify_all()
+
+    def tile_key(self, cls: str, x: int, y: int) -> str:
+        """Key of one of this UAV's tiles on the agent's grid."""
+        return self.keys.uav_tile(self.uav, cls, self.grid.z, x, y)
+
+    def state_key(self) -> str:
+        """Key of this UAV's state."""
+        return self.keys.uav_state(self.uav)
+
+    def tracks_key(self) -> str:
+        """Key of this UAV's tracks."""
+        return self.keys.uav_tracks(self.uav)
+
+    def _publisher(self, key: str) -> zenoh.Publisher:
+        publisher = self._publishers.get(key)
+        if publisher is not None:
+            self._publishers.move_to_end(key)
+            return publisher
+        assert self.session is not None
+        # BLOCK: the default DROP loses messages silently under load (PITFALLS.md); declared once per key
+        publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+        self._publishers[key] = publisher
+        while len(self._publishers) > self.max_publishers:
+            _, old = self._publishers.popitem(last=False)
+            try:
+                old.undeclare()
+            except zenoh.ZError:
+                pass
+        return publisher
+
+    def _run(self) -> None:
+        next_check = time.monotonic() + _CONNECTIVITY_CHECK_S
+        while True:
+            with self._lock:
+                if not self._outbox and not self._stop.is_set():
+                    self._wake.wait(_CONNECTIVITY_CHECK_S)
+                batch, self._outbox = self._outbox, {}
+            self._send(batch)
+            if self._stop.is_set():
+                return  # what was queued before close() has been sent
+            now = time.monotonic()
+            if now >= next_check:
+                next_check = now + _CONNECTIVITY_CHECK_S
+                self._check_connectivity()
+
+    def _send(self, batch: dict[str, tuple[str, bytes]]) -> None:
+        for key, (kind, payload) in batch.items():
+            try:
+                self._publisher(key).put(payload)
+                self._count(f"sent_{kind}", len(payload))
+            except zenoh.ZError as exc:
+                self._count("publish_errors")
+                self._warn("publish", "agent %s: publishing on %s failed: %s", self.uav, key, exc)
+
+    def _check_connectivity(self) -> None:
+        """Query the joint map again when a router/peer appears (e.g. the fusion server came back)."""
+        try:
+            remotes = self._remotes()
+            new = remotes - self._known_remotes
+            if new:
+                log.info("agent %s: new zenoh connection(s) %s: querying the joint map", self.uav, sorted(new))
+                self._count("reconnects")
+                self._query_async()
+            self._known_remotes = remotes
+        except zenoh.ZError as exc:
+            self._warn("connectivity", "agent %s: connectivity check failed: %s", self.uav, exc)
+
+    # ---- incoming (Zenoh threads: never raise) -------------------------------------------------
+    def _count(self, name: str, nbytes: int | None = None) -> None:
+        with self._lock:
+            self._counts[name] += 1
+            if nbytes is not None:
+                self._bytes[name] += nbytes
+
+    def _reject(self, reason: str, key: str, detail: object) -> None:
+        with self._lock:
+            self._rejects[reason] += 1
+        self._warn(reason, "agent %s: dropped joint message on %.120s: %s: %.200s", self.uav, key, reason, detail)
+
+    def _on_reply(self, reply: zenoh.Reply) -> None:
+        try:
+            sample = reply.ok
+            if sample is None:
+                self._reject("query_error", self.keys.joint_all(), reply.err)
+                return
+            self._on_sample(sample)
+        except Exception:  # never raise into Zenoh
+            log.exception("agent %s: internal error handling a query reply", self.uav)
+
+    def _on_sample(self, sample: zenoh.Sample) -> None:
+        key = "?"
+        try:
+            key = str(sample.key_expr)
+            if sample.kind != zenoh.SampleKind.PUT:
+                self._reject("unexpected_delete", key, "DELETE sample")
+                return
+            try:
+                parsed = self.keys.parse(key)
+            except ValueError as exc:
+                self._reject("bad_key", key, exc)
+                return
+            if parsed.kind == "joint_tile":
+                self._on_joint_tile(key, parsed, sample.payload)
+            elif parsed.kind == "joint_tracks":
+                self._on_joint_tracks(key, sample.payload)
+            else:
+                self._reject("unexpected_key", key, "not a joint key")
+        except Exception:  # a bug must not take the subscriber down: count it, log it
+            with self._lock:
+                self._rejects["internal_error"] += 1
+            log.exception("agent %s: internal error handling a sample on %.120s", self.uav, key)
+
+    def _on_joint_tile(self, key: str, parsed, payload: zenoh.ZBytes) -> None:
+        if len(payload) > self.max_tile_bytes:
+            self._reject("too_large", key, f"{len(payload)} bytes")
+            return
+        try:
+            msg = decode_tile(payload.to_bytes(), max_bytes=self.max_tile_bytes)
+        except MessageError as exc:
+            self._reject(exc.reason, key, exc)
+            return
+        if msg.uav != JOINT_UAV:
+            self._reject("uav_mismatch", key, f"uav {msg.uav!r} on a joint key")
+            return
+        if (msg.cls, msg.z, msg.x, msg.y) != (parsed.cls, parsed.z, parsed.x, parsed.y):
+            self._reject("tile_mismatch", key, f"tile {msg.cls}/{msg.z}/{msg.x}/{msg.y}")
+            return
+        if msg.z != self.grid.z or msg.n != self.grid.n:
+            self._reject("wrong_grid", key, f"z={msg.z} n={msg.n}, agent grid z={self.grid.z} n={self.grid.n}")
+            return
+        tile_id = (msg.cls, msg.x, msg.y)
+        now = time.monotonic()
+        with self._lock:
+            old = self._joint_tiles.get(tile_id)
+            # a query reply may arrive after a newer published sample: keep the newer one
+            if old is not None and msg.seq <= old[2] and msg.t <= old[3]:
+                self._rejects["stale"] += 1
+                return
+            self._joint_tiles[tile_id] = (msg.values, now, msg.seq, msg.t)
+            self._joint_pending.add(tile_id)
+            self._counts["joint_tiles"] += 1
+            self._bytes["joint_tiles"] += len(payload)
+
+    def _on_joint_tracks(self, key: str, payload: zenoh.ZBytes) -> None:
+        if len(payload) > MAX_JOINT_TRACKS_BYTES:
+            self._reject("too_large", key, f"{len(payload)} bytes")
+            return
+        try:
+            msg = decode_joint_tracks(payload.to_bytes(), max_bytes=MAX_JOINT_TRACKS_BYTES)
+        except MessageError as exc:
+            self._reject(exc.reason, key, exc)
+            return
+        if msg.uav != JOINT_UAV:
+            self._reject("uav_mismatch", key, f"uav {msg.uav!r} on the joint tracks key")
+            return
+        with self._lock:
+            self._joint_tracks = (msg, time.monotonic())
+            self._counts["joint_tracks"] += 1
+            self._bytes["joint_tracks"] += len(payload)
+
+    # ---- reading the joint side ----------------------------------------------------------------
+    def drain_joint_tiles(self, max_age_s: float | None = None) -> list[JointTileUpdate]:
+        """Joint tiles received since the last call (latest per tile), with their age in seconds.
+
+        Tiles older than ``max_age_s`` are forgotten here (and not returned).
+        """
+        now = time.monotonic()
+        with self._lock:
+            if max_age_s is not None:
+                for tile_id in [k for k, v in self._joint_tiles.items() if now - v[1] > max_age_s]:
+                    del self._joint_tiles[tile_id]
+                    self._joint_pending.discard(tile_id)
+            out = []
+            for cls, x, y in self._joint_pending:
+                values, received, _, _ = self._joint_tiles[(cls, x, y)]
+                out.append(JointTileUpdate(cls, x, y, values, now - received))
+            self._joint_pending.clear()
+        return out
+
+    def joint_tracks(self) -> tuple[JointTracksMessage, float] | None:
+        """The latest global tracks and their age in seconds, or None before any arrived."""
+        with self._lock:
+            if self._joint_tracks is None:
+                return None
+            msg, received = self._joint_tracks
+        return msg, time.monotonic() - received
+
+    def stats(self) -> dict[str, Any]:
+        """Counters: messages and bytes sent per kind, joint messages received, rejects by reason."""
+        with self._lock:
+            return {
+                "counts": dict(self._counts),
+                "bytes": dict(self._bytes),
+                "rejected": dict(self._rejects),
+                "publishers": len(self._publishers),
+            }

@@ -1,0 +1,168 @@
+"""Frame sources of the agent: simulator UAVs, dataset directories, video + telemetry + ONNX model, and
+their errors for missing files and unknown names."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.sources import DatasetSource, SimSource, SourceFrame, VideoSource, pose_from_meta
+from shared.geo import Camera
+from sim.dataset import write_dataset
+
+FRAMES = 30
+
+
+def _check_frames(frames: list[SourceFrame], class_ids: set[int]) -> None:
+    times = [f.t for f in frames]
+    assert times == sorted(times)
+    assert [f.index for f in frames] == list(range(len(frames)))
+    for f in frames:
+        assert f.boxes_xyxy.dtype == np.float32 and f.boxes_xyxy.shape == (len(f.scores), 4)
+        assert f.scores.dtype == np.float32 and f.class_ids.dtype == np.int64
+        assert np.all(f.boxes_xyxy[:, 2] > f.boxes_xyxy[:, 0]) and np.all(f.boxes_xyxy[:, 3] > f.boxes_xyxy[:, 1])
+        assert set(np.unique(f.class_ids).tolist()) <= class_ids
+        assert np.all((f.scores >= 0) & (f.scores <= 1))
+
+
+@pytest.mark.parametrize("uav_index", [0, 1])
+def test_sim_source_flies_the_chosen_uav_of_a_simultaneous_scenario(uav_index):
+    source = SimSource("coop", seed=3, uav_index=uav_index, frames=FRAMES)
+    frames = list(source.frames())
+    assert len(frames) == FRAMES
+    assert source.video.uav == f"uav{uav_index + 1}"
+    _check_frames(frames, set(source.class_names))
+    assert source.class_names == {1: "person", 2: "swimmer"}
+    assert sum(f.pose is not None for f in frames) >= FRAMES - 2
+    assert all(abs(f.pose_t - f.t) < 0.2 for f in frames if f.pose is not None)  # 10 Hz telemetry
+    assert sum(len(f.scores) for f in frames) > 0
+    # the two UAVs fly different flights over one world
+    other = next(iter(SimSource("coop", seed=3, uav_index=1 - uav_index, frames=FRAMES).frames()))
+    assert (other.pose.lat, other.pose.lon) != (frames[0].pose.lat, frames[0].pose.lon)
+    assert other.t == frames[0].t
+
+
+def test_sim_source_of_a_later_flight_stops_at_its_end():
+    source = SimSource("sea", uav_index=2, frames=10)  # three separate flights; the last one
+    frames = list(source.frames())
+    assert len(frames) == 10
+    assert frames[0].t > SimSource("sea", uav_index=0, frames=10).sim.videos[0].t0
+
+
+def test_sim_source_errors_name_the_valid_choices():
+    with pytest.raises(ValueError, match="valid scenarios: .*coop"):
+        SimSource("nosuch")
+    with pytest.raises(ValueError, match=r"uav_index must be in 0\.\.1 .*uav1"):
+        SimSource("coop", uav_index=2)
+
+
+@pytest.fixture(scope="module")
+def coop_dir(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("coop") / "data"
+    write_dataset("coop", out, seed=1, frames=FRAMES, progress=False)
+    return out
+
+
+def test_dataset_source_plays_a_video_of_the_directory(coop_dir):
+    source = DatasetSource(coop_dir, video_id=2)
+    frames = list(source.frames())
+    assert len(frames) == FRAMES
+    _check_frames(frames, set(source.class_names))
+    assert source.camera == Camera.from_file(coop_dir / "camera.json")
+    # the same candidates the simulator produced for that UAV
+    sim_frames = list(SimSource("coop", seed=1, uav_index=1, frames=FRAMES).frames())
+    for a, b in zip(frames, sim_frames, strict=True):
+        np.testing.assert_allclose(a.boxes_xyxy, b.boxes_xyxy, atol=0.01)
+        np.testing.assert_allclose(a.scores, b.scores, atol=1e-4)  # rounded in the file
+        assert a.t == pytest.approx(b.t, abs=1e-3)
+    assert DatasetSource(coop_dir).video_id == 1
+
+
+def test_dataset_source_errors(coop_dir, tmp_path):
+    with pytest.raises(ValueError, match="does not exist"):
+        DatasetSource(tmp_path / "missing")
+    partial = tmp_path / "partial"
+    partial.mkdir()
+    (partial / "images.json").write_text((coop_dir / "images.json").read_text())
+    with pytest.raises(ValueError, match="lacks pre_nms.json, camera.json"):
+        DatasetSource(partial)
+    with pytest.raises(ValueError, match=r"unknown video id 9; known: \[1, 2\]"):
+        DatasetSource(coop_dir, video_id=9)
+
+
+def test_pose_from_meta_reports_unusable_meta_instead_of_raising():
+    assert pose_from_meta(None) == (None, None, None)
+    pose, t, problem = pose_from_meta({"gps_latitude": 48.5, "gps_latitude_ref": "N"})
+    assert pose is None and t is None and "gps_longitude" in problem
+
+
+# ---- video + telemetry + ONNX model ----------------------------------------------------------------
+def _write_video(path: Path, frames: int, size: tuple[int, int] = (320, 180), fps: float = 10.0) -> Path:
+    import cv2
+
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"MJPG"), fps, size)
+    assert writer.isOpened()
+    for i in range(frames):
+        image = np.full((size[1], size[0], 3), 40 + i, np.uint8)
+        writer.write(image)
+    writer.release()
+    return path
+
+
+def _write_model(path: Path) -> Path:
+    pytest.importorskip("onnx")
+    from tests.agent.test_detector import make_constant_model
+
+    # v8 layout (1, 4 + C, N): one confident person box in the middle of a 640 x 640 input
+    raw = np.zeros((1, 4 + 2, 100), np.float32)
+    raw[0, :4, 0] = [320, 320, 60, 120]  # cx, cy, w, h
+    raw[0, 4, 0] = 0.9
+    return make_constant_model(path, raw, metadata={"names": str({0: "person", 1: "swimmer"})})
+
+
+def test_video_source_detects_and_interpolates_telemetry(tmp_path):
+    video = _write_video(tmp_path / "flight.avi", 12)
+    telemetry = tmp_path / "flight.csv"
+    rows = ["time_s,lat,lon,height_m,pitch_deg,heading_deg"]
+    rows += [f"{100 + 0.5 * i},{48.53 + 1e-5 * i},9.06,30,90,{10 * i}" for i in range(4)]  # 0..1.5 s
+    telemetry.write_text("\n".join(rows) + "\n")
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 640, "height": 360, "fx": 500.0}))
+    source = VideoSource(video, telemetry, _write_model(tmp_path / "model.onnx"), camera, max_gap_s=0.2)
+    assert source.class_names == {0: "person", 1: "swimmer"}
+    assert (source.camera.width, source.camera.height, source.camera.fx) == (320, 180, 250.0)  # rescaled
+    frames = list(source.frames())
+    assert len(frames) == 12
+    _check_frames(frames, {0, 1})
+    assert [f.t for f in frames] == pytest.approx([100 + i / 10 for i in range(12)])
+    # 100.0 .. 101.5 s of telemetry, 0.2 s held beyond: frames at 101.8+ s have none
+    assert [f.pose is not None for f in frames] == [f.t <= 101.7 + 1e-9 for f in frames]
+    assert frames[5].pose.lat == pytest.approx(48.53 + 1e-5)  # t = 100.5 s: the second record
+    assert frames[5].pose.heading_deg == pytest.approx(10.0)
+    assert frames[2].pose_t == pytest.approx(100.2)
+    assert all(len(f.scores) >= 1 and f.class_ids[0] == 0 for f in frames)
+    # the box is in original-image pixels (letterbox undone)
+    x1, y1, x2, y2 = frames[0].boxes_xyxy[0]
+    assert (x1 + x2) / 2 == pytest.approx(160, abs=1) and (y1 + y2) / 2 == pytest.approx(90, abs=1)
+
+
+def test_video_source_errors_name_the_missing_file(tmp_path):
+    video = _write_video(tmp_path / "v.avi", 2)
+    model = _write_model(tmp_path / "m.onnx")
+    tel = tmp_path / "t.csv"
+    tel.write_text("time_s,lat,lon,height_m\n0,48,9,30\n")
+    cam = tmp_path / "c.json"
+    cam.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    with pytest.raises(ValueError, match="telemetry file .*nope.srt does not exist"):
+        VideoSource(video, tmp_path / "nope.srt", model, cam)
+    with pytest.raises(ValueError, match="model file .*nope.onnx does not exist"):
+        VideoSource(video, tel, tmp_path / "nope.onnx", cam)
+    with pytest.raises(ValueError, match="video file .*nope.mp4 does not exist"):
+        VideoSource(tmp_path / "nope.mp4", tel, model, cam)
+    bad = tmp_path / "bad.avi"
+    bad.write_bytes(b"not a video")
+    with pytest.raises(ValueError, match="cannot be opened"):
+        VideoSource(bad, tel, model, cam)

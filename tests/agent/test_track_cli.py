@@ -1,0 +1,157 @@
+"""`uavmm track` end to end on a small simulated dataset: MOT files, GeoJSON, bad input."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.tracker import TrackerConfig
+from agent.tracking_io import read_mot, tracker_config_from_dict
+from sim.dataset import write_dataset
+from uavmm.cli import main
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("reid") / "data"
+    write_dataset("reid", out, seed=3, frames=90, progress=False)  # two videos of 3 s
+    return out
+
+
+def track(d: Path, out: Path | str, *extra: str) -> int:
+    return main(["track", "--frames", str(d / "images.json"), "--candidates", str(d / "pre_nms.json"),
+                 "--camera", str(d / "camera.json"), "--out", str(out), *extra])
+
+
+def video_names(d: Path) -> dict[int, str]:
+    return {v["id"]: v["name"] for v in json.loads((d / "images.json").read_text())["videos"]}
+
+
+def test_mot_file_has_one_row_per_reported_track_and_frame(data, tmp_path, capsys):
+    out = tmp_path / "tracks.txt"
+    assert track(data, out, "--video-id", "1") == 0
+    assert "video 1:" in capsys.readouterr().out
+    lines = out.read_text().splitlines()
+    assert lines
+    frames_per_video = 90
+    seen = set()
+    for line in lines:
+        cols = line.split(",")
+        assert len(cols) == 10
+        frame, tid = int(cols[0]), int(cols[1])
+        x, y, w, h, score = map(float, cols[2:7])
+        assert cols[7:] == ["-1", "-1", "-1"]
+        assert 1 <= frame <= frames_per_video  # frame_index + 1
+        assert tid >= 1 and w > 0 and h > 0 and score > 0
+        assert (frame, tid) not in seen  # one box per id and frame
+        seen.add((frame, tid))
+    frames = [int(line.split(",")[0]) for line in lines]
+    assert frames == sorted(frames)
+    arr = read_mot(out)
+    assert arr.shape == (len(lines), 10)
+    assert set(np.unique(arr[:, 1]).astype(int)) == {tid for _, tid in seen}
+
+
+def test_several_videos_give_one_file_per_video_beside_the_out_file(data, tmp_path):
+    out = tmp_path / "tracks.txt"
+    assert track(data, out) == 0
+    names = video_names(data)
+    files = sorted(p.name for p in tmp_path.iterdir())
+    assert files == sorted(f"tracks_{name}.txt" for name in names.values())
+    assert not out.exists()
+
+
+def test_an_out_directory_gets_motchallenge_sequence_files(data, tmp_path):
+    out_dir = tmp_path / "trackers" / "ours"
+    assert track(data, f"{out_dir}/", "--no-memory") == 0
+    assert sorted(p.name for p in out_dir.iterdir()) == sorted(f"{n}.txt" for n in video_names(data).values())
+
+
+def test_geojson_has_a_linestring_per_track_with_times(data, tmp_path):
+    gj = tmp_path / "tracks.geojson"
+    assert track(data, tmp_path / "t.txt", "--video-id", "2", "--geojson", str(gj)) == 0
+    collection = json.loads(gj.read_text())
+    assert collection["type"] == "FeatureCollection" and collection["features"]
+    mot_ids = set(read_mot(tmp_path / "t.txt")[:, 1].astype(int))
+    for f in collection["features"]:
+        props, geom = f["properties"], f["geometry"]
+        assert props["video_id"] == 2 and props["id"] in mot_ids and props["cls_name"] == "person"
+        coords = [geom["coordinates"]] if geom["type"] == "Point" else geom["coordinates"]
+        assert geom["type"] in ("Point", "LineString")
+        assert len(coords) == len(props["times"]) == len(props["frames"])
+        assert props["times"] == sorted(props["times"])
+        for lon, lat in coords:  # GeoJSON order, near the reid scene (48.53 N, 9.06 E)
+            assert abs(lat - 48.53) < 0.01 and abs(lon - 9.06) < 0.01
+
+
+def test_unknown_video_id_is_a_clear_error(data, tmp_path, capsys):
+    assert track(data, tmp_path / "t.txt", "--video-id", "7") == 2
+    err = capsys.readouterr().err
+    assert "unknown video_id 7" in err and "[1, 2]" in err
+    assert not (tmp_path / "t.txt").exists()
+
+
+def test_missing_output_directory_is_a_clear_error_before_any_work(data, tmp_path, capsys):
+    assert track(data, tmp_path / "missing" / "t.txt", "--video-id", "1") == 2
+    assert "does not exist" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(os.name != "posix" or os.geteuid() == 0, reason="root can write to read-only directories")
+def test_unwritable_output_is_a_clear_error(data, tmp_path, capsys):
+    ro = tmp_path / "ro"
+    ro.mkdir()
+    ro.chmod(0o500)
+    try:
+        assert track(data, ro / "t.txt", "--video-id", "1") == 2
+        assert "cannot write" in capsys.readouterr().err
+    finally:
+        ro.chmod(0o700)
+
+
+@pytest.mark.skipif(not Path("/sys/kernel").is_dir(), reason="needs Linux sysfs")
+def test_output_in_a_read_only_filesystem_is_a_clear_error(data, capsys):
+    # sysfs refuses new files even to root
+    assert track(data, "/sys/tracks.txt", "--video-id", "1") == 2
+    assert "cannot write /sys/tracks.txt" in capsys.readouterr().err
+
+
+def test_output_that_is_a_directory_for_one_video_file_is_an_error(data, tmp_path, capsys):
+    target = tmp_path / "tracks_x.txt"
+    target.mkdir()
+    names = video_names(data)
+    (tmp_path / f"tracks_{names[1]}.txt").mkdir()
+    assert track(data, tmp_path / "tracks.txt") == 2
+    assert "is a directory" in capsys.readouterr().err
+
+
+def test_bad_tracker_config_file_names_the_setting(data, tmp_path, capsys):
+    cfg = tmp_path / "tracker.json"
+    cfg.write_text(json.dumps({"reid_horizon_s": 10, "gate_meters": 3}))
+    assert track(data, tmp_path / "t.txt", "--video-id", "1", "--tracker-config", str(cfg)) == 2
+    assert "unknown tracker setting 'gate_meters'" in capsys.readouterr().err
+
+
+def test_tracker_config_from_dict_merges_class_motion():
+    cfg = tracker_config_from_dict({"reid_horizon_s": 12, "class_motion": {"person": {"max_speed_mps": 2.0},
+                                                                           "dog": {"max_speed_mps": 8.0}}})
+    assert cfg.reid_horizon_s == 12
+    assert cfg.motion_for("person").max_speed_mps == 2.0
+    assert cfg.motion_for("person").persistence_s == TrackerConfig().motion_for("person").persistence_s
+    assert cfg.motion_for("dog").max_speed_mps == 8.0
+    with pytest.raises(ValueError, match="unknown class_motion"):
+        tracker_config_from_dict({"class_motion": {"person": {"speed": 1}}})
+    with pytest.raises(ValueError, match="must be > 0"):
+        tracker_config_from_dict({"gate_chi2": 0})
+
+
+def test_track_help_runs_as_a_process():
+    proc = subprocess.run([sys.executable, "-m", "uavmm", "track", "--help"], capture_output=True, text=True,
+                          timeout=60, cwd=Path(__file__).resolve().parents[2])
+    assert proc.returncode == 0
+    assert "--video-id" in proc.stdout and "--geojson" in proc.stdout and "--no-memory" in proc.stdout

@@ -1,0 +1,417 @@
+"""GpsTracker on synthetic scenes made with the real camera geometry (shared.geo), no mocks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy.optimize import linear_sum_assignment
+
+from agent.pipeline import FrameResult
+from agent.tracker import (
+    ClassMotion,
+    GpsTracker,
+    TrackerConfig,
+    box_iou,
+    duplicate_mask,
+    ground_measurement_cov,
+    near_pairs,
+    sparse_assignment,
+)
+from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon, local_to_pixel
+
+CAM = Camera(width=3840, height=2160, fx=2985.0, fy=2985.0, cx=1920.0, cy=1080.0)
+LAT0, LON0 = 48.53, 9.06
+FPS = 30.0
+CLASSES = {1: "person"}
+
+
+def pose_at(heading_deg: float = 0.0, *, height_m: float = 30.0, pitch_deg: float = 40.0,
+            east_m: float = 0.0, north_m: float = 0.0) -> Pose:
+    lat, lon = local_to_latlon(east_m, north_m, LAT0, LON0)
+    return Pose(lat=float(lat), lon=float(lon), height_m=height_m, pitch_deg=pitch_deg, heading_deg=heading_deg)
+
+
+def observe(east_m, north_m, pose: Pose, *, score: float = 0.9, noise_m: float = 0.0,
+            rng: np.random.Generator | None = None, raw: float | None = None) -> FrameResult:
+    """Detections of ground points (metres around LAT0/LON0) that the camera sees: a 20 x 50 px box
+    standing on each point, its lat/lon the point's (plus noise), as DetectionPipeline reports them."""
+    e = np.atleast_1d(np.asarray(east_m, dtype=np.float64))
+    n = np.atleast_1d(np.asarray(north_m, dtype=np.float64))
+    uav_e, uav_n = latlon_to_local(pose.lat, pose.lon, LAT0, LON0)
+    uv, ok = local_to_pixel(e - uav_e, n - uav_n, CAM, pose)
+    ok &= (uv[:, 0] > 20) & (uv[:, 0] < CAM.width - 20) & (uv[:, 1] > 60) & (uv[:, 1] < CAM.height)
+    e, n, uv = e[ok], n[ok], uv[ok]
+    if noise_m and rng is not None:
+        e = e + rng.normal(0, noise_m, len(e))
+        n = n + rng.normal(0, noise_m, len(n))
+    lat, lon = local_to_latlon(e, n, LAT0, LON0)
+    boxes = np.column_stack([uv[:, 0] - 10, uv[:, 1] - 50, uv[:, 0] + 10, uv[:, 1]]).astype(np.float32)
+    k = len(e)
+    scores = np.full(k, score, np.float32)
+    raws = np.full(k, score if raw is None else raw, np.float32)
+    return FrameResult(boxes, scores, raws, np.ones(k, np.int64), np.atleast_1d(lat), np.atleast_1d(lon), k, 0, k)
+
+
+def empty_result() -> FrameResult:
+    z = np.zeros(0)
+    return FrameResult(np.zeros((0, 4), np.float32), z.astype(np.float32), z.astype(np.float32),
+                       np.zeros(0, np.int64), z, z, 0, 0, 0)
+
+
+def run(tracker: GpsTracker, frames, t0: float = 1.7e9):
+    """frames: iterable of (FrameResult, Pose | None); returns the per-frame outputs."""
+    outs = []
+    for k, (result, pose) in enumerate(frames):
+        outs.append(tracker.update(result, pose, t0 + k / FPS, CAM))
+    return outs
+
+
+def ids_near(outputs, east_m: float, north_m: float, radius_m: float = 3.0) -> set[int]:
+    """Ids of matched, confirmed tracks within radius of a ground point."""
+    found = set()
+    for tr in outputs:
+        e, n = latlon_to_local(tr.lat, tr.lon, LAT0, LON0)
+        if tr.confirmed and tr.matched and math.hypot(float(e) - east_m, float(n) - north_m) <= radius_m:
+            found.add(tr.id)
+    return found
+
+
+# --------------------------------------------------------------------------------------------- geometry
+
+def test_measurement_error_sideways_grows_with_range_times_heading_error():
+    cov = ground_measurement_cov(np.array([0.0, 0.0]), np.array([20.0, 100.0]), 30.0, 3000.0,
+                                 position_sigma_m=1e-6, heading_sigma_deg=1.0, pitch_sigma_deg=0.0,
+                                 height_sigma_m=0.0, pixel_sigma_px=0.0)
+    # points due north: sideways is east
+    assert math.sqrt(cov[0, 0, 0]) == pytest.approx(20.0 * math.radians(1.0), rel=1e-6)
+    assert math.sqrt(cov[1, 0, 0]) == pytest.approx(100.0 * math.radians(1.0), rel=1e-6)
+    assert cov[:, 1, 1] == pytest.approx([0.0, 0.0], abs=1e-9)
+
+
+def test_measurement_error_along_ray_grows_with_range_squared_over_height():
+    r, h = 80.0, 20.0
+    cov = ground_measurement_cov(np.array([r]), np.array([0.0]), h, 3000.0, position_sigma_m=1e-6,
+                                 heading_sigma_deg=0.0, pitch_sigma_deg=0.5, height_sigma_m=0.0, pixel_sigma_px=0.0)
+    expected = (r * r + h * h) / h * math.radians(0.5)
+    assert math.sqrt(cov[0, 0, 0]) == pytest.approx(expected, rel=1e-6)  # the ray points east
+    # and it is what a real pitch error does to the projection
+    e_lo = h / math.tan(math.atan2(h, r) + math.radians(0.5))
+    assert r - e_lo == pytest.approx(expected, rel=0.05)
+
+
+@settings(max_examples=60, deadline=None)
+@given(e=st.floats(-500, 500), n=st.floats(-500, 500), h=st.floats(1, 200),
+       sd=st.tuples(st.floats(0, 5), st.floats(0, 5), st.floats(0, 5), st.floats(0, 20)))
+def test_measurement_covariance_is_symmetric_positive_definite(e, n, h, sd):
+    cov = ground_measurement_cov(np.array([e]), np.array([n]), h, 3000.0, position_sigma_m=0.1,
+                                 heading_sigma_deg=sd[0], pitch_sigma_deg=sd[1], height_sigma_m=sd[2],
+                                 pixel_sigma_px=sd[3], max_sigma_m=50.0)[0]
+    assert cov[0, 1] == cov[1, 0]
+    eig = np.linalg.eigvalsh(cov)
+    assert eig.min() > 0 and eig.max() <= 0.01 + 2 * 50.0**2 + 1e-6
+
+
+# --------------------------------------------------------------------------------------------- assignment
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(1, 9), st.integers(1, 9), st.floats(0.1, 0.9), st.integers(0, 10_000))
+def test_sparse_assignment_equals_dense_gated_assignment(n_rows, n_cols, density, seed):
+    rng = np.random.default_rng(seed)
+    allowed = rng.random((n_rows, n_cols)) < density
+    cost = rng.random((n_rows, n_cols)) * 10
+    rows, cols = np.nonzero(allowed)
+    r, c = sparse_assignment(rows, cols, cost[rows, cols])
+    dense = np.where(allowed, cost, 1e9)
+    rd, cd = linear_sum_assignment(dense)
+    ok = allowed[rd, cd]
+    assert len(r) == int(ok.sum())  # as many pairs as possible
+    assert cost[r, c].sum() == pytest.approx(cost[rd[ok], cd[ok]].sum())  # at the same cost
+    assert len(set(r.tolist())) == len(r) and len(set(c.tolist())) == len(c)
+    assert allowed[r, c].all()
+
+
+@pytest.mark.parametrize("unassigned", [None, 3.0])
+@pytest.mark.parametrize("seed", range(5))
+def test_large_sparse_problems_are_solved_group_by_group_to_the_same_optimum(seed, unassigned):
+    rng = np.random.default_rng(seed)
+    n = 120  # beyond the dense shortcut: groups of nearby tracks are solved one by one
+    pos_r, pos_c = rng.uniform(0, 300, (n, 2)), rng.uniform(0, 300, (n, 2))
+    rows, cols = near_pairs(pos_r, np.full(n, 6.0), pos_c, np.full(n, 6.0))
+    cost = rng.random(len(rows)) * 5
+    r, c = sparse_assignment(rows, cols, cost, unassigned_cost=unassigned)
+    if unassigned is None:
+        dense = np.full((n, n), 1e9)
+        dense[rows, cols] = cost
+    else:  # the textbook augmentation: dummies at cost 0, pair costs shifted by the unassigned cost
+        dense = np.zeros((2 * n, 2 * n))
+        dense[:n, :n] = 1e9
+        keep = cost < unassigned
+        dense[rows[keep], cols[keep]] = cost[keep] - unassigned
+    rd, cd = linear_sum_assignment(dense)
+    ok = (rd < n) & (cd < n) & (dense[rd, np.minimum(cd, 2 * n - 1)] < 1e8)
+    lookup = dict(zip(zip(rows.tolist(), cols.tolist(), strict=True), cost.tolist(), strict=True))
+    assert len(r) == int(ok.sum())
+    assert sum(lookup[p] for p in zip(r.tolist(), c.tolist(), strict=True)) == pytest.approx(
+        sum(lookup[p] for p in zip(rd[ok].tolist(), cd[ok].tolist(), strict=True)))
+
+
+def test_an_unassigned_option_stops_trading_one_good_pair_for_two_poor_ones():
+    # track 0 is close to detection 0 only; track 1 (a duplicate) is closer to it and far from detection 1
+    rows, cols, cost = np.array([0, 1, 1]), np.array([0, 0, 1]), np.array([2.0, 1.0, 16.0])
+    r, c = sparse_assignment(rows, cols, cost)
+    assert sorted(zip(r.tolist(), c.tolist(), strict=True)) == [(0, 0), (1, 1)]  # largest size first
+    r, c = sparse_assignment(rows, cols, cost, unassigned_cost=10.0)
+    assert list(zip(r.tolist(), c.tolist(), strict=True)) == [(1, 0)]
+    r, c = sparse_assignment(rows, cols, cost, unassigned_cost=0.5)  # nothing is worth it
+    assert len(r) == 0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 30), st.integers(0, 30), st.integers(0, 10_000))
+def test_near_pairs_finds_exactly_the_pairs_within_the_summed_radii(n_a, n_b, seed):
+    rng = np.random.default_rng(seed)
+    a, b = rng.uniform(0, 50, (n_a, 2)), rng.uniform(0, 50, (n_b, 2))
+    ra, rb = rng.uniform(0, 5, n_a), rng.uniform(0, 5, n_b)
+    i, j = near_pairs(a, ra, b, rb)
+    dist = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
+    expected = set(zip(*np.nonzero(dist <= ra[:, None] + rb[None, :]), strict=True))
+    assert set(zip(i.tolist(), j.tolist(), strict=True)) == {(int(x), int(y)) for x, y in expected}
+
+
+def test_duplicate_mask_keeps_the_strongest_box_of_a_cluster_and_separate_objects():
+    boxes = np.array([[100, 100, 140, 200], [104, 96, 142, 190], [100, 150, 140, 200],  # one object, 3 boxes
+                      [300, 100, 340, 200]], np.float32)  # another object
+    scores = np.array([0.9, 0.5, 0.3, 0.8])
+    dup = duplicate_mask(boxes, scores, np.ones(4), 0.25, 0.5)
+    assert dup.tolist() == [False, True, True, False]
+    # another class at the same place is not a duplicate
+    assert not duplicate_mask(boxes[:2], scores[:2], np.array([1, 2]), 0.25, 0.5).any()
+
+
+# --------------------------------------------------------------------------------------------- gating
+
+def _track_then(offset_e: float, *, north_m: float, height_m: float = 30.0, pitch_deg: float = 40.0):
+    """A person tracked for 1 s at (0, north_m), then seen offset_e metres east of there."""
+    pose = pose_at(height_m=height_m, pitch_deg=pitch_deg)
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    frames = [(observe(0.0, north_m, pose), pose) for _ in range(30)]
+    frames.append((observe(offset_e, north_m, pose), pose))
+    outs = run(tracker, frames)
+    return outs[-2], outs[-1]
+
+
+def test_gate_accepts_a_detection_next_to_the_track():
+    before, after = _track_then(0.6, north_m=25.0)
+    assert len(before) == 1 and before[0].confirmed
+    assert [(tr.id, tr.matched) for tr in after] == [(before[0].id, True)]
+
+
+def test_gate_rejects_a_far_detection():
+    before, after = _track_then(12.0, north_m=25.0)
+    old = [tr for tr in after if tr.id == before[0].id]
+    assert old and not old[0].matched  # the track coasts; the far detection is someone else
+    assert any(tr.id != before[0].id and tr.matched for tr in after)
+
+
+def test_gate_grows_with_range():
+    # 3 m sideways is far at 25 m range (heading error 1 deg ~ 0.4 m) but within the error at 150 m
+    near_before, near_after = _track_then(3.0, north_m=25.0)
+    far_before, far_after = _track_then(3.0, north_m=150.0, height_m=60.0, pitch_deg=20.0)
+    assert not [tr for tr in near_after if tr.id == near_before[0].id][0].matched
+    assert [tr for tr in far_after if tr.id == far_before[0].id][0].matched
+
+
+def test_two_close_people_keep_their_ids_when_one_is_missed():
+    pose = pose_at()
+    rng = np.random.default_rng(3)
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    frames = []
+    for k in range(90):
+        people = [(0.0, 25.0), (2.0, 25.0)] if k % 5 else [(2.0, 25.0)]  # the first is missed every 5th frame
+        e, n = zip(*people, strict=True)
+        frames.append((observe(e, n, pose, noise_m=0.3, rng=rng), pose))
+    outs = run(tracker, frames)
+    assert ids_near(outs[-1], 0.0, 25.0, 0.9) | ids_near(outs[-1], 2.0, 25.0, 0.9) == {1, 2}
+    assert all(tr.id in (1, 2) for out in outs for tr in out if tr.confirmed)
+
+
+# --------------------------------------------------------------------------------------------- re-ID
+
+def _leave_and_return(gap_s: float, *, horizon_s: float = 30.0):
+    """A person seen for 2 s, then not at all for gap_s (the UAV looks away), then again a bit
+    further on (walking east at 0.5 m/s all along)."""
+    tracker = GpsTracker(TrackerConfig(reid_horizon_s=horizon_s), CLASSES)
+    pose = pose_at()
+    frames = []
+    for k in range(60):
+        frames.append((observe(k / FPS * 0.5, 25.0, pose), pose))
+    away = pose_at(heading_deg=180.0)
+    frames += [(empty_result(), away) for _ in range(int(gap_s * FPS))]
+    t_back = (60 + int(gap_s * FPS)) / FPS
+    for k in range(30):
+        frames.append((observe((t_back + k / FPS) * 0.5, 25.0, pose), pose))
+    outs = run(tracker, frames)
+    return tracker, outs[59], outs[-1]
+
+
+def test_reid_within_the_horizon_gives_the_old_id_back():
+    tracker, before, after = _leave_and_return(10.0)
+    assert len(before) == 1
+    assert [tr.id for tr in after if tr.matched and tr.confirmed] == [before[0].id]
+    assert tracker.n_reidentified == 1
+
+
+def test_reid_beyond_the_horizon_gives_a_new_id():
+    tracker, before, after = _leave_and_return(12.0, horizon_s=8.0)
+    ids = [tr.id for tr in after if tr.matched and tr.confirmed]
+    assert ids and before[0].id not in ids
+    assert tracker.n_reidentified == 0
+
+
+def test_lost_tracks_are_listed_until_the_horizon():
+    tracker = GpsTracker(TrackerConfig(reid_horizon_s=5.0), CLASSES)
+    pose = pose_at()
+    run(tracker, [(observe(0.0, 25.0, pose), pose)] * 30)
+    tracker.update(empty_result(), pose, 1.7e9 + 3.0, CAM)
+    assert [tr.id for tr in tracker.lost_tracks] == [1] and tracker.tracks == []
+    assert tracker.lost_tracks[0].time_since_update_s == pytest.approx(3.0 - 29 / FPS)
+    tracker.update(empty_result(), pose, 1.7e9 + 6.0, CAM)
+    assert tracker.lost_tracks == []
+
+
+def test_a_180_degree_turn_keeps_ids():
+    """People in front and behind a hovering UAV; it turns to look behind and back again: everyone
+    keeps the id they had, both after the first turn (behind: new ids, kept on the second look) and
+    after the second (in front: the old ids, re-identified)."""
+    front = [(-4.0, 25.0), (3.0, 30.0), (8.0, 22.0)]
+    behind = [(-3.0, -26.0), (5.0, -30.0)]
+    people = front + behind
+    e0 = np.array([p[0] for p in people])
+    n0 = np.array([p[1] for p in people])
+    vel = np.array([[0.3, 0.0], [0.0, -0.2], [-0.2, 0.1], [0.2, 0.2], [-0.3, 0.0]])
+    headings = ([0.0] * 60 + list(np.linspace(0, 180, 45)) + [180.0] * 90 + list(np.linspace(180, 360, 45))
+                + [0.0] * 60 + list(np.linspace(0, 180, 45)) + [180.0] * 60)
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    rng = np.random.default_rng(0)
+    seen: dict[int, set[int]] = {i: set() for i in range(len(people))}
+    for k, heading in enumerate(headings):
+        t = k / FPS
+        e, n = e0 + vel[:, 0] * t, n0 + vel[:, 1] * t
+        pose = pose_at(heading % 360.0)
+        out = tracker.update(observe(e, n, pose, noise_m=0.2, rng=rng), pose, 1.7e9 + t, CAM)
+        for i in range(len(people)):
+            seen[i] |= ids_near(out, float(e[i]), float(n[i]), 1.5)
+    assert all(len(ids) == 1 for ids in seen.values()), seen
+    assert len(set().union(*seen.values())) == len(people)
+    assert tracker.n_reidentified >= len(people)
+
+
+# --------------------------------------------------------------------------------------------- no pose
+
+def test_a_frame_without_pose_does_not_break_tracks():
+    pose = pose_at()
+    people_e, people_n = [-3.0, 4.0], [25.0, 28.0]
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    run(tracker, [(observe(people_e, people_n, pose), pose)] * 20)
+    ids = {tr.id for tr in tracker.tracks}
+    lat_before = {tr.id: tr.lat for tr in tracker.tracks}
+    # Without meta the pipeline cannot georeference: lat/lon are NaN, the boxes are still there.
+    seen = observe(people_e, people_n, pose)
+    blind = FrameResult(seen.boxes_xyxy, seen.scores, seen.raw_scores, seen.class_ids,
+                        np.full(2, np.nan), np.full(2, np.nan), 2, 0, 0)
+    out = tracker.update(blind, None, 1.7e9 + 20 / FPS, CAM)
+    assert {tr.id for tr in out} == ids
+    assert all(tr.matched and tr.confirmed for tr in out)
+    assert all(tr.lat == pytest.approx(lat_before[tr.id], abs=1e-6) for tr in out)  # coasted, not moved
+    out = tracker.update(observe(people_e, people_n, pose), pose, 1.7e9 + 21 / FPS, CAM)
+    assert {tr.id for tr in out if tr.matched} == ids
+
+
+def test_frames_without_pose_from_the_start_start_no_tracks():
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    seen = observe([0.0], [25.0], pose_at())
+    for k in range(5):
+        assert tracker.update(seen, None, 1.7e9 + k / FPS, CAM) == []
+    assert tracker.origin is None
+
+
+# --------------------------------------------------------------------------------------------- memory-map leftovers
+
+def test_boosted_leftovers_around_an_object_do_not_start_tracks():
+    """The memory map lifts every box near a remembered object: weak boxes around the person
+    (raw 0.05, boosted 1.05) must neither start tracks nor take the person's id."""
+    pose = pose_at()
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    rng = np.random.default_rng(1)
+    for k in range(60):
+        main = observe(0.0, 25.0, pose, score=1.9, raw=0.9)
+        ring = rng.uniform(0, 2 * np.pi, 3)
+        left = observe(2.5 * np.cos(ring), 25.0 + 2.5 * np.sin(ring), pose, score=1.05, raw=0.05)
+        merged = FrameResult(*(np.concatenate([getattr(main, f), getattr(left, f)]) for f in
+                               ("boxes_xyxy", "scores", "raw_scores", "class_ids", "lat", "lon")), 4, 0, 4)
+        out = tracker.update(merged, pose, 1.7e9 + k / FPS, CAM)
+    assert [tr.id for tr in out if tr.confirmed] == [1]
+
+
+def test_persistent_weak_clutter_is_followed_but_not_reported():
+    pose = pose_at()
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    out = []
+    for k in range(90):
+        # a rock the detector reports in half of the frames with confidence 0.5
+        result = observe(0.0, 25.0, pose, score=0.5) if k % 2 else empty_result()
+        out = tracker.update(result, pose, 1.7e9 + k / FPS, CAM)
+    assert any(tr.confirmed for tr in out)
+    assert tracker.report(out) == []
+
+
+# --------------------------------------------------------------------------------------------- robustness
+
+def test_reanchoring_keeps_ground_positions():
+    tracker = GpsTracker(TrackerConfig(reanchor_m=50.0), CLASSES)
+    person = (0.0, 25.0)
+    for k in range(40):
+        pose = pose_at(north_m=-5.0 * k / 10)  # the UAV backs away 20 m ... then jumps 100 m
+        tracker.update(observe(*person, pose), pose, 1.7e9 + k / FPS, CAM)
+    origin = tracker.origin
+    far = pose_at(north_m=-80.0, pitch_deg=20.0, height_m=40.0)
+    out = tracker.update(observe(*person, far), far, 1.7e9 + 40 / FPS, CAM)
+    assert tracker.origin != origin
+    e, n = latlon_to_local(out[0].lat, out[0].lon, LAT0, LON0)
+    assert (float(e), float(n)) == pytest.approx(person, abs=0.5)
+
+
+def test_time_going_backwards_is_treated_as_the_same_time():
+    pose = pose_at()
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    run(tracker, [(observe(0.0, 25.0, pose), pose)] * 10)
+    out = tracker.update(observe(0.0, 25.0, pose), pose, 1.7e9 - 5.0, CAM)
+    assert [tr.id for tr in out] == [1]
+    with pytest.raises(ValueError, match="finite"):
+        tracker.update(empty_result(), pose, math.nan, CAM)
+
+
+@pytest.mark.parametrize(("field", "value", "message"), [
+    ("gate_chi2", 0.0, "gate_chi2"), ("max_coast_s", -1.0, "max_coast_s"), ("confirm_hits", 0, "confirm_hits"),
+    ("duplicate_iou", 1.5, "duplicate_iou"), ("low_score", 0.9, "low_score"), ("reid_horizon_s", math.inf, "finite"),
+])
+def test_bad_config_values_raise_naming_the_field(field, value, message):
+    with pytest.raises(ValueError, match=message):
+        TrackerConfig(**{field: value})
+
+
+def test_bad_class_motion_raises():
+    with pytest.raises(ValueError, match="max_speed_mps"):
+        ClassMotion(max_speed_mps=0.0)
+    with pytest.raises(ValueError, match="class_motion"):
+        TrackerConfig(class_motion=(("person", 3.0),))  # type: ignore[arg-type]
+    assert TrackerConfig().motion_for("swimmer").max_speed_mps < TrackerConfig().motion_for("boat").max_speed_mps
+
+
+def test_box_iou_of_identical_and_disjoint_boxes():
+    a = np.array([[0, 0, 10, 10], [20, 20, 30, 30]], np.float64)
+    assert box_iou(a, a) == pytest.approx(np.eye(2))

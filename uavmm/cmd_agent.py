@@ -1,0 +1,179 @@
+"""`uavmm agent`: run one UAV's agent (source -> memory-map pipeline -> tracker -> Zenoh) until the source
+ends, --duration passes or SIGINT/SIGTERM arrives; prints a ready line and a JSON summary on stdout.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import signal
+import sys
+import threading
+from pathlib import Path
+
+from uavmm.cmd_fusion import add_zenoh_arguments
+
+log = logging.getLogger("uavmm.agent")
+
+
+def _add_pipeline_arguments(p: argparse.ArgumentParser) -> None:
+    # The flags of `uavmm boost` (uavmm.cli._add_pipeline_options), with the pipeline JSON file under
+    # --pipeline-config because --config is the Zenoh config file in every networked process.
+    g = p.add_argument_group("memory map and tracker (defaults: the best measured; see docs/memory-map.md)")
+    g.add_argument("--pipeline-config", type=Path, default=None, help="JSON file of pipeline/memory settings")
+    g.add_argument("--window-m", type=float, default=None, help="memory window edge, metres (300)")
+    g.add_argument("--radius-m", type=float, default=None, help="Gaussian truncation radius, metres (6)")
+    g.add_argument("--gain-per-s", type=float, default=None, help="evidence per second per unit confidence")
+    g.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life, seconds")
+    g.add_argument("--boost-weight", type=float, default=None, help="c_hat = c + w * p (1)")
+    g.add_argument("--anchor", choices=["auto", "center", "bottom"], default=None, help="box ground point")
+    g.add_argument("--nms-iou", type=float, default=None, help="NMS IoU threshold (0.5)")
+    g.add_argument("--max-detections", type=int, default=None, help="detections kept per frame (100)")
+    g.add_argument("--size-filter", type=Path, default=None,
+                   help="fitted size-filter file (uavmm fit-size-filter); default: built-in priors")
+    g.add_argument("--size-filter-k", type=float, default=None, help="band half-width in std (3)")
+    g.add_argument("--no-size-filter", action="store_true", help="do not filter boxes by size")
+    g.add_argument("--joint-mode", choices=["max", "local", "joint", "mean"], default=None,
+                   help="how the joint map combines with the local one for boosting (max; local = ignore it)")
+    g.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting at all")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``agent`` subcommand."""
+    p = sub.add_parser(
+        "agent", help="run one UAV's agent: detect, boost with the memory map, track, publish over Zenoh",
+        description="Play a simulator scenario, a dataset directory or a video with telemetry and an ONNX model; "
+                    "run the memory-map pipeline (boosted by the joint map from the fusion server) and the GPS "
+                    "tracker; publish the memory-map tiles, state and tracks over Zenoh. See docs/agent.md.",
+    )
+    p.add_argument("--uav-id", required=True, help="this UAV's id (one key chunk, e.g. uav1)")
+    src = p.add_argument_group("source (exactly one of --sim, --dataset, --video)")
+    choice = src.add_mutually_exclusive_group(required=True)
+    choice.add_argument("--sim", metavar="SCENARIO", help="fly a simulator scenario (uavmm sim --list)")
+    choice.add_argument("--dataset", metavar="DIR", type=Path,
+                        help="play a dataset directory (images.json, pre_nms.json, camera.json)")
+    choice.add_argument("--video", metavar="FILE", type=Path, help="play a video file (needs --telemetry --model "
+                                                                   "--camera)")
+    src.add_argument("--seed", type=int, default=0, help="--sim: random seed; agents of one scenario share it (0)")
+    src.add_argument("--uav-index", type=int, default=0, help="--sim: which of the scenario's UAVs to fly (0)")
+    src.add_argument("--frames", type=int, default=None, help="--sim: frames of the flight (scenario default)")
+    src.add_argument("--noise-scale", type=float, default=1.0, help="--sim: telemetry noise multiplier (1)")
+    src.add_argument("--video-id", type=int, default=None, help="--dataset: which video (default: the first)")
+    src.add_argument("--telemetry", type=Path, help="--video: telemetry file (.srt, .csv, SeaDronesSee .json)")
+    src.add_argument("--model", type=Path, help="--video: ONNX YOLO model with raw (pre-NMS) output")
+    src.add_argument("--camera", type=Path, help="--video: camera JSON (width, height, fx, fy, cx, cy)")
+    src.add_argument("--class-names", type=Path, default=None, help="--video: class names file (model's default)")
+    src.add_argument("--conf-threshold", type=float, default=0.01, help="--video: lowest candidate score (0.01)")
+    src.add_argument("--telemetry-offset-s", type=float, default=None,
+                     help="--video: telemetry time of video time 0 (default: the first record's)")
+    src.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
+    src.add_argument("--heading-deg", type=float, default=None,
+                     help="--video: fixed gimbal heading if telemetry lacks it")
+
+    add_zenoh_arguments(p)
+    net = p.add_argument_group("publishing")
+    net.add_argument("--prefix", default="uavmm/v1", help="key prefix (uavmm/v1)")
+    net.add_argument("--publish-hz", type=float, default=5.0, help="publish cycles a second (5)")
+    net.add_argument("--refresh-s", type=float, default=1.0,
+                     help="resend unchanged tiles this often; below the server's --ttl-s (1)")
+    net.add_argument("--tile-min-value", type=float, default=0.05,
+                     help="send cells below this value as 0 to save bandwidth (0.05; 0 = all)")
+    net.add_argument("--tile-budget", type=float, default=70_000.0, metavar="BYTES_PER_S",
+                     help="most tile bytes a second, stalest tiles first (70000; 0 = no limit)")
+    net.add_argument("--joint-ttl-s", type=float, default=3.0, help="a joint tile boosts this long after arrival (3)")
+    net.add_argument("--gid-gate-m", type=float, default=10.0,
+                     help="a new local track adopts a global id within this distance, m (10)")
+    net.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
+    net.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
+    run = p.add_argument_group("run")
+    run.add_argument("--speed", type=float, default=1.0, help="playback speed, 1 = real time, 0 = as fast as possible")
+    run.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
+    run.add_argument("--loop", action="store_true", help="start the source again when it ends")
+    run.add_argument("--tracks-out", type=Path, default=None, help="write the tracks (with global ids) as GeoJSON")
+    _add_pipeline_arguments(p)
+    p.set_defaults(handler=_run_agent)
+
+
+def source_from_args(args: argparse.Namespace):
+    """The frame source the flags describe; ValueError for missing companion flags or bad files."""
+    from agent.sources import DatasetSource, SimSource, VideoSource
+
+    if args.sim is not None:
+        return SimSource(args.sim, seed=args.seed, uav_index=args.uav_index, frames=args.frames,
+                         noise_scale=args.noise_scale)
+    if args.dataset is not None:
+        return DatasetSource(args.dataset, video_id=args.video_id)
+    missing = [flag for flag, value in (("--telemetry", args.telemetry), ("--model", args.model),
+                                        ("--camera", args.camera)) if value is None]
+    if missing:
+        raise ValueError(f"--video needs {', '.join(missing)}")
+    return VideoSource(args.video, args.telemetry, args.model, args.camera,
+                       telemetry_offset_s=args.telemetry_offset_s, class_names=args.class_names,
+                       conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg)
+
+
+def settings_from_args(args: argparse.Namespace):
+    """AgentSettings from parsed flags; ValueError on bad values."""
+    from agent.node import AgentSettings
+    from agent.zenoh_config import ZenohOptions
+
+    zenoh_options = ZenohOptions(
+        mode=args.mode,
+        connect=tuple(args.connect) if args.connect else None,
+        listen=tuple(args.listen) if args.listen else None,
+        config_file=args.config,
+        multicast_scouting=False if args.no_multicast_scouting else None,
+        cfg=tuple(args.cfg),
+    )
+    return AgentSettings(
+        uav_id=args.uav_id, zenoh=zenoh_options, prefix=args.prefix, publish_hz=args.publish_hz,
+        refresh_s=args.refresh_s, tile_min_value=args.tile_min_value,
+        tile_budget_bytes_per_s=args.tile_budget if args.tile_budget > 0 else None, joint_ttl_s=args.joint_ttl_s,
+        speed=args.speed, duration_s=args.duration, loop=args.loop, gid_gate_m=args.gid_gate_m,
+        grid_z=args.grid_z, grid_n=args.grid_n, tracks_out=args.tracks_out,
+    )
+
+
+def pipeline_from_args(args: argparse.Namespace):
+    """(PipelineConfig, SizeFilter) from the pipeline flags (as `uavmm boost` reads them)."""
+    import dataclasses
+
+    from uavmm.cli import _pipeline_from_args
+
+    cfg, size_filter = _pipeline_from_args(argparse.Namespace(**{**vars(args), "config": args.pipeline_config}),
+                                           use_memory=not args.no_memory)
+    if args.joint_mode is not None:
+        cfg = dataclasses.replace(cfg, joint_mode=args.joint_mode)
+    return cfg, size_filter
+
+
+def _run_agent(args: argparse.Namespace) -> int:
+    from agent.node import AgentNode
+
+    settings = settings_from_args(args)
+    pipeline_config, size_filter = pipeline_from_args(args)
+    source = source_from_args(args)
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        log.info("signal %d: stopping", signum)
+        stop.set()
+
+    signal.signal(signal.SIGINT, on_signal)
+    signal.signal(signal.SIGTERM, on_signal)
+
+    def on_ready(node: AgentNode) -> None:
+        from agent.zenoh_config import AGENT_DEFAULT_MODE
+
+        options = settings.zenoh
+        mode = options.mode or ("mode from config" if options.config_file else AGENT_DEFAULT_MODE)
+        where = ", ".join(options.connect or options.listen or ("endpoints from config/scouting",))
+        sys.stdout.write(f"uavmm agent: {settings.uav_id} up: {source.name}, zenoh {mode} {where}\n")
+        sys.stdout.flush()
+
+    node = AgentNode(settings, source, pipeline_config, size_filter, on_ready=on_ready)
+    summary = node.run(stop)
+    sys.stdout.write("uavmm agent: summary " + json.dumps(summary, sort_keys=True) + "\n")
+    sys.stdout.flush()
+    return 0
