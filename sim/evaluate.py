@@ -50,15 +50,20 @@ def ablation_variants() -> list[Variant]:
     """Single-parameter sweeps around the defaults, plus the filter and boost switched off."""
     base = PipelineConfig()
     mem = base.memory
+    paper_memory = dataclasses.replace(mem, radius_m=6.0, stamp="sum", gain_per_s=0.6)
     out = [
+        Variant("paper rule (c + p, every box adds, r 6 m)",
+                dataclasses.replace(base, boost_mode="add", memory=paper_memory)),
         Variant("baseline, no size filter", dataclasses.replace(base, use_memory=False, use_size_filter=False)),
         Variant("memory map, no size filter", dataclasses.replace(base, use_size_filter=False)),
         Variant("memory map, anchor=center", dataclasses.replace(base, anchor="center")),
+        Variant("memory map, stamp=sum", dataclasses.replace(base, memory=dataclasses.replace(mem, stamp="sum"))),
+        Variant("memory map, boost_mode=add", dataclasses.replace(base, boost_mode="add")),
     ]
     for half_life in (0.25, 0.5, 2.0, 4.0):
         out.append(Variant(f"half_life_s={half_life}",
                            dataclasses.replace(base, memory=dataclasses.replace(mem, half_life_s=half_life))))
-    for radius in (2.0, 4.0, 9.0):
+    for radius in (2.0, 6.0, 9.0):
         out.append(Variant(f"radius_m={radius}",
                            dataclasses.replace(base, memory=dataclasses.replace(mem, radius_m=radius))))
     for gain in (mem.gain_per_s / 4, mem.gain_per_s / 2, mem.gain_per_s * 2, mem.gain_per_s * 4):
