@@ -116,8 +116,7 @@ def nms(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,
 
     Greedy NMS decides each box from the higher-scoring boxes alone, so the first K kept boxes of
     the top-M scores are exactly the first K kept overall: NMS runs on the top 8K scores and only
-    widens (doubling) when fewer than K survive. At 5,000 clustered candidates this is ~10x faster
-    than NMS over all of them.
+    widens (4x) when fewer than K survive.
     """
     n = len(scores)
     if n == 0:
@@ -133,8 +132,9 @@ def nms(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,
         keep = top[np.asarray(keep, dtype=np.int64).reshape(-1)]
         if len(keep) >= max_detections or m >= n:
             break
-        # The m-th score may be tied with boxes left out; widening until all are in keeps it exact.
-        m = min(n, 2 * m)
+        # Too few survivors (boosting lifts whole clusters): widen 4x (doubling ran NMS 2.4 times per
+        # frame at 5,000 candidates; all boxes at once costs the full NMS).
+        m = min(n, 4 * m)
     keep = keep[np.argsort(-scores[keep], kind="stable")]
     return keep[:max_detections]
 
