@@ -17,6 +17,7 @@ from typing import Any
 BENCHMARK_MODULES: dict[str, str] = {
     "geo": "benchmarks.bench_geo",
     "memory_map": "benchmarks.bench_memory_map",
+    "sim": "benchmarks.bench_sim",
     "fusion": "benchmarks.bench_fusion",
     "tracker": "benchmarks.bench_tracker",
 }
