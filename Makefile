@@ -19,7 +19,7 @@ $(STAMP): pyproject.toml requirements-nodeps.txt
 setup: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/uavmm eval --scenarios grass --seeds 0 --noise-scales 1 --out out/demo
+	$(BIN)/uavmm demo
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q

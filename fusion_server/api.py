@@ -1,7 +1,8 @@
 """The read-only REST API of the fusion server (DESIGN.md 7), a FastAPI app over a running server.
 
 Endpoints: ``/healthz``, ``/v1/uavs``, ``/v1/map``, ``/v1/tiles/{cls}/{z}/{x}/{y}.png``,
-``/v1/objects``, ``/v1/tracks``, ``/metrics``, ``/`` and the extension ``/v1/joint/tiles``.
+``/v1/objects``, ``/v1/tracks``, ``/metrics``, ``/`` (the live map page, its script and style under
+``/static/``) and the extension ``/v1/joint/tiles``.
 Bad parameters get a 400 (or FastAPI's 422 for wrong types) with a message saying what is wrong.
 """
 
@@ -14,6 +15,7 @@ from typing import TYPE_CHECKING, Any, Literal
 import numpy as np
 from fastapi import FastAPI, HTTPException, Query
 from fastapi.responses import HTMLResponse, PlainTextResponse, Response
+from fastapi.staticfiles import StaticFiles
 
 from fusion_server.peaks import find_peaks, peaks_geojson
 from fusion_server.render import AGGREGATIONS, COLORMAPS, BBox, parse_bbox, paste_window, tile_bytes, window_for_bbox
@@ -65,6 +67,9 @@ def create_app(server: FusionServer) -> FastAPI:
     @app.get("/", response_class=HTMLResponse, summary="Live map page")
     def index() -> str:
         return _index_html()
+
+    # the page's script and style, shipped in the package: the page works offline (no CDN)
+    app.mount("/static", StaticFiles(packages=[("fusion_server", "static")]), name="static")
 
     @app.get("/healthz", summary="Liveness and a short status")
     def healthz() -> dict[str, Any]:

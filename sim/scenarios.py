@@ -3,7 +3,7 @@
 `SCENARIOS` maps a name to a `Scenario`; `get_scenario(name)` looks one up and lists the valid names
 when the name is unknown. Scenarios: ``sea`` (swimmers, SeaDronesSee-like), ``grass`` (people walking,
 POG-like), ``coop`` (two UAVs over one scene, a tree hides one person from one of them), ``reid``
-(objects leave and re-enter the view).
+(objects leave and re-enter the view), ``trio`` (three UAVs over one meadow for `uavmm demo`).
 """
 
 from __future__ import annotations
@@ -153,8 +153,34 @@ _REID = Scenario(
     emulator=EmulatorParams(logit_at_32px=1.7, fp_confusing_frac=0.12),
 )
 
+# Trio: the `uavmm demo` scene. Three UAVs fly at the same time over one meadow with people walking: uav1
+# orbits the scene, uav2 hovers south-east of it with gentle heading sweeps, uav3 flies back and forth along a
+# north-south line just west of the centre, looking down steeply. Every flight stays over the scene however
+# long it lasts (a lawnmower would drift away lane by lane), and the footprints overlap around the centre,
+# so the joint map fuses two or three views there. Ten minutes by default; `uavmm demo` plays it with
+# --loop so it runs until stopped.
+_TRIO = Scenario(
+    name="trio",
+    description="Three UAVs over one meadow at the same time (orbit, hover with sweeps, steep line) with "
+                "people walking: the scene of `uavmm demo`.",
+    world=WorldParams(origin_lat=48.5335, origin_lon=9.0555, cls="person", n_objects=12, spawn_radius_m=30.0,
+                      boundary_radius_m=38.0, n_trees=3, n_clutter=2, clutter_radius_m=30.0),
+    flights=(
+        OrbitSpec(uav="uav1", radius_m=(50.0, 55.0), height_m=(35.0, 40.0), speed_mps=(3.0, 3.5),
+                  pitch_offset_deg=(-2.0, 2.0)),
+        HoverSweepsSpec(uav="uav2", bearing_deg=(130.0, 140.0), distance_m=(45.0, 50.0), height_m=(30.0, 35.0),
+                        pitch_deg=(32.0, 38.0), sweep_deg=(15.0, 25.0), sweep_rate_deg_s=(10.0, 15.0),
+                        dwell_s=(4.0, 8.0)),
+        LineSpec(uav="uav3", bearing_deg=(265.0, 275.0), distance_m=(15.0, 20.0), half_length_m=(30.0, 35.0),
+                 height_m=(45.0, 50.0), pitch_deg=(70.0, 78.0), speed_mps=(2.5, 3.5)),
+    ),
+    simultaneous=True,
+    default_frames=18_000,
+    emulator=EmulatorParams(logit_at_32px=1.7, fp_confusing_frac=0.12),
+)
+
 #: All scenarios by name.
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (_SEA, _GRASS, _COOP, _REID)}
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (_SEA, _GRASS, _COOP, _REID, _TRIO)}
 
 
 def get_scenario(name: str) -> Scenario:

@@ -1,0 +1,186 @@
+"""`uavmm demo` as a real process: a fusion server and three simulated agents come up over Zenoh on
+loopback, the REST API sees three UAVs online, and every child process is gone afterwards, whether
+the demo stops after --duration or is killed with SIGKILL (its reaper cleans up)."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+import time
+import urllib.request
+from pathlib import Path
+
+import pytest
+
+from uavmm.cmd_demo import DemoOptions, flying_uavs
+
+pytestmark = pytest.mark.e2e
+REPO = Path(__file__).resolve().parents[2]
+ENV = {**os.environ, "PYTHONPATH": str(REPO)}
+
+
+def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.2):
+    deadline = time.monotonic() + timeout_s
+    last = None
+    while time.monotonic() < deadline:
+        last = predicate()
+        if last:
+            return last
+        time.sleep(interval_s)
+    raise AssertionError(f"{what} not within {timeout_s} s (last: {last!r})")
+
+
+def processes_with(text: str) -> list[int]:
+    """PIDs of the live processes whose command line contains `text` (zombies have none)."""
+    pids = []
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            cmdline = (entry / "cmdline").read_bytes().replace(b"\0", b" ").decode(errors="replace")
+        except OSError:
+            continue
+        if text in cmdline:
+            pids.append(int(entry.name))
+    return pids
+
+
+def start_demo(out: Path, *args: str) -> subprocess.Popen:
+    with open(out, "wb") as sink:
+        return subprocess.Popen([sys.executable, "-m", "uavmm", "demo", "--http", "127.0.0.1:0", *args],
+                                cwd=REPO, env=ENV, stdout=sink, stderr=subprocess.STDOUT)
+
+
+def wait_flying(proc: subprocess.Popen, out: Path) -> tuple[str, str]:
+    """Wait for the demo's "UAVs flying" line; returns (map URL, Zenoh endpoint)."""
+    text = wait_for(lambda: (out.read_text() if "UAVs flying" in out.read_text() or proc.poll() is not None
+                             else None), 90.0, "the demo's agents")
+    assert "UAVs flying" in text, text
+    url = re.search(r"map: (http://\S+)", text).group(1)
+    endpoint = re.search(r"zenoh (tcp/\S+),", text).group(1)
+    return url, endpoint
+
+
+def uavs_online(url: str) -> list[str]:
+    try:
+        with urllib.request.urlopen(url + "v1/uavs", timeout=5) as response:
+            return sorted(u["id"] for u in json.loads(response.read()) if u["online"])
+    except OSError:
+        return []
+
+
+def test_demo_flies_three_uavs_and_leaves_nothing_behind_after_its_duration(tmp_path):
+    out = tmp_path / "demo.out"
+    proc = start_demo(out, "--duration", "8", "--status-every", "2")
+    try:
+        url, endpoint = wait_flying(proc, out)
+        assert re.fullmatch(r"http://127\.0\.0\.1:\d+/", url)
+        assert len(processes_with(endpoint)) == 4  # the fusion server and three agents
+        wait_for(lambda: uavs_online(url) == ["uav1", "uav2", "uav3"], 20.0, "three UAVs online")
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = out.read_text()
+    assert code == 0, text
+    assert "uavmm demo: 3 UAVs flying (uav1, uav2, uav3; scenario trio, seed 0)" in text
+    assert re.search(r"3 UAVs online, \d+ joint tiles, \d+ global tracks", text), text
+    assert processes_with(endpoint) == []
+    logs = re.search(r"logs in (\S+);", text).group(1)
+    assert not Path(logs).exists()  # the temporary work folder (db and logs) is removed after a clean run
+
+
+def test_demo_killed_with_sigkill_leaves_no_orphans(tmp_path):
+    out = tmp_path / "demo.out"
+    proc = start_demo(out, "--stop-timeout", "3", "--status-every", "0")
+    try:
+        _, endpoint = wait_flying(proc, out)
+        children = processes_with(endpoint)
+        assert len(children) == 4
+    finally:
+        proc.send_signal(signal.SIGKILL)
+        proc.wait(timeout=10)
+    # the reaper saw its pipe close: SIGTERM to every process group, SIGKILL after 3 s, then it removes
+    # the demo's temporary folder
+    wait_for(lambda: processes_with(endpoint) == [], 20.0, "the children to be reaped")
+    workdir = Path(re.search(r"logs in (\S+);", out.read_text()).group(1))
+    wait_for(lambda: not workdir.exists(), 10.0, "the temporary folder to be removed")
+
+
+def test_demo_stops_cleanly_on_sigint_while_starting(tmp_path):
+    out = tmp_path / "demo.out"
+    proc = start_demo(out, "--status-every", "0")
+    try:
+        wait_for(lambda: "map: http://" in out.read_text() or proc.poll() is not None, 60.0, "the fusion server")
+        endpoint = re.search(r"zenoh (tcp/\S+),", out.read_text()).group(1)
+        proc.send_signal(signal.SIGINT)
+        code = proc.wait(timeout=40)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert code == 0, out.read_text()
+    assert processes_with(endpoint) == []
+
+
+def test_demo_refuses_a_scenario_whose_uavs_fly_one_after_another():
+    result = subprocess.run([sys.executable, "-m", "uavmm", "demo", "--scenario", "grass"], cwd=REPO, env=ENV,
+                            capture_output=True, text=True, timeout=60)
+    assert result.returncode == 2
+    assert "scenario 'grass' flies its UAVs one after another" in result.stderr
+    assert "coop, trio" in result.stderr and "Traceback" not in result.stderr
+
+
+def test_flying_uavs_and_options_validate_their_input():
+    assert flying_uavs("trio", None) == ["uav1", "uav2", "uav3"]
+    assert flying_uavs("trio", 2) == ["uav1", "uav2"]
+    assert flying_uavs("coop", None) == ["uav1", "uav2"]
+    with pytest.raises(ValueError, match="has 3 UAVs, --uavs 4"):
+        flying_uavs("trio", 4)
+    with pytest.raises(ValueError, match="unknown scenario 'moon'"):
+        flying_uavs("moon", None)
+    with pytest.raises(ValueError, match="--speed must be > 0"):
+        DemoOptions(speed=0)
+    with pytest.raises(ValueError, match="--port must be in 0..65535"):
+        DemoOptions(zenoh_port=70000)
+
+
+def test_trio_scenario_keeps_three_uavs_over_one_scene_for_its_whole_flight():
+    """The demo's scenario: three simultaneous UAVs whose flights stay over the scene (the demo loops
+    them for as long as it runs) and whose footprints overlap at the scene centre."""
+    import math
+
+    import numpy as np
+
+    from shared.geo import Pose, footprint_local
+    from sim.scenarios import get_scenario
+    from sim.simulator import Simulation
+
+    scenario = get_scenario("trio")
+    assert scenario.simultaneous and [f.uav for f in scenario.flights] == ["uav1", "uav2", "uav3"]
+    assert scenario.default_frames / scenario.fps >= 600  # ten minutes before the first loop
+    sim = Simulation(scenario, seed=0)
+    flights = list(sim.flights().values())
+    covering = []
+    for t in np.arange(0.0, scenario.default_frames / scenario.fps, 5.0):
+        n_covering = 0
+        for flight in flights:
+            s = flight.state(float(t))
+            assert math.hypot(s.east_m, s.north_m) < 70.0, f"a UAV left the scene at t={t}"
+            pose = Pose(scenario.world.origin_lat, scenario.world.origin_lon, s.height_m, s.pitch_deg, s.heading_deg)
+            polygon = footprint_local(sim.camera, pose, max_range_m=150.0) + np.array([s.east_m, s.north_m])
+            n_covering += _inside(polygon, 0.0, 0.0)
+        covering.append(n_covering)
+    assert min(covering) >= 2 and np.mean(np.array(covering) == 3) > 0.7  # measured: always 2, 93 % 3
+
+
+def _inside(polygon, x: float, y: float) -> bool:
+    """Whether (x, y) lies inside the polygon (even-odd rule)."""
+    inside = False
+    for (x0, y0), (x1, y1) in zip(polygon, list(polygon[1:]) + [polygon[0]], strict=True):
+        if (y0 > y) != (y1 > y) and x < x0 + (y - y0) * (x1 - x0) / (y1 - y0):
+            inside = not inside
+    return inside

@@ -1,0 +1,204 @@
+"""deploy/: the compose files are well-formed (YAML, services, healthcheck, dependencies, ports bound to
+the host's loopback), every command in them is a valid `uavmm` invocation (parsed by the real CLI and
+turned into the real settings), and every file the Dockerfile copies exists. No Docker engine needed."""
+
+from __future__ import annotations
+
+import re
+import shlex
+from pathlib import Path
+
+import pytest
+import yaml
+
+from uavmm.cli import build_parser
+
+REPO = Path(__file__).resolve().parents[1]
+DEPLOY = REPO / "deploy"
+COMPOSE_FILES = ["docker-compose.yml", "docker-compose.router.yml"]
+AGENTS = ["uav1", "uav2", "uav3"]
+_VARIABLE = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}")
+
+
+def env_example() -> dict[str, str]:
+    """KEY=VALUE lines of deploy/.env.example."""
+    values = {}
+    for line in (DEPLOY / ".env.example").read_text().splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            key, value = line.split("=", 1)
+            values[key.strip()] = value.strip()
+    return values
+
+
+def interpolate(value, env: dict[str, str], used: set[str]):
+    """Compose-style ${VAR}, ${VAR:-default} substitution, recursively through lists and maps."""
+    if isinstance(value, str):
+        def sub(match: re.Match) -> str:
+            used.add(match.group(1))
+            if match.group(1) in env:
+                return env[match.group(1)]
+            assert match.group(2) is not None, f"${{{match.group(1)}}} has no default"
+            return match.group(2)
+        return _VARIABLE.sub(sub, value)
+    if isinstance(value, list):
+        return [interpolate(v, env, used) for v in value]
+    if isinstance(value, dict):
+        return {k: interpolate(v, env, used) for k, v in value.items()}
+    return value
+
+
+def load(name: str, env: dict[str, str] | None = None) -> dict:
+    """A compose file with its variables at their defaults (or `env`)."""
+    raw = yaml.safe_load((DEPLOY / name).read_text())  # resolves the x-* anchors and << merges
+    return interpolate(raw, env or {}, set())
+
+
+def flag(command: list[str], name: str) -> str:
+    return command[command.index(name) + 1]
+
+
+def parse(command: list[str]):
+    """Parse a container command with the real CLI (the image's entrypoint is `uavmm`)."""
+    assert all(isinstance(a, str) for a in command), command
+    try:
+        return build_parser().parse_args(command)
+    except SystemExit as exc:
+        raise AssertionError(f"not a valid uavmm command line: uavmm {shlex.join(command)}") from exc
+
+
+@pytest.mark.parametrize("name", COMPOSE_FILES)
+def test_every_compose_command_is_a_valid_uavmm_invocation(name):
+    from uavmm import cmd_agent, cmd_fusion
+
+    services = load(name)["services"]
+    for service, spec in services.items():
+        if not spec.get("image", "").startswith("uavmm:"):
+            continue
+        args = parse(spec["command"])
+        if args.command == "fusion":
+            settings = cmd_fusion.settings_from_args(args)  # the values, not only the flags
+            assert (settings.http_host, settings.http_port) == ("0.0.0.0", 8000)
+            assert str(settings.db_path) == "/data/fusion.sqlite"
+        else:
+            assert args.command == "agent", service
+            settings = cmd_agent.settings_from_args(args)
+            source = cmd_agent.source_from_args(args)  # the scenario and UAV index exist
+            assert settings.uav_id == service and source.video.uav == service
+            assert args.loop, "demo agents fly until stopped"
+
+
+@pytest.mark.parametrize("name", COMPOSE_FILES)
+def test_compose_demo_has_fusion_and_three_agents_on_one_scenario(name):
+    services = load(name)["services"]
+    assert {"fusion", *AGENTS} <= set(services)
+    fusion = services["fusion"]
+    assert fusion["build"] == {"context": "..", "dockerfile": "deploy/Dockerfile"}
+    assert (DEPLOY / fusion["build"]["context"] / fusion["build"]["dockerfile"]).is_file()
+    commands = [services[a]["command"] for a in AGENTS]
+    assert sorted(flag(c, "--uav-index") for c in commands) == ["0", "1", "2"]
+    assert len({(flag(c, "--sim"), flag(c, "--seed")) for c in commands}) == 1  # one shared world
+    for agent in AGENTS:
+        spec = services[agent]
+        assert spec["image"] == fusion["image"], "agents and fusion run one image"
+        assert spec["depends_on"] == {"fusion": {"condition": "service_healthy"}}
+        assert "ports" not in spec, "agents publish nothing on the host"
+
+
+@pytest.mark.parametrize("name", COMPOSE_FILES)
+def test_fusion_healthcheck_asks_healthz(name):
+    check = load(name)["services"]["fusion"]["healthcheck"]
+    test = check["test"]
+    assert test[0] == "CMD" and "http://127.0.0.1:8000/healthz" in " ".join(test)
+    assert check["retries"] >= 1 and check["interval"].endswith("s")
+
+
+@pytest.mark.parametrize("name", COMPOSE_FILES)
+def test_ports_are_published_on_the_hosts_loopback_only(name):
+    services = load(name)["services"]
+    published = [p for spec in services.values() for p in spec.get("ports", [])]
+    assert published
+    for mapping in published:
+        assert mapping.startswith("127.0.0.1:"), f"{mapping} is reachable from other hosts by default"
+    assert "127.0.0.1:8000:8000" in services["fusion"]["ports"]
+
+
+def test_agents_connect_to_the_fusion_server_directly():
+    services = load("docker-compose.yml")["services"]
+    assert flag(services["fusion"]["command"], "--listen") == "tcp/0.0.0.0:7447"
+    for agent in AGENTS:
+        assert flag(services[agent]["command"], "--connect") == "tcp/fusion:7447"
+
+
+def test_router_variant_puts_zenohd_between_fusion_and_agents():
+    services = load("docker-compose.router.yml")["services"]
+    router = services["router"]
+    assert router["image"].startswith("eclipse/zenoh:")  # the official zenohd image
+    assert "--no-multicast-scouting" in router["command"]
+    assert flag(router["command"], "--listen") == "tcp/0.0.0.0:7447"
+    fusion = services["fusion"]["command"]
+    assert services["fusion"]["depends_on"] == {"router": {"condition": "service_started"}}
+    # all clients of the router: it forwards between clients, not between peers (see the compose file)
+    for command in [fusion] + [services[a]["command"] for a in AGENTS]:
+        assert flag(command, "--mode") == "client" and flag(command, "--connect") == "tcp/router:7447"
+
+
+@pytest.mark.parametrize("name", COMPOSE_FILES)
+def test_compose_variables_are_documented_in_env_example_with_the_same_defaults(name):
+    env = env_example()
+    used: set[str] = set()
+    raw = yaml.safe_load((DEPLOY / name).read_text())
+    with_defaults = interpolate(raw, {}, used)
+    assert used <= set(env), f"undocumented variables: {sorted(used - set(env))}"
+    assert interpolate(raw, env, set()) == with_defaults, ".env.example and the compose defaults disagree"
+
+
+def test_settings_from_env_example_are_valid_too():
+    env = {**env_example(), "UAVMM_SCENARIO": "coop"}
+    services = load("docker-compose.yml", env)["services"]
+    # coop has two UAVs: the third agent's index is out of range, which the CLI reports clearly
+    parse(services["uav1"]["command"])
+    from uavmm import cmd_agent
+
+    with pytest.raises(ValueError, match="uav_index must be in 0..1"):
+        cmd_agent.source_from_args(parse(services["uav3"]["command"]))
+
+
+def dockerfile_instructions() -> list[tuple[str, str]]:
+    text = (DEPLOY / "Dockerfile").read_text().replace("\\\n", " ")
+    rows = []
+    for line in text.splitlines():
+        line = line.strip()
+        if line and not line.startswith("#"):
+            keyword, _, rest = line.partition(" ")
+            rows.append((keyword.upper(), rest.strip()))
+    return rows
+
+
+def test_dockerfile_copies_files_that_exist_and_every_package():
+    rows = dockerfile_instructions()
+    assert rows[0] == ("FROM", "python:3.11-slim")
+    copied = []
+    for keyword, rest in rows:
+        if keyword == "COPY":
+            *sources, _dest = rest.split()
+            for source in sources:
+                assert (REPO / source).exists(), f"COPY {source}: not in the build context (the repo root)"
+                copied.append(source)
+    find_section = (REPO / "pyproject.toml").read_text().split("[tool.setuptools.packages.find]")[1].split("\n\n")[0]
+    packages = re.findall(r'"(\w+)\*"', find_section)
+    assert packages and set(packages) <= set(copied), f"packages not copied: {set(packages) - set(copied)}"
+    assert {"pyproject.toml", "README.md", "requirements-nodeps.txt"} <= set(copied)
+
+
+def test_dockerfile_installs_like_the_makefile_and_runs_unprivileged():
+    rows = dockerfile_instructions()
+    run = " ".join(rest for keyword, rest in rows if keyword == "RUN")
+    assert "pip install ." in run
+    assert "pip install --no-deps -r requirements-nodeps.txt" in run
+    assert "--no-deps -r requirements-nodeps.txt" in (REPO / "Makefile").read_text()  # the same file, the same way
+    users = [rest for keyword, rest in rows if keyword == "USER"]
+    assert users and users[-1] not in ("root", "0")
+    assert ("ENTRYPOINT", '["uavmm"]') in rows
+    ignore = (DEPLOY / "Dockerfile.dockerignore").read_text().split()
+    assert {".git", ".venv"} <= set(ignore)

@@ -1,0 +1,395 @@
+"""`uavmm demo`: a fusion server and simulated agents on this machine, over Zenoh on loopback, with the map page.
+
+Each part runs as its own process (`python -m uavmm fusion|agent`) in its own process group. The demo
+stops them in order (agents, then the server: SIGTERM, then SIGKILL after a timeout), and a small reaper
+process kills them all should the demo itself die without cleaning up (even by SIGKILL).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import logging
+import os
+import re
+import shutil
+import signal
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+import urllib.request
+from dataclasses import dataclass
+from pathlib import Path
+
+log = logging.getLogger("uavmm.demo")
+
+DEFAULT_SCENARIO = "trio"
+
+# The reaper: reads process-group ids from stdin, one a line. "done" means the demo cleaned up itself;
+# end of input without it means the demo died: SIGTERM every group, SIGKILL what is left after the grace,
+# then remove the demo's temporary folder.
+_REAPER_SOURCE = r"""
+import os, shutil, signal, sys, time
+grace_s, workdir = float(sys.argv[1]), sys.argv[2]
+groups, done = [], False
+for line in sys.stdin:
+    line = line.strip()
+    if line == "done":
+        done = True
+        break
+    if line.isdigit():
+        groups.append(int(line))
+if not done:
+    def alive(group):
+        try:
+            os.killpg(group, 0)
+            return True
+        except OSError:
+            return False
+    for group in groups:
+        try:
+            os.killpg(group, signal.SIGTERM)
+        except OSError:
+            pass
+    deadline = time.monotonic() + grace_s
+    while time.monotonic() < deadline and any(alive(g) for g in groups):
+        time.sleep(0.1)
+    for group in groups:
+        try:
+            os.killpg(group, signal.SIGKILL)
+        except OSError:
+            pass
+    time.sleep(0.5)  # let the killed processes close their files
+    shutil.rmtree(workdir, ignore_errors=True)
+"""
+
+
+@dataclass(frozen=True, slots=True)
+class DemoOptions:
+    """What `uavmm demo` is told; times in seconds.
+
+    http: the fusion server's REST address ``HOST:PORT`` (port 0 picks a free one).
+    zenoh_port: TCP port of the server's Zenoh endpoint on 127.0.0.1 (0 picks a free one).
+    db: SQLite file of the server, or None for one in the work folder (deleted at exit).
+    log_dir: folder of the children's logs, or None for the work folder.
+    scenario, seed, speed: the simulated flights (a scenario whose UAVs fly at the same time).
+    uavs: how many of the scenario's UAVs fly (None: all of them).
+    duration_s: stop this long after the agents are up (None: run until a signal).
+    """
+
+    http: str = "127.0.0.1:8000"
+    zenoh_port: int = 0
+    db: Path | None = None
+    log_dir: Path | None = None
+    scenario: str = DEFAULT_SCENARIO
+    seed: int = 0
+    speed: float = 1.0
+    uavs: int | None = None
+    duration_s: float | None = None
+    startup_timeout_s: float = 60.0
+    stop_timeout_s: float = 10.0
+    status_interval_s: float = 10.0
+    log_level: str = "WARNING"
+
+    def __post_init__(self) -> None:
+        if not 0 <= self.zenoh_port <= 65535:
+            raise ValueError(f"--port must be in 0..65535, got {self.zenoh_port}")
+        if self.seed < 0:
+            raise ValueError(f"--seed must be >= 0, got {self.seed}")
+        if not self.speed > 0:
+            raise ValueError(f"--speed must be > 0, got {self.speed}")
+        if self.uavs is not None and self.uavs < 1:
+            raise ValueError(f"--uavs must be >= 1, got {self.uavs}")
+        if self.duration_s is not None and not self.duration_s > 0:
+            raise ValueError(f"--duration must be > 0, got {self.duration_s}")
+        for name in ("startup_timeout_s", "stop_timeout_s"):
+            if not getattr(self, name) > 0:
+                raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
+
+
+def free_tcp_port(host: str = "127.0.0.1") -> int:
+    """A TCP port that was free on ``host`` a moment ago (the OS picks it)."""
+    with socket.socket() as sock:
+        sock.bind((host, 0))
+        return int(sock.getsockname()[1])
+
+
+def flying_uavs(scenario_name: str, count: int | None) -> list[str]:
+    """The UAV ids of the scenario's first ``count`` flights (all when None).
+
+    ValueError for an unknown scenario, one whose flights are not simultaneous (they would not share
+    a world or a clock), or more UAVs than it has.
+    """
+    from sim.scenarios import SCENARIOS, get_scenario
+
+    scenario = get_scenario(scenario_name)
+    if not scenario.simultaneous:
+        together = ", ".join(sorted(n for n, s in SCENARIOS.items() if s.simultaneous))
+        raise ValueError(f"scenario {scenario_name!r} flies its UAVs one after another; the demo needs one whose "
+                         f"UAVs fly at the same time: {together}")
+    uavs = [spec.uav for spec in scenario.flights]
+    if count is not None and count > len(uavs):
+        raise ValueError(f"scenario {scenario_name!r} has {len(uavs)} UAVs, --uavs {count} asked for more")
+    return uavs[:count] if count is not None else uavs
+
+
+class Reaper:
+    """A separate process that kills the registered process groups if this process dies first.
+
+    grace_s: time between SIGTERM and SIGKILL; workdir: a temporary folder it then removes.
+    """
+
+    def __init__(self, grace_s: float, workdir: Path) -> None:
+        self._proc = subprocess.Popen([sys.executable, "-c", _REAPER_SOURCE, str(grace_s), str(workdir)],
+                                      stdin=subprocess.PIPE, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                      start_new_session=True, text=True)
+
+    def watch(self, pgid: int) -> None:
+        """Kill process group ``pgid`` should this process die without calling :meth:`release`."""
+        assert self._proc.stdin is not None
+        self._proc.stdin.write(f"{pgid}\n")
+        self._proc.stdin.flush()
+
+    def release(self) -> None:
+        """Everything was stopped cleanly: let the reaper exit without killing anything."""
+        if self._proc.stdin is not None and not self._proc.stdin.closed:
+            try:
+                self._proc.stdin.write("done\n")
+                self._proc.stdin.close()
+            except OSError:
+                pass
+        try:
+            self._proc.wait(timeout=5.0)
+        except subprocess.TimeoutExpired:
+            self._proc.kill()
+            self._proc.wait()
+
+
+class Child:
+    """One `python -m uavmm ...` process in its own process group, stdout and stderr in a log file."""
+
+    def __init__(self, name: str, argv: list[str], log_path: Path, env: dict[str, str]) -> None:
+        self.name = name
+        self.log_path = log_path
+        with open(log_path, "wb") as out:
+            self.proc = subprocess.Popen([sys.executable, "-m", "uavmm", *argv], stdin=subprocess.DEVNULL,
+                                         stdout=out, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+
+    @property
+    def pid(self) -> int:
+        """The process id (= its process group id)."""
+        return self.proc.pid
+
+    def running(self) -> bool:
+        """Whether the process has not exited yet."""
+        return self.proc.poll() is None
+
+    def log_text(self) -> str:
+        """Everything the process wrote so far."""
+        try:
+            return self.log_path.read_text(errors="replace")
+        except OSError:
+            return ""
+
+    def log_tail(self, lines: int = 20) -> str:
+        """The last ``lines`` lines of its log, indented, for error messages."""
+        return "\n".join("    " + line for line in self.log_text().splitlines()[-lines:])
+
+    def wait_for(self, pattern: str, timeout_s: float, stop: threading.Event) -> re.Match[str] | None:
+        """Wait (bounded) until the log matches ``pattern``; None if it exits, times out or ``stop`` is set."""
+        regex = re.compile(pattern)
+        deadline = time.monotonic() + timeout_s
+        while True:
+            match = regex.search(self.log_text())
+            if match is not None:
+                return match
+            if not self.running() or time.monotonic() > deadline or stop.wait(0.05):
+                return None
+
+    def signal_group(self, signum: int) -> None:
+        """Send ``signum`` to the whole process group (ignored when it is gone)."""
+        try:
+            os.killpg(self.proc.pid, signum)
+        except OSError:
+            pass
+
+
+def stop_children(children: list[Child], timeout_s: float) -> None:
+    """SIGTERM the children's process groups, wait up to ``timeout_s``, then SIGKILL what is left."""
+    for child in children:
+        if child.running():
+            child.signal_group(signal.SIGTERM)
+    deadline = time.monotonic() + timeout_s
+    for child in children:
+        try:
+            child.proc.wait(timeout=max(0.0, deadline - time.monotonic()))
+        except subprocess.TimeoutExpired:
+            log.warning("%s did not stop within %.0f s of SIGTERM: killing it", child.name, timeout_s)
+    for child in children:
+        child.signal_group(signal.SIGKILL)  # also anything left in its group
+        if child.running():
+            child.proc.wait(timeout=5.0)
+
+
+def _child_env() -> dict[str, str]:
+    # The children import the same code as this process, installed or not.
+    root = str(Path(__file__).resolve().parents[1])
+    path = os.environ.get("PYTHONPATH")
+    return {**os.environ, "PYTHONUNBUFFERED": "1", "PYTHONPATH": root if not path else f"{root}{os.pathsep}{path}"}
+
+
+def _health(url: str) -> dict | None:
+    try:
+        with urllib.request.urlopen(url + "healthz", timeout=2.0) as response:
+            return json.loads(response.read())
+    except (OSError, ValueError):
+        return None
+
+
+def _say(text: str) -> None:
+    sys.stdout.write(f"uavmm demo: {text}\n")
+    sys.stdout.flush()
+
+
+def _warn(text: str) -> None:
+    sys.stderr.write(f"uavmm demo: {text}\n")
+    sys.stderr.flush()
+
+
+def run_demo(options: DemoOptions, stop: threading.Event) -> int:
+    """Start the server and the agents, report the map URL, run until ``stop`` or the duration, stop all.
+
+    Returns the exit code: 0 after a requested stop, 1 when a process failed to start or died.
+    """
+    uavs = flying_uavs(options.scenario, options.uavs)
+    workdir = Path(tempfile.mkdtemp(prefix="uavmm-demo-"))
+    log_dir = options.log_dir or workdir
+    log_dir.mkdir(parents=True, exist_ok=True)
+    db = options.db or workdir / "fusion.sqlite"
+    zenoh_port = options.zenoh_port or free_tcp_port()
+    endpoint = f"tcp/127.0.0.1:{zenoh_port}"
+    env = _child_env()
+    common = ["--log-level", options.log_level]
+    reaper = Reaper(options.stop_timeout_s, workdir)
+    fusion: Child | None = None
+    agents: list[Child] = []
+    failed: Child | None = None
+    code = 1  # until everything came up
+    try:
+        fusion = Child("fusion", [*common, "fusion", "--listen", endpoint, "--http", options.http, "--db", str(db),
+                                  "--no-multicast-scouting"], log_dir / "fusion.log", env)
+        reaper.watch(fusion.pid)
+        match = fusion.wait_for(r"map: (http://\S+)", options.startup_timeout_s, stop)
+        if match is None:
+            if stop.is_set():
+                code = 0
+                return code
+            hint = " (--http 127.0.0.1:0 picks a free port)" if "address already in use" in fusion.log_text() else ""
+            _warn(f"the fusion server did not start{hint} (log {fusion.log_path}):\n{fusion.log_tail()}")
+            return code
+        url = match.group(1)
+        _say(f"fusion server up: zenoh {endpoint}, db {db}")
+        _say(f"map: {url}")
+        for index, uav in enumerate(uavs):
+            child = Child(uav, [*common, "agent", "--uav-id", uav, "--connect", endpoint, "--no-multicast-scouting",
+                                "--sim", options.scenario, "--seed", str(options.seed), "--uav-index", str(index),
+                                "--speed", f"{options.speed:g}", "--loop"], log_dir / f"agent-{uav}.log", env)
+            reaper.watch(child.pid)
+            agents.append(child)
+        for child in agents:
+            if child.wait_for(r" up: ", options.startup_timeout_s, stop) is None:
+                if stop.is_set():
+                    code = 0
+                    return code
+                _warn(f"agent {child.name} did not start (log {child.log_path}):\n{child.log_tail()}")
+                return code
+        _say(f"{len(agents)} UAVs flying ({', '.join(uavs)}; scenario {options.scenario}, seed {options.seed}); "
+             f"logs in {log_dir}; Ctrl-C to stop")
+        code = 0
+        deadline = None if options.duration_s is None else time.monotonic() + options.duration_s
+        next_status = time.monotonic() + options.status_interval_s if options.status_interval_s > 0 else None
+        while not stop.wait(0.2):
+            now = time.monotonic()
+            failed = next((c for c in (fusion, *agents) if not c.running()), None)
+            if failed is not None:
+                _warn(f"{failed.name} exited unexpectedly (code {failed.proc.returncode}; log {failed.log_path}):\n"
+                      f"{failed.log_tail()}")
+                code = 1
+                break
+            if deadline is not None and now >= deadline:
+                break
+            if next_status is not None and now >= next_status:
+                next_status = now + options.status_interval_s
+                health = _health(url)
+                if health is not None:
+                    _warn(f"{health['uavs_online']} UAVs online, {health['joint_tiles']} joint tiles, "
+                          f"{health['global_tracks']} global tracks")
+        return code
+    finally:
+        stop_children(agents, options.stop_timeout_s)  # agents first: their liveliness tokens go cleanly
+        if fusion is not None:
+            stop_children([fusion], options.stop_timeout_s)
+        reaper.release()
+        if code == 0:
+            shutil.rmtree(workdir, ignore_errors=True)
+        else:
+            _warn(f"kept {workdir} for inspection")
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``demo`` subcommand."""
+    p = sub.add_parser(
+        "demo", help="fusion server + simulated agents on this machine; prints the live map URL",
+        description="Start a fusion server and one agent per UAV of a simulated scenario (three by default) as "
+                    "separate processes talking Zenoh over loopback, print the map page's URL and run until "
+                    "Ctrl-C or --duration; then stop every process. See docs/demo.md.",
+    )
+    p.add_argument("--http", default="127.0.0.1:8000", metavar="HOST:PORT",
+                   help="address of the REST API and map page (127.0.0.1:8000; port 0 picks a free one)")
+    p.add_argument("--port", type=int, default=0,
+                   help="Zenoh TCP port of the fusion server on 127.0.0.1 (default 0: a free port)")
+    p.add_argument("--db", type=Path, default=None,
+                   help="SQLite file of the fusion server (default: a temporary file, deleted at exit)")
+    p.add_argument("--log-dir", type=Path, default=None,
+                   help="folder for the processes' logs (default: a temporary folder, deleted at exit)")
+    p.add_argument("--scenario", default=DEFAULT_SCENARIO,
+                   help=f"simulator scenario whose UAVs fly at the same time ({DEFAULT_SCENARIO}; or coop)")
+    p.add_argument("--uavs", type=int, default=None, help="how many of the scenario's UAVs fly (default: all)")
+    p.add_argument("--seed", type=int, default=0, help="simulation seed, shared by the agents (0)")
+    p.add_argument("--speed", type=float, default=1.0, help="playback speed of the flights (1 = real time)")
+    p.add_argument("--duration", type=float, default=None, metavar="S",
+                   help="stop S seconds after the agents are up (default: run until Ctrl-C)")
+    p.add_argument("--startup-timeout", type=float, default=60.0, metavar="S",
+                   help="longest wait for each process to come up (60)")
+    p.add_argument("--stop-timeout", type=float, default=10.0, metavar="S",
+                   help="grace between SIGTERM and SIGKILL when stopping the processes (10)")
+    p.add_argument("--status-every", type=float, default=10.0, metavar="S",
+                   help="print a status line to stderr this often (10; 0 = never)")
+    p.set_defaults(handler=_run_demo_command)
+
+
+def options_from_args(args: argparse.Namespace) -> DemoOptions:
+    """DemoOptions from the parsed flags; ValueError on bad values."""
+    return DemoOptions(
+        http=args.http, zenoh_port=args.port, db=args.db, log_dir=args.log_dir, scenario=args.scenario,
+        seed=args.seed, speed=args.speed, uavs=args.uavs, duration_s=args.duration,
+        startup_timeout_s=args.startup_timeout, stop_timeout_s=args.stop_timeout,
+        status_interval_s=args.status_every, log_level=args.log_level,
+    )
+
+
+def _run_demo_command(args: argparse.Namespace) -> int:
+    options = options_from_args(args)
+    flying_uavs(options.scenario, options.uavs)  # a bad scenario fails before any process starts
+    stop = threading.Event()
+
+    def on_signal(signum: int, _frame: object) -> None:
+        log.info("signal %d: stopping", signum)
+        stop.set()
+
+    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
+        signal.signal(signum, on_signal)
+    return run_demo(options, stop)
