@@ -242,13 +242,15 @@ class TileGrid:
 
         # A square edge within float noise of a cell border includes the neighbour: a superset is
         # harmless, a missed cell is not (regression: a 3 nm square on the equator lost its south row).
-        eps = 1e-9
+        # The east/south edge includes the cell its point lies in (a point on a border belongs to the
+        # cell east/south of it); a few ulps of tolerance absorb rounding in the projection.
+        eps = 4.0 * math.ulp(max(1.0, float(gx), gy_south))
         gx0 = math.floor(float(gx) - half_cells_x - eps)
-        width = max(math.ceil(float(gx) + half_cells_x + eps) - gx0, 1)
+        width = max(math.floor(float(gx) + half_cells_x + eps) + 1 - gx0, 1)
         if width >= cells:
             gx0, width = 0, cells
         gy0 = min(max(math.floor(gy_north - eps), 0), cells - 1)
-        gy1 = min(max(math.ceil(gy_south + eps), gy0 + 1), cells)
+        gy1 = min(max(math.floor(gy_south + eps) + 1, gy0 + 1), cells)
         return CellWindow(gx0=gx0 % cells, gy0=gy0, width=width, height=gy1 - gy0, grid=self)
 
     def tiles_within(self, lat: float, lon: float, radius_m: float) -> list[tuple[int, int]]:

@@ -195,6 +195,7 @@ def test_default_window_at_48n_is_3_to_4_tiles_across() -> None:
 @settings(max_examples=200, deadline=None)
 @given(lat=st.floats(-84.0, 84.0), lon=lons, radius_tiles=st.floats(0.0, 6.0), grid=small_grids)
 @example(lat=1e-14, lon=0.0, radius_tiles=1e-14, grid=TileGrid(z=7, n=1))  # regression: float-noise edge
+@example(lat=0.0, lon=0.0, radius_tiles=0.0, grid=TileGrid(z=19, n=64))  # regression: point on a border
 def test_tiles_within_covers_the_square_and_nothing_far(
     lat: float, lon: float, radius_tiles: float, grid: TileGrid
 ) -> None:
