@@ -12,6 +12,7 @@ which differs from the gimbal heading in some flights (an orbit with the nose al
 
 from __future__ import annotations
 
+import abc
 import math
 from dataclasses import dataclass
 
@@ -42,7 +43,7 @@ class FlightState:
     heading_rate_deg_s: float
 
 
-class Flight:
+class Flight(abc.ABC):
     """Base class: subclasses implement `_raw(t_s)` -> (east, north, height, pitch, heading, aircraft_heading).
 
     Headings from `_raw` may be unwrapped (continuous); `state` wraps them to [0, 360).
@@ -51,8 +52,9 @@ class Flight:
     kind = "flight"
     duration_s: float = math.inf
 
+    @abc.abstractmethod
     def _raw(self, t_s: float) -> tuple[float, float, float, float, float, float]:
-        raise NotImplementedError
+        """(east_m, north_m, height_m, pitch_deg, heading_deg, aircraft_heading_deg) at t_s seconds."""
 
     def state(self, t_s: float) -> FlightState:
         """The true state at t_s seconds (clamped to the flight's keyframes where they end)."""

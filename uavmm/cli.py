@@ -65,11 +65,19 @@ def _run_sim(args: argparse.Namespace) -> int:
 
 # --------------------------------------------------------------------------------------------- boost
 
-def _add_pipeline_options(p: argparse.ArgumentParser) -> None:
+def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--config",
+                          joint_mode: bool = False) -> None:
+    """The memory-map flags shared by boost, track and agent.
+
+    config_flag: the pipeline JSON file's flag (networked processes keep --config for Zenoh); it is
+    stored as `pipeline_config` either way. joint_mode: also offer --joint-mode (processes with a
+    fusion server's joint map).
+    """
     g = p.add_argument_group("memory map (defaults: the best measured; see docs/memory-map.md)")
-    g.add_argument("--config", type=Path, default=None, help="JSON file of pipeline/memory settings")
+    g.add_argument(config_flag, dest="pipeline_config", type=Path, default=None,
+                   help="JSON file of pipeline/memory settings")
     g.add_argument("--window-m", type=float, default=None, help="memory window edge, metres (300)")
-    g.add_argument("--radius-m", type=float, default=None, help="Gaussian truncation radius, metres (6)")
+    g.add_argument("--radius-m", type=float, default=None, help="Gaussian truncation radius, metres (4)")
     g.add_argument("--gain-per-s", type=float, default=None, help="evidence per second per unit confidence")
     g.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life, seconds")
     g.add_argument("--boost-weight", type=float, default=None, help="c_hat = c + w * p (1)")
@@ -80,6 +88,9 @@ def _add_pipeline_options(p: argparse.ArgumentParser) -> None:
                    help="fitted size-filter file (uavmm fit-size-filter); default: built-in priors")
     g.add_argument("--size-filter-k", type=float, default=None, help="band half-width in std (3)")
     g.add_argument("--no-size-filter", action="store_true", help="do not filter boxes by size")
+    if joint_mode:
+        g.add_argument("--joint-mode", choices=["max", "local", "joint", "mean"], default=None,
+                       help="how the joint map combines with the local one for boosting (max; local = ignore it)")
 
 
 def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
@@ -90,8 +101,9 @@ def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
         "window_m": args.window_m, "radius_m": args.radius_m, "gain_per_s": args.gain_per_s,
         "half_life_s": args.half_life_s, "boost_weight": args.boost_weight, "anchor": args.anchor,
         "nms_iou": args.nms_iou, "max_detections": args.max_detections,
+        "joint_mode": getattr(args, "joint_mode", None),
     }
-    cfg = load_config(args.config, overrides)
+    cfg = load_config(args.pipeline_config, overrides)
     import dataclasses
 
     cfg = dataclasses.replace(cfg, use_memory=use_memory and cfg.use_memory,

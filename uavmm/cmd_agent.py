@@ -12,31 +12,10 @@ import sys
 import threading
 from pathlib import Path
 
+from uavmm.cli import _add_pipeline_options
 from uavmm.cmd_fusion import add_zenoh_arguments
 
 log = logging.getLogger("uavmm.agent")
-
-
-def _add_pipeline_arguments(p: argparse.ArgumentParser) -> None:
-    # The flags of `uavmm boost` (uavmm.cli._add_pipeline_options), with the pipeline JSON file under
-    # --pipeline-config because --config is the Zenoh config file in every networked process.
-    g = p.add_argument_group("memory map and tracker (defaults: the best measured; see docs/memory-map.md)")
-    g.add_argument("--pipeline-config", type=Path, default=None, help="JSON file of pipeline/memory settings")
-    g.add_argument("--window-m", type=float, default=None, help="memory window edge, metres (300)")
-    g.add_argument("--radius-m", type=float, default=None, help="Gaussian truncation radius, metres (6)")
-    g.add_argument("--gain-per-s", type=float, default=None, help="evidence per second per unit confidence")
-    g.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life, seconds")
-    g.add_argument("--boost-weight", type=float, default=None, help="c_hat = c + w * p (1)")
-    g.add_argument("--anchor", choices=["auto", "center", "bottom"], default=None, help="box ground point")
-    g.add_argument("--nms-iou", type=float, default=None, help="NMS IoU threshold (0.5)")
-    g.add_argument("--max-detections", type=int, default=None, help="detections kept per frame (100)")
-    g.add_argument("--size-filter", type=Path, default=None,
-                   help="fitted size-filter file (uavmm fit-size-filter); default: built-in priors")
-    g.add_argument("--size-filter-k", type=float, default=None, help="band half-width in std (3)")
-    g.add_argument("--no-size-filter", action="store_true", help="do not filter boxes by size")
-    g.add_argument("--joint-mode", choices=["max", "local", "joint", "mean"], default=None,
-                   help="how the joint map combines with the local one for boosting (max; local = ignore it)")
-    g.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting at all")
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -91,7 +70,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     run.add_argument("--loop", action="store_true", help="start the source again when it ends")
     run.add_argument("--tracks-out", type=Path, default=None, help="write the tracks (with global ids) as GeoJSON")
-    _add_pipeline_arguments(p)
+    _add_pipeline_options(p, config_flag="--pipeline-config", joint_mode=True)
+    p.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting at all")
     p.set_defaults(handler=_run_agent)
 
 
@@ -137,15 +117,9 @@ def settings_from_args(args: argparse.Namespace):
 
 def pipeline_from_args(args: argparse.Namespace):
     """(PipelineConfig, SizeFilter) from the pipeline flags (as `uavmm boost` reads them)."""
-    import dataclasses
-
     from uavmm.cli import _pipeline_from_args
 
-    cfg, size_filter = _pipeline_from_args(argparse.Namespace(**{**vars(args), "config": args.pipeline_config}),
-                                           use_memory=not args.no_memory)
-    if args.joint_mode is not None:
-        cfg = dataclasses.replace(cfg, joint_mode=args.joint_mode)
-    return cfg, size_filter
+    return _pipeline_from_args(args, use_memory=not args.no_memory)
 
 
 def _run_agent(args: argparse.Namespace) -> int:
