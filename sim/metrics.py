@@ -211,6 +211,19 @@ def recall_at_precision(curve: dict[str, np.ndarray], precision: float) -> float
     return float(curve["recall"][ok].max()) if ok.any() else 0.0
 
 
+def threshold_at_precision(curve: dict[str, np.ndarray], precision: float) -> float:
+    """Score threshold of a PR curve's highest-recall point with precision >= `precision`.
+
+    Keeping the detections with score >= the returned value gives that point (the operating point of
+    `recall_at_precision`). +inf when no point reaches the precision (keep nothing).
+    """
+    ok = np.flatnonzero(curve["precision"] >= precision)
+    if not len(ok):
+        return float("inf")
+    best = ok[int(np.argmax(curve["recall"][ok]))]
+    return float(curve["scores"][best])
+
+
 def baseline_nms(candidates: str | Path | Sequence[dict[str, Any]], iou: float = 0.5) -> list[dict[str, Any]]:
     """The single-frame baseline: class-wise NMS per image (cv2.dnn.NMSBoxesBatched), every score kept.
 

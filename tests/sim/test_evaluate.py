@@ -6,7 +6,7 @@ import json
 
 import pytest
 
-from sim.metrics import operating_point, pr_curve, recall_at_precision
+from sim.metrics import operating_point, pr_curve, recall_at_precision, threshold_at_precision
 from uavmm.cli import main
 
 GT = {
@@ -33,6 +33,9 @@ def test_pr_curve_matches_one_to_one_in_score_order():
     assert operating_point(GT, dets, 0.5) == pytest.approx({"precision": 1 / 3, "recall": 0.5})
     assert recall_at_precision(curve, 0.5) == pytest.approx(1.0)
     assert recall_at_precision(curve, 1.01) == 0.0
+    assert threshold_at_precision(curve, 0.5) == pytest.approx(0.3)  # the highest-recall point with p >= 0.5
+    assert threshold_at_precision(curve, 0.9) == pytest.approx(0.9)
+    assert threshold_at_precision(curve, 1.01) == float("inf")
 
 
 def test_eval_memory_map_beats_baseline_on_a_short_run(tmp_path, capsys):
@@ -43,6 +46,7 @@ def test_eval_memory_map_beats_baseline_on_a_short_run(tmp_path, capsys):
     by_variant = {s["variant"]: s for s in report["summary"]}
     assert by_variant["memory map"]["AP50"] > by_variant["baseline"]["AP50"] + 2.0
     assert by_variant["memory map"]["R_op"] > by_variant["baseline"]["R_op"]
+    assert by_variant["memory map"]["AR_op"] > by_variant["baseline"]["AR_op"]  # AR at equal precision goes up
     sf = report["size_filter"]["sea"]
     assert sf["removed"] > 0 and sf["removed_false_positives"] > 10 * sf["removed_true_positives"]
     assert "| sea | x1 | memory map |" in (out / "report.md").read_text()
