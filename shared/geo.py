@@ -549,4 +549,4 @@ def ground_to_image_homography(camera: Camera, pose: Pose) -> FloatArray:
 
 def image_to_ground_homography(camera: Camera, pose: Pose) -> FloatArray:
     """(3, 3) homography with [east_m, north_m, 1] ~ H [u, v, 1] (inverse of the above)."""
-    return np.linalg.inv(ground_to_image_homography(camera, pose))
+    return np.asarray(np.linalg.inv(ground_to_image_homography(camera, pose)), dtype=np.float64)
