@@ -46,6 +46,7 @@ __all__ = [
     "AgentSettings",
     "GlobalIdAdopter",
     "TileChangeTracker",
+    "run_first_track_id",
     "state_message",
     "tracks_message",
 ]
@@ -314,6 +315,23 @@ def tracks_message(uav: str, t: float, tracks: list[TrackOutput], class_names: d
     return TracksMessage(uav=uav, t=t, tracks=items)
 
 
+#: Local track ids of a live run stay below this, so they are exact in JSON numbers (doubles) on the
+#: map page and in REST clients as well as in msgpack/SQLite int64.
+_TRACK_ID_SPAN = 2**53
+
+
+def run_first_track_id(wall_ns: int | None = None) -> int:
+    """The first local track id of an agent run: microseconds since the UNIX epoch (mod 2**53).
+
+    The fusion server keys local tracks by ``(uav, local id)``; a restarted agent whose ids began at 1
+    again would have its new objects taken for the previous run's. A run starting a second later
+    begins 10**6 ids higher, more tracks than any run makes, so runs never share ids (given a clock
+    that does not jump back, e.g. GPS/NTP time). wall_ns: ``time.time_ns()`` (tests pass a value).
+    """
+    wall_ns = time.time_ns() if wall_ns is None else wall_ns
+    return (wall_ns // 1000) % _TRACK_ID_SPAN
+
+
 # ---------------------------------------------------------------------------------------------
 # Global id adoption
 # ---------------------------------------------------------------------------------------------
@@ -448,7 +466,9 @@ class AgentNode:
         self.joint = JointLayer(grid, ttl_s=settings.joint_ttl_s)
         self.pipeline = DetectionPipeline(source.camera, source.class_names, pipeline_config,
                                           size_filter=size_filter, joint=self.joint, grid=grid)
-        self.tracker = GpsTracker(tracker_config, source.class_names, evidence_at=self._evidence_at)
+        # ids unique per run: the server would otherwise take a restarted agent's new tracks for old ones
+        self.tracker = GpsTracker(tracker_config, source.class_names, evidence_at=self._evidence_at,
+                                  first_id=run_first_track_id())
         self.link = AgentLink(agent_zenoh_config(settings.zenoh), settings.keys, settings.uav_id, grid)
         self.tiles = TileChangeTracker(settings.uav_id, list(dict.fromkeys(source.class_names.values())), grid,
                                        refresh_s=settings.refresh_s, min_value=settings.tile_min_value,

@@ -696,18 +696,23 @@ class GpsTracker:
     evidence_at : callable, optional
         (class id, lat (N,), lon (N,)) -> (N,) memory-map evidence; with
         `TrackerConfig.reid_min_evidence` > 0 a re-identification needs that much evidence.
+    first_id : int
+        Id of the first new track (1, as MOTChallenge counts); the live agent starts each run elsewhere
+        so ids stay unique across restarts (`agent.node.run_first_track_id`).
 
     Use one tracker per video; `update` must be called with non-decreasing times.
     """
 
     def __init__(self, config: TrackerConfig | None = None, class_names: dict[int, str] | None = None,
-                 *, evidence_at: EvidenceFn | None = None) -> None:
+                 *, evidence_at: EvidenceFn | None = None, first_id: int = 1) -> None:
+        if isinstance(first_id, bool) or not isinstance(first_id, int) or not 0 <= first_id < 2**62:
+            raise ValueError(f"first_id must be an int in 0..2**62-1, got {first_id!r}")
         self.config = config or TrackerConfig()
         self.class_names = dict(class_names or {})
         self.evidence_at = evidence_at
         self._active = _Table(_ACTIVE_FIELDS)
         self._lost = _Table(_LOST_FIELDS)
-        self._next_id = 1
+        self._next_id = first_id
         self._t: float | None = None
         self._origin: tuple[float, float] | None = None
         self._motion_cache: dict[int, ClassMotion] = {}

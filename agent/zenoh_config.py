@@ -1,7 +1,7 @@
 """Zenoh configuration of the agent: the shared options of every uavmm process plus the agent's defaults.
 
-The options themselves (``--mode/--connect/--listen/--config/--cfg``) are the fusion server's
-(`fusion_server.config.ZenohOptions`), reused so every process reads them the same way; this module adds
+The options themselves (``--mode/--connect/--listen/--config/--cfg``) are every process's
+(`shared.zenoh_options.ZenohOptions`, re-exported here), so all read them the same way; this module adds
 what an agent on a drone needs: start without the ground station, keep retrying, reconnect.
 """
 
@@ -14,7 +14,7 @@ import time
 
 import zenoh
 
-from fusion_server.config import ZENOH_MODES, ZenohOptions, zenoh_config
+from shared.zenoh_options import ZENOH_MODES, ZenohOptions, zenoh_config
 
 __all__ = ["AGENT_DEFAULT_MODE", "ZENOH_MODES", "ZenohOptions", "agent_zenoh_config", "open_session"]
 

@@ -1,9 +1,15 @@
 """The joint map: the UAVs' latest tiles and their fusion into joint tiles, with no I/O.
 
 Per (uav, cls, tile) the latest tile and its receive time are kept; a UAV covers a tile while that
-tile is younger than the time to live. :meth:`JointMap.step` fuses the tiles that changed (at most
-``max_hz`` times a second per tile), expires old ones and returns the joint tile messages to publish,
-including one empty tile for a joint tile nobody covers any more. Thread-safe: one internal lock.
+tile is younger than the time to live. Inside a tile, with ``coverage="footprint"`` (the default), a
+UAV covers the cells its camera footprints (from its state messages, :meth:`JointMap.put_footprint`)
+held within the time to live: a UAV that does not see a cell (behind it, beside it) does not pull
+the mean down there. A UAV that sent no footprint within the time to live covers its whole tiles, as
+does every UAV with ``coverage="tile"``; a cell no footprint holds falls back to every UAV covering
+the tile (see :mod:`fusion_server.rules`). :meth:`JointMap.step` fuses the tiles that changed (at
+most ``max_hz`` times a second per tile), expires old ones and returns the joint tile messages to
+publish, including one empty tile for a joint tile nobody covers any more. Thread-safe: one
+internal lock.
 """
 
 from __future__ import annotations
@@ -15,6 +21,7 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 from numpy.typing import NDArray
 
@@ -23,11 +30,17 @@ from shared.keys import JOINT_UAV
 from shared.tilecodec import encode_tile_sparse
 from shared.tiles import TileGrid
 
-__all__ = ["JointMap", "JointTile", "JointUpdate", "TileKey", "encode_joint_tile"]
+__all__ = ["COVERAGE_MODES", "JointMap", "JointTile", "JointUpdate", "TileKey", "encode_joint_tile"]
 
 #: (cls, z, x, y) of a tile.
 TileKey = tuple[str, int, int, int]
 _MAX_CLASSES = 1024
+#: Coverage models: "footprint" (cells inside the UAV's recent camera footprints) or "tile" (whole tiles).
+COVERAGE_MODES = ("footprint", "tile")
+#: Footprints kept per UAV (5 Hz state messages over a 2 s time to live are 10).
+_MAX_FOOTPRINTS = 64
+#: Sub-cell precision of the rasterised footprints (cv2.fillPoly shift).
+_SHIFT = 4
 #: Publications a tile may make in a burst above its max_hz average (absorbs jitter of the agents).
 _BURST = 2.0
 
@@ -82,6 +95,14 @@ class _UavTile:
     received: float  # monotonic
 
 
+@dataclass(slots=True)
+class _Footprint:
+    cells: NDArray[np.float64]  # (M, 2) global cell coordinates (gx, gy), continuous
+    lo: NDArray[np.float64]  # (2,) min gx, gy
+    hi: NDArray[np.float64]  # (2,) max gx, gy
+    received: float  # monotonic
+
+
 def encode_joint_tile(key: TileKey, n: int, values: NDArray[np.uint8], t: float, seq: int) -> bytes:
     """Tile message bytes (``uav = "joint"``) of (n, n) uint8 ``values``, sparse or dense."""
     flat = values.reshape(-1)
@@ -97,7 +118,9 @@ class JointMap:
     :mod:`fusion_server.rules` function. ttl_s: how long a tile counts as covering after it was
     received. max_hz: most joint publications per tile and second. max_uav_tiles: bound on the
     stored UAV tiles (memory: n*n bytes each); max_hz is an average (token bucket, burst of 2), so
-    a tile updated at exactly max_hz is never delayed by jitter. clock: monotonic seconds; wall: epoch seconds.
+    a tile updated at exactly max_hz is never delayed by jitter. coverage: "footprint" (a UAV covers
+    the cells of its footprints received within ttl_s; whole tiles while it sent none) or "tile" (the
+    whole tile). clock: monotonic seconds; wall: epoch seconds.
     """
 
     def __init__(
@@ -108,6 +131,7 @@ class JointMap:
         max_hz: float,
         *,
         max_uav_tiles: int = 20_000,
+        coverage: str = "footprint",
         clock=time.monotonic,
         wall=time.time,
     ) -> None:
@@ -116,6 +140,9 @@ class JointMap:
         self.ttl_s = float(ttl_s)
         self.max_hz = float(max_hz)
         self.max_uav_tiles = int(max_uav_tiles)
+        if coverage not in COVERAGE_MODES:
+            raise ValueError(f"coverage must be one of {', '.join(COVERAGE_MODES)}, got {coverage!r}")
+        self.coverage = coverage
         self._clock = clock
         self._wall = wall
         self._lock = threading.Lock()
@@ -133,6 +160,10 @@ class JointMap:
         self._wake = threading.Condition(self._lock)
         self._poked = False
         self._classes: set[str] = set()  # every class seen since start (bounded)
+        self._uav_keys: dict[str, set[TileKey]] = {}  # tiles each UAV covers now
+        self._footprints: dict[str, list[_Footprint]] = {}  # oldest first
+        self._masks: dict[tuple[str, int, int], tuple[int, NDArray[np.bool_] | None]] = {}
+        self._fp_version = 0
 
     # ---- input ---------------------------------------------------------------------------------
     def put(self, uav: str, key: TileKey, values: NDArray[np.uint8], t: float, seq: int,
@@ -155,6 +186,7 @@ class JointMap:
                 per_uav = self._covers[key] = {}
             if old is None:
                 self._n_uav_tiles += 1
+                self._uav_keys.setdefault(uav, set()).add(key)
             per_uav[uav] = _UavTile(values, float(t), int(seq), now)
             if len(self._classes) < _MAX_CLASSES:
                 self._classes.add(key[0])
@@ -163,6 +195,64 @@ class JointMap:
             self._poked = True
             self._wake.notify_all()
         return None
+
+    def put_footprint(self, uav: str, footprint_latlon, now: float | None = None) -> bool:
+        """Record a UAV's camera footprint (from its state message) received now.
+
+        footprint_latlon: (M, 2) ``[lat, lon]`` degrees, the ground polygon (M >= 3; fewer points or
+        non-finite ones are ignored: returns False). For ``ttl_s`` after it was received the UAV covers
+        the cells inside it (see the module docstring); the tiles the UAV covers are fused again.
+        """
+        if self.coverage != "footprint":
+            return False
+        poly = np.asarray(footprint_latlon, dtype=np.float64)
+        if poly.ndim != 2 or poly.shape[0] < 3 or poly.shape[1] != 2 or not np.isfinite(poly).all():
+            return False
+        gx, gy = self.grid.latlon_to_cell(poly[:, 0], poly[:, 1])
+        cells = np.column_stack([gx, gy])
+        now = self._clock() if now is None else now
+        with self._lock:
+            prints = self._footprints.setdefault(uav, [])
+            prints.append(_Footprint(cells, cells.min(axis=0), cells.max(axis=0), now))
+            if len(prints) > _MAX_FOOTPRINTS:
+                del prints[0]
+            self._fp_version += 1
+            for key in self._uav_keys.get(uav, ()):
+                self._dirty.setdefault(key, now)
+            self._poked = True
+            self._wake.notify_all()
+        return True
+
+    def _coverage_mask(self, uav: str, key: TileKey, now: float) -> NDArray[np.bool_] | None:
+        """(n, n) bool cells of tile ``key`` inside ``uav``'s fresh footprints; None: the whole tile."""
+        prints = self._footprints.get(uav)
+        if not prints:
+            return None
+        cutoff = now - self.ttl_s
+        if prints[0].received < cutoff:
+            prints[:] = [fp for fp in prints if fp.received >= cutoff]
+            self._fp_version += 1
+            if not prints:
+                del self._footprints[uav]
+                return None
+        _, _, x, y = key
+        cached = self._masks.get((uav, x, y))
+        if cached is not None and cached[0] == self._fp_version:
+            return cached[1]
+        n = self.grid.n
+        x0, y0 = x * n, y * n
+        canvas = np.zeros((n, n), dtype=np.uint8)
+        for fp in prints:
+            if fp.hi[0] < x0 or fp.lo[0] > x0 + n or fp.hi[1] < y0 or fp.lo[1] > y0 + n:
+                continue
+            # cell (r, c) has its centre at (c + 0.5, r + 0.5) in continuous cell coordinates
+            pts = np.rint((fp.cells - (x0 + 0.5, y0 + 0.5)) * (1 << _SHIFT)).astype(np.int32)
+            cv2.fillPoly(canvas, [pts], 1, lineType=cv2.LINE_8, shift=_SHIFT)
+        mask = canvas.view(bool)
+        if len(self._masks) > 4 * self.max_uav_tiles:
+            self._masks.clear()
+        self._masks[(uav, x, y)] = (self._fp_version, mask)
+        return mask
 
     def restore(self, tiles: Iterable[JointTile], keep_s: float, now: float | None = None) -> int:
         """Serve joint tiles loaded from the database until ``keep_s`` after ``now``.
@@ -246,6 +336,11 @@ class JointMap:
                 continue  # replaced by a newer tile: its own heap entry decides
             del per_uav[uav]
             self._n_uav_tiles -= 1
+            keys = self._uav_keys.get(uav)
+            if keys is not None:
+                keys.discard(key)
+                if not keys:
+                    del self._uav_keys[uav]
             if not per_uav:
                 del self._covers[key]
             self._dirty.setdefault(key, expiry)
@@ -264,9 +359,15 @@ class JointMap:
             return JointUpdate(key, encode_joint_tile(key, n, empty, self._wall(), self._seq), None, pending_since)
         entries = list(per_uav.values())
         if len(entries) == 1:
-            values = entries[0].values  # every rule maps one layer to itself
+            values = entries[0].values  # every rule maps one layer to itself (also with its mask)
         else:
-            values = self.rule(np.stack([e.values for e in entries]))
+            stack = np.stack([e.values for e in entries])
+            covered = None
+            if self.coverage == "footprint":
+                masks = [self._coverage_mask(uav, key, now) for uav in per_uav]
+                if any(m is not None for m in masks):
+                    covered = np.stack([np.ones((n, n), dtype=bool) if m is None else m for m in masks])
+            values = self.rule(stack, covered)
         t = max(e.t for e in entries)
         uavs = tuple(sorted(per_uav))
         if previous is not None and np.array_equal(previous.values, values):

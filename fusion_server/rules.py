@@ -1,7 +1,11 @@
 """Fusion rules: how the tiles of the UAVs covering a cell combine into the joint value (DESIGN.md 4).
 
-A rule maps a (k, n, n) uint8 stack (value = byte / 255, one layer per covering UAV, k >= 1) to one
-(n, n) uint8 tile. ``mean`` is the paper's rule and the default; ``max`` and ``noisy-or`` are options.
+A rule maps a (k, n, n) uint8 stack (value = byte / 255, one layer per UAV covering the tile, k >= 1)
+and an optional (k, n, n) bool ``covered`` mask (which UAV covers which cell: its recent camera
+footprints, see :mod:`fusion_server.joint_map`) to one (n, n) uint8 tile. Per cell only the layers
+that cover it count; a cell no layer covers falls back to all k layers (the tile-level rule), so
+``covered=None`` is the plain per-tile rule. ``mean`` is the paper's rule and the default; ``max``
+and ``noisy-or`` are options.
 """
 
 from __future__ import annotations
@@ -13,24 +17,46 @@ from numpy.typing import NDArray
 
 __all__ = ["FUSION_RULES", "FusionRule", "get_fusion_rule"]
 
-FusionRule = Callable[[NDArray[np.uint8]], NDArray[np.uint8]]
+FusionRule = Callable[..., NDArray[np.uint8]]
+"""``rule(stack, covered=None) -> (n, n) uint8``."""
 
 
-def fuse_mean(stack: NDArray[np.uint8]) -> NDArray[np.uint8]:
+def _effective_mask(stack: NDArray[np.uint8], covered: NDArray[np.bool_] | None) -> NDArray[np.bool_] | None:
+    """The (k, n, n) mask of layers that count per cell (None: all), after the no-coverage fallback."""
+    if covered is None:
+        return None
+    covered = np.asarray(covered, dtype=bool)
+    if covered.shape != stack.shape:
+        raise ValueError(f"covered mask {covered.shape} does not match the stack {stack.shape}")
+    if covered.all():
+        return None
+    # a cell nobody's footprint holds keeps the tile-level rule over every layer
+    return covered | ~covered.any(axis=0, keepdims=True)
+
+
+def fuse_mean(stack: NDArray[np.uint8], covered: NDArray[np.bool_] | None = None) -> NDArray[np.uint8]:
     """Per-cell mean over the covering UAVs, rounded half up to the nearest byte."""
-    k = stack.shape[0]
-    total = stack.sum(axis=0, dtype=np.uint32)
-    return ((total * 2 + k) // (2 * k)).astype(np.uint8)
+    mask = _effective_mask(stack, covered)
+    if mask is None:
+        k = stack.shape[0]
+        total = stack.sum(axis=0, dtype=np.uint32)
+        return ((total * 2 + k) // (2 * k)).astype(np.uint8)
+    count = mask.sum(axis=0, dtype=np.uint32)
+    total = np.where(mask, stack, 0).sum(axis=0, dtype=np.uint32)
+    return ((total * 2 + count) // (2 * count)).astype(np.uint8)
 
 
-def fuse_max(stack: NDArray[np.uint8]) -> NDArray[np.uint8]:
+def fuse_max(stack: NDArray[np.uint8], covered: NDArray[np.bool_] | None = None) -> NDArray[np.uint8]:
     """Per-cell maximum over the covering UAVs."""
-    return stack.max(axis=0)
+    mask = _effective_mask(stack, covered)
+    return stack.max(axis=0) if mask is None else np.where(mask, stack, 0).max(axis=0).astype(np.uint8)
 
 
-def fuse_noisy_or(stack: NDArray[np.uint8]) -> NDArray[np.uint8]:
+def fuse_noisy_or(stack: NDArray[np.uint8], covered: NDArray[np.bool_] | None = None) -> NDArray[np.uint8]:
     """Per-cell ``1 - prod(1 - v)``: independent evidence accumulates (never below the max)."""
-    miss = np.prod(1.0 - stack.astype(np.float32) / np.float32(255.0), axis=0)
+    mask = _effective_mask(stack, covered)
+    values = stack if mask is None else np.where(mask, stack, 0)
+    miss = np.prod(1.0 - values.astype(np.float32) / np.float32(255.0), axis=0)
     return np.clip(np.rint((1.0 - miss) * np.float32(255.0)), 0, 255).astype(np.uint8)
 
 

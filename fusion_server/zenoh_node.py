@@ -169,6 +169,8 @@ class FusionNode:
                 if reason is not None:
                     self._reject("tile", reason, key, f"seq {message.seq}")
                     return
+            elif isinstance(message, StateMessage):
+                self.joint.put_footprint(message.uav, message.footprint)
             elif isinstance(message, TracksMessage):
                 self.tracker.update(message)
                 self.joint.poke()

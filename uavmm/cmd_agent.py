@@ -12,8 +12,8 @@ import sys
 import threading
 from pathlib import Path
 
+from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
 from uavmm.cli import _add_pipeline_options
-from uavmm.cmd_fusion import add_zenoh_arguments
 
 log = logging.getLogger("uavmm.agent")
 
@@ -96,16 +96,8 @@ def source_from_args(args: argparse.Namespace):
 def settings_from_args(args: argparse.Namespace):
     """AgentSettings from parsed flags; ValueError on bad values."""
     from agent.node import AgentSettings
-    from agent.zenoh_config import ZenohOptions
 
-    zenoh_options = ZenohOptions(
-        mode=args.mode,
-        connect=tuple(args.connect) if args.connect else None,
-        listen=tuple(args.listen) if args.listen else None,
-        config_file=args.config,
-        multicast_scouting=False if args.no_multicast_scouting else None,
-        cfg=tuple(args.cfg),
-    )
+    zenoh_options = zenoh_options_from_args(args)
     return AgentSettings(
         uav_id=args.uav_id, zenoh=zenoh_options, prefix=args.prefix, publish_hz=args.publish_hz,
         refresh_s=args.refresh_s, tile_min_value=args.tile_min_value,

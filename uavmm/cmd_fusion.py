@@ -12,27 +12,13 @@ import sys
 import threading
 from pathlib import Path
 
+from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
+
+__all__ = ["DEFAULT_LISTEN", "add_zenoh_arguments", "register", "settings_from_args"]
+
 log = logging.getLogger("uavmm.fusion")
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
-
-
-def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str | None = None,
-                        default_listen: str | None = None) -> None:
-    """The Zenoh options every uavmm process takes (as zenoh-python's examples/common/common.py)."""
-    group = parser.add_argument_group("zenoh")
-    group.add_argument("--mode", "-m", choices=["peer", "router", "client"], default=default_mode,
-                       help=f"Zenoh session mode (default: {default_mode or 'from --config, else peer'})")
-    group.add_argument("--connect", "-e", metavar="ENDPOINT", action="append",
-                       help="endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)")
-    group.add_argument("--listen", "-l", metavar="ENDPOINT", action="append",
-                       help=f"endpoint to listen on (repeatable; default {default_listen or 'Zenoh default'} "
-                            "unless --config sets listen/endpoints)")
-    group.add_argument("--config", "-c", metavar="FILE", type=Path,
-                       help="Zenoh JSON5 config file (usrpwd, TLS, ACL ... pass through)")
-    group.add_argument("--no-multicast-scouting", action="store_true", help="disable multicast scouting")
-    group.add_argument("--cfg", metavar="KEY:VALUE", action="append", default=[],
-                       help="extra Zenoh config entry, VALUE in JSON5, e.g. 'transport/link/tx/lease:2000'")
 
 
 def _config_sets_listen(path: Path | None) -> bool:
@@ -64,6 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--prefix", default="uavmm/v1", help="key prefix (default uavmm/v1)")
     p.add_argument("--ttl-s", type=float, default=2.0, help="a UAV covers a tile this long after its message (2)")
     p.add_argument("--fusion-rule", default="mean", help="mean (default, the paper's), max or noisy-or")
+    p.add_argument("--coverage", choices=("footprint", "tile"), default="footprint",
+                   help="which cells a UAV covers: those in its camera footprints of the last --ttl-s "
+                        "(default) or its whole tiles")
     p.add_argument("--joint-max-hz", type=float, default=5.0, help="most joint publications per tile a second (5)")
     p.add_argument("--tracks-max-hz", type=float, default=5.0, help="most joint tracks messages a second (5)")
     p.add_argument("--track-gate-m", type=float, default=10.0, help="association gate on the ground, m (10)")
@@ -82,24 +71,17 @@ def _http_address(text: str) -> tuple[str, int]:
 
 def settings_from_args(args: argparse.Namespace):
     """FusionSettings from parsed flags; ValueError on bad values."""
-    from fusion_server.config import FusionSettings, ZenohOptions, default_db_path
+    from fusion_server.config import FusionSettings, default_db_path
 
-    listen = args.listen
-    if listen is None and not _config_sets_listen(args.config):
-        listen = [DEFAULT_LISTEN]
-    zenoh_options = ZenohOptions(
-        mode=args.mode,
-        connect=tuple(args.connect) if args.connect else None,
-        listen=tuple(listen) if listen else None,
-        config_file=args.config,
-        multicast_scouting=False if args.no_multicast_scouting else None,
-        cfg=tuple(args.cfg),
-    )
+    default_listen = None
+    if args.listen is None and not _config_sets_listen(args.config):
+        default_listen = [DEFAULT_LISTEN]
+    zenoh_options = zenoh_options_from_args(args, default_listen=default_listen)
     host, port = _http_address(args.http)
     return FusionSettings(
         zenoh=zenoh_options, http_host=host, http_port=port,
         db_path=None if args.no_db else (args.db or default_db_path()),
-        prefix=args.prefix, ttl_s=args.ttl_s, fusion_rule=args.fusion_rule, grid_z=args.grid_z,
+        prefix=args.prefix, ttl_s=args.ttl_s, fusion_rule=args.fusion_rule, coverage=args.coverage, grid_z=args.grid_z,
         grid_n=args.grid_n, joint_max_hz=args.joint_max_hz, tracks_max_hz=args.tracks_max_hz,
         track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s,
     )

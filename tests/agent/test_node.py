@@ -8,8 +8,15 @@ import numpy as np
 import pytest
 
 from agent.memory_map import MemoryMap, MemoryMapConfig
-from agent.node import AgentSettings, GlobalIdAdopter, TileChangeTracker, state_message, tracks_message
-from agent.tracker import TrackOutput
+from agent.node import (
+    AgentSettings,
+    GlobalIdAdopter,
+    TileChangeTracker,
+    run_first_track_id,
+    state_message,
+    tracks_message,
+)
+from agent.tracker import GpsTracker, TrackOutput
 from agent.zenoh_io import encode_tracks_with_gid
 from shared.geo import Camera, Pose, local_to_latlon
 from shared.messages import JointTrackItem, JointTracksMessage, decode_state, decode_tracks, encode_state
@@ -210,3 +217,22 @@ def test_a_global_track_already_holding_another_of_our_tracks_is_not_adopted():
 def test_settings_fail_fast_naming_the_field(kwargs, message):
     with pytest.raises(ValueError, match=message):
         AgentSettings(**{"uav_id": "uav1", **kwargs})
+
+
+# ---- local track ids unique per run --------------------------------------------------------------
+def test_each_run_numbers_its_tracks_from_its_start_time_in_microseconds():
+    t_ns = 1_767_225_600_123_456_789  # 2026-01-01
+    first = run_first_track_id(t_ns)
+    assert first == 1_767_225_600_123_456
+    # a restart a second later begins a million ids on: more tracks than any run makes
+    assert run_first_track_id(t_ns + 10**9) - first == 10**6
+    # ids stay exact as JSON numbers (doubles) on the map page; valid in the tracks message
+    assert first + 10**9 < 2**53
+    assert 0 <= run_first_track_id() < 2**53
+
+
+def test_tracker_first_id_rejects_values_outside_the_message_range():
+    # disjoint ids per run are pinned by tests/e2e/test_agent_restart.py, ids from 1 by test_track_cli
+    for bad in (-1, 2**62, 1.5, True):
+        with pytest.raises(ValueError, match="first_id"):
+            GpsTracker(first_id=bad)

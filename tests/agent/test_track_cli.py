@@ -53,6 +53,7 @@ def test_mot_file_has_one_row_per_reported_track_and_frame(data, tmp_path, capsy
         seen.add((frame, tid))
     frames = [int(line.split(",")[0]) for line in lines]
     assert frames == sorted(frames)
+    assert max(tid for _, tid in seen) < 10**6  # ids count from 1 per video (the live agent's start elsewhere)
     arr = read_mot(out)
     assert arr.shape == (len(lines), 10)
     assert set(np.unique(arr[:, 1]).astype(int)) == {tid for _, tid in seen}

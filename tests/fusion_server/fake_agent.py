@@ -74,10 +74,12 @@ class FakeAgent:
                           t=time.time() if t is None else t, seq=self.seq, values=values)
         self.put(KEYS.uav_tile(self.uav, cls, GRID.z, x, y), encode_tile(msg))
 
-    def state(self, lat: float = LAT, lon: float = LON) -> None:
+    def state(self, lat: float = LAT, lon: float = LON, footprint=None) -> None:
         camera = CameraInfo(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+        if footprint is None:
+            footprint = ((lat, lon), (lat + 1e-4, lon), (lat, lon + 1e-4))
         msg = StateMessage(uav=self.uav, t=time.time(), lat=lat, lon=lon, height_m=40.0, pitch_deg=60.0,
-                           heading_deg=90.0, footprint=((lat, lon), (lat + 1e-4, lon), (lat, lon + 1e-4)),
+                           heading_deg=90.0, footprint=tuple((float(a), float(b)) for a, b in footprint),
                            camera=camera)
         self.put(KEYS.uav_state(self.uav), encode_state(msg))
 

@@ -106,3 +106,54 @@ def test_restored_tiles_are_served_then_dropped_unless_covered():
     assert fresh.step(now=2.0)[0] == []
     updates, _ = fresh.step(now=3.5)
     assert updates[0].tile is None and fresh.get(KEY) is None
+
+
+def square(col0: float, row0: float, col1: float, row1: float) -> np.ndarray:
+    """(4, 2) [lat, lon] polygon over KEY's tile cells [col0, col1) x [row0, row1) (cell edges)."""
+    gx = np.array([col0, col1, col1, col0]) + KEY[2] * GRID.n
+    gy = np.array([row0, row0, row1, row1]) + KEY[3] * GRID.n
+    lat, lon = GRID.cell_to_latlon(gx, gy)
+    return np.column_stack([lat, lon])
+
+
+def test_a_uav_that_does_not_see_a_cell_does_not_dilute_the_mean_there():
+    jm = make()
+    jm.put("a", KEY, layer(200), t=1.0, seq=1, now=0.0)
+    jm.put("b", KEY, layer(0), t=1.0, seq=1, now=0.0)
+    assert jm.put_footprint("b", square(4, 0, 8, 8), now=0.0)  # b looks at the right half only
+    jm.step(now=0.0)
+    values = jm.get(KEY).values
+    np.testing.assert_array_equal(values[:, :4], 200)  # only a covers the left half
+    np.testing.assert_array_equal(values[:, 4:], 100)  # both cover the right half: the paper's mean
+
+
+def test_tile_coverage_and_stale_footprints_count_the_whole_tile():
+    jm = make(coverage="tile")
+    jm.put("a", KEY, layer(200), t=1.0, seq=1, now=0.0)
+    jm.put("b", KEY, layer(0), t=1.0, seq=1, now=0.0)
+    assert not jm.put_footprint("b", square(4, 0, 8, 8), now=0.0)
+    jm.step(now=0.0)
+    np.testing.assert_array_equal(jm.get(KEY).values, 100)
+
+    jm = make(ttl_s=2.0)
+    jm.put_footprint("b", square(4, 0, 8, 8), now=0.0)
+    jm.put("a", KEY, layer(200), t=1.0, seq=1, now=1.5)
+    jm.put("b", KEY, layer(0), t=1.0, seq=1, now=1.5)
+    jm.step(now=1.5)
+    assert jm.get(KEY).values[0, 0] == 200
+    jm.put("a", KEY, layer(210), t=2.0, seq=2, now=2.5)  # b's footprint (received at 0) has expired
+    jm.step(now=2.5)
+    assert jm.get(KEY).values[0, 0] == 105  # b sent no fresh footprint: it covers its whole tile again
+
+
+def test_a_new_footprint_fuses_the_tiles_of_that_uav_again_and_bad_polygons_are_ignored():
+    jm = make()
+    jm.put("a", KEY, layer(200), t=1.0, seq=1, now=0.0)
+    jm.put("b", KEY, layer(0), t=1.0, seq=1, now=0.0)
+    jm.step(now=0.0)
+    assert jm.get(KEY).values[0, 0] == 100
+    assert jm.put_footprint("b", square(4, 0, 8, 8), now=1.0)
+    updates, _ = jm.step(now=1.0)  # no new tile: the footprint alone changes the joint tile
+    assert [u.tile.values[0, 0] for u in updates] == [200]
+    assert not jm.put_footprint("b", square(0, 0, 1, 1)[:2], now=1.0)
+    assert not jm.put_footprint("b", np.full((4, 2), np.nan), now=1.0)

@@ -33,3 +33,23 @@ def test_every_rule_maps_one_layer_to_itself(name):
 def test_unknown_rule_lists_the_valid_ones():
     with pytest.raises(ValueError, match="mean, max, noisy-or"):
         get_fusion_rule("median")
+
+
+def test_mean_counts_only_the_layers_covering_a_cell_and_falls_back_where_none_does():
+    values = np.stack([np.full((2, 2), 200, np.uint8), np.zeros((2, 2), np.uint8)])
+    covered = np.ones((2, 2, 2), dtype=bool)
+    covered[1, 0, 0] = False  # the second UAV does not see cell (0, 0): its zero must not count
+    covered[:, 1, 1] = False  # nobody's footprint holds (1, 1): the tile-level mean of both layers
+    fused = get_fusion_rule("mean")(values, covered)
+    assert fused[0, 0] == 200
+    assert fused[0, 1] == 100 and fused[1, 1] == 100
+    np.testing.assert_array_equal(get_fusion_rule("mean")(values, np.ones_like(covered)), np.full((2, 2), 100))
+
+
+@pytest.mark.parametrize("name", sorted(FUSION_RULES))
+def test_every_rule_ignores_a_non_covering_layer(name):
+    values = np.stack([np.full((1, 1), 120, np.uint8), np.full((1, 1), 250, np.uint8)])
+    covered = np.array([[[True]], [[False]]])
+    assert FUSION_RULES[name](values, covered)[0, 0] == 120
+    with pytest.raises(ValueError, match="does not match"):
+        FUSION_RULES[name](values, covered[:, :, :0])

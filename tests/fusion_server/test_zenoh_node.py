@@ -61,6 +61,34 @@ def test_agents_receive_joint_tiles_and_an_empty_tile_when_coverage_ends(server,
     sub.undeclare()
 
 
+def test_a_uav_whose_footprint_misses_a_cell_does_not_dilute_it(server, agent_factory):
+    seen_by_a = blob(50, 50) + blob(200, 200)
+    a, b = agent_factory("uav-a"), agent_factory("uav-b")
+    seen = Collector()
+    sub = a.session.declare_subscriber(KEYS.joint_tiles_all(), seen)
+    time.sleep(0.2)
+    # b looks at cells 170..230 of the tile only (its state message's footprint) and sees nothing there
+    gx = np.array([170, 230, 230, 170]) + TILE_X * GRID.n
+    gy = np.array([170, 170, 230, 230]) + TILE_Y * GRID.n
+    b.state(footprint=np.column_stack(GRID.cell_to_latlon(gx, gy)))
+    b.tile(np.zeros((GRID.n, GRID.n), np.float32))
+    a.tile(seen_by_a)
+
+    def fused() -> tuple[np.ndarray] | None:
+        with seen.lock:
+            samples = list(seen.samples)
+        for _, payload in reversed(samples):
+            msg = decode_tile(payload)
+            if 0 < msg.values[200, 200] < 0.6:
+                return (msg.values,)
+        return None
+
+    (values,) = wait_until(fused)
+    assert values[200, 200] == pytest.approx(0.4, abs=0.005)  # b covers it: "I look here and see nothing"
+    assert values[50, 50] == pytest.approx(0.8, abs=0.005)  # b does not see it: a's value stands
+    sub.undeclare()
+
+
 def test_late_joiner_gets_the_joint_map_and_tracks_at_once(server, agent_factory):
     agent = agent_factory("uav-a")
     agent.tile(blob(50, 50))

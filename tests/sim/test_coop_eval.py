@@ -1,26 +1,33 @@
-"""Cooperative evaluation: two UAVs exchange byte-quantised tiles fused by the server's mean rule."""
+"""Cooperative evaluation: two UAVs exchange tiles and footprints fused by the server's JointMap."""
 
 from __future__ import annotations
 
-import numpy as np
 import pytest
 
 from agent.pipeline import DetectionPipeline
-from shared.geo import Camera
-from sim.coop_eval import _fuse, run_coop_eval
+from shared.geo import Camera, Pose
+from sim.coop_eval import CoopFusion, run_coop_eval
+
+LAT, LON = 48.0, 9.0
 
 
-def test_fuse_is_the_mean_of_the_uavs_covering_a_tile():
+@pytest.mark.parametrize(("coverage", "expected"), [("footprint", 0.8), ("tile", 0.4)])
+def test_coop_fusion_a_uav_not_seeing_a_cell_does_not_dilute_it(coverage, expected):
     cam = Camera(width=640, height=480, fx=500.0, fy=500.0, cx=320.0, cy=240.0)
-    a, b = (DetectionPipeline(cam, {1: "person"}) for _ in range(2))
-    for pipe, value in ((a, 0.8), (b, 0.2)):
-        pipe.memory.advance(0.0, 48.0, 9.0)
-        gx, gy = pipe.grid.latlon_to_cell(48.0, 9.0)
-        pipe.memory.add("person", [gx], [gy], [value])
-    joint = _fuse({"a": a, "b": b}, "mean")
-    peak = max(float(v.max()) for v in joint.values())
-    assert peak == pytest.approx(0.5, abs=1 / 255)
-    assert all(v.dtype == np.float32 and v.max() <= 1.0 for v in joint.values())
+    pipes = {uav: DetectionPipeline(cam, {1: "person"}) for uav in ("a", "b")}
+    gx, gy = pipes["a"].grid.latlon_to_cell(LAT, LON)
+    for pipe in pipes.values():
+        pipe.memory.advance(0.0, LAT, LON)
+    pipes["a"].memory.add("person", [gx], [gy], [0.8])
+    # b hovers right above the cell looking north at 30 deg: the cell is in its memory window (its tiles
+    # cover it, with zeros) but not in its camera footprint, which starts ~20 m ahead
+    poses = {"a": (Pose(LAT - 3e-4, LON, 30.0, 45.0, 0.0), cam), "b": (Pose(LAT, LON, 30.0, 30.0, 0.0), cam)}
+    fusion = CoopFusion(["a", "b"], ["person"], pipes, coverage=coverage)
+    joint = {(cls, x, y): values for cls, x, y, values in fusion.publish(0.0, poses)}
+    n = pipes["a"].grid.n
+    values = joint[("person", int(gx) // n, int(gy) // n)]
+    assert fusion.joint.get(("person", 18, int(gx) // n, int(gy) // n)).uavs == ("a", "b")
+    assert float(values[int(gy) % n, int(gx) % n]) == pytest.approx(expected, abs=1 / 255)
 
 
 def test_coop_eval_reports_every_uav_and_finds_hidden_people(tmp_path):
@@ -29,5 +36,7 @@ def test_coop_eval_reports_every_uav_and_finds_hidden_people(tmp_path):
     assert {u for u, _ in by} == {"uav1", "uav2"}
     hidden = by[("uav1", "memory map + joint map")]["hidden_detected"]
     assert hidden > by[("uav1", "baseline")]["hidden_detected"]
+    # the joint map brings uav2's evidence to the people the tree line hides from uav1
+    assert hidden > by[("uav1", "own memory map")]["hidden_detected"] + 3.0
     assert by[("uav1", "memory map + joint map")]["AP50"] > by[("uav1", "baseline")]["AP50"]
-    assert (tmp_path / "report.md").read_text().count("| uav1 |") == 3
+    assert (tmp_path / "report.md").read_text().count("| uav1 |") == 4
