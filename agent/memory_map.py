@@ -17,6 +17,9 @@ from shared.tiles import TileGrid
 
 FloatArray = NDArray[np.float64]
 STAMP_MODES = ("sum", "max")
+#: Lazy decay folds into the stored maps once the pending factor drops below this (every ~20 s at
+#: a 1 s half-life); stored values then reach at most 1 / _MIN_SCALE, far inside float32's range.
+_MIN_SCALE = 1e-6
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,6 +97,11 @@ class MemoryMap:
         self._cell_m = 0.0
         self._t: float | None = None
         self._kernel: tuple[int, NDArray[np.float32]] | None = None
+        # Lazy decay: the maps store evidence / _scale and advance() only shrinks _scale, instead of
+        # multiplying every cell of every class each frame; the maps are renormalised when _scale
+        # falls below _MIN_SCALE (float32 keeps its relative precision at any magnitude) or when a
+        # caller asks for a whole layer.
+        self._scale = 1.0
 
     # ------------------------------------------------------------------ state
     @property
@@ -120,6 +128,7 @@ class MemoryMap:
 
     def layer(self, cls: str) -> NDArray[np.float32] | None:
         """The (size, size) float32 map of a class (a view: do not modify), or None."""
+        self._renormalise()
         return self._maps.get(cls)
 
     def reset(self) -> None:
@@ -127,6 +136,16 @@ class MemoryMap:
         self._maps.clear()
         self._t = None
         self._size = 0
+        self._scale = 1.0
+
+    def _renormalise(self) -> None:
+        """Fold the pending decay into the stored maps (stored values become true values)."""
+        if self._scale != 1.0:
+            scale = np.float32(self._scale)
+            for m in self._maps.values():
+                m *= scale
+                np.minimum(m, 1.0, out=m)  # stored <= 1 / scale may round a hair above 1
+            self._scale = 1.0
 
     # ------------------------------------------------------------------ time and window
     def advance(self, t: float, lat: float, lon: float) -> float:
@@ -140,9 +159,9 @@ class MemoryMap:
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t if self._t is None else max(self._t, t)
         if dt > 0 and self._maps:
-            phi = np.float32(self.config.phi(dt))
-            for m in self._maps.values():
-                m *= phi
+            self._scale *= self.config.phi(dt)
+            if self._scale < _MIN_SCALE:
+                self._renormalise()
         self._place_window(lat, lon)
         return dt
 
@@ -169,6 +188,8 @@ class MemoryMap:
         shift_y = gy0 - self._gy0
         self._gx0, self._gy0 = gx0 % self.grid.world_cells, gy0
         s = self._size
+        if reset:
+            self._scale = 1.0
         for cls, old in list(self._maps.items()):
             new = np.zeros((s, s), dtype=np.float32)
             if not reset and abs(shift_x) < s and abs(shift_y) < s and old.shape == new.shape:
@@ -198,6 +219,9 @@ class MemoryMap:
             return out
         row, col, inside = self.local_indices(gx_arr, gy)
         out[inside] = m[row[inside], col[inside]]
+        if self._scale != 1.0:
+            out *= np.float32(self._scale)
+            np.minimum(out, 1.0, out=out)
         return out
 
     def _kernel_for(self) -> tuple[int, NDArray[np.float32]]:
@@ -222,6 +246,8 @@ class MemoryMap:
         if not keep.any():
             return 0
         row, col, amp = row[keep], col[keep], amp[keep]
+        if self._scale != 1.0:  # into stored units (max stamping commutes with the scaling)
+            amp = amp * np.float32(1.0 / self._scale)
         m = self._maps.get(cls)
         if m is None:
             m = self._maps[cls] = np.zeros((self._size, self._size), dtype=np.float32)
@@ -238,7 +264,7 @@ class MemoryMap:
         spread = cv2.sepFilter2D(impulses, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
         roi = m[r0:r1, c0:c1]
         roi += spread
-        np.minimum(roi, 1.0, out=roi)
+        np.minimum(roi, np.float32(1.0 / self._scale), out=roi)  # true values clip at 1
         return int(keep.sum())
 
     # ------------------------------------------------------------------ tiles
@@ -264,8 +290,11 @@ class MemoryMap:
                     gxa, gya = max(tx * n, self._gx0), max(ty * n, self._gy0)
                     gxb = min(tx * n + n, self._gx0 + self._size)
                     gyb = min(ty * n + n, self._gy0 + self._size)
-                    tile[gya - ty * n:gyb - ty * n, gxa - tx * n:gxb - tx * n] = \
-                        m[gya - self._gy0:gyb - self._gy0, gxa - self._gx0:gxb - self._gx0]
+                    part = tile[gya - ty * n:gyb - ty * n, gxa - tx * n:gxb - tx * n]
+                    part[...] = m[gya - self._gy0:gyb - self._gy0, gxa - self._gx0:gxb - self._gx0]
+                    if self._scale != 1.0:
+                        part *= np.float32(self._scale)
+                        np.minimum(part, 1.0, out=part)
                 if min_value > 0 and tile.max() < min_value:
                     continue
                 out.append((tx % side, ty, tile))

@@ -146,6 +146,46 @@ def test_values_round_trip_through_add(e, nn, amp):
     assert mm.values_at("swimmer", [gx], [gy])[0] == pytest.approx(amp, rel=1e-5)
 
 
+def test_lazy_decay_reads_true_values_across_renormalisation_and_recentring():
+    # 40 s at 30 fps with a 1 s half-life: the pending decay passes the renormalisation point twice
+    # and the UAV drifts far enough north to move the window several times.
+    mm = MemoryMap(MemoryMapConfig(stamp="sum", half_life_s=1.0, recentre_m=5.0))
+    target = cell_of(10.0, 40.0)
+    expected = 0.0
+    for k in range(1200):
+        t = k / 30
+        lat, lon = local_to_latlon(0.0, k * 0.02, LAT, LON)
+        mm.advance(t, float(lat), float(lon))
+        expected *= 0.5 ** (1 / 30) if k else 1.0
+        if k % 3 == 0:
+            mm.add("person", [target[0]], [target[1]], [0.02])
+            expected += 0.02
+        if k % 97 == 0:
+            assert mm.values_at("person", [target[0]], [target[1]])[0] == pytest.approx(expected, rel=1e-4)
+    value = mm.values_at("person", [target[0]], [target[1]])[0]
+    assert value == pytest.approx(expected, rel=1e-4)
+    n = GRID.n
+    tx, ty = int(target[0]) // n, int(target[1]) // n
+    (tile,) = [v for x, y, v in mm.tiles("person") if (x, y) == (tx, ty)]
+    assert tile[int(target[1]) - ty * n, int(target[0]) - tx * n] == pytest.approx(value, rel=1e-6)
+    row, col, inside = mm.local_indices([target[0]], [target[1]])
+    assert inside[0] and mm.layer("person")[row[0], col[0]] == pytest.approx(value, rel=1e-6)
+
+
+def test_clip_at_one_applies_to_true_values_while_decay_is_pending():
+    mm = MemoryMap(MemoryMapConfig(stamp="sum"))
+    mm.advance(0.0, LAT, LON)
+    gx, gy = cell_of(5.0, 5.0)
+    mm.advance(3.0, LAT, LON)  # evidence added now is stored at 8x its value
+    mm.add("person", [gx] * 50, [gy] * 50, [0.9] * 50)
+    assert mm.values_at("person", [gx], [gy])[0] <= 1.0
+    assert mm.values_at("person", [gx], [gy])[0] == pytest.approx(1.0, rel=1e-6)
+    assert max(float(v.max()) for _, _, v in mm.tiles("person")) <= 1.0
+    mm.advance(4.0, LAT, LON)  # one half-life later: half of the clipped value, not of the sum
+    assert mm.values_at("person", [gx], [gy])[0] == pytest.approx(0.5, rel=1e-5)
+    assert mm.layer("person").max() == pytest.approx(0.5, rel=1e-5)
+
+
 # ----------------------------------------------------------------------------- JointLayer
 
 def test_joint_layer_reads_fresh_tiles_only():
