@@ -110,10 +110,19 @@ def _int(d: dict, key: str, default: int | None = None) -> int:
 
 @dataclass
 class Candidates:
-    """Pre-NMS candidates per image: boxes_xyxy (N, 4) float32, scores (N,) float32, class ids (N,)."""
+    """Pre-NMS candidates per image: boxes_xyxy (N, 4) float32, scores (N,) float32, class ids (N,).
+
+    embeddings: per image, (N, D) float32 appearance descriptors from the optional ``embedding`` field
+    of the entries (NaN rows for entries without one); only images where some entry has one.
+    """
 
     by_image: dict[int, tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]]
     skipped: dict[str, int]
+    embeddings: dict[int, NDArray[np.float32]] = field(default_factory=dict)
+
+    def get_embeddings(self, image_id: int) -> NDArray[np.float32] | None:
+        """(N, D) descriptors of the image's candidates in `get`'s order, or None when it has none."""
+        return self.embeddings.get(image_id)
 
     def get(self, image_id: int) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]:
         empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
@@ -139,6 +148,7 @@ class Candidates:
         cat_ids = np.empty(n, np.int64)
         boxes = np.empty((n, 4), np.float64)
         scores = np.empty(n, np.float64)
+        emb_rows: dict[int, list[float]] = {}  # optional appearance descriptors (docs/tracking.md)
         for i, e in enumerate(entries):
             try:
                 image_ids[i] = e["image_id"]
@@ -148,8 +158,22 @@ class Candidates:
                     raise ValueError(f"bbox must have 4 numbers, got {len(bbox)}")
                 boxes[i] = bbox
                 scores[i] = e["score"]
+                if "embedding" in e:
+                    emb = e["embedding"]
+                    if not isinstance(emb, list) or not emb or not all(
+                            isinstance(v, (int, float)) and not isinstance(v, bool) for v in emb):
+                        raise ValueError("embedding must be a non-empty list of numbers")
+                    emb_rows[i] = emb
             except (KeyError, TypeError, ValueError, OverflowError) as exc:
                 raise ValueError(f"{source}: entry {i} is malformed ({exc!r}): {str(e)[:200]}") from None
+        dims = {len(v) for v in emb_rows.values()}
+        if len(dims) > 1:
+            raise ValueError(f"{source}: embeddings of different lengths {sorted(dims)}")
+        emb_all = None
+        if emb_rows:
+            emb_all = np.full((n, dims.pop()), np.nan, np.float32)
+            rows = np.fromiter(emb_rows, np.int64, len(emb_rows))
+            emb_all[rows] = np.asarray(list(emb_rows.values()), np.float32)
         unknown_img = ~np.isin(image_ids, np.fromiter(dataset.images, np.int64, len(dataset.images)))
         if unknown_img.any():
             i = int(np.flatnonzero(unknown_img)[0])
@@ -175,13 +199,18 @@ class Candidates:
         xyxy = np.column_stack([boxes[:, 0], boxes[:, 1], boxes[:, 0] + boxes[:, 2], boxes[:, 1] + boxes[:, 3]])
         order = np.argsort(image_ids, kind="stable")
         image_ids, cat_ids, xyxy, scores = image_ids[order], cat_ids[order], xyxy[order], scores[order]
+        if emb_all is not None:
+            emb_all = emb_all[keep][order]
         by_image = {}
+        embeddings = {}
         if len(image_ids):
             splits = np.flatnonzero(np.diff(image_ids)) + 1
             for idx in np.split(np.arange(len(image_ids)), splits):
                 by_image[int(image_ids[idx[0]])] = (xyxy[idx].astype(np.float32), scores[idx].astype(np.float32),
                                                     cat_ids[idx])
-        return cls(by_image, skipped)
+                if emb_all is not None and np.isfinite(emb_all[idx]).all(axis=1).any():
+                    embeddings[int(image_ids[idx[0]])] = emb_all[idx]
+        return cls(by_image, skipped, embeddings)
 
 
 @dataclass(frozen=True, slots=True)

@@ -187,6 +187,21 @@ class TrackerConfig:
         With an evidence function (`GpsTracker(evidence_at=...)`), a lost track is revived only
         where the memory map holds at least this much (0 = do not ask).
 
+    Appearance (optional: used when the detections carry descriptors, `FrameResult.embeddings`)
+    ----------
+    use_appearance : bool
+        Use the descriptors at all (False: motion only, as without them).
+    appearance_ema : float
+        A track's descriptor is an exponential moving average of its detections' unit descriptors
+        (weight of the past, per matched detection; FairMOT/BoT-SORT use 0.9).
+    reid_appearance_weight, reid_appearance_gate : float
+        Re-ID pair cost += weight * cosine distance (0 = same look, 1 = unrelated); a pair farther
+        than the gate in cosine distance is not made (pairs where either side has no descriptor are
+        judged on motion alone).
+    appearance_weight : float
+        Frame-to-frame association pair cost += weight * cosine distance (a secondary cue; ground
+        distance leads).
+
     Reporting
     ---------
     quality_rate, report_quality : float
@@ -244,6 +259,11 @@ class TrackerConfig:
     reid_gate_chi2: float = 9.21
     reid_delay_s: float = 0.0
     reid_min_evidence: float = 0.0
+    use_appearance: bool = True
+    appearance_ema: float = 0.9
+    reid_appearance_weight: float = 10.0
+    reid_appearance_gate: float = 0.5
+    appearance_weight: float = 2.0
     quality_rate: float = 0.1
     report_quality: float = 0.4
     reanchor_m: float = 2000.0
@@ -257,7 +277,8 @@ class TrackerConfig:
         unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate"}
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("birth_on_raw", "confirm_hits", "class_motion", "default_motion", "pair_max_cost"):
+            if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "class_motion", "default_motion",
+                          "pair_max_cost"):
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"TrackerConfig.{f.name} must be a finite number, got {value!r}")
@@ -270,8 +291,11 @@ class TrackerConfig:
         if self.pair_max_cost is not None and not (isinstance(self.pair_max_cost, (int, float))
                                                    and math.isfinite(self.pair_max_cost) and self.pair_max_cost > 0):
             raise ValueError(f"TrackerConfig.pair_max_cost={self.pair_max_cost!r} must be None or a number > 0")
-        if not isinstance(self.birth_on_raw, bool):
-            raise ValueError(f"TrackerConfig.birth_on_raw must be a bool, got {self.birth_on_raw!r}")
+        for name in ("birth_on_raw", "use_appearance"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if not self.appearance_ema < 1.0:
+            raise ValueError(f"TrackerConfig.appearance_ema={self.appearance_ema!r} must be in [0, 1)")
         if isinstance(self.confirm_hits, bool) or not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
             raise ValueError(f"TrackerConfig.confirm_hits={self.confirm_hits!r} must be an integer >= 1")
         if self.low_score > self.match_score:
@@ -613,12 +637,13 @@ _ACTIVE_FIELDS = {
     "t_hit": ((), np.float64), "t_born": ((), np.float64), "t_shadow": ((), np.float64),
     "confirmed": ((), np.bool_), "matched": ((), np.bool_), "reid": ((), np.bool_), "strong": ((), np.bool_),
     "R_last": ((2, 2), np.float64), "quality": ((), np.float64),
-    "heading_hit": ((), np.float64), "pending": ((), np.bool_),
+    "heading_hit": ((), np.float64), "pending": ((), np.bool_), "probation": ((), np.bool_),
 }
 _LOST_FIELDS = {
     "id": ((), np.int64), "cls": ((), np.int64), "pos": ((2,), np.float64), "vel": ((2,), np.float64),
     "Ppos": ((2, 2), np.float64), "box": ((4,), np.float64), "score": ((), np.float64),
     "hits": ((), np.int64), "support": ((), np.int64), "t_hit": ((), np.float64), "quality": ((), np.float64),
+    "claimed": ((), np.bool_),
 }
 
 
@@ -626,8 +651,13 @@ class _Table:
     """Columns of equal length, filtered and appended as a whole."""
 
     def __init__(self, fields: dict[str, tuple[tuple[int, ...], type]]) -> None:
-        self.fields = fields
+        self.fields = dict(fields)
         self.cols: dict[str, np.ndarray] = {k: np.zeros((0, *shape), dtype) for k, (shape, dtype) in fields.items()}
+
+    def add_float_column(self, name: str, shape: tuple[int, ...]) -> None:
+        """A new float64 column, NaN in the existing rows and in appended rows that do not give it."""
+        self.fields[name] = (shape, np.float64)
+        self.cols[name] = np.full((len(self), *shape), np.nan)
 
     def __len__(self) -> int:
         return len(self.cols["id"])
@@ -641,7 +671,7 @@ class _Table:
     def append(self, **cols: np.ndarray) -> None:
         n = len(np.asarray(cols["id"]).reshape(-1))
         for k, (shape, dtype) in self.fields.items():
-            new = np.asarray(cols[k], dtype=dtype).reshape(n, *shape)
+            new = np.asarray(cols[k], dtype=dtype).reshape(n, *shape) if k in cols else np.full((n, *shape), np.nan)
             self.cols[k] = np.concatenate([self.cols[k], new])
 
 
@@ -665,6 +695,7 @@ class _Detections:
     z: FloatArray
     R: FloatArray
     geo: NDArray[np.bool_]
+    emb: FloatArray | None = None  # (n, D) unit appearance descriptors, NaN rows: none
 
     @classmethod
     def from_result(cls, result: FrameResult, config: TrackerConfig) -> _Detections:
@@ -682,7 +713,8 @@ class _Detections:
             lat=np.asarray(result.lat, dtype=np.float64).reshape(-1),
             lon=np.asarray(result.lon, dtype=np.float64).reshape(-1),
             used=duplicate_mask(boxes, scores, class_ids, config.duplicate_iou, config.duplicate_ioa),
-            z=np.full((n, 2), np.nan), R=np.zeros((n, 2, 2)), geo=np.zeros(n, dtype=bool))
+            z=np.full((n, 2), np.nan), R=np.zeros((n, 2, 2)), geo=np.zeros(n, dtype=bool),
+            emb=_unit_rows(result.embeddings, n) if config.use_appearance and result.embeddings is not None else None)
 
 
 class GpsTracker:
@@ -750,7 +782,7 @@ class GpsTracker:
                         float(lon[i]), (float(lost["vel"][i, 0]), float(lost["vel"][i, 1])),
                         float(lost["score"][i]), True, False, int(lost["hits"][i]),
                         float(now - lost["t_hit"][i]), False, float(lost["quality"][i]))
-            for i in range(len(lost))
+            for i in range(len(lost)) if not lost["claimed"][i]  # claimed: on probation among the active
         ]
 
     def report(self, tracks: list[TrackOutput]) -> list[TrackOutput]:
@@ -801,6 +833,8 @@ class GpsTracker:
         self._predict(dt)
 
         dets = _Detections.from_result(result, self.config)
+        if dets.emb is not None:
+            self._ensure_emb(dets.emb.shape[1])
         if pose is None:
             self._associate_iou(dets, t, np.ones(len(dets.scores), dtype=bool))
         else:
@@ -812,6 +846,7 @@ class GpsTracker:
             self._merge_duplicates(t)
             self._decay_unseen_quality(pose, camera)
 
+        self._settle_probation()
         self._retire(t)
         return self._outputs()
 
@@ -874,6 +909,31 @@ class GpsTracker:
         if cfg.reid_delay_s > 0:
             self._resolve_pending(t)
 
+    def _ensure_emb(self, dim: int) -> None:
+        """Descriptor columns ("emb", (dim,)) in the track tables, added at the first descriptor."""
+        if "emb" not in self._active.cols:
+            self._active.add_float_column("emb", (dim,))
+            self._lost.add_float_column("emb", (dim,))
+        elif self._active.fields["emb"][0] != (dim,):
+            raise ValueError(f"appearance descriptors changed length: {self._active.fields['emb'][0][0]} -> {dim}")
+
+    @staticmethod
+    def _emb_cost(track_emb: FloatArray, det_emb: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+        """Cosine distance of paired rows and whether both have a descriptor (else the distance is 0)."""
+        d = cosine_distance(track_emb, det_emb)
+        known = np.isfinite(d)
+        return np.where(known, d, 0.0), known
+
+    def _ema(self, old: FloatArray, new: FloatArray) -> FloatArray:
+        """Per-row moving average of unit descriptors (either side NaN: the other one)."""
+        a = self.config.appearance_ema
+        old_ok = np.isfinite(old).all(axis=-1, keepdims=True)
+        new_ok = np.isfinite(new).all(axis=-1, keepdims=True)
+        mix = a * np.where(old_ok, old, 0.0) + (1.0 - a) * np.where(new_ok, new, 0.0)
+        mix = np.where(old_ok & ~new_ok, old, np.where(~old_ok & new_ok, new, mix))
+        norm = np.linalg.norm(mix, axis=-1, keepdims=True)
+        return np.where(old_ok | new_ok, mix / np.maximum(norm, 1e-12), np.nan)
+
     def _associate_ground(self, dets: _Detections, det_mask: NDArray[np.bool_], t: float,
                           track_mask: NDArray[np.bool_]) -> None:
         cfg = self.config
@@ -901,6 +961,9 @@ class GpsTracker:
         cost = d2 + (logdet - logdet_r) + dets.score_cost[dt_]
         if cfg.image_weight > 0:
             cost += cfg.image_weight * self._image_cost(tr, dets.boxes[dt_], t)
+        if cfg.appearance_weight > 0 and dets.emb is not None and len(tr):
+            app, _ = self._emb_cost(act["emb"][tr], dets.emb[dt_])
+            cost += cfg.appearance_weight * app
         r, c = sparse_assignment(tr, dt_, cost, unassigned_cost=cfg.pair_max_cost)
         if len(r):
             self._kf_update(r, dets.z[c], dets.R[c])
@@ -938,10 +1001,11 @@ class GpsTracker:
         if len(r):
             self._mark_hit(ti[r], dets, di[c], t)
 
-    def _lost_match(self, z: FloatArray, R: FloatArray, cls: NDArray[np.int64], t: float
-                    ) -> tuple[FloatArray, NDArray[np.bool_], FloatArray]:
-        """Cost (d2 + logdet) and gate of every lost track against ground points z (K, 2) with
-        covariances R (K, 2, 2) at time t; also the lost tracks' times lost (L,)."""
+    def _lost_match(self, z: FloatArray, R: FloatArray, cls: NDArray[np.int64], t: float,
+                    emb: FloatArray | None = None) -> tuple[FloatArray, NDArray[np.bool_], FloatArray]:
+        """Cost (d2 + logdet, + the appearance term) and gate of every lost track against ground points
+        z (K, 2) with covariances R (K, 2, 2) and descriptors emb (K, D) at time t; also the lost
+        tracks' times lost (L,)."""
         cfg = self.config
         lost = self._lost
         lost_for = np.maximum(t - lost["t_hit"], 0.0)
@@ -959,8 +1023,13 @@ class GpsTracker:
         meas_sd = np.sqrt(np.maximum(R[:, 0, 0] + R[:, 1, 1], 0.0))
         reach = (speed_cap * lost_for + 3.0 * np.sqrt(np.trace(lost["Ppos"], axis1=1, axis2=2)))[:, None]
         allowed = (d2 <= cfg.reid_gate_chi2) & (dist <= reach + 3.0 * meas_sd[None, :])
-        allowed &= lost["cls"][:, None] == cls[None, :]
-        return d2 + logdet, allowed, lost_for
+        allowed &= (lost["cls"][:, None] == cls[None, :]) & ~lost["claimed"][:, None]
+        cost = d2 + logdet
+        if emb is not None and "emb" in lost.cols:
+            app, known = self._emb_cost(lost["emb"][:, None, :], emb[None, :, :])
+            cost = cost + cfg.reid_appearance_weight * app
+            allowed &= ~known | (app <= cfg.reid_appearance_gate)
+        return cost, allowed, lost_for
 
     def _resolve_pending(self, t: float) -> None:
         """Deferred re-identification: new tracks that have been followed for `reid_delay_s` take
@@ -979,7 +1048,8 @@ class GpsTracker:
         if not ready.any():
             return
         ki = np.flatnonzero(pend)
-        cost, allowed, lost_for = self._lost_match(act["x"][ki, :2], act["P"][ki, :2, :2], act["cls"][ki], t)
+        cost, allowed, lost_for = self._lost_match(act["x"][ki, :2], act["P"][ki, :2, :2], act["cls"][ki], t,
+                                                   act["emb"][ki] if "emb" in act.cols else None)
         if self.evidence_at is not None and cfg.reid_min_evidence > 0 and self._origin is not None:
             lat, lon = local_to_latlon(act["x"][ki, 0], act["x"][ki, 1], *self._origin)
             allowed &= self._evidence_ok(np.ones(len(ki), dtype=bool), act["cls"][ki], lat, lon)[None, :]
@@ -1011,7 +1081,8 @@ class GpsTracker:
         cfg = self.config
         lost = self._lost
         di = np.flatnonzero(det_mask)
-        cost, allowed, lost_for = self._lost_match(dets.z[di], dets.R[di], dets.cls[di], t)
+        cost, allowed, lost_for = self._lost_match(dets.z[di], dets.R[di], dets.cls[di], t,
+                                                   None if dets.emb is None else dets.emb[di])
         r, c = gated_assignment(cost + dets.score_cost[di][None, :], allowed)
         if not len(r):
             return
@@ -1022,19 +1093,42 @@ class GpsTracker:
         P = np.zeros((n, 4, 4))
         P[:, :2, :2] = dets.R[rows]
         P[:, 2:, 2:] = self._initial_velocity_cov(lost["cls"][r])
+        # Provisional: the revived track must be confirmed like a new one (confirm_hits convincing
+        # detections within confirm_window_s); until then the memory entry stays, claimed, and comes
+        # back unchanged if the track dies (a false positive must not take, or move, an object's id).
+        strong = dets.raw[rows] >= cfg.confirm_score
+        extra: dict[str, FloatArray] = {}
+        if "emb" in lost.cols:
+            extra["emb"] = lost["emb"][r] if dets.emb is None else self._ema(lost["emb"][r], dets.emb[rows])
         self._active.append(id=lost["id"][r], cls=lost["cls"][r], x=x, P=P, box=dets.boxes[rows],
-                            score=dets.scores[rows], hits=lost["hits"][r] + 1, support=lost["support"][r] + 1,
+                            score=dets.scores[rows], hits=lost["hits"][r] + 1, support=strong.astype(np.int64),
                             t_hit=np.full(n, t), t_born=np.full(n, t), t_shadow=np.full(n, np.nan),
-                            confirmed=np.ones(n, bool), matched=np.ones(n, bool), reid=np.ones(n, bool),
-                            strong=dets.raw[rows] >= cfg.confirm_score, R_last=dets.R[rows],
+                            confirmed=strong & (cfg.confirm_hits <= 1), matched=np.ones(n, bool),
+                            reid=np.zeros(n, bool), strong=strong, R_last=dets.R[rows],
                             quality=lost["quality"][r], heading_hit=np.full(n, self._heading_now),
-                            pending=np.zeros(n, bool))
-        keep = np.ones(len(lost), dtype=bool)
-        keep[r] = False
-        lost.keep(keep)
+                            pending=np.zeros(n, bool), probation=np.ones(n, bool), **extra)
+        lost.cols["claimed"][r] = True
         dets.used[rows] = True
-        self.n_reidentified += n
-        log.debug("re-identified %d track(s) after %s s", n, np.round(lost_for[r], 2).tolist())
+        log.debug("revived %d track(s) on probation after %s s", n, np.round(lost_for[r], 2).tolist())
+
+    def _settle_probation(self) -> None:
+        """Revived tracks that are now confirmed keep their old id for good: their memory entries
+        are dropped and their support carried over."""
+        act = self._active
+        done = act["probation"] & act["confirmed"]
+        if not done.any():
+            return
+        lost = self._lost
+        k = np.flatnonzero(done)
+        act.cols["probation"][k] = False
+        act.cols["reid"][k] = True
+        entry = lost["claimed"] & np.isin(lost["id"], act["id"][k])
+        if entry.any():
+            support = dict(zip(lost["id"][entry].tolist(), lost["support"][entry].tolist(), strict=True))
+            act.cols["support"][k] += np.array([support.get(i, 0) for i in act["id"][k].tolist()], dtype=np.int64)
+            lost.keep(~entry)
+        self.n_reidentified += len(k)
+        log.debug("re-identified track(s) %s", act["id"][k].tolist())
 
     def _birth(self, dets: _Detections, det_mask: NDArray[np.bool_], t: float) -> None:
         cfg = self.config
@@ -1091,7 +1185,8 @@ class GpsTracker:
                    t_born=np.full(n, t), t_shadow=np.full(n, np.nan), confirmed=~pending & (cfg.confirm_hits <= 1),
                    matched=np.ones(n, bool), reid=np.zeros(n, bool), strong=dets.raw[b] >= cfg.confirm_score,
                    R_last=dets.R[b], quality=dets.raw[b], heading_hit=np.full(n, self._heading_now),
-                   pending=pending)
+                   pending=pending, probation=np.zeros(n, bool),
+                   **({} if dets.emb is None else {"emb": dets.emb[b]}))
         dets.used[b] = True
 
     def _decay_unseen_quality(self, pose: Pose, camera: Camera) -> None:
@@ -1123,6 +1218,9 @@ class GpsTracker:
                 same = act["cls"][i] == act["cls"][j]
                 # Two convincing detections in one frame: two objects, whatever their distance.
                 same &= ~(act["strong"][i] & act["strong"][j])
+                # Taking turns needs a turn: two tracks coasting side by side (out of view, their
+                # covariances growing) are no evidence of a duplicate.
+                same &= act["matched"][i] | act["matched"][j]
                 i, j = i[same], j[same]
                 diff = act["x"][i, :2] - act["x"][j, :2]
                 # Tracks that take turns on one object's detections differ by about a measurement error.
@@ -1158,7 +1256,12 @@ class GpsTracker:
                                   vel=act["x"][to_lost][:, 2:], Ppos=act["P"][to_lost][:, :2, :2],
                                   box=act["box"][to_lost], score=act["score"][to_lost], hits=act["hits"][to_lost],
                                   support=act["support"][to_lost], t_hit=act["t_hit"][to_lost],
-                                  quality=act["quality"][to_lost])
+                                  quality=act["quality"][to_lost], claimed=np.zeros(int(to_lost.sum()), bool),
+                                  **({"emb": act["emb"][to_lost]} if "emb" in act.cols else {}))
+            failed = drop & act["probation"]
+            if failed.any() and len(self._lost):
+                # A revival that was not confirmed: the object's memory entry is free again, unchanged.
+                self._lost.cols["claimed"][np.isin(self._lost["id"], act["id"][failed])] = False
             if drop.any():
                 act.keep(~drop)
         if len(self._lost):
@@ -1219,6 +1322,8 @@ class GpsTracker:
             act.cols["R_last"][ti] = dets.R[di]
         act.cols["t_hit"][ti] = t
         act.cols["heading_hit"][ti] = self._heading_now
+        if dets.emb is not None:
+            act.cols["emb"][ti] = self._ema(act["emb"][ti], dets.emb[di])
         act.cols["matched"][ti] = True
         act.cols["confirmed"][ti] |= (act["support"][ti] >= self.config.confirm_hits) & ~act["pending"][ti]
         dets.used[di] = True
@@ -1315,6 +1420,21 @@ class GpsTracker:
                    act["confirmed"].tolist(), act["matched"].tolist(), act["hits"].tolist(),
                    (now - act["t_hit"]).tolist(), act["reid"].tolist(), act["quality"].tolist(), strict=True)
         return [TrackOutput(*c) for c in cols]
+
+
+def _unit_rows(emb: NDArray, n: int) -> FloatArray | None:
+    """(n, D) descriptors scaled to unit length; rows that are not finite or zero become NaN."""
+    e = np.asarray(emb, dtype=np.float64).reshape(n, -1)
+    if not e.shape[1]:
+        return None
+    norm = np.linalg.norm(e, axis=1, keepdims=True)
+    ok = np.isfinite(norm) & (norm > 1e-12)
+    return np.where(ok, e / np.where(ok, norm, 1.0), np.nan)
+
+
+def cosine_distance(a: FloatArray, b: FloatArray) -> FloatArray:
+    """1 - cosine similarity of unit rows a (..., D) and b (..., D) (broadcast); NaN where either is NaN."""
+    return 1.0 - np.einsum("...d,...d->...", a, b)
 
 
 def _box_tuple(box: NDArray) -> tuple[float, float, float, float]:

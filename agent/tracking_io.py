@@ -145,7 +145,7 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
             pipe.camera = frame.camera
         boxes, scores, cids = candidates.get(frame.image.id)
         t0 = time.perf_counter()
-        result = pipe.process(boxes, scores, cids, frame.pose, frame.t)
+        result = pipe.process(boxes, scores, cids, frame.pose, frame.t, candidates.get_embeddings(frame.image.id))
         t1 = time.perf_counter()
         t = max(frame_time_s(frame), t_prev)
         t_prev = t

@@ -79,8 +79,12 @@ def _candidate_lines(image_id: int, fs: FrameSample) -> list[str]:
     boxes = np.round(c.boxes_xywh, 2).tolist()
     scores = np.round(c.scores, 4).tolist()
     cats = c.category_ids.tolist()
-    return [f'{{"image_id": {image_id}, "category_id": {k}, "bbox": [{b[0]}, {b[1]}, {b[2]}, {b[3]}], '
-            f'"score": {s}}}' for b, s, k in zip(boxes, scores, cats, strict=True)]
+    lines = [f'{{"image_id": {image_id}, "category_id": {k}, "bbox": [{b[0]}, {b[1]}, {b[2]}, {b[3]}], '
+             f'"score": {s}' for b, s, k in zip(boxes, scores, cats, strict=True)]
+    if c.embeddings is not None:  # optional appearance descriptor (docs/tracking.md), 3 decimals
+        for i in np.flatnonzero(np.isfinite(c.embeddings).all(axis=1)).tolist():
+            lines[i] += ', "embedding": [' + ", ".join(f"{v:.3f}" for v in c.embeddings[i].tolist()) + "]"
+    return [line + "}" for line in lines]
 
 
 def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 0, frames: int | None = None,

@@ -39,6 +39,18 @@ random with probability ``blur_random_rate`` [0.03]; then every score is multipl
 U(``blur_score_factor``) [(0.1, 0.3)] and all jitter by ``blur_jitter_mult`` [1.5].
 Finally boxes are clipped to the image; boxes under 1 px or scoring below ``score_threshold`` [0.02] are
 dropped. Candidates of the class's category only (no class confusion).
+
+Appearance descriptors (what a re-ID head such as DeepSORT's or JDE's, or a colour histogram of the box
+crop, gives per box; optional, off when ``appearance_dim`` [16] is 0). Every target key (object or
+clutter) has a fixed unit vector (`object_appearance`): one of ``appearance_groups`` [6] look-alike groups
+(clothing colours; swimmers: caps) plus an individual part of relative length ``appearance_spread`` [0.6]
+(cosine ~0.74 between two members of a group, ~0 across groups). A candidate's descriptor is its target's
+vector plus isotropic noise of relative length ``appearance_noise`` [0.45] * clip(32 / size_px, 0.5, 4)
+(small boxes carry few pixels), times ``appearance_blur_mult`` [2] in blurred frames and 1.5 for part
+boxes, renormalised. Background false positives look like a random group (a bush may resemble a green
+jacket) with noise 1. Only candidates scoring at least ``appearance_min_score`` [0.25] carry one (the
+others never start or revive a track; this keeps pre_nms.json small). The noise is drawn from a
+generator of its own, so the boxes and scores are the same with and without descriptors.
 """
 
 from __future__ import annotations
@@ -94,6 +106,12 @@ class EmulatorParams:
     blur_random_rate: float = 0.03
     blur_score_factor: tuple[float, float] = (0.1, 0.3)
     blur_jitter_mult: float = 1.5
+    appearance_dim: int = 16
+    appearance_groups: int = 6
+    appearance_spread: float = 0.6
+    appearance_noise: float = 0.45
+    appearance_blur_mult: float = 2.0
+    appearance_min_score: float = 0.25
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -112,6 +130,14 @@ class EmulatorParams:
                 raise ValueError(f"EmulatorParams.{name}={getattr(self, name)!r} must be a probability")
         if self.difficulty_corr_s <= 0 or self.fp_per_frame < 0:
             raise ValueError("EmulatorParams.difficulty_corr_s must be > 0 and fp_per_frame >= 0")
+        for name in ("appearance_dim", "appearance_groups"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < (0 if name == "appearance_dim" else 1):
+                raise ValueError(f"EmulatorParams.{name}={value!r} must be an integer >= "
+                                 f"{0 if name == 'appearance_dim' else 1}")
+        for name in ("appearance_spread", "appearance_noise", "appearance_blur_mult", "appearance_min_score"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"EmulatorParams.{name}={getattr(self, name)!r} must be >= 0")
 
 
 @dataclass(frozen=True, slots=True)
@@ -126,11 +152,15 @@ class Candidates:
         Confidences in [score_threshold, 1).
     category_ids : (N,) int64
         COCO category ids.
+    embeddings : (N, D) float32 or None
+        Unit appearance descriptors, NaN rows for candidates without one; None when the emulator has
+        no appearance model.
     """
 
     boxes_xywh: np.ndarray
     scores: np.ndarray
     category_ids: np.ndarray
+    embeddings: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.scores)
@@ -138,6 +168,23 @@ class Candidates:
 
 def _sigmoid(x: np.ndarray) -> np.ndarray:
     return 1.0 / (1.0 + np.exp(-x))
+
+
+def _unit(v: np.ndarray) -> np.ndarray:
+    return v / np.maximum(np.linalg.norm(v, axis=-1, keepdims=True), 1e-12)
+
+
+def object_appearance(n_keys: int, params: EmulatorParams, rng: np.random.Generator) -> np.ndarray:
+    """Fixed appearance vectors of a world's targets: (n_keys, appearance_dim) float64 unit rows.
+
+    Each key belongs to one of `appearance_groups` look-alike groups (a random unit centre) and adds an
+    individual random direction of relative length `appearance_spread`. Deterministic given rng.
+    """
+    d = params.appearance_dim
+    centres = _unit(rng.standard_normal((params.appearance_groups, d)))
+    group = rng.integers(0, params.appearance_groups, n_keys)
+    own = _unit(rng.standard_normal((n_keys, d)))
+    return _unit(centres[group] + params.appearance_spread * own)
 
 
 class DetectorEmulator:
@@ -158,12 +205,32 @@ class DetectorEmulator:
     """
 
     def __init__(self, params: EmulatorParams, camera: Camera, rng: np.random.Generator, n_keys: int,
-                 box_m: tuple[float, float, float], fp_category_id: int) -> None:
+                 box_m: tuple[float, float, float], fp_category_id: int, *,
+                 appearance: np.ndarray | None = None, appearance_rng: np.random.Generator | None = None) -> None:
         self.params, self.camera, self._rng = params, camera, rng
         self._difficulty = np.zeros(n_keys)
         self._last_t = np.full(n_keys, -np.inf)
         self.box_m = box_m
         self.fp_category_id = int(fp_category_id)
+        if appearance is not None:
+            appearance = np.asarray(appearance, dtype=np.float64)
+            if appearance.ndim != 2 or len(appearance) != n_keys or appearance_rng is None:
+                raise ValueError("appearance must be (n_keys, D) and needs appearance_rng")
+        self.appearance = appearance
+        self._app_rng = appearance_rng
+        # Look-alike group centres for background false positives.
+        self._fp_looks = None if appearance is None else _unit(appearance_rng.standard_normal(  # type: ignore[union-attr]
+            (params.appearance_groups, appearance.shape[1])))
+
+    def _descriptors(self, vectors: np.ndarray, size_px: np.ndarray, noise_mult: np.ndarray,
+                     blurred: bool) -> np.ndarray:
+        """Noisy unit descriptors of (K, D) true vectors seen in boxes of size_px (K,)."""
+        p = self.params
+        sigma = p.appearance_noise * np.clip(32.0 / np.maximum(size_px, 1e-6), 0.5, 4.0) * noise_mult
+        if blurred:
+            sigma = sigma * p.appearance_blur_mult
+        noise = _unit(self._app_rng.standard_normal(vectors.shape))  # type: ignore[union-attr]
+        return _unit(vectors + sigma[:, None] * noise)
 
     def is_blurred(self, heading_rate_deg_s: float) -> bool:
         """Draw whether the next frame is blurred (consumes one random number)."""
@@ -307,7 +374,7 @@ class DetectorEmulator:
 
         fp_spots, fp_best = self._background(pose)
         fp_n = 1 + rng.poisson(max(p.fp_cluster_mean - 1.0, 0.0), len(fp_best))
-        fp_boxes, fp_scores, _ = self._clusters(fp_spots, fp_best, fp_n, jitter_mult)
+        fp_boxes, fp_scores, fp_owner = self._clusters(fp_spots, fp_best, fp_n, jitter_mult)
 
         boxes = np.vstack([obj_boxes, dup_boxes, fp_boxes])
         scores = np.concatenate([obj_scores, dup_scores, fp_scores])
@@ -319,4 +386,20 @@ class DetectorEmulator:
         bw, bh = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]
         keep = (scores >= p.score_threshold) & (bw >= 1.0) & (bh >= 1.0)
         xywh = np.column_stack([boxes[keep, 0], boxes[keep, 1], bw[keep], bh[keep]])
-        return Candidates(xywh, np.minimum(scores[keep], 0.9999), cats[keep].astype(np.int64))
+        embeddings = None
+        if self.appearance is not None:
+            n_obj, n_dup = len(obj_boxes), len(dup_boxes)
+            fp_size = np.sqrt(np.maximum((fp_spots[:, 2] - fp_spots[:, 0]) * (fp_spots[:, 3] - fp_spots[:, 1]), 1e-6))
+            fp_vec = self._fp_looks[self._app_rng.integers(0, len(self._fp_looks), len(fp_spots))]  # type: ignore
+            vectors = np.vstack([self.appearance[keys[owner]], self.appearance[keys[dup]], fp_vec[fp_owner]])
+            size = np.concatenate([size_px[owner], size_px[dup], fp_size[fp_owner]])
+            mult = np.concatenate([np.ones(n_obj), np.full(n_dup, 1.5),
+                                   np.full(len(fp_owner), 1.0 / max(p.appearance_noise, 1e-6))])
+            # FP noise is 1 (relative length) whatever the box size.
+            mult[n_obj + n_dup:] /= np.clip(32.0 / np.maximum(size[n_obj + n_dup:], 1e-6), 0.5, 4.0)
+            carry = keep & (scores >= p.appearance_min_score)
+            embeddings = np.full((len(scores), vectors.shape[1]), np.nan, dtype=np.float32)
+            if carry.any():
+                embeddings[carry] = self._descriptors(vectors[carry], size[carry], mult[carry], blurred)
+            embeddings = embeddings[keep]
+        return Candidates(xywh, np.minimum(scores[keep], 0.9999), cats[keep].astype(np.int64), embeddings)

@@ -16,7 +16,14 @@ from typing import Any
 import numpy as np
 
 from shared.geo import Camera, Pose, local_to_latlon
-from sim.detector_emulator import KIND_CLUTTER, KIND_OBJECT, KIND_OCCLUDED, Candidates, DetectorEmulator
+from sim.detector_emulator import (
+    KIND_CLUTTER,
+    KIND_OBJECT,
+    KIND_OCCLUDED,
+    Candidates,
+    DetectorEmulator,
+    object_appearance,
+)
 from sim.flight import Flight
 from sim.groundtruth import project_objects
 from sim.noise import TelemetryNoise, TelemetryStream, format_time
@@ -29,7 +36,7 @@ logger = logging.getLogger(__name__)
 CATEGORIES: list[dict[str, Any]] = [{"id": i, "name": n, "supercategory": n} for n, i in CATEGORY_IDS.items()]
 
 # roles of the generators derived from the seed
-_ROLE_WORLD, _ROLE_FLIGHT, _ROLE_TELEMETRY, _ROLE_DETECTOR = 0, 1, 2, 3
+_ROLE_WORLD, _ROLE_FLIGHT, _ROLE_TELEMETRY, _ROLE_DETECTOR, _ROLE_APPEARANCE = 0, 1, 2, 3, 4
 
 
 @dataclass(frozen=True, slots=True)
@@ -224,8 +231,14 @@ class Simulation:
             streams = {v.id: TelemetryStream(self.noise, flights[v.id], _rng(self.seed, g, _ROLE_TELEMETRY, v.id),
                                              wp.origin_lat, wp.origin_lon, v.t0) for v in videos}
             n_obj, n_clu = world.n, len(world.clutter_east_m)
+            # Appearance: one vector per object of the world (all UAVs see the same people), noise per UAV;
+            # generators of their own, so boxes and scores do not depend on it.
+            looks = (object_appearance(n_obj + n_clu, sc.emulator, _rng(self.seed, g, _ROLE_APPEARANCE))
+                     if sc.emulator.appearance_dim > 0 else None)
             emulators = {v.id: DetectorEmulator(sc.emulator, cam, _rng(self.seed, g, _ROLE_DETECTOR, v.id),
-                                                n_obj + n_clu, world.box_m, world.category_id) for v in videos}
+                                                n_obj + n_clu, world.box_m, world.category_id, appearance=looks,
+                                                appearance_rng=_rng(self.seed, g, _ROLE_APPEARANCE, v.id))
+                         for v in videos}
             keys_all = np.arange(n_obj + n_clu)
             kinds_clutter = np.full(n_clu, KIND_CLUTTER)
             occ_counts = {v.id: np.zeros((n_obj, 3), dtype=np.int64) for v in videos}  # in_view, occluded, visible

@@ -115,12 +115,15 @@ class TrackingVariant:
 
 
 def default_tracking_variants() -> list[TrackingVariant]:
-    """Ours with the memory map, ours on single-frame detections, and norfair on the same ones."""
+    """Ours with the memory map (with and without the detections' appearance descriptors), ours on
+    single-frame detections, and norfair on the same ones."""
     base = PipelineConfig()
     single = dataclasses.replace(base, use_memory=False)
     return [
         TrackingVariant("norfair (pixel IoU)", single, kind="pixel"),
         TrackingVariant("GPS tracker, no memory", single, kind="gps"),
+        TrackingVariant("GPS tracker + memory map, motion only", base, kind="gps",
+                        tracker=TrackerConfig(use_appearance=False)),
         TrackingVariant("GPS tracker + memory map", base, kind="gps"),
     ]
 
@@ -137,7 +140,7 @@ def pipeline_frames(dataset: Dataset, candidates: Candidates, camera: Camera, vi
         if pipe.camera != frame.camera:
             pipe.camera = frame.camera
         boxes, scores, cids = candidates.get(frame.image.id)
-        result = pipe.process(boxes, scores, cids, frame.pose, frame.t)
+        result = pipe.process(boxes, scores, cids, frame.pose, frame.t, candidates.get_embeddings(frame.image.id))
         t_prev = max(frame_time_s(frame), t_prev)
         out.append((frame, result, t_prev))
     return out

@@ -310,6 +310,63 @@ def test_a_180_degree_turn_keeps_ids():
     assert tracker.n_reidentified >= len(people)
 
 
+def test_reid_after_the_object_walked_a_curved_path_out_of_view():
+    """Walking east, the person turns north while the UAV looks away for 6 s and comes back 6-7 m
+    from where a straight line would have put them: still inside the growing re-ID gate."""
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    pose, away = pose_at(), pose_at(heading_deg=180.0)
+
+    def position(t: float) -> tuple[float, float]:
+        if t <= 3.0:  # east at 1.3 m/s until 1 s after the UAV looked away, then north
+            return -3.0 + 1.3 * t, 25.0
+        return -3.0 + 1.3 * 3.0, 25.0 + 1.3 * (t - 3.0)
+
+    frames = []
+    for k in range(int(9.5 * FPS)):
+        t = k / FPS
+        looking = pose if t < 2.0 or t >= 8.0 else away
+        frames.append((observe(*position(t), looking), looking))
+    outs = run(tracker, frames)
+    first = ids_near(outs[int(1.9 * FPS)], *position(1.9))
+    last = ids_near(outs[-1], *position((len(frames) - 1) / FPS))
+    assert first == last == {1}
+    assert tracker.n_reidentified == 1
+
+
+def test_a_false_positive_does_not_take_or_move_a_lost_id():
+    """While the person is out of view a single-frame false positive appears 6 m away, inside the
+    re-ID gate: it revives the lost track only on probation, is never reported, and the memory
+    entry comes back unchanged, so the person returning at the old spot gets the old id."""
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    pose, away = pose_at(), pose_at(heading_deg=180.0)
+    outs = run(tracker, [(observe(0.0, 25.0, pose), pose)] * 60
+               + [(empty_result(), away)] * 90
+               + [(observe(6.0, 25.0, pose), pose)]
+               + [(empty_result(), pose)] * 30
+               + [(observe(0.0, 25.0, pose), pose)] * 20)
+    assert ids_near(outs[59], 0.0, 25.0) == {1}
+    assert all(not tr.confirmed for out in outs[150:181] for tr in out)  # the false positive: never reported
+    assert ids_near(outs[-1], 0.0, 25.0) == {1}
+    assert tracker.n_reidentified == 1
+
+
+def test_two_neighbours_coasting_out_of_view_are_not_merged():
+    """Two people 2.5 m apart: when the UAV looks away both tracks coast side by side (their
+    covariances growing) until they are lost; that is no evidence of one track shadowing the other,
+    so both reach the re-ID memory and both come back with their ids (a 3 s coast lets the
+    covariances grow far beyond the 2.5 m between them)."""
+    tracker = GpsTracker(TrackerConfig(max_coast_s=3.0), CLASSES)
+    pose, away = pose_at(), pose_at(heading_deg=180.0)
+    e, n = [0.0, 2.5], [25.0, 25.0]
+    outs = run(tracker, [(observe(e, n, pose), pose)] * 60 + [(empty_result(), away)] * 120)
+    assert sorted(tr.id for tr in tracker.lost_tracks) == [1, 2]
+    t0 = 1.7e9 + len(outs) / FPS
+    for k in range(15):
+        out = tracker.update(observe(e, n, pose), pose, t0 + k / FPS, CAM)
+    east = {tr.id: float(latlon_to_local(tr.lat, tr.lon, LAT0, LON0)[0]) for tr in out if tr.confirmed and tr.matched}
+    assert set(east) == {1, 2} and east[1] < east[2]  # (the instant 180-degree turn shifts both a little)
+
+
 # --------------------------------------------------------------------------------------------- no pose
 
 def test_a_frame_without_pose_does_not_break_tracks():

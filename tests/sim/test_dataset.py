@@ -63,8 +63,12 @@ def test_pycocotools_loads_ground_truth_and_candidates(sea_dir: Path) -> None:
         dt = gt.loadRes(str(sea_dir / "pre_nms.json"))
     assert len(gt.getImgIds()) == 3 * SMALL_FRAMES
     assert len(dt.getAnnIds()) == len(load(sea_dir, "pre_nms.json"))
-    cand = load(sea_dir, "pre_nms.json")[0]
-    assert set(cand) == {"image_id", "category_id", "bbox", "score"}
+    cands = load(sea_dir, "pre_nms.json")
+    cand = cands[0]
+    # COCO result fields plus, on confident candidates, the optional appearance descriptor
+    assert all(set(c) - {"embedding"} == {"image_id", "category_id", "bbox", "score"} for c in cands)
+    with_emb = [c for c in cands if "embedding" in c]
+    assert with_emb and all(c["score"] >= 0.25 and len(c["embedding"]) == 16 for c in with_emb)
     assert all(round(x, 2) == x for x in cand["bbox"]) and round(cand["score"], 4) == cand["score"]
 
 

@@ -134,3 +134,46 @@ def test_bad_params_are_rejected() -> None:
         EmulatorParams(cluster_boxes=(10, 5))
     with pytest.raises(ValueError, match="miss_rate"):
         EmulatorParams(miss_rate=1.5)
+
+
+def _appearance_emulator(seed: int = 0, **over) -> DetectorEmulator:
+    from sim.detector_emulator import object_appearance
+
+    params = dataclasses.replace(EmulatorParams(fp_per_frame=0.0), **over)
+    looks = object_appearance(4, params, np.random.default_rng(100))
+    return DetectorEmulator(params, CAM, np.random.default_rng(seed), 4, CLASS_BOX_M["person"], 1,
+                            appearance=looks, appearance_rng=np.random.default_rng(seed + 1))
+
+
+def test_appearance_descriptors_resemble_their_object_and_leave_boxes_unchanged() -> None:
+    emu = _appearance_emulator()
+    frames = _run(emu, 30)
+    plain = _run(_emulator(fp_per_frame=0.0), 30)
+    for a, b in zip(frames, plain, strict=True):  # the descriptors draw from a generator of their own
+        assert np.array_equal(a.boxes_xywh, b.boxes_xywh) and np.array_equal(a.scores, b.scores)
+        assert b.embeddings is None
+    looks = emu.appearance
+    sims = {0: [], 1: []}
+    for c in frames:
+        carry = np.isfinite(c.embeddings).all(axis=1)
+        assert np.array_equal(carry, c.scores >= emu.params.appearance_min_score)
+        assert np.allclose(np.linalg.norm(c.embeddings[carry], axis=1), 1.0, atol=1e-5)
+        for obj, box in enumerate(BOX):
+            mine = carry & (_iou(c.boxes_xywh, box) > 0.5)
+            sims[obj].extend((c.embeddings[mine] @ looks.T).tolist())
+    for obj in (0, 1):
+        s = np.array(sims[obj])
+        assert len(s) > 20
+        # closer to its own vector than to the other object's (here a look-alike: cosine ~0.8), on
+        # average and in most boxes
+        assert s[:, obj].mean() > s[:, 1 - obj].mean() + 0.1
+        assert (s[:, obj] > s[:, 1 - obj]).mean() > 0.8
+
+
+def test_appearance_noise_grows_for_small_boxes() -> None:
+    emu = _appearance_emulator(appearance_min_score=0.0)
+    looks = np.tile(emu.appearance[:1], (2000, 1))
+    big = emu._descriptors(looks, np.full(2000, 64.0), np.ones(2000), False) @ emu.appearance[0]
+    small = emu._descriptors(looks, np.full(2000, 12.0), np.ones(2000), False) @ emu.appearance[0]
+    blurred = emu._descriptors(looks, np.full(2000, 64.0), np.ones(2000), True) @ emu.appearance[0]
+    assert big.mean() > blurred.mean() + 0.05 and big.mean() > small.mean() + 0.2
