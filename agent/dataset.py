@@ -213,6 +213,30 @@ class Candidates:
         return cls(by_image, skipped, embeddings)
 
 
+def image_file(image_dir: str | Path, image: ImageRecord) -> Path | None:
+    """The file of an image: its ``file_name`` (absolute, or relative to image_dir); None when there is no
+    such file (simulated datasets name files they do not write; SeaDronesSee keeps images apart)."""
+    if not image.file_name:
+        return None
+    path = Path(image.file_name)
+    if not path.is_absolute():
+        path = Path(image_dir) / path
+    return path if path.is_file() else None
+
+
+def read_image(image_dir: str | Path, image: ImageRecord) -> NDArray[np.uint8] | None:
+    """The image as an (H, W, 3) uint8 BGR array (OpenCV), or None when the file is missing or unreadable."""
+    import cv2
+
+    path = image_file(image_dir, image)
+    if path is None:
+        return None
+    pixels = cv2.imread(str(path), cv2.IMREAD_COLOR)
+    if pixels is None:
+        log.warning("image %s cannot be read by OpenCV", path)
+    return pixels
+
+
 @dataclass(frozen=True, slots=True)
 class Frame:
     """One frame ready for the pipeline: image, its pose (None without usable meta), time."""

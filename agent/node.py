@@ -8,6 +8,7 @@ classes so they are testable without a network.
 
 from __future__ import annotations
 
+import dataclasses
 import hashlib
 import json
 import logging
@@ -21,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from agent.appearance import with_image_descriptors
 from agent.memory_map import JointLayer, MemoryMap
 from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
 from agent.size_filter import SizeFilter
@@ -506,9 +508,8 @@ class AgentNode:
             first = last = None
             for frame in self.source.frames():
                 if offset:
-                    frame = SourceFrame(frame.index, frame.t + offset, frame.pose,
-                                        None if frame.pose_t is None else frame.pose_t + offset,
-                                        frame.boxes_xyxy, frame.scores, frame.class_ids, frame.camera)
+                    frame = dataclasses.replace(frame, t=frame.t + offset,
+                                                pose_t=None if frame.pose_t is None else frame.pose_t + offset)
                 first = frame.t if first is None else first
                 last = frame.t
                 yield frame
@@ -588,7 +589,10 @@ class AgentNode:
         self._apply_joint(frame.t, rate)
         if self.pipeline.camera != frame.camera:
             self.pipeline.camera = frame.camera
-        result = self.pipeline.process(frame.boxes_xyxy, frame.scores, frame.class_ids, frame.pose, frame.t)
+        result = self.pipeline.process(frame.boxes_xyxy, frame.scores, frame.class_ids, frame.pose, frame.t,
+                                       frame.embeddings)
+        if frame.image is not None:  # appearance of the kept boxes for re-ID (docs/agent.md)
+            result = with_image_descriptors(result, frame.image)
         tracks = self.tracker.update(result, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t)
         self._tracks = tracks
         self._t_frame = frame.t

@@ -60,6 +60,11 @@ class SourceFrame:
         Keys of the source's ``class_names``.
     camera : Camera
         Intrinsics of this frame (datasets may rescale per image size).
+    embeddings : (N, D) float32 or None
+        Appearance descriptors that came with the candidates (pre_nms.json ``embedding``; NaN rows: none).
+    image : (H, W, 3) uint8 or None
+        The frame's pixels (BGR) when the source has them (video; datasets whose image files exist): the
+        agent describes the kept boxes' appearance from them (`agent.appearance.with_image_descriptors`).
     """
 
     index: int
@@ -70,6 +75,8 @@ class SourceFrame:
     scores: NDArray[np.float32]
     class_ids: NDArray[np.int64]
     camera: Camera
+    embeddings: NDArray[np.float32] | None = None
+    image: NDArray[np.uint8] | None = None
 
 
 class FrameSource(Protocol):
@@ -167,7 +174,7 @@ class SimSource:
             xywh = np.asarray(c.boxes_xywh, dtype=np.float32).reshape(-1, 4)
             boxes = np.column_stack([xywh[:, :2], xywh[:, :2] + xywh[:, 2:]]).astype(np.float32)
             yield SourceFrame(index, float(fs.t), pose, pose_t, boxes, np.asarray(c.scores, np.float32),
-                              np.asarray(c.category_ids, np.int64), self.camera)
+                              np.asarray(c.category_ids, np.int64), self.camera, c.embeddings)
             index += 1
 
     def close(self) -> None:
@@ -189,10 +196,13 @@ class DatasetSource:
         Which video to play (default: the first); ValueError listing the known ids otherwise.
 
     Frame times are the images' own ``date_time`` when it parses (else the telemetry's, else the
-    frame index / 30 fps); the pose time is the telemetry's, as in `uavmm track`.
+    frame index / 30 fps); the pose time is the telemetry's, as in `uavmm track`. Candidates' descriptors
+    (pre_nms.json ``embedding``) are passed on; image files (``file_name`` relative to `image_dir`,
+    default the directory) are read when they exist and `use_images` (a note is logged once otherwise).
     """
 
-    def __init__(self, directory: str | Path, *, video_id: int | None = None) -> None:
+    def __init__(self, directory: str | Path, *, video_id: int | None = None, image_dir: str | Path | None = None,
+                 use_images: bool = True) -> None:
         from agent.dataset import Candidates, Dataset
 
         self.directory = Path(directory)
@@ -215,10 +225,12 @@ class DatasetSource:
         self.class_names = dict(self.dataset.categories)
         self.name = f"dataset:{self.directory.name}:video{video_id}"
         self.problems: list[str] = []
+        self.image_dir = (self.directory if image_dir is None else Path(image_dir)) if use_images else None
+        self.images_missing = 0
 
     def frames(self) -> Iterator[SourceFrame]:
         """Frames of the chosen video in frame order."""
-        from agent.dataset import iter_video_frames
+        from agent.dataset import iter_video_frames, read_image
 
         t_prev = -math.inf
         for index, frame in enumerate(iter_video_frames(self.dataset, self.camera, self.video_id,
@@ -234,8 +246,16 @@ class DatasetSource:
             t = max(t, t_prev)
             t_prev = t
             boxes, scores, cids = self.candidates.get(frame.image.id)
-            yield SourceFrame(index, t, frame.pose, frame.t if frame.pose is not None else None,
-                              boxes, scores, cids, frame.camera)
+            image = None
+            if self.image_dir is not None:
+                image = read_image(self.image_dir, frame.image)
+                if image is None:
+                    if not self.images_missing:
+                        log.info("%s: no image file %s under %s: no image descriptors for such frames",
+                                 self.name, frame.image.file_name or "(no file_name)", self.image_dir)
+                    self.images_missing += 1
+            yield SourceFrame(index, t, frame.pose, frame.pose_t if frame.pose is not None else None,
+                              boxes, scores, cids, frame.camera, self.candidates.get_embeddings(frame.image.id), image)
 
     def close(self) -> None:
         """Nothing to release."""
@@ -355,7 +375,7 @@ class VideoSource:
                     self.camera = self.camera_file.scaled(image.shape[1], image.shape[0])
                 dets = self.detector(image)
                 yield SourceFrame(index, self.telemetry_offset_s + index / self.fps, pose, pose_t, dets.boxes_xyxy,
-                                  dets.scores, dets.class_ids.astype(np.int64), self.camera)
+                                  dets.scores, dets.class_ids.astype(np.int64), self.camera, image=image)
                 index += 1
         finally:
             capture.release()

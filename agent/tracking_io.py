@@ -21,7 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from agent.dataset import Candidates, Dataset, Frame, iter_video_frames, read_json
+from agent.appearance import with_image_descriptors
+from agent.dataset import Candidates, Dataset, Frame, iter_video_frames, read_image, read_json
 from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.tracker import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
@@ -108,7 +109,7 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
                 pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
                 size_filter: SizeFilter | None = None, *,
                 on_frame: Callable[[Frame, FrameResult, list[TrackOutput]], None] | None = None,
-                stats: dict[str, Any] | None = None) -> list[TrackRow]:
+                stats: dict[str, Any] | None = None, image_dir: str | Path | None = None) -> list[TrackRow]:
     """Run pipeline and tracker over one video.
 
     Parameters
@@ -125,7 +126,12 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         Called per frame with (frame, pipeline result, all active tracks).
     stats : dict, optional
         Counters added in place: frames, frames_without_pose, detections, pipeline_s, tracker_s,
-        reidentified.
+        reidentified, images_read, images_missing, appearance_s.
+    image_dir : path, optional
+        Where the images' ``file_name`` are relative to. When given and a frame's image file exists, the
+        kept boxes get `hsv_histogram_descriptors` (`with_image_descriptors`; descriptors from the
+        candidates file win). Missing or unreadable images are skipped (counted, logged once), never an
+        error.
 
     Returns
     -------
@@ -138,7 +144,8 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
     pipe = DetectionPipeline(camera, dataset.categories, pipeline_config, size_filter=size_filter)
     tracker = GpsTracker(tracker_config, dataset.categories, evidence_at=memory_evidence(pipe))
     rows: list[TrackRow] = []
-    counts = {"frames": 0, "frames_without_pose": 0, "detections": 0, "pipeline_s": 0.0, "tracker_s": 0.0}
+    counts = {"frames": 0, "frames_without_pose": 0, "detections": 0, "pipeline_s": 0.0, "tracker_s": 0.0,
+              "images_read": 0, "images_missing": 0, "appearance_s": 0.0}
     t_prev = -math.inf
     for frame in iter_video_frames(dataset, camera, video_id):
         if pipe.camera != frame.camera:
@@ -146,12 +153,24 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         boxes, scores, cids = candidates.get(frame.image.id)
         t0 = time.perf_counter()
         result = pipe.process(boxes, scores, cids, frame.pose, frame.t, candidates.get_embeddings(frame.image.id))
+        counts["pipeline_s"] += time.perf_counter() - t0
+        if image_dir is not None:
+            image = read_image(image_dir, frame.image)
+            if image is None:
+                if not counts["images_missing"]:
+                    log.info("video %d: no image file %s under %s: no image descriptors for such frames",
+                             video_id, frame.image.file_name or "(no file_name)", image_dir)
+                counts["images_missing"] += 1
+            else:
+                ta = time.perf_counter()
+                result = with_image_descriptors(result, image)
+                counts["appearance_s"] += time.perf_counter() - ta
+                counts["images_read"] += 1
         t1 = time.perf_counter()
         t = max(frame_time_s(frame), t_prev)
         t_prev = t
         tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t)
         counts["tracker_s"] += time.perf_counter() - t1
-        counts["pipeline_s"] += t1 - t0
         counts["frames"] += 1
         counts["frames_without_pose"] += frame.pose is None
         counts["detections"] += len(result)
@@ -296,8 +315,12 @@ def write_geojson(rows_by_video: dict[int, list[TrackRow]], class_names: dict[in
 def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path, out: str | Path,
                   pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
                   size_filter: SizeFilter | None = None, *, video_id: int | None = None,
-                  geojson_path: str | Path | None = None) -> dict[str, Any]:
+                  geojson_path: str | Path | None = None, image_dir: str | Path | None = None,
+                  use_images: bool = True) -> dict[str, Any]:
     """Load the three files, track every video (or `video_id`), write MOT files (and GeoJSON).
+
+    Image files (``file_name`` relative to `image_dir`, default the directory of images.json) that exist
+    give the kept boxes appearance descriptors (`track_video`); `use_images=False` reads none.
 
     Output paths are checked before any work: an unknown video id raises ValueError, an unwritable
     output OSError. Returns a summary: ``files`` {video_id: path}, ``rows``, ``tracks`` (distinct ids
@@ -320,9 +343,10 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     stats: dict[str, Any] = {}
     rows_by_video: dict[int, list[TrackRow]] = {}
     t0 = time.perf_counter()
+    images = (Path(images_path).parent if image_dir is None else Path(image_dir)) if use_images else None
     for v in video_ids:
         rows_by_video[v] = track_video(dataset, candidates, camera, v, pipeline_config, tracker_config, size_filter,
-                                       stats=stats)
+                                       stats=stats, image_dir=images)
     summary: dict[str, Any] = {"files": {}, "rows": 0, "tracks": {}}
     for v, rows in rows_by_video.items():
         summary["rows"] += write_mot(rows, paths[v])
@@ -337,6 +361,9 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
         "reidentified": stats.get("reidentified", 0),
         "pipeline_ms_per_frame": round(1000 * stats.get("pipeline_s", 0.0) / frames, 3),
         "tracker_ms_per_frame": round(1000 * stats.get("tracker_s", 0.0) / frames, 3),
+        "images_read": stats.get("images_read", 0), "images_missing": stats.get("images_missing", 0),
+        "appearance_ms_per_image": round(1000 * stats.get("appearance_s", 0.0) / max(stats.get("images_read", 0), 1),
+                                         3),
         "seconds": round(time.perf_counter() - t0, 3), "skipped_candidates": candidates.skipped,
     })
     return summary

@@ -110,9 +110,25 @@ def _norfair_ms(n: int) -> float | None:
     return 1000 * median_time_s(step, repeat=5, min_time_s=0.0) / k
 
 
+def _descriptor_us_per_box(side_px: int, n_boxes: int = 100) -> float:
+    """`hsv_histogram_descriptors` cost per box (us) on a 1920 x 1080 frame, boxes side_px x 2 side_px."""
+    from agent.appearance import hsv_histogram_descriptors
+
+    rng = np.random.default_rng(0)
+    image = rng.integers(0, 256, (1080, 1920, 3), dtype=np.uint8)
+    x = rng.uniform(0, 1920 - side_px, n_boxes)
+    y = rng.uniform(0, 1080 - 2 * side_px, n_boxes)
+    boxes = np.column_stack([x, y, x + side_px, y + 2 * side_px])
+    return 1e6 * median_time_s(lambda: hsv_histogram_descriptors(image, boxes), repeat=5) / n_boxes
+
+
 def run(quick: bool = False) -> list[dict[str, Any]]:
-    """Rows: tracker ms/frame per size, with the assignment and norfair baselines."""
+    """Rows: tracker ms/frame per size, with the assignment and norfair baselines; the appearance
+    extractor's cost per box."""
     rows: list[dict[str, Any]] = []
+    for side in (16, 48, 128):
+        rows.append({"case": f"hsv_histogram_descriptors, {side}x{2 * side} px boxes", "value":
+                     _descriptor_us_per_box(side), "unit": "us/box"})
     for n in (10, 100) if quick else (10, 100, 1000):
         ms, confirmed = _tracker_ms(n)
         lsa = _lsa_ms(n)

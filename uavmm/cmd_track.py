@@ -32,6 +32,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--video-id", type=int, default=None, help="track only this video (default: all)")
     p.add_argument("--geojson", type=Path, default=None,
                    help="also write the tracks as GeoJSON (a LineString per track and video, with times)")
+    p.add_argument("--image-dir", type=Path, default=None,
+                   help="where the images' file_name are (default: beside --frames); frames whose image file "
+                        "exists get colour-histogram appearance descriptors for re-ID, others are tracked without")
+    p.add_argument("--no-images", action="store_true",
+                   help="do not read images (motion and the candidates' descriptors only)")
     p.add_argument("--no-memory", action="store_true",
                    help="baseline: our tracker on single-frame detections (no boosting)")
     g = p.add_argument_group("tracker (defaults: the best measured; see docs/tracking.md)")
@@ -59,12 +64,13 @@ def run(args: argparse.Namespace) -> int:
         "report_quality": args.report_quality, "telemetry_latency_s": args.telemetry_latency_s,
     })
     summary = track_dataset(args.frames, args.candidates, args.camera, args.out, pipeline_config, tracker_config,
-                            size_filter, video_id=args.video_id, geojson_path=args.geojson)
+                            size_filter, video_id=args.video_id, geojson_path=args.geojson,
+                            image_dir=args.image_dir, use_images=not args.no_images)
     for video_id, path in summary["files"].items():
         print(f"video {video_id}: {summary['tracks'][video_id]} tracks -> {path}")
     if "geojson" in summary:
         print(f"geojson: {summary['geojson_features']} features -> {summary['geojson']}")
     keys = ("rows", "frames", "frames_without_pose", "reidentified", "pipeline_ms_per_frame", "tracker_ms_per_frame",
-            "seconds")
+            "images_read", "images_missing", "appearance_ms_per_image", "seconds")
     print(", ".join(f"{k}={summary[k]}" for k in keys))
     return 0

@@ -166,3 +166,10 @@ def test_video_source_errors_name_the_missing_file(tmp_path):
     bad.write_bytes(b"not a video")
     with pytest.raises(ValueError, match="cannot be opened"):
         VideoSource(bad, tel, model, cam)
+
+
+def test_dataset_source_gives_the_telemetry_stamp_as_pose_time(coop_dir):
+    # regression: the image time was passed as the pose time; the 10 Hz telemetry is older than the frame
+    frames = [f for f in DatasetSource(coop_dir).frames() if f.pose is not None]
+    ages = np.array([f.t - f.pose_t for f in frames])
+    assert np.all(ages >= -1e-6) and np.all(ages < 0.2) and (ages > 0.01).sum() >= len(frames) // 3
