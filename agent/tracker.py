@@ -119,6 +119,12 @@ class TrackerConfig:
     confirm_window_s, tentative_coast_s, max_coast_s : float
         Seconds: see confirm_hits; a tentative track unmatched for tentative_coast_s is deleted; a
         confirmed one unmatched for max_coast_s is lost (goes to the re-ID memory).
+    exit_margin_px, exit_coast_s : float
+        A confirmed track whose last box came within exit_margin_px pixels of the image border and
+        that has then been unmatched for more than exit_coast_s seconds (0: one frame) has left the
+        view: it goes to the re-ID memory at once instead of coasting for max_coast_s. A coasting
+        track of an object that left used to take a neighbour's detection near the border while the
+        gimbal turned faster than the telemetry showed (an exit swap); a negative margin disables it.
 
     Association
     -----------
@@ -229,6 +235,8 @@ class TrackerConfig:
     confirm_window_s: float = 0.5
     tentative_coast_s: float = 0.25
     max_coast_s: float = 1.0
+    exit_margin_px: float = 4.0
+    exit_coast_s: float = 0.0
     gate_chi2: float = 9.21
     max_gate_m: float = 40.0
     score_weight: float = 1.0
@@ -278,7 +286,7 @@ class TrackerConfig:
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "class_motion", "default_motion",
-                          "pair_max_cost"):
+                          "pair_max_cost", "exit_margin_px"):
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"TrackerConfig.{f.name} must be a finite number, got {value!r}")
@@ -291,6 +299,9 @@ class TrackerConfig:
         if self.pair_max_cost is not None and not (isinstance(self.pair_max_cost, (int, float))
                                                    and math.isfinite(self.pair_max_cost) and self.pair_max_cost > 0):
             raise ValueError(f"TrackerConfig.pair_max_cost={self.pair_max_cost!r} must be None or a number > 0")
+        if not isinstance(self.exit_margin_px, (int, float)) or not math.isfinite(self.exit_margin_px):
+            raise ValueError(f"TrackerConfig.exit_margin_px must be a finite number (< 0: off), "
+                             f"got {self.exit_margin_px!r}")
         for name in ("birth_on_raw", "use_appearance"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
@@ -420,6 +431,15 @@ def ground_measurement_cov(
     cov[:, 1, 1] = pos_var + along_var * un * un + side_var * ue * ue
     cov[:, 0, 1] = cov[:, 1, 0] = (along_var - side_var) * ue * un
     return cov
+
+
+def at_image_border(boxes_xyxy: NDArray, width_px: float, height_px: float, margin_px: float) -> NDArray[np.bool_]:
+    """(N, 4) xyxy pixel boxes -> (N,) bool: the box comes within margin_px of an image border
+    (an object partly out of view, about to leave or just entering). NaN boxes: False."""
+    b = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    with np.errstate(invalid="ignore"):
+        return (b[:, 0] <= margin_px) | (b[:, 1] <= margin_px) | (b[:, 2] >= width_px - margin_px) \
+            | (b[:, 3] >= height_px - margin_px)
 
 
 def mahalanobis2_and_logdet(diff: FloatArray, cov: FloatArray) -> tuple[FloatArray, FloatArray]:
@@ -847,7 +867,7 @@ class GpsTracker:
             self._decay_unseen_quality(pose, camera)
 
         self._settle_probation()
-        self._retire(t)
+        self._retire(t, camera)
         return self._outputs()
 
     # ----------------------------------------------------------------------------- stages
@@ -1240,14 +1260,18 @@ class GpsTracker:
             log.debug("merged duplicate track(s) %s", act["id"][merged].tolist())
             act.keep(~merged)
 
-    def _retire(self, t: float) -> None:
-        """Tentative tracks unmatched too long die; confirmed ones go to the re-ID memory."""
+    def _retire(self, t: float, camera: Camera | None = None) -> None:
+        """Tentative tracks unmatched too long die; confirmed ones go to the re-ID memory, at once
+        when their object left the view through the image border (`exit_margin_px`)."""
         cfg = self.config
         act = self._active
         if len(act):
             idle = t - act["t_hit"]
             conf = act["confirmed"]
             drop = (conf & (idle > cfg.max_coast_s)) | (~conf & (idle > cfg.tentative_coast_s))
+            if camera is not None and cfg.exit_margin_px >= 0:
+                drop |= conf & (idle > cfg.exit_coast_s) & at_image_border(
+                    act["box"], camera.width, camera.height, cfg.exit_margin_px)
             # A tentative track not confirmed soon lives on boosted leftovers around some object.
             drop |= ~conf & (t - act["t_born"] > cfg.confirm_window_s + cfg.reid_delay_s)
             to_lost = drop & conf

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -15,6 +16,7 @@ from agent.tracker import (
     ClassMotion,
     GpsTracker,
     TrackerConfig,
+    at_image_border,
     box_iou,
     duplicate_mask,
     ground_measurement_cov,
@@ -237,6 +239,72 @@ def test_two_close_people_keep_their_ids_when_one_is_missed():
     outs = run(tracker, frames)
     assert ids_near(outs[-1], 0.0, 25.0, 0.9) | ids_near(outs[-1], 2.0, 25.0, 0.9) == {1, 2}
     assert all(tr.id in (1, 2) for out in outs for tr in out if tr.confirmed)
+
+
+def _at_border(result: FrameResult) -> FrameResult:
+    """The same detections with their boxes moved against the left image border."""
+    boxes = result.boxes_xyxy.copy()
+    boxes[:, 2] -= boxes[:, 0]
+    boxes[:, 0] = 0.0
+    return dataclasses.replace(result, boxes_xyxy=boxes)
+
+
+def test_at_image_border_flags_boxes_within_the_margin():
+    boxes = np.array([[0, 500, 30, 560], [3, 500, 30, 560], [10, 500, 40, 560], [3800, 10, 3838, 60],
+                      [100, 2100, 140, 2158], [np.nan] * 4])
+    assert at_image_border(boxes, 3840, 2160, 4.0).tolist() == [True, True, False, True, True, False]
+
+
+@pytest.mark.parametrize("exit_margin_px", [4.0, -1.0])
+def test_a_track_that_left_through_the_image_border_is_lost_at_once(exit_margin_px):
+    # A person seen at the left border, then not any more: with the exit rule it goes to the re-ID
+    # memory in the next frame, without it it coasts for max_coast_s.
+    pose = pose_at()
+    tracker = GpsTracker(TrackerConfig(exit_margin_px=exit_margin_px), CLASSES)
+    run(tracker, [(_at_border(observe(-5.0, 25.0, pose)), pose) for _ in range(10)])
+    assert [tr.id for tr in tracker.tracks if tr.confirmed] == [1]
+    tracker.update(empty_result(), pose, 1.7e9 + 10 / FPS, CAM)
+    lost = [tr.id for tr in tracker.lost_tracks]
+    assert lost == ([1] if exit_margin_px >= 0 else [])
+
+
+def test_a_track_away_from_the_border_still_coasts_through_a_missed_frame():
+    pose = pose_at()
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    outs = run(tracker, [(observe(0.0, 25.0, pose), pose) for _ in range(10)]
+               + [(empty_result(), pose)] + [(observe(0.0, 25.0, pose), pose) for _ in range(3)])
+    assert not tracker.lost_tracks
+    assert ids_near(outs[-1], 0.0, 25.0) == {1}
+
+
+@pytest.mark.parametrize("exit_margin_px", [4.0, -1.0])
+def test_a_track_leaving_the_view_does_not_take_its_neighbours_detection(exit_margin_px):
+    # Two people 3 m apart; the western one leaves through the left border while the telemetry
+    # places the eastern one's next detections 2 m west (a turn the telemetry has not caught up
+    # with). Without the exit rule (margin < 0) the coasting track of the one who left takes them.
+    pose = pose_at()
+    tracker = GpsTracker(TrackerConfig(exit_margin_px=exit_margin_px), CLASSES)
+    frames = []
+    for _ in range(15):
+        west = _at_border(observe(-3.0, 25.0, pose))
+        east = observe(0.0, 25.0, pose)
+        frames.append((concat_results(west, east), pose))
+    frames.append((observe(0.0, 25.0, pose), pose))  # the western person has left
+    for _ in range(3):
+        frames.append((observe(-2.0, 25.0, pose), pose))  # the eastern person, its ground point 2 m off
+    outs = run(tracker, frames)
+    before = {tr.id: tr for tr in outs[14] if tr.confirmed}
+    east_id = min(before, key=lambda i: abs(float(latlon_to_local(before[i].lat, before[i].lon, LAT0, LON0)[0])))
+    taken_by = [tr.id for tr in outs[-1] if tr.matched]
+    assert taken_by == [east_id] if exit_margin_px >= 0 else taken_by != [east_id]
+
+
+def concat_results(a: FrameResult, b: FrameResult) -> FrameResult:
+    """Two frames' detections as one."""
+    k = len(a.scores) + len(b.scores)
+    return FrameResult(np.vstack([a.boxes_xyxy, b.boxes_xyxy]), np.concatenate([a.scores, b.scores]),
+                       np.concatenate([a.raw_scores, b.raw_scores]), np.concatenate([a.class_ids, b.class_ids]),
+                       np.concatenate([a.lat, b.lat]), np.concatenate([a.lon, b.lon]), k, 0, k)
 
 
 # --------------------------------------------------------------------------------------------- re-ID
