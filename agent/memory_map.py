@@ -349,3 +349,25 @@ class JointLayer:
             sel = keys == key
             out[sel] = entry[0][gy_i[sel] - y * n, gx_i[sel] - x * n]
         return out
+
+    def window(self, cls: str, gx0: int, gy0: int, width: int, height: int, now: float) -> NDArray[np.float32]:
+        """Joint values of a block of global cells: (height, width) float32, row = gy - gy0, col = gx - gx0.
+
+        0 where no fresh tile of the class exists. The block is assembled from whole-tile slices, so it
+        costs a copy of the block (used by agent.joint_detections to look for peaks in a view).
+        """
+        out = np.zeros((max(int(height), 0), max(int(width), 0)), dtype=np.float32)
+        if out.size == 0 or not self._tiles:
+            return out
+        n = self.grid.n
+        gx1, gy1 = gx0 + out.shape[1], gy0 + out.shape[0]
+        for ty in range(gy0 // n, (gy1 - 1) // n + 1):
+            for tx in range(gx0 // n, (gx1 - 1) // n + 1):
+                entry = self._tiles.get((cls, tx, ty))
+                if entry is None or now - entry[1] > self.ttl_s:
+                    continue
+                x_lo, x_hi = max(gx0, tx * n), min(gx1, (tx + 1) * n)
+                y_lo, y_hi = max(gy0, ty * n), min(gy1, (ty + 1) * n)
+                out[y_lo - gy0:y_hi - gy0, x_lo - gx0:x_hi - gx0] = \
+                    entry[0][y_lo - ty * n:y_hi - ty * n, x_lo - tx * n:x_hi - tx * n]
+        return out

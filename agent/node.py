@@ -480,7 +480,7 @@ class AgentNode:
         self.on_ready = on_ready
         self.counts: dict[str, Any] = {"frames": 0, "frames_without_pose": 0, "frame_errors": 0, "detections": 0,
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "joint_query_replies": 0,
-                                       "behind_s_max": 0.0}
+                                       "joint_detections": 0, "behind_s_max": 0.0}
         self._rows: list[tuple[int, float, TrackOutput]] = []
         self._last_pose: tuple[float, Pose, Camera] | None = None
         self._t_frame: float | None = None
@@ -601,6 +601,8 @@ class AgentNode:
         self.counts["frames"] += 1
         self.counts["frames_without_pose"] += frame.pose is None
         self.counts["detections"] += len(result)
+        if result.from_joint is not None:  # detections the other UAVs' evidence added or promoted
+            self.counts["joint_detections"] += int(result.from_joint.sum())
         if self.settings.tracks_out is not None:
             self._rows.extend((frame.index, frame.t, tr) for tr in tracks if tr.confirmed and tr.matched)
         if self.on_frame is not None:

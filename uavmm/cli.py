@@ -91,6 +91,12 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
     if joint_mode:
         g.add_argument("--joint-mode", choices=["max", "local", "joint", "mean"], default=None,
                        help="how the joint map combines with the local one for boosting (max; local = ignore it)")
+        g.add_argument("--no-joint-detections", action="store_true",
+                       help="do not add detections for the other UAVs' evidence in view (docs/agent.md)")
+        g.add_argument("--joint-min-value", type=float, default=None,
+                       help="others' evidence a joint-map peak needs to become a detection (0.3)")
+        g.add_argument("--joint-synth-factor", type=float, default=None,
+                       help="score factor of boxes synthesised where no real candidate exists (0.25; 0 = none)")
 
 
 def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
@@ -102,12 +108,15 @@ def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
         "half_life_s": args.half_life_s, "boost_weight": args.boost_weight, "anchor": args.anchor,
         "nms_iou": args.nms_iou, "max_detections": args.max_detections,
         "joint_mode": getattr(args, "joint_mode", None),
+        "joint_min_value": getattr(args, "joint_min_value", None),
+        "joint_synth_factor": getattr(args, "joint_synth_factor", None),
     }
     cfg = load_config(args.pipeline_config, overrides)
     import dataclasses
 
     cfg = dataclasses.replace(cfg, use_memory=use_memory and cfg.use_memory,
-                              use_size_filter=cfg.use_size_filter and not args.no_size_filter)
+                              use_size_filter=cfg.use_size_filter and not args.no_size_filter,
+                              joint_detections=cfg.joint_detections and not getattr(args, "no_joint_detections", False))
     size_filter = SizeFilter.load(args.size_filter) if args.size_filter else SizeFilter.builtin()
     if args.size_filter_k is not None:
         size_filter = dataclasses.replace(size_filter, k=args.size_filter_k)

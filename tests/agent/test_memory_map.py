@@ -299,7 +299,8 @@ def test_size_filter_drops_implausible_boxes_only():
 
 def test_joint_map_boosts_an_object_the_uav_never_saw():
     joint = JointLayer(GRID, ttl_s=5.0)
-    pipe = DetectionPipeline(CAM, CLASSES, joint=joint)
+    # boosting alone (joint detections would promote this weak box further: tests/agent/test_joint_detections.py)
+    pipe = DetectionPipeline(CAM, CLASSES, PipelineConfig(joint_detections=False), joint=joint)
     gx, gy = GRID.latlon_to_cell(*_ground_of(object_box(0.0, 30.0), POSE, pipe.config))
     x, y = int(gx[0]) // GRID.n, int(gy[0]) // GRID.n
     tile = np.zeros((GRID.n, GRID.n), np.float32)
@@ -309,7 +310,7 @@ def test_joint_map_boosts_an_object_the_uav_never_saw():
     # default log-odds boost: logit(c_hat) = logit(0.2) + 4 * 1.0 * 0.5
     expected = 1 / (1 + math.exp(-(math.log(0.2 / 0.8) + 4 * 0.5)))
     assert res.scores[0] == pytest.approx(expected, rel=1e-4)
-    add = DetectionPipeline(CAM, CLASSES, PipelineConfig(boost_mode="add"), joint=joint)
+    add = DetectionPipeline(CAM, CLASSES, PipelineConfig(boost_mode="add", joint_detections=False), joint=joint)
     assert frame(add, object_box(0.0, 30.0), 0.2, 0.1).scores[0] == pytest.approx(0.7, rel=1e-4)
     local_only = DetectionPipeline(CAM, CLASSES, PipelineConfig(joint_mode="local"), joint=joint)
     assert frame(local_only, object_box(0.0, 30.0), 0.2, 0.1).scores[0] == pytest.approx(0.2)

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.pipeline import distinct_ids, nms
+from agent.pipeline import _box_cells, _surely_suppressed, distinct_ids, nms
 from benchmarks.bench_memory_map import clustered_candidates
 from shared.geo import Camera
 
@@ -102,3 +102,59 @@ def test_nms_edge_cases():
 def test_distinct_ids_equals_numpy_unique(values, offset):
     for ids in (np.array(values, dtype=np.int64), np.array([v % 7 + offset for v in values], dtype=np.int64)):
         np.testing.assert_array_equal(distinct_ids(ids), np.unique(ids))
+
+
+def _ranked_xywh(boxes_xyxy, scores):
+    """Boxes in rank order as nms() hands them to OpenCV: float64 (x, y, w, h), widths via float32."""
+    order = np.argsort(-scores, kind="stable")
+    b = boxes_xyxy[order]
+    xywh = np.column_stack([b[:, :2], b[:, 2:] - b[:, :2]]).astype(np.float32).astype(np.float64)
+    return xywh, scores[order]
+
+
+@settings(max_examples=150, deadline=None)
+@given(candidates(), st.sampled_from([0.3, 0.5, 0.7]), st.integers(1, 100))
+def test_surely_suppressed_boxes_are_ones_opencv_suppresses(cands, iou, split):
+    boxes, scores, _ = cands
+    xywh, _ = _ranked_xywh(boxes, scores)
+    ranked = np.linspace(1.0, 0.5, len(xywh)).astype(np.float32)  # every box in, in rank order
+    split = min(split, len(ranked))
+    kept = np.sort(np.asarray(cv2.dnn.NMSBoxes(xywh[:split], ranked[:split], 0.0, iou), dtype=np.int64).reshape(-1))
+    fresh = np.arange(split, len(ranked))
+    if len(kept) == 0 or len(fresh) == 0:
+        return
+    corners, cells = _box_cells(xywh, kept)
+    sure = _surely_suppressed(corners, cells, kept, fresh, iou)
+    seen = np.concatenate([kept, fresh])
+    picked = set(seen[np.asarray(cv2.dnn.NMSBoxes(xywh[seen], ranked[seen], 0.0, iou), dtype=np.int64)].tolist())
+    assert not picked & set(fresh[sure].tolist())  # never one OpenCV keeps
+    # and leaving them out changes nothing
+    rest = np.concatenate([kept, fresh[~sure]])
+    picked_rest = rest[np.asarray(cv2.dnn.NMSBoxes(xywh[rest], ranked[rest], 0.0, iou), dtype=np.int64)]
+    assert set(picked_rest.tolist()) == picked
+
+
+def test_surely_suppressed_leaves_boxes_at_the_threshold_to_opencv():
+    # IoU of a 10x10 box with its left half is exactly 0.5: OpenCV keeps it at threshold 0.5
+    xywh = np.array([[0, 0, 10, 10], [0, 0, 5, 10], [0, 0, 9.9, 10], [0, 0, 0, 0]], dtype=np.float64)
+    kept, fresh = np.array([0]), np.array([1, 2, 3])
+    corners, cells = _box_cells(xywh, kept)
+    assert _surely_suppressed(corners, cells, kept, fresh, 0.5).tolist() == [False, True, False]
+    assert _surely_suppressed(corners, cells, kept, fresh, 0.4).tolist() == [True, True, False]
+
+
+def test_surely_suppressed_finds_most_duplicates_of_clustered_detector_output():
+    # the point of it: OpenCV then converts and compares only a fraction of the later passes' boxes
+    camera = Camera(width=3840, height=2160, fx=2900.0, fy=2900.0, cx=1920.0, cy=1080.0)
+    boxes, scores, cids = clustered_candidates(5000, camera, np.random.default_rng(3))
+    sel = cids == 1
+    xywh, ranked = _ranked_xywh(boxes[sel], scores[sel])
+    kept = np.sort(np.asarray(cv2.dnn.NMSBoxes(xywh[:300], ranked[:300], 0.001, 0.5), dtype=np.int64).reshape(-1))
+    fresh = np.arange(300, 1300)
+    corners, cells = _box_cells(xywh, kept)
+    sure = _surely_suppressed(corners, cells, kept, fresh, 0.5)
+    seen = np.concatenate([kept, fresh])
+    picked = set(seen[np.asarray(cv2.dnn.NMSBoxes(xywh[seen], ranked[seen], 0.001, 0.5), dtype=np.int64)].tolist())
+    suppressed = np.array([f not in picked for f in fresh])
+    assert not (sure & ~suppressed).any()
+    assert sure.sum() > 0.5 * suppressed.sum()

@@ -34,9 +34,12 @@ def test_coop_eval_reports_every_uav_and_finds_hidden_people(tmp_path):
     report = run_coop_eval([0], frames=90, out_dir=tmp_path)
     by = {(s["uav"], s["variant"]): s for s in report["summary"]}
     assert {u for u, _ in by} == {"uav1", "uav2"}
-    hidden = by[("uav1", "memory map + joint map")]["hidden_detected"]
+    hidden = by[("uav1", "joint map boosting")]["hidden_detected"]
     assert hidden > by[("uav1", "baseline")]["hidden_detected"]
     # the joint map brings uav2's evidence to the people the tree line hides from uav1
     assert hidden > by[("uav1", "own memory map")]["hidden_detected"] + 3.0
-    assert by[("uav1", "memory map + joint map")]["AP50"] > by[("uav1", "baseline")]["AP50"]
+    # and joint detections report more of them than boosting alone
+    assert by[("uav1", "joint map + joint detections")]["hidden_detected"] > hidden + 2.0
+    for metric in ("AP50", "AP50_hidden_ignored", "AP50_hidden_as_fp"):
+        assert by[("uav1", "joint map boosting")][metric] > by[("uav1", "baseline")][metric]
     assert (tmp_path / "report.md").read_text().count("| uav1 |") == 4

@@ -1,0 +1,324 @@
+"""Detections from the joint map: what the other UAVs see inside this UAV's view, projected back into it.
+
+The paper's cooperative claim (section V-D): "a UAV whose view is occluded still detects and tracks the
+object". Boosting can only raise candidates the detector produced; an object behind a tree in this view
+often has none. Here every peak of the other UAVs' evidence inside the camera footprint that no
+confident detection of this frame explains becomes a detection: a weak real box near the peak is
+promoted, otherwise a box is synthesised at the peak's projection with the class's size prior.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, replace
+from typing import TYPE_CHECKING
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.memory_map import JointLayer, MemoryMap
+from agent.pipeline import FrameResult, box_anchor_points, nms
+from agent.size_filter import SizeFilter
+from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon
+from shared.tiles import TileGrid
+
+if TYPE_CHECKING:
+    from agent.pipeline import DetectionPipeline
+
+__all__ = ["UPRIGHT_DIMENSIONS_M", "JointDetections", "JointRegistration", "add_joint_detections",
+           "find_joint_detections", "joint_score", "others_evidence"]
+
+#: Nominal width, depth, height (m) of classes whose boxes are not square: the aspect of a synthesised
+#: box (its size comes from the size filter's band). The nominal dimensions of agent.size_filter's priors.
+UPRIGHT_DIMENSIONS_M: dict[str, tuple[float, float, float]] = {
+    "person": (0.5, 0.3, 1.7), "pedestrian": (0.5, 0.3, 1.7), "people": (0.5, 0.3, 1.7),
+    "swimmer": (0.5, 0.5, 0.3), "buoy": (0.6, 0.6, 0.6), "life_saving_appliances": (0.8, 0.8, 0.3),
+    "jetski": (1.2, 3.0, 1.0), "boat": (2.5, 6.0, 1.5), "car": (1.8, 4.5, 1.5),
+}
+_KERNEL = np.ones((3, 3), np.uint8)
+#: Standard deviation (m) of the Gaussian that smooths the others' evidence before looking for maxima.
+PEAK_SMOOTHING_M = 1.0
+
+
+@dataclass(frozen=True, slots=True)
+class JointDetections:
+    """What the joint map adds to one frame.
+
+    promoted: (P,) indices into the frame's kept detections whose score is raised to promoted_scores (P,).
+    boxes_xyxy (M, 4) float32 synthesised boxes, scores (M,) float32, class_ids (M,) int64, lat, lon (M,)
+    float64 ground points of the peaks they stand for.
+    """
+
+    promoted: NDArray[np.int64]
+    promoted_scores: NDArray[np.float32]
+    boxes_xyxy: NDArray[np.float32]
+    scores: NDArray[np.float32]
+    class_ids: NDArray[np.int64]
+    lat: NDArray[np.float64]
+    lon: NDArray[np.float64]
+
+    @staticmethod
+    def empty() -> JointDetections:
+        return JointDetections(np.zeros(0, np.int64), np.zeros(0, np.float32), np.zeros((0, 4), np.float32),
+                               np.zeros(0, np.float32), np.zeros(0, np.int64), np.zeros(0), np.zeros(0))
+
+    def __len__(self) -> int:
+        return len(self.promoted) + len(self.scores)
+
+
+def others_evidence(joint: NDArray, own: NDArray, cover_uavs: int) -> NDArray[np.float32]:
+    """The other UAVs' mean evidence, taking this UAV's own contribution out of the joint mean.
+
+    joint, own: (N,) values in [0, 1] of the joint map (mean over the UAVs covering a cell) and of this
+    UAV's own map. Joint tiles carry no coverage count, so `cover_uavs` = k, the UAVs assumed to cover a
+    cell, gives (k * joint - own) / (k - 1), clipped to [0, 1]; k <= 1 returns joint unchanged. With
+    k = 2 (one partner) and an occluded UAV (own ~ 0) this undoes the mean's halving of the partner's
+    evidence; with more UAVs covering the cell it overestimates by at most (joint - own) / (k - 1).
+    """
+    joint = np.asarray(joint, dtype=np.float32)
+    if cover_uavs <= 1:
+        return joint.copy()
+    k = np.float32(cover_uavs)
+    return np.clip((k * joint - np.asarray(own, dtype=np.float32)) / (k - 1), 0.0, 1.0).astype(np.float32)
+
+
+def joint_score(evidence: NDArray, prior_score: float, boost_mode: str, boost_weight: float,
+                logodds_scale: float) -> NDArray[np.float32]:
+    """Score of a detection that rests on the others' evidence alone, (N,) float32.
+
+    The pipeline's own boost applied to a candidate of confidence `prior_score` at a cell with memory
+    `evidence` (N,): "logodds": sigmoid(logit(prior) + w * scale * evidence); "add": prior + w * evidence.
+    So it ranks like a detector candidate of that confidence boosted by the same map: with the defaults
+    (prior 0.1, w 1, scale 4) evidence 0.5 gives 0.45 and evidence 1 gives 0.86.
+    """
+    e = np.asarray(evidence, dtype=np.float64)
+    if boost_mode == "add":
+        return (prior_score + boost_weight * e).astype(np.float32)
+    c = min(max(prior_score, 1e-6), 1 - 1e-6)
+    return (1.0 / (1.0 + np.exp(-(math.log(c / (1 - c)) + boost_weight * logodds_scale * e)))).astype(np.float32)
+
+
+def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, pose: Pose, t: float,
+                range_m: float, min_value: float, cover_uavs: int) -> tuple[NDArray, NDArray, NDArray]:
+    """Peaks of the other UAVs' evidence of one class inside the footprint's bounding box.
+
+    Returns global cells (gx, gy float64, cell centres) and others' evidence (float32) of the local
+    maxima (3 x 3) of `others_evidence` with evidence >= min_value, strongest first.
+    """
+    grid: TileGrid = joint.grid
+    poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8)
+    lat, lon = local_to_latlon(poly[:, 0], poly[:, 1], pose.lat, pose.lon)
+    gx, gy = grid.latlon_to_cell_index(lat, lon)
+    gx0, gy0 = int(gx.min()) - 1, int(gy.min()) - 1
+    values = joint.window(cls, gx0, gy0, int(gx.max()) - gx0 + 2, int(gy.max()) - gy0 + 2, t)
+    # others' evidence <= cover_uavs / (cover_uavs - 1) * joint: cells below that bound cannot pass
+    floor = min_value * (1.0 - 1.0 / cover_uavs) if cover_uavs > 1 else min_value
+    empty = np.zeros(0)
+    if values.size == 0 or float(values.max()) < floor:
+        return empty, empty, empty.astype(np.float32)
+    rows, cols = np.nonzero(values >= floor)
+    others = np.zeros_like(values)
+    others[rows, cols] = others_evidence(values[rows, cols],
+                                         memory.values_at(cls, cols + gx0 + 0.5, rows + gy0 + 0.5), cover_uavs)
+    # maps clip at 1, so a steadily seen object is a plateau; smoothing leaves one maximum at its middle
+    sigma = PEAK_SMOOTHING_M / float(grid.cell_size_m(pose.lat))
+    smooth = cv2.GaussianBlur(others, (0, 0), sigma)
+    rows, cols = np.nonzero((smooth >= cv2.dilate(smooth, _KERNEL)) & (others >= min_value))
+    evidence = others[rows, cols]
+    order = np.argsort(-evidence, kind="stable")
+    return cols[order] + gx0 + 0.5, rows[order] + gy0 + 0.5, evidence[order]
+
+
+def _box_at(anchor_uv: NDArray, cls: str, east: NDArray, north: NDArray, pose: Pose, focal_px: float,
+            size_filter: SizeFilter, anchor_frac: float) -> NDArray[np.float32]:
+    """(N, 4) boxes whose anchor point (anchor_frac down the box) is anchor_uv (N, 2), sized by the prior."""
+    slant = np.sqrt(east**2 + north**2 + pose.height_m**2)
+    dep = np.degrees(np.arcsin(pose.height_m / slant))
+    band = size_filter.bands.get(cls)
+    dims = UPRIGHT_DIMENSIONS_M.get(cls)
+    d = np.radians(dep)
+    if dims is not None:
+        width_m, vertical_m = np.full(len(dep), dims[0]), dims[2] * np.cos(d) + dims[1] * np.sin(d)
+    else:
+        width_m = vertical_m = np.ones(len(dep))
+    diag_m = np.exp(band.mean_std(dep)[0]) if band is not None else np.hypot(width_m, vertical_m)
+    scale = diag_m / np.hypot(width_m, vertical_m) * focal_px / slant
+    w, h = width_m * scale, vertical_m * scale
+    u, v = anchor_uv[:, 0], anchor_uv[:, 1]
+    return np.column_stack([u - w / 2, v - anchor_frac * h, u + w / 2, v + (1 - anchor_frac) * h]).astype(np.float32)
+
+
+def _suppress_near(east: NDArray, north: NDArray, radius_m: float) -> NDArray[np.intp]:
+    """Indices of points (given strongest first) with no earlier kept point within radius_m."""
+    keep: list[int] = []
+    for i in range(len(east)):
+        if not keep or np.min(np.hypot(east[keep] - east[i], north[keep] - north[i])) >= radius_m:
+            keep.append(i)
+    return np.array(keep, dtype=np.intp)
+
+
+class JointRegistration:
+    """Running estimate of the ground offset between the other UAVs' evidence and this UAV's detections.
+
+    Every UAV georeferences with its own telemetry errors (GPS, heading, pitch and height biases: several
+    metres at long range), so the others' peak of an object this UAV also detects lies offset from this
+    UAV's detection of it, and a peak projected into this view without correction lands beside the
+    object. Objects both see measure the offset: mutual nearest pairs (within radius_m) of the others'
+    peaks and this UAV's confident detections; the estimate is the median (east, north) of the pairs of
+    the last window_s seconds (zero until min_pairs are in). Locally the biases act as a shift.
+    """
+
+    def __init__(self, radius_m: float = 8.0, window_s: float = 10.0, min_pairs: int = 5) -> None:
+        self.radius_m = radius_m
+        self.window_s = window_s
+        self.min_pairs = min_pairs
+        self._pairs: list[tuple[float, float, float]] = []  # (t, d_east, d_north)
+
+    def reset(self) -> None:
+        self._pairs.clear()
+
+    def update(self, t: float, peak_en: NDArray, own_en: NDArray) -> None:
+        """Add the pairs of one frame: peak_en (P, 2) others' peaks, own_en (Q, 2) own detections, metres."""
+        self._pairs = [p for p in self._pairs if t - self.window_s <= p[0] <= t]
+        if len(peak_en) == 0 or len(own_en) == 0:
+            return
+        dist = np.hypot(peak_en[:, None, 0] - own_en[None, :, 0], peak_en[:, None, 1] - own_en[None, :, 1])
+        nearest_own = np.argmin(dist, axis=1)
+        nearest_peak = np.argmin(dist, axis=0)
+        for i, j in enumerate(nearest_own):
+            if nearest_peak[j] == i and dist[i, j] <= self.radius_m:
+                d = peak_en[i] - own_en[j]
+                self._pairs.append((t, float(d[0]), float(d[1])))
+
+    def offset(self) -> tuple[float, float]:
+        """Current (east, north) offset in metres of the others' evidence relative to this UAV's."""
+        if len(self._pairs) < self.min_pairs:
+            return 0.0, 0.0
+        arr = np.array(self._pairs)
+        return float(np.median(arr[:, 1])), float(np.median(arr[:, 2]))
+
+
+def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camera, pose: Pose, t: float,
+                          class_names: dict[int, str], size_filter: SizeFilter, kept_scores: NDArray,
+                          kept_class_ids: NDArray, kept_lat: NDArray, kept_lon: NDArray, range_m: float,
+                          anchor_frac: float, min_value: float, gate_m: float, cover_uavs: int,
+                          prior_score: float, boost_mode: str, boost_weight: float, logodds_scale: float,
+                          registration: JointRegistration | None = None, register_score: float = 0.5,
+                          synth_factor: float = 0.25) -> JointDetections:
+    """Peaks of the other UAVs' evidence in this view that this frame's detections do not explain.
+
+    For each class: local maxima of the others' evidence (`others_evidence` of the joint layer and this
+    UAV's memory, cover_uavs) >= min_value inside the camera footprint cut at range_m; peaks within
+    gate_m of a stronger one are dropped. With a `registration`, the kept detections scoring >=
+    register_score update it and its offset moves the peaks onto this UAV's georeferencing. The peaks
+    are projected into the image (latlon_to_pixel; behind the camera, above the horizon or outside the
+    image: skipped) and scored by `joint_score` (prior_score and the pipeline's boost settings). A kept
+    detection of the class (kept_lat/kept_lon (K,), NaN = none) within gate_m that scores at least that
+    explains a peak; otherwise the best-scoring weaker kept box within gate_m is promoted to the peak's
+    score, and with none a box is synthesised: its anchor (anchor_frac down the box, the pipeline's
+    convention) at the peak's pixel, its diagonal from the size filter's band at the peak's range and
+    depression, its aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and its score is the
+    peak's times synth_factor: its ground point is right, but its pixel position carries the cross-UAV
+    georeferencing error left after registration (measured ~1.5 m, ~70 px at 80 m on `coop`), so it
+    rarely overlaps the object's image box and should rank below real detections (0 drops them).
+    """
+    focal_px = math.sqrt(camera.fx * camera.fy)
+    kept_cids = np.asarray(kept_class_ids)
+    kept_scores = np.asarray(kept_scores)
+    k_east, k_north = latlon_to_local(np.asarray(kept_lat, np.float64), np.asarray(kept_lon, np.float64),
+                                      pose.lat, pose.lon)
+    k_east, k_north = np.atleast_1d(k_east), np.atleast_1d(k_north)
+    promoted: dict[int, float] = {}
+    boxes, scores, cids, lats, lons = [], [], [], [], []
+    for cid, cls in class_names.items():
+        pgx, pgy, evidence = _view_peaks(joint, memory, cls, camera, pose, t, range_m, min_value, cover_uavs)
+        if len(evidence) == 0:
+            continue
+        plat, plon = joint.grid.cell_to_latlon(pgx, pgy)
+        east, north = latlon_to_local(plat, plon, pose.lat, pose.lon)
+        keep = _suppress_near(east, north, gate_m)
+        east, north, evidence = east[keep], north[keep], evidence[keep]
+        mine = np.flatnonzero((kept_cids == cid) & np.isfinite(k_east))
+        if registration is not None:
+            sure = mine[kept_scores[mine] >= register_score]
+            registration.update(t, np.column_stack([east, north]), np.column_stack([k_east[sure], k_north[sure]]))
+            d_east, d_north = registration.offset()
+            east, north = east - d_east, north - d_north
+        plat, plon = local_to_latlon(east, north, pose.lat, pose.lon)
+        uv, valid = latlon_to_pixel(plat, plon, camera, pose)
+        valid &= np.hypot(east, north) <= range_m
+        with np.errstate(invalid="ignore"):
+            valid &= (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
+        score = joint_score(evidence, prior_score, boost_mode, boost_weight, logodds_scale)
+        for i in np.flatnonzero(valid):
+            near = mine[np.hypot(k_east[mine] - east[i], k_north[mine] - north[i]) <= gate_m]
+            if len(near) and float(np.max(kept_scores[near])) >= score[i]:
+                continue  # this frame already reports it at least as confidently
+            weaker = [j for j in near.tolist() if j not in promoted]
+            if weaker:
+                best = max(weaker, key=lambda j: float(kept_scores[j]))
+                promoted[best] = float(score[i])
+                continue
+            if synth_factor <= 0:
+                continue
+            boxes.append(_box_at(uv[i:i + 1], cls, east[i:i + 1], north[i:i + 1], pose, focal_px, size_filter,
+                                 anchor_frac))
+            scores.append(score[i] * synth_factor)
+            cids.append(cid)
+            lats.append(plat[i])
+            lons.append(plon[i])
+    if not promoted and not boxes:
+        return JointDetections.empty()
+    p_idx = np.array(sorted(promoted), dtype=np.int64)
+    return JointDetections(
+        p_idx, np.array([promoted[int(j)] for j in p_idx], dtype=np.float32),
+        np.concatenate(boxes).astype(np.float32) if boxes else np.zeros((0, 4), np.float32),
+        np.array(scores, dtype=np.float32), np.array(cids, dtype=np.int64),
+        np.array(lats, dtype=np.float64), np.array(lons, dtype=np.float64))
+
+
+def add_joint_detections(pipeline: DetectionPipeline, result: FrameResult, pose: Pose, t: float,
+                         registration: JointRegistration | None = None) -> FrameResult:
+    """`result` (a frame's kept detections) with the joint map's detections merged in.
+
+    Uses the pipeline's joint layer, own memory, camera, size filter and PipelineConfig (joint_*
+    settings, boost settings, anchor); `registration` carries the offset estimate across frames.
+    Promoted boxes get the joint score; synthesised ones have raw score 0 (no detector candidate) and
+    NaN embeddings. A class-wise NMS over the union (kept boxes do not suppress each other again) drops
+    weak real boxes a joint box covers, and keeps the output highest score first and at most
+    max_detections. from_joint (K,) bool marks the joint ones (all False when the joint map added nothing).
+    """
+    cfg = pipeline.config
+    assert pipeline.joint is not None
+    unit = np.array([[0.0, 0.0, 0.0, 1.0]])
+    anchor_frac = float(box_anchor_points(unit, cfg.anchor, pose.pitch_deg)[0, 1])
+    found = find_joint_detections(
+        joint=pipeline.joint, memory=pipeline.memory, camera=pipeline.camera, pose=pose, t=t,
+        class_names=pipeline.class_names, size_filter=pipeline.size_filter, kept_scores=result.scores,
+        kept_class_ids=result.class_ids, kept_lat=result.lat, kept_lon=result.lon, range_m=cfg.range_limit_m,
+        anchor_frac=anchor_frac, min_value=cfg.joint_min_value, gate_m=cfg.joint_gate_m,
+        cover_uavs=cfg.joint_cover_uavs, prior_score=cfg.joint_prior_score, boost_mode=cfg.boost_mode,
+        boost_weight=cfg.boost_weight, logodds_scale=cfg.logodds_scale, registration=registration,
+        synth_factor=cfg.joint_synth_factor)
+    k = len(result)
+    flags = np.zeros(k, dtype=bool)
+    if len(found) == 0:
+        return replace(result, from_joint=flags)
+    scores = result.scores.copy()
+    scores[found.promoted] = np.maximum(scores[found.promoted], found.promoted_scores)
+    flags[found.promoted] = True
+    m = len(found.scores)
+    emb = result.embeddings
+    if emb is not None and m:
+        emb = np.concatenate([emb, np.full((m, emb.shape[1]), np.nan, np.float32)])
+    boxes = np.concatenate([result.boxes_xyxy, found.boxes_xyxy])
+    all_scores = np.concatenate([scores, found.scores]).astype(np.float32)
+    cids = np.concatenate([result.class_ids, found.class_ids])
+    keep = nms(boxes, all_scores, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
+    return replace(
+        result, boxes_xyxy=boxes[keep], scores=all_scores[keep],
+        raw_scores=np.concatenate([result.raw_scores, np.zeros(m, np.float32)])[keep], class_ids=cids[keep],
+        lat=np.concatenate([result.lat, found.lat])[keep], lon=np.concatenate([result.lon, found.lon])[keep],
+        embeddings=None if emb is None else emb[keep],
+        from_joint=np.concatenate([flags, np.ones(m, dtype=bool)])[keep])

@@ -1,0 +1,150 @@
+"""Joint detections: the other UAVs' evidence in view, projected back into this UAV's image."""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+
+import numpy as np
+import pytest
+
+from agent.joint_detections import JointRegistration, joint_score, others_evidence
+from agent.memory_map import JointLayer
+from agent.pipeline import DetectionPipeline, PipelineConfig, box_anchor_points
+from agent.size_filter import BUILTIN_PRIORS
+from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon
+
+CAM = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+POSE = Pose(lat=48.53, lon=9.05, height_m=30.0, pitch_deg=40.0, heading_deg=0.0)
+CLASSES = {1: "person"}
+T = 100.0
+
+
+def joint_with_blob(east_m: float, north_m: float, peak: float = 0.6) -> tuple[JointLayer, float, float]:
+    """A joint layer with one Gaussian blob (sigma 1.5 cells) centred on the cell at east/north of POSE.
+
+    Returns the layer and the lat/lon of the blob's centre cell.
+    """
+    joint = JointLayer(ttl_s=3.0)
+    grid = joint.grid
+    lat, lon = local_to_latlon(np.array([east_m]), np.array([north_m]), POSE.lat, POSE.lon)
+    gx, gy = grid.latlon_to_cell_index(lat, lon)
+    gx, gy = int(gx[0]), int(gy[0])
+    n = grid.n
+    tiles: dict[tuple[int, int], np.ndarray] = {}
+    for dy in range(-8, 9):
+        for dx in range(-8, 9):
+            x, y = gx + dx, gy + dy
+            tile = tiles.setdefault((x // n, y // n), np.zeros((n, n), np.float32))
+            tile[y % n, x % n] = peak * math.exp(-(dx * dx + dy * dy) / (2 * 1.5**2))
+    for (tx, ty), values in tiles.items():
+        joint.update("person", tx, ty, values, T)
+    clat, clon = grid.cell_to_latlon(gx + 0.5, gy + 0.5)
+    return joint, float(clat), float(clon)
+
+
+def run(pipe: DetectionPipeline, boxes=None, scores=None, pose: Pose | None = POSE):
+    boxes = np.zeros((0, 4), np.float32) if boxes is None else np.asarray(boxes, np.float32)
+    scores = np.zeros(0, np.float32) if scores is None else np.asarray(scores, np.float32)
+    return pipe.process(boxes, scores, np.ones(len(scores), np.int64), pose, T)
+
+
+def test_a_peak_in_view_with_no_detection_becomes_one_box_at_its_pixel_with_the_prior_size():
+    joint, lat, lon = joint_with_blob(2.0, 40.0)
+    pipe = DetectionPipeline(CAM, CLASSES, joint=joint)
+    result = run(pipe)
+    assert len(result) == 1
+    assert result.from_joint is not None and result.from_joint.tolist() == [True]
+    assert result.raw_scores[0] == 0.0
+    uv, valid = latlon_to_pixel(np.array([lat]), np.array([lon]), CAM, POSE)
+    assert valid[0]
+    anchor = box_anchor_points(result.boxes_xyxy.astype(np.float64), "auto", POSE.pitch_deg)[0]
+    assert np.hypot(*(anchor - uv[0])) < 3.0
+    # size: the built-in prior's diagonal at the peak's range and depression
+    east, north = latlon_to_local(lat, lon, POSE.lat, POSE.lon)
+    slant = math.sqrt(float(east) ** 2 + float(north) ** 2 + POSE.height_m**2)
+    depression = math.degrees(math.asin(POSE.height_m / slant))
+    diag_m = math.exp(float(BUILTIN_PRIORS["person"].mean_std(depression)[0]))
+    x1, y1, x2, y2 = result.boxes_xyxy[0]
+    assert math.hypot(x2 - x1, y2 - y1) == pytest.approx(diag_m * CAM.fx / slant, rel=0.02)
+    assert y2 - y1 > x2 - x1  # an upright person
+    # the score: others' evidence 2 * 0.6 - 0 = 1 (clipped), boosted prior, times the synthesis factor
+    cfg = pipe.config
+    expected = joint_score(np.array([1.0]), cfg.joint_prior_score, cfg.boost_mode, cfg.boost_weight,
+                           cfg.logodds_scale)[0] * cfg.joint_synth_factor
+    assert result.scores[0] == pytest.approx(expected, rel=0.05)
+
+
+@pytest.mark.parametrize("east_m, north_m", [(0.0, -20.0), (60.0, 40.0), (0.0, 400.0)],
+                         ids=["behind", "beside the view", "beyond the range and horizon"])
+def test_a_peak_outside_the_view_gives_nothing(east_m, north_m):
+    joint, _, _ = joint_with_blob(east_m, north_m)
+    result = run(DetectionPipeline(CAM, CLASSES, joint=joint))
+    assert len(result) == 0
+    assert result.from_joint is not None and len(result.from_joint) == 0
+
+
+def _box_at(lat: float, lon: float, w: float = 20.0, h: float = 60.0) -> list[list[float]]:
+    uv, _ = latlon_to_pixel(np.array([lat]), np.array([lon]), CAM, POSE)
+    frac = float(box_anchor_points(np.array([[0.0, 0.0, 0.0, 1.0]]), "auto", POSE.pitch_deg)[0, 1])
+    u, v = uv[0]
+    return [[u - w / 2, v - frac * h, u + w / 2, v + (1 - frac) * h]]
+
+
+def test_a_peak_explained_by_a_confident_kept_box_adds_nothing():
+    joint, lat, lon = joint_with_blob(2.0, 40.0)
+    result = run(DetectionPipeline(CAM, CLASSES, joint=joint), _box_at(lat, lon), [0.9])
+    assert len(result) == 1
+    assert result.from_joint is not None and not result.from_joint.any()
+    assert result.raw_scores[0] == pytest.approx(0.9)
+
+
+def test_a_weak_real_candidate_at_the_peak_is_promoted_instead_of_synthesising_a_box():
+    joint, lat, lon = joint_with_blob(2.0, 40.0)
+    box = _box_at(lat, lon)
+    pipe = DetectionPipeline(CAM, CLASSES, dataclasses.replace(PipelineConfig(), joint_mode="local"), joint=joint)
+    assert run(pipe, box, [0.01]).from_joint is None  # "local" ignores the joint map altogether
+    pipe = DetectionPipeline(CAM, CLASSES, joint=joint)
+    result = run(pipe, box, [0.01])
+    assert len(result) == 1
+    assert result.from_joint is not None and result.from_joint.tolist() == [True]
+    np.testing.assert_allclose(result.boxes_xyxy[0], np.asarray(box[0], np.float32))
+    cfg = pipe.config
+    assert result.scores[0] == pytest.approx(
+        joint_score(np.array([1.0]), cfg.joint_prior_score, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)[0],
+        rel=0.05)
+
+
+def test_without_a_joint_layer_or_with_the_option_off_results_are_unchanged():
+    rng = np.random.default_rng(0)
+    xy = rng.uniform([0, 300], [1800, 1000], (40, 2))
+    boxes = np.column_stack([xy, xy + rng.uniform(10, 60, (40, 2))]).astype(np.float32)
+    scores = rng.uniform(0.01, 0.9, 40).astype(np.float32)
+    joint, _, _ = joint_with_blob(2.0, 40.0)
+    off = dataclasses.replace(PipelineConfig(), joint_detections=False)
+    plain = [run(DetectionPipeline(CAM, CLASSES), boxes, scores) for _ in range(1)][0]
+    for pipe in (DetectionPipeline(CAM, CLASSES, joint=joint, config=off), DetectionPipeline(CAM, CLASSES)):
+        result = run(pipe, boxes, scores)
+        assert result.from_joint is None
+        np.testing.assert_array_equal(result.boxes_xyxy, plain.boxes_xyxy)
+    # a frame without a pose: nothing from the joint map
+    assert run(DetectionPipeline(CAM, CLASSES, joint=joint), pose=None).from_joint is None
+
+
+def test_others_evidence_takes_the_own_contribution_out_of_the_mean():
+    joint = np.array([0.5, 0.5, 0.3, 0.8], np.float32)
+    own = np.array([0.0, 0.5, 0.6, 0.0], np.float32)
+    np.testing.assert_allclose(others_evidence(joint, own, 2), [1.0, 0.5, 0.0, 1.0])
+    np.testing.assert_allclose(others_evidence(joint, own, 3), [0.75, 0.5, 0.15, 1.0], atol=1e-6)
+    np.testing.assert_allclose(others_evidence(joint, own, 1), joint)
+
+
+def test_registration_measures_the_median_offset_of_mutual_nearest_pairs():
+    reg = JointRegistration(radius_m=8.0, window_s=10.0, min_pairs=3)
+    own = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 5.0]])
+    assert reg.offset() == (0.0, 0.0)
+    for k in range(3):
+        reg.update(float(k), own + [1.5, -2.0], own)
+    assert reg.offset() == pytest.approx((1.5, -2.0))
+    reg.update(30.0, own + [50.0, 0.0], own)  # too far to pair; the old pairs age out
+    assert reg.offset() == (0.0, 0.0)
