@@ -120,7 +120,9 @@ class JointMap:
     stored UAV tiles (memory: n*n bytes each); max_hz is an average (token bucket, burst of 2), so
     a tile updated at exactly max_hz is never delayed by jitter. coverage: "footprint" (a UAV covers
     the cells of its footprints received within ttl_s; whole tiles while it sent none) or "tile" (the
-    whole tile). clock: monotonic seconds; wall: epoch seconds.
+    whole tile). refresh_s: a tile whose fused values did not change is published again when its last
+    publication is this old (agents drop joint tiles after their TTL, 3 s by default, and a map at a
+    steady state or clipped at 1 does not change). clock: monotonic seconds; wall: epoch seconds.
     """
 
     def __init__(
@@ -132,6 +134,7 @@ class JointMap:
         *,
         max_uav_tiles: int = 20_000,
         coverage: str = "footprint",
+        refresh_s: float = 1.0,
         clock=time.monotonic,
         wall=time.time,
     ) -> None:
@@ -143,6 +146,10 @@ class JointMap:
         if coverage not in COVERAGE_MODES:
             raise ValueError(f"coverage must be one of {', '.join(COVERAGE_MODES)}, got {coverage!r}")
         self.coverage = coverage
+        if not refresh_s > 0:
+            raise ValueError(f"refresh_s must be > 0, got {refresh_s!r}")
+        self.refresh_s = float(refresh_s)
+        self._published: dict[TileKey, float] = {}  # monotonic time of each tile's last publication
         self._clock = clock
         self._wall = wall
         self._lock = threading.Lock()
@@ -354,6 +361,7 @@ class JointMap:
                 return None
             del self._joint[key]
             self._buckets.pop(key, None)
+            self._published.pop(key, None)
             self._seq += 1
             empty = np.zeros((n, n), dtype=np.uint8)
             return JointUpdate(key, encode_joint_tile(key, n, empty, self._wall(), self._seq), None, pending_since)
@@ -370,8 +378,10 @@ class JointMap:
             values = self.rule(stack, covered)
         t = max(e.t for e in entries)
         uavs = tuple(sorted(per_uav))
-        if previous is not None and np.array_equal(previous.values, values):
-            return None
+        if (previous is not None and np.array_equal(previous.values, values)
+                and now - self._published.get(key, -math.inf) < self.refresh_s):
+            return None  # unchanged and recently published (agents drop joint tiles after their TTL)
+        self._published[key] = now
         values = values.copy() if len(entries) == 1 else values
         values.flags.writeable = False
         self._seq += 1

@@ -1,6 +1,7 @@
 """JointMap: fusion over the UAVs covering a tile, time to live, rate limit, drop with an empty tile."""
 
 import numpy as np
+import pytest
 
 from fusion_server.joint_map import JointMap
 from fusion_server.rules import get_fusion_rule
@@ -77,12 +78,24 @@ def test_a_tile_updated_at_max_hz_with_jitter_is_never_held_back():
         assert len(jm.step(now=now)[0]) == 1
 
 
-def test_unchanged_values_are_not_republished():
-    jm = make()
+def test_unchanged_values_are_not_republished_until_the_refresh_time():
+    jm = make(refresh_s=1.0)
     jm.put("a", KEY, layer(10), t=1.0, seq=1, now=0.0)
-    jm.step(now=0.0)
-    jm.put("a", KEY, layer(10), t=2.0, seq=2, now=1.0)
-    assert jm.step(now=1.0)[0] == []
+    first = jm.step(now=0.0)[0][0].tile
+    jm.put("a", KEY, layer(10), t=2.0, seq=2, now=0.6)
+    assert jm.step(now=0.6)[0] == []
+    # a steady map is published again, so agents whose joint layer drops tiles after a TTL keep it
+    jm.put("a", KEY, layer(10), t=3.0, seq=3, now=1.2)
+    updates = jm.step(now=1.2)[0]
+    assert len(updates) == 1 and updates[0].tile.seq > first.seq
+    np.testing.assert_array_equal(updates[0].tile.values, first.values)
+    jm.put("a", KEY, layer(10), t=4.0, seq=4, now=1.5)
+    assert jm.step(now=1.5)[0] == []
+
+
+def test_refresh_time_must_be_positive():
+    with pytest.raises(ValueError, match="refresh_s must be > 0"):
+        make(refresh_s=0.0)
 
 
 def test_stale_and_repeated_tiles_are_refused_and_the_store_is_bounded():
