@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 
 from agent.memory_map import JointLayer, MemoryMap
 from agent.pipeline import FrameResult, box_anchor_points, nms
-from agent.size_filter import SizeFilter
+from agent.size_filter import NOMINAL_DIMENSIONS_M, SizeFilter
 from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon
 from shared.tiles import TileGrid
 
@@ -30,12 +30,9 @@ __all__ = ["UPRIGHT_DIMENSIONS_M", "JointDetections", "JointRegistration", "add_
            "find_joint_detections", "joint_score", "others_evidence"]
 
 #: Nominal width, depth, height (m) of classes whose boxes are not square: the aspect of a synthesised
-#: box (its size comes from the size filter's band). The nominal dimensions of agent.size_filter's priors.
+#: box (its size comes from the size filter's band). The dimensions behind agent.size_filter's priors.
 UPRIGHT_DIMENSIONS_M: dict[str, tuple[float, float, float]] = {
-    "person": (0.5, 0.3, 1.7), "pedestrian": (0.5, 0.3, 1.7), "people": (0.5, 0.3, 1.7),
-    "swimmer": (0.5, 0.5, 0.3), "buoy": (0.6, 0.6, 0.6), "life_saving_appliances": (0.8, 0.8, 0.3),
-    "jetski": (1.2, 3.0, 1.0), "boat": (2.5, 6.0, 1.5), "car": (1.8, 4.5, 1.5),
-}
+    cls: (w, d, h) for cls, (w, d, h, _) in NOMINAL_DIMENSIONS_M.items()}
 _KERNEL = np.ones((3, 3), np.uint8)
 #: Standard deviation (m) of the Gaussian that smooths the others' evidence before looking for maxima.
 PEAK_SMOOTHING_M = 1.0

@@ -69,17 +69,19 @@ def _upright_prior(width_m: float, depth_m: float, height_m: float, std_log: flo
 # Built-in priors for users with no fit: nominal object dimensions (metres) and a wide spread,
 # because detectors' boxes are loose and telemetry errors scale the range. Classes of
 # SeaDronesSee and of person datasets (POG, VisDrone "pedestrian"/"people").
-BUILTIN_PRIORS: dict[str, SizeBand] = {
-    "person": _upright_prior(0.5, 0.3, 1.7, 0.35),
-    "pedestrian": _upright_prior(0.5, 0.3, 1.7, 0.35),
-    "people": _upright_prior(0.5, 0.3, 1.7, 0.35),
-    "swimmer": _upright_prior(0.5, 0.5, 0.3, 0.35),
-    "buoy": _upright_prior(0.6, 0.6, 0.6, 0.4),
-    "life_saving_appliances": _upright_prior(0.8, 0.8, 0.3, 0.45),
-    "jetski": _upright_prior(1.2, 3.0, 1.0, 0.4),
-    "boat": _upright_prior(2.5, 6.0, 1.5, 0.55),
-    "car": _upright_prior(1.8, 4.5, 1.5, 0.4),
+#: Nominal width, depth, height (m) and spread (std of log diameter) of each built-in class.
+NOMINAL_DIMENSIONS_M: dict[str, tuple[float, float, float, float]] = {
+    "person": (0.5, 0.3, 1.7, 0.35),
+    "pedestrian": (0.5, 0.3, 1.7, 0.35),
+    "people": (0.5, 0.3, 1.7, 0.35),
+    "swimmer": (0.5, 0.5, 0.3, 0.35),
+    "buoy": (0.6, 0.6, 0.6, 0.4),
+    "life_saving_appliances": (0.8, 0.8, 0.3, 0.45),
+    "jetski": (1.2, 3.0, 1.0, 0.4),
+    "boat": (2.5, 6.0, 1.5, 0.55),
+    "car": (1.8, 4.5, 1.5, 0.4),
 }
+BUILTIN_PRIORS: dict[str, SizeBand] = {cls: _upright_prior(*dims) for cls, dims in NOMINAL_DIMENSIONS_M.items()}
 
 
 @dataclass(frozen=True, slots=True)
