@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.memory_map import JointLayer, MemoryMap
-from agent.pipeline import FrameResult, box_anchor_points, nms
+from agent.pipeline import FrameResult, boost_scores, box_anchor_points, nms
 from agent.size_filter import NOMINAL_DIMENSIONS_M, SizeFilter
 from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon
 from shared.tiles import TileGrid
@@ -90,10 +90,7 @@ def joint_score(evidence: NDArray, prior_score: float, boost_mode: str, boost_we
     (prior 0.1, w 1, scale 4) evidence 0.5 gives 0.45 and evidence 1 gives 0.86.
     """
     e = np.asarray(evidence, dtype=np.float64)
-    if boost_mode == "add":
-        return (prior_score + boost_weight * e).astype(np.float32)
-    c = min(max(prior_score, 1e-6), 1 - 1e-6)
-    return (1.0 / (1.0 + np.exp(-(math.log(c / (1 - c)) + boost_weight * logodds_scale * e)))).astype(np.float32)
+    return boost_scores(np.full(e.shape, prior_score), e, boost_mode, boost_weight, logodds_scale).astype(np.float32)
 
 
 def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, pose: Pose, t: float,

@@ -293,6 +293,20 @@ def nms(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,
     return order[kept]
 
 
+def boost_scores(conf: NDArray, evidence: NDArray, boost_mode: str, boost_weight: float,
+                 logodds_scale: float) -> NDArray:
+    """Boosted confidences of candidates with confidence `conf` at cells holding memory `evidence`.
+
+    "add" (the paper): c + w p; "logodds": sigmoid(logit(c) + w * logodds_scale * p), c clipped to
+    [1e-6, 1 - 1e-6]. Same dtype as the inputs.
+    """
+    if boost_mode == "add":
+        return conf + boost_weight * evidence
+    cc = np.clip(conf, 1e-6, 1 - 1e-6)
+    logit = np.log(cc / (1 - cc)) + boost_weight * logodds_scale * evidence
+    return 1.0 / (1.0 + np.exp(-logit))
+
+
 class DetectionPipeline:
     """Stateful per-video pipeline: one memory map per class, optionally a joint layer.
 
@@ -420,12 +434,7 @@ class DetectionPipeline:
                 else:
                     p = 0.5 * (p + pj)
             c = conf[idx[sel]]
-            if cfg.boost_mode == "add":
-                boosted[idx[sel]] = c + cfg.boost_weight * p
-            else:
-                cc = np.clip(c, 1e-6, 1 - 1e-6)
-                logit = np.log(cc / (1 - cc)) + cfg.boost_weight * cfg.logodds_scale * p
-                boosted[idx[sel]] = 1.0 / (1.0 + np.exp(-logit))
+            boosted[idx[sel]] = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
             # The update uses the detector's confidence, not the boosted one (paper IV).
             self.memory.add(name, gx[sel], gy[sel], cfg.memory.gain_per_s * step_s * c)
         return boosted
