@@ -13,6 +13,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from agent._kernels import map_values, stamp_impulses
 from shared.tiles import TileGrid
 
 FloatArray = NDArray[np.float64]
@@ -213,16 +214,13 @@ class MemoryMap:
         """Map values at global cells (N,) -> (N,) float32; 0 outside the window or for unseen classes."""
         gx_arr = np.atleast_1d(np.asarray(gx, dtype=np.float64))
         gy = np.atleast_1d(np.asarray(gy, dtype=np.float64))
-        out = np.zeros(gx_arr.shape, dtype=np.float32)
         m = self._maps.get(cls)
         if m is None or gx_arr.size == 0:
-            return out
-        row, col, inside = self.local_indices(gx_arr, gy)
-        out[inside] = m[row[inside], col[inside]]
-        if self._scale != 1.0:
-            out *= np.float32(self._scale)
-            np.minimum(out, 1.0, out=out)
-        return out
+            return np.zeros(gx_arr.shape, dtype=np.float32)
+        gx_arr, gy = np.broadcast_arrays(gx_arr, gy)
+        out = map_values(m, np.ravel(gx_arr), np.ravel(gy), self._gx0, self._gy0, float(self.grid.world_cells),
+                         self._scale)  # agent._kernels: ~10x the numpy indexing at 5,000 points
+        return out.reshape(gx_arr.shape)
 
     def _kernel_for(self) -> tuple[int, NDArray[np.float32]]:
         radius = max(1, int(round(self.config.radius_m / self._cell_m)))
@@ -240,32 +238,24 @@ class MemoryMap:
         """
         if self._size == 0:
             raise RuntimeError("MemoryMap.add before advance(): the window is not placed yet")
-        amp = np.atleast_1d(np.asarray(amplitudes, dtype=np.float32))
-        row, col, inside = self.local_indices(np.atleast_1d(gx), np.atleast_1d(gy))
-        keep = inside & np.isfinite(amp) & (amp > 0)
-        if not keep.any():
+        gx_arr, gy_arr, amp = np.broadcast_arrays(np.atleast_1d(np.asarray(gx, dtype=np.float64)),
+                                                  np.atleast_1d(np.asarray(gy, dtype=np.float64)),
+                                                  np.atleast_1d(np.asarray(amplitudes, dtype=np.float32)))
+        radius, kernel = self._kernel_for()
+        # the impulses in stored units (max stamping commutes with the scaling), from agent._kernels
+        impulses, r0, c0, stamped = stamp_impulses(
+            np.ravel(gx_arr), np.ravel(gy_arr), np.ravel(amp), self._gx0, self._gy0, float(self.grid.world_cells),
+            self._size, radius, self.config.stamp == "max", self._scale)
+        if not stamped:
             return 0
-        row, col, amp = row[keep], col[keep], amp[keep]
-        if self._scale != 1.0:  # into stored units (max stamping commutes with the scaling)
-            amp = amp * np.float32(1.0 / self._scale)
         m = self._maps.get(cls)
         if m is None:
             m = self._maps[cls] = np.zeros((self._size, self._size), dtype=np.float32)
-        radius, kernel = self._kernel_for()
-        r0 = max(int(row.min()) - radius, 0)
-        r1 = min(int(row.max()) + radius + 1, self._size)
-        c0 = max(int(col.min()) - radius, 0)
-        c1 = min(int(col.max()) + radius + 1, self._size)
-        impulses = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
-        if self.config.stamp == "max":
-            np.maximum.at(impulses, (row - r0, col - c0), amp)
-        else:
-            np.add.at(impulses, (row - r0, col - c0), amp)
         spread = cv2.sepFilter2D(impulses, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
-        roi = m[r0:r1, c0:c1]
+        roi = m[r0:r0 + impulses.shape[0], c0:c0 + impulses.shape[1]]
         roi += spread
         np.minimum(roi, np.float32(1.0 / self._scale), out=roi)  # true values clip at 1
-        return int(keep.sum())
+        return int(stamped)
 
     # ------------------------------------------------------------------ tiles
     def tiles(self, cls: str, *, min_value: float = 0.0) -> list[tuple[int, int, NDArray[np.float32]]]:

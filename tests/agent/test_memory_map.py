@@ -326,3 +326,56 @@ def test_bad_input_is_named():
         PipelineConfig(anchor="top")
     with pytest.raises(ValueError, match="half_life_s"):
         MemoryMapConfig(half_life_s=0)
+
+
+def _add_numpy(mm: MemoryMap, cls: str, gx, gy, amplitudes) -> None:
+    """MemoryMap.add as it was before agent._kernels (local_indices, np.maximum.at / np.add.at)."""
+    import cv2
+
+    amp = np.atleast_1d(np.asarray(amplitudes, dtype=np.float32))
+    row, col, inside = mm.local_indices(np.atleast_1d(gx), np.atleast_1d(gy))
+    keep = inside & np.isfinite(amp) & (amp > 0)
+    if not keep.any():
+        return
+    row, col, amp = row[keep], col[keep], amp[keep]
+    if mm._scale != 1.0:
+        amp = amp * np.float32(1.0 / mm._scale)
+    m = mm._maps.setdefault(cls, np.zeros((mm.size_cells, mm.size_cells), dtype=np.float32))
+    radius, kernel = mm._kernel_for()
+    r0, r1 = max(int(row.min()) - radius, 0), min(int(row.max()) + radius + 1, mm.size_cells)
+    c0, c1 = max(int(col.min()) - radius, 0), min(int(col.max()) + radius + 1, mm.size_cells)
+    impulses = np.zeros((r1 - r0, c1 - c0), dtype=np.float32)
+    (np.maximum if mm.config.stamp == "max" else np.add).at(impulses, (row - r0, col - c0), amp)
+    roi = m[r0:r1, c0:c1]
+    roi += cv2.sepFilter2D(impulses, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
+    np.minimum(roi, np.float32(1.0 / mm._scale), out=roi)
+
+
+@pytest.mark.filterwarnings("ignore:invalid value encountered in cast")  # the reference's NaN cells
+@settings(max_examples=60, deadline=None)
+@given(st.integers(0, 2**32 - 1), st.sampled_from(["max", "sum"]), st.sampled_from([LON, 179.9995, -179.9995]))
+def test_compiled_add_and_values_at_equal_the_numpy_implementation(seed, stamp, lon):
+    # bit for bit, across the antimeridian, with points outside the window, NaN and non-positive amplitudes
+    rng = np.random.default_rng(seed)
+    maps = [MemoryMap(MemoryMapConfig(stamp=stamp)) for _ in range(2)]
+    for frame in range(4):
+        for mm in maps:
+            mm.advance(frame * 0.1, LAT, lon)
+        gx0, gy0 = maps[0].origin
+        size = maps[0].size_cells
+        n = int(rng.integers(1, 300))
+        gx = (gx0 + rng.uniform(-0.2, 1.2, n) * size) % GRID.world_cells
+        gy = gy0 + rng.uniform(-0.2, 1.2, n) * size
+        amp = rng.uniform(-0.1, 1.0, n).astype(np.float32)
+        gx[rng.integers(0, n, 2)] = np.nan
+        amp[rng.integers(0, n, 2)] = np.nan
+        stored = maps[1]._maps.get("person")
+        if stored is not None:  # values_at as it was: stored value * float32(scale), clipped at 1
+            row, col, inside = maps[1].local_indices(gx, gy)
+            want = np.zeros(n, np.float32)
+            want[inside] = stored[row[inside], col[inside]]
+            want = np.minimum(want * np.float32(maps[1]._scale), 1.0)
+            np.testing.assert_array_equal(maps[0].values_at("person", gx, gy), want)
+        maps[0].add("person", gx, gy, amp)
+        _add_numpy(maps[1], "person", gx, gy, amp)
+        np.testing.assert_array_equal(maps[0]._maps.get("person"), maps[1]._maps.get("person"))

@@ -8,9 +8,16 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.pipeline import _box_cells, _surely_suppressed, distinct_ids, nms
+from agent.pipeline import (
+    ANCHORS,
+    DetectionPipeline,
+    PipelineConfig,
+    box_anchor_points,
+    distinct_ids,
+    nms,
+)
 from benchmarks.bench_memory_map import clustered_candidates
-from shared.geo import Camera
+from shared.geo import Camera, Pose, local_to_latlon, pixel_to_local
 
 
 def nms_reference(boxes_xyxy, scores, class_ids, iou, score_threshold, max_detections):
@@ -104,57 +111,124 @@ def test_distinct_ids_equals_numpy_unique(values, offset):
         np.testing.assert_array_equal(distinct_ids(ids), np.unique(ids))
 
 
-def _ranked_xywh(boxes_xyxy, scores):
-    """Boxes in rank order as nms() hands them to OpenCV: float64 (x, y, w, h), widths via float32."""
-    order = np.argsort(-scores, kind="stable")
-    b = boxes_xyxy[order]
-    xywh = np.column_stack([b[:, :2], b[:, 2:] - b[:, :2]]).astype(np.float32).astype(np.float64)
-    return xywh, scores[order]
+def nms_opencv_per_class(boxes_xyxy, scores, class_ids, iou, score_threshold, max_detections):
+    """cv2.dnn.NMSBoxes per class on float64 (x, y, w, h) with widths via float32 (OpenCV's Rect2d path,
+    no class offsets), merged highest score first (ties: lower index first)."""
+    with np.errstate(invalid="ignore"):  # inf - inf
+        xywh = np.column_stack([boxes_xyxy[:, :2], boxes_xyxy[:, 2:] - boxes_xyxy[:, :2]]).astype(np.float32)
+    xywh = xywh.astype(np.float64)
+    kept = []
+    for cid in np.unique(class_ids):
+        sel = np.flatnonzero(class_ids == cid)
+        picked = cv2.dnn.NMSBoxes(xywh[sel], scores[sel].astype(np.float32), score_threshold, iou)
+        kept.extend(sel[np.asarray(picked, dtype=np.int64).reshape(-1)].tolist())
+    kept = np.array(kept, dtype=np.int64)
+    return kept[np.lexsort((kept, -scores[kept]))][:max_detections]
 
 
-@settings(max_examples=150, deadline=None)
-@given(candidates(), st.sampled_from([0.3, 0.5, 0.7]), st.integers(1, 100))
-def test_surely_suppressed_boxes_are_ones_opencv_suppresses(cands, iou, split):
-    boxes, scores, _ = cands
-    xywh, _ = _ranked_xywh(boxes, scores)
-    ranked = np.linspace(1.0, 0.5, len(xywh)).astype(np.float32)  # every box in, in rank order
-    split = min(split, len(ranked))
-    kept = np.sort(np.asarray(cv2.dnn.NMSBoxes(xywh[:split], ranked[:split], 0.0, iou), dtype=np.int64).reshape(-1))
-    fresh = np.arange(split, len(ranked))
-    if len(kept) == 0 or len(fresh) == 0:
-        return
-    corners, cells = _box_cells(xywh, kept)
-    sure = _surely_suppressed(corners, cells, kept, fresh, iou)
-    seen = np.concatenate([kept, fresh])
-    picked = set(seen[np.asarray(cv2.dnn.NMSBoxes(xywh[seen], ranked[seen], 0.0, iou), dtype=np.int64)].tolist())
-    assert not picked & set(fresh[sure].tolist())  # never one OpenCV keeps
-    # and leaving them out changes nothing
-    rest = np.concatenate([kept, fresh[~sure]])
-    picked_rest = rest[np.asarray(cv2.dnn.NMSBoxes(xywh[rest], ranked[rest], 0.0, iou), dtype=np.int64)]
-    assert set(picked_rest.tolist()) == picked
+@st.composite
+def odd_candidates(draw):
+    """Clustered boxes with ties, empty, negative-size, tiny and NaN boxes, 1-3 classes."""
+    boxes, scores, _ = draw(candidates())
+    n = len(scores)
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
+    boxes = boxes.copy()
+    for kind in draw(st.sets(st.sampled_from(["empty", "negative", "tiny", "nan", "inf"]))):
+        rows = rng.integers(0, n, max(1, n // 10))
+        if kind == "empty":
+            boxes[rows, 2:] = boxes[rows, :2]
+        elif kind == "negative":
+            boxes[rows, 2] = boxes[rows, 0] - rng.uniform(0.5, 10, len(rows))
+        elif kind == "tiny":
+            boxes[rows, 2:] = boxes[rows, :2] + np.float32(1e-6)
+        elif kind == "nan":
+            boxes[rows, rng.integers(0, 4, len(rows))] = np.nan
+        else:
+            boxes[rows, rng.integers(0, 4, len(rows))] = np.inf
+    class_ids = rng.integers(0, draw(st.integers(1, 3)), n)
+    return boxes, scores, class_ids
 
 
-def test_surely_suppressed_leaves_boxes_at_the_threshold_to_opencv():
-    # IoU of a 10x10 box with its left half is exactly 0.5: OpenCV keeps it at threshold 0.5
-    xywh = np.array([[0, 0, 10, 10], [0, 0, 5, 10], [0, 0, 9.9, 10], [0, 0, 0, 0]], dtype=np.float64)
-    kept, fresh = np.array([0]), np.array([1, 2, 3])
-    corners, cells = _box_cells(xywh, kept)
-    assert _surely_suppressed(corners, cells, kept, fresh, 0.5).tolist() == [False, True, False]
-    assert _surely_suppressed(corners, cells, kept, fresh, 0.4).tolist() == [True, True, False]
+@settings(max_examples=300, deadline=None)
+@given(odd_candidates(), st.sampled_from([0.0, 0.3, 0.5, 0.7, 1.0]), st.sampled_from([0.0, 0.001, 0.2]),
+       st.sampled_from([1, 3, 20, 100, 10_000]))
+def test_nms_kernel_equals_opencv_on_odd_boxes(cands, iou, score_threshold, max_detections):
+    # NaN boxes suppress (and are suppressed by) everything of their class, empty ones all empty ones:
+    # OpenCV's own IoU, which the kernel reproduces
+    boxes, scores, cids = cands
+    want = nms_opencv_per_class(boxes, scores, cids, iou, score_threshold, max_detections)
+    np.testing.assert_array_equal(nms(boxes, scores, cids, iou, score_threshold, max_detections), want)
+    np.testing.assert_array_equal(nms(boxes.astype(np.float64), scores, cids, iou, score_threshold, max_detections),
+                                  want)
 
 
-def test_surely_suppressed_finds_most_duplicates_of_clustered_detector_output():
-    # the point of it: OpenCV then converts and compares only a fraction of the later passes' boxes
+def test_nms_kernel_grid_handles_wide_and_far_boxes():
+    # boxes wider than the grid's cell limit and coordinates far apart still meet the boxes they overlap
+    rng = np.random.default_rng(7)
+    c = np.vstack([rng.uniform(0, 5000, (300, 2)), rng.uniform(1e6, 1e6 + 50, (50, 2))])
+    size = np.vstack([rng.uniform(5, 20, (300, 2)), rng.uniform(5, 20, (50, 2))])
+    size[::17] = rng.uniform(800, 3000, (len(size[::17]), 2))
+    boxes = np.column_stack([c - size / 2, c + size / 2]).astype(np.float32)
+    scores = rng.uniform(0, 1, len(boxes)).astype(np.float32)
+    cids = rng.integers(0, 2, len(boxes))
+    for iou in (0.05, 0.5):
+        np.testing.assert_array_equal(nms(boxes, scores, cids, iou, 0.0, 10_000),
+                                      nms_opencv_per_class(boxes, scores, cids, iou, 0.0, 10_000))
+
+
+def test_nms_rejects_negative_thresholds_as_opencv_does():
+    boxes = np.array([[0, 0, 10, 10]], dtype=np.float32)
+    with pytest.raises(ValueError, match="iou"):
+        nms(boxes, np.ones(1, np.float32), np.ones(1), -0.1, 0.0, 10)
+    with pytest.raises(ValueError, match="score_threshold"):
+        nms(boxes, np.ones(1, np.float32), np.ones(1), 0.5, -1.0, 10)
+
+
+@st.composite
+def frames(draw):
+    rng = np.random.default_rng(draw(st.integers(0, 2**32 - 1)))
     camera = Camera(width=3840, height=2160, fx=2900.0, fy=2900.0, cx=1920.0, cy=1080.0)
-    boxes, scores, cids = clustered_candidates(5000, camera, np.random.default_rng(3))
-    sel = cids == 1
-    xywh, ranked = _ranked_xywh(boxes[sel], scores[sel])
-    kept = np.sort(np.asarray(cv2.dnn.NMSBoxes(xywh[:300], ranked[:300], 0.001, 0.5), dtype=np.int64).reshape(-1))
-    fresh = np.arange(300, 1300)
-    corners, cells = _box_cells(xywh, kept)
-    sure = _surely_suppressed(corners, cells, kept, fresh, 0.5)
-    seen = np.concatenate([kept, fresh])
-    picked = set(seen[np.asarray(cv2.dnn.NMSBoxes(xywh[seen], ranked[seen], 0.001, 0.5), dtype=np.int64)].tolist())
-    suppressed = np.array([f not in picked for f in fresh])
-    assert not (sure & ~suppressed).any()
-    assert sure.sum() > 0.5 * suppressed.sum()
+    boxes, scores, cids = clustered_candidates(draw(st.integers(1, 600)), camera, rng)
+    if draw(st.booleans()):
+        boxes[rng.integers(0, len(boxes), 3)] = np.nan
+    pose = Pose(lat=draw(st.floats(-60, 60)), lon=draw(st.floats(-179.9, 179.9)),
+                height_m=draw(st.floats(5, 300)), pitch_deg=draw(st.floats(5, 90)),
+                heading_deg=draw(st.floats(0, 360)), roll_deg=draw(st.floats(-10, 10)))
+    return camera, boxes, scores, cids, pose
+
+
+@settings(max_examples=100, deadline=None)
+@given(frames(), st.sampled_from(ANCHORS), st.sampled_from([None, 60.0, 1e4]))
+def test_fused_georeference_and_filter_equals_pixel_to_local_and_plausible(frame, anchor, max_range_m):
+    camera, boxes, scores, cids, pose = frame
+    pipe = DetectionPipeline(camera, {1: "person", 2: "swimmer"},
+                             PipelineConfig(anchor=anchor, max_range_m=max_range_m))
+    lat, lon, valid, ok = pipe._georeference_and_filter(boxes, cids, [1, 2], pose)
+    east, north, want_valid = pixel_to_local(box_anchor_points(boxes, anchor, pose.pitch_deg), camera, pose,
+                                             max_range_m=pipe.config.range_limit_m)
+    want_lat, want_lon = local_to_latlon(east, north, pose.lat, pose.lon)
+    want_ok = pipe.plausible(boxes, cids, east, north, pose)
+    # the same to float rounding: a flip needs a box within ~1e-12 of the horizon, range or band limit
+    np.testing.assert_array_equal(valid, want_valid)
+    np.testing.assert_array_equal(ok, want_ok)
+    np.testing.assert_allclose(lat, want_lat, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(lon, want_lon, rtol=0, atol=1e-12)
+
+
+def test_pipeline_uses_numpy_path_for_distorted_cameras_with_the_same_result():
+    camera = Camera(width=3840, height=2160, fx=2900.0, fy=2900.0, cx=1920.0, cy=1080.0)
+    # a negligible distortion: the numpy path (OpenCV's undistortion) with the same geometry
+    distorted = Camera(width=3840, height=2160, fx=2900.0, fy=2900.0, cx=1920.0, cy=1080.0, dist=(1e-12, 0, 0, 0))
+    boxes, scores, cids = clustered_candidates(2000, camera, np.random.default_rng(1))
+    pose = Pose(lat=47.67, lon=9.27, height_m=40.0, pitch_deg=45.0, heading_deg=140.0)
+    results = []
+    for cam in (camera, distorted):
+        pipe = DetectionPipeline(cam, {1: "person", 2: "swimmer"})
+        for k in range(3):
+            res = pipe.process(boxes, scores, cids, pose, k / 30.0)
+        results.append(res)
+    a, b = results
+    assert a.n_size_filtered == b.n_size_filtered > 0 and a.n_georeferenced == b.n_georeferenced
+    np.testing.assert_array_equal(a.class_ids, b.class_ids)
+    np.testing.assert_allclose(a.scores, b.scores, rtol=1e-6)
+    np.testing.assert_allclose(a.lat, b.lat, rtol=0, atol=1e-12)
