@@ -16,7 +16,8 @@ Per frame with a pose (docs/tracking.md has the details and the measured effect 
    confidence and, while the camera is steady, the image overlap with the track's last box;
    confirmed tracks first, then tentative ones, then weak detections to confirmed tracks;
 5. free detections are matched to lost tracks remembered for `reid_horizon_s` (predicted with a
-   damped, capped velocity; the gate grows with the time lost): a match gives the old id back;
+   damped, capped velocity; the gate grows with the time lost): a match gives the old id back; so
+   does a young track whose id is not being reported when its detection matches a lost track;
 6. the rest start tentative tracks, confirmed after `confirm_hits` convincing detections; tracks
    following one object are merged; unmatched ones coast, then are lost (confirmed) or deleted.
 
@@ -192,6 +193,14 @@ class TrackerConfig:
     reid_min_evidence : float
         With an evidence function (`GpsTracker(evidence_at=...)`), a lost track is revived only
         where the memory map holds at least this much (0 = do not ask).
+    reid_unreported_s : float
+        A track born less than this many seconds ago whose id is not being reported (never yet, see
+        `GpsTracker.report`, or no longer: its quality fell below report_quality) still competes
+        for the lost tracks' ids whenever it takes a detection good enough to revive one: a
+        returning object's first boxes, partly out of view or a false positive next to it, start a
+        new track that then takes the object's good detections before they can revive its old
+        track. It takes the old id on probation, like a revival; a track whose id was reported only
+        for a lost track its detection looks more like than like the track itself (0: off).
 
     Appearance (optional: used when the detections carry descriptors, `FrameResult.embeddings`)
     ----------
@@ -267,6 +276,7 @@ class TrackerConfig:
     reid_gate_chi2: float = 9.21
     reid_delay_s: float = 0.0
     reid_min_evidence: float = 0.0
+    reid_unreported_s: float = 3.0
     use_appearance: bool = True
     appearance_ema: float = 0.9
     reid_appearance_weight: float = 10.0
@@ -658,6 +668,8 @@ _ACTIVE_FIELDS = {
     "confirmed": ((), np.bool_), "matched": ((), np.bool_), "reid": ((), np.bool_), "strong": ((), np.bool_),
     "R_last": ((2, 2), np.float64), "quality": ((), np.float64),
     "heading_hit": ((), np.float64), "pending": ((), np.bool_), "probation": ((), np.bool_),
+    # shown: the id has been reported (or came from the memory); det_row: this frame's detection, -1 none
+    "shown": ((), np.bool_), "det_row": ((), np.int64),
 }
 _LOST_FIELDS = {
     "id": ((), np.int64), "cls": ((), np.int64), "pos": ((2,), np.float64), "vel": ((2,), np.float64),
@@ -850,6 +862,7 @@ class GpsTracker:
         act.cols["matched"][:] = False
         act.cols["reid"][:] = False
         act.cols["strong"][:] = False
+        act.cols["det_row"][:] = -1
         self._predict(dt)
 
         dets = _Detections.from_result(result, self.config)
@@ -868,6 +881,8 @@ class GpsTracker:
 
         self._settle_probation()
         self._retire(t, camera)
+        act = self._active
+        act.cols["shown"] |= act["confirmed"] & act["matched"] & (act["quality"] >= self.config.report_quality)
         return self._outputs()
 
     # ----------------------------------------------------------------------------- stages
@@ -917,11 +932,17 @@ class GpsTracker:
         if far.any():
             self._associate_iou(dets, t, far)
         # 3. re-identification from the lost-track memory (at once, or deferred: _resolve_pending).
+        # Free detections and young tracks whose id nobody has seen yet compete for the lost ids.
         cand = geo & ~dets.used & (dets.entry >= cfg.reid_score)
-        if cfg.reid_delay_s <= 0 and cand.any() and len(self._lost):
+        young = self._unreported(dets, t)
+        if cfg.reid_delay_s <= 0 and (cand.any() or len(young)) and len(self._lost):
             if self.evidence_at is not None and cfg.reid_min_evidence > 0:
-                cand &= self._evidence_ok(cand, dets.cls, dets.lat, dets.lon)
-            self._reidentify(dets, cand, t)
+                young_rows = np.zeros(len(cand), dtype=bool)
+                young_rows[self._active["det_row"][young]] = True
+                ok = self._evidence_ok(cand | young_rows, dets.cls, dets.lat, dets.lon)
+                cand &= ok
+                young = young[ok[self._active["det_row"][young]]]
+            self._reidentify(dets, cand, t, young)
         # 4. births.
         cand = geo & ~dets.used & (dets.entry >= cfg.birth_score)
         if cand.any():
@@ -1097,13 +1118,50 @@ class GpsTracker:
         act.cols["pending"][mask] = False
         act.cols["confirmed"][mask] = act["support"][mask] >= self.config.confirm_hits
 
-    def _reidentify(self, dets: _Detections, det_mask: NDArray[np.bool_], t: float) -> None:
+    def _unreported(self, dets: _Detections, t: float) -> NDArray[np.int64]:
+        """Indices of active tracks that may still take a lost track's id (`reid_unreported_s`): born
+        within that time, id never reported or not reported now (quality below report_quality), not
+        pending or on probation, and holding in this frame a georeferenced detection with entry score
+        >= reid_score (its row: the "det_row" column)."""
+        cfg = self.config
+        act = self._active
+        if cfg.reid_unreported_s <= 0 or not len(act) or not len(self._lost):
+            return np.zeros(0, np.int64)
+        row = act["det_row"]
+        ok = act["matched"] & (row >= 0) & ~act["probation"] & ~act["pending"] \
+            & (t - act["t_born"] <= cfg.reid_unreported_s)
+        ok &= ~act["shown"] | (act["quality"] < cfg.report_quality)
+        k = np.flatnonzero(ok)
+        r = row[k]
+        return k[dets.geo[r] & (dets.entry[r] >= cfg.reid_score)]
+
+    def _reidentify(self, dets: _Detections, det_mask: NDArray[np.bool_], t: float,
+                    young: NDArray[np.int64] | None = None) -> None:
+        """Revive lost tracks on free detections (det_mask) and hand lost ids to young unreported
+        tracks (active indices `young`, judged on their detection of this frame), in one assignment."""
         cfg = self.config
         lost = self._lost
         di = np.flatnonzero(det_mask)
-        cost, allowed, lost_for = self._lost_match(dets.z[di], dets.R[di], dets.cls[di], t,
-                                                   None if dets.emb is None else dets.emb[di])
-        r, c = gated_assignment(cost + dets.score_cost[di][None, :], allowed)
+        young = np.zeros(0, np.int64) if young is None else young
+        cand = np.concatenate([di, self._active["det_row"][young]])
+        cost, allowed, lost_for = self._lost_match(dets.z[cand], dets.R[cand], dets.cls[cand], t,
+                                                   None if dets.emb is None else dets.emb[cand])
+        shown = self._active["shown"][young]
+        if shown.any():
+            # A young track whose id was reported (now below report_quality) gives it up only for a lost
+            # track that its detection looks more like than like the track itself (both descriptors known).
+            if dets.emb is None or "emb" not in lost.cols:
+                allowed[:, len(di):] &= ~shown[None, :]
+            else:
+                own = cosine_distance(self._active["emb"][young], dets.emb[cand[len(di):]])
+                app = cosine_distance(lost["emb"][:, None, :], dets.emb[cand[len(di):]][None, :, :])
+                with np.errstate(invalid="ignore"):
+                    allowed[:, len(di):] &= ~shown[None, :] | (app < own[None, :])
+        r, c = gated_assignment(cost + dets.score_cost[cand][None, :], allowed)
+        adopt = c >= len(di)
+        if adopt.any():
+            self._adopt(young[c[adopt] - len(di)], r[adopt], dets, t)
+        r, c = r[~adopt], c[~adopt]
         if not len(r):
             return
         rows = di[c]
@@ -1126,10 +1184,32 @@ class GpsTracker:
                             confirmed=strong & (cfg.confirm_hits <= 1), matched=np.ones(n, bool),
                             reid=np.zeros(n, bool), strong=strong, R_last=dets.R[rows],
                             quality=lost["quality"][r], heading_hit=np.full(n, self._heading_now),
-                            pending=np.zeros(n, bool), probation=np.ones(n, bool), **extra)
+                            pending=np.zeros(n, bool), probation=np.ones(n, bool), shown=np.ones(n, bool),
+                            det_row=rows, **extra)
         lost.cols["claimed"][r] = True
         dets.used[rows] = True
         log.debug("revived %d track(s) on probation after %s s", n, np.round(lost_for[r], 2).tolist())
+
+    def _adopt(self, k: NDArray[np.int64], r: NDArray[np.int64], dets: _Detections, t: float) -> None:
+        """Young unreported tracks k take the ids of lost tracks r: on probation like a revival (the
+        confirmation starts again from this frame's detection; the memory entry stays, claimed)."""
+        cfg = self.config
+        act, lost = self._active, self._lost
+        rows = act["det_row"][k]
+        strong = dets.raw[rows] >= cfg.confirm_score
+        log.debug("young track(s) %s take lost id(s) %s on probation", act["id"][k].tolist(), lost["id"][r].tolist())
+        act.cols["id"][k] = lost["id"][r]
+        act.cols["hits"][k] += lost["hits"][r]
+        act.cols["support"][k] = strong
+        act.cols["confirmed"][k] = strong & (cfg.confirm_hits <= 1)
+        act.cols["probation"][k] = True
+        act.cols["shown"][k] = True
+        act.cols["t_born"][k] = t
+        act.cols["t_shadow"][k] = np.nan
+        act.cols["quality"][k] = lost["quality"][r]
+        if "emb" in lost.cols:
+            act.cols["emb"][k] = lost["emb"][r] if dets.emb is None else self._ema(lost["emb"][r], dets.emb[rows])
+        lost.cols["claimed"][r] = True
 
     def _settle_probation(self) -> None:
         """Revived tracks that are now confirmed keep their old id for good: their memory entries
@@ -1205,7 +1285,7 @@ class GpsTracker:
                    t_born=np.full(n, t), t_shadow=np.full(n, np.nan), confirmed=~pending & (cfg.confirm_hits <= 1),
                    matched=np.ones(n, bool), reid=np.zeros(n, bool), strong=dets.raw[b] >= cfg.confirm_score,
                    R_last=dets.R[b], quality=dets.raw[b], heading_hit=np.full(n, self._heading_now),
-                   pending=pending, probation=np.zeros(n, bool),
+                   pending=pending, probation=np.zeros(n, bool), shown=np.zeros(n, bool), det_row=b,
                    **({} if dets.emb is None else {"emb": dets.emb[b]}))
         dets.used[b] = True
 
@@ -1349,6 +1429,7 @@ class GpsTracker:
         if dets.emb is not None:
             act.cols["emb"][ti] = self._ema(act["emb"][ti], dets.emb[di])
         act.cols["matched"][ti] = True
+        act.cols["det_row"][ti] = di
         act.cols["confirmed"][ti] |= (act["support"][ti] >= self.config.confirm_hits) & ~act["pending"][ti]
         dets.used[di] = True
 

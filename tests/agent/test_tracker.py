@@ -418,6 +418,80 @@ def test_a_false_positive_does_not_take_or_move_a_lost_id():
     assert tracker.n_reidentified == 1
 
 
+RED, BLUE = np.array([[1.0, 0.0]], np.float32), np.array([[0.0, 1.0]], np.float32)
+
+
+def _looking(look: np.ndarray, pose: Pose, east_m: float = 0.0) -> FrameResult:
+    return dataclasses.replace(observe(east_m, 25.0, pose), embeddings=look)
+
+
+def _return_after_a_partial_box(config: TrackerConfig) -> tuple[GpsTracker, list]:
+    """A person (red) is followed for 2 s, out of view for 3 s, then back at the same spot: the
+    first box back is partial, its descriptor unlike the memory (blue: no revival, a new track is
+    born), the next ones red again."""
+    tracker = GpsTracker(config, CLASSES)
+    pose, away = pose_at(), pose_at(heading_deg=180.0)
+    outs = run(tracker, [(_looking(RED, pose), pose)] * 60 + [(empty_result(), away)] * 90
+               + [(_looking(BLUE, pose), pose)] + [(_looking(RED, pose), pose)] * 20)
+    return tracker, outs
+
+
+def test_a_young_unreported_track_takes_the_lost_id_its_detections_match():
+    tracker, outs = _return_after_a_partial_box(TrackerConfig())
+    assert ids_near(outs[59], 0.0, 25.0) == {1}
+    assert ids_near(outs[-1], 0.0, 25.0) == {1}
+    # The young track's own id (2) was never reported: no frame shows it.
+    assert all(tr.id != 2 for out in outs for tr in tracker.report(out))
+    assert tracker.n_reidentified == 1 and tracker.lost_tracks == []
+    # Without it the new track keeps its new id.
+    tracker, outs = _return_after_a_partial_box(TrackerConfig(reid_unreported_s=0.0))
+    assert ids_near(outs[-1], 0.0, 25.0) == {2}
+
+
+def test_a_reported_track_keeps_its_id_even_when_it_comes_to_look_like_a_lost_one():
+    """A new person (blue) appears where a red one was lost and is reported under a new id; when
+    its boxes later look red, the id it has shown stays."""
+    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    pose, away = pose_at(), pose_at(heading_deg=180.0)
+    outs = run(tracker, [(_looking(RED, pose), pose)] * 60 + [(empty_result(), away)] * 90
+               + [(_looking(BLUE, pose), pose)] * 15 + [(_looking(RED, pose), pose)] * 15)
+    assert ids_near(outs[164], 0.0, 25.0) == {2} and any(tr.id == 2 for tr in tracker.report(outs[164]))
+    assert ids_near(outs[-1], 0.0, 25.0) == {2}
+    assert tracker.n_reidentified == 0 and [tr.id for tr in tracker.lost_tracks] == [1]
+
+
+def _fading_false_positive_then_return(back_look: np.ndarray, config: TrackerConfig) -> tuple[GpsTracker, list]:
+    """A person (red) is followed for 2 s and out of view for 3 s; back in view, a false positive
+    (blue) 1 m beside the person's spot is reported for 0.5 s under a new id, then fades (detector
+    confidence 0.1, no descriptor: the track's quality falls below report_quality, its id is no
+    longer reported), then the person returns, looking back_look, and that young track takes the
+    detections."""
+    tracker = GpsTracker(config, CLASSES)
+    pose, away = pose_at(), pose_at(heading_deg=180.0)
+    faint = dataclasses.replace(observe(1.0, 25.0, pose, raw=0.1), embeddings=np.full((1, 2), np.nan, np.float32))
+    outs = run(tracker, [(_looking(RED, pose), pose)] * 60 + [(empty_result(), away)] * 90
+               + [(_looking(BLUE, pose, east_m=1.0), pose)] * 15 + [(faint, pose)] * 15
+               + [(_looking(back_look, pose), pose)] * 20)
+    return tracker, outs
+
+
+def test_a_young_track_no_longer_reported_gives_its_id_up_for_a_lost_one_it_looks_less_like():
+    tracker, outs = _fading_false_positive_then_return(RED, TrackerConfig())
+    assert any(tr.id == 2 for tr in tracker.report(outs[164]))  # the false positive was reported
+    assert not tracker.report(outs[179])  # then no longer
+    assert ids_near(outs[-1], 0.0, 25.0) == {1} and tracker.n_reidentified == 1
+    tracker, outs = _fading_false_positive_then_return(RED, TrackerConfig(reid_unreported_s=0.0))
+    assert ids_near(outs[-1], 0.0, 25.0) == {2}
+
+
+def test_a_young_track_no_longer_reported_keeps_its_id_when_its_detection_looks_like_itself():
+    """The same, but the returning boxes look more like the track (blue) than like the lost person
+    (cosine distance 0.2 against 0.4, both within the re-ID appearance gate of 0.5): no evidence
+    that the track changed objects."""
+    tracker, outs = _fading_false_positive_then_return(np.array([[0.6, 0.8]], np.float32), TrackerConfig())
+    assert ids_near(outs[-1], 0.0, 25.0) == {2} and tracker.n_reidentified == 0
+
+
 def test_two_neighbours_coasting_out_of_view_are_not_merged():
     """Two people 2.5 m apart: when the UAV looks away both tracks coast side by side (their
     covariances growing) until they are lost; that is no evidence of one track shadowing the other,
