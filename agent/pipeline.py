@@ -58,6 +58,9 @@ class PipelineConfig:
         detection is credited with before the boost by the others' evidence (see joint_score);
         joint_synth_factor: multiplies the score of boxes synthesised where no real candidate exists
         (their pixel position is uncertain; 0 = only promote real candidates).
+        joint_carry_s: for this long after this UAV last saw an object the others' evidence points at (a
+        promoted or confident box), a frame with no box for it reports the last one moved with the image
+        (agent.joint_detections.JointCarry; 0 = off), scored the peak's times joint_carry_factor.
     """
 
     memory: MemoryMapConfig = field(default_factory=MemoryMapConfig)
@@ -78,6 +81,8 @@ class PipelineConfig:
     joint_cover_uavs: int = 2
     joint_prior_score: float = 0.1
     joint_synth_factor: float = 0.25
+    joint_carry_s: float = 0.5
+    joint_carry_factor: float = 0.8
 
     def __post_init__(self) -> None:
         if self.anchor not in ANCHORS:
@@ -102,6 +107,10 @@ class PipelineConfig:
             raise ValueError(f"joint_prior_score must be in (0, 1), got {self.joint_prior_score!r}")
         if not (0.0 <= self.joint_synth_factor <= 1.0):
             raise ValueError(f"joint_synth_factor must be in [0, 1], got {self.joint_synth_factor!r}")
+        if not (math.isfinite(self.joint_carry_s) and self.joint_carry_s >= 0):
+            raise ValueError(f"joint_carry_s must be >= 0, got {self.joint_carry_s!r}")
+        if not (0.0 <= self.joint_carry_factor <= 1.0):
+            raise ValueError(f"joint_carry_factor must be in [0, 1], got {self.joint_carry_factor!r}")
 
     @property
     def range_limit_m(self) -> float:
@@ -290,12 +299,15 @@ class DetectionPipeline:
 
     def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float) -> FrameResult:
         """The frame's detections plus the joint map's (agent.joint_detections, which builds on this module)."""
-        from agent.joint_detections import JointRegistration, add_joint_detections
+        from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
 
         registration = self.__dict__.setdefault("_joint_registration", JointRegistration())
+        carry = self.__dict__.setdefault("_joint_carry", JointCarry(self.config.joint_carry_s))
         if self.memory.t is None or t < self.memory.t:
             registration.reset()
-        return add_joint_detections(self, result, pose, t, registration)
+            carry.reset()
+        return add_joint_detections(self, result, pose, t, registration,
+                                    carry if self.config.joint_carry_s > 0 else None)
 
     def _georeference_and_filter(self, boxes: NDArray[np.float32], cids: NDArray[np.int64], present: list[int],
                                  pose: Pose) -> tuple[NDArray, NDArray, NDArray, NDArray | None]:
