@@ -97,6 +97,9 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
                        help="others' evidence a joint-map peak needs to become a detection (0.3)")
         g.add_argument("--joint-synth-factor", type=float, default=None,
                        help="score factor of boxes synthesised where no real candidate exists (0.25; 0 = none)")
+        g.add_argument("--joint-carry-s", type=float, default=None,
+                       help="seconds this UAV's last sighting of an object the others see stands in for it "
+                            "(0.5; 0 = off)")
 
 
 def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
@@ -110,6 +113,7 @@ def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
         "joint_mode": getattr(args, "joint_mode", None),
         "joint_min_value": getattr(args, "joint_min_value", None),
         "joint_synth_factor": getattr(args, "joint_synth_factor", None),
+        "joint_carry_s": getattr(args, "joint_carry_s", None),
     }
     cfg = load_config(args.pipeline_config, overrides)
     import dataclasses

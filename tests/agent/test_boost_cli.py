@@ -144,3 +144,8 @@ def test_config_file_and_unknown_setting(tmp_path, capsys):
     (d / "cfg.json").write_text(json.dumps({"radius": 4.0}))
     assert run_boost(d, "--config", str(d / "cfg.json")) == 2
     assert "unknown setting 'radius'" in capsys.readouterr().err
+
+
+def test_agent_refuses_a_bad_joint_carry_setting_by_name(capsys):
+    assert main(["agent", "--uav-id", "uav1", "--sim", "coop", "--uav-index", "0", "--joint-carry-s", "-1"]) == 2
+    assert "joint_carry_s must be >= 0" in capsys.readouterr().err
