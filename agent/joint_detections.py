@@ -18,8 +18,9 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.memory_map import JointLayer, MemoryMap
-from agent.pipeline import FrameResult, boost_scores, box_anchor_points, nms
+from agent.pipeline import FrameResult, anchor_fraction, boost_scores, nms
 from agent.size_filter import NOMINAL_DIMENSIONS_M, SizeFilter
+from agent.tracker import box_iou
 from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon
 from shared.tiles import TileGrid
 
@@ -204,17 +205,6 @@ class JointRegistration:
         return float(np.median(arr[:, 1])), float(np.median(arr[:, 2]))
 
 
-def _iou_one(box: NDArray, boxes: NDArray) -> NDArray[np.float64]:
-    """IoU of one xyxy box (4,) with each of boxes (N, 4)."""
-    b = np.asarray(boxes, np.float64).reshape(-1, 4)
-    iw = np.clip(np.minimum(box[2], b[:, 2]) - np.maximum(box[0], b[:, 0]), 0.0, None)
-    ih = np.clip(np.minimum(box[3], b[:, 3]) - np.maximum(box[1], b[:, 1]), 0.0, None)
-    inter = iw * ih
-    union = (box[2] - box[0]) * (box[3] - box[1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
-    with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(union > 0, inter / union, 0.0)
-
-
 def image_motion(prev_uv: NDArray, cur_uv: NDArray, radius_px: float, camera: Camera, *,
                  tol_px: float = SHIFT_TOLERANCE_PX, min_support: int = 3) -> NDArray[np.float64] | None:
     """How the image moved between two frames, from the centres of confident detections in each.
@@ -282,8 +272,8 @@ def image_motion(prev_uv: NDArray, cur_uv: NDArray, radius_px: float, camera: Ca
 
 def _apply(h: NDArray, uv: NDArray) -> NDArray[np.float64]:
     """Pixels (N, 2) mapped by a 3 x 3 homography."""
-    p = np.column_stack([uv, np.ones(len(uv))]) @ h.T
-    return p[:, :2] / p[:, 2:3]
+    pts = np.asarray(uv, np.float64).reshape(-1, 1, 2)
+    return cv2.perspectiveTransform(pts, np.asarray(h, np.float64)).reshape(-1, 2)
 
 
 def _move_box(box: NDArray, h: NDArray) -> NDArray[np.float64]:
@@ -339,8 +329,8 @@ class JointCarry:
         if not self.anchors or prev is None:
             return
         t0, prev_centres, prev_pose = prev
-        dt = t - t0
-        if not 0.0 < dt <= self.carry_s:
+        dt = t - t0  # <= carry_s: anchors older than that were just forgotten
+        if dt <= 0.0:
             self.anchors.clear()
             return
         focal = math.sqrt(camera.fx * camera.fy)
@@ -376,7 +366,7 @@ class JointCarry:
         if same and SIGHTING_BLEND < 1.0:
             # a detector's boxes jitter around the object: blend with where the last sighting moved to
             old = min(same, key=lambda a: math.hypot(a.east - e, a.north - n)).box
-            if _iou_one(old, new[None])[0] >= CARRY_MATCH_IOU:
+            if box_iou(old, new)[0, 0] >= CARRY_MATCH_IOU:
                 new = SIGHTING_BLEND * new + (1.0 - SIGHTING_BLEND) * old
         self.anchors = [a for a in self.anchors if not any(a is b for b in same)]
         self.anchors.append(_Anchor(cid, new, e, n, t))
@@ -465,7 +455,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
                 if len(weaker) and j is not None and carry is not None and kept_boxes is not None:
                     # where this UAV last saw the object, boxes on that spot are it (the gate spans
                     # several objects' boxes at long range)
-                    on_spot = _iou_one(carry.anchors[j].box, kept_boxes[weaker]) >= CARRY_MATCH_IOU
+                    on_spot = box_iou(carry.anchors[j].box, kept_boxes[weaker])[0] >= CARRY_MATCH_IOU
                     if on_spot.any():
                         weaker = weaker[on_spot]
                 if len(weaker):
@@ -513,8 +503,7 @@ def add_joint_detections(pipeline: DetectionPipeline, result: FrameResult, pose:
     """
     cfg = pipeline.config
     assert pipeline.joint is not None
-    unit = np.array([[0.0, 0.0, 0.0, 1.0]])
-    anchor_frac = float(box_anchor_points(unit, cfg.anchor, pose.pitch_deg)[0, 1])
+    anchor_frac = anchor_fraction(cfg.anchor, pose.pitch_deg)
     if carry is not None:
         carry.advance(t, pose, pipeline.camera, result.boxes_xyxy, result.scores)
     found = find_joint_detections(
