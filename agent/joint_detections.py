@@ -10,7 +10,7 @@ promoted, otherwise a box is synthesised at the peak's projection with the class
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING
 
 import cv2
@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from agent.pipeline import DetectionPipeline
 
 __all__ = ["UPRIGHT_DIMENSIONS_M", "JointCarry", "JointDetections", "JointRegistration", "add_joint_detections",
-           "find_joint_detections", "image_motion", "joint_score", "others_evidence"]
+           "find_joint_detections", "joint_score", "others_evidence"]
 
 #: Nominal width, depth, height (m) of classes whose boxes are not square: the aspect of a synthesised
 #: box (its size comes from the size filter's band). The dimensions behind agent.size_filter's priors.
@@ -37,8 +37,6 @@ UPRIGHT_DIMENSIONS_M: dict[str, tuple[float, float, float]] = {
 _KERNEL = np.ones((3, 3), np.uint8)
 #: Standard deviation (m) of the Gaussian that smooths the others' evidence before looking for maxima.
 PEAK_SMOOTHING_M = 1.0
-#: Fastest image motion `image_motion` looks for, as a camera turn rate (a gimbal or aircraft sweep).
-MAX_TURN_RATE_DEG_S = 60.0
 #: A kept box is the object a remembered sighting (JointCarry) stands for when their IoU reaches this.
 CARRY_MATCH_IOU = 0.3
 #: A remembered sighting stands for a peak up to this many joint_gate_m away (this UAV's own ground point
@@ -46,8 +44,10 @@ CARRY_MATCH_IOU = 0.3
 CARRY_GATE = 2.0
 #: Weight of a new sighting against the remembered one it overlaps (1 = keep the new box only).
 SIGHTING_BLEND = 0.5
-#: Displacements within this many pixels of each other vote for the same image motion.
-SHIFT_TOLERANCE_PX = 4.0
+#: Gain of a remembered sighting's image velocity on each new sighting (the beta of an alpha-beta
+#: filter whose alpha is SIGHTING_BLEND): the box's pixel velocity (camera sweep and object motion
+#: together) settles over ~10 sightings, so one jittery box moves it little.
+VELOCITY_GAIN = 0.1
 
 
 @dataclass(frozen=True, slots=True)
@@ -205,152 +205,51 @@ class JointRegistration:
         return float(np.median(arr[:, 1])), float(np.median(arr[:, 2]))
 
 
-def image_motion(prev_uv: NDArray, cur_uv: NDArray, radius_px: float, camera: Camera, *,
-                 tol_px: float = SHIFT_TOLERANCE_PX, min_support: int = 3) -> NDArray[np.float64] | None:
-    """How the image moved between two frames, from the centres of confident detections in each.
-
-    prev_uv (P, 2), cur_uv (C, 2) pixels of an undistorted `camera`. Returns the 3 x 3 homography of a
-    camera rotation (K R K^-1) mapping the previous frame's pixels to this frame's, or None with fewer
-    than min_support pairs agreeing. Every pair closer than radius_px proposes a shift; the shift the
-    most pairs agree with (within tol_px) picks the pairs (each centre used once, within 3 tol_px of
-    it), and the rotation that best turns their viewing rays into each other (Kabsch) follows the turn
-    across the image: a pan shifts the image's edges ~40 % more than its centre at 4K and a tilted
-    camera's heading change also rolls it, so one shift is off by several pixels. A hovering or slowly
-    moving UAV's image motion between frames is almost all rotation; objects holding still vote
-    together; walkers and wrong pairs scatter.
-    """
-    prev_uv = np.asarray(prev_uv, np.float64).reshape(-1, 2)
-    cur_uv = np.asarray(cur_uv, np.float64).reshape(-1, 2)
-    if len(prev_uv) == 0 or len(cur_uv) == 0:
-        return None
-    d = cur_uv[None, :, :] - prev_uv[:, None, :]  # (P, C, 2)
-    pi, ci = np.nonzero(np.hypot(d[..., 0], d[..., 1]) <= radius_px)
-    if len(pi) < min_support:
-        return None
-    dd = d[pi, ci]
-    votes_from = dd if len(dd) <= 2000 else dd[np.linspace(0, len(dd) - 1, 2000).astype(np.intp)]
-    agree = ((np.abs(votes_from[:, None, 0] - dd[None, :, 0]) <= tol_px)
-             & (np.abs(votes_from[:, None, 1] - dd[None, :, 1]) <= tol_px))
-    votes = agree.sum(axis=1)
-    best = int(np.argmax(votes))
-    if votes[best] < min_support:
-        return None
-    shift = np.median(dd[agree[best]], axis=0)
-    # one pair per centre: the ones closest to the winning shift first
-    miss = np.hypot(*(dd - shift).T)
-    used_p: set[int] = set()
-    used_c: set[int] = set()
-    pairs = []
-    for k in np.argsort(miss, kind="stable"):
-        if miss[k] > 3 * tol_px:
-            break
-        if pi[k] not in used_p and ci[k] not in used_c:
-            used_p.add(int(pi[k]))
-            used_c.add(int(ci[k]))
-            pairs.append(k)
-    translation = np.array([[1.0, 0.0, shift[0]], [0.0, 1.0, shift[1]], [0.0, 0.0, 1.0]])
-    if len(pairs) < max(min_support, 3):
-        return translation
-    k_mat = np.array([[camera.fx, 0.0, camera.cx], [0.0, camera.fy, camera.cy], [0.0, 0.0, 1.0]])
-    k_inv = np.linalg.inv(k_mat)
-    src, dst = prev_uv[pi[pairs]], cur_uv[ci[pairs]]
-    inliers = np.ones(len(pairs), dtype=bool)
-    h = translation
-    for _ in range(2):  # fit, drop pairs off by more than 2 tol_px, fit again
-        if inliers.sum() < 3:
-            break
-        rays_p = np.column_stack([src[inliers], np.ones(inliers.sum())]) @ k_inv.T
-        rays_q = np.column_stack([dst[inliers], np.ones(inliers.sum())]) @ k_inv.T
-        rays_p /= np.linalg.norm(rays_p, axis=1, keepdims=True)
-        rays_q /= np.linalg.norm(rays_q, axis=1, keepdims=True)
-        u, _, vt = np.linalg.svd(rays_q.T @ rays_p)
-        rot = u @ np.diag([1.0, 1.0, np.linalg.det(u @ vt)]) @ vt
-        h = k_mat @ rot @ k_inv
-        inliers = np.hypot(*(_apply(h, src) - dst).T) <= 2 * tol_px
-    return h
-
-
-def _apply(h: NDArray, uv: NDArray) -> NDArray[np.float64]:
-    """Pixels (N, 2) mapped by a 3 x 3 homography."""
-    pts = np.asarray(uv, np.float64).reshape(-1, 1, 2)
-    return cv2.perspectiveTransform(pts, np.asarray(h, np.float64)).reshape(-1, 2)
-
-
-def _move_box(box: NDArray, h: NDArray) -> NDArray[np.float64]:
-    """An xyxy box (4,) moved by a homography: its centre mapped, its size kept."""
-    cx, cy = (box[0] + box[2]) / 2, (box[1] + box[3]) / 2
-    nx, ny = _apply(h, np.array([[cx, cy]]))[0]
-    hw, hh = (box[2] - box[0]) / 2, (box[3] - box[1]) / 2
-    return np.array([nx - hw, ny - hh, nx + hw, ny + hh])
-
-
 @dataclass(slots=True)
 class _Anchor:
     cid: int
-    box: NDArray[np.float64]  # (4,) xyxy, moved with the image since t_seen
+    box: NDArray[np.float64]  # (4,) xyxy, moved by velocity since t_seen
     east: float  # ground point at the last observation, metres from origin (JointCarry.origin)
     north: float
     t_seen: float
+    velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))  # pixels per second
 
 
 class JointCarry:
-    """Where this UAV last saw each object the others' evidence points at, moved with the image since.
+    """Where this UAV last saw each object the others' evidence points at, predicted to this frame.
 
     A peak of the others' evidence carries their georeferencing error into this view (~1.5 m, tens of
     pixels at long range, see find_joint_detections), but this UAV's own last detection of the object
     (a promoted weak candidate, or a confident box) is in the right place. An occluded object's weak
-    candidates come and go from frame to frame; between them, the last box moved by the image motion
-    since (`image_motion` over the frame's confident detections, else the telemetry's) stands for it
-    for up to carry_s, as long as the others still see the object there. Objects are taken to hold still
-    meanwhile (over carry_s a walker moves less than the gate).
+    candidates come and go from frame to frame; between them, the last box stands for it for up to
+    carry_s, as long as the others still see the object there. Each remembered box moves with its own
+    image velocity, an alpha-beta filter over its sightings (alpha SIGHTING_BLEND, beta VELOCITY_GAIN):
+    a still camera and a resting person give ~0, a sweep or a walker its steady drift. Measured on
+    `coop`, estimating the camera's motion from the frame's confident detections instead (their boxes
+    jitter by several pixels, most are walkers) moved the carried boxes farther from the objects than
+    not moving them at all.
     """
 
-    def __init__(self, carry_s: float = 0.5, confident_score: float = 0.5) -> None:
+    def __init__(self, carry_s: float = 0.5) -> None:
         self.carry_s = carry_s
-        self.confident_score = confident_score
         self.anchors: list[_Anchor] = []
         self.origin: tuple[float, float] | None = None
-        self._prev: tuple[float, NDArray, Pose] | None = None  # (t, confident centres, pose)
+        self._t: float | None = None
 
     def reset(self) -> None:
         self.anchors.clear()
         self.origin = None
-        self._prev = None
+        self._t = None
 
-    def advance(self, t: float, pose: Pose, camera: Camera, boxes_xyxy: NDArray, scores: NDArray) -> None:
-        """Move the anchors to frame t (kept boxes and scores of this frame) and forget stale ones."""
-        boxes = np.asarray(boxes_xyxy, np.float64).reshape(-1, 4)
-        sure = np.asarray(scores) >= self.confident_score
-        centres = np.column_stack([(boxes[sure, 0] + boxes[sure, 2]) / 2, (boxes[sure, 1] + boxes[sure, 3]) / 2])
-        prev, self._prev = self._prev, (t, centres, pose)
+    def advance(self, t: float, pose: Pose) -> None:
+        """Move the anchors to frame t (UAV at pose) and forget those last seen more than carry_s ago."""
+        prev, self._t = self._t, t
         if self.origin is None:
             self.origin = (pose.lat, pose.lon)
         self.anchors = [a for a in self.anchors if 0.0 <= t - a.t_seen <= self.carry_s]
-        if not self.anchors or prev is None:
-            return
-        t0, prev_centres, prev_pose = prev
-        dt = t - t0  # <= carry_s: anchors older than that were just forgotten
-        if dt <= 0.0:
-            self.anchors.clear()
-            return
-        focal = math.sqrt(camera.fx * camera.fy)
-        radius = focal * math.tan(math.radians(min(MAX_TURN_RATE_DEG_S * dt, 60.0))) + 2 * SHIFT_TOLERANCE_PX
-        motion = image_motion(prev_centres, centres, radius, camera)
-        if motion is not None:
+        if prev is not None and t > prev:
             for a in self.anchors:
-                a.box = _move_box(a.box, motion)
-            return
-        # too few confident detections to see the motion: the telemetry's view of it, per anchor
-        kept = []
-        for a in self.anchors:
-            lat, lon = local_to_latlon(np.array([a.east]), np.array([a.north]), *self.origin)
-            before, ok0 = latlon_to_pixel(lat, lon, camera, prev_pose)
-            after, ok1 = latlon_to_pixel(lat, lon, camera, pose)
-            if ok0[0] and ok1[0]:
-                du, dv = after[0] - before[0]
-                a.box = a.box + (du, dv, du, dv)
-                kept.append(a)
-        self.anchors = kept
+                a.box = a.box + np.tile(a.velocity * (t - prev), 2)
 
     def _local(self, lat: NDArray, lon: NDArray) -> tuple[NDArray, NDArray]:
         assert self.origin is not None
@@ -362,14 +261,19 @@ class JointCarry:
         east, north = self._local(np.array([lat]), np.array([lon]))
         e, n = float(east[0]), float(north[0])
         new = np.asarray(box, np.float64).reshape(4).copy()
+        velocity = np.zeros(2)
         same = [a for a in self.anchors if a.cid == cid and math.hypot(a.east - e, a.north - n) <= gate_m]
-        if same and SIGHTING_BLEND < 1.0:
-            # a detector's boxes jitter around the object: blend with where the last sighting moved to
-            old = min(same, key=lambda a: math.hypot(a.east - e, a.north - n)).box
-            if box_iou(old, new)[0, 0] >= CARRY_MATCH_IOU:
-                new = SIGHTING_BLEND * new + (1.0 - SIGHTING_BLEND) * old
+        if same:
+            last = min(same, key=lambda a: math.hypot(a.east - e, a.north - n))
+            if box_iou(last.box, new)[0, 0] >= CARRY_MATCH_IOU:
+                # the same object: a detector's boxes jitter around it, so blend with the prediction
+                # and let the miss nudge the velocity
+                miss = (new[:2] + new[2:] - last.box[:2] - last.box[2:]) / 2
+                dt = t - last.t_seen
+                velocity = last.velocity + (VELOCITY_GAIN * miss / dt if dt > 0 else 0.0)
+                new = SIGHTING_BLEND * new + (1.0 - SIGHTING_BLEND) * last.box
         self.anchors = [a for a in self.anchors if not any(a is b for b in same)]
-        self.anchors.append(_Anchor(cid, new, e, n, t))
+        self.anchors.append(_Anchor(cid, new, e, n, t, velocity))
 
     def nearest(self, cid: int, lat: float, lon: float, gate_m: float, exclude: set[int]) -> int | None:
         """Index of the anchor of class cid nearest to lat, lon within gate_m (not in exclude), or None."""
@@ -411,8 +315,10 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
     rarely overlaps the object's image box and should rank below real detections (0 drops them).
     With a `carry` (already advanced to this frame) and kept_boxes (K, 4): every kept box that explains
     or is promoted by a peak is remembered there, and a peak with neither gets, before synthesis, the
-    box of the nearest remembered sighting within gate_m (moved with the image since; JointCarry),
-    scored the peak's times carry_factor.
+    box of the nearest remembered sighting within CARRY_GATE x gate_m (predicted to this frame by its
+    image velocity; JointCarry), scored the peak's times carry_factor; and a peak with a remembered
+    sighting promotes, in preference, a weaker kept box on that sighting's spot (IoU >=
+    CARRY_MATCH_IOU) wherever its ground point is.
     """
     focal_px = math.sqrt(camera.fx * camera.fy)
     kept_cids = np.asarray(kept_class_ids)
@@ -452,12 +358,16 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
                 seen = int(near[np.argmax(kept_scores[near])])  # this frame already reports it as confidently
             else:
                 weaker = np.array([k for k in near.tolist() if k not in promoted], dtype=np.intp)
-                if len(weaker) and j is not None and carry is not None and kept_boxes is not None:
-                    # where this UAV last saw the object, boxes on that spot are it (the gate spans
-                    # several objects' boxes at long range)
-                    on_spot = box_iou(carry.anchors[j].box, kept_boxes[weaker])[0] >= CARRY_MATCH_IOU
-                    if on_spot.any():
-                        weaker = weaker[on_spot]
+                if j is not None and carry is not None and kept_boxes is not None:
+                    # where this UAV last saw the object, a weak box is it wherever it puts it on the ground
+                    # (the gate spans several objects at long range and misses some of the object's own
+                    # boxes: a few pixels there are metres along the line of sight)
+                    spot = np.array([k for k in mine.tolist() if k not in promoted and kept_scores[k] < score[i]],
+                                    dtype=np.intp)
+                    if len(spot):
+                        spot = spot[box_iou(carry.anchors[j].box, kept_boxes[spot])[0] >= CARRY_MATCH_IOU]
+                    if len(spot):
+                        weaker = spot
                 if len(weaker):
                     seen = int(weaker[np.argmax(kept_scores[weaker])])
                     promoted[seen] = float(score[i])
@@ -505,7 +415,7 @@ def add_joint_detections(pipeline: DetectionPipeline, result: FrameResult, pose:
     assert pipeline.joint is not None
     anchor_frac = anchor_fraction(cfg.anchor, pose.pitch_deg)
     if carry is not None:
-        carry.advance(t, pose, pipeline.camera, result.boxes_xyxy, result.scores)
+        carry.advance(t, pose)
     found = find_joint_detections(
         joint=pipeline.joint, memory=pipeline.memory, camera=pipeline.camera, pose=pose, t=t,
         class_names=pipeline.class_names, size_filter=pipeline.size_filter, kept_scores=result.scores,

@@ -59,8 +59,8 @@ class PipelineConfig:
         joint_synth_factor: multiplies the score of boxes synthesised where no real candidate exists
         (their pixel position is uncertain; 0 = only promote real candidates).
         joint_carry_s: for this long after this UAV last saw an object the others' evidence points at (a
-        promoted or confident box), a frame with no box for it reports the last one moved with the image
-        (agent.joint_detections.JointCarry; 0 = off), scored the peak's times joint_carry_factor.
+        promoted or confident box), a frame with no box for it reports the last one moved on by its image
+        velocity (agent.joint_detections.JointCarry; 0 = off), scored the peak's times joint_carry_factor.
     """
 
     memory: MemoryMapConfig = field(default_factory=MemoryMapConfig)
