@@ -357,15 +357,15 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
             if len(near) and float(np.max(kept_scores[near])) >= score[i]:
                 seen = int(near[np.argmax(kept_scores[near])])  # this frame already reports it as confidently
             else:
-                weaker = np.array([k for k in near.tolist() if k not in promoted], dtype=np.intp)
-                if j is not None and carry is not None and kept_boxes is not None:
+                # this class's boxes not yet promoted, all weaker than the peak here
+                free = np.array([k for k in mine.tolist() if k not in promoted and kept_scores[k] < score[i]],
+                                dtype=np.intp)
+                weaker = free[np.isin(free, near)]
+                if j is not None and carry is not None and kept_boxes is not None and len(free):
                     # where this UAV last saw the object, a weak box is it wherever it puts it on the ground
                     # (the gate spans several objects at long range and misses some of the object's own
                     # boxes: a few pixels there are metres along the line of sight)
-                    spot = np.array([k for k in mine.tolist() if k not in promoted and kept_scores[k] < score[i]],
-                                    dtype=np.intp)
-                    if len(spot):
-                        spot = spot[box_iou(carry.anchors[j].box, kept_boxes[spot])[0] >= CARRY_MATCH_IOU]
+                    spot = free[box_iou(carry.anchors[j].box, kept_boxes[free])[0] >= CARRY_MATCH_IOU]
                     if len(spot):
                         weaker = spot
                 if len(weaker):
