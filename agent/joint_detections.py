@@ -21,7 +21,7 @@ from agent.memory_map import JointLayer, MemoryMap
 from agent.pipeline import FrameResult, anchor_fraction, boost_scores, nms
 from agent.size_filter import NOMINAL_DIMENSIONS_M, SizeFilter
 from agent.tracker import box_iou
-from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon
+from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon, pixel_to_local
 from shared.tiles import TileGrid
 
 if TYPE_CHECKING:
@@ -76,20 +76,30 @@ class JointDetections:
         return len(self.promoted) + len(self.scores)
 
 
-def others_evidence(joint: NDArray, own: NDArray, cover_uavs: int) -> NDArray[np.float32]:
+def others_evidence(joint: NDArray, own: NDArray, cover_uavs: int,
+                    others_cover: NDArray | None = None) -> NDArray[np.float32]:
     """The other UAVs' mean evidence, taking this UAV's own contribution out of the joint mean.
 
     joint, own: (N,) values in [0, 1] of the joint map (mean over the UAVs covering a cell) and of this
-    UAV's own map. Joint tiles carry no coverage count, so `cover_uavs` = k, the UAVs assumed to cover a
-    cell, gives (k * joint - own) / (k - 1), clipped to [0, 1]; k <= 1 returns joint unchanged. With
-    k = 2 (one partner) and an occluded UAV (own ~ 0) this undoes the mean's halving of the partner's
-    evidence; with more UAVs covering the cell it overestimates by at most (joint - own) / (k - 1).
+    UAV's own map. With k UAVs covering a cell (this one included) the others' mean is
+    (k * joint - own) / (k - 1), clipped to [0, 1]. others_cover (N,): how many other UAVs cover each
+    cell (JointLayer.others_cover, from their footprints); where none does the joint value is this
+    UAV's own evidence and the others' is 0. Without it, `cover_uavs` is the k assumed everywhere
+    (k <= 1 returns joint unchanged): with k = 2 (one partner) and an occluded UAV (own ~ 0) this
+    undoes the mean's halving of the partner's evidence, but in cells no partner covers it returns
+    this UAV's own evidence as the others'.
     """
     joint = np.asarray(joint, dtype=np.float32)
+    own = np.asarray(own, dtype=np.float32)
+    if others_cover is not None:
+        others = np.asarray(others_cover, dtype=np.float32)
+        k = others + 1
+        return np.where(others > 0, np.clip((k * joint - own) / np.maximum(others, 1), 0.0, 1.0),
+                        0.0).astype(np.float32)
     if cover_uavs <= 1:
         return joint.copy()
-    k = np.float32(cover_uavs)
-    return np.clip((k * joint - np.asarray(own, dtype=np.float32)) / (k - 1), 0.0, 1.0).astype(np.float32)
+    k1 = np.float32(cover_uavs)
+    return np.clip((k1 * joint - own) / (k1 - 1), 0.0, 1.0).astype(np.float32)
 
 
 def joint_score(evidence: NDArray, prior_score: float, boost_mode: str, boost_weight: float,
@@ -110,7 +120,8 @@ def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, 
     """Peaks of the other UAVs' evidence of one class inside the footprint's bounding box.
 
     Returns global cells (gx, gy float64, cell centres) and others' evidence (float32) of the local
-    maxima (3 x 3) of `others_evidence` with evidence >= min_value, strongest first.
+    maxima (3 x 3) of `others_evidence` (with the other UAVs' coverage when the joint layer has their
+    footprints, cover_uavs otherwise) with evidence >= min_value, strongest first.
     """
     grid: TileGrid = joint.grid
     poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8)
@@ -125,8 +136,10 @@ def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, 
         return empty, empty, empty.astype(np.float32)
     rows, cols = np.nonzero(values >= floor)
     others = np.zeros_like(values)
+    cover = joint.others_cover(gx0, gy0, values.shape[1], values.shape[0], t)
     others[rows, cols] = others_evidence(values[rows, cols],
-                                         memory.values_at(cls, cols + gx0 + 0.5, rows + gy0 + 0.5), cover_uavs)
+                                         memory.values_at(cls, cols + gx0 + 0.5, rows + gy0 + 0.5), cover_uavs,
+                                         None if cover is None else cover[rows, cols])
     # maps clip at 1, so a steadily seen object is a plateau; smoothing leaves one maximum at its middle
     sigma = PEAK_SMOOTHING_M / float(grid.cell_size_m(pose.lat))
     smooth = cv2.GaussianBlur(others, (0, 0), sigma)
@@ -165,44 +178,85 @@ def _suppress_near(east: NDArray, north: NDArray, radius_m: float) -> NDArray[np
 
 
 class JointRegistration:
-    """Running estimate of the ground offset between the other UAVs' evidence and this UAV's detections.
+    """Running estimate of where the other UAVs' evidence lands in this UAV's image, relative to its detections.
 
-    Every UAV georeferences with its own telemetry errors (GPS, heading, pitch and height biases: several
-    metres at long range), so the others' peak of an object this UAV also detects lies offset from this
-    UAV's detection of it, and a peak projected into this view without correction lands beside the
-    object. Objects both see measure the offset: mutual nearest pairs (within radius_m) of the others'
-    peaks and this UAV's confident detections; the estimate is the median (east, north) of the pairs of
-    the last window_s seconds (zero until min_pairs are in). Locally the biases act as a shift.
+    Every UAV georeferences with its own telemetry errors, so the others' peak of an object this UAV
+    also detects projects beside this UAV's box of it (on `coop` by 100-300 px at 80 m). The largest
+    errors are attitude biases (heading, 2 deg RMS), and an attitude bias shifts every projection by
+    the same view angle whatever the UAV looks at, while the ground shift it causes grows with range
+    and turns with the view. So the offset is an angle: image offsets in focal lengths (pixels /
+    focal_px, ~radians).
+
+    Pairs: every (peak, own confident detection) within radius_m of each other on the ground, with
+    the image offset of the peak from the detection, over the last window_s seconds. People in groups
+    make many wrong pairs, and residues of this UAV's own evidence in the others' make pairs at zero
+    offset; the true offset is the one the most peaks share. The estimate: of the `candidates`
+    strongest maxima of the pairs' smoothed 2-D histogram (bins of bin_rad), the one with the most
+    peaks having a pair within match_rad of it, refined to the median of those pairs. Offsets beyond
+    max_rad are ignored. Zero until min_pairs pairs are in.
     """
 
-    def __init__(self, radius_m: float = 8.0, window_s: float = 10.0, min_pairs: int = 5) -> None:
+    def __init__(self, radius_m: float = 8.0, window_s: float = 10.0, min_pairs: int = 5, *,
+                 bin_rad: float = 0.0017, match_rad: float = 0.0134, candidates: int = 8,
+                 max_rad: float = 0.15) -> None:
         self.radius_m = radius_m
         self.window_s = window_s
         self.min_pairs = min_pairs
-        self._pairs: list[tuple[float, float, float]] = []  # (t, d_east, d_north)
+        self.bin_rad = bin_rad
+        self.match_rad = match_rad
+        self.candidates = candidates
+        self.max_rad = max_rad
+        self._frames: list[tuple[float, NDArray[np.float64], NDArray[np.int64]]] = []  # (t, offsets, peak ids)
+        self._next_peak = 0
+        self._cached: tuple[float, float] | None = None
 
     def reset(self) -> None:
-        self._pairs.clear()
+        self._frames.clear()
+        self._cached = None
 
-    def update(self, t: float, peak_en: NDArray, own_en: NDArray) -> None:
-        """Add the pairs of one frame: peak_en (P, 2) others' peaks, own_en (Q, 2) own detections, metres."""
-        self._pairs = [p for p in self._pairs if t - self.window_s <= p[0] <= t]
+    def update(self, t: float, peak_en: NDArray, own_en: NDArray, peak_xy: NDArray, own_xy: NDArray) -> None:
+        """Add one frame: peaks and own detections on the ground, peak_en (P, 2) and own_en (Q, 2) metres,
+        and in the image, peak_xy (P, 2) and own_xy (Q, 2) in focal lengths (pixels / focal_px; NaN = none)."""
+        self._frames = [f for f in self._frames if t - self.window_s <= f[0] <= t]
+        self._cached = None
         if len(peak_en) == 0 or len(own_en) == 0:
             return
+        peak_en, own_en = np.asarray(peak_en, np.float64), np.asarray(own_en, np.float64)
         dist = np.hypot(peak_en[:, None, 0] - own_en[None, :, 0], peak_en[:, None, 1] - own_en[None, :, 1])
-        nearest_own = np.argmin(dist, axis=1)
-        nearest_peak = np.argmin(dist, axis=0)
-        for i, j in enumerate(nearest_own):
-            if nearest_peak[j] == i and dist[i, j] <= self.radius_m:
-                d = peak_en[i] - own_en[j]
-                self._pairs.append((t, float(d[0]), float(d[1])))
+        ii, jj = np.nonzero(dist <= self.radius_m)
+        d = np.asarray(peak_xy, np.float64)[ii] - np.asarray(own_xy, np.float64)[jj]
+        ok = np.isfinite(d).all(axis=1) & (np.abs(d) <= self.max_rad).all(axis=1)
+        if ok.any():
+            self._frames.append((t, d[ok], self._next_peak + ii[ok]))
+        self._next_peak += len(peak_en)
 
     def offset(self) -> tuple[float, float]:
-        """Current (east, north) offset in metres of the others' evidence relative to this UAV's."""
-        if len(self._pairs) < self.min_pairs:
+        """Current (x, y) image offset of the others' evidence, in focal lengths (multiply by focal_px)."""
+        if self._cached is not None:
+            return self._cached
+        n_pairs = sum(len(f[2]) for f in self._frames)
+        if n_pairs < self.min_pairs:
             return 0.0, 0.0
-        arr = np.array(self._pairs)
-        return float(np.median(arr[:, 1])), float(np.median(arr[:, 2]))
+        d = np.concatenate([f[1] for f in self._frames])
+        ids = np.concatenate([f[2] for f in self._frames])
+        b = self.bin_rad
+        lo = d.min(axis=0) - 3 * b
+        bins = np.maximum(np.ceil((d.max(axis=0) + 3 * b - lo) / b).astype(int), 1)
+        hist = np.zeros((bins[1], bins[0]), np.float32)
+        cells = np.minimum(((d - lo) / b).astype(int), bins - 1)
+        np.add.at(hist, (cells[:, 1], cells[:, 0]), 1.0)
+        hist = cv2.GaussianBlur(hist, (0, 0), 2.0)
+        rows, cols = np.nonzero((hist >= cv2.dilate(hist, _KERNEL)) & (hist > 0))
+        order = np.argsort(-hist[rows, cols], kind="stable")[:self.candidates]
+        best, best_n = np.zeros(2), -1
+        for k in order:
+            centre = lo + (np.array([cols[k], rows[k]]) + 0.5) * b
+            near = np.hypot(*(d - centre).T) <= self.match_rad
+            n = len(np.unique(ids[near]))
+            if n > best_n:
+                best, best_n = np.median(d[near], axis=0), n
+        self._cached = (float(best[0]), float(best[1]))
+        return self._cached
 
 
 @dataclass(slots=True)
@@ -301,17 +355,18 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
 
     For each class: local maxima of the others' evidence (`others_evidence` of the joint layer and this
     UAV's memory, cover_uavs) >= min_value inside the camera footprint cut at range_m; peaks within
-    gate_m of a stronger one are dropped. With a `registration`, the kept detections scoring >=
-    register_score update it and its offset moves the peaks onto this UAV's georeferencing. The peaks
-    are projected into the image (latlon_to_pixel; behind the camera, above the horizon or outside the
-    image: skipped) and scored by `joint_score` (prior_score and the pipeline's boost settings). A kept
+    gate_m of a stronger one are dropped. The peaks are projected into the image (latlon_to_pixel;
+    behind the camera, above the horizon or outside the image: skipped); with a `registration`, the
+    kept detections scoring >= register_score (with kept_boxes) update it and its image offset moves
+    the peaks onto where this UAV sees the objects (their ground points follow the moved pixels). They
+    are scored by `joint_score` (prior_score and the pipeline's boost settings). A kept
     detection of the class (kept_lat/kept_lon (K,), NaN = none) within gate_m that scores at least that
     explains a peak; otherwise the best-scoring weaker kept box within gate_m is promoted to the peak's
     score, and with none a box is synthesised: its anchor (anchor_frac down the box, the pipeline's
     convention) at the peak's pixel, its diagonal from the size filter's band at the peak's range and
     depression, its aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and its score is the
     peak's times synth_factor: its ground point is right, but its pixel position carries the cross-UAV
-    georeferencing error left after registration (measured ~1.5 m, ~70 px at 80 m on `coop`), so it
+    georeferencing error left after registration (tens of pixels at 80 m on `coop`), so it
     rarely overlaps the object's image box and should rank below real detections (0 drops them).
     With a `carry` (already advanced to this frame) and kept_boxes (K, 4): every kept box that explains
     or is promoted by a peak is remembered there, and a peak with neither gets, before synthesis, the
@@ -337,14 +392,22 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         keep = _suppress_near(east, north, gate_m)
         east, north, evidence = east[keep], north[keep], evidence[keep]
         mine = np.flatnonzero((kept_cids == cid) & np.isfinite(k_east))
+        uv, valid = latlon_to_pixel(*local_to_latlon(east, north, pose.lat, pose.lon), camera, pose)
         if registration is not None:
-            sure = mine[kept_scores[mine] >= register_score]
-            registration.update(t, np.column_stack([east, north]), np.column_stack([k_east[sure], k_north[sure]]))
-            d_east, d_north = registration.offset()
-            east, north = east - d_east, north - d_north
+            if kept_boxes is not None:
+                sure = mine[kept_scores[mine] >= register_score]
+                b = np.asarray(kept_boxes, np.float64)[sure].reshape(-1, 4)
+                own_uv = np.column_stack([(b[:, 0] + b[:, 2]) / 2, b[:, 1] + anchor_frac * (b[:, 3] - b[:, 1])])
+                registration.update(t, np.column_stack([east, north]), np.column_stack([k_east[sure], k_north[sure]]),
+                                    uv / focal_px, own_uv / focal_px)
+            dx, dy = registration.offset()
+            if dx or dy:
+                uv = uv - focal_px * np.array([dx, dy])
+                east, north, on_ground = pixel_to_local(uv, camera, pose)
+                valid &= on_ground
         plat, plon = local_to_latlon(east, north, pose.lat, pose.lon)
-        uv, valid = latlon_to_pixel(plat, plon, camera, pose)
-        valid &= np.hypot(east, north) <= range_m
+        with np.errstate(invalid="ignore"):
+            valid &= np.hypot(east, north) <= range_m
         with np.errstate(invalid="ignore"):
             valid &= (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
         score = joint_score(evidence, prior_score, boost_mode, boost_weight, logodds_scale)

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from agent._kernels import map_values, stamp_impulses
-from shared.tiles import TileGrid
+from shared.tiles import TileGrid, fill_cell_polygons
 
 FloatArray = NDArray[np.float64]
 STAMP_MODES = ("sum", "max")
@@ -291,18 +291,68 @@ class MemoryMap:
         return out
 
 
+#: Camera footprints kept per other UAV (JointLayer.put_footprint); at 5 Hz, 12 s of them.
+MAX_FOOTPRINTS_PER_UAV = 64
+
+
 class JointLayer:
     """Latest joint (fused) tiles received from the fusion server, per class, with their times.
 
     values_at() reads them like a memory map; tiles older than ttl_s count as absent (0).
+    It also keeps the other UAVs' camera footprints (from their state messages, put_footprint): the
+    fusion server averages a cell over the UAVs whose footprints of the last cover_ttl_s hold it
+    (the server's --ttl-s, 2 s by default), and others_cover() counts them, so a UAV can tell the
+    cells where the joint value is its own evidence alone.
     """
 
-    def __init__(self, grid: TileGrid | None = None, ttl_s: float = 3.0) -> None:
+    def __init__(self, grid: TileGrid | None = None, ttl_s: float = 3.0, cover_ttl_s: float = 2.0) -> None:
         if not (math.isfinite(ttl_s) and ttl_s > 0):
             raise ValueError(f"ttl_s must be > 0, got {ttl_s!r}")
+        if not (math.isfinite(cover_ttl_s) and cover_ttl_s > 0):
+            raise ValueError(f"cover_ttl_s must be > 0, got {cover_ttl_s!r}")
         self.grid = grid or TileGrid()
         self.ttl_s = ttl_s
+        self.cover_ttl_s = cover_ttl_s
         self._tiles: dict[tuple[str, int, int], tuple[NDArray[np.float32], float]] = {}
+        # uav -> [(vertices in global cell coordinates (M, 2), time)], oldest first
+        self._footprints: dict[str, list[tuple[NDArray[np.float64], float]]] = {}
+
+    def put_footprint(self, uav: str, footprint_latlon: ArrayLike, t: float) -> bool:
+        """Record another UAV's camera footprint, ``[[lat, lon], ...]`` (M >= 3), seen at time t.
+
+        Returns False (and stores nothing) for fewer than 3 vertices, another shape, non-finite or
+        out-of-range coordinates, or a non-finite t.
+        """
+        poly = np.asarray(footprint_latlon, dtype=np.float64)
+        if poly.ndim != 2 or poly.shape[0] < 3 or poly.shape[1] != 2 or not np.isfinite(poly).all() \
+                or not math.isfinite(t):
+            return False
+        try:
+            gx, gy = self.grid.latlon_to_cell(poly[:, 0], poly[:, 1])
+        except ValueError:
+            return False
+        prints = self._footprints.setdefault(uav, [])
+        prints.append((np.column_stack([gx, gy]), float(t)))
+        del prints[:-MAX_FOOTPRINTS_PER_UAV]
+        return True
+
+    def others_cover(self, gx0: int, gy0: int, width: int, height: int, now: float) -> NDArray[np.uint8] | None:
+        """How many other UAVs cover each cell of a block: (height, width) uint8, row = gy - gy0.
+
+        A UAV covers the cells inside its footprints put within cover_ttl_s before now. None when no
+        UAV has a footprint that fresh (nothing known: the caller falls back to an assumption).
+        """
+        out = np.zeros((max(int(height), 0), max(int(width), 0)), dtype=np.uint8)
+        known = False
+        for uav in list(self._footprints):
+            prints = [p for p in self._footprints[uav] if 0.0 <= now - p[1] <= self.cover_ttl_s]
+            if not prints:
+                if all(now - p[1] > self.cover_ttl_s for p in self._footprints[uav]):
+                    del self._footprints[uav]
+                continue
+            known = True
+            out += fill_cell_polygons((cells for cells, _ in prints), gx0, gy0, out.shape[1], out.shape[0])
+        return out if known else None
 
     def __len__(self) -> int:
         return len(self._tiles)

@@ -171,6 +171,10 @@ class AgentSettings:
 # Tiles: what to send this cycle
 # ---------------------------------------------------------------------------------------------
 
+#: How long (wall seconds) another UAV covers the cells of a footprint it sent: the fusion server's
+#: default --ttl-s, after which the server stops counting it in a cell's mean.
+COVER_TTL_S = 2.0
+
 #: Tiles whose cells take at most this many bytes go out even when the byte budget is spent.
 _ALWAYS_SEND_BYTES = 256
 
@@ -479,8 +483,8 @@ class AgentNode:
         self.on_frame = on_frame
         self.on_ready = on_ready
         self.counts: dict[str, Any] = {"frames": 0, "frames_without_pose": 0, "frame_errors": 0, "detections": 0,
-                                       "publish_cycles": 0, "joint_tiles_applied": 0, "joint_query_replies": 0,
-                                       "joint_detections": 0, "behind_s_max": 0.0}
+                                       "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,
+                                       "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0}
         self._rows: list[tuple[int, float, TrackOutput]] = []
         self._last_pose: tuple[float, Pose, Camera] | None = None
         self._t_frame: float | None = None
@@ -624,6 +628,11 @@ class AgentNode:
             self.joint.update(update.cls, update.x, update.y, update.values, t - update.age_s * rate)
             self.counts["joint_tiles_applied"] += 1
         self.joint.prune(t)
+        # the others' footprints say which cells their evidence is in the joint mean for
+        self.joint.cover_ttl_s = COVER_TTL_S * rate
+        for fp in self.link.drain_footprints(max_age_s=COVER_TTL_S):
+            if self.joint.put_footprint(fp.uav, fp.footprint, t - fp.age_s * rate):
+                self.counts["footprints_applied"] += 1
 
     # ---- publishing ----------------------------------------------------------------------------
     def _joint_tracks(self) -> JointTracksMessage | None:

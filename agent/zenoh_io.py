@@ -23,16 +23,18 @@ from numpy.typing import NDArray
 from agent.zenoh_config import open_session
 from shared.keys import JOINT_UAV, KeySpace
 from shared.messages import (
+    DEFAULT_MAX_STATE_BYTES,
     VERSION,
     JointTracksMessage,
     MessageError,
     TracksMessage,
     decode_joint_tracks,
+    decode_state,
 )
 from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, decode_tile
 from shared.tiles import TileGrid
 
-__all__ = ["AgentLink", "JointTileUpdate", "encode_tracks_with_gid"]
+__all__ = ["AgentLink", "FootprintUpdate", "JointTileUpdate", "encode_tracks_with_gid"]
 
 log = logging.getLogger(__name__)
 
@@ -71,6 +73,19 @@ class JointTileUpdate:
     x: int
     y: int
     values: NDArray[np.float32]
+    age_s: float
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class FootprintUpdate:
+    """Another UAV's camera footprint, from its latest state message.
+
+    footprint: ((lat, lon), ...) ground polygon, >= 3 vertices. age_s: wall seconds since it was
+    received (at the time it was drained).
+    """
+
+    uav: str
+    footprint: tuple[tuple[float, float], ...]
     age_s: float
 
 
@@ -137,6 +152,9 @@ class AgentLink:
         self._joint_tiles: dict[tuple[str, int, int], tuple[NDArray[np.float32], float, int, float]] = {}
         self._joint_pending: set[tuple[str, int, int]] = set()
         self._joint_tracks: tuple[JointTracksMessage, float] | None = None
+        # other UAVs' latest footprints: uav -> (footprint, monotonic receive time), and the new ones
+        self._footprints: dict[str, tuple[tuple[tuple[float, float], ...], float]] = {}
+        self._footprints_pending: set[str] = set()
         self._counts: Counter[str] = Counter()
         self._bytes: Counter[str] = Counter()
         self._rejects: Counter[str] = Counter()
@@ -157,6 +175,8 @@ class AgentLink:
         self._declared = [
             session.declare_subscriber(self.keys.joint_tiles_all(), self._on_sample),
             session.declare_subscriber(self.keys.joint_tracks(), self._on_sample),
+            # the other UAVs' footprints: where the joint mean holds their evidence (JointLayer.others_cover)
+            session.declare_subscriber(self.keys.uav_state("*"), self._on_sample),
         ]
         self._known_remotes = self._remotes()
         self._thread = threading.Thread(target=self._run, name=f"uavmm-agent-{self.uav}-publisher", daemon=True)
@@ -309,7 +329,7 @@ class AgentLink:
     def _reject(self, reason: str, key: str, detail: object) -> None:
         with self._lock:
             self._rejects[reason] += 1
-        self._warn(reason, "agent %s: dropped joint message on %.120s: %s: %.200s", self.uav, key, reason, detail)
+        self._warn(reason, "agent %s: dropped message on %.120s: %s: %.200s", self.uav, key, reason, detail)
 
     def _on_reply(self, reply: zenoh.Reply) -> None:
         try:
@@ -337,6 +357,9 @@ class AgentLink:
                 self._on_joint_tile(key, parsed, sample.payload)
             elif parsed.kind == "joint_tracks":
                 self._on_joint_tracks(key, sample.payload)
+            elif parsed.kind == "uav_state":
+                if parsed.uav != self.uav:
+                    self._on_state(key, parsed.uav, sample.payload)
             else:
                 self._reject("unexpected_key", key, "not a joint key")
         except Exception:  # a bug must not take the subscriber down: count it, log it
@@ -392,6 +415,25 @@ class AgentLink:
             self._counts["joint_tracks"] += 1
             self._bytes["joint_tracks"] += len(payload)
 
+    def _on_state(self, key: str, uav: str, payload: zenoh.ZBytes) -> None:
+        if len(payload) > DEFAULT_MAX_STATE_BYTES:
+            self._reject("too_large", key, f"{len(payload)} bytes")
+            return
+        try:
+            msg = decode_state(payload.to_bytes(), max_bytes=DEFAULT_MAX_STATE_BYTES)
+        except MessageError as exc:
+            self._reject(exc.reason, key, exc)
+            return
+        if msg.uav != uav:
+            self._reject("uav_mismatch", key, f"uav {msg.uav!r} on the state key of {uav!r}")
+            return
+        with self._lock:
+            self._counts["states"] += 1
+            self._bytes["states"] += len(payload)
+            if len(msg.footprint) >= 3:
+                self._footprints[uav] = (msg.footprint, time.monotonic())
+                self._footprints_pending.add(uav)
+
     # ---- reading the joint side ----------------------------------------------------------------
     def drain_joint_tiles(self, max_age_s: float | None = None) -> list[JointTileUpdate]:
         """Joint tiles received since the last call (latest per tile), with their age in seconds.
@@ -409,6 +451,24 @@ class AgentLink:
                 values, received, _, _ = self._joint_tiles[(cls, x, y)]
                 out.append(JointTileUpdate(cls, x, y, values, now - received))
             self._joint_pending.clear()
+        return out
+
+    def drain_footprints(self, max_age_s: float | None = None) -> list[FootprintUpdate]:
+        """Other UAVs' footprints received since the last call (the latest per UAV), with their age.
+
+        Footprints older than ``max_age_s`` are forgotten here (and not returned).
+        """
+        now = time.monotonic()
+        with self._lock:
+            out = []
+            for uav in self._footprints_pending:
+                footprint, received = self._footprints[uav]
+                if max_age_s is None or now - received <= max_age_s:
+                    out.append(FootprintUpdate(uav, footprint, now - received))
+            self._footprints_pending.clear()
+            if max_age_s is not None:
+                for uav in [u for u, v in self._footprints.items() if now - v[1] > max_age_s]:
+                    del self._footprints[uav]
         return out
 
     def joint_tracks(self) -> tuple[JointTracksMessage, float] | None:

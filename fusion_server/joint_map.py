@@ -21,14 +21,13 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 from numpy.typing import NDArray
 
 from fusion_server.rules import FusionRule
 from shared.keys import JOINT_UAV
 from shared.tilecodec import encode_tile_sparse
-from shared.tiles import TileGrid
+from shared.tiles import TileGrid, fill_cell_polygons
 
 __all__ = ["COVERAGE_MODES", "JointMap", "JointTile", "JointUpdate", "TileKey", "encode_joint_tile"]
 
@@ -39,8 +38,6 @@ _MAX_CLASSES = 1024
 COVERAGE_MODES = ("footprint", "tile")
 #: Footprints kept per UAV (5 Hz state messages over a 2 s time to live are 10).
 _MAX_FOOTPRINTS = 64
-#: Sub-cell precision of the rasterised footprints (cv2.fillPoly shift).
-_SHIFT = 4
 #: Publications a tile may make in a burst above its max_hz average (absorbs jitter of the agents).
 _BURST = 2.0
 
@@ -248,14 +245,9 @@ class JointMap:
             return cached[1]
         n = self.grid.n
         x0, y0 = x * n, y * n
-        canvas = np.zeros((n, n), dtype=np.uint8)
-        for fp in prints:
-            if fp.hi[0] < x0 or fp.lo[0] > x0 + n or fp.hi[1] < y0 or fp.lo[1] > y0 + n:
-                continue
-            # cell (r, c) has its centre at (c + 0.5, r + 0.5) in continuous cell coordinates
-            pts = np.rint((fp.cells - (x0 + 0.5, y0 + 0.5)) * (1 << _SHIFT)).astype(np.int32)
-            cv2.fillPoly(canvas, [pts], 1, lineType=cv2.LINE_8, shift=_SHIFT)
-        mask = canvas.view(bool)
+        mask = fill_cell_polygons((fp.cells for fp in prints if not (fp.hi[0] < x0 or fp.lo[0] > x0 + n
+                                                                     or fp.hi[1] < y0 or fp.lo[1] > y0 + n)),
+                                  x0, y0, n, n)
         if len(self._masks) > 4 * self.max_uav_tiles:
             self._masks.clear()
         self._masks[(uav, x, y)] = (self._fp_version, mask)

@@ -12,6 +12,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
+import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
@@ -24,6 +25,7 @@ __all__ = [
     "CellWindow",
     "TileGrid",
     "TileOverlap",
+    "fill_cell_polygons",
     "latlon_to_tile_xy",
 ]
 
@@ -406,6 +408,33 @@ class CellWindow:
             for overlap in by_tile.get((int(x), int(y)), ()):
                 out[overlap.window] = tile[overlap.tile]
         return out
+
+
+#: Sub-cell precision (bits) of fill_cell_polygons (cv2.fillPoly shift).
+_POLY_SHIFT = 4
+
+
+def fill_cell_polygons(polygons: Iterable[ArrayLike], gx0: int, gy0: int, width: int, height: int
+                       ) -> NDArray[np.bool_]:
+    """Cells of a block inside any of the polygons: (height, width) bool.
+
+    Every cell whose centre lies inside is set, and so are cells the edges pass through (OpenCV's
+    fillPoly draws the outline too): at most one cell beyond the polygon.
+
+    polygons: (M, 2) vertices (M >= 3) in continuous global cell coordinates (gx, gy), as
+    TileGrid.latlon_to_cell gives them; row r, column c of the block is the cell (gx0 + c, gy0 + r),
+    whose centre is (gx0 + c + 0.5, gy0 + r + 0.5). Polygons with fewer than 3 vertices are skipped.
+    """
+    canvas = np.zeros((max(int(height), 0), max(int(width), 0)), dtype=np.uint8)
+    if canvas.size == 0:
+        return canvas.view(bool)
+    for poly in polygons:
+        cells = np.asarray(poly, dtype=np.float64)
+        if cells.ndim != 2 or cells.shape[0] < 3 or cells.shape[1] != 2:
+            continue
+        pts = np.rint((cells - (gx0 + 0.5, gy0 + 0.5)) * (1 << _POLY_SHIFT)).astype(np.int32)
+        cv2.fillPoly(canvas, [pts], 1, lineType=cv2.LINE_8, shift=_POLY_SHIFT)
+    return canvas.view(bool)
 
 
 _CODEC_NAMES = frozenset(

@@ -52,6 +52,7 @@ class CoopFusion:
         self.joint = JointMap(grid, get_fusion_rule(rule), JOINT_TTL_S, 1.0 / PUBLISH_PERIOD_S, coverage=coverage,
                               clock=lambda: self.now, wall=lambda: self.now)
         self.pipes = pipes
+        self.footprints: dict[str, tuple] = {}  # uav -> footprint of its latest state message
         self.senders = {uav: TileChangeTracker(uav, classes, grid, min_value=TILE_MIN_VALUE, clock=lambda: self.now)
                         for uav in uavs}
 
@@ -72,6 +73,7 @@ class CoopFusion:
                 pose, camera = poses[uav]
                 state = state_message(uav, t, pose, camera, range_m=pipe.config.range_limit_m)
                 self.joint.put_footprint(uav, state.footprint)
+                self.footprints[uav] = state.footprint
         updates, _ = self.joint.step()
         out = []
         for update in updates:
@@ -133,6 +135,11 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
             for cls, x, y, values in fusion.publish(t, poses):
                 for joint in joints.values():
                     joint.update(cls, x, y, np.zeros((joint.grid.n,) * 2, np.float32) if values is None else values, t)
+            # and each UAV hears the others' state messages (their footprints) of this cycle
+            for vid, joint in joints.items():
+                for uav, footprint in fusion.footprints.items():
+                    if uav != uav_of[vid]:
+                        joint.put_footprint(uav, footprint, t)
             next_publish = t + PUBLISH_PERIOD_S
     return results
 

@@ -140,14 +140,58 @@ def test_others_evidence_takes_the_own_contribution_out_of_the_mean():
     np.testing.assert_allclose(others_evidence(joint, own, 1), joint)
 
 
-def test_registration_measures_the_median_offset_of_mutual_nearest_pairs():
+def test_others_evidence_uses_the_partners_coverage_where_it_is_known():
+    joint = np.array([0.5, 0.5, 0.6, 0.6], np.float32)
+    own = np.array([0.0, 0.5, 0.6, 0.3], np.float32)
+    # no partner covers cells 0 and 2: the joint value there is this UAV's own (or stale) evidence
+    np.testing.assert_allclose(others_evidence(joint, own, 2, others_cover=np.array([0, 1, 0, 2])),
+                               [0.0, 0.5, 0.0, 0.75], atol=1e-6)
+
+
+def test_own_evidence_where_no_partner_looks_is_not_taken_for_the_partners():
+    joint, lat, lon = joint_with_blob(2.0, 40.0)  # the joint value the mean of this UAV's own tile alone
+    # before any partner footprint is known, cover_uavs = 2 is assumed everywhere: a joint detection
+    assert run(DetectionPipeline(CAM, CLASSES, joint=joint)).from_joint.tolist() == [True]
+    east = np.array([-60.0, -20.0, -20.0, -60.0])
+    north = np.array([0.0, 0.0, 80.0, 80.0])  # the partner looks 20-60 m west of the blob
+    joint.put_footprint("uav2", np.column_stack(local_to_latlon(east, north, POSE.lat, POSE.lon)), T)
+    assert len(run(DetectionPipeline(CAM, CLASSES, joint=joint))) == 0
+    joint.put_footprint("uav2", np.column_stack(local_to_latlon(east + 40.0, north, POSE.lat, POSE.lon)), T)
+    assert run(DetectionPipeline(CAM, CLASSES, joint=joint)).from_joint.tolist() == [True]
+
+
+def _grid_people(rng: np.random.Generator, n: int = 8) -> np.ndarray:
+    return np.column_stack([rng.uniform(-20, 20, n), rng.uniform(30, 60, n)])
+
+
+def test_registration_finds_the_image_offset_most_peaks_share():
     reg = JointRegistration(radius_m=8.0, window_s=10.0, min_pairs=3)
-    own = np.array([[0.0, 0.0], [10.0, 0.0], [20.0, 5.0]])
     assert reg.offset() == (0.0, 0.0)
+    rng = np.random.default_rng(1)
+    true = np.array([0.05, -0.01])  # focal lengths: ~3 deg sideways
+    for k in range(20):
+        own_en = _grid_people(rng)
+        own_xy = own_en / 50.0  # any image positions will do: the offset is what is measured
+        peak_en = own_en[:6] + rng.normal(0, 0.5, (6, 2))  # the partner sees 6 of the 8, with jitter
+        peak_xy = own_xy[:6] + true + rng.normal(0, 0.006, (6, 2))
+        # and 3 people this UAV misses (resting behind a tree) beside one it sees: their pairs with it
+        # fall on one sharp wrong offset frame after frame, a higher histogram maximum than the spread one
+        group = own_en[6] + np.array([[1.5, 0.0], [0.0, 1.5], [-1.5, 0.0]])
+        group_xy = np.repeat(own_xy[6:7] + [0.02, 0.0], 3, axis=0)
+        reg.update(float(k) / 5, np.vstack([peak_en, group]), own_en, np.vstack([peak_xy, group_xy]), own_xy)
+    dx, dy = reg.offset()
+    assert (dx, dy) == pytest.approx(tuple(true), abs=0.002)
+
+
+def test_registration_ignores_far_pairs_and_forgets_old_ones():
+    reg = JointRegistration(radius_m=8.0, window_s=10.0, min_pairs=3)
+    own_en = np.array([[0.0, 40.0], [10.0, 40.0], [20.0, 45.0]])
     for k in range(3):
-        reg.update(float(k), own + [1.5, -2.0], own)
-    assert reg.offset() == pytest.approx((1.5, -2.0))
-    reg.update(30.0, own + [50.0, 0.0], own)  # too far to pair; the old pairs age out
+        reg.update(float(k), own_en + [1.0, 0.0], own_en, own_en / 50 + [0.01, 0.0], own_en / 50)
+    assert reg.offset() == pytest.approx((0.01, 0.0), abs=1e-3)
+    reg.update(30.0, own_en + [50.0, 0.0], own_en, own_en / 50 + [0.01, 0.0], own_en / 50)  # too far to pair
+    assert reg.offset() == (0.0, 0.0)  # and the old pairs have aged out
+    reg.update(31.0, own_en, own_en, own_en / 50 + [0.5, 0.0], own_en / 50)  # beyond max_rad: no attitude bias
     assert reg.offset() == (0.0, 0.0)
 
 

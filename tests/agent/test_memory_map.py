@@ -203,6 +203,48 @@ def test_joint_layer_reads_fresh_tiles_only():
         jl.update("person", x, y, np.zeros((3, 3), np.float32), t=0.0)
 
 
+def _square_latlon(east0: float, north0: float, size_m: float) -> np.ndarray:
+    east = np.array([east0, east0 + size_m, east0 + size_m, east0])
+    north = np.array([north0, north0, north0 + size_m, north0 + size_m])
+    lat, lon = local_to_latlon(east, north, LAT, LON)
+    return np.column_stack([lat, lon])
+
+
+def test_joint_layer_counts_the_other_uavs_whose_recent_footprints_hold_a_cell():
+    jl = JointLayer(GRID, ttl_s=3.0, cover_ttl_s=2.0)
+    gx, gy = cell_of(0.0, 0.0)
+    gx0, gy0 = int(gx) - 40, int(gy) - 40
+    assert jl.others_cover(gx0, gy0, 80, 80, now=10.0) is None  # nothing known
+    assert jl.put_footprint("uav2", _square_latlon(-10.0, -10.0, 20.0), t=10.0)
+    assert jl.put_footprint("uav3", _square_latlon(0.0, 0.0, 20.0), t=10.5)
+    cover = jl.others_cover(gx0, gy0, 80, 80, now=11.0)
+    assert cover is not None and cover.shape == (80, 80) and cover.dtype == np.uint8
+
+    def at(east: float, north: float) -> int:
+        cx, cy = cell_of(east, north)
+        return int(cover[int(cy) - gy0, int(cx) - gx0])
+
+    assert (at(5.0, 5.0), at(-5.0, -5.0), at(15.0, 15.0), at(-15.0, 15.0)) == (2, 1, 1, 0)
+    # uav2's footprint is older than cover_ttl_s at 12.2, uav3's is not; at 13 none is left
+    cover = jl.others_cover(gx0, gy0, 80, 80, now=12.2)
+    assert cover is not None and (at(5.0, 5.0), at(-5.0, -5.0)) == (1, 0)
+    assert jl.others_cover(gx0, gy0, 80, 80, now=13.0) is None
+
+
+def test_joint_layer_ignores_malformed_footprints():
+    jl = JointLayer(GRID)
+    good = _square_latlon(0.0, 0.0, 10.0)
+    assert not jl.put_footprint("uav2", good[:2], t=1.0)
+    assert not jl.put_footprint("uav2", np.column_stack([good, good[:, :1]]), t=1.0)
+    assert not jl.put_footprint("uav2", np.where(np.eye(4, 2, dtype=bool), np.nan, good), t=1.0)
+    assert not jl.put_footprint("uav2", [[95.0, 9.0], [95.0, 9.1], [95.1, 9.1]], t=1.0)  # beyond the map
+    assert not jl.put_footprint("uav2", good, t=float("inf"))
+    gx, gy = cell_of(0.0, 0.0)
+    assert jl.others_cover(int(gx), int(gy), 4, 4, now=1.0) is None
+    with pytest.raises(ValueError, match="cover_ttl_s"):
+        JointLayer(GRID, cover_ttl_s=0.0)
+
+
 # ----------------------------------------------------------------------------- pipeline
 
 POSE = Pose(lat=LAT, lon=LON, height_m=40.0, pitch_deg=60.0, heading_deg=30.0)

@@ -22,7 +22,7 @@ import numpy as np
 import pytest
 import zenoh
 
-from agent.node import AgentNode, AgentSettings
+from agent.node import AgentNode, AgentSettings, state_message
 from agent.pipeline import PipelineConfig
 from agent.sources import SimSource, SourceFrame
 from agent.zenoh_config import ZenohOptions
@@ -34,6 +34,7 @@ from shared.messages import (
     decode_state,
     decode_tracks,
     encode_joint_tracks,
+    encode_state,
 )
 from shared.tilecodec import TileMessage, decode_tile, encode_tile
 from shared.tiles import TileGrid
@@ -260,6 +261,26 @@ def test_agent_publishes_tiles_state_tracks_and_a_liveliness_token(server, serve
     assert all(i.cls == "person" and 0 <= i.score <= 1 for i in items)
     assert abs(np.median([i.lat for i in items]) - 48.5312) < 5e-4  # the coop scene
     assert node.summary()["link"]["rejected"] == {}
+
+
+def test_agent_learns_the_other_uavs_footprints_from_their_state_messages(server, server_port):
+    last_t = []
+    node = AgentNode(agent_settings(server_port, "uav1", speed=1.0), ScriptedSource(10**6, lambda i: []),
+                     on_frame=lambda frame, result, tracks: last_t.append(frame.t))
+    other = Pose(lat=LAT, lon=LON + 0.0003, height_m=30.0, pitch_deg=90.0, heading_deg=0.0)  # ~22 m east
+    state = state_message("uav2", time.time(), other, CAMERA, range_m=200.0)
+    with RunningAgent(node):
+        wait_until(lambda: node.counts["frames"] > 3, 20.0)
+        server.put(KEYS.uav_state("uav2"), msgpack.packb({**msgpack.unpackb(encode_state(state)), "uav": "uav3"}))
+        server.put(KEYS.uav_state("uav2"), b"\xc1junk")
+        server.put(KEYS.uav_state("uav2"), encode_state(state))
+        wait_until(lambda: node.counts["footprints_applied"] >= 1, 10.0)
+    gx, gy = GRID.latlon_to_cell_index(np.array([LAT, LAT]), np.array([LON + 0.0003, LON - 0.0003]))
+    cover = node.joint.others_cover(int(gx[1]), int(gy[0]), int(gx[0] - gx[1]) + 1, 1, last_t[-1])
+    assert cover is not None and cover[0, -1] == 1 and cover[0, 0] == 0  # under uav2, 44 m west of it
+    rejected = node.summary()["link"]["rejected"]
+    assert rejected == {"uav_mismatch": 1, "not_msgpack": 1}  # and its own state is not taken for another's
+    assert node.summary()["link"]["counts"]["states"] == 1
 
 
 # ---- the joint map boosts ----------------------------------------------------------------------

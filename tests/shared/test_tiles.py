@@ -14,6 +14,7 @@ from shared.tiles import (
     MAX_LAT_DEG,
     CellWindow,
     TileGrid,
+    fill_cell_polygons,
     latlon_to_tile_xy,
 )
 
@@ -385,3 +386,33 @@ def test_split_tiles_are_independent_of_the_window_array() -> None:
     ((_, _, tile),) = window.split(values)
     values[:] = 5.0
     assert tile.max() == 1.0
+
+
+# ----------------------------------------------------------------------------- fill_cell_polygons
+@settings(max_examples=200, deadline=None)
+@given(x0=st.integers(-5, 20), y0=st.integers(-5, 20), w=st.integers(1, 12), h=st.integers(1, 12),
+       gx0=st.integers(-3, 3), gy0=st.integers(-3, 3))
+def test_fill_cell_polygons_fills_the_cells_whose_centres_are_inside(x0, y0, w, h, gx0, gy0):
+    # a rectangle whose edges lie a quarter cell off the centres: no centre is on an edge
+    rect = np.array([[x0 + 0.25, y0 + 0.25], [x0 + w + 0.25, y0 + 0.25], [x0 + w + 0.25, y0 + h + 0.25],
+                     [x0 + 0.25, y0 + h + 0.25]])
+    mask = fill_cell_polygons([rect], gx0, gy0, 16, 12)
+    assert mask.shape == (12, 16) and mask.dtype == bool
+    cx = gx0 + np.arange(16) + 0.5
+    cy = gy0 + np.arange(12)[:, None] + 0.5
+    def within(margin: float) -> np.ndarray:
+        return ((cx > rect[0, 0] - margin) & (cx < rect[1, 0] + margin) & (cy > rect[0, 1] - margin)
+                & (cy < rect[2, 1] + margin))
+
+    assert not (within(0.0) & ~mask).any()  # every centre inside is filled
+    assert not (mask & ~within(1.0)).any()  # and nothing beyond the cells the edges pass through
+
+
+def test_fill_cell_polygons_joins_polygons_and_skips_degenerate_ones():
+    a = np.array([[0.0, 0.0], [2.0, 0.0], [2.0, 2.0], [0.0, 2.0]])
+    b = a + [4.0, 0.0]
+    mask = fill_cell_polygons([a, b, a[:2], np.zeros((4, 3))], 0, 0, 8, 4)
+    assert mask[0:2, 0:2].all() and mask[0:2, 4:6].all()
+    assert not mask[:, 7].any() and not mask[3].any()
+    assert not fill_cell_polygons([a[:2]], 0, 0, 4, 4).any()
+    assert fill_cell_polygons([a], 0, 0, 0, 5).shape == (5, 0)
