@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.memory_map import JointLayer, MemoryMap
-from agent.pipeline import FrameResult, anchor_fraction, boost_scores, nms
+from agent.pipeline import FrameResult, anchor_fraction, anchor_points, boost_scores, nms
 from agent.size_filter import NOMINAL_DIMENSIONS_M, SizeFilter
 from agent.tracker import box_iou
 from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon, pixel_to_local
@@ -396,8 +396,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         if registration is not None:
             if kept_boxes is not None:
                 sure = mine[kept_scores[mine] >= register_score]
-                b = np.asarray(kept_boxes, np.float64)[sure].reshape(-1, 4)
-                own_uv = np.column_stack([(b[:, 0] + b[:, 2]) / 2, b[:, 1] + anchor_frac * (b[:, 3] - b[:, 1])])
+                own_uv = anchor_points(np.asarray(kept_boxes, np.float64)[sure].reshape(-1, 4), anchor_frac)
                 registration.update(t, np.column_stack([east, north]), np.column_stack([k_east[sure], k_north[sure]]),
                                     uv / focal_px, own_uv / focal_px)
             dx, dy = registration.offset()

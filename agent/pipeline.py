@@ -171,8 +171,12 @@ def anchor_fraction(anchor: str, pitch_deg: float) -> float:
 
 def box_anchor_points(boxes_xyxy: NDArray, anchor: str, pitch_deg: float) -> NDArray[np.float64]:
     """(N, 4) boxes -> (N, 2) pixel of each box's ground point."""
+    return anchor_points(boxes_xyxy, anchor_fraction(anchor, pitch_deg))
+
+
+def anchor_points(boxes_xyxy: NDArray, frac: float) -> NDArray[np.float64]:
+    """(N, 4) boxes -> (N, 2) pixels at the middle of each box, frac of its height down (anchor_fraction)."""
     x1, y1, x2, y2 = (boxes_xyxy[:, i].astype(np.float64) for i in range(4))
-    frac = anchor_fraction(anchor, pitch_deg)
     return np.column_stack([(x1 + x2) / 2.0, y1 + frac * (y2 - y1)])
 
 
