@@ -323,16 +323,16 @@ class JointLayer:
         Returns False (and stores nothing) for fewer than 3 vertices, another shape, non-finite or
         out-of-range coordinates, or a non-finite t.
         """
-        poly = np.asarray(footprint_latlon, dtype=np.float64)
-        if poly.ndim != 2 or poly.shape[0] < 3 or poly.shape[1] != 2 or not np.isfinite(poly).all() \
-                or not math.isfinite(t):
+        if not math.isfinite(t):
             return False
         try:
-            gx, gy = self.grid.latlon_to_cell(poly[:, 0], poly[:, 1])
-        except ValueError:
+            cells = self.grid.polygon_cells(footprint_latlon)
+        except ValueError:  # beyond the map's latitude range
+            return False
+        if cells is None:
             return False
         prints = self._footprints.setdefault(uav, [])
-        prints.append((np.column_stack([gx, gy]), float(t)))
+        prints.append((cells, float(t)))
         del prints[:-MAX_FOOTPRINTS_PER_UAV]
         return True
 
@@ -345,13 +345,14 @@ class JointLayer:
         out = np.zeros((max(int(height), 0), max(int(width), 0)), dtype=np.uint8)
         known = False
         for uav in list(self._footprints):
-            prints = [p for p in self._footprints[uav] if 0.0 <= now - p[1] <= self.cover_ttl_s]
-            if not prints:
-                if all(now - p[1] > self.cover_ttl_s for p in self._footprints[uav]):
-                    del self._footprints[uav]
-                continue
-            known = True
-            out += fill_cell_polygons((cells for cells, _ in prints), gx0, gy0, out.shape[1], out.shape[0])
+            # forget what is too old for good; footprints stamped after now wait for their time
+            kept = self._footprints[uav] = [p for p in self._footprints[uav] if now - p[1] <= self.cover_ttl_s]
+            prints = [cells for cells, t in kept if t <= now]
+            if not kept:
+                del self._footprints[uav]
+            if prints:
+                known = True
+                out += fill_cell_polygons(prints, gx0, gy0, out.shape[1], out.shape[0])
         return out if known else None
 
     def __len__(self) -> int:

@@ -209,11 +209,9 @@ class JointMap:
         """
         if self.coverage != "footprint":
             return False
-        poly = np.asarray(footprint_latlon, dtype=np.float64)
-        if poly.ndim != 2 or poly.shape[0] < 3 or poly.shape[1] != 2 or not np.isfinite(poly).all():
+        cells = self.grid.polygon_cells(footprint_latlon)
+        if cells is None:
             return False
-        gx, gy = self.grid.latlon_to_cell(poly[:, 0], poly[:, 1])
-        cells = np.column_stack([gx, gy])
         now = self._clock() if now is None else now
         with self._lock:
             prints = self._footprints.setdefault(uav, [])

@@ -156,6 +156,18 @@ class TileGrid:
         gx = np.minimum(gx, np.nextafter(cells, 0.0))
         return gx, gy
 
+    def polygon_cells(self, polygon_latlon: ArrayLike) -> NDArray[np.float64] | None:
+        """A ground polygon ``[[lat, lon], ...]`` in continuous global cell coordinates: (M, 2) (gx, gy).
+
+        None when it is not a polygon (fewer than 3 vertices, another shape, non-finite values); a
+        latitude beyond +-MAX_LAT_DEG raises ValueError like latlon_to_cell. For fill_cell_polygons.
+        """
+        poly = np.asarray(polygon_latlon, dtype=np.float64)
+        if poly.ndim != 2 or poly.shape[0] < 3 or poly.shape[1] != 2 or not np.isfinite(poly).all():
+            return None
+        gx, gy = self.latlon_to_cell(poly[:, 0], poly[:, 1])
+        return np.column_stack([gx, gy])
+
     def latlon_to_cell_index(self, lat: ArrayLike, lon: ArrayLike) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
         """Integer global cell (gx, gy) containing each point, int64 of the broadcast shape.
 
