@@ -42,6 +42,18 @@ CARRY_MATCH_IOU = 0.3
 #: A remembered sighting stands for a peak up to this many joint_gate_m away (this UAV's own ground point
 #: of a person at 80 m grazing errs by metres along the line of sight from frame to frame).
 CARRY_GATE = 2.0
+#: A remembered sighting stands for a peak no box explains only once this UAV has seen the object there in
+#: at least this many frames (overlapping sightings, see JointCarry.observe). Measured on `coop` (seeds 3
+#: and 4): carried boxes from a single sighting were right in 6-9 % of frames (mostly a background false
+#: positive or a neighbour's box that happened to lie near the peak), from four or more in 88 %.
+CARRY_MIN_SIGHTINGS = 2
+#: Angular gate around a peak's (registered) pixel, (across, down) in focal lengths (radians): a kept box
+#: whose anchor lies inside this ellipse is near the peak, as is one within joint_gate_m on the ground.
+#: What is left of the cross-UAV error after registration is angular (both UAVs' heading and pitch
+#: jitter, the telemetry's sample-and-hold during sweeps): at 80 m and 20 deg a ground gate of 3 m spans
+#: ~105 px across but only ~33 px down the image, less than the peaks' scatter (inter-quartile ~35-70 px
+#: down, ~80 px across on `coop`). 0.035 / 0.02 rad are 2.0 / 1.15 deg (~105 / 60 px at focal 2985 px).
+PEAK_GATE_RAD = (0.035, 0.02)
 #: Weight of a new sighting against the remembered one it overlaps (1 = keep the new box only).
 SIGHTING_BLEND = 0.5
 #: Gain of a remembered sighting's image velocity on each new sighting (the beta of an alpha-beta
@@ -109,7 +121,7 @@ def joint_score(evidence: NDArray, prior_score: float, boost_mode: str, boost_we
     The pipeline's own boost applied to a candidate of confidence `prior_score` at a cell with memory
     `evidence` (N,): "logodds": sigmoid(logit(prior) + w * scale * evidence); "add": prior + w * evidence.
     So it ranks like a detector candidate of that confidence boosted by the same map: with the defaults
-    (prior 0.1, w 1, scale 4) evidence 0.5 gives 0.45 and evidence 1 gives 0.86.
+    (prior 0.5, w 1, scale 4) evidence 0.3 gives 0.77, 0.5 gives 0.88 and 1 gives 0.98.
     """
     e = np.asarray(evidence, dtype=np.float64)
     return boost_scores(np.full(e.shape, prior_score), e, boost_mode, boost_weight, logodds_scale).astype(np.float32)
@@ -267,6 +279,7 @@ class _Anchor:
     north: float
     t_seen: float
     velocity: NDArray[np.float64] = field(default_factory=lambda: np.zeros(2))  # pixels per second
+    sightings: int = 1  # frames in a row (overlapping boxes) this object was seen here
 
 
 class JointCarry:
@@ -316,6 +329,7 @@ class JointCarry:
         e, n = float(east[0]), float(north[0])
         new = np.asarray(box, np.float64).reshape(4).copy()
         velocity = np.zeros(2)
+        sightings = 1
         same = [a for a in self.anchors if a.cid == cid and math.hypot(a.east - e, a.north - n) <= gate_m]
         if same:
             last = min(same, key=lambda a: math.hypot(a.east - e, a.north - n))
@@ -326,8 +340,9 @@ class JointCarry:
                 dt = t - last.t_seen
                 velocity = last.velocity + (VELOCITY_GAIN * miss / dt if dt > 0 else 0.0)
                 new = SIGHTING_BLEND * new + (1.0 - SIGHTING_BLEND) * last.box
+                sightings = last.sightings + 1
         self.anchors = [a for a in self.anchors if not any(a is b for b in same)]
-        self.anchors.append(_Anchor(cid, new, e, n, t, velocity))
+        self.anchors.append(_Anchor(cid, new, e, n, t, velocity, sightings))
 
     def nearest(self, cid: int, lat: float, lon: float, gate_m: float, exclude: set[int]) -> int | None:
         """Index of the anchor of class cid nearest to lat, lon within gate_m (not in exclude), or None."""
@@ -359,19 +374,21 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
     behind the camera, above the horizon or outside the image: skipped); with a `registration`, the
     kept detections scoring >= register_score (with kept_boxes) update it and its image offset moves
     the peaks onto where this UAV sees the objects (their ground points follow the moved pixels). They
-    are scored by `joint_score` (prior_score and the pipeline's boost settings). A kept
-    detection of the class (kept_lat/kept_lon (K,), NaN = none) within gate_m that scores at least that
-    explains a peak; otherwise the best-scoring weaker kept box within gate_m is promoted to the peak's
-    score, and with none a box is synthesised: its anchor (anchor_frac down the box, the pipeline's
-    convention) at the peak's pixel, its diagonal from the size filter's band at the peak's range and
-    depression, its aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and its score is the
+    are scored by `joint_score` (prior_score and the pipeline's boost settings). A kept detection of the
+    class is near a peak when its ground point (kept_lat/kept_lon (K,), NaN = none) is within gate_m or,
+    with kept_boxes, its anchor pixel within the PEAK_GATE_RAD ellipse around the peak's pixel. A near
+    one that scores at least the peak's score explains it; otherwise the best-scoring weaker near box is
+    promoted to the peak's score, and with none a box is synthesised: its anchor (anchor_frac down the
+    box, the pipeline's convention) at the peak's pixel, its diagonal from the size filter's band at the
+    peak's range and depression, its aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and its score is the
     peak's times synth_factor: its ground point is right, but its pixel position carries the cross-UAV
     georeferencing error left after registration (tens of pixels at 80 m on `coop`), so it
     rarely overlaps the object's image box and should rank below real detections (0 drops them).
     With a `carry` (already advanced to this frame) and kept_boxes (K, 4): every kept box that explains
     or is promoted by a peak is remembered there, and a peak with neither gets, before synthesis, the
-    box of the nearest remembered sighting within CARRY_GATE x gate_m (predicted to this frame by its
-    image velocity; JointCarry), scored the peak's times carry_factor; and a peak with a remembered
+    box of the nearest remembered sighting within CARRY_GATE x gate_m seen in at least
+    CARRY_MIN_SIGHTINGS frames (predicted to this frame by its image velocity; JointCarry), scored the
+    peak's times carry_factor; and a peak with a remembered
     sighting promotes, in preference, a weaker kept box on that sighting's spot (IoU >=
     CARRY_MATCH_IOU) wherever its ground point is.
     """
@@ -392,13 +409,15 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         keep = _suppress_near(east, north, gate_m)
         east, north, evidence = east[keep], north[keep], evidence[keep]
         mine = np.flatnonzero((kept_cids == cid) & np.isfinite(k_east))
+        mine_uv = None if kept_boxes is None else anchor_points(
+            np.asarray(kept_boxes, np.float64)[mine].reshape(-1, 4), anchor_frac)
         uv, valid = latlon_to_pixel(*local_to_latlon(east, north, pose.lat, pose.lon), camera, pose)
         if registration is not None:
-            if kept_boxes is not None:
-                sure = mine[kept_scores[mine] >= register_score]
-                own_uv = anchor_points(np.asarray(kept_boxes, np.float64)[sure].reshape(-1, 4), anchor_frac)
+            if mine_uv is not None:
+                is_sure = kept_scores[mine] >= register_score
+                sure = mine[is_sure]
                 registration.update(t, np.column_stack([east, north]), np.column_stack([k_east[sure], k_north[sure]]),
-                                    uv / focal_px, own_uv / focal_px)
+                                    uv / focal_px, mine_uv[is_sure] / focal_px)
             dx, dy = registration.offset()
             if dx or dy:
                 uv = uv - focal_px * np.array([dx, dy])
@@ -412,7 +431,11 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         score = joint_score(evidence, prior_score, boost_mode, boost_weight, logodds_scale)
         carried: set[int] = set()
         for i in np.flatnonzero(valid):
-            near = mine[np.hypot(k_east[mine] - east[i], k_north[mine] - north[i]) <= gate_m]
+            close = np.hypot(k_east[mine] - east[i], k_north[mine] - north[i]) <= gate_m
+            if mine_uv is not None:
+                du, dv = (mine_uv - uv[i]).T / (focal_px * np.asarray(PEAK_GATE_RAD))[:, None]
+                close |= du * du + dv * dv <= 1.0
+            near = mine[close]
             j = None if carry is None else carry.nearest(cid, float(plat[i]), float(plon[i]), CARRY_GATE * gate_m,
                                                          carried)
             seen = None
@@ -437,7 +460,8 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
                 if carry is not None and kept_boxes is not None:
                     carry.observe(cid, kept_boxes[seen], float(kept_lat[seen]), float(kept_lon[seen]), t, gate_m)
                 continue
-            if j is not None and carry is not None and carry_factor > 0:
+            if j is not None and carry is not None and carry_factor > 0 \
+                    and carry.anchors[j].sightings >= CARRY_MIN_SIGHTINGS:
                 carried.add(j)
                 boxes.append(carry.anchors[j].box.astype(np.float32).reshape(1, 4))
                 scores.append(score[i] * carry_factor)

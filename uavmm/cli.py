@@ -96,7 +96,7 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
         g.add_argument("--joint-min-value", type=float, default=None,
                        help="others' evidence a joint-map peak needs to become a detection (0.3)")
         g.add_argument("--joint-synth-factor", type=float, default=None,
-                       help="score factor of boxes synthesised where no real candidate exists (0.25; 0 = none)")
+                       help="score factor of boxes synthesised where no real candidate exists (default 0 = none)")
         g.add_argument("--joint-carry-s", type=float, default=None,
                        help="seconds this UAV's last sighting of an object the others see stands in for it "
                             "(0.5; 0 = off)")

@@ -294,7 +294,8 @@ def test_joint_tiles_boost_an_object_the_agent_never_saw(server, server_port):
 
     results = {}
     source = ScriptedSource(last + 1, candidates, hold={last: release})
-    node = AgentNode(agent_settings(server_port, speed=0.0), source,
+    # boosting alone (the joint detections would promote A further: see the late joiner's test)
+    node = AgentNode(agent_settings(server_port, speed=0.0), source, PipelineConfig(joint_detections=False),
                      on_frame=lambda frame, result, tracks: results.__setitem__(frame.index, result))
     with RunningAgent(node) as agent:
         wait_until(lambda: len(results) == last, 20.0)  # the window is placed, the map is empty
@@ -342,9 +343,10 @@ def test_late_joiner_gets_the_joint_map_before_its_first_frame(server, server_po
     assert summary["joint_query_replies"] == 2
     # the weak box sits on the others' peak: boosted by the joint map, then promoted by the joint
     # detections to the score of the others' evidence (2 * 0.6 - own ~0, clipped to 1; docs/agent.md)
-    assert scores_of(results[0], BOX_A) == [pytest.approx(boosted(0.1, 1.0), abs=0.01)]
+    prior = PipelineConfig().joint_prior_score
+    assert scores_of(results[0], BOX_A) == [pytest.approx(boosted(prior, 1.0), abs=0.01)]
     assert results[0].from_joint is not None and results[0].from_joint.tolist() == [True]
-    assert boosted(0.1, 1.0) > boosted(0.2, 0.6)
+    assert boosted(prior, 1.0) > boosted(0.2, 0.6)
     joint = node.link.joint_tracks()
     assert joint is not None and joint[0].tracks[0].gid == 7
 
