@@ -264,7 +264,8 @@ def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path 
              "Joint map: the fusion server's JointMap (mean rule; a UAV covers the cells of its camera "
              "footprints of the last 2 s) over both UAVs' tiles as the agent encodes them, at 5 Hz; "
              "'joint detections': the peaks of the other UAV's evidence in view that no detection explains "
-             "promote a weak real candidate or add a synthesised box (agent.joint_detections).", "",
+             "promote a weak real candidate or carry this UAV's last sighting of the object "
+             "(agent.joint_detections).", "",
              "| uav | variant | AP50 | AP50 hidden ignored | AP50 hidden as FP | hidden detected % | "
              "hidden tracked % |", "|---|---|---|---|---|---|---|"]
     for s in summary:
