@@ -380,17 +380,16 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
     one that scores at least the peak's score explains it; otherwise the best-scoring weaker near box is
     promoted to the peak's score, and with none a box is synthesised: its anchor (anchor_frac down the
     box, the pipeline's convention) at the peak's pixel, its diagonal from the size filter's band at the
-    peak's range and depression, its aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and its score is the
-    peak's times synth_factor: its ground point is right, but its pixel position carries the cross-UAV
-    georeferencing error left after registration (tens of pixels at 80 m on `coop`), so it
-    rarely overlaps the object's image box and should rank below real detections (0 drops them).
+    peak's range and depression, its aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and
+    its score is the peak's times synth_factor: its ground point is right, but its pixel position
+    carries the cross-UAV georeferencing error left after registration (tens of pixels at 80 m on
+    `coop`), so it rarely overlaps the object's image box (0 drops them).
     With a `carry` (already advanced to this frame) and kept_boxes (K, 4): every kept box that explains
     or is promoted by a peak is remembered there, and a peak with neither gets, before synthesis, the
     box of the nearest remembered sighting within CARRY_GATE x gate_m seen in at least
     CARRY_MIN_SIGHTINGS frames (predicted to this frame by its image velocity; JointCarry), scored the
-    peak's times carry_factor; and a peak with a remembered
-    sighting promotes, in preference, a weaker kept box on that sighting's spot (IoU >=
-    CARRY_MATCH_IOU) wherever its ground point is.
+    peak's times carry_factor; and a peak with a remembered sighting promotes, in preference, a weaker
+    kept box on that sighting's spot (IoU >= CARRY_MATCH_IOU) wherever its ground point is.
     """
     focal_px = math.sqrt(camera.fx * camera.fy)
     kept_cids = np.asarray(kept_class_ids)
