@@ -392,6 +392,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
     kept box on that sighting's spot (IoU >= CARRY_MATCH_IOU) wherever its ground point is.
     """
     focal_px = math.sqrt(camera.fx * camera.fy)
+    gate_px = focal_px * np.asarray(PEAK_GATE_RAD)  # the angular gate's half-axes, (across, down) pixels
     kept_cids = np.asarray(kept_class_ids)
     kept_scores = np.asarray(kept_scores)
     k_east, k_north = latlon_to_local(np.asarray(kept_lat, np.float64), np.asarray(kept_lon, np.float64),
@@ -432,7 +433,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         for i in np.flatnonzero(valid):
             close = np.hypot(k_east[mine] - east[i], k_north[mine] - north[i]) <= gate_m
             if mine_uv is not None:
-                du, dv = (mine_uv - uv[i]).T / (focal_px * np.asarray(PEAK_GATE_RAD))[:, None]
+                du, dv = ((mine_uv - uv[i]) / gate_px).T
                 close |= du * du + dv * dv <= 1.0
             near = mine[close]
             j = None if carry is None else carry.nearest(cid, float(plat[i]), float(plon[i]), CARRY_GATE * gate_m,
