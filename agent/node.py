@@ -31,7 +31,7 @@ from agent.tracker import GpsTracker, TrackerConfig, TrackOutput
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink, encode_tracks_with_gid
 from shared.geo import Camera, Pose, footprint_latlon, latlon_to_local
-from shared.keys import DEFAULT_PREFIX, KeySpace, validate_name
+from shared.keys import DEFAULT_PREFIX, KeySpace, validate_uav_id
 from shared.messages import (
     CameraInfo,
     JointTracksMessage,
@@ -72,7 +72,7 @@ class AgentSettings:
     Attributes
     ----------
     uav_id : str
-        This UAV's id: one Zenoh key chunk (no ``/ * $ ? #``, no whitespace).
+        This UAV's id: ASCII letters, digits, ``_ . -`` (``shared.keys.uav_id_problem``), not ``joint``.
     zenoh : ZenohOptions
         Mode, endpoints, config file (see `agent.zenoh_config`).
     prefix : str
@@ -134,9 +134,7 @@ class AgentSettings:
     open_timeout_s: float | None = None
 
     def __post_init__(self) -> None:
-        validate_name(self.uav_id, "uav_id")
-        if self.uav_id == "joint":
-            raise ValueError("uav_id 'joint' is reserved for the fusion server")
+        validate_uav_id(self.uav_id, "uav_id")
         KeySpace(self.prefix)
         TileGrid(self.grid_z, self.grid_n)
         for name in ("publish_hz", "refresh_s", "joint_ttl_s", "gid_gate_m", "gid_window_s", "query_timeout_s"):

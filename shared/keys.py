@@ -1,7 +1,8 @@
 """Zenoh key space of uav-memory-maps (DESIGN.md section 4): key builders, selectors and a parser.
 
 Every key lives under one prefix (default ``uavmm/v1``); names (UAV ids, class names) are single key
-chunks, so they are validated here and by the message codecs with the same rule (:func:`name_problem`).
+chunks, so they are validated here and by the message codecs with the same rule (:func:`name_problem`);
+UAV ids, which are identities, with the stricter :func:`uav_id_problem` (ASCII, no homoglyphs).
 """
 
 from __future__ import annotations
@@ -20,7 +21,9 @@ __all__ = [
     "KeySpace",
     "ParsedKey",
     "name_problem",
+    "uav_id_problem",
     "validate_name",
+    "validate_uav_id",
 ]
 
 DEFAULT_PREFIX = "uavmm/v1"
@@ -36,6 +39,10 @@ KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "
 # chunks that wildcards never match.
 _FORBIDDEN_CHARS = frozenset("/*$?#")
 _DECIMAL = re.compile(r"(?:0|[1-9][0-9]*)\Z")
+#: A UAV id is an identity (it names keys, ACL rules and certificates): ASCII letters, digits and
+#: ``_ . -`` only, starting with a letter or digit, so no two ids look alike (no homoglyphs such as a
+#: Cyrillic 'а' in 'uаv1', no invisible characters) and every id is safe in a file name or a config.
+_UAV_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*\Z")
 
 
 def name_problem(value: object) -> str | None:
@@ -58,6 +65,32 @@ def name_problem(value: object) -> str | None:
         if char.isspace() or not char.isprintable():
             return f"must not contain whitespace or non-printable characters, got {value!r}"
     return None
+
+
+def uav_id_problem(value: object) -> str | None:
+    """Say why ``value`` is not a valid UAV id, or return None when it is valid.
+
+    A UAV id is a :func:`name_problem`-valid name made of ASCII letters, digits, ``_``, ``.`` and
+    ``-`` only, starting with a letter or digit, and not ``"joint"`` (reserved for the fusion
+    server's own messages).
+    """
+    problem = name_problem(value)
+    if problem is not None:
+        return problem
+    assert isinstance(value, str)
+    if not _UAV_ID.match(value):
+        return f"must use only ASCII letters, digits, '_', '.' and '-' and start with a letter or digit, got {value!r}"
+    if value == JOINT_UAV:
+        return f"{JOINT_UAV!r} is reserved for the fusion server"
+    return None
+
+
+def validate_uav_id(value: object, field: str = "uav") -> str:
+    """Return ``value`` if it is a valid UAV id (see :func:`uav_id_problem`), else raise ValueError."""
+    problem = uav_id_problem(value)
+    if problem is not None:
+        raise ValueError(f"{field} {problem}")
+    return value  # type: ignore[return-value]
 
 
 def validate_name(value: object, field: str) -> str:
@@ -93,6 +126,12 @@ def _name_or_star(value: object, field: str) -> str:
     if value == "*":
         return "*"
     return validate_name(value, field)
+
+
+def _uav_or_star(value: object) -> str:
+    if value == "*":
+        return "*"
+    return validate_uav_id(value, "uav")
 
 
 @dataclass(frozen=True, slots=True)
@@ -135,14 +174,14 @@ class KeySpace:
     # ---- per-UAV keys -------------------------------------------------------------------------
     def uav_tile(self, uav: str, cls: str, z: int, x: int, y: int) -> str:
         """Key of one tile of one UAV: ``{prefix}/uav/{uav}/tiles/{cls}/{z}/{x}/{y}``."""
-        uav = validate_name(uav, "uav")
+        uav = validate_uav_id(uav, "uav")
         cls = validate_name(cls, "cls")
         z, x, y = _validate_tile(z, x, y)
         return f"{self.prefix}/uav/{uav}/tiles/{cls}/{z}/{x}/{y}"
 
     def uav_tiles_all(self, uav: str = "*", cls: str | None = None) -> str:
         """Selector of tiles: ``{prefix}/uav/{uav}/tiles/**``, or ``.../tiles/{cls}/**`` with ``cls``."""
-        uav = _name_or_star(uav, "uav")
+        uav = _uav_or_star(uav)
         if cls is None:
             return f"{self.prefix}/uav/{uav}/tiles/**"
         cls = _name_or_star(cls, "cls")
@@ -150,15 +189,15 @@ class KeySpace:
 
     def uav_state(self, uav: str) -> str:
         """Key of a UAV's state message: ``{prefix}/uav/{uav}/state`` (``uav="*"``: all UAVs)."""
-        return f"{self.prefix}/uav/{_name_or_star(uav, 'uav')}/state"
+        return f"{self.prefix}/uav/{_uav_or_star(uav)}/state"
 
     def uav_tracks(self, uav: str) -> str:
         """Key of a UAV's local tracks: ``{prefix}/uav/{uav}/tracks`` (``uav="*"``: all UAVs)."""
-        return f"{self.prefix}/uav/{_name_or_star(uav, 'uav')}/tracks"
+        return f"{self.prefix}/uav/{_uav_or_star(uav)}/tracks"
 
     def uav_alive(self, uav: str) -> str:
         """Key of a UAV's liveliness token: ``{prefix}/uav/{uav}/alive`` (``uav="*"``: all UAVs)."""
-        return f"{self.prefix}/uav/{_name_or_star(uav, 'uav')}/alive"
+        return f"{self.prefix}/uav/{_uav_or_star(uav)}/alive"
 
     def uav_all(self) -> str:
         """Selector of everything the agents publish: ``{prefix}/uav/**``."""
@@ -205,7 +244,7 @@ class KeySpace:
 
     def _parse_parts(self, parts: list[str]) -> ParsedKey:
         if parts[0] == "uav" and len(parts) >= 3:
-            uav = validate_name(parts[1], "uav")
+            uav = validate_uav_id(parts[1], "uav")
             rest = parts[2:]
             if len(rest) == 1 and rest[0] in ("state", "tracks", "alive"):
                 return ParsedKey(kind=f"uav_{rest[0]}", uav=uav)

@@ -18,7 +18,7 @@ from typing import Any
 import msgpack
 import numpy as np
 
-from shared.keys import JOINT_UAV, name_problem
+from shared.keys import JOINT_UAV, name_problem, uav_id_problem
 
 __all__ = [
     "DEFAULT_MAX_STATE_BYTES",
@@ -99,6 +99,19 @@ def check_name(value: object, field: str) -> str:
     if not isinstance(value, str):
         raise MessageError("bad_type", f"{field} must be a str, got {type(value).__name__}", field)
     problem = name_problem(value)
+    if problem is not None:
+        raise MessageError("bad_name", f"{field} {problem}", field)
+    return value
+
+
+def check_uav(value: object, field: str, *, allow_joint: bool = False) -> str:
+    """Return a valid UAV id (``shared.keys.uav_id_problem``; ``"joint"`` too when ``allow_joint``)
+    or raise MessageError("bad_type" | "bad_name")."""
+    if allow_joint and value == JOINT_UAV:
+        return JOINT_UAV
+    if not isinstance(value, str):
+        raise MessageError("bad_type", f"{field} must be a str, got {type(value).__name__}", field)
+    problem = uav_id_problem(value)
     if problem is not None:
         raise MessageError("bad_name", f"{field} {problem}", field)
     return value
@@ -260,7 +273,7 @@ class StateMessage:
     camera: CameraInfo
 
     def __post_init__(self) -> None:
-        check_name(self.uav, "uav")
+        check_uav(self.uav, "uav")
         _set(self, "t", check_float(self.t, "t"))
         _set(self, "lat", check_float(self.lat, "lat", -90.0, 90.0))
         _set(self, "lon", check_float(self.lon, "lon", -180.0, 180.0))
@@ -310,7 +323,7 @@ def decode_state(payload: bytes, *, max_bytes: int = DEFAULT_MAX_STATE_BYTES) ->
     camera = _check_map(get_field(record, "camera"), "camera")
     camera_info = CameraInfo(**{k: get_field(camera, k, "camera.") for k in _CAMERA_FIELDS})
     return StateMessage(
-        uav=check_name(get_field(record, "uav"), "uav"),
+        uav=check_uav(get_field(record, "uav"), "uav"),
         t=check_float(get_field(record, "t"), "t"),
         lat=check_float(get_field(record, "lat"), "lat"),
         lon=check_float(get_field(record, "lon"), "lon"),
@@ -393,7 +406,7 @@ class TracksMessage:
     tracks: tuple[TrackItem, ...]
 
     def __post_init__(self) -> None:
-        check_name(self.uav, "uav")
+        check_uav(self.uav, "uav")
         _set(self, "t", check_float(self.t, "t"))
         tracks = tuple(_check_list(self.tracks, "tracks", MAX_TRACKS))
         for i, item in enumerate(tracks):
@@ -412,7 +425,7 @@ def decode_tracks(payload: bytes, *, max_bytes: int = DEFAULT_MAX_TRACKS_BYTES) 
     """Parse and validate a local tracks message; raise MessageError on anything malformed."""
     record = unpack_map(payload, max_bytes)
     check_version(get_field(record, "v"))
-    uav = check_name(get_field(record, "uav"), "uav")
+    uav = check_uav(get_field(record, "uav"), "uav")
     t = check_float(get_field(record, "t"), "t")
     items = []
     for i, raw in enumerate(_check_list(get_field(record, "tracks"), "tracks", MAX_TRACKS)):
@@ -458,7 +471,7 @@ def _check_members(value: object, field: str) -> tuple[tuple[str, int], ...]:
     members = []
     for i, member in enumerate(_check_list(value, field, MAX_MEMBERS)):
         uav, local_id = _check_list(member, f"{field}[{i}]", 2, exact=2)
-        members.append((check_name(uav, f"{field}[{i}][0]"), check_int(local_id, f"{field}[{i}][1]", 0, MAX_TRACK_ID)))
+        members.append((check_uav(uav, f"{field}[{i}][0]"), check_int(local_id, f"{field}[{i}][1]", 0, MAX_TRACK_ID)))
     if len(set(members)) != len(members):
         raise MessageError("duplicate_id", f"{field} repeat a (uav, id) pair", field)
     return tuple(members)

@@ -21,6 +21,7 @@ from shared.messages import (
     check_float,
     check_int,
     check_name,
+    check_uav,
     check_version,
     get_field,
     unpack_map,
@@ -59,7 +60,7 @@ class TileDecodeError(MessageError):
 def _check_header(
     uav: object, cls: object, z: object, x: object, y: object, n: object, t: object, seq: object
 ) -> tuple[str, str, int, int, int, int, float, int]:
-    uav = check_name(uav, "uav")
+    uav = check_uav(uav, "uav", allow_joint=True)
     cls = check_name(cls, "cls")
     z = check_int(z, "z", 0, MAX_ZOOM, reason="bad_zoom")
     side = 1 << z

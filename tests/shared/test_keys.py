@@ -8,7 +8,7 @@ import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
-from shared.keys import KeySpace, ParsedKey, name_problem, validate_name
+from shared.keys import KeySpace, ParsedKey, name_problem, uav_id_problem, validate_name, validate_uav_id
 
 KS = KeySpace()
 
@@ -17,6 +17,8 @@ name_chars = st.characters(
     min_codepoint=33, max_codepoint=0x2FF, blacklist_characters="/*$?#", blacklist_categories=("Cc", "Z")
 )
 names = st.text(name_chars, min_size=1, max_size=20).filter(lambda s: s.isprintable() and not s.startswith("@"))
+# UAV ids: ASCII letters, digits, _ . -, starting with a letter or digit, not "joint"
+uav_ids = st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,19}", fullmatch=True).filter(lambda s: s != "joint")
 
 
 def tiles_at(z: int) -> st.SearchStrategy[tuple[int, int, int]]:
@@ -60,21 +62,21 @@ def test_numpy_integers_are_accepted_as_tile_coordinates() -> None:
     assert KS.uav_tile("u", "c", np.int64(3), np.int32(1), np.uint16(7)) == "uavmm/v1/uav/u/tiles/c/3/1/7"
 
 
-@given(uav=names, cls=names, tile=tiles)
+@given(uav=uav_ids, cls=names, tile=tiles)
 def test_tile_keys_round_trip_through_parse(uav: str, cls: str, tile: tuple[int, int, int]) -> None:
     z, x, y = tile
     assert KS.parse(KS.uav_tile(uav, cls, z, x, y)) == ParsedKey("uav_tile", uav, cls, z, x, y)
     assert KS.parse(KS.joint_tile(cls, z, x, y)) == ParsedKey("joint_tile", "joint", cls, z, x, y)
 
 
-@given(uav=names)
+@given(uav=uav_ids)
 def test_uav_keys_round_trip_through_parse(uav: str) -> None:
     assert KS.parse(KS.uav_state(uav)) == ParsedKey("uav_state", uav)
     assert KS.parse(KS.uav_tracks(uav)) == ParsedKey("uav_tracks", uav)
     assert KS.parse(KS.uav_alive(uav)) == ParsedKey("uav_alive", uav)
 
 
-@given(uav=names, cls=names, tile=tiles)
+@given(uav=uav_ids, cls=names, tile=tiles)
 def test_keys_are_valid_zenoh_keys_matched_by_the_selectors(uav: str, cls: str, tile: tuple[int, int, int]) -> None:
     key = zenoh.KeyExpr(KS.uav_tile(uav, cls, *tile))
     assert zenoh.KeyExpr(KS.uav_tiles_all()).includes(key)
@@ -105,7 +107,32 @@ def test_bad_names_are_rejected_naming_the_field(bad: object) -> None:
 @pytest.mark.parametrize("good", ["uav1", "person", "a-b_c.d", "M\u00fcller", "a@b", "x" * 128])
 def test_good_names_pass(good: str) -> None:
     assert name_problem(good) is None
-    assert validate_name(good, "uav") == good
+    assert validate_name(good, "cls") == good
+
+
+@pytest.mark.parametrize("good", ["uav1", "UAV-7", "a-b_c.d", "0drone", "x" * 128])
+def test_good_uav_ids_pass(good: str) -> None:
+    assert uav_id_problem(good) is None
+    assert KS.parse(KS.uav_state(good)).uav == good
+
+
+# homoglyphs (Cyrillic a, Greek omicron, fullwidth digit), invisible characters, the fusion server's
+# own id, leading punctuation, and names that are only valid class names
+BAD_UAV_IDS = ["u\u0430v1", "uav\u03bf", "uav\uff11", "uav1\u200b", "joint", "-uav", ".uav", "_uav",
+               "M\u00fcller", "a@b", "a:b", "a~b", "a+b", *BAD_NAMES]
+
+
+@pytest.mark.parametrize("bad", BAD_UAV_IDS)
+def test_uav_ids_outside_the_safe_set_are_refused_in_keys_and_messages(bad: object) -> None:
+    assert uav_id_problem(bad) is not None
+    with pytest.raises(ValueError, match="uav"):
+        validate_uav_id(bad)
+    for build in (KS.uav_state, KS.uav_tracks, KS.uav_alive, lambda u: KS.uav_tile(u, "person", 18, 0, 0)):
+        with pytest.raises(ValueError, match="uav"):
+            build(bad)
+    if isinstance(bad, str) and name_problem(bad) is None:  # a valid chunk: the parser must refuse it
+        with pytest.raises(ValueError, match="uav"):
+            KS.parse(f"uavmm/v1/uav/{bad}/state")
 
 
 @pytest.mark.parametrize(

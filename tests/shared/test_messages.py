@@ -54,6 +54,7 @@ finite = st.floats(-1e6, 1e6, allow_nan=False)
 lat_st = st.floats(-90.0, 90.0)
 lon_st = st.floats(-180.0, 180.0)
 names = st.text(st.sampled_from("abcXYZ012-_."), min_size=1, max_size=8)
+uav_ids = st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,7}", fullmatch=True).filter(lambda s: s != "joint")
 track_items = st.builds(
     TrackItem,
     id=st.integers(0, 2**63 - 1),
@@ -71,7 +72,7 @@ joint_items = st.builds(
     lon=lon_st,
     score=st.floats(0.0, 1.0),
     vel_en=st.tuples(finite, finite),
-    members=st.lists(st.tuples(names, st.integers(0, 2**63 - 1)), max_size=5, unique=True).map(tuple),
+    members=st.lists(st.tuples(uav_ids, st.integers(0, 2**63 - 1)), max_size=5, unique=True).map(tuple),
 )
 
 
@@ -242,6 +243,8 @@ CASES: list[tuple[str, Callable[..., Any], bytes]] = [
     ("too_many", decode_state, edit(state_record, "footprint", [[0.0, 0.0]] * 257)),
     ("bad_name", decode_state, edit(state_record, "uav", "a/b")),
     ("bad_name", decode_state, edit(state_record, "uav", "")),
+    ("bad_name", decode_state, edit(state_record, "uav", "u\u0430v1")),  # Cyrillic a: a homoglyph of uav1
+    ("bad_name", decode_state, edit(state_record, "uav", "joint")),  # the fusion server's id
     ("missing_field", decode_state, edit(state_record, "camera.cy", delete=True)),
     *[
         ("missing_field", decode_state, edit(state_record, key, delete=True))
@@ -268,6 +271,7 @@ CASES: list[tuple[str, Callable[..., Any], bytes]] = [
     ("duplicate_id", decode_tracks, edit(tracks_record, "tracks.1.id", 1)),
     ("bad_name", decode_tracks, edit(tracks_record, "tracks.0.cls", "per son")),
     ("bad_name", decode_tracks, edit(tracks_record, "uav", "*")),
+    ("bad_name", decode_tracks, edit(tracks_record, "uav", "joint")),
     ("missing_field", decode_tracks, edit(tracks_record, "tracks", delete=True)),
     *[
         ("missing_field", decode_tracks, edit(tracks_record, f"tracks.0.{key}", delete=True))

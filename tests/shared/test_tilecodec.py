@@ -262,6 +262,7 @@ MALFORMED: list[tuple[str, bytes]] = [
     ("bad_name", mutated(uav="a b")),
     ("bad_name", mutated(uav="a\x00")),
     ("bad_name", mutated(cls="\u200b")),
+    ("bad_name", mutated(uav="u\u0430v1")),
 ] + [("missing_field", mutated(drop=(key,))) for key in ("v", "uav", "cls", "z", "x", "y", "n", "t", "seq", "val")]
 
 
