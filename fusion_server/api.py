@@ -18,7 +18,16 @@ from fastapi.responses import HTMLResponse, PlainTextResponse, Response
 from fastapi.staticfiles import StaticFiles
 
 from fusion_server.peaks import find_peaks, peaks_geojson
-from fusion_server.render import AGGREGATIONS, COLORMAPS, BBox, parse_bbox, paste_window, tile_bytes, window_for_bbox
+from fusion_server.render import (
+    AGGREGATIONS,
+    COLORMAPS,
+    BBox,
+    parse_bbox,
+    paste_window,
+    tile_bytes,
+    window_bounds,
+    window_for_bbox,
+)
 from shared.keys import name_problem
 
 if TYPE_CHECKING:
@@ -110,8 +119,7 @@ def create_app(server: FusionServer) -> FastAPI:
             window.gy0 // n, (window.gy0 + window.height - 1) // n,
         )
         values = paste_window(window, tiles)
-        north, west = grid.cell_to_latlon(window.gx0, window.gy0)
-        south, east = grid.cell_to_latlon(window.gx0 + window.width, window.gy0 + window.height)
+        west, south, east, north = window_bounds(grid, window)
         centre_lat = (box.min_lat + box.max_lat) / 2
         body: dict[str, Any] = {
             "cls": cls,
@@ -121,7 +129,7 @@ def create_app(server: FusionServer) -> FastAPI:
             "gy0": window.gy0,
             "width": window.width,
             "height": window.height,
-            "bbox": [float(west), float(south), float(east), float(north)],
+            "bbox": [west, south, east, north],
             "cell_size_m": float(grid.cell_size_m(centre_lat)),
             "t": max((t.t for t in tiles), default=None),
             "encoding": encoding,

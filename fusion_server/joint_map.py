@@ -203,13 +203,16 @@ class JointMap:
     def put_footprint(self, uav: str, footprint_latlon, now: float | None = None) -> bool:
         """Record a UAV's camera footprint (from its state message) received now.
 
-        footprint_latlon: (M, 2) ``[lat, lon]`` degrees, the ground polygon (M >= 3; fewer points or
-        non-finite ones are ignored: returns False). For ``ttl_s`` after it was received the UAV covers
+        footprint_latlon: (M, 2) ``[lat, lon]`` degrees, the ground polygon (M >= 3; fewer points,
+        non-finite ones or latitudes beyond the map are ignored: returns False). For ``ttl_s`` after it was received the UAV covers
         the cells inside it (see the module docstring); the tiles the UAV covers are fused again.
         """
         if self.coverage != "footprint":
             return False
-        cells = self.grid.polygon_cells(footprint_latlon)
+        try:
+            cells = self.grid.polygon_cells(footprint_latlon)
+        except ValueError:  # beyond the map's latitude limit (the validator drops such states)
+            return False
         if cells is None:
             return False
         now = self._clock() if now is None else now

@@ -81,7 +81,7 @@ class FusionServer:
             else None
         )
         self.node = FusionNode(
-            zenoh_config(settings.zenoh), keys, MessageValidator(keys, grid), self.joint, self.tracker,
+            zenoh_config(settings.zenoh), keys, MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s), self.joint, self.tracker,
             self.uavs, self.metrics, self.store, tracks_max_hz=settings.tracks_max_hz,
             persist_interval_s=settings.persist_interval_s,
         )

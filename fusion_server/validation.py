@@ -6,6 +6,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 
 from shared.keys import KeySpace, ParsedKey
@@ -19,7 +20,7 @@ from shared.messages import (
     decode_tracks,
 )
 from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, TileMessage, decode_tile
-from shared.tiles import TileGrid
+from shared.tiles import MAX_LAT_DEG, TileGrid
 
 __all__ = ["REJECT_REASONS", "MessageValidator", "Received", "Rejected"]
 
@@ -32,6 +33,8 @@ REJECT_REASONS = frozenset(
         "uav_mismatch",  # the message's uav differs from the key's: a UAV publishes under its own key only
         "tile_mismatch",  # cls/z/x/y of a tile differ from its key
         "wrong_grid",  # z or n differ from the server's grid
+        "t_in_future",  # t later than the server clock + max_clock_skew_s (e.g. t = 1e300)
+        "seq_in_future",  # a tile seq above the server clock in nanoseconds + skew (e.g. 2**64 - 1)
         "stale",  # not newer than the stored tile of that UAV
         "too_many_tiles",
         "too_many_uavs",
@@ -69,6 +72,11 @@ class MessageValidator:
     """Checks agent messages against the key space and the shared grid.
 
     keys: the key space; grid: the accepted (z, n). The max_* arguments bound payload sizes in bytes.
+    max_clock_skew_s: how far a message's ``t`` may be ahead of the server clock ``wall`` (epoch
+    seconds); a tile's ``seq`` may not exceed that time in nanoseconds (counters and clock stamps in
+    micro- or nanoseconds pass; 2**64 - 1 does not). Times in the past are accepted: freshness is
+    judged by receive time. Both bounds keep one forged message from blocking a UAV's real tiles as
+    "stale" (DESIGN.md 4: a tile replaces the stored one when it is newer by seq or by t).
     """
 
     def __init__(
@@ -79,12 +87,16 @@ class MessageValidator:
         max_tile_bytes: int = DEFAULT_MAX_TILE_BYTES,
         max_state_bytes: int = DEFAULT_MAX_STATE_BYTES,
         max_tracks_bytes: int = 1024 * 1024,
+        max_clock_skew_s: float = 30.0,
+        wall=time.time,
     ) -> None:
         self.keys = keys
         self.grid = grid
         self.max_tile_bytes = max_tile_bytes
         self.max_state_bytes = max_state_bytes
         self.max_tracks_bytes = max_tracks_bytes
+        self.max_clock_skew_s = float(max_clock_skew_s)
+        self._wall = wall
 
     def parse_key(self, key: str) -> tuple[ParsedKey, str]:
         """The parsed key and its message kind; Rejected("bad_key" | "unexpected_key") otherwise."""
@@ -124,6 +136,12 @@ class MessageValidator:
             raise Rejected(exc.reason, str(exc)[:200], kind) from None
         if message.uav != parsed.uav:
             raise Rejected("uav_mismatch", f"message uav {message.uav!r} published under {parsed.uav!r}", kind)
+        latest = self._wall() + self.max_clock_skew_s
+        if message.t > latest:
+            raise Rejected("t_in_future", f"t {message.t!r:.30} is more than {self.max_clock_skew_s:g} s ahead of "
+                                          "the server clock", kind)
+        if isinstance(message, StateMessage) and any(abs(lat) > MAX_LAT_DEG for lat, _ in message.footprint):
+            raise Rejected("out_of_range", f"footprint beyond the map's latitude limit +-{MAX_LAT_DEG:.4f}", kind)
         if kind == "tile":
             assert isinstance(message, TileMessage)
             if (message.cls, message.z, message.x, message.y) != (parsed.cls, parsed.z, parsed.x, parsed.y):
@@ -137,4 +155,6 @@ class MessageValidator:
                 raise Rejected(
                     "wrong_grid", f"tile z={message.z} n={message.n}, server grid z={self.grid.z} n={self.grid.n}", kind
                 )
+            if message.seq > int(latest * 1e9):
+                raise Rejected("seq_in_future", f"seq {message.seq} is above the server clock in nanoseconds", kind)
         return Received(kind, parsed, message, len(payload))

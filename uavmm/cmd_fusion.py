@@ -57,6 +57,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tracks-max-hz", type=float, default=5.0, help="most joint tracks messages a second (5)")
     p.add_argument("--track-gate-m", type=float, default=10.0, help="association gate on the ground, m (10)")
     p.add_argument("--track-hold-s", type=float, default=10.0, help="keep a track nobody reports this long (10)")
+    p.add_argument("--max-clock-skew-s", type=float, default=30.0,
+                   help="drop messages whose t is this far ahead of the server clock (30)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
     p.set_defaults(handler=_run_fusion)
@@ -83,7 +85,7 @@ def settings_from_args(args: argparse.Namespace):
         db_path=None if args.no_db else (args.db or default_db_path()),
         prefix=args.prefix, ttl_s=args.ttl_s, fusion_rule=args.fusion_rule, coverage=args.coverage, grid_z=args.grid_z,
         grid_n=args.grid_n, joint_max_hz=args.joint_max_hz, tracks_max_hz=args.tracks_max_hz,
-        track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s,
+        track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, max_clock_skew_s=args.max_clock_skew_s,
     )
 
 

@@ -1,0 +1,78 @@
+"""Hostile input from outside on loopback (issue 19's probes): each was reproduced with a plain
+zenoh-python client against the real server and must now be dropped, counted and bounded."""
+
+from __future__ import annotations
+
+import time
+
+import numpy as np
+import pytest
+
+from shared.messages import CameraInfo, StateMessage, encode_state
+from shared.tilecodec import MAX_SEQ, TileMessage, encode_tile
+from tests.fusion_server.fake_agent import GRID, KEYS, LAT, LON, TILE_X, TILE_Y, blob, wait_until
+
+TILE = ("person", GRID.z, TILE_X, TILE_Y)
+
+
+def spoof_tile(agent, uav: str, values: np.ndarray, *, t: float, seq: int, x: int = TILE_X, y: int = TILE_Y) -> None:
+    """Put a well-formed tile under ``uav``'s key with any t and seq (what a hostile client can do)."""
+    msg = TileMessage(uav=uav, cls="person", z=GRID.z, x=x, y=y, n=GRID.n, t=t, seq=seq, values=values)
+    agent.put(KEYS.uav_tile(uav, "person", GRID.z, x, y), encode_tile(msg))
+
+
+def joint_value(server, row: int, col: int) -> float:
+    tile = server.joint.get(TILE)
+    return -1.0 if tile is None else tile.values[row, col] / 255.0
+
+
+@pytest.mark.parametrize(("t_ahead_s", "seq", "reason"), [
+    (1e300, 5, "t_in_future"),  # t = 1e300
+    (3600.0, 5, "t_in_future"),  # an hour ahead of the server clock
+    (0.0, MAX_SEQ, "seq_in_future"),  # seq 2**64 - 1 with a plausible t
+])
+def test_a_tile_from_the_future_neither_erases_nor_blocks_the_real_data(server, agent_factory, t_ahead_s, seq,
+                                                                         reason):
+    real = agent_factory("uav1")
+    real.tile(blob(40, 40, 0.8))
+    wait_until(lambda: joint_value(server, 40, 40) > 0.7)
+    attacker = agent_factory("mallory", alive=False)
+    t = 1e300 if t_ahead_s == 1e300 else time.time() + t_ahead_s
+    spoof_tile(attacker, "uav1", np.zeros((GRID.n, GRID.n), np.float32), t=t, seq=seq)
+    wait_until(lambda: server.metrics.rejected_by_reason().get(reason, 0) == 1)
+    assert joint_value(server, 40, 40) > 0.7  # not erased
+    real.tile(blob(40, 40, 0.5))  # the genuine next tile is not "stale"
+    wait_until(lambda: abs(joint_value(server, 40, 40) - 0.5) < 0.01)
+    assert server.metrics.rejected_by_reason().get("stale", 0) == 0
+    assert server.joint.get(TILE).t < time.time() + 1.0  # nothing from the future reaches the joint tile
+
+
+def test_state_and_tracks_from_the_future_are_dropped(server, agent_factory):
+    agent = agent_factory("uav1")
+    camera = CameraInfo(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+    state = StateMessage(uav="uav1", t=1e300, lat=LAT, lon=LON, height_m=40.0, pitch_deg=60.0, heading_deg=0.0,
+                         footprint=(), camera=camera)
+    agent.put(KEYS.uav_state("uav1"), encode_state(state))
+    wait_until(lambda: server.metrics.rejected.get(("state", "t_in_future"), 0) == 1)
+
+
+def test_a_footprint_beyond_the_map_is_dropped_without_an_internal_error(server, agent_factory):
+    agent = agent_factory("uav1")
+    agent.state(lat=89.0, lon=LON, footprint=((89.0, LON), (89.0001, LON), (89.0, LON + 0.0001)))
+    wait_until(lambda: server.metrics.rejected.get(("state", "out_of_range"), 0) == 1)
+    agent.state()  # a valid one still goes through
+    wait_until(lambda: server.metrics.received.get("state", 0) == 1)
+    assert "internal_error" not in server.metrics.rejected_by_reason()
+
+
+@pytest.mark.parametrize("bbox", ["179.999,10,180,10.001", "179.999,-10.001,180,-10"])
+def test_a_bbox_ending_at_lon_180_covers_its_cells(server, http, agent_factory, bbox):
+    agent = agent_factory("uav1")
+    agent.tile(blob(5, 5))
+    wait_until(lambda: server.joint.get(TILE) is not None)
+    body = http.get("/v1/map", params={"cls": "person", "bbox": bbox}).json()
+    # 0.001 deg of longitude at z18 / 256 cells is ~186 cells, never a single wrapped cell
+    assert 180 <= body["width"] <= 190, body["width"]
+    assert body["bbox"][2] == pytest.approx(180.0) and body["bbox"][0] == pytest.approx(179.999, abs=1e-5)
+    whole = http.get("/v1/map", params={"cls": "person", "bbox": "-180,10,180,10.001"})
+    assert whole.status_code == 400 and "cells" in whole.json()["detail"]
