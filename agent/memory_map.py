@@ -7,6 +7,7 @@ cells (shared.tiles) holding, per class, evidence in [0, 1] that decays with tim
 from __future__ import annotations
 
 import math
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import cv2
@@ -305,7 +306,8 @@ class JointLayer:
     cells where the joint value is its own evidence alone.
     """
 
-    def __init__(self, grid: TileGrid | None = None, ttl_s: float = 3.0, cover_ttl_s: float = 2.0) -> None:
+    def __init__(self, grid: TileGrid | None = None, ttl_s: float = 3.0, cover_ttl_s: float = 2.0,
+                 max_tiles: int = 1024) -> None:
         if not (math.isfinite(ttl_s) and ttl_s > 0):
             raise ValueError(f"ttl_s must be > 0, got {ttl_s!r}")
         if not (math.isfinite(cover_ttl_s) and cover_ttl_s > 0):
@@ -313,7 +315,9 @@ class JointLayer:
         self.grid = grid or TileGrid()
         self.ttl_s = ttl_s
         self.cover_ttl_s = cover_ttl_s
-        self._tiles: dict[tuple[str, int, int], tuple[NDArray[np.float32], float]] = {}
+        self.max_tiles = int(max_tiles)
+        # least recently updated first: beyond max_tiles the oldest update is forgotten
+        self._tiles: OrderedDict[tuple[str, int, int], tuple[NDArray[np.float32], float]] = OrderedDict()
         # uav -> [(vertices in global cell coordinates (M, 2), time)], oldest first
         self._footprints: dict[str, list[tuple[NDArray[np.float64], float]]] = {}
 
@@ -359,11 +363,16 @@ class JointLayer:
         return len(self._tiles)
 
     def update(self, cls: str, x: int, y: int, values: NDArray[np.float32], t: float) -> None:
-        """Store a joint tile (n, n) float32 in [0, 1] received at time t (seconds)."""
+        """Store a joint tile (n, n) float32 in [0, 1] received at time t (seconds); beyond
+        max_tiles the least recently updated tile is forgotten (memory: 256 KiB a tile)."""
         n = self.grid.n
         if values.shape != (n, n):
             raise ValueError(f"joint tile must be ({n}, {n}), got {values.shape}")
-        self._tiles[(cls, int(x), int(y))] = (values.astype(np.float32, copy=False), float(t))
+        key = (cls, int(x), int(y))
+        self._tiles[key] = (values.astype(np.float32, copy=False), float(t))
+        self._tiles.move_to_end(key)
+        while len(self._tiles) > self.max_tiles:
+            self._tiles.popitem(last=False)
 
     def prune(self, now: float) -> int:
         """Drop tiles older than ttl_s; returns how many were dropped."""

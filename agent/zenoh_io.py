@@ -42,6 +42,12 @@ log = logging.getLogger(__name__)
 MAX_JOINT_TRACKS_BYTES = 8 * 1024 * 1024
 #: How often the publisher thread looks for new routers/peers (to query the joint map again), seconds.
 _CONNECTIVITY_CHECK_S = 0.5
+#: A joint message whose t is further ahead of this clock is dropped ("t_in_future"), seconds.
+MAX_CLOCK_SKEW_S = 30.0
+#: A joint tile not newer (by seq and t) than the held one is stale only within this long of the held
+#: one's arrival (a late query reply); later it replaces it, so one forged tile with a huge seq
+#: cannot block the server's real ones.
+_REORDER_WINDOW_S = 1.0
 
 
 def encode_tracks_with_gid(msg: TracksMessage, gids: dict[int, int]) -> bytes:
@@ -126,19 +132,24 @@ class AgentLink:
         Declared tile publishers kept (least recently used ones are undeclared beyond it).
     max_tile_bytes : int
         Largest joint tile payload accepted.
+    max_joint_tiles : int
+        Joint tiles held (256 KiB each); beyond it the least recently updated one is forgotten
+        (counted as "joint_tiles_evicted").
 
     Use: ``open()``, ``query_joint()``, then per publish cycle ``submit(...)``; per frame
     ``drain_joint_tiles()`` and ``joint_tracks()``; ``close()`` at the end. ``stats()`` gives the counters.
     """
 
     def __init__(self, conf: zenoh.Config, keys: KeySpace, uav: str, grid: TileGrid, *,
-                 max_publishers: int = 1024, max_tile_bytes: int = DEFAULT_MAX_TILE_BYTES) -> None:
+                 max_publishers: int = 1024, max_tile_bytes: int = DEFAULT_MAX_TILE_BYTES,
+                 max_joint_tiles: int = 1024) -> None:
         self.conf = conf
         self.keys = keys
         self.uav = uav
         self.grid = grid
         self.max_publishers = max_publishers
         self.max_tile_bytes = max_tile_bytes
+        self.max_joint_tiles = max_joint_tiles
         self.session: zenoh.Session | None = None
         self._declared: list[Any] = []
         self._token: zenoh.LivelinessToken | None = None
@@ -148,8 +159,9 @@ class AgentLink:
         self._wake = threading.Condition(self._lock)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        # joint tiles: (cls, x, y) -> (values, monotonic receive time, seq, t)
-        self._joint_tiles: dict[tuple[str, int, int], tuple[NDArray[np.float32], float, int, float]] = {}
+        # joint tiles: (cls, x, y) -> (values, monotonic receive time, seq, t), least recently updated first
+        self._joint_tiles: OrderedDict[tuple[str, int, int], tuple[NDArray[np.float32], float, int, float]] = \
+            OrderedDict()
         self._joint_pending: set[tuple[str, int, int]] = set()
         self._joint_tracks: tuple[JointTracksMessage, float] | None = None
         # other UAVs' latest footprints: uav -> (footprint, monotonic receive time), and the new ones
@@ -385,15 +397,24 @@ class AgentLink:
         if msg.z != self.grid.z or msg.n != self.grid.n:
             self._reject("wrong_grid", key, f"z={msg.z} n={msg.n}, agent grid z={self.grid.z} n={self.grid.n}")
             return
+        if msg.t > time.time() + MAX_CLOCK_SKEW_S:
+            self._reject("t_in_future", key, f"t {msg.t!r:.30} is ahead of this clock")
+            return
         tile_id = (msg.cls, msg.x, msg.y)
         now = time.monotonic()
         with self._lock:
             old = self._joint_tiles.get(tile_id)
             # a query reply may arrive after a newer published sample: keep the newer one
-            if old is not None and msg.seq <= old[2] and msg.t <= old[3]:
+            if (old is not None and msg.seq <= old[2] and msg.t <= old[3]
+                    and now - old[1] < _REORDER_WINDOW_S):
                 self._rejects["stale"] += 1
                 return
             self._joint_tiles[tile_id] = (msg.values, now, msg.seq, msg.t)
+            self._joint_tiles.move_to_end(tile_id)
+            while len(self._joint_tiles) > self.max_joint_tiles:
+                evicted, _ = self._joint_tiles.popitem(last=False)
+                self._joint_pending.discard(evicted)
+                self._counts["joint_tiles_evicted"] += 1
             self._joint_pending.add(tile_id)
             self._counts["joint_tiles"] += 1
             self._bytes["joint_tiles"] += len(payload)
@@ -409,6 +430,9 @@ class AgentLink:
             return
         if msg.uav != JOINT_UAV:
             self._reject("uav_mismatch", key, f"uav {msg.uav!r} on the joint tracks key")
+            return
+        if msg.t > time.time() + MAX_CLOCK_SKEW_S:
+            self._reject("t_in_future", key, f"t {msg.t!r:.30} is ahead of this clock")
             return
         with self._lock:
             self._joint_tracks = (msg, time.monotonic())
@@ -480,11 +504,13 @@ class AgentLink:
         return msg, time.monotonic() - received
 
     def stats(self) -> dict[str, Any]:
-        """Counters: messages and bytes sent per kind, joint messages received, rejects by reason."""
+        """Counters: messages and bytes sent per kind, joint messages received, rejects by reason,
+        publishers declared, joint tiles held."""
         with self._lock:
             return {
                 "counts": dict(self._counts),
                 "bytes": dict(self._bytes),
                 "rejected": dict(self._rejects),
                 "publishers": len(self._publishers),
+                "joint_tiles_held": len(self._joint_tiles),
             }

@@ -63,6 +63,7 @@ class FusionSettings:
     track_history_interval_s: float = 1.0
     max_uavs: int = 256
     max_uav_tiles: int = 20_000
+    max_tiles_per_uav: int = 1024
     restore_grace_s: float | None = None
     map_max_cells: int = 512 * 512
     persist_interval_s: float = 0.5
@@ -82,7 +83,7 @@ class FusionSettings:
             _positive(name, getattr(self, name))
         if self.restore_grace_s is not None:
             _positive("restore_grace_s", self.restore_grace_s)
-        for name in ("track_history_len", "max_uavs", "max_uav_tiles", "map_max_cells"):
+        for name in ("track_history_len", "max_uavs", "max_uav_tiles", "max_tiles_per_uav", "map_max_cells"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"{name} must be an int >= 1, got {value!r}")

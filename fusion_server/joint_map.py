@@ -114,7 +114,8 @@ class JointMap:
     grid: the only grid accepted (tiles of other z or n are the caller's to reject). rule: a
     :mod:`fusion_server.rules` function. ttl_s: how long a tile counts as covering after it was
     received. max_hz: most joint publications per tile and second. max_uav_tiles: bound on the
-    stored UAV tiles (memory: n*n bytes each); max_hz is an average (token bucket, burst of 2), so
+    stored UAV tiles (memory: n*n bytes each), max_tiles_per_uav the share one UAV may hold (so one
+    UAV, real or forged, cannot take the whole store); max_hz is an average (token bucket, burst of 2), so
     a tile updated at exactly max_hz is never delayed by jitter. coverage: "footprint" (a UAV covers
     the cells of its footprints received within ttl_s; whole tiles while it sent none) or "tile" (the
     whole tile). refresh_s: a tile whose fused values did not change is published again when its last
@@ -130,6 +131,7 @@ class JointMap:
         max_hz: float,
         *,
         max_uav_tiles: int = 20_000,
+        max_tiles_per_uav: int = 1024,
         coverage: str = "footprint",
         refresh_s: float = 1.0,
         clock=time.monotonic,
@@ -140,6 +142,7 @@ class JointMap:
         self.ttl_s = float(ttl_s)
         self.max_hz = float(max_hz)
         self.max_uav_tiles = int(max_uav_tiles)
+        self.max_tiles_per_uav = int(max_tiles_per_uav)
         if coverage not in COVERAGE_MODES:
             raise ValueError(f"coverage must be one of {', '.join(COVERAGE_MODES)}, got {coverage!r}")
         self.coverage = coverage
@@ -168,6 +171,7 @@ class JointMap:
         self._footprints: dict[str, list[_Footprint]] = {}  # oldest first
         self._masks: dict[tuple[str, int, int], tuple[int, NDArray[np.bool_] | None]] = {}
         self._fp_version = 0
+        self._next_prune = -math.inf  # monotonic time of the next sweep of old footprints
 
     # ---- input ---------------------------------------------------------------------------------
     def put(self, uav: str, key: TileKey, values: NDArray[np.uint8], t: float, seq: int,
@@ -176,7 +180,8 @@ class JointMap:
 
         values: (n, n) uint8 of the grid's n (not copied: the caller must not change it). Reasons:
         "stale" (not newer than the stored tile: seq and t both not greater), "too_many_tiles" (the
-        store is full). Wakes a thread blocked in :meth:`wait`.
+        store is full, or this UAV already holds max_tiles_per_uav tiles). Wakes a thread blocked in
+        :meth:`wait`.
         """
         now = self._clock() if now is None else now
         with self._lock:
@@ -184,7 +189,8 @@ class JointMap:
             old = per_uav.get(uav) if per_uav is not None else None
             if old is not None and seq <= old.seq and t <= old.t:
                 return "stale"
-            if old is None and self._n_uav_tiles >= self.max_uav_tiles:
+            if old is None and (self._n_uav_tiles >= self.max_uav_tiles
+                                or len(self._uav_keys.get(uav, ())) >= self.max_tiles_per_uav):
                 return "too_many_tiles"
             if per_uav is None:
                 per_uav = self._covers[key] = {}
@@ -249,7 +255,7 @@ class JointMap:
         mask = fill_cell_polygons((fp.cells for fp in prints if not (fp.hi[0] < x0 or fp.lo[0] > x0 + n
                                                                      or fp.hi[1] < y0 or fp.lo[1] > y0 + n)),
                                   x0, y0, n, n)
-        if len(self._masks) > 4 * self.max_uav_tiles:
+        if len(self._masks) > self.max_uav_tiles:  # masks are freed with their tiles: a safety net only
             self._masks.clear()
         self._masks[(uav, x, y)] = (self._fp_version, mask)
         return mask
@@ -323,7 +329,23 @@ class JointMap:
         tokens, stamp = bucket
         return min(_BURST, tokens + (now - stamp) * self.max_hz)
 
+    def _prune_footprints(self, now: float) -> None:
+        """Forget footprints older than the TTL, also of UAVs that send no tiles (twice a TTL at most)."""
+        if now < self._next_prune:
+            return
+        self._next_prune = now + min(self.ttl_s, 0.5)
+        cutoff = now - self.ttl_s
+        for uav in list(self._footprints):
+            prints = self._footprints[uav]
+            if prints[0].received >= cutoff:
+                continue
+            prints[:] = [fp for fp in prints if fp.received >= cutoff]
+            self._fp_version += 1
+            if not prints:
+                del self._footprints[uav]
+
     def _expire(self, now: float) -> None:
+        self._prune_footprints(now)
         heap = self._expiries
         while heap and heap[0][0] <= now:
             expiry, key, uav, received = heapq.heappop(heap)
@@ -336,6 +358,8 @@ class JointMap:
                 continue  # replaced by a newer tile: its own heap entry decides
             del per_uav[uav]
             self._n_uav_tiles -= 1
+            # another class of this UAV in the same tile recomputes it on demand
+            self._masks.pop((uav, key[2], key[3]), None)
             keys = self._uav_keys.get(uav)
             if keys is not None:
                 keys.discard(key)
@@ -422,6 +446,9 @@ class JointMap:
         return counts
 
     def stats(self) -> dict[str, int]:
-        """Sizes: joint tiles, stored UAV tiles, tiles waiting to be fused."""
+        """Sizes: joint tiles, stored UAV tiles, tiles waiting to be fused, cached coverage masks,
+        footprints held."""
         with self._lock:
-            return {"joint_tiles": len(self._joint), "uav_tiles": self._n_uav_tiles, "pending": len(self._dirty)}
+            return {"joint_tiles": len(self._joint), "uav_tiles": self._n_uav_tiles, "pending": len(self._dirty),
+                    "coverage_masks": len(self._masks),
+                    "footprints": sum(len(prints) for prints in self._footprints.values())}

@@ -68,7 +68,8 @@ class FusionServer:
         grid = settings.grid
         self.metrics = FusionMetrics()
         self.joint = JointMap(grid, get_fusion_rule(settings.fusion_rule), settings.ttl_s, settings.joint_max_hz,
-                              max_uav_tiles=settings.max_uav_tiles, coverage=settings.coverage)
+                              max_uav_tiles=settings.max_uav_tiles, max_tiles_per_uav=settings.max_tiles_per_uav,
+                              coverage=settings.coverage)
         self.tracker = GlobalTracker(
             gate_m=settings.track_gate_m, hold_s=settings.track_hold_s, member_ttl_s=settings.ttl_s,
             history_len=settings.track_history_len, history_interval_s=settings.track_history_interval_s,
