@@ -210,8 +210,9 @@ class JointMap:
         """Record a UAV's camera footprint (from its state message) received now.
 
         footprint_latlon: (M, 2) ``[lat, lon]`` degrees, the ground polygon (M >= 3; fewer points,
-        non-finite ones or latitudes beyond the map are ignored: returns False). For ``ttl_s`` after it was received the UAV covers
-        the cells inside it (see the module docstring); the tiles the UAV covers are fused again.
+        non-finite ones or latitudes beyond the map are ignored: returns False). For ``ttl_s`` after
+        it was received the UAV covers the cells inside it (see the module docstring); the tiles the
+        UAV covers are fused again.
         """
         if self.coverage != "footprint":
             return False

@@ -81,8 +81,9 @@ class FusionServer:
             if settings.db_path is not None
             else None
         )
+        validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s)
         self.node = FusionNode(
-            zenoh_config(settings.zenoh), keys, MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s), self.joint, self.tracker,
+            zenoh_config(settings.zenoh), keys, validator, self.joint, self.tracker,
             self.uavs, self.metrics, self.store, tracks_max_hz=settings.tracks_max_hz,
             persist_interval_s=settings.persist_interval_s,
         )
