@@ -1,7 +1,7 @@
 """Global tracks: the UAVs' local tracks associated on the ground into global ids, with history.
 
 Per class, a UAV's new local tracks are assigned to the nearest global tracks (metres on the ground,
-gated, ``scipy.optimize.linear_sum_assignment``); a local id once mapped keeps its global id; a
+gated, :mod:`fusion_server.association`); a local id once mapped keeps its global id; a
 global track survives while any UAV reports it, then for ``hold_s``, so a UAV that finds the object
 again re-adopts its global id. No I/O: the Zenoh side feeds it, persistence drains its changes.
 """
@@ -11,33 +11,20 @@ from __future__ import annotations
 import math
 import threading
 import time
-from collections import deque
+from collections import Counter, deque
 from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
-from shared.messages import MAX_MEMBERS, JointTrackItem, JointTracksMessage, TracksMessage
+from fusion_server.association import M_PER_DEG_LAT as _M_PER_DEG_LAT
+from fusion_server.association import gated_assignment, ground_distance_m
+from shared.messages import MAX_MEMBERS, MAX_TRACKS, JointTrackItem, JointTracksMessage, TracksMessage
 
 __all__ = ["GlobalTrack", "GlobalTracker", "TrackRecord", "ground_distance_m"]
 
-_M_PER_DEG_LAT = 111_320.0
 _MAX_MEMBERS_KEPT = min(MAX_MEMBERS, 256)
-
-
-def ground_distance_m(lat1, lon1, lat2, lon2) -> np.ndarray:
-    """Ground distance in metres between points (degrees, broadcastable), equirectangular.
-
-    Accurate to well under 1 % at association distances (up to kilometres); longitudes differing
-    by more than 180 deg are wrapped.
-    """
-    lat1, lon1, lat2, lon2 = (np.asarray(v, dtype=np.float64) for v in (lat1, lon1, lat2, lon2))
-    dlon = (lon2 - lon1 + 180.0) % 360.0 - 180.0
-    east = dlon * _M_PER_DEG_LAT * np.cos(np.radians(0.5 * (lat1 + lat2)))
-    north = (lat2 - lat1) * _M_PER_DEG_LAT
-    return np.hypot(east, north)
 
 
 @dataclass(slots=True)
@@ -147,6 +134,13 @@ class GlobalTracker:
     a global track nobody reports is kept. member_ttl_s: a UAV's member counts as lost when its UAV
     sent no tracks message for that long. history_len / history_interval_s: at most that many
     history rows per track, one per interval. max_ended: ended tracks kept in memory for the API.
+
+    Bounds (so one UAV, real or forged, cannot exhaust memory or stall the API): a tracks message is
+    cut to its ``max_tracks_per_message`` best-scored tracks; one UAV may have created at most
+    ``max_tracks_per_uav`` of the live global tracks and all UAVs together ``max_global_tracks``.
+    Beyond a bound a new track first ends the oldest held (lost) track of the UAV that created the
+    most, else it gets no global id. Counted in :meth:`dropped`. Association is
+    :func:`fusion_server.association.gated_assignment` (exact for ordinary groups, greedy for piles).
     """
 
     def __init__(
@@ -158,6 +152,9 @@ class GlobalTracker:
         history_len: int = 600,
         history_interval_s: float = 1.0,
         max_ended: int = 1000,
+        max_tracks_per_message: int = 1000,
+        max_tracks_per_uav: int = 2000,
+        max_global_tracks: int = 20_000,
         next_gid: int = 1,
         clock=time.monotonic,
         wall=time.time,
@@ -167,6 +164,9 @@ class GlobalTracker:
         self.member_ttl_s = member_ttl_s
         self.history_len = history_len
         self.history_interval_s = history_interval_s
+        self.max_tracks_per_message = max_tracks_per_message
+        self.max_tracks_per_uav = max_tracks_per_uav
+        self.max_global_tracks = max_global_tracks
         self._clock = clock
         self._wall = wall
         self._lock = threading.Lock()
@@ -177,6 +177,14 @@ class GlobalTracker:
         self._dirty: set[int] = set()  # for persistence
         self._history_out: list[tuple[int, float, float, float]] = []
         self._ended_pending: dict[int, TrackRecord] = {}
+        # indexes that keep every step proportional to one message, not to all tracks
+        self._active: dict[str, set[int]] = {}  # uav -> local ids of its active members
+        self._last_msg: dict[str, float] = {}  # uav -> monotonic time of its last tracks message
+        self._lost: dict[int, None] = {}  # held gids, oldest lost first
+        self._owner: dict[int, str] = {}  # gid -> the UAV whose track created it
+        self._owned: dict[str, dict[int, None]] = {}  # uav -> live gids it created, oldest first
+        self._dropped: Counter[str] = Counter()
+        self._greedy_groups = 0
         self.version = 0  # increases on every change, for rate-limited publishing
 
     # ---- input ---------------------------------------------------------------------------------
@@ -185,11 +193,15 @@ class GlobalTracker:
         now = self._clock() if now is None else now
         wall = self._wall()
         uav = msg.uav
+        items = msg.tracks
+        if len(items) > self.max_tracks_per_message:
+            self._count("too_many_tracks", len(items) - self.max_tracks_per_message)
+            items = tuple(sorted(items, key=lambda item: -item.score)[: self.max_tracks_per_message])
         with self._lock:
             touched: set[int] = set()
             claimed: set[int] = set()
             unmatched = []
-            for item in msg.tracks:
+            for item in items:
                 key = (uav, item.id)
                 gid = self._local.get(key)
                 track = self._tracks.get(gid) if gid is not None else None
@@ -199,43 +211,55 @@ class GlobalTracker:
                 track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
                 claimed.add(gid)
             for cls in sorted({item.cls for item in unmatched}):
-                items = [item for item in unmatched if item.cls == cls]
-                self._associate(uav, items, claimed, now, wall)
+                self._associate(uav, [item for item in unmatched if item.cls == cls], claimed, now, wall)
             touched |= claimed
-            reported = {item.id for item in msg.tracks}
-            for gid, track in self._tracks.items():
-                for (member_uav, local_id), member in track.members.items():
-                    if member_uav == uav and member.active and local_id not in reported:
-                        member.active = False
-                        touched.add(gid)
+            reported = {item.id for item in items}
+            for local_id in self._active.get(uav, set()) - reported:
+                touched |= self._deactivate(uav, local_id)
+            self._active[uav] = {local_id for local_id in reported if (uav, local_id) in self._local}
+            self._last_msg[uav] = now
             for gid in touched:
-                self._refresh(self._tracks[gid], now, wall)
+                if gid in self._tracks:
+                    self._refresh(self._tracks[gid], now, wall)
             if touched:
                 self.version += 1
             return bool(touched)
+
+    def _count(self, reason: str, n: int = 1) -> None:
+        self._dropped[reason] += n
+
+    def _deactivate(self, uav: str, local_id: int) -> set[int]:
+        gid = self._local.get((uav, local_id))
+        track = self._tracks.get(gid) if gid is not None else None
+        member = track.members.get((uav, local_id)) if track is not None else None
+        if member is None or not member.active:
+            return set()
+        member.active = False
+        return {gid}  # type: ignore[set-item]
 
     def _associate(self, uav: str, items: list, claimed: set[int], now: float, wall: float) -> None:
         candidates = [t for gid, t in self._tracks.items() if t.cls == items[0].cls and gid not in claimed]
         assigned: dict[int, GlobalTrack] = {}
         if candidates:
-            lat = np.array([item.lat for item in items])
-            lon = np.array([item.lon for item in items])
             t_lat, t_lon = self._predicted(candidates, now)
-            cost = ground_distance_m(lat[:, None], lon[:, None], t_lat[None, :], t_lon[None, :])
-            gated = np.where(cost <= self.gate_m, cost, 1e9)
-            rows, cols = linear_sum_assignment(gated)
-            for r, c in zip(rows, cols, strict=True):
-                if cost[r, c] <= self.gate_m:
-                    assigned[int(r)] = candidates[int(c)]
+            match = gated_assignment([item.lat for item in items], [item.lon for item in items], t_lat, t_lon,
+                                     self.gate_m)
+            self._greedy_groups += match.greedy_groups
+            for r, c in zip(match.rows, match.cols, strict=True):
+                assigned[int(r)] = candidates[int(c)]
         for i, item in enumerate(items):
             track = assigned.get(i)
             if track is None:
+                if not self._make_room(uav):
+                    continue
                 track = GlobalTrack(
                     gid=self._next_gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score,
                     vel_en=item.vel_en, created=wall, last_update=wall,
                     history=deque(maxlen=self.history_len),
                 )
                 self._tracks[track.gid] = track
+                self._owner[track.gid] = uav
+                self._owned.setdefault(uav, {})[track.gid] = None
                 self._next_gid += 1
             key = (uav, item.id)
             track.members.pop(key, None)  # re-insert: most recent last
@@ -243,6 +267,31 @@ class GlobalTracker:
             self._trim_members(track)
             self._local[key] = track.gid
             claimed.add(track.gid)
+
+    def _make_room(self, uav: str) -> bool:
+        """Whether ``uav`` may create a global track now, ending a held one to make room if needed."""
+        owned = self._owned.get(uav, {})
+        if len(owned) >= self.max_tracks_per_uav:
+            victim = next((gid for gid in owned if gid in self._lost), None)
+            if victim is None:
+                self._count("uav_track_quota")
+                return False
+            self._evict(victim)
+        if len(self._tracks) >= self.max_global_tracks:
+            # the UAV that created the most pays first: a flood evicts its own held tracks
+            for owner in sorted(self._owned, key=lambda u: -len(self._owned[u])):
+                victim = next((gid for gid in self._owned[owner] if gid in self._lost), None)
+                if victim is not None:
+                    self._evict(victim)
+                    break
+            else:
+                self._count("too_many_global_tracks")
+                return False
+        return True
+
+    def _evict(self, gid: int) -> None:
+        self._count("evicted_lost")
+        self._end(gid, self._wall())
 
     def _predicted(self, tracks: list[GlobalTrack], now: float) -> tuple[np.ndarray, np.ndarray]:
         # a lost track is extrapolated with its last velocity (for at most hold_s) so a UAV that
@@ -279,6 +328,7 @@ class GlobalTracker:
             track.score = float(max(m.score for m in active))
             track.last_update = wall
             track.lost_since = None
+            self._lost.pop(track.gid, None)
             last = track.history[-1][0] if track.history else -math.inf
             if wall - last >= self.history_interval_s:
                 row = (wall, track.lat, track.lon)
@@ -286,6 +336,7 @@ class GlobalTracker:
                 self._history_out.append((track.gid, *row))
         elif track.lost_since is None:
             track.lost_since = now
+            self._lost[track.gid] = None
         self._dirty.add(track.gid)
 
     def expire(self, now: float | None = None) -> bool:
@@ -294,49 +345,70 @@ class GlobalTracker:
         wall = self._wall()
         changed = False
         with self._lock:
-            for gid, track in list(self._tracks.items()):
-                stale = [m for m in track.members.values() if m.active and now - m.received > self.member_ttl_s]
-                for member in stale:
-                    member.active = False
-                if stale:
-                    self._refresh(track, now, wall)
-                    changed = True
-                if track.lost_since is not None and now - track.lost_since > self.hold_s:
-                    self._end(gid, wall)
-                    changed = True
+            for uav in [u for u, last in self._last_msg.items() if now - last > self.member_ttl_s]:
+                changed |= self._lose_uav(uav, now, wall)
+            for gid in list(self._lost):
+                track = self._tracks[gid]
+                if track.lost_since is not None and now - track.lost_since <= self.hold_s:
+                    break  # oldest first: the rest were lost later
+                self._end(gid, wall)
+                changed = True
             if changed:
                 self.version += 1
         return changed
+
+    def _lose_uav(self, uav: str, now: float, wall: float) -> bool:
+        touched: set[int] = set()
+        for local_id in self._active.pop(uav, set()):
+            touched |= self._deactivate(uav, local_id)
+        self._last_msg.pop(uav, None)
+        for gid in touched:
+            self._refresh(self._tracks[gid], now, wall)
+        return bool(touched)
 
     def uav_lost(self, uav: str, now: float | None = None) -> bool:
         """Mark every member of ``uav`` lost (its liveliness token went away); True if changed."""
         now = self._clock() if now is None else now
         wall = self._wall()
-        changed = False
         with self._lock:
-            for track in self._tracks.values():
-                hit = False
-                for (member_uav, _), member in track.members.items():
-                    if member_uav == uav and member.active:
-                        member.active = False
-                        hit = True
-                if hit:
-                    self._refresh(track, now, wall)
-                    changed = True
+            changed = self._lose_uav(uav, now, wall)
             if changed:
                 self.version += 1
         return changed
 
     def _end(self, gid: int, wall: float) -> None:
         track = self._tracks.pop(gid)
+        self._lost.pop(gid, None)
+        owner = self._owner.pop(gid, None)
+        if owner is not None:
+            owned = self._owned.get(owner)
+            if owned is not None:
+                owned.pop(gid, None)
+                if not owned:
+                    del self._owned[owner]
         track.ended = wall
-        for key in track.members:
+        for key, member in track.members.items():
             if self._local.get(key) == gid:
                 del self._local[key]
+                if member.active:
+                    self._active.get(key[0], set()).discard(key[1])
         record = track.to_record()
         self._ended.append(record)
         self._dirty.add(gid)
         self._ended_pending[gid] = record
+
+    def dropped(self) -> dict[str, int]:
+        """What the bounds refused, by reason: "too_many_tracks" (track items cut from messages),
+        "uav_track_quota" / "too_many_global_tracks" (new tracks that got no global id),
+        "evicted_lost" (held tracks ended early to make room)."""
+        with self._lock:
+            return dict(self._dropped)
+
+    def stats(self) -> dict[str, int]:
+        """Sizes and counters: global tracks, held ones, mapped local ids, greedy association groups."""
+        with self._lock:
+            return {"tracks": len(self._tracks), "lost": len(self._lost), "local_ids": len(self._local),
+                    "greedy_components": self._greedy_groups}
 
     # ---- restore / persistence -----------------------------------------------------------------
     def restore(self, records: Iterable[TrackRecord], now: float | None = None) -> int:
@@ -359,6 +431,10 @@ class GlobalTracker:
                     track.members[key] = _Member(rec.lat, rec.lon, rec.score, rec.vel_en, now, active=False)
                     self._local[key] = rec.gid
                 self._tracks[rec.gid] = track
+                self._lost[rec.gid] = None
+                owner = rec.members[0][0] if rec.members else ""
+                self._owner[rec.gid] = owner
+                self._owned.setdefault(owner, {})[rec.gid] = None
                 count += 1
             self.version += 1
         return count
@@ -393,18 +469,25 @@ class GlobalTracker:
                 rows.extend(self._ended)
         return sorted(rows, key=lambda r: r.gid)
 
-    def joint_message(self) -> JointTracksMessage:
-        """The ``joint/tracks`` message: every current global track with the local ids it absorbed."""
+    def joint_message(self, max_tracks: int = MAX_TRACKS) -> JointTracksMessage:
+        """The ``joint/tracks`` message: the current global tracks with the local ids they absorbed.
+
+        At most ``max_tracks`` (by gid): tracked ones first, then the most recently updated held ones.
+        """
         with self._lock:
+            tracks = list(self._tracks.values())
+            if len(tracks) > max_tracks:
+                tracks.sort(key=lambda t: (t.lost_since is not None, -t.last_update))
+                tracks = tracks[:max_tracks]
             items = tuple(
                 JointTrackItem(
                     gid=t.gid, cls=t.cls, lat=t.lat, lon=t.lon, score=min(max(t.score, 0.0), 1.0),
                     vel_en=t.vel_en, members=tuple(t.members),
                 )
-                for t in sorted(self._tracks.values(), key=lambda t: t.gid)
+                for t in sorted(tracks, key=lambda t: t.gid)
             )
         return JointTracksMessage(t=self._wall(), tracks=items)
 
     def __len__(self) -> int:
-        with self._lock:
-            return len(self._tracks)
+        # no lock: len() of a dict is atomic, and /healthz must never wait for an association
+        return len(self._tracks)

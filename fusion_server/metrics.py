@@ -105,6 +105,7 @@ class FusionMetrics:
         self.joint_published = 0
         self.joint_dropped = 0
         self.tracks_published = 0
+        self.tracks_left_out_total = 0
         self.queries = 0
         self.fusion_latency = LatencyHistogram()
 
@@ -140,6 +141,11 @@ class FusionMetrics:
         with self._lock:
             self.tracks_published += 1
 
+    def tracks_left_out(self, n: int) -> None:
+        """Count global tracks left out of a joint tracks message (size bounds)."""
+        with self._lock:
+            self.tracks_left_out_total += n
+
     def query(self) -> None:
         """Count one query answered by the joint queryable."""
         with self._lock:
@@ -159,10 +165,12 @@ class FusionMetrics:
         with self._lock:
             return {kind: window.rates(now)[0] for kind, window in self.rates.items()}
 
-    def prometheus(self, gauges: Mapping[str, tuple[str, float]] | None = None) -> str:
+    def prometheus(self, gauges: Mapping[str, tuple[str, float]] | None = None,
+                   reasons: Mapping[str, tuple[str, Mapping[str, int]]] | None = None) -> str:
         """The metrics in Prometheus text exposition format (version 0.0.4).
 
-        gauges: extra gauges ``name -> (help, value)`` from other components.
+        gauges: extra gauges ``name -> (help, value)`` from other components. reasons: extra
+        counters by reason ``name -> (help, {reason: count})`` (e.g. the tracker's bounds).
         """
         now = self._clock()
         lines: list[str] = []
@@ -192,6 +200,9 @@ class FusionMetrics:
             lines.append(f"uavmm_fusion_joint_dropped_total {self.joint_dropped}")
             family("uavmm_fusion_tracks_published_total", "counter", "Joint tracks messages published.")
             lines.append(f"uavmm_fusion_tracks_published_total {self.tracks_published}")
+            family("uavmm_fusion_tracks_left_out_total", "counter",
+                   "Global tracks left out of joint tracks messages (message size bounds).")
+            lines.append(f"uavmm_fusion_tracks_left_out_total {self.tracks_left_out_total}")
             family("uavmm_fusion_queries_total", "counter", "Queries answered on the joint queryable.")
             lines.append(f"uavmm_fusion_queries_total {self.queries}")
             hist = self.fusion_latency
@@ -208,6 +219,10 @@ class FusionMetrics:
                 lines.append(f'uavmm_fusion_latency_recent_seconds{{quantile="{q}"}} {_num(hist.quantile(q))}')
             family("uavmm_fusion_uptime_seconds", "gauge", "Seconds since the server started.")
             lines.append(f"uavmm_fusion_uptime_seconds {_num(now - self.started)}")
+        for name, (help_text, counts) in sorted((reasons or {}).items()):
+            family(name, "counter", help_text)
+            for reason, count in sorted(counts.items()):
+                lines.append(f"{name}{_labels({'reason': reason})} {count}")
         for name, (help_text, value) in sorted((gauges or {}).items()):
             family(name, "gauge", help_text)
             lines.append(f"{name} {_num(value)}")

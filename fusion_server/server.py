@@ -148,7 +148,10 @@ class FusionServer:
             "uavmm_fusion_uav_tiles": ("Fresh UAV tiles held for fusion.", stats["uav_tiles"]),
             "uavmm_fusion_global_tracks": ("Global tracks (tracked or held).", len(self.tracker)),
         }
-        return self.metrics.prometheus(gauges)
+        reasons = {"uavmm_fusion_tracks_dropped_total": (
+            "Local tracks cut from messages, new tracks refused a global id, held tracks ended early "
+            "(bounds of the global tracker), by reason.", self.tracker.dropped())}
+        return self.metrics.prometheus(gauges, reasons)
 
 
 def run(settings: FusionSettings, stop: threading.Event,

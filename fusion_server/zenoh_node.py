@@ -10,14 +10,15 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 import zenoh
 
 from fusion_server.joint_map import JointMap, TileKey
 from fusion_server.validation import MessageValidator, Rejected
-from shared.messages import StateMessage, TracksMessage, encode_joint_tracks
+from shared.messages import MAX_TRACKS, StateMessage, TracksMessage, encode_joint_tracks
 from shared.tilecodec import TileMessage
 
 if TYPE_CHECKING:
@@ -30,6 +31,8 @@ if TYPE_CHECKING:
 __all__ = ["FusionNode", "RateLimitedLog"]
 
 log = logging.getLogger(__name__)
+
+_T = TypeVar("_T")
 
 #: Housekeeping period of the publisher thread (track expiry, joint tracks, persistence), seconds.
 _TICK_S = 0.05
@@ -63,7 +66,8 @@ class FusionNode:
     """One Zenoh session of the fusion server.
 
     conf: the Zenoh config. keys: the key space. tracks_max_hz: most joint tracks messages a second.
-    store: persistence, or None. The components are shared with the REST API.
+    max_tracks_bytes: largest joint tracks message (fewer tracks are sent beyond it, tracked ones
+    first). store: persistence, or None. The components are shared with the REST API.
     """
 
     def __init__(
@@ -79,6 +83,7 @@ class FusionNode:
         *,
         tracks_max_hz: float = 5.0,
         persist_interval_s: float = 0.5,
+        max_tracks_bytes: int = 1024 * 1024,
     ) -> None:
         self.conf = conf
         self.keys = keys
@@ -90,6 +95,7 @@ class FusionNode:
         self.store = store
         self.tracks_min_interval_s = 1.0 / tracks_max_hz
         self.persist_interval_s = persist_interval_s
+        self.max_tracks_bytes = max_tracks_bytes
         self.session: zenoh.Session | None = None
         self._declared: list = []
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -99,6 +105,7 @@ class FusionNode:
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
         self._reject_log = RateLimitedLog(log)
+        self._step_log = RateLimitedLog(log)
 
     # ---- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -245,11 +252,40 @@ class FusionNode:
         return next_due
 
     def _publish_tracks(self) -> None:
-        payload = encode_joint_tracks(self.tracker.joint_message())
+        # bounded: at most MAX_TRACKS tracks (the schema's limit) and max_tracks_bytes, tracked ones
+        # first, so a flood of tracks shortens the message instead of stopping it
+        limit = MAX_TRACKS
+        while True:
+            message = self.tracker.joint_message(limit)
+            payload = encode_joint_tracks(message)
+            if len(payload) <= self.max_tracks_bytes or limit <= 1:
+                break
+            limit = len(message.tracks) // 2
+        left_out = len(self.tracker) - len(message.tracks)
+        if left_out > 0:
+            self.metrics.tracks_left_out(left_out)
         self._tracks_payload = payload
         assert self._tracks_publisher is not None
         self._tracks_publisher.put(payload)
         self.metrics.tracks_sent()
+
+    def _step(self, name: str, action: Callable[[], _T]) -> _T | None:
+        """Run one step of the publisher thread; a failure is logged (rate-limited) and counted, and
+        never keeps the other steps (joint tiles, tracks, persistence) from running."""
+        try:
+            return action()
+        except Exception as exc:
+            if self._stop.is_set():
+                return None
+            self.metrics.reject("publisher", f"{name}_failed")
+            self._step_log.warning(name, "publisher step %s failed: %s", name, exc)
+            log.debug("publisher step %s failed", name, exc_info=True)
+            return None
+
+    def _persist_tracks(self) -> None:
+        assert self.store is not None
+        records, history = self.tracker.drain_changes()
+        self.store.save_tracks(records, history, self.tracker.next_gid)
 
     def _run(self) -> None:
         tracks_version = -1
@@ -257,30 +293,20 @@ class FusionNode:
         next_housekeeping = 0.0
         next_persist = time.monotonic() + self.persist_interval_s
         while not self._stop.is_set():
-            try:
-                next_due = self._publish_tiles()
-                now = time.monotonic()
-                if now >= next_housekeeping:
-                    self.tracker.expire(now)
-                    next_housekeeping = now + _TICK_S
-                if self.tracker.version != tracks_version and now - last_tracks >= self.tracks_min_interval_s:
-                    tracks_version = self.tracker.version
-                    last_tracks = now
-                    self._publish_tracks()
-                if self.store is not None and now >= next_persist:
-                    records, history = self.tracker.drain_changes()
-                    self.store.save_tracks(records, history, self.tracker.next_gid)
-                    next_persist = now + self.persist_interval_s
-                timeout = _TICK_S if next_due is None else min(_TICK_S, next_due - time.monotonic())
-                self.joint.wait(max(timeout, 0.0))
-            except zenoh.ZError:
-                if self._stop.is_set():
-                    return
-                log.exception("publishing failed")
-                self._stop.wait(0.5)
-            except Exception:
-                log.exception("internal error in the publisher thread")
-                self._stop.wait(0.5)
+            next_due = self._step("joint_tiles", self._publish_tiles)
+            now = time.monotonic()
+            if now >= next_housekeeping:
+                self._step("expire", self.tracker.expire)
+                next_housekeeping = now + _TICK_S
+            if self.tracker.version != tracks_version and now - last_tracks >= self.tracks_min_interval_s:
+                tracks_version = self.tracker.version
+                last_tracks = now
+                self._step("joint_tracks", self._publish_tracks)
+            if self.store is not None and now >= next_persist:
+                self._step("persist", self._persist_tracks)
+                next_persist = now + self.persist_interval_s
+            timeout = _TICK_S if next_due is None else min(_TICK_S, next_due - time.monotonic())
+            self.joint.wait(max(timeout, 0.0))
         if self.store is not None:
             records, history = self.tracker.drain_changes()
             self.store.save_tracks(records, history, self.tracker.next_gid)

@@ -131,3 +131,69 @@ def test_restore_holds_tracks_and_keeps_the_local_id_mapping(tracker, clock):
     assert gids(fresh)[("a", 1)] == saved[0].gid
     fresh.update(msg("b", (3, 0.0, 50.0)))
     assert max(r.gid for r in fresh.records()) == saved[0].gid + 1
+
+
+def grid_msg(uav: str, n: int, first_id: int = 0, spacing_m: float = 1.0, north0_m: float = 0.0) -> TracksMessage:
+    """n tracks on a square grid spacing_m apart starting north0_m north of (LAT, LON)."""
+    side = int(np.ceil(np.sqrt(n)))
+    return msg(uav, *((first_id + i, north0_m + (i // side) * spacing_m, (i % side) * spacing_m) for i in range(n)))
+
+
+def test_a_huge_tracks_message_is_truncated_to_its_best_tracks(clock):
+    tracker = GlobalTracker(gate_m=5.0, max_tracks_per_message=100, clock=clock, wall=clock)
+    items = list(grid_msg("evil", 300).tracks)
+    best = {item.id for item in items[:100]}
+    scored = [TrackItem(id=item.id, cls=item.cls, lat=item.lat, lon=item.lon, score=0.9 if item.id in best else 0.1,
+                        vel_en=item.vel_en) for item in items]
+    tracker.update(TracksMessage(uav="evil", t=0.0, tracks=tuple(scored)))
+    assert len(tracker) == 100
+    assert {m[1] for r in tracker.records() for m in r.members} == best
+    assert tracker.dropped() == {"too_many_tracks": 200}
+
+
+def test_association_of_thousands_in_the_gate_is_one_to_one_and_gated(clock):
+    # probe: 2 UAV ids x 4,000 tracks inside the gate blocked /healthz for 6 s (cubic assignment)
+    tracker = GlobalTracker(gate_m=5.0, clock=clock, wall=clock)
+    tracker.update(grid_msg("uav1", 4000))
+    tracker.update(grid_msg("uav2", 4000, first_id=10_000))
+    stats = tracker.stats()
+    assert stats["greedy_components"] >= 1  # too large for the exact assignment: greedy
+    records = tracker.records()
+    per_uav: dict[str, list[int]] = {"uav1": [], "uav2": []}
+    for record in records:
+        uavs = [m[0] for m in record.members]
+        assert sorted(uavs) in (["uav1"], ["uav1", "uav2"]), record.members  # one-to-one
+        for uav in uavs:
+            per_uav[uav].append(record.gid)
+    assert len(per_uav["uav1"]) == 1000 and len(per_uav["uav2"]) == 1000  # each message truncated
+    shared = [r for r in records if len(r.members) == 2]
+    assert len(shared) >= 900  # the same grid: nearly everything pairs up
+    for record in shared:  # and only inside the gate (positions are the members' mean)
+        assert record.lat == pytest.approx(LAT, abs=40 * M_LAT)
+
+
+def test_small_components_keep_the_optimal_assignment(tracker):
+    # greedy (nearest first) would pair 0 with 11 (1.5 m) and leave 10 alone (7 m from 1, beyond the
+    # gate); the optimal assignment pairs 0-10 (3 m) and 1-11 (2.5 m)
+    tracker.update(msg("uav1", (0, 0.0, 0.0), (1, 0.0, 4.0)))
+    tracker.update(msg("uav2", (10, 0.0, -3.0), (11, 0.0, 1.5)))
+    by_member = {m: r.gid for r in tracker.records() for m in r.members}
+    assert by_member[("uav2", 10)] == by_member[("uav1", 0)]
+    assert by_member[("uav2", 11)] == by_member[("uav1", 1)]
+    assert tracker.stats()["greedy_components"] == 0
+
+
+def test_the_global_tracks_are_capped_and_a_flooding_uav_pays_with_its_own(clock):
+    tracker = GlobalTracker(gate_m=5.0, hold_s=60.0, max_tracks_per_message=20, max_global_tracks=50,
+                            clock=clock, wall=clock)
+    tracker.update(msg("honest", (1, 0.0, 0.0)))
+    for k in range(10):  # 200 fresh ids, far from each other and from the honest track
+        clock.now += 0.1
+        tracker.update(grid_msg("flood", 20, first_id=1000 * k, spacing_m=100.0, north0_m=1000.0 + 10 * k))
+    assert len(tracker) <= 50
+    clock.now += 0.1
+    tracker.update(msg("honest", (1, 0.0, 0.0), (2, 5000.0, 0.0)))  # a new object still gets an id
+    members = {m for r in tracker.records() for m in r.members}
+    assert {("honest", 1), ("honest", 2)} <= members
+    assert len(tracker) <= 50
+    assert tracker.dropped().get("evicted_lost", 0) > 0

@@ -3,8 +3,11 @@ zenoh-python client against the real server and must now be dropped, counted and
 
 from __future__ import annotations
 
+import sqlite3
 import time
 
+import httpx
+import msgpack
 import numpy as np
 import pytest
 
@@ -76,3 +79,41 @@ def test_a_bbox_ending_at_lon_180_covers_its_cells(server, http, agent_factory, 
     assert body["bbox"][2] == pytest.approx(180.0) and body["bbox"][0] == pytest.approx(179.999, abs=1e-5)
     whole = http.get("/v1/map", params={"cls": "person", "bbox": "-180,10,180,10.001"})
     assert whole.status_code == 400 and "cells" in whole.json()["detail"]
+
+
+def test_one_huge_tracks_message_neither_stops_joint_tracks_nor_saving(server, agent_factory):
+    # probe: one 850 kB tracks message (10,000 tracks) made the joint-tracks publisher raise
+    # "too_many" on every cycle: no joint tracks and no track saves while the fakes lived
+    received: list[bytes] = []
+    listener = agent_factory("listener", alive=False)
+    sub = listener.session.declare_subscriber(KEYS.joint_tracks(), lambda s: received.append(s.payload.to_bytes()))
+    evil = agent_factory("evil")
+    m_lat = 1.0 / 111_320.0
+    items = [(i, "person", LAT + 0.5 + (i // 100) * m_lat, LON + (i % 100) * m_lat) for i in range(10_000)]
+    evil.tracks(items)
+    wait_until(lambda: server.metrics.received.get("tracks", 0) == 1, timeout_s=10.0)
+    real = agent_factory("uav1")
+    real.tracks([(7, "person", LAT, LON)])
+
+    def has_uav1() -> bool:
+        return bool(received) and any(["uav1", 7] in t["members"] for t in msgpack.unpackb(received[-1])["tracks"])
+
+    wait_until(has_uav1, timeout_s=10.0)
+    assert server.tracker.dropped()["too_many_tracks"] == 9_000
+    text = httpx.get(server.url + "metrics").text
+    assert 'uavmm_fusion_tracks_dropped_total{reason="too_many_tracks"} 9000' in text
+    store = server.store
+
+    def saved() -> bool:
+        with sqlite3.connect(store.path) as conn:
+            return any("uav1" in row[0] for row in conn.execute("SELECT members FROM tracks"))
+
+    wait_until(saved, timeout_s=10.0)
+    del sub
+
+
+def test_healthz_answers_while_the_tracker_is_busy(server, http):
+    # probe: a long association held the tracker lock and /healthz with it
+    with server.tracker._lock:  # what a long association does
+        response = http.get("/healthz", timeout=5.0)
+    assert response.status_code == 200 and response.json()["global_tracks"] == 0
