@@ -151,6 +151,7 @@ class AgentLink:
         self.max_tile_bytes = max_tile_bytes
         self.max_joint_tiles = max_joint_tiles
         self.session: zenoh.Session | None = None
+        self._session_tag = b""
         self._declared: list[Any] = []
         self._token: zenoh.LivelinessToken | None = None
         self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
@@ -182,6 +183,8 @@ class AgentLink:
         if session is None:
             return False
         self.session = session
+        # every put carries this session's id, so the server can tell two sessions using one UAV id
+        self._session_tag = str(session.zid()).encode("ascii")
         self._token = session.liveliness().declare_token(self.keys.uav_alive(self.uav))
         # keep references: declared entities are undeclared when garbage-collected
         self._declared = [
@@ -312,7 +315,7 @@ class AgentLink:
     def _send(self, batch: dict[str, tuple[str, bytes]]) -> None:
         for key, (kind, payload) in batch.items():
             try:
-                self._publisher(key).put(payload)
+                self._publisher(key).put(payload, attachment=self._session_tag)
                 self._count(f"sent_{kind}", len(payload))
             except zenoh.ZError as exc:
                 self._count("publish_errors")

@@ -68,6 +68,8 @@ class FusionSettings:
     map_max_cells: int = 512 * 512
     persist_interval_s: float = 0.5
     max_clock_skew_s: float = 30.0
+    uav_max_msgs_per_s: float = 500.0
+    uav_max_bytes_per_s: float = 4 * 1024 * 1024
 
     def __post_init__(self) -> None:
         if self.fusion_rule not in FUSION_RULES:
@@ -79,7 +81,8 @@ class FusionSettings:
         if not isinstance(self.http_port, int) or not 0 <= self.http_port <= 65535:
             raise ValueError(f"http_port must be in 0..65535, got {self.http_port!r}")
         for name in ("ttl_s", "joint_max_hz", "tracks_max_hz", "track_gate_m", "track_hold_s",
-                     "track_history_interval_s", "persist_interval_s", "max_clock_skew_s"):
+                     "track_history_interval_s", "persist_interval_s", "max_clock_skew_s",
+                     "uav_max_msgs_per_s", "uav_max_bytes_per_s"):
             _positive(name, getattr(self, name))
         if self.restore_grace_s is not None:
             _positive("restore_grace_s", self.restore_grace_s)

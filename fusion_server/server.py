@@ -20,6 +20,7 @@ from fusion_server.global_tracks import GlobalTracker
 from fusion_server.joint_map import JointMap
 from fusion_server.metrics import FusionMetrics
 from fusion_server.persistence import FusionStore
+from fusion_server.rate_limit import UavRateLimiter
 from fusion_server.rules import get_fusion_rule
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
@@ -84,7 +85,9 @@ class FusionServer:
         validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s)
         self.node = FusionNode(
             zenoh_config(settings.zenoh), keys, validator, self.joint, self.tracker,
-            self.uavs, self.metrics, self.store, tracks_max_hz=settings.tracks_max_hz,
+            self.uavs, self.metrics, self.store,
+            UavRateLimiter(settings.uav_max_msgs_per_s, settings.uav_max_bytes_per_s, max_uavs=4 * settings.max_uavs),
+            tracks_max_hz=settings.tracks_max_hz,
             persist_interval_s=settings.persist_interval_s,
         )
         self.app = create_app(self)
@@ -147,6 +150,10 @@ class FusionServer:
             "uavmm_fusion_joint_tiles": ("Joint tiles currently published.", stats["joint_tiles"]),
             "uavmm_fusion_uav_tiles": ("Fresh UAV tiles held for fusion.", stats["uav_tiles"]),
             "uavmm_fusion_global_tracks": ("Global tracks (tracked or held).", len(self.tracker)),
+            "uavmm_fusion_uav_conflicts": ("UAV ids heard from more than one Zenoh session at once.",
+                                           len(self.uavs.conflicts())),
+            "uavmm_fusion_liveliness_tokens_evicted": ("Liveliness tokens of ids without data forgotten "
+                                                       "(registry full).", self.uavs.tokens_evicted),
         }
         reasons = {"uavmm_fusion_tracks_dropped_total": (
             "Local tracks cut from messages, new tracks refused a global id, held tracks ended early "

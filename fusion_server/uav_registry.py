@@ -1,20 +1,35 @@
-"""What the server knows about each UAV: liveliness, last message, last state, message rates.
+"""What the server knows about each UAV: liveliness, last message, last state, message rates, drops.
 
-Fed by the Zenoh side (liveliness samples and valid messages), read by ``GET /v1/uavs``. The number
-of UAVs is bounded so a flood of made-up ids cannot exhaust memory. Thread-safe.
+Fed by the Zenoh side (liveliness samples, valid messages, drops), read by ``GET /v1/uavs``. Both
+kinds of entries are bounded so a flood of made-up ids cannot exhaust memory or lock real UAVs out:
+UAVs that sent data (at most ``max_uavs``; offline ones are forgotten first) and liveliness tokens
+(at most ``4 * max_uavs``; tokens of ids that never sent data are forgotten first, oldest first).
+A UAV id heard from more than one Zenoh session at once (two drones configured with the same id,
+or an impostor) is reported. Thread-safe.
 """
 
 from __future__ import annotations
 
+import logging
 import threading
 import time
+from collections import OrderedDict
 from dataclasses import dataclass, field
 from typing import Any
 
 from fusion_server.metrics import RateWindow
 from shared.messages import StateMessage
 
-__all__ = ["UavRegistry", "state_to_dict"]
+__all__ = ["SESSION_WINDOW_S", "UavRegistry", "state_to_dict"]
+
+log = logging.getLogger(__name__)
+
+#: Sessions seen within this many seconds count as "at once" for the two-sessions report.
+SESSION_WINDOW_S = 10.0
+#: Sessions remembered per UAV.
+_MAX_SESSIONS = 8
+#: Label of messages that carry no session id (agents older than this check, other clients).
+NO_SESSION = "unknown"
 
 
 def state_to_dict(state: StateMessage) -> dict[str, Any]:
@@ -34,37 +49,43 @@ def state_to_dict(state: StateMessage) -> dict[str, Any]:
 
 @dataclass(slots=True)
 class _Uav:
-    online: bool = False
     last_seen: float | None = None  # wall time
     online_since: float | None = None
     state: StateMessage | None = None
     rates: dict[str, RateWindow] = field(default_factory=dict)
     counts: dict[str, int] = field(default_factory=dict)
+    rejected: dict[str, int] = field(default_factory=dict)
+    sessions: OrderedDict[str, float] = field(default_factory=OrderedDict)  # session -> monotonic time
+    conflict_reported: bool = False
 
 
 class UavRegistry:
-    """Per-UAV status. max_uavs bounds the number of ids kept (new ids beyond it are refused)."""
+    """Per-UAV status. max_uavs bounds the UAVs that sent data; 4 * max_uavs the liveliness tokens."""
 
     def __init__(self, max_uavs: int = 256, clock=time.monotonic, wall=time.time) -> None:
         self.max_uavs = max_uavs
+        self.max_tokens = 4 * max_uavs
         self._clock = clock
         self._wall = wall
         self._lock = threading.Lock()
         self._uavs: dict[str, _Uav] = {}
+        self._tokens: OrderedDict[str, float] = OrderedDict()  # uav -> online since (wall), oldest first
+        self.tokens_evicted = 0
+        self.conflicts_total = 0
 
     def _get(self, uav: str) -> _Uav | None:
         entry = self._uavs.get(uav)
         if entry is None:
             if len(self._uavs) >= self.max_uavs:
-                self._evict_one()
+                self._evict_offline()
                 if len(self._uavs) >= self.max_uavs:
                     return None
-            entry = self._uavs[uav] = _Uav()
+            entry = self._uavs[uav] = _Uav(online_since=self._tokens.get(uav))
         return entry
 
-    def _evict_one(self) -> None:
+    def _evict_offline(self) -> None:
         # forget the offline UAV seen longest ago, so a fleet that changes over a long mission fits
-        offline = [(e.last_seen or 0.0, uav) for uav, e in self._uavs.items() if not e.online]
+        offline = [(e.last_seen or 0.0, uav) for uav, e in self._uavs.items() if uav not in self._tokens]
         if offline:
             del self._uavs[min(offline)[1]]
 
@@ -72,17 +93,36 @@ class UavRegistry:
         """Record a liveliness token appearing (online) or disappearing; False if refused (full)."""
         now = self._wall()
         with self._lock:
-            entry = self._get(uav)
-            if entry is None:
-                return False
-            if online and not entry.online:
-                entry.online_since = now
-            entry.online = online
-            entry.last_seen = now
+            if not online:
+                self._tokens.pop(uav, None)
+                entry = self._uavs.get(uav)
+                if entry is not None:
+                    entry.last_seen = now
+                return True
+            if uav not in self._tokens:
+                if len(self._tokens) >= self.max_tokens and not self._evict_token():
+                    return False
+                self._tokens[uav] = now
+                entry = self._uavs.get(uav)
+                if entry is not None:
+                    entry.online_since = now
+                    entry.last_seen = now
             return True
 
-    def message(self, uav: str, kind: str, nbytes: int, state: StateMessage | None = None) -> bool:
-        """Record a valid message (kind "tile", "state" or "tracks"); False if refused (full)."""
+    def _evict_token(self) -> bool:
+        # a token whose id never sent data costs nothing to forget: if it is real, its first message
+        # makes it a UAV again (shown offline until its token is seen anew)
+        victim = next((uav for uav in self._tokens if uav not in self._uavs), None)
+        if victim is None:
+            return False
+        del self._tokens[victim]
+        self.tokens_evicted += 1
+        return True
+
+    def message(self, uav: str, kind: str, nbytes: int, state: StateMessage | None = None,
+                session: str | None = None) -> bool:
+        """Record a valid message (kind "tile", "state" or "tracks") from Zenoh session ``session``
+        (None: unknown); False if refused (full)."""
         now_mono = self._clock()
         with self._lock:
             entry = self._get(uav)
@@ -96,34 +136,71 @@ class UavRegistry:
             entry.counts[kind] = entry.counts.get(kind, 0) + 1
             if state is not None:
                 entry.state = state
+            self._seen_session(uav, entry, session or NO_SESSION, now_mono)
             return True
+
+    def _seen_session(self, uav: str, entry: _Uav, session: str, now: float) -> None:
+        sessions = entry.sessions
+        sessions[session] = now
+        sessions.move_to_end(session)
+        while len(sessions) > _MAX_SESSIONS:
+            sessions.popitem(last=False)
+        fresh = [s for s, t in sessions.items() if now - t <= SESSION_WINDOW_S]
+        if len(fresh) > 1 and not entry.conflict_reported:
+            entry.conflict_reported = True
+            self.conflicts_total += 1
+            log.warning("UAV id %s is used by %d Zenoh sessions at once (%s): two drones with the same id, "
+                        "or an impostor", uav, len(fresh), ", ".join(fresh))
+        elif len(fresh) <= 1:
+            entry.conflict_reported = False
+
+    def rejected(self, uav: str, reason: str) -> None:
+        """Count a dropped message of a UAV that is already known (unknown ids are not added)."""
+        with self._lock:
+            entry = self._uavs.get(uav)
+            if entry is not None:
+                entry.rejected[reason] = entry.rejected.get(reason, 0) + 1
 
     def online(self) -> list[str]:
         """Ids of the UAVs whose liveliness token is present."""
         with self._lock:
-            return sorted(uav for uav, entry in self._uavs.items() if entry.online)
+            return sorted(self._tokens)
+
+    def conflicts(self) -> list[str]:
+        """Ids heard from more than one Zenoh session within SESSION_WINDOW_S."""
+        now = self._clock()
+        with self._lock:
+            return sorted(uav for uav, entry in self._uavs.items()
+                          if sum(now - t <= SESSION_WINDOW_S for t in entry.sessions.values()) > 1)
 
     def snapshot(self, tile_counts: dict[str, int] | None = None) -> list[dict[str, Any]]:
-        """``GET /v1/uavs`` rows, sorted by id.
+        """``GET /v1/uavs`` rows, sorted by id: the UAVs that sent data and the ids with only a token.
 
         Each: id, online, last_seen (epoch seconds or None), online_since, state (last state message
         or None), rates ({kind: messages/s} over 10 s), bytes_per_s, messages ({kind: count}),
-        tiles (fresh tiles it covers, when tile_counts is given).
+        rejected ({reason: count} of its dropped messages), sessions (Zenoh sessions it was heard
+        from within SESSION_WINDOW_S), conflict (more than one of them), tiles (fresh tiles it
+        covers, when tile_counts is given).
         """
         now = self._clock()
         rows = []
         with self._lock:
-            for uav, entry in sorted(self._uavs.items()):
+            for uav in sorted(set(self._uavs) | set(self._tokens)):
+                entry = self._uavs.get(uav) or _Uav(online_since=self._tokens.get(uav))
                 rates = {kind: window.rates(now) for kind, window in entry.rates.items()}
+                sessions = sorted(s for s, t in entry.sessions.items() if now - t <= SESSION_WINDOW_S)
                 row = {
                     "id": uav,
-                    "online": entry.online,
-                    "last_seen": entry.last_seen,
+                    "online": uav in self._tokens,
+                    "last_seen": entry.last_seen if uav in self._uavs else self._tokens.get(uav),
                     "online_since": entry.online_since,
                     "state": state_to_dict(entry.state) if entry.state is not None else None,
                     "rates": {kind: round(r[0], 3) for kind, r in rates.items()},
                     "bytes_per_s": round(sum(r[1] for r in rates.values()), 1),
                     "messages": dict(entry.counts),
+                    "rejected": dict(entry.rejected),
+                    "sessions": sessions,
+                    "conflict": len(sessions) > 1,
                 }
                 if tile_counts is not None:
                     row["tiles"] = tile_counts.get(uav, 0)

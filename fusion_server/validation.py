@@ -33,6 +33,8 @@ REJECT_REASONS = frozenset(
         "uav_mismatch",  # the message's uav differs from the key's: a UAV publishes under its own key only
         "tile_mismatch",  # cls/z/x/y of a tile differ from its key
         "wrong_grid",  # z or n differ from the server's grid
+        "rate_limited",  # more messages a second than the UAV's limit (fusion_server.rate_limit)
+        "byte_rate_limited",  # more payload bytes a second than the UAV's limit
         "t_in_future",  # t later than the server clock + max_clock_skew_s (e.g. t = 1e300)
         "seq_in_future",  # a tile seq above the server clock in nanoseconds + skew (e.g. 2**64 - 1)
         "stale",  # not newer than the stored tile of that UAV
@@ -113,13 +115,16 @@ class MessageValidator:
         """Largest accepted payload of a message kind ("tile", "state", "tracks"), bytes."""
         return {"tile": self.max_tile_bytes, "state": self.max_state_bytes}.get(kind, self.max_tracks_bytes)
 
-    def validate(self, key: str, payload) -> Received:
+    def validate(self, key: str, payload, parsed: ParsedKey | None = None) -> Received:
         """Decode and check one message published on ``key``; raise Rejected when it is invalid.
 
         payload: bytes, or an object with ``len()`` and ``to_bytes()`` (a ``zenoh.ZBytes``), whose
-        size is checked before it is copied out.
+        size is checked before it is copied out. parsed: ``parse_key(key)[0]`` when already known.
         """
-        parsed, kind = self.parse_key(key)
+        if parsed is None:
+            parsed, kind = self.parse_key(key)
+        else:
+            kind = _KINDS[parsed.kind]
         if not isinstance(payload, bytes | bytearray | memoryview):
             size = len(payload)
             if size > self.max_bytes(kind):

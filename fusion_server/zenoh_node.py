@@ -25,6 +25,7 @@ if TYPE_CHECKING:
     from fusion_server.global_tracks import GlobalTracker
     from fusion_server.metrics import FusionMetrics
     from fusion_server.persistence import FusionStore
+    from fusion_server.rate_limit import UavRateLimiter
     from fusion_server.uav_registry import UavRegistry
     from shared.keys import KeySpace
 
@@ -62,12 +63,24 @@ class RateLimitedLog:
         self.logger.warning(message + suffix, *args)
 
 
+def _session_of(sample: zenoh.Sample) -> str | None:
+    """The sending agent's Zenoh session id from the sample's attachment (docs/protocol.md), if any."""
+    attachment = sample.attachment
+    if attachment is None:
+        return None
+    raw = attachment.to_bytes()
+    if 1 <= len(raw) <= 32 and all(c in b"0123456789abcdef" for c in raw):
+        return raw.decode("ascii")
+    return "invalid"
+
+
 class FusionNode:
     """One Zenoh session of the fusion server.
 
     conf: the Zenoh config. keys: the key space. tracks_max_hz: most joint tracks messages a second.
     max_tracks_bytes: largest joint tracks message (fewer tracks are sent beyond it, tracked ones
-    first). store: persistence, or None. The components are shared with the REST API.
+    first). store: persistence, or None. limiter: per-UAV rate limits checked before decoding, or
+    None. The components are shared with the REST API.
     """
 
     def __init__(
@@ -80,6 +93,7 @@ class FusionNode:
         uavs: UavRegistry,
         metrics: FusionMetrics,
         store: FusionStore | None = None,
+        limiter: UavRateLimiter | None = None,
         *,
         tracks_max_hz: float = 5.0,
         persist_interval_s: float = 0.5,
@@ -93,6 +107,7 @@ class FusionNode:
         self.uavs = uavs
         self.metrics = metrics
         self.store = store
+        self.limiter = limiter
         self.tracks_min_interval_s = 1.0 / tracks_max_hz
         self.persist_interval_s = persist_interval_s
         self.max_tracks_bytes = max_tracks_bytes
@@ -147,12 +162,15 @@ class FusionNode:
             self.session = None
 
     # ---- callbacks (Zenoh threads; never raise) ------------------------------------------------
-    def _reject(self, kind: str, reason: str, key: str, detail: object) -> None:
+    def _reject(self, kind: str, reason: str, key: str, detail: object, uav: str | None = None) -> None:
         self.metrics.reject(kind, reason)
+        if uav is not None:
+            self.uavs.rejected(uav, reason)
         self._reject_log.warning(reason, "dropped %s message on %.120s: %s: %.200s", kind, key, reason, detail)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
         key = "?"
+        uav: str | None = None
         try:
             key = str(sample.key_expr)
             if sample.kind != zenoh.SampleKind.PUT:
@@ -163,10 +181,18 @@ class FusionNode:
                     pass
                 self._reject(kind, "unexpected_delete", key, "DELETE sample")
                 return
-            received = self.validator.validate(key, sample.payload)
+            parsed, kind = self.validator.parse_key(key)
+            uav = parsed.uav
+            nbytes = len(sample.payload)
+            limited = self.limiter.check(uav, nbytes) if self.limiter is not None else None
+            if limited is not None:  # before decoding: a flood costs a lookup per message
+                self._reject(kind, limited, key, f"{nbytes} bytes", uav)
+                return
+            received = self.validator.validate(key, sample.payload, parsed=parsed)
             message = received.message
-            if not self.uavs.message(received.key.uav, received.kind, received.nbytes,
-                                     message if isinstance(message, StateMessage) else None):
+            if not self.uavs.message(uav, received.kind, received.nbytes,
+                                     message if isinstance(message, StateMessage) else None,
+                                     session=_session_of(sample)):
                 self._reject(received.kind, "too_many_uavs", key, "UAV registry full")
                 return
             if isinstance(message, TileMessage):
@@ -174,7 +200,7 @@ class FusionNode:
                 tile_key: TileKey = (message.cls, message.z, message.x, message.y)
                 reason = self.joint.put(message.uav, tile_key, values, message.t, message.seq)
                 if reason is not None:
-                    self._reject("tile", reason, key, f"seq {message.seq}")
+                    self._reject("tile", reason, key, f"seq {message.seq}", uav)
                     return
             elif isinstance(message, StateMessage):
                 self.joint.put_footprint(message.uav, message.footprint)
@@ -183,7 +209,7 @@ class FusionNode:
                 self.joint.poke()
             self.metrics.message(received.kind, received.nbytes)
         except Rejected as exc:
-            self._reject(exc.kind, exc.reason, key, exc)
+            self._reject(exc.kind, exc.reason, key, exc, uav)
         except Exception:  # a bug must not take the subscriber down: count it, log it
             self.metrics.reject("unknown", "internal_error")
             log.exception("internal error handling a sample on %.120s", key)

@@ -59,6 +59,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--track-hold-s", type=float, default=10.0, help="keep a track nobody reports this long (10)")
     p.add_argument("--max-clock-skew-s", type=float, default=30.0,
                    help="drop messages whose t is this far ahead of the server clock (30)")
+    p.add_argument("--uav-max-msgs-per-s", type=float, default=500.0,
+                   help="per-UAV message rate limit, messages/s (500; bursts of 2 s)")
+    p.add_argument("--uav-max-bytes-per-s", type=float, default=4 * 1024 * 1024,
+                   help="per-UAV payload rate limit, bytes/s (4 MiB; bursts of 2 s)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
     p.set_defaults(handler=_run_fusion)
@@ -86,6 +90,7 @@ def settings_from_args(args: argparse.Namespace):
         prefix=args.prefix, ttl_s=args.ttl_s, fusion_rule=args.fusion_rule, coverage=args.coverage, grid_z=args.grid_z,
         grid_n=args.grid_n, joint_max_hz=args.joint_max_hz, tracks_max_hz=args.tracks_max_hz,
         track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, max_clock_skew_s=args.max_clock_skew_s,
+        uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
     )
 
 

@@ -65,3 +65,17 @@ def agent_factory(zenoh_port: int):
     yield make
     for agent in agents:
         agent.close()
+
+
+@pytest.fixture
+def http_of():
+    clients: list[httpx.Client] = []
+
+    def make(server: FusionServer) -> httpx.Client:
+        client = httpx.Client(base_url=server.url.rstrip("/"), timeout=10.0)
+        clients.append(client)
+        return client
+
+    yield make
+    for client in clients:
+        client.close()

@@ -117,3 +117,74 @@ def test_healthz_answers_while_the_tracker_is_busy(server, http):
     with server.tracker._lock:  # what a long association does
         response = http.get("/healthz", timeout=5.0)
     assert response.status_code == 200 and response.json()["global_tracks"] == 0
+
+
+def test_liveliness_tokens_without_data_cannot_lock_out_a_real_uav(server_factory, agent_factory, http_of):
+    # probe: 260 fake liveliness tokens -> "too_many_uavs" for a real new UAV
+    server = server_factory(max_uavs=8)
+    faker = agent_factory("faker", alive=False)
+    tokens = [faker.session.liveliness().declare_token(KEYS.uav_alive(f"ghost{i}")) for i in range(30)]
+    wait_until(lambda: server.metrics.received.get("alive", 0) >= 30)
+    real = agent_factory("uav1")
+    real.tile(blob(10, 10))
+    wait_until(lambda: server.joint.get(TILE) is not None)
+    assert server.metrics.rejected_by_reason().get("too_many_uavs", 0) == 0
+    rows = {row["id"]: row for row in http_of(server).get("/v1/uavs").json()}
+    assert rows["uav1"]["online"] and rows["uav1"]["messages"] == {"tile": 1}
+    assert len(rows) <= 8 * 4  # token-only entries are bounded too
+    del tokens
+
+
+def test_a_flooding_uav_is_rate_limited_and_the_others_still_fused(server_factory, agent_factory, http_of):
+    server = server_factory(uav_max_msgs_per_s=50.0, uav_max_bytes_per_s=1e9)
+    flood = agent_factory("flood")
+    for i in range(500):
+        flood.tile(blob(20, 20, 0.9), x=TILE_X + 1 + i % 10)
+    honest = agent_factory("uav1")
+    honest.tile(blob(40, 40, 0.6))
+    wait_until(lambda: joint_value(server, 40, 40) > 0.5)
+    wait_until(lambda: server.metrics.received.get("tile", 0) + sum(server.metrics.rejected_by_reason().values())
+               >= 501)
+    limited = server.metrics.rejected.get(("tile", "rate_limited"), 0)
+    assert 300 <= limited <= 450  # a burst of 2 s (100) goes through, and what refills meanwhile
+    rows = {row["id"]: row for row in http_of(server).get("/v1/uavs").json()}
+    assert rows["flood"]["rejected"] == {"rate_limited": limited}
+    assert "rejected" not in rows["uav1"] or rows["uav1"]["rejected"] == {}
+    byte_server_metrics = server.metrics
+    assert byte_server_metrics.rejected.get(("tile", "byte_rate_limited"), 0) == 0
+
+
+def test_bytes_per_second_are_limited_per_uav(server_factory, agent_factory):
+    server = server_factory(uav_max_msgs_per_s=1e6, uav_max_bytes_per_s=100_000.0)
+    flood = agent_factory("flood")
+    dense = np.full((GRID.n, GRID.n), 0.5, np.float32)  # a dense tile: ~64 KiB
+    for i in range(40):
+        flood.tile(dense, x=TILE_X + i)
+    wait_until(lambda: server.metrics.received.get("tile", 0) + sum(server.metrics.rejected_by_reason().values())
+               >= 40)
+    assert server.metrics.rejected.get(("tile", "byte_rate_limited"), 0) >= 30  # 200 kB burst, 100 kB/s
+
+
+def test_one_uav_id_used_by_two_sessions_is_reported(server, zenoh_port, http):
+    from agent.zenoh_config import ZenohOptions, agent_zenoh_config
+    from agent.zenoh_io import AgentLink
+
+    conf = ZenohOptions(mode="client", connect=(f"tcp/127.0.0.1:{zenoh_port}",), multicast_scouting=False)
+    links = [AgentLink(agent_zenoh_config(conf), KEYS, "uav1", GRID) for _ in range(2)]
+    camera = CameraInfo(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+    try:
+        for link in links:
+            assert link.open(timeout_s=20.0)
+        state = StateMessage(uav="uav1", t=time.time(), lat=LAT, lon=LON, height_m=40.0, pitch_deg=60.0,
+                             heading_deg=0.0, footprint=(), camera=camera)
+        links[0].submit([("state", KEYS.uav_state("uav1"), encode_state(state))])
+        row = wait_until(lambda: [r for r in http.get("/v1/uavs").json() if r["id"] == "uav1"
+                                  and r["messages"].get("state") == 1])[0]
+        assert row["sessions"] == [str(links[0].session.zid())] and not row["conflict"]
+        links[1].submit([("state", KEYS.uav_state("uav1"), encode_state(state))])
+        row = wait_until(lambda: [r for r in http.get("/v1/uavs").json() if r["id"] == "uav1" and r["conflict"]])[0]
+        assert sorted(row["sessions"]) == sorted(str(link.session.zid()) for link in links)
+        assert "uavmm_fusion_uav_conflicts 1" in http.get("/metrics").text
+    finally:
+        for link in links:
+            link.close()
