@@ -20,6 +20,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "sim": "benchmarks.bench_sim",
     "fusion": "benchmarks.bench_fusion",
     "tracker": "benchmarks.bench_tracker",
+    "hostile": "benchmarks.bench_hostile",
 }
 
 

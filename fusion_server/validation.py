@@ -88,7 +88,7 @@ class MessageValidator:
         *,
         max_tile_bytes: int = DEFAULT_MAX_TILE_BYTES,
         max_state_bytes: int = DEFAULT_MAX_STATE_BYTES,
-        max_tracks_bytes: int = 1024 * 1024,
+        max_tracks_bytes: int = 256 * 1024,
         max_clock_skew_s: float = 30.0,
         wall=time.time,
     ) -> None:

@@ -188,3 +188,29 @@ def test_one_uav_id_used_by_two_sessions_is_reported(server, zenoh_port, http):
     finally:
         for link in links:
             link.close()
+
+
+def test_a_misbehaving_uav_at_full_speed_is_counted_bounded_and_the_others_fused(server, agent_factory, http):
+    # the 100,000-message figure is `uavmm bench hostile`; this is the same flood, shorter
+    from benchmarks.bench_hostile import hostile_payloads
+
+    honest = agent_factory("uav1")
+    honest.tile(blob(60, 60, 0.7))
+    wait_until(lambda: joint_value(server, 60, 60) > 0.6)
+    mallory = agent_factory("mallory")
+    payloads = hostile_payloads(np.random.default_rng(1))
+    sent = 3000
+    for i in range(sent):
+        mallory.put(*payloads[i % len(payloads)])
+    honest.tile(blob(60, 60, 0.3))
+
+    def hostile_counted() -> int:
+        return sum(server.metrics.rejected_by_reason().values()) + server.metrics.received.get("tracks", 0)
+
+    wait_until(lambda: hostile_counted() >= sent, timeout_s=30.0)
+    assert hostile_counted() == sent
+    wait_until(lambda: abs(joint_value(server, 60, 60) - 0.3) < 0.01)
+    reasons = server.metrics.rejected_by_reason()
+    assert reasons["rate_limited"] > 0 and reasons["not_msgpack"] > 0 and "internal_error" not in reasons
+    assert http.get("/healthz").json()["status"] == "ok"
+    assert server.joint.uav_tile_counts() == {"uav1": 1}

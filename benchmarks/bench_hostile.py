@@ -1,0 +1,238 @@
+"""Benchmark of the fusion server under a flood: 100,000 malformed or oversized messages at full speed.
+
+A real `uavmm fusion` subprocess; in this process one Zenoh session plays a UAV (``mallory``) that
+publishes under its own keys as fast as Zenoh takes them (``CongestionControl.BLOCK``): garbage
+bytes, tiles with bad fields, tiles from the future, forged tiles of another UAV, oversized tiles,
+10,000-track messages. Two honest UAVs keep publishing valid tiles at 5 Hz. Measured: the server's
+resident memory (``/proc/PID/status`` VmRSS) before, at its peak and after the flood; whether every
+message was counted (``/metrics``: accepted + dropped by reason == sent); whether the honest UAVs'
+joint tiles kept arriving. Run twice: with the default per-UAV rate limits and with them off (so
+every message reaches validation). The baseline is the RSS of the same server before the flood.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import socket
+import subprocess
+import sys
+import tempfile
+import threading
+import time
+from pathlib import Path
+from typing import Any
+
+import msgpack
+import numpy as np
+
+DESCRIPTION = "fusion server RSS and drop counts under 100,000 malformed/oversized messages from one UAV"
+
+_REPO = Path(__file__).resolve().parents[1]
+_NO_SHM = "transport/shared_memory/enabled:false"
+_X, _Y = 137_700, 91_400
+
+
+def _free_port() -> int:
+    with socket.socket() as sock:
+        sock.bind(("127.0.0.1", 0))
+        return sock.getsockname()[1]
+
+
+def _rss_mb(pid: int) -> float:
+    text = Path(f"/proc/{pid}/status").read_text()
+    match = re.search(r"VmRSS:\s+(\d+) kB", text)
+    return int(match.group(1)) / 1024.0 if match else float("nan")
+
+
+def _start_fusion(port: int, http_port: int, db_dir: str, extra: list[str]) -> subprocess.Popen:
+    cmd = [sys.executable, "-m", "uavmm", "fusion", "--listen", f"tcp/127.0.0.1:{port}",
+           "--http", f"127.0.0.1:{http_port}", "--db", os.path.join(db_dir, "hostile.sqlite"),
+           "--no-multicast-scouting", "--cfg", _NO_SHM, *extra]
+    env = {**os.environ, "PYTHONPATH": str(_REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.Popen(cmd, cwd=_REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
+    assert proc.stdout is not None
+    line = proc.stdout.readline()
+    if "uavmm fusion" not in line:
+        proc.kill()
+        raise RuntimeError(f"uavmm fusion did not start: {line!r}")
+    return proc
+
+
+def _counters(http_port: int) -> tuple[int, int, dict[str, int]]:
+    """(accepted tracks messages, dropped messages, dropped by reason) from /metrics; the honest
+    UAVs send only tiles, so hostile messages = accepted tracks messages + dropped ones."""
+    import httpx
+
+    text = httpx.get(f"http://127.0.0.1:{http_port}/metrics", timeout=10.0).text
+    accepted = sum(int(v) for k, v in re.findall(r'uavmm_fusion_messages_total\{kind="(\w+)"\} (\d+)', text)
+                   if k == "tracks")
+    reasons: dict[str, int] = {}
+    for kind, reason, value in re.findall(r'uavmm_fusion_rejected_total\{kind="(\w+)",reason="(\w+)"\} (\d+)', text):
+        if kind != "publisher":
+            reasons[reason] = reasons.get(reason, 0) + int(value)
+    return accepted, sum(reasons.values()), reasons
+
+
+def hostile_payloads(rng: np.random.Generator) -> list[tuple[str, bytes]]:
+    """One round of the flood: (key, payload) pairs, all under mallory's own keys."""
+    from shared.keys import KeySpace
+    from shared.messages import TrackItem, TracksMessage, encode_tracks
+    from shared.tilecodec import TileMessage, encode_tile
+
+    keys = KeySpace()
+    tile_key = keys.uav_tile("mallory", "person", 18, _X + 5, _Y)
+    good = TileMessage(uav="mallory", cls="person", z=18, x=_X + 5, y=_Y, n=256, t=time.time(), seq=1,
+                       values=np.zeros((256, 256), np.float32))
+    base = msgpack.unpackb(encode_tile(good))
+    tracks = TracksMessage(uav="mallory", t=time.time(), tracks=tuple(
+        TrackItem(id=i, cls="person", lat=47.7 + i * 1e-6, lon=9.3, score=0.5, vel_en=(0.0, 0.0))
+        for i in range(10_000)))
+    return [
+        (tile_key, rng.bytes(64)),  # not msgpack
+        (tile_key, msgpack.packb({**base, "v": 9})),
+        (tile_key, msgpack.packb({**base, "t": 1e300})),
+        (tile_key, msgpack.packb({**base, "seq": 2**64 - 1})),
+        (tile_key, msgpack.packb({**base, "uav": "uav1"})),  # forged: another UAV's data on its key
+        (tile_key, msgpack.packb({**base, "idx": b"\x01", "val": b""})),
+        (tile_key, msgpack.packb({**base, "x": _X + 6})),
+        (keys.uav_state("mallory"), msgpack.packb({"v": 1, "uav": "mallory", "t": "now"})),
+        (keys.uav_tracks("mallory"), encode_tracks(tracks)),  # ~850 kB: too large
+        (tile_key, rng.bytes(300 * 1024)),  # oversized tile
+    ]
+
+
+def _flood(endpoint: str, n_messages: int) -> tuple[int, float]:
+    import zenoh
+
+    from benchmarks.bench_fusion import _zenoh_config
+
+    rng = np.random.default_rng(0)
+    payloads = hostile_payloads(rng)
+    # oversized ones are 1 in 50 (they cost the loopback, not the server); the rest round-robin
+    small = [p for p in payloads if len(p[1]) < 64 * 1024]
+    large = [p for p in payloads if len(p[1]) >= 64 * 1024]
+    with zenoh.open(_zenoh_config("client", connect=endpoint)) as session:
+        publishers = {key: session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
+                      for key, _ in payloads}
+        token = session.liveliness().declare_token("uavmm/v1/uav/mallory/alive")
+        t0 = time.monotonic()
+        for i in range(n_messages):
+            key, payload = large[i // 50 % len(large)] if i % 50 == 49 else small[i % len(small)]
+            publishers[key].put(payload)
+        elapsed = time.monotonic() - t0
+        del token
+    return n_messages, elapsed
+
+
+class _Honest:
+    """Two UAVs publishing valid tiles at 5 Hz; counts the joint tiles of their tiles."""
+
+    def __init__(self, endpoint: str) -> None:
+        import zenoh
+
+        from benchmarks.bench_fusion import _zenoh_config
+
+        self.session = zenoh.open(_zenoh_config("client", connect=endpoint))
+        self.stop = threading.Event()
+        self.joint = 0
+        self.lock = threading.Lock()
+        self.sub = self.session.declare_subscriber("uavmm/v1/joint/tiles/person/18/**", self._on_joint)
+        self.thread = threading.Thread(target=self._run, daemon=True)
+
+    def _on_joint(self, sample) -> None:
+        with self.lock:
+            self.joint += 1
+
+    def joint_count(self) -> int:
+        with self.lock:
+            return self.joint
+
+    def _run(self) -> None:
+        from shared.keys import KeySpace
+        from shared.tilecodec import TileMessage, encode_tile
+
+        keys = KeySpace()
+        values = np.zeros((256, 256), np.float32)
+        values[100:110, 100:110] = 0.8
+        seq = 0
+        while not self.stop.wait(0.2):
+            seq += 1
+            for k, uav in enumerate(("honest1", "honest2")):
+                msg = TileMessage(uav=uav, cls="person", z=18, x=_X + k, y=_Y, n=256, t=time.time(), seq=seq,
+                                  values=values)
+                self.session.put(keys.uav_tile(uav, "person", 18, _X + k, _Y), encode_tile(msg))
+
+    def close(self) -> None:
+        self.stop.set()
+        self.thread.join(timeout=5)
+        self.session.close()
+
+
+def _one_run(n_messages: int, extra: list[str], label: str) -> list[dict[str, Any]]:
+    port, http_port = _free_port(), _free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    with tempfile.TemporaryDirectory() as db_dir:
+        fusion = _start_fusion(port, http_port, db_dir, extra)
+        try:
+            honest = _Honest(endpoint)
+            honest.thread.start()
+            time.sleep(3.0)  # warm up: imports, first fusions, allocator
+            rss_before = _rss_mb(fusion.pid)
+            accepted0, dropped0, _ = _counters(http_port)
+            joint0 = honest.joint_count()
+            peak = [rss_before]
+            done = threading.Event()
+
+            def watch() -> None:
+                while not done.wait(0.1):
+                    peak.append(_rss_mb(fusion.pid))
+
+            watcher = threading.Thread(target=watch, daemon=True)
+            watcher.start()
+            flood_start = time.monotonic()
+            sent, elapsed = _flood(endpoint, n_messages)
+            deadline = time.monotonic() + 120.0
+            while time.monotonic() < deadline:  # until every hostile message is counted
+                accepted, dropped, reasons = _counters(http_port)
+                if dropped - dropped0 + accepted - accepted0 >= sent:
+                    break
+                time.sleep(0.5)
+            flood_end = time.monotonic()
+            joint_during = honest.joint_count() - joint0
+            time.sleep(3.0)
+            done.set()
+            watcher.join()
+            rss_after = _rss_mb(fusion.pid)
+            accepted, dropped, reasons = _counters(http_port)
+            honest.close()
+            alive = fusion.poll() is None
+        finally:
+            fusion.terminate()
+            try:
+                fusion.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                fusion.kill()
+    counted = dropped - dropped0 + accepted - accepted0
+    seconds = flood_end - flood_start
+    return [
+        {"case": f"{label}: peak RSS during {sent:,} hostile msgs ({sent / elapsed:,.0f} msg/s sent)",
+         "value": max(peak), "unit": "MB", "baseline_name": f"before {rss_before:.0f} MB",
+         "ratio": max(peak) / rss_before},
+        {"case": f"{label}: RSS 3 s after the flood", "value": rss_after, "unit": "MB",
+         "baseline_name": f"before {rss_before:.0f} MB", "ratio": rss_after / rss_before},
+        {"case": f"{label}: hostile msgs counted: {accepted - accepted0} 10,000-track msgs truncated and used, "
+                 f"dropped by reason {json.dumps(reasons, sort_keys=True)}",
+         "value": counted, "unit": "msgs", "baseline_name": f"sent {sent}", "ratio": counted / sent},
+        {"case": f"{label}: honest joint tiles received during {seconds:.1f} s of flood (server up: {alive})",
+         "value": joint_during, "unit": "tiles", "baseline_name": "2 tiles refreshed 1/s",
+         "ratio": joint_during / (2.0 * seconds)},
+    ]
+
+
+def run(quick: bool = False) -> list[dict[str, Any]]:
+    n = 5_000 if quick else 100_000
+    rows = _one_run(n, [], "default limits")
+    rows += _one_run(n, ["--uav-max-msgs-per-s", "1e9", "--uav-max-bytes-per-s", "1e12"], "limits off")
+    return rows
