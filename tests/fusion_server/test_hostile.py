@@ -90,7 +90,9 @@ def test_one_huge_tracks_message_neither_stops_joint_tracks_nor_saving(server, a
     evil = agent_factory("evil")
     m_lat = 1.0 / 111_320.0
     items = [(i, "person", LAT + 0.5 + (i // 100) * m_lat, LON + (i % 100) * m_lat) for i in range(10_000)]
-    evil.tracks(items)
+    evil.tracks(items)  # ~850 kB: beyond the 256 KiB limit
+    wait_until(lambda: server.metrics.rejected.get(("tracks", "too_large"), 0) == 1, timeout_s=10.0)
+    evil.tracks(items[:2500])  # ~215 kB: within it, cut to its 1,000 best tracks
     wait_until(lambda: server.metrics.received.get("tracks", 0) == 1, timeout_s=10.0)
     real = agent_factory("uav1")
     real.tracks([(7, "person", LAT, LON)])
@@ -99,9 +101,9 @@ def test_one_huge_tracks_message_neither_stops_joint_tracks_nor_saving(server, a
         return bool(received) and any(["uav1", 7] in t["members"] for t in msgpack.unpackb(received[-1])["tracks"])
 
     wait_until(has_uav1, timeout_s=10.0)
-    assert server.tracker.dropped()["too_many_tracks"] == 9_000
+    assert server.tracker.dropped()["too_many_tracks"] == 1_500
     text = httpx.get(server.url + "metrics").text
-    assert 'uavmm_fusion_tracks_dropped_total{reason="too_many_tracks"} 9000' in text
+    assert 'uavmm_fusion_tracks_dropped_total{reason="too_many_tracks"} 1500' in text
     store = server.store
 
     def saved() -> bool:
