@@ -82,8 +82,10 @@ def create_app(server: FusionServer) -> FastAPI:
 
     @app.get("/healthz", summary="Liveness and a short status")
     def healthz() -> dict[str, Any]:
+        db = server.db_health()
         return {
-            "status": "ok" if server.zenoh_open() else "degraded",
+            "status": "ok" if server.zenoh_open() and db["status"] != "failing" else "degraded",
+            "db": db,
             "zenoh": "open" if server.zenoh_open() else "closed",
             "uptime_s": round(time.monotonic() - server.started, 3),
             "uavs_online": len(server.uavs.online()),

@@ -64,7 +64,10 @@ class FusionSettings:
     max_uavs: int = 256
     max_uav_tiles: int = 20_000
     max_tiles_per_uav: int = 1024
-    restore_grace_s: float | None = None
+    restore_grace_s: float | None = None  # legacy name of restore_keep_s (wins when set)
+    restore_keep_s: float = 300.0
+    uav_keep_s: float = 3600.0
+    db_recover: bool = False
     map_max_cells: int = 512 * 512
     persist_interval_s: float = 0.5
     max_clock_skew_s: float = 30.0
@@ -82,7 +85,7 @@ class FusionSettings:
             raise ValueError(f"http_port must be in 0..65535, got {self.http_port!r}")
         for name in ("ttl_s", "joint_max_hz", "tracks_max_hz", "track_gate_m", "track_hold_s",
                      "track_history_interval_s", "persist_interval_s", "max_clock_skew_s",
-                     "uav_max_msgs_per_s", "uav_max_bytes_per_s"):
+                     "uav_max_msgs_per_s", "uav_max_bytes_per_s", "restore_keep_s", "uav_keep_s"):
             _positive(name, getattr(self, name))
         if self.restore_grace_s is not None:
             _positive("restore_grace_s", self.restore_grace_s)

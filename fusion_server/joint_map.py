@@ -262,21 +262,24 @@ class JointMap:
         return mask
 
     def restore(self, tiles: Iterable[JointTile], keep_s: float, now: float | None = None) -> int:
-        """Serve joint tiles loaded from the database until ``keep_s`` after ``now``.
+        """Serve joint tiles loaded from the database until ``keep_s`` after their last update.
 
-        They are replaced as soon as a UAV covers them, and dropped (empty tile published) after
-        ``keep_s`` unless one does. Returns the number restored.
+        ``tile.updated`` is wall time; tiles already older than keep_s are skipped. They are replaced
+        as soon as a UAV covers them, and dropped (empty tile published) when their time is up
+        unless one does. Returns the number restored.
         """
         now = self._clock() if now is None else now
+        wall = self._wall()
         count = 0
         with self._lock:
             for tile in tiles:
-                if tile.key in self._joint:
+                left = keep_s - max(wall - tile.updated, 0.0)
+                if tile.key in self._joint or left <= 0:
                     continue
                 self._joint[tile.key] = tile
                 self._classes.add(tile.cls)
                 self._seq = max(self._seq, tile.seq + 1)
-                heapq.heappush(self._expiries, (now + keep_s, tile.key, None, now))
+                heapq.heappush(self._expiries, (now + left, tile.key, None, now))
                 count += 1
         return count
 

@@ -1,8 +1,11 @@
-"""SQLite persistence of the fusion server: global tracks, their history and the latest joint map.
+"""SQLite persistence of the fusion server: global tracks, their history, the latest joint map, the UAVs.
 
 WAL mode; all writes go through one writer thread that commits the changes collected since its last
-flush in one transaction (latest value per track / tile wins), so Zenoh callbacks never touch the
-disk. A restarted server :meth:`FusionStore.load` s what the previous run had flushed.
+flush in one transaction (latest value per track / tile / UAV wins), so Zenoh callbacks never touch
+the disk. A failed flush keeps its batch (merged under what came since) and is retried with backoff;
+:meth:`FusionStore.health` reports it (``/healthz`` says "degraded", ``/metrics`` counts the errors).
+The file is checked when opened (:mod:`fusion_server.db_check`). A restarted server
+:meth:`FusionStore.load` s what the previous run had flushed.
 """
 
 from __future__ import annotations
@@ -11,17 +14,21 @@ import json
 import logging
 import sqlite3
 import threading
+import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
+from fusion_server.db_check import DatabaseProblem, check_database
 from fusion_server.global_tracks import TrackRecord
 from fusion_server.joint_map import JointTile, TileKey
-from shared.messages import MessageError
+from fusion_server.uav_registry import UavRecord
+from shared.messages import MessageError, decode_state, encode_state
 from shared.tilecodec import decode_tile
 
-__all__ = ["FusionStore", "Restored"]
+__all__ = ["DatabaseProblem", "FusionStore", "Restored", "UavRecord"]
 
 log = logging.getLogger(__name__)
 
@@ -39,16 +46,25 @@ CREATE TABLE IF NOT EXISTS joint_tiles(
     cls TEXT NOT NULL, z INTEGER NOT NULL, x INTEGER NOT NULL, y INTEGER NOT NULL,
     t REAL NOT NULL, seq INTEGER NOT NULL, updated REAL NOT NULL, payload BLOB NOT NULL,
     PRIMARY KEY(cls, z, x, y));
+CREATE TABLE IF NOT EXISTS uavs(
+    id TEXT PRIMARY KEY, last_seen REAL NOT NULL, online_since REAL, state BLOB);
 """
+#: History rows kept in memory while the database cannot be written (oldest dropped beyond it).
+MAX_HISTORY_BACKLOG = 200_000
+#: Longest wait between retries of a failing flush, seconds.
+_MAX_BACKOFF_S = 10.0
+
+
 
 
 @dataclass(frozen=True, slots=True)
 class Restored:
-    """What a previous run left: tracks (alive and the most recent ended), joint tiles, next gid."""
+    """What a previous run left: tracks (alive and the most recent ended), joint tiles, next gid, UAVs."""
 
     tracks: list[TrackRecord]
     joint_tiles: list[JointTile]
     next_gid: int
+    uavs: list[UavRecord] = ()  # type: ignore[assignment]
 
 
 def _connect(path: Path) -> sqlite3.Connection:
@@ -63,8 +79,10 @@ class FusionStore:
     """The database file at ``path`` (parent folders are created).
 
     flush_interval_s: how often the writer thread commits. history_len: history rows kept per track.
-    max_ended: ended tracks kept (older ones are deleted with their history at start-up);
-    load_ended: how many of the most recent ones :meth:`load` returns.
+    max_ended: ended tracks kept (older ones are deleted with their history at start-up and every
+    few minutes); load_ended: how many of the most recent ones :meth:`load` returns.
+    Raises :class:`DatabaseProblem` (a ValueError naming the file, what is wrong and
+    ``--db-recover``) when an existing file is not a sound uavmm fusion database.
     """
 
     def __init__(self, path: Path, *, flush_interval_s: float = 0.5, history_len: int = 600,
@@ -74,6 +92,10 @@ class FusionStore:
         self.flush_interval_s = flush_interval_s
         self.history_len = history_len
         self.max_ended = max_ended
+        problem = check_database(self.path, SCHEMA_VERSION)
+        if problem is not None:
+            raise DatabaseProblem(f"database {self.path} {problem}; run with --db-recover to move it aside and "
+                                  "start a new one, or --no-db")
         self.path.parent.mkdir(parents=True, exist_ok=True)
         conn = _connect(self.path)
         try:
@@ -91,14 +113,21 @@ class FusionStore:
         self._history: list[tuple[int, float, float, float]] = []
         self._joint: dict[TileKey, JointTile | None] = {}
         self._since_trim: dict[int, int] = {}
+        self._uavs: dict[str, UavRecord | None] = {}
         self._next_gid: int | None = None
         self._stop = False
         self._thread: threading.Thread | None = None
         self.flushes = 0
+        self.write_errors = 0
+        self.history_dropped = 0  # rows dropped from the backlog while writes failed
+        self.last_error: str | None = None
+        self.failing_since: float | None = None  # wall time of the first failure of the current run of them
+        self.last_success: float | None = None  # wall time
 
     # ---- reading at start-up -------------------------------------------------------------------
     def load(self) -> Restored:
-        """Read the alive tracks, the ``load_ended`` most recent ended ones (with history) and the joint tiles."""
+        """Read the alive tracks, the ``load_ended`` most recent ended ones (with history), the joint
+        tiles and the UAVs."""
         conn = _connect(self.path)
         try:
             self._prune_ended(conn)
@@ -144,7 +173,17 @@ class FusionStore:
                 values.flags.writeable = False
                 joint.append(JointTile(msg.cls, msg.z, msg.x, msg.y, values, msg.t, msg.seq, bytes(payload), (),
                                        updated))
-            return Restored(tracks, joint, next_gid)
+            uavs = []
+            for uav_id, last_seen, online_since, state in conn.execute(
+                "SELECT id, last_seen, online_since, state FROM uavs ORDER BY id"
+            ):
+                try:
+                    message = decode_state(bytes(state)) if state is not None else None
+                except MessageError as exc:
+                    log.warning("skipping the unreadable last state of UAV %s in %s: %s", uav_id, self.path, exc)
+                    message = None
+                uavs.append(UavRecord(str(uav_id), float(last_seen), online_since, message))
+            return Restored(tracks, joint, next_gid, uavs)
         finally:
             conn.close()
 
@@ -181,8 +220,40 @@ class FusionStore:
         with self._lock:
             self._joint[key] = tile
 
+    def save_uavs(self, records: list[UavRecord], forgotten: list[str] = ()) -> None:  # type: ignore[assignment]
+        """Queue UAV rows (latest per id wins) and ids to delete."""
+        with self._lock:
+            for record in records:
+                self._uavs[record.id] = record
+            for uav in forgotten:
+                self._uavs[uav] = None
+
+    def pending(self) -> int:
+        """Changes queued and not yet committed (tracks, history rows, tiles, UAVs)."""
+        with self._lock:
+            return len(self._tracks) + len(self._history) + len(self._joint) + len(self._uavs)
+
+    def health(self) -> dict[str, Any]:
+        """``{status: "ok" | "failing", pending, flushes, write_errors, history_dropped, last_error,
+        failing_for_s, last_success}`` (times: epoch seconds)."""
+        now = time.time()
+        with self._lock:
+            failing = self.failing_since is not None
+            return {
+                "status": "failing" if failing else "ok",
+                "pending": len(self._tracks) + len(self._history) + len(self._joint) + len(self._uavs),
+                "flushes": self.flushes,
+                "write_errors": self.write_errors,
+                "history_dropped": self.history_dropped,
+                "last_error": self.last_error,
+                "failing_for_s": round(now - self.failing_since, 3) if failing else None,
+                "last_success": self.last_success,
+            }
+
     def close(self) -> None:
-        """Flush what is queued and stop the writer thread."""
+        """Flush what is queued (retrying a failing database a few times) and stop the writer thread.
+
+        What still cannot be written is logged as an error with its size."""
         with self._lock:
             self._stop = True
             self._wake.notify_all()
@@ -190,37 +261,121 @@ class FusionStore:
             self._thread.join(timeout=30.0)
             self._thread = None
         else:
-            conn = _connect(self.path)
+            self._final_flush()
+
+    def _final_flush(self) -> None:
+        for attempt in range(3):
+            if self._attempt():
+                return
+            time.sleep(0.2 * (attempt + 1))
+        log.error("database %s: %d changes could not be saved at shutdown: %s", self.path, self.pending(),
+                  self.last_error)
+
+    def _attempt(self, conn: sqlite3.Connection | None = None) -> bool:
+        """One flush; on failure the batch goes back into the queue and the error is recorded."""
+        own = conn is None
+        try:
+            if own:
+                conn = _connect(self.path)
             try:
-                self._flush(conn)
+                self._flush(conn)  # type: ignore[arg-type]
             finally:
-                conn.close()
+                if own and conn is not None:
+                    conn.close()
+        except (sqlite3.Error, OSError) as exc:
+            self._attempt_failed(exc)
+            return False
+        return True
 
     def _run(self) -> None:
-        conn = _connect(self.path)
+        conn: sqlite3.Connection | None = None
+        backoff = 0.0
+        flushes_since_prune = 0
+        while True:
+            with self._lock:
+                if not self._stop:
+                    self._wake.wait(backoff or self.flush_interval_s)
+                stop = self._stop
+            if stop:
+                if conn is not None:
+                    conn.close()
+                self._final_flush()
+                return
+            try:
+                if conn is None:
+                    conn = _connect(self.path)
+            except (sqlite3.Error, OSError) as exc:
+                self._attempt_failed(exc)
+                backoff = min(max(backoff * 2, self.flush_interval_s), _MAX_BACKOFF_S)
+                continue
+            if self._attempt(conn):
+                backoff = 0.0
+                flushes_since_prune += 1
+                if flushes_since_prune * self.flush_interval_s >= 300.0:  # ended tracks beyond max_ended
+                    flushes_since_prune = 0
+                    self._attempt_prune(conn)
+            else:
+                log.error("database %s: writing failed (%s); %d changes kept, retrying", self.path,
+                          self.last_error, self.pending())
+                conn.close()  # a fresh connection for the retry: no stale page cache or lock
+                conn = None
+                backoff = min(max(backoff * 2, self.flush_interval_s), _MAX_BACKOFF_S)
+
+    def _attempt_failed(self, exc: BaseException) -> None:
+        with self._lock:
+            self.write_errors += 1
+            self.last_error = f"{type(exc).__name__}: {exc}"[:300]
+            if self.failing_since is None:
+                self.failing_since = time.time()
+
+    def _attempt_prune(self, conn: sqlite3.Connection) -> None:
         try:
-            while True:
-                with self._lock:
-                    if not self._stop:
-                        self._wake.wait(self.flush_interval_s)
-                    stop = self._stop
-                try:
-                    self._flush(conn)
-                except sqlite3.Error:
-                    log.exception("writing %s failed; will retry", self.path)
-                if stop:
-                    return
-        finally:
-            conn.close()
+            self._prune_ended(conn)
+        except sqlite3.Error as exc:
+            log.warning("database %s: pruning ended tracks failed: %s", self.path, exc)
+
+    def _requeue(self, tracks, history, joint, uavs, next_gid) -> None:
+        """Put a failed batch back under what was queued since (newer values win)."""
+        with self._lock:
+            for gid, record in tracks.items():
+                self._tracks.setdefault(gid, record)
+            merged = history + self._history
+            if len(merged) > MAX_HISTORY_BACKLOG:
+                self.history_dropped += len(merged) - MAX_HISTORY_BACKLOG
+                merged = merged[-MAX_HISTORY_BACKLOG:]
+            self._history = merged
+            for key, tile in joint.items():
+                self._joint.setdefault(key, tile)
+            for uav, row in uavs.items():
+                self._uavs.setdefault(uav, row)
+            if self._next_gid is None:
+                self._next_gid = next_gid
 
     def _flush(self, conn: sqlite3.Connection) -> None:
         with self._lock:
             tracks, self._tracks = self._tracks, {}
             history, self._history = self._history, []
             joint, self._joint = self._joint, {}
+            uavs, self._uavs = self._uavs, {}
             next_gid, self._next_gid = self._next_gid, None
-        if not (tracks or history or joint or next_gid is not None):
+        if not (tracks or history or joint or uavs or next_gid is not None):
             return
+        try:
+            self._write(conn, tracks, history, joint, uavs, next_gid)
+        except BaseException:
+            self._requeue(tracks, history, joint, uavs, next_gid)
+            raise
+        for gid, *_ in history:
+            self._since_trim[gid] = self._since_trim.get(gid, 0) + 1
+        with self._lock:
+            self.flushes += 1
+            self.last_success = time.time()
+            if self.failing_since is not None:
+                log.warning("database %s: writing works again (%d errors)", self.path, self.write_errors)
+            self.failing_since = None
+
+    def _write(self, conn: sqlite3.Connection, tracks, history, joint, uavs, next_gid) -> None:
+        trim = [g for g, count in self._since_trim.items() if count >= 50]
         with conn:
             conn.execute("BEGIN")
             conn.executemany(
@@ -233,10 +388,7 @@ class FusionStore:
                 ],
             )
             conn.executemany("INSERT INTO track_history(gid, t, lat, lon) VALUES (?, ?, ?, ?)", history)
-            for gid, *_ in history:
-                self._since_trim[gid] = self._since_trim.get(gid, 0) + 1
-            for gid in [g for g, count in self._since_trim.items() if count >= 50]:
-                del self._since_trim[gid]
+            for gid in trim:
                 conn.execute(
                     "DELETE FROM track_history WHERE gid = ? AND rowid NOT IN "
                     "(SELECT rowid FROM track_history WHERE gid = ? ORDER BY t DESC LIMIT ?)",
@@ -251,6 +403,13 @@ class FusionStore:
                 "DELETE FROM joint_tiles WHERE cls = ? AND z = ? AND x = ? AND y = ?",
                 [key for key, tile in joint.items() if tile is None],
             )
+            conn.executemany(
+                "INSERT OR REPLACE INTO uavs(id, last_seen, online_since, state) VALUES (?, ?, ?, ?)",
+                [(u.id, u.last_seen, u.online_since, encode_state(u.state) if u.state is not None else None)
+                 for u in uavs.values() if u is not None],
+            )
+            conn.executemany("DELETE FROM uavs WHERE id = ?", [(uav,) for uav, u in uavs.items() if u is None])
             if next_gid is not None:
                 conn.execute("INSERT OR REPLACE INTO meta(key, value) VALUES ('next_gid', ?)", (str(next_gid),))
-        self.flushes += 1
+        for gid in trim:
+            self._since_trim.pop(gid, None)

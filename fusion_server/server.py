@@ -11,11 +11,14 @@ import logging
 import threading
 import time
 from collections.abc import Callable
+from pathlib import Path
+from typing import Any
 
 import uvicorn
 
 from fusion_server.api import create_app
 from fusion_server.config import FusionSettings, zenoh_config
+from fusion_server.db_check import check_database, move_aside
 from fusion_server.global_tracks import GlobalTracker
 from fusion_server.joint_map import JointMap
 from fusion_server.metrics import FusionMetrics
@@ -76,19 +79,26 @@ class FusionServer:
             history_len=settings.track_history_len, history_interval_s=settings.track_history_interval_s,
         )
         self.uavs = UavRegistry(max_uavs=settings.max_uavs)
-        self.store = (
-            FusionStore(settings.db_path, flush_interval_s=settings.persist_interval_s,
-                        history_len=settings.track_history_len)
-            if settings.db_path is not None
-            else None
-        )
+        #: (what was wrong, where the bad file went) when --db-recover moved a database aside
+        self.db_recovered: tuple[str, Path] | None = None
+        self.store: FusionStore | None = None
+        if settings.db_path is not None:
+            if settings.db_recover:
+                problem = check_database(settings.db_path)
+                if problem is not None:
+                    moved = move_aside(settings.db_path)
+                    self.db_recovered = (problem, moved)
+                    log.warning("database %s %s: moved it to %s and started a new one", settings.db_path,
+                                problem, moved)
+            self.store = FusionStore(settings.db_path, flush_interval_s=settings.persist_interval_s,
+                                     history_len=settings.track_history_len)
         validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s)
         self.node = FusionNode(
             zenoh_config(settings.zenoh), keys, validator, self.joint, self.tracker,
             self.uavs, self.metrics, self.store,
             UavRateLimiter(settings.uav_max_msgs_per_s, settings.uav_max_bytes_per_s, max_uavs=4 * settings.max_uavs),
             tracks_max_hz=settings.tracks_max_hz,
-            persist_interval_s=settings.persist_interval_s,
+            persist_interval_s=settings.persist_interval_s, uav_keep_s=settings.uav_keep_s,
         )
         self.app = create_app(self)
         self.http: HttpThread | None = None
@@ -97,10 +107,15 @@ class FusionServer:
         """Restore the database, open Zenoh, start publishing and (if ``http``) the REST API."""
         if self.store is not None:
             restored = self.store.load()
-            grace = self.settings.restore_grace_s or self.settings.ttl_s
+            keep_s = self.settings.restore_grace_s or self.settings.restore_keep_s
             n_tracks = self.tracker.restore(restored.tracks)
-            n_tiles = self.joint.restore(restored.joint_tiles, grace)
-            log.info("restored %d global tracks and %d joint tiles from %s", n_tracks, n_tiles, self.store.path)
+            kept = self.joint.restore(restored.joint_tiles, keep_s)
+            for tile in restored.joint_tiles:  # older than their time to live: not served, not kept
+                if self.joint.get(tile.key) is not tile:
+                    self.store.save_joint(tile.key, None)
+            n_uavs = self.uavs.restore(list(restored.uavs), self.settings.uav_keep_s)
+            log.info("restored %d global tracks, %d joint tiles and %d UAVs from %s", n_tracks, kept, n_uavs,
+                     self.store.path)
             self.store.start()
         self.node.start()
         if http:
@@ -158,7 +173,24 @@ class FusionServer:
         reasons = {"uavmm_fusion_tracks_dropped_total": (
             "Local tracks cut from messages, new tracks refused a global id, held tracks ended early "
             "(bounds of the global tracker), by reason.", self.tracker.dropped())}
+        if self.store is not None:
+            db = self.store.health()
+            gauges.update({
+                "uavmm_fusion_db_failing": ("1 while writes to the database fail (they are retried).",
+                                            1.0 if db["status"] == "failing" else 0.0),
+                "uavmm_fusion_db_pending": ("Changes queued for the database, not yet committed.", db["pending"]),
+                "uavmm_fusion_db_write_errors_total": ("Failed database flushes (each is retried).",
+                                                       db["write_errors"]),
+                "uavmm_fusion_db_flushes_total": ("Committed database flushes.", db["flushes"]),
+                "uavmm_fusion_db_history_dropped_total": ("History rows dropped from the backlog while the "
+                                                          "database could not be written.", db["history_dropped"]),
+            })
         return self.metrics.prometheus(gauges, reasons)
+
+    def db_health(self) -> dict[str, Any]:
+        """The database's health for /healthz: FusionStore.health(), or ``{"status": "off"}``."""
+        store = self.store
+        return store.health() if store is not None else {"status": "off"}
 
 
 def run(settings: FusionSettings, stop: threading.Event,

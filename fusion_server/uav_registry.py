@@ -20,7 +20,7 @@ from typing import Any
 from fusion_server.metrics import RateWindow
 from shared.messages import StateMessage
 
-__all__ = ["SESSION_WINDOW_S", "UavRegistry", "state_to_dict"]
+__all__ = ["SESSION_WINDOW_S", "UavRecord", "UavRegistry", "state_to_dict"]
 
 log = logging.getLogger(__name__)
 
@@ -47,6 +47,16 @@ def state_to_dict(state: StateMessage) -> dict[str, Any]:
     }
 
 
+@dataclass(frozen=True, slots=True)
+class UavRecord:
+    """A UAV as persisted: id, last_seen and online_since (epoch s), its last state message (or None)."""
+
+    id: str
+    last_seen: float
+    online_since: float | None
+    state: StateMessage | None
+
+
 @dataclass(slots=True)
 class _Uav:
     last_seen: float | None = None  # wall time
@@ -70,6 +80,8 @@ class UavRegistry:
         self._lock = threading.Lock()
         self._uavs: dict[str, _Uav] = {}
         self._tokens: OrderedDict[str, float] = OrderedDict()  # uav -> online since (wall), oldest first
+        self._dirty: set[str] = set()  # UAVs changed since the last drain_changes (persistence)
+        self._forgotten: set[str] = set()
         self.tokens_evicted = 0
         self.conflicts_total = 0
 
@@ -81,13 +93,18 @@ class UavRegistry:
                 if len(self._uavs) >= self.max_uavs:
                     return None
             entry = self._uavs[uav] = _Uav(online_since=self._tokens.get(uav))
+            self._forgotten.discard(uav)
+        self._dirty.add(uav)
         return entry
 
     def _evict_offline(self) -> None:
         # forget the offline UAV seen longest ago, so a fleet that changes over a long mission fits
         offline = [(e.last_seen or 0.0, uav) for uav, e in self._uavs.items() if uav not in self._tokens]
         if offline:
-            del self._uavs[min(offline)[1]]
+            victim = min(offline)[1]
+            del self._uavs[victim]
+            self._forgotten.add(victim)
+            self._dirty.discard(victim)
 
     def alive(self, uav: str, online: bool) -> bool:
         """Record a liveliness token appearing (online) or disappearing; False if refused (full)."""
@@ -98,6 +115,7 @@ class UavRegistry:
                 entry = self._uavs.get(uav)
                 if entry is not None:
                     entry.last_seen = now
+                    self._dirty.add(uav)
                 return True
             if uav not in self._tokens:
                 if len(self._tokens) >= self.max_tokens and not self._evict_token():
@@ -107,6 +125,7 @@ class UavRegistry:
                 if entry is not None:
                     entry.online_since = now
                     entry.last_seen = now
+                    self._dirty.add(uav)
             return True
 
     def _evict_token(self) -> bool:
@@ -160,6 +179,42 @@ class UavRegistry:
             entry = self._uavs.get(uav)
             if entry is not None:
                 entry.rejected[reason] = entry.rejected.get(reason, 0) + 1
+
+    def drain_changes(self) -> tuple[list[UavRecord], list[str]]:
+        """UAVs changed since the last call (for persistence) and the ids forgotten since."""
+        with self._lock:
+            records = [UavRecord(uav, entry.last_seen or self._wall(), entry.online_since, entry.state)
+                       for uav in sorted(self._dirty) if (entry := self._uavs.get(uav)) is not None]
+            forgotten = sorted(self._forgotten)
+            self._dirty.clear()
+            self._forgotten.clear()
+        return records, forgotten
+
+    def restore(self, records: list[UavRecord], keep_s: float) -> int:
+        """Take the UAVs a previous run saved (offline, with their last state) that were seen within
+        ``keep_s``; returns how many."""
+        cutoff = self._wall() - keep_s
+        count = 0
+        with self._lock:
+            for record in records:
+                if record.last_seen < cutoff or record.id in self._uavs or len(self._uavs) >= self.max_uavs:
+                    continue
+                self._uavs[record.id] = _Uav(last_seen=record.last_seen, online_since=record.online_since,
+                                             state=record.state)
+                count += 1
+        return count
+
+    def forget_offline(self, keep_s: float) -> list[str]:
+        """Forget UAVs offline and not seen for ``keep_s`` seconds; returns their ids."""
+        cutoff = self._wall() - keep_s
+        with self._lock:
+            old = [uav for uav, e in self._uavs.items()
+                   if uav not in self._tokens and (e.last_seen or 0.0) < cutoff]
+            for uav in old:
+                del self._uavs[uav]
+                self._dirty.discard(uav)
+                self._forgotten.add(uav)
+        return old
 
     def online(self) -> list[str]:
         """Ids of the UAVs whose liveliness token is present."""

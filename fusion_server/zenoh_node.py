@@ -80,7 +80,8 @@ class FusionNode:
     conf: the Zenoh config. keys: the key space. tracks_max_hz: most joint tracks messages a second.
     max_tracks_bytes: largest joint tracks message (fewer tracks are sent beyond it, tracked ones
     first). store: persistence, or None. limiter: per-UAV rate limits checked before decoding, or
-    None. The components are shared with the REST API.
+    None. uav_keep_s: offline UAVs not seen for this long are forgotten. The components are shared
+    with the REST API.
     """
 
     def __init__(
@@ -98,6 +99,7 @@ class FusionNode:
         tracks_max_hz: float = 5.0,
         persist_interval_s: float = 0.5,
         max_tracks_bytes: int = 1024 * 1024,
+        uav_keep_s: float = 3600.0,
     ) -> None:
         self.conf = conf
         self.keys = keys
@@ -111,6 +113,7 @@ class FusionNode:
         self.tracks_min_interval_s = 1.0 / tracks_max_hz
         self.persist_interval_s = persist_interval_s
         self.max_tracks_bytes = max_tracks_bytes
+        self.uav_keep_s = uav_keep_s
         self.session: zenoh.Session | None = None
         self._declared: list = []
         self._publishers: dict[str, zenoh.Publisher] = {}
@@ -312,11 +315,14 @@ class FusionNode:
         assert self.store is not None
         records, history = self.tracker.drain_changes()
         self.store.save_tracks(records, history, self.tracker.next_gid)
+        uavs, forgotten = self.uavs.drain_changes()
+        self.store.save_uavs(uavs, forgotten)
 
     def _run(self) -> None:
         tracks_version = -1
         last_tracks = -float("inf")
         next_housekeeping = 0.0
+        next_forget = 0.0
         next_persist = time.monotonic() + self.persist_interval_s
         while not self._stop.is_set():
             next_due = self._step("joint_tiles", self._publish_tiles)
@@ -324,6 +330,9 @@ class FusionNode:
             if now >= next_housekeeping:
                 self._step("expire", self.tracker.expire)
                 next_housekeeping = now + _TICK_S
+            if now >= next_forget:
+                self._step("forget_uavs", lambda: self.uavs.forget_offline(self.uav_keep_s))
+                next_forget = now + 5.0
             if self.tracker.version != tracks_version and now - last_tracks >= self.tracks_min_interval_s:
                 tracks_version = self.tracker.version
                 last_tracks = now
@@ -334,5 +343,4 @@ class FusionNode:
             timeout = _TICK_S if next_due is None else min(_TICK_S, next_due - time.monotonic())
             self.joint.wait(max(timeout, 0.0))
         if self.store is not None:
-            records, history = self.tracker.drain_changes()
-            self.store.save_tracks(records, history, self.tracker.next_gid)
+            self._step("persist", self._persist_tracks)

@@ -47,6 +47,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--db", type=Path, default=None,
                    help="SQLite file (default $XDG_DATA_HOME/uavmm/fusion.sqlite, i.e. ~/.local/share/...)")
     p.add_argument("--no-db", action="store_true", help="keep nothing on disk")
+    p.add_argument("--db-recover", action="store_true",
+                   help="if the database fails its start-up check, move it aside (NAME.bad-TIME) and start a new one")
+    p.add_argument("--restore-keep-s", type=float, default=300.0,
+                   help="after a restart, serve the saved joint map until this long after its last update (300)")
     p.add_argument("--prefix", default="uavmm/v1", help="key prefix (default uavmm/v1)")
     p.add_argument("--ttl-s", type=float, default=2.0, help="a UAV covers a tile this long after its message (2)")
     p.add_argument("--fusion-rule", default="mean", help="mean (default, the paper's), max or noisy-or")
@@ -91,6 +95,7 @@ def settings_from_args(args: argparse.Namespace):
         grid_n=args.grid_n, joint_max_hz=args.joint_max_hz, tracks_max_hz=args.tracks_max_hz,
         track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, max_clock_skew_s=args.max_clock_skew_s,
         uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
+        db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
     )
 
 
@@ -110,6 +115,10 @@ def _run_fusion(args: argparse.Namespace) -> int:
     signal.signal(signal.SIGTERM, on_signal)
     try:
         with FusionServer(settings) as server:
+            if server.db_recovered is not None:
+                problem, moved = server.db_recovered
+                sys.stderr.write(f"uavmm fusion: database {settings.db_path} {problem}: moved it to {moved} "
+                                 "and started a new database\n")
             server.start(http=not args.no_http)
             listen = ", ".join(settings.zenoh.listen or ("from config",))
             where = f"map: {server.url}" if server.url else "REST API off"
