@@ -76,3 +76,41 @@ def open_session(conf: zenoh.Config, stop: threading.Event | None = None, *, ret
                 return None
         else:
             time.sleep(retry_s)
+
+
+def _config_value(conf: zenoh.Config, key: str) -> object:
+    try:
+        return json.loads(conf.get_json(key))
+    except (zenoh.ZError, ValueError):
+        return None
+
+
+def identity_problem(conf: zenoh.Config, uav_id: str) -> str | None:
+    """Why the identity in ``conf`` cannot publish as ``uav_id``, or None.
+
+    The fleet's access control (`uavmm secure init`) lets an identity put only on its own UAV's keys:
+    a usrpwd user or a mutual-TLS certificate common name other than ``uav_id`` would have every
+    message dropped by the server without a word. The certificate is read with the optional
+    `cryptography` package; without it the certificate is not checked.
+    """
+    user = _config_value(conf, "transport/auth/usrpwd/user")
+    if isinstance(user, str) and user != uav_id:
+        return (f"the Zenoh config authenticates as user {user!r}, not --uav-id {uav_id!r}: the server's "
+                "access control would drop every message (use that UAV's own config)")
+    path = _config_value(conf, "transport/link/tls/connect_certificate")
+    if not isinstance(path, str) or _config_value(conf, "transport/link/tls/enable_mtls") is not True:
+        return None
+    try:
+        from shared.pki import certificate_common_name
+    except ImportError:  # a drone without the server's packages: the server's ACL still holds
+        log.debug("cryptography is not installed: the certificate's identity is not checked")
+        return None
+    try:
+        with open(path, "rb") as handle:
+            name = certificate_common_name(handle.read())
+    except (OSError, ValueError) as exc:
+        return f"cannot read the certificate {path} named in the Zenoh config: {exc}"
+    if name != uav_id:
+        return (f"the certificate {path} is for {name!r}, not --uav-id {uav_id!r}: the server's access "
+                "control would drop every message (use that UAV's own config)")
+    return None

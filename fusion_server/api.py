@@ -17,6 +17,7 @@ from fastapi import FastAPI, HTTPException, Query
 from fastapi.responses import HTMLResponse, PlainTextResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from fusion_server.http_auth import BearerAuth
 from fusion_server.peaks import find_peaks, peaks_geojson
 from fusion_server.render import (
     AGGREGATIONS,
@@ -72,6 +73,8 @@ def create_app(server: FusionServer) -> FastAPI:
         description="Joint memory map, global tracks and UAV status of a uav-memory-maps fusion server.",
     )
     grid = server.settings.grid
+    if server.settings.http_tokens:  # every path but the page shell, /healthz and the schema needs a token
+        app.add_middleware(BearerAuth, tokens=server.settings.http_tokens, on_denied=server.count_http_denied)
 
     @app.get("/", response_class=HTMLResponse, summary="Live map page")
     def index() -> str:

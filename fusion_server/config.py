@@ -11,6 +11,7 @@ import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fusion_server.http_auth import HttpToken, is_loopback_host
 from fusion_server.joint_map import COVERAGE_MODES
 from fusion_server.rules import FUSION_RULES
 from shared.keys import DEFAULT_PREFIX, KeySpace
@@ -73,6 +74,9 @@ class FusionSettings:
     max_clock_skew_s: float = 30.0
     uav_max_msgs_per_s: float = 500.0
     uav_max_bytes_per_s: float = 4 * 1024 * 1024
+    #: REST bearer tokens; required when ``http_host`` is not loopback, unless ``insecure_public``
+    http_tokens: tuple[HttpToken, ...] = ()
+    insecure_public: bool = False
 
     def __post_init__(self) -> None:
         if self.fusion_rule not in FUSION_RULES:
@@ -83,6 +87,12 @@ class FusionSettings:
         TileGrid(self.grid_z, self.grid_n)
         if not isinstance(self.http_port, int) or not 0 <= self.http_port <= 65535:
             raise ValueError(f"http_port must be in 0..65535, got {self.http_port!r}")
+        if not all(isinstance(t, HttpToken) for t in self.http_tokens):
+            raise ValueError("http_tokens must be HttpToken values")
+        if not self.http_tokens and not self.insecure_public and not is_loopback_host(self.http_host):
+            raise ValueError(f"the REST API on {self.http_host} is reachable beyond this machine: give it a "
+                             "token (--http-token-file FILE or UAVMM_HTTP_TOKEN) or accept an open API "
+                             "with --insecure-public")
         for name in ("ttl_s", "joint_max_hz", "tracks_max_hz", "track_gate_m", "track_hold_s",
                      "track_history_interval_s", "persist_interval_s", "max_clock_skew_s",
                      "uav_max_msgs_per_s", "uav_max_bytes_per_s", "restore_keep_s", "uav_keep_s"):

@@ -100,6 +100,8 @@ class FusionServer:
             tracks_max_hz=settings.tracks_max_hz,
             persist_interval_s=settings.persist_interval_s, uav_keep_s=settings.uav_keep_s,
         )
+        #: REST requests refused for a missing or wrong bearer token, by reason
+        self.http_denied: dict[str, int] = {}
         self.app = create_app(self)
         self.http: HttpThread | None = None
 
@@ -157,6 +159,10 @@ class FusionServer:
         """Classes present in the joint map or the UAVs' tiles."""
         return self.joint.classes()
 
+    def count_http_denied(self, reason: str) -> None:
+        """Count a REST request refused for ``reason`` (``no_token`` or ``bad_token``)."""
+        self.http_denied[reason] = self.http_denied.get(reason, 0) + 1
+
     def prometheus(self) -> str:
         """Prometheus text of all metrics, with the gauges of the joint map, UAVs and tracks."""
         stats = self.joint.stats()
@@ -172,7 +178,9 @@ class FusionServer:
         }
         reasons = {"uavmm_fusion_tracks_dropped_total": (
             "Local tracks cut from messages, new tracks refused a global id, held tracks ended early "
-            "(bounds of the global tracker), by reason.", self.tracker.dropped())}
+            "(bounds of the global tracker), by reason.", self.tracker.dropped()),
+            "uavmm_fusion_http_denied_total": (
+                "REST requests refused without a valid bearer token, by reason.", dict(self.http_denied))}
         if self.store is not None:
             db = self.store.health()
             gauges.update({

@@ -4,6 +4,7 @@ turned into the real settings), and every file the Dockerfile copies exists. No 
 
 from __future__ import annotations
 
+import json
 import re
 import shlex
 from pathlib import Path
@@ -16,6 +17,8 @@ from uavmm.cli import build_parser
 REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
 COMPOSE_FILES = ["docker-compose.yml", "docker-compose.router.yml"]
+SECURE = "docker-compose.secure.yml"
+ALL_COMPOSE_FILES = [*COMPOSE_FILES, SECURE]
 AGENTS = ["uav1", "uav2", "uav3"]
 _VARIABLE = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}")
 
@@ -79,6 +82,8 @@ def test_every_compose_command_is_a_valid_uavmm_invocation(name):
         if args.command == "fusion":
             settings = cmd_fusion.settings_from_args(args)  # the values, not only the flags
             assert (settings.http_host, settings.http_port) == ("0.0.0.0", 8000)
+            # published on the host's loopback only: the demo's API is open on purpose, and says so
+            assert settings.insecure_public and not settings.http_tokens
             assert str(settings.db_path) == "/data/fusion.sqlite"
         else:
             assert args.command == "agent", service
@@ -88,7 +93,7 @@ def test_every_compose_command_is_a_valid_uavmm_invocation(name):
             assert args.loop, "demo agents fly until stopped"
 
 
-@pytest.mark.parametrize("name", COMPOSE_FILES)
+@pytest.mark.parametrize("name", ALL_COMPOSE_FILES)
 def test_compose_demo_has_fusion_and_three_agents_on_one_scenario(name):
     services = load(name)["services"]
     assert {"fusion", *AGENTS} <= set(services)
@@ -105,7 +110,7 @@ def test_compose_demo_has_fusion_and_three_agents_on_one_scenario(name):
         assert "ports" not in spec, "agents publish nothing on the host"
 
 
-@pytest.mark.parametrize("name", COMPOSE_FILES)
+@pytest.mark.parametrize("name", ALL_COMPOSE_FILES)
 def test_fusion_healthcheck_asks_healthz(name):
     check = load(name)["services"]["fusion"]["healthcheck"]
     test = check["test"]
@@ -113,7 +118,7 @@ def test_fusion_healthcheck_asks_healthz(name):
     assert check["retries"] >= 1 and check["interval"].endswith("s")
 
 
-@pytest.mark.parametrize("name", COMPOSE_FILES)
+@pytest.mark.parametrize("name", ALL_COMPOSE_FILES)
 def test_ports_are_published_on_the_hosts_loopback_only(name):
     services = load(name)["services"]
     published = [p for spec in services.values() for p in spec.get("ports", [])]
@@ -143,7 +148,7 @@ def test_router_variant_puts_zenohd_between_fusion_and_agents():
         assert flag(command, "--mode") == "client" and flag(command, "--connect") == "tcp/router:7447"
 
 
-@pytest.mark.parametrize("name", COMPOSE_FILES)
+@pytest.mark.parametrize("name", ALL_COMPOSE_FILES)
 def test_compose_variables_are_documented_in_env_example_with_the_same_defaults(name):
     env = env_example()
     used: set[str] = set()
@@ -151,6 +156,43 @@ def test_compose_variables_are_documented_in_env_example_with_the_same_defaults(
     with_defaults = interpolate(raw, {}, used)
     assert used <= set(env), f"undocumented variables: {sorted(used - set(env))}"
     assert interpolate(raw, env, set()) == with_defaults, ".env.example and the compose defaults disagree"
+
+
+def test_secure_variant_runs_on_the_files_secure_init_writes(tmp_path):
+    """Run the command its header gives, then check every service's command against the folder it mounts."""
+    from fusion_server.http_auth import read_token_file
+    from shared.pki import certificate_common_name
+    from uavmm import cmd_agent, cmd_fusion
+    from uavmm.cli import main
+
+    header = (DEPLOY / SECURE).read_text().split("\n#   uavmm secure init ", 1)[1].split("\n#   sudo", 1)[0]
+    init_args = shlex.split(header.replace("\\\n#", " "))
+    secrets = tmp_path / "secrets"
+    assert init_args[0] == "deploy/secrets"
+    assert main(["secure", "init", str(secrets), *init_args[1:]]) == 0
+    services = load(SECURE)["services"]
+    for name, spec in services.items():
+        mounts = [v for v in spec["volumes"] if v.endswith(":/etc/uavmm:ro")]
+        assert len(mounts) == 1, f"{name} mounts exactly its own folder, read-only"
+        folder = secrets / mounts[0].split(":")[0].removeprefix("./secrets/")
+        assert folder.is_dir(), f"{name}: {folder} is not written by uavmm secure init"
+        local = [part.replace("/etc/uavmm", str(folder)) for part in spec["command"]]
+        args = parse(local)
+        config = json.loads("".join(line for line in (folder / "zenoh.json5").read_text().splitlines()
+                                    if not line.startswith("//")))
+        tls = config["transport"]["link"]["tls"]
+        assert all(path.startswith("/etc/uavmm/") for key, path in tls.items() if key != "enable_mtls")
+        assert tls["enable_mtls"] is True
+        if args.command == "fusion":
+            settings = cmd_fusion.settings_from_args(args)
+            assert settings.http_tokens == read_token_file(folder / "http-tokens") and not settings.insecure_public
+            assert config["mode"] == "router" and config["access_control"]["default_permission"] == "deny"
+            assert config["listen"]["endpoints"] == ["tls/0.0.0.0:7447"]
+        else:
+            settings = cmd_agent.settings_from_args(args)
+            assert settings.uav_id == name
+            assert certificate_common_name((folder / "cert.pem").read_bytes()) == name
+            assert config["mode"] == "client" and config["connect"]["endpoints"] == ["tls/fusion:7447"]
 
 
 def test_settings_from_env_example_are_valid_too():

@@ -118,6 +118,11 @@ def _run_agent(args: argparse.Namespace) -> int:
     from agent.node import AgentNode
 
     settings = settings_from_args(args)
+    from agent.zenoh_config import agent_zenoh_config, identity_problem
+
+    problem = identity_problem(agent_zenoh_config(settings.zenoh), settings.uav_id)
+    if problem is not None:
+        raise ValueError(problem)
     pipeline_config, size_filter = pipeline_from_args(args)
     source = source_from_args(args)
     stop = threading.Event()

@@ -291,6 +291,14 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
             _warn(f"the fusion server did not start{hint} (log {fusion.log_path}):\n{fusion.log_tail()}")
             return code
         url = match.group(1)
+        # an --http beyond loopback: the server generated a REST token and printed the page with it
+        from fusion_server.http_auth import is_loopback_host
+
+        page = None
+        if not is_loopback_host(options.http.rpartition(":")[0].strip("[]")):
+            page = fusion.wait_for(r"page: (http://\S+#token=[\w-]+)", 2.0, stop)
+        if page is not None:
+            url = page.group(1)
         _say(f"fusion server up: zenoh {endpoint}, db {db}")
         _say(f"map: {url}")
         for index, uav in enumerate(uavs):

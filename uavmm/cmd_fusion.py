@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
+import secrets
 import signal
 import sys
 import threading
@@ -44,6 +46,13 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--http", default="127.0.0.1:8000", metavar="HOST:PORT",
                    help="REST API address (default 127.0.0.1:8000; port 0 picks a free one)")
     p.add_argument("--no-http", action="store_true", help="do not serve the REST API")
+    p.add_argument("--http-token-file", type=Path, default=None, metavar="FILE",
+                   help="REST bearer tokens, one per line (TOKEN or NAME:TOKEN; `uavmm secure init` writes "
+                        "fusion/http-tokens). Default: $UAVMM_HTTP_TOKEN; with neither, an --http beyond "
+                        "loopback gets a generated token, printed once at start-up")
+    p.add_argument("--insecure-public", action="store_true",
+                   help="serve the REST API beyond loopback without a token (only behind your own "
+                        "authenticating proxy, or a container port published on loopback)")
     p.add_argument("--db", type=Path, default=None,
                    help="SQLite file (default $XDG_DATA_HOME/uavmm/fusion.sqlite, i.e. ~/.local/share/...)")
     p.add_argument("--no-db", action="store_true", help="keep nothing on disk")
@@ -79,6 +88,27 @@ def _http_address(text: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
+def http_tokens_from_args(args: argparse.Namespace, host: str) -> tuple[tuple, bool]:
+    """The REST tokens the flags ask for, and whether one was generated here.
+
+    ``--http-token-file``, else ``$UAVMM_HTTP_TOKEN``, else (a bind beyond loopback without
+    ``--insecure-public``) a new random token. ValueError for an unreadable file or a too short token.
+    """
+    from fusion_server.http_auth import HttpToken, is_loopback_host, read_token_file
+
+    if args.http_token_file is not None:
+        return read_token_file(args.http_token_file), False
+    env = os.environ.get("UAVMM_HTTP_TOKEN", "").strip()
+    if env:
+        try:
+            return (HttpToken("UAVMM_HTTP_TOKEN", env),), False
+        except ValueError as exc:
+            raise ValueError(f"UAVMM_HTTP_TOKEN: {exc}") from None
+    if args.no_http or args.insecure_public or is_loopback_host(host):
+        return (), False
+    return (HttpToken("generated", secrets.token_urlsafe(32)),), True
+
+
 def settings_from_args(args: argparse.Namespace):
     """FusionSettings from parsed flags; ValueError on bad values."""
     from fusion_server.config import FusionSettings, default_db_path
@@ -88,6 +118,7 @@ def settings_from_args(args: argparse.Namespace):
         default_listen = [DEFAULT_LISTEN]
     zenoh_options = zenoh_options_from_args(args, default_listen=default_listen)
     host, port = _http_address(args.http)
+    tokens, _ = http_tokens_from_args(args, host)
     return FusionSettings(
         zenoh=zenoh_options, http_host=host, http_port=port,
         db_path=None if args.no_db else (args.db or default_db_path()),
@@ -96,7 +127,26 @@ def settings_from_args(args: argparse.Namespace):
         track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, max_clock_skew_s=args.max_clock_skew_s,
         uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
         db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
+        http_tokens=tokens, insecure_public=args.insecure_public,
     )
+
+
+def _rest_access_line(settings, url: str, args: argparse.Namespace) -> str:
+    """One start-up line saying who may read the REST API."""
+    from fusion_server.http_auth import is_loopback_host
+
+    tokens = settings.http_tokens
+    if not tokens:
+        if is_loopback_host(settings.http_host):
+            return "uavmm fusion: REST API open to this machine only (loopback)"
+        return (f"uavmm fusion: WARNING: REST API on {settings.http_host} open to anyone who reaches it "
+                "(--insecure-public)")
+    if len(tokens) == 1 and tokens[0].name == "generated":
+        return (f"uavmm fusion: REST API needs a bearer token; generated for this run: {tokens[0].token} "
+                f"(page: {url}#token={tokens[0].token}; give --http-token-file to keep one)")
+    source = args.http_token_file or "UAVMM_HTTP_TOKEN"
+    return (f"uavmm fusion: REST API needs a bearer token ({len(tokens)} accepted, from {source}); "
+            f"page: {url}#token=TOKEN")
 
 
 def _run_fusion(args: argparse.Namespace) -> int:
@@ -124,6 +174,8 @@ def _run_fusion(args: argparse.Namespace) -> int:
             where = f"map: {server.url}" if server.url else "REST API off"
             db = settings.db_path or "off"
             sys.stdout.write(f"uavmm fusion: zenoh {settings.zenoh.mode or 'peer'} on {listen}; db {db}; {where}\n")
+            if server.url:
+                sys.stdout.write(_rest_access_line(settings, server.url, args) + "\n")
             sys.stdout.flush()
             while not stop.wait(0.5):
                 pass

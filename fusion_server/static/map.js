@@ -83,11 +83,27 @@
   function trackColor(gid) { return `hsl(${(gid * 137.508) % 360}, 75%, 38%)`; }
 
   // ---------------------------------------------------------------------------------------- data
+  // A server bound beyond loopback needs a bearer token (docs/fusion.md): open the page as .../#token=TOKEN.
+  // The token is kept for this tab (sessionStorage) and taken out of the address bar; the fragment never
+  // reaches the server or its logs. Requests send it as Authorization, tile images as access_token.
+  const token = (() => {
+    const match = /(?:^#|&)token=([^&]+)/.exec(window.location.hash);
+    if (match) {
+      const value = decodeURIComponent(match[1]);
+      try { sessionStorage.setItem('uavmm-token', value); } catch (e) { /* storage off: this load only */ }
+      history.replaceState(null, '', window.location.pathname + window.location.search);
+      return value;
+    }
+    try { return sessionStorage.getItem('uavmm-token'); } catch (e) { return null; }
+  })();
+  const authHeaders = token ? { Authorization: `Bearer ${token}` } : {};
+  const tokenQuery = token ? `&access_token=${encodeURIComponent(token)}` : '';
+
   async function getJson(path) {
     const ctrl = new AbortController();
     const timer = setTimeout(() => ctrl.abort(), FETCH_TIMEOUT_MS);
     try {
-      const response = await fetch(path, { signal: ctrl.signal, cache: 'no-store' });
+      const response = await fetch(path, { signal: ctrl.signal, cache: 'no-store', headers: authHeaders });
       if (!response.ok) {
         const error = new Error(`${path}: HTTP ${response.status}`);
         error.status = response.status;
@@ -125,7 +141,12 @@
       refreshTiles();
       updateLegend();
     } catch (e) {
-      setStatus('error', 'server not reachable: retrying');
+      if (e.status === 401) {
+        setStatus('error', token ? 'the token was refused: open the page with a valid #token=...'
+          : 'this server needs a token: open the page as shown by uavmm fusion (.../#token=...)');
+      } else {
+        setStatus('error', 'server not reachable: retrying');
+      }
     }
     draw();
     setTimeout(poll, POLL_MS);
@@ -183,7 +204,7 @@
         scheduleDraw();
       };
       img.onerror = () => { entry.loadingVersion = -1; };
-      img.src = `/v1/tiles/${encodeURIComponent(t.cls)}/${t.z}/${t.x}/${t.y}.png?v=${t.version}`;
+      img.src = `/v1/tiles/${encodeURIComponent(t.cls)}/${t.z}/${t.x}/${t.y}.png?v=${t.version}${tokenQuery}`;
     }
     for (const key of state.tiles.keys()) if (!wanted.has(key)) state.tiles.delete(key);
     state.wanted = wanted;

@@ -58,9 +58,11 @@ def wait_until(predicate: Callable[[], object], timeout_s: float = 5.0, interval
 class FakeAgent:
     """One UAV: a Zenoh session, a liveliness token, and helpers that publish valid messages."""
 
-    def __init__(self, uav: str, endpoint: str, *, alive: bool = True, **config) -> None:
+    def __init__(self, uav: str, endpoint: str | None, *, alive: bool = True,
+                 conf: zenoh.Config | None = None, **config) -> None:
+        """Connect to ``endpoint`` with `client_config` options, or open ``conf`` as it is (endpoint None)."""
         self.uav = uav
-        self.session = zenoh.open(client_config(endpoint, **config))
+        self.session = zenoh.open(conf if conf is not None else client_config(endpoint, **config))
         self.token = self.session.liveliness().declare_token(KEYS.uav_alive(uav)) if alive else None
         self.seq = 0
 

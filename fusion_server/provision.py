@@ -1,0 +1,329 @@
+"""`uavmm secure init`: the files a fleet needs to run authenticated, encrypted and access-controlled.
+
+Writes a folder per identity (fusion server, optional zenohd router, each UAV, each operator) holding its
+Zenoh config, the CA certificate and its own key and certificate (or password), plus the REST tokens.
+Files are 0600 and folders 0700. Re-running on the same folder adds identities and keeps existing keys.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import secrets
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from fusion_server.acl import FUSION_IDENTITY, FleetIdentities, access_control
+from shared.keys import KeySpace
+
+__all__ = ["AUTH_MODES", "FleetPlan", "ProvisionResult", "provision"]
+
+log = logging.getLogger(__name__)
+
+AUTH_MODES = ("mtls", "usrpwd")
+MANIFEST = "fleet.json"
+_FILE_MODE = 0o600
+_DIR_MODE = 0o700
+
+
+@dataclass(frozen=True, slots=True)
+class FleetPlan:
+    """What `uavmm secure init` is asked to make.
+
+    uavs, operators: identities (see `FleetIdentities`). server_hosts: names and addresses the agents dial
+    (the first one goes into their configs; all go into the server certificate). port: the Zenoh port.
+    auth: ``mtls`` (a client certificate per identity, its common name is the identity) or ``usrpwd``
+    (server-authenticated TLS plus a generated password per identity). mount_path: where each identity's
+    folder will be mounted (e.g. ``/etc/uavmm`` in a container); None writes the folders' real paths.
+    """
+
+    uavs: tuple[str, ...]
+    operators: tuple[str, ...] = ("operator",)
+    server_hosts: tuple[str, ...] = ("localhost", "127.0.0.1")
+    port: int = 7447
+    auth: str = "mtls"
+    prefix: str = "uavmm/v1"
+    mount_path: str | None = None
+    days: int = 825
+    identities: FleetIdentities = field(init=False)
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "identities", FleetIdentities(tuple(self.uavs), tuple(self.operators)))
+        if self.auth not in AUTH_MODES:
+            raise ValueError(f"auth must be one of {', '.join(AUTH_MODES)}, got {self.auth!r}")
+        if not self.server_hosts or any(not h or "/" in h or " " in h for h in self.server_hosts):
+            raise ValueError(f"server_hosts must be non-empty host names or addresses, got {self.server_hosts!r}")
+        if isinstance(self.port, bool) or not isinstance(self.port, int) or not 1 <= self.port <= 65535:
+            raise ValueError(f"port must be in 1..65535, got {self.port!r}")
+        KeySpace(self.prefix)
+        if self.mount_path is not None and not self.mount_path.startswith("/"):
+            raise ValueError(f"mount_path must be absolute, got {self.mount_path!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class ProvisionResult:
+    """What was written: the folder, the identities added this time and every identity's folder."""
+
+    root: Path
+    added: tuple[str, ...]
+    folders: dict[str, Path]
+
+
+def _write(path: Path, content: bytes | str) -> None:
+    """Write a file readable by its owner only (created 0600, never world-readable, not even briefly)."""
+    data = content.encode() if isinstance(content, str) else content
+    tmp = path.with_name(path.name + ".tmp")
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, _FILE_MODE)
+    with os.fdopen(fd, "wb") as handle:
+        handle.write(data)
+    os.chmod(tmp, _FILE_MODE)
+    os.replace(tmp, path)
+
+
+def _mkdir(path: Path) -> Path:
+    path.mkdir(mode=_DIR_MODE, parents=True, exist_ok=True)
+    os.chmod(path, _DIR_MODE)
+    return path
+
+
+def _json5(config: dict[str, Any], comment: str) -> str:
+    lines = "".join(f"// {line}\n" for line in comment.splitlines())
+    return lines + json.dumps(config, indent=2) + "\n"
+
+
+class _Fleet:
+    """The folder being written: its CA, plan and the identities' material."""
+
+    def __init__(self, root: Path, plan: FleetPlan) -> None:
+        self.root = root
+        self.plan = plan
+
+    def where(self, folder: Path, name: str) -> str:
+        """The path a config names for ``folder/name``: under the mount path if one was given."""
+        if self.plan.mount_path is not None:
+            return f"{self.plan.mount_path.rstrip('/')}/{name}"
+        return str((folder / name).resolve())
+
+    def endpoint(self, host: str | None = None) -> str:
+        host = host or self.plan.server_hosts[0]
+        shown = f"[{host}]" if ":" in host else host
+        return f"tls/{shown}:{self.plan.port}"
+
+    def tls(self, folder: Path, *, listen: bool, client_cert: bool) -> dict[str, Any]:
+        tls: dict[str, Any] = {"root_ca_certificate": self.where(folder, "ca.pem")}
+        if listen:
+            tls["listen_private_key"] = self.where(folder, "key.pem")
+            tls["listen_certificate"] = self.where(folder, "cert.pem")
+        if client_cert:
+            tls["connect_private_key"] = self.where(folder, "key.pem")
+            tls["connect_certificate"] = self.where(folder, "cert.pem")
+        if self.plan.auth == "mtls":
+            tls["enable_mtls"] = True
+        return tls
+
+
+def _load_manifest(root: Path, plan: FleetPlan) -> dict[str, Any] | None:
+    """The folder's manifest if it holds a fleet; ValueError if it holds anything else or disagrees."""
+    if not root.exists():
+        return None
+    if not root.is_dir():
+        raise ValueError(f"{root} exists and is not a folder")
+    manifest_path = root / MANIFEST
+    if not manifest_path.exists():
+        if any(root.iterdir()):
+            raise ValueError(f"{root} is not empty and holds no {MANIFEST}: give a new folder "
+                             "(nothing was written)")
+        return None
+    try:
+        manifest = json.loads(manifest_path.read_text())
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"cannot read {manifest_path}: {exc}") from None
+    for name in ("auth", "prefix", "port", "server_hosts", "mount_path"):
+        ours = list(getattr(plan, name)) if name == "server_hosts" else getattr(plan, name)
+        if manifest.get(name) != ours:
+            raise ValueError(f"{root} was made with {name} {manifest.get(name)!r}, not {ours!r}: "
+                             f"use the same {name} to add identities (nothing was written)")
+    if not (root / "ca" / "ca.key").exists():
+        raise ValueError(f"{root / 'ca' / 'ca.key'} is missing: the CA key is needed to add identities "
+                         "(put it back from where you keep it offline)")
+    return manifest
+
+
+def provision(root: Path, plan: FleetPlan) -> ProvisionResult:
+    """Write (or extend) the fleet folder ``root`` for ``plan``; see the module docstring.
+
+    Existing keys, certificates and passwords are kept; identities of an earlier run stay in the ACL.
+    Raises ValueError naming the problem (a non-empty folder of something else, settings that differ
+    from the folder's, a missing CA key) before writing anything.
+    """
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+
+    from shared import pki
+
+    manifest = _load_manifest(root, plan)
+    if manifest is not None:  # the union of the earlier identities and the new ones
+        uavs = tuple(dict.fromkeys([*manifest.get("uavs", []), *plan.uavs]))
+        operators = tuple(dict.fromkeys([*manifest.get("operators", []), *plan.operators]))
+        plan = FleetPlan(uavs=uavs, operators=operators, server_hosts=plan.server_hosts, port=plan.port,
+                         auth=plan.auth, prefix=plan.prefix, mount_path=plan.mount_path, days=plan.days)
+    fleet = _Fleet(root, plan)
+    _mkdir(root)
+    ca_dir = _mkdir(root / "ca")
+    if (ca_dir / "ca.key").exists():
+        ca_key = serialization.load_pem_private_key((ca_dir / "ca.key").read_bytes(), password=None)
+        ca = pki.CertifiedKey(ca_key, x509.load_pem_x509_certificate((ca_dir / "ca.pem").read_bytes()))  # type: ignore[arg-type]
+    else:
+        ca = pki.new_ca(f"uavmm fleet CA {datetime.now(timezone.utc):%Y-%m-%d}")
+        _write(ca_dir / "ca.key", ca.key_pem)
+        _write(ca_dir / "ca.pem", ca.certificate_pem)
+
+    for group in ("uavs", "operators"):
+        _mkdir(root / group)
+    folders = {FUSION_IDENTITY: root / "fusion", "router": root / "router"}
+    folders.update({uav: root / "uavs" / uav for uav in plan.uavs})
+    folders.update({name: root / "operators" / name for name in plan.operators})
+    added = []
+    passwords = _read_passwords(root / "fusion" / "users.txt")
+    for identity, folder in folders.items():
+        fresh = not folder.exists()
+        _mkdir(folder)
+        _write(folder / "ca.pem", ca.certificate_pem)
+        server = identity in (FUSION_IDENTITY, "router")
+        if (server or plan.auth == "mtls") and not (folder / "cert.pem").exists():
+            hosts = plan.server_hosts if server else ()
+            cert = pki.issue(ca, identity, hosts=hosts, days=plan.days)
+            _write(folder / "key.pem", cert.key_pem)
+            _write(folder / "cert.pem", cert.certificate_pem)
+        if plan.auth == "usrpwd" and identity != "router":
+            passwords.setdefault(identity, secrets.token_urlsafe(24))
+        if fresh and identity != "router":
+            added.append(identity)
+
+    acl = access_control(plan.identities, prefix=plan.prefix,
+                         subject_field="cert_common_names" if plan.auth == "mtls" else "usernames")
+    if plan.auth == "usrpwd":
+        _write(root / "fusion" / "users.txt", "".join(f"{u}:{p}\n" for u, p in passwords.items()))
+        _write(root / "router" / "users.txt", "".join(f"{u}:{p}\n" for u, p in passwords.items()))
+    _write_server_configs(fleet, folders, acl, passwords)
+    for identity in (*plan.uavs, *plan.operators):
+        _write_client_config(fleet, identity, folders[identity], passwords, operator=identity in plan.operators)
+    tokens = _read_tokens(root / "fusion" / "http-tokens")
+    for name in plan.operators:
+        tokens.setdefault(name, secrets.token_urlsafe(32))
+        _write(folders[name] / "http-token", tokens[name] + "\n")
+    _write(root / "fusion" / "http-tokens",
+           "# name:token, one REST API bearer token per operator (uavmm fusion --http-token-file)\n"
+           + "".join(f"{n}:{t}\n" for n, t in tokens.items()))
+    _write(root / MANIFEST, json.dumps({
+        "auth": plan.auth, "prefix": plan.prefix, "port": plan.port, "server_hosts": list(plan.server_hosts),
+        "mount_path": plan.mount_path, "uavs": list(plan.uavs), "operators": list(plan.operators),
+        "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+    }, indent=2) + "\n")
+    _write(root / "README.md", _readme(fleet, folders))
+    return ProvisionResult(root, tuple(added), folders)
+
+
+def _read_passwords(path: Path) -> dict[str, str]:
+    if not path.exists():
+        return {}
+    pairs = (line.split(":", 1) for line in path.read_text().splitlines() if ":" in line)
+    return {user: password for user, password in pairs}
+
+
+def _read_tokens(path: Path) -> dict[str, str]:
+    if not path.exists():
+        return {}
+    lines = (line.strip() for line in path.read_text().splitlines())
+    pairs = (line.split(":", 1) for line in lines if line and not line.startswith("#") and ":" in line)
+    return {name: token for name, token in pairs}
+
+
+def _auth(fleet: _Fleet, identity: str, passwords: dict[str, str], *, dictionary: Path | None = None) -> dict:
+    if fleet.plan.auth != "usrpwd":
+        return {}
+    usrpwd: dict[str, Any] = {"user": identity, "password": passwords[identity]}
+    if dictionary is not None:
+        usrpwd["dictionary_file"] = fleet.where(dictionary.parent, dictionary.name)
+    return {"auth": {"usrpwd": usrpwd}}
+
+
+def _write_server_configs(fleet: _Fleet, folders: dict[str, Path], acl: dict, passwords: dict[str, str]) -> None:
+    plan = fleet.plan
+    listen = {"endpoints": [f"tls/0.0.0.0:{plan.port}"]}
+    fusion = folders[FUSION_IDENTITY]
+    # the fusion server as the router every agent connects to (the default layout)
+    config = {
+        "mode": "router", "listen": listen, "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": fleet.tls(fusion, listen=True, client_cert=False)},
+                      **_auth(fleet, FUSION_IDENTITY, passwords, dictionary=fusion / "users.txt")},
+        "access_control": acl,
+    }
+    _write(fusion / "zenoh.json5", _json5(config, (
+        "uavmm fusion --config zenoh.json5: the fusion server as the fleet's router.\n"
+        "Every UAV may put only on its own keys; only this server puts joint tiles and tracks.")))
+    # the fusion server behind a zenohd router (the router holds the ACL)
+    client = {
+        "mode": "client", "connect": {"endpoints": [fleet.endpoint()]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": fleet.tls(fusion, listen=False, client_cert=plan.auth == "mtls")},
+                      **_auth(fleet, FUSION_IDENTITY, passwords)},
+    }
+    _write(fusion / "zenoh-client.json5", _json5(client, (
+        "uavmm fusion --config zenoh-client.json5: the fusion server as a client of a zenohd router\n"
+        "that runs with ../router/zenohd.json5.")))
+    router = folders["router"]
+    router_config = {
+        "mode": "router", "listen": listen, "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": fleet.tls(router, listen=True, client_cert=False)},
+                      **({"auth": {"usrpwd": {"dictionary_file": fleet.where(router, "users.txt")}}}
+                         if plan.auth == "usrpwd" else {})},
+        "access_control": acl,
+    }
+    _write(router / "zenohd.json5", _json5(router_config, (
+        "zenohd -c zenohd.json5: a Zenoh router holding the fleet's ACL; the fusion server then runs\n"
+        "with ../fusion/zenoh-client.json5.")))
+
+
+def _write_client_config(fleet: _Fleet, identity: str, folder: Path, passwords: dict[str, str], *,
+                         operator: bool) -> None:
+    config = {
+        "mode": "client", "connect": {"endpoints": [fleet.endpoint()]},
+        "scouting": {"multicast": {"enabled": False}},
+        "transport": {"link": {"tls": fleet.tls(folder, listen=False, client_cert=fleet.plan.auth == "mtls")},
+                      **_auth(fleet, identity, passwords)},
+    }
+    what = (f"an operator's read-only session ({identity})" if operator else
+            f"uavmm agent --uav-id {identity} --config zenoh.json5 ...: this UAV may put only on its own keys")
+    _write(folder / "zenoh.json5", _json5(config, what))
+
+
+def _readme(fleet: _Fleet, folders: dict[str, Path]) -> str:
+    plan = fleet.plan
+    uav = plan.uavs[0]
+
+    def conf(identity: str, name: str) -> str:
+        return fleet.where(folders[identity], name)
+
+    return f"""# uavmm fleet credentials ({plan.auth})
+
+Made by `uavmm secure init`. Keep this folder private. `ca/ca.key` signs new identities: keep it
+offline (only `uavmm secure init` on this folder needs it, to add UAVs or operators).
+
+- `fusion/` goes to the ground station:
+  `uavmm fusion --config {conf(FUSION_IDENTITY, 'zenoh.json5')} \\
+      --http-token-file {conf(FUSION_IDENTITY, 'http-tokens')}`
+- `uavs/ID/` goes to drone ID's companion computer:
+  `uavmm agent --uav-id {uav} --config {conf(uav, 'zenoh.json5')} ...`
+- `operators/NAME/` goes to an operator: the REST token (`Authorization: Bearer $(cat http-token)`,
+  or the page at `http://GROUND:8000/#token=...`) and a read-only Zenoh config.
+- `router/` is for a zenohd router, if you use one: `zenohd -c {conf('router', 'zenohd.json5')}`;
+  the fusion server then runs with `fusion/zenoh-client.json5`.
+
+Agents dial `{fleet.endpoint()}` (server names in the certificate: {', '.join(plan.server_hosts)}).
+UAVs: {', '.join(plan.uavs)}. Operators: {', '.join(plan.operators) or 'none'}.
+Add identities later with the same command and folder: `uavmm secure init DIR --uavs NEW_ID`.
+"""
