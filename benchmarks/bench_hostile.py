@@ -6,8 +6,10 @@ bytes, tiles with bad fields, tiles from the future, forged tiles of another UAV
 10,000-track messages. Two honest UAVs keep publishing valid tiles at 5 Hz. Measured: the server's
 resident memory (``/proc/PID/status`` VmRSS) before, at its peak and after the flood; whether every
 message was counted (``/metrics``: accepted + dropped by reason == sent); whether the honest UAVs'
-joint tiles kept arriving. Run twice: with the default per-UAV rate limits and with them off (so
-every message reaches validation). The baseline is the RSS of the same server before the flood.
+joint tiles kept arriving. Run three times: with the default per-UAV rate limits, with them off (so
+every message reaches validation), and on the files of `uavmm secure init` (mutual TLS and the fleet's
+ACL: mallory is an authenticated UAV misbehaving on its own keys). The baseline is the RSS of the same
+server before the flood.
 """
 
 from __future__ import annotations
@@ -46,8 +48,26 @@ def _rss_mb(pid: int) -> float:
     return int(match.group(1)) / 1024.0 if match else float("nan")
 
 
-def _start_fusion(port: int, http_port: int, db_dir: str, extra: list[str]) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "uavmm", "fusion", "--listen", f"tcp/127.0.0.1:{port}",
+def _session_config(endpoint: str, fleet: Path | None, identity: str):
+    """A client config: plain, or the identity's own from the fleet folder (TLS with its certificate)."""
+    from benchmarks.bench_fusion import _zenoh_config
+
+    if fleet is None:
+        return _zenoh_config("client", connect=endpoint)
+    import zenoh
+
+    conf = zenoh.Config.from_file(str(fleet / "uavs" / identity / "zenoh.json5"))
+    conf.insert_json5("transport/shared_memory/enabled", "false")
+    conf.insert_json5("connect/timeout_ms", "5000")
+    conf.insert_json5("connect/exit_on_failure", "true")
+    return conf
+
+
+def _start_fusion(port: int, http_port: int, db_dir: str, extra: list[str], fleet: Path | None = None
+                  ) -> subprocess.Popen:
+    scheme = "tcp" if fleet is None else "tls"
+    secure = [] if fleet is None else ["--config", str(fleet / "fusion" / "zenoh.json5")]
+    cmd = [sys.executable, "-m", "uavmm", "fusion", *secure, "--listen", f"{scheme}/127.0.0.1:{port}",
            "--http", f"127.0.0.1:{http_port}", "--db", os.path.join(db_dir, "hostile.sqlite"),
            "--no-multicast-scouting", "--cfg", _NO_SHM, *extra]
     env = {**os.environ, "PYTHONPATH": str(_REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
@@ -103,17 +123,15 @@ def hostile_payloads(rng: np.random.Generator) -> list[tuple[str, bytes]]:
     ]
 
 
-def _flood(endpoint: str, n_messages: int) -> tuple[int, float]:
+def _flood(endpoint: str, n_messages: int, fleet: Path | None = None) -> tuple[int, float]:
     import zenoh
-
-    from benchmarks.bench_fusion import _zenoh_config
 
     rng = np.random.default_rng(0)
     payloads = hostile_payloads(rng)
     # oversized ones are 1 in 50 (they cost the loopback, not the server); the rest round-robin
     small = [p for p in payloads if len(p[1]) < 64 * 1024]
     large = [p for p in payloads if len(p[1]) >= 64 * 1024]
-    with zenoh.open(_zenoh_config("client", connect=endpoint)) as session:
+    with zenoh.open(_session_config(endpoint, fleet, "mallory")) as session:
         publishers = {key: session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
                       for key, _ in payloads}
         token = session.liveliness().declare_token("uavmm/v1/uav/mallory/alive")
@@ -129,12 +147,12 @@ def _flood(endpoint: str, n_messages: int) -> tuple[int, float]:
 class _Honest:
     """Two UAVs publishing valid tiles at 5 Hz; counts the joint tiles of their tiles."""
 
-    def __init__(self, endpoint: str) -> None:
+    def __init__(self, endpoint: str, fleet: Path | None = None) -> None:
         import zenoh
 
-        from benchmarks.bench_fusion import _zenoh_config
-
-        self.session = zenoh.open(_zenoh_config("client", connect=endpoint))
+        # with a fleet, both honest UAVs share honest1's session: its ACL lets it put only as honest1
+        self.uavs = ("honest1", "honest2") if fleet is None else ("honest1",)
+        self.session = zenoh.open(_session_config(endpoint, fleet, "honest1"))
         self.stop = threading.Event()
         self.joint = 0
         self.lock = threading.Lock()
@@ -159,7 +177,7 @@ class _Honest:
         seq = 0
         while not self.stop.wait(0.2):
             seq += 1
-            for k, uav in enumerate(("honest1", "honest2")):
+            for k, uav in enumerate(self.uavs):
                 msg = TileMessage(uav=uav, cls="person", z=18, x=_X + k, y=_Y, n=256, t=time.time(), seq=seq,
                                   values=values)
                 self.session.put(keys.uav_tile(uav, "person", 18, _X + k, _Y), encode_tile(msg))
@@ -170,13 +188,20 @@ class _Honest:
         self.session.close()
 
 
-def _one_run(n_messages: int, extra: list[str], label: str) -> list[dict[str, Any]]:
+def _one_run(n_messages: int, extra: list[str], label: str, secure: bool = False) -> list[dict[str, Any]]:
     port, http_port = _free_port(), _free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"{'tls' if secure else 'tcp'}/{'localhost' if secure else '127.0.0.1'}:{port}"
     with tempfile.TemporaryDirectory() as db_dir:
-        fusion = _start_fusion(port, http_port, db_dir, extra)
+        fleet = None
+        if secure:
+            from fusion_server.provision import FleetPlan, provision
+
+            fleet = Path(db_dir) / "fleet"
+            provision(fleet, FleetPlan(uavs=("mallory", "honest1"), operators=(), server_hosts=("localhost",),
+                                       port=port))
+        fusion = _start_fusion(port, http_port, db_dir, extra, fleet)
         try:
-            honest = _Honest(endpoint)
+            honest = _Honest(endpoint, fleet)
             honest.thread.start()
             time.sleep(3.0)  # warm up: imports, first fusions, allocator
             rss_before = _rss_mb(fusion.pid)
@@ -192,7 +217,7 @@ def _one_run(n_messages: int, extra: list[str], label: str) -> list[dict[str, An
             watcher = threading.Thread(target=watch, daemon=True)
             watcher.start()
             flood_start = time.monotonic()
-            sent, elapsed = _flood(endpoint, n_messages)
+            sent, elapsed = _flood(endpoint, n_messages, fleet)
             deadline = time.monotonic() + 120.0
             while time.monotonic() < deadline:  # until every hostile message is counted
                 accepted, dropped, reasons = _counters(http_port)
@@ -226,8 +251,8 @@ def _one_run(n_messages: int, extra: list[str], label: str) -> list[dict[str, An
                  f"dropped by reason {json.dumps(reasons, sort_keys=True)}",
          "value": counted, "unit": "msgs", "baseline_name": f"sent {sent}", "ratio": counted / sent},
         {"case": f"{label}: honest joint tiles received during {seconds:.1f} s of flood (server up: {alive})",
-         "value": joint_during, "unit": "tiles", "baseline_name": "2 tiles refreshed 1/s",
-         "ratio": joint_during / (2.0 * seconds)},
+         "value": joint_during, "unit": "tiles", "baseline_name": f"{len(honest.uavs)} tiles refreshed 1/s",
+         "ratio": joint_during / (len(honest.uavs) * seconds)},
     ]
 
 
@@ -235,4 +260,5 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
     n = 5_000 if quick else 100_000
     rows = _one_run(n, [], "default limits")
     rows += _one_run(n, ["--uav-max-msgs-per-s", "1e9", "--uav-max-bytes-per-s", "1e12"], "limits off")
+    rows += _one_run(n, [], "secure init files (mTLS + ACL), default limits", secure=True)
     return rows
