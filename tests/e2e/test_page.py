@@ -303,3 +303,64 @@ def test_page_shows_three_uavs_heatmap_and_tracks(tmp_path):
             demo.kill()
             raise
     assert code == 0, (tmp / "demo.out").read_text()
+
+
+def test_page_with_a_rest_token_shows_the_map_and_without_it_says_why(tmp_path, server_factory_secured):
+    """A server with REST tokens: the page opened as .../#token=TOKEN loads data and heatmap tiles, takes the
+    token out of the address bar and keeps it on reload; opened without it, it says it needs a token."""
+    chromium = chromium_path()
+    if chromium is None:
+        reason = "Debian chromium is not installed (.ci/run installs it: apt-get install chromium chromium-driver)"
+        print(f"SKIPPED: {reason}")
+        pytest.skip(reason)
+    url, token = server_factory_secured
+    summary_js = "(e => e && JSON.stringify(Object.assign({}, e.dataset)))(document.getElementById('summary'))"
+    for with_token in (True, False):
+        tmp = Path(tempfile.mkdtemp(prefix="uavmm-page-", dir=tmp_path))
+        browser, ws_url = start_chromium(url + (f"#token={token}" if with_token else ""), tmp)
+        devtools = DevTools(ws_url)
+        try:
+            def status(wanted: str):
+                found = devtools.evaluate(summary_js)
+                s = json.loads(found) if found else None
+                return s if s and s["status"] == wanted else None
+
+            if with_token:
+                summary = wait_for(lambda: (s := status("ok")) and int(s["heatTiles"]) > 0 and s, 30.0,
+                                   "data and heatmap tiles with the token")
+                assert summary["uavsOnline"] == "1"
+                assert devtools.evaluate("window.location.hash") == ""  # out of the address bar
+                devtools.call("Page.reload")
+                wait_for(lambda: status("ok"), 30.0, "data after a reload (token kept for the tab)")
+            else:
+                wait_for(lambda: status("error"), 30.0, "an error status without the token")
+                assert "needs a token" in devtools.evaluate("document.getElementById('status').textContent")
+        finally:
+            devtools.close()
+            os.killpg(browser.pid, signal.SIGKILL)
+            browser.wait(timeout=10)
+
+
+@pytest.fixture
+def server_factory_secured():
+    """A fusion server with one REST token and one fake UAV publishing a tile; yields (page URL, token)."""
+    from fusion_server.config import FusionSettings, ZenohOptions
+    from fusion_server.http_auth import HttpToken
+    from fusion_server.server import FusionServer
+    from tests.fusion_server.fake_agent import FakeAgent, blob, free_port, wait_until
+
+    token = "page-token-0123456789abcdef"
+    port = free_port()
+    options = ZenohOptions(mode="router", listen=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
+    server = FusionServer(FusionSettings(zenoh=options, http_port=0, db_path=None, ttl_s=30.0,
+                                         http_tokens=(HttpToken("page", token),)))
+    server.start()
+    agent = FakeAgent("uav1", f"tcp/127.0.0.1:{port}")
+    try:
+        agent.state()
+        agent.tile(blob(128, 128, value=0.9, sigma=8.0))
+        wait_until(lambda: server.joint.tiles(), 10.0)
+        yield server.url, token
+    finally:
+        agent.close()
+        server.close()
