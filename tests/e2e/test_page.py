@@ -320,7 +320,7 @@ def test_page_with_a_rest_token_shows_the_map_and_without_it_says_why(tmp_path, 
         browser, ws_url = start_chromium(url + (f"#token={token}" if with_token else ""), tmp)
         devtools = DevTools(ws_url)
         try:
-            def status(wanted: str):
+            def status(wanted: str, devtools: DevTools = devtools):
                 found = devtools.evaluate(summary_js)
                 s = json.loads(found) if found else None
                 return s if s and s["status"] == wanted else None
