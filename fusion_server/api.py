@@ -2,26 +2,32 @@
 
 Endpoints: ``/healthz``, ``/v1/uavs``, ``/v1/map``, ``/v1/tiles/{cls}/{z}/{x}/{y}.png``,
 ``/v1/objects``, ``/v1/tracks``, ``/metrics``, ``/`` (the live map page, its script and style under
-``/static/``) and the extension ``/v1/joint/tiles``.
+``/static/``) and the extensions ``/v1/joint/tiles`` and ``/v1/tiles/{cls}.json`` (TileJSON).
 Bad parameters get a 400 (or FastAPI's 422 for wrong types) with a message saying what is wrong.
+``/docs`` and ``/redoc`` are served with local assets (no CDN); CORS only for ``--cors-origin`` origins.
 """
 
 from __future__ import annotations
 
+import hashlib
 import time
 from importlib import resources
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
-from fastapi import FastAPI, HTTPException, Query
+from fastapi import FastAPI, HTTPException, Query, Request
+from fastapi.middleware.cors import CORSMiddleware
+from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import HTMLResponse, PlainTextResponse, Response
 from fastapi.staticfiles import StaticFiles
 
+from fusion_server.geo_formats import GEOJSON_MEDIA_TYPE, GeoJSONResponse, tilejson, track_lines_geojson, uavs_geojson
 from fusion_server.http_auth import BearerAuth
 from fusion_server.peaks import find_peaks, peaks_geojson
 from fusion_server.render import (
     AGGREGATIONS,
     COLORMAPS,
+    MAX_ZOOM,
     BBox,
     parse_bbox,
     paste_window,
@@ -65,16 +71,48 @@ def _index_html() -> str:
         return "<!doctype html><title>uavmm fusion</title><p>uavmm fusion server: see <a href='/docs'>/docs</a>."
 
 
+def _etags(header: str | None) -> set[str]:
+    """The entity tags of an If-None-Match header (weak ones compare as strong: GET only)."""
+    if not header:
+        return set()
+    return {tag.strip().removeprefix("W/") for tag in header.split(",")}
+
+
+def _add_docs(app: FastAPI) -> None:
+    """Swagger UI at /docs and ReDoc at /redoc with the assets of the fastapi-offline package: no CDN."""
+    static = resources.files("fastapi_offline").joinpath("static")
+    app.mount("/docs-static", StaticFiles(directory=str(static)), name="docs-static")
+
+    @app.get("/docs", include_in_schema=False)
+    def swagger_ui() -> HTMLResponse:
+        return get_swagger_ui_html(openapi_url="/openapi.json", title="uavmm fusion server - API",
+                                   swagger_js_url="/docs-static/swagger-ui-bundle.js",
+                                   swagger_css_url="/docs-static/swagger-ui.css",
+                                   swagger_favicon_url="/docs-static/favicon.png")
+
+    @app.get("/redoc", include_in_schema=False)
+    def redoc() -> HTMLResponse:
+        return get_redoc_html(openapi_url="/openapi.json", title="uavmm fusion server - API",
+                              redoc_js_url="/docs-static/redoc.standalone.js",
+                              redoc_favicon_url="/docs-static/favicon.png", with_google_fonts=False)
+
+
 def create_app(server: FusionServer) -> FastAPI:
     """The FastAPI app serving ``server``'s state (read-only)."""
     app = FastAPI(
         title="uavmm fusion server",
         version="1",
         description="Joint memory map, global tracks and UAV status of a uav-memory-maps fusion server.",
+        docs_url=None, redoc_url=None,  # served below with local assets
     )
     grid = server.settings.grid
     if server.settings.http_tokens:  # every path but the page shell, /healthz and the schema needs a token
         app.add_middleware(BearerAuth, tokens=server.settings.http_tokens, on_denied=server.count_http_denied)
+    if server.settings.cors_origins:  # outermost: preflights and 401s carry the CORS headers too
+        app.add_middleware(CORSMiddleware, allow_origins=list(server.settings.cors_origins),
+                           allow_methods=["GET", "HEAD", "OPTIONS"], allow_headers=["Authorization"],
+                           expose_headers=["ETag"], max_age=600)
+    _add_docs(app)
 
     @app.get("/", response_class=HTMLResponse, summary="Live map page")
     def index() -> str:
@@ -97,9 +135,17 @@ def create_app(server: FusionServer) -> FastAPI:
             "global_tracks": len(server.tracker),
         }
 
-    @app.get("/v1/uavs", summary="The UAVs: liveliness, last seen, last state, message rates")
-    def uavs() -> list[dict[str, Any]]:
-        return server.uavs.snapshot(server.joint.uav_tile_counts())
+    @app.get("/v1/uavs", summary="The UAVs: liveliness, last seen, last state, message rates",
+             responses={200: {"content": {GEOJSON_MEDIA_TYPE: {}}}})
+    def uavs(
+        format: Literal["json", "geojson"] = Query("json", description="json list, or a GeoJSON FeatureCollection "
+                                                   "of Points (UAVs with a position)"),
+        footprints: bool = Query(False, description="geojson: also each UAV's ground footprint as a Polygon"),
+    ) -> Any:
+        rows = server.uavs.snapshot(server.joint.uav_tile_counts())
+        if format == "geojson":
+            return GeoJSONResponse(uavs_geojson(rows, footprints=footprints))
+        return rows
 
     @app.get("/v1/map", summary="Joint map window over a bbox (grid geometry + values)")
     def joint_map(
@@ -154,6 +200,7 @@ def create_app(server: FusionServer) -> FastAPI:
         responses={200: {"content": {"image/png": {}}}},
     )
     def tile_png(
+        request: Request,
         cls: str,
         z: int,
         x: int,
@@ -167,9 +214,28 @@ def create_app(server: FusionServer) -> FastAPI:
             png = tile_bytes(server.joint.tiles_in_range, grid, cls, z, x, y, agg=agg, cmap=cmap)
         except ValueError as exc:
             raise HTTPException(status_code=400, detail=str(exc)) from None
-        return Response(content=png, media_type="image/png", headers={"Cache-Control": "no-cache"})
+        # the tile's content decides: a viewer revalidating an unchanged tile gets 304 and no body
+        etag = '"' + hashlib.blake2b(png, digest_size=12).hexdigest() + '"'
+        headers = {"Cache-Control": "no-cache", "ETag": etag}
+        if etag in _etags(request.headers.get("if-none-match")):
+            return Response(status_code=304, headers=headers)
+        return Response(content=png, media_type="image/png", headers=headers)
 
-    @app.get("/v1/objects", summary="Fused object candidates (joint map peaks) as GeoJSON")
+    @app.get("/v1/tiles/{cls}.json", summary="TileJSON 3.0.0 of a class's heatmap tiles (extension)")
+    def tile_json(request: Request, cls: str) -> dict[str, Any]:
+        _check_cls(server, cls, must_exist=False)
+        tiles = server.joint.tiles(cls)
+        bounds = None
+        if tiles:
+            corners = [grid.tile_bounds(t.x, t.y) for t in tiles]
+            bounds = [min(c[0] for c in corners), min(c[1] for c in corners),
+                      max(c[2] for c in corners), max(c[3] for c in corners)]
+        base = str(request.base_url).rstrip("/")
+        return tilejson(cls, f"{base}/v1/tiles/{cls}/{{z}}/{{x}}/{{y}}.png", bounds=bounds, max_zoom=MAX_ZOOM,
+                        grid_zoom=grid.z)
+
+    @app.get("/v1/objects", summary="Fused object candidates (joint map peaks) as GeoJSON",
+             response_class=GeoJSONResponse)
     def objects(
         cls: str | None = Query(None, description="class name (default: all classes)"),
         bbox: str | None = Query(None, description=_BBOX_HELP + " (default: everywhere)"),
@@ -194,17 +260,22 @@ def create_app(server: FusionServer) -> FastAPI:
         peaks.sort(key=lambda p: -p.score)
         return peaks_geojson(peaks[:limit])
 
-    @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history")
+    @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history", response_class=GeoJSONResponse)
     def tracks(
         include_ended: bool = Query(False, description="also list recently ended tracks"),
         history: bool = Query(True, description="include each track's (t, lat, lon) history"),
+        geometry: Literal["point", "line"] = Query(
+            "point", description="point: the current position; line: the history as a LineString [lon, lat] "
+                                 "(its times in the times property)"),
     ) -> dict[str, Any]:
         features = []
         for record in server.tracker.records(include_ended=include_ended):
             feature = record.to_geojson()
-            if not history:
+            if not history and geometry == "point":
                 del feature["properties"]["history"]
             features.append(feature)
+        if geometry == "line":
+            return track_lines_geojson(features)
         return {"type": "FeatureCollection", "features": features}
 
     @app.get("/v1/joint/tiles", summary="Index of the current joint tiles (extension)")

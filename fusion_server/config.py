@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 import os
+import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -77,6 +78,8 @@ class FusionSettings:
     #: REST bearer tokens; required when ``http_host`` is not loopback, unless ``insecure_public``
     http_tokens: tuple[HttpToken, ...] = ()
     insecure_public: bool = False
+    #: origins allowed to read the REST API from a browser page of theirs (CORS); none by default
+    cors_origins: tuple[str, ...] = ()
 
     def __post_init__(self) -> None:
         if self.fusion_rule not in FUSION_RULES:
@@ -89,6 +92,10 @@ class FusionSettings:
             raise ValueError(f"http_port must be in 0..65535, got {self.http_port!r}")
         if not all(isinstance(t, HttpToken) for t in self.http_tokens):
             raise ValueError("http_tokens must be HttpToken values")
+        for origin in self.cors_origins:
+            if origin != "*" and not re.fullmatch(r"https?://[^/\s]+", origin):
+                raise ValueError(f"cors_origins: {origin!r} is not an origin like https://maps.example.org "
+                                 "(scheme and host[:port], no path) or *")
         if not self.http_tokens and not self.insecure_public and not is_loopback_host(self.http_host):
             raise ValueError(f"the REST API on {self.http_host} is reachable beyond this machine: give it a "
                              "token (--http-token-file FILE or UAVMM_HTTP_TOKEN) or accept an open API "

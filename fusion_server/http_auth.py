@@ -1,6 +1,6 @@
 """Bearer tokens for the REST API: who may read the fleet's data when the API is reachable beyond loopback.
 
-The map page shell, its static files, the OpenAPI schema and ``/healthz`` stay public (they hold no data);
+The map page shell, its static files, the OpenAPI schema, the API docs and ``/healthz`` stay public (they hold no data);
 every other path needs ``Authorization: Bearer TOKEN`` or, for map tiles in an ``<img>``, ``?access_token=``.
 """
 
@@ -22,7 +22,7 @@ log = logging.getLogger(__name__)
 
 #: paths served without a token: the page shell and its files, the API schema and docs, the health check
 PUBLIC_PATHS = ("/", "/healthz", "/openapi.json", "/docs", "/docs/oauth2-redirect", "/redoc")
-PUBLIC_PREFIXES = ("/static/",)
+PUBLIC_PREFIXES = ("/static/", "/docs-static/")
 MIN_TOKEN_LEN = 16
 
 Scope = MutableMapping[str, Any]

@@ -50,6 +50,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="REST bearer tokens, one per line (TOKEN or NAME:TOKEN; `uavmm secure init` writes "
                         "fusion/http-tokens). Default: $UAVMM_HTTP_TOKEN; with neither, an --http beyond "
                         "loopback gets a generated token, printed once at start-up")
+    p.add_argument("--cors-origin", action="append", default=[], metavar="ORIGIN",
+                   help="let pages from ORIGIN (e.g. https://maps.example.org) read the REST API in a browser "
+                        "(repeatable; none by default)")
     p.add_argument("--insecure-public", action="store_true",
                    help="serve the REST API beyond loopback without a token (only behind your own "
                         "authenticating proxy, or a container port published on loopback)")
@@ -127,7 +130,7 @@ def settings_from_args(args: argparse.Namespace):
         track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, max_clock_skew_s=args.max_clock_skew_s,
         uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
         db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
-        http_tokens=tokens, insecure_public=args.insecure_public,
+        http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
     )
 
 

@@ -364,3 +364,24 @@ def server_factory_secured():
     finally:
         agent.close()
         server.close()
+
+
+def test_api_docs_render_offline_in_chromium(tmp_path, server_factory_secured):
+    """/docs (Swagger UI) and /redoc render the API from local assets: Chromium here has no internet."""
+    if chromium_path() is None:
+        reason = "Debian chromium is not installed (.ci/run installs it: apt-get install chromium chromium-driver)"
+        print(f"SKIPPED: {reason}")
+        pytest.skip(reason)
+    url, _token = server_factory_secured
+    for path, count_js in (("docs", "document.querySelectorAll('.swagger-ui .opblock').length"),
+                           ("redoc", "document.querySelectorAll('[data-section-id^=\"operation\"]').length")):
+        tmp = Path(tempfile.mkdtemp(prefix="uavmm-docs-", dir=tmp_path))
+        browser, ws_url = start_chromium(url + path, tmp)
+        devtools = DevTools(ws_url)
+        try:
+            operations = wait_for(lambda js=count_js, d=devtools: d.evaluate(js), 30.0, f"operations on /{path}")
+            assert operations >= 8  # healthz, uavs, map, tiles, tilejson, objects, tracks, joint tiles, metrics
+        finally:
+            devtools.close()
+            os.killpg(browser.pid, signal.SIGKILL)
+            browser.wait(timeout=10)
