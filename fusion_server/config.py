@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fusion_server.cot import parse_cot_url
 from fusion_server.http_auth import HttpToken, is_loopback_host
 from fusion_server.joint_map import COVERAGE_MODES
 from fusion_server.rules import FUSION_RULES
@@ -80,6 +81,9 @@ class FusionSettings:
     insecure_public: bool = False
     #: origins allowed to read the REST API from a browser page of theirs (CORS); none by default
     cors_origins: tuple[str, ...] = ()
+    #: Cursor-on-Target events of UAVs and global tracks to udp://HOST:PORT or tcp://HOST:PORT (None: off)
+    cot_url: str | None = None
+    cot_interval_s: float = 1.0
 
     def __post_init__(self) -> None:
         if self.fusion_rule not in FUSION_RULES:
@@ -92,6 +96,8 @@ class FusionSettings:
             raise ValueError(f"http_port must be in 0..65535, got {self.http_port!r}")
         if not all(isinstance(t, HttpToken) for t in self.http_tokens):
             raise ValueError("http_tokens must be HttpToken values")
+        if self.cot_url is not None:
+            parse_cot_url(self.cot_url)
         for origin in self.cors_origins:
             if origin != "*" and not re.fullmatch(r"https?://[^/\s]+", origin):
                 raise ValueError(f"cors_origins: {origin!r} is not an origin like https://maps.example.org "
@@ -102,7 +108,7 @@ class FusionSettings:
                              "with --insecure-public")
         for name in ("ttl_s", "joint_max_hz", "tracks_max_hz", "track_gate_m", "track_hold_s",
                      "track_history_interval_s", "persist_interval_s", "max_clock_skew_s",
-                     "uav_max_msgs_per_s", "uav_max_bytes_per_s", "restore_keep_s", "uav_keep_s"):
+                     "uav_max_msgs_per_s", "uav_max_bytes_per_s", "restore_keep_s", "uav_keep_s", "cot_interval_s"):
             _positive(name, getattr(self, name))
         if self.restore_grace_s is not None:
             _positive("restore_grace_s", self.restore_grace_s)

@@ -18,6 +18,7 @@ import uvicorn
 
 from fusion_server.api import create_app
 from fusion_server.config import FusionSettings, zenoh_config
+from fusion_server.cot import CotSender, parse_cot_url
 from fusion_server.db_check import check_database, move_aside
 from fusion_server.global_tracks import GlobalTracker
 from fusion_server.joint_map import JointMap
@@ -104,6 +105,10 @@ class FusionServer:
         self.http_denied: dict[str, int] = {}
         self.app = create_app(self)
         self.http: HttpThread | None = None
+        self.cot: CotSender | None = None
+        if settings.cot_url is not None:
+            self.cot = CotSender(parse_cot_url(settings.cot_url), self._track_features, self.uavs.snapshot,
+                                 interval_s=settings.cot_interval_s)
 
     def start(self, *, http: bool = True) -> None:
         """Restore the database, open Zenoh, start publishing and (if ``http``) the REST API."""
@@ -120,6 +125,8 @@ class FusionServer:
                      self.store.path)
             self.store.start()
         self.node.start()
+        if self.cot is not None:
+            self.cot.start()
         if http:
             self.http = HttpThread(self.app, self.settings.http_host, self.settings.http_port)
             self.http.start()
@@ -129,6 +136,8 @@ class FusionServer:
         if self.http is not None:
             self.http.stop()
             self.http = None
+        if self.cot is not None:
+            self.cot.close()
         self.node.close()
         if self.store is not None:
             self.store.close()
@@ -159,6 +168,9 @@ class FusionServer:
         """Classes present in the joint map or the UAVs' tiles."""
         return self.joint.classes()
 
+    def _track_features(self) -> list[dict[str, Any]]:
+        return [record.to_geojson() for record in self.tracker.records(include_ended=True)]
+
     def count_http_denied(self, reason: str) -> None:
         """Count a REST request refused for ``reason`` (``no_token`` or ``bad_token``)."""
         self.http_denied[reason] = self.http_denied.get(reason, 0) + 1
@@ -181,6 +193,10 @@ class FusionServer:
             "(bounds of the global tracker), by reason.", self.tracker.dropped()),
             "uavmm_fusion_http_denied_total": (
                 "REST requests refused without a valid bearer token, by reason.", dict(self.http_denied))}
+        if self.cot is not None:
+            gauges["uavmm_fusion_cot_events_total"] = ("Cursor-on-Target events sent (--cot-url).", self.cot.sent)
+            gauges["uavmm_fusion_cot_failures_total"] = ("Cursor-on-Target rounds that failed to send.",
+                                                         self.cot.failed)
         if self.store is not None:
             db = self.store.health()
             gauges.update({

@@ -78,6 +78,7 @@ class DemoOptions:
     scenario, seed, speed: the simulated flights (a scenario whose UAVs fly at the same time).
     uavs: how many of the scenario's UAVs fly (None: all of them).
     duration_s: stop this long after the agents are up (None: run until a signal).
+    cot_url: the fusion server's Cursor-on-Target output (``udp://HOST:PORT``), or None.
     """
 
     http: str = "127.0.0.1:8000"
@@ -93,6 +94,7 @@ class DemoOptions:
     stop_timeout_s: float = 10.0
     status_interval_s: float = 10.0
     log_level: str = "WARNING"
+    cot_url: str | None = None
 
     def __post_init__(self) -> None:
         if not 0 <= self.zenoh_port <= 65535:
@@ -105,6 +107,10 @@ class DemoOptions:
             raise ValueError(f"--uavs must be >= 1, got {self.uavs}")
         if self.duration_s is not None and not self.duration_s > 0:
             raise ValueError(f"--duration must be > 0, got {self.duration_s}")
+        if self.cot_url is not None:
+            from fusion_server.cot import parse_cot_url
+
+            parse_cot_url(self.cot_url)
         for name in ("startup_timeout_s", "stop_timeout_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -279,8 +285,9 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
     failed: Child | None = None
     code = 1  # until everything came up
     try:
+        cot = ["--cot-url", options.cot_url] if options.cot_url else []
         fusion = Child("fusion", [*common, "fusion", "--listen", endpoint, "--http", options.http, "--db", str(db),
-                                  "--no-multicast-scouting"], log_dir / "fusion.log", env)
+                                  "--no-multicast-scouting", *cot], log_dir / "fusion.log", env)
         reaper.watch(fusion.pid)
         match = fusion.wait_for(r"map: (http://\S+)", options.startup_timeout_s, stop)
         if match is None:
@@ -376,6 +383,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="grace between SIGTERM and SIGKILL when stopping the processes (10)")
     p.add_argument("--status-every", type=float, default=10.0, metavar="S",
                    help="print a status line to stderr this often (10; 0 = never)")
+    p.add_argument("--cot-url", default=None, metavar="URL",
+                   help="also send Cursor-on-Target events to TAK (udp://HOST:PORT or tcp://HOST:PORT; see "
+                        "uavmm fusion --help)")
     p.set_defaults(handler=_run_demo_command)
 
 
@@ -385,7 +395,7 @@ def options_from_args(args: argparse.Namespace) -> DemoOptions:
         http=args.http, zenoh_port=args.port, db=args.db, log_dir=args.log_dir, scenario=args.scenario,
         seed=args.seed, speed=args.speed, uavs=args.uavs, duration_s=args.duration,
         startup_timeout_s=args.startup_timeout, stop_timeout_s=args.stop_timeout,
-        status_interval_s=args.status_every, log_level=args.log_level,
+        status_interval_s=args.status_every, log_level=args.log_level, cot_url=args.cot_url,
     )
 
 

@@ -1,0 +1,173 @@
+"""Cursor-on-Target: the events' XML (uids, types, times, points, course), a real server sending them to a
+UDP socket and to a TCP listener on loopback, a TAK server that is down, and bad URLs."""
+
+from __future__ import annotations
+
+import socket
+import threading
+import time
+import xml.etree.ElementTree as ET
+from datetime import datetime
+
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
+
+from fusion_server.config import FusionSettings
+from fusion_server.cot import CotSender, CotTarget, parse_cot_url, track_event, uav_event
+from tests.fusion_server.fake_agent import LAT, LON, wait_until
+
+NOW = 1_790_000_000.0
+
+
+def _time(text: str) -> float:
+    assert text.endswith("Z")
+    return datetime.fromisoformat(text.replace("Z", "+00:00")).timestamp()
+
+
+def _track(gid=7, cls="person", status="tracked", vel=(1.0, 1.0)) -> dict:
+    return {"type": "Feature", "id": gid, "geometry": {"type": "Point", "coordinates": [LON, LAT]},
+            "properties": {"gid": gid, "cls": cls, "score": 0.8, "vel_en": list(vel), "status": status,
+                           "members": [["uav1", 3], ["uav2", 5]], "active_members": [["uav2", 5]]}}
+
+
+def test_track_event_is_valid_cot():
+    event = ET.fromstring(track_event(_track(), NOW, 10.0))
+    assert event.tag == "event" and event.get("version") == "2.0"
+    assert event.get("uid") == "uavmm.track.7" and event.get("type") == "a-u-G" and event.get("how") == "m-f"
+    assert _time(event.get("time")) == pytest.approx(NOW, abs=0.001)
+    assert _time(event.get("stale")) == pytest.approx(NOW + 10.0, abs=0.001)
+    point = event.find("point")
+    assert float(point.get("lat")) == pytest.approx(LAT) and float(point.get("lon")) == pytest.approx(LON)
+    assert point.get("hae") == "9999999.0"
+    track = event.find("detail/track")
+    assert float(track.get("course")) == pytest.approx(45.0) and float(track.get("speed")) == pytest.approx(2**0.5,
+                                                                                                           abs=0.01)
+    assert event.find("detail/contact").get("callsign") == "person 7"
+    assert "seen by uav2" in event.find("detail/remarks").text
+    ended = ET.fromstring(track_event(_track(status="ended"), NOW, 10.0))
+    assert ended.get("stale") == ended.get("time")  # TAK removes it
+    assert ET.fromstring(track_event(_track(cls="boat"), NOW, 10.0)).get("type") == "a-u-S"
+
+
+@given(st.text(min_size=1, max_size=20).filter(lambda s: "\x00" not in s and s.isprintable()))
+def test_class_names_are_escaped(cls):
+    event = ET.fromstring(track_event(_track(cls=cls), NOW, 5.0))
+    assert event.find("detail/contact").get("callsign") == f"{cls} 7"
+
+
+def test_uav_event_has_a_sensor_and_none_without_a_position():
+    row = {"id": "uav1", "online": True, "state": {
+        "lat": LAT, "lon": LON, "height_m": 40.0, "pitch_deg": 30.0, "heading_deg": 370.0, "t": NOW,
+        "camera": {"width": 1920, "height": 1080, "fx": 960.0, "fy": 960.0, "cx": 960.0, "cy": 540.0}}}
+    event = ET.fromstring(uav_event(row, NOW, 10.0))
+    assert event.get("uid") == "uavmm.uav.uav1" and event.get("type").startswith("a-f-A")
+    sensor = event.find("detail/sensor")
+    assert float(sensor.get("azimuth")) == pytest.approx(10.0) and float(sensor.get("elevation")) == -30.0
+    assert float(sensor.get("fov")) == pytest.approx(90.0) and float(sensor.get("range")) == pytest.approx(80.0)
+    assert uav_event({"id": "uav2", "online": True, "state": None}, NOW, 10.0) is None
+
+
+@pytest.mark.parametrize("url", ["http://x:1", "udp://host", "udp://:6969", "tcp://host:0", "udp://h:99999",
+                                 "udp://h:1/path", "239.2.3.1:6969"])
+def test_bad_urls_are_refused(url):
+    with pytest.raises(ValueError, match="--cot-url"):
+        parse_cot_url(url)
+    with pytest.raises(ValueError, match="--cot-url"):
+        FusionSettings(db_path=None, cot_url=url)
+
+
+def test_good_urls():
+    assert parse_cot_url("udp://239.2.3.1:6969") == CotTarget("udp", "239.2.3.1", 6969)
+    assert parse_cot_url("tcp://tak.local:8087") == CotTarget("tcp", "tak.local", 8087)
+
+
+def _udp_listener() -> tuple[socket.socket, int]:
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    sock.bind(("127.0.0.1", 0))
+    sock.settimeout(0.2)
+    return sock, sock.getsockname()[1]
+
+
+def _received(sock: socket.socket, until_s: float) -> list[ET.Element]:
+    events, deadline = [], time.monotonic() + until_s
+    while time.monotonic() < deadline:
+        try:
+            events.append(ET.fromstring(sock.recvfrom(65536)[0]))
+        except TimeoutError:
+            continue
+    return events
+
+
+def test_a_server_sends_uavs_and_tracks_over_udp(server_factory, agent_factory):
+    listener, port = _udp_listener()
+    try:
+        server = server_factory(cot_url=f"udp://127.0.0.1:{port}", cot_interval_s=0.2)
+        agent = agent_factory("uav1")
+        agent.state()
+        agent.tracks([(1, "person", LAT, LON), (2, "boat", LAT + 1e-4, LON)])
+        events = _received(listener, 1.5)
+        uids = {e.get("uid") for e in events}
+        gids = {f"uavmm.track.{r.gid}" for r in server.tracker.records(include_ended=False)}
+        assert len(gids) == 2 and uids == {"uavmm.uav.uav1", *gids}
+        tracks = [e for e in events if e.get("uid") in gids]
+        assert {e.get("type") for e in tracks} == {"a-u-G", "a-u-S"}
+        for event in events:
+            assert _time(event.get("stale")) > _time(event.get("time")) >= time.time() - 5
+        assert server.cot.sent >= len(events) > 0
+        metrics = server.prometheus()
+        assert "uavmm_fusion_cot_events_total" in metrics
+    finally:
+        listener.close()
+
+
+def test_tcp_to_a_tak_server_that_comes_up_later(server_factory, agent_factory):
+    probe = socket.socket()
+    probe.bind(("127.0.0.1", 0))
+    port = probe.getsockname()[1]
+    probe.close()  # nothing listens yet
+    server = server_factory(cot_url=f"tcp://127.0.0.1:{port}", cot_interval_s=0.2)
+    agent = agent_factory("uav1")
+    agent.state()
+    wait_until(lambda: server.cot.failed >= 2, 5.0)  # counted, retried, the server goes on
+    assert server.zenoh_open()
+    received = bytearray()
+    with socket.create_server(("127.0.0.1", port)) as tak:
+        tak.settimeout(5.0)
+        conn, _ = tak.accept()
+        with conn:
+            conn.settimeout(0.5)
+            deadline = time.monotonic() + 2.0
+            while time.monotonic() < deadline:
+                try:
+                    received += conn.recv(65536)
+                except TimeoutError:
+                    continue
+    events = [e for e in received.split(b"<?xml") if e]
+    assert events and all(ET.fromstring(b"<?xml" + e).get("uid") == "uavmm.uav.uav1" for e in events)
+
+
+def test_each_ended_track_is_sent_once():
+    features = [_track(gid=1), _track(gid=2, status="ended")]
+    sender = CotSender(CotTarget("udp", "127.0.0.1", 9), lambda: features, lambda: [], clock=lambda: NOW)
+    first = [ET.fromstring(e).get("uid") for e in sender.events()]
+    second = [ET.fromstring(e).get("uid") for e in sender.events()]
+    assert first == ["uavmm.track.1", "uavmm.track.2"] and second == ["uavmm.track.1"]
+
+
+def test_a_failing_round_does_not_stop_the_thread():
+    calls = []
+
+    def tracks():
+        calls.append(1)
+        if len(calls) == 1:
+            raise RuntimeError("a bug in a snapshot")
+        return []
+
+    sender = CotSender(CotTarget("udp", "127.0.0.1", 9), tracks, lambda: [], interval_s=0.05)
+    sender.start()
+    try:
+        wait_until(lambda: len(calls) >= 3, 5.0)
+    finally:
+        sender.close()
+    assert sender.failed == 1 and not threading.current_thread().name == "uavmm-cot"
