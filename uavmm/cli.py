@@ -288,18 +288,45 @@ COMMAND_MODULES: tuple[str, ...] = ("uavmm.cmd_fusion", "uavmm.cmd_agent", "uavm
                                      "uavmm.cmd_secure")
 
 
+LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]
+
+
+def package_version() -> str:
+    """The installed package's version (pyproject.toml), or "unknown" when run from a bare checkout."""
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("uav-memory-maps")
+    except PackageNotFoundError:
+        return "unknown"
+
+
+def _global_flags_everywhere(sub: argparse._SubParsersAction) -> None:
+    """Accept ``--log-level`` after the subcommand too (``uavmm fusion --log-level INFO``).
+
+    The copy's default is SUPPRESS, so a value given before the subcommand is kept when none is given after.
+    """
+    for parser in sub.choices.values():
+        parser.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
+                            help="logging level (stderr); also accepted before the subcommand")
+        for action in parser._actions:
+            if isinstance(action, argparse._SubParsersAction):
+                _global_flags_everywhere(action)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="uavmm",
         description="uav-memory-maps: metadata-aware detection, tracking and cooperative mapping on drones.",
     )
-    parser.add_argument("--log-level", default="WARNING",
-                        choices=["DEBUG", "INFO", "WARNING", "ERROR"], help="logging level (stderr)")
+    parser.add_argument("--log-level", default="WARNING", choices=LOG_LEVELS, help="logging level (stderr)")
+    parser.add_argument("--version", action="version", version=f"uavmm {package_version()}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND")
     for add in COMMANDS:
         add(sub)
     for module in COMMAND_MODULES:
         importlib.import_module(module).register(sub)
+    _global_flags_everywhere(sub)
     return parser
 
 

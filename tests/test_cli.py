@@ -1,0 +1,61 @@
+"""The `uavmm` entry point: --version, and the global flags accepted after the subcommand as well."""
+
+from __future__ import annotations
+
+import argparse
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from uavmm.cli import build_parser
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def _subparsers(parser: argparse.ArgumentParser, path: tuple[str, ...] = ()):
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*path, name), sub
+                yield from _subparsers(sub, (*path, name))
+
+
+def test_version_is_the_packages():
+    declared = re.search(r'^version = "([^"]+)"', (REPO / "pyproject.toml").read_text(), re.M).group(1)
+    proc = subprocess.run([sys.executable, "-m", "uavmm", "--version"], cwd=REPO, capture_output=True, text=True,
+                          timeout=60)
+    assert proc.returncode == 0 and proc.stdout.strip() == f"uavmm {declared}"
+
+
+def test_every_subcommand_takes_log_level():
+    names = []
+    for path, sub in _subparsers(build_parser()):
+        assert any("--log-level" in a.option_strings for a in sub._actions), path
+        names.append(" ".join(path))
+    assert {"fusion", "agent", "demo", "secure init", "boost", "track"} <= set(names)
+
+
+@pytest.mark.parametrize(("argv", "level"), [
+    (["fusion"], "WARNING"),
+    (["--log-level", "DEBUG", "fusion"], "DEBUG"),
+    (["fusion", "--log-level", "INFO"], "INFO"),
+    (["--log-level", "DEBUG", "fusion", "--log-level", "ERROR"], "ERROR"),  # the later one wins
+])
+def test_log_level_before_or_after_the_subcommand(argv, level):
+    assert build_parser().parse_args(argv).log_level == level
+
+
+def test_log_level_after_the_subcommand_configures_logging():
+    code = ("import logging, sys; from uavmm.cli import main; "
+            "sys.exit(main(['sim', '--list', '--log-level', 'DEBUG']) or logging.getLogger().level)")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 10, proc.stderr  # logging.DEBUG
+
+
+def test_a_bad_log_level_after_the_subcommand_is_refused():
+    proc = subprocess.run([sys.executable, "-m", "uavmm", "sim", "--list", "--log-level", "LOUD"], cwd=REPO,
+                          capture_output=True, text=True, timeout=60)
+    assert proc.returncode == 2 and "invalid choice: 'LOUD'" in proc.stderr
