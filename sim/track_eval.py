@@ -55,6 +55,23 @@ class PixelBaselineConfig:
     init_frames: int = 3
 
 
+#: the evaluation-only packages pip cannot install with their declared dependencies (they pin numpy<2 or
+#: would replace the headless OpenCV); the Makefile installs them with --no-deps from requirements-nodeps.txt
+NODEPS_INSTALL = "pip install --no-deps trackeval==1.3.0 norfair==2.3.0 tabulate rich filterpy"
+
+
+def _import_baseline(module: str, what: str) -> Any:
+    """Import an evaluation-only package, or raise ImportError saying in one line how to install it."""
+    import importlib
+
+    try:
+        return importlib.import_module(module)
+    except ImportError:
+        raise ImportError(f"{what} needs the {module.split('.')[0]} package, which plain `pip install` of uavmm "
+                          f"does not bring (its declared dependencies would break the headless OpenCV): run "
+                          f"`{NODEPS_INSTALL}` (or `make setup`, which does)") from None
+
+
 class PixelTracker:
     """norfair's Tracker on box corners with its Kalman filter, one instance per video.
 
@@ -64,10 +81,10 @@ class PixelTracker:
     """
 
     def __init__(self, config: PixelBaselineConfig, fps: float) -> None:
-        from norfair import Tracker
+        norfair = _import_baseline("norfair", "the pixel-tracker baseline (norfair)")
 
         self.config = config
-        self._tracker = Tracker(distance_function="iou", distance_threshold=config.iou_distance,
+        self._tracker = norfair.Tracker(distance_function="iou", distance_threshold=config.iou_distance,
                                 hit_counter_max=max(1, round(config.max_age_s * fps)),
                                 initialization_delay=max(0, config.init_frames - 1))
 
@@ -263,7 +280,8 @@ def trackeval_data(truth: SequenceTruth, tracks: SequenceTracks) -> dict[str, An
 
 
 def _metrics() -> tuple[Any, Any, Any]:
-    from trackeval.metrics import CLEAR, HOTA, Identity
+    metrics = _import_baseline("trackeval.metrics", "tracking metrics (HOTA, MOTA, IDF1 by TrackEval)")
+    HOTA, CLEAR, Identity = metrics.HOTA, metrics.CLEAR, metrics.Identity
 
     with contextlib.redirect_stdout(io.StringIO()):
         return (HOTA(), CLEAR({"THRESHOLD": MATCH_IOU, "PRINT_CONFIG": False}),

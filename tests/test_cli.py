@@ -59,3 +59,26 @@ def test_a_bad_log_level_after_the_subcommand_is_refused():
     proc = subprocess.run([sys.executable, "-m", "uavmm", "sim", "--list", "--log-level", "LOUD"], cwd=REPO,
                           capture_output=True, text=True, timeout=60)
     assert proc.returncode == 2 and "invalid choice: 'LOUD'" in proc.stderr
+
+
+def test_eval_without_its_baselines_says_how_to_install_them():
+    code = ("import sys; sys.modules['norfair'] = None; sys.modules['trackeval'] = None; "
+            "from uavmm.cli import main; "
+            "sys.exit(main(['eval', '--tasks', 'tracking', '--scenarios', 'grass', '--seeds', '0', '--frames', '20']))")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2
+    (line,) = [ln for ln in proc.stderr.splitlines() if "error" in ln]
+    assert "needs the norfair package" in line and "pip install --no-deps trackeval==1.3.0 norfair==2.3.0" in line
+    assert "Traceback" not in proc.stderr
+    # the same for the metrics alone
+    code = ("import sys; sys.modules['trackeval'] = None; from sim.track_eval import _metrics; _metrics()")
+    proc = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=60)
+    assert "ImportError: tracking metrics (HOTA, MOTA, IDF1 by TrackEval) needs the trackeval package" in proc.stderr
+
+
+def test_the_pinned_baselines_match_the_message():
+    from sim.track_eval import NODEPS_INSTALL
+
+    pinned = [ln.split("#")[0].strip() for ln in (REPO / "requirements-nodeps.txt").read_text().splitlines()]
+    for requirement in ("trackeval==1.3.0", "norfair==2.3.0"):
+        assert requirement in pinned and requirement in NODEPS_INSTALL

@@ -340,7 +340,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(args.handler(args) or 0)
-    except (CliError, ValueError, OSError) as exc:
+    except (CliError, ValueError, OSError, ImportError) as exc:
         print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
