@@ -8,6 +8,7 @@ drop, and never raise; the loop takes the decoded joint tiles with :meth:`AgentL
 
 from __future__ import annotations
 
+import json
 import logging
 import threading
 import time
@@ -42,6 +43,8 @@ log = logging.getLogger(__name__)
 MAX_JOINT_TRACKS_BYTES = 8 * 1024 * 1024
 #: How often the publisher thread looks for new routers/peers (to query the joint map again), seconds.
 _CONNECTIVITY_CHECK_S = 0.5
+#: Warn when the session has reached no router or peer for this long (a dead or mistyped --connect).
+ALONE_WARN_S = 5.0
 #: A joint message whose t is further ahead of this clock is dropped ("t_in_future"), seconds.
 MAX_CLOCK_SKEW_S = 30.0
 #: A joint tile not newer (by seq and t) than the held one is stale only within this long of the held
@@ -173,6 +176,8 @@ class AgentLink:
         self._rejects: Counter[str] = Counter()
         self._warn = _RateLimitedWarning()
         self._known_remotes: set[str] = set()
+        self._alone_since: float | None = None  # monotonic time since when no router/peer is connected
+        self._alone_warned = False
 
     # ---- lifecycle -----------------------------------------------------------------------------
     def open(self, stop: threading.Event | None = None, *, timeout_s: float | None = None) -> bool:
@@ -194,6 +199,7 @@ class AgentLink:
             session.declare_subscriber(self.keys.uav_state("*"), self._on_sample),
         ]
         self._known_remotes = self._remotes()
+        self._alone_since = None if self._known_remotes else time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"uavmm-agent-{self.uav}-publisher", daemon=True)
         self._thread.start()
         log.info("agent %s: zenoh session %s open (%d router/peer connections)", self.uav, session.zid(),
@@ -331,8 +337,35 @@ class AgentLink:
                 self._count("reconnects")
                 self._query_async()
             self._known_remotes = remotes
+            self._check_alone(bool(remotes))
         except zenoh.ZError as exc:
             self._warn("connectivity", "agent %s: connectivity check failed: %s", self.uav, exc)
+
+    def _check_alone(self, connected: bool) -> None:
+        """Warn once per outage when nothing this agent publishes has reached anyone for ALONE_WARN_S."""
+        now = time.monotonic()
+        if connected:
+            if self._alone_warned:
+                log.warning("agent %s: zenoh connected again: publishing reaches the fusion server", self.uav)
+            self._alone_since, self._alone_warned = None, False
+            return
+        if self._alone_since is None:
+            self._alone_since = now
+        alone_s = now - self._alone_since
+        if alone_s >= ALONE_WARN_S:
+            self._count("alone_checks")
+            if not self._alone_warned:
+                self._alone_warned = True
+                self._warn("alone", "agent %s: no zenoh router or peer reached for %.0f s (connect: %s): what it "
+                           "publishes reaches nobody; is the fusion server up and --connect right?", self.uav,
+                           alone_s, self._connect_endpoints())
+
+    def _connect_endpoints(self) -> str:
+        try:
+            endpoints = json.loads(self.conf.get_json("connect/endpoints"))
+        except (zenoh.ZError, ValueError):
+            endpoints = None
+        return ", ".join(endpoints) if isinstance(endpoints, list) and endpoints else "none (scouting only)"
 
     # ---- incoming (Zenoh threads: never raise) -------------------------------------------------
     def _count(self, name: str, nbytes: int | None = None) -> None:
