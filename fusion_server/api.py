@@ -23,6 +23,7 @@ from fastapi.staticfiles import StaticFiles
 
 from fusion_server.geo_formats import GEOJSON_MEDIA_TYPE, GeoJSONResponse, tilejson, track_lines_geojson, uavs_geojson
 from fusion_server.http_auth import BearerAuth
+from fusion_server.kml import KML_MEDIA_TYPE, feature_collections_kml
 from fusion_server.peaks import find_peaks, peaks_geojson
 from fusion_server.render import (
     AGGREGATIONS,
@@ -69,6 +70,10 @@ def _index_html() -> str:
         return resources.files("fusion_server").joinpath("static/index.html").read_text(encoding="utf-8")
     except (FileNotFoundError, OSError):
         return "<!doctype html><title>uavmm fusion</title><p>uavmm fusion server: see <a href='/docs'>/docs</a>."
+
+
+def _kml(name: str, folders: dict[str, dict[str, Any]]) -> Response:
+    return Response(feature_collections_kml(name, folders), media_type=KML_MEDIA_TYPE)
 
 
 def _etags(header: str | None) -> set[str]:
@@ -138,13 +143,15 @@ def create_app(server: FusionServer) -> FastAPI:
     @app.get("/v1/uavs", summary="The UAVs: liveliness, last seen, last state, message rates",
              responses={200: {"content": {GEOJSON_MEDIA_TYPE: {}}}})
     def uavs(
-        format: Literal["json", "geojson"] = Query("json", description="json list, or a GeoJSON FeatureCollection "
-                                                   "of Points (UAVs with a position)"),
-        footprints: bool = Query(False, description="geojson: also each UAV's ground footprint as a Polygon"),
+        format: Literal["json", "geojson", "kml"] = Query(
+            "json", description="json list, or a GeoJSON FeatureCollection / KML of Points (UAVs with a position)"),
+        footprints: bool = Query(False, description="geojson, kml: also each UAV's ground footprint as a Polygon"),
     ) -> Any:
         rows = server.uavs.snapshot(server.joint.uav_tile_counts())
         if format == "geojson":
             return GeoJSONResponse(uavs_geojson(rows, footprints=footprints))
+        if format == "kml":
+            return _kml("uavmm UAVs", {"UAVs": uavs_geojson(rows, footprints=footprints)})
         return rows
 
     @app.get("/v1/map", summary="Joint map window over a bbox (grid geometry + values)")
@@ -241,7 +248,8 @@ def create_app(server: FusionServer) -> FastAPI:
         bbox: str | None = Query(None, description=_BBOX_HELP + " (default: everywhere)"),
         min_score: float = Query(0.5, ge=0.0, le=1.0, description="lowest peak value in [0, 1]"),
         limit: int = Query(1000, ge=1, le=100_000, description="most features returned"),
-    ) -> dict[str, Any]:
+        format: Literal["geojson", "kml"] = Query("geojson", description="geojson or kml"),
+    ) -> Any:
         box = _bbox(bbox)
         classes = [_check_cls(server, cls)] if cls is not None else sorted(server.classes())
         peaks = []
@@ -258,6 +266,8 @@ def create_app(server: FusionServer) -> FastAPI:
                 tiles = server.joint.tiles(name)
             peaks.extend(find_peaks(tiles, grid, min_score, bbox=box, limit=limit))
         peaks.sort(key=lambda p: -p.score)
+        if format == "kml":
+            return _kml("uavmm fused objects", {"objects": peaks_geojson(peaks[:limit])})
         return peaks_geojson(peaks[:limit])
 
     @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history", response_class=GeoJSONResponse)
@@ -267,13 +277,18 @@ def create_app(server: FusionServer) -> FastAPI:
         geometry: Literal["point", "line"] = Query(
             "point", description="point: the current position; line: the history as a LineString [lon, lat] "
                                  "(its times in the times property)"),
-    ) -> dict[str, Any]:
+        format: Literal["geojson", "kml"] = Query("geojson", description="geojson, or kml (positions and lines)"),
+    ) -> Any:
         features = []
         for record in server.tracker.records(include_ended=include_ended):
             feature = record.to_geojson()
             if not history and geometry == "point":
                 del feature["properties"]["history"]
             features.append(feature)
+        if format == "kml":
+            return _kml("uavmm global tracks", {
+                "tracks": {"type": "FeatureCollection", "features": features},
+                "track lines": track_lines_geojson(features)})
         if geometry == "line":
             return track_lines_geojson(features)
         return {"type": "FeatureCollection", "features": features}

@@ -285,7 +285,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
 #: Modules that add their own subcommands: each has register(subparsers) and sets `handler`
 #: (a function of the parsed Namespace returning an exit code) on its parser.
 COMMAND_MODULES: tuple[str, ...] = ("uavmm.cmd_fusion", "uavmm.cmd_agent", "uavmm.cmd_track", "uavmm.cmd_demo",
-                                     "uavmm.cmd_secure")
+                                     "uavmm.cmd_secure", "uavmm.cmd_export")
 
 
 LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]

@@ -1,0 +1,136 @@
+"""`uavmm export`: the fusion server's stored history (its SQLite file) as GeoPackage, KML or GeoJSON.
+
+Reads the database read-only (a running server may keep writing) and makes three layers: ``tracks``
+(each global track at its last position), ``track_lines`` (its history as a line) and ``track_points``
+(one point per history row, with an ISO time for QGIS's temporal controller).
+"""
+
+from __future__ import annotations
+
+import json
+import sqlite3
+from dataclasses import dataclass
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+from fusion_server.geo_formats import track_lines_geojson
+from fusion_server.gpkg import Layer, write_geopackage
+from fusion_server.kml import feature_collections_kml
+
+__all__ = ["EXPORT_FORMATS", "HistoryExport", "export_history", "read_history"]
+
+EXPORT_FORMATS = {".gpkg": "GeoPackage", ".kml": "KML", ".geojson": "GeoJSON", ".json": "GeoJSON"}
+
+
+def _iso(t: float | None) -> str | None:
+    return None if t is None else datetime.fromtimestamp(t, timezone.utc).isoformat(timespec="milliseconds")
+
+
+@dataclass(frozen=True)
+class HistoryExport:
+    """The stored tracks as GeoJSON Features (Points at the last position, properties with history)."""
+
+    tracks: list[dict[str, Any]]
+
+    def collections(self) -> dict[str, dict[str, Any]]:
+        """``tracks``, ``track_lines`` and ``track_points`` as GeoJSON FeatureCollections."""
+        points = []
+        for feature in self.tracks:
+            props = feature["properties"]
+            for t, lat, lon in props["history"]:
+                points.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]},
+                               "properties": {"gid": props["gid"], "cls": props["cls"], "t": t, "time": _iso(t)}})
+        bare = [{**f, "properties": {k: v for k, v in f["properties"].items() if k != "history"}}
+                for f in self.tracks]
+        return {"tracks": {"type": "FeatureCollection", "features": bare},
+                "track_lines": track_lines_geojson(self.tracks),
+                "track_points": {"type": "FeatureCollection", "features": points}}
+
+
+def read_history(db_path: str | Path, *, cls: str | None = None, since: float | None = None) -> HistoryExport:
+    """The tracks (and their history rows) of a fusion database, opened read-only.
+
+    cls: only that class. since: only tracks updated at or after this time (epoch seconds), and history
+    rows from then on. ValueError for a file that is missing or not a fusion database.
+    """
+    path = Path(db_path)
+    if not path.is_file():
+        raise ValueError(f"database {path} does not exist")
+    try:
+        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+    except sqlite3.Error as exc:
+        raise ValueError(f"cannot open database {path}: {exc}") from None
+    try:
+        where, args = ["last_update >= ?"], [since if since is not None else float("-inf")]
+        if cls is not None:
+            where.append("cls = ?")
+            args.append(cls)
+        rows = conn.execute(
+            "SELECT gid, cls, lat, lon, score, vel_e, vel_n, created, last_update, ended, members FROM tracks "
+            f"WHERE {' AND '.join(where)} ORDER BY gid", args).fetchall()
+        history: dict[int, list[list[float]]] = {}
+        for gid, t, lat, lon in conn.execute("SELECT gid, t, lat, lon FROM track_history WHERE t >= ? ORDER BY gid, t",
+                                             (since if since is not None else float("-inf"),)):
+            history.setdefault(gid, []).append([t, lat, lon])
+    except sqlite3.DatabaseError as exc:
+        raise ValueError(f"{path} is not a uavmm fusion database ({exc})") from None
+    finally:
+        conn.close()
+    tracks = []
+    for gid, name, lat, lon, score, vel_e, vel_n, created, last_update, ended, members in rows:
+        tracks.append({"type": "Feature", "id": gid, "geometry": {"type": "Point", "coordinates": [lon, lat]},
+                       "properties": {
+                           "gid": gid, "cls": name, "score": score, "vel_en": [vel_e, vel_n],
+                           "status": "ended" if ended is not None else "tracked", "created": created,
+                           "last_update": last_update, "ended": ended, "members": json.loads(members),
+                           "history": history.get(gid, [])}})
+    return HistoryExport(tracks)
+
+
+def _layers(export: HistoryExport) -> list[Layer]:
+    collections = export.collections()
+    tracks = [((f["geometry"]["coordinates"][0], f["geometry"]["coordinates"][1]), {
+        "gid": p["gid"], "cls": p["cls"], "score": p["score"], "status": p["status"],
+        "created": _iso(p["created"]), "last_update": _iso(p["last_update"]), "ended": _iso(p["ended"]),
+        "members": json.dumps(p["members"])}) for f in collections["tracks"]["features"] for p in [f["properties"]]]
+    lines = [(f["geometry"]["coordinates"], {
+        "gid": p["gid"], "cls": p["cls"], "start": _iso(min(p["times"])), "end": _iso(max(p["times"])),
+        "points": len(p["times"])}) for f in collections["track_lines"]["features"] for p in [f["properties"]]]
+    points = [(tuple(f["geometry"]["coordinates"]), {"gid": p["gid"], "cls": p["cls"], "t": p["t"], "time": p["time"]})
+              for f in collections["track_points"]["features"] for p in [f["properties"]]]
+    return [
+        Layer("tracks", "POINT", {"gid": int, "cls": str, "score": float, "status": str, "created": str,
+                                  "last_update": str, "ended": str, "members": str}, tracks,
+              "global tracks at their last position"),
+        Layer("track_lines", "LINESTRING", {"gid": int, "cls": str, "start": str, "end": str, "points": int}, lines,
+              "global tracks' history as lines"),
+        Layer("track_points", "POINT", {"gid": int, "cls": str, "t": float, "time": str}, points,
+              "global tracks' history, one point per row (time for a temporal controller)"),
+    ]
+
+
+def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None = None,
+                   since: float | None = None) -> dict[str, int]:
+    """Write the database's history to ``out_path`` (format by extension: .gpkg, .kml, .geojson/.json).
+
+    Returns the feature count per layer. ValueError for an unknown extension or a bad database;
+    FileNotFoundError when the output folder does not exist.
+    """
+    out = Path(out_path)
+    suffix = out.suffix.lower()
+    if suffix not in EXPORT_FORMATS:
+        raise ValueError(f"--out must end in {', '.join(EXPORT_FORMATS)}, got {out.name!r}")
+    if not out.parent.is_dir():
+        raise FileNotFoundError(f"output directory {out.parent} does not exist (for {out})")
+    export = read_history(db_path, cls=cls, since=since)
+    collections = export.collections()
+    if suffix == ".gpkg":
+        write_geopackage(out, _layers(export))
+    elif suffix == ".kml":
+        out.write_bytes(feature_collections_kml("uavmm tracks", {
+            "tracks": collections["tracks"], "track lines": collections["track_lines"]}))
+    else:  # one GeoJSON file: the lines (with times) and the last positions
+        features = collections["track_lines"]["features"] + collections["tracks"]["features"]
+        out.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
+    return {name: len(c["features"]) for name, c in collections.items()}

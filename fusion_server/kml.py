@@ -1,0 +1,80 @@
+"""KML 2.2 (Google Earth, QGIS, ATAK) from GeoJSON FeatureCollections: Points, LineStrings and Polygons.
+
+Each Feature becomes a Placemark named after its id (or a property), its properties listed in
+ExtendedData; a feature with ``times`` (track lines) gets a TimeSpan, one with ``t`` a TimeStamp.
+"""
+
+from __future__ import annotations
+
+import json
+import xml.etree.ElementTree as ET
+from collections.abc import Iterable, Mapping
+from datetime import datetime, timezone
+from typing import Any
+
+__all__ = ["KML_MEDIA_TYPE", "feature_collections_kml"]
+
+KML_MEDIA_TYPE = "application/vnd.google-earth.kml+xml"
+_NS = "http://www.opengis.net/kml/2.2"
+
+
+def _when(t: float) -> str:
+    return datetime.fromtimestamp(float(t), timezone.utc).strftime("%Y-%m-%dT%H:%M:%SZ")
+
+
+def _coordinates(positions: Iterable[Iterable[float]]) -> str:
+    return " ".join(f"{lon:.7f},{lat:.7f}" for lon, lat, *_ in positions)
+
+
+def _geometry(parent: ET.Element, geometry: Mapping[str, Any]) -> None:
+    kind = geometry["type"]
+    if kind == "Point":
+        ET.SubElement(ET.SubElement(parent, "Point"), "coordinates").text = _coordinates([geometry["coordinates"]])
+    elif kind == "LineString":
+        line = ET.SubElement(parent, "LineString")
+        ET.SubElement(line, "tessellate").text = "1"
+        ET.SubElement(line, "coordinates").text = _coordinates(geometry["coordinates"])
+    elif kind == "Polygon":
+        polygon = ET.SubElement(parent, "Polygon")
+        for index, ring in enumerate(geometry["coordinates"]):
+            boundary = ET.SubElement(polygon, "outerBoundaryIs" if index == 0 else "innerBoundaryIs")
+            ET.SubElement(ET.SubElement(boundary, "LinearRing"), "coordinates").text = _coordinates(ring)
+    else:
+        raise ValueError(f"KML export supports Point, LineString and Polygon, got {kind!r}")
+
+
+def _placemark(folder: ET.Element, feature: Mapping[str, Any]) -> None:
+    props = feature.get("properties") or {}
+    mark = ET.SubElement(folder, "Placemark", {"id": str(feature.get("id", ""))} if "id" in feature else {})
+    label = props.get("cls")
+    name = f"{label} {props['gid']}" if label is not None and "gid" in props else str(
+        props.get("id", feature.get("id", "")))
+    ET.SubElement(mark, "name").text = name
+    times = props.get("times")
+    if times:
+        span = ET.SubElement(mark, "TimeSpan")
+        ET.SubElement(span, "begin").text = _when(min(times))
+        ET.SubElement(span, "end").text = _when(max(times))
+    elif props.get("t") is not None:
+        ET.SubElement(ET.SubElement(mark, "TimeStamp"), "when").text = _when(props["t"])
+    data = ET.SubElement(mark, "ExtendedData")
+    for key, value in props.items():
+        if key in ("times", "history"):
+            continue
+        item = ET.SubElement(data, "Data", {"name": str(key)})
+        text = value if isinstance(value, str) else json.dumps(value)
+        ET.SubElement(item, "value").text = text
+    _geometry(mark, feature["geometry"])
+
+
+def feature_collections_kml(name: str, folders: Mapping[str, Mapping[str, Any]]) -> bytes:
+    """A KML document with one Folder per FeatureCollection (``{folder name: collection}``)."""
+    kml = ET.Element("kml", {"xmlns": _NS})
+    document = ET.SubElement(kml, "Document")
+    ET.SubElement(document, "name").text = name
+    for folder_name, collection in folders.items():
+        folder = ET.SubElement(document, "Folder")
+        ET.SubElement(folder, "name").text = folder_name
+        for feature in collection.get("features", ()):
+            _placemark(folder, feature)
+    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(kml, encoding="utf-8")
