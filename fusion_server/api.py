@@ -303,6 +303,23 @@ def create_app(server: FusionServer) -> FastAPI:
             for t in sorted(server.joint.tiles(cls), key=lambda t: t.key)
         ]
 
+    @app.get("/v1/basemap.json", summary="The basemap the live page draws (extension; 404 without --basemap)")
+    def basemap_config() -> dict[str, Any]:
+        if server.basemap is None:
+            raise HTTPException(status_code=404, detail="no basemap (uavmm fusion --basemap URL|FILE.mbtiles)")
+        return server.basemap.page_config()
+
+    @app.get("/v1/basemap/{z}/{x}/{y}", summary="A tile of the --basemap MBTiles file (extension)",
+             response_class=Response, responses={200: {"content": {"image/png": {}, "image/jpeg": {}}}})
+    def basemap_tile(z: int, x: int, y: int) -> Response:
+        tiles = server.basemap.mbtiles if server.basemap is not None else None
+        if tiles is None:
+            raise HTTPException(status_code=404, detail="no MBTiles basemap on this server")
+        data = tiles.tile(z, x, y)
+        if data is None:
+            raise HTTPException(status_code=404, detail=f"the basemap has no tile {z}/{x}/{y}")
+        return Response(data, media_type=tiles.media_type, headers={"Cache-Control": "max-age=86400"})
+
     @app.get("/metrics", response_class=PlainTextResponse, summary="Prometheus metrics")
     def metrics() -> PlainTextResponse:
         return PlainTextResponse(server.prometheus(), media_type="text/plain; version=0.0.4; charset=utf-8")

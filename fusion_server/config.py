@@ -12,6 +12,7 @@ import re
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from fusion_server.basemap import open_basemap
 from fusion_server.cot import parse_cot_url
 from fusion_server.http_auth import HttpToken, is_loopback_host
 from fusion_server.joint_map import COVERAGE_MODES
@@ -84,6 +85,9 @@ class FusionSettings:
     #: Cursor-on-Target events of UAVs and global tracks to udp://HOST:PORT or tcp://HOST:PORT (None: off)
     cot_url: str | None = None
     cot_interval_s: float = 1.0
+    #: map under the live page: an http(s) XYZ template with {z}/{x}/{y} or an MBTiles file (None: none)
+    basemap: str | None = None
+    basemap_attribution: str | None = None
 
     def __post_init__(self) -> None:
         if self.fusion_rule not in FUSION_RULES:
@@ -98,6 +102,10 @@ class FusionSettings:
             raise ValueError("http_tokens must be HttpToken values")
         if self.cot_url is not None:
             parse_cot_url(self.cot_url)
+        if self.basemap is not None:
+            basemap = open_basemap(self.basemap, self.basemap_attribution)  # raises ValueError naming the problem
+            if basemap.mbtiles is not None:
+                basemap.mbtiles.close()
         for origin in self.cors_origins:
             if origin != "*" and not re.fullmatch(r"https?://[^/\s]+", origin):
                 raise ValueError(f"cors_origins: {origin!r} is not an origin like https://maps.example.org "

@@ -17,6 +17,7 @@ from typing import Any
 import uvicorn
 
 from fusion_server.api import create_app
+from fusion_server.basemap import open_basemap
 from fusion_server.config import FusionSettings, zenoh_config
 from fusion_server.cot import CotSender, parse_cot_url
 from fusion_server.db_check import check_database, move_aside
@@ -103,6 +104,7 @@ class FusionServer:
         )
         #: REST requests refused for a missing or wrong bearer token, by reason
         self.http_denied: dict[str, int] = {}
+        self.basemap = open_basemap(settings.basemap, settings.basemap_attribution) if settings.basemap else None
         self.app = create_app(self)
         self.http: HttpThread | None = None
         self.cot: CotSender | None = None
@@ -138,6 +140,9 @@ class FusionServer:
             self.http = None
         if self.cot is not None:
             self.cot.close()
+        if self.basemap is not None and self.basemap.mbtiles is not None:
+            self.basemap.mbtiles.close()
+            self.basemap = None
         self.node.close()
         if self.store is not None:
             self.store.close()

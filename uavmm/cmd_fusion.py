@@ -56,6 +56,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cot-url", default=None, metavar="URL",
                    help="send Cursor-on-Target events of the UAVs and global tracks to TAK: udp://HOST:PORT "
                         "(unicast or multicast, e.g. udp://239.2.3.1:6969) or tcp://HOST:PORT (a TAK server)")
+    p.add_argument("--basemap", default=None, metavar="URL|FILE.mbtiles",
+                   help="map under the live page: an XYZ tile URL with {z}/{x}/{y} (fetched by the browser) or "
+                        "an MBTiles file served by this server (offline)")
+    p.add_argument("--basemap-attribution", default=None, metavar="TEXT",
+                   help="attribution shown with the basemap (default: the MBTiles file's)")
     p.add_argument("--insecure-public", action="store_true",
                    help="serve the REST API beyond loopback without a token (only behind your own "
                         "authenticating proxy, or a container port published on loopback)")
@@ -134,7 +139,7 @@ def settings_from_args(args: argparse.Namespace):
         uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
         db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
         http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
-        cot_url=args.cot_url,
+        cot_url=args.cot_url, basemap=args.basemap, basemap_attribution=args.basemap_attribution,
     )
 
 

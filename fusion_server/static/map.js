@@ -232,13 +232,16 @@
     resize();
     const [w, h] = size();
     ctx.clearRect(0, 0, w, h);
+    labels.length = 0;
+    state.basemapTiles = state.basemap ? state.basemap.draw(ctx, state.view, w, h) : 0;
     drawGrid(w, h);
     state.drawnTiles = $('show-heat').checked ? drawHeat(w, h) : 0;
     if ($('show-footprints').checked) drawFootprints();
     if ($('show-tracks').checked) drawTrackHistories();
     if ($('show-objects').checked) drawObjects();
-    if ($('show-tracks').checked) drawTracks();
+    state.hiddenLabels = 0;
     drawUavs();
+    if ($('show-tracks').checked) drawTracks();
     updateScale();
     updateCursor();
     writeSummary();
@@ -349,11 +352,24 @@
     ctx.restore();
   }
 
+  // Labels that would overlap one drawn before them are left out (UAVs are drawn first, then tracks in
+  // list order: tracked before lost); the marker is always drawn.
+  const labels = [];
+  function placeLabel(text, x, y) {
+    const width = ctx.measureText(text).width, height = 12;
+    const box = [x - 1, y - height / 2 - 1, x + width + 1, y + height / 2 + 1];
+    if (labels.some((b) => box[0] < b[2] && b[0] < box[2] && box[1] < b[3] && b[1] < box[3])) return false;
+    labels.push(box);
+    return true;
+  }
+
   function drawTracks() {
     ctx.save();
     ctx.font = '600 11px system-ui, sans-serif';
     ctx.textBaseline = 'middle';
-    for (const f of state.tracks) {
+    const ordered = [...state.tracks].sort((a, b) => (a.properties.status === 'tracked' ? 0 : 1)
+      - (b.properties.status === 'tracked' ? 0 : 1));
+    for (const f of ordered) {
       const p = f.properties;
       const [lon, lat] = f.geometry.coordinates;
       const [x, y] = toScreen(lat, lon);
@@ -365,6 +381,7 @@
       ctx.stroke();
       if (p.status === 'tracked') { ctx.fillStyle = color; ctx.fill(); } else { ctx.strokeStyle = color; ctx.stroke(); }
       const label = `#${p.gid}`;
+      if (!placeLabel(label, x + 7, y - 7)) { state.hiddenLabels += 1; continue; }
       ctx.lineWidth = 3;
       ctx.strokeStyle = 'rgba(255, 255, 255, 0.9)';
       ctx.strokeText(label, x + 7, y - 7);
@@ -395,6 +412,7 @@
       ctx.fill();
       ctx.restore();
       const label = `${u.id} ${Math.round(s.height_m)} m`;
+      if (!placeLabel(label, x + 12, y + 10)) { state.hiddenLabels += 1; continue; }
       ctx.lineWidth = 3;
       ctx.strokeStyle = 'rgba(255, 255, 255, 0.9)';
       ctx.strokeText(label, x + 12, y + 10);
@@ -436,6 +454,8 @@
     d.tracks = String(state.tracks.length);
     d.objects = String(state.objects.length);
     d.heatTiles = String(state.drawnTiles);
+    d.basemapTiles = String(state.basemapTiles || 0);
+    d.hiddenLabels = String(state.hiddenLabels || 0);
     d.cls = state.cls || '';
     d.updates = String(state.updates);
     d.zoom = state.view.zoom.toFixed(2);
@@ -587,7 +607,19 @@
     }, 0);
   }
 
+  async function loadBasemap() {
+    try {
+      const config = await getJson('/v1/basemap.json');
+      state.basemap = window.UavmmBasemap(config, tokenQuery, scheduleDraw);
+      const el = $('attribution');
+      el.textContent = state.basemap.attribution;
+      el.hidden = !state.basemap.attribution;
+      scheduleDraw();
+    } catch (e) { /* 404: no basemap configured */ }
+  }
+
   window.uavmmMap = { state, fit, project, unproject, toLatLon };  // for debugging and tests
   draw();
+  loadBasemap();
   poll();
 })();

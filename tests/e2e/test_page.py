@@ -191,7 +191,8 @@ def test_page_and_its_assets_are_served_and_fetch_nothing_from_elsewhere():
         status, _, page = get("/")
         assert status == 200 and 'src="/static/map.js"' in page and "/static/map.css" in page
         assert not re.search(r"https?://", page)
-        for path, kind in (("/static/map.js", "javascript"), ("/static/map.css", "text/css")):
+        for path, kind in (("/static/map.js", "javascript"), ("/static/basemap.js", "javascript"),
+                           ("/static/map.css", "text/css")):
             status, content_type, text = get(path)
             assert status == 200 and kind in content_type
             assert not re.search(r"(https?:)?//[\w.-]+\.[a-z]{2,}[/:]", text), f"{path} names a host"
@@ -385,3 +386,58 @@ def test_api_docs_render_offline_in_chromium(tmp_path, server_factory_secured):
             devtools.close()
             os.killpg(browser.pid, signal.SIGKILL)
             browser.wait(timeout=10)
+
+
+def test_page_draws_an_offline_basemap_a_marker_legend_and_declutters_labels(tmp_path):
+    """An MBTiles basemap served by the server itself under the map, its attribution, the marker legend,
+    and twelve tracks on one spot: their markers are drawn, overlapping labels are left out."""
+    if chromium_path() is None:
+        reason = "Debian chromium is not installed (.ci/run installs it: apt-get install chromium chromium-driver)"
+        print(f"SKIPPED: {reason}")
+        pytest.skip(reason)
+    from fusion_server.config import FusionSettings, ZenohOptions
+    from fusion_server.server import FusionServer
+    from tests.fusion_server.fake_agent import LAT, LON, FakeAgent, blob, free_port, wait_until
+    from tests.fusion_server.test_basemap import ROW_COLOURS, make_mbtiles
+
+    mbtiles = make_mbtiles(tmp_path / "ortho.mbtiles")
+    port = free_port()
+    options = ZenohOptions(mode="router", listen=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
+    server = FusionServer(FusionSettings(zenoh=options, http_port=0, db_path=None, ttl_s=30.0, track_hold_s=60.0,
+                                         basemap=str(mbtiles)))
+    server.start()
+    agent = FakeAgent("uav1", f"tcp/127.0.0.1:{port}")
+    browser = devtools = None
+    try:
+        agent.state()
+        agent.tile(blob(128, 128, value=0.9, sigma=8.0))
+        agent.tracks([(i, "person", LAT + i * 2e-7, LON) for i in range(12)])
+        wait_until(lambda: len(server.tracker) == 12, 10.0)
+        browser, ws_url = start_chromium(server.url, tmp_path)
+        devtools = DevTools(ws_url)
+        summary_js = "(e => e && JSON.stringify(Object.assign({}, e.dataset)))(document.getElementById('summary'))"
+
+        def ready():
+            found = devtools.evaluate(summary_js)
+            s = json.loads(found) if found else None
+            return s if s and s["status"] == "ok" and int(s["basemapTiles"]) > 0 and s["tracks"] == "12" else None
+
+        summary = wait_for(ready, 30.0, "basemap tiles and twelve tracks on the page")
+        assert int(summary["hiddenLabels"]) >= 8  # twelve labels on one spot: most are left out
+        assert devtools.evaluate("document.getElementById('attribution').textContent") == "test orthophoto"
+        assert devtools.evaluate("document.getElementById('markers').offsetHeight") > 50
+        shot = devtools.call("Page.captureScreenshot", format="png")
+        image = cv2.imdecode(np.frombuffer(base64.b64decode(shot["data"]), np.uint8), cv2.IMREAD_COLOR)
+        (tmp_path / "basemap.png").write_bytes(base64.b64decode(shot["data"]))
+        colours = {tuple(int(v) for v in c) for c in ROW_COLOURS}
+        pixels = image.reshape(-1, 3)
+        hits = sum(int(np.all(pixels == np.array(c, np.uint8), axis=1).sum()) for c in colours)
+        assert hits > 0.2 * len(pixels), f"only {hits / len(pixels):.0%} of the screenshot shows the basemap"
+    finally:
+        if devtools is not None:
+            devtools.close()
+        if browser is not None:
+            os.killpg(browser.pid, signal.SIGKILL)
+            browser.wait(timeout=10)
+        agent.close()
+        server.close()
