@@ -618,7 +618,7 @@
     } catch (e) { /* 404: no basemap configured */ }
   }
 
-  window.uavmmMap = { state, fit, project, unproject, toLatLon };  // for debugging and tests
+  window.uavmmMap = { state, fit, project, unproject, toLatLon, toScreen };  // details.js, debugging, tests
   draw();
   loadBasemap();
   poll();

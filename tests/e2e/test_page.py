@@ -192,6 +192,7 @@ def test_page_and_its_assets_are_served_and_fetch_nothing_from_elsewhere():
         assert status == 200 and 'src="/static/map.js"' in page and "/static/map.css" in page
         assert not re.search(r"https?://", page)
         for path, kind in (("/static/map.js", "javascript"), ("/static/basemap.js", "javascript"),
+                           ("/static/details.js", "javascript"),
                            ("/static/map.css", "text/css")):
             status, content_type, text = get(path)
             assert status == 200 and kind in content_type
@@ -426,6 +427,18 @@ def test_page_draws_an_offline_basemap_a_marker_legend_and_declutters_labels(tmp
         assert int(summary["hiddenLabels"]) >= 8  # twelve labels on one spot: most are left out
         assert devtools.evaluate("document.getElementById('attribution').textContent") == "test orthophoto"
         assert devtools.evaluate("document.getElementById('markers').offsetHeight") > 50
+        # click for details on the spot of the UAV and its tracks; a click on empty map closes the panel
+        rect = devtools.evaluate("(r => [r.left, r.top])(document.getElementById('map').getBoundingClientRect())")
+        x, y = devtools.evaluate(f"window.uavmmMap.toScreen({LAT}, {LON})")
+        for kind in ("mousePressed", "mouseReleased"):
+            devtools.mouse(kind, rect[0] + x, rect[1] + y, button="left", clickCount=1)
+        details = wait_for(lambda: devtools.evaluate(
+            "(e => !e.hidden && [e.dataset.kind, e.textContent])(document.getElementById('details'))"), 5.0,
+            "the details panel")
+        assert details[0] in ("uav", "track") and "status" in details[1] and "position" in details[1]
+        for kind in ("mousePressed", "mouseReleased"):
+            devtools.mouse(kind, rect[0] + 30, rect[1] + 400, button="left", clickCount=1)
+        wait_for(lambda: devtools.evaluate("document.getElementById('details').hidden"), 5.0, "the panel closed")
         shot = devtools.call("Page.captureScreenshot", format="png")
         image = cv2.imdecode(np.frombuffer(base64.b64decode(shot["data"]), np.uint8), cv2.IMREAD_COLOR)
         (tmp_path / "basemap.png").write_bytes(base64.b64decode(shot["data"]))
