@@ -124,7 +124,7 @@ def test_geojson_media_type_uavs_and_track_lines(server, http, agent_factory):
         expected.append(expected[0])
     assert np.allclose(line["geometry"]["coordinates"], expected)
     assert len(line["properties"]["times"]) == len(history) and "history" not in line["properties"]
-    assert http.get("/v1/uavs", params={"format": "kml"}).status_code == 422
+    assert http.get("/v1/uavs", params={"format": "shapefile"}).status_code == 422
 
 
 def test_docs_and_redoc_need_no_cdn(server, http):
