@@ -1,0 +1,39 @@
+"""Drone telemetry ingestion: one validated `Telemetry` record per sample from DJI SRT, CSV and SeaDronesSee meta.
+
+Also interpolates telemetry to video frame times and writes SeaDronesSee meta; angles follow DESIGN.md 2.
+One module per concept: `record` (the record, DJI pitch), `dates`, `srt`, `csv_table`, `seadronessee`,
+`readers` (by extension) and `interpolation`; the public names are re-exported here.
+"""
+
+from shared.telemetry.csv_table import CSV_COLUMNS, parse_csv, read_csv
+from shared.telemetry.dates import parse_datetime
+from shared.telemetry.interpolation import interpolate
+from shared.telemetry.readers import read_telemetry
+from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, pitch_from_dji
+from shared.telemetry.seadronessee import (
+    SEADRONESSEE_META_FIELDS,
+    from_seadronessee_meta,
+    parse_seadronessee_coco,
+    read_seadronessee_json,
+    to_seadronessee_meta,
+)
+from shared.telemetry.srt import parse_srt, read_srt
+
+__all__ = [
+    "CSV_COLUMNS",
+    "PITCH_TOLERANCE_DEG",
+    "SEADRONESSEE_META_FIELDS",
+    "Telemetry",
+    "from_seadronessee_meta",
+    "interpolate",
+    "parse_csv",
+    "parse_datetime",
+    "parse_seadronessee_coco",
+    "parse_srt",
+    "pitch_from_dji",
+    "read_csv",
+    "read_seadronessee_json",
+    "read_srt",
+    "read_telemetry",
+    "to_seadronessee_meta",
+]

@@ -1,0 +1,276 @@
+"""Telemetry tables (CSV with a header row, e.g. AirData exports): column aliases, units, DJI pitch rule."""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from collections.abc import Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from shared.telemetry.dates import DATETIME_RE, parse_datetime
+from shared.telemetry.record import Telemetry, pitch_or_none
+from shared.telemetry.text import NUM_RE, read_text
+
+_TIME_UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "second": 1.0, "seconds": 1.0,
+               "ms": 1e-3, "millisecond": 1e-3, "milliseconds": 1e-3}  # fmt: skip
+_LENGTH_UNITS = {"": 1.0, "m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0,
+                 "ft": 0.3048, "feet": 0.3048}  # fmt: skip
+_ANGLE_UNITS = {"": 1.0, "deg": 1.0, "degree": 1.0, "degrees": 1.0}
+_SPEED_UNITS = {"": 1.0, "m/s": 1.0, "mps": 1.0, "mph": 0.44704, "km/h": 1 / 3.6, "kph": 1 / 3.6}
+
+#: field -> (accepted column names in order of preference, accepted units with their factor to SI)
+CSV_COLUMNS: dict[str, tuple[tuple[str, ...], Mapping[str, float]]] = {
+    "time": (("time_s", "time", "t", "timestamp"), _TIME_UNITS),
+    "datetime": (("date_time", "datetime", "datetime_utc"), {"": 1.0, "utc": 1.0}),
+    "lat": (("lat", "latitude"), _ANGLE_UNITS),
+    "lon": (("lon", "lng", "longitude"), _ANGLE_UNITS),
+    "height": (("height_m", "rel_alt", "height_above_takeoff", "height", "altitude"), _LENGTH_UNITS),
+    "pitch": (("pitch_deg", "gimbal_pitch", "gb_pitch", "gimbal_pitch_dji", "pitch"), _ANGLE_UNITS),
+    "heading": (("heading_deg", "gimbal_heading", "gb_yaw", "heading", "yaw"), _ANGLE_UNITS),
+    "roll": (("roll_deg", "gimbal_roll", "gb_roll", "roll"), _ANGLE_UNITS),
+    "speed": (("speed_mps", "speed"), _SPEED_UNITS),
+    "frame": (("frame", "frame_index", "framecnt"), {"": 1.0}),
+}
+_DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
+_HEADER_RE = re.compile(r"(?P<name>.*?)\s*(?:\((?P<paren>[^()]*)\)|\[(?P<bracket>[^\[\]]*)\])?")
+
+
+@dataclass
+class _CsvColumn:
+    field: str
+    name: str  # as written in the header
+    alias: str
+    index: int
+    scale: float
+
+
+def _csv_columns(header: list[str], header_line: int, source: str) -> dict[str, _CsvColumn]:
+    found: dict[str, _CsvColumn] = {}
+    for index, cell in enumerate(header):
+        match = _HEADER_RE.fullmatch(cell.strip().lower())
+        assert match is not None  # every string matches: the unit group is optional
+        name, unit = match["name"].strip(), (match["paren"] or match["bracket"] or "").strip()
+        for fld, (aliases, units) in CSV_COLUMNS.items():
+            if name not in aliases:
+                continue
+            if unit not in units:
+                accepted = ", ".join(u for u in units if u) or "none"
+                raise ValueError(
+                    f"{source}:{header_line}: column {cell!r}: unknown unit {unit!r} (accepted: {accepted})"
+                )
+            column = _CsvColumn(fld, cell.strip(), name, index, units[unit])
+            previous = found.get(fld)
+            if previous is not None and previous.alias == name:
+                raise ValueError(
+                    f"{source}:{header_line}: columns {previous.name!r} and {cell.strip()!r} are the same field"
+                )
+            if previous is None or aliases.index(name) < aliases.index(previous.alias):
+                found[fld] = column
+    for required in ("lat", "lon", "height"):
+        if required not in found:
+            names = ", ".join(CSV_COLUMNS[required][0])
+            raise ValueError(f"{source}: missing required column {required!r} (accepted names: {names})")
+    if "time" not in found and "datetime" not in found:
+        names = ", ".join(CSV_COLUMNS["time"][0] + CSV_COLUMNS["datetime"][0])
+        raise ValueError(f"{source}: missing required column 'time' (accepted names: {names})")
+    return found
+
+
+def _csv_float(cell: str, line: int, column: _CsvColumn, source: str) -> float | None:
+    text = cell.strip()
+    if not text:
+        return None
+    try:
+        value = float(text)
+    except ValueError:
+        raise ValueError(f"{source}:{line}: column {column.name!r}: {text[:40]!r} is not a number") from None
+    if not math.isfinite(value):
+        raise ValueError(f"{source}:{line}: column {column.name!r}: {text[:40]!r} is not finite")
+    return value * column.scale
+
+
+def parse_csv(
+    text: str, *, source: str = "<csv>", utc_offset_s: float = 0.0, height_offset_m: float = 0.0
+) -> list[Telemetry]:
+    """Parse a comma-separated telemetry table with a header row.
+
+    Column names are matched case-insensitively, with an optional unit in parentheses or brackets, as
+    AirData exports write them (``time(millisecond)``, ``height_above_takeoff(feet)``, ``speed(mph)``):
+
+    - time: ``time_s, time, t, timestamp`` (seconds or ms; numbers, or date-times) and/or ``date_time,
+      datetime, datetime(utc)``. With both, t = first date + (time - first time): the date anchors the
+      epoch, the finer time column spaces the rows. A naive date is UTC unless ``utc_offset_s`` is given.
+    - required: ``lat, latitude``; ``lon, lng, longitude``; height ``height_m, rel_alt,
+      height_above_takeoff, height, altitude`` (m or ft; ``height_offset_m`` is added).
+    - optional: pitch ``pitch_deg, gimbal_pitch, gb_pitch, gimbal_pitch_dji, pitch``; heading
+      ``heading_deg, gimbal_heading, gb_yaw, heading, yaw``; roll ``roll_deg, gimbal_roll, gb_roll, roll``;
+      ``speed_mps, speed``; ``frame, frame_index, framecnt``. An empty optional cell is None.
+
+    When several names of one field are present the earlier one in these lists wins (a gimbal column
+    beats the aircraft's ``pitch``/``yaw``/``roll``).
+
+    DJI pitch rule: the pitch column is in DJI convention (negative down, -90 = nadir) when it is named
+    ``gb_pitch`` or ``gimbal_pitch_dji``, or when any of its values is negative; it is then converted
+    with `pitch_from_dji`. Otherwise it is our depression 0..90. Either way readings within
+    `PITCH_TOLERANCE_DEG` outside 0..90 are clamped and others rejected.
+
+    Parameters
+    ----------
+    text : str
+        The file's text (comma-separated, first non-blank row is the header).
+    source : str
+        Name used in error messages (``source:line: ...``).
+    utc_offset_s : float
+        Offset of naive date-times from UTC in seconds.
+    height_offset_m : float
+        Metres added to every height (e.g. minus the ground elevation for an above-sea-level column).
+
+    Returns
+    -------
+    list of Telemetry
+        One per non-blank data row, in file order.
+
+    Raises
+    ------
+    ValueError
+        Naming the missing column; or ``source:line: column 'name': ...`` for a bad cell, a row with the
+        wrong number of cells, or an out-of-range value.
+    """
+    if not isinstance(text, str):
+        raise TypeError(f"parse_csv needs str, got {type(text).__name__}")
+    reader = csv.reader(io.StringIO(text.removeprefix("\ufeff")), strict=True)
+    rows: list[tuple[int, list[str]]] = []
+    try:
+        for row in reader:
+            if any(cell.strip() for cell in row):
+                rows.append((reader.line_num, row))
+    except csv.Error as err:
+        raise ValueError(f"{source}:{reader.line_num}: unreadable CSV: {err}") from None
+    if not rows:
+        raise ValueError(f"{source}: empty CSV file")
+    header_line, header = rows[0]
+    columns = _csv_columns(header, header_line, source)
+    if len(rows) == 1:
+        raise ValueError(f"{source}: no data rows after the header")
+    for line, row in rows[1:]:
+        if len(row) != len(header):
+            raise ValueError(f"{source}:{line}: {len(row)} cells, the header has {len(header)}")
+
+    def floats(fld: str) -> list[float | None] | None:
+        column = columns.get(fld)
+        if column is None:
+            return None
+        return [_csv_float(row[column.index], line, column, source) for line, row in rows[1:]]
+
+    def required(fld: str) -> list[float]:
+        column, values = columns[fld], floats(fld)
+        out: list[float] = []
+        for (line, _), value in zip(rows[1:], values or [], strict=True):
+            if value is None:
+                raise ValueError(f"{source}:{line}: column {column.name!r} is empty")
+            out.append(value)
+        return out
+
+    lat, lon, height = required("lat"), required("lon"), required("height")
+    times = _csv_times(rows[1:], columns, source, utc_offset_s)
+    pitch = _csv_pitch(rows[1:], columns, floats("pitch"), source)
+    heading, roll, speed = floats("heading"), floats("roll"), floats("speed")
+    frames = _csv_frames(rows[1:], columns.get("frame"), source)
+    records = []
+    for i, (line, _) in enumerate(rows[1:]):
+        try:
+            records.append(
+                Telemetry(
+                    t=times[i],
+                    lat=lat[i],
+                    lon=lon[i],
+                    height_m=height[i] + height_offset_m,
+                    pitch_deg=pitch[i],
+                    heading_deg=None if heading is None else heading[i],
+                    roll_deg=0.0 if roll is None else roll[i] or 0.0,
+                    speed_mps=None if speed is None else speed[i],
+                    frame=frames[i],
+                )
+            )
+        except ValueError as err:
+            raise ValueError(f"{source}:{line}: {err}") from None
+    return records
+
+
+def _csv_times(
+    rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float
+) -> list[float]:
+    def dates(column: _CsvColumn) -> list[float]:
+        out = []
+        for line, row in rows:
+            try:
+                out.append(parse_datetime(row[column.index], utc_offset_s=utc_offset_s))
+            except ValueError as err:
+                raise ValueError(f"{source}:{line}: column {column.name!r}: {err}") from None
+        return out
+
+    numeric: list[float] | None = None
+    time_column = columns.get("time")
+    if time_column is not None:
+        first = rows[0][1][time_column.index].strip()
+        if NUM_RE.fullmatch(first) or not DATETIME_RE.fullmatch(first):
+            numeric = []
+            for line, row in rows:
+                value = _csv_float(row[time_column.index], line, time_column, source)
+                if value is None:
+                    raise ValueError(f"{source}:{line}: column {time_column.name!r} is empty")
+                numeric.append(value)
+        else:
+            return dates(time_column)
+    date_column = columns.get("datetime")
+    if date_column is None:
+        assert numeric is not None
+        return numeric
+    anchors = dates(date_column)
+    if numeric is None:
+        return anchors
+    return [anchors[0] + (value - numeric[0]) for value in numeric]
+
+
+def _csv_pitch(
+    rows: list[tuple[int, list[str]]],
+    columns: dict[str, _CsvColumn],
+    raw: list[float | None] | None,
+    source: str,
+) -> list[float | None]:
+    if raw is None:
+        return [None] * len(rows)
+    column = columns["pitch"]
+    dji = column.alias in _DJI_PITCH_COLUMNS or any(v is not None and v < 0.0 for v in raw)
+    out: list[float | None] = []
+    for (line, _), value in zip(rows, raw, strict=True):
+        if value is None:
+            out.append(None)
+            continue
+        if not math.isfinite(value):
+            raise ValueError(f"{source}:{line}: column {column.name!r}: pitch {value!r} is not finite")
+        depression = -value if dji else value
+        out.append(pitch_or_none(depression, f"{source}:{line}: column {column.name!r}: pitch {value:g}"))
+    return out
+
+
+def _csv_frames(rows: list[tuple[int, list[str]]], column: _CsvColumn | None, source: str) -> list[int | None]:
+    if column is None:
+        return [None] * len(rows)
+    out: list[int | None] = []
+    for line, row in rows:
+        value = _csv_float(row[column.index], line, column, source)
+        if value is not None and (value < 0.0 or value != int(value)):
+            raise ValueError(f"{source}:{line}: column {column.name!r}: {value:g} is not a frame index")
+        out.append(None if value is None else int(value))
+    return out
+
+
+def read_csv(path: str | Path, **kw: Any) -> list[Telemetry]:
+    """Read a telemetry CSV file; keyword arguments as in `parse_csv` (``source`` defaults to the path)."""
+    kw.setdefault("source", str(path))
+    return parse_csv(read_text(path), **kw)

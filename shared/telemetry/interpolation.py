@@ -1,0 +1,108 @@
+"""Interpolating telemetry records to query times (video frames): linear, angles on the shortest arc."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+
+import numpy as np
+from numpy.typing import ArrayLike
+
+from shared.telemetry.record import Telemetry, wrap180
+
+
+def _optional(values: Iterable[float | None]) -> np.ndarray:
+    return np.array([np.nan if v is None else v for v in values], dtype=float)
+
+
+def _unwrap_deg(deg: np.ndarray) -> np.ndarray:
+    """Unwrap angles (period 360) over the finite entries so neighbours differ by at most 180 deg."""
+    out = deg.copy()
+    finite = np.isfinite(deg)
+    if finite.any():
+        out[finite] = np.unwrap(deg[finite], period=360.0)
+    return out
+
+
+def interpolate(
+    records: Sequence[Telemetry], times: ArrayLike, *, extrapolate_s: float = 0.0
+) -> list[Telemetry | None]:
+    """Interpolate telemetry to query times (e.g. video frame times).
+
+    Parameters
+    ----------
+    records : sequence of Telemetry
+        Sorted by ``t`` (non-decreasing); of records with equal ``t`` the first is used.
+    times : array_like, shape (N,)
+        Query times in the records' clock, seconds.
+    extrapolate_s : float
+        Times up to this far before the first / after the last record get that record's values
+        (held, not extrapolated); further out they get None.
+
+    Returns
+    -------
+    list of Telemetry or None, length N
+        ``t`` = the query time. lat, height, pitch and speeds are linear; lon, heading and roll follow
+        the shortest arc (359 -> 1 passes 0, +179 -> -179 lon crosses the antimeridian). An optional
+        field is None where a bracketing record lacks it. ``frame`` is kept only where a query time
+        equals a record's ``t``.
+
+    Raises
+    ------
+    ValueError
+        If ``records`` is empty or unsorted, or a time or ``extrapolate_s`` is not finite (or negative).
+    """
+    recs = list(records)
+    if not recs:
+        raise ValueError("interpolate needs at least one telemetry record")
+    query = np.atleast_1d(np.asarray(times, dtype=float)).reshape(-1)
+    if not np.isfinite(query).all():
+        raise ValueError("interpolate: query times must be finite")
+    if not (math.isfinite(extrapolate_s) and extrapolate_s >= 0.0):
+        raise ValueError(f"extrapolate_s={extrapolate_s!r} must be finite and >= 0")
+    t_rec = np.array([r.t for r in recs], dtype=float)
+    if (np.diff(t_rec) < 0).any():
+        first = int(np.flatnonzero(np.diff(t_rec) < 0)[0]) + 1
+        raise ValueError(f"interpolate: records must be sorted by t (record {first} goes back in time)")
+    t_rec, keep = np.unique(t_rec, return_index=True)
+    recs = [recs[i] for i in keep]
+
+    def interp(values: np.ndarray) -> np.ndarray:
+        return np.interp(np.clip(query, t_rec[0], t_rec[-1]), t_rec, values)
+
+    lat = np.clip(interp(np.array([r.lat for r in recs])), -90.0, 90.0)
+    lon = interp(_unwrap_deg(np.array([r.lon for r in recs])))
+    height = interp(np.array([r.height_m for r in recs]))
+    pitch = np.clip(interp(_optional(r.pitch_deg for r in recs)), 0.0, 90.0)
+    heading = interp(_unwrap_deg(_optional(r.heading_deg for r in recs)))
+    roll = interp(_unwrap_deg(np.array([r.roll_deg for r in recs])))
+    speed = interp(_optional(r.speed_mps for r in recs))
+    vel_e = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[0] for r in recs))
+    vel_n = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[1] for r in recs))
+    inside = (query >= t_rec[0] - extrapolate_s) & (query <= t_rec[-1] + extrapolate_s)
+    hit = np.clip(np.searchsorted(t_rec, query), 0, len(t_rec) - 1)
+    exact = t_rec[hit] == query
+
+    def opt(values: np.ndarray, i: int) -> float | None:
+        return None if np.isnan(values[i]) else float(values[i])
+
+    out: list[Telemetry | None] = []
+    for i in range(query.size):
+        if not inside[i]:
+            out.append(None)
+            continue
+        out.append(
+            Telemetry(
+                t=float(query[i]),
+                lat=float(lat[i]),
+                lon=wrap180(float(lon[i])) if abs(lon[i]) > 180.0 else float(lon[i]),
+                height_m=float(height[i]),
+                pitch_deg=opt(pitch, i),
+                heading_deg=opt(heading, i),
+                roll_deg=float(roll[i]),
+                speed_mps=None if np.isnan(speed[i]) else max(float(speed[i]), 0.0),
+                vel_en_mps=None if np.isnan(vel_e[i]) or np.isnan(vel_n[i]) else (float(vel_e[i]), float(vel_n[i])),
+                frame=recs[hit[i]].frame if exact[i] else None,
+            )
+        )
+    return out

@@ -1,0 +1,29 @@
+"""Reading a telemetry file of any supported format, chosen by its extension."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from shared.telemetry.csv_table import read_csv
+from shared.telemetry.record import Telemetry
+from shared.telemetry.seadronessee import read_seadronessee_json
+from shared.telemetry.srt import read_srt
+
+
+def read_telemetry(path: str | Path, **kw: Any) -> list[Telemetry]:
+    """Read telemetry, choosing the reader by file extension.
+
+    ``.srt`` -> `read_srt`, ``.csv`` -> `read_csv`, ``.json`` -> `read_seadronessee_json` (SeaDronesSee
+    COCO ``images[*].meta``, ordered by ``frame_index``). Keyword arguments go to the reader.
+
+    Raises
+    ------
+    ValueError
+        For another extension, or whatever the reader rejects.
+    """
+    readers = {".srt": read_srt, ".csv": read_csv, ".json": read_seadronessee_json}
+    suffix = Path(path).suffix.lower()
+    if suffix not in readers:
+        raise ValueError(f"{path}: unknown telemetry format {suffix!r} (supported: {', '.join(readers)})")
+    return readers[suffix](path, **kw)
