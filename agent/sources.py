@@ -28,6 +28,7 @@ __all__ = [
     "SimSource",
     "SourceFrame",
     "VideoSource",
+    "load_video_telemetry",
     "pose_from_meta",
 ]
 
@@ -265,6 +266,66 @@ class DatasetSource:
 # Video file + telemetry + ONNX model
 # ---------------------------------------------------------------------------------------------
 
+def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
+                         height_offset_m: float | None = None) -> list[Telemetry]:
+    """Telemetry records of a video, checked for what georeferencing needs.
+
+    Parameters
+    ----------
+    path : path
+        ``.srt`` (DJI), ``.csv`` or SeaDronesSee ``.json`` (`shared.telemetry.read_telemetry`). For SRT the
+        skipped blocks and the GPS resolution (decimals, step in metres) are logged.
+    height_m : float, optional
+        Height above the ground in metres for records without one (`Telemetry.to_pose`); must be > 0.
+    height_offset_m : float, optional
+        Metres added to every height the file gives, e.g. minus the ground elevation for altitude above sea
+        level (DJI ``abs_alt``); only for ``.srt`` and ``.csv``.
+
+    Raises
+    ------
+    ValueError
+        One line naming the file: when the reader rejects it, it holds no records, ``height_offset_m`` is
+        given for SeaDronesSee JSON (whose altitude is already above the water), or records have no height
+        and ``height_m`` is not given (the line says to pass ``--height-m`` or ``--height-offset-m``).
+    """
+    from shared.telemetry import read_srt_report, read_telemetry
+
+    suffix = Path(path).suffix.lower()
+    if height_m is not None and not (math.isfinite(height_m) and height_m > 0.0):
+        raise ValueError(f"--height-m {height_m!r} must be a height above the ground > 0 m")
+    kw = {} if height_offset_m is None else {"height_offset_m": float(height_offset_m)}
+    if kw and suffix == ".json":
+        raise ValueError(f"--height-offset-m applies to .srt and .csv telemetry, not {path} (SeaDronesSee altitude "
+                         "is already height above the water)")
+    above_sea_level_only = 0
+    if suffix == ".srt":
+        report = read_srt_report(path, **kw)
+        records = report.records
+        above_sea_level_only = report.heights_above_sea_level_only
+        log.info("telemetry %s: %d records from %d blocks (%d skipped); GPS with %s decimals, steps of %.2g m",
+                 path, len(records), report.blocks, len(report.skipped), report.gps_decimals,
+                 report.gps_step_m or float("nan"))
+    else:
+        records = read_telemetry(path, **kw)
+    if not records:
+        raise ValueError(f"telemetry file {path} holds no records")
+    missing = sum(r.height_m is None for r in records)
+    if missing and height_m is None:
+        if above_sea_level_only:
+            raise ValueError(
+                f"telemetry file {path} gives only altitude above sea level (abs_alt) in {above_sea_level_only} of "
+                f"{len(records)} records: pass --height-offset-m=-(ground elevation in metres), or a fixed "
+                "--height-m METRES above the ground")
+        raise ValueError(f"telemetry file {path} has no height above ground in {missing} of {len(records)} records: "
+                         "pass --height-m METRES (the flight's height above the ground)")
+    if missing:
+        log.info("telemetry %s: %d of %d records have no height: using --height-m %g", path, missing, len(records),
+                 height_m)
+    elif height_m is not None:
+        log.warning("telemetry %s: every record has a height: --height-m %g is not used", path, height_m)
+    return records
+
+
 class VideoSource:
     """A video file read with OpenCV, its telemetry interpolated to the frame times, an ONNX detector.
 
@@ -288,23 +349,25 @@ class VideoSource:
         Frames farther than this from any telemetry record get no pose.
     pitch_deg, heading_deg : float, optional
         Fixed gimbal angles for telemetry without them.
+    height_m, height_offset_m : float, optional
+        As in `load_video_telemetry`.
     """
 
     def __init__(self, video: str | Path, telemetry: str | Path, model: str | Path, camera: str | Path, *,
                  telemetry_offset_s: float | None = None, class_names=None, conf_threshold: float = 0.01,
-                 max_gap_s: float = 1.0, pitch_deg: float | None = None, heading_deg: float | None = None) -> None:
+                 max_gap_s: float = 1.0, pitch_deg: float | None = None, heading_deg: float | None = None,
+                 height_m: float | None = None, height_offset_m: float | None = None) -> None:
         import cv2
 
         from agent.detector import OnnxYoloDetector
-        from shared.telemetry import read_telemetry
 
         for what, path in (("video", video), ("telemetry", telemetry), ("model", model), ("camera", camera)):
             if not Path(path).is_file():
                 raise ValueError(f"{what} file {path} does not exist")
         self.video_path = Path(video)
-        self.records: list[Telemetry] = read_telemetry(telemetry)
-        if not self.records:
-            raise ValueError(f"telemetry file {telemetry} holds no records")
+        self.records: list[Telemetry] = load_video_telemetry(telemetry, height_m=height_m,
+                                                             height_offset_m=height_offset_m)
+        self.height_m = height_m
         self.records.sort(key=lambda r: r.t)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.camera_file = Camera.from_file(camera)
@@ -331,7 +394,7 @@ class VideoSource:
         if tel is None:
             return None
         try:
-            return tel.to_pose(self.pitch_deg, self.heading_deg)
+            return tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m)
         except ValueError as exc:
             self.problems += 1
             log.debug("no pose at t=%.3f: %s", tel.t, exc)

@@ -49,6 +49,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     src.add_argument("--heading-deg", type=float, default=None,
                      help="--video: fixed gimbal heading if telemetry lacks it")
+    src.add_argument("--height-m", type=float, default=None, metavar="METRES",
+                     help="--video: height above the ground for telemetry records without one (some DJI SRT "
+                          "firmware logs none)")
+    src.add_argument("--height-offset-m", type=float, default=None, metavar="METRES",
+                     help="--video: metres added to every logged height, e.g. -(ground elevation) when the "
+                          "telemetry gives altitude above sea level (DJI abs_alt)")
 
     add_zenoh_arguments(p)
     net = p.add_argument_group("publishing")
@@ -90,7 +96,8 @@ def source_from_args(args: argparse.Namespace):
         raise ValueError(f"--video needs {', '.join(missing)}")
     return VideoSource(args.video, args.telemetry, args.model, args.camera,
                        telemetry_offset_s=args.telemetry_offset_s, class_names=args.class_names,
-                       conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg)
+                       conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
+                       height_m=args.height_m, height_offset_m=args.height_offset_m)
 
 
 def settings_from_args(args: argparse.Namespace):

@@ -1,7 +1,8 @@
 """Drone telemetry ingestion: one validated `Telemetry` record per sample from DJI SRT, CSV and SeaDronesSee meta.
 
 Also interpolates telemetry to video frame times and writes SeaDronesSee meta; angles follow DESIGN.md 2.
-One module per concept: `record` (the record, DJI pitch), `dates`, `srt`, `csv_table`, `seadronessee`,
+One module per concept: `record` (the record, DJI pitch), `dates`, `srt` (with `srt_blocks` and
+`srt_clock`), `csv_table`, `seadronessee`,
 `readers` (by extension) and `interpolation`; the public names are re-exported here.
 """
 
@@ -9,7 +10,7 @@ from shared.telemetry.csv_table import CSV_COLUMNS, parse_csv, read_csv
 from shared.telemetry.dates import parse_datetime
 from shared.telemetry.interpolation import interpolate
 from shared.telemetry.readers import read_telemetry
-from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, pitch_from_dji
+from shared.telemetry.record import NO_HEIGHT_MESSAGE, PITCH_TOLERANCE_DEG, Telemetry, pitch_from_dji
 from shared.telemetry.seadronessee import (
     SEADRONESSEE_META_FIELDS,
     from_seadronessee_meta,
@@ -17,12 +18,14 @@ from shared.telemetry.seadronessee import (
     read_seadronessee_json,
     to_seadronessee_meta,
 )
-from shared.telemetry.srt import parse_srt, read_srt
+from shared.telemetry.srt import SrtReport, parse_srt, parse_srt_report, read_srt, read_srt_report
 
 __all__ = [
     "CSV_COLUMNS",
+    "NO_HEIGHT_MESSAGE",
     "PITCH_TOLERANCE_DEG",
     "SEADRONESSEE_META_FIELDS",
+    "SrtReport",
     "Telemetry",
     "from_seadronessee_meta",
     "interpolate",
@@ -30,10 +33,12 @@ __all__ = [
     "parse_datetime",
     "parse_seadronessee_coco",
     "parse_srt",
+    "parse_srt_report",
     "pitch_from_dji",
     "read_csv",
     "read_seadronessee_json",
     "read_srt",
+    "read_srt_report",
     "read_telemetry",
     "to_seadronessee_meta",
 ]

@@ -44,7 +44,7 @@ def interpolate(
     list of Telemetry or None, length N
         ``t`` = the query time. lat, height, pitch and speeds are linear; lon, heading and roll follow
         the shortest arc (359 -> 1 passes 0, +179 -> -179 lon crosses the antimeridian). An optional
-        field is None where a bracketing record lacks it. ``frame`` is kept only where a query time
+        field (height included) is None where a bracketing record lacks it. ``frame`` is kept only where a query time
         equals a record's ``t``.
 
     Raises
@@ -72,7 +72,7 @@ def interpolate(
 
     lat = np.clip(interp(np.array([r.lat for r in recs])), -90.0, 90.0)
     lon = interp(_unwrap_deg(np.array([r.lon for r in recs])))
-    height = interp(np.array([r.height_m for r in recs]))
+    height = interp(_optional(r.height_m for r in recs))
     pitch = np.clip(interp(_optional(r.pitch_deg for r in recs)), 0.0, 90.0)
     heading = interp(_unwrap_deg(_optional(r.heading_deg for r in recs)))
     roll = interp(_unwrap_deg(np.array([r.roll_deg for r in recs])))
@@ -96,7 +96,7 @@ def interpolate(
                 t=float(query[i]),
                 lat=float(lat[i]),
                 lon=wrap180(float(lon[i])) if abs(lon[i]) > 180.0 else float(lon[i]),
-                height_m=float(height[i]),
+                height_m=opt(height, i),
                 pitch_deg=opt(pitch, i),
                 heading_deg=opt(heading, i),
                 roll_deg=float(roll[i]),

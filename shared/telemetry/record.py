@@ -17,6 +17,12 @@ if TYPE_CHECKING:
 
 logger = logging.getLogger(__name__)
 
+#: What a command says when the telemetry has no height above ground and none was given.
+NO_HEIGHT_MESSAGE = (
+    "telemetry has no height above ground: pass --height-m METRES (the flight's height above the ground) "
+    "or, if it logs altitude above sea level, --height-offset-m=-(ground elevation in metres)"
+)
+
 #: Gimbal pitch readings this far outside 0..90 deg are measurement noise and are clamped; beyond, an error.
 PITCH_TOLERANCE_DEG = 1.0
 
@@ -49,9 +55,10 @@ class Telemetry:
         (SRT subtitle start time, a CSV's time column), which starts near 0 at the first sample.
     lat, lon : float
         WGS84 degrees, signed (S and W negative); lat in [-90, 90], lon in [-180, 180].
-    height_m : float
+    height_m : float or None
         Metres above the ground under the UAV (SeaDronesSee ``altitude``, DJI ``rel_alt``). Any finite
-        value is accepted (a UAV on its pad reads 0 or slightly below); `to_pose` needs > 0.
+        value is accepted (a UAV on its pad reads 0 or slightly below); `to_pose` needs > 0. None when the
+        source gives no height above ground (some DJI SRT firmware): `to_pose` then needs one.
     pitch_deg : float or None
         Gimbal depression below the horizon, 0..90 (90 = nadir); None if the source lacks it.
     heading_deg : float or None
@@ -69,7 +76,7 @@ class Telemetry:
     t: float
     lat: float
     lon: float
-    height_m: float
+    height_m: float | None
     pitch_deg: float | None
     heading_deg: float | None
     roll_deg: float = 0.0
@@ -88,7 +95,8 @@ class Telemetry:
         if not -180.0 <= lon <= 180.0:
             raise ValueError(f"Telemetry.lon={lon!r} is outside [-180, 180] degrees")
         put(self, "lon", lon)
-        put(self, "height_m", finite_number("height_m", self.height_m))
+        if self.height_m is not None:
+            put(self, "height_m", finite_number("height_m", self.height_m))
         if self.pitch_deg is not None:
             pitch = finite_number("pitch_deg", self.pitch_deg)
             if not 0.0 <= pitch <= 90.0:
@@ -114,13 +122,17 @@ class Telemetry:
                 raise ValueError(f"Telemetry.frame={self.frame!r} must be >= 0")
             put(self, "frame", int(self.frame))
 
-    def to_pose(self, pitch_deg: float | None = None, heading_deg: float | None = None) -> Pose:
+    def to_pose(
+        self, pitch_deg: float | None = None, heading_deg: float | None = None, *, height_m: float | None = None
+    ) -> Pose:
         """Camera pose for `shared.geo`, with optional gimbal angles that override or supply missing ones.
 
         Parameters
         ----------
         pitch_deg, heading_deg : float, optional
             Depression 0..90 and heading in degrees; when given they replace the telemetry's values.
+        height_m : float, optional
+            Height above the ground used when the telemetry has none (it never replaces a logged height).
 
         Returns
         -------
@@ -129,7 +141,7 @@ class Telemetry:
         Raises
         ------
         ValueError
-            If an angle is missing from both the telemetry and the arguments, or `shared.geo.Pose`
+            If an angle or the height is missing from both the telemetry and the arguments, or `shared.geo.Pose`
             rejects a value (e.g. height_m <= 0 on the ground).
         """
         from shared.geo import Pose  # geo imports OpenCV; telemetry parsing does not need it
@@ -141,10 +153,13 @@ class Telemetry:
         if heading is None:
             raise ValueError("telemetry has no gimbal heading: pass --heading-deg or use a source with gimbal angles")
         heading = finite_number("heading_deg", heading)
+        height = self.height_m if self.height_m is not None else height_m
+        if height is None:
+            raise ValueError(NO_HEIGHT_MESSAGE)
         return Pose(
             lat=self.lat,
             lon=self.lon,
-            height_m=self.height_m,
+            height_m=finite_number("height_m", height),
             pitch_deg=finite_number("pitch_deg", pitch),
             heading_deg=wrap360(heading),
             roll_deg=self.roll_deg,

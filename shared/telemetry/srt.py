@@ -1,195 +1,149 @@
-"""DJI SRT subtitle files: one record per subtitle block, across the firmware variants DJI has written."""
+"""DJI SRT subtitle files: one record per usable subtitle block, across the firmware variants DJI has written.
+
+Blocks come from `srt_blocks`, the clock from `srt_clock`; this module decides what the facts mean (GPS axis
+order, height, gimbal) and reports what it skipped and how finely the file logs positions.
+"""
 
 from __future__ import annotations
 
 import logging
 import math
 import re
-from dataclasses import dataclass, field
+from collections import Counter
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from shared.telemetry.dates import DATE_START_RE, DATETIME_RE, epoch_from_match
 from shared.telemetry.record import Telemetry, pitch_or_none
-from shared.telemetry.text import NUM, NUM_RE, read_text
+from shared.telemetry.srt_blocks import BadBlock, BlockFacts, RawBlock, block_facts, split_blocks
+from shared.telemetry.srt_clock import BlockTimes, monotonic_times
+from shared.telemetry.text import read_text
 
 logger = logging.getLogger(__name__)
 
-_TIMING_RE = re.compile(
-    r"(\d{1,9}):(\d{1,2}):(\d{1,2})[,.](\d{1,3})\s*-->\s*(\d{1,9}):(\d{1,2}):(\d{1,2})[,.](\d{1,3})"
-)
-_INDEX_RE = re.compile(r"[0-9]{1,12}")
-_HTML_TAG_RE = re.compile(r"<[^<>]*>")
-_TOKEN = r"\s*:\s*([^\s\[\],]*)"  # the raw value after "key:", checked afterwards so garbage is reported
-_SRT_KEYS = {
-    "latitude": re.compile(r"\blatitude" + _TOKEN, re.IGNORECASE),
-    "longitude": re.compile(r"\blongt?itude" + _TOKEN, re.IGNORECASE),  # Mavic 2 firmware writes "longtitude"
-    "rel_alt": re.compile(r"\brel_alt" + _TOKEN, re.IGNORECASE),
-    "abs_alt": re.compile(r"\babs_alt" + _TOKEN, re.IGNORECASE),
-    "altitude": re.compile(r"\baltitude" + _TOKEN, re.IGNORECASE),
-    "barometer": re.compile(r"\bBAROMETER" + _TOKEN, re.IGNORECASE),
-    "gb_pitch": re.compile(r"\bgb_pitch" + _TOKEN, re.IGNORECASE),
-    "gb_yaw": re.compile(r"\bgb_yaw" + _TOKEN, re.IGNORECASE),
-    "gb_roll": re.compile(r"\bgb_roll" + _TOKEN, re.IGNORECASE),
-    "counter": re.compile(r"\b(?:FrameCnt|SrtCnt)" + _TOKEN, re.IGNORECASE),
-}
-_GPS_TUPLE_RE = re.compile(r"\b(?:GPS|RTK)\s*\(([^()]*)\)")
-_GIMBAL_PRY_RE = re.compile(r"\bG\.PRY\s*\(([^()]*)\)")
-_HEIGHT_H_RE = re.compile(rf"(?<![\w.])H\s*[:=]?\s*({NUM})\s*m(?![/\w])")
-_SPEED_HS_RE = re.compile(rf"\bH\.S\s*[:=]?\s*({NUM})\s*m/s")
-_METRES_RE = re.compile(rf"({NUM})\s*[mM]?")
-_ANGLE_RE = re.compile(rf"({NUM})\s*(?:°|Â°|deg)?")
+#: How many skipped blocks (or clock seams) a warning names before it says "and N more".
+WARN_FIRST = 3
+_SRT_FIELD_RE = re.compile(r"\b(?:latitude|longt?itude|GPS|RTK|rel_alt|abs_alt|BAROMETER)\b", re.IGNORECASE)
+_METRES_PER_DEGREE_LAT = 111_320.0
 
 
-@dataclass
-class _SrtBlock:
-    """Raw facts of one subtitle block, each with the line it came from."""
+@dataclass(frozen=True, slots=True)
+class SrtReport:
+    """What reading one SRT file gave: the records and what a caller may need to know about them.
 
-    index: int | None
-    timing_line: int
-    start_s: float
-    values: dict[str, tuple[float, int]] = field(default_factory=dict)
-    epoch_s: float | None = None
-    frame: int | None = None
-    gps: tuple[float, float, bool, int] | None = None  # a, b, third value had an "M" suffix, line
-    gimbal_pry: tuple[float, float, float, int] | None = None
+    Attributes
+    ----------
+    source : str
+        The name used in messages (the path for `read_srt_report`).
+    records : list of Telemetry
+        One per usable block, in file order, ``t`` non-decreasing (see `parse_srt`).
+    blocks : int
+        Blocks found, usable or not (stray text between blocks counts as one).
+    skipped : tuple of (int, str)
+        (line, reason) of every block that gave no record: no GPS fix, no position, a malformed value...
+    heights_missing : int
+        Records whose ``height_m`` is None (the file gives no height above ground for them).
+    heights_above_sea_level_only : int
+        Of those, the records whose block gives only ``abs_alt`` (above sea level): ``height_offset_m`` fixes them.
+    gps_decimals : int or None
+        The coarsest position resolution in the file: decimals of the coordinates as written (DJI writes a
+        fixed number per firmware: 4 on the Mavic Pro, 6 on later models). None without records.
+    gps_decimals_seen : dict of int to int
+        Decimals -> number of records written with that resolution (several in concatenated files).
+    clock_notes : tuple of str
+        Where the date-time lines, subtitle timing and frame counters disagreed and how the clock was joined.
+    """
 
+    source: str
+    records: list[Telemetry]
+    blocks: int
+    skipped: tuple[tuple[int, str], ...] = ()
+    heights_missing: int = 0
+    heights_above_sea_level_only: int = 0
+    gps_decimals: int | None = None
+    gps_decimals_seen: dict[int, int] = field(default_factory=dict)
+    clock_notes: tuple[str, ...] = ()
 
-def _srt_error(source: str, line: int, message: str) -> ValueError:
-    return ValueError(f"{source}:{line}: {message}")
+    @property
+    def gps_step_m(self) -> float | None:
+        """North-south size in metres of one step in the last written decimal (11.1 m at 4 decimals), or None.
 
-
-def _split_srt(text: str, source: str) -> list[tuple[int | None, int, float, list[tuple[int, str]]]]:
-    """Blocks as (index, timing line number, start seconds, [(line number, text without HTML)])."""
-    blocks: list[tuple[int | None, int, float, list[tuple[int, str]]]] = []
-    pending: list[tuple[int, str]] = []
-    for lineno, raw in enumerate(text.splitlines(), start=1):
-        line = _HTML_TAG_RE.sub(" ", raw).strip()
-        if "-->" not in line:
-            if line:
-                pending.append((lineno, line))
-            continue
-        match = _TIMING_RE.fullmatch(line)
-        if match is None:
-            raise _srt_error(source, lineno, f"malformed subtitle timing line {line[:80]!r}")
-        h, m, s, frac = match.group(1, 2, 3, 4)
-        start_s = int(h) * 3600 + int(m) * 60 + int(s) + int(frac) / 10 ** len(frac)
-        index = None
-        if pending and _INDEX_RE.fullmatch(pending[-1][1]):
-            index = int(pending.pop()[1])
-        if blocks:
-            blocks[-1][3].extend(pending)
-        elif pending:
-            raise _srt_error(source, pending[0][0], f"text before the first subtitle block: {pending[0][1][:80]!r}")
-        pending = []
-        blocks.append((index, lineno, start_s, []))
-    if not blocks:
-        if not text.strip():
-            raise ValueError(f"{source}: empty SRT file")
-        raise ValueError(f"{source}: no subtitle blocks (no 'HH:MM:SS,mmm --> HH:MM:SS,mmm' line)")
-    blocks[-1][3].extend(pending)
-    return blocks
-
-
-def _srt_number(source: str, line: int, key: str, token: str, pattern: re.Pattern[str] = NUM_RE) -> float:
-    match = pattern.fullmatch(token)
-    if match is None:
-        raise _srt_error(source, line, f"{key} value {token!r} is not a number")
-    value = float(match.group(1) if match.groups() else match.group(0))
-    if not math.isfinite(value):
-        raise _srt_error(source, line, f"{key} value {token!r} is not finite")
-    return value
+        Positions are quantised to this step (east-west: times cos(latitude)); a gate or uncertainty for
+        positions from this file should not be tighter than about half of it.
+        """
+        if self.gps_decimals is None:
+            return None
+        return _METRES_PER_DEGREE_LAT * 10.0 ** -self.gps_decimals
 
 
-def _parse_srt_block(
-    index: int | None,
-    timing_line: int,
-    start_s: float,
-    lines: list[tuple[int, str]],
-    source: str,
-    utc_offset_s: float,
-) -> _SrtBlock:
-    block = _SrtBlock(index=index, timing_line=timing_line, start_s=start_s, frame=index)
-    counter_seen = False
-    gps_text: tuple[str, str, int] | None = None
-    for lineno, line in lines:
-        for key, pattern in _SRT_KEYS.items():
-            match = pattern.search(line)
-            if match is None or key in block.values or (key == "counter" and counter_seen):
-                continue
-            token = match.group(1)
-            if key == "counter":
-                if not _INDEX_RE.fullmatch(token):
-                    raise _srt_error(source, lineno, f"frame counter {token!r} is not a non-negative integer")
-                block.frame, counter_seen = int(token), True
-                continue
-            number_re = _METRES_RE if key == "barometer" else NUM_RE
-            block.values[key] = (_srt_number(source, lineno, key, token, number_re), lineno)
-        if block.epoch_s is None:
-            date = DATETIME_RE.search(line)
-            if date is not None:
-                try:
-                    block.epoch_s = epoch_from_match(date, utc_offset_s)
-                except (ValueError, OverflowError) as err:
-                    raise _srt_error(source, lineno, f"invalid date-time {date.group(0)!r}: {err}") from None
-            elif DATE_START_RE.search(line):
-                raise _srt_error(source, lineno, f"date-time does not parse: {line[:80]!r}")
-        if gps_text is None and (gps := _GPS_TUPLE_RE.search(line)) is not None:
-            gps_text = (gps.group(0), gps.group(1), lineno)
-        if block.gimbal_pry is None and (pry := _GIMBAL_PRY_RE.search(line)) is not None:
-            parts = [part.strip() for part in pry.group(1).split(",")]
-            if len(parts) != 3:
-                raise _srt_error(source, lineno, f"G.PRY {pry.group(0)!r} needs pitch, roll, yaw")
-            p, r, y = (_srt_number(source, lineno, "G.PRY", part, _ANGLE_RE) for part in parts)
-            block.gimbal_pry = (p, r, y, lineno)
-        if "H" not in block.values and (height := _HEIGHT_H_RE.search(line)) is not None:
-            block.values["H"] = (_srt_number(source, lineno, "H", height.group(1)), lineno)
-        if "H.S" not in block.values and (speed := _SPEED_HS_RE.search(line)) is not None:
-            block.values["H.S"] = (_srt_number(source, lineno, "H.S", speed.group(1)), lineno)
-    if gps_text is not None and "latitude" not in block.values:  # a named latitude beats a positional tuple
-        whole, inner, lineno = gps_text
-        parts = [part.strip() for part in inner.split(",")]
-        if len(parts) not in (2, 3):
-            raise _srt_error(source, lineno, f"GPS tuple {whole!r} needs 2 or 3 values")
-        a = _srt_number(source, lineno, "GPS", parts[0])
-        b = _srt_number(source, lineno, "GPS", parts[1])
-        if len(parts) == 3:
-            _srt_number(source, lineno, "GPS third value", parts[2], _METRES_RE)
-        block.gps = (a, b, len(parts) == 3 and parts[2][-1:] in ("M", "m"), lineno)
-    return block
+def _has_barometric_pair(facts: BlockFacts) -> bool:
+    return "Hb" in facts.values or "Hs" in facts.values
 
 
-def _gps_order(blocks: list[_SrtBlock], gps_order: str, source: str) -> str:
-    """'latlon' or 'lonlat' for the positional GPS tuples of a file (rule in `parse_srt`)."""
-    tuples = [b.gps for b in blocks if b.gps is not None]
-    if not tuples:
-        return "lonlat"
-    first_is_lon = next((t for t in tuples if abs(t[0]) > 90.0), None)
-    second_is_lon = next((t for t in tuples if abs(t[1]) > 90.0), None)
-    if first_is_lon and second_is_lon:
-        raise _srt_error(
-            source, second_is_lon[3], f"GPS values beyond +-90 in both positions (see also line {first_is_lon[3]})"
-        )
-    if gps_order in ("latlon", "lonlat"):
-        contradiction = first_is_lon if gps_order == "latlon" else second_is_lon
-        if contradiction is not None:
-            raise _srt_error(source, contradiction[3], f"gps_order={gps_order!r} puts a longitude in latitude")
-        return gps_order
-    if gps_order != "auto":
+def _gps_orders(facts: list[BlockFacts], gps_order: str, source: str) -> dict[tuple[bool, bool], str]:
+    """'latlon' or 'lonlat' for each style of positional GPS tuple in the file (rule in `parse_srt`)."""
+    if gps_order not in ("auto", "latlon", "lonlat"):
         raise ValueError(f"gps_order={gps_order!r} must be 'auto', 'latlon' or 'lonlat'")
-    if first_is_lon or second_is_lon:
-        return "lonlat" if first_is_lon else "latlon"
-    # Values cannot tell: a metre-suffixed third value is the Matrice's altitude, a bare one a satellite count.
-    return "latlon" if any(t[2] for t in tuples) else "lonlat"
+    groups: dict[tuple[bool, bool], list[tuple[float, float, bool, str, int]]] = {}
+    for block in facts:
+        if block.gps is not None:
+            groups.setdefault((_has_barometric_pair(block), block.gps[2]), []).append(block.gps)
+    orders: dict[tuple[bool, bool], str] = {}
+    for key, tuples in groups.items():
+        first_is_lon = [t for t in tuples if abs(t[0]) > 90.0]
+        second_is_lon = [t for t in tuples if abs(t[1]) > 90.0]
+        if gps_order != "auto":
+            contradiction = first_is_lon if gps_order == "latlon" else second_is_lon
+            if contradiction:
+                raise ValueError(
+                    f"{source}:{contradiction[0][4]}: gps_order={gps_order!r} puts a longitude in latitude"
+                )
+            orders[key] = gps_order
+        elif len(first_is_lon) != len(second_is_lon):  # values tell; a block that disagrees is skipped later
+            orders[key] = "lonlat" if len(first_is_lon) > len(second_is_lon) else "latlon"
+        elif key[0]:
+            orders[key] = "lonlat"  # the oldest firmware (Hb/Hs heights): GPS(lon, lat, alt), even with "M"
+        else:
+            # Values cannot tell: a metre-suffixed third value is the Matrice's altitude, a bare one satellites.
+            orders[key] = "latlon" if key[1] else "lonlat"
+    return orders
 
 
-def _srt_height(block: _SrtBlock, source: str, height_offset_m: float | None, warned: set[str]) -> float:
-    """Height above ground: rel_alt, else H, else BAROMETER, else altitude; abs_alt only with an offset."""
+def _position(facts: BlockFacts, orders: dict[tuple[bool, bool], str], line: int) -> tuple[float, float, int]:
+    """(lat, lon, decimals written) of a block."""
+    if "latitude" in facts.values or "longitude" in facts.values:
+        for key in ("latitude", "longitude"):
+            if key not in facts.values:
+                raise BadBlock(line, f"block has no {key}")
+        lat, lat_line = facts.values["latitude"]
+        lon, lon_line = facts.values["longitude"]
+        decimals = max(facts.decimals.get("latitude", 0), facts.decimals.get("longitude", 0))
+    elif facts.gps is not None:
+        a, b, _, _, lat_line = facts.gps
+        lon_line = lat_line
+        order = orders[(_has_barometric_pair(facts), facts.gps[2])]
+        lat, lon = (a, b) if order == "latlon" else (b, a)
+        decimals = facts.decimals.get("gps", 0)
+    else:
+        raise BadBlock(line, "block has no position (no [latitude: ...] or GPS(...))")
+    if not -90.0 <= lat <= 90.0:
+        raise BadBlock(lat_line, f"latitude {lat:g} is outside [-90, 90]")
+    if not -180.0 <= lon <= 180.0:
+        raise BadBlock(lon_line, f"longitude {lon:g} is outside [-180, 180]")
+    if lat == 0.0 and lon == 0.0:
+        raise BadBlock(line, "no GPS fix (position 0, 0)")
+    return lat, lon, decimals
+
+
+def _height(
+    facts: BlockFacts, source: str, height_offset_m: float | None, warned: set[str]
+) -> tuple[float | None, bool]:
+    """(height above ground or None, whether only an above-sea-level altitude was there)."""
     offset = 0.0 if height_offset_m is None else height_offset_m
-    for key in ("rel_alt", "H", "barometer"):
-        if key in block.values:
-            return block.values[key][0] + offset
-    if "altitude" in block.values:
+    for key in ("rel_alt", "H", "Hb", "Hs", "barometer"):
+        if key in facts.values:
+            return facts.values[key][0] + offset, False
+    if "altitude" in facts.values:
         if height_offset_m is None and "altitude" not in warned:
             warned.add("altitude")
             logger.warning(
@@ -197,17 +151,187 @@ def _srt_height(block: _SrtBlock, source: str, height_offset_m: float | None, wa
                 "altitude above sea level there: pass height_offset_m=-(ground elevation) if so",
                 source,
             )
-        return block.values["altitude"][0] + offset
-    if "abs_alt" in block.values:
+        return facts.values["altitude"][0] + offset, False
+    if "abs_alt" in facts.values:
         if height_offset_m is None:
-            raise _srt_error(
-                source,
-                block.values["abs_alt"][1],
-                "only absolute altitude (abs_alt, above sea level) is given, which is not height above "
-                "ground: pass height_offset_m=-(ground elevation in metres)",
+            return None, True
+        return facts.values["abs_alt"][0] + offset, False
+    return None, False
+
+
+def _gimbal(facts: BlockFacts, source: str, line: int) -> tuple[float | None, float | None, float]:
+    values = facts.values
+    if "gb_pitch" in values or "gb_yaw" in values:
+        raw_pitch, pitch_line = values.get("gb_pitch", (None, line))
+        heading = values["gb_yaw"][0] if "gb_yaw" in values else None
+        roll = values["gb_roll"][0] if "gb_roll" in values else 0.0
+    elif facts.gimbal_pry is not None:
+        raw_pitch, roll, heading, pitch_line = facts.gimbal_pry
+    else:
+        return None, None, 0.0
+    pitch = None
+    if raw_pitch is not None:
+        if not math.isfinite(raw_pitch):
+            raise BadBlock(pitch_line, f"gimbal pitch {raw_pitch!r} is not finite")
+        pitch = pitch_or_none(-raw_pitch, f"{source}:{pitch_line}: DJI gimbal pitch {raw_pitch:g}")
+    return pitch, heading, roll
+
+
+def _block_line(raw: RawBlock) -> int:
+    """The line a block is named by: its timing line, else its first line."""
+    return raw.lines[raw.timing][0] if raw.timing is not None else raw.first_line
+
+
+def _looks_like_a_block(raw: RawBlock) -> bool:
+    return raw.timing is not None or bool(raw.markers) or raw.only_index()
+
+
+def _listing(items: list[str], total: int) -> str:
+    more = total - len(items)
+    return "; ".join(items) + (f" (and {more} more)" if more > 0 else "")
+
+
+def parse_srt_report(
+    text: str,
+    *,
+    source: str = "<srt>",
+    utc_offset_s: float = 0.0,
+    height_offset_m: float | None = None,
+    gps_order: str = "auto",
+) -> SrtReport:
+    """Parse a DJI SRT file into records and a report of what was skipped, the clock and GPS resolution.
+
+    Parameters and the rules are those of `parse_srt`, which returns ``parse_srt_report(...).records``.
+    Logs one warning each for skipped blocks, clock seams and missing heights (naming the first lines),
+    and the GPS resolution at INFO.
+
+    Raises
+    ------
+    ValueError
+        ``source: what`` when no block gives a record: an empty file, no subtitle blocks, no position in
+        any block (firmware that logs only exposure), no GPS fix anywhere, or every block malformed (the
+        first reasons are named). Also for a ``gps_order`` that contradicts the values.
+    """
+    if not isinstance(text, str):
+        raise TypeError(f"parse_srt needs str, got {type(text).__name__}")
+    text = text.removeprefix("\ufeff")
+    if not text.strip():
+        raise ValueError(f"{source}: empty SRT file")
+    raw_blocks = split_blocks(text)
+    skipped: list[tuple[int, str]] = []
+    parsed: list[tuple[int, BlockFacts]] = []
+    subtitle_blocks = 0
+    for raw in raw_blocks:
+        line = _block_line(raw)
+        if not _looks_like_a_block(raw) and not _SRT_FIELD_RE.search(" ".join(text for _, text in raw.lines)):
+            skipped.append((line, f"text outside any subtitle block: {raw.lines[0][1][:40]!r}"))
+            continue
+        subtitle_blocks += 1
+        try:
+            parsed.append((line, block_facts(raw, utc_offset_s)))
+        except BadBlock as bad:
+            skipped.append((bad.line, bad.reason))
+    if subtitle_blocks == 0:
+        raise ValueError(
+            f"{source}: no subtitle blocks (no 'HH:MM:SS,mmm --> HH:MM:SS,mmm' timing line, date-time line "
+            "or frame counter)"
+        )
+    orders = _gps_orders([facts for _, facts in parsed], gps_order, source)
+    warned: set[str] = set()
+    kept: list[tuple[int, BlockFacts, Telemetry, bool]] = []  # line, facts, record without time, asl only
+    last_diff_s: float | None = None
+    times_in: list[BlockTimes] = []
+    decimals_seen: Counter[int] = Counter()
+    for line, facts in parsed:
+        if "diff_time" in facts.values:
+            last_diff_s = facts.values["diff_time"][0] / 1000.0
+        try:
+            lat, lon, decimals = _position(facts, orders, line)
+            times = BlockTimes(line, facts.epoch_s, facts.start_s, facts.counter, last_diff_s)
+            if times.source() is None:
+                raise BadBlock(line, "block has no time (no timing line, date-time line or FrameCnt with DiffTime)")
+            height_m, asl_only = _height(facts, source, height_offset_m, warned)
+            pitch, heading, roll = _gimbal(facts, source, line)
+            speed = facts.values.get("H.S")
+            record = Telemetry(
+                t=0.0,
+                lat=lat,
+                lon=lon,
+                height_m=height_m,
+                pitch_deg=pitch,
+                heading_deg=heading,
+                roll_deg=roll,
+                speed_mps=None if speed is None else abs(speed[0]),
+                frame=facts.frame,
             )
-        return block.values["abs_alt"][0] + offset
-    raise _srt_error(source, block.timing_line, "block has no height (rel_alt, H, BAROMETER or altitude)")
+        except BadBlock as bad:
+            skipped.append((bad.line, bad.reason))
+            continue
+        except ValueError as err:
+            skipped.append((line, str(err)))
+            continue
+        kept.append((line, facts, record, asl_only))
+        times_in.append(times)
+        decimals_seen[decimals] += 1
+    skipped.sort()
+    if not kept:
+        raise ValueError(_no_record_message(source, len(raw_blocks), skipped))
+    times_out, clock_notes = monotonic_times(times_in)
+    records = [replace(record, t=t) for (_, _, record, _), t in zip(kept, times_out, strict=True)]
+    report = SrtReport(
+        source=source,
+        records=records,
+        blocks=len(raw_blocks),
+        skipped=tuple(skipped),
+        heights_missing=sum(r.height_m is None for r in records),
+        heights_above_sea_level_only=sum(asl for *_, asl in kept),
+        gps_decimals=min(decimals_seen),
+        gps_decimals_seen=dict(sorted(decimals_seen.items())),
+        clock_notes=tuple(clock_notes),
+    )
+    _log_report(report)
+    return report
+
+
+def _no_record_message(source: str, blocks: int, skipped: list[tuple[int, str]]) -> str:
+    reasons = [reason for _, reason in skipped]
+    if all("no position" in reason for reason in reasons):
+        return (
+            f"{source}: no block of {blocks} has a position ([latitude: ...] or GPS(...)): this SRT logs no "
+            "GPS (early Mavic Air firmware writes only exposure settings)"
+        )
+    if all(reason.startswith("no GPS fix") or "no position" in reason for reason in reasons):
+        return f"{source}: no block has a GPS fix (all {blocks} blocks are at 0, 0, N/A or without a position)"
+    first = [f"line {line}: {reason}" for line, reason in skipped[:WARN_FIRST]]
+    return f"{source}: no usable block among {blocks}: " + _listing(first, len(skipped))
+
+
+def _log_report(report: SrtReport) -> None:
+    source = report.source
+    if report.skipped:
+        first = [f"line {line}: {reason}" for line, reason in report.skipped[:WARN_FIRST]]
+        logger.warning(
+            "%s: skipped %d of %d blocks: %s", source, len(report.skipped), report.blocks,
+            _listing(first, len(report.skipped)),
+        )
+    if report.clock_notes:
+        logger.warning(
+            "%s: the clock was made monotonic where its sources disagree: %s",
+            source, _listing(list(report.clock_notes[:WARN_FIRST]), len(report.clock_notes)),
+        )
+    if report.heights_missing:
+        asl = report.heights_above_sea_level_only
+        why = []
+        if asl:
+            why.append(f"{asl} give only abs_alt, above sea level: pass height_offset_m=-(ground elevation in m)")
+        if report.heights_missing - asl:
+            why.append(f"{report.heights_missing - asl} give no height at all")
+        logger.warning(
+            "%s: %d of %d records have no height above ground (%s); their height_m is None",
+            source, report.heights_missing, len(report.records), "; ".join(why),
+        )
+    seen = ", ".join(f"{decimals} decimals in {count}" for decimals, count in report.gps_decimals_seen.items())
+    logger.info("%s: GPS written with %s record(s): steps of about %.2g m", source, seen, report.gps_step_m)
 
 
 def parse_srt(
@@ -218,36 +342,51 @@ def parse_srt(
     height_offset_m: float | None = None,
     gps_order: str = "auto",
 ) -> list[Telemetry]:
-    """Parse a DJI SRT subtitle file into one record per subtitle block.
+    """Parse a DJI SRT subtitle file into one record per usable subtitle block.
 
-    Variants read (real samples in tests/shared/test_telemetry.py):
+    Variants read (one example block each in docs/geometry.md; real shapes in tests/shared/):
 
-    - Mavic Pro / Phantom 4: ``HOME(lon,lat) 2017.07.29 15:18:50`` / ``GPS(lon,lat,sats) BAROMETER:1.9``.
+    - Phantom 3 era: ``GPS(lon,lat,alt) Hb:1.9 Hs:1.9`` (barometric and sonar heights; Hb is used).
+    - Mavic Pro / Phantom 4: ``HOME(lon,lat) 2017.07.29 15:18:50`` / ``GPS(lon,lat,sats) BAROMETER:1.9``;
+      blocks with ``GPS(N/A,N/A,0)`` (no fix) are skipped.
     - Mavic Mini / Phantom 4 (RTK): ``F/2.8, SS 206.14, ISO 150, EV 0, GPS (lon, lat, sats), D 2.80m,
       H 0.00m, H.S 0.00m/s, V.S 0.00m/s``, optionally ``RTK (lon, lat, n)``, ``F.PRY (p°, r°, y°)``
       (aircraft, ignored) and ``G.PRY (p°, r°, y°)`` (gimbal pitch, roll, yaw).
     - Matrice 300: ``2022.06.21 16:06:17`` / ``GPS(lat,lon,altM) BAROMETER:0.3M`` (latitude first).
     - Mavic 2 / Air 2 / Air 2S: ``<font ...>FrameCnt : 1, DiffTime : 41ms`` (or ``SrtCnt``), a date like
-      ``2023-06-23 11:26:03,972,307`` (ms, us), ``[latitude : 38.9] [longtitude : -92.2] [altitude: 274.2]``.
+      ``2023-06-23 11:26:03,972,307`` (ms, us), ``[latitude : 38.9] [longtitude : -92.2]`` and
+      ``[altitude: 274.2]``, or no altitude at all (height missing).
+    - Blocks without a timing line: an index, a date-time line (``2017.08.05 14:11:51,393,525``) or
+      ``FrameCnt``/``DiffTime``, then the fields.
     - Mini 3 / Mavic 3 / Matrice 30: ``FrameCnt: 1, DiffTime: 33ms``, ``2025-04-09 09:15:02.655``,
       ``[latitude: 53.38] [longitude: 5.36] [rel_alt: 55.774 abs_alt: 98.364]`` and optionally
       ``[gb_yaw: -83.6 gb_pitch: -9.1 gb_roll: 0.0]``; HTML ``<font>`` tags are dropped.
+    - Files concatenated from several of these: read block by block.
 
     The positional ``GPS(a, b, c)`` form has no single axis order: consumer models write (lon, lat,
-    satellites), the Matrice 300 writes (lat, lon, altitude with an ``M`` suffix). With ``gps_order='auto'``
-    the order is decided per file: a value beyond +-90 can only be a longitude; otherwise an ``M``-suffixed
-    third value means (lat, lon, alt) and a bare one (the satellite count) means (lon, lat, sats).
+    satellites), the oldest firmware (lon, lat, altitude) beside ``Hb``/``Hs``, the Matrice 300 (lat, lon,
+    altitude with an ``M`` suffix). With ``gps_order='auto'`` the order is decided per tuple style in the
+    file: values beyond +-90 can only be longitudes (the majority decides); otherwise ``Hb``/``Hs`` mean
+    (lon, lat), an ``M``-suffixed third value (lat, lon), a bare one (lon, lat).
 
-    Height, in order of preference: ``rel_alt`` (above the take-off point), ``H``, ``BAROMETER``, then
-    ``altitude`` (logged as ambiguous: some firmware writes altitude above sea level there); ``abs_alt``
-    (above sea level) is not height above ground and is used only with ``height_offset_m``.
+    Height above ground, in order of preference: ``rel_alt`` (above the take-off point), ``H``, ``Hb``,
+    ``Hs``, ``BAROMETER``, then ``altitude`` (logged as ambiguous: some firmware writes altitude above sea
+    level there); ``abs_alt`` (above sea level) is used only with ``height_offset_m``. A block with none
+    of these still gives a record, with ``height_m`` None (a warning counts them).
+
+    Clock: a block's date-time line (UNIX epoch), else its subtitle start, else its frame counter times
+    ``DiffTime``; the file's clock is made non-decreasing by `shared.telemetry.srt_clock.monotonic_times`,
+    with a warning where these sources disagree (files concatenated from several recordings).
+
+    Bad blocks (no GPS fix, no position, no time, a malformed value or timing line, text outside any
+    block) are skipped and counted, with one warning naming the first lines; they never fail the file.
 
     Parameters
     ----------
     text : str
-        The file's text.
+        The file's text (a leading BOM is ignored).
     source : str
-        Name used in error messages (``source:line: what``).
+        Name used in messages (``source: what``, ``line N: what``).
     utc_offset_s : float
         Offset of the drone clock from UTC in seconds (DJI writes local time without a zone; e.g. 7200
         for CEST). The default treats the date lines as UTC.
@@ -260,109 +399,28 @@ def parse_srt(
     Returns
     -------
     list of Telemetry
-        In file order. ``t`` is the UNIX epoch from the date lines when every block has one, else the
-        subtitle start time in seconds. ``frame`` is ``FrameCnt``/``SrtCnt`` or the subtitle index.
-        Pitch and heading come only from the gimbal (``gb_pitch``/``gb_yaw``/``gb_roll`` or ``G.PRY``),
-        converted with `pitch_from_dji`; aircraft attitude (``F.PRY``) is ignored; without gimbal fields
-        they are None. Blocks whose position is exactly (0, 0) are DJI's "no GPS fix" and are skipped
-        with a warning.
+        In file order, ``t`` non-decreasing: the UNIX epoch when the file has date-time lines, else the
+        subtitle clock in seconds. ``frame`` is ``FrameCnt``/``SrtCnt`` or the subtitle index. Pitch and
+        heading come only from the gimbal (``gb_pitch``/``gb_yaw``/``gb_roll`` or ``G.PRY``), converted
+        with `pitch_from_dji`; aircraft attitude (``F.PRY``) is ignored; without gimbal fields they are None.
+        `parse_srt_report` returns the same records with what was skipped and the GPS resolution.
 
     Raises
     ------
     ValueError
-        ``source:line: what`` for an empty file, a malformed timing or date line, a block without
-        latitude/longitude/height, a non-numeric value, a gimbal pitch more than `PITCH_TOLERANCE_DEG`
-        outside 0..90 (camera tilted up), a file mixing blocks with and without dates, or no GPS fix at all.
+        ``source: what`` when the file gives no record at all (see `parse_srt_report`).
     """
-    if not isinstance(text, str):
-        raise TypeError(f"parse_srt needs str, got {type(text).__name__}")
-    blocks = [
-        _parse_srt_block(index, timing_line, start_s, lines, source, utc_offset_s)
-        for index, timing_line, start_s, lines in _split_srt(text, source)
-    ]
-    dated = [b.epoch_s is not None for b in blocks]
-    if any(dated) and not all(dated):
-        odd = blocks[dated.index(not dated[0])]
-        raise _srt_error(source, odd.timing_line, "some blocks have a date-time line and others do not")
-    order = _gps_order(blocks, gps_order, source)
-    warned: set[str] = set()
-    records: list[Telemetry] = []
-    no_fix_lines: list[int] = []
-    for block in blocks:
-        lat, lon = _srt_position(block, order, source)
-        if lat == 0.0 and lon == 0.0:
-            no_fix_lines.append(block.timing_line)
-            continue
-        height_m = _srt_height(block, source, height_offset_m, warned)
-        pitch, heading, roll = _srt_gimbal(block, source)
-        speed = block.values.get("H.S")
-        try:
-            records.append(
-                Telemetry(
-                    t=block.epoch_s if block.epoch_s is not None else block.start_s,
-                    lat=lat,
-                    lon=lon,
-                    height_m=height_m,
-                    pitch_deg=pitch,
-                    heading_deg=heading,
-                    roll_deg=roll,
-                    speed_mps=None if speed is None else abs(speed[0]),
-                    frame=block.frame,
-                )
-            )
-        except ValueError as err:
-            raise _srt_error(source, block.timing_line, str(err)) from None
-    if no_fix_lines:
-        logger.warning(
-            "%s: skipped %d block(s) at position (0, 0) = no GPS fix, first at line %d",
-            source,
-            len(no_fix_lines),
-            no_fix_lines[0],
-        )
-    if not records:
-        raise ValueError(f"{source}: no block has a GPS fix (all positions are 0, 0)")
-    return records
+    return parse_srt_report(
+        text, source=source, utc_offset_s=utc_offset_s, height_offset_m=height_offset_m, gps_order=gps_order
+    ).records
 
 
-def _srt_position(block: _SrtBlock, order: str, source: str) -> tuple[float, float]:
-    if "latitude" in block.values or "longitude" in block.values:
-        for key in ("latitude", "longitude"):
-            if key not in block.values:
-                raise _srt_error(source, block.timing_line, f"block has no {key}")
-        lat, lat_line = block.values["latitude"]
-        lon, lon_line = block.values["longitude"]
-    elif block.gps is not None:
-        a, b, _, lat_line = block.gps
-        lon_line = lat_line
-        lat, lon = (a, b) if order == "latlon" else (b, a)
-    else:
-        raise _srt_error(source, block.timing_line, "block has no latitude (no [latitude: ...] or GPS(...))")
-    if not -90.0 <= lat <= 90.0:
-        raise _srt_error(source, lat_line, f"latitude {lat:g} is outside [-90, 90]")
-    if not -180.0 <= lon <= 180.0:
-        raise _srt_error(source, lon_line, f"longitude {lon:g} is outside [-180, 180]")
-    return lat, lon
-
-
-def _srt_gimbal(block: _SrtBlock, source: str) -> tuple[float | None, float | None, float]:
-    values = block.values
-    if "gb_pitch" in values or "gb_yaw" in values:
-        raw_pitch, pitch_line = values.get("gb_pitch", (None, block.timing_line))
-        heading = values["gb_yaw"][0] if "gb_yaw" in values else None
-        roll = values["gb_roll"][0] if "gb_roll" in values else 0.0
-    elif block.gimbal_pry is not None:
-        raw_pitch, roll, heading, pitch_line = block.gimbal_pry
-    else:
-        return None, None, 0.0
-    pitch = None
-    if raw_pitch is not None:
-        if not math.isfinite(raw_pitch):
-            raise _srt_error(source, pitch_line, f"gimbal pitch {raw_pitch!r} is not finite")
-        pitch = pitch_or_none(-raw_pitch, f"{source}:{pitch_line}: DJI gimbal pitch {raw_pitch:g}")
-    return pitch, heading, roll
+def read_srt_report(path: str | Path, **kw: Any) -> SrtReport:
+    """Read a DJI SRT file with its report; keyword arguments as in `parse_srt` (``source``: the path)."""
+    kw.setdefault("source", str(path))
+    return parse_srt_report(read_text(path), **kw)
 
 
 def read_srt(path: str | Path, **kw: Any) -> list[Telemetry]:
     """Read a DJI SRT file; keyword arguments as in `parse_srt` (``source`` defaults to the path)."""
-    kw.setdefault("source", str(path))
-    return parse_srt(read_text(path), **kw)
+    return read_srt_report(path, **kw).records

@@ -27,8 +27,10 @@ from shared.telemetry import (
     parse_datetime,
     parse_seadronessee_coco,
     parse_srt,
+    parse_srt_report,
     pitch_from_dji,
     read_srt,
+    read_srt_report,
     read_telemetry,
     to_seadronessee_meta,
 )
@@ -304,58 +306,338 @@ def test_gps_fix_missing_blocks_at_zero_zero_are_skipped_with_a_warning(caplog):
 
 
 # ---------------------------------------------------------------------------------------------
-# Malformed SRT: clear ValueError with source and line number
+# Files that give no record at all: one clear ValueError naming the file
 # ---------------------------------------------------------------------------------------------
+
+# Early Mavic Air firmware: exposure settings only, no position in any block.
+MAVIC_AIR_EXPOSURE_ONLY_SRT = (
+    "1\n"
+    "00:00:00,000 --> 00:00:00,033\n"
+    '<font size="36">SrtCnt : 1, DiffTime : 33ms\n'
+    "2018-04-14 15:07:32,126,452\n"
+    "[iso : 100] [shutter : 1/1250.0] [fnum : 280] [ev : 0] [ct : 5526] [color_md : default] "
+    "[focal_len : 240] </font>\n"
+    "\n"
+    "2\n"
+    "00:00:00,033 --> 00:00:00,066\n"
+    '<font size="36">SrtCnt : 2, DiffTime : 33ms\n'
+    "2018-04-14 15:07:32,159,812\n"
+    "[iso : 100] [shutter : 1/1250.0] [fnum : 280] [ev : 0] [ct : 5526] [color_md : default] "
+    "[focal_len : 240] </font>\n"
+)
 
 
 @pytest.mark.parametrize(
     ("text", "pattern"),
     [
-        ("", r"flight\.srt: empty"),
-        ("  \n\n \r\n", r"flight\.srt: empty"),
-        ("hello drone\n", r"flight\.srt: no subtitle blocks"),
-        (MATRICE_30_SRT.replace("[latitude: 53.388452] ", "", 1), r"flight\.srt:2: .*no latitude"),
+        ("", r"^flight\.srt: empty SRT file$"),
+        ("  \n\n \r\n", r"^flight\.srt: empty SRT file$"),
+        ("\ufeff\r\n", r"^flight\.srt: empty SRT file$"),
+        ("hello drone\n", r"^flight\.srt: no subtitle blocks"),
+        (MAVIC_AIR_EXPOSURE_ONLY_SRT, r"^flight\.srt: no block of 2 has a position .*logs no GPS"),
         (
-            MATRICE_30_SRT.replace("[latitude: 53.388452]", "[latitude: 5x.388452]", 1),
-            r"flight\.srt:5: latitude .*not a number",
-        ),
-        (MATRICE_30_SRT.replace("[latitude: 53.388452]", "[latitude: ]", 1), r"flight\.srt:5: latitude .*not a number"),
-        (MATRICE_30_SRT.replace("2025-04-09 09:15:02.655", "2025-13-45 09:15:02.655"), r"flight\.srt:4: invalid date"),
-        (
-            MATRICE_30_SRT.replace("2025-04-09 09:15:02.655", "2025-04-09 9h15"),
-            r"flight\.srt:4: date-time does not parse",
+            MATRICE_30_SRT.replace("53.388452", "0.0").replace("5.361783", "0.0"),
+            r"^flight\.srt: no block has a GPS fix",
         ),
         (
-            MATRICE_30_SRT.replace("00:00:00,198 --> 00:00:00,396", "00:00:0x,198 --> 00:00:00,396"),
-            r"flight\.srt:8: malformed subtitle timing",
+            MAVIC_PRO_SRT.replace("GPS(131.1660,-25.2088,14)", "GPS(N/A,N/A,0)"),
+            r"^flight\.srt: no block has a GPS fix",
         ),
-        (MINI_3_SRT.replace("rel_alt: 30.300 ", ""), r"flight\.srt:5: only absolute altitude .*height_offset_m"),
-        (MAVIC_MINI_SRT.replace("H 12.40m, ", ""), r"flight\.srt:2: block has no height"),
-        (MATRICE_30_SRT.replace("2025-04-09 09:15:02.837\n", ""), r"flight\.srt:8: some blocks have a date"),
-        ("garbage line\n" + MATRICE_30_SRT, r"flight\.srt:1: text before the first subtitle block"),
-        (MATRICE_30_SRT.replace("FrameCnt: 2,", "FrameCnt: two,"), r"flight\.srt:9: frame counter"),
-        (MAVIC_PRO_SRT.replace("GPS(131.1660,-25.2088,14)", "GPS(131.1660)", 1), r"flight\.srt:4: GPS tuple .*2 or 3"),
         (
-            MAVIC_PRO_SRT.replace("GPS(131.1660,-25.2088,14)", "GPS(131.1660,-25.20x8,14)", 1),
-            r"flight\.srt:4: GPS value",
-        ),
-        (P4_RTK_SRT.replace("G.PRY (-40.0°, 0.0°, 28.2°)", "G.PRY (-40.0°, 28.2°)"), r"flight\.srt:3: G\.PRY"),
-        (MATRICE_30_SRT.replace("53.388452", "0.0").replace("5.361783", "0.0"), r"flight\.srt: no block has a GPS fix"),
-        (
-            MATRICE_30_SRT.replace("[latitude: 53.388452]", "[latitude: 95.1]", 1),
-            r"flight\.srt:5: latitude 95\.1 is outside",
+            P4_RTK_SRT.replace("G.PRY (-40.0°, 0.0°, 28.2°)", "G.PRY (-40.0°, 28.2°)"),
+            r"^flight\.srt: no usable block among 1: line 3: G\.PRY .*needs pitch, roll, yaw$",
         ),
     ],
 )
-def test_malformed_srt_raises_value_error_with_source_and_line(text, pattern):
-    with pytest.raises(ValueError, match=pattern):
+def test_srt_without_any_usable_block_raises_one_clear_line(text, pattern):
+    with pytest.raises(ValueError, match=pattern) as err:
         parse_srt(text, source="flight.srt")
+    assert "\n" not in str(err.value)
+
+
+# ---------------------------------------------------------------------------------------------
+# Bad blocks are skipped, counted and named; the rest of the file loads
+# ---------------------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    ("text", "line", "reason"),
+    [
+        (MATRICE_30_SRT.replace("[latitude: 53.388452] ", "", 1), 2, "block has no latitude"),
+        (MATRICE_30_SRT.replace("[latitude: 53.388452]", "[latitude: 5x.388452]", 1), 5, "latitude value '5x.388452'"),
+        (MATRICE_30_SRT.replace("[latitude: 53.388452]", "[latitude: ]", 1), 5, "latitude value '' is not a number"),
+        (MATRICE_30_SRT.replace("2025-04-09 09:15:02.655", "2025-13-45 09:15:02.655"), 4, "invalid date-time"),
+        (MATRICE_30_SRT.replace("2025-04-09 09:15:02.655", "2025-04-09 9h15"), 4, "date-time does not parse"),
+        (
+            MATRICE_30_SRT.replace("00:00:00,198 --> 00:00:00,396", "00:00:0x,198 --> 00:00:00,396"),
+            8,
+            "malformed subtitle timing line",
+        ),
+        (MATRICE_30_SRT.replace("FrameCnt: 2,", "FrameCnt: two,"), 9, "frame counter 'two'"),
+        (MATRICE_30_SRT.replace("[latitude: 53.388452]", "[latitude: 95.1]", 1), 5, "latitude 95.1 is outside"),
+        (MATRICE_30_SRT.replace("[latitude: 53.388452] [longitude: 5.361783]", "", 1), 2, "block has no position"),
+        (MAVIC_PRO_SRT.replace("GPS(131.1660,-25.2088,14)", "GPS(131.1660)", 1), 4, "GPS tuple 'GPS(131.1660)'"),
+        (MAVIC_PRO_SRT.replace("GPS(131.1660,-25.2088,14)", "GPS(131.1660,-25.20x8,14)", 1), 4, "GPS value"),
+        ("garbage line\n" + MATRICE_30_SRT, 1, "text outside any subtitle block: 'garbage line'"),
+    ],
+)
+def test_a_bad_block_is_skipped_counted_and_named_never_the_whole_file(text, line, reason, caplog):
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        report = parse_srt_report(text, source="flight.srt")
+    assert len(report.skipped) == 1 and len(report.records) == report.blocks - 1 >= 1
+    assert report.skipped[0][0] == line and reason in report.skipped[0][1]
+    assert f"flight.srt: skipped 1 of {report.blocks} blocks: line {line}: " in caplog.text
+    assert reason in caplog.text
+    assert parse_srt(text) == report.records
+
+
+def test_skipped_block_warning_names_the_first_three_lines_and_counts_the_rest(caplog):
+    good = MATRICE_30_SRT.split("\n\n")[1]
+    bad = MATRICE_30_SRT.split("\n\n")[0].replace("[latitude: 53.388452] [longitude: 5.361783]", "GPS(N/A,N/A,0)")
+    text = "\n\n".join([bad] * 5 + [good]) + "\n"
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        report = parse_srt_report(text, source="flight.srt")
+    assert len(report.records) == 1 and len(report.skipped) == 5
+    assert [line for line, _ in report.skipped] == [5, 11, 17, 23, 29]
+    assert all(reason == "no GPS fix: GPS(N/A,N/A,0)" for _, reason in report.skipped)
+    message = next(r.getMessage() for r in caplog.records if "skipped" in r.getMessage())
+    assert message.startswith("flight.srt: skipped 5 of 6 blocks: line 5: no GPS fix")
+    assert "line 17: " in message and "line 23" not in message and message.endswith("(and 2 more)")
+
+
+# ---------------------------------------------------------------------------------------------
+# The variants of issue 21, each in the exact shape quoted there
+# ---------------------------------------------------------------------------------------------
+
+# Mavic 2-era firmware without timing lines: an index, a date-time line, then the fields.
+NO_TIMING_LINE_SRT = (
+    "1\n"
+    "2017.08.05 14:11:51,393,525\n"
+    "[iso : 110] [shutter : 1/200.0] [fnum : 220] [ev : 0.7] [ct : 5064] [color_md : default] "
+    "[focal_len : 240] [latitude : 22.543096] [longtitude : 113.958321] \n"
+    "\n"
+    "2\n"
+    "2017.08.05 14:11:51,426,891\n"
+    "[iso : 110] [shutter : 1/200.0] [fnum : 220] [ev : 0.7] [ct : 5064] [color_md : default] "
+    "[focal_len : 240] [latitude : 22.543101] [longtitude : 113.958330] \n"
+)
+
+# Mavic 2 Pro firmware that writes the position and no altitude at all.
+MAVIC_2_PRO_NO_ALTITUDE_SRT = (
+    "1\n"
+    "00:00:00,000 --> 00:00:00,033\n"
+    '<font size="36">SrtCnt : 1, DiffTime : 33ms\n'
+    "2019-03-16 16:20:47,227,538\n"
+    "[iso : 100] [shutter : 1/640.0] [fnum : 280] [ev : 0] [ct : 5500] [color_md : default] "
+    "[focal_len : 280] [latitude : 38.887375] [longtitude : -77.034671] </font>\n"
+    "\n"
+    "2\n"
+    "00:00:00,033 --> 00:00:00,066\n"
+    '<font size="36">SrtCnt : 2, DiffTime : 33ms\n'
+    "2019-03-16 16:20:47,260,904\n"
+    "[iso : 100] [shutter : 1/640.0] [fnum : 280] [ev : 0] [ct : 5500] [color_md : default] "
+    "[focal_len : 280] [latitude : 38.887381] [longtitude : -77.034665] </font>\n"
+)
+
+# The oldest format (Phantom 3 era): GPS(lon, lat, alt) with barometric (Hb) and sonar (Hs) heights.
+OLD_HB_HS_SRT = (
+    "1\n"
+    "00:00:01,000 --> 00:00:02,000\n"
+    "GPS(8.5417,47.3769,19) Hb:1.9 Hs:1.9\n"
+    "ISO:100 Shutter:60 EV:0 Fnum:2.8\n"
+    "\n"
+    "2\n"
+    "00:00:02,000 --> 00:00:03,000\n"
+    "GPS(8.5418,47.3770,19) Hb:12.4 Hs:3.1\n"
+    "ISO:100 Shutter:60 EV:0 Fnum:2.8\n"
+)
+
+# Mavic Pro blocks without a fix: GPS(N/A,N/A,...).
+MAVIC_PRO_NO_FIX_SRT = (
+    "1\n"
+    "00:00:01,000 --> 00:00:02,000\n"
+    "HOME(149.0251,-20.2532) 2017.08.05 14:11:51\n"
+    "GPS(N/A,N/A,4) BAROMETER:0.0\n"
+    "ISO:100 Shutter:60 EV:0 Fnum:2.2 \n"
+    "\n"
+    "2\n"
+    "00:00:02,000 --> 00:00:03,000\n"
+    "HOME(149.0251,-20.2532) 2017.08.05 14:11:52\n"
+    "GPS(149.0251,-20.2533,9) BAROMETER:0.3\n"
+    "ISO:100 Shutter:60 EV:0 Fnum:2.2 \n"
+    "\n"
+    "3\n"
+    "00:00:03,000 --> 00:00:04,000\n"
+    "HOME(149.0251,-20.2532) 2017.08.05 14:11:53\n"
+    "GPS(N/A,N/A,6) BAROMETER:1.1\n"
+    "ISO:100 Shutter:60 EV:0 Fnum:2.2 \n"
+    "\n"
+    "4\n"
+    "00:00:04,000 --> 00:00:05,000\n"
+    "HOME(149.0251,-20.2532) 2017.08.05 14:11:54\n"
+    "GPS(149.0252,-20.2534,11) BAROMETER:2.4\n"
+    "ISO:100 Shutter:60 EV:0 Fnum:2.2 \n"
+)
+
+# Blocks with neither a timing line nor a date: the frame counter and DiffTime give the clock.
+COUNTER_ONLY_SRT = (
+    "1\n"
+    "FrameCnt : 1, DiffTime : 41ms\n"
+    "[latitude : 22.543096] [longtitude : 113.958321] [altitude: 45.300000]\n"
+    "\n"
+    "2\n"
+    "FrameCnt : 2, DiffTime : 42ms\n"
+    "[latitude : 22.543097] [longtitude : 113.958322] [altitude: 45.400000]\n"
+    "\n"
+    "3\n"
+    "FrameCnt : 3, DiffTime : 41ms\n"
+    "[latitude : 22.543098] [longtitude : 113.958323] [altitude: 45.500000]\n"
+)
+
+# Mavic Mini recording (subtitle timing, no dates) followed by a Matrice 30 recording (dates).
+MAVIC_MINI_2_BLOCKS_SRT = MAVIC_MINI_SRT + (
+    "\n"
+    "2\n"
+    "00:00:01,000 --> 00:00:02,000\n"
+    "F/2.8, SS 206.14, ISO 150, EV 0, GPS (-82.6670, 27.7717, 10), D 2.90m, H 13.10m, H.S 3.20m/s, "
+    "V.S 0.00m/s \n"
+)
+CONCATENATED_SRT = MAVIC_MINI_2_BLOCKS_SRT + "\n" + MATRICE_30_SRT
+
+
+def test_blocks_without_timing_line_use_their_date_time_line(caplog):
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        report = parse_srt_report(NO_TIMING_LINE_SRT, source="DJI_0007.SRT")
+    first, second = report.records
+    assert (first.lat, first.lon) == pytest.approx((22.543096, 113.958321))
+    assert first.t == pytest.approx(utc(2017, 8, 5, 14, 11, 51) + 0.393525, abs=1e-6)
+    assert second.t - first.t == pytest.approx(0.033366, abs=1e-6)
+    assert (first.frame, second.frame) == (1, 2)
+    assert first.height_m is None and report.heights_missing == 2
+    assert report.skipped == () and report.clock_notes == ()
+    assert "2 of 2 records have no height above ground" in caplog.text
+
+
+def test_mavic_2_pro_without_altitude_loads_with_the_height_missing(caplog):
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        report = parse_srt_report(MAVIC_2_PRO_NO_ALTITUDE_SRT, source="DJI_0012.SRT")
+    assert [(r.lat, r.lon) for r in report.records] == [(38.887375, -77.034671), (38.887381, -77.034665)]
+    assert [r.height_m for r in report.records] == [None, None]
+    assert report.heights_missing == 2 and report.heights_above_sea_level_only == 0
+    assert "DJI_0012.SRT: 2 of 2 records have no height above ground (2 give no height at all)" in caplog.text
+    with pytest.raises(ValueError, match=r"--height-m METRES .* or, if it logs altitude above sea level"):
+        report.records[0].to_pose(45.0, 90.0)
+    pose = report.records[0].to_pose(45.0, 90.0, height_m=40.0)
+    assert pose.height_m == 40.0
+
+
+@pytest.mark.parametrize("third", ["19", "412.5M"])
+def test_oldest_format_gps_is_lon_lat_and_height_is_hb(third):
+    first, second = parse_srt(OLD_HB_HS_SRT.replace(",19)", f",{third})"))
+    assert (first.lat, first.lon) == pytest.approx((47.3769, 8.5417))
+    assert (first.height_m, second.height_m) == pytest.approx((1.9, 12.4))
+    assert (first.t, second.t) == (1.0, 2.0)
+
+
+def test_oldest_format_uses_sonar_height_without_barometric():
+    (first, _) = parse_srt(OLD_HB_HS_SRT.replace("Hb:1.9 ", ""))
+    assert first.height_m == pytest.approx(1.9)
+
+
+def test_mavic_pro_blocks_without_fix_are_skipped_and_counted(caplog):
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        report = parse_srt_report(MAVIC_PRO_NO_FIX_SRT, source="DJI_0001.SRT")
+    assert [r.frame for r in report.records] == [2, 4]
+    assert report.records[0].lat == pytest.approx(-20.2533) and report.records[0].lon == pytest.approx(149.0251)
+    assert report.skipped == ((4, "no GPS fix: GPS(N/A,N/A,4)"), (16, "no GPS fix: GPS(N/A,N/A,6)"))
+    assert "DJI_0001.SRT: skipped 2 of 4 blocks: line 4: no GPS fix: GPS(N/A,N/A,4); line 16: " in caplog.text
+    assert report.records[1].t - report.records[0].t == 2.0
+
+
+def test_blocks_without_timing_or_date_use_frame_counter_and_diff_time():
+    report = parse_srt_report(COUNTER_ONLY_SRT)
+    assert [r.t for r in report.records] == pytest.approx([0.0, 0.042, 0.083])
+    assert [r.frame for r in report.records] == [1, 2, 3]
+    assert report.records[2].height_m == pytest.approx(45.5)
+
+
+def test_concatenated_recordings_are_read_block_by_block_on_one_monotonic_clock(caplog):
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        report = parse_srt_report(CONCATENATED_SRT, source="both.SRT")
+    records = report.records
+    assert [r.frame for r in records] == [1, 2, 1, 2]
+    assert (records[0].lat, records[0].lon) == pytest.approx((27.7716, -82.6669))  # Mini: GPS(lon, lat, sats)
+    assert (records[2].lat, records[2].lon) == pytest.approx((53.388452, 5.361783))
+    dated = utc(2025, 4, 9, 9, 15, 2) + 0.655
+    assert records[2].t == pytest.approx(dated) and records[3].t == pytest.approx(dated + 0.182)
+    # the undated Mini blocks keep their 1 s spacing and end before the dated recording starts
+    assert records[1].t - records[0].t == pytest.approx(1.0)
+    assert records[0].t < records[1].t < records[2].t
+    assert report.gps_decimals_seen == {4: 2, 6: 2} and report.gps_decimals == 4
+    assert report.gps_step_m == pytest.approx(11.132)
+    assert len(report.clock_notes) == 1 and report.clock_notes[0].startswith("line 10: ")
+    assert "both.SRT: the clock was made monotonic" in caplog.text
+
+
+def test_a_block_without_date_among_dated_ones_continues_from_the_subtitle_timing(caplog):
+    text = MATRICE_30_SRT.replace("2025-04-09 09:15:02.837\n", "")
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        first, second = parse_srt(text)
+    assert second.t - first.t == pytest.approx(0.198)  # the timing step; the missing date said 0.182
+    assert "line 8" in caplog.text and "monotonic" in caplog.text
+
+
+def test_dates_that_go_back_are_made_monotonic_with_a_warning(caplog):
+    later = AIR_2S_SRT.replace("2022-08-07 13:40:40,808,164", "2022-08-07 12:40:40,808,164")
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        first, second = parse_srt(later, source="jump.SRT")
+    assert second.t - first.t == pytest.approx(0.033)
+    assert "jump.SRT: the clock was made monotonic" in caplog.text and "goes back 3599.967 s" in caplog.text
+
+
+def test_dates_that_jump_ahead_of_the_subtitle_timing_are_kept_with_a_warning(caplog):
+    later = AIR_2S_SRT.replace("2022-08-07 13:40:40,808,164", "2022-08-07 14:40:40,808,164")
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        first, second = parse_srt(later)
+    assert second.t - first.t == pytest.approx(3600.033356)
+    assert "kept the dates" in caplog.text
+
+
+def test_gps_quantisation_is_reported_per_file():
+    assert parse_srt_report(MAVIC_PRO_SRT).gps_decimals == 4
+    report = parse_srt_report(MATRICE_30_SRT)
+    assert report.gps_decimals == 6 and report.gps_decimals_seen == {6: 2}
+    assert report.gps_step_m == pytest.approx(0.11132)
+
+
+def test_read_srt_report_reads_a_latin_1_file_and_names_it(tmp_path):
+    path = tmp_path / "DJI_0003.SRT"
+    path.write_bytes(P4_RTK_SRT.encode("latin-1"))
+    report = read_srt_report(path)
+    assert report.source == str(path) and report.records == read_srt(path)
+    assert report.records[0].pitch_deg == pytest.approx(40.0)
+
+
 
 
 def test_abs_alt_only_works_with_height_offset():
     text = MINI_3_SRT.replace("rel_alt: 30.300 ", "")
     (rec,) = parse_srt(text, height_offset_m=-549.679)
     assert rec.height_m == pytest.approx(30.0)
+
+
+def test_abs_alt_only_without_offset_loads_with_height_missing_and_says_which_flag(caplog):
+    text = MINI_3_SRT.replace("rel_alt: 30.300 ", "")
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry"):
+        report = parse_srt_report(text, source="DJI_0100.SRT")
+    assert report.records[0].height_m is None
+    assert report.heights_missing == 1 and report.heights_above_sea_level_only == 1
+    assert "1 give only abs_alt, above sea level: pass height_offset_m=-(ground elevation in m)" in caplog.text
+
+
+def test_mavic_mini_without_h_loads_with_height_missing():
+    (rec,) = parse_srt(MAVIC_MINI_SRT.replace("H 12.40m, ", ""))
+    assert rec.height_m is None and rec.lat == pytest.approx(27.7716)
 
 
 def test_gps_order_override_that_contradicts_values_is_rejected():
