@@ -173,3 +173,76 @@ def test_dataset_source_gives_the_telemetry_stamp_as_pose_time(coop_dir):
     frames = [f for f in DatasetSource(coop_dir).frames() if f.pose is not None]
     ages = np.array([f.t - f.pose_t for f in frames])
     assert np.all(ages >= -1e-6) and np.all(ages < 0.2) and (ages > 0.01).sum() >= len(frames) // 3
+
+
+# ---- telemetry without a height: --height-m / --height-offset-m ------------------------------------
+# Mavic 2 Pro firmware that logs the position and no altitude (issue 21), gimbal angles from the flags.
+_SRT_NO_HEIGHT = "".join(
+    f"{i + 1}\n00:00:{i // 10:02d},{i % 10 * 100:03d} --> 00:00:{(i + 1) // 10:02d},{(i + 1) % 10 * 100:03d}\n"
+    f'<font size="36">SrtCnt : {i + 1}, DiffTime : 100ms\n2019-03-16 16:20:47,{i * 100:03d},000\n'
+    f"[iso : 100] [shutter : 1/640.0] [fnum : 280] [ev : 0] [ct : 5500] [color_md : default] "
+    f"[focal_len : 280] [latitude : {48.53 + 1e-5 * i:.6f}] [longtitude : 9.060000] </font>\n\n"
+    for i in range(10)
+)
+
+
+def test_video_telemetry_without_height_asks_for_height_m_in_one_line(tmp_path):
+    from agent.sources import load_video_telemetry
+
+    srt = tmp_path / "DJI_0012.SRT"
+    srt.write_text(_SRT_NO_HEIGHT)
+    with pytest.raises(ValueError, match=r"DJI_0012\.SRT has no height above ground in 10 of 10 records: "
+                                         r"pass --height-m METRES") as err:
+        load_video_telemetry(srt)
+    assert "\n" not in str(err.value)
+    records = load_video_telemetry(srt, height_m=35.0)
+    assert len(records) == 10 and records[0].height_m is None
+    assert records[0].to_pose(90.0, 0.0, height_m=35.0).height_m == 35.0
+    with pytest.raises(ValueError, match="--height-m -3.0 must be a height above the ground > 0 m"):
+        load_video_telemetry(srt, height_m=-3.0)
+
+
+def test_video_telemetry_above_sea_level_only_asks_for_height_offset_m(tmp_path):
+    from agent.sources import load_video_telemetry
+
+    srt = tmp_path / "mini3.srt"
+    srt.write_text(_SRT_NO_HEIGHT.replace("[longtitude : 9.060000]", "[longitude : 9.06] [abs_alt: 452.5]"))
+    with pytest.raises(ValueError, match=r"gives only altitude above sea level \(abs_alt\) in 10 of 10 records: "
+                                         r"pass --height-offset-m=-\(ground elevation in metres\)"):
+        load_video_telemetry(srt)
+    records = load_video_telemetry(srt, height_offset_m=-412.5)
+    assert [r.height_m for r in records] == pytest.approx([40.0] * 10)
+    coco = tmp_path / "meta.json"
+    coco.write_text("{}")
+    with pytest.raises(ValueError, match="--height-offset-m applies to .srt and .csv telemetry"):
+        load_video_telemetry(coco, height_offset_m=-10.0)
+
+
+def test_video_source_georeferences_srt_without_height_with_height_m(tmp_path):
+    video = _write_video(tmp_path / "flight.avi", 8)
+    telemetry = tmp_path / "flight.srt"
+    telemetry.write_text(_SRT_NO_HEIGHT)
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    source = VideoSource(video, telemetry, _write_model(tmp_path / "model.onnx"), camera, pitch_deg=60.0,
+                         heading_deg=0.0, height_m=42.0)
+    frames = list(source.frames())
+    assert len(frames) == 8 and all(f.pose is not None for f in frames)
+    assert {f.pose.height_m for f in frames} == {42.0}
+    assert frames[3].pose.lat == pytest.approx(48.53 + 3e-5)
+
+
+def test_agent_command_without_height_fails_with_one_clear_line(tmp_path, capsys):
+    from uavmm.cli import main
+
+    telemetry = tmp_path / "DJI_0012.SRT"
+    telemetry.write_text(_SRT_NO_HEIGHT)
+    for name in ("v.mp4", "m.onnx", "c.json"):  # the telemetry is read before these are opened
+        (tmp_path / name).write_bytes(b"")
+    code = main(["agent", "--uav-id", "uav1", "--video", str(tmp_path / "v.mp4"), "--telemetry", str(telemetry),
+                 "--model", str(tmp_path / "m.onnx"), "--camera", str(tmp_path / "c.json")])
+    err = capsys.readouterr().err
+    assert code == 2
+    lines = [line for line in err.splitlines() if "error" in line]
+    assert lines == [f"uavmm agent: error: telemetry file {telemetry} has no height above ground in 10 of 10 "
+                     "records: pass --height-m METRES (the flight's height above the ground)"]

@@ -1187,6 +1187,64 @@ def test_property_interpolation_hits_records_and_stays_on_the_short_arc(steps, f
         assert min(a.pitch_deg, b.pitch_deg) - 1e-9 <= mid.pitch_deg <= max(a.pitch_deg, b.pitch_deg) + 1e-9
 
 
+# Every variant's first block (or a skipped one) with the position it must give, None = skipped.
+SRT_BLOCK_CATALOGUE = [
+    (MAVIC_PRO_SRT.split("\n\n")[0], (-25.2088, 131.1660)),
+    (PHANTOM_4_EUROPE_SRT, (47.6893, 9.1832)),
+    (MAVIC_MINI_SRT, (27.7716, -82.6669)),
+    (P4_RTK_SRT, (30.213635, 120.083799)),
+    (MATRICE_300_SRT.split("\n\n")[0], (36.6153, -6.1130)),
+    (MAVIC_2_SRT, (38.904148, -92.281307)),
+    (AIR_2S_SRT.split("\n\n")[0], (41.424724, 2.234156)),
+    (MINI_3_SRT, (-22.724555, -47.602414)),
+    (MATRICE_30_SRT.split("\n\n")[1], (53.388452, 5.361783)),
+    (NO_TIMING_LINE_SRT.split("\n\n")[0], (22.543096, 113.958321)),
+    (MAVIC_2_PRO_NO_ALTITUDE_SRT.split("\n\n")[0], (38.887375, -77.034671)),
+    (OLD_HB_HS_SRT.split("\n\n")[1], (47.3770, 8.5418)),
+    (COUNTER_ONLY_SRT.split("\n\n")[2], (22.543098, 113.958323)),
+    (MAVIC_PRO_NO_FIX_SRT.split("\n\n")[0], None),
+    (MAVIC_AIR_EXPOSURE_ONLY_SRT.split("\n\n")[0], None),
+]
+
+_SPACE = st.sampled_from(["", " ", "  ", "\t"])
+
+
+@st.composite
+def shuffled_srt_files(draw):
+    """A file of catalogue blocks in any order, with DJI-like whitespace: CRLF/CR/LF, BOM, padding, blank lines."""
+    picks = draw(st.lists(st.integers(0, len(SRT_BLOCK_CATALOGUE) - 1), min_size=1, max_size=10))
+    newline = draw(st.sampled_from(["\n", "\r\n", "\r"]))
+    chunks = []
+    for pick in picks:
+        lines = SRT_BLOCK_CATALOGUE[pick][0].strip("\n").split("\n")
+        chunks.append(newline.join(draw(_SPACE) + line + draw(_SPACE) for line in lines))
+    separators = [newline + newline.join(draw(_SPACE) for _ in range(draw(st.integers(1, 3)))) + newline
+                  for _ in picks[1:]]
+    text = chunks[0] + "".join(sep + chunk for sep, chunk in zip(separators, chunks[1:], strict=True))
+    text = newline * draw(st.integers(0, 2)) + text + newline * draw(st.integers(0, 2))
+    if draw(st.booleans()):
+        text = "\ufeff" + text
+    return text, [SRT_BLOCK_CATALOGUE[pick][1] for pick in picks]
+
+
+@settings(max_examples=200, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(shuffled_srt_files())
+def test_property_any_order_and_whitespace_of_variant_blocks_loads_block_by_block(case):
+    text, expected = case
+    positions = [p for p in expected if p is not None]
+    if not positions:
+        with pytest.raises(ValueError, match=r"^flight\.srt: no block"):
+            parse_srt(text, source="flight.srt")
+        return
+    report = parse_srt_report(text, source="flight.srt")
+    assert [c for r in report.records for c in (r.lat, r.lon)] == pytest.approx([c for p in positions for c in p])
+    assert len(report.skipped) == len(expected) - len(positions)
+    assert report.blocks == len(expected)
+    times = [r.t for r in report.records]
+    assert all(b >= a for a, b in pairwise(times))
+    assert report.gps_decimals in (4, 6)
+
+
 SRT_TOKENS = [
     "1",
     "2",
@@ -1232,6 +1290,14 @@ SRT_TOKENS = [
     "99999999999999999999:00:00,000 --> 00:00:01,000",
     "[latitude: -]",
     "HOME(1,2)",
+    "GPS(8.5417,47.3769,19) Hb:1.9 Hs:1.9",
+    "Hb:x Hs:",
+    "GPS(N/A,N/A,4) BAROMETER:0.0",
+    "GPS(n/a,1,2)",
+    "2017.08.05 14:11:51,393,525",
+    "[latitude : 22.543096] [longtitude : 113.958321]",
+    "FrameCnt : 2, DiffTime : 42ms",
+    "DiffTime : xms",
 ]
 
 
@@ -1243,6 +1309,7 @@ def test_property_junk_srt_raises_only_value_error(text):
     except ValueError:
         return
     assert records and all(isinstance(r, Telemetry) for r in records)
+    assert all(b.t >= a.t for a, b in pairwise(records))
 
 
 @settings(max_examples=200, deadline=None)
