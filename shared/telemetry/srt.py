@@ -294,7 +294,7 @@ def parse_srt_report(
 
 
 def _no_record_message(source: str, blocks: int, skipped: list[tuple[int, str]]) -> str:
-    reasons = [reason for _, reason in skipped]
+    reasons = [reason for _, reason in skipped if not reason.startswith("text outside")]
     if all("no position" in reason for reason in reasons):
         return (
             f"{source}: no block of {blocks} has a position ([latitude: ...] or GPS(...)): this SRT logs no "

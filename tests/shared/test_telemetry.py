@@ -610,6 +610,12 @@ def test_gps_quantisation_is_reported_per_file():
     assert report.gps_step_m == pytest.approx(0.11132)
 
 
+def test_srt_resaved_as_utf_16_by_a_subtitle_editor_reads_the_same(tmp_path):
+    path = tmp_path / "DJI_0004.SRT"
+    path.write_bytes(MATRICE_30_SRT.replace("\n", "\r\n").encode("utf-16"))  # with a BOM, as editors write it
+    assert read_srt(path) == parse_srt(MATRICE_30_SRT)
+
+
 def test_read_srt_report_reads_a_latin_1_file_and_names_it(tmp_path):
     path = tmp_path / "DJI_0003.SRT"
     path.write_bytes(P4_RTK_SRT.encode("latin-1"))
@@ -1005,6 +1011,16 @@ def test_interpolation_missing_optional_field_gives_none():
     out = interpolate(records, [0.5, 1.5])
     assert out[0].pitch_deg is None
     assert out[1].pitch_deg == pytest.approx(35.0)
+
+
+def test_interpolation_missing_height_gives_none_and_to_pose_asks_for_one():
+    records = [rec(0.0, height=None), rec(1.0, height=20.0), rec(2.0, height=30.0)]
+    out = interpolate(records, [0.5, 1.5])
+    assert out[0].height_m is None and out[1].height_m == pytest.approx(25.0)
+    with pytest.raises(ValueError, match="no height above ground: pass --height-m"):
+        out[0].to_pose()
+    assert out[0].to_pose(height_m=12.0).height_m == 12.0
+    assert out[1].to_pose(height_m=12.0).height_m == pytest.approx(25.0)  # never replaces a logged height
 
 
 def test_interpolation_rejects_unsorted_and_empty():
