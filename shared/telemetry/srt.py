@@ -223,7 +223,7 @@ def parse_srt_report(
     subtitle_blocks = 0
     for raw in raw_blocks:
         line = _block_line(raw)
-        if not _looks_like_a_block(raw) and not _SRT_FIELD_RE.search(" ".join(text for _, text in raw.lines)):
+        if not _looks_like_a_block(raw) and not _SRT_FIELD_RE.search(" ".join(content for _, content in raw.lines)):
             skipped.append((line, f"text outside any subtitle block: {raw.lines[0][1][:40]!r}"))
             continue
         subtitle_blocks += 1
@@ -275,7 +275,7 @@ def parse_srt_report(
         decimals_seen[decimals] += 1
     skipped.sort()
     if not kept:
-        raise ValueError(_no_record_message(source, len(raw_blocks), skipped))
+        raise ValueError(_no_record_message(source, subtitle_blocks, skipped))
     times_out, clock_notes = monotonic_times(times_in)
     records = [replace(record, t=t) for (_, _, record, _), t in zip(kept, times_out, strict=True)]
     report = SrtReport(
