@@ -12,7 +12,7 @@ from __future__ import annotations
 import hashlib
 import time
 from importlib import resources
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any, Literal, Protocol
 
 import numpy as np
 from fastapi import FastAPI, HTTPException, Query, Request
@@ -39,7 +39,33 @@ from fusion_server.render import (
 from shared.keys import name_problem
 
 if TYPE_CHECKING:
-    from fusion_server.server import FusionServer
+    from fusion_server.basemap import Basemap
+    from fusion_server.config import FusionSettings
+    from fusion_server.global_tracks import GlobalTracker
+    from fusion_server.joint_map import JointMap
+    from fusion_server.uav_registry import UavRegistry
+
+
+class FusionView(Protocol):
+    """What the API reads of a running server (`fusion_server.server.FusionServer` is one): the API
+    depends on this view, not on the server module, so the server can build the app without a cycle."""
+
+    settings: FusionSettings
+    started: float
+    joint: JointMap
+    tracker: GlobalTracker
+    uavs: UavRegistry
+    basemap: Basemap | None
+
+    def classes(self) -> set[str]: ...
+
+    def db_health(self) -> dict[str, Any]: ...
+
+    def zenoh_open(self) -> bool: ...
+
+    def prometheus(self) -> str: ...
+
+    def count_http_denied(self, reason: str) -> None: ...
 
 __all__ = ["create_app"]
 
@@ -55,7 +81,7 @@ def _bbox(text: str | None) -> BBox | None:
         raise HTTPException(status_code=400, detail=f"bad bbox: {exc}") from None
 
 
-def _check_cls(server: FusionServer, cls: str, *, must_exist: bool = True) -> str:
+def _check_cls(server: FusionView, cls: str, *, must_exist: bool = True) -> str:
     problem = name_problem(cls)
     if problem is not None:
         raise HTTPException(status_code=400, detail=f"bad cls: {problem}")
@@ -102,7 +128,7 @@ def _add_docs(app: FastAPI) -> None:
                               redoc_favicon_url="/docs-static/favicon.png", with_google_fonts=False)
 
 
-def create_app(server: FusionServer) -> FastAPI:
+def create_app(server: FusionView) -> FastAPI:
     """The FastAPI app serving ``server``'s state (read-only)."""
     app = FastAPI(
         title="uavmm fusion server",
