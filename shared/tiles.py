@@ -10,7 +10,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
-from typing import Any, NamedTuple
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -447,18 +447,3 @@ def fill_cell_polygons(polygons: Iterable[ArrayLike], gx0: int, gy0: int, width:
         pts = np.rint((cells - (gx0 + 0.5, gy0 + 0.5)) * (1 << _POLY_SHIFT)).astype(np.int32)
         cv2.fillPoly(canvas, [pts], 1, lineType=cv2.LINE_8, shift=_POLY_SHIFT)
     return canvas.view(bool)
-
-
-_CODEC_NAMES = frozenset(
-    {"TileMessage", "TileDecodeError", "encode_tile", "encode_tile_sparse", "decode_tile", "quantise"}
-)
-
-
-def __getattr__(name: str) -> Any:
-    # The tile codec lives in shared.tilecodec; these names are also reachable as shared.tiles.<name>
-    # (the brief allowed either module), imported lazily because tilecodec imports this module.
-    if name in _CODEC_NAMES:
-        from shared import tilecodec
-
-        return getattr(tilecodec, name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

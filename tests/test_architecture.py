@@ -29,7 +29,6 @@ KNOWN_LAYER_BREAKS: set[str] = {
 #: Import cycles (strongly connected groups of modules), exactly as they stand.
 KNOWN_CYCLES: set[frozenset[str]] = {
     frozenset({"agent.joint_detections", "agent.pipeline", "agent.tracker"}),  # agent restructure
-    frozenset({"shared.tilecodec", "shared.tiles"}),  # shared.tiles re-exports the codec
 }
 #: Modules over MAX_LINES lines.
 KNOWN_LARGE: set[str] = {
