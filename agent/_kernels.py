@@ -116,7 +116,7 @@ _NMS_SIGNATURES = [
 
 @_compiled(_NMS_SIGNATURES)
 def nms_ranked(boxes_xyxy, ranked_keys, class_ids, iou, max_detections):  # pragma: no cover - compiled
-    """Greedy class-wise NMS exactly as OpenCV's NMSBoxes per class (see agent.pipeline.nms).
+    """Greedy class-wise NMS exactly as OpenCV's NMSBoxes per class (see agent.boxes.nms).
 
     ranked_keys: the sorted rank_keys() of the scores. Each box in rank order, as an OpenCV Rect2d
     (x, y, w, h rounded to float32), is kept unless its overlap with a kept box of its class is not

@@ -13,7 +13,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.pipeline import FrameResult
+from agent.frame_result import FrameResult
 
 #: Hue x saturation bins of `hsv_histogram_descriptors` (descriptor length = their product).
 HUE_BINS, SAT_BINS = 8, 4

@@ -13,8 +13,10 @@ from pathlib import Path
 from typing import Any
 
 from agent.dataset import Candidates, Dataset, iter_video_frames, read_json
+from agent.frame_result import FrameResult
 from agent.memory_map import MemoryMapConfig
-from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from shared.geo import Camera
 

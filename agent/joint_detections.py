@@ -11,21 +11,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.memory_map import JointLayer, MemoryMap
-from agent.pipeline import FrameResult, anchor_fraction, anchor_points, boost_scores, nms
+from agent.boxes import anchor_fraction, anchor_points, box_iou, nms
+from agent.frame_result import FrameResult
+from agent.memory_map import JointLayer, MemoryMap, boost_scores
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import NOMINAL_DIMENSIONS_M, SizeFilter
-from agent.tracker import box_iou
 from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon, pixel_to_local
 from shared.tiles import TileGrid
-
-if TYPE_CHECKING:
-    from agent.pipeline import DetectionPipeline
 
 __all__ = ["UPRIGHT_DIMENSIONS_M", "JointCarry", "JointDetections", "JointRegistration", "add_joint_detections",
            "find_joint_detections", "joint_score", "others_evidence"]
@@ -484,27 +481,28 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         np.array(lats, dtype=np.float64), np.array(lons, dtype=np.float64))
 
 
-def add_joint_detections(pipeline: DetectionPipeline, result: FrameResult, pose: Pose, t: float,
+def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: PipelineConfig, joint: JointLayer,
+                         memory: MemoryMap, camera: Camera, class_names: dict[int, str], size_filter: SizeFilter,
                          registration: JointRegistration | None = None,
                          carry: JointCarry | None = None) -> FrameResult:
     """`result` (a frame's kept detections) with the joint map's detections merged in.
 
-    Uses the pipeline's joint layer, own memory, camera, size filter and PipelineConfig (joint_*
-    settings, boost settings, anchor); `registration` carries the offset estimate across frames and
-    `carry` the last sightings of the objects the others see (advanced to this frame here).
+    Uses the pipeline's parts (`agent.pipeline.DetectionPipeline`): the joint layer, this UAV's own
+    memory, the camera, class names, size filter and PipelineConfig (joint_* settings, boost settings,
+    anchor); `registration` carries the offset estimate across frames and `carry` the last sightings of
+    the objects the others see (advanced to this frame here).
     Promoted boxes get the joint score; synthesised ones have raw score 0 (no detector candidate) and
     NaN embeddings. A class-wise NMS over the union (kept boxes do not suppress each other again) drops
     weak real boxes a joint box covers, and keeps the output highest score first and at most
     max_detections. from_joint (K,) bool marks the joint ones (all False when the joint map added nothing).
     """
-    cfg = pipeline.config
-    assert pipeline.joint is not None
+    cfg = config
     anchor_frac = anchor_fraction(cfg.anchor, pose.pitch_deg)
     if carry is not None:
         carry.advance(t, pose)
     found = find_joint_detections(
-        joint=pipeline.joint, memory=pipeline.memory, camera=pipeline.camera, pose=pose, t=t,
-        class_names=pipeline.class_names, size_filter=pipeline.size_filter, kept_scores=result.scores,
+        joint=joint, memory=memory, camera=camera, pose=pose, t=t,
+        class_names=class_names, size_filter=size_filter, kept_scores=result.scores,
         kept_class_ids=result.class_ids, kept_lat=result.lat, kept_lon=result.lon, range_m=cfg.range_limit_m,
         anchor_frac=anchor_frac, min_value=cfg.joint_min_value, gate_m=cfg.joint_gate_m,
         cover_uavs=cfg.joint_cover_uavs, prior_score=cfg.joint_prior_score, boost_mode=cfg.boost_mode,

@@ -1,4 +1,5 @@
-"""Class-wise memory maps on the global tile grid (paper section IV), plus the joint layer.
+"""Class-wise memory maps on the global tile grid (paper section IV), plus the joint layer, and the boost
+rule by which a map's evidence raises a candidate's confidence.
 
 Arrays in, arrays out: no I/O. A map is a UAV-centric, north-aligned window of global Web-Mercator
 cells (shared.tiles) holding, per class, evidence in [0, 1] that decays with time.
@@ -421,3 +422,17 @@ class JointLayer:
                 out[y_lo - gy0:y_hi - gy0, x_lo - gx0:x_hi - gx0] = \
                     entry[0][y_lo - ty * n:y_hi - ty * n, x_lo - tx * n:x_hi - tx * n]
         return out
+
+
+def boost_scores(conf: NDArray, evidence: NDArray, boost_mode: str, boost_weight: float,
+                 logodds_scale: float) -> NDArray:
+    """Boosted confidences of candidates with confidence `conf` at cells holding memory `evidence`.
+
+    "add" (the paper): c + w p; "logodds": sigmoid(logit(c) + w * logodds_scale * p), c clipped to
+    [1e-6, 1 - 1e-6]. Same dtype as the inputs.
+    """
+    if boost_mode == "add":
+        return conf + boost_weight * evidence
+    cc = np.clip(conf, 1e-6, 1 - 1e-6)
+    logit = np.log(cc / (1 - cc)) + boost_weight * logodds_scale * evidence
+    return 1.0 / (1.0 + np.exp(-logit))

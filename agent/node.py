@@ -23,8 +23,10 @@ from typing import Any
 import numpy as np
 
 from agent.appearance import with_image_descriptors
+from agent.frame_result import FrameResult
 from agent.memory_map import JointLayer, MemoryMap
-from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.sources import FrameSource, SourceFrame
 from agent.tracker import GpsTracker, TrackerConfig, TrackOutput

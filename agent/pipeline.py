@@ -6,13 +6,16 @@ Arrays in, arrays out: the same code serves `uavmm boost`, the tracker and the l
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 
 import numpy as np
 from numpy.typing import NDArray
 
-from agent._kernels import georeference_and_filter, nms_ranked, rank_keys
-from agent.memory_map import JointLayer, MemoryMap, MemoryMapConfig
+from agent._kernels import georeference_and_filter
+from agent.boxes import anchor_fraction, box_anchor_points, nms
+from agent.frame_result import FrameResult
+from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
+from agent.memory_map import JointLayer, MemoryMap, boost_scores
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter, _warn_unfiltered
 from shared.geo import (
     Camera,
@@ -25,127 +28,8 @@ from shared.geo import (
 )
 from shared.tiles import TileGrid
 
-ANCHORS = ("auto", "center", "bottom")
-JOINT_MODES = ("max", "local", "joint", "mean")
-BOOST_MODES = ("add", "logodds")
 #: Observation time credited to the first frame of a video (no previous frame to measure from).
 FIRST_FRAME_INTERVAL_S = 1.0 / 30.0
-
-
-@dataclass(frozen=True, slots=True)
-class PipelineConfig:
-    """Pipeline parameters (defaults: the best measured on the simulator; see docs/memory-map.md).
-
-    boost_weight: c_hat = c + boost_weight * p (paper: 1).
-    boost_mode: "add" (the paper: c + w p) or "logodds" (logit(c_hat) = logit(c) + w * logodds_scale * p:
-        a Bayesian update that moves mid-confidence boxes most and keeps c_hat in (0, 1)).
-    use_memory: False gives the single-frame baseline (same filter and NMS, no boosting).
-    use_size_filter: apply the distance-size filter.
-    anchor: where on a box its ground point is: "center" (the paper), "bottom" (feet of an upright
-        object) or "auto" (from the bottom at grazing views to the centre at nadir).
-    joint_mode: how a joint map from the fusion server combines with the local one for boosting:
-        "max" (default), "local" (ignore it), "joint" (only it where fresh), "mean".
-    max_range_m: boxes whose ground point is farther from the UAV are not georeferenced (default:
-        half the memory window).
-    nms_iou: IoU threshold of class-wise NMS; score_threshold: minimum output score;
-    max_detections: per frame, highest scores first (COCO evaluates 100).
-    joint_detections: with a joint layer, use_memory and joint_mode other than "local", add detections for the
-        other UAVs' evidence in this view that no detection of the frame explains (agent.joint_detections;
-        flagged in FrameResult.from_joint). joint_min_value: the others' evidence a peak needs;
-        joint_gate_m: ground distance within which a kept box explains (or is promoted by) a peak (an
-        angular gate around the peak's pixel applies too, agent.joint_detections.PEAK_GATE_RAD);
-        joint_cover_uavs: UAVs assumed to cover a joint cell when this UAV's own evidence is taken out
-        of the joint mean (1: use the joint value as is); joint_prior_score: the confidence a joint
-        detection is credited with before the boost by the others' evidence (see joint_score; 0.5: a
-        promoted weak box ranks with confident detections, as it was right in ~88 % of cases on `coop`);
-        joint_synth_factor: multiplies the score of boxes synthesised where no real candidate exists
-        (their pixel position carries the cross-UAV georeferencing error: on `coop` at 80 m they overlapped
-        the object in 4 of ~1,200 cases; default 0 = only promote and carry real candidates).
-        joint_carry_s: for this long after this UAV last saw an object the others' evidence points at (a
-        promoted or confident box), a frame with no box for it reports the last one moved on by its image
-        velocity (agent.joint_detections.JointCarry; 0 = off), scored the peak's times joint_carry_factor.
-    """
-
-    memory: MemoryMapConfig = field(default_factory=MemoryMapConfig)
-    boost_weight: float = 1.0
-    boost_mode: str = "logodds"
-    logodds_scale: float = 4.0
-    use_memory: bool = True
-    use_size_filter: bool = True
-    anchor: str = "auto"
-    joint_mode: str = "max"
-    max_range_m: float | None = None
-    nms_iou: float = 0.5
-    score_threshold: float = 0.001
-    max_detections: int = 100
-    joint_detections: bool = True
-    joint_min_value: float = 0.3
-    joint_gate_m: float = 3.0
-    joint_cover_uavs: int = 2
-    joint_prior_score: float = 0.5
-    joint_synth_factor: float = 0.0
-    joint_carry_s: float = 0.5
-    joint_carry_factor: float = 0.8
-
-    def __post_init__(self) -> None:
-        if self.anchor not in ANCHORS:
-            raise ValueError(f"anchor must be one of {', '.join(ANCHORS)}, got {self.anchor!r}")
-        if self.boost_mode not in BOOST_MODES:
-            raise ValueError(f"boost_mode must be one of {', '.join(BOOST_MODES)}, got {self.boost_mode!r}")
-        if self.joint_mode not in JOINT_MODES:
-            raise ValueError(f"joint_mode must be one of {', '.join(JOINT_MODES)}, got {self.joint_mode!r}")
-        if not (0.0 < self.nms_iou <= 1.0):
-            raise ValueError(f"nms_iou must be in (0, 1], got {self.nms_iou!r}")
-        if not math.isfinite(self.boost_weight) or self.boost_weight < 0:
-            raise ValueError(f"boost_weight must be >= 0, got {self.boost_weight!r}")
-        if self.max_detections < 1:
-            raise ValueError(f"max_detections must be >= 1, got {self.max_detections!r}")
-        if not (0.0 < self.joint_min_value <= 1.0):
-            raise ValueError(f"joint_min_value must be in (0, 1], got {self.joint_min_value!r}")
-        if not (math.isfinite(self.joint_gate_m) and self.joint_gate_m >= 0):
-            raise ValueError(f"joint_gate_m must be >= 0, got {self.joint_gate_m!r}")
-        if self.joint_cover_uavs < 1:
-            raise ValueError(f"joint_cover_uavs must be >= 1, got {self.joint_cover_uavs!r}")
-        if not (0.0 < self.joint_prior_score < 1.0):
-            raise ValueError(f"joint_prior_score must be in (0, 1), got {self.joint_prior_score!r}")
-        if not (0.0 <= self.joint_synth_factor <= 1.0):
-            raise ValueError(f"joint_synth_factor must be in [0, 1], got {self.joint_synth_factor!r}")
-        if not (math.isfinite(self.joint_carry_s) and self.joint_carry_s >= 0):
-            raise ValueError(f"joint_carry_s must be >= 0, got {self.joint_carry_s!r}")
-        if not (0.0 <= self.joint_carry_factor <= 1.0):
-            raise ValueError(f"joint_carry_factor must be in [0, 1], got {self.joint_carry_factor!r}")
-
-    @property
-    def range_limit_m(self) -> float:
-        return self.memory.window_m / 2.0 if self.max_range_m is None else self.max_range_m
-
-
-@dataclass(frozen=True, slots=True)
-class FrameResult:
-    """Detections of one frame after NMS, highest score first.
-
-    boxes_xyxy (K, 4) float32 pixels; scores (K,) float32 boosted confidences (may exceed 1);
-    raw_scores (K,) the detector's; class_ids (K,) int; lat, lon (K,) float64 ground points (NaN
-    where not georeferenced); counts: candidates in, dropped by the size filter, georeferenced;
-    embeddings (K, D) float32 appearance descriptors of the kept boxes (NaN rows: none) or None;
-    from_joint (K,) bool: True for detections the joint map added or promoted (agent.joint_detections),
-    or None when the frame had no joint detections step (no joint layer).
-    """
-
-    boxes_xyxy: NDArray[np.float32]
-    scores: NDArray[np.float32]
-    raw_scores: NDArray[np.float32]
-    class_ids: NDArray[np.int64]
-    lat: NDArray[np.float64]
-    lon: NDArray[np.float64]
-    n_candidates: int
-    n_size_filtered: int
-    n_georeferenced: int
-    embeddings: NDArray[np.float32] | None = None
-    from_joint: NDArray[np.bool_] | None = None
-
-    def __len__(self) -> int:
-        return len(self.scores)
 
 
 def distinct_ids(ids: NDArray) -> NDArray:
@@ -160,66 +44,6 @@ def distinct_ids(ids: NDArray) -> NDArray:
     if hi - lo >= 4096:
         return np.unique(ids)
     return (np.flatnonzero(np.bincount(ids - lo)) + lo).astype(ids.dtype, copy=False)
-
-
-def anchor_fraction(anchor: str, pitch_deg: float) -> float:
-    """Height of a box's ground point in the box, 0 (top edge) to 1 (bottom edge)."""
-    if anchor == "center":
-        return 0.5
-    if anchor == "bottom":
-        return 1.0
-    # upright objects stand on their box's bottom edge at grazing views, centred at nadir
-    return 0.5 + 0.5 * math.cos(math.radians(pitch_deg))
-
-
-def box_anchor_points(boxes_xyxy: NDArray, anchor: str, pitch_deg: float) -> NDArray[np.float64]:
-    """(N, 4) boxes -> (N, 2) pixel of each box's ground point."""
-    return anchor_points(boxes_xyxy, anchor_fraction(anchor, pitch_deg))
-
-
-def anchor_points(boxes_xyxy: NDArray, frac: float) -> NDArray[np.float64]:
-    """(N, 4) boxes -> (N, 2) pixels at the middle of each box, frac of its height down (anchor_fraction)."""
-    x1, y1, x2, y2 = (boxes_xyxy[:, i].astype(np.float64) for i in range(4))
-    return np.column_stack([(x1 + x2) / 2.0, y1 + frac * (y2 - y1)])
-
-
-def nms(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,
-        score_threshold: float, max_detections: int) -> NDArray[np.int64]:
-    """Class-wise greedy NMS; indices of the kept boxes, highest score first, at most max_detections.
-
-    boxes_xyxy (N, 4) pixels (float32 or float64; other dtypes are taken as float64), scores (N,),
-    class_ids (N,) int; iou and score_threshold >= 0 (ValueError otherwise, as OpenCV asserts).
-    Boxes with score <= score_threshold (float32 compare) are dropped; equal scores rank by index.
-    The same boxes in the same order as cv2.dnn.NMSBoxesBatched over all N boxes, in OpenCV's Rect2d
-    arithmetic (NaN, empty and negative-size boxes included), from a compiled kernel
-    (agent._kernels.nms_ranked) that stops at max_detections and compares each box only with the kept
-    boxes it may intersect: ~0.07 ms at 5,000 clustered candidates.
-    """
-    if not (iou >= 0 and score_threshold >= 0):
-        raise ValueError(f"nms needs iou >= 0 and score_threshold >= 0, got {iou!r} and {score_threshold!r}")
-    n = len(scores)
-    if n == 0 or max_detections < 1:
-        return np.zeros(0, dtype=np.int64)
-    scores = np.ascontiguousarray(scores, dtype=np.float32).reshape(-1)
-    boxes = np.asarray(boxes_xyxy)
-    boxes = np.ascontiguousarray(boxes, dtype=np.float32 if boxes.dtype == np.float32 else np.float64).reshape(-1, 4)
-    cids = np.ascontiguousarray(class_ids, dtype=np.int64).reshape(-1)
-    keys = np.sort(rank_keys(scores, float(score_threshold)))  # numpy's sort is SIMD: ~15x numba's
-    return nms_ranked(boxes, keys, cids, float(iou), int(max_detections))
-
-
-def boost_scores(conf: NDArray, evidence: NDArray, boost_mode: str, boost_weight: float,
-                 logodds_scale: float) -> NDArray:
-    """Boosted confidences of candidates with confidence `conf` at cells holding memory `evidence`.
-
-    "add" (the paper): c + w p; "logodds": sigmoid(logit(c) + w * logodds_scale * p), c clipped to
-    [1e-6, 1 - 1e-6]. Same dtype as the inputs.
-    """
-    if boost_mode == "add":
-        return conf + boost_weight * evidence
-    cc = np.clip(conf, 1e-6, 1 - 1e-6)
-    logit = np.log(cc / (1 - cc)) + boost_weight * logodds_scale * evidence
-    return 1.0 / (1.0 + np.exp(-logit))
 
 
 class DetectionPipeline:
@@ -305,16 +129,16 @@ class DetectionPipeline:
         return result
 
     def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float) -> FrameResult:
-        """The frame's detections plus the joint map's (agent.joint_detections, which builds on this module)."""
-        from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
-
+        """The frame's detections plus the joint map's (agent.joint_detections)."""
+        assert self.joint is not None
         registration = self.__dict__.setdefault("_joint_registration", JointRegistration())
         carry = self.__dict__.setdefault("_joint_carry", JointCarry(self.config.joint_carry_s))
         if self.memory.t is None or t < self.memory.t:
             registration.reset()
             carry.reset()
-        return add_joint_detections(self, result, pose, t, registration,
-                                    carry if self.config.joint_carry_s > 0 else None)
+        return add_joint_detections(result, pose, t, config=self.config, joint=self.joint, memory=self.memory,
+                                    camera=self.camera, class_names=self.class_names, size_filter=self.size_filter,
+                                    registration=registration, carry=carry if self.config.joint_carry_s > 0 else None)
 
     def _georeference_and_filter(self, boxes: NDArray[np.float32], cids: NDArray[np.int64], present: list[int],
                                  pose: Pose) -> tuple[NDArray, NDArray, NDArray, NDArray | None]:

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
+from agent.boxes import box_anchor_points
 from agent.dataset import Dataset, iter_video_frames
-from agent.pipeline import box_anchor_points
 from agent.size_filter import SizeFilter, fit_band
 from shared.geo import Camera, pixel_to_local
 

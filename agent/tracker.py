@@ -38,7 +38,8 @@ from scipy.sparse import coo_matrix
 from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
-from agent.pipeline import FrameResult
+from agent.boxes import box_iou
+from agent.frame_result import FrameResult
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon, local_to_pixel
 
 log = logging.getLogger(__name__)
@@ -462,19 +463,6 @@ def mahalanobis2_and_logdet(diff: FloatArray, cov: FloatArray) -> tuple[FloatArr
     det = np.maximum(a * d - b * b, 1e-12)
     x, y = diff[..., 0], diff[..., 1]
     return (d * x * x - 2.0 * b * x * y + a * y * y) / det, np.log(det)
-
-
-def box_iou(a_xyxy: NDArray, b_xyxy: NDArray) -> FloatArray:
-    """(A, 4) x (B, 4) xyxy boxes -> (A, B) float64 IoU (0 for empty unions)."""
-    a = np.asarray(a_xyxy, dtype=np.float64).reshape(-1, 4)
-    b = np.asarray(b_xyxy, dtype=np.float64).reshape(-1, 4)
-    iw = np.clip(np.minimum(a[:, None, 2], b[None, :, 2]) - np.maximum(a[:, None, 0], b[None, :, 0]), 0.0, None)
-    ih = np.clip(np.minimum(a[:, None, 3], b[None, :, 3]) - np.maximum(a[:, None, 1], b[None, :, 1]), 0.0, None)
-    inter = iw * ih
-    area_a = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])
-    area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
-    union = area_a[:, None] + area_b[None, :] - inter
-    return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
 def duplicate_mask(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,

@@ -23,7 +23,9 @@ import numpy as np
 
 from agent.appearance import with_image_descriptors
 from agent.dataset import Candidates, Dataset, Frame, iter_video_frames, read_image, read_json
-from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
+from agent.frame_result import FrameResult
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.tracker import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
 from shared.geo import Camera

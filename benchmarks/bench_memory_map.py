@@ -22,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from agent.pipeline import DetectionPipeline, PipelineConfig
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from shared.geo import Camera, Pose
 
 DESCRIPTION = "memory-map pipeline ms/frame at 1k/5k/20k candidates vs YOLOv8n-sized ONNX inference"

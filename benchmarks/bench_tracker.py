@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from agent.pipeline import FrameResult
+from agent.frame_result import FrameResult
 from agent.tracker import GpsTracker
 from benchmarks.timing import median_time_s
 from shared.geo import Camera, Pose, local_to_latlon

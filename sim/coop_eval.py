@@ -25,7 +25,8 @@ from agent.boost import results_to_coco
 from agent.dataset import Candidates, Dataset, iter_video_frames
 from agent.memory_map import JointLayer
 from agent.node import TileChangeTracker, state_message
-from agent.pipeline import DetectionPipeline, PipelineConfig
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from agent.tracker import GpsTracker
 from agent.tracking_io import memory_evidence
 from fusion_server.joint_map import JointMap

@@ -21,7 +21,7 @@ import numpy as np
 
 from agent.boost import results_to_coco, run_pipeline
 from agent.dataset import Candidates, Dataset
-from agent.pipeline import PipelineConfig
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from shared.geo import Camera
 
@@ -134,8 +134,9 @@ def size_filter_table(data_dir: Path, config: PipelineConfig | None = None,
     A removed candidate is a true positive when it overlaps a ground-truth box of its class in its
     image with IoU >= 0.5.
     """
+    from agent.boxes import box_anchor_points
     from agent.dataset import iter_video_frames
-    from agent.pipeline import DetectionPipeline, box_anchor_points
+    from agent.pipeline import DetectionPipeline
     from shared.geo import pixel_to_local
 
     config = config or PipelineConfig()

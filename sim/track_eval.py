@@ -22,10 +22,13 @@ from typing import Any
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
+from agent.boxes import box_iou
 from agent.dataset import Candidates, Dataset, Frame, iter_video_frames
-from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
+from agent.frame_result import FrameResult
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
-from agent.tracker import GpsTracker, TrackerConfig, box_iou
+from agent.tracker import GpsTracker, TrackerConfig
 from agent.tracking_io import frame_time_s
 from shared.geo import Camera
 

@@ -12,7 +12,9 @@ import pytest
 
 from agent.appearance import hsv_histogram_descriptors, with_image_descriptors
 from agent.dataset import Candidates, Dataset
-from agent.pipeline import DetectionPipeline, FrameResult, PipelineConfig
+from agent.frame_result import FrameResult
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from agent.tracker import GpsTracker, TrackerConfig
 from agent.tracking_io import track_dataset, track_video
 from shared.geo import Camera

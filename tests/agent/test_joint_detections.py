@@ -9,9 +9,11 @@ import numpy as np
 import pytest
 
 import agent.joint_detections as jd
+from agent.boxes import box_anchor_points
 from agent.joint_detections import JointRegistration, joint_score, others_evidence
 from agent.memory_map import JointLayer
-from agent.pipeline import DetectionPipeline, PipelineConfig, box_anchor_points
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from agent.size_filter import BUILTIN_PRIORS
 from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon
 

@@ -10,7 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.memory_map import JointLayer, MemoryMap, MemoryMapConfig
-from agent.pipeline import DetectionPipeline, PipelineConfig
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
 from shared.geo import Camera, Pose, latlon_to_pixel, local_to_latlon
 from shared.tiles import TileGrid
 
@@ -291,7 +292,7 @@ def test_map_is_updated_with_original_not_boosted_confidence():
 
 
 def _ground_of(box, pose, cfg):
-    from agent.pipeline import box_anchor_points
+    from agent.boxes import box_anchor_points
     from shared.geo import pixel_to_latlon
 
     lat, lon, _ = pixel_to_latlon(box_anchor_points(box, cfg.anchor, pose.pitch_deg), CAM, pose)

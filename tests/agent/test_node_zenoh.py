@@ -23,7 +23,7 @@ import pytest
 import zenoh
 
 from agent.node import AgentNode, AgentSettings, state_message
-from agent.pipeline import PipelineConfig
+from agent.pipeline_config import PipelineConfig
 from agent.sources import SimSource, SourceFrame
 from agent.zenoh_config import ZenohOptions
 from shared.geo import Camera, Pose, pixel_to_latlon

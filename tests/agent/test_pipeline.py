@@ -1,4 +1,4 @@
-"""Class-wise NMS of the pipeline (agent.pipeline.nms) against OpenCV's NMS over all boxes."""
+"""Class-wise NMS of the pipeline (agent.boxes.nms) against OpenCV's NMS over all boxes."""
 
 from __future__ import annotations
 
@@ -8,14 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.pipeline import (
-    ANCHORS,
-    DetectionPipeline,
-    PipelineConfig,
-    box_anchor_points,
-    distinct_ids,
-    nms,
-)
+from agent.boxes import ANCHORS, box_anchor_points, nms
+from agent.pipeline import DetectionPipeline, distinct_ids
+from agent.pipeline_config import PipelineConfig
 from benchmarks.bench_memory_map import clustered_candidates
 from shared.geo import Camera, Pose, local_to_latlon, pixel_to_local
 

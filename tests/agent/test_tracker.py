@@ -11,13 +11,13 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy.optimize import linear_sum_assignment
 
-from agent.pipeline import FrameResult
+from agent.boxes import box_iou
+from agent.frame_result import FrameResult
 from agent.tracker import (
     ClassMotion,
     GpsTracker,
     TrackerConfig,
     at_image_border,
-    box_iou,
     duplicate_mask,
     ground_measurement_cov,
     near_pairs,

@@ -1,0 +1,40 @@
+"""One frame's detections after the pipeline: the value the pipeline produces, the joint detections extend
+and the tracker consumes (boxes, boosted and raw scores, classes, ground points, descriptors).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["FrameResult"]
+
+
+@dataclass(frozen=True, slots=True)
+class FrameResult:
+    """Detections of one frame after NMS, highest score first.
+
+    boxes_xyxy (K, 4) float32 pixels; scores (K,) float32 boosted confidences (may exceed 1);
+    raw_scores (K,) the detector's; class_ids (K,) int; lat, lon (K,) float64 ground points (NaN
+    where not georeferenced); counts: candidates in, dropped by the size filter, georeferenced;
+    embeddings (K, D) float32 appearance descriptors of the kept boxes (NaN rows: none) or None;
+    from_joint (K,) bool: True for detections the joint map added or promoted (agent.joint_detections),
+    or None when the frame had no joint detections step (no joint layer).
+    """
+
+    boxes_xyxy: NDArray[np.float32]
+    scores: NDArray[np.float32]
+    raw_scores: NDArray[np.float32]
+    class_ids: NDArray[np.int64]
+    lat: NDArray[np.float64]
+    lon: NDArray[np.float64]
+    n_candidates: int
+    n_size_filtered: int
+    n_georeferenced: int
+    embeddings: NDArray[np.float32] | None = None
+    from_joint: NDArray[np.bool_] | None = None
+
+    def __len__(self) -> int:
+        return len(self.scores)
