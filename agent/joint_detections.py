@@ -32,31 +32,8 @@ __all__ = ["UPRIGHT_DIMENSIONS_M", "JointCarry", "JointDetections", "JointRegist
 UPRIGHT_DIMENSIONS_M: dict[str, tuple[float, float, float]] = {
     cls: (w, d, h) for cls, (w, d, h, _) in NOMINAL_DIMENSIONS_M.items()}
 _KERNEL = np.ones((3, 3), np.uint8)
-#: Standard deviation (m) of the Gaussian that smooths the others' evidence before looking for maxima.
-PEAK_SMOOTHING_M = 1.0
-#: A kept box is the object a remembered sighting (JointCarry) stands for when their IoU reaches this.
-CARRY_MATCH_IOU = 0.3
-#: A remembered sighting stands for a peak up to this many joint_gate_m away (this UAV's own ground point
-#: of a person at 80 m grazing errs by metres along the line of sight from frame to frame).
-CARRY_GATE = 2.0
-#: A remembered sighting stands for a peak no box explains only once this UAV has seen the object there in
-#: at least this many frames (overlapping sightings, see JointCarry.observe). Measured on `coop` (seeds 3
-#: and 4): carried boxes from a single sighting were right in 6-9 % of frames (mostly a background false
-#: positive or a neighbour's box that happened to lie near the peak), from four or more in 88 %.
-CARRY_MIN_SIGHTINGS = 2
-#: Angular gate around a peak's (registered) pixel, (across, down) in focal lengths (radians): a kept box
-#: whose anchor lies inside this ellipse is near the peak, as is one within joint_gate_m on the ground.
-#: What is left of the cross-UAV error after registration is angular (both UAVs' heading and pitch
-#: jitter, the telemetry's sample-and-hold during sweeps): at 80 m and 20 deg a ground gate of 3 m spans
-#: ~105 px across but only ~33 px down the image, less than the peaks' scatter (inter-quartile ~35-70 px
-#: down, ~80 px across on `coop`). 0.035 / 0.02 rad are 2.0 / 1.15 deg (~105 / 60 px at focal 2985 px).
-PEAK_GATE_RAD = (0.035, 0.02)
-#: Weight of a new sighting against the remembered one it overlaps (1 = keep the new box only).
-SIGHTING_BLEND = 0.5
-#: Gain of a remembered sighting's image velocity on each new sighting (the beta of an alpha-beta
-#: filter whose alpha is SIGHTING_BLEND): the box's pixel velocity (camera sweep and object motion
-#: together) settles over ~10 sightings, so one jittery box moves it little.
-VELOCITY_GAIN = 0.1
+#: The settings' defaults (the tuning constants of this module are PipelineConfig.joint_* fields).
+_DEFAULTS = PipelineConfig()
 
 
 @dataclass(frozen=True, slots=True)
@@ -125,12 +102,14 @@ def joint_score(evidence: NDArray, prior_score: float, boost_mode: str, boost_we
 
 
 def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, pose: Pose, t: float,
-                range_m: float, min_value: float, cover_uavs: int) -> tuple[NDArray, NDArray, NDArray]:
+                range_m: float, min_value: float, cover_uavs: int,
+                smoothing_m: float) -> tuple[NDArray, NDArray, NDArray]:
     """Peaks of the other UAVs' evidence of one class inside the footprint's bounding box.
 
     Returns global cells (gx, gy float64, cell centres) and others' evidence (float32) of the local
     maxima (3 x 3) of `others_evidence` (with the other UAVs' coverage when the joint layer has their
-    footprints, cover_uavs otherwise) with evidence >= min_value, strongest first.
+    footprints, cover_uavs otherwise) with evidence >= min_value, strongest first. The evidence is
+    smoothed by a Gaussian of smoothing_m (m, standard deviation) before looking for the maxima.
     """
     grid: TileGrid = joint.grid
     poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8)
@@ -150,7 +129,7 @@ def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, 
                                          memory.values_at(cls, cols + gx0 + 0.5, rows + gy0 + 0.5), cover_uavs,
                                          None if cover is None else cover[rows, cols])
     # maps clip at 1, so a steadily seen object is a plateau; smoothing leaves one maximum at its middle
-    sigma = PEAK_SMOOTHING_M / float(grid.cell_size_m(pose.lat))
+    sigma = smoothing_m / float(grid.cell_size_m(pose.lat))
     smooth = cv2.GaussianBlur(others, (0, 0), sigma)
     rows, cols = np.nonzero((smooth >= cv2.dilate(smooth, _KERNEL)) & (others >= min_value))
     evidence = others[rows, cols]
@@ -202,12 +181,16 @@ class JointRegistration:
     offset; the true offset is the one the most peaks share. The estimate: of the `candidates`
     strongest maxima of the pairs' smoothed 2-D histogram (bins of bin_rad), the one with the most
     peaks having a pair within match_rad of it, refined to the median of those pairs. Offsets beyond
-    max_rad are ignored. Zero until min_pairs pairs are in.
+    max_rad are ignored. Zero until min_pairs pairs are in. Defaults: PipelineConfig.joint_register_*.
     """
 
-    def __init__(self, radius_m: float = 8.0, window_s: float = 10.0, min_pairs: int = 5, *,
-                 bin_rad: float = 0.0017, match_rad: float = 0.0134, candidates: int = 8,
-                 max_rad: float = 0.15) -> None:
+    def __init__(self, radius_m: float = _DEFAULTS.joint_register_radius_m,
+                 window_s: float = _DEFAULTS.joint_register_window_s,
+                 min_pairs: int = _DEFAULTS.joint_register_min_pairs, *,
+                 bin_rad: float = _DEFAULTS.joint_register_bin_rad,
+                 match_rad: float = _DEFAULTS.joint_register_match_rad,
+                 candidates: int = _DEFAULTS.joint_register_candidates,
+                 max_rad: float = _DEFAULTS.joint_register_max_rad) -> None:
         self.radius_m = radius_m
         self.window_s = window_s
         self.min_pairs = min_pairs
@@ -218,6 +201,13 @@ class JointRegistration:
         self._frames: list[tuple[float, NDArray[np.float64], NDArray[np.int64]]] = []  # (t, offsets, peak ids)
         self._next_peak = 0
         self._cached: tuple[float, float] | None = None
+
+    @classmethod
+    def from_config(cls, config: PipelineConfig) -> JointRegistration:
+        """The registration with the joint_register_* settings of a PipelineConfig."""
+        return cls(config.joint_register_radius_m, config.joint_register_window_s, config.joint_register_min_pairs,
+                   bin_rad=config.joint_register_bin_rad, match_rad=config.joint_register_match_rad,
+                   candidates=config.joint_register_candidates, max_rad=config.joint_register_max_rad)
 
     def reset(self) -> None:
         self._frames.clear()
@@ -287,18 +277,32 @@ class JointCarry:
     (a promoted weak candidate, or a confident box) is in the right place. An occluded object's weak
     candidates come and go from frame to frame; between them, the last box stands for it for up to
     carry_s, as long as the others still see the object there. Each remembered box moves with its own
-    image velocity, an alpha-beta filter over its sightings (alpha SIGHTING_BLEND, beta VELOCITY_GAIN):
+    image velocity, an alpha-beta filter over its sightings (alpha `blend`, beta `velocity_gain`):
     a still camera and a resting person give ~0, a sweep or a walker its steady drift. Measured on
     `coop`, estimating the camera's motion from the frame's confident detections instead (their boxes
     jitter by several pixels, most are walkers) moved the carried boxes farther from the objects than
     not moving them at all.
+
+    carry_s, match_iou, blend, velocity_gain: PipelineConfig.joint_carry_s, joint_carry_match_iou,
+    joint_carry_blend and joint_carry_velocity_gain (their defaults).
     """
 
-    def __init__(self, carry_s: float = 0.5) -> None:
+    def __init__(self, carry_s: float = _DEFAULTS.joint_carry_s, *, match_iou: float = _DEFAULTS.joint_carry_match_iou,
+                 blend: float = _DEFAULTS.joint_carry_blend,
+                 velocity_gain: float = _DEFAULTS.joint_carry_velocity_gain) -> None:
         self.carry_s = carry_s
+        self.match_iou = match_iou
+        self.blend = blend
+        self.velocity_gain = velocity_gain
         self.anchors: list[_Anchor] = []
         self.origin: tuple[float, float] | None = None
         self._t: float | None = None
+
+    @classmethod
+    def from_config(cls, config: PipelineConfig) -> JointCarry:
+        """The carry with the joint_carry_* settings of a PipelineConfig."""
+        return cls(config.joint_carry_s, match_iou=config.joint_carry_match_iou, blend=config.joint_carry_blend,
+                   velocity_gain=config.joint_carry_velocity_gain)
 
     def reset(self) -> None:
         self.anchors.clear()
@@ -330,13 +334,13 @@ class JointCarry:
         same = [a for a in self.anchors if a.cid == cid and math.hypot(a.east - e, a.north - n) <= gate_m]
         if same:
             last = min(same, key=lambda a: math.hypot(a.east - e, a.north - n))
-            if box_iou(last.box, new)[0, 0] >= CARRY_MATCH_IOU:
+            if box_iou(last.box, new)[0, 0] >= self.match_iou:
                 # the same object: a detector's boxes jitter around it, so blend with the prediction
                 # and let the miss nudge the velocity
                 miss = (new[:2] + new[2:] - last.box[:2] - last.box[2:]) / 2
                 dt = t - last.t_seen
-                velocity = last.velocity + (VELOCITY_GAIN * miss / dt if dt > 0 else 0.0)
-                new = SIGHTING_BLEND * new + (1.0 - SIGHTING_BLEND) * last.box
+                velocity = last.velocity + (self.velocity_gain * miss / dt if dt > 0 else 0.0)
+                new = self.blend * new + (1.0 - self.blend) * last.box
                 sightings = last.sightings + 1
         self.anchors = [a for a in self.anchors if not any(a is b for b in same)]
         self.anchors.append(_Anchor(cid, new, e, n, t, velocity, sightings))
@@ -356,40 +360,48 @@ class JointCarry:
 
 
 def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camera, pose: Pose, t: float,
-                          class_names: dict[int, str], size_filter: SizeFilter, kept_scores: NDArray,
-                          kept_class_ids: NDArray, kept_lat: NDArray, kept_lon: NDArray, range_m: float,
-                          anchor_frac: float, min_value: float, gate_m: float, cover_uavs: int,
-                          prior_score: float, boost_mode: str, boost_weight: float, logodds_scale: float,
-                          registration: JointRegistration | None = None, register_score: float = 0.5,
-                          synth_factor: float = 0.25, kept_boxes: NDArray | None = None,
-                          carry: JointCarry | None = None, carry_factor: float = 0.8) -> JointDetections:
+                          class_names: dict[int, str], size_filter: SizeFilter, config: PipelineConfig,
+                          kept_scores: NDArray, kept_class_ids: NDArray, kept_lat: NDArray, kept_lon: NDArray,
+                          kept_boxes: NDArray | None = None, registration: JointRegistration | None = None,
+                          carry: JointCarry | None = None) -> JointDetections:
     """Peaks of the other UAVs' evidence in this view that this frame's detections do not explain.
 
+    Settings from `config` (PipelineConfig): range_m = range_limit_m, anchor_frac from anchor, and
+    joint_min_value, joint_gate_m, joint_cover_uavs, joint_prior_score, the boost settings,
+    joint_peak_smoothing_m, joint_peak_gate_across_rad / _down_rad, joint_register_score,
+    joint_synth_factor, joint_carry_gate, joint_carry_min_sightings, joint_carry_match_iou and
+    joint_carry_factor (named without their joint_ prefix below).
     For each class: local maxima of the others' evidence (`others_evidence` of the joint layer and this
-    UAV's memory, cover_uavs) >= min_value inside the camera footprint cut at range_m; peaks within
-    gate_m of a stronger one are dropped. The peaks are projected into the image (latlon_to_pixel;
-    behind the camera, above the horizon or outside the image: skipped); with a `registration`, the
-    kept detections scoring >= register_score (with kept_boxes) update it and its image offset moves
-    the peaks onto where this UAV sees the objects (their ground points follow the moved pixels). They
-    are scored by `joint_score` (prior_score and the pipeline's boost settings). A kept detection of the
-    class is near a peak when its ground point (kept_lat/kept_lon (K,), NaN = none) is within gate_m or,
-    with kept_boxes, its anchor pixel within the PEAK_GATE_RAD ellipse around the peak's pixel. A near
-    one that scores at least the peak's score explains it; otherwise the best-scoring weaker near box is
-    promoted to the peak's score, and with none a box is synthesised: its anchor (anchor_frac down the
-    box, the pipeline's convention) at the peak's pixel, its diagonal from the size filter's band at the
-    peak's range and depression, its aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and
-    its score is the peak's times synth_factor: its ground point is right, but its pixel position
-    carries the cross-UAV georeferencing error left after registration (tens of pixels at 80 m on
-    `coop`), so it rarely overlaps the object's image box (0 drops them).
+    UAV's memory, cover_uavs; smoothed by peak_smoothing_m) >= min_value inside the camera footprint cut
+    at range_m; peaks within gate_m of a stronger one are dropped. The peaks are projected into the image
+    (latlon_to_pixel; behind the camera, above the horizon or outside the image: skipped); with a
+    `registration`, the kept detections scoring >= register_score (with kept_boxes) update it and its
+    image offset moves the peaks onto where this UAV sees the objects (their ground points follow the
+    moved pixels). They are scored by `joint_score` (prior_score and the pipeline's boost settings). A
+    kept detection of the class is near a peak when its ground point (kept_lat/kept_lon (K,), NaN = none)
+    is within gate_m or, with kept_boxes, its anchor pixel within the peak_gate ellipse (half-axes
+    across / down in focal lengths) around the peak's pixel. A near one that scores at least the peak's
+    score explains it; otherwise the best-scoring weaker near box is promoted to the peak's score, and
+    with none a box is synthesised: its anchor (anchor_frac down the box, the pipeline's convention) at
+    the peak's pixel, its diagonal from the size filter's band at the peak's range and depression, its
+    aspect from UPRIGHT_DIMENSIONS_M (square for other classes), and its score is the peak's times
+    synth_factor: its ground point is right, but its pixel position carries the cross-UAV
+    georeferencing error left after registration (tens of pixels at 80 m on `coop`), so it rarely
+    overlaps the object's image box (0 drops them).
     With a `carry` (already advanced to this frame) and kept_boxes (K, 4): every kept box that explains
     or is promoted by a peak is remembered there, and a peak with neither gets, before synthesis, the
-    box of the nearest remembered sighting within CARRY_GATE x gate_m seen in at least
-    CARRY_MIN_SIGHTINGS frames (predicted to this frame by its image velocity; JointCarry), scored the
+    box of the nearest remembered sighting within carry_gate x gate_m seen in at least
+    carry_min_sightings frames (predicted to this frame by its image velocity; JointCarry), scored the
     peak's times carry_factor; and a peak with a remembered sighting promotes, in preference, a weaker
-    kept box on that sighting's spot (IoU >= CARRY_MATCH_IOU) wherever its ground point is.
+    kept box on that sighting's spot (IoU >= carry_match_iou) wherever its ground point is.
     """
+    cfg = config
+    range_m, anchor_frac = cfg.range_limit_m, anchor_fraction(cfg.anchor, pose.pitch_deg)
+    min_value, gate_m, cover_uavs = cfg.joint_min_value, cfg.joint_gate_m, cfg.joint_cover_uavs
+    synth_factor, carry_factor = cfg.joint_synth_factor, cfg.joint_carry_factor
     focal_px = math.sqrt(camera.fx * camera.fy)
-    gate_px = focal_px * np.asarray(PEAK_GATE_RAD)  # the angular gate's half-axes, (across, down) pixels
+    # the angular gate's half-axes, (across, down) pixels
+    gate_px = focal_px * np.asarray((cfg.joint_peak_gate_across_rad, cfg.joint_peak_gate_down_rad))
     kept_cids = np.asarray(kept_class_ids)
     kept_scores = np.asarray(kept_scores)
     k_east, k_north = latlon_to_local(np.asarray(kept_lat, np.float64), np.asarray(kept_lon, np.float64),
@@ -398,7 +410,8 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
     promoted: dict[int, float] = {}
     boxes, scores, cids, lats, lons = [], [], [], [], []
     for cid, cls in class_names.items():
-        pgx, pgy, evidence = _view_peaks(joint, memory, cls, camera, pose, t, range_m, min_value, cover_uavs)
+        pgx, pgy, evidence = _view_peaks(joint, memory, cls, camera, pose, t, range_m, min_value, cover_uavs,
+                                         cfg.joint_peak_smoothing_m)
         if len(evidence) == 0:
             continue
         plat, plon = joint.grid.cell_to_latlon(pgx, pgy)
@@ -411,7 +424,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         uv, valid = latlon_to_pixel(*local_to_latlon(east, north, pose.lat, pose.lon), camera, pose)
         if registration is not None:
             if mine_uv is not None:
-                is_sure = kept_scores[mine] >= register_score
+                is_sure = kept_scores[mine] >= cfg.joint_register_score
                 sure = mine[is_sure]
                 registration.update(t, np.column_stack([east, north]), np.column_stack([k_east[sure], k_north[sure]]),
                                     uv / focal_px, mine_uv[is_sure] / focal_px)
@@ -425,7 +438,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
             valid &= np.hypot(east, north) <= range_m
         with np.errstate(invalid="ignore"):
             valid &= (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
-        score = joint_score(evidence, prior_score, boost_mode, boost_weight, logodds_scale)
+        score = joint_score(evidence, cfg.joint_prior_score, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
         carried: set[int] = set()
         for i in np.flatnonzero(valid):
             close = np.hypot(k_east[mine] - east[i], k_north[mine] - north[i]) <= gate_m
@@ -433,8 +446,8 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
                 du, dv = ((mine_uv - uv[i]) / gate_px).T
                 close |= du * du + dv * dv <= 1.0
             near = mine[close]
-            j = None if carry is None else carry.nearest(cid, float(plat[i]), float(plon[i]), CARRY_GATE * gate_m,
-                                                         carried)
+            j = None if carry is None else carry.nearest(cid, float(plat[i]), float(plon[i]),
+                                                         cfg.joint_carry_gate * gate_m, carried)
             seen = None
             if len(near) and float(np.max(kept_scores[near])) >= score[i]:
                 seen = int(near[np.argmax(kept_scores[near])])  # this frame already reports it as confidently
@@ -447,7 +460,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
                     # where this UAV last saw the object, a weak box is it wherever it puts it on the ground
                     # (the gate spans several objects at long range and misses some of the object's own
                     # boxes: a few pixels there are metres along the line of sight)
-                    spot = free[box_iou(carry.anchors[j].box, kept_boxes[free])[0] >= CARRY_MATCH_IOU]
+                    spot = free[box_iou(carry.anchors[j].box, kept_boxes[free])[0] >= cfg.joint_carry_match_iou]
                     if len(spot):
                         weaker = spot
                 if len(weaker):
@@ -458,7 +471,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
                     carry.observe(cid, kept_boxes[seen], float(kept_lat[seen]), float(kept_lon[seen]), t, gate_m)
                 continue
             if j is not None and carry is not None and carry_factor > 0 \
-                    and carry.anchors[j].sightings >= CARRY_MIN_SIGHTINGS:
+                    and carry.anchors[j].sightings >= cfg.joint_carry_min_sightings:
                 carried.add(j)
                 boxes.append(carry.anchors[j].box.astype(np.float32).reshape(1, 4))
                 scores.append(score[i] * carry_factor)
@@ -497,18 +510,13 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
     max_detections. from_joint (K,) bool marks the joint ones (all False when the joint map added nothing).
     """
     cfg = config
-    anchor_frac = anchor_fraction(cfg.anchor, pose.pitch_deg)
     if carry is not None:
         carry.advance(t, pose)
     found = find_joint_detections(
-        joint=joint, memory=memory, camera=camera, pose=pose, t=t,
-        class_names=class_names, size_filter=size_filter, kept_scores=result.scores,
-        kept_class_ids=result.class_ids, kept_lat=result.lat, kept_lon=result.lon, range_m=cfg.range_limit_m,
-        anchor_frac=anchor_frac, min_value=cfg.joint_min_value, gate_m=cfg.joint_gate_m,
-        cover_uavs=cfg.joint_cover_uavs, prior_score=cfg.joint_prior_score, boost_mode=cfg.boost_mode,
-        boost_weight=cfg.boost_weight, logodds_scale=cfg.logodds_scale, registration=registration,
-        synth_factor=cfg.joint_synth_factor, kept_boxes=result.boxes_xyxy, carry=carry,
-        carry_factor=cfg.joint_carry_factor)
+        joint=joint, memory=memory, camera=camera, pose=pose, t=t, class_names=class_names,
+        size_filter=size_filter, config=cfg, kept_scores=result.scores, kept_class_ids=result.class_ids,
+        kept_lat=result.lat, kept_lon=result.lon, kept_boxes=result.boxes_xyxy, registration=registration,
+        carry=carry)
     k = len(result)
     flags = np.zeros(k, dtype=bool)
     if len(found) == 0:

@@ -131,8 +131,8 @@ class DetectionPipeline:
     def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float) -> FrameResult:
         """The frame's detections plus the joint map's (agent.joint_detections)."""
         assert self.joint is not None
-        registration = self.__dict__.setdefault("_joint_registration", JointRegistration())
-        carry = self.__dict__.setdefault("_joint_carry", JointCarry(self.config.joint_carry_s))
+        registration = self.__dict__.setdefault("_joint_registration", JointRegistration.from_config(self.config))
+        carry = self.__dict__.setdefault("_joint_carry", JointCarry.from_config(self.config))
         if self.memory.t is None or t < self.memory.t:
             registration.reset()
             carry.reset()

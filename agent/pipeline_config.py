@@ -14,6 +14,25 @@ __all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig"]
 
 JOINT_MODES = ("max", "local", "joint", "mean")
 BOOST_MODES = ("add", "logodds")
+#: Allowed values of the joint detections' tuning settings: (field, low, high, low excluded).
+_JOINT_TUNING_RANGES = (
+    ("joint_peak_smoothing_m", 0.0, math.inf, True),
+    ("joint_peak_gate_across_rad", 0.0, math.inf, False),
+    ("joint_peak_gate_down_rad", 0.0, math.inf, False),
+    ("joint_register_score", 0.0, math.inf, False),
+    ("joint_register_radius_m", 0.0, math.inf, True),
+    ("joint_register_window_s", 0.0, math.inf, True),
+    ("joint_register_min_pairs", 1.0, math.inf, False),
+    ("joint_register_bin_rad", 0.0, math.inf, True),
+    ("joint_register_match_rad", 0.0, math.inf, True),
+    ("joint_register_candidates", 1.0, math.inf, False),
+    ("joint_register_max_rad", 0.0, math.inf, True),
+    ("joint_carry_gate", 0.0, math.inf, False),
+    ("joint_carry_min_sightings", 1.0, math.inf, False),
+    ("joint_carry_match_iou", 0.0, 1.0, False),
+    ("joint_carry_blend", 0.0, 1.0, False),
+    ("joint_carry_velocity_gain", 0.0, 1.0, False),
+)
 
 
 @dataclass(frozen=True, slots=True)
@@ -37,7 +56,7 @@ class PipelineConfig:
         other UAVs' evidence in this view that no detection of the frame explains (agent.joint_detections;
         flagged in FrameResult.from_joint). joint_min_value: the others' evidence a peak needs;
         joint_gate_m: ground distance within which a kept box explains (or is promoted by) a peak (an
-        angular gate around the peak's pixel applies too, agent.joint_detections.PEAK_GATE_RAD);
+        angular gate around the peak's pixel applies too, joint_peak_gate_across_rad / _down_rad);
         joint_cover_uavs: UAVs assumed to cover a joint cell when this UAV's own evidence is taken out
         of the joint mean (1: use the joint value as is); joint_prior_score: the confidence a joint
         detection is credited with before the boost by the others' evidence (see joint_score; 0.5: a
@@ -48,6 +67,38 @@ class PipelineConfig:
         joint_carry_s: for this long after this UAV last saw an object the others' evidence points at (a
         promoted or confident box), a frame with no box for it reports the last one moved on by its image
         velocity (agent.joint_detections.JointCarry; 0 = off), scored the peak's times joint_carry_factor.
+
+    Tuning of the joint detections (agent.joint_detections; measured on the simulator's `coop`):
+    joint_peak_smoothing_m: standard deviation (m) of the Gaussian that smooths the others' evidence
+        before looking for its maxima (maps clip at 1: a steadily seen object is a plateau).
+    joint_peak_gate_across_rad, joint_peak_gate_down_rad: angular gate around a peak's (registered) pixel,
+        half-axes across and down the image in focal lengths (radians): a kept box whose anchor lies inside
+        this ellipse is near the peak, as is one within joint_gate_m on the ground. What is left of the
+        cross-UAV error after registration is angular (both UAVs' heading and pitch jitter, the
+        telemetry's sample-and-hold during sweeps): at 80 m and 20 deg a ground gate of 3 m spans ~105 px
+        across but only ~33 px down the image, less than the peaks' scatter (inter-quartile ~35-70 px
+        down, ~80 px across on `coop`). 0.035 / 0.02 rad are 2.0 / 1.15 deg (~105 / 60 px at focal 2985 px).
+    joint_register_score: kept detections scoring at least this update the registration (JointRegistration)
+        of the others' evidence in this UAV's image; joint_register_radius_m, joint_register_window_s,
+        joint_register_min_pairs, joint_register_bin_rad, joint_register_match_rad,
+        joint_register_candidates, joint_register_max_rad: its pairing radius (m), memory (s), pairs
+        needed, histogram bin (focal lengths), match radius, maxima tried and largest offset (see
+        JointRegistration).
+    joint_carry_gate: a remembered sighting (JointCarry) stands for a peak up to this many joint_gate_m away
+        (this UAV's own ground point of a person at 80 m grazing errs by metres along the line of sight
+        from frame to frame).
+    joint_carry_min_sightings: a remembered sighting stands for a peak no box explains only once this UAV
+        has seen the object there in at least this many frames (overlapping sightings, see
+        JointCarry.observe). On `coop` (seeds 3 and 4) carried boxes from a single sighting were right in
+        6-9 % of frames (mostly a background false positive or a neighbour's box that happened to lie
+        near the peak), from four or more in 88 %.
+    joint_carry_match_iou: a kept box is the object a remembered sighting stands for when their IoU
+        reaches this.
+    joint_carry_blend: weight of a new sighting against the remembered one it overlaps (1 = keep the new
+        box only); joint_carry_velocity_gain: gain of a remembered sighting's image velocity on each new
+        sighting (the beta of an alpha-beta filter whose alpha is joint_carry_blend): the box's pixel
+        velocity (camera sweep and object motion together) settles over ~10 sightings, so one jittery box
+        moves it little.
     """
 
     memory: MemoryMapConfig = field(default_factory=MemoryMapConfig)
@@ -70,6 +121,22 @@ class PipelineConfig:
     joint_synth_factor: float = 0.0
     joint_carry_s: float = 0.5
     joint_carry_factor: float = 0.8
+    joint_peak_smoothing_m: float = 1.0
+    joint_peak_gate_across_rad: float = 0.035
+    joint_peak_gate_down_rad: float = 0.02
+    joint_register_score: float = 0.5
+    joint_register_radius_m: float = 8.0
+    joint_register_window_s: float = 10.0
+    joint_register_min_pairs: int = 5
+    joint_register_bin_rad: float = 0.0017
+    joint_register_match_rad: float = 0.0134
+    joint_register_candidates: int = 8
+    joint_register_max_rad: float = 0.15
+    joint_carry_gate: float = 2.0
+    joint_carry_min_sightings: int = 2
+    joint_carry_match_iou: float = 0.3
+    joint_carry_blend: float = 0.5
+    joint_carry_velocity_gain: float = 0.1
 
     def __post_init__(self) -> None:
         if self.anchor not in ANCHORS:
@@ -98,6 +165,16 @@ class PipelineConfig:
             raise ValueError(f"joint_carry_s must be >= 0, got {self.joint_carry_s!r}")
         if not (0.0 <= self.joint_carry_factor <= 1.0):
             raise ValueError(f"joint_carry_factor must be in [0, 1], got {self.joint_carry_factor!r}")
+        for name, low, high, low_open in _JOINT_TUNING_RANGES:
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+                    or value < low or (low_open and value == low) or value > high:
+                allowed = (f"in {'(' if low_open else '['}{low:g}, {high:g}]" if math.isfinite(high)
+                           else f"{'>' if low_open else '>='} {low:g}")
+                raise ValueError(f"{name} must be a number {allowed}, got {value!r}")
+        for name in ("joint_register_min_pairs", "joint_register_candidates", "joint_carry_min_sightings"):
+            if not isinstance(getattr(self, name), int):
+                raise ValueError(f"{name} must be an integer, got {getattr(self, name)!r}")
 
     @property
     def range_limit_m(self) -> float:

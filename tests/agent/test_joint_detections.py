@@ -215,12 +215,12 @@ def test_a_peak_keeps_the_box_where_this_uav_last_saw_it():
     hidden = np.asarray(_box_at(lat, lon)[0]) + [25.0, 0.0, 25.0, 0.0]  # seen 25 px beside the peak
     pipe = DetectionPipeline(CAM, CLASSES, SYNTH, joint=joint)
     # frames 1 and 2: a weak candidate of the hidden person is promoted
-    for k in range(jd.CARRY_MIN_SIGHTINGS):
+    for k in range(SYNTH.joint_carry_min_sightings):
         first = _frame(pipe, hidden, [0.02], T + k / 30)
         assert first.from_joint is not None and first.from_joint.sum() == 1
         np.testing.assert_allclose(first.boxes_xyxy[0], hidden, atol=0.01)
     # next frame: no candidate; the box of the last sighting stands for the person, not one at the peak
-    t = T + jd.CARRY_MIN_SIGHTINGS / 30
+    t = T + SYNTH.joint_carry_min_sightings / 30
     second = _frame(pipe, np.zeros((0, 4)), [], t)
     assert second.from_joint is not None and second.from_joint.sum() == 1
     np.testing.assert_allclose(second.boxes_xyxy[0], hidden, atol=0.01)
@@ -341,7 +341,31 @@ def test_carry_off_synthesises_at_the_peak():
 
 
 @pytest.mark.parametrize("field, value", [("joint_carry_s", -1.0), ("joint_carry_s", math.nan),
-                                          ("joint_carry_factor", 1.5), ("joint_carry_factor", -0.1)])
-def test_bad_carry_settings_are_refused_by_name(field, value):
+                                          ("joint_carry_factor", 1.5), ("joint_carry_factor", -0.1),
+                                          ("joint_peak_smoothing_m", 0.0), ("joint_peak_gate_across_rad", -0.01),
+                                          ("joint_peak_gate_down_rad", math.inf), ("joint_register_score", -1.0),
+                                          ("joint_register_radius_m", 0.0), ("joint_register_window_s", -1.0),
+                                          ("joint_register_min_pairs", 0), ("joint_register_min_pairs", 2.5),
+                                          ("joint_register_bin_rad", 0.0), ("joint_register_match_rad", math.nan),
+                                          ("joint_register_candidates", 0), ("joint_register_max_rad", 0.0),
+                                          ("joint_carry_gate", -1.0), ("joint_carry_min_sightings", 0),
+                                          ("joint_carry_min_sightings", True), ("joint_carry_match_iou", 1.5),
+                                          ("joint_carry_blend", -0.1), ("joint_carry_velocity_gain", 2.0)])
+def test_bad_joint_settings_are_refused_by_name(field, value):
     with pytest.raises(ValueError, match=field):
         dataclasses.replace(PipelineConfig(), **{field: value})
+
+
+def test_registration_and_carry_take_their_settings_from_the_pipeline_config():
+    cfg = dataclasses.replace(PipelineConfig(), joint_register_radius_m=5.0, joint_register_min_pairs=7,
+                              joint_register_bin_rad=0.002, joint_carry_s=0.25, joint_carry_match_iou=0.4,
+                              joint_carry_blend=0.6, joint_carry_velocity_gain=0.2)
+    reg = JointRegistration.from_config(cfg)
+    assert (reg.radius_m, reg.min_pairs, reg.bin_rad) == (5.0, 7, 0.002)
+    carry = jd.JointCarry.from_config(cfg)
+    assert (carry.carry_s, carry.match_iou, carry.blend, carry.velocity_gain) == (0.25, 0.4, 0.6, 0.2)
+    # the constructors' defaults are the config's
+    default, plain = JointRegistration.from_config(PipelineConfig()), JointRegistration()
+    assert vars(default).keys() == vars(plain).keys()
+    assert all(np.all(vars(default)[k] == vars(plain)[k]) for k in vars(plain) if not k.startswith("_"))
+    assert vars(jd.JointCarry.from_config(PipelineConfig())) == vars(jd.JointCarry())
