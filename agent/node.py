@@ -22,14 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from agent.appearance import with_image_descriptors
 from agent.frame_result import FrameResult
 from agent.memory_map import JointLayer, MemoryMap
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.sources import FrameSource, SourceFrame
-from agent.tracker import GpsTracker, TrackerConfig, TrackOutput
+from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
+from agent.tracking.appearance import with_image_descriptors
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink, encode_tracks_with_gid
 from shared.geo import Camera, Pose, footprint_latlon, latlon_to_local

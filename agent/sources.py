@@ -65,7 +65,7 @@ class SourceFrame:
         Appearance descriptors that came with the candidates (pre_nms.json ``embedding``; NaN rows: none).
     image : (H, W, 3) uint8 or None
         The frame's pixels (BGR) when the source has them (video; datasets whose image files exist): the
-        agent describes the kept boxes' appearance from them (`agent.appearance.with_image_descriptors`).
+        agent describes the kept boxes' appearance from them (`agent.tracking.appearance.with_image_descriptors`).
     """
 
     index: int

@@ -1,6 +1,6 @@
 """Run the detection pipeline and the GPS tracker over a dataset; write MOTChallenge and GeoJSON tracks.
 
-The file-facing edge of `agent.tracker` (which takes arrays only), used by `uavmm track` and the
+The file-facing edge of `agent.tracking` (which takes arrays only), used by `uavmm track` and the
 tracking evaluation.
 """
 
@@ -21,13 +21,13 @@ from typing import Any
 
 import numpy as np
 
-from agent.appearance import with_image_descriptors
 from agent.dataset import Candidates, Dataset, Frame, iter_video_frames, read_image, read_json
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
-from agent.tracker import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
+from agent.tracking import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
+from agent.tracking.appearance import with_image_descriptors
 from shared.geo import Camera
 
 log = logging.getLogger(__name__)

@@ -16,7 +16,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from agent.frame_result import FrameResult
-from agent.tracker import GpsTracker
+from agent.tracking import GpsTracker
 from benchmarks.timing import median_time_s
 from shared.geo import Camera, Pose, local_to_latlon
 
@@ -112,7 +112,7 @@ def _norfair_ms(n: int) -> float | None:
 
 def _descriptor_us_per_box(side_px: int, n_boxes: int = 100) -> float:
     """`hsv_histogram_descriptors` cost per box (us) on a 1920 x 1080 frame, boxes side_px x 2 side_px."""
-    from agent.appearance import hsv_histogram_descriptors
+    from agent.tracking.appearance import hsv_histogram_descriptors
 
     rng = np.random.default_rng(0)
     image = rng.integers(0, 256, (1080, 1920, 3), dtype=np.uint8)

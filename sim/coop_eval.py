@@ -27,7 +27,7 @@ from agent.memory_map import JointLayer
 from agent.node import TileChangeTracker, state_message
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
-from agent.tracker import GpsTracker
+from agent.tracking import GpsTracker
 from agent.tracking_io import memory_evidence
 from fusion_server.joint_map import JointMap
 from fusion_server.rules import get_fusion_rule

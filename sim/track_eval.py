@@ -28,7 +28,7 @@ from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
-from agent.tracker import GpsTracker, TrackerConfig
+from agent.tracking import GpsTracker, TrackerConfig
 from agent.tracking_io import frame_time_s
 from shared.geo import Camera
 

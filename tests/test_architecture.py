@@ -32,7 +32,6 @@ KNOWN_CYCLES: set[frozenset[str]] = set()
 KNOWN_LARGE: set[str] = {
     "agent.detector",  # agent restructure
     "agent.node",  # agent restructure
-    "agent.tracker",  # becomes agent/tracking/
 }
 
 
@@ -47,8 +46,8 @@ def modules() -> dict[str, Path]:
     return {_module_name(p): p for pkg in LAYERS for p in sorted((ROOT / pkg).rglob("*.py"))}
 
 
-def _imported_names(name: str, path: Path) -> Iterator[str]:
-    """Dotted names an import statement of the module may refer to (absolute and relative imports)."""
+def _imported_names(name: str, path: Path, known: dict[str, Path]) -> Iterator[str]:
+    """Dotted names the module's import statements refer to (absolute and relative imports)."""
     package = name.split(".") if path.name == "__init__.py" else name.split(".")[:-1]
     for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
         if isinstance(node, ast.Import):
@@ -59,9 +58,10 @@ def _imported_names(name: str, path: Path) -> Iterator[str]:
                 target = ".".join([*base, *([node.module] if node.module else [])])
             else:
                 target = node.module or ""
-            yield target
-            # `from pkg import module` imports the module
-            yield from (f"{target}.{alias.name}" for alias in node.names)
+            for alias in node.names:
+                # `from pkg import module` imports the module; `from module import name`, the module
+                sub = f"{target}.{alias.name}"
+                yield sub if sub in known else target
 
 
 @cache
@@ -71,7 +71,7 @@ def import_graph() -> dict[str, frozenset[str]]:
     graph = {}
     for name, path in mods.items():
         targets = set()
-        for imported in _imported_names(name, path):
+        for imported in _imported_names(name, path, mods):
             parts = imported.split(".")
             while parts and ".".join(parts) not in mods:
                 parts.pop()

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.appearance import hsv_histogram_descriptors, with_image_descriptors
 from agent.dataset import Candidates, Dataset
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
-from agent.tracker import GpsTracker, TrackerConfig
+from agent.tracking import GpsTracker, TrackerConfig
+from agent.tracking.appearance import hsv_histogram_descriptors, with_image_descriptors
 from agent.tracking_io import track_dataset, track_video
 from shared.geo import Camera
 from tests.agent.test_tracker import CAM, CLASSES, FPS, empty_result, observe, pose_at

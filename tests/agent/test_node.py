@@ -16,7 +16,7 @@ from agent.node import (
     state_message,
     tracks_message,
 )
-from agent.tracker import GpsTracker, TrackOutput
+from agent.tracking import GpsTracker, TrackOutput
 from agent.zenoh_io import encode_tracks_with_gid
 from shared.geo import Camera, Pose, local_to_latlon
 from shared.messages import JointTrackItem, JointTracksMessage, decode_state, decode_tracks, encode_state

@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.tracker import TrackerConfig
+from agent.tracking import TrackerConfig
 from agent.tracking_io import read_mot, tracker_config_from_dict
 from sim.dataset import write_dataset
 from uavmm.cli import main

@@ -13,16 +13,11 @@ from scipy.optimize import linear_sum_assignment
 
 from agent.boxes import box_iou
 from agent.frame_result import FrameResult
-from agent.tracker import (
-    ClassMotion,
-    GpsTracker,
-    TrackerConfig,
-    at_image_border,
-    duplicate_mask,
-    ground_measurement_cov,
-    near_pairs,
-    sparse_assignment,
-)
+from agent.tracking import ClassMotion, GpsTracker, TrackerConfig
+from agent.tracking.assignment import near_pairs, sparse_assignment
+from agent.tracking.association import duplicate_mask
+from agent.tracking.lifecycle import at_image_border
+from agent.tracking.model import ground_measurement_cov
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon, local_to_pixel
 
 CAM = Camera(width=3840, height=2160, fx=2985.0, fy=2985.0, cx=1920.0, cy=1080.0)

@@ -1,8 +1,9 @@
-"""Appearance descriptors of detection boxes for re-identification (colour histograms of the crop).
+"""Appearance for re-identification: colour descriptors of detection boxes, and how tracks compare and
+remember them (cosine distance, a moving average of unit descriptors).
 
-A cheap, model-free stand-in for a re-ID network (DeepSORT's CNN): the hue-saturation histogram of the
-box crop in HSV, which separates clothing colours and is insensitive to brightness. The output feeds
-`DetectionPipeline.process(..., embeddings=)` and so `GpsTracker` (docs/tracking.md, "Appearance").
+The descriptor is a cheap, model-free stand-in for a re-ID network (DeepSORT's CNN): the hue-saturation
+histogram of the box crop in HSV, which separates clothing colours and is insensitive to brightness. It
+feeds `DetectionPipeline.process(..., embeddings=)` and so `GpsTracker` (docs/tracking.md, "Appearance").
 """
 
 from __future__ import annotations
@@ -14,6 +15,16 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.frame_result import FrameResult
+
+__all__ = ["HUE_BINS", "SAT_BINS", "blend_descriptors", "cosine_distance", "descriptor_distance",
+           "hsv_histogram_descriptors", "unit_rows", "with_image_descriptors"]
+
+FloatArray = NDArray[np.float64]
+
+
+# ---------------------------------------------------------------------------------------------
+# Describing boxes
+# ---------------------------------------------------------------------------------------------
 
 #: Hue x saturation bins of `hsv_histogram_descriptors` (descriptor length = their product).
 HUE_BINS, SAT_BINS = 8, 4
@@ -94,3 +105,43 @@ def with_image_descriptors(result: FrameResult, image_bgr: NDArray[np.uint8] | N
     filled = have.copy()
     filled[missing] = hsv_histogram_descriptors(image_bgr, result.boxes_xyxy[missing])
     return dataclasses.replace(result, embeddings=filled)
+
+
+# ---------------------------------------------------------------------------------------------
+# Comparing and remembering descriptors
+# ---------------------------------------------------------------------------------------------
+
+def unit_rows(emb: NDArray, n: int) -> FloatArray | None:
+    """(n, D) descriptors scaled to unit length; rows that are not finite or zero become NaN (None when D = 0)."""
+    e = np.asarray(emb, dtype=np.float64).reshape(n, -1)
+    if not e.shape[1]:
+        return None
+    norm = np.linalg.norm(e, axis=1, keepdims=True)
+    ok = np.isfinite(norm) & (norm > 1e-12)
+    return np.where(ok, e / np.where(ok, norm, 1.0), np.nan)
+
+
+def cosine_distance(a: FloatArray, b: FloatArray) -> FloatArray:
+    """1 - cosine similarity of unit rows a (..., D) and b (..., D) (broadcast); NaN where either is NaN."""
+    return 1.0 - np.einsum("...d,...d->...", a, b)
+
+
+def descriptor_distance(track_emb: FloatArray, det_emb: FloatArray) -> tuple[FloatArray, NDArray[np.bool_]]:
+    """Cosine distance of paired rows and whether both have a descriptor (else the distance is 0)."""
+    d = cosine_distance(track_emb, det_emb)
+    known = np.isfinite(d)
+    return np.where(known, d, 0.0), known
+
+
+def blend_descriptors(old: FloatArray, new: FloatArray, past_weight: float) -> FloatArray:
+    """Per-row moving average of unit descriptors, renormalised (either side NaN: the other one).
+
+    old, new (..., D); past_weight: weight of old (`TrackerConfig.appearance_ema`).
+    """
+    a = past_weight
+    old_ok = np.isfinite(old).all(axis=-1, keepdims=True)
+    new_ok = np.isfinite(new).all(axis=-1, keepdims=True)
+    mix = a * np.where(old_ok, old, 0.0) + (1.0 - a) * np.where(new_ok, new, 0.0)
+    mix = np.where(old_ok & ~new_ok, old, np.where(~old_ok & new_ok, new, mix))
+    norm = np.linalg.norm(mix, axis=-1, keepdims=True)
+    return np.where(old_ok | new_ok, mix / np.maximum(norm, 1e-12), np.nan)

@@ -1,0 +1,208 @@
+"""Association: one frame's detections, with the NMS leftovers set aside, matched to the active tracks on
+the ground (Mahalanobis gate, negative log-likelihood cost) or, without a ground point, by image IoU.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.boxes import box_iou
+from agent.frame_result import FrameResult
+from agent.tracking.appearance import blend_descriptors, descriptor_distance, unit_rows
+from agent.tracking.assignment import gated_assignment, near_pairs, sparse_assignment
+from agent.tracking.config import TrackerConfig
+from agent.tracking.model import FloatArray, kalman_update, mahalanobis2_and_logdet, sigma_max
+from agent.tracking.state import FrameDetections, TrackState
+
+__all__ = ["associate_ground", "associate_iou", "duplicate_mask", "frame_detections", "ground_duplicates",
+           "mark_hit"]
+
+
+def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetections:
+    """The pipeline's result as the stages use it: float64 columns, the entry score and score cost, the
+    image duplicates already set aside (`used`), no ground points yet (`geo` False), unit descriptors.
+
+    ValueError when the result's arrays differ in length.
+    """
+    boxes = np.asarray(result.boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    scores = np.asarray(result.scores, dtype=np.float64).reshape(-1)
+    raw = np.asarray(result.raw_scores, dtype=np.float64).reshape(-1)
+    class_ids = np.asarray(result.class_ids, dtype=np.int64).reshape(-1)
+    n = len(scores)
+    if not (len(boxes) == len(raw) == len(class_ids) == n):
+        raise ValueError(f"FrameResult arrays differ in length: boxes {len(boxes)}, scores {n}, "
+                         f"raw_scores {len(raw)}, class_ids {len(class_ids)}")
+    return FrameDetections(
+        boxes=boxes, scores=scores, raw=raw, entry=raw if config.birth_on_raw else scores,
+        score_cost=-config.score_weight * np.log(np.clip(raw, 1e-3, None)), cls=class_ids,
+        lat=np.asarray(result.lat, dtype=np.float64).reshape(-1),
+        lon=np.asarray(result.lon, dtype=np.float64).reshape(-1),
+        used=duplicate_mask(boxes, scores, class_ids, config.duplicate_iou, config.duplicate_ioa),
+        z=np.full((n, 2), np.nan), R=np.zeros((n, 2, 2)), geo=np.zeros(n, dtype=bool),
+        emb=unit_rows(result.embeddings, n) if config.use_appearance and result.embeddings is not None else None)
+
+
+def duplicate_mask(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,
+                   ioa: float) -> NDArray[np.bool_]:
+    """Which detections duplicate a higher-scoring one of the same class in the image.
+
+    boxes_xyxy (N, 4) pixels, scores (N,), class_ids (N,). A box is a duplicate when its IoU with a
+    stronger box (not itself a duplicate) is >= iou, or their intersection covers >= ioa of the
+    smaller of the two. Returns (N,) bool, True for duplicates (greedy, strongest first).
+    """
+    n = len(scores)
+    dup = np.zeros(n, dtype=bool)
+    if n < 2:
+        return dup
+    order = np.argsort(-np.asarray(scores), kind="stable")
+    b = np.asarray(boxes_xyxy, dtype=np.float64)[order]
+    c = np.asarray(class_ids)[order]
+    centre = 0.5 * (b[:, :2] + b[:, 2:])
+    half_diag = 0.5 * np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
+    i, j = near_pairs(centre, half_diag, centre, half_diag)
+    keep = (i > j) & (c[i] == c[j])  # i weaker than j (later in score order)
+    i, j = i[keep], j[keep]
+    if not len(i):
+        return dup
+    inter = np.clip(np.minimum(b[i, 2], b[j, 2]) - np.maximum(b[i, 0], b[j, 0]), 0.0, None) \
+        * np.clip(np.minimum(b[i, 3], b[j, 3]) - np.maximum(b[i, 1], b[j, 1]), 0.0, None)
+    area = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
+    union = area[i] + area[j] - inter
+    overlap = (inter > 0) & ((inter >= iou * union) | (inter >= ioa * np.minimum(area[i], area[j])))
+    i, j = i[overlap], j[overlap]
+    stronger: dict[int, list[int]] = {}
+    for a_, b_ in zip(i.tolist(), j.tolist(), strict=True):
+        stronger.setdefault(a_, []).append(b_)
+    dup_sorted = np.zeros(n, dtype=bool)
+    for k in sorted(stronger):
+        # duplicates of duplicates are judged against the kept boxes only
+        if not dup_sorted[stronger[k]].all():
+            dup_sorted[k] = True
+    dup[order] = dup_sorted
+    return dup
+
+
+def ground_duplicates(z: FloatArray, R: FloatArray, raw: FloatArray, class_ids: NDArray, candidates: NDArray[np.bool_],
+                      chi2: float, raw_ratio: float) -> NDArray[np.bool_]:
+    """Detections that duplicate a much more confident one of their class on the ground.
+
+    z (N, 2) ground points, metres; R (N, 2, 2) their covariances; raw (N,) detector confidences;
+    candidates (N,) bool: the rows to consider. Row j is a duplicate of row i when both are
+    candidates of one class, (z_j - z_i) is within `chi2` (squared Mahalanobis, R_i + R_j) and
+    raw_j < raw_ratio * raw_i. Returns (N,) bool.
+    """
+    out = np.zeros(len(raw), dtype=bool)
+    idx = np.flatnonzero(candidates)
+    if len(idx) < 2:
+        return out
+    radius = math.sqrt(chi2) * sigma_max(R[idx])
+    i, j = near_pairs(z[idx], radius, z[idx], radius)
+    i, j = idx[i], idx[j]
+    keep = (raw[i] < raw_ratio * raw[j]) & (class_ids[i] == class_ids[j])
+    i, j = i[keep], j[keep]
+    d2, _ = mahalanobis2_and_logdet(z[i] - z[j], R[i] + R[j])
+    out[i[d2 <= chi2]] = True
+    return out
+
+
+def associate_ground(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_], t: float,
+                     track_mask: NDArray[np.bool_]) -> None:
+    """Assign detections (det_mask) to unmatched tracks (track_mask) on the ground and update those tracks.
+
+    Pairs within the Mahalanobis gate and the hard cap cost the negative log-likelihood of the ground
+    distance plus the score, image and appearance terms; `sparse_assignment` picks the pairs.
+    """
+    cfg = state.config
+    act = state.active
+    track_mask = track_mask & ~act["matched"]
+    if not len(act) or not track_mask.any() or not det_mask.any():
+        return
+    ti = np.flatnonzero(track_mask)
+    di = np.flatnonzero(det_mask)
+    # Candidate pairs within the gate's longest axis (and the hard cap) only: large scenes stay sparse.
+    gate = math.sqrt(cfg.gate_chi2)
+    t_rad = np.minimum(gate * sigma_max(act["P"][ti, :2, :2]), cfg.max_gate_m)
+    d_rad = np.minimum(gate * sigma_max(dets.R[di]), cfg.max_gate_m)
+    pi, pj = near_pairs(act["x"][ti, :2], t_rad, dets.z[di], d_rad)
+    tr, dt_ = ti[pi], di[pj]
+    keep = act["cls"][tr] == dets.cls[dt_]
+    tr, dt_ = tr[keep], dt_[keep]
+    diff = dets.z[dt_] - act["x"][tr, :2]
+    d2, logdet = mahalanobis2_and_logdet(diff, act["P"][tr, :2, :2] + dets.R[dt_])
+    keep = (d2 <= cfg.gate_chi2) & (np.hypot(diff[:, 0], diff[:, 1]) <= cfg.max_gate_m)
+    tr, dt_, d2, logdet = tr[keep], dt_[keep], d2[keep], logdet[keep]
+    # Negative log-likelihood: distance, the track's own uncertainty (relative to the detection's,
+    # so uncertain tracks pay for their wide gates), the detector's confidence, the image overlap.
+    _, logdet_r = mahalanobis2_and_logdet(diff[keep], dets.R[dt_])
+    cost = d2 + (logdet - logdet_r) + dets.score_cost[dt_]
+    if cfg.image_weight > 0:
+        cost += cfg.image_weight * _image_cost(state, tr, dets.boxes[dt_], t)
+    if cfg.appearance_weight > 0 and dets.emb is not None and len(tr):
+        app, _ = descriptor_distance(act["emb"][tr], dets.emb[dt_])
+        cost += cfg.appearance_weight * app
+    r, c = sparse_assignment(tr, dt_, cost, unassigned_cost=cfg.pair_max_cost)
+    if len(r):
+        _, speed_cap = state.motion.accel_and_cap(act["cls"][r])
+        act.cols["x"][r], act.cols["P"][r] = kalman_update(act["x"][r], act["P"][r], dets.z[c], dets.R[c], speed_cap)
+        mark_hit(state, r, dets, c, t)
+
+
+def _image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: float) -> FloatArray:
+    """(K,) 1 - IoU of track ti[k]'s last box with boxes[k] where the image still shows the track
+    where it was (matched within image_max_age_s, heading turned by at most image_max_turn_deg
+    since); 0.5 elsewhere (no image evidence either way)."""
+    cfg = state.config
+    act = state.active
+    cost = np.full(len(ti), 0.5)
+    turned = np.abs((state.heading_now - act["heading_hit"][ti] + 180.0) % 360.0 - 180.0)
+    fresh = (t - act["t_hit"][ti] <= cfg.image_max_age_s) & (turned <= cfg.image_max_turn_deg)
+    if fresh.any():
+        a, b = act["box"][ti[fresh]], boxes[fresh]
+        inter = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0.0, None) \
+            * np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
+        union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
+        cost[fresh] = 1.0 - np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+    return cost
+
+
+def associate_iou(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_]) -> None:
+    """Match detections (det_mask) to tracks by IoU with each track's last box; the ground state only coasts."""
+    act = state.active
+    det_mask = det_mask & ~dets.used & (dets.scores >= state.config.low_score)
+    track_mask = ~act["matched"]
+    if not len(act) or not det_mask.any() or not track_mask.any():
+        return
+    ti = np.flatnonzero(track_mask)
+    di = np.flatnonzero(det_mask)
+    iou = box_iou(act["box"][ti], dets.boxes[di])
+    allowed = (iou >= state.config.iou_threshold) & (act["cls"][ti][:, None] == dets.cls[di][None, :])
+    r, c = gated_assignment(-iou, allowed)
+    if len(r):
+        mark_hit(state, ti[r], dets, di[c], t)
+
+
+def mark_hit(state: TrackState, ti: NDArray[np.int64], dets: FrameDetections, di: NDArray[np.int64],
+             t: float) -> None:
+    """Active tracks ti took detections di at time t: their box, score, counts, quality and descriptor."""
+    act = state.active
+    act.cols["box"][ti] = dets.boxes[di]
+    act.cols["score"][ti] = dets.scores[di]
+    act.cols["hits"][ti] += 1
+    # Only convincing detections confirm a track: boosted leftovers around an object do not.
+    strong = dets.raw[di] >= state.config.confirm_score
+    act.cols["quality"][ti] += state.config.quality_rate * (dets.raw[di] - act["quality"][ti])
+    act.cols["support"][ti] += strong
+    act.cols["strong"][ti] = strong
+    if dets.geo[di].all():
+        act.cols["R_last"][ti] = dets.R[di]
+    act.cols["t_hit"][ti] = t
+    act.cols["heading_hit"][ti] = state.heading_now
+    if dets.emb is not None:
+        act.cols["emb"][ti] = blend_descriptors(act["emb"][ti], dets.emb[di], state.config.appearance_ema)
+    act.cols["matched"][ti] = True
+    act.cols["det_row"][ti] = di
+    act.cols["confirmed"][ti] |= (act["support"][ti] >= state.config.confirm_hits) & ~act["pending"][ti]
+    dets.used[di] = True

@@ -1,0 +1,291 @@
+"""Tracker parameters: how each class moves, and the thresholds, gates and weights of every stage.
+
+Metres, seconds and degrees throughout, so a configuration holds across frame rates and cameras.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+__all__ = ["DEFAULT_CLASS_MOTION", "ClassMotion", "TrackerConfig"]
+
+
+@dataclass(frozen=True, slots=True)
+class ClassMotion:
+    """How objects of one class move.
+
+    Attributes
+    ----------
+    accel_sigma_mps2 : float
+        White-acceleration process noise of the Kalman filter, m/s^2.
+    max_speed_mps : float
+        Speed cap of the filter's velocity and of a lost track's predicted motion, m/s.
+    reid_spread_mps : float
+        Growth of a lost track's position uncertainty (1 sigma) per second lost, m/s.
+    persistence_s : float
+        How long the class keeps its velocity (time constant of the exponential damping of a lost
+        track's velocity), s: the predicted displacement after dt is v * tau * (1 - exp(-dt / tau)).
+        Walkers keep their direction for several seconds; swimmers drift with the current.
+    """
+
+    accel_sigma_mps2: float = 1.0
+    max_speed_mps: float = 3.0
+    reid_spread_mps: float = 0.6
+    persistence_s: float = 3.0
+
+    def __post_init__(self) -> None:
+        for name in ("accel_sigma_mps2", "max_speed_mps", "reid_spread_mps", "persistence_s"):
+            value = getattr(self, name)
+            if not isinstance(value, (int, float)) or not math.isfinite(value) or value <= 0:
+                raise ValueError(f"ClassMotion.{name}={value!r} must be a finite number > 0")
+
+
+#: Built-in motion per class name: people walk (1.2-1.5 m/s, sudden turns), swimmers drift slowly.
+DEFAULT_CLASS_MOTION: tuple[tuple[str, ClassMotion], ...] = (
+    ("person", ClassMotion(accel_sigma_mps2=1.0, max_speed_mps=3.0, reid_spread_mps=1.0, persistence_s=1.5)),
+    ("swimmer", ClassMotion(accel_sigma_mps2=0.3, max_speed_mps=1.5, reid_spread_mps=0.25, persistence_s=20.0)),
+    ("boat", ClassMotion(accel_sigma_mps2=1.5, max_speed_mps=15.0, reid_spread_mps=2.0, persistence_s=10.0)),
+)
+
+
+@dataclass(frozen=True, slots=True)
+class TrackerConfig:
+    """Tracker parameters, in metres, seconds and degrees (frame-rate independent).
+
+    Defaults: the best measured on the simulator (docs/tracking.md). "Boosted" scores are the
+    pipeline's (c + memory, may exceed 1), "raw" ones the detector's own (`FrameResult.raw_scores`).
+
+    Track life
+    ----------
+    match_score : float
+        Boosted score from which a detection is associated first (to every active track).
+    low_score : float
+        Weaker detections down to this boosted score may still update a confirmed track left over
+        (a blurred or partly hidden object); they never start or revive tracks.
+    birth_score, reid_score : float
+        Score from which a free detection starts a tentative track, or revives a lost one.
+    birth_on_raw : bool
+        Judge birth_score and reid_score on the raw score: the memory map lifts every box near a
+        remembered spot (persistent clutter too) to about 1 + c, so a new or returning track should
+        rest on a convincing detection; boosted scores then keep it.
+    confirm_hits, confirm_score : int, float
+        A tentative track is confirmed after confirm_hits matches with a raw score >= confirm_score,
+        within confirm_window_s of its birth (else deleted).
+    confirm_window_s, tentative_coast_s, max_coast_s : float
+        Seconds: see confirm_hits; a tentative track unmatched for tentative_coast_s is deleted; a
+        confirmed one unmatched for max_coast_s is lost (goes to the re-ID memory).
+    exit_margin_px, exit_coast_s : float
+        A confirmed track whose last box came within exit_margin_px pixels of the image border and
+        that has then been unmatched for more than exit_coast_s seconds (0: one frame) has left the
+        view: it goes to the re-ID memory at once instead of coasting for max_coast_s. A coasting
+        track of an object that left used to take a neighbour's detection near the border while the
+        gimbal turned faster than the telemetry showed (an exit swap); a negative margin disables it.
+
+    Association
+    -----------
+    gate_chi2, max_gate_m : float
+        Mahalanobis gate (squared; 9.21 = 99 % for 2 dof) and hard cap (metres) of track-detection
+        pairs.
+    score_weight : float
+        Weight of -ln(raw score) in the pair cost (the negative log-likelihood of the ground
+        distance): among detections near a track, the detector's best box wins, not a leftover.
+    pair_max_cost : float or None
+        A pair costing more (d2 + ln(|S| / |R|) + score and image terms) is not worth making: a track
+        and a detection may both stay unassigned, so the assignment does not trade one good pair for
+        two poor ones (None: as many pairs as the gate allows, like plain linear_sum_assignment).
+    image_weight, image_max_age_s, image_max_turn_deg : float
+        Image cue: a track matched within image_max_age_s (s) while the gimbal turned by at most
+        image_max_turn_deg (deg) adds image_weight * (1 - IoU of its last box) to each pair cost (0.5
+        * image_weight for other tracks): with a steady camera, pixels separate close objects better
+        than ground points carrying the pose noise.
+    iou_threshold : float
+        Minimum image IoU with a track's last box for detections without ground position (frames
+        without pose, boxes beyond the georeferencing range).
+
+    Ground error of a detection (1 sigma)
+    -------------------------------------
+    position_sigma_m : float
+        Isotropic (GPS jitter, box anchor), metres.
+    heading_sigma_deg, pitch_sigma_deg, height_sigma_m, pixel_sigma_px : float
+        Frame-to-frame telemetry errors and the anchor pixel's error: sideways range * d_theta, along
+        the ray slant^2 / h * d_beta and range / h * dh, a pixel slant / f (times slant / h along).
+    max_measurement_sigma_m : float
+        Cap of the sideways and along-ray errors (far pixels near the horizon), metres.
+    telemetry_latency_s, max_heading_correction_deg : float
+        How much older the telemetry is than its stamp (s): while the gimbal turns, ground points are
+        turned about the UAV by rate * (frame time - pose time + latency), at most this many degrees.
+    timing_sigma_s : float
+        Timing error left after that (s): the heading and pitch errors grow by turn rate * it.
+
+    Duplicates (boosting lifts the whole cluster of boxes around a remembered object)
+    --------------------------------------------------------------------------------
+    duplicate_iou, duplicate_ioa : float
+        A box overlapping a stronger one of its class by this IoU, or covering this fraction of the
+        smaller box, is not used.
+    duplicate_raw_ratio, duplicate_chi2 : float
+        Nor is one within duplicate_chi2 (squared Mahalanobis, both ground errors) of another with
+        a raw score below duplicate_raw_ratio times the other's (part boxes, shifted boxes).
+    birth_suppress_iou, birth_suppress_chi2 : float
+        A free detection overlapping a box taken in this frame by this IoU, or within this squared
+        Mahalanobis distance of any active track of its class, starts no track.
+    merge_chi2, merge_max_m, merge_after_s : float
+        Two confirmed tracks of a class within merge_chi2 (track and measurement errors) and
+        merge_max_m metres for merge_after_s seconds, never both taking a convincing detection in one
+        frame, follow one object: the one with fewer hits is dropped.
+
+    Re-identification
+    -----------------
+    reid_horizon_s : float
+        How long a lost track is remembered, s.
+    reid_gate_chi2 : float
+        Mahalanobis gate of lost track-detection pairs; the lost track is predicted with its class's
+        damped velocity (`ClassMotion`) and its uncertainty grows by reid_spread_mps per second.
+    reid_delay_s : float
+        0: a free detection is matched against the lost tracks at once. > 0: a new track is followed
+        this long first, then all such tracks are matched in one assignment on filtered positions
+        (and reported only after that).
+    reid_min_evidence : float
+        With an evidence function (`GpsTracker(evidence_at=...)`), a lost track is revived only
+        where the memory map holds at least this much (0 = do not ask).
+    reid_unreported_s : float
+        A track born less than this many seconds ago whose id is not being reported (never yet, see
+        `GpsTracker.report`, or no longer: its quality fell below report_quality) still competes
+        for the lost tracks' ids whenever it takes a detection good enough to revive one: a
+        returning object's first boxes, partly out of view or a false positive next to it, start a
+        new track that then takes the object's good detections before they can revive its old
+        track. It takes the old id on probation, like a revival; a track whose id was reported only
+        for a lost track its detection looks more like than like the track itself (0: off).
+
+    Appearance (optional: used when the detections carry descriptors, `FrameResult.embeddings`)
+    ----------
+    use_appearance : bool
+        Use the descriptors at all (False: motion only, as without them).
+    appearance_ema : float
+        A track's descriptor is an exponential moving average of its detections' unit descriptors
+        (weight of the past, per matched detection; FairMOT/BoT-SORT use 0.9).
+    reid_appearance_weight, reid_appearance_gate : float
+        Re-ID pair cost += weight * cosine distance (0 = same look, 1 = unrelated); a pair farther
+        than the gate in cosine distance is not made (pairs where either side has no descriptor are
+        judged on motion alone).
+    appearance_weight : float
+        Frame-to-frame association pair cost += weight * cosine distance (a secondary cue; ground
+        distance leads).
+
+    Reporting
+    ---------
+    quality_rate, report_quality : float
+        A track's quality is a running mean of the raw scores of its detections, with zeros for
+        frames where it is in view and not detected (weight quality_rate per frame); it is reported
+        (`GpsTracker.report`) only while quality >= report_quality: persistent clutter and objects
+        behind foliage are followed but not reported.
+
+    Other
+    -----
+    reanchor_m : float
+        Move the local origin to the UAV when it is farther than this from it, metres.
+    class_motion : tuple of (class name, ClassMotion)
+        Motion per class name; default_motion for other classes.
+    default_motion : ClassMotion
+    """
+
+    match_score: float = 0.4
+    low_score: float = 0.15
+    birth_score: float = 0.5
+    reid_score: float = 0.5
+    birth_on_raw: bool = True
+    confirm_hits: int = 3
+    confirm_score: float = 0.2
+    confirm_window_s: float = 0.5
+    tentative_coast_s: float = 0.25
+    max_coast_s: float = 1.0
+    exit_margin_px: float = 4.0
+    exit_coast_s: float = 0.0
+    gate_chi2: float = 9.21
+    max_gate_m: float = 40.0
+    score_weight: float = 1.0
+    pair_max_cost: float | None = 17.0
+    image_weight: float = 8.0
+    image_max_age_s: float = 0.2
+    image_max_turn_deg: float = 1.0
+    iou_threshold: float = 0.2
+    position_sigma_m: float = 0.5
+    heading_sigma_deg: float = 1.0
+    pitch_sigma_deg: float = 0.5
+    height_sigma_m: float = 0.3
+    pixel_sigma_px: float = 4.0
+    max_measurement_sigma_m: float = 30.0
+    telemetry_latency_s: float = 0.05
+    max_heading_correction_deg: float = 30.0
+    timing_sigma_s: float = 0.05
+    duplicate_iou: float = 0.25
+    duplicate_ioa: float = 0.5
+    duplicate_raw_ratio: float = 0.5
+    duplicate_chi2: float = 4.0
+    birth_suppress_iou: float = 0.1
+    birth_suppress_chi2: float = 4.0
+    merge_chi2: float = 9.21
+    merge_max_m: float = 10.0
+    merge_after_s: float = 0.5
+    reid_horizon_s: float = 30.0
+    reid_gate_chi2: float = 9.21
+    reid_delay_s: float = 0.0
+    reid_min_evidence: float = 0.0
+    reid_unreported_s: float = 3.0
+    use_appearance: bool = True
+    appearance_ema: float = 0.9
+    reid_appearance_weight: float = 10.0
+    reid_appearance_gate: float = 0.5
+    appearance_weight: float = 2.0
+    quality_rate: float = 0.1
+    report_quality: float = 0.4
+    reanchor_m: float = 2000.0
+    class_motion: tuple[tuple[str, ClassMotion], ...] = DEFAULT_CLASS_MOTION
+    default_motion: ClassMotion = field(default_factory=lambda: ClassMotion(2.0, 10.0, 1.0))
+
+    def __post_init__(self) -> None:
+        positive = {"confirm_window_s", "tentative_coast_s", "max_coast_s", "gate_chi2", "max_gate_m",
+                    "position_sigma_m", "max_measurement_sigma_m", "merge_chi2", "merge_max_m", "reid_gate_chi2",
+                    "reanchor_m"}
+        unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate"}
+        for f in fields(self):
+            value = getattr(self, f.name)
+            if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "class_motion", "default_motion",
+                          "pair_max_cost", "exit_margin_px"):
+                continue
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+                raise ValueError(f"TrackerConfig.{f.name} must be a finite number, got {value!r}")
+            if f.name in unit and not 0.0 < value <= 1.0:
+                raise ValueError(f"TrackerConfig.{f.name}={value!r} must be in (0, 1]")
+            if f.name in positive and value <= 0:
+                raise ValueError(f"TrackerConfig.{f.name}={value!r} must be > 0")
+            if value < 0:
+                raise ValueError(f"TrackerConfig.{f.name}={value!r} must be >= 0")
+        if self.pair_max_cost is not None and not (isinstance(self.pair_max_cost, (int, float))
+                                                   and math.isfinite(self.pair_max_cost) and self.pair_max_cost > 0):
+            raise ValueError(f"TrackerConfig.pair_max_cost={self.pair_max_cost!r} must be None or a number > 0")
+        if not isinstance(self.exit_margin_px, (int, float)) or not math.isfinite(self.exit_margin_px):
+            raise ValueError(f"TrackerConfig.exit_margin_px must be a finite number (< 0: off), "
+                             f"got {self.exit_margin_px!r}")
+        for name in ("birth_on_raw", "use_appearance"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
+        if not self.appearance_ema < 1.0:
+            raise ValueError(f"TrackerConfig.appearance_ema={self.appearance_ema!r} must be in [0, 1)")
+        if isinstance(self.confirm_hits, bool) or not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
+            raise ValueError(f"TrackerConfig.confirm_hits={self.confirm_hits!r} must be an integer >= 1")
+        if self.low_score > self.match_score:
+            raise ValueError(f"TrackerConfig.low_score={self.low_score!r} must be <= match_score={self.match_score!r}")
+        for entry in self.class_motion:
+            if (not isinstance(entry, tuple) or len(entry) != 2 or not isinstance(entry[0], str)
+                    or not isinstance(entry[1], ClassMotion)):
+                raise ValueError(f"TrackerConfig.class_motion entries must be (name, ClassMotion), got {entry!r}")
+        if not isinstance(self.default_motion, ClassMotion):
+            raise ValueError(f"TrackerConfig.default_motion must be a ClassMotion, got {self.default_motion!r}")
+
+    def motion_for(self, class_name: str | None) -> ClassMotion:
+        """The motion model of a class name (`default_motion` when it has none)."""
+        for name, motion in self.class_motion:
+            if name == class_name:
+                return motion
+        return self.default_motion

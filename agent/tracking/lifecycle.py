@@ -1,0 +1,178 @@
+"""Track life: births from free detections, merging two tracks on one object, quality of tracks in view
+but not detected, and retirement (tentative ones die; confirmed ones go to the re-ID memory).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.spatial import cKDTree
+
+from agent.boxes import box_iou
+from agent.tracking.assignment import near_pairs
+from agent.tracking.model import mahalanobis2_and_logdet, sigma_max
+from agent.tracking.state import FrameDetections, TrackState
+from shared.geo import Camera, Pose, latlon_to_local, local_to_pixel
+
+__all__ = ["at_image_border", "birth", "decay_unseen_quality", "merge_duplicates", "retire"]
+
+log = logging.getLogger(__name__)
+
+
+def at_image_border(boxes_xyxy: NDArray, width_px: float, height_px: float, margin_px: float) -> NDArray[np.bool_]:
+    """(N, 4) xyxy pixel boxes -> (N,) bool: the box comes within margin_px of an image border
+    (an object partly out of view, about to leave or just entering). NaN boxes: False."""
+    b = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    with np.errstate(invalid="ignore"):
+        return (b[:, 0] <= margin_px) | (b[:, 1] <= margin_px) | (b[:, 2] >= width_px - margin_px) \
+            | (b[:, 3] >= height_px - margin_px)
+
+
+def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_], t: float) -> None:
+    """Free detections (det_mask) start tentative tracks, strongest first, unless they lie next to a track
+    of their class, overlap a box taken in this frame or a stronger newborn (NMS leftovers)."""
+    cfg = state.config
+    act = state.active
+    order = np.flatnonzero(det_mask)
+    order = order[np.argsort(-dets.entry[order], kind="stable")]
+    # Not next to a track of the class (on the ground), nor overlapping a box taken in this frame:
+    # such detections are leftovers around an object the tracker already follows.
+    free = np.ones(len(order), dtype=bool)
+    if len(act):
+        gate = math.sqrt(cfg.birth_suppress_chi2)
+        ti, oj = near_pairs(act["x"][:, :2], gate * sigma_max(act["P"][:, :2, :2]), dets.z[order],
+                            gate * sigma_max(dets.R[order]))
+        same = act["cls"][ti] == dets.cls[order[oj]]
+        ti, oj = ti[same], oj[same]
+        dj = order[oj]
+        d2, _ = mahalanobis2_and_logdet(dets.z[dj] - act["x"][ti, :2], act["P"][ti, :2, :2] + dets.R[dj])
+        free[oj[d2 <= cfg.birth_suppress_chi2]] = False
+        taken = act["matched"]
+        if taken.any():
+            iou = box_iou(act["box"][taken], dets.boxes[order])
+            same = act["cls"][taken][:, None] == dets.cls[order][None, :]
+            free &= ~((iou >= cfg.birth_suppress_iou) & same).any(axis=0)
+    born: list[int] = []
+    for j in order[free]:  # strongest first; each newborn suppresses the weaker ones around it
+        if born:
+            b = np.asarray(born)
+            same = dets.cls[b] == dets.cls[j]
+            if same.any():
+                if box_iou(dets.boxes[j][None], dets.boxes[b[same]]).max() >= cfg.birth_suppress_iou:
+                    continue
+                near = b[same]
+                d2, _ = mahalanobis2_and_logdet(dets.z[j][None] - dets.z[near], dets.R[near] + dets.R[j][None])
+                if d2.min() <= cfg.birth_suppress_chi2:
+                    continue
+        born.append(int(j))
+    if not born:
+        return
+    b = np.asarray(born, dtype=np.int64)
+    n = len(b)
+    x = np.zeros((n, 4))
+    x[:, :2] = dets.z[b]
+    P = np.zeros((n, 4, 4))
+    P[:, :2, :2] = dets.R[b]
+    P[:, 2:, 2:] = state.motion.initial_velocity_cov(dets.cls[b])
+    ids = np.arange(state.next_id, state.next_id + n, dtype=np.int64)
+    state.next_id += n
+    # With lost tracks of its class around, a new track may turn out to be an old one.
+    pending = np.zeros(n, dtype=bool)
+    if cfg.reid_delay_s > 0 and len(state.lost):
+        pending = np.isin(dets.cls[b], state.lost["cls"])
+    act.append(id=ids, cls=dets.cls[b], x=x, P=P, box=dets.boxes[b], score=dets.scores[b],
+               hits=np.ones(n, np.int64), support=np.ones(n, np.int64), t_hit=np.full(n, t),
+               t_born=np.full(n, t), t_shadow=np.full(n, np.nan), confirmed=~pending & (cfg.confirm_hits <= 1),
+               matched=np.ones(n, bool), reid=np.zeros(n, bool), strong=dets.raw[b] >= cfg.confirm_score,
+               R_last=dets.R[b], quality=dets.raw[b], heading_hit=np.full(n, state.heading_now),
+               pending=pending, probation=np.zeros(n, bool), shown=np.zeros(n, bool), det_row=b,
+               **({} if dets.emb is None else {"emb": dets.emb[b]}))
+    dets.used[b] = True
+
+
+def decay_unseen_quality(state: TrackState, pose: Pose, camera: Camera) -> None:
+    """A track in view without a detection counts as a zero in its quality: persistent clutter
+    that the detector reports in part of the frames, or weakly, falls below report_quality."""
+    act = state.active
+    miss = np.flatnonzero(~act["matched"])
+    if not len(miss) or state.origin is None:
+        return
+    uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
+    uv, ok = local_to_pixel(act["x"][miss, 0] - uav_e, act["x"][miss, 1] - uav_n, camera, pose)
+    m = 0.05 * camera.width
+    inside = ok & (uv[:, 0] >= m) & (uv[:, 0] <= camera.width - m) & (uv[:, 1] >= m) \
+        & (uv[:, 1] <= camera.height - m)
+    act.cols["quality"][miss[inside]] *= 1.0 - state.config.quality_rate
+
+
+def merge_duplicates(state: TrackState, t: float) -> None:
+    """Two confirmed tracks on one object (they share its detections, taking turns): after
+    `merge_after_s` of being within `merge_chi2` of a track with more hits, a track is dropped."""
+    cfg = state.config
+    act = state.active
+    conf = np.flatnonzero(act["confirmed"])
+    shadowed = np.zeros(len(act), dtype=bool)
+    if len(conf) >= 2:
+        pos = act["x"][conf, :2]
+        pairs = cKDTree(pos).query_pairs(cfg.merge_max_m, output_type="ndarray")
+        if len(pairs):
+            i, j = conf[pairs[:, 0]], conf[pairs[:, 1]]
+            same = act["cls"][i] == act["cls"][j]
+            # Two convincing detections in one frame: two objects, whatever their distance.
+            same &= ~(act["strong"][i] & act["strong"][j])
+            # Taking turns needs a turn: two tracks coasting side by side (out of view, their
+            # covariances growing) are no evidence of a duplicate.
+            same &= act["matched"][i] | act["matched"][j]
+            i, j = i[same], j[same]
+            diff = act["x"][i, :2] - act["x"][j, :2]
+            # Tracks that take turns on one object's detections differ by about a measurement error.
+            S = act["P"][i, :2, :2] + act["P"][j, :2, :2] + 0.5 * (act["R_last"][i] + act["R_last"][j])
+            d2, _ = mahalanobis2_and_logdet(diff, S)
+            close = d2 <= cfg.merge_chi2
+            i, j = i[close], j[close]
+            # the track with fewer hits (ties: the newer id) is the duplicate
+            j_weaker = (act["hits"][j] < act["hits"][i]) | ((act["hits"][j] == act["hits"][i])
+                                                             & (act["id"][j] > act["id"][i]))
+            shadowed[np.where(j_weaker, j, i)] = True
+    t_shadow = act.cols["t_shadow"]
+    t_shadow[~shadowed] = np.nan
+    t_shadow[shadowed & np.isnan(t_shadow)] = t
+    merged = shadowed & (t - t_shadow >= cfg.merge_after_s)
+    if merged.any():
+        log.debug("merged duplicate track(s) %s", act["id"][merged].tolist())
+        act.keep(~merged)
+
+
+def retire(state: TrackState, t: float, camera: Camera | None = None) -> None:
+    """Tentative tracks unmatched too long die; confirmed ones go to the re-ID memory, at once
+    when their object left the view through the image border (`exit_margin_px`)."""
+    cfg = state.config
+    act = state.active
+    if len(act):
+        idle = t - act["t_hit"]
+        conf = act["confirmed"]
+        drop = (conf & (idle > cfg.max_coast_s)) | (~conf & (idle > cfg.tentative_coast_s))
+        if camera is not None and cfg.exit_margin_px >= 0:
+            drop |= conf & (idle > cfg.exit_coast_s) & at_image_border(
+                act["box"], camera.width, camera.height, cfg.exit_margin_px)
+        # A tentative track not confirmed soon lives on boosted leftovers around some object.
+        drop |= ~conf & (t - act["t_born"] > cfg.confirm_window_s + cfg.reid_delay_s)
+        to_lost = drop & conf
+        if to_lost.any() and cfg.reid_horizon_s > 0:
+            state.lost.append(id=act["id"][to_lost], cls=act["cls"][to_lost], pos=act["x"][to_lost][:, :2],
+                              vel=act["x"][to_lost][:, 2:], Ppos=act["P"][to_lost][:, :2, :2],
+                              box=act["box"][to_lost], score=act["score"][to_lost], hits=act["hits"][to_lost],
+                              support=act["support"][to_lost], t_hit=act["t_hit"][to_lost],
+                              quality=act["quality"][to_lost], claimed=np.zeros(int(to_lost.sum()), bool),
+                              **({"emb": act["emb"][to_lost]} if "emb" in act.cols else {}))
+        failed = drop & act["probation"]
+        if failed.any() and len(state.lost):
+            # A revival that was not confirmed: the object's memory entry is free again, unchanged.
+            state.lost.cols["claimed"][np.isin(state.lost["id"], act["id"][failed])] = False
+        if drop.any():
+            act.keep(~drop)
+    if len(state.lost):
+        state.lost.keep(t - state.lost["t_hit"] <= cfg.reid_horizon_s)

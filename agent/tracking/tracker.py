@@ -1,0 +1,346 @@
+"""The tracker: one frame at a time, the stages (association, re-identification, track life) run in order
+on the track tables, and every active track comes out as a `TrackOutput`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.frame_result import FrameResult
+from agent.tracking import reid
+from agent.tracking.association import associate_ground, associate_iou, frame_detections, ground_duplicates
+from agent.tracking.config import TrackerConfig
+from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, retire
+from agent.tracking.model import MotionModels, ground_measurement_cov, predict_constant_velocity
+from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
+from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon
+
+__all__ = ["GpsTracker", "TrackOutput"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class TrackOutput:
+    """One track's state after a frame.
+
+    Attributes
+    ----------
+    id : int
+        Track id, unique per tracker, starting at 1; a re-identified object gets its old id back.
+    cls : int
+        Class (category) id.
+    box_xyxy : tuple of 4 float
+        Image box, pixels: the detection matched in this frame, else the last matched one.
+    lat, lon : float
+        Filtered ground position, degrees.
+    vel_en : tuple of 2 float
+        Filtered ground velocity (east, north), m/s.
+    score : float
+        Boosted confidence of the last matched detection.
+    confirmed : bool
+        Confirmed (matched in `confirm_hits` frames, or re-identified).
+    matched : bool
+        A detection was assigned to this track in this frame.
+    hits : int
+        Frames matched so far.
+    time_since_update_s : float
+        Seconds since the last matched detection (0 when matched).
+    reidentified : bool
+        The track was revived from the re-ID memory in this frame.
+    quality : float
+        Running mean of the detector's own confidence (raw score) over the matched detections.
+    """
+
+    id: int
+    cls: int
+    box_xyxy: tuple[float, float, float, float]
+    lat: float
+    lon: float
+    vel_en: tuple[float, float]
+    score: float
+    confirmed: bool
+    matched: bool
+    hits: int = 0
+    time_since_update_s: float = 0.0
+    reidentified: bool = False
+    quality: float = 0.0
+
+
+class GpsTracker:
+    """Multi-object tracker on the ground plane with long-term re-identification.
+
+    Parameters
+    ----------
+    config : TrackerConfig, optional
+    class_names : dict, optional
+        Class id -> name, to look up each class's motion model (`TrackerConfig.class_motion`).
+    evidence_at : callable, optional
+        (class id, lat (N,), lon (N,)) -> (N,) memory-map evidence; with
+        `TrackerConfig.reid_min_evidence` > 0 a re-identification needs that much evidence.
+    first_id : int
+        Id of the first new track (1, as MOTChallenge counts); the live agent starts each run elsewhere
+        so ids stay unique across restarts (`agent.node.run_first_track_id`).
+
+    Use one tracker per video; `update` must be called with non-decreasing times.
+    """
+
+    def __init__(self, config: TrackerConfig | None = None, class_names: dict[int, str] | None = None,
+                 *, evidence_at: EvidenceFn | None = None, first_id: int = 1) -> None:
+        if isinstance(first_id, bool) or not isinstance(first_id, int) or not 0 <= first_id < 2**62:
+            raise ValueError(f"first_id must be an int in 0..2**62-1, got {first_id!r}")
+        config = config or TrackerConfig()
+        self.class_names = dict(class_names or {})
+        self._state = TrackState(config=config, motion=MotionModels(config, self.class_names),
+                                 evidence_at=evidence_at, next_id=first_id)
+        self._t: float | None = None
+        # Turn-rate estimate from pose changes (telemetry often arrives at a lower rate than frames).
+        self._pose_ref: Pose | None = None
+        self._t_pose_ref = 0.0
+        self._t_frame_ref = 0.0
+        self._pose_interval_s = 0.0
+        self._heading_rate_deg_s = 0.0
+        self._pitch_rate_deg_s = 0.0
+
+    # ----------------------------------------------------------------------------- views
+    @property
+    def config(self) -> TrackerConfig:
+        """The tracker's settings (fixed at construction)."""
+        return self._state.config
+
+    @property
+    def evidence_at(self) -> EvidenceFn | None:
+        """The memory-map evidence lookup re-identification asks, or None."""
+        return self._state.evidence_at
+
+    @property
+    def n_reidentified(self) -> int:
+        """Re-identifications so far (lost tracks that got their id back and were confirmed)."""
+        return self._state.n_reidentified
+
+    @property
+    def origin(self) -> tuple[float, float] | None:
+        """(lat, lon) degrees of the local east/north frame, None before the first pose."""
+        return self._state.origin
+
+    @property
+    def tracks(self) -> list[TrackOutput]:
+        """Active tracks (tentative and confirmed, matched or coasting) after the last update."""
+        return self._outputs()
+
+    @property
+    def lost_tracks(self) -> list[TrackOutput]:
+        """Tracks in the re-ID memory: last filtered position and velocity, time lost so far."""
+        lost = self._state.lost
+        if not len(lost) or self._state.origin is None:
+            return []
+        lat, lon = local_to_latlon(lost["pos"][:, 0], lost["pos"][:, 1], *self._state.origin)
+        now = self._t if self._t is not None else 0.0
+        return [
+            TrackOutput(int(lost["id"][i]), int(lost["cls"][i]), _box_tuple(lost["box"][i]), float(lat[i]),
+                        float(lon[i]), (float(lost["vel"][i, 0]), float(lost["vel"][i, 1])),
+                        float(lost["score"][i]), True, False, int(lost["hits"][i]),
+                        float(now - lost["t_hit"][i]), False, float(lost["quality"][i]))
+            for i in range(len(lost)) if not lost["claimed"][i]  # claimed: on probation among the active
+        ]
+
+    def report(self, tracks: list[TrackOutput]) -> list[TrackOutput]:
+        """The tracks to report for a frame (MOT rows): confirmed, matched in this frame, and with a
+        `quality` of at least `TrackerConfig.report_quality`."""
+        q = self.config.report_quality
+        return [tr for tr in tracks if tr.confirmed and tr.matched and tr.quality >= q]
+
+    # ----------------------------------------------------------------------------- update
+    def update(self, result: FrameResult, pose: Pose | None, t: float, camera: Camera, *,
+               pose_t: float | None = None) -> list[TrackOutput]:
+        """Advance to time t and associate one frame's detections.
+
+        Parameters
+        ----------
+        result : FrameResult
+            The pipeline's detections of the frame (boxes, boosted scores, classes, lat/lon, NaN
+            where not georeferenced).
+        pose : Pose or None
+            The frame's camera pose; None without metadata: tracks coast and detections are matched
+            by image IoU with each track's last box (no ground positions, no new tracks).
+        t : float
+            Frame time, seconds; earlier than the previous frame is treated as the same time.
+        camera : Camera
+            The camera (its focal length scales the pixel error on the ground).
+        pose_t : float, optional
+            Time the pose was measured (the telemetry's stamp), seconds; default t. While the gimbal
+            turns, detections are rotated about the UAV by turn rate * (t - pose_t +
+            `telemetry_latency_s`): the heading the frame was really taken at.
+
+        Returns
+        -------
+        list of TrackOutput
+            Every active track (tentative and confirmed, matched or coasting).
+        """
+        if not math.isfinite(t):
+            raise ValueError(f"t must be finite seconds, got {t!r}")
+        dt = 0.0 if self._t is None else t - self._t
+        if dt < 0:
+            log.debug("time went back by %.3f s; treating the frame as simultaneous", -dt)
+            dt = 0.0
+            t = self._t if self._t is not None else t
+        self._t = t
+        state = self._state
+        act = state.active
+        act.cols["matched"][:] = False
+        act.cols["reid"][:] = False
+        act.cols["strong"][:] = False
+        act.cols["det_row"][:] = -1
+        if len(act) and dt > 0:
+            accel, _ = state.motion.accel_and_cap(act["cls"])
+            predict_constant_velocity(act["x"], act["P"], dt, accel)
+
+        dets = frame_detections(result, self.config)
+        if dets.emb is not None:
+            state.ensure_descriptor_columns(dets.emb.shape[1])
+        if pose is None:
+            associate_iou(state, dets, t, np.ones(len(dets.scores), dtype=bool))
+        else:
+            pose_t = t if pose_t is None or not math.isfinite(pose_t) else pose_t
+            self._update_rates(pose, pose_t, t)
+            state.heading_now = pose.heading_deg
+            self._maybe_reanchor(pose)
+            self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0))
+            merge_duplicates(state, t)
+            decay_unseen_quality(state, pose, camera)
+
+        reid.settle_probation(state)
+        retire(state, t, camera)
+        act = state.active
+        act.cols["shown"] |= act["confirmed"] & act["matched"] & (act["quality"] >= self.config.report_quality)
+        return self._outputs()
+
+    # ----------------------------------------------------------------------------- stages
+    def _frame_with_pose(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera,
+                         staleness_s: float) -> None:
+        cfg = self.config
+        state = self._state
+        assert state.origin is not None
+        geo = np.isfinite(dets.lat) & np.isfinite(dets.lon)
+        dets.geo = geo
+        if geo.any():
+            e, n = latlon_to_local(dets.lat[geo], dets.lon[geo], *state.origin)
+            uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
+            rel_e, rel_n = e - uav_e, n - uav_n
+            # The telemetry's heading is older than the frame: turn the ground points about the UAV
+            # by the heading change since (a flat-ground projection rotates with the heading).
+            delta_deg = self._heading_rate_deg_s * (staleness_s + cfg.telemetry_latency_s)
+            delta = math.radians(max(-cfg.max_heading_correction_deg, min(cfg.max_heading_correction_deg, delta_deg)))
+            if delta:
+                c, s = math.cos(delta), math.sin(delta)
+                rel_e, rel_n = rel_e * c + rel_n * s, -rel_e * s + rel_n * c
+            dets.z[geo, 0], dets.z[geo, 1] = rel_e + uav_e, rel_n + uav_n
+            rate = abs(self._heading_rate_deg_s)
+            heading_sd = math.hypot(cfg.heading_sigma_deg, rate * cfg.timing_sigma_s)
+            pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
+            dets.R[geo] = ground_measurement_cov(
+                rel_e, rel_n, pose.height_m, math.sqrt(camera.fx * camera.fy),
+                position_sigma_m=cfg.position_sigma_m, heading_sigma_deg=heading_sd, pitch_sigma_deg=pitch_sd,
+                height_sigma_m=cfg.height_sigma_m, pixel_sigma_px=cfg.pixel_sigma_px,
+                max_sigma_m=cfg.max_measurement_sigma_m)
+
+        if cfg.duplicate_raw_ratio > 0 and geo.sum() > 1:
+            dets.used |= ground_duplicates(dets.z, dets.R, dets.raw, dets.cls, geo & ~dets.used,
+                                           cfg.duplicate_chi2, cfg.duplicate_raw_ratio)
+
+        # 1. strong detections, confirmed tracks first (they own their object), then tentative ones;
+        # 2. weak detections to confirmed tracks left over.
+        confirmed = state.active["confirmed"].copy()
+        strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
+        associate_ground(state, dets, strong, t, confirmed)
+        strong &= ~dets.used
+        associate_ground(state, dets, strong, t, ~confirmed)
+        weak = geo & ~dets.used & (dets.scores >= cfg.low_score)
+        if weak.any():
+            associate_ground(state, dets, weak, t, confirmed)
+        # Detections the pipeline could not georeference (beyond its range) still follow by IoU.
+        far = ~geo & ~dets.used & (dets.scores >= cfg.match_score)
+        if far.any():
+            associate_iou(state, dets, t, far)
+        # 3. re-identification from the lost-track memory (at once, or deferred: reid.resolve_pending).
+        # Free detections and young tracks whose id nobody has seen yet compete for the lost ids.
+        cand = geo & ~dets.used & (dets.entry >= cfg.reid_score)
+        young = reid.unreported(state, dets, t)
+        if cfg.reid_delay_s <= 0 and (cand.any() or len(young)) and len(state.lost):
+            if state.evidence_at is not None and cfg.reid_min_evidence > 0:
+                young_rows = np.zeros(len(cand), dtype=bool)
+                young_rows[state.active["det_row"][young]] = True
+                ok = reid.evidence_ok(state, cand | young_rows, dets.cls, dets.lat, dets.lon)
+                cand &= ok
+                young = young[ok[state.active["det_row"][young]]]
+            reid.reidentify(state, dets, cand, t, young)
+        # 4. births.
+        cand = geo & ~dets.used & (dets.entry >= cfg.birth_score)
+        if cand.any():
+            birth(state, dets, cand, t)
+        if cfg.reid_delay_s > 0:
+            reid.resolve_pending(state, t)
+
+    def _update_rates(self, pose: Pose, pose_t: float, t: float) -> None:
+        """Signed gimbal turn rates (deg/s) from successive distinct poses (telemetry is often
+        sample-and-hold at a lower rate than the frames)."""
+        ref = self._pose_ref
+        if ref is None:
+            self._pose_ref, self._t_pose_ref, self._t_frame_ref = pose, pose_t, t
+            return
+        changed = pose.heading_deg != ref.heading_deg or pose.pitch_deg != ref.pitch_deg
+        if changed:
+            interval = pose_t - self._t_pose_ref
+            if interval <= 1e-3:  # no usable pose clock: the frames' one
+                interval = max(t - self._t_frame_ref, 1e-3)
+            d_heading = (pose.heading_deg - ref.heading_deg + 180.0) % 360.0 - 180.0
+            self._heading_rate_deg_s = d_heading / interval
+            self._pitch_rate_deg_s = (pose.pitch_deg - ref.pitch_deg) / interval
+            self._pose_interval_s = interval
+            self._pose_ref, self._t_pose_ref, self._t_frame_ref = pose, pose_t, t
+        elif t - self._t_frame_ref > max(0.25, 2.0 * self._pose_interval_s):
+            # No new telemetry for a while: the gimbal holds still.
+            self._heading_rate_deg_s = self._pitch_rate_deg_s = 0.0
+
+    def _maybe_reanchor(self, pose: Pose) -> None:
+        state = self._state
+        if state.origin is None:
+            state.origin = (pose.lat, pose.lon)
+            return
+        e, n = latlon_to_local(pose.lat, pose.lon, *state.origin)
+        if math.hypot(float(e), float(n)) <= self.config.reanchor_m:
+            return
+        old, new = state.origin, (pose.lat, pose.lon)
+        for table, key in ((state.active, "x"), (state.lost, "pos")):
+            if len(table):
+                pos = table.cols[key]
+                lat, lon = local_to_latlon(pos[:, 0], pos[:, 1], *old)
+                pos[:, 0], pos[:, 1] = latlon_to_local(lat, lon, *new)
+        state.origin = new
+        log.debug("re-anchored the local frame at %.6f, %.6f", *new)
+
+    def _outputs(self) -> list[TrackOutput]:
+        act = self._state.active
+        n = len(act)
+        if not n:
+            return []
+        if self._state.origin is not None:
+            lat, lon = local_to_latlon(act["x"][:, 0], act["x"][:, 1], *self._state.origin)
+        else:
+            lat = lon = np.full(n, np.nan)
+        now = self._t if self._t is not None else 0.0
+        # Python scalars column by column: building 1,000 outputs stays ~1 ms.
+        cols = zip(act["id"].tolist(), act["cls"].tolist(), map(tuple, act["box"].tolist()), lat.tolist(),
+                   lon.tolist(), map(tuple, act["x"][:, 2:].tolist()), act["score"].tolist(),
+                   act["confirmed"].tolist(), act["matched"].tolist(), act["hits"].tolist(),
+                   (now - act["t_hit"]).tolist(), act["reid"].tolist(), act["quality"].tolist(), strict=True)
+        return [TrackOutput(*c) for c in cols]
+
+
+def _box_tuple(box: NDArray) -> tuple[float, float, float, float]:
+    return (float(box[0]), float(box[1]), float(box[2]), float(box[3]))
