@@ -2,14 +2,13 @@
 published over Zenoh at a fixed rate (tiles that changed, state, tracks) while joint tiles flow back.
 
 `AgentNode(settings, source).run(stop)` runs until the source ends, ``duration_s`` passes or ``stop``
-is set. The pure parts (tile change detection, message building, global id adoption) are separate
-classes so they are testable without a network.
+is set. The pure parts are testable without a network: message building here, the choice of tiles to
+send in `agent.tile_updates`, global id adoption in `agent.global_ids`.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import hashlib
 import json
 import logging
 import math
@@ -23,16 +22,18 @@ from typing import Any
 import numpy as np
 
 from agent.frame_result import FrameResult
-from agent.memory_map import JointLayer, MemoryMap
+from agent.global_ids import GlobalIdAdopter
+from agent.memory_map import JointLayer
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.sources import FrameSource, SourceFrame
+from agent.tile_updates import TileChangeTracker
 from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink, encode_tracks_with_gid
-from shared.geo import Camera, Pose, footprint_latlon, latlon_to_local
+from shared.geo import Camera, Pose, footprint_latlon
 from shared.keys import DEFAULT_PREFIX, KeySpace, validate_uav_id
 from shared.messages import (
     CameraInfo,
@@ -42,14 +43,11 @@ from shared.messages import (
     TracksMessage,
     encode_state,
 )
-from shared.tilecodec import encode_tile_sparse, quantise
 from shared.tiles import TileGrid
 
 __all__ = [
     "AgentNode",
     "AgentSettings",
-    "GlobalIdAdopter",
-    "TileChangeTracker",
     "run_first_track_id",
     "state_message",
     "tracks_message",
@@ -168,124 +166,6 @@ class AgentSettings:
 
 
 # ---------------------------------------------------------------------------------------------
-# Tiles: what to send this cycle
-# ---------------------------------------------------------------------------------------------
-
-#: How long (wall seconds) another UAV covers the cells of a footprint it sent: the fusion server's
-#: default --ttl-s, after which the server stops counting it in a cell's mean.
-COVER_TTL_S = 2.0
-
-#: Tiles whose cells take at most this many bytes go out even when the byte budget is spent.
-_ALWAYS_SEND_BYTES = 256
-
-
-@dataclass(slots=True)
-class _SentTile:
-    digest: bytes
-    seq: int
-    sent: float  # monotonic
-
-
-class TileChangeTracker:
-    """Decides which memory-map tiles to publish and encodes them with per-tile sequence numbers.
-
-    A tile is due when its quantised content differs from what was last sent for it, or when it was
-    last sent ``refresh_s`` ago or more (the server only counts a UAV as covering a tile while its
-    latest message is fresher than the server's TTL). With a byte budget (``budget_bytes_per_s``, a
-    token bucket holding at most one second of budget), due tiles go out stalest first until the
-    budget is spent; the others stay due and rise in priority, so on a slow link every tile is still
-    refreshed, just less often. Tiles with (nearly) no evidence are never held back: they cost ~60
-    bytes and keep "I cover this and see nothing" fresh at the server. Tiles that leave the window
-    are forgotten, so they are sent at once when the window comes back. Sequence numbers start at
-    the wall clock in microseconds and grow by one per message of a tile, so they keep increasing
-    across restarts.
-
-    uav: this UAV's id; classes: the class names to publish (tiles of classes never seen go out empty:
-    "I cover this tile and see nothing"); min_value: cells below it are sent as 0.
-    """
-
-    def __init__(self, uav: str, classes: list[str], grid: TileGrid, *, refresh_s: float = 1.0,
-                 min_value: float = 0.0, budget_bytes_per_s: float | None = None,
-                 clock: Callable[[], float] = time.monotonic) -> None:
-        if budget_bytes_per_s is not None and not (math.isfinite(budget_bytes_per_s) and budget_bytes_per_s > 0):
-            raise ValueError(f"budget_bytes_per_s must be > 0 or None, got {budget_bytes_per_s!r}")
-        self.uav = uav
-        self.classes = list(classes)
-        self.grid = grid
-        self.refresh_s = refresh_s
-        self.min_value = min_value
-        self.budget_bytes_per_s = budget_bytes_per_s
-        self.clock = clock
-        self._sent: dict[tuple[str, int, int], _SentTile] = {}
-        self._seq_base = time.time_ns() // 1000
-        self._tokens = 0.0 if budget_bytes_per_s is None else float(budget_bytes_per_s)
-        self._t_tokens: float | None = None
-        self.n_changed = 0
-        self.n_refreshed = 0
-        self.n_skipped = 0
-        self.n_deferred = 0
-
-    def _refill(self, now: float) -> None:
-        if self.budget_bytes_per_s is None:
-            return
-        if self._t_tokens is not None:
-            burst = self.budget_bytes_per_s  # at most one second of budget saved up
-            self._tokens = min(self._tokens + (now - self._t_tokens) * self.budget_bytes_per_s, burst)
-        self._t_tokens = now
-
-    def messages(self, memory: MemoryMap, t: float) -> list[tuple[str, int, int, bytes]]:
-        """Tiles to publish now as ``(cls, x, y, payload)`` for a map at time t (seconds).
-
-        Every class in ``classes`` plus any class the map holds is considered.
-        """
-        now = self.clock()
-        self._refill(now)
-        due = []  # (priority, tile id, digest, changed, idx, val)
-        seen: set[tuple[str, int, int]] = set()
-        for cls in dict.fromkeys([*self.classes, *memory.classes]):
-            for x, y, values in memory.tiles(cls):
-                tile_id = (cls, x, y)
-                seen.add(tile_id)
-                if self.min_value > 0:
-                    values = np.where(values >= self.min_value, values, np.float32(0.0))
-                flat = quantise(values).reshape(-1)
-                idx = np.flatnonzero(flat != 0)
-                val = flat[idx]
-                digest = hashlib.blake2b(idx.astype("<u2").tobytes() + val.tobytes(), digest_size=16).digest()
-                old = self._sent.get(tile_id)
-                if old is not None and old.digest == digest and now - old.sent < self.refresh_s:
-                    self.n_skipped += 1
-                    continue
-                age = math.inf if old is None else now - old.sent
-                due.append((age, tile_id, digest, old is None or old.digest != digest, idx, val))
-        for tile_id in [k for k in self._sent if k not in seen]:
-            # keep the sequence going if the tile comes back: forget only what decides "due"
-            self._seq_base = max(self._seq_base, self._sent[tile_id].seq + 1)
-            del self._sent[tile_id]
-        due.sort(key=lambda item: -item[0])  # stalest (and never sent) first
-        out = []
-        n = self.grid.n
-        for _, tile_id, digest, changed, idx, val in due:
-            # an empty or nearly empty tile costs ~60 bytes: never hold coverage back for that
-            size = min(3 * idx.size, n * n)
-            if self.budget_bytes_per_s is not None and self._tokens <= 0 and size > _ALWAYS_SEND_BYTES:
-                self.n_deferred += 1
-                continue
-            cls, x, y = tile_id
-            old = self._sent.get(tile_id)
-            seq = self._seq_base if old is None else old.seq + 1
-            payload = encode_tile_sparse(self.uav, cls, self.grid.z, x, y, n, t, seq, idx, val)
-            self._tokens -= len(payload)  # may go below 0: repaid before the next tile goes out
-            self._sent[tile_id] = _SentTile(digest, seq, now)
-            if changed:
-                self.n_changed += 1
-            else:
-                self.n_refreshed += 1
-            out.append((cls, x, y, payload))
-        return out
-
-
-# ---------------------------------------------------------------------------------------------
 # State and tracks messages
 # ---------------------------------------------------------------------------------------------
 
@@ -339,112 +219,13 @@ def run_first_track_id(wall_ns: int | None = None) -> int:
 
 
 # ---------------------------------------------------------------------------------------------
-# Global id adoption
-# ---------------------------------------------------------------------------------------------
-
-@dataclass(slots=True)
-class _LocalTrack:
-    born: float  # wall seconds (monotonic) the local track was first reported
-    last: float
-    gid: int | None = None
-    via: str = ""  # "position" or "server"
-
-
-class GlobalIdAdopter:
-    """Which global track (fusion server id) each local track of this UAV is.
-
-    Two rules, checked every update:
-
-    * membership: a global track listing ``(uav, local id)`` among its members gives its gid (the
-      server's association wins over everything else);
-    * position: a local track reported for less than ``window_s`` with no gid yet takes the gid of the
-      nearest global track of its class within ``gate_m`` metres that is not already another of this
-      UAV's current tracks: the object another UAV has been tracking keeps its id when this UAV
-      starts seeing it.
-
-    uav: this UAV's id; horizon_s: a local track unseen this long is forgotten.
-    """
-
-    def __init__(self, uav: str, *, gate_m: float = 10.0, window_s: float = 2.0, horizon_s: float = 300.0,
-                 clock: Callable[[], float] = time.monotonic) -> None:
-        self.uav = uav
-        self.gate_m = gate_m
-        self.window_s = window_s
-        self.horizon_s = horizon_s
-        self.clock = clock
-        self._tracks: dict[int, _LocalTrack] = {}
-        self.n_adopted_by_position = 0
-
-    def gid_of(self, local_id: int) -> int | None:
-        """The adopted global id of a local track, or None."""
-        entry = self._tracks.get(local_id)
-        return None if entry is None else entry.gid
-
-    def gids(self) -> dict[int, int]:
-        """local id -> global id for every local track that has one."""
-        return {lid: e.gid for lid, e in self._tracks.items() if e.gid is not None}
-
-    def update(self, tracks: list[tuple[int, str, float, float]], joint: JointTracksMessage | None) -> dict[int, int]:
-        """Take this UAV's reported tracks ``(local id, class name, lat, lon)`` and the latest global
-        tracks (None when none are known or they are stale); returns :meth:`gids`."""
-        now = self.clock()
-        for lid, *_ in tracks:
-            entry = self._tracks.get(lid)
-            if entry is None:
-                self._tracks[lid] = _LocalTrack(born=now, last=now)
-            else:
-                entry.last = now
-        if joint is not None and joint.tracks:
-            self._by_membership(joint)
-            self._by_position(tracks, joint, now)
-        for lid in [k for k, e in self._tracks.items() if now - e.last > self.horizon_s]:
-            del self._tracks[lid]
-        return self.gids()
-
-    def _by_membership(self, joint: JointTracksMessage) -> None:
-        for g in joint.tracks:
-            for uav, lid in g.members:
-                if uav == self.uav and lid in self._tracks:
-                    entry = self._tracks[lid]
-                    if entry.gid != g.gid:
-                        log.debug("local track %d is global %d (server membership)", lid, g.gid)
-                    entry.gid, entry.via = g.gid, "server"
-
-    def _by_position(self, tracks: list[tuple[int, str, float, float]], joint: JointTracksMessage, now: float) -> None:
-        current = {lid for lid, *_ in tracks}
-        taken = {self._tracks[lid].gid for lid in current if self._tracks[lid].gid is not None}
-        # a global track holding another of our current local tracks is that object, not this one
-        taken |= {g.gid for g in joint.tracks if any(u == self.uav and lid in current for u, lid in g.members)}
-        want = [(lid, cls, lat, lon) for lid, cls, lat, lon in tracks
-                if self._tracks[lid].gid is None and now - self._tracks[lid].born <= self.window_s]
-        if not want:
-            return
-        for cls in sorted({w[1] for w in want}):
-            mine = [w for w in want if w[1] == cls]
-            theirs = [g for g in joint.tracks if g.cls == cls and g.gid not in taken]
-            if not theirs:
-                continue
-            lat0, lon0 = mine[0][2], mine[0][3]
-            e1, n1 = latlon_to_local(np.array([w[2] for w in mine]), np.array([w[3] for w in mine]), lat0, lon0)
-            e2, n2 = latlon_to_local(np.array([g.lat for g in theirs]), np.array([g.lon for g in theirs]), lat0, lon0)
-            dist = np.hypot(e1[:, None] - e2[None, :], n1[:, None] - n2[None, :])  # (mine, theirs) metres
-            # greedy by distance: closest pairs first, each global and local track used once
-            for flat in np.argsort(dist, axis=None):
-                i, j = divmod(int(flat), len(theirs))
-                if dist[i, j] > self.gate_m:
-                    break
-                lid, gid = mine[i][0], theirs[j].gid
-                if self._tracks[lid].gid is not None or gid in taken:
-                    continue
-                self._tracks[lid].gid, self._tracks[lid].via = gid, "position"
-                taken.add(gid)
-                self.n_adopted_by_position += 1
-                log.info("local track %d adopts global id %d (%.1f m away)", lid, gid, dist[i, j])
-
-
-# ---------------------------------------------------------------------------------------------
 # The agent
 # ---------------------------------------------------------------------------------------------
+
+#: How long (wall seconds) another UAV covers the cells of a footprint it sent: the fusion server's
+#: default --ttl-s, after which the server stops counting it in a cell's mean.
+COVER_TTL_S = 2.0
+
 
 class AgentNode:
     """One agent: a source, the pipeline with a joint layer, the tracker and the Zenoh link.

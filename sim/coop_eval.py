@@ -1,7 +1,7 @@
 """`uavmm eval --tasks coop`: two UAVs sharing a joint memory map, against each UAV on its own.
 
 The `coop` scenario's UAVs run in lockstep in-process on the wire's data path: every publish period
-each UAV's memory-map tiles go through the agent's tile encoder (`agent.node.TileChangeTracker`:
+each UAV's memory-map tiles go through the agent's tile encoder (`agent.tile_updates.TileChangeTracker`:
 byte-quantised, unchanged tiles refreshed every second) and its camera footprint through its state
 message (`agent.node.state_message`); the fusion server's own `fusion_server.joint_map.JointMap`
 (rule and coverage as on the server, on the frame clock) fuses them, and the joint tiles it would
@@ -24,9 +24,10 @@ import numpy as np
 from agent.boost import results_to_coco
 from agent.dataset import Candidates, Dataset, iter_video_frames
 from agent.memory_map import JointLayer
-from agent.node import TileChangeTracker, state_message
+from agent.node import state_message
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
+from agent.tile_updates import TileChangeTracker
 from agent.tracking import GpsTracker
 from agent.tracking_io import memory_evidence
 from fusion_server.joint_map import JointMap

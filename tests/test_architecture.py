@@ -31,7 +31,6 @@ KNOWN_CYCLES: set[frozenset[str]] = set()
 #: Modules over MAX_LINES lines.
 KNOWN_LARGE: set[str] = {
     "agent.detector",  # agent restructure
-    "agent.node",  # agent restructure
 }
 
 

@@ -7,15 +7,10 @@ import msgpack
 import numpy as np
 import pytest
 
+from agent.global_ids import GlobalIdAdopter
 from agent.memory_map import MemoryMap, MemoryMapConfig
-from agent.node import (
-    AgentSettings,
-    GlobalIdAdopter,
-    TileChangeTracker,
-    run_first_track_id,
-    state_message,
-    tracks_message,
-)
+from agent.node import AgentSettings, run_first_track_id, state_message, tracks_message
+from agent.tile_updates import TileChangeTracker
 from agent.tracking import GpsTracker, TrackOutput
 from agent.zenoh_io import encode_tracks_with_gid
 from shared.geo import Camera, Pose, local_to_latlon

@@ -99,8 +99,8 @@ def test_one_uav_with_20_objects_in_view_stays_within_100_kB_per_s():
 
 def test_the_map_alone_would_not_fit_without_the_budget():
     """Why the budget exists: the same flight without it sends more than the 100 kB/s budget in tiles alone."""
-    from agent.node import TileChangeTracker
     from agent.pipeline import DetectionPipeline
+    from agent.tile_updates import TileChangeTracker
 
     source = SimSource(crowded_meadow(), uav_index=0, frames=90)
     pipeline = DetectionPipeline(source.camera, source.class_names)
