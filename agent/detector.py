@@ -1,22 +1,9 @@
 """Detector backends: YOLO-family ONNX models run with onnxruntime, returning pre-NMS candidates.
 
 The memory map needs every candidate box above a low confidence threshold (not the NMS survivors),
-so the detector decodes the raw head output and leaves NMS to a later stage.
-
-Supported raw output layouts (the first model output, batch 1):
-
-``"v5"``: ``[1, N, 5 + C]``
-    YOLOv5/v7 exports: per candidate cx, cy, w, h (input pixels), objectness, C class
-    probabilities; score = objectness x class probability.
-``"v8"``: ``[1, 4 + C, N]``
-    YOLOv8/v11 (ultralytics) exports: per candidate (column) cx, cy, w, h, C class probabilities;
-    no objectness.
-
-``layout="auto"`` decides from the output shape ``[1, A, B]``: when the number of classes C is known
-(``class_names`` argument or the model's ``names`` metadata) it picks ``"v8"`` if ``A == 4 + C`` and
-``"v5"`` if ``B == 5 + C``; otherwise ``"v8"`` if ``4 < A < B`` (a YOLOv8 head has far fewer channels
-than candidates, e.g. 84 x 8400) and ``"v5"`` if ``A > B > 5`` (e.g. 25200 x 85). Pass
-``layout="v5"`` or ``"v8"`` when a model breaks that rule (e.g. fewer candidates than channels).
+so the detector decodes the raw head output and leaves NMS to a later stage. The output layouts the
+backend understands and their decoding are described in `agent.yolo_format`; the letterbox in
+`agent.letterbox`.
 
 Usage::
 
@@ -28,7 +15,6 @@ Usage::
 from __future__ import annotations
 
 import ast
-import json
 import logging
 import os
 from collections.abc import Callable, Mapping, Sequence
@@ -36,24 +22,26 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import cv2
 import numpy as np
+
+from agent.letterbox import PAD_VALUE, LetterboxTransform, letterbox
+from agent.yolo_format import (
+    LAYOUTS,
+    check_layout,
+    decode_raw_output,
+    detect_layout,
+    names_from_metadata,
+    resolve_class_names,
+)
 
 __all__ = [
     "DETECTOR_BACKENDS",
     "Detections",
-    "LetterboxTransform",
     "OnnxYoloDetector",
-    "decode_raw_output",
-    "letterbox",
-    "load_class_names",
     "make_detector",
 ]
 
 logger = logging.getLogger(__name__)
-
-LAYOUTS = ("auto", "v5", "v8")
-PAD_VALUE = 114  # ultralytics' letterbox grey
 
 
 # --------------------------------------------------------------------------------------------------
@@ -131,273 +119,6 @@ class Detections:
 
 
 # --------------------------------------------------------------------------------------------------
-# Letterbox
-# --------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True, slots=True)
-class LetterboxTransform:
-    """How an image was placed in the network input: ``u_in = u * scale_x + pad_left``.
-
-    Attributes
-    ----------
-    scale_x, scale_y : float
-        Resized size over original size per axis (``new_w / width``, ``new_h / height``): the
-        actual scales of the resized content, which differ from the nominal gain by rounding.
-    pad_left, pad_top : int
-        Pixels of padding before the content, in input pixels.
-    width, height : int
-        Original image size in pixels.
-    """
-
-    scale_x: float
-    scale_y: float
-    pad_left: int
-    pad_top: int
-    width: int
-    height: int
-
-    def unmap_boxes(self, boxes_xyxy: np.ndarray) -> np.ndarray:
-        """Map (N, 4) float boxes from input pixels back to original pixels, clipped to the image.
-
-        Subtracts the padding, divides by the per-axis scale and clips x to [0, width] and y to
-        [0, height] (pixel-edge coordinates). Returns a new (N, 4) float32 array.
-        """
-        boxes = np.asarray(boxes_xyxy, dtype=np.float32)
-        offset = np.array([self.pad_left, self.pad_top, self.pad_left, self.pad_top], np.float32)
-        inv_scale = np.array(
-            [1 / self.scale_x, 1 / self.scale_y, 1 / self.scale_x, 1 / self.scale_y], np.float32
-        )
-        out = (boxes - offset) * inv_scale
-        upper = np.array([self.width, self.height, self.width, self.height], np.float32)
-        return np.clip(out, 0.0, upper, out=out)
-
-
-def letterbox(
-    image: np.ndarray,
-    new_shape: tuple[int, int],
-    *,
-    stride: int = 32,
-    auto: bool = False,
-    pad_value: int = PAD_VALUE,
-) -> tuple[np.ndarray, LetterboxTransform]:
-    """Resize keeping the aspect ratio and pad, as ultralytics' ``LetterBox`` (scale-up allowed).
-
-    Parameters
-    ----------
-    image : np.ndarray
-        (H, W, C) uint8 image.
-    new_shape : (int, int)
-        Target (height, width) in pixels.
-    stride : int
-        With ``auto``, the padded size is the smallest multiple of ``stride`` holding the content.
-    auto : bool
-        Minimal stride-aligned padding (rectangular inference, dynamic-shape models only) instead
-        of padding to ``new_shape``.
-    pad_value : int
-        Grey level of the padding (114 as in ultralytics).
-
-    Returns
-    -------
-    padded : np.ndarray
-        (H', W', C) uint8, the content centred: the odd pixel of padding, if any, goes to the
-        bottom/right (ultralytics' ``round(d -/+ 0.1)``).
-    transform : LetterboxTransform
-        The mapping, for :meth:`LetterboxTransform.unmap_boxes`.
-    """
-    height, width = image.shape[:2]
-    gain = min(new_shape[0] / height, new_shape[1] / width)
-    # at least one pixel, so that extreme aspect ratios (e.g. 1 x 5000) still resize
-    new_w, new_h = max(int(round(width * gain)), 1), max(int(round(height * gain)), 1)
-    dw, dh = new_shape[1] - new_w, new_shape[0] - new_h
-    if auto:
-        dw, dh = dw % stride, dh % stride
-    left, right = int(round(dw / 2 - 0.1)), int(round(dw / 2 + 0.1))
-    top, bottom = int(round(dh / 2 - 0.1)), int(round(dh / 2 + 0.1))
-    resized = image if (new_w, new_h) == (width, height) else cv2.resize(
-        image, (new_w, new_h), interpolation=cv2.INTER_LINEAR
-    )
-    padded = cv2.copyMakeBorder(
-        resized, top, bottom, left, right, cv2.BORDER_CONSTANT, value=(pad_value,) * 3
-    )
-    transform = LetterboxTransform(
-        scale_x=new_w / width, scale_y=new_h / height, pad_left=left, pad_top=top, width=width, height=height
-    )
-    return padded, transform
-
-
-# --------------------------------------------------------------------------------------------------
-# Class names
-# --------------------------------------------------------------------------------------------------
-
-
-def _names_from_mapping(mapping: Mapping[Any, Any]) -> list[str]:
-    """{0: 'person', '1': 'car'} -> ['person', 'car']; missing indices become 'classK'."""
-    by_index = {int(k): str(v) for k, v in mapping.items()}
-    if not by_index:
-        return []
-    if min(by_index) < 0:
-        raise ValueError(f"class indices must be >= 0, got {min(by_index)}")
-    return [by_index.get(i, f"class{i}") for i in range(max(by_index) + 1)]
-
-
-def load_class_names(path: str | os.PathLike[str]) -> list[str]:
-    """Read class names from a file.
-
-    ``.json``: a list of names or an ``{index: name}`` object. Anything else: a text file with one
-    name per line (surrounding whitespace stripped, blank lines skipped), as ``coco.names``.
-    Raises ``FileNotFoundError`` for a missing file and ``ValueError`` for unusable content.
-    """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"class names file not found: {path}")
-    text = path.read_text(encoding="utf-8")
-    if path.suffix.lower() == ".json":
-        content = json.loads(text)
-        if isinstance(content, dict):
-            return _names_from_mapping(content)
-        if isinstance(content, list) and all(isinstance(n, str) for n in content):
-            return list(content)
-        raise ValueError(f"{path}: expected a JSON list of names or an {{index: name}} object")
-    return [line.strip() for line in text.splitlines() if line.strip()]
-
-
-def _names_from_metadata(metadata: Mapping[str, str]) -> list[str] | None:
-    """Class names from ultralytics' ``names`` custom metadata (a Python dict literal), if valid."""
-    raw = metadata.get("names")
-    if raw is None:
-        return None
-    try:
-        value = ast.literal_eval(raw)  # literals only: never evaluates code
-        if isinstance(value, dict):
-            return _names_from_mapping(value)
-        if isinstance(value, list | tuple) and all(isinstance(n, str) for n in value):
-            return list(value)
-    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
-        pass
-    logger.warning("ignoring unparseable 'names' metadata in the model: %.80r", raw)
-    return None
-
-
-def _resolve_class_names(arg: Sequence[str] | Mapping[int, str] | str | os.PathLike[str] | None) -> list[str] | None:
-    if arg is None:
-        return None
-    if isinstance(arg, str | os.PathLike):
-        return load_class_names(arg)
-    if isinstance(arg, Mapping):
-        return _names_from_mapping(arg)
-    return [str(n) for n in arg]
-
-
-# --------------------------------------------------------------------------------------------------
-# Decoding
-# --------------------------------------------------------------------------------------------------
-
-
-def _detect_layout(shape: tuple[int, ...], num_classes: int | None) -> str:
-    """Choose "v5" or "v8" for a raw output shape (see the module docstring); ValueError if neither."""
-    expected = "[1, N, 5 + C] (YOLOv5/v7, layout='v5') or [1, 4 + C, N] (YOLOv8/v11, layout='v8')"
-    if len(shape) != 3 or shape[0] != 1:
-        raise ValueError(f"unsupported model output shape {list(shape)}: expected {expected}")
-    a, b = shape[1], shape[2]
-    if num_classes is not None:
-        v8, v5 = a == 4 + num_classes, b == 5 + num_classes
-        if v8 and not v5:
-            return "v8"
-        if v5 and not v8:
-            return "v5"
-        if not (v8 or v5):
-            raise ValueError(
-                f"unsupported model output shape {list(shape)} for {num_classes} classes: expected {expected}"
-            )
-    if 4 < a < b:
-        return "v8"
-    if a > b > 5:
-        return "v5"
-    raise ValueError(
-        f"cannot tell the layout of model output shape {list(shape)}: expected {expected}; "
-        "pass layout='v5' or layout='v8'"
-    )
-
-
-def _check_layout(shape: tuple[int, ...], layout: str) -> int:
-    """Validate a shape against an explicit layout; returns the number of classes C."""
-    expected = "[1, N, 5 + C]" if layout == "v5" else "[1, 4 + C, N]"
-    ok = len(shape) == 3 and shape[0] == 1 and (shape[2] > 5 if layout == "v5" else shape[1] > 4)
-    if not ok:
-        raise ValueError(f"model output shape {list(shape)} does not fit layout={layout!r}: expected {expected}")
-    return shape[2] - 5 if layout == "v5" else shape[1] - 4
-
-
-def _top_k(scores: np.ndarray, k: int) -> np.ndarray:
-    """Ascending indices of the k largest scores (all indices if there are at most k)."""
-    if scores.shape[0] <= k:
-        return np.arange(scores.shape[0])
-    return np.sort(np.argpartition(scores, scores.shape[0] - k)[-k:])
-
-
-def decode_raw_output(
-    raw: np.ndarray,
-    layout: str,
-    conf_threshold: float,
-    *,
-    multi_label: bool = False,
-    max_candidates: int = 30000,
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Decode a raw YOLO head output into candidates in input pixels (no NMS).
-
-    Parameters
-    ----------
-    raw : np.ndarray
-        ``[1, N, 5 + C]`` (``layout="v5"``) or ``[1, 4 + C, N]`` (``layout="v8"``), float; boxes
-        cx, cy, w, h in input pixels, probabilities in 0..1.
-    layout : {"v5", "v8"}
-    conf_threshold : float
-        Keep pairs with score >= this (v5 score = objectness x class probability).
-    multi_label : bool
-        False: one pair per candidate, its best class. True: every (candidate, class) pair above
-        the threshold.
-    max_candidates : int
-        Keep at most this many pairs, the highest-scoring (``np.argpartition``, no full sort).
-
-    Returns
-    -------
-    boxes_xyxy : (M, 4) float32 in input pixels
-    scores : (M,) float32
-    class_ids : (M,) int32
-        In candidate order (then class order with ``multi_label``).
-    """
-    out = raw[0]
-    if layout == "v8":
-        cls = out[4:]  # (C, N)
-        best = cls.max(axis=0)
-        keep = np.flatnonzero(best >= conf_threshold)
-        cls_kept = cls[:, keep].T  # (K, C)
-        boxes_cxcywh = out[:4, keep].T
-    else:
-        # score = obj * cls; with obj >= 0, the best class is argmax(cls) and best = obj * max(cls).
-        obj = out[:, 4]
-        best = obj * out[:, 5:].max(axis=1)
-        keep = np.flatnonzero(best >= conf_threshold)
-        cls_kept = out[keep, 5:] * obj[keep, None]
-        boxes_cxcywh = out[keep, :4]
-    if multi_label:
-        rows, class_ids = np.nonzero(cls_kept >= conf_threshold)  # row-major: candidate, then class
-        scores = cls_kept[rows, class_ids]
-    else:
-        rows = np.arange(keep.shape[0])
-        class_ids = cls_kept.argmax(axis=1) if cls_kept.shape[0] else np.zeros(0, np.intp)
-        scores = best[keep]
-    if scores.shape[0] > max_candidates:
-        top = _top_k(scores, max_candidates)
-        rows, class_ids, scores = rows[top], class_ids[top], scores[top]
-    cxcywh = boxes_cxcywh[rows].astype(np.float32, copy=False)
-    half_wh = cxcywh[:, 2:4] * 0.5
-    boxes = np.concatenate([cxcywh[:, :2] - half_wh, cxcywh[:, :2] + half_wh], axis=1)
-    return boxes, scores.astype(np.float32, copy=False), class_ids.astype(np.int32, copy=False)
-
-
-# --------------------------------------------------------------------------------------------------
 # Detector
 # --------------------------------------------------------------------------------------------------
 
@@ -423,7 +144,7 @@ class OnnxYoloDetector:
     ----------
     model_path : str or PathLike
         ONNX file with one image input ``[1, 3, H, W]`` (float32 or float16, RGB in 0..1) whose
-        first output is a raw head output in one of the layouts of the module docstring.
+        first output is a raw head output in one of the layouts of `agent.yolo_format`.
     class_names : sequence of str, {index: name} mapping, path, or None
         Overrides the model's ``names`` metadata; a ``str``/path is read with
         :func:`load_class_names`. Default: the metadata, else ``class0, class1, ...``.
@@ -439,7 +160,7 @@ class OnnxYoloDetector:
     providers : sequence of str
         onnxruntime execution providers, in order of preference.
     layout : {"auto", "v5", "v8"}
-        Output layout; "auto" decides from the output shape (module docstring).
+        Output layout; "auto" decides from the output shape (`agent.yolo_format`).
     multi_label : bool
         Return every (box, class) pair above the threshold instead of the best class per box.
     rect : bool
@@ -517,9 +238,9 @@ class OnnxYoloDetector:
             self.stride = max(int(ast.literal_eval(metadata.get("stride", "32"))), 1)
         except (ValueError, SyntaxError, TypeError):
             self.stride = 32
-        user_names = _resolve_class_names(class_names)
+        user_names = resolve_class_names(class_names)
         self._names_from_user = user_names is not None
-        self._names = user_names if user_names is not None else _names_from_metadata(metadata)
+        self._names = user_names if user_names is not None else names_from_metadata(metadata)
 
         self._requested_layout = layout
         self._layout: str | None = None
@@ -638,10 +359,10 @@ class OnnxYoloDetector:
             return self._layout  # type: ignore[return-value]
         names_count = len(self._names) if self._names is not None else None
         if self._requested_layout == "auto":
-            layout = _detect_layout(shape, names_count)
+            layout = detect_layout(shape, names_count)
         else:
             layout = self._requested_layout
-        num_classes = _check_layout(shape, layout)
+        num_classes = check_layout(shape, layout)
         if names_count is not None and names_count != num_classes:
             source = "class_names" if self._names_from_user else "the model's 'names' metadata"
             raise ValueError(

@@ -29,9 +29,7 @@ KNOWN_LAYER_BREAKS: set[str] = {
 #: Import cycles (strongly connected groups of modules), exactly as they stand.
 KNOWN_CYCLES: set[frozenset[str]] = set()
 #: Modules over MAX_LINES lines.
-KNOWN_LARGE: set[str] = {
-    "agent.detector",  # agent restructure
-}
+KNOWN_LARGE: set[str] = set()
 
 
 def _module_name(path: Path) -> str:

@@ -18,15 +18,9 @@ onnx = pytest.importorskip("onnx")
 pytest.importorskip("onnxruntime")
 from onnx import TensorProto, helper, numpy_helper  # noqa: E402
 
-from agent.detector import (  # noqa: E402
-    DETECTOR_BACKENDS,
-    Detections,
-    LetterboxTransform,
-    OnnxYoloDetector,
-    letterbox,
-    load_class_names,
-    make_detector,
-)
+from agent.detector import DETECTOR_BACKENDS, Detections, OnnxYoloDetector, make_detector  # noqa: E402
+from agent.letterbox import LetterboxTransform, letterbox  # noqa: E402
+from agent.yolo_format import load_class_names  # noqa: E402
 
 N_CANDIDATES = 100  # >> 4 + C so that layout="auto" can tell the layouts apart
 NUM_CLASSES = 3
