@@ -83,9 +83,11 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 def source_from_args(args: argparse.Namespace):
     """The frame source the flags describe; ValueError for missing companion flags or bad files."""
-    from agent.sources import DatasetSource, SimSource, VideoSource
+    from agent.sources import DatasetSource, VideoSource
 
     if args.sim is not None:
+        from sim.source import SimSource  # the simulated source lives with the simulator (sim imports agent)
+
         return SimSource(args.sim, seed=args.seed, uav_index=args.uav_index, frames=args.frames,
                          noise_scale=args.noise_scale)
     if args.dataset is not None:

@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 
 from agent.node import AgentNode, AgentSettings
-from agent.sources import SimSource
 from agent.zenoh_config import ZenohOptions
 from sim.scenarios import get_scenario
+from sim.source import SimSource
 from tests.agent.test_node_zenoh import FakeServer, free_port
 
 BUDGET_BYTES_PER_S = 100_000

@@ -24,7 +24,7 @@ import zenoh
 
 from agent.node import AgentNode, AgentSettings, state_message
 from agent.pipeline_config import PipelineConfig
-from agent.sources import SimSource, SourceFrame
+from agent.sources import SourceFrame
 from agent.zenoh_config import ZenohOptions
 from shared.geo import Camera, Pose, pixel_to_latlon
 from shared.keys import KeySpace
@@ -38,6 +38,7 @@ from shared.messages import (
 )
 from shared.tilecodec import TileMessage, decode_tile, encode_tile
 from shared.tiles import TileGrid
+from sim.source import SimSource
 
 KEYS = KeySpace()
 GRID = TileGrid()

@@ -1,5 +1,5 @@
-"""Frame sources of the agent: simulator UAVs, dataset directories, video + telemetry + ONNX model, and
-their errors for missing files and unknown names."""
+"""Frame sources of the agent: dataset directories, video + telemetry + ONNX model, and their errors for
+missing files and unknown names (the simulated source: tests/sim/test_source.py)."""
 
 from __future__ import annotations
 
@@ -9,14 +9,15 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.sources import DatasetSource, SimSource, SourceFrame, VideoSource, pose_from_meta
+from agent.sources import DatasetSource, SourceFrame, VideoSource, pose_from_meta
 from shared.geo import Camera
 from sim.dataset import write_dataset
+from sim.source import SimSource
 
 FRAMES = 30
 
 
-def _check_frames(frames: list[SourceFrame], class_ids: set[int]) -> None:
+def check_source_frames(frames: list[SourceFrame], class_ids: set[int]) -> None:
     times = [f.t for f in frames]
     assert times == sorted(times)
     assert [f.index for f in frames] == list(range(len(frames)))
@@ -26,37 +27,6 @@ def _check_frames(frames: list[SourceFrame], class_ids: set[int]) -> None:
         assert np.all(f.boxes_xyxy[:, 2] > f.boxes_xyxy[:, 0]) and np.all(f.boxes_xyxy[:, 3] > f.boxes_xyxy[:, 1])
         assert set(np.unique(f.class_ids).tolist()) <= class_ids
         assert np.all((f.scores >= 0) & (f.scores <= 1))
-
-
-@pytest.mark.parametrize("uav_index", [0, 1])
-def test_sim_source_flies_the_chosen_uav_of_a_simultaneous_scenario(uav_index):
-    source = SimSource("coop", seed=3, uav_index=uav_index, frames=FRAMES)
-    frames = list(source.frames())
-    assert len(frames) == FRAMES
-    assert source.video.uav == f"uav{uav_index + 1}"
-    _check_frames(frames, set(source.class_names))
-    assert source.class_names == {1: "person", 2: "swimmer"}
-    assert sum(f.pose is not None for f in frames) >= FRAMES - 2
-    assert all(abs(f.pose_t - f.t) < 0.2 for f in frames if f.pose is not None)  # 10 Hz telemetry
-    assert sum(len(f.scores) for f in frames) > 0
-    # the two UAVs fly different flights over one world
-    other = next(iter(SimSource("coop", seed=3, uav_index=1 - uav_index, frames=FRAMES).frames()))
-    assert (other.pose.lat, other.pose.lon) != (frames[0].pose.lat, frames[0].pose.lon)
-    assert other.t == frames[0].t
-
-
-def test_sim_source_of_a_later_flight_stops_at_its_end():
-    source = SimSource("sea", uav_index=2, frames=10)  # three separate flights; the last one
-    frames = list(source.frames())
-    assert len(frames) == 10
-    assert frames[0].t > SimSource("sea", uav_index=0, frames=10).sim.videos[0].t0
-
-
-def test_sim_source_errors_name_the_valid_choices():
-    with pytest.raises(ValueError, match="valid scenarios: .*coop"):
-        SimSource("nosuch")
-    with pytest.raises(ValueError, match=r"uav_index must be in 0\.\.1 .*uav1"):
-        SimSource("coop", uav_index=2)
 
 
 @pytest.fixture(scope="module")
@@ -70,7 +40,7 @@ def test_dataset_source_plays_a_video_of_the_directory(coop_dir):
     source = DatasetSource(coop_dir, video_id=2)
     frames = list(source.frames())
     assert len(frames) == FRAMES
-    _check_frames(frames, set(source.class_names))
+    check_source_frames(frames, set(source.class_names))
     assert source.camera == Camera.from_file(coop_dir / "camera.json")
     # the same candidates the simulator produced for that UAV
     sim_frames = list(SimSource("coop", seed=1, uav_index=1, frames=FRAMES).frames())
@@ -136,7 +106,7 @@ def test_video_source_detects_and_interpolates_telemetry(tmp_path):
     assert (source.camera.width, source.camera.height, source.camera.fx) == (320, 180, 250.0)  # rescaled
     frames = list(source.frames())
     assert len(frames) == 12
-    _check_frames(frames, {0, 1})
+    check_source_frames(frames, {0, 1})
     assert [f.t for f in frames] == pytest.approx([100 + i / 10 for i in range(12)])
     # 100.0 .. 101.5 s of telemetry, 0.2 s held beyond: frames at 101.8+ s have none
     assert [f.pose is not None for f in frames] == [f.t <= 101.7 + 1e-9 for f in frames]
