@@ -5,47 +5,15 @@ again."""
 
 from __future__ import annotations
 
-import os
 import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.agent.test_node_zenoh import free_port, wait_until
-from tests.e2e.test_agent_process import agent_cmd, finish, read_stderr, start_agent
+from tests.e2e.conftest import agent_cmd, finish, free_port, read_stderr, start_agent, start_fusion, stop, wait_for
 
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(REPO)}
-
-
-def start_fusion(zenoh_port: int, http_port: int) -> tuple[subprocess.Popen, str]:
-    cmd = [sys.executable, "-m", "uavmm", "fusion", "--listen", f"tcp/127.0.0.1:{zenoh_port}",
-           "--http", f"127.0.0.1:{http_port}", "--no-db", "--no-multicast-scouting"]
-    proc = subprocess.Popen(cmd, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    deadline = time.monotonic() + 30
-    line = ""
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if "map: http://" in line or proc.poll() is not None:
-            break
-    if "map: http://" not in line:
-        proc.kill()
-        raise AssertionError(f"uavmm fusion did not start: {line!r}")
-    return proc, line.split("map: ", 1)[1].strip()
-
-
-def stop(proc: subprocess.Popen) -> int:
-    proc.send_signal(signal.SIGTERM)
-    try:
-        return proc.wait(timeout=30)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
 
 
 def uavs(http: httpx.Client) -> dict[str, dict]:
@@ -54,34 +22,38 @@ def uavs(http: httpx.Client) -> dict[str, dict]:
 
 def test_two_agents_and_the_fusion_server(tmp_path):
     zenoh_port, http_port = free_port(), free_port()
-    fusion, url = start_fusion(zenoh_port, http_port)
+    fusion, url = start_fusion(zenoh_port, http_port, "--no-db")
     agents = []
     try:
         for index in (0, 1):
             agents.append(start_agent(agent_cmd(zenoh_port, "--sim", "coop", "--uav-index", str(index),
                                                 "--frames", "900", "--loop", uav=f"uav{index + 1}")))
         with httpx.Client(base_url=url, timeout=10) as http:
-            both = wait_until(lambda: (u := uavs(http)) and all(
-                u.get(f"uav{i}", {}).get("online") and u[f"uav{i}"].get("state") for i in (1, 2)) and u, 20.0)
+            both = wait_for(lambda: (u := uavs(http)) and all(
+                u.get(f"uav{i}", {}).get("online") and u[f"uav{i}"].get("state") for i in (1, 2)) and u, 20.0,
+                            "both UAVs online with their state")
             assert all(len(both[f"uav{i}"]["state"]["footprint"]) == 32 for i in (1, 2))
             # both UAVs look at the same scene: some joint tiles fuse the two of them
-            wait_until(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
-                                   for t in http.get("/v1/joint/tiles").json()), 20.0)
+            wait_for(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
+                                 for t in http.get("/v1/joint/tiles").json()), 20.0, "joint tiles of both UAVs")
             # the people both see become global tracks with members from both UAVs
-            wait_until(lambda: any({m[0] for m in f["properties"]["members"]} == {"uav1", "uav2"}
-                                   for f in http.get("/v1/tracks").json()["features"]), 30.0)
+            wait_for(lambda: any({m[0] for m in f["properties"]["members"]} == {"uav1", "uav2"}
+                                 for f in http.get("/v1/tracks").json()["features"]), 30.0,
+                     "global tracks with members from both UAVs")
 
             # the fusion server goes away and comes back on the same port
             requeried = [read_stderr(proc).count("querying the joint map") for proc in agents]
             assert stop(fusion) == 0
             time.sleep(1.0)
-            fusion, url = start_fusion(zenoh_port, http_port)
-            wait_until(lambda: (u := uavs(http)) and all(
-                u.get(f"uav{i}", {}).get("online") and u[f"uav{i}"].get("tiles", 0) > 0 for i in (1, 2)), 30.0)
-            wait_until(lambda: http.get("/v1/joint/tiles").json(), 10.0)
+            fusion, url = start_fusion(zenoh_port, http_port, "--no-db")
+            wait_for(lambda: (u := uavs(http)) and all(
+                u.get(f"uav{i}", {}).get("online") and u[f"uav{i}"].get("tiles", 0) > 0 for i in (1, 2)), 30.0,
+                "both UAVs online with tiles at the restarted server")
+            wait_for(lambda: http.get("/v1/joint/tiles").json(), 10.0, "joint tiles at the restarted server")
             # each agent noticed the new server and asked it for the joint map
-            wait_until(lambda: all(read_stderr(proc).count("querying the joint map") > before
-                                   for proc, before in zip(agents, requeried, strict=True)), 10.0)
+            wait_for(lambda: all(read_stderr(proc).count("querying the joint map") > before
+                                 for proc, before in zip(agents, requeried, strict=True)), 10.0,
+                     "each agent querying the new server's joint map")
         summaries = []
         for proc in agents:
             proc.send_signal(signal.SIGTERM)

@@ -5,74 +5,19 @@ SIGINT/SIGTERM (its liveliness token disappears), and fails with one clear line 
 from __future__ import annotations
 
 import json
-import os
 import signal
 import subprocess
-import sys
-import tempfile
 import time
-from pathlib import Path
 
 import pytest
 
 from shared.messages import decode_state, decode_tracks
 from shared.tilecodec import decode_tile
 from sim.dataset import write_dataset
-from tests.agent.test_node_zenoh import KEYS, FakeServer, free_port, wait_until
+from tests.agent.test_node_zenoh import KEYS, FakeServer
+from tests.e2e.conftest import ENV, REPO, agent_cmd, finish, start_agent, wait_for
 
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(REPO)}
-
-
-def agent_cmd(port: int, *args: str, uav: str = "uav1") -> list[str]:
-    return [sys.executable, "-m", "uavmm", "--log-level", "INFO", "agent", "--uav-id", uav,
-            "--connect", f"tcp/127.0.0.1:{port}", "--no-multicast-scouting", *args]
-
-
-def start_agent(cmd: list[str], timeout_s: float = 60.0) -> subprocess.Popen:
-    """Start an agent process and wait (bounded) for its ready line.
-
-    stderr goes to a temporary file (a pipe nobody reads would fill up and block the agent's logging).
-    """
-    stderr = tempfile.TemporaryFile(mode="w+")
-    proc = subprocess.Popen(cmd, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=stderr, text=True)
-    proc.stderr_file = stderr  # type: ignore[attr-defined]
-    deadline = time.monotonic() + timeout_s
-    line = ""
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if " up: " in line or proc.poll() is not None:
-            break
-    if " up: " not in line:
-        proc.kill()
-        raise AssertionError(f"uavmm agent did not start: {line!r} {read_stderr(proc)[-2000:]}")
-    return proc
-
-
-def read_stderr(proc: subprocess.Popen) -> str:
-    """Everything the agent wrote to stderr so far."""
-    stderr = proc.stderr_file  # type: ignore[attr-defined]
-    stderr.seek(0)
-    return stderr.read()
-
-
-def finish(proc: subprocess.Popen, timeout_s: float = 30.0) -> tuple[int, dict, str]:
-    """Wait for the process; returns (exit code, parsed summary, stderr)."""
-    try:
-        out, _ = proc.communicate(timeout=timeout_s)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
-    err = read_stderr(proc)
-    lines = [line for line in out.splitlines() if line.startswith("uavmm agent: summary ")]
-    assert lines, f"no summary line; stdout {out[-2000:]!r}; stderr {err[-2000:]!r}"
-    return proc.returncode, json.loads(lines[-1].removeprefix("uavmm agent: summary ")), err
-
-
-@pytest.fixture
-def port() -> int:
-    return free_port()
 
 
 @pytest.fixture
@@ -84,7 +29,7 @@ def server(port):
 
 def test_agent_process_publishes_and_exits_at_the_end_of_its_source(server, port):
     proc = start_agent(agent_cmd(port, "--sim", "coop", "--uav-index", "1", "--frames", "90", "--speed", "2"))
-    wait_until(lambda: server.alive() == [KEYS.uav_alive("uav1")], 10.0)
+    wait_for(lambda: server.alive() == [KEYS.uav_alive("uav1")], 10.0, "the agent's liveliness token")
     code, summary, err = finish(proc)
     assert code == 0, err[-2000:]
     assert summary["frames"] == 90 and summary["publish_cycles"] >= 5
@@ -93,18 +38,18 @@ def test_agent_process_publishes_and_exits_at_the_end_of_its_source(server, port
     assert all(len(decode_state(p).footprint) == 32 for _, p in server.latest("uav_state"))
     assert server.count("uav_tracks") == summary["link"]["counts"]["sent_tracks"]
     assert all(decode_tracks(p).uav == "uav1" for _, p in server.latest("uav_tracks"))
-    wait_until(lambda: server.alive() == [], 5.0)  # the token went with the process
+    wait_for(lambda: server.alive() == [], 5.0, "the token gone")  # the token went with the process
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_agent_process_stops_cleanly_on_a_signal(server, port, sig):
     proc = start_agent(agent_cmd(port, "--sim", "coop", "--frames", "60", "--loop"))
-    wait_until(lambda: server.count("uav_tile") > 0, 20.0)
+    wait_for(lambda: server.count("uav_tile") > 0, 20.0, "tiles")
     proc.send_signal(sig)
     code, summary, err = finish(proc, 15.0)
     assert code == 0, err[-2000:]
     assert summary["frames"] > 0
-    wait_until(lambda: server.alive() == [], 5.0)
+    wait_for(lambda: server.alive() == [], 5.0, "the token gone")
 
 
 def test_agent_process_stops_after_its_duration(server, port):

@@ -5,33 +5,18 @@ the demo stops after --duration or is killed with SIGKILL (its reaper cleans up)
 from __future__ import annotations
 
 import json
-import os
 import re
 import signal
 import subprocess
-import sys
-import time
 import urllib.request
 from pathlib import Path
 
 import pytest
 
+from tests.e2e.conftest import ENV, REPO, uavmm, wait_for
 from uavmm.cmd_demo import DemoOptions, flying_uavs
 
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(REPO)}
-
-
-def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.2):
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"{what} not within {timeout_s} s (last: {last!r})")
 
 
 def processes_with(text: str) -> list[int]:
@@ -51,7 +36,7 @@ def processes_with(text: str) -> list[int]:
 
 def start_demo(out: Path, *args: str) -> subprocess.Popen:
     with open(out, "wb") as sink:
-        return subprocess.Popen([sys.executable, "-m", "uavmm", "demo", "--http", "127.0.0.1:0", *args],
+        return subprocess.Popen(uavmm("demo", "--http", "127.0.0.1:0", *args),
                                 cwd=REPO, env=ENV, stdout=sink, stderr=subprocess.STDOUT)
 
 
@@ -127,7 +112,7 @@ def test_demo_stops_cleanly_on_sigint_while_starting(tmp_path):
 
 
 def test_demo_refuses_a_scenario_whose_uavs_fly_one_after_another():
-    result = subprocess.run([sys.executable, "-m", "uavmm", "demo", "--scenario", "grass"], cwd=REPO, env=ENV,
+    result = subprocess.run(uavmm("demo", "--scenario", "grass"), cwd=REPO, env=ENV,
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert "scenario 'grass' flies its UAVs one after another" in result.stderr

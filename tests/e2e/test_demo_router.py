@@ -6,9 +6,7 @@ global tracks to the REST API. A Python Zenoh session in router mode stands in f
 from __future__ import annotations
 
 import json
-import os
 import subprocess
-import sys
 import time
 import urllib.request
 from pathlib import Path
@@ -16,12 +14,10 @@ from pathlib import Path
 import pytest
 import zenoh
 
+from tests.e2e.conftest import ENV, REPO, free_port, uavmm
 from tests.test_deploy import load
-from uavmm.cmd_demo import free_tcp_port
 
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 
 
 def localise(command: list[str], router: str, http: str, db: Path) -> list[str]:
@@ -43,8 +39,8 @@ def health(url: str) -> dict:
 
 def test_router_variant_commands_fuse_three_uavs_through_a_router(tmp_path):
     services = load("docker-compose.router.yml")["services"]
-    router_endpoint = f"tcp/127.0.0.1:{free_tcp_port()}"
-    http = f"127.0.0.1:{free_tcp_port()}"
+    router_endpoint = f"tcp/127.0.0.1:{free_port()}"
+    http = f"127.0.0.1:{free_port()}"
     conf = zenoh.Config()
     conf.insert_json5("mode", '"router"')
     conf.insert_json5("listen/endpoints", json.dumps([router_endpoint]))
@@ -55,8 +51,8 @@ def test_router_variant_commands_fuse_three_uavs_through_a_router(tmp_path):
             for name in ("fusion", "uav1", "uav2", "uav3"):
                 argv = localise(services[name]["command"], router_endpoint, http, tmp_path / "fusion.sqlite")
                 with open(tmp_path / f"{name}.log", "wb") as log:
-                    procs.append(subprocess.Popen([sys.executable, "-m", "uavmm", *argv], cwd=REPO, env=ENV,
-                                                  stdout=log, stderr=subprocess.STDOUT))
+                    procs.append(subprocess.Popen(uavmm(*argv), cwd=REPO, env=ENV, stdout=log,
+                                                  stderr=subprocess.STDOUT))
             deadline = time.monotonic() + 60
             state: dict = {}
             while time.monotonic() < deadline:

@@ -3,52 +3,22 @@
 
 from __future__ import annotations
 
-import os
 import signal
-import subprocess
-import sys
 import time
-from pathlib import Path
 
 import httpx
 import pytest
 
-from tests.fusion_server.fake_agent import LAT, LON, TILE_X, TILE_Y, FakeAgent, blob, free_port, wait_until
+from tests.e2e.conftest import free_port, start_fusion, stop, wait_for
+from tests.fusion_server.fake_agent import LAT, LON, TILE_X, TILE_Y, FakeAgent, blob
 
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
-
-
-def start_fusion(zenoh_port: int, http_port: int, db: Path) -> tuple[subprocess.Popen, str]:
-    cmd = [sys.executable, "-m", "uavmm", "--log-level", "INFO", "fusion", "--listen", f"tcp/127.0.0.1:{zenoh_port}",
-           "--http", f"127.0.0.1:{http_port}", "--db", str(db), "--no-multicast-scouting", "--ttl-s", "3"]
-    env = {**os.environ, "PYTHONPATH": str(REPO)}
-    proc = subprocess.Popen(cmd, cwd=REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    deadline = time.monotonic() + 30
-    line = ""
-    while time.monotonic() < deadline:
-        line = proc.stdout.readline()
-        if "map: http://" in line or proc.poll() is not None:
-            break
-    if "map: http://" not in line:
-        proc.kill()
-        raise AssertionError(f"uavmm fusion did not start: {line!r}")
-    return proc, line.split("map: ", 1)[1].strip()
-
-
-def stop(proc: subprocess.Popen, sig: int) -> int:
-    proc.send_signal(sig)
-    try:
-        return proc.wait(timeout=15)
-    except subprocess.TimeoutExpired:
-        proc.kill()
-        raise
 
 
 def test_restart_keeps_global_tracks_history_and_joint_map(tmp_path):
     zenoh_port, http_port = free_port(), free_port()
     db = tmp_path / "fusion.sqlite"
-    proc, url = start_fusion(zenoh_port, http_port, db)
+    proc, url = start_fusion(zenoh_port, http_port, "--db", str(db), "--ttl-s", "3")
     assert url == f"http://127.0.0.1:{http_port}/"
     try:
         agent = FakeAgent("uav-a", f"tcp/127.0.0.1:{zenoh_port}")
@@ -65,7 +35,7 @@ def test_restart_keeps_global_tracks_history_and_joint_map(tmp_path):
         proc.kill()  # no clean shutdown: what was flushed must be enough
         proc.wait(timeout=10)
 
-        proc, url = start_fusion(zenoh_port, http_port, db)
+        proc, url = start_fusion(zenoh_port, http_port, "--db", str(db), "--ttl-s", "3")
         with httpx.Client(base_url=url, timeout=10) as http:
             tiles = http.get("/v1/joint/tiles").json()
             assert [(t["x"], t["y"]) for t in tiles] == [(TILE_X, TILE_Y)]
@@ -77,10 +47,11 @@ def test_restart_keeps_global_tracks_history_and_joint_map(tmp_path):
             # the UAV comes back with the same local id: same global id
             agent = FakeAgent("uav-a", f"tcp/127.0.0.1:{zenoh_port}")
             agent.tracks([(7, "person", LAT, LON)])
-            wait_until(lambda: http.get("/v1/tracks").json()["features"][0]["properties"]["status"] == "tracked")
+            wait_for(lambda: http.get("/v1/tracks").json()["features"][0]["properties"]["status"] == "tracked", 5.0,
+                     "the returning UAV's track tracked again")
             assert http.get("/v1/tracks").json()["features"][0]["properties"]["gid"] == props["gid"]
             agent.close()
-        assert stop(proc, signal.SIGTERM) == 0
+        assert stop(proc, signal.SIGTERM, 15.0) == 0
     finally:
         if proc.poll() is None:
             proc.kill()

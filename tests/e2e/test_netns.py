@@ -23,9 +23,10 @@ from pathlib import Path
 
 import pytest
 
+from tests.e2e import conftest as e2e
+from tests.e2e.conftest import ENV, REPO
+
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
-ENV = {**os.environ, "PYTHONPATH": str(REPO)}
 LEASE = ["--cfg", "transport/link/tx/lease:2000"]  # a cut-off peer is noticed after ~2 s (PITFALLS.md)
 ZENOH_PORT, HTTP_PORT = 7447, 8000
 _FETCH = ("import sys, urllib.request; "
@@ -41,15 +42,9 @@ def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=20, check=check)
 
 
-def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.5):
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"{what} not within {timeout_s} s (last: {last!r})")
+def wait_for(predicate, timeout_s: float, what: str):
+    """conftest's wait_for polling every 0.5 s: a poll may start a process in a namespace (Cluster.get)."""
+    return e2e.wait_for(predicate, timeout_s, what, interval_s=0.5)
 
 
 class Cluster:
@@ -86,8 +81,8 @@ class Cluster:
     # ---- processes -----------------------------------------------------------------------------
     def _spawn(self, name: str, ns: str, args: list[str]) -> subprocess.Popen:
         sink = open(self.tmp / f"{name}.log", "ab")  # closed with the process, in stop()
-        proc = subprocess.Popen(["ip", "netns", "exec", ns, sys.executable, "-m", "uavmm", "--log-level", "INFO",
-                                 *args], cwd=REPO, env=ENV, stdout=sink, stderr=subprocess.STDOUT)
+        proc = subprocess.Popen(["ip", "netns", "exec", ns, *e2e.uavmm("--log-level", "INFO", *args)], cwd=REPO,
+                                env=ENV, stdout=sink, stderr=subprocess.STDOUT)
         proc.log_file = sink  # type: ignore[attr-defined]
         self.procs[name] = proc
         return proc

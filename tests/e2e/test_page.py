@@ -18,7 +18,6 @@ import signal
 import socket
 import struct
 import subprocess
-import sys
 import tempfile
 import time
 import urllib.error
@@ -30,8 +29,9 @@ import cv2
 import numpy as np
 import pytest
 
+from tests.e2e.conftest import ENV, REPO, free_port, uavmm, wait_for
+
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--hide-scrollbars", "--window-size=1400,900"]
@@ -123,26 +123,14 @@ class DevTools:
         self.sock.close()
 
 
-def wait_for(predicate, timeout_s: float, what: str, interval_s: float = 0.25):
-    """Poll predicate until truthy (returned); AssertionError naming `what` after timeout_s."""
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while time.monotonic() < deadline:
-        last = predicate()
-        if last:
-            return last
-        time.sleep(interval_s)
-    raise AssertionError(f"{what} not within {timeout_s} s (last: {last!r})")
-
-
 def start_demo(tmp: Path) -> tuple[subprocess.Popen, str]:
     """`uavmm demo` on free ports; returns the process and the map URL once the agents are up."""
     log_path = tmp / "demo.out"
     with open(log_path, "wb") as out:
         proc = subprocess.Popen(
-            [sys.executable, "-m", "uavmm", "demo", "--http", "127.0.0.1:0", "--duration", "300",
-             "--status-every", "0", "--log-dir", str(tmp / "logs")],
-            cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=out, stderr=subprocess.STDOUT)
+            uavmm("demo", "--http", "127.0.0.1:0", "--duration", "300", "--status-every", "0", "--log-dir",
+                  str(tmp / "logs")),
+            cwd=REPO, env=ENV, stdout=out, stderr=subprocess.STDOUT)
     def started():
         text = log_path.read_text()
         return text if "UAVs flying" in text or proc.poll() is not None else None
@@ -349,7 +337,7 @@ def server_factory_secured():
     from fusion_server.config import FusionSettings, ZenohOptions
     from fusion_server.http_auth import HttpToken
     from fusion_server.server import FusionServer
-    from tests.fusion_server.fake_agent import FakeAgent, blob, free_port, wait_until
+    from tests.fusion_server.fake_agent import FakeAgent, blob
 
     token = "page-token-0123456789abcdef"
     port = free_port()
@@ -361,7 +349,7 @@ def server_factory_secured():
     try:
         agent.state()
         agent.tile(blob(128, 128, value=0.9, sigma=8.0))
-        wait_until(lambda: server.joint.tiles(), 10.0)
+        wait_for(lambda: server.joint.tiles(), 10.0, "the fake UAV's tile in the joint map")
         yield server.url, token
     finally:
         agent.close()

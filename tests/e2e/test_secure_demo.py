@@ -7,22 +7,18 @@ from __future__ import annotations
 
 import signal
 import subprocess
-import sys
 
 import httpx
 import pytest
 
-from tests.agent.test_node_zenoh import free_port, wait_until
-from tests.e2e.test_agent_fusion import ENV, REPO, stop
-from tests.e2e.test_agent_process import finish, start_agent
+from tests.e2e.conftest import ENV, REPO, finish, free_port, start_agent, stop, uavmm, wait_for
 
 pytestmark = pytest.mark.e2e
 
 
 def start_secure_fusion(fleet, zenoh_port: int, http_port: int) -> tuple[subprocess.Popen, list[str]]:
-    cmd = [sys.executable, "-m", "uavmm", "fusion", "--config", str(fleet / "fusion" / "zenoh.json5"),
-           "--listen", f"tls/127.0.0.1:{zenoh_port}", "--http", f"0.0.0.0:{http_port}",
-           "--http-token-file", str(fleet / "fusion" / "http-tokens"), "--no-db"]
+    cmd = uavmm("fusion", "--config", str(fleet / "fusion" / "zenoh.json5"), "--listen", f"tls/127.0.0.1:{zenoh_port}",
+                "--http", f"0.0.0.0:{http_port}", "--http-token-file", str(fleet / "fusion" / "http-tokens"), "--no-db")
     proc = subprocess.Popen(cmd, cwd=REPO, env=ENV, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     lines = [proc.stdout.readline() for _ in range(2)]
     if not any("map: http://" in line for line in lines):
@@ -34,8 +30,8 @@ def start_secure_fusion(fleet, zenoh_port: int, http_port: int) -> tuple[subproc
 def test_secure_fleet_end_to_end(tmp_path):
     zenoh_port, http_port = free_port(), free_port()
     fleet = tmp_path / "fleet"
-    init = subprocess.run([sys.executable, "-m", "uavmm", "secure", "init", str(fleet), "--uavs", "uav1,uav2",
-                           "--server-host", "localhost", "--port", str(zenoh_port)],
+    init = subprocess.run(uavmm("secure", "init", str(fleet), "--uavs", "uav1,uav2", "--server-host", "localhost",
+                                "--port", str(zenoh_port)),
                           cwd=REPO, env=ENV, capture_output=True, text=True, timeout=60)
     assert init.returncode == 0, init.stderr
     token = (fleet / "operators" / "operator" / "http-token").read_text().strip()
@@ -44,25 +40,24 @@ def test_secure_fleet_end_to_end(tmp_path):
     agents = []
     try:
         # another UAV's credentials: refused before it flies, in one line
-        wrong = subprocess.run([sys.executable, "-m", "uavmm", "agent", "--uav-id", "uav2", "--config",
-                                str(fleet / "uavs" / "uav1" / "zenoh.json5"), "--sim", "coop", "--uav-index", "1"],
+        wrong = subprocess.run(uavmm("agent", "--uav-id", "uav2", "--config",
+                                     str(fleet / "uavs" / "uav1" / "zenoh.json5"), "--sim", "coop", "--uav-index", "1"),
                                cwd=REPO, env=ENV, capture_output=True, text=True, timeout=60)
         assert wrong.returncode == 2 and "is for 'uav1', not --uav-id 'uav2'" in wrong.stderr
         for index in (0, 1):
             uav = f"uav{index + 1}"
-            agents.append(start_agent([
-                sys.executable, "-m", "uavmm", "--log-level", "INFO", "agent", "--uav-id", uav,
-                "--config", str(fleet / "uavs" / uav / "zenoh.json5"), "--sim", "coop", "--uav-index", str(index),
-                "--frames", "900", "--loop"]))
+            agents.append(start_agent(uavmm(
+                "--log-level", "INFO", "agent", "--uav-id", uav, "--config", str(fleet / "uavs" / uav / "zenoh.json5"),
+                "--sim", "coop", "--uav-index", str(index), "--frames", "900", "--loop")))
         base = f"http://127.0.0.1:{http_port}"
         with httpx.Client(base_url=base, timeout=10) as anonymous:
             assert anonymous.get("/v1/uavs").status_code == 401
             assert anonymous.get("/healthz").status_code == 200
         with httpx.Client(base_url=base, timeout=10, headers={"Authorization": f"Bearer {token}"}) as http:
-            wait_until(lambda: {u["id"] for u in http.get("/v1/uavs").json() if u["online"] and u["state"]}
-                       == {"uav1", "uav2"}, 30.0)
-            wait_until(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
-                                   for t in http.get("/v1/joint/tiles").json()), 30.0)
+            wait_for(lambda: {u["id"] for u in http.get("/v1/uavs").json() if u["online"] and u["state"]}
+                     == {"uav1", "uav2"}, 30.0, "both UAVs online with their state")
+            wait_for(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
+                                 for t in http.get("/v1/joint/tiles").json()), 30.0, "joint tiles of both UAVs")
             assert all(not u["rejected"] for u in http.get("/v1/uavs").json())
         for proc in agents:
             proc.send_signal(signal.SIGTERM)
@@ -80,8 +75,8 @@ def test_secure_fleet_end_to_end(tmp_path):
 
 def test_an_api_bound_beyond_loopback_without_a_token_file_gets_a_generated_one():
     zenoh_port, http_port = free_port(), free_port()
-    cmd = [sys.executable, "-m", "uavmm", "fusion", "--listen", f"tcp/127.0.0.1:{zenoh_port}",
-           "--http", f"0.0.0.0:{http_port}", "--no-db", "--no-multicast-scouting"]
+    cmd = uavmm("fusion", "--listen", f"tcp/127.0.0.1:{zenoh_port}", "--http", f"0.0.0.0:{http_port}", "--no-db",
+                "--no-multicast-scouting")
     proc = subprocess.Popen(cmd, cwd=REPO, env={k: v for k, v in ENV.items() if k != "UAVMM_HTTP_TOKEN"},
                             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     try:
