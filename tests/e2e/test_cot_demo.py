@@ -3,19 +3,17 @@ receive valid Cursor-on-Target events for the three UAVs and for global tracks."
 
 from __future__ import annotations
 
-import os
 import signal
 import socket
 import subprocess
-import sys
 import time
 import xml.etree.ElementTree as ET
-from pathlib import Path
 
 import pytest
 
+from tests.e2e.conftest import ENV, REPO, uavmm
+
 pytestmark = pytest.mark.e2e
-REPO = Path(__file__).resolve().parents[2]
 
 
 def test_demo_sends_cot_events_of_its_uavs_and_tracks(tmp_path):
@@ -24,9 +22,9 @@ def test_demo_sends_cot_events_of_its_uavs_and_tracks(tmp_path):
     listener.settimeout(0.5)
     port = listener.getsockname()[1]
     demo = subprocess.Popen(
-        [sys.executable, "-m", "uavmm", "demo", "--http", "127.0.0.1:0", "--duration", "60", "--status-every", "0",
-         "--log-dir", str(tmp_path / "logs"), "--cot-url", f"udp://127.0.0.1:{port}"],
-        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)}, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        uavmm("demo", "--http", "127.0.0.1:0", "--duration", "60", "--status-every", "0", "--log-dir",
+              str(tmp_path / "logs"), "--cot-url", f"udp://127.0.0.1:{port}"),
+        cwd=REPO, env=ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     events: dict[str, ET.Element] = {}
     try:
         deadline = time.monotonic() + 90.0
