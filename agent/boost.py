@@ -117,7 +117,7 @@ def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     """Load the three files, run, and return (COCO results, stats)."""
     dataset = Dataset.load(images_path)
     candidates = Candidates.load(candidates_path, dataset)
-    camera = Camera.from_file(camera_path)
+    camera = Camera.from_spec(camera_path)
     results: list[dict[str, Any]] = []
     stats = run_pipeline(dataset, candidates, camera, config, size_filter,
                          on_frame=lambda frame, res: results.extend(results_to_coco(frame.image.id, res)))
@@ -128,6 +128,8 @@ def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
 def write_results(results: list[dict[str, Any]], out_path: str | Path) -> None:
     """Write atomically: a failed run never leaves a truncated results file."""
     out_path = Path(out_path)
+    if not out_path.parent.is_dir():
+        raise FileNotFoundError(f"output directory {out_path.parent} does not exist (for {out_path})")
     tmp = out_path.with_name(out_path.name + ".tmp")
     tmp.write_text(json.dumps(results))
     tmp.replace(out_path)

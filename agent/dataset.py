@@ -278,7 +278,10 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
     for image in dataset.videos[video_id]:
         key = (image.width, image.height)
         if key not in cameras:
-            cameras[key] = camera if key == (camera.width, camera.height) else camera.scaled(*key)
+            cameras[key] = camera.fitted_to(*key, source=f"the frames of video {video_id}")
+            if key != (camera.width, camera.height):
+                log.warning("camera is %dx%d, the frames of video %s are %dx%d: scaled the intrinsics to them",
+                            camera.width, camera.height, video_id, *key)
         pose, pose_t, problem = frame_pose(image)
         if problem is not None and problems is not None:
             problems.append(f"image {image.id}: {problem}")

@@ -31,7 +31,7 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
                      anchor: str = "auto", min_samples: int = 20) -> tuple[SizeFilter, dict[str, dict[str, Any]]]:
     """Fit a SizeFilter from the dataset's annotations; returns it and a per-class report."""
     dataset = Dataset.load(images_path)
-    camera = Camera.from_file(camera_path)
+    camera = Camera.from_spec(camera_path)
     anns = dataset.coco.get("annotations")
     if not isinstance(anns, list) or not anns:
         raise ValueError(f"{images_path}: no 'annotations' to fit from")

@@ -297,7 +297,7 @@ class VideoSource:
 
         from agent.detector import OnnxYoloDetector
 
-        for what, path in (("video", video), ("telemetry", telemetry), ("model", model), ("camera", camera)):
+        for what, path in (("video", video), ("telemetry", telemetry), ("model", model)):
             if not Path(path).is_file():
                 raise ValueError(f"{what} file {path} does not exist")
         self.video_path = Path(video)
@@ -306,7 +306,7 @@ class VideoSource:
         self.height_m = height_m
         self.records.sort(key=lambda r: r.t)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
-        self.camera_file = Camera.from_file(camera)
+        self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         capture = cv2.VideoCapture(str(self.video_path))
         if not capture.isOpened():
             raise ValueError(f"video file {self.video_path} cannot be opened by OpenCV")
@@ -316,7 +316,8 @@ class VideoSource:
         capture.release()
         self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
         same_size = (width, height) in ((0, 0), (self.camera_file.width, self.camera_file.height))
-        self.camera = self.camera_file if same_size else self.camera_file.scaled(width, height)
+        self.camera = self.camera_file if same_size else self.camera_file.fitted_to(width, height,
+                                                                                      source=f"the frames of {video}")
         self.detector = OnnxYoloDetector(model, class_names=class_names, conf_threshold=conf_threshold)
         self.class_names = dict(enumerate(self.detector.class_names))
         self.telemetry_offset_s = self.records[0].t if telemetry_offset_s is None else float(telemetry_offset_s)
@@ -371,7 +372,8 @@ class VideoSource:
                     poses = self.poses_at(times)
                 pose, pose_t = poses[index % _POSE_BATCH]
                 if (image.shape[1], image.shape[0]) != (self.camera.width, self.camera.height):
-                    self.camera = self.camera_file.scaled(image.shape[1], image.shape[0])
+                    self.camera = self.camera_file.fitted_to(image.shape[1], image.shape[0],
+                                                             source="the video's frames")
                 dets = self.detector(image)
                 yield SourceFrame(index, self.telemetry_offset_s + index / self.fps, pose, pose_t, dets.boxes_xyxy,
                                   dets.scores, dets.class_ids.astype(np.int64), self.camera, image=image)

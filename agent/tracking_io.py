@@ -341,7 +341,7 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     if geojson_path is not None:
         check_writable(geojson_path)
     candidates = Candidates.load(candidates_path, dataset)
-    camera = Camera.from_file(camera_path)
+    camera = Camera.from_spec(camera_path)
     stats: dict[str, Any] = {}
     rows_by_video: dict[int, list[TrackRow]] = {}
     t0 = time.perf_counter()

@@ -182,6 +182,35 @@ class Camera:
         except ValueError as exc:
             raise ValueError(f"camera file {path}: {exc}") from None
 
+    @classmethod
+    def from_spec(cls, spec: str | Path, width: int = 3840, height: int = 2160) -> Camera:
+        """A camera from a camera file's path or a preset's name (CAMERA_PRESETS, at width x height).
+
+        A path that exists is read as a file; otherwise a preset name is looked up. ValueError naming
+        both possibilities when it is neither.
+        """
+        path = Path(spec)
+        if path.exists() or str(spec).endswith(".json"):
+            return cls.from_file(path)
+        if str(spec) in CAMERA_PRESETS:
+            return cls.from_preset(str(spec), width, height)
+        valid = ", ".join(sorted(CAMERA_PRESETS))
+        raise ValueError(f"camera {spec}: no such file, and not a camera preset (presets: {valid})")
+
+    def fitted_to(self, width: int, height: int, *, source: str = "the frames") -> Camera:
+        """This camera for frames of width x height: itself, or scaled when only the resolution differs.
+
+        Raises ValueError when the aspect ratio differs by more than 1 %: scaling would stretch the
+        intrinsics, so the camera file does not belong to these frames (a different camera or a crop).
+        """
+        if (width, height) == (self.width, self.height):
+            return self
+        ratio = (width / height) / (self.width / self.height)
+        if abs(ratio - 1.0) > 0.01:
+            raise ValueError(f"the camera is {self.width}x{self.height} but {source} are {width}x{height} (another "
+                             "aspect ratio): give the camera file of the camera that recorded them")
+        return self.scaled(width, height)
+
     def to_dict(self) -> dict[str, Any]:
         """The JSON form read by from_dict."""
         d: dict[str, Any] = {

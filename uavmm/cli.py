@@ -136,7 +136,8 @@ def _add_boost(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("--frames", type=Path, required=True, help="IMAGES.json (COCO with SeaDronesSee meta)")
     p.add_argument("--candidates", type=Path, required=True, help="PRE_NMS.json (COCO result list)")
-    p.add_argument("--camera", type=Path, required=True, help="CAMERA.json (width, height, fx, fy, cx, cy)")
+    p.add_argument("--camera", type=Path, required=True,
+                   help="CAMERA.json (width, height, fx, fy, cx, cy) or a camera preset's name")
     p.add_argument("--out", type=Path, required=True, help="RESULTS.json to write")
     p.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting")
     _add_pipeline_options(p)
@@ -147,6 +148,8 @@ def _run_boost(args: argparse.Namespace) -> int:
     from agent.boost import boost_dataset, write_results
 
     cfg, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
+    if not args.out.parent.is_dir():  # before the run, not after it
+        raise CliError(f"output directory {args.out.parent} does not exist (for {args.out})")
     results, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter)
     write_results(results, args.out)
     print(f"wrote {len(results)} detections to {args.out}: " + ", ".join(f"{k}={v}" for k, v in stats.items()))

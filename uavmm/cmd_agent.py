@@ -41,7 +41,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--video-id", type=int, default=None, help="--dataset: which video (default: the first)")
     src.add_argument("--telemetry", type=Path, help="--video: telemetry file (.srt, .csv, SeaDronesSee .json)")
     src.add_argument("--model", type=Path, help="--video: ONNX YOLO model with raw (pre-NMS) output")
-    src.add_argument("--camera", type=Path, help="--video: camera JSON (width, height, fx, fy, cx, cy)")
+    src.add_argument("--camera", type=Path,
+                     help="--video: camera JSON (width, height, fx, fy, cx, cy) or a preset name (e.g. dji-mavic2-pro)")
     src.add_argument("--class-names", type=Path, default=None, help="--video: class names file (model's default)")
     src.add_argument("--conf-threshold", type=float, default=0.01, help="--video: lowest candidate score (0.01)")
     src.add_argument("--telemetry-offset-s", type=float, default=None,

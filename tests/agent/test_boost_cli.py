@@ -149,3 +149,44 @@ def test_config_file_and_unknown_setting(tmp_path, capsys):
 def test_agent_refuses_a_bad_joint_carry_setting_by_name(capsys):
     assert main(["agent", "--uav-id", "uav1", "--sim", "coop", "--uav-index", "0", "--joint-carry-s", "-1"]) == 2
     assert "joint_carry_s must be >= 0" in capsys.readouterr().err
+
+
+def test_a_camera_of_another_resolution_is_scaled_and_said(tmp_path, caplog):
+    d = make_dataset(tmp_path)
+    assert run_boost(d) == 0
+    expected = json.loads((d / "results.json").read_text())
+    (d / "camera.json").write_text(json.dumps(CAM.scaled(3840, 2160).to_dict()))  # same camera, 4K file
+    assert run_boost(d) == 0
+    assert json.loads((d / "results.json").read_text()) == expected
+    assert any("camera is 3840x2160, the frames of video 1 are 1920x1080" in r.getMessage() for r in caplog.records)
+
+
+def test_a_camera_of_another_aspect_ratio_is_refused(tmp_path, capsys):
+    d = make_dataset(tmp_path)
+    (d / "camera.json").write_text(json.dumps({"width": 4000, "height": 3000, "fx": 2900.0}))
+    assert run_boost(d) == 2
+    err = capsys.readouterr().err
+    assert "the camera is 4000x3000 but the frames of video 1 are 1920x1080 (another aspect ratio)" in err
+    assert not (d / "results.json").exists()
+
+
+def test_a_camera_preset_name_works_and_a_wrong_name_lists_the_presets(tmp_path, capsys):
+    d = make_dataset(tmp_path)
+    args = ["boost", "--frames", str(d / "images.json"), "--candidates", str(d / "pre_nms.json"),
+            "--out", str(d / "results.json")]
+    assert main([*args, "--camera", "dji-mavic2-pro"]) == 0
+    assert json.loads((d / "results.json").read_text())
+    assert main([*args, "--camera", "dji-mavic9"]) == 2
+    err = capsys.readouterr().err
+    assert "camera dji-mavic9: no such file, and not a camera preset (presets: dji-air2s" in err
+    assert Camera.from_spec("dji-mavic2-pro", 1920, 1080) == Camera.from_preset("dji-mavic2-pro", 1920, 1080)
+    with pytest.raises(ValueError, match="does not exist"):
+        Camera.from_spec(d / "missing.json")
+
+
+def test_a_missing_output_folder_is_named_before_the_run(tmp_path, capsys):
+    d = make_dataset(tmp_path)
+    assert main(["boost", "--frames", str(d / "images.json"), "--candidates", str(d / "pre_nms.json"),
+                 "--camera", str(d / "camera.json"), "--out", str(d / "no" / "such" / "r.json")]) == 2
+    err = capsys.readouterr().err
+    assert f"output directory {d / 'no' / 'such'} does not exist" in err and ".tmp" not in err

@@ -351,3 +351,17 @@ def test_footprint_is_cut_at_max_range_and_lies_ahead():
     assert ll.shape == poly.shape and np.isfinite(ll).all()
     with pytest.raises(ValueError, match="max_range_m"):
         footprint_local(CAM, pose, max_range_m=0)
+
+
+@given(st.integers(1, 4), st.integers(1, 4), st.sampled_from([(1920, 1080), (4000, 3000), (1280, 1024)]))
+def test_fitted_to_scales_the_same_aspect_and_refuses_another(num, den, size):
+    camera = Camera(width=size[0], height=size[1], fx=1000.0, fy=1000.0, cx=size[0] / 2, cy=size[1] / 2)
+    width, height = size[0] * num // den, size[1] * num // den
+    if abs((width / height) / (size[0] / size[1]) - 1) <= 0.01:
+        fitted = camera.fitted_to(width, height)
+        assert (fitted.width, fitted.height) == (width, height)
+        assert fitted.hfov_deg == pytest.approx(camera.hfov_deg, rel=0.01)
+    other = (size[1] * 2, size[0])  # portrait: another aspect ratio
+    with pytest.raises(ValueError, match="another aspect ratio"):
+        camera.fitted_to(*other)
+    assert camera.fitted_to(*size) is camera
