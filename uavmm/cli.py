@@ -36,8 +36,29 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=None, help="frames per video (default: the scenario's)")
     p.add_argument("--noise-scale", type=float, default=1.0,
                    help="multiply the scenario's telemetry noise levels (default 1.0)")
+    p.add_argument("--image-size", metavar="WxH", default=None,
+                   help="image size of the simulated camera, e.g. 1920x1080 (default: the scenario's, 3840x2160); "
+                        "boxes, candidates and camera.json follow it")
+    p.add_argument("--render", action="store_true",
+                   help="also draw the frames: the image files named in images.json (and with --video an MP4 "
+                        "per video with SRT/CSV telemetry); see uavmm render")
+    from uavmm.cmd_render import add_render_options
+
+    add_render_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(handler=_run_sim)
+
+
+def _image_size(text: str) -> tuple[int, int]:
+    """'1920x1080' -> (1920, 1080); CliError unless two even integers >= 16."""
+    parts = text.lower().split("x")
+    try:
+        width, height = (int(v) for v in parts)
+    except ValueError:
+        raise CliError(f"sim: --image-size must look like 1920x1080, got {text!r}") from None
+    if width < 16 or height < 16 or width % 2 or height % 2:
+        raise CliError(f"sim: --image-size needs even numbers >= 16 (video encoders require it), got {text!r}")
+    return width, height
 
 
 def _run_sim(args: argparse.Namespace) -> int:
@@ -55,11 +76,26 @@ def _run_sim(args: argparse.Namespace) -> int:
         raise CliError(f"sim: --seed must be >= 0, got {args.seed}")
     if args.frames is not None and args.frames < 1:
         raise CliError(f"sim: --frames must be >= 1, got {args.frames}")
+    from uavmm.cmd_render import print_render_summary, render_kwargs
+
+    render = args.render or args.video  # --video implies drawing the frames
+    kwargs = render_kwargs(args) if render else None
     from sim.dataset import write_dataset
 
-    summary = write_dataset(args.scenario, args.out, seed=args.seed, frames=args.frames,
+    scenario = args.scenario
+    if args.image_size is not None:
+        import dataclasses
+
+        from sim.scenarios import get_scenario
+
+        scenario = dataclasses.replace(get_scenario(args.scenario), image_size=_image_size(args.image_size))
+    summary = write_dataset(scenario, args.out, seed=args.seed, frames=args.frames,
                             noise_scale=args.noise_scale, progress=not args.quiet)
     print(f"wrote {args.out}: " + ", ".join(f"{k}={v}" for k, v in summary.items()))
+    if kwargs is not None:
+        from sim.render import render_dataset
+
+        print_render_summary(render_dataset(args.out, progress=not args.quiet, **kwargs))
     return 0
 
 
@@ -288,7 +324,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
 #: Modules that add their own subcommands: each has register(subparsers) and sets `handler`
 #: (a function of the parsed Namespace returning an exit code) on its parser.
 COMMAND_MODULES: tuple[str, ...] = ("uavmm.cmd_fusion", "uavmm.cmd_agent", "uavmm.cmd_track", "uavmm.cmd_demo",
-                                     "uavmm.cmd_secure", "uavmm.cmd_export")
+                                     "uavmm.cmd_secure", "uavmm.cmd_export", "uavmm.cmd_render")
 
 
 LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]

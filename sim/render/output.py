@@ -1,0 +1,191 @@
+"""Render a simulated dataset directory to files: the images named in images.json, MP4 videos, telemetry.
+
+`render_dataset(directory)` draws every frame (`sim.render.renderer.WorldRenderer`) and writes
+- the image files under the dataset directory at each image's ``file_name`` (JPEG), unless ``images=False``;
+- with ``video=True``, per video ``<name>.mp4`` (MPEG-4 Part 2, OpenCV's ``mp4v``, the scenario's fps) and its
+  telemetry as ``<name>.srt`` (DJI style) and ``<name>.csv`` (`sim.render.telemetry_files`), so that
+  ``uavmm agent --video <name>.mp4 --telemetry <name>.srt --camera camera.json --model M.onnx`` plays it;
+- ``render.json``: the options, each world's ground, sun, atmosphere and unannotated scenery (boats, cars),
+  the files written and the measured speed. It is written last: its presence marks a complete render.
+
+Encoding runs on a background thread (OpenCV releases the GIL) while the next frame is drawn.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import os
+import time
+from collections import deque
+from concurrent.futures import Future, ThreadPoolExecutor
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from sim.dataset import _Progress
+from sim.render.renderer import RenderOptions, WorldRenderer, exposure_for
+from sim.render.scene import SimulatedDataset
+from sim.render.telemetry_files import format_csv, format_srt, frame_records
+
+logger = logging.getLogger(__name__)
+
+#: Frames that may wait for the encoder thread before drawing pauses.
+_MAX_PENDING = 4
+#: FOURCC of the MP4 videos (MPEG-4 Part 2: encoded and decoded by OpenCV's bundled FFmpeg everywhere).
+MP4_FOURCC = "mp4v"
+
+
+def _check_quality(jpeg_quality: int) -> None:
+    if isinstance(jpeg_quality, bool) or not isinstance(jpeg_quality, int) or not 1 <= jpeg_quality <= 100:
+        raise ValueError(f"jpeg_quality must be an integer in 1..100, got {jpeg_quality!r}")
+
+
+def _write_image(path: Path, image: np.ndarray, params: list[int]) -> None:
+    ok, data = cv2.imencode(path.suffix or ".jpg", image, params)
+    if not ok:
+        raise OSError(f"OpenCV cannot encode {path}")
+    path.write_bytes(data.tobytes())
+
+
+def render_dataset(directory: str | Path, *, images: bool = True, video: bool = False,
+                   options: RenderOptions | None = None, jpeg_quality: int = 90,
+                   progress: bool = True) -> dict[str, Any]:
+    """Render every frame of a simulated dataset directory.
+
+    Parameters
+    ----------
+    directory : path
+        Written by `uavmm sim` (images.json, camera.json, truth.json).
+    images : bool
+        Write each image at its ``file_name`` (folders are created; existing files are replaced).
+    video : bool
+        Write ``<video name>.mp4``, ``.srt`` and ``.csv`` per video.
+    options : RenderOptions, optional
+    jpeg_quality : int
+        1..100 for the image files.
+    progress : bool
+        A progress bar on stderr (only when stderr is a terminal).
+
+    Returns
+    -------
+    dict
+        Summary: ``directory, frames, images, videos (paths), telemetry (paths), width, height, seconds,
+        frames_per_s`` (drawing and encoding together).
+
+    Raises
+    ------
+    ValueError
+        Not a simulated dataset (one line, see `SimulatedDataset`), nothing to write, a bad option.
+    OSError
+        A file cannot be written (the message names it).
+    """
+    if not images and not video:
+        raise ValueError("nothing to render: ask for images, video or both")
+    _check_quality(jpeg_quality)
+    options = options if options is not None else RenderOptions()
+    started = time.perf_counter()
+    dataset = SimulatedDataset(directory)
+    out = dataset.directory
+    cam = dataset.camera
+    if video and (cam.width % 2 or cam.height % 2):
+        raise ValueError(f"MP4 needs an even image size, the dataset's camera is {cam.width}x{cam.height}")
+    params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
+    total = sum(len(v.image_ids) for v in dataset.videos)
+    bar = _Progress(f"render {dataset.scenario}", total, progress)
+    written_images, videos, telemetry, worlds = 0, [], [], []
+    draw_s = 0.0
+    pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="uavmm-render-encode")
+    pending: deque[Future] = deque()
+    done = 0
+    try:
+        for group in sorted(dataset.worlds):
+            renderer = WorldRenderer(dataset, dataset.worlds[group], options)
+            worlds.append(renderer.describe())
+            for v in renderer.videos:
+                writer = None
+                tmp_mp4 = out / f".{v.name}.tmp.mp4"  # FFmpeg picks the container by extension
+                if video:
+                    writer = cv2.VideoWriter(str(tmp_mp4), cv2.VideoWriter_fourcc(*MP4_FOURCC), dataset.fps,
+                                             (cam.width, cam.height))
+                    if not writer.isOpened():
+                        raise OSError(f"OpenCV cannot write an MP4 video at {tmp_mp4}")
+                drift = exposure_for(dataset, v)
+                frame_meta = []
+                try:
+                    for frame in dataset.frames(v):
+                        t0 = time.perf_counter()
+                        image = renderer.render(frame, drift)
+                        draw_s += time.perf_counter() - t0
+                        frame_meta.append((frame.frame_index, frame.t, frame.meta))
+                        path = out / frame.file_name if images and frame.file_name else None
+                        if images and path is None:
+                            raise ValueError(f"image {frame.image_id} has no file_name in images.json")
+                        pending.append(pool.submit(_encode, image, path, params, writer))
+                        written_images += path is not None
+                        while len(pending) > _MAX_PENDING:
+                            pending.popleft().result()
+                        done += 1
+                        bar.update(done)
+                    while pending:
+                        pending.popleft().result()
+                finally:
+                    if writer is not None:
+                        writer.release()
+                if video:
+                    mp4 = out / f"{v.name}.mp4"
+                    os.replace(tmp_mp4, mp4)
+                    videos.append(str(mp4))
+                    records = frame_records(frame_meta)
+                    srt, csv_path = out / f"{v.name}.srt", out / f"{v.name}.csv"
+                    _write_text(srt, format_srt(records, dataset.fps))
+                    _write_text(csv_path, format_csv(records, frame_meta[0][1]))
+                    telemetry.extend([str(srt), str(csv_path)])
+            del renderer
+        bar.close()
+    except BaseException:
+        bar.close()
+        for f in pending:
+            f.cancel()
+        for tmp in out.glob(".*.tmp.mp4"):
+            tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        pool.shutdown(wait=True)
+    seconds = time.perf_counter() - started
+    summary = {
+        "directory": str(out), "frames": done, "images": written_images, "videos": videos, "telemetry": telemetry,
+        "width": cam.width, "height": cam.height, "seconds": round(seconds, 3),
+        "frames_per_s": round(done / seconds, 2) if seconds > 0 else None,
+        "draw_frames_per_s": round(done / draw_s, 2) if draw_s > 0 else None,
+    }
+    report = {"options": dataclasses.asdict(options), "jpeg_quality": jpeg_quality, "mp4_fourcc": MP4_FOURCC,
+              "worlds": worlds, "summary": summary}
+    _write_text(out / "render.json", json.dumps(report, indent=1))
+    logger.info("rendered %s: %s", out, summary)
+    return summary
+
+
+def _encode(image: np.ndarray, path: Path | None, params: list[int], writer: cv2.VideoWriter | None) -> None:
+    """Write one frame: the image file and/or the next video frame (runs on the encoder thread)."""
+    if path is not None:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            _write_image(path, image, params)
+        except OSError as exc:
+            raise OSError(f"cannot write image {path}: {exc.strerror or exc}") from exc
+    if writer is not None:
+        writer.write(image)
+
+
+def _write_text(path: Path, text: str) -> None:
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_text(text)
+        os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        raise OSError(f"cannot write {path}: {exc.strerror or exc}") from exc
