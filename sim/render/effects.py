@@ -159,14 +159,19 @@ def glint_map(camera: Camera, pose: Pose, atm: Atmosphere, first_ground_row: int
     return full, (x0, y0, x1, y1)
 
 
+#: Share of the glint strength spread evenly over the glint patch (the glitter's haze between facets).
+GLINT_SHEEN = 0.25
+
+
 def add_glint(frame: np.ndarray, potential: np.ndarray, weights: np.ndarray, rect: tuple[int, int, int, int],
               strength: float) -> None:
-    """frame[rect] += strength * weights * potential / 255 on every channel (saturating), in place.
+    """frame[rect] += strength * weights * (potential / 255 + GLINT_SHEEN) on every channel (saturating).
 
-    potential: the warped texture's A channel, (H, W) uint8 aligned with frame.
+    potential: the warped texture's A channel (wave facets that mirror the sun), (H, W) uint8 aligned with
+    frame; in place.
     """
     x0, y0, x1, y1 = rect
-    add = (weights * (strength / 255.0)) * potential[y0:y1, x0:x1].astype(np.float32)
+    add = (weights * (strength / 255.0)) * (potential[y0:y1, x0:x1].astype(np.float32) + 255.0 * GLINT_SHEEN)
     add8 = np.clip(add, 0, 255).astype(np.uint8)
     roi = frame[y0:y1, x0:x1]
     roi[:] = cv2.add(roi, cv2.merge([add8, add8, add8]))
@@ -197,15 +202,24 @@ class ExposureDrift:
     """Slow exposure and white-balance drift of one video, and the camera's reaction to the sky.
 
     Log gain: AR(1) with std `gain_std` and correlation time `gain_corr_s`; per-channel white balance: AR(1)
-    with std `wb_std` over `wb_corr_s`. Auto exposure darkens frames by up to 20 % as the bright sky fills
-    them. Deterministic for the generator; `channel_gains` feeds `tone`.
+    with std `wb_std` over `wb_corr_s`; both drawn at knots every `KNOT_S` seconds and interpolated linearly
+    to the frames (auto exposure and white balance move smoothly; they do not flicker frame to frame). Auto
+    exposure darkens frames by up to 20 % as the bright sky fills them. Deterministic for the generator;
+    `channel_gains` feeds `tone`.
     """
+
+    KNOT_S = 0.5
 
     def __init__(self, n_frames: int, fps: float, rng: np.random.Generator, *, gain_std: float = 0.08,
                  gain_corr_s: float = 4.0, wb_std: float = 0.025, wb_corr_s: float = 10.0) -> None:
-        self.gain = _ar1(n_frames, fps, gain_corr_s, gain_std, 1, rng)[:, 0]
-        self.wb = _ar1(n_frames, fps, wb_corr_s, wb_std, 3, rng)
-        self.n_frames = n_frames
+        knots = int(math.ceil(max(n_frames, 1) / fps / self.KNOT_S)) + 2
+        t_knot = np.arange(knots) * self.KNOT_S
+        t = np.arange(max(n_frames, 1)) / fps
+        gain = _ar1(knots, 1.0 / self.KNOT_S, gain_corr_s, gain_std, 1, rng)
+        wb = _ar1(knots, 1.0 / self.KNOT_S, wb_corr_s, wb_std, 3, rng)
+        self.gain = np.interp(t, t_knot, gain[:, 0])
+        self.wb = np.column_stack([np.interp(t, t_knot, wb[:, c]) for c in range(3)])
+        self.n_frames = max(n_frames, 1)
 
     def channel_gains(self, frame_index: int, sky_fraction: float) -> np.ndarray:
         """(3,) B, G, R multipliers of a frame."""

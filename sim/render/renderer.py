@@ -223,10 +223,12 @@ class WorldRenderer:
 
     def _far_extent(self, near: tuple[float, float, float, float],
                     near_res: float) -> tuple[tuple[float, float, float, float], float]:
-        """The far ground: FAR_GROUND_M square around the near ground's centre, FAR_TEXTURE_PX texels a side."""
+        """The far ground: FAR_GROUND_M square around the near ground's centre, at most FAR_TEXTURE_PX (and
+        max_texture_px) texels a side, at least 4 near texels per texel."""
         ce, cn = 0.5 * (near[0] + near[2]), 0.5 * (near[1] + near[3])
         half = 0.5 * max(FAR_GROUND_M, near[2] - near[0], near[3] - near[1])
-        res = max(2.0 * half / (FAR_TEXTURE_PX - 1), 4.0 * near_res)
+        side_px = min(FAR_TEXTURE_PX, self.options.max_texture_px)
+        res = max(2.0 * half / (side_px - 1), 4.0 * near_res)
         return (ce - half, cn - half, ce + half, cn + half), res
 
     def _scenery(self, roads: tuple[Road, ...]) -> list[Scenery]:
@@ -389,7 +391,7 @@ class WorldRenderer:
             length = math.radians(rate) * cam.fx * EXPOSURE_S
             angle = 0.0
         else:
-            length = rng.uniform(0.004, 0.01) * cam.width
+            length = rng.uniform(0.01, 0.025) * cam.width  # a shake: the emulator's blurred frames lose most score
             angle = float(rng.uniform(0.0, 180.0))
         return effects.motion_blur(image, min(max(length, 2.0), 0.05 * cam.width), angle)
 

@@ -75,10 +75,16 @@ class Placed:
     border_only: bool = False  # draw only when cut by the image border (continued positions; scene.py)
 
 
-def ellipse(width_m: float, depth_m: float, n: int = 12, forward_m: float = 0.0) -> np.ndarray:
-    """(n, 2) outline of an ellipse across (`width_m`) and along (`depth_m`) the object's heading."""
+def ellipse(width_m: float, depth_m: float, n: int = 12, forward_m: float = 0.0, power: float = 2.0) -> np.ndarray:
+    """(n, 2) outline of an ellipse across (`width_m`) and along (`depth_m`) the object's heading.
+
+    power > 2 gives a superellipse |x/a|^p + |y/b|^p = 1, squarer (shoulders, hips); it stays convex.
+    """
     a = np.linspace(0.0, 2.0 * math.pi, n, endpoint=False)
-    return np.column_stack([0.5 * width_m * np.cos(a), forward_m + 0.5 * depth_m * np.sin(a)])
+    c, s = np.cos(a), np.sin(a)
+    e = 2.0 / power
+    return np.column_stack([0.5 * width_m * np.sign(c) * np.abs(c) ** e,
+                            forward_m + 0.5 * depth_m * np.sign(s) * np.abs(s) ** e])
 
 
 def _shade(bgr: tuple[int, ...], k: float) -> tuple[float, float, float]:
@@ -103,8 +109,8 @@ def person(rng: np.random.Generator) -> Model:
     """Legs, torso and head filling 0.5 x 0.3 x 1.7 m; shirt, trousers, skin and hair drawn from rng."""
     shirt, trousers, skin, hair = _pick(rng, _SHIRTS), _pick(rng, _TROUSERS), _pick(rng, _SKIN), _pick(rng, _HAIR)
     parts = (
-        Part(ellipse(0.34, 0.22), 0.0, 0.85, _shade(trousers, 0.8), _shade(trousers, 1.0)),
-        Part(ellipse(0.50, 0.30), 0.85, 1.48, _shade(shirt, 0.82), _shade(shirt, 1.05)),
+        Part(ellipse(0.36, 0.22, 16, power=3.0), 0.0, 0.85, _shade(trousers, 0.8), _shade(trousers, 1.0)),
+        Part(ellipse(0.50, 0.30, 16, power=4.0), 0.85, 1.48, _shade(shirt, 0.82), _shade(shirt, 1.05)),
         Part(ellipse(0.20, 0.23, 10), 1.48, 1.70, _shade(skin, 0.85), _shade(hair, 1.0)),
     )
     return Model(parts, _texture(rng), 0.12)

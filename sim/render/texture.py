@@ -230,7 +230,7 @@ def _sea(grid: TexelGrid, bank: NoiseBank, rng: np.random.Generator, detail: boo
     planes = _channels(deep, [(shallow - deep, tint)], 1.0 + 0.10 * height + 0.12 * slope)
     crest = np.clip((height - 2.6) * 1.6, 0.0, 1.0) * np.clip(0.5 + fine, 0.0, 1.0)
     _blend_where(planes, np.array([225.0, 228.0, 225.0], np.float32), 0.7 * crest)  # whitecaps
-    glint = np.clip((slope - 1.0) / 1.8, 0.0, 1.0) ** 2 * np.clip(0.6 + fine, 0.0, 1.5)
+    glint = np.clip((slope - 0.6) / 1.6, 0.0, 1.0) ** 2 * np.clip(0.6 + fine, 0.0, 1.5)
     return _to_bgra(planes, np.clip(255.0 * glint, 0, 255).astype(np.uint8))
 
 
