@@ -101,7 +101,7 @@ def haze_rows(camera: Camera, pose: Pose, atm: Atmosphere, first_ground_row: int
 
 
 def tone(frame: np.ndarray, haze_alpha: np.ndarray, haze_bgr: tuple[float, float, float],
-         gains_bgr: np.ndarray, *, levels: int = 512) -> None:
+         gains_bgr: np.ndarray, *, levels: int = 256) -> None:
     """Haze, exposure and white balance in one pass, in place: per band of rows one look-up table.
 
     Each pixel x becomes T(x (1 - a) + haze a) with a the row's haze opacity (`haze_rows`, quantised to

@@ -133,6 +133,7 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
                     while pending:
                         pending.popleft().result()
                 finally:
+                    _drain(pending)  # the encoder thread must be done with the writer before it is released
                     if writer is not None:
                         writer.release()
                 if video:
@@ -148,8 +149,6 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
         bar.close()
     except BaseException:
         bar.close()
-        for f in pending:
-            f.cancel()
         for tmp in out.glob(".*.tmp.mp4"):
             tmp.unlink(missing_ok=True)
         raise
@@ -167,6 +166,17 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     _write_text(out / "render.json", json.dumps(report, indent=1))
     logger.info("rendered %s: %s", out, summary)
     return summary
+
+
+def _drain(pending: deque[Future]) -> None:
+    """Wait for every queued encoding (after an error: their own errors are secondary and dropped)."""
+    while pending:
+        future = pending.popleft()
+        if not future.cancel():
+            try:
+                future.result()
+            except Exception:  # noqa: BLE001 - the first error is already propagating
+                logger.debug("encoding after an error failed too", exc_info=True)
 
 
 def _encode(image: np.ndarray, path: Path | None, params: list[int], writer: cv2.VideoWriter | None) -> None:

@@ -404,6 +404,31 @@ class WorldRenderer:
                       for o in frame.objects)
         return placed
 
+    def _cull(self, placed: list[Placed], pose, uav_en: tuple[float, float], shadow_m_per_m: float) -> np.ndarray:
+        """(N,) bool: whether each object (a cylinder of its radius and height, widened by its longest shadow)
+        may reach into the image; one vectorised projection instead of drawing everything."""
+        cam = self.camera
+        n = len(placed)
+        centre = np.array([[p.east_m - uav_en[0], p.north_m - uav_en[1]] for p in placed]).reshape(n, 2)
+        radius = np.array([p.model.radius_m + p.model.height_m * shadow_m_per_m for p in placed])
+        height = np.array([p.model.height_m for p in placed])
+        pts = np.vstack([np.column_stack([centre, np.zeros(n)]), np.column_stack([centre, height])])
+        cam_xyz = (pts - pose.camera_position_enu[None, :]) @ pose.R_world_from_cam
+        z = cam_xyz[:, 2]
+        near = np.minimum(z[:n], z[n:])
+        keep = np.ones(n, bool)
+        ok = near > radius + 1e-3  # every point of the object is in front of the camera: test its box
+        with np.errstate(divide="ignore", invalid="ignore"):
+            u = cam.fx * cam_xyz[:, 0] / z + cam.cx
+            v = cam.fy * cam_xyz[:, 1] / z + cam.cy
+            r_px = (radius * max(cam.fx, cam.fy)) / np.maximum(near - radius, 1e-3) + 2.0
+        u0, u1 = np.minimum(u[:n], u[n:]) - r_px, np.maximum(u[:n], u[n:]) + r_px
+        v0, v1 = np.minimum(v[:n], v[n:]) - r_px, np.maximum(v[:n], v[n:]) + r_px
+        outside = (u1 < 0) | (v1 < 0) | (u0 > cam.width) | (v0 > cam.height)
+        keep[ok] = ~outside[ok]
+        keep[z.reshape(2, n).max(axis=0) <= 0] = False  # wholly behind the camera
+        return keep
+
     def _draw_objects(self, image: np.ndarray, frame: SceneFrame, uav_en: tuple[float, float]) -> int:
         """Shadows and sprites far to near; returns how many were drawn."""
         cam, pose, atm = self.camera, frame.pose, self.atmosphere
@@ -417,9 +442,12 @@ class WorldRenderer:
             away = -np.array([math.sin(az), math.cos(az)]) / math.tan(math.radians(atm.sun_elevation_deg))
         drawn = 0
         w, h = cam.width, cam.height
-        for i in np.argsort(-dist, kind="stable"):
-            p = placed[int(i)]
-            proj = sprites.project_placed(p, cam, pose, uav_en, away)
+        shadow_m = 0.0 if away is None else float(np.hypot(*away))
+        in_view = self._cull(placed, pose, uav_en, shadow_m)
+        order = [int(i) for i in np.argsort(-dist, kind="stable") if in_view[int(i)]]
+        projections = sprites.project_many([placed[i] for i in order], cam, pose, uav_en, away)
+        for i, proj in zip(order, projections, strict=True):
+            p = placed[i]
             if proj is None:
                 continue
             x0, y0, x1, y1 = proj.reach

@@ -13,7 +13,7 @@ Sizes follow `sim.world.CLASS_BOX_M`: a person fills 0.5 x 0.3 x 1.7 m, a swimme
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
@@ -57,11 +57,34 @@ class Part:
 
 @dataclass(frozen=True, slots=True)
 class Model:
-    """An object's shape and look: parts bottom to top, texture contrast, and a fine texture patch."""
+    """An object's shape and look: parts bottom to top, texture contrast, and a fine texture patch.
+
+    radius_m and height_m (derived) bound the object: a vertical cylinder around its centre, for culling.
+    """
 
     parts: tuple[Part, ...]
     texture: np.ndarray  # (h, w) float32 around 0, resized over the object's image
     texture_contrast: float
+    radius_m: float = field(init=False)
+    height_m: float = field(init=False)
+    points: np.ndarray = field(init=False, repr=False)  # (M, 3) right, forward, z: each part at z0 then z1
+    shadow_points: np.ndarray = field(init=False, repr=False)  # (S, 3) the casting parts, at z0 then z1
+
+    def __post_init__(self) -> None:
+        if not self.parts:
+            raise ValueError("a sprite Model needs at least one Part")
+        put = object.__setattr__
+        put(self, "radius_m", max(float(np.hypot(*p.outline.T).max()) for p in self.parts))
+        put(self, "height_m", max(p.z1_m for p in self.parts))
+        put(self, "points", np.vstack([_levels(p.outline, p.z0_m, p.z1_m) for p in self.parts]))
+        casting = [_levels(p.outline, p.z0_m, p.z1_m) for p in self.parts if p.casts_shadow]
+        put(self, "shadow_points", np.vstack(casting) if casting else np.zeros((0, 3)))
+
+
+def _levels(outline: np.ndarray, z0: float, z1: float) -> np.ndarray:
+    """(2P, 3) an outline at two heights."""
+    p = len(outline)
+    return np.column_stack([np.vstack([outline, outline]), np.r_[np.full(p, z0), np.full(p, z1)]])
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,71 +234,70 @@ class Projection:
     reach: tuple[float, float, float, float]
 
 
-def _frame_axes(placed: Placed, uav_en: tuple[float, float]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    yaw = math.radians(placed.yaw_deg)
-    right = np.array([math.cos(yaw), -math.sin(yaw)])
-    fwd = np.array([math.sin(yaw), math.cos(yaw)])
-    return np.array([placed.east_m - uav_en[0], placed.north_m - uav_en[1]]), right, fwd
+def project_many(placed: list[Placed], camera: Camera, pose: Pose, uav_en: tuple[float, float],
+                 shadow_away_en: np.ndarray | None) -> list[Projection | None]:
+    """The image geometry of placed models (None for one with a point behind the camera), in one projection.
 
-
-def _world_points(placed: Placed, uav_en: tuple[float, float]) -> tuple[np.ndarray, list[int]]:
-    """(sum 2P, 3) ENU points relative to the UAV: each part's outline at z0 then at z1; part sizes."""
-    base, right, fwd = _frame_axes(placed, uav_en)
-    chunks, sizes = [], []
-    for part in placed.model.parts:
-        en = base + part.outline[:, :1] * right + part.outline[:, 1:2] * fwd
-        p = len(en)
-        chunks.append(np.column_stack([np.vstack([en, en]), np.r_[np.full(p, part.z0_m), np.full(p, part.z1_m)]]))
-        sizes.append(p)
-    return np.vstack(chunks), sizes
-
-
-def _shadow_points(placed: Placed, uav_en: tuple[float, float], away_en: np.ndarray) -> tuple[np.ndarray, list[int]]:
-    """Ground points of each shadow-casting part: its outline cast `away_en` * z0 and `away_en` * z1."""
-    base, right, fwd = _frame_axes(placed, uav_en)
-    chunks, sizes = [], []
-    for part in placed.model.parts:
-        if not part.casts_shadow:
+    uav_en: the UAV's world east/north; shadow_away_en: (2,) metres the shadow of a point 1 m high is cast on
+    the ground (away from the sun), None for no shadows.
+    """
+    if not placed:
+        return []
+    blocks, z_parts, offsets = [], [], [0]
+    for p in placed:
+        yaw = math.radians(p.yaw_deg)
+        c, s_ = math.cos(yaw), math.sin(yaw)
+        rot = np.array([[c, s_], [-s_, c]])  # (right, forward) -> (east, north): right = (c, -s), fwd = (s, c)
+        centre = np.array([p.east_m - uav_en[0], p.north_m - uav_en[1]])
+        sprite = p.model.points
+        blocks.append(sprite[:, :2] @ rot.T + centre)
+        z_parts.append(sprite[:, 2])
+        count = len(sprite)
+        shadow = p.model.shadow_points
+        if shadow_away_en is not None and len(shadow):
+            blocks.append(shadow[:, :2] @ rot.T + centre + shadow[:, 2:3] * shadow_away_en[None, :])
+            z_parts.append(np.zeros(len(shadow)))
+            count += len(shadow)
+        offsets.append(offsets[-1] + count)
+    en = np.vstack(blocks)
+    uv, ok = project_enu(np.column_stack([en, np.concatenate(z_parts)]), camera, pose)
+    fixed = np.round(np.nan_to_num(uv) * (1 << _SHIFT)).astype(np.int32)
+    out: list[Projection | None] = []
+    for k, p in enumerate(placed):
+        a, b = offsets[k], offsets[k + 1]
+        obj_uv = uv[a:b]
+        if not ok[a:b].all() or np.abs(obj_uv).max() > 1e6:  # behind the camera, or too close to draw
+            out.append(None)
             continue
-        en = base + part.outline[:, :1] * right + part.outline[:, 1:2] * fwd
-        cast = np.vstack([en + away_en * part.z0_m, en + away_en * part.z1_m])
-        chunks.append(np.column_stack([cast, np.zeros(len(cast))]))
-        sizes.append(len(cast))
-    if not chunks:
-        return np.zeros((0, 3)), []
-    return np.vstack(chunks), sizes
+        obj_fixed = fixed[a:b]
+        sides, tops, shadows = [], [], []
+        i = 0
+        for part in p.model.parts:
+            n = len(part.outline)
+            block = obj_fixed[i:i + 2 * n]
+            sides.append(cv2.convexHull(block))
+            tops.append(block[n:].reshape(-1, 1, 2))
+            i += 2 * n
+        n_sprite = i
+        if b - a > n_sprite:
+            for part in p.model.parts:
+                if part.casts_shadow:
+                    n = len(part.outline)
+                    shadows.append(cv2.convexHull(obj_fixed[i:i + 2 * n]))
+                    i += 2 * n
+        s_uv = obj_uv[:n_sprite]
+        box = (float(s_uv[:, 0].min()), float(s_uv[:, 1].min()), float(s_uv[:, 0].max()), float(s_uv[:, 1].max()))
+        reach = (float(obj_uv[:, 0].min()), float(obj_uv[:, 1].min()), float(obj_uv[:, 0].max()),
+                 float(obj_uv[:, 1].max()))
+        out.append(Projection(sides, tops, shadows, box, reach))
+    return out
 
 
 def project_placed(placed: Placed, camera: Camera, pose: Pose, uav_en: tuple[float, float],
                    shadow_away_en: np.ndarray | None) -> Projection | None:
-    """The image geometry of a placed model, or None when any of its points is behind the camera.
-
-    shadow_away_en: (2,) metres the shadow of a point 1 m high is cast on the ground (away from the sun),
-    None for no shadows.
-    """
-    pts, sizes = _world_points(placed, uav_en)
-    if shadow_away_en is not None:
-        spts, ssizes = _shadow_points(placed, uav_en, shadow_away_en)
-    else:
-        spts, ssizes = np.zeros((0, 3)), []
-    uv, ok = project_enu(np.vstack([pts, spts]), camera, pose)
-    if not ok.all() or np.abs(uv).max() > 1e6:  # behind the camera, or too close to it to draw
-        return None
-    fixed = np.round(uv * (1 << _SHIFT)).astype(np.int32)
-    sides, tops, shadows = [], [], []
-    i = 0
-    for p in sizes:
-        block = fixed[i:i + 2 * p]
-        sides.append(cv2.convexHull(block))
-        tops.append(block[p:].reshape(-1, 1, 2))
-        i += 2 * p
-    for p in ssizes:
-        shadows.append(cv2.convexHull(fixed[i:i + p]))
-        i += p
-    s_uv = uv[:len(pts)]
-    box = (float(s_uv[:, 0].min()), float(s_uv[:, 1].min()), float(s_uv[:, 0].max()), float(s_uv[:, 1].max()))
-    return Projection(sides, tops, shadows, box,
-                      (float(uv[:, 0].min()), float(uv[:, 1].min()), float(uv[:, 0].max()), float(uv[:, 1].max())))
+    """The image geometry of one placed model, or None when any of its points is behind the camera
+    (`project_many` for one)."""
+    return project_many([placed], camera, pose, uav_en, shadow_away_en)[0]
 
 
 def _rect(poly: np.ndarray, w: int, h: int) -> tuple[int, int, int, int] | None:
@@ -332,14 +354,16 @@ def draw_placed(frame: np.ndarray, placed: Placed, proj: Projection, shadow_dark
             region = roi.astype(np.float32)
             region += (np.asarray(colour, np.float32)[None, None, :] - region) * a[..., None]
             roi[:] = region.astype(np.uint8)
-    # the fine texture over the covered pixels: 128 = unchanged
-    full_w = max(int(math.ceil(proj.box[2] - proj.box[0])), 1)
-    full_h = max(int(math.ceil(proj.box[3] - proj.box[1])), 1)
+    if not cover.any():
+        return False
+    # the fine texture over the covered pixels (128 = unchanged), stretched over the sprite's box
+    left, top = int(math.floor(proj.box[0])), int(math.floor(proj.box[1]))
+    full_w = max(int(math.ceil(proj.box[2])) - left, 1)
+    full_h = max(int(math.ceil(proj.box[3])) - top, 1)
     tex = cv2.resize(placed.model.texture, (full_w, full_h), interpolation=cv2.INTER_LINEAR)
-    tx, ty = bx0 - int(math.floor(proj.box[0])), by0 - int(math.floor(proj.box[1]))
-    tex = tex[max(ty, 0):max(ty, 0) + by1 - by0, max(tx, 0):max(tx, 0) + bx1 - bx0]
-    if tex.shape != cover.shape:
-        tex = cv2.resize(tex, (cover.shape[1], cover.shape[0]), interpolation=cv2.INTER_NEAREST)
+    cols = np.clip(np.arange(bx0, bx1) - left, 0, full_w - 1)
+    rows = np.clip(np.arange(by0, by1) - top, 0, full_h - 1)
+    tex = tex[np.ix_(rows, cols)]
     detail = np.clip(128.0 + 128.0 * placed.model.texture_contrast * tex * (cover.astype(np.float32) / 255.0),
                      0, 255).astype(np.uint8)
     roi = frame[by0:by1, bx0:bx1]

@@ -160,6 +160,26 @@ def test_a_person_sprite_fills_most_of_its_ground_truth_box_and_stays_inside(hei
     assert sx1 - sx0 >= 0.6 * (bx1 - bx0) and sy1 - sy0 >= 0.7 * (by1 - by0)
 
 
+@pytest.mark.parametrize("gap_px", [1.0, 1.7, 3.0])  # nearer, anti-aliasing reaches the edge pixel
+def test_a_sprite_just_outside_the_left_or_top_border_draws_nothing_and_does_not_fail(gap_px):
+    """Regression: a sprite ending within 2 px left of (or above) the image broke the texture lookup."""
+    cam = Camera.from_preset("dji-mavic2-pro", 320, 180)
+    pose = Pose(48.5, 9.0, 20.0, 45.0, 0.0)
+    placed = sprites.Placed(sprites.person(np.random.default_rng(0)), 0.0, 20.0, 0.0)
+    proj = sprites.project_placed(placed, cam, pose, (0.0, 0.0), None)
+    assert proj is not None
+    for axis in (0, 1):
+        shift = np.zeros(2, np.int32)
+        shift[axis] = -int(round((proj.box[2 + axis] + gap_px) * 16))
+        moved = dataclasses.replace(
+            proj, sides=[p + shift for p in proj.sides], tops=[p + shift for p in proj.tops],
+            box=tuple(v + shift[i % 2] / 16 for i, v in enumerate(proj.box)),
+            reach=tuple(v + shift[i % 2] / 16 for i, v in enumerate(proj.reach)))
+        frame = np.full((180, 320, 3), 90, np.uint8)
+        assert sprites.draw_placed(frame, placed, moved, 0.0) is False
+        assert (frame == 90).all()
+
+
 def test_each_object_keeps_its_look_so_appearance_from_pixels_tells_them_apart(coop):
     """Colour histograms of the rendered boxes (the agent's re-ID descriptor) are closer for one object across
     frames than between objects."""
