@@ -21,6 +21,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "fusion": "benchmarks.bench_fusion",
     "tracker": "benchmarks.bench_tracker",
     "hostile": "benchmarks.bench_hostile",
+    "render": "benchmarks.bench_render",
 }
 
 

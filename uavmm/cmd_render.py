@@ -47,8 +47,9 @@ def render_kwargs(args: argparse.Namespace) -> dict[str, Any]:
 def print_render_summary(summary: dict[str, Any]) -> None:
     """The CLI's result lines: counts, speed, then each video and telemetry file."""
     print(f"rendered {summary['directory']}: {summary['frames']} frames ({summary['width']}x{summary['height']}), "
-          f"{summary['images']} images, {len(summary['videos'])} videos in {summary['seconds']} s "
-          f"({summary['frames_per_s']} frames/s; drawing alone {summary['draw_frames_per_s']} frames/s)")
+          f"{summary['images']} images, {len(summary['videos'])} videos in {summary['seconds']} s: ground of "
+          f"{summary['worlds']} world(s) {summary['setup_s']} s, then {summary['frames_per_s']} frames/s "
+          f"(drawing alone {summary['draw_frames_per_s']} frames/s)")
     for path in summary["videos"] + summary["telemetry"]:
         print(f"  {path}")
 

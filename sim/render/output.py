@@ -73,8 +73,9 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     Returns
     -------
     dict
-        Summary: ``directory, frames, images, videos (paths), telemetry (paths), width, height, seconds,
-        frames_per_s`` (drawing and encoding together).
+        Summary: ``directory, frames, images, videos (paths), telemetry (paths), width, height, worlds, seconds``
+        (all), ``setup_s`` (generating the worlds' ground), ``frames_per_s`` (drawing and encoding after the
+        set-up) and ``draw_frames_per_s`` (drawing alone).
 
     Raises
     ------
@@ -97,13 +98,15 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     total = sum(len(v.image_ids) for v in dataset.videos)
     bar = _Progress(f"render {dataset.scenario}", total, progress)
     written_images, videos, telemetry, worlds = 0, [], [], []
-    draw_s = 0.0
+    draw_s = setup_s = 0.0
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="uavmm-render-encode")
     pending: deque[Future] = deque()
     done = 0
     try:
         for group in sorted(dataset.worlds):
+            t_setup = time.perf_counter()
             renderer = WorldRenderer(dataset, dataset.worlds[group], options)
+            setup_s += time.perf_counter() - t_setup
             worlds.append(renderer.describe())
             for v in renderer.videos:
                 writer = None
@@ -155,10 +158,12 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     finally:
         pool.shutdown(wait=True)
     seconds = time.perf_counter() - started
+    streaming_s = seconds - setup_s
     summary = {
         "directory": str(out), "frames": done, "images": written_images, "videos": videos, "telemetry": telemetry,
-        "width": cam.width, "height": cam.height, "seconds": round(seconds, 3),
-        "frames_per_s": round(done / seconds, 2) if seconds > 0 else None,
+        "width": cam.width, "height": cam.height, "worlds": len(worlds), "seconds": round(seconds, 3),
+        "setup_s": round(setup_s, 3),
+        "frames_per_s": round(done / streaming_s, 2) if streaming_s > 0 else None,
         "draw_frames_per_s": round(done / draw_s, 2) if draw_s > 0 else None,
     }
     report = {"options": dataclasses.asdict(options), "jpeg_quality": jpeg_quality, "mp4_fourcc": MP4_FOURCC,

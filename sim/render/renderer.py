@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import logging
 import math
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import cv2
@@ -168,13 +169,18 @@ class WorldRenderer:
         roads: tuple[Road, ...] = meadow_roads(far_extent, rng) if world.kind == "meadow" else ()
         trees = [sprites.ellipse(2 * t.radius_m, 2 * t.radius_m, 20) + np.array([t.east_m, t.north_m])
                  for t in world.trees]
-        grounds = []
-        for ext, r, detail in ((extent, res, True), (far_extent, far_res, False)):
-            g = make_ground(world.kind, ext, r, bank, rng, roads=roads, detail=detail)
+
+        def ground(ext: tuple[float, float, float, float], r: float, detail: bool, key: int) -> GroundTexture:
+            g = make_ground(world.kind, ext, r, bank, self._rng(ROLE_GROUND, key), roads=roads, detail=detail)
             bake_shadows(g, trees, [t.height_m for t in world.trees], az, el, self.atmosphere.shadow_darkness)
-            grounds.append(with_mips(g))
-        self.ground: GroundTexture = grounds[0]
-        self.far_ground: GroundTexture = grounds[1]
+            return with_mips(g)
+
+        # the two textures on two threads (numpy and OpenCV release the GIL); each has its own generator
+        with ThreadPoolExecutor(max_workers=2, thread_name_prefix="uavmm-render-ground") as pool:
+            near = pool.submit(ground, extent, res, True, 0)
+            far = pool.submit(ground, far_extent, far_res, False, 1)
+            self.ground: GroundTexture = near.result()
+            self.far_ground: GroundTexture = far.result()
         self.static: list[Placed] = []
         for i, t in enumerate(world.trees):
             model = sprites.tree(sprites.appearance_rng(self.seed, 10_000 + 100 * world.group + i, "tree"),

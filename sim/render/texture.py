@@ -82,7 +82,8 @@ class NoiseBank:
     """Random lattice tables, one per named noise field, drawn once per world from `rng`.
 
     Noise sampled through `world_noise` is anchored to world coordinates: two textures of one world at any
-    extent and resolution show the same patterns (the near and the far ground join without a seam).
+    extent and resolution show the same patterns (the near and the far ground join without a seam). A table
+    depends only on the bank's seed and its name, so threads may share a bank (a race draws the same table).
     """
 
     def __init__(self, rng: np.random.Generator) -> None:
@@ -249,8 +250,8 @@ def _meadow(grid: TexelGrid, bank: NoiseBank, rng: np.random.Generator, detail: 
     soil_field = fractal_noise(grid, (18.0, 6.0, 1.5), bank, "meadow/soil", weights=(1.0, 0.6, 0.3))
     soil_t = np.clip((soil_field - 0.7) * 4.0, 0.0, 1.0)
     _blend_where(planes, np.array([70.0, 98.0, 122.0], np.float32), 0.85 * soil_t, 1.0 + 0.25 * blades)
-    if detail and grid.res_m <= 0.1:  # sparse white and yellow flowers, a few centimetres each
-        flowers = np.flatnonzero(rng.uniform(size=h * w) < 0.002)
+    if detail and grid.res_m <= 0.1:  # sparse white and yellow flowers, a few centimetres each: 0.2 % of texels
+        flowers = rng.integers(0, h * w, int(rng.poisson(0.002 * h * w)))
         yellow = rng.uniform(size=len(flowers)) < 0.5
         for c, (y_c, w_c) in enumerate(((60.0, 225.0), (210.0, 230.0), (230.0, 230.0))):
             planes[c].reshape(-1)[flowers] = np.where(yellow, y_c, w_c)
