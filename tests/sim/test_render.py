@@ -532,3 +532,15 @@ def test_uavmm_sim_render_video_writes_the_dataset_the_frames_and_the_videos(tmp
         assert not (out / name).exists()  # --no-images
     assert json.loads((out / "camera.json").read_text())["width"] == 320
     assert sorted(p.name for p in out.iterdir() if p.name.startswith(".")) == []  # no temporary files left
+
+
+def test_the_render_benchmark_measures_drawing_and_a_plain_warp_per_frame(coop):
+    from benchmarks import load_benchmark
+    from benchmarks.bench_render import _draw_and_warp_s
+
+    assert "frames/s" in load_benchmark("render").DESCRIPTION
+    data, _ = coop
+    draw, warp, setup_s, fps, worlds = _draw_and_warp_s(data)
+    assert len(draw) == len(warp) == 2 * FRAMES and worlds == 1 and fps == 30.0
+    assert min(draw) > 0 and min(warp) > 0 and setup_s > 0
+    assert np.median(draw) > np.median(warp)  # the plain warp is the floor
