@@ -42,7 +42,7 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--render", action="store_true",
                    help="also draw the frames: the image files named in images.json (and with --video an MP4 "
                         "per video with SRT/CSV telemetry); see uavmm render")
-    from uavmm.cmd_render import add_render_options
+    from uavmm.render_args import add_render_options
 
     add_render_options(p)
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -76,7 +76,7 @@ def _run_sim(args: argparse.Namespace) -> int:
         raise CliError(f"sim: --seed must be >= 0, got {args.seed}")
     if args.frames is not None and args.frames < 1:
         raise CliError(f"sim: --frames must be >= 1, got {args.frames}")
-    from uavmm.cmd_render import print_render_summary, render_kwargs
+    from uavmm.render_args import print_render_summary, render_kwargs
 
     render = args.render or args.video  # --video implies drawing the frames
     kwargs = render_kwargs(args) if render else None

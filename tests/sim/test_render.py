@@ -183,7 +183,7 @@ def test_a_sprite_just_outside_the_left_or_top_border_draws_nothing_and_does_not
 def test_each_object_keeps_its_look_so_appearance_from_pixels_tells_them_apart(coop):
     """Colour histograms of the rendered boxes (the agent's re-ID descriptor) are closer for one object across
     frames than between objects."""
-    from agent.appearance import hsv_histogram_descriptors
+    from agent.tracking.appearance import hsv_histogram_descriptors
 
     data, _ = coop
     coco = json.loads((data / "images.json").read_text())
