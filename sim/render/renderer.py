@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 import cv2
 import numpy as np
 
-from shared.geo import Camera, footprint_local, pixel_slant_range_m
+from shared.geo import Camera, Pose, footprint_local, pixel_slant_range_m
 from sim.render import effects, sprites
 from sim.render.effects import Atmosphere, ExposureDrift, SensorNoise
 from sim.render.geometry import (
@@ -303,7 +303,7 @@ class WorldRenderer:
 
     # ------------------------------------------------------------------ per frame
 
-    def ground_bands(self, pose, first_row: int) -> tuple[list[tuple[int, int, GroundTexture, int]], int]:
+    def ground_bands(self, pose: Pose, first_row: int) -> tuple[list[tuple[int, int, GroundTexture, int]], int]:
         """(row0, row1, texture, level) bands of the ground rows, top to bottom, and the first near row.
 
         Rows whose ground (at the left, centre and right columns) lies inside the near texture use it, the
@@ -373,7 +373,8 @@ class WorldRenderer:
             image = self.noise.apply(image, rng)
         return image
 
-    def _fade_to_near(self, bands, split: int, first: int, pose, uav_en: tuple[float, float]) -> None:
+    def _fade_to_near(self, bands: list[tuple[int, int, GroundTexture, int]], split: int, first: int, pose: Pose,
+                      uav_en: tuple[float, float]) -> None:
         """Cross-fade the last far rows above `split` into the near ground (no seam between the two)."""
         cam = self.camera
         fade0 = max(first, split - max(2, int(FADE_FRACTION * cam.height)))
@@ -410,7 +411,8 @@ class WorldRenderer:
                       for o in frame.objects)
         return placed
 
-    def _cull(self, placed: list[Placed], pose, uav_en: tuple[float, float], shadow_m_per_m: float) -> np.ndarray:
+    def _cull(self, placed: list[Placed], pose: Pose, uav_en: tuple[float, float],
+              shadow_m_per_m: float) -> np.ndarray:
         """(N,) bool: whether each object (a cylinder of its radius and height, widened by its longest shadow)
         may reach into the image; one vectorised projection instead of drawing everything."""
         cam = self.camera

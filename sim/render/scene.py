@@ -48,7 +48,8 @@ class SceneObject:
     east_m, north_m : float
         World-frame position (metres around the world origin).
     yaw_deg : float
-        Heading of the object's depth axis, clockwise from north (from its motion).
+        Heading of the object's depth axis, clockwise from north: a person's from its motion (fixed while it
+        rests), a swimmer's fixed per swimmer.
     known : bool
         True when the dataset gives the position at this time (annotated or hidden behind a tree in some
         video of the group); False when continued from a sighting up to `CONTINUE_S` away, which is drawn
@@ -289,7 +290,8 @@ class SimulatedDataset:
                 east, north, ok = _continued(table, frame_index, continue_frames, half)
                 if not ok:
                     continue
-            yaw = _yaw_from_motion(table, frame_index, half, tid)
+            # people face where they walk; swimmers drift with the current facing any way (fixed per swimmer)
+            yaw = _yaw_from_motion(table, frame_index, half, tid) if self.cls == "person" else _rest_yaw(tid)
             out.append(SceneObject(tid, self.cls, east, north, yaw, bool(known)))
         return tuple(out)
 
@@ -361,4 +363,9 @@ def _yaw_from_motion(table: np.ndarray, frame_index: int, half: float, track_id:
             if float(np.hypot(d[0], d[1])) >= _YAW_MIN_MOVE_M:
                 return float(math.degrees(math.atan2(d[0], d[1])) % 360.0)
         lo, hi = max(lo - int(half), 0), min(hi + int(half), len(frames) - 1)
-    return float((track_id * 137.508) % 360.0)  # golden-angle spread: resting objects face different ways
+    return _rest_yaw(track_id)
+
+
+def _rest_yaw(track_id: int) -> float:
+    """A fixed heading per object, spread by the golden angle (objects at rest face different ways)."""
+    return float((track_id * 137.508) % 360.0)

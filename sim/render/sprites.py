@@ -337,10 +337,17 @@ def draw_placed(frame: np.ndarray, placed: Placed, proj: Projection, shadow_dark
     if box is None:
         return False
     bx0, by0, bx1, by1 = box
+    # the fine texture, stretched over the sprite's box and cut to its part inside the frame
+    left, top = int(math.floor(proj.box[0])), int(math.floor(proj.box[1]))
+    full_w = max(int(math.ceil(proj.box[2])) - left, 1)
+    full_h = max(int(math.ceil(proj.box[3])) - top, 1)
+    tex_full = cv2.resize(placed.model.texture, (full_w, full_h), interpolation=cv2.INTER_LINEAR)
+    tex = tex_full[np.ix_(np.clip(np.arange(by0, by1) - top, 0, full_h - 1),
+                          np.clip(np.arange(bx0, bx1) - left, 0, full_w - 1))]
     cover = np.zeros((by1 - by0, bx1 - bx0), np.uint8)
     offset = np.array([bx0 << _SHIFT, by0 << _SHIFT], np.int32)
-    for part, side, top in zip(placed.model.parts, proj.sides, proj.tops, strict=True):
-        for poly, colour in ((side, part.side_bgr), (top, part.top_bgr)):
+    for part, side, top_poly in zip(placed.model.parts, proj.sides, proj.tops, strict=True):
+        for poly, colour in ((side, part.side_bgr), (top_poly, part.top_bgr)):
             if part.alpha >= 1.0:
                 cv2.fillConvexPoly(frame, poly, colour, cv2.LINE_AA, _SHIFT)
                 cv2.fillConvexPoly(cover, poly - offset, 255, cv2.LINE_AA, _SHIFT)
@@ -349,21 +356,17 @@ def draw_placed(frame: np.ndarray, placed: Placed, proj: Projection, shadow_dark
             if rect is None:
                 continue
             x0, y0, x1, y1 = rect
-            a = _poly_mask(poly, rect).astype(np.float32) * (part.alpha / 255.0)
+            # translucent parts (foam, a submerged body) are patchy: their opacity follows the texture
+            patch = tex_full[np.ix_(np.clip(np.arange(y0, y1) - top, 0, full_h - 1),
+                                    np.clip(np.arange(x0, x1) - left, 0, full_w - 1))]
+            mask = _poly_mask(poly, rect).astype(np.float32) * (part.alpha / 255.0)
+            mask *= np.clip(1.0 + 1.2 * patch, 0.0, 2.0)
             roi = frame[y0:y1, x0:x1]
             region = roi.astype(np.float32)
-            region += (np.asarray(colour, np.float32)[None, None, :] - region) * a[..., None]
+            region += (np.asarray(colour, np.float32)[None, None, :] - region) * np.minimum(mask, 1.0)[..., None]
             roi[:] = region.astype(np.uint8)
     if not cover.any():
         return False
-    # the fine texture over the covered pixels (128 = unchanged), stretched over the sprite's box
-    left, top = int(math.floor(proj.box[0])), int(math.floor(proj.box[1]))
-    full_w = max(int(math.ceil(proj.box[2])) - left, 1)
-    full_h = max(int(math.ceil(proj.box[3])) - top, 1)
-    tex = cv2.resize(placed.model.texture, (full_w, full_h), interpolation=cv2.INTER_LINEAR)
-    cols = np.clip(np.arange(bx0, bx1) - left, 0, full_w - 1)
-    rows = np.clip(np.arange(by0, by1) - top, 0, full_h - 1)
-    tex = tex[np.ix_(rows, cols)]
     detail = np.clip(128.0 + 128.0 * placed.model.texture_contrast * tex * (cover.astype(np.float32) / 255.0),
                      0, 255).astype(np.uint8)
     roi = frame[by0:by1, bx0:bx1]
