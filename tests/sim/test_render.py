@@ -20,7 +20,7 @@ from shared.telemetry import read_csv, read_srt
 from sim.dataset import write_dataset
 from sim.groundtruth import project_objects
 from sim.render import RenderOptions, SimulatedDataset, WorldRenderer, exposure_for, render_dataset, sprites
-from sim.render.effects import ExposureDrift, haze_rows, tone
+from sim.render.effects import ExposureDrift, haze_rows, motion_blur, tone
 from sim.render.geometry import first_ground_row, project_enu, sun_position
 from sim.render.scene import CONTINUE_S, _continued
 from sim.render.telemetry_files import format_srt, frame_records
@@ -297,6 +297,21 @@ def test_fast_turns_blur_the_frame_along_the_image_rows(coop):
     dy = lambda im: np.abs(np.diff(im, axis=0)).mean()  # noqa: E731
     assert dx(smeared) < 0.6 * dx(sharp)
     assert dx(smeared) / dy(smeared) < 0.7 * dx(sharp) / dy(sharp)  # a yaw turn smears sideways
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 30.0, 45.0, 90.0, 135.0, 170.0])
+def test_motion_blur_smears_a_point_into_a_centred_line_of_its_length_and_direction(angle_deg):
+    image = np.zeros((101, 161, 3), np.uint8)
+    image[50, 80] = 255
+    smear = motion_blur(image, 21, angle_deg)[..., 0].astype(float)
+    ys, xs = np.nonzero(smear > 2)
+    weight = smear[ys, xs]
+    assert np.average(xs, weights=weight) == pytest.approx(80.0, abs=0.5)
+    assert np.average(ys, weights=weight) == pytest.approx(50.0, abs=0.5)
+    values, vectors = np.linalg.eigh(np.cov(np.vstack([xs, ys]), aweights=weight))
+    direction = math.degrees(math.atan2(vectors[1, 1], vectors[0, 1])) % 180.0
+    assert min(abs(direction - angle_deg), 180.0 - abs(direction - angle_deg)) < 2.0  # 45: down and to the right
+    assert 2.0 * math.sqrt(3.0 * values[1]) == pytest.approx(21.0, abs=1.5)  # a uniform segment's length
 
 
 def test_exposure_drift_is_deterministic_slow_and_bounded():
