@@ -22,7 +22,7 @@ import numpy as np
 
 from shared.geo import Camera, Pose, latlon_to_local
 from shared.telemetry import parse_datetime
-from sim.world import CLASS_BOX_M
+from sim.world import CLASS_BOX_M, Tree  # Tree: the cylinder the simulator occludes with
 
 logger = logging.getLogger(__name__)
 
@@ -62,16 +62,6 @@ class SceneObject:
     north_m: float
     yaw_deg: float
     known: bool
-
-
-@dataclass(frozen=True, slots=True)
-class Tree:
-    """A tree of the world: a vertical cylinder, world-frame metres (as `sim.world.Tree`)."""
-
-    east_m: float
-    north_m: float
-    radius_m: float
-    height_m: float
 
 
 @dataclass(frozen=True, slots=True)
