@@ -23,6 +23,8 @@ from sim.render.geometry import project_enu
 
 #: Sub-pixel bits of the polygon fills.
 _SHIFT = 4
+#: Parts thinner than this (metres) are drawn by their top face alone.
+FLAT_M = 0.05
 
 # Clothing and gear colours (BGR), drawn per object.
 _SHIRTS = ((40, 40, 200), (170, 80, 30), (40, 200, 230), (60, 160, 60), (30, 120, 240), (140, 50, 120),
@@ -261,7 +263,8 @@ def project_many(placed: list[Placed], camera: Camera, pose: Pose, uav_en: tuple
         offsets.append(offsets[-1] + count)
     en = np.vstack(blocks)
     uv, ok = project_enu(np.column_stack([en, np.concatenate(z_parts)]), camera, pose)
-    fixed = np.round(np.nan_to_num(uv) * (1 << _SHIFT)).astype(np.int32)
+    # points just in front of the camera plane project very far out: clip before the fixed-point cast
+    fixed = np.round(np.clip(np.nan_to_num(uv), -1e7, 1e7) * (1 << _SHIFT)).astype(np.int32)
     out: list[Projection | None] = []
     for k, p in enumerate(placed):
         a, b = offsets[k], offsets[k + 1]
@@ -347,7 +350,10 @@ def draw_placed(frame: np.ndarray, placed: Placed, proj: Projection, shadow_dark
     cover = np.zeros((by1 - by0, bx1 - bx0), np.uint8)
     offset = np.array([bx0 << _SHIFT, by0 << _SHIFT], np.int32)
     for part, side, top_poly in zip(placed.model.parts, proj.sides, proj.tops, strict=True):
-        for poly, colour in ((side, part.side_bgr), (top_poly, part.top_bgr)):
+        # a flat part (foam, a submerged body) has no walls to see: its top is all of it
+        faces = ((top_poly, part.top_bgr),) if part.z1_m - part.z0_m < FLAT_M else ((side, part.side_bgr),
+                                                                                      (top_poly, part.top_bgr))
+        for poly, colour in faces:
             if part.alpha >= 1.0:
                 cv2.fillConvexPoly(frame, poly, colour, cv2.LINE_AA, _SHIFT)
                 cv2.fillConvexPoly(cover, poly - offset, 255, cv2.LINE_AA, _SHIFT)

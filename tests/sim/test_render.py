@@ -180,6 +180,20 @@ def test_a_sprite_just_outside_the_left_or_top_border_draws_nothing_and_does_not
         assert (frame == 90).all()
 
 
+def test_an_object_grazing_the_camera_plane_is_skipped_without_overflow_warnings():
+    """Regression: a tree top a hair below a nadir camera projected ~1e8 px out and overflowed int32."""
+    import warnings
+
+    cam = Camera.from_preset("dji-mavic2-pro", 3840, 2160)
+    pose = Pose(48.5, 9.0, 10.0, 90.0, 0.0)
+    tree = sprites.Placed(sprites.tree(np.random.default_rng(0), 3.0, 10.0 - 2e-6), 0.0, 0.0, 0.0)
+    person = sprites.Placed(sprites.person(np.random.default_rng(1)), 0.0, 2.0, 0.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        projections = sprites.project_many([tree, person], cam, pose, (0.0, 0.0), np.array([0.3, 0.4]))
+    assert projections[0] is None and projections[1] is not None
+
+
 def test_each_object_keeps_its_look_so_appearance_from_pixels_tells_them_apart(coop):
     """Colour histograms of the rendered boxes (the agent's re-ID descriptor) are closer for one object across
     frames than between objects."""
