@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from fusion_server.acl import FUSION_IDENTITY, FleetIdentities, access_control
+from fusion_server.http_auth import read_token_file
 from shared.keys import KeySpace
 
 __all__ = ["AUTH_MODES", "FleetPlan", "ProvisionResult", "provision"]
@@ -235,11 +236,11 @@ def _read_passwords(path: Path) -> dict[str, str]:
 
 
 def _read_tokens(path: Path) -> dict[str, str]:
-    if not path.exists():
+    """The operators' tokens already in the fleet's token file (the format `uavmm fusion` reads)."""
+    if not path.exists() or not any(line.strip() and not line.lstrip().startswith("#")
+                                    for line in path.read_text().splitlines()):
         return {}
-    lines = (line.strip() for line in path.read_text().splitlines())
-    pairs = (line.split(":", 1) for line in lines if line and not line.startswith("#") and ":" in line)
-    return {name: token for name, token in pairs}
+    return {token.name: token.token for token in read_token_file(path)}
 
 
 def _auth(fleet: _Fleet, identity: str, passwords: dict[str, str], *, dictionary: Path | None = None) -> dict:
