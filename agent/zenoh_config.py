@@ -1,7 +1,7 @@
 """Zenoh configuration of the agent: the shared options of every uavmm process plus the agent's defaults.
 
 The options themselves (``--mode/--connect/--listen/--config/--cfg``) are every process's
-(`shared.zenoh_options.ZenohOptions`, re-exported here), so all read them the same way; this module adds
+(`transport.options.ZenohOptions`, re-exported here), so all read them the same way; this module adds
 what an agent on a drone needs: start without the ground station, keep retrying, reconnect.
 """
 
@@ -9,12 +9,11 @@ from __future__ import annotations
 
 import json
 import logging
-import threading
-import time
 
 import zenoh
 
-from shared.zenoh_options import ZENOH_MODES, ZenohOptions, zenoh_config
+from transport.options import ZENOH_MODES, ZenohOptions, zenoh_config
+from transport.session import config_value, open_session  # open_session re-exported
 
 __all__ = ["AGENT_DEFAULT_MODE", "ZENOH_MODES", "ZenohOptions", "agent_zenoh_config", "open_session"]
 
@@ -51,40 +50,6 @@ def agent_zenoh_config(options: ZenohOptions) -> zenoh.Config:
                                      multicast_scouting=options.multicast_scouting, cfg=cfg))
 
 
-def open_session(conf: zenoh.Config, stop: threading.Event | None = None, *, retry_s: float = 2.0,
-                 timeout_s: float | None = None) -> zenoh.Session | None:
-    """Open a Zenoh session, retrying while it fails (a client whose router is not up yet).
-
-    Returns the session, or None when ``stop`` was set or ``timeout_s`` passed first. Errors other
-    than a failed open (e.g. a malformed config) are raised by ``zenoh.open`` on the first try the
-    same way, so a config mistake shows up as repeated warnings: use ``timeout_s`` in tests.
-    """
-    deadline = None if timeout_s is None else time.monotonic() + timeout_s
-    attempt = 0
-    while True:
-        try:
-            return zenoh.open(conf)
-        except zenoh.ZError as exc:
-            attempt += 1
-            if attempt == 1 or attempt % 30 == 0:
-                log.warning("cannot open the Zenoh session (attempt %d, retrying every %.1f s): %s",
-                            attempt, retry_s, exc)
-        if deadline is not None and time.monotonic() + retry_s > deadline:
-            return None
-        if stop is not None:
-            if stop.wait(retry_s):
-                return None
-        else:
-            time.sleep(retry_s)
-
-
-def _config_value(conf: zenoh.Config, key: str) -> object:
-    try:
-        return json.loads(conf.get_json(key))
-    except (zenoh.ZError, ValueError):
-        return None
-
-
 def identity_problem(conf: zenoh.Config, uav_id: str) -> str | None:
     """Why the identity in ``conf`` cannot publish as ``uav_id``, or None.
 
@@ -93,12 +58,12 @@ def identity_problem(conf: zenoh.Config, uav_id: str) -> str | None:
     message dropped by the server without a word. The certificate is read with the optional
     `cryptography` package; without it the certificate is not checked.
     """
-    user = _config_value(conf, "transport/auth/usrpwd/user")
+    user = config_value(conf, "transport/auth/usrpwd/user")
     if isinstance(user, str) and user != uav_id:
         return (f"the Zenoh config authenticates as user {user!r}, not --uav-id {uav_id!r}: the server's "
                 "access control would drop every message (use that UAV's own config)")
-    path = _config_value(conf, "transport/link/tls/connect_certificate")
-    if not isinstance(path, str) or _config_value(conf, "transport/link/tls/enable_mtls") is not True:
+    path = config_value(conf, "transport/link/tls/connect_certificate")
+    if not isinstance(path, str) or config_value(conf, "transport/link/tls/enable_mtls") is not True:
         return None
     try:
         from shared.pki import certificate_common_name

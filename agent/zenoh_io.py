@@ -8,11 +8,11 @@ drop, and never raise; the loop takes the decoded joint tiles with :meth:`AgentL
 
 from __future__ import annotations
 
-import json
 import logging
 import threading
 import time
 from collections import Counter, OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -21,7 +21,6 @@ import numpy as np
 import zenoh
 from numpy.typing import NDArray
 
-from agent.zenoh_config import open_session
 from shared.keys import JOINT_UAV, KeySpace
 from shared.messages import (
     DEFAULT_MAX_STATE_BYTES,
@@ -34,6 +33,9 @@ from shared.messages import (
 )
 from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, decode_tile
 from shared.tiles import TileGrid
+from transport.guard import RateLimitedLog, guarded
+from transport.publishers import PublisherCache
+from transport.session import config_value, open_session, remote_ids
 
 __all__ = ["AgentLink", "FootprintUpdate", "JointTileUpdate", "encode_tracks_with_gid"]
 
@@ -98,27 +100,6 @@ class FootprintUpdate:
     age_s: float
 
 
-class _RateLimitedWarning:
-    """At most one warning per reason every interval_s, with the number suppressed in between."""
-
-    def __init__(self, interval_s: float = 10.0) -> None:
-        self.interval_s = interval_s
-        self._last: dict[str, float] = {}
-        self._suppressed: Counter[str] = Counter()
-        self._lock = threading.Lock()
-
-    def __call__(self, reason: str, message: str, *args: object) -> None:
-        now = time.monotonic()
-        with self._lock:
-            last = self._last.get(reason)
-            if last is not None and now - last < self.interval_s:
-                self._suppressed[reason] += 1
-                return
-            self._last[reason] = now
-            suppressed = self._suppressed.pop(reason, 0)
-        log.warning(message + (f" ({suppressed} more suppressed)" if suppressed else ""), *args)
-
-
 class AgentLink:
     """One agent's Zenoh session.
 
@@ -157,7 +138,7 @@ class AgentLink:
         self._session_tag = b""
         self._declared: list[Any] = []
         self._token: zenoh.LivelinessToken | None = None
-        self._publishers: OrderedDict[str, zenoh.Publisher] = OrderedDict()
+        self._publishers: PublisherCache | None = None
         self._lock = threading.Lock()
         self._outbox: dict[str, tuple[str, bytes]] = {}
         self._wake = threading.Condition(self._lock)
@@ -174,7 +155,7 @@ class AgentLink:
         self._counts: Counter[str] = Counter()
         self._bytes: Counter[str] = Counter()
         self._rejects: Counter[str] = Counter()
-        self._warn = _RateLimitedWarning()
+        self._warn = RateLimitedLog(log).warning
         self._known_remotes: set[str] = set()
         self._alone_since: float | None = None  # monotonic time since when no router/peer is connected
         self._alone_warned = False
@@ -192,11 +173,13 @@ class AgentLink:
         self._session_tag = str(session.zid()).encode("ascii")
         self._token = session.liveliness().declare_token(self.keys.uav_alive(self.uav))
         # keep references: declared entities are undeclared when garbage-collected
+        self._publishers = PublisherCache(session, self.max_publishers)
+        on_sample = self._guarded(self._on_sample, "a sample")
         self._declared = [
-            session.declare_subscriber(self.keys.joint_tiles_all(), self._on_sample),
-            session.declare_subscriber(self.keys.joint_tracks(), self._on_sample),
+            session.declare_subscriber(self.keys.joint_tiles_all(), on_sample),
+            session.declare_subscriber(self.keys.joint_tracks(), on_sample),
             # the other UAVs' footprints: where the joint mean holds their evidence (JointLayer.others_cover)
-            session.declare_subscriber(self.keys.uav_state("*"), self._on_sample),
+            session.declare_subscriber(self.keys.uav_state("*"), on_sample),
         ]
         self._known_remotes = self._remotes()
         self._alone_since = None if self._known_remotes else time.monotonic()
@@ -216,7 +199,8 @@ class AgentLink:
             self._thread.join(timeout=10.0)
             self._thread = None
         if self.session is not None:
-            self._publishers.clear()
+            if self._publishers is not None:
+                self._publishers.clear()
             self._declared = []
             self._token = None
             try:
@@ -245,20 +229,17 @@ class AgentLink:
         n = 0
         for reply in replies:
             n += 1
-            self._on_reply(reply)
+            self._on_reply_guarded(reply)
         log.info("agent %s: joint query answered with %d replies", self.uav, n)
         return n
 
     def _query_async(self) -> None:
         assert self.session is not None
         self._count("queries")
-        self.session.get(self.keys.joint_all(), self._on_reply, timeout=5.0)
+        self.session.get(self.keys.joint_all(), self._on_reply_guarded, timeout=5.0)
 
     def _remotes(self) -> set[str]:
-        if self.session is None:
-            return set()
-        info = self.session.info
-        return {str(z) for z in info.routers_zid()} | {str(z) for z in info.peers_zid()}
+        return set() if self.session is None else remote_ids(self.session)
 
     # ---- outgoing ------------------------------------------------------------------------------
     def submit(self, messages: list[tuple[str, str, bytes]]) -> None:
@@ -286,23 +267,6 @@ class AgentLink:
         """Key of this UAV's tracks."""
         return self.keys.uav_tracks(self.uav)
 
-    def _publisher(self, key: str) -> zenoh.Publisher:
-        publisher = self._publishers.get(key)
-        if publisher is not None:
-            self._publishers.move_to_end(key)
-            return publisher
-        assert self.session is not None
-        # BLOCK: the default DROP loses messages silently under load (PITFALLS.md); declared once per key
-        publisher = self.session.declare_publisher(key, congestion_control=zenoh.CongestionControl.BLOCK)
-        self._publishers[key] = publisher
-        while len(self._publishers) > self.max_publishers:
-            _, old = self._publishers.popitem(last=False)
-            try:
-                old.undeclare()
-            except zenoh.ZError:
-                pass
-        return publisher
-
     def _run(self) -> None:
         next_check = time.monotonic() + _CONNECTIVITY_CHECK_S
         while True:
@@ -321,7 +285,8 @@ class AgentLink:
     def _send(self, batch: dict[str, tuple[str, bytes]]) -> None:
         for key, (kind, payload) in batch.items():
             try:
-                self._publisher(key).put(payload, attachment=self._session_tag)
+                assert self._publishers is not None
+                self._publishers.put(key, payload, attachment=self._session_tag)
                 self._count(f"sent_{kind}", len(payload))
             except zenoh.ZError as exc:
                 self._count("publish_errors")
@@ -361,10 +326,7 @@ class AgentLink:
                            alone_s, self._connect_endpoints())
 
     def _connect_endpoints(self) -> str:
-        try:
-            endpoints = json.loads(self.conf.get_json("connect/endpoints"))
-        except (zenoh.ZError, ValueError):
-            endpoints = None
+        endpoints = config_value(self.conf, "connect/endpoints")
         return ", ".join(endpoints) if isinstance(endpoints, list) and endpoints else "none (scouting only)"
 
     # ---- incoming (Zenoh threads: never raise) -------------------------------------------------
@@ -379,41 +341,43 @@ class AgentLink:
             self._rejects[reason] += 1
         self._warn(reason, "agent %s: dropped message on %.120s: %s: %.200s", self.uav, key, reason, detail)
 
+    def _guarded(self, callback: Callable[[Any], None], what: str) -> Callable[[Any], None]:
+        """callback for a Zenoh thread: an exception is logged and counted as "internal_error"."""
+        return guarded(callback, log, f"{what} (agent {self.uav})", self._internal_error)
+
+    def _internal_error(self) -> None:
+        with self._lock:
+            self._rejects["internal_error"] += 1
+
+    def _on_reply_guarded(self, reply: zenoh.Reply) -> None:
+        self._guarded(self._on_reply, "a query reply")(reply)
+
     def _on_reply(self, reply: zenoh.Reply) -> None:
-        try:
-            sample = reply.ok
-            if sample is None:
-                self._reject("query_error", self.keys.joint_all(), reply.err)
-                return
-            self._on_sample(sample)
-        except Exception:  # never raise into Zenoh
-            log.exception("agent %s: internal error handling a query reply", self.uav)
+        sample = reply.ok
+        if sample is None:
+            self._reject("query_error", self.keys.joint_all(), reply.err)
+            return
+        self._on_sample(sample)
 
     def _on_sample(self, sample: zenoh.Sample) -> None:
-        key = "?"
+        key = str(sample.key_expr)
+        if sample.kind != zenoh.SampleKind.PUT:
+            self._reject("unexpected_delete", key, "DELETE sample")
+            return
         try:
-            key = str(sample.key_expr)
-            if sample.kind != zenoh.SampleKind.PUT:
-                self._reject("unexpected_delete", key, "DELETE sample")
-                return
-            try:
-                parsed = self.keys.parse(key)
-            except ValueError as exc:
-                self._reject("bad_key", key, exc)
-                return
-            if parsed.kind == "joint_tile":
-                self._on_joint_tile(key, parsed, sample.payload)
-            elif parsed.kind == "joint_tracks":
-                self._on_joint_tracks(key, sample.payload)
-            elif parsed.kind == "uav_state":
-                if parsed.uav != self.uav:
-                    self._on_state(key, parsed.uav, sample.payload)
-            else:
-                self._reject("unexpected_key", key, "not a joint key")
-        except Exception:  # a bug must not take the subscriber down: count it, log it
-            with self._lock:
-                self._rejects["internal_error"] += 1
-            log.exception("agent %s: internal error handling a sample on %.120s", self.uav, key)
+            parsed = self.keys.parse(key)
+        except ValueError as exc:
+            self._reject("bad_key", key, exc)
+            return
+        if parsed.kind == "joint_tile":
+            self._on_joint_tile(key, parsed, sample.payload)
+        elif parsed.kind == "joint_tracks":
+            self._on_joint_tracks(key, sample.payload)
+        elif parsed.kind == "uav_state":
+            if parsed.uav != self.uav:
+                self._on_state(key, parsed.uav, sample.payload)
+        else:
+            self._reject("unexpected_key", key, "not a joint key")
 
     def _on_joint_tile(self, key: str, parsed, payload: zenoh.ZBytes) -> None:
         if len(payload) > self.max_tile_bytes:
@@ -547,6 +511,6 @@ class AgentLink:
                 "counts": dict(self._counts),
                 "bytes": dict(self._bytes),
                 "rejected": dict(self._rejects),
-                "publishers": len(self._publishers),
+                "publishers": 0 if self._publishers is None else len(self._publishers),
                 "joint_tiles_held": len(self._joint_tiles),
             }

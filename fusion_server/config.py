@@ -1,7 +1,7 @@
 """Settings of the fusion server process, validated once at start-up, and its Zenoh configuration.
 
 `FusionSettings` holds every tunable of `uavmm fusion`. The Zenoh options (`ZenohOptions`,
-`zenoh_config`) live in `shared.zenoh_options` and are re-exported here.
+`zenoh_config`) live in `transport.options` and are re-exported here.
 """
 
 from __future__ import annotations
@@ -19,7 +19,7 @@ from fusion_server.joint_map import COVERAGE_MODES
 from fusion_server.rules import FUSION_RULES
 from shared.keys import DEFAULT_PREFIX, KeySpace
 from shared.tiles import TileGrid
-from shared.zenoh_options import ZENOH_MODES, ZenohOptions, zenoh_config  # re-exported (moved to shared/)
+from transport.options import ZENOH_MODES, ZenohOptions, zenoh_config  # re-exported
 
 __all__ = [
     "ZENOH_MODES",

@@ -389,12 +389,42 @@ def _track_kwargs(record: Mapping[Any, Any], path: str) -> dict[str, Any]:
     }
 
 
-def _check_unique_ids(ids: list[int], field: str) -> None:
+def _check_items(value: object, item_type: type, id_attr: str) -> tuple:
+    """The ``tracks`` of a tracks message: a list of at most MAX_TRACKS ``item_type`` with unique ``id_attr``.
+
+    The one validator of a message's item list (local and global tracks alike); MessageError
+    ("bad_type" | "too_many" | "duplicate_id") naming the item.
+    """
+    items = tuple(_check_list(value, "tracks", MAX_TRACKS))
     seen: set[int] = set()
-    for track_id in ids:
+    for i, item in enumerate(items):
+        if not isinstance(item, item_type):
+            raise MessageError("bad_type", f"tracks[{i}] must be a {item_type.__name__}", f"tracks[{i}]")
+        track_id = getattr(item, id_attr)
         if track_id in seen:
+            field = f"tracks {id_attr}"
             raise MessageError("duplicate_id", f"{field} {track_id} appears more than once", field)
         seen.add(track_id)
+    return items
+
+
+def _decode_tracks_message(payload: bytes, max_bytes: int, check_sender: Any, item: Any) -> tuple[str, float, list]:
+    """Decode the envelope of a tracks message (v, uav, t) and each ``tracks[i]`` with ``item(raw, path)``.
+
+    check_sender validates ``uav``; item builds one validated item from its map and its field path.
+    """
+    record = unpack_map(payload, max_bytes)
+    check_version(get_field(record, "v"))
+    uav = check_sender(get_field(record, "uav"), "uav")
+    t = check_float(get_field(record, "t"), "t")
+    items = []
+    for i, raw in enumerate(_check_list(get_field(record, "tracks"), "tracks", MAX_TRACKS)):
+        items.append(item(_check_map(raw, f"tracks[{i}]"), f"tracks[{i}]."))
+    return uav, t, items
+
+
+def _encode_tracks_message(msg: TracksMessage | JointTracksMessage) -> bytes:
+    return _pack({"v": VERSION, "uav": msg.uav, "t": float(msg.t), "tracks": [item.to_dict() for item in msg.tracks]})
 
 
 @dataclass(frozen=True, slots=True)
@@ -408,31 +438,21 @@ class TracksMessage:
     def __post_init__(self) -> None:
         check_uav(self.uav, "uav")
         _set(self, "t", check_float(self.t, "t"))
-        tracks = tuple(_check_list(self.tracks, "tracks", MAX_TRACKS))
-        for i, item in enumerate(tracks):
-            if not isinstance(item, TrackItem):
-                raise MessageError("bad_type", f"tracks[{i}] must be a TrackItem", f"tracks[{i}]")
-        _check_unique_ids([item.id for item in tracks], "tracks id")
-        object.__setattr__(self, "tracks", tracks)
+        _set(self, "tracks", _check_items(self.tracks, TrackItem, "id"))
 
 
 def encode_tracks(msg: TracksMessage) -> bytes:
     """msgpack bytes of a local tracks message."""
-    return _pack({"v": VERSION, "uav": msg.uav, "t": float(msg.t), "tracks": [item.to_dict() for item in msg.tracks]})
+    return _encode_tracks_message(msg)
 
 
 def decode_tracks(payload: bytes, *, max_bytes: int = DEFAULT_MAX_TRACKS_BYTES) -> TracksMessage:
     """Parse and validate a local tracks message; raise MessageError on anything malformed."""
-    record = unpack_map(payload, max_bytes)
-    check_version(get_field(record, "v"))
-    uav = check_uav(get_field(record, "uav"), "uav")
-    t = check_float(get_field(record, "t"), "t")
-    items = []
-    for i, raw in enumerate(_check_list(get_field(record, "tracks"), "tracks", MAX_TRACKS)):
-        path = f"tracks[{i}]."
-        raw = _check_map(raw, f"tracks[{i}]")
+    def item(raw: Mapping[Any, Any], path: str) -> TrackItem:
         track_id = check_int(get_field(raw, "id", path), f"{path}id", 0, MAX_TRACK_ID)
-        items.append(TrackItem(id=track_id, **_track_kwargs(raw, path)))
+        return TrackItem(id=track_id, **_track_kwargs(raw, path))
+
+    uav, t, items = _decode_tracks_message(payload, max_bytes, check_uav, item)
     return TracksMessage(uav=uav, t=t, tracks=tuple(items))
 
 
@@ -489,34 +509,22 @@ class JointTracksMessage:
         if self.uav != JOINT_UAV:
             raise MessageError("bad_name", f"uav must be {JOINT_UAV!r}, got {self.uav!r:.40}", "uav")
         _set(self, "t", check_float(self.t, "t"))
-        tracks = tuple(_check_list(self.tracks, "tracks", MAX_TRACKS))
-        for i, item in enumerate(tracks):
-            if not isinstance(item, JointTrackItem):
-                raise MessageError("bad_type", f"tracks[{i}] must be a JointTrackItem", f"tracks[{i}]")
-        _check_unique_ids([item.gid for item in tracks], "tracks gid")
-        object.__setattr__(self, "tracks", tracks)
+        _set(self, "tracks", _check_items(self.tracks, JointTrackItem, "gid"))
 
 
 def encode_joint_tracks(msg: JointTracksMessage) -> bytes:
     """msgpack bytes of a global tracks message."""
-    return _pack({"v": VERSION, "uav": msg.uav, "t": float(msg.t), "tracks": [item.to_dict() for item in msg.tracks]})
+    return _encode_tracks_message(msg)
 
 
 def decode_joint_tracks(payload: bytes, *, max_bytes: int = DEFAULT_MAX_TRACKS_BYTES) -> JointTracksMessage:
     """Parse and validate a global tracks message; raise MessageError on anything malformed."""
-    record = unpack_map(payload, max_bytes)
-    check_version(get_field(record, "v"))
-    uav = check_name(get_field(record, "uav"), "uav")
-    t = check_float(get_field(record, "t"), "t")
-    items = []
-    for i, raw in enumerate(_check_list(get_field(record, "tracks"), "tracks", MAX_TRACKS)):
-        path = f"tracks[{i}]."
-        raw = _check_map(raw, f"tracks[{i}]")
-        items.append(
-            JointTrackItem(
-                gid=check_int(get_field(raw, "gid", path), f"{path}gid", 0, MAX_TRACK_ID),
-                members=_check_members(get_field(raw, "members", path), f"{path}members"),
-                **_track_kwargs(raw, path),
-            )
+    def item(raw: Mapping[Any, Any], path: str) -> JointTrackItem:
+        return JointTrackItem(
+            gid=check_int(get_field(raw, "gid", path), f"{path}gid", 0, MAX_TRACK_ID),
+            members=_check_members(get_field(raw, "members", path), f"{path}members"),
+            **_track_kwargs(raw, path),
         )
+
+    uav, t, items = _decode_tracks_message(payload, max_bytes, check_name, item)
     return JointTracksMessage(uav=uav, t=t, tracks=tuple(items))

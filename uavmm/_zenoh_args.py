@@ -1,6 +1,6 @@
-"""The Zenoh flags every uavmm subcommand takes, and their parsed form (`shared.zenoh_options.ZenohOptions`).
+"""The Zenoh flags every uavmm subcommand takes, and their parsed form (`transport.options.ZenohOptions`).
 
-Argument parsing stays in the CLI package; the value object and the ``zenoh.Config`` it builds are in shared/.
+Argument parsing stays in the CLI package; the value object and the ``zenoh.Config`` it builds are in transport/.
 """
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import argparse
 from collections.abc import Sequence
 from pathlib import Path
 
-from shared.zenoh_options import ZENOH_MODES, ZenohOptions
+from transport.options import ZENOH_MODES, ZenohOptions
 
 __all__ = ["add_zenoh_arguments", "zenoh_options_from_args"]
 

@@ -12,7 +12,8 @@ from agent.memory_map import JointLayer
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink
 from shared.tilecodec import MAX_SEQ, TileMessage, encode_tile
-from tests.agent.test_node_zenoh import GRID, KEYS, FakeServer, free_port, wait_until
+from tests.agent.test_node_zenoh import GRID, KEYS, FakeServer
+from tests.netutil import free_port, wait_until
 
 X, Y = 137_000, 91_000
 

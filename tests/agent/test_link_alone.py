@@ -11,7 +11,8 @@ import pytest
 import agent.zenoh_io
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink
-from tests.agent.test_node_zenoh import GRID, KEYS, FakeServer, free_port, wait_until
+from tests.agent.test_node_zenoh import GRID, KEYS, FakeServer
+from tests.netutil import free_port, wait_until
 
 
 def _warnings(caplog, text: str) -> list[str]:

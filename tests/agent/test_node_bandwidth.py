@@ -18,7 +18,8 @@ from agent.node import AgentNode, AgentSettings
 from agent.zenoh_config import ZenohOptions
 from sim.scenarios import get_scenario
 from sim.source import SimSource
-from tests.agent.test_node_zenoh import FakeServer, free_port
+from tests.agent.test_node_zenoh import FakeServer
+from tests.netutil import free_port
 
 BUDGET_BYTES_PER_S = 100_000
 SECONDS = 8.0

@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import json
 import math
-import socket
 import threading
 import time
 from collections import defaultdict
@@ -39,6 +38,7 @@ from shared.messages import (
 from shared.tilecodec import TileMessage, decode_tile, encode_tile
 from shared.tiles import TileGrid
 from sim.source import SimSource
+from tests.netutil import free_port, wait_until
 
 KEYS = KeySpace()
 GRID = TileGrid()
@@ -52,24 +52,6 @@ T0 = 1.7e9
 
 
 # ---- helpers (also used by tests/e2e/test_agent_*.py) --------------------------------------------
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def wait_until(predicate: Callable[[], object], timeout_s: float = 10.0, interval_s: float = 0.05):
-    """Poll until predicate() is truthy (returned) or timeout_s passes (AssertionError)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"condition not met within {timeout_s} s")
-        time.sleep(interval_s)
-
-
 def router_config(port: int, *, shared_memory: bool = True) -> zenoh.Config:
     """The test's fusion-server side: a router session listening on loopback."""
     conf = zenoh.Config()

@@ -9,27 +9,19 @@ from __future__ import annotations
 import json
 import os
 import signal
-import socket
 import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
+
+from tests.netutil import free_port
 
 REPO = Path(__file__).resolve().parents[2]
 #: Environment of the processes: the repository first on the path (the checkout under test).
 ENV = {**os.environ, "PYTHONPATH": str(REPO)}
-
-
-def free_port() -> int:
-    """A TCP port that was free on 127.0.0.1 a moment ago (the OS picks it)."""
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 @pytest.fixture
@@ -38,24 +30,19 @@ def port() -> int:
     return free_port()
 
 
+@pytest.fixture
+def server(port: int):
+    """A plain Zenoh router session on `port` playing the fusion server (records what agents publish)."""
+    from tests.agent.test_node_zenoh import FakeServer
+
+    fake = FakeServer(port)
+    yield fake
+    fake.close()
+
+
 def uavmm(*args: str) -> list[str]:
     """The command line of `uavmm ARGS` with this interpreter (`python -m uavmm`)."""
     return [sys.executable, "-m", "uavmm", *args]
-
-
-def wait_for(predicate: Callable[[], Any], timeout_s: float, what: str = "the condition",
-             interval_s: float = 0.1) -> Any:
-    """Poll predicate until it returns something truthy (returned); AssertionError naming `what` and the
-    last value after timeout_s seconds."""
-    deadline = time.monotonic() + timeout_s
-    last = None
-    while True:
-        last = predicate()
-        if last:
-            return last
-        if time.monotonic() > deadline:
-            raise AssertionError(f"{what} not within {timeout_s} s (last: {last!r})")
-        time.sleep(interval_s)
 
 
 def start_until(cmd: list[str], ready: str, *, what: str, timeout_s: float = 60.0) -> tuple[subprocess.Popen, str]:

@@ -11,7 +11,8 @@ import time
 import httpx
 import pytest
 
-from tests.e2e.conftest import agent_cmd, finish, free_port, read_stderr, start_agent, start_fusion, stop, wait_for
+from tests.e2e.conftest import agent_cmd, finish, read_stderr, start_agent, start_fusion, stop
+from tests.netutil import free_port, wait_until
 
 pytestmark = pytest.mark.e2e
 
@@ -29,15 +30,15 @@ def test_two_agents_and_the_fusion_server(tmp_path):
             agents.append(start_agent(agent_cmd(zenoh_port, "--sim", "coop", "--uav-index", str(index),
                                                 "--frames", "900", "--loop", uav=f"uav{index + 1}")))
         with httpx.Client(base_url=url, timeout=10) as http:
-            both = wait_for(lambda: (u := uavs(http)) and all(
+            both = wait_until(lambda: (u := uavs(http)) and all(
                 u.get(f"uav{i}", {}).get("online") and u[f"uav{i}"].get("state") for i in (1, 2)) and u, 20.0,
                             "both UAVs online with their state")
             assert all(len(both[f"uav{i}"]["state"]["footprint"]) == 32 for i in (1, 2))
             # both UAVs look at the same scene: some joint tiles fuse the two of them
-            wait_for(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
+            wait_until(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
                                  for t in http.get("/v1/joint/tiles").json()), 20.0, "joint tiles of both UAVs")
             # the people both see become global tracks with members from both UAVs
-            wait_for(lambda: any({m[0] for m in f["properties"]["members"]} == {"uav1", "uav2"}
+            wait_until(lambda: any({m[0] for m in f["properties"]["members"]} == {"uav1", "uav2"}
                                  for f in http.get("/v1/tracks").json()["features"]), 30.0,
                      "global tracks with members from both UAVs")
 
@@ -46,12 +47,12 @@ def test_two_agents_and_the_fusion_server(tmp_path):
             assert stop(fusion) == 0
             time.sleep(1.0)
             fusion, url = start_fusion(zenoh_port, http_port, "--no-db")
-            wait_for(lambda: (u := uavs(http)) and all(
+            wait_until(lambda: (u := uavs(http)) and all(
                 u.get(f"uav{i}", {}).get("online") and u[f"uav{i}"].get("tiles", 0) > 0 for i in (1, 2)), 30.0,
                 "both UAVs online with tiles at the restarted server")
-            wait_for(lambda: http.get("/v1/joint/tiles").json(), 10.0, "joint tiles at the restarted server")
+            wait_until(lambda: http.get("/v1/joint/tiles").json(), 10.0, "joint tiles at the restarted server")
             # each agent noticed the new server and asked it for the joint map
-            wait_for(lambda: all(read_stderr(proc).count("querying the joint map") > before
+            wait_until(lambda: all(read_stderr(proc).count("querying the joint map") > before
                                  for proc, before in zip(agents, requeried, strict=True)), 10.0,
                      "each agent querying the new server's joint map")
         summaries = []

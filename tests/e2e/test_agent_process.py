@@ -14,22 +14,16 @@ import pytest
 from shared.messages import decode_state, decode_tracks
 from shared.tilecodec import decode_tile
 from sim.dataset import write_dataset
-from tests.agent.test_node_zenoh import KEYS, FakeServer
-from tests.e2e.conftest import ENV, REPO, agent_cmd, finish, start_agent, wait_for
+from tests.agent.test_node_zenoh import KEYS
+from tests.e2e.conftest import ENV, REPO, agent_cmd, finish, start_agent
+from tests.netutil import wait_until
 
 pytestmark = pytest.mark.e2e
 
 
-@pytest.fixture
-def server(port):
-    fake = FakeServer(port)
-    yield fake
-    fake.close()
-
-
 def test_agent_process_publishes_and_exits_at_the_end_of_its_source(server, port):
     proc = start_agent(agent_cmd(port, "--sim", "coop", "--uav-index", "1", "--frames", "90", "--speed", "2"))
-    wait_for(lambda: server.alive() == [KEYS.uav_alive("uav1")], 10.0, "the agent's liveliness token")
+    wait_until(lambda: server.alive() == [KEYS.uav_alive("uav1")], 10.0, "the agent's liveliness token")
     code, summary, err = finish(proc)
     assert code == 0, err[-2000:]
     assert summary["frames"] == 90 and summary["publish_cycles"] >= 5
@@ -38,18 +32,18 @@ def test_agent_process_publishes_and_exits_at_the_end_of_its_source(server, port
     assert all(len(decode_state(p).footprint) == 32 for _, p in server.latest("uav_state"))
     assert server.count("uav_tracks") == summary["link"]["counts"]["sent_tracks"]
     assert all(decode_tracks(p).uav == "uav1" for _, p in server.latest("uav_tracks"))
-    wait_for(lambda: server.alive() == [], 5.0, "the token gone")  # the token went with the process
+    wait_until(lambda: server.alive() == [], 5.0, "the token gone")  # the token went with the process
 
 
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
 def test_agent_process_stops_cleanly_on_a_signal(server, port, sig):
     proc = start_agent(agent_cmd(port, "--sim", "coop", "--frames", "60", "--loop"))
-    wait_for(lambda: server.count("uav_tile") > 0, 20.0, "tiles")
+    wait_until(lambda: server.count("uav_tile") > 0, 20.0, "tiles")
     proc.send_signal(sig)
     code, summary, err = finish(proc, 15.0)
     assert code == 0, err[-2000:]
     assert summary["frames"] > 0
-    wait_for(lambda: server.alive() == [], 5.0, "the token gone")
+    wait_until(lambda: server.alive() == [], 5.0, "the token gone")
 
 
 def test_agent_process_stops_after_its_duration(server, port):

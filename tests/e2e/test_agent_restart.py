@@ -15,9 +15,9 @@ from agent.node import AgentNode, AgentSettings
 from fusion_server.config import FusionSettings
 from fusion_server.global_tracks import ground_distance_m
 from fusion_server.server import FusionServer
-from shared.zenoh_options import ZenohOptions
 from tests.agent.test_node_zenoh import BOX_A, BOX_B, RunningAgent, ScriptedSource, box_ground
-from tests.e2e.conftest import free_port, wait_for
+from tests.netutil import free_port, wait_until
+from transport.options import ZenohOptions
 
 pytestmark = pytest.mark.e2e
 FRAMES = 45  # 1.5 s at 30 fps, played in real time
@@ -37,7 +37,7 @@ def run_agent_until_the_server_has_its_track(server: FusionServer, port: int, bo
     options = ZenohOptions(connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
     node = AgentNode(AgentSettings(uav_id="uav1", zenoh=options, open_timeout_s=20.0, speed=1.0), source)
     with RunningAgent(node) as agent:
-        ids = wait_for(lambda: active_uav1_ids_near(server, *box_ground(box)), 20.0, "uav1's track at the server")
+        ids = wait_until(lambda: active_uav1_ids_near(server, *box_ground(box)), 20.0, "uav1's track at the server")
         release.set()
         agent.join(20.0)
     return ids

@@ -13,7 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.e2e.conftest import ENV, REPO, uavmm, wait_for
+from tests.e2e.conftest import ENV, REPO, uavmm
+from tests.netutil import wait_until
 from uavmm.cmd_demo import DemoOptions, flying_uavs
 
 pytestmark = pytest.mark.e2e
@@ -42,7 +43,7 @@ def start_demo(out: Path, *args: str) -> subprocess.Popen:
 
 def wait_flying(proc: subprocess.Popen, out: Path) -> tuple[str, str]:
     """Wait for the demo's "UAVs flying" line; returns (map URL, Zenoh endpoint)."""
-    text = wait_for(lambda: (out.read_text() if "UAVs flying" in out.read_text() or proc.poll() is not None
+    text = wait_until(lambda: (out.read_text() if "UAVs flying" in out.read_text() or proc.poll() is not None
                              else None), 90.0, "the demo's agents")
     assert "UAVs flying" in text, text
     url = re.search(r"map: (http://\S+)", text).group(1)
@@ -65,7 +66,7 @@ def test_demo_flies_three_uavs_and_leaves_nothing_behind_after_its_duration(tmp_
         url, endpoint = wait_flying(proc, out)
         assert re.fullmatch(r"http://127\.0\.0\.1:\d+/", url)
         assert len(processes_with(endpoint)) == 4  # the fusion server and three agents
-        wait_for(lambda: uavs_online(url) == ["uav1", "uav2", "uav3"], 20.0, "three UAVs online")
+        wait_until(lambda: uavs_online(url) == ["uav1", "uav2", "uav3"], 20.0, "three UAVs online")
         code = proc.wait(timeout=60)
     finally:
         if proc.poll() is None:
@@ -91,16 +92,16 @@ def test_demo_killed_with_sigkill_leaves_no_orphans(tmp_path):
         proc.wait(timeout=10)
     # the reaper saw its pipe close: SIGTERM to every process group, SIGKILL after 3 s, then it removes
     # the demo's temporary folder
-    wait_for(lambda: processes_with(endpoint) == [], 20.0, "the children to be reaped")
+    wait_until(lambda: processes_with(endpoint) == [], 20.0, "the children to be reaped")
     workdir = Path(re.search(r"logs in (\S+);", out.read_text()).group(1))
-    wait_for(lambda: not workdir.exists(), 10.0, "the temporary folder to be removed")
+    wait_until(lambda: not workdir.exists(), 10.0, "the temporary folder to be removed")
 
 
 def test_demo_stops_cleanly_on_sigint_while_starting(tmp_path):
     out = tmp_path / "demo.out"
     proc = start_demo(out, "--status-every", "0")
     try:
-        wait_for(lambda: "map: http://" in out.read_text() or proc.poll() is not None, 60.0, "the fusion server")
+        wait_until(lambda: "map: http://" in out.read_text() or proc.poll() is not None, 60.0, "the fusion server")
         endpoint = re.search(r"zenoh (tcp/\S+),", out.read_text()).group(1)
         proc.send_signal(signal.SIGINT)
         code = proc.wait(timeout=40)

@@ -14,7 +14,8 @@ from pathlib import Path
 import pytest
 import zenoh
 
-from tests.e2e.conftest import ENV, REPO, free_port, uavmm
+from tests.e2e.conftest import ENV, REPO, uavmm
+from tests.netutil import free_port
 from tests.test_deploy import load
 
 pytestmark = pytest.mark.e2e

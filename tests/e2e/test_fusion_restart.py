@@ -9,8 +9,9 @@ import time
 import httpx
 import pytest
 
-from tests.e2e.conftest import free_port, start_fusion, stop, wait_for
+from tests.e2e.conftest import start_fusion, stop
 from tests.fusion_server.fake_agent import LAT, LON, TILE_X, TILE_Y, FakeAgent, blob
+from tests.netutil import free_port, wait_until
 
 pytestmark = pytest.mark.e2e
 
@@ -47,7 +48,7 @@ def test_restart_keeps_global_tracks_history_and_joint_map(tmp_path):
             # the UAV comes back with the same local id: same global id
             agent = FakeAgent("uav-a", f"tcp/127.0.0.1:{zenoh_port}")
             agent.tracks([(7, "person", LAT, LON)])
-            wait_for(lambda: http.get("/v1/tracks").json()["features"][0]["properties"]["status"] == "tracked", 5.0,
+            wait_until(lambda: http.get("/v1/tracks").json()["features"][0]["properties"]["status"] == "tracked", 5.0,
                      "the returning UAV's track tracked again")
             assert http.get("/v1/tracks").json()["features"][0]["properties"]["gid"] == props["gid"]
             agent.close()

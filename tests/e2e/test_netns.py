@@ -23,8 +23,8 @@ from pathlib import Path
 
 import pytest
 
-from tests.e2e import conftest as e2e
-from tests.e2e.conftest import ENV, REPO
+from tests import netutil
+from tests.e2e.conftest import ENV, REPO, uavmm
 
 pytestmark = pytest.mark.e2e
 LEASE = ["--cfg", "transport/link/tx/lease:2000"]  # a cut-off peer is noticed after ~2 s (PITFALLS.md)
@@ -42,9 +42,9 @@ def ip(*args: str, check: bool = True) -> subprocess.CompletedProcess:
     return subprocess.run(["ip", *args], capture_output=True, text=True, timeout=20, check=check)
 
 
-def wait_for(predicate, timeout_s: float, what: str):
-    """conftest's wait_for polling every 0.5 s: a poll may start a process in a namespace (Cluster.get)."""
-    return e2e.wait_for(predicate, timeout_s, what, interval_s=0.5)
+def wait_until(predicate, timeout_s: float, what: str):
+    """netutil.wait_until polling every 0.5 s: a poll may start a process in a namespace (Cluster.get)."""
+    return netutil.wait_until(predicate, timeout_s, what, interval_s=0.5)
 
 
 class Cluster:
@@ -81,7 +81,7 @@ class Cluster:
     # ---- processes -----------------------------------------------------------------------------
     def _spawn(self, name: str, ns: str, args: list[str]) -> subprocess.Popen:
         sink = open(self.tmp / f"{name}.log", "ab")  # closed with the process, in stop()
-        proc = subprocess.Popen(["ip", "netns", "exec", ns, *e2e.uavmm("--log-level", "INFO", *args)], cwd=REPO,
+        proc = subprocess.Popen(["ip", "netns", "exec", ns, *uavmm("--log-level", "INFO", *args)], cwd=REPO,
                                 env=ENV, stdout=sink, stderr=subprocess.STDOUT)
         proc.log_file = sink  # type: ignore[attr-defined]
         self.procs[name] = proc
@@ -95,7 +95,7 @@ class Cluster:
         proc = self._spawn("fusion", self.fusion_ns, [
             "fusion", "--listen", f"tcp/0.0.0.0:{ZENOH_PORT}", "--http", f"127.0.0.1:{HTTP_PORT}",
             "--db", str(self.db), "--no-multicast-scouting", *LEASE])
-        wait_for(lambda: self.log("fusion").count("map: http://") > before or proc.poll() is not None, 60.0,
+        wait_until(lambda: self.log("fusion").count("map: http://") > before or proc.poll() is not None, 60.0,
                  "the fusion server")
         assert proc.poll() is None, self.log("fusion")[-3000:]
 
@@ -106,7 +106,7 @@ class Cluster:
                                   "--no-multicast-scouting", *LEASE, "--sim", "trio", "--uav-index", str(index),
                                   "--loop"])
         for uav in self.agent_ns:
-            wait_for(lambda uav=uav: " up: " in self.log(uav) or self.procs[uav].poll() is not None, 60.0,
+            wait_until(lambda uav=uav: " up: " in self.log(uav) or self.procs[uav].poll() is not None, 60.0,
                      f"agent {uav}")
             assert self.procs[uav].poll() is None, self.log(uav)[-3000:]
 
@@ -166,18 +166,18 @@ def tile_messages(cluster: Cluster, uav: str) -> int:
 
 
 def test_cut_link_goes_offline_after_the_lease_and_comes_back_with_its_tiles(cluster):
-    wait_for(lambda: all(u["online"] and u["messages"].get("tile", 0) > 0 for u in cluster.uavs().values())
+    wait_until(lambda: all(u["online"] and u["messages"].get("tile", 0) > 0 for u in cluster.uavs().values())
              and len(cluster.uavs()) == 2, 60.0, "both agents online and publishing tiles")
     cluster.set_link("uav2", up=False)
     try:
         cut = time.monotonic()
-        wait_for(lambda: cluster.uavs()["uav2"]["online"] is False, 15.0, "uav2 offline after its link was cut")
+        wait_until(lambda: cluster.uavs()["uav2"]["online"] is False, 15.0, "uav2 offline after its link was cut")
         noticed_s = time.monotonic() - cut
         print(f"uav2 offline {noticed_s:.1f} s after its link was cut")
         assert noticed_s < 10.0  # the 2 s lease, not Zenoh's default 10 s
         # the other agent is not affected: online and still sending tiles
         uav1 = tile_messages(cluster, "uav1")
-        wait_for(lambda: tile_messages(cluster, "uav1") > uav1, 10.0, "uav1's tiles while uav2 is cut off")
+        wait_until(lambda: tile_messages(cluster, "uav1") > uav1, 10.0, "uav1's tiles while uav2 is cut off")
         assert cluster.uavs()["uav1"]["online"] is True
         # nothing from uav2 while the link is down
         stalled = tile_messages(cluster, "uav2")
@@ -186,11 +186,11 @@ def test_cut_link_goes_offline_after_the_lease_and_comes_back_with_its_tiles(clu
     finally:
         cluster.set_link("uav2", up=True)
     restored = time.monotonic()
-    wait_for(lambda: cluster.uavs()["uav2"]["online"] is True, 30.0, "uav2 back online after the link came back")
+    wait_until(lambda: cluster.uavs()["uav2"]["online"] is True, 30.0, "uav2 back online after the link came back")
     print(f"uav2 online again {time.monotonic() - restored:.1f} s after its link came back")
     back = tile_messages(cluster, "uav2")
-    wait_for(lambda: tile_messages(cluster, "uav2") > back + 10, 15.0, "uav2's tiles flowing again")
-    wait_for(lambda: any("uav2" in t["uavs"] for t in cluster.get("/v1/joint/tiles?cls=person") or []), 15.0,
+    wait_until(lambda: tile_messages(cluster, "uav2") > back + 10, 15.0, "uav2's tiles flowing again")
+    wait_until(lambda: any("uav2" in t["uavs"] for t in cluster.get("/v1/joint/tiles?cls=person") or []), 15.0,
              "uav2 in the joint map again")
     assert cluster.procs["uav2"].poll() is None  # the agent rode it out without restarting
 
@@ -200,9 +200,9 @@ def test_fusion_restart_agents_reconnect_and_map_and_tracks_come_back(cluster):
         tracks = (cluster.get("/v1/tracks") or {}).get("features", [])
         return tracks if any(f["properties"]["status"] == "tracked" for f in tracks) else None
 
-    wait_for(lambda: len([u for u in cluster.uavs().values() if u["online"]]) == 2, 30.0, "both agents online")
-    wait_for(tracked, 30.0, "global tracks")
-    wait_for(lambda: any(t["max"] > 0 for t in cluster.get("/v1/joint/tiles?cls=person") or []), 30.0,
+    wait_until(lambda: len([u for u in cluster.uavs().values() if u["online"]]) == 2, 30.0, "both agents online")
+    wait_until(tracked, 30.0, "global tracks")
+    wait_until(lambda: any(t["max"] > 0 for t in cluster.get("/v1/joint/tiles?cls=person") or []), 30.0,
              "a non-empty joint map")
     before = {f["properties"]["gid"]: f["properties"] for f in cluster.get("/v1/tracks")["features"]}
     time.sleep(1.5)  # > the server's 0.5 s flush interval: everything in `before` is on disk
@@ -219,12 +219,12 @@ def test_fusion_restart_agents_reconnect_and_map_and_tracks_come_back(cluster):
         assert history[: len(props["history"])] == props["history"], f"history of global track {gid} changed"
 
     # the agents reconnect by themselves; joint map and tracks are live again
-    wait_for(lambda: sorted(u for u, s in cluster.uavs().items() if s["online"]) == ["uav1", "uav2"], 30.0,
+    wait_until(lambda: sorted(u for u, s in cluster.uavs().items() if s["online"]) == ["uav1", "uav2"], 30.0,
              "both agents reconnected")
     print(f"both agents online {time.monotonic() - restarted:.1f} s after the fusion server came back")
-    wait_for(lambda: {u for t in cluster.get("/v1/joint/tiles?cls=person") or [] for u in t["uavs"]}
+    wait_until(lambda: {u for t in cluster.get("/v1/joint/tiles?cls=person") or [] for u in t["uavs"]}
              >= {"uav1", "uav2"}, 20.0, "both agents in the joint map")
-    live = wait_for(tracked, 20.0, "tracked global tracks after the restart")
+    live = wait_until(tracked, 20.0, "tracked global tracks after the restart")
     gids_now = {f["properties"]["gid"] for f in live if f["properties"]["status"] == "tracked"}
     assert gids_now & set(before), "no global id survived the restart (the agents' tracks were re-numbered)"
     next_gid = max(before) + 1

@@ -29,7 +29,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.e2e.conftest import ENV, REPO, free_port, uavmm, wait_for
+from tests.e2e.conftest import ENV, REPO, uavmm
+from tests.netutil import free_port, wait_until
 
 pytestmark = pytest.mark.e2e
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
@@ -135,7 +136,7 @@ def start_demo(tmp: Path) -> tuple[subprocess.Popen, str]:
         text = log_path.read_text()
         return text if "UAVs flying" in text or proc.poll() is not None else None
 
-    text = wait_for(started, 90.0, "demo start")
+    text = wait_until(started, 90.0, "demo start")
     assert "UAVs flying" in text, text
     return proc, re.search(r"map: (http://\S+)", text).group(1)
 
@@ -147,8 +148,9 @@ def start_chromium(url: str, tmp: Path) -> tuple[subprocess.Popen, str]:
         proc = subprocess.Popen([chromium_path(), *CHROMIUM_FLAGS, f"--user-data-dir={tmp / 'profile'}",
                                  "--remote-debugging-port=0", url],
                                 stdout=subprocess.DEVNULL, stderr=err, start_new_session=True)
-    match = wait_for(lambda: re.search(r"DevTools listening on ws://([^/]+)/", stderr_path.read_text(errors="replace")),
-                     30.0, "chromium's DevTools endpoint")
+    match = wait_until(lambda: re.search(r"DevTools listening on ws://([^/]+)/",
+                                         stderr_path.read_text(errors="replace")),
+                       30.0, "chromium's DevTools endpoint")
     host = match.group(1)
 
     def page_target():
@@ -156,7 +158,7 @@ def start_chromium(url: str, tmp: Path) -> tuple[subprocess.Popen, str]:
             pages = [t for t in json.loads(response.read()) if t.get("type") == "page"]
         return pages[0]["webSocketDebuggerUrl"] if pages else None
 
-    return proc, wait_for(page_target, 15.0, "chromium page target")
+    return proc, wait_until(page_target, 15.0, "chromium page target")
 
 
 def test_page_and_its_assets_are_served_and_fetch_nothing_from_elsewhere():
@@ -214,7 +216,7 @@ def test_page_shows_three_uavs_heatmap_and_tracks(tmp_path):
             ok = s["status"] == "ok" and s["uavsOnline"] == "3" and int(s["heatTiles"]) > 0 and int(s["tracks"]) > 0
             return s if ok else None
 
-        summary = wait_for(ready, 30.0, "three UAVs, heatmap tiles and tracks on the page")
+        summary = wait_until(ready, 30.0, "three UAVs, heatmap tiles and tracks on the page")
         assert summary["cls"] == "person" and int(summary["objects"]) >= 0
         uav_items = devtools.evaluate(
             "[...document.querySelectorAll('#uav-list li')].map(li => [li.dataset.uav, li.dataset.online])")
@@ -226,7 +228,7 @@ def test_page_shows_three_uavs_heatmap_and_tracks(tmp_path):
 
         # cursor readout: the lat/lon under the mouse, in the demo's scene (trio: 48.5335 N, 9.0555 E)
         devtools.mouse("mouseMoved", 500, 400)
-        readout = wait_for(lambda: devtools.evaluate(
+        readout = wait_until(lambda: devtools.evaluate(
             "(e => e.dataset.source === 'cursor' && [e.textContent, +e.dataset.lat, +e.dataset.lon])"
             "(document.getElementById('cursor'))"), 5.0, "cursor readout")
         text, lat, lon = readout
@@ -240,12 +242,12 @@ def test_page_shows_three_uavs_heatmap_and_tracks(tmp_path):
         zoom0 = zoom()
         metres0 = float(devtools.evaluate("document.getElementById('scale').dataset.metres"))
         devtools.mouse("mouseWheel", 500, 400, deltaX=0, deltaY=-100)
-        wait_for(lambda: abs(zoom() - zoom0) > 0.1, 5.0, "wheel zoom")
+        wait_until(lambda: abs(zoom() - zoom0) > 0.1, 5.0, "wheel zoom")
         zoom1 = zoom()
         assert zoom1 == pytest.approx(zoom0 + 0.5, abs=0.02)
         devtools.mouse("mouseWheel", 500, 400, deltaX=0, deltaY=-100)
         devtools.mouse("mouseWheel", 500, 400, deltaX=0, deltaY=-100)
-        wait_for(lambda: float(devtools.evaluate("document.getElementById('scale').dataset.metres")) < metres0,
+        wait_until(lambda: float(devtools.evaluate("document.getElementById('scale').dataset.metres")) < metres0,
                  5.0, "a shorter scale bar after zooming in")
         # the point under the cursor stays put while zooming
         devtools.mouse("mouseMoved", 500, 400)
@@ -262,7 +264,7 @@ def test_page_shows_three_uavs_heatmap_and_tracks(tmp_path):
         def cursor_latlon() -> list[float]:
             return devtools.evaluate("(e => [+e.dataset.lat, +e.dataset.lon])(document.getElementById('cursor'))")
 
-        wait_for(lambda: cursor_latlon()[1] < lon - 1e-6, 5.0, "pan by dragging")
+        wait_until(lambda: cursor_latlon()[1] < lon - 1e-6, 5.0, "pan by dragging")
         lat3, lon3 = cursor_latlon()
         assert lat3 == pytest.approx(lat, abs=2e-6)
 
@@ -316,14 +318,14 @@ def test_page_with_a_rest_token_shows_the_map_and_without_it_says_why(tmp_path, 
                 return s if s and s["status"] == wanted else None
 
             if with_token:
-                summary = wait_for(lambda: (s := status("ok")) and int(s["heatTiles"]) > 0 and s, 30.0,
+                summary = wait_until(lambda: (s := status("ok")) and int(s["heatTiles"]) > 0 and s, 30.0,
                                    "data and heatmap tiles with the token")
                 assert summary["uavsOnline"] == "1"
                 assert devtools.evaluate("window.location.hash") == ""  # out of the address bar
                 devtools.call("Page.reload")
-                wait_for(lambda: status("ok"), 30.0, "data after a reload (token kept for the tab)")
+                wait_until(lambda: status("ok"), 30.0, "data after a reload (token kept for the tab)")
             else:
-                wait_for(lambda: status("error"), 30.0, "an error status without the token")
+                wait_until(lambda: status("error"), 30.0, "an error status without the token")
                 assert "needs a token" in devtools.evaluate("document.getElementById('status').textContent")
         finally:
             devtools.close()
@@ -349,7 +351,7 @@ def server_factory_secured():
     try:
         agent.state()
         agent.tile(blob(128, 128, value=0.9, sigma=8.0))
-        wait_for(lambda: server.joint.tiles(), 10.0, "the fake UAV's tile in the joint map")
+        wait_until(lambda: server.joint.tiles(), 10.0, "the fake UAV's tile in the joint map")
         yield server.url, token
     finally:
         agent.close()
@@ -369,7 +371,7 @@ def test_api_docs_render_offline_in_chromium(tmp_path, server_factory_secured):
         browser, ws_url = start_chromium(url + path, tmp)
         devtools = DevTools(ws_url)
         try:
-            operations = wait_for(lambda js=count_js, d=devtools: d.evaluate(js), 30.0, f"operations on /{path}")
+            operations = wait_until(lambda js=count_js, d=devtools: d.evaluate(js), 30.0, f"operations on /{path}")
             assert operations >= 8  # healthz, uavs, map, tiles, tilejson, objects, tracks, joint tiles, metrics
         finally:
             devtools.close()
@@ -386,8 +388,9 @@ def test_page_draws_an_offline_basemap_a_marker_legend_and_declutters_labels(tmp
         pytest.skip(reason)
     from fusion_server.config import FusionSettings, ZenohOptions
     from fusion_server.server import FusionServer
-    from tests.fusion_server.fake_agent import LAT, LON, FakeAgent, blob, free_port, wait_until
+    from tests.fusion_server.fake_agent import LAT, LON, FakeAgent, blob
     from tests.fusion_server.test_basemap import ROW_COLOURS, make_mbtiles
+    from tests.netutil import free_port, wait_until
 
     mbtiles = make_mbtiles(tmp_path / "ortho.mbtiles")
     port = free_port()
@@ -411,7 +414,7 @@ def test_page_draws_an_offline_basemap_a_marker_legend_and_declutters_labels(tmp
             s = json.loads(found) if found else None
             return s if s and s["status"] == "ok" and int(s["basemapTiles"]) > 0 and s["tracks"] == "12" else None
 
-        summary = wait_for(ready, 30.0, "basemap tiles and twelve tracks on the page")
+        summary = wait_until(ready, 30.0, "basemap tiles and twelve tracks on the page")
         assert int(summary["hiddenLabels"]) >= 8  # twelve labels on one spot: most are left out
         assert devtools.evaluate("document.getElementById('attribution').textContent") == "test orthophoto"
         assert devtools.evaluate("document.getElementById('markers').offsetHeight") > 50
@@ -420,13 +423,13 @@ def test_page_draws_an_offline_basemap_a_marker_legend_and_declutters_labels(tmp
         x, y = devtools.evaluate(f"window.uavmmMap.toScreen({LAT}, {LON})")
         for kind in ("mousePressed", "mouseReleased"):
             devtools.mouse(kind, rect[0] + x, rect[1] + y, button="left", clickCount=1)
-        details = wait_for(lambda: devtools.evaluate(
+        details = wait_until(lambda: devtools.evaluate(
             "(e => !e.hidden && [e.dataset.kind, e.textContent])(document.getElementById('details'))"), 5.0,
             "the details panel")
         assert details[0] in ("uav", "track") and "status" in details[1] and "position" in details[1]
         for kind in ("mousePressed", "mouseReleased"):
             devtools.mouse(kind, rect[0] + 30, rect[1] + 400, button="left", clickCount=1)
-        wait_for(lambda: devtools.evaluate("document.getElementById('details').hidden"), 5.0, "the panel closed")
+        wait_until(lambda: devtools.evaluate("document.getElementById('details').hidden"), 5.0, "the panel closed")
         shot = devtools.call("Page.captureScreenshot", format="png")
         image = cv2.imdecode(np.frombuffer(base64.b64decode(shot["data"]), np.uint8), cv2.IMREAD_COLOR)
         (tmp_path / "basemap.png").write_bytes(base64.b64decode(shot["data"]))

@@ -8,7 +8,8 @@ import json
 import pytest
 
 from tests.agent.test_node_zenoh import KEYS, FakeServer
-from tests.e2e.conftest import agent_cmd, finish, free_port, start_agent, wait_for
+from tests.e2e.conftest import agent_cmd, finish, start_agent
+from tests.netutil import free_port, wait_until
 from uavmm.cli import main
 
 pytestmark = pytest.mark.e2e
@@ -44,7 +45,7 @@ def test_agent_plays_a_rendered_video_with_its_telemetry(rendered, server, tmp_p
                                  "--model", str(_write_model(tmp_path / "model.onnx")),
                                  "--camera", str(rendered / "camera.json"), "--speed", "0",
                                  "--no-size-filter"))  # the model's one box is far too big for a person
-    wait_for(lambda: fake.alive() == [KEYS.uav_alive("uav1")] or proc.poll() is not None, 20.0, "the agent's token")
+    wait_until(lambda: fake.alive() == [KEYS.uav_alive("uav1")] or proc.poll() is not None, 20.0, "the agent's token")
     code, summary, err = finish(proc, 60.0)
     assert code == 0, err[-2000:]
     assert summary["frames"] == FRAMES

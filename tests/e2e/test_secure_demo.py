@@ -11,7 +11,8 @@ import subprocess
 import httpx
 import pytest
 
-from tests.e2e.conftest import ENV, REPO, finish, free_port, start_agent, stop, uavmm, wait_for
+from tests.e2e.conftest import ENV, REPO, finish, start_agent, stop, uavmm
+from tests.netutil import free_port, wait_until
 
 pytestmark = pytest.mark.e2e
 
@@ -54,9 +55,9 @@ def test_secure_fleet_end_to_end(tmp_path):
             assert anonymous.get("/v1/uavs").status_code == 401
             assert anonymous.get("/healthz").status_code == 200
         with httpx.Client(base_url=base, timeout=10, headers={"Authorization": f"Bearer {token}"}) as http:
-            wait_for(lambda: {u["id"] for u in http.get("/v1/uavs").json() if u["online"] and u["state"]}
+            wait_until(lambda: {u["id"] for u in http.get("/v1/uavs").json() if u["online"] and u["state"]}
                      == {"uav1", "uav2"}, 30.0, "both UAVs online with their state")
-            wait_for(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
+            wait_until(lambda: any(set(t["uavs"]) == {"uav1", "uav2"} and t["max"] > 0
                                  for t in http.get("/v1/joint/tiles").json()), 30.0, "joint tiles of both UAVs")
             assert all(not u["rejected"] for u in http.get("/v1/uavs").json())
         for proc in agents:

@@ -11,7 +11,8 @@ import pytest
 
 from fusion_server.config import FusionSettings, ZenohOptions
 from fusion_server.server import FusionServer
-from tests.fusion_server.fake_agent import FakeAgent, free_port
+from tests.fusion_server.fake_agent import FakeAgent
+from tests.netutil import free_port
 
 
 @pytest.fixture

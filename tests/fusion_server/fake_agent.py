@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import json
-import socket
 import time
-from collections.abc import Callable
 
 import numpy as np
 import zenoh
@@ -22,12 +20,6 @@ LAT, LON = 47.67, 9.27
 TILE_X, TILE_Y = (int(v) for v in GRID.tile_of(LAT, LON))
 
 
-def free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
 def client_config(endpoint: str, *, mode: str = "peer", user: str | None = None,
                   password: str | None = None, extra: dict | None = None) -> zenoh.Config:
     conf = zenoh.Config()
@@ -41,18 +33,6 @@ def client_config(endpoint: str, *, mode: str = "peer", user: str | None = None,
     for key, value in (extra or {}).items():
         conf.insert_json5(key, json.dumps(value))
     return conf
-
-
-def wait_until(predicate: Callable[[], object], timeout_s: float = 5.0, interval_s: float = 0.02):
-    """Poll predicate until it returns a truthy value (returned) or timeout_s passes (AssertionError)."""
-    deadline = time.monotonic() + timeout_s
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"condition not met within {timeout_s} s")
-        time.sleep(interval_s)
 
 
 class FakeAgent:

@@ -6,7 +6,8 @@ import cv2
 import numpy as np
 import pytest
 
-from tests.fusion_server.fake_agent import GRID, LAT, LON, TILE_X, TILE_Y, blob, wait_until
+from tests.fusion_server.fake_agent import GRID, LAT, LON, TILE_X, TILE_Y, blob
+from tests.netutil import wait_until
 
 KEY = ("person", GRID.z, TILE_X, TILE_Y)
 

@@ -15,7 +15,8 @@ from hypothesis import strategies as st
 
 from fusion_server.config import FusionSettings
 from fusion_server.cot import CotSender, CotTarget, parse_cot_url, track_event, uav_event
-from tests.fusion_server.fake_agent import LAT, LON, wait_until
+from tests.fusion_server.fake_agent import LAT, LON
+from tests.netutil import wait_until
 
 NOW = 1_790_000_000.0
 

@@ -16,7 +16,8 @@ from pathlib import Path
 import httpx
 import pytest
 
-from tests.fusion_server.fake_agent import LAT, LON, TILE_X, TILE_Y, FakeAgent, blob, free_port, wait_until
+from tests.fusion_server.fake_agent import LAT, LON, TILE_X, TILE_Y, FakeAgent, blob
+from tests.netutil import free_port, wait_until
 
 REPO = Path(__file__).resolve().parents[2]
 TILE = ("person", 18, TILE_X, TILE_Y)

@@ -15,7 +15,8 @@ from hypothesis import strategies as st
 
 from fusion_server.gpkg import Layer, geometry_blob, write_geopackage
 from fusion_server.history_export import read_history
-from tests.fusion_server.fake_agent import LAT, LON, wait_until
+from tests.fusion_server.fake_agent import LAT, LON
+from tests.netutil import wait_until
 from uavmm.cli import main
 
 KML = "{http://www.opengis.net/kml/2.2}"

@@ -13,7 +13,8 @@ import pytest
 
 from shared.messages import CameraInfo, StateMessage, encode_state
 from shared.tilecodec import MAX_SEQ, TileMessage, encode_tile
-from tests.fusion_server.fake_agent import GRID, KEYS, LAT, LON, TILE_X, TILE_Y, blob, wait_until
+from tests.fusion_server.fake_agent import GRID, KEYS, LAT, LON, TILE_X, TILE_Y, blob
+from tests.netutil import wait_until
 
 TILE = ("person", GRID.z, TILE_X, TILE_Y)
 

@@ -13,7 +13,8 @@ from hypothesis import strategies as st
 
 from fusion_server.config import FusionSettings
 from fusion_server.http_auth import HttpToken, is_loopback_host, read_token_file
-from tests.fusion_server.fake_agent import TILE_X, TILE_Y, blob, wait_until
+from tests.fusion_server.fake_agent import TILE_X, TILE_Y, blob
+from tests.netutil import wait_until
 
 TOKEN = "s3cret-token-for-the-tests-0123456789"
 OTHER = "another-operator-token-abcdefghij"

@@ -12,7 +12,8 @@ import pytest
 import zenoh
 
 from fusion_server.provision import FleetPlan, provision
-from tests.fusion_server.fake_agent import GRID, KEYS, TILE_X, TILE_Y, FakeAgent, blob, client_config, wait_until
+from tests.fusion_server.fake_agent import GRID, KEYS, TILE_X, TILE_Y, FakeAgent, blob, client_config
+from tests.netutil import wait_until
 
 AUTH = ["mtls", "usrpwd"]
 TILE = ("person", GRID.z, TILE_X, TILE_Y)

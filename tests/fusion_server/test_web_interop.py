@@ -12,7 +12,8 @@ import pytest
 
 from fusion_server.config import FusionSettings
 from fusion_server.http_auth import HttpToken
-from tests.fusion_server.fake_agent import GRID, LAT, LON, TILE_X, TILE_Y, blob, wait_until
+from tests.fusion_server.fake_agent import GRID, LAT, LON, TILE_X, TILE_Y, blob
+from tests.netutil import wait_until
 
 ORIGIN = "https://maps.example.org"
 TILE = f"/v1/tiles/person/18/{TILE_X}/{TILE_Y}.png"

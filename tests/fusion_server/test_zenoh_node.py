@@ -25,8 +25,8 @@ from tests.fusion_server.fake_agent import (
     FakeAgent,
     blob,
     client_config,
-    wait_until,
 )
+from tests.netutil import wait_until
 
 
 class Collector:

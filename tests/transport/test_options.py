@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from shared.zenoh_options import ZENOH_MODES, ZenohOptions, zenoh_config
+from transport.options import ZENOH_MODES, ZenohOptions, zenoh_config
 
 REPO = Path(__file__).resolve().parents[2]
 
