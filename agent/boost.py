@@ -15,6 +15,7 @@ from typing import Any
 from agent.dataset import Candidates, Dataset, iter_video_frames, read_json
 from agent.frame_result import FrameResult
 from agent.memory_map import MemoryMapConfig
+from agent.params_file import is_params, split_params
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
@@ -55,13 +56,34 @@ def config_from_dict(d: dict[str, Any], base: PipelineConfig | None = None) -> P
 
 
 def load_config(path: str | Path | None, overrides: dict[str, Any] | None = None) -> PipelineConfig:
-    """Config file (JSON) then command-line overrides (None values ignored)."""
+    """Config file (JSON) then command-line overrides (None values ignored).
+
+    The file is a pipeline config or a parameters file of `uavmm tune` (its ``pipeline`` part; the size
+    filter it carries comes from `load_params`).
+    """
+    return load_params(path, overrides)[0]
+
+
+def load_params(path: str | Path | None,
+                overrides: dict[str, Any] | None = None) -> tuple[PipelineConfig, SizeFilter | None]:
+    """(config, the fitted size filter a `uavmm tune` parameters file carries, else None).
+
+    The file (a pipeline config or a parameters file, agent.params_file) then the command-line
+    overrides (None values ignored). ValueError naming the file and the setting on bad content.
+    """
     cfg = PipelineConfig()
+    size_filter = None
     if path is not None:
-        cfg = config_from_dict(read_json(path, "config"), cfg)
+        data = read_json(path, "config")
+        if is_params(data):
+            data, size_filter = split_params(data, str(path))
+        try:
+            cfg = config_from_dict(data, cfg)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"config {path}: {exc}") from None
     if overrides:
         cfg = config_from_dict({k: v for k, v in overrides.items() if v is not None}, cfg)
-    return cfg
+    return cfg, size_filter
 
 
 def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, config: PipelineConfig,

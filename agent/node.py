@@ -21,6 +21,7 @@ from typing import Any
 
 import numpy as np
 
+from agent.boost import results_to_coco, write_results
 from agent.frame_result import FrameResult
 from agent.global_ids import GlobalIdAdopter
 from agent.memory_map import JointLayer
@@ -109,6 +110,9 @@ class AgentSettings:
         The shared tile grid (must match the fusion server's).
     tracks_out : Path or None
         Write the reported tracks (with adopted global ids) as GeoJSON here at the end.
+    detections_out : Path or None
+        Write the final detections of every frame (boosted, NMS'd, with the joint map's) as a COCO result
+        list here at the end: image ids of a dataset source, frame indices otherwise.
     open_timeout_s : float or None
         Give up when the Zenoh session cannot be opened within this time (None: keep trying).
     """
@@ -131,6 +135,7 @@ class AgentSettings:
     grid_z: int = 18
     grid_n: int = 256
     tracks_out: Path | None = None
+    detections_out: Path | None = None
     open_timeout_s: float | None = None
 
     def __post_init__(self) -> None:
@@ -267,6 +272,7 @@ class AgentNode:
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,
                                        "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0}
         self._rows: list[tuple[int, float, TrackOutput]] = []
+        self._detections: list[dict[str, Any]] = []  # COCO results for settings.detections_out
         self._last_pose: tuple[float, Pose, Camera] | None = None
         self._t_frame: float | None = None
         self._tracks: list[TrackOutput] = []
@@ -326,6 +332,9 @@ class AgentNode:
         if s.tracks_out is not None:
             n = self.write_tracks(s.tracks_out)
             log.info("wrote %d tracks to %s", n, s.tracks_out)
+        if s.detections_out is not None:
+            write_results(self._detections, s.detections_out)
+            log.info("wrote %d detections to %s", len(self._detections), s.detections_out)
         return self.summary()
 
     def _loop(self, stop: threading.Event) -> None:
@@ -388,6 +397,8 @@ class AgentNode:
         self.counts["detections"] += len(result)
         if result.from_joint is not None:  # detections the other UAVs' evidence added or promoted
             self.counts["joint_detections"] += int(result.from_joint.sum())
+        if self.settings.detections_out is not None:
+            self._detections.extend(results_to_coco(frame.index if frame.image_id is None else frame.image_id, result))
         if self.settings.tracks_out is not None:
             self._rows.extend((frame.index, frame.t, tr) for tr in tracks if tr.confirmed and tr.matched)
         if self.on_frame is not None:

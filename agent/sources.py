@@ -68,6 +68,9 @@ class SourceFrame:
     image : (H, W, 3) uint8 or None
         The frame's pixels (BGR) when the source has them (video; datasets whose image files exist): the
         agent describes the kept boxes' appearance from them (`agent.tracking.appearance.with_image_descriptors`).
+    image_id : int or None
+        The frame's COCO image id when it comes from a dataset (``images.json``), else None: the
+        agent's ``--detections-out`` names frames by it (by ``index`` otherwise).
     """
 
     index: int
@@ -80,6 +83,7 @@ class SourceFrame:
     camera: Camera
     embeddings: NDArray[np.float32] | None = None
     image: NDArray[np.uint8] | None = None
+    image_id: int | None = None
 
 
 class FrameSource(Protocol):
@@ -192,7 +196,8 @@ class DatasetSource:
                                  self.name, frame.image.file_name or "(no file_name)", self.image_dir)
                     self.images_missing += 1
             yield SourceFrame(index, t, frame.pose, frame.pose_t if frame.pose is not None else None,
-                              boxes, scores, cids, frame.camera, self.candidates.get_embeddings(frame.image.id), image)
+                              boxes, scores, cids, frame.camera, self.candidates.get_embeddings(frame.image.id), image,
+                              image_id=frame.image.id)
 
     def close(self) -> None:
         """Nothing to release."""

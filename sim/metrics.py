@@ -6,91 +6,20 @@ result lists ``[{image_id, category_id, bbox: [x, y, w, h], score}]`` (list or p
 
 from __future__ import annotations
 
-import contextlib
-import io
-import json
 import logging
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import cv2
 import numpy as np
 
+from agent.coco_metrics import coco_detection_metrics, load_images, load_results
+
 logger = logging.getLogger(__name__)
 
-
-def _load_json(obj: Any, what: str) -> Any:
-    if isinstance(obj, (str, Path)):
-        path = Path(obj)
-        try:
-            return json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"{what} file {path} does not exist") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{what} file {path} is not valid JSON: {exc}") from None
-    return obj
-
-
-def _load_images(images_json: str | Path | dict[str, Any]) -> dict[str, Any]:
-    gt = _load_json(images_json, "images")
-    if not isinstance(gt, dict) or "images" not in gt or "annotations" not in gt:
-        raise ValueError("images JSON must be a COCO dict with 'images' and 'annotations'")
-    return gt
-
-
-def _load_results(results: str | Path | Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
-    res = _load_json(results, "results")
-    if not isinstance(res, list):
-        raise ValueError(f"results must be a list of COCO result dicts, got {type(res).__name__}")
-    return res
-
-
-def coco_detection_metrics(images_json: str | Path | dict[str, Any],
-                           results: str | Path | Sequence[dict[str, Any]], *,
-                           image_ids: Iterable[int] | None = None) -> dict[str, float]:
-    """COCO bounding-box metrics of `results` against the ground truth, as the paper reports them.
-
-    Parameters
-    ----------
-    images_json : path or dict
-        COCO ground truth (``images``, ``annotations``, ``categories``).
-    results : path or list of dict
-        ``{image_id, category_id, bbox [x, y, w, h], score}``; not modified.
-    image_ids : iterable of int, optional
-        Evaluate only these images (default: all images of the ground truth).
-
-    Returns
-    -------
-    dict
-        ``AP50`` (AP at IoU 0.5), ``AP`` (IoU 0.5:0.95) and ``AR100`` (recall averaged over IoU 0.5:0.95,
-        at most 100 detections per image), all areas, as FRACTIONS in [0, 1] (pycocotools' scale; multiply
-        by 100 for the paper's tables). With no results, or no ground truth, every value is 0.
-    """
-    from pycocotools.coco import COCO
-    from pycocotools.cocoeval import COCOeval
-
-    gt = _load_images(images_json)
-    res = [dict(r) for r in _load_results(results)]  # loadRes writes into the dicts
-    ids = sorted({int(i["id"]) for i in gt["images"]}) if image_ids is None else sorted({int(i) for i in image_ids})
-    if ids:
-        id_set = set(ids)
-        res = [r for r in res if int(r["image_id"]) in id_set]
-    if not res or not ids:
-        return {"AP50": 0.0, "AP": 0.0, "AR100": 0.0}
-    with contextlib.redirect_stdout(io.StringIO()):
-        coco_gt = COCO()
-        coco_gt.dataset = {"images": gt["images"], "annotations": gt["annotations"],
-                           "categories": gt.get("categories", [])}
-        coco_gt.createIndex()
-        coco_dt = coco_gt.loadRes(res)
-        ev = COCOeval(coco_gt, coco_dt, "bbox")
-        ev.params.imgIds = ids
-        ev.evaluate()
-        ev.accumulate()
-        ev.summarize()
-    stats = [max(float(s), 0.0) for s in ev.stats]  # -1 (no ground truth) -> 0
-    return {"AP50": stats[1], "AP": stats[0], "AR100": stats[8]}
+__all__ = ["baseline_nms", "coco_detection_metrics", "pr_curve", "prenms_recall", "recall_at_precision",
+           "threshold_at_precision"]
 
 
 def _iou_matrix(a_xywh: np.ndarray, b_xywh: np.ndarray) -> np.ndarray:
@@ -141,8 +70,8 @@ def prenms_recall(images_json: str | Path | dict[str, Any], candidates: str | Pa
     float
         Recall in [0, 1]; NaN when there is no ground truth.
     """
-    gt = _load_images(images_json)
-    cands = [c for c in _load_results(candidates) if float(c["score"]) >= score_threshold]
+    gt = load_images(images_json)
+    cands = [c for c in load_results(candidates) if float(c["score"]) >= score_threshold]
     by_image = _group_by_image(cands)
     anns = [a for a in gt["annotations"] if not a.get("iscrowd", 0)]
     if not anns:
@@ -166,8 +95,8 @@ def pr_curve(images_json: str | Path | dict[str, Any], results: str | Path | Seq
     Greedy one-to-one matching per image and class in score order (as COCO does). Returns
     {"scores", "precision", "recall"}, each (D,) float64; recall is NaN without ground truth.
     """
-    gt = _load_images(images_json)
-    dets = list(_load_results(results))
+    gt = load_images(images_json)
+    dets = list(load_results(results))
     anns = [a for a in gt["annotations"] if not a.get("iscrowd", 0)]
     gt_by_image = _group_by_image([{**a, "score": 1.0} for a in anns])
     all_scores: list[np.ndarray] = []
@@ -240,7 +169,7 @@ def baseline_nms(candidates: str | Path | Sequence[dict[str, Any]], iou: float =
         The kept candidates (new dicts, ``bbox`` as floats), in image order then by descending score.
     """
     out: list[dict[str, Any]] = []
-    for image_id, (boxes, scores, cats) in sorted(_group_by_image(_load_results(candidates)).items()):
+    for image_id, (boxes, scores, cats) in sorted(_group_by_image(load_results(candidates)).items()):
         # cv2 keeps scores strictly above the threshold: pass one below every score to keep them all.
         below = float(min(scores.min(), 0.0)) - 1.0
         keep = np.asarray(cv2.dnn.NMSBoxesBatched(boxes.tolist(), scores.tolist(), cats.tolist(),

@@ -111,7 +111,8 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
     """
     g = p.add_argument_group("memory map (defaults: the best measured; see docs/memory-map.md)")
     g.add_argument(config_flag, dest="pipeline_config", type=Path, default=None,
-                   help="JSON file of pipeline/memory settings")
+                   help="JSON file of pipeline/memory settings, or the PARAMS.json of `uavmm tune` (its "
+                        "settings and fitted size filter); flags below override it")
     g.add_argument("--window-m", type=float, default=None, help="memory window edge, metres (300)")
     g.add_argument("--radius-m", type=float, default=None, help="Gaussian truncation radius, metres (4)")
     g.add_argument("--gain-per-s", type=float, default=None, help="evidence per second per unit confidence")
@@ -139,7 +140,7 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
 
 
 def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
-    from agent.boost import load_config
+    from agent.boost import load_params
     from agent.size_filter import SizeFilter
 
     overrides = {
@@ -151,13 +152,14 @@ def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
         "joint_synth_factor": getattr(args, "joint_synth_factor", None),
         "joint_carry_s": getattr(args, "joint_carry_s", None),
     }
-    cfg = load_config(args.pipeline_config, overrides)
+    cfg, tuned_filter = load_params(args.pipeline_config, overrides)
     import dataclasses
 
     cfg = dataclasses.replace(cfg, use_memory=use_memory and cfg.use_memory,
                               use_size_filter=cfg.use_size_filter and not args.no_size_filter,
                               joint_detections=cfg.joint_detections and not getattr(args, "no_joint_detections", False))
-    size_filter = SizeFilter.load(args.size_filter) if args.size_filter else SizeFilter.builtin()
+    # --size-filter FILE, else the one a `uavmm tune` parameters file carries, else the built-in priors
+    size_filter = SizeFilter.load(args.size_filter) if args.size_filter else (tuned_filter or SizeFilter.builtin())
     if args.size_filter_k is not None:
         size_filter = dataclasses.replace(size_filter, k=args.size_filter_k)
     return cfg, size_filter
@@ -324,7 +326,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
 #: Modules that add their own subcommands: each has register(subparsers) and sets `handler`
 #: (a function of the parsed Namespace returning an exit code) on its parser.
 COMMAND_MODULES: tuple[str, ...] = ("uavmm.cmd_fusion", "uavmm.cmd_agent", "uavmm.cmd_track", "uavmm.cmd_demo",
-                                     "uavmm.cmd_secure", "uavmm.cmd_export", "uavmm.cmd_render")
+                                     "uavmm.cmd_secure", "uavmm.cmd_export", "uavmm.cmd_render", "uavmm.cmd_tune")
 
 
 LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]

@@ -77,6 +77,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     run.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     run.add_argument("--loop", action="store_true", help="start the source again when it ends")
     run.add_argument("--tracks-out", type=Path, default=None, help="write the tracks (with global ids) as GeoJSON")
+    run.add_argument("--detections-out", type=Path, default=None, metavar="FILE",
+                     help="write the final detections (boosted, NMS'd, joint-aware) as a COCO result list: image "
+                          "ids of --dataset, frame indices otherwise; score it like `uavmm boost` output")
     _add_pipeline_options(p, config_flag="--pipeline-config", joint_mode=True)
     p.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting at all")
     p.set_defaults(handler=_run_agent)
@@ -113,7 +116,7 @@ def settings_from_args(args: argparse.Namespace):
         refresh_s=args.refresh_s, tile_min_value=args.tile_min_value,
         tile_budget_bytes_per_s=args.tile_budget if args.tile_budget > 0 else None, joint_ttl_s=args.joint_ttl_s,
         speed=args.speed, duration_s=args.duration, loop=args.loop, gid_gate_m=args.gid_gate_m,
-        grid_z=args.grid_z, grid_n=args.grid_n, tracks_out=args.tracks_out,
+        grid_z=args.grid_z, grid_n=args.grid_n, tracks_out=args.tracks_out, detections_out=args.detections_out,
     )
 
 
@@ -124,9 +127,35 @@ def pipeline_from_args(args: argparse.Namespace):
     return _pipeline_from_args(args, use_memory=not args.no_memory)
 
 
+def params_from_config_flag(args: argparse.Namespace) -> None:
+    """Let ``--config`` name a `uavmm tune` parameters file (DESIGN.md section 5) as well as a Zenoh config.
+
+    A parameters file (JSON with ``"format": "uavmm-params"``) moves to ``--pipeline-config``; anything
+    else stays the Zenoh config. ValueError when a parameters file comes twice.
+    """
+    from agent.params_file import is_params
+
+    if args.config is None:
+        return
+    try:
+        data = json.loads(Path(args.config).read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return  # JSON5 or unreadable: Zenoh reads it (and names the problem)
+    if not is_params(data):
+        return
+    if args.pipeline_config is not None:
+        raise ValueError(f"--config {args.config} is a parameters file and --pipeline-config "
+                         f"{args.pipeline_config} gives another: give one")
+    args.pipeline_config, args.config = args.config, None
+
+
 def _run_agent(args: argparse.Namespace) -> int:
     from agent.node import AgentNode
 
+    params_from_config_flag(args)
+    for flag, path in (("--tracks-out", args.tracks_out), ("--detections-out", args.detections_out)):
+        if path is not None and not path.parent.is_dir():  # before the flight, not after it
+            raise ValueError(f"{flag}: output directory {path.parent} does not exist (for {path})")
     settings = settings_from_args(args)
     from agent.zenoh_config import agent_zenoh_config, identity_problem
 

@@ -1,0 +1,70 @@
+"""`uavmm tune`: fit the memory map's parameters and the size filter on an annotated set (PARAMS.json).
+
+`uavmm boost/track --config PARAMS.json` and `uavmm agent --config PARAMS.json` (or --pipeline-config)
+read the result.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+from uavmm.cli import CliError
+
+__all__ = ["register"]
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the ``tune`` subcommand."""
+    p = sub.add_parser(
+        "tune", help="fit the memory-map parameters and the size filter on an annotated set (PARAMS.json)",
+        description="Fit the distance-size filter from the ground truth (kept when it scores at least as well "
+                    "as the built-in priors), then search the memory map's evidence per second, forgetting "
+                    "half-life, Gaussian radius and boost weight for the best AP50 (pycocotools), starting from "
+                    "the defaults. With two or more videos the report also tunes on half of them and scores the "
+                    "other half. Writes PARAMS.json for boost, track and agent (--config).",
+    )
+    p.add_argument("--frames", type=Path, required=True, help="IMAGES.json with annotations and meta")
+    p.add_argument("--candidates", type=Path, required=True, help="PRE_NMS.json (COCO result list)")
+    p.add_argument("--camera", type=Path, required=True, help="CAMERA.json or a camera preset's name")
+    p.add_argument("--out", type=Path, required=True, help="PARAMS.json to write")
+    p.add_argument("--config", dest="start_config", type=Path, default=None,
+                   help="start from this pipeline config or PARAMS.json instead of the defaults")
+    p.add_argument("--no-size-filter-fit", action="store_true", help="keep the built-in size-filter priors")
+    p.add_argument("--no-holdout", action="store_true", help="skip the held-out check (halves the run time)")
+    p.add_argument("--min-gain", type=float, default=0.2,
+                   help="AP50 points a step must gain to move away from the defaults (0.2)")
+    p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    p.set_defaults(handler=_run_tune)
+
+
+def _run_tune(args: argparse.Namespace) -> int:
+    from agent.boost import load_params
+    from agent.tune import tune
+
+    if not args.out.parent.is_dir():
+        raise CliError(f"output directory {args.out.parent} does not exist (for {args.out})")
+    if not (args.min_gain >= 0):
+        raise CliError(f"--min-gain must be >= 0, got {args.min_gain}")
+    base, _ = load_params(args.start_config)
+
+    def progress(line: str) -> None:
+        sys.stderr.write(f"uavmm tune: {line}\n")
+
+    result = tune(args.frames, args.candidates, args.camera, base=base, fit_size_filter=not args.no_size_filter_fit,
+                  min_gain=args.min_gain, holdout=not args.no_holdout, progress=None if args.quiet else progress)
+    tmp = args.out.with_name(args.out.name + ".tmp")
+    tmp.write_text(json.dumps(result.params(), indent=1))
+    tmp.replace(args.out)
+    r = result.report
+    print(f"AP50: no memory {r['AP50_no_memory']:.2f}, defaults {r['AP50_start']:.2f}, tuned {r['AP50_tuned']:.2f} "
+          f"({r['videos']} videos, {r['pipeline_runs']} runs); size filter: {r['size_filter']['used']}")
+    if "holdout" in r:
+        h = r["holdout"]
+        print(f"held-out videos {h['scored_on_videos']}: no memory {h['AP50_no_memory']:.2f}, defaults "
+              f"{h['AP50_start']:.2f}, tuned on {h['tuned_on_videos']} {h['AP50_tuned']:.2f}")
+    print(f"settings: {json.dumps(r['settings'])}")
+    print(f"wrote {args.out}")
+    return 0
