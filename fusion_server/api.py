@@ -2,7 +2,8 @@
 
 Endpoints: ``/healthz``, ``/v1/uavs``, ``/v1/map``, ``/v1/tiles/{cls}/{z}/{x}/{y}.png``,
 ``/v1/objects``, ``/v1/tracks``, ``/metrics``, ``/`` (the live map page, its script and style under
-``/static/``) and the extensions ``/v1/joint/tiles`` and ``/v1/tiles/{cls}.json`` (TileJSON).
+``/static/``) and the extensions ``/v1/joint/tiles``, ``/v1/tiles/{cls}.json`` (TileJSON) and
+``/v1/history`` (the tracks over a time window, for the page's time slider).
 Bad parameters get a 400 (or FastAPI's 422 for wrong types) with a message saying what is wrong.
 ``/docs`` and ``/redoc`` are served with local assets (no CDN); CORS only for ``--cors-origin`` origins.
 """
@@ -10,6 +11,7 @@ Bad parameters get a 400 (or FastAPI's 422 for wrong types) with a message sayin
 from __future__ import annotations
 
 import hashlib
+import math
 import time
 from importlib import resources
 from typing import TYPE_CHECKING, Any, Literal, Protocol
@@ -36,6 +38,7 @@ from fusion_server.render import (
     window_bounds,
     window_for_bbox,
 )
+from fusion_server.replay import history_window, stored_tracks
 from shared.keys import name_problem
 
 if TYPE_CHECKING:
@@ -318,6 +321,28 @@ def create_app(server: FusionView) -> FastAPI:
         if geometry == "line":
             return track_lines_geojson(features)
         return {"type": "FeatureCollection", "features": features}
+
+    @app.get("/v1/history", response_class=GeoJSONResponse,
+             summary="Global tracks over a time window, from the stored history (extension; the page's slider)")
+    def history(
+        since: float | None = Query(None, description="earliest history row, seconds since the epoch"),
+        until: float | None = Query(None, description="latest history row (the time shown), seconds since the epoch"),
+        cls: str | None = Query(None, description="class name (default: all)"),
+        rows: bool = Query(True, description="include the history rows (false: positions and time_range only)"),
+    ) -> Any:
+        for name, value in (("since", since), ("until", until)):
+            if value is not None and not math.isfinite(value):
+                raise HTTPException(status_code=400, detail=f"{name} must be a finite time, got {value}")
+        if since is not None and until is not None and since > until:
+            raise HTTPException(status_code=400, detail=f"since ({since}) is after until ({until})")
+        if cls is not None:
+            _check_cls(server, cls, must_exist=False)
+        live = [record.to_geojson() for record in server.tracker.records(include_ended=True)]
+        window = history_window(stored_tracks(server.settings.db_path, live, cls=cls, since=since), since, until)
+        if not rows:
+            for feature in window["features"]:
+                del feature["properties"]["history"]
+        return window
 
     @app.get("/v1/joint/tiles", summary="Index of the current joint tiles (extension)")
     def joint_tiles(cls: str | None = Query(None, description="class name (default: all)")) -> list[dict[str, Any]]:

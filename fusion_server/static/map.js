@@ -33,6 +33,8 @@
     wanted: new Map(),    // "cls/z/x/y" -> {cls, z, x, y, version}: the tiles to draw at the current zoom
     drawnTiles: 0,
     updates: 0,
+    liveTracks: [],       // the tracks of the last poll
+    replay: null,         // {t, tracks}: the time slider shows the tracks at t (timeline.js); null = live
     status: 'starting',
     cursor: null,         // last cursor position in canvas pixels
   };
@@ -130,7 +132,8 @@
         cls ? getJson(`/v1/joint/tiles?cls=${encodeURIComponent(cls)}`) : Promise.resolve([]),
       ]);
       state.uavs = uavs;
-      state.tracks = tracks.features || [];
+      state.liveTracks = tracks.features || [];
+      state.tracks = state.replay ? state.replay.tracks : state.liveTracks;  // timeline.js sets replay
       state.objects = objects.features || [];
       state.jointIndex = index;
       state.updates += 1;
@@ -459,6 +462,7 @@
     d.cls = state.cls || '';
     d.updates = String(state.updates);
     d.zoom = state.view.zoom.toFixed(2);
+    d.replay = state.replay ? String(state.replay.t) : '';
     $('uav-count').textContent = state.uavs.length;
     $('uav-online-count').textContent = online;
     $('track-count').textContent = state.tracks.length;
@@ -618,7 +622,9 @@
     } catch (e) { /* 404: no basemap configured */ }
   }
 
-  window.uavmmMap = { state, fit, project, unproject, toLatLon, toScreen };  // details.js, debugging, tests
+  // details.js, timeline.js, debugging, tests
+  window.uavmmMap = { state, fit, project, unproject, toLatLon, toScreen, redraw: () => { updateLegend(); scheduleDraw(); },
+                      getJson };
   draw();
   loadBasemap();
   poll();

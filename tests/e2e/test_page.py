@@ -182,7 +182,7 @@ def test_page_and_its_assets_are_served_and_fetch_nothing_from_elsewhere():
         assert status == 200 and 'src="/static/map.js"' in page and "/static/map.css" in page
         assert not re.search(r"https?://", page)
         for path, kind in (("/static/map.js", "javascript"), ("/static/basemap.js", "javascript"),
-                           ("/static/details.js", "javascript"),
+                           ("/static/details.js", "javascript"), ("/static/timeline.js", "javascript"),
                            ("/static/map.css", "text/css")):
             status, content_type, text = get(path)
             assert status == 200 and kind in content_type
@@ -437,6 +437,57 @@ def test_page_draws_an_offline_basemap_a_marker_legend_and_declutters_labels(tmp
         pixels = image.reshape(-1, 3)
         hits = sum(int(np.all(pixels == np.array(c, np.uint8), axis=1).sum()) for c in colours)
         assert hits > 0.2 * len(pixels), f"only {hits / len(pixels):.0%} of the screenshot shows the basemap"
+    finally:
+        if devtools is not None:
+            devtools.close()
+        if browser is not None:
+            os.killpg(browser.pid, signal.SIGKILL)
+            browser.wait(timeout=10)
+        agent.close()
+        server.close()
+
+
+def test_page_time_slider_replays_the_tracks_from_the_history(tmp_path):
+    """Drag the time slider back: the track is drawn where it was then (west of where it is now, the
+    person walks east); the live button brings the live tracks back."""
+    if chromium_path() is None:
+        reason = "Debian chromium is not installed (.ci/run installs it: apt-get install chromium chromium-driver)"
+        print(f"SKIPPED: {reason}")
+        pytest.skip(reason)
+    from fusion_server.config import FusionSettings, ZenohOptions
+    from fusion_server.server import FusionServer
+    from tests.fusion_server.fake_agent import LAT, LON, FakeAgent
+    from tests.netutil import free_port, wait_until
+
+    port = free_port()
+    options = ZenohOptions(mode="router", listen=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
+    server = FusionServer(FusionSettings(zenoh=options, http_port=0, db_path=tmp_path / "f.sqlite", ttl_s=30.0,
+                                         track_hold_s=60.0, track_history_interval_s=0.2, persist_interval_s=0.2))
+    server.start()
+    agent = FakeAgent("uav1", f"tcp/127.0.0.1:{port}")
+    browser = devtools = None
+    try:
+        agent.state()
+        for k in range(15):  # 3 s walking east
+            agent.tracks([(1, "person", LAT, LON + k * 2e-5)])
+            time.sleep(0.2)
+        browser, ws_url = start_chromium(server.url, tmp_path)
+        devtools = DevTools(ws_url)
+        slider_ready = "(s => s && !s.disabled && +s.max - +s.min >= 2)(document.getElementById('time-slider'))"
+        wait_until(lambda: devtools.evaluate(slider_ready), 30.0, "the time slider with a history range")
+        live_lon = devtools.evaluate("window.uavmmMap.state.liveTracks[0].geometry.coordinates[0]")
+        devtools.evaluate("(s => { s.value = String(+s.min + 1); s.dispatchEvent(new Event('input')); })"
+                          "(document.getElementById('time-slider'))")
+        summary_js = "(e => JSON.stringify(Object.assign({}, e.dataset)))(document.getElementById('summary'))"
+        replay = wait_until(lambda: (lambda s: s if s["replay"] else None)(json.loads(devtools.evaluate(summary_js))),
+                            10.0, "the page in replay")
+        assert replay["tracks"] == "1"
+        replay_lon = devtools.evaluate("window.uavmmMap.state.tracks[0].geometry.coordinates[0]")
+        assert LON - 1e-9 <= replay_lon < live_lon - 1e-5
+        assert "replay" in devtools.evaluate("document.getElementById('time-label').textContent")
+        devtools.evaluate("document.getElementById('time-live').click()")
+        wait_until(lambda: json.loads(devtools.evaluate(summary_js))["replay"] == "", 10.0, "the page live again")
+        assert devtools.evaluate("document.getElementById('time-label').textContent") == "live"
     finally:
         if devtools is not None:
             devtools.close()
