@@ -36,9 +36,11 @@ from agent.yolo_format import (
 
 __all__ = [
     "DETECTOR_BACKENDS",
+    "PROVIDER_ALIASES",
     "Detections",
     "OnnxYoloDetector",
     "make_detector",
+    "resolve_providers",
 ]
 
 logger = logging.getLogger(__name__)
@@ -123,6 +125,41 @@ class Detections:
 # --------------------------------------------------------------------------------------------------
 
 
+#: Short names accepted for onnxruntime execution providers (``--providers cuda,cpu``).
+PROVIDER_ALIASES = {
+    "cpu": "CPUExecutionProvider",
+    "cuda": "CUDAExecutionProvider",
+    "tensorrt": "TensorrtExecutionProvider",
+    "trt": "TensorrtExecutionProvider",
+    "openvino": "OpenVINOExecutionProvider",
+    "coreml": "CoreMLExecutionProvider",
+    "dml": "DmlExecutionProvider",
+    "rocm": "ROCMExecutionProvider",
+}
+
+
+def resolve_providers(providers: Sequence[str], available: Sequence[str] | None = None) -> list[str]:
+    """onnxruntime execution providers by full name or short alias (`PROVIDER_ALIASES`), checked.
+
+    available: the providers this onnxruntime build offers (default ``onnxruntime.get_available_providers()``).
+    onnxruntime itself only warns and falls back to the CPU for a provider it lacks; a user who asked for
+    CUDA should know. Raises ValueError naming the unknown ones and listing the available ones, or for an
+    empty list.
+    """
+    if available is None:
+        import onnxruntime as ort
+
+        available = ort.get_available_providers()
+    names = [PROVIDER_ALIASES.get(p.strip().lower(), p.strip()) for p in providers if p.strip()]
+    if not names:
+        raise ValueError(f"no onnxruntime execution provider given; available: {', '.join(available)}")
+    unknown = [n for n in names if n not in available]
+    if unknown:
+        raise ValueError(f"onnxruntime execution provider(s) {', '.join(unknown)} not available in this install; "
+                         f"available: {', '.join(available)}")
+    return list(dict.fromkeys(names))
+
+
 def _static_dim(dim: Any) -> int | None:
     return dim if isinstance(dim, int) and dim > 0 else None
 
@@ -158,7 +195,8 @@ class OnnxYoloDetector:
     intra_op_threads, inter_op_threads : int
         onnxruntime thread pools.
     providers : sequence of str
-        onnxruntime execution providers, in order of preference.
+        onnxruntime execution providers, in order of preference (full names or the aliases of
+        `resolve_providers`); ValueError listing the available ones for one this install lacks.
     layout : {"auto", "v5", "v8"}
         Output layout; "auto" decides from the output shape (`agent.yolo_format`).
     multi_label : bool
@@ -211,7 +249,8 @@ class OnnxYoloDetector:
         options.inter_op_num_threads = int(inter_op_threads)
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
-        self._session = ort.InferenceSession(str(self.model_path), options, providers=list(providers))
+        self.providers = resolve_providers(providers, ort.get_available_providers())
+        self._session = ort.InferenceSession(str(self.model_path), options, providers=self.providers)
 
         model_input = self._session.get_inputs()[0]
         shape = list(model_input.shape)

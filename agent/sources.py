@@ -11,16 +11,20 @@ from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, parse_datetime
+
+if TYPE_CHECKING:
+    from agent.detector import Detections
+    from agent.slicing import SliceGrid
 
 log = logging.getLogger(__name__)
 
@@ -292,15 +296,24 @@ class VideoSource:
         Fixed gimbal angles for telemetry without them.
     height_m, height_offset_m : float, optional
         As in `load_video_telemetry`.
+    providers : sequence of str
+        onnxruntime execution providers (`agent.detector.resolve_providers`).
+    slices : agent.slicing.SliceGrid, optional
+        Run the detector on overlapping tiles of each frame (`agent.slicing.SlicedDetector`).
+    slice_full_frame : bool
+        With ``slices``: also run on the whole frame for objects larger than the overlap.
     """
 
     def __init__(self, video: str | Path, telemetry: str | Path, model: str | Path, camera: str | Path, *,
                  telemetry_offset_s: float | None = None, class_names=None, conf_threshold: float = 0.01,
                  max_gap_s: float = 1.0, pitch_deg: float | None = None, heading_deg: float | None = None,
-                 height_m: float | None = None, height_offset_m: float | None = None) -> None:
+                 height_m: float | None = None, height_offset_m: float | None = None,
+                 providers: Sequence[str] = ("CPUExecutionProvider",), slices: SliceGrid | None = None,
+                 slice_full_frame: bool = True) -> None:
         import cv2
 
         from agent.detector import OnnxYoloDetector
+        from agent.slicing import SlicedDetector
 
         for what, path in (("video", video), ("telemetry", telemetry), ("model", model)):
             if not Path(path).is_file():
@@ -318,13 +331,19 @@ class VideoSource:
         width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
         height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
         fps = float(capture.get(cv2.CAP_PROP_FPS))
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
         capture.release()
+        #: Frames the container announces (None when it does not say, e.g. a stream).
+        self.frame_count: int | None = count if count > 0 else None
         self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
         same_size = (width, height) in ((0, 0), (self.camera_file.width, self.camera_file.height))
         self.camera = self.camera_file if same_size else self.camera_file.fitted_to(width, height,
                                                                                       source=f"the frames of {video}")
-        self.detector = OnnxYoloDetector(model, class_names=class_names, conf_threshold=conf_threshold)
-        self.class_names = dict(enumerate(self.detector.class_names))
+        self.detector: Callable[[NDArray[np.uint8]], Detections] = OnnxYoloDetector(
+            model, class_names=class_names, conf_threshold=conf_threshold, providers=providers)
+        self.class_names = dict(enumerate(self.detector.class_names))  # type: ignore[attr-defined]
+        if slices is not None:
+            self.detector = SlicedDetector(self.detector, slices, full_frame=slice_full_frame)
         self.telemetry_offset_s = self.records[0].t if telemetry_offset_s is None else float(telemetry_offset_s)
         self.max_gap_s = float(max_gap_s)
         self.pitch_deg = pitch_deg

@@ -25,7 +25,7 @@ from fastapi.staticfiles import StaticFiles
 
 from fusion_server.geo_formats import GEOJSON_MEDIA_TYPE, GeoJSONResponse, tilejson, track_lines_geojson, uavs_geojson
 from fusion_server.http_auth import BearerAuth
-from fusion_server.kml import KML_MEDIA_TYPE, feature_collections_kml
+from shared.kml import KML_MEDIA_TYPE, feature_collections_kml
 from fusion_server.peaks import find_peaks, peaks_geojson
 from fusion_server.render import (
     AGGREGATIONS,

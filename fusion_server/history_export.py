@@ -16,7 +16,7 @@ from typing import Any
 
 from fusion_server.geo_formats import track_lines_geojson
 from fusion_server.gpkg import Layer, write_geopackage
-from fusion_server.kml import feature_collections_kml
+from shared.kml import feature_collections_kml
 
 __all__ = ["EXPORT_FORMATS", "HistoryExport", "export_history", "read_history"]
 

@@ -326,7 +326,8 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
 #: Modules that add their own subcommands: each has register(subparsers) and sets `handler`
 #: (a function of the parsed Namespace returning an exit code) on its parser.
 COMMAND_MODULES: tuple[str, ...] = ("uavmm.cmd_fusion", "uavmm.cmd_agent", "uavmm.cmd_track", "uavmm.cmd_demo",
-                                     "uavmm.cmd_secure", "uavmm.cmd_export", "uavmm.cmd_render", "uavmm.cmd_tune")
+                                     "uavmm.cmd_secure", "uavmm.cmd_export", "uavmm.cmd_render", "uavmm.cmd_tune",
+                                     "uavmm.cmd_detect")
 
 
 LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]

@@ -1,0 +1,147 @@
+"""The files `uavmm detect` writes: COCO detections with the frames they refer to, MOTChallenge tracks, GeoJSON
+tracks and objects, and KML of both (docs/detect.md lists them).
+
+Pure builders (frames, tracks -> dicts/text) plus one writer that stores every file atomically, so a failed or
+interrupted run never leaves a truncated file.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from agent.tracking_io import TrackRow, geojson_tracks, mot_lines
+from shared.geo import Pose
+from shared.kml import feature_collections_kml
+from shared.telemetry import Telemetry, to_seadronessee_meta
+from shared.telemetry.dates import format_datetime
+
+__all__ = [
+    "OUTPUT_FILES",
+    "image_entry",
+    "images_json",
+    "objects_geojson",
+    "write_text_atomic",
+]
+
+#: Output file names inside the --out directory (the annotated video is ``annotated.mp4``).
+OUTPUT_FILES = {
+    "detections": "detections.json",
+    "images": "images.json",
+    "mot": "tracks.txt",
+    "tracks_geojson": "tracks.geojson",
+    "objects_geojson": "objects.geojson",
+    "kml": "tracks.kml",
+    "video": "annotated.mp4",
+    "summary": "summary.json",
+}
+
+
+def write_text_atomic(path: Path, text: str | bytes) -> None:
+    """Write a file through a hidden temporary beside it, then rename (no partial files)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    if isinstance(text, bytes):
+        tmp.write_bytes(text)
+    else:
+        tmp.write_text(text)
+    tmp.replace(path)
+
+
+def _date_time(t: float) -> str | None:
+    try:
+        return format_datetime(t)
+    except ValueError:
+        return None
+
+
+def image_entry(index: int, t: float, width: int, height: int, pose: Pose | None, pose_t: float | None, *,
+                video_id: int = 0) -> dict[str, Any]:
+    """One frame as an IMAGES.json image (DESIGN.md 6): id = frame index, SeaDronesSee ``meta`` from its pose.
+
+    ``file_name`` is empty (no image files are written; ``frame_index`` says which frame of the video it is);
+    ``meta`` is None for a frame without pose. The meta's ``date_time`` is the telemetry's time, the image's
+    ``date_time`` the frame's.
+    """
+    meta = None
+    if pose is not None:
+        tel = Telemetry(t=pose_t if pose_t is not None else t, lat=pose.lat, lon=pose.lon, height_m=pose.height_m,
+                        pitch_deg=pose.pitch_deg, heading_deg=pose.heading_deg, roll_deg=pose.roll_deg)
+        meta = to_seadronessee_meta(tel)
+    return {"id": index, "file_name": "", "width": width, "height": height, "video_id": video_id,
+            "frame_index": index, "date_time": _date_time(t), "meta": meta}
+
+
+def images_json(images: Sequence[dict[str, Any]], class_names: Mapping[int, str], video_name: str, *,
+                video_id: int = 0, source: str = "") -> dict[str, Any]:
+    """The COCO document the detections refer to: images, categories, one video; no annotations.
+
+    Add ground truth ``annotations`` to it to score the detections (pycocotools) as `uavmm eval` does.
+    """
+    return {
+        "info": {"description": f"frames of {video_name} processed by uavmm detect", "source": source},
+        "images": list(images),
+        "annotations": [],
+        "categories": [{"id": int(cid), "name": name} for cid, name in sorted(class_names.items())],
+        "videos": [{"id": video_id, "name": video_name}],
+    }
+
+
+def objects_geojson(rows: Sequence[TrackRow], class_names: Mapping[int, str]) -> dict[str, Any]:
+    """One Point per track: where it was last seen, with when, how often and how confidently.
+
+    Properties: ``id, cls`` (class name), ``cls_id, score`` (highest boosted confidence, clipped to 1),
+    ``mean_score, frames`` (frames reported), ``first_t, t`` (first and last seen, UNIX s or the telemetry's
+    clock), ``first_seen, last_seen`` (ISO 8601 UTC), ``vel_en`` (m/s at the last sighting).
+    """
+    by_track: dict[int, list[TrackRow]] = {}
+    for r in rows:
+        if math.isfinite(r.track.lat) and math.isfinite(r.track.lon):
+            by_track.setdefault(r.track.id, []).append(r)
+    features = []
+    for tid, trs in sorted(by_track.items()):
+        last = trs[-1]
+        scores = [min(max(r.track.score, 0.0), 1.0) for r in trs]
+        features.append({
+            "type": "Feature", "id": tid,
+            "geometry": {"type": "Point", "coordinates": [round(last.track.lon, 8), round(last.track.lat, 8)]},
+            "properties": {
+                "id": tid, "cls": class_names.get(last.track.cls, str(last.track.cls)), "cls_id": last.track.cls,
+                "score": round(max(scores), 4), "mean_score": round(sum(scores) / len(scores), 4),
+                "frames": len(trs), "first_t": round(trs[0].t, 3), "t": round(last.t, 3),
+                "first_seen": _date_time(trs[0].t), "last_seen": _date_time(last.t),
+                "vel_en": [round(last.track.vel_en[0], 3), round(last.track.vel_en[1], 3)],
+            },
+        })
+    return {"type": "FeatureCollection", "features": features}
+
+
+def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]], images: list[dict[str, Any]],
+                  rows: list[TrackRow], class_names: Mapping[int, str], video_name: str,
+                  source: str = "") -> dict[str, str]:
+    """Write the COCO, MOT, GeoJSON and KML files into out_dir; returns {kind: path}."""
+    names = dict(class_names)
+    tracks = geojson_tracks({0: list(rows)}, names)
+    for feature in tracks["features"]:  # the class name as `cls` (REST and KML convention), the id kept
+        props = feature["properties"]
+        props["cls_id"] = props["cls"]
+        props["cls"] = props.pop("cls_name")
+    objects = objects_geojson(rows, names)
+    files = {
+        "detections": json.dumps(detections),
+        "images": json.dumps(images_json(images, names, video_name, source=source)),
+        "mot": "".join(line + "\n" for line in mot_lines(list(rows))),
+        "tracks_geojson": json.dumps(tracks),
+        "objects_geojson": json.dumps(objects),
+    }
+    paths = {}
+    for kind, text in files.items():
+        path = out_dir / OUTPUT_FILES[kind]
+        write_text_atomic(path, text)
+        paths[kind] = str(path)
+    kml = feature_collections_kml(f"uavmm detect: {video_name}", {"objects": objects, "tracks": tracks})
+    write_text_atomic(out_dir / OUTPUT_FILES["kml"], kml)
+    paths["kml"] = str(out_dir / OUTPUT_FILES["kml"])
+    return paths

@@ -1,0 +1,196 @@
+"""`uavmm detect`: the agent's whole per-frame chain (detector, memory-map pipeline, GPS tracker) over one video
+with its telemetry, offline (no Zenoh), collecting what `agent.offline.outputs` writes.
+
+The same pieces as the live agent (`agent.node.AgentNode.step`), minus the joint map and the network: a frame
+from `agent.sources.VideoSource` (telemetry interpolated to the frame, camera fitted to the frame size) ->
+`DetectionPipeline.process` -> appearance descriptors -> `GpsTracker.update`.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from agent.boost import results_to_coco
+from agent.offline.annotate import VideoAnnotator
+from agent.offline.outputs import OUTPUT_FILES, image_entry, write_outputs, write_text_atomic
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
+from agent.size_filter import SizeFilter
+from agent.sources import FrameSource
+from agent.tracking import GpsTracker, TrackerConfig
+from agent.tracking.appearance import with_image_descriptors
+from agent.tracking_io import TrackRow, memory_evidence
+
+__all__ = ["DetectOptions", "prepare_out_dir", "run_detect"]
+
+log = logging.getLogger(__name__)
+
+#: progress(frames done, frames expected or None)
+Progress = Callable[[int, int | None], None]
+
+
+@dataclass(frozen=True, slots=True)
+class DetectOptions:
+    """What `run_detect` writes besides the files every run gets.
+
+    render_video: also write the annotated MP4; trail_s: trail length in it, seconds; inset_fraction: edge of
+    the memory-map inset over the frame's shorter side (0 = none); max_frames: stop after this many frames.
+    """
+
+    render_video: bool = False
+    trail_s: float = 2.0
+    inset_fraction: float = 0.28
+    max_frames: int | None = None
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.trail_s) and self.trail_s >= 0):
+            raise ValueError(f"trail length must be >= 0 s, got {self.trail_s!r}")
+        if not 0 <= self.inset_fraction <= 0.5:
+            raise ValueError(f"inset fraction must be in 0..0.5, got {self.inset_fraction!r}")
+        if self.max_frames is not None and self.max_frames < 1:
+            raise ValueError(f"--max-frames must be >= 1, got {self.max_frames}")
+
+
+def prepare_out_dir(out_dir: str | Path) -> Path:
+    """Create the output directory (and parents) if needed; OSError naming it when it cannot be written."""
+    out = Path(out_dir)
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"--out {out} exists and is not a directory")
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        probe = out / ".uavmm-write-test"
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OSError(f"output directory {out} is not writable: {exc.strerror or exc}") from None
+    return out
+
+
+def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: PipelineConfig | None = None,
+               size_filter: SizeFilter | None = None, tracker_config: TrackerConfig | None = None, *,
+               options: DetectOptions | None = None, progress: Progress | None = None) -> dict[str, Any]:
+    """Run the detector, memory map and tracker over every frame of `source`; write the outputs into out_dir.
+
+    Parameters
+    ----------
+    source : FrameSource
+        Usually `agent.sources.VideoSource` (its ``fps``, ``frame_count`` and ``video_path`` are used when
+        present); frames must carry their image for ``render_video``.
+    out_dir : path
+        Created if missing. Files: see `agent.offline.outputs.OUTPUT_FILES` (docs/detect.md).
+    pipeline_config, size_filter, tracker_config : optional
+        As for `uavmm boost` / `uavmm track` (no joint map offline).
+    options : DetectOptions, optional
+    progress : callable, optional
+        Called after each frame with (frames done, frames expected or None).
+
+    Returns
+    -------
+    dict
+        Summary: counts (frames, frames_without_pose, candidates, detections, tracks, track_rows), timing
+        (ms per frame of detector+decoding, pipeline, tracker, drawing) and the written files.
+
+    The source is closed at the end. A failing frame stops the run (no partial output files: every file is
+    written at the end, atomically; the video's temporary file is removed).
+    """
+    options = options or DetectOptions()
+    out = prepare_out_dir(out_dir)
+    config = pipeline_config or PipelineConfig()
+    pipe = DetectionPipeline(source.camera, source.class_names, config, size_filter=size_filter)
+    tracker = GpsTracker(tracker_config, source.class_names, evidence_at=memory_evidence(pipe))
+    video_path = getattr(source, "video_path", None)
+    video_name = Path(video_path).stem if video_path is not None else source.name
+    total = getattr(source, "frame_count", None)
+    if options.max_frames is not None:
+        total = options.max_frames if total is None else min(total, options.max_frames)
+    annotator: VideoAnnotator | None = None
+    detections: list[dict[str, Any]] = []
+    images: list[dict[str, Any]] = []
+    rows: list[TrackRow] = []
+    counts = {"frames": 0, "frames_without_pose": 0, "candidates": 0, "size_filtered": 0, "detections": 0}
+    seconds = {"source": 0.0, "pipeline": 0.0, "tracker": 0.0, "draw": 0.0}
+    t_prev = -math.inf
+    started = time.perf_counter()
+    frames = iter(source.frames())
+    try:
+        while options.max_frames is None or counts["frames"] < options.max_frames:
+            t0 = time.perf_counter()
+            frame = next(frames, None)
+            t1 = time.perf_counter()
+            if frame is None:
+                break
+            seconds["source"] += t1 - t0
+            if pipe.camera != frame.camera:
+                pipe.camera = frame.camera
+            result = pipe.process(frame.boxes_xyxy, frame.scores, frame.class_ids, frame.pose, frame.t,
+                                  frame.embeddings)
+            if frame.image is not None:
+                result = with_image_descriptors(result, frame.image)
+            t2 = time.perf_counter()
+            t = max(frame.t, t_prev)
+            t_prev = t
+            tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t)
+            reported = tracker.report(tracks)
+            t3 = time.perf_counter()
+            seconds["pipeline"] += t2 - t1
+            seconds["tracker"] += t3 - t2
+            rows.extend(TrackRow(frame.index, frame.index, t, tr) for tr in reported)
+            detections.extend(results_to_coco(frame.index, result))
+            images.append(image_entry(frame.index, t, frame.camera.width, frame.camera.height, frame.pose,
+                                      frame.pose_t))
+            counts["frames"] += 1
+            counts["frames_without_pose"] += frame.pose is None
+            counts["candidates"] += result.n_candidates
+            counts["size_filtered"] += result.n_size_filtered
+            counts["detections"] += len(result)
+            if options.render_video:
+                if frame.image is None:
+                    raise ValueError(f"{source.name} gives no images: --render-video needs a video source")
+                if annotator is None:
+                    annotator = VideoAnnotator(out / OUTPUT_FILES["video"], float(getattr(source, "fps", 30.0)),
+                                               frame.image.shape[1], frame.image.shape[0], source.class_names,
+                                               trail_s=options.trail_s, inset_fraction=options.inset_fraction,
+                                               range_m=config.range_limit_m)
+                annotator.write(frame.image, t, frame.camera, frame.pose, result, reported, pipe.memory)
+                seconds["draw"] += time.perf_counter() - t3
+            if progress is not None:
+                progress(counts["frames"], total)
+    except BaseException:
+        if annotator is not None:
+            annotator.abort()
+        raise
+    finally:
+        source.close()
+    if annotator is not None:
+        annotator.close()
+    files = write_outputs(out, detections=detections, images=images, rows=rows, class_names=source.class_names,
+                          video_name=video_name, source=str(video_path or source.name))
+    if annotator is not None:
+        files["video"] = str(annotator.path)
+    n = max(counts["frames"], 1)
+    summary: dict[str, Any] = {
+        **counts,
+        "tracks": len({r.track.id for r in rows}), "track_rows": len(rows),
+        "reidentified": tracker.n_reidentified,
+        "source_ms_per_frame": round(1000 * seconds["source"] / n, 2),
+        "pipeline_ms_per_frame": round(1000 * seconds["pipeline"] / n, 3),
+        "tracker_ms_per_frame": round(1000 * seconds["tracker"] / n, 3),
+        "draw_ms_per_frame": round(1000 * seconds["draw"] / n, 2) if annotator is not None else None,
+        "seconds": round(time.perf_counter() - started, 3),
+        "files": files,
+    }
+    problems = getattr(source, "problems", 0)
+    if isinstance(problems, int) and problems:
+        summary["frames_with_unusable_telemetry"] = problems
+    summary_path = out / OUTPUT_FILES["summary"]
+    write_text_atomic(summary_path, json.dumps(summary, indent=1))
+    summary["files"]["summary"] = str(summary_path)
+    log.info("detect %s: %s", video_name, {k: v for k, v in summary.items() if k != "files"})
+    return summary
