@@ -25,7 +25,6 @@ from fastapi.staticfiles import StaticFiles
 
 from fusion_server.geo_formats import GEOJSON_MEDIA_TYPE, GeoJSONResponse, tilejson, track_lines_geojson, uavs_geojson
 from fusion_server.http_auth import BearerAuth
-from shared.kml import KML_MEDIA_TYPE, feature_collections_kml
 from fusion_server.peaks import find_peaks, peaks_geojson
 from fusion_server.render import (
     AGGREGATIONS,
@@ -40,6 +39,7 @@ from fusion_server.render import (
 )
 from fusion_server.replay import history_window, stored_tracks
 from shared.keys import name_problem
+from shared.kml import KML_MEDIA_TYPE, feature_collections_kml
 
 if TYPE_CHECKING:
     from fusion_server.basemap import Basemap

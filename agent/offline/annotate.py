@@ -84,7 +84,7 @@ class VideoAnnotator:
         """
         canvas = image.copy()
         self._remember(t, tracks)
-        for (x1, y1, x2, y2), score in zip(result.boxes_xyxy, result.scores, strict=True):
+        for x1, y1, x2, y2 in result.boxes_xyxy:
             cv2.rectangle(canvas, (int(x1), int(y1)), (int(x2), int(y2)), (200, 200, 200), 1, cv2.LINE_AA)
         self._draw_trails(canvas, camera, pose, tracks)
         for tr in tracks:
