@@ -339,6 +339,9 @@ class VideoSource:
         same_size = (width, height) in ((0, 0), (self.camera_file.width, self.camera_file.height))
         self.camera = self.camera_file if same_size else self.camera_file.fitted_to(width, height,
                                                                                       source=f"the frames of {video}")
+        if not same_size:  # same field of view at another resolution: fine, but the user should know
+            log.warning("camera %s is %dx%d but the frames of %s are %dx%d: using it scaled to the frames",
+                        camera, self.camera_file.width, self.camera_file.height, self.video_path.name, width, height)
         self.detector: Callable[[NDArray[np.uint8]], Detections] = OnnxYoloDetector(
             model, class_names=class_names, conf_threshold=conf_threshold, providers=providers)
         self.class_names = dict(enumerate(self.detector.class_names))  # type: ignore[attr-defined]

@@ -560,3 +560,16 @@ def test_yolov5_like_model_runs_with_the_v5_layout(tmp_path):
     raw = detector.infer(detector.preprocess(image(200, 100))[0])
     assert raw.shape == built.output_shape and np.isfinite(raw).all()
     assert ((raw[0, :, 4:] >= 0) & (raw[0, :, 4:] <= 1)).all()
+
+
+def test_providers_by_alias_and_an_unavailable_one_named_with_the_available():
+    from agent.detector import resolve_providers
+
+    assert resolve_providers(["cpu"], ["CPUExecutionProvider"]) == ["CPUExecutionProvider"]
+    assert resolve_providers(["CUDA", "cpu"], ["CUDAExecutionProvider", "CPUExecutionProvider"]) == [
+        "CUDAExecutionProvider", "CPUExecutionProvider"]
+    with pytest.raises(ValueError, match="TensorrtExecutionProvider not available in this install; "
+                                         "available: CPUExecutionProvider"):
+        resolve_providers(["tensorrt", "cpu"], ["CPUExecutionProvider"])
+    with pytest.raises(ValueError, match="no onnxruntime execution provider given"):
+        resolve_providers([" "], ["CPUExecutionProvider"])
