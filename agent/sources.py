@@ -313,17 +313,20 @@ class VideoSource:
         import cv2
 
         from agent.detector import OnnxYoloDetector
+        from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
         from agent.slicing import SlicedDetector
 
-        for what, path in (("video", video), ("telemetry", telemetry), ("model", model)):
+        live = is_live_telemetry(telemetry)  # udp:HOST:PORT: MAVLink from the flight controller
+        files = [("video", video), ("model", model)] + ([] if live else [("telemetry", telemetry)])
+        for what, path in files:
             if not Path(path).is_file():
                 raise ValueError(f"{what} file {path} does not exist")
         self.video_path = Path(video)
-        self.records: list[Telemetry] = load_video_telemetry(telemetry, height_m=height_m,
-                                                             height_offset_m=height_offset_m)
+        #: The live MAVLink stream (None for a telemetry file).
+        self.feed: MavlinkUdpFeed | None = None
+        self.records: list[Telemetry] = [] if live else load_video_telemetry(telemetry, height_m=height_m,
+                                                                             height_offset_m=height_offset_m)
         self.height_m = height_m
-        self.records.sort(key=lambda r: r.t)
-        self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         capture = cv2.VideoCapture(str(self.video_path))
         if not capture.isOpened():
@@ -347,6 +350,16 @@ class VideoSource:
         self.class_names = dict(enumerate(self.detector.class_names))  # type: ignore[attr-defined]
         if slices is not None:
             self.detector = SlicedDetector(self.detector, slices, full_frame=slice_full_frame)
+        if live:  # last: nothing after this may fail with the port bound
+            self.feed = MavlinkUdpFeed(str(telemetry), height_offset_m=height_offset_m or 0.0)
+            try:
+                self.records = self.feed.start()
+            except BaseException:
+                self.feed.close()
+                raise
+            log.info("telemetry %s: live MAVLink, first record at t=%.3f", telemetry, self.records[0].t)
+        self.records.sort(key=lambda r: r.t)
+        self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.telemetry_offset_s = self.records[0].t if telemetry_offset_s is None else float(telemetry_offset_s)
         self.max_gap_s = float(max_gap_s)
         self.pitch_deg = pitch_deg
@@ -367,8 +380,13 @@ class VideoSource:
     def poses_at(self, times: NDArray[np.float64]) -> list[tuple[Pose | None, float | None]]:
         """Poses interpolated to telemetry times (N,) -> [(pose or None, pose time or None)].
 
-        Only the records bracketing the times are interpolated, so long flights cost the same per frame.
+        Only the records bracketing the times are interpolated, so long flights cost the same per frame. With a
+        live stream this first waits (bounded) for the records that bracket the times.
         """
+        if self.feed is not None:
+            self.feed.wait_for(float(times[0]), float(times[-1]) + min(self.max_gap_s, 0.2))
+            self.records = self.feed.records()
+            self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         lo = max(int(np.searchsorted(self._record_t, times[0] - self.max_gap_s, side="left")) - 1, 0)
         hi = int(np.searchsorted(self._record_t, times[-1] + self.max_gap_s, side="right")) + 1
         records = self.records[lo:hi]
@@ -394,10 +412,11 @@ class VideoSource:
                 ok, image = capture.read()
                 if not ok:
                     break
-                if index % _POSE_BATCH == 0:
-                    times = self.telemetry_offset_s + (index + np.arange(_POSE_BATCH)) / self.fps
+                batch = 1 if self.feed is not None else _POSE_BATCH  # live: each frame as its telemetry comes
+                if index % batch == 0:
+                    times = self.telemetry_offset_s + (index + np.arange(batch)) / self.fps
                     poses = self.poses_at(times)
-                pose, pose_t = poses[index % _POSE_BATCH]
+                pose, pose_t = poses[index % batch]
                 if (image.shape[1], image.shape[0]) != (self.camera.width, self.camera.height):
                     self.camera = self.camera_file.fitted_to(image.shape[1], image.shape[0],
                                                              source="the video's frames")
@@ -409,5 +428,7 @@ class VideoSource:
             capture.release()
 
     def close(self) -> None:
-        """Drop the model session."""
+        """Drop the model session and stop a live telemetry stream."""
         self.detector = None  # type: ignore[assignment]
+        if self.feed is not None:
+            self.feed.close()

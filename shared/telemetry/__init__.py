@@ -2,13 +2,14 @@
 
 Also interpolates telemetry to video frame times and writes SeaDronesSee meta; angles follow DESIGN.md 2.
 One module per concept: `record` (the record, DJI pitch), `dates`, `srt` (with `srt_blocks` and
-`srt_clock`), `csv_table`, `seadronessee`,
+`srt_clock`), `csv_table`, `seadronessee`, `mavlink` (MAVLink messages and `.tlog`), `ulog` (PX4 `.ulg`),
 `readers` (by extension) and `interpolation`; the public names are re-exported here.
 """
 
 from shared.telemetry.csv_table import CSV_COLUMNS, parse_csv, read_csv
 from shared.telemetry.dates import parse_datetime
 from shared.telemetry.interpolation import interpolate
+from shared.telemetry.mavlink import MavlinkAssembler, MavlinkByteParser, MavlinkSample, parse_tlog, read_tlog
 from shared.telemetry.readers import read_telemetry
 from shared.telemetry.record import NO_HEIGHT_MESSAGE, PITCH_TOLERANCE_DEG, Telemetry, pitch_from_dji
 from shared.telemetry.seadronessee import (
@@ -19,9 +20,13 @@ from shared.telemetry.seadronessee import (
     to_seadronessee_meta,
 )
 from shared.telemetry.srt import SrtReport, parse_srt, parse_srt_report, read_srt, read_srt_report
+from shared.telemetry.ulog import read_ulog
 
 __all__ = [
     "CSV_COLUMNS",
+    "MavlinkAssembler",
+    "MavlinkByteParser",
+    "MavlinkSample",
     "NO_HEIGHT_MESSAGE",
     "PITCH_TOLERANCE_DEG",
     "SEADRONESSEE_META_FIELDS",
@@ -34,11 +39,14 @@ __all__ = [
     "parse_seadronessee_coco",
     "parse_srt",
     "parse_srt_report",
+    "parse_tlog",
     "pitch_from_dji",
     "read_csv",
     "read_seadronessee_json",
     "read_srt",
     "read_srt_report",
     "read_telemetry",
+    "read_tlog",
+    "read_ulog",
     "to_seadronessee_meta",
 ]

@@ -1,0 +1,132 @@
+"""PX4 flight logs (``.ulg``, ULog) to `Telemetry` records, read with pyulog (optional extra ``ulog``).
+
+Topics used, all on the log's microsecond boot clock and interpolated to the times of the positions:
+- ``vehicle_global_position``: lat, lon (one record per sample);
+- ``vehicle_local_position``: ``-z`` (metres above the local origin, where the EKF started: the take-off point)
+  as the height, ``vx, vy`` (north, east m/s); without it the records have no height (``--height-m``);
+- ``vehicle_attitude``: quaternion ``q[0..3]`` (w, x, y, z): the vehicle's yaw;
+- ``gimbal_device_attitude_status``: quaternion and ``device_flags`` (yaw in the earth or the vehicle frame, as
+  in MAVLink's GIMBAL_DEVICE_ATTITUDE_STATUS); without it the camera is taken as fixed, facing forward (heading
+  = the vehicle's yaw, pitch from ``--pitch-deg``);
+- ``vehicle_gps_position``: ``time_utc_usec`` anchors the boot clock to UNIX time (else times are seconds since
+  boot).
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from shared.telemetry.mavlink import quaternion_to_euler_deg
+from shared.telemetry.record import Telemetry, pitch_or_none
+
+__all__ = ["ULOG_EXTRA_HINT", "read_ulog"]
+
+ULOG_EXTRA_HINT = "PX4 .ulg logs need pyulog: pip install 'uav-memory-maps[ulog]'"
+_TOPICS = ["vehicle_global_position", "vehicle_local_position", "vehicle_attitude",
+           "gimbal_device_attitude_status", "vehicle_gps_position"]
+_YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
+
+
+def _topic(ulog: Any, name: str) -> dict[str, NDArray] | None:
+    """The first instance of a topic as {field: array}, or None when the log lacks it or it is empty."""
+    for dataset in ulog.data_list:
+        if dataset.name == name and dataset.multi_id == 0 and len(dataset.data["timestamp"]):
+            return dataset.data
+    return None
+
+
+def _interp(t: NDArray, t_src: NDArray, values: NDArray) -> NDArray:
+    return np.interp(t, t_src, values)
+
+
+def _yaws_deg(data: dict[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
+    """(roll, pitch, yaw) in degrees per sample of a topic with q[0..3]; yaw unwrapped for interpolation."""
+    q = np.column_stack([data[f"q[{i}]"] for i in range(4)]).astype(np.float64)
+    euler = np.array([quaternion_to_euler_deg(tuple(row)) if np.any(row) else (np.nan,) * 3 for row in q])
+    yaw = euler[:, 2].copy()
+    ok = np.isfinite(yaw)
+    yaw[ok] = np.degrees(np.unwrap(np.radians(yaw[ok])))
+    return euler[:, 0], euler[:, 1], yaw
+
+
+def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemetry]:
+    """Records of a PX4 ULog file, one per ``vehicle_global_position`` sample (see the module docstring).
+
+    height_offset_m is added to every height. Raises ValueError naming the file when pyulog rejects it or it
+    has no ``vehicle_global_position``; ImportError with the install hint without pyulog.
+    """
+    try:
+        from pyulog import ULog
+    except ImportError:
+        raise ImportError(ULOG_EXTRA_HINT) from None
+    try:
+        ulog = ULog(str(path), _TOPICS)
+    except Exception as exc:  # pyulog raises its own and struct/IO errors for damaged files
+        raise ValueError(f"{path}: not a readable ULog file ({exc})") from None
+    position = _topic(ulog, "vehicle_global_position")
+    if position is None:
+        raise ValueError(f"{path}: no vehicle_global_position in the ULog (was the position logged?)")
+    t_us = position["timestamp"].astype(np.float64)
+    n = len(t_us)
+    height = np.full(n, np.nan)
+    vel_e = np.full(n, np.nan)
+    vel_n = np.full(n, np.nan)
+    local = _topic(ulog, "vehicle_local_position")
+    if local is not None:
+        t_local = local["timestamp"].astype(np.float64)
+        height = -_interp(t_us, t_local, local["z"].astype(np.float64))
+        if "vx" in local and "vy" in local:
+            vel_n = _interp(t_us, t_local, local["vx"].astype(np.float64))
+            vel_e = _interp(t_us, t_local, local["vy"].astype(np.float64))
+    vehicle_yaw = np.full(n, np.nan)
+    attitude = _topic(ulog, "vehicle_attitude")
+    if attitude is not None:
+        _, _, yaw = _yaws_deg(attitude)
+        ok = np.isfinite(yaw)
+        if ok.any():
+            vehicle_yaw = _interp(t_us, attitude["timestamp"][ok].astype(np.float64), yaw[ok])
+    pitch = np.full(n, np.nan)
+    roll = np.zeros(n)
+    heading = vehicle_yaw.copy()  # a fixed camera looks where the vehicle heads
+    gimbal = _topic(ulog, "gimbal_device_attitude_status")
+    if gimbal is not None:
+        g_roll, g_pitch, g_yaw = _yaws_deg(gimbal)
+        ok = np.isfinite(g_yaw)
+        if ok.any():
+            t_g = gimbal["timestamp"][ok].astype(np.float64)
+            pitch = _interp(t_us, t_g, g_pitch[ok])
+            roll = _interp(t_us, t_g, g_roll[ok])
+            flags = int(gimbal["device_flags"][ok][-1]) if "device_flags" in gimbal else _YAW_LOCK
+            earth = bool(flags & _YAW_IN_EARTH_FRAME) or (
+                not flags & _YAW_IN_VEHICLE_FRAME and bool(flags & _YAW_LOCK))
+            g_heading = _interp(t_us, t_g, g_yaw[ok])
+            heading = g_heading if earth else vehicle_yaw + g_heading
+    offset_s = 0.0
+    gps = _topic(ulog, "vehicle_gps_position")
+    if gps is not None and "time_utc_usec" in gps:
+        utc = gps["time_utc_usec"].astype(np.float64)
+        valid = utc > 0
+        if valid.any():
+            offset_s = float(np.median(utc[valid] - gps["timestamp"][valid].astype(np.float64))) / 1e6
+    records: list[Telemetry] = []
+    for i in range(n):
+        lat, lon = float(position["lat"][i]), float(position["lon"][i])
+        if not (math.isfinite(lat) and math.isfinite(lon)) or (lat, lon) == (0.0, 0.0):
+            continue
+        p = None if math.isnan(pitch[i]) else pitch_or_none(-float(pitch[i]), f"{path}: gimbal pitch {pitch[i]:g}")
+        records.append(Telemetry(
+            t=t_us[i] / 1e6 + offset_s, lat=lat, lon=lon,
+            height_m=None if math.isnan(height[i]) else float(height[i]) + height_offset_m,
+            pitch_deg=p, heading_deg=None if math.isnan(heading[i]) else float(heading[i]) % 360.0,
+            roll_deg=float(roll[i]),
+            speed_mps=None if math.isnan(vel_e[i]) else math.hypot(vel_e[i], vel_n[i]),
+            vel_en_mps=None if math.isnan(vel_e[i]) else (float(vel_e[i]), float(vel_n[i])),
+        ))
+    if not records:
+        raise ValueError(f"{path}: vehicle_global_position has no valid fix")
+    return records

@@ -1,0 +1,168 @@
+"""MAVLink (.tlog, written by pymavlink's own encoder) and PX4 ULog telemetry: the same records as the other
+readers, gimbal frames and clocks as MAVLink/PX4 define them (shared.telemetry.mavlink, shared.telemetry.ulog)."""
+
+from __future__ import annotations
+
+import io
+import math
+import struct
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared.telemetry import Telemetry, read_telemetry
+from shared.telemetry.mavlink import parse_tlog, quaternion_to_euler_deg
+from tests.shared.mavlink_writer import BOOT_MS0, euler_to_quaternion, flight_packets, ulog_bytes, write_tlog
+
+pytest.importorskip("pymavlink")
+
+T0 = 1_685_613_600.0  # 2023-06-01 10:00 UTC
+
+
+def _flight(n: int = 12) -> list[Telemetry]:
+    return [Telemetry(t=T0 + 0.1 * i, lat=48.53 + 1e-5 * i, lon=9.06 - 2e-5 * i, height_m=30.0 + 0.5 * i,
+                      pitch_deg=45.0 + i, heading_deg=(350.0 + 3 * i) % 360, roll_deg=0.0, vel_en_mps=(-1.5, 1.1))
+            for i in range(n)]
+
+
+def _same(got: list[Telemetry], want: list[Telemetry], *, angles: bool = True) -> None:
+    assert len(got) == len(want)
+    for g, w in zip(got, want, strict=True):
+        assert g.t == pytest.approx(w.t, abs=2e-3)
+        assert (g.lat, g.lon) == pytest.approx((w.lat, w.lon), abs=2e-7)  # 1e-7 deg integers
+        assert g.height_m == pytest.approx(w.height_m, abs=1e-3)
+        assert g.vel_en_mps == pytest.approx(w.vel_en_mps, abs=0.01)
+        if angles:
+            assert g.pitch_deg == pytest.approx(w.pitch_deg, abs=0.02)
+            assert math.cos(math.radians(g.heading_deg - w.heading_deg)) == pytest.approx(1.0, abs=1e-6)
+
+
+@pytest.mark.parametrize("gimbal", ["device-earth", "device-vehicle", "mount-status"])
+def test_tlog_gives_the_records_the_flight_logged(tmp_path, gimbal):
+    flight = _flight()
+    path = write_tlog(tmp_path / "flight.tlog", flight_packets(flight, gimbal=gimbal))
+    _same(read_telemetry(path), flight)
+
+
+def test_without_a_gimbal_the_camera_heads_where_the_vehicle_does_and_needs_a_pitch(tmp_path):
+    flight = _flight()
+    records = read_telemetry(write_tlog(tmp_path / "f.tlog", flight_packets(flight, gimbal="none")))
+    _same(records, flight, angles=False)
+    assert all(r.pitch_deg is None for r in records)
+    assert [r.heading_deg for r in records] == pytest.approx([f.heading_deg for f in flight], abs=1e-4)
+    assert records[3].to_pose(pitch_deg=60.0).pitch_deg == 60.0
+
+
+def test_tlog_without_system_time_is_stamped_by_the_logs_receive_times(tmp_path):
+    flight = _flight()
+    packets = [(t + 0.25, p) for t, p in flight_packets(flight, system_time=False)]  # received 0.27 s late
+    records = read_telemetry(write_tlog(tmp_path / "f.tlog", packets))
+    assert [r.t for r in records] == pytest.approx([f.t + 0.27 for f in flight], abs=2e-3)
+
+
+def test_tlog_skips_noise_other_systems_and_repeats(tmp_path):
+    flight = _flight()
+    packets = flight_packets(flight)
+    other = flight_packets([Telemetry(t=f.t, lat=10.0, lon=10.0, height_m=5.0, pitch_deg=10.0, heading_deg=0.0)
+                            for f in flight], system_id=7)
+    noisy = b"".join(struct.pack(">Q", int(t * 1e6)) + p for t, p in packets[:5])
+    noisy += b"\xfd\x09garbage\xfe\x01" + b"".join(struct.pack(">Q", int(t * 1e6)) + p for t, p in packets[5:])
+    noisy += b"".join(struct.pack(">Q", int(t * 1e6)) + p for t, p in other + packets[-6:])  # another drone; repeats
+    _same(parse_tlog(noisy), flight)
+
+
+def test_tlog_without_positions_is_refused_naming_the_file(tmp_path):
+    path = write_tlog(tmp_path / "empty.tlog", [(t, p) for t, p in flight_packets(_flight(3)) if p[7] != 33])
+    with pytest.raises(ValueError, match=r"empty.tlog: no vehicle position \(GLOBAL_POSITION_INT\)"):
+        read_telemetry(path)
+
+
+@settings(max_examples=200, deadline=None)
+@given(roll=st.floats(-60, 60), pitch=st.floats(-89, 89), yaw=st.floats(-179.9, 179.9))
+def test_quaternion_to_euler_inverts_euler_to_quaternion(roll, pitch, yaw):
+    got = quaternion_to_euler_deg(tuple(euler_to_quaternion(roll, pitch, yaw)))
+    assert got[1] == pytest.approx(pitch, abs=1e-6)
+    assert math.cos(math.radians(got[2] - yaw)) == pytest.approx(1.0, abs=1e-9)
+    assert math.cos(math.radians(got[0] - roll)) == pytest.approx(1.0, abs=1e-9)
+
+
+# ---- PX4 ULog -------------------------------------------------------------------------------------------------
+
+def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True):
+    pytest.importorskip("pyulog")
+    boot0 = 20_000_000
+    flight = _flight()
+    times = [boot0 + int(round((f.t - T0) * 1e6)) for f in flight]
+    topics = {
+        "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
+                                     ("float", "alt")],
+                                    [(t, f.lat, f.lon, 400.0 + f.height_m) for t, f in zip(times, flight, strict=True)]),
+        "vehicle_local_position": ([("uint64_t", "timestamp"), ("float", "z"), ("float", "vx"), ("float", "vy")],
+                                   [(t + 500, -f.height_m, f.vel_en_mps[1], f.vel_en_mps[0])
+                                    for t, f in zip(times, flight, strict=True)]),
+        "vehicle_attitude": ([("uint64_t", "timestamp")] + [("float", f"q[{i}]") for i in range(4)],
+                             [(t, *euler_to_quaternion(0, 0, f.heading_deg + 20)) for t, f in zip(times, flight,
+                                                                                                   strict=True)]),
+    }
+    if gimbal_flags is not None:
+        earth = gimbal_flags & 64
+        topics["gimbal_device_attitude_status"] = (
+            [("uint64_t", "timestamp")] + [("float", f"q[{i}]") for i in range(4)] + [("uint32_t", "device_flags")],
+            [(t, *euler_to_quaternion(0, -f.pitch_deg, f.heading_deg if earth else -20.0), gimbal_flags)
+             for t, f in zip(times, flight, strict=True)])
+    if gps:
+        topics["vehicle_gps_position"] = ([("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec")],
+                                          [(t, int(round(T0 * 1e6)) + t - boot0) for t in times])
+    path = tmp_path / "flight.ulg"
+    path.write_bytes(ulog_bytes(topics))
+    return path, flight
+
+
+@pytest.mark.parametrize("flags", [16 | 64, 32])
+def test_ulog_gives_the_records_the_flight_logged(tmp_path, flags):
+    path, flight = _ulog_flight(tmp_path, gimbal_flags=flags)
+    records = read_telemetry(path)
+    assert len(records) == len(flight)
+    for g, w in zip(records, flight, strict=True):
+        assert g.t == pytest.approx(w.t, abs=1e-5)
+        assert (g.lat, g.lon) == pytest.approx((w.lat, w.lon), abs=1e-9)
+        # the local position is logged 0.5 ms after each global one: interpolated at 5 m/s climb, <= 2.5 mm less
+        assert g.height_m == pytest.approx(w.height_m, abs=3e-3)
+        assert g.pitch_deg == pytest.approx(w.pitch_deg, abs=1e-3)
+        assert math.cos(math.radians(g.heading_deg - w.heading_deg)) == pytest.approx(1.0, abs=1e-6)
+        assert g.vel_en_mps == pytest.approx(w.vel_en_mps, abs=1e-4)
+
+
+def test_ulog_written_back_by_pyulog_reads_the_same(tmp_path):
+    from pyulog import ULog
+
+    path, _ = _ulog_flight(tmp_path)
+    buffer = io.BytesIO()
+    ULog(str(path)).write_ulog(buffer)  # pyulog's own writer, from the log it parsed
+    (tmp_path / "again.ulg").write_bytes(buffer.getvalue())
+    first, again = read_telemetry(path), read_telemetry(tmp_path / "again.ulg")
+    assert np.allclose([(r.t, r.lat, r.lon, r.height_m, r.heading_deg) for r in first],
+                       [(r.t, r.lat, r.lon, r.height_m, r.heading_deg) for r in again])
+
+
+def test_ulog_without_gimbal_or_utc_is_a_fixed_camera_on_the_boot_clock(tmp_path):
+    path, flight = _ulog_flight(tmp_path, gimbal_flags=None, gps=False)
+    records = read_telemetry(path, height_offset_m=-2.0)
+    assert records[0].t == pytest.approx(BOOT_MS0 / 1000, abs=1e-6)  # seconds since boot
+    assert all(r.pitch_deg is None for r in records)
+    assert records[4].heading_deg == pytest.approx((flight[4].heading_deg + 20) % 360, abs=1e-3)
+    assert records[4].height_m == pytest.approx(flight[4].height_m - 2.0025, abs=1e-4)
+
+
+def test_ulog_errors_name_the_file(tmp_path):
+    pytest.importorskip("pyulog")
+    bad = tmp_path / "bad.ulg"
+    bad.write_bytes(b"not a ulog at all")
+    with pytest.raises(ValueError, match="bad.ulg: not a readable ULog file"):
+        read_telemetry(bad)
+    empty = tmp_path / "empty.ulg"
+    empty.write_bytes(ulog_bytes({"vehicle_attitude": ([("uint64_t", "timestamp"), ("float", "q[0]")], [(1, 1.0)])}))
+    with pytest.raises(ValueError, match="empty.ulg: no vehicle_global_position"):
+        read_telemetry(empty)
