@@ -98,7 +98,8 @@ def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = Tr
     topics = {
         "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
                                      ("float", "alt")],
-                                    [(t, f.lat, f.lon, 400.0 + f.height_m) for t, f in zip(times, flight, strict=True)]),
+                                    [(t, f.lat, f.lon, 400.0 + f.height_m)
+                                     for t, f in zip(times, flight, strict=True)]),
         "vehicle_local_position": ([("uint64_t", "timestamp"), ("float", "z"), ("float", "vx"), ("float", "vy")],
                                    [(t + 500, -f.height_m, f.vel_en_mps[1], f.vel_en_mps[0])
                                     for t, f in zip(times, flight, strict=True)]),
