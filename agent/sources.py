@@ -278,8 +278,9 @@ class VideoSource:
     ----------
     video : path
         Anything ``cv2.VideoCapture`` opens (a file; a stream URL works too but has no telemetry sync).
-    telemetry : path
-        ``.srt`` (DJI), ``.csv`` or SeaDronesSee ``.json`` (`shared.telemetry.read_telemetry`).
+    telemetry : path or str
+        ``.srt`` (DJI), ``.csv``, SeaDronesSee ``.json``, MAVLink ``.tlog``, PX4 ``.ulg``
+        (`shared.telemetry.read_telemetry`), or a live MAVLink stream ``udp:HOST:PORT``.
     model : path
         ONNX YOLO model with raw (pre-NMS) output (`agent.detector.OnnxYoloDetector`).
     camera : path
@@ -302,6 +303,9 @@ class VideoSource:
         Run the detector on overlapping tiles of each frame (`agent.slicing.SlicedDetector`).
     slice_full_frame : bool
         With ``slices``: also run on the whole frame for objects larger than the overlap.
+    telemetry_timeout_s : float
+        A live MAVLink stream (``telemetry`` = ``udp:HOST:PORT``, `agent.mavlink_feed`) must deliver a position
+        within this many seconds, else ValueError.
     """
 
     def __init__(self, video: str | Path, telemetry: str | Path, model: str | Path, camera: str | Path, *,
@@ -309,7 +313,7 @@ class VideoSource:
                  max_gap_s: float = 1.0, pitch_deg: float | None = None, heading_deg: float | None = None,
                  height_m: float | None = None, height_offset_m: float | None = None,
                  providers: Sequence[str] = ("CPUExecutionProvider",), slices: SliceGrid | None = None,
-                 slice_full_frame: bool = True) -> None:
+                 slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0) -> None:
         import cv2
 
         from agent.detector import OnnxYoloDetector
@@ -353,7 +357,7 @@ class VideoSource:
         if live:  # last: nothing after this may fail with the port bound
             self.feed = MavlinkUdpFeed(str(telemetry), height_offset_m=height_offset_m or 0.0)
             try:
-                self.records = self.feed.start()
+                self.records = self.feed.start(telemetry_timeout_s)
             except BaseException:
                 self.feed.close()
                 raise

@@ -39,7 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--frames", type=int, default=None, help="--sim: frames of the flight (scenario default)")
     src.add_argument("--noise-scale", type=float, default=1.0, help="--sim: telemetry noise multiplier (1)")
     src.add_argument("--video-id", type=int, default=None, help="--dataset: which video (default: the first)")
-    src.add_argument("--telemetry", type=Path, help="--video: telemetry file (.srt, .csv, SeaDronesSee .json)")
+    src.add_argument("--telemetry", type=Path,
+                     help="--video: telemetry file (.srt, .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg) or a "
+                          "live MAVLink stream udp:HOST:PORT (docs/agent.md)")
     src.add_argument("--model", type=Path, help="--video: ONNX YOLO model with raw (pre-NMS) output")
     src.add_argument("--camera", type=Path,
                      help="--video: camera JSON (width, height, fx, fy, cx, cy) or a preset name (e.g. dji-mavic2-pro)")

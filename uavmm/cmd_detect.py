@@ -56,6 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     tel.add_argument("--telemetry-offset-s", type=float, default=None,
                      help="telemetry time of the video's first frame, seconds on the telemetry's clock "
                           "(default: the first record's)")
+    tel.add_argument("--telemetry-timeout-s", type=float, default=10.0,
+                     help="udp:HOST:PORT: seconds to wait for the first MAVLink position (10)")
     tel.add_argument("--pitch-deg", type=float, default=None, help="fixed gimbal pitch if telemetry lacks it")
     tel.add_argument("--heading-deg", type=float, default=None, help="fixed gimbal heading if telemetry lacks it")
     tel.add_argument("--height-m", type=float, default=None, metavar="METRES",
@@ -133,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
                          telemetry_offset_s=args.telemetry_offset_s, class_names=args.class_names,
                          conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
                          height_m=args.height_m, height_offset_m=args.height_offset_m, providers=providers,
-                         slices=slices, slice_full_frame=not args.no_full_frame)
+                         slices=slices, slice_full_frame=not args.no_full_frame,
+                         telemetry_timeout_s=args.telemetry_timeout_s)
     progress = ProgressLine(f"detect {args.video.name}", enabled=not args.quiet)
     try:
         summary = run_detect(source, args.out, pipeline_config, size_filter, tracker_config, options=options,
