@@ -22,7 +22,9 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.openapi.docs import get_redoc_html, get_swagger_ui_html
 from fastapi.responses import HTMLResponse, PlainTextResponse, Response
 from fastapi.staticfiles import StaticFiles
+from pydantic import BaseModel
 
+from fusion_server import schemas
 from fusion_server.geo_formats import GEOJSON_MEDIA_TYPE, GeoJSONResponse, tilejson, track_lines_geojson, uavs_geojson
 from fusion_server.http_auth import BearerAuth
 from fusion_server.peaks import find_peaks, peaks_geojson
@@ -94,6 +96,29 @@ def _check_cls(server: FusionView, cls: str, *, must_exist: bool = True) -> str:
     return cls
 
 
+def _ref(name: str) -> dict[str, str]:
+    """A reference to a schema of `fusion_server.schemas` in the OpenAPI components (see `_with_models`)."""
+    return {"$ref": f"#/components/schemas/{name}"}
+
+
+def _with_models(app: FastAPI, *models: type[BaseModel]) -> None:
+    """Add models that responses reference by `_ref` only (another media type) to the OpenAPI components."""
+    generate = app.openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            spec = generate()
+            components = spec.setdefault("components", {}).setdefault("schemas", {})
+            for model in models:
+                schema = model.model_json_schema(ref_template="#/components/schemas/{model}")
+                for name, definition in schema.pop("$defs", {}).items():
+                    components.setdefault(name, definition)
+                components.setdefault(model.__name__, schema)
+        return app.openapi_schema  # type: ignore[return-value]
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
 def _index_html() -> str:
     try:
         return resources.files("fusion_server").joinpath("static/index.html").read_text(encoding="utf-8")
@@ -147,6 +172,7 @@ def create_app(server: FusionView) -> FastAPI:
                            allow_methods=["GET", "HEAD", "OPTIONS"], allow_headers=["Authorization"],
                            expose_headers=["ETag"], max_age=600)
     _add_docs(app)
+    _with_models(app, schemas.UavCollection)
 
     @app.get("/", response_class=HTMLResponse, summary="Live map page")
     def index() -> str:
@@ -155,7 +181,8 @@ def create_app(server: FusionView) -> FastAPI:
     # the page's script and style, shipped in the package: the page works offline (no CDN)
     app.mount("/static", StaticFiles(packages=[("fusion_server", "static")]), name="static")
 
-    @app.get("/healthz", summary="Liveness and a short status")
+    @app.get("/healthz", summary="Liveness and a short status", response_model=None,
+             responses={200: {"model": schemas.Health}})
     def healthz() -> dict[str, Any]:
         db = server.db_health()
         return {
@@ -169,8 +196,10 @@ def create_app(server: FusionView) -> FastAPI:
             "global_tracks": len(server.tracker),
         }
 
-    @app.get("/v1/uavs", summary="The UAVs: liveliness, last seen, last state, message rates",
-             responses={200: {"content": {GEOJSON_MEDIA_TYPE: {}}}})
+    @app.get("/v1/uavs", summary="The UAVs: liveliness, last seen, last state, message rates", response_model=None,
+             responses={200: {"model": list[schemas.Uav], "description": "format=json: a list of UAVs; "
+                              "format=geojson: a FeatureCollection (schema UavCollection); format=kml: KML",
+                              "content": {GEOJSON_MEDIA_TYPE: {"schema": _ref("UavCollection")}}}})
     def uavs(
         format: Literal["json", "geojson", "kml"] = Query(
             "json", description="json list, or a GeoJSON FeatureCollection / KML of Points (UAVs with a position)"),
@@ -183,7 +212,8 @@ def create_app(server: FusionView) -> FastAPI:
             return _kml("uavmm UAVs", {"UAVs": uavs_geojson(rows, footprints=footprints)})
         return rows
 
-    @app.get("/v1/map", summary="Joint map window over a bbox (grid geometry + values)")
+    @app.get("/v1/map", summary="Joint map window over a bbox (grid geometry + values)", response_model=None,
+             responses={200: {"model": schemas.JointMapWindow}})
     def joint_map(
         cls: str = Query(..., description="class name, e.g. person"),
         bbox: str = Query(..., description=_BBOX_HELP),
@@ -257,7 +287,8 @@ def create_app(server: FusionView) -> FastAPI:
             return Response(status_code=304, headers=headers)
         return Response(content=png, media_type="image/png", headers=headers)
 
-    @app.get("/v1/tiles/{cls}.json", summary="TileJSON 3.0.0 of a class's heatmap tiles (extension)")
+    @app.get("/v1/tiles/{cls}.json", summary="TileJSON 3.0.0 of a class's heatmap tiles (extension)",
+             response_model=None, responses={200: {"model": schemas.TileJson}})
     def tile_json(request: Request, cls: str) -> dict[str, Any]:
         _check_cls(server, cls, must_exist=False)
         tiles = server.joint.tiles(cls)
@@ -271,7 +302,8 @@ def create_app(server: FusionView) -> FastAPI:
                         grid_zoom=grid.z)
 
     @app.get("/v1/objects", summary="Fused object candidates (joint map peaks) as GeoJSON",
-             response_class=GeoJSONResponse)
+             response_class=GeoJSONResponse, response_model=None,
+             responses={200: {"model": schemas.ObjectCollection, "description": "format=geojson: GeoJSON; kml: KML"}})
     def objects(
         cls: str | None = Query(None, description="class name (default: all classes)"),
         bbox: str | None = Query(None, description=_BBOX_HELP + " (default: everywhere)"),
@@ -299,7 +331,11 @@ def create_app(server: FusionView) -> FastAPI:
             return _kml("uavmm fused objects", {"objects": peaks_geojson(peaks[:limit])})
         return peaks_geojson(peaks[:limit])
 
-    @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history", response_class=GeoJSONResponse)
+    @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history", response_class=GeoJSONResponse,
+             response_model=None,
+             responses={200: {"model": schemas.TrackCollection | schemas.TrackLineCollection,
+                              "description": "geometry=point: TrackCollection; geometry=line: TrackLineCollection; "
+                                             "format=kml: KML"}})
     def tracks(
         include_ended: bool = Query(False, description="also list recently ended tracks"),
         history: bool = Query(True, description="include each track's (t, lat, lon) history"),
@@ -322,7 +358,8 @@ def create_app(server: FusionView) -> FastAPI:
             return track_lines_geojson(features)
         return {"type": "FeatureCollection", "features": features}
 
-    @app.get("/v1/history", response_class=GeoJSONResponse,
+    @app.get("/v1/history", response_class=GeoJSONResponse, response_model=None,
+             responses={200: {"model": schemas.HistoryCollection}},
              summary="Global tracks over a time window, from the stored history (extension; the page's slider)")
     def history(
         since: float | None = Query(None, description="earliest history row, seconds since the epoch"),
@@ -344,7 +381,8 @@ def create_app(server: FusionView) -> FastAPI:
                 del feature["properties"]["history"]
         return window
 
-    @app.get("/v1/joint/tiles", summary="Index of the current joint tiles (extension)")
+    @app.get("/v1/joint/tiles", summary="Index of the current joint tiles (extension)", response_model=None,
+             responses={200: {"model": list[schemas.JointTileInfo]}})
     def joint_tiles(cls: str | None = Query(None, description="class name (default: all)")) -> list[dict[str, Any]]:
         if cls is not None:
             _check_cls(server, cls, must_exist=False)
@@ -354,7 +392,8 @@ def create_app(server: FusionView) -> FastAPI:
             for t in sorted(server.joint.tiles(cls), key=lambda t: t.key)
         ]
 
-    @app.get("/v1/basemap.json", summary="The basemap the live page draws (extension; 404 without --basemap)")
+    @app.get("/v1/basemap.json", summary="The basemap the live page draws (extension; 404 without --basemap)",
+             response_model=None, responses={200: {"model": schemas.BasemapConfig}})
     def basemap_config() -> dict[str, Any]:
         if server.basemap is None:
             raise HTTPException(status_code=404, detail="no basemap (uavmm fusion --basemap URL|FILE.mbtiles)")
