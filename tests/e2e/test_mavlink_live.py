@@ -12,7 +12,8 @@ import pytest
 from shared.messages import decode_state
 from shared.telemetry import read_csv
 from tests.agent.test_node_zenoh import KEYS, FakeServer
-from tests.e2e.conftest import agent_cmd, finish, free_port, start_agent, wait_for
+from tests.e2e.conftest import agent_cmd, finish, start_agent
+from tests.netutil import free_port, wait_until
 from tests.shared.mavlink_writer import flight_packets, replay_udp
 from uavmm.cli import main
 
@@ -63,7 +64,7 @@ def test_live_mavlink_drives_the_agent_end_to_end(flight, tmp_path):
                                      f"udp:127.0.0.1:{udp_port}", "--telemetry-offset-s", str(flight["records"][0].t),
                                      "--model", str(flight["model"]), "--camera", str(flight["camera"]),
                                      "--speed", "0", "--no-size-filter"))
-        wait_for(lambda: server.count("uav_state") > 0 or proc.poll() is not None, 30.0, "the agent's state")
+        wait_until(lambda: server.count("uav_state") > 0 or proc.poll() is not None, 30.0, "the agent's state")
         code, summary, err = finish(proc, 60.0)
         replay.join(timeout=30.0)
         assert code == 0, err[-2000:]

@@ -7,7 +7,8 @@ import pytest
 from pydantic import BaseModel, TypeAdapter, ValidationError
 
 from fusion_server import schemas
-from tests.fusion_server.fake_agent import GRID, TILE_X, TILE_Y, blob, wait_until
+from tests.fusion_server.fake_agent import GRID, TILE_X, TILE_Y, blob
+from tests.netutil import wait_until
 
 
 def _check(model, text: str) -> None:
