@@ -244,3 +244,14 @@ def test_dockerfile_installs_like_the_makefile_and_runs_unprivileged():
     assert ("ENTRYPOINT", '["uavmm"]') in rows
     ignore = (DEPLOY / "Dockerfile.dockerignore").read_text().split()
     assert {".git", ".venv"} <= set(ignore)
+
+
+def test_the_role_extras_are_covered_by_the_test_extra_ci_installs():
+    """What `.[agent]`, `.[eval]` and `.[dev]` promise is installed and exercised by CI (`.[test]`)."""
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+
+    extras = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]["optional-dependencies"]
+    assert {"agent", "server", "eval", "dev", "test"} <= set(extras)
+    test = set(extras["test"])
+    for role in ("agent", "eval", "dev"):
+        assert set(extras[role]) <= test, f"{role} extra not in test: {set(extras[role]) - test}"
