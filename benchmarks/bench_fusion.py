@@ -81,43 +81,47 @@ def _blob_cells(n: int = 256, count: int = 3, radius: int = 7) -> np.ndarray:
 
 
 def _load_generator(endpoint: str, prefix: str, n_uavs: int, duration_s: float, start_wall: float,
-                    shared_pairs: bool, out: Any) -> None:
-    """Child process: N UAVs putting 9 tiles each at 5 Hz from ``start_wall`` for ``duration_s``."""
+                    shared_pairs: bool, out: Any, part: tuple[int, int] = (0, 1)) -> None:
+    """Child process: N UAVs putting 9 tiles each at 5 Hz from ``start_wall`` for ``duration_s``
+    (with ``part = (j, m)`` only the UAVs i with i % m == j, so m processes share the load)."""
     import zenoh
 
     from shared.keys import KeySpace
-    from shared.tilecodec import encode_tile_sparse
+    from shared.messages import VERSION
 
     keys = KeySpace()
     idx = _blob_cells()
+    idx_bytes = idx.astype("<u2").tobytes()  # sorted, as every encoder writes them
     base_val = (np.arange(idx.size) % 200 + 30).astype(np.int64)
-    lag_max = 0.0
+    lags: list[float] = []
     puts = 0
+    mine = [i for i in range(n_uavs) if i % part[1] == part[0]]
     with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
-        uavs = []
-        for i in range(n_uavs):
+        uavs = {}
+        for i in mine:
             uav = f"{prefix}{i}"
             pubs = [(x, y, session.declare_publisher(keys.uav_tile(uav, "person", 18, x, y),
                                                      congestion_control=zenoh.CongestionControl.BLOCK))
                     for x, y in _uav_tiles(i, shared_pairs)]
-            uavs.append((uav, pubs))
+            uavs[i] = (uav, pubs)
         period = 1.0 / RATE_HZ
         cycles = int(duration_s * RATE_HZ)
         events = sorted((start_wall + k * period + (i / n_uavs) * period, k, i)
-                        for k in range(cycles) for i in range(n_uavs))
+                        for k in range(cycles) for i in mine)
         for when, k, i in events:
             delay = when - time.time()
             if delay > 0:
                 time.sleep(delay)
-            else:
-                lag_max = max(lag_max, -delay)
+            lags.append(max(-delay, 0.0))
             uav, pubs = uavs[i]
-            val = (base_val + 7 * k + i) % 225 + 30
-            for x, y, pub in pubs:
-                pub.put(encode_tile_sparse(uav, "person", 18, x, y, 256, time.time(), k + 1, idx, val))
+            val = (((base_val + 7 * k + i) % 225) + 30).astype(np.uint8).tobytes()
+            for x, y, pub in pubs:  # the wire form of shared.tilecodec.encode_tile_sparse, packed directly
+                pub.put(msgpack.packb({"v": VERSION, "uav": uav, "cls": "person", "z": 18, "x": x, "y": y,
+                                       "n": 256, "t": time.time(), "seq": k + 1, "idx": idx_bytes, "val": val},
+                                      use_bin_type=True))
                 puts += 1
         time.sleep(0.3)
-    out.put({"puts": puts, "lag_max_s": lag_max})
+    out.put({"puts": puts, "lag_p99_s": float(np.quantile(lags, 0.99)) if lags else 0.0})
 
 
 class _JointLatency:
@@ -154,14 +158,18 @@ def _start_fusion(port: int, db_dir: str) -> subprocess.Popen:
 
 
 def _run_load(ctx, endpoint: str, receiver: _JointLatency, n_uavs: int, duration_s: float, step: int,
-              shared_pairs: bool = False) -> dict[str, float]:
+              shared_pairs: bool = False, n_procs: int = 1) -> dict[str, float]:
     out = ctx.Queue()
-    start = time.time() + 1.5  # the child needs ~1 s to import and declare its publishers
-    proc = ctx.Process(target=_load_generator,
-                       args=(endpoint, f"s{step}u", n_uavs, duration_s, start, shared_pairs, out))
-    proc.start()
-    proc.join(timeout=duration_s + 60)
-    report = out.get(timeout=5) if proc.exitcode == 0 else {"puts": 0, "lag_max_s": float("inf")}
+    start = time.time() + 2.0  # a child needs ~1 s to import and declare its publishers
+    procs = [ctx.Process(target=_load_generator,
+                         args=(endpoint, f"s{step}u", n_uavs, duration_s, start, shared_pairs, out, (j, n_procs)))
+             for j in range(n_procs)]
+    for proc in procs:
+        proc.start()
+    for proc in procs:
+        proc.join(timeout=duration_s + 60)
+    ok = all(proc.exitcode == 0 for proc in procs)
+    reports = [out.get(timeout=5) for _ in procs] if ok else [{"puts": 0, "lag_p99_s": float("inf")}]
     warm = 0.6
     t0, t1 = start + warm, start + duration_s
     lat = receiver.window(t0, t1)
@@ -176,7 +184,7 @@ def _run_load(ctx, endpoint: str, receiver: _JointLatency, n_uavs: int, duration
         "p50": float(np.quantile(lat, 0.5)) if lat.size else float("inf"),
         "p99": float(np.quantile(lat, 0.99)) if lat.size else float("inf"),
         "received_ratio": lat.size / expected,
-        "lag_max_s": report["lag_max_s"],
+        "lag_p99_s": max(report["lag_p99_s"] for report in reports),
     }
 
 
@@ -290,7 +298,7 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
                     result = _run_load(ctx, endpoint, receiver, n, duration_s, step)
                     results.append(result)
                     ok = (result["p99"] <= P99_BUDGET_S and result["received_ratio"] >= 0.95
-                          and result["lag_max_s"] <= P99_BUDGET_S)
+                          and result["lag_p99_s"] <= P99_BUDGET_S)
                     log.info("fusion bench: %s -> %s", result, "ok" if ok else "not sustained")
                     rows.append({
                         "case": f"{n} UAVs x 9 tiles @5 Hz: p99 put->joint (p50 {result['p50'] * 1e3:.1f} ms, "

@@ -9,7 +9,11 @@ does every UAV with ``coverage="tile"``; a cell no footprint holds falls back to
 the tile (see :mod:`fusion_server.rules`). :meth:`JointMap.step` fuses the tiles that changed (at
 most ``max_hz`` times a second per tile), expires old ones and returns the joint tile messages to
 publish, including one empty tile for a joint tile nobody covers any more. Thread-safe: one
-internal lock.
+internal lock (:meth:`JointMap.put_many` takes it once for a batch of tiles).
+
+Tiles are held sparse (sorted non-zero cell indices and their bytes, as on the wire) and fused over
+the union of their non-zero cells only: every rule maps all-zero inputs to zero, so the cells
+outside the union stay zero. A tile one UAV covers is published from its cells as they came.
 """
 
 from __future__ import annotations
@@ -21,12 +25,13 @@ import time
 from collections.abc import Iterable
 from dataclasses import dataclass
 
+import msgpack
 import numpy as np
 from numpy.typing import NDArray
 
 from fusion_server.rules import FusionRule
 from shared.keys import JOINT_UAV
-from shared.tilecodec import encode_tile_sparse
+from shared.messages import VERSION
 from shared.tiles import TileGrid, fill_cell_polygons
 
 __all__ = ["COVERAGE_MODES", "JointMap", "JointTile", "JointUpdate", "TileKey", "encode_joint_tile"]
@@ -42,26 +47,39 @@ _MAX_FOOTPRINTS = 64
 _BURST = 2.0
 
 
-@dataclass(frozen=True, slots=True, eq=False)
 class JointTile:
     """One fused tile as published.
 
-    values: (n, n) uint8, read-only (value = byte / 255). t: newest ``t`` (seconds since the epoch) of
-    the UAV tiles fused into it. seq: the server's publish counter. payload: the encoded tile message
-    (``uav = "joint"``). uavs: the UAVs covering it when it was fused (empty for a tile restored from
-    the database). updated: wall time of the fusion, seconds since the epoch.
+    values: (n, n) uint8, read-only (value = byte / 255); built on first access when the tile was
+    made from its non-zero cells (``cells=(n, idx, val)`` with ``values=None``, as the joint map
+    does: most tiles are published and never read densely). t: newest ``t`` (seconds since the
+    epoch) of the UAV tiles fused into it. seq: the server's publish counter. payload: the encoded
+    tile message (``uav = "joint"``). uavs: the UAVs covering it when it was fused (empty for a tile
+    restored from the database). updated: wall time of the fusion, seconds since the epoch.
+    Equality is identity.
     """
 
-    cls: str
-    z: int
-    x: int
-    y: int
-    values: NDArray[np.uint8]
-    t: float
-    seq: int
-    payload: bytes
-    uavs: tuple[str, ...]
-    updated: float
+    __slots__ = ("_cells", "_values", "cls", "payload", "seq", "t", "updated", "uavs", "x", "y", "z")
+
+    def __init__(self, cls: str, z: int, x: int, y: int, values: NDArray[np.uint8] | None, t: float, seq: int,
+                 payload: bytes, uavs: tuple[str, ...], updated: float, *,
+                 cells: tuple[int, NDArray[np.uint16], NDArray[np.uint8]] | None = None) -> None:
+        if values is None and cells is None:
+            raise ValueError("a JointTile needs values or cells")
+        self.cls, self.z, self.x, self.y = cls, z, x, y
+        self._values = values
+        self._cells = cells
+        self.t, self.seq, self.payload, self.uavs, self.updated = t, seq, payload, uavs, updated
+
+    @property
+    def values(self) -> NDArray[np.uint8]:
+        """(n, n) uint8, read-only."""
+        values = self._values
+        if values is None:
+            assert self._cells is not None
+            values = self._values = _dense(*self._cells)
+            values.flags.writeable = False
+        return values
 
     @property
     def key(self) -> TileKey:
@@ -86,7 +104,8 @@ class JointUpdate:
 
 @dataclass(slots=True)
 class _UavTile:
-    values: NDArray[np.uint8]
+    idx: NDArray[np.uint16]  # sorted row-major indices of the non-zero cells
+    val: NDArray[np.uint8]  # their bytes, non-zero
     t: float
     seq: int
     received: float  # monotonic
@@ -104,8 +123,29 @@ def encode_joint_tile(key: TileKey, n: int, values: NDArray[np.uint8], t: float,
     """Tile message bytes (``uav = "joint"``) of (n, n) uint8 ``values``, sparse or dense."""
     flat = values.reshape(-1)
     idx = np.flatnonzero(flat != 0)  # on a bool array: ~10x faster than flatnonzero on uint8
+    return _encode_sparse(key, n, idx.astype(np.uint16), flat[idx], t, seq)
+
+
+def _encode_sparse(key: TileKey, n: int, idx: NDArray[np.uint16], val: NDArray[np.uint8], t: float,
+                   seq: int) -> bytes:
+    """The joint tile message of sorted distinct ``idx`` < n*n and their non-zero ``val`` (the wire
+    form of shared.tilecodec, dense when that is smaller), without re-validating the fields."""
     cls, z, x, y = key
-    return encode_tile_sparse(JOINT_UAV, cls, z, x, y, n, t, seq, idx, flat[idx])
+    if 3 * idx.size < n * n:
+        wire = {"idx": idx.astype("<u2", copy=False).tobytes(), "val": val.tobytes()}
+    else:
+        dense = np.zeros(n * n, dtype=np.uint8)
+        dense[idx] = val
+        wire = {"val": dense.tobytes()}
+    return msgpack.packb({"v": VERSION, "uav": JOINT_UAV, "cls": cls, "z": z, "x": x, "y": y, "n": n,
+                          "t": float(t), "seq": seq, **wire}, use_bin_type=True)
+
+
+def _dense(n: int, idx: NDArray[np.uint16], val: NDArray[np.uint8]) -> NDArray[np.uint8]:
+    """(n, n) uint8 tile of the sparse cells."""
+    flat = np.zeros(n * n, dtype=np.uint8)
+    flat[idx] = val
+    return flat.reshape(n, n)
 
 
 class JointMap:
@@ -156,6 +196,7 @@ class JointMap:
         self._covers: dict[TileKey, dict[str, _UavTile]] = {}
         self._n_uav_tiles = 0
         self._joint: dict[TileKey, JointTile] = {}
+        self._joint_cells: dict[TileKey, tuple[bytes, bytes]] = {}  # idx, val bytes of each joint tile
         self._dirty: dict[TileKey, float] = {}
         # token bucket per tile: (tokens, time of the last refill); rate max_hz, burst _BURST, so the
         # average rate is capped while a put arriving a little early (jitter) is not held back
@@ -170,7 +211,7 @@ class JointMap:
         self._uav_keys: dict[str, set[TileKey]] = {}  # tiles each UAV covers now
         self._footprints: dict[str, list[_Footprint]] = {}  # oldest first
         self._masks: dict[tuple[str, int, int], tuple[int, NDArray[np.bool_] | None]] = {}
-        self._fp_version = 0
+        self._fp_versions: dict[str, int] = {}  # per UAV: bumped when its footprints change
         self._next_prune = -math.inf  # monotonic time of the next sweep of old footprints
 
     # ---- input ---------------------------------------------------------------------------------
@@ -178,32 +219,49 @@ class JointMap:
             now: float | None = None) -> str | None:
         """Store a UAV's tile; return None when accepted, else the reason it was not.
 
-        values: (n, n) uint8 of the grid's n (not copied: the caller must not change it). Reasons:
-        "stale" (not newer than the stored tile: seq and t both not greater), "too_many_tiles" (the
-        store is full, or this UAV already holds max_tiles_per_uav tiles). Wakes a thread blocked in
-        :meth:`wait`.
+        values: (n, n) uint8 of the grid's n. Reasons: "stale" (not newer than the stored tile: seq
+        and t both not greater), "too_many_tiles" (the store is full, or this UAV already holds
+        max_tiles_per_uav tiles). Wakes a thread blocked in :meth:`wait`.
+        """
+        flat = np.asarray(values).reshape(-1)
+        idx = np.flatnonzero(flat != 0)
+        return self.put_many([(uav, key, idx.astype(np.uint16), flat[idx].astype(np.uint8), t, seq)], now)[0]
+
+    def put_many(self, tiles: Iterable[tuple[str, TileKey, NDArray[np.uint16], NDArray[np.uint8], float, int]],
+                 now: float | None = None) -> list[str | None]:
+        """Store a batch of UAV tiles ``(uav, key, idx, val, t, seq)`` under one lock; per tile None
+        when accepted, else the reason (as :meth:`put`).
+
+        idx: sorted distinct row-major cell indices < n*n (uint16), val: their non-zero bytes (a
+        :class:`shared.tilecodec.SparseTile`'s fields; not copied). Wakes a thread blocked in
+        :meth:`wait` once.
         """
         now = self._clock() if now is None else now
         with self._lock:
-            per_uav = self._covers.get(key)
-            old = per_uav.get(uav) if per_uav is not None else None
-            if old is not None and seq <= old.seq and t <= old.t:
-                return "stale"
-            if old is None and (self._n_uav_tiles >= self.max_uav_tiles
-                                or len(self._uav_keys.get(uav, ())) >= self.max_tiles_per_uav):
-                return "too_many_tiles"
-            if per_uav is None:
-                per_uav = self._covers[key] = {}
-            if old is None:
-                self._n_uav_tiles += 1
-                self._uav_keys.setdefault(uav, set()).add(key)
-            per_uav[uav] = _UavTile(values, float(t), int(seq), now)
-            if len(self._classes) < _MAX_CLASSES:
-                self._classes.add(key[0])
-            heapq.heappush(self._expiries, (now + self.ttl_s, key, uav, now))
-            self._dirty.setdefault(key, now)
+            reasons = [self._put_locked(uav, key, idx, val, t, seq, now) for uav, key, idx, val, t, seq in tiles]
             self._poked = True
             self._wake.notify_all()
+        return reasons
+
+    def _put_locked(self, uav: str, key: TileKey, idx: NDArray[np.uint16], val: NDArray[np.uint8], t: float,
+                    seq: int, now: float) -> str | None:
+        per_uav = self._covers.get(key)
+        old = per_uav.get(uav) if per_uav is not None else None
+        if old is not None and seq <= old.seq and t <= old.t:
+            return "stale"
+        if old is None and (self._n_uav_tiles >= self.max_uav_tiles
+                            or len(self._uav_keys.get(uav, ())) >= self.max_tiles_per_uav):
+            return "too_many_tiles"
+        if per_uav is None:
+            per_uav = self._covers[key] = {}
+        if old is None:
+            self._n_uav_tiles += 1
+            self._uav_keys.setdefault(uav, set()).add(key)
+        per_uav[uav] = _UavTile(idx, val, float(t), int(seq), now)
+        if len(self._classes) < _MAX_CLASSES:
+            self._classes.add(key[0])
+        heapq.heappush(self._expiries, (now + self.ttl_s, key, uav, now))
+        self._dirty.setdefault(key, now)
         return None
 
     def put_footprint(self, uav: str, footprint_latlon, now: float | None = None) -> bool:
@@ -228,7 +286,7 @@ class JointMap:
             prints.append(_Footprint(cells, cells.min(axis=0), cells.max(axis=0), now))
             if len(prints) > _MAX_FOOTPRINTS:
                 del prints[0]
-            self._fp_version += 1
+            self._bump_footprints(uav)
             for key in self._uav_keys.get(uav, ()):
                 self._dirty.setdefault(key, now)
             self._poked = True
@@ -243,13 +301,14 @@ class JointMap:
         cutoff = now - self.ttl_s
         if prints[0].received < cutoff:
             prints[:] = [fp for fp in prints if fp.received >= cutoff]
-            self._fp_version += 1
+            self._bump_footprints(uav)
             if not prints:
                 del self._footprints[uav]
                 return None
         _, _, x, y = key
+        version = self._fp_versions.get(uav, 0)
         cached = self._masks.get((uav, x, y))
-        if cached is not None and cached[0] == self._fp_version:
+        if cached is not None and cached[0] == version:
             return cached[1]
         n = self.grid.n
         x0, y0 = x * n, y * n
@@ -258,8 +317,12 @@ class JointMap:
                                   x0, y0, n, n)
         if len(self._masks) > self.max_uav_tiles:  # masks are freed with their tiles: a safety net only
             self._masks.clear()
-        self._masks[(uav, x, y)] = (self._fp_version, mask)
+        self._masks[(uav, x, y)] = (version, mask)
         return mask
+
+    def _bump_footprints(self, uav: str) -> None:
+        """Invalidate the cached coverage masks of ``uav`` (its footprints changed)."""
+        self._fp_versions[uav] = self._fp_versions.get(uav, 0) + 1
 
     def restore(self, tiles: Iterable[JointTile], keep_s: float, now: float | None = None) -> int:
         """Serve joint tiles loaded from the database until ``keep_s`` after their last update.
@@ -277,6 +340,9 @@ class JointMap:
                 if tile.key in self._joint or left <= 0:
                     continue
                 self._joint[tile.key] = tile
+                flat = tile.values.reshape(-1)
+                idx = np.flatnonzero(flat != 0)
+                self._joint_cells[tile.key] = (idx.astype("<u2").tobytes(), flat[idx].tobytes())
                 self._classes.add(tile.cls)
                 self._seq = max(self._seq, tile.seq + 1)
                 heapq.heappush(self._expiries, (now + left, tile.key, None, now))
@@ -344,9 +410,10 @@ class JointMap:
             if prints[0].received >= cutoff:
                 continue
             prints[:] = [fp for fp in prints if fp.received >= cutoff]
-            self._fp_version += 1
+            self._bump_footprints(uav)
             if not prints:
                 del self._footprints[uav]
+                self._fp_versions.pop(uav, None)
 
     def _expire(self, now: float) -> None:
         self._prune_footprints(now)
@@ -381,36 +448,51 @@ class JointMap:
             if previous is None:
                 return None
             del self._joint[key]
+            self._joint_cells.pop(key, None)
             self._buckets.pop(key, None)
             self._published.pop(key, None)
             self._seq += 1
-            empty = np.zeros((n, n), dtype=np.uint8)
-            return JointUpdate(key, encode_joint_tile(key, n, empty, self._wall(), self._seq), None, pending_since)
-        entries = list(per_uav.values())
-        if len(entries) == 1:
-            values = entries[0].values  # every rule maps one layer to itself (also with its mask)
+            empty = np.zeros(0, dtype=np.uint16)
+            payload = _encode_sparse(key, n, empty, empty.astype(np.uint8), self._wall(), self._seq)
+            return JointUpdate(key, payload, None, pending_since)
+        if len(per_uav) == 1:
+            (entry,) = per_uav.values()
+            idx, val = entry.idx, entry.val  # every rule maps one layer to itself (also with its mask)
+            t = entry.t
         else:
-            stack = np.stack([e.values for e in entries])
-            covered = None
-            if self.coverage == "footprint":
-                masks = [self._coverage_mask(uav, key, now) for uav in per_uav]
-                if any(m is not None for m in masks):
-                    covered = np.stack([np.ones((n, n), dtype=bool) if m is None else m for m in masks])
-            values = self.rule(stack, covered)
-        t = max(e.t for e in entries)
-        uavs = tuple(sorted(per_uav))
-        if (previous is not None and np.array_equal(previous.values, values)
+            idx, val = self._fuse_layers(key, per_uav, now)
+            t = max(e.t for e in per_uav.values())
+        cells = (idx.astype("<u2", copy=False).tobytes(), val.tobytes())
+        if (previous is not None and self._joint_cells.get(key) == cells
                 and now - self._published.get(key, -math.inf) < self.refresh_s):
             return None  # unchanged and recently published (agents drop joint tiles after their TTL)
         self._published[key] = now
-        values = values.copy() if len(entries) == 1 else values
-        values.flags.writeable = False
         self._seq += 1
-        payload = encode_joint_tile(key, n, values, t, self._seq)
+        payload = _encode_sparse(key, n, idx, val, t, self._seq)
         cls, z, x, y = key
-        tile = JointTile(cls, z, x, y, values, t, self._seq, payload, uavs, self._wall())
+        tile = JointTile(cls, z, x, y, None, t, self._seq, payload, tuple(sorted(per_uav)), self._wall(),
+                         cells=(n, idx, val))
         self._joint[key] = tile
+        self._joint_cells[key] = cells
         return JointUpdate(key, payload, tile, pending_since)
+
+    def _fuse_layers(self, key: TileKey, per_uav: dict[str, _UavTile],
+                     now: float) -> tuple[NDArray[np.uint16], NDArray[np.uint8]]:
+        """The rule over k >= 2 layers on the union of their non-zero cells: (idx, non-zero val)."""
+        entries = list(per_uav.values())
+        union = np.unique(np.concatenate([e.idx for e in entries]))
+        stack = np.zeros((len(entries), union.size), dtype=np.uint8)
+        for row, entry in zip(stack, entries, strict=True):
+            row[np.searchsorted(union, entry.idx)] = entry.val
+        covered = None
+        if self.coverage == "footprint":
+            masks = [self._coverage_mask(uav, key, now) for uav in per_uav]
+            if any(m is not None for m in masks):
+                covered = np.stack([np.ones(union.size, dtype=bool) if m is None else m.reshape(-1)[union]
+                                    for m in masks])
+        fused = self.rule(stack, covered)
+        keep = fused != 0
+        return union[keep], fused[keep]
 
     # ---- reading -------------------------------------------------------------------------------
     def get(self, key: TileKey) -> JointTile | None:

@@ -220,6 +220,11 @@ class FusionStore:
         with self._lock:
             self._joint[key] = tile
 
+    def save_joints(self, tiles: list[tuple[TileKey, JointTile | None]]) -> None:
+        """Queue a batch of :meth:`save_joint` changes under one lock."""
+        with self._lock:
+            self._joint.update(tiles)
+
     def save_uavs(self, records: list[UavRecord], forgotten: list[str] = ()) -> None:  # type: ignore[assignment]
         """Queue UAV rows (latest per id wins) and ids to delete."""
         with self._lock:

@@ -19,7 +19,7 @@ from shared.messages import (
     decode_state,
     decode_tracks,
 )
-from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, TileMessage, decode_tile
+from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, SparseTile, TileMessage, decode_tile, decode_tile_sparse
 from shared.tiles import MAX_LAT_DEG, TileGrid
 
 __all__ = ["REJECT_REASONS", "MessageValidator", "Received", "Rejected"]
@@ -41,6 +41,7 @@ REJECT_REASONS = frozenset(
         "too_many_tiles",
         "too_many_uavs",
         "unexpected_delete",  # a DELETE sample on an agent key
+        "overloaded",  # the fusion thread's inbox was full (more samples than the process can handle)
         "internal_error",  # a bug: counted, logged with a traceback, never raised into Zenoh
     }
     | MESSAGE_ERROR_REASONS
@@ -63,7 +64,7 @@ class Received:
 
     kind: str
     key: ParsedKey
-    message: TileMessage | StateMessage | TracksMessage
+    message: TileMessage | SparseTile | StateMessage | TracksMessage
     nbytes: int
 
 
@@ -115,11 +116,13 @@ class MessageValidator:
         """Largest accepted payload of a message kind ("tile", "state", "tracks"), bytes."""
         return {"tile": self.max_tile_bytes, "state": self.max_state_bytes}.get(kind, self.max_tracks_bytes)
 
-    def validate(self, key: str, payload, parsed: ParsedKey | None = None) -> Received:
+    def validate(self, key: str, payload, parsed: ParsedKey | None = None, *, sparse: bool = False) -> Received:
         """Decode and check one message published on ``key``; raise Rejected when it is invalid.
 
         payload: bytes, or an object with ``len()`` and ``to_bytes()`` (a ``zenoh.ZBytes``), whose
         size is checked before it is copied out. parsed: ``parse_key(key)[0]`` when already known.
+        sparse: a tile is decoded to a :class:`shared.tilecodec.SparseTile` (its non-zero cells, the
+        fusion server's form) instead of a dense TileMessage; the checks are the same.
         """
         if parsed is None:
             parsed, kind = self.parse_key(key)
@@ -132,7 +135,8 @@ class MessageValidator:
             payload = payload.to_bytes()
         try:
             if kind == "tile":
-                message = decode_tile(payload, max_bytes=self.max_tile_bytes)
+                decode = decode_tile_sparse if sparse else decode_tile
+                message = decode(payload, max_bytes=self.max_tile_bytes)
             elif kind == "state":
                 message = decode_state(payload, max_bytes=self.max_state_bytes)
             else:
@@ -148,7 +152,7 @@ class MessageValidator:
         if isinstance(message, StateMessage) and any(abs(lat) > MAX_LAT_DEG for lat, _ in message.footprint):
             raise Rejected("out_of_range", f"footprint beyond the map's latitude limit +-{MAX_LAT_DEG:.4f}", kind)
         if kind == "tile":
-            assert isinstance(message, TileMessage)
+            assert isinstance(message, TileMessage | SparseTile)
             if (message.cls, message.z, message.x, message.y) != (parsed.cls, parsed.z, parsed.x, parsed.y):
                 raise Rejected(
                     "tile_mismatch",

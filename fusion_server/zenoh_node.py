@@ -1,27 +1,29 @@
-"""The fusion server's Zenoh side: subscriptions, liveliness, the joint queryable and the publisher thread.
+"""The fusion server's Zenoh side: subscriptions, liveliness, the joint queryable and the fusion thread.
 
-Callbacks validate every sample and feed the joint map, the global tracker and the UAV registry;
-they count and log (rate-limited) what they drop and never raise. One thread fuses and publishes
-joint tiles and joint tracks (``CongestionControl.BLOCK``) and hands changes to persistence.
+The data subscriber's callback only enqueues the sample (a bounded inbox: beyond it samples are
+dropped and counted as "overloaded"). One thread drains the inbox in batches, validates every
+sample and feeds the joint map (one lock per batch), the global tracker and the UAV registry,
+counting and logging (rate-limited) what it drops; between batches it fuses and publishes joint
+tiles and joint tracks (``CongestionControl.BLOCK``) and hands changes to persistence, whose
+writer thread batches them into SQLite. Callbacks never raise.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
 import threading
 import time
+from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, TypeVar
 
-import numpy as np
 import zenoh
 
 from fusion_server.joint_map import JointMap, TileKey
-from fusion_server.validation import MessageValidator, Rejected
+from fusion_server.validation import MessageValidator, Received, Rejected
 from shared.messages import MAX_TRACKS, StateMessage, TracksMessage, encode_joint_tracks
-from shared.tilecodec import TileMessage
-from transport.guard import RateLimitedLog, guarded
-from transport.publishers import PublisherCache
+from shared.tilecodec import SparseTile
 
 if TYPE_CHECKING:
     from fusion_server.global_tracks import GlobalTracker
@@ -31,22 +33,44 @@ if TYPE_CHECKING:
     from fusion_server.uav_registry import UavRegistry
     from shared.keys import KeySpace
 
-__all__ = ["FusionNode"]
+__all__ = ["FusionNode", "RateLimitedLog"]
 
 log = logging.getLogger(__name__)
 
 _T = TypeVar("_T")
 
-#: Housekeeping period of the publisher thread (track expiry, joint tracks, persistence), seconds.
+#: Housekeeping period of the fusion thread (track expiry, joint tracks, persistence), seconds.
 _TICK_S = 0.05
+#: Samples handled between two publishing steps of the fusion thread.
+_BATCH = 256
 
 
-def _session_of(sample: zenoh.Sample) -> str | None:
-    """The sending agent's Zenoh session id from the sample's attachment (docs/protocol.md), if any."""
-    attachment = sample.attachment
-    if attachment is None:
-        return None
-    raw = attachment.to_bytes()
+class RateLimitedLog:
+    """Logs a warning per reason at most once every ``interval_s`` seconds, with the count suppressed."""
+
+    def __init__(self, logger: logging.Logger, interval_s: float = 10.0) -> None:
+        self.logger = logger
+        self.interval_s = interval_s
+        self._last: dict[str, float] = {}
+        self._suppressed: dict[str, int] = {}
+        self._lock = threading.Lock()
+
+    def warning(self, reason: str, message: str, *args: object) -> None:
+        """Log ``message % args`` under ``reason`` unless one was logged less than interval_s ago."""
+        now = time.monotonic()
+        with self._lock:
+            last = self._last.get(reason)
+            if last is not None and now - last < self.interval_s:
+                self._suppressed[reason] = self._suppressed.get(reason, 0) + 1
+                return
+            self._last[reason] = now
+            suppressed = self._suppressed.pop(reason, 0)
+        suffix = f" ({suppressed} more like it suppressed)" if suppressed else ""
+        self.logger.warning(message + suffix, *args)
+
+
+def _session_of(raw: bytes) -> str:
+    """The session id an attachment names (docs/protocol.md): lowercase hex, 1-32 chars, else "invalid"."""
     if 1 <= len(raw) <= 32 and all(c in b"0123456789abcdef" for c in raw):
         return raw.decode("ascii")
     return "invalid"
@@ -58,8 +82,9 @@ class FusionNode:
     conf: the Zenoh config. keys: the key space. tracks_max_hz: most joint tracks messages a second.
     max_tracks_bytes: largest joint tracks message (fewer tracks are sent beyond it, tracked ones
     first). store: persistence, or None. limiter: per-UAV rate limits checked before decoding, or
-    None. uav_keep_s: offline UAVs not seen for this long are forgotten. The components are shared
-    with the REST API.
+    None. uav_keep_s: offline UAVs not seen for this long are forgotten. inbox_max: samples waiting
+    for the fusion thread (beyond: dropped, counted as "overloaded"; 65,536 are ~7 s of 200 UAVs).
+    The components are shared with the REST API.
     """
 
     def __init__(
@@ -78,6 +103,7 @@ class FusionNode:
         persist_interval_s: float = 0.5,
         max_tracks_bytes: int = 1024 * 1024,
         uav_keep_s: float = 3600.0,
+        inbox_max: int = 65_536,
     ) -> None:
         self.conf = conf
         self.keys = keys
@@ -94,7 +120,7 @@ class FusionNode:
         self.uav_keep_s = uav_keep_s
         self.session: zenoh.Session | None = None
         self._declared: list = []
-        self._publishers: PublisherCache | None = None
+        self._publishers: dict[str, zenoh.Publisher] = {}
         self._tracks_publisher: zenoh.Publisher | None = None
         self._tracks_payload = encode_joint_tracks(tracker.joint_message())
         self._tracks_key = keys.joint_tracks()
@@ -102,6 +128,10 @@ class FusionNode:
         self._thread: threading.Thread | None = None
         self._reject_log = RateLimitedLog(log)
         self._step_log = RateLimitedLog(log)
+        self.inbox_max = int(inbox_max)
+        self._inbox: deque[zenoh.Sample] = deque()
+        self._wakeup = threading.Event()
+        self._sessions: dict[bytes, str] = {}  # attachment bytes -> session id (bounded cache)
 
     # ---- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -111,23 +141,23 @@ class FusionNode:
         """
         self.session = zenoh.open(self.conf)
         session = self.session
-        # BLOCK: a joint tile must arrive (the default DROP loses some under load)
-        self._publishers = PublisherCache(session)
-        self._tracks_publisher = self._publishers.get(self._tracks_key)
+        self._tracks_publisher = session.declare_publisher(
+            self._tracks_key, congestion_control=zenoh.CongestionControl.BLOCK
+        )
         # keep references: declared entities are undeclared when garbage-collected
         self._declared = [
             session.declare_subscriber(self.keys.uav_all(), self._on_sample),
             session.liveliness().declare_subscriber(self.keys.uav_alive("*"), self._on_alive, history=True),
-            session.declare_queryable(self.keys.joint_all(), guarded(self._on_query, log, "a query")),
+            session.declare_queryable(self.keys.joint_all(), self._on_query),
         ]
-        self._thread = threading.Thread(target=self._run, name="uavmm-fusion-publisher", daemon=True)
+        self._thread = threading.Thread(target=self._run, name="uavmm-fusion", daemon=True)
         self._thread.start()
         log.info("fusion node %s up, subscribed to %s", session.zid(), self.keys.uav_all())
 
     def close(self) -> None:
-        """Stop the publisher thread and close the session (idempotent)."""
+        """Stop the fusion thread and close the session (idempotent)."""
         self._stop.set()
-        self.joint.poke()
+        self._wake()
         if self._thread is not None:
             self._thread.join(timeout=10.0)
             self._thread = None
@@ -138,8 +168,7 @@ class FusionNode:
                 except zenoh.ZError:
                     pass
             self._declared = []
-            if self._publishers is not None:
-                self._publishers.clear()
+            self._publishers.clear()
             self.session.close()
             self.session = None
 
@@ -150,7 +179,74 @@ class FusionNode:
             self.uavs.rejected(uav, reason)
         self._reject_log.warning(reason, "dropped %s message on %.120s: %s: %.200s", kind, key, reason, detail)
 
+    def _wake(self) -> None:
+        """Wake the fusion thread (a sample, a tracks change, shutdown)."""
+        if not self._wakeup.is_set():
+            self._wakeup.set()
+
     def _on_sample(self, sample: zenoh.Sample) -> None:
+        """Zenoh thread: enqueue only (the fusion thread validates and fuses)."""
+        try:
+            if len(self._inbox) >= self.inbox_max:
+                self.metrics.reject("unknown", "overloaded")
+                self._reject_log.warning("overloaded", "fusion inbox full (%d samples): dropped a sample on %.120s",
+                                         self.inbox_max, str(sample.key_expr))
+                return
+            self._inbox.append(sample)
+            self._wake()
+        except Exception:
+            self.metrics.reject("unknown", "internal_error")
+            log.exception("internal error enqueueing a sample")
+
+    def _session_of(self, sample: zenoh.Sample) -> str | None:
+        """The sending agent's Zenoh session id from the sample's attachment (docs/protocol.md), if any."""
+        attachment = sample.attachment
+        if attachment is None:
+            return None
+        raw = attachment.to_bytes()
+        session = self._sessions.get(raw)
+        if session is None:
+            session = _session_of(raw)
+            if len(self._sessions) >= 4096:
+                self._sessions.clear()
+            self._sessions[raw] = session
+        return session
+
+    def _ingest(self, batch: list[zenoh.Sample]) -> None:
+        """Validate a batch of samples; states and tracks are applied in order, tiles go to the joint
+        map together at the end (one lock)."""
+        tiles: list[tuple[str, TileKey, object, object, float, int]] = []
+        accepted: list[tuple[Received, str]] = []
+        for sample in batch:
+            received, key = self._admit(sample)
+            if received is None:
+                continue
+            message = received.message
+            try:
+                if isinstance(message, SparseTile):
+                    tiles.append((message.uav, (message.cls, message.z, message.x, message.y), message.idx,
+                                  message.val, message.t, message.seq))
+                    accepted.append((received, key))
+                    continue
+                if isinstance(message, StateMessage):
+                    self.joint.put_footprint(message.uav, message.footprint)
+                elif isinstance(message, TracksMessage):
+                    self.tracker.update(message)
+                self.metrics.message(received.kind, received.nbytes)
+            except Exception:  # a bug must not take the fusion thread down: count it, log it
+                self.metrics.reject("unknown", "internal_error")
+                log.exception("internal error handling a sample on %.120s", key)
+        if not tiles:
+            return
+        reasons = self.joint.put_many(tiles)  # type: ignore[arg-type]
+        for reason, (received, key) in zip(reasons, accepted, strict=True):
+            if reason is None:
+                self.metrics.message(received.kind, received.nbytes)
+            else:
+                self._reject("tile", reason, key, f"seq {received.message.seq}", received.key.uav)
+
+    def _admit(self, sample: zenoh.Sample) -> tuple[Received | None, str]:
+        """Key, rate limit, decoding, registry of one sample: (the valid message, key) or (None, key)."""
         key = "?"
         uav: str | None = None
         try:
@@ -162,39 +258,28 @@ class FusionNode:
                 except Rejected:
                     pass
                 self._reject(kind, "unexpected_delete", key, "DELETE sample")
-                return
+                return None, key
             parsed, kind = self.validator.parse_key(key)
             uav = parsed.uav
             nbytes = len(sample.payload)
             limited = self.limiter.check(uav, nbytes) if self.limiter is not None else None
             if limited is not None:  # before decoding: a flood costs a lookup per message
                 self._reject(kind, limited, key, f"{nbytes} bytes", uav)
-                return
-            received = self.validator.validate(key, sample.payload, parsed=parsed)
+                return None, key
+            received = self.validator.validate(key, sample.payload, parsed=parsed, sparse=True)
             message = received.message
             if not self.uavs.message(uav, received.kind, received.nbytes,
                                      message if isinstance(message, StateMessage) else None,
-                                     session=_session_of(sample)):
+                                     session=self._session_of(sample)):
                 self._reject(received.kind, "too_many_uavs", key, "UAV registry full")
-                return
-            if isinstance(message, TileMessage):
-                values = np.rint(message.values * np.float32(255.0)).astype(np.uint8)
-                tile_key: TileKey = (message.cls, message.z, message.x, message.y)
-                reason = self.joint.put(message.uav, tile_key, values, message.t, message.seq)
-                if reason is not None:
-                    self._reject("tile", reason, key, f"seq {message.seq}", uav)
-                    return
-            elif isinstance(message, StateMessage):
-                self.joint.put_footprint(message.uav, message.footprint)
-            elif isinstance(message, TracksMessage):
-                self.tracker.update(message)
-                self.joint.poke()
-            self.metrics.message(received.kind, received.nbytes)
+                return None, key
+            return received, key
         except Rejected as exc:
             self._reject(exc.kind, exc.reason, key, exc, uav)
-        except Exception:  # a bug must not take the subscriber down: count it, log it
+        except Exception:  # a bug must not take the fusion thread down: count it, log it
             self.metrics.reject("unknown", "internal_error")
             log.exception("internal error handling a sample on %.120s", key)
+        return None, key
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
         key = "?"
@@ -215,35 +300,48 @@ class FusionNode:
             self.metrics.message("alive", 0)
             log.info("UAV %s %s", parsed.uav, "online" if online else "offline")
             if not online and self.tracker.uav_lost(parsed.uav):
-                self.joint.poke()
+                self._wake()
         except Exception:
             self.metrics.reject("alive", "internal_error")
             log.exception("internal error handling liveliness on %.120s", key)
 
     def _on_query(self, query: zenoh.Query) -> None:
-        selector = query.key_expr
-        for tile in self.joint.tiles():
-            tile_key = self.keys.joint_tile(tile.cls, tile.z, tile.x, tile.y)
-            if selector.intersects(tile_key):
-                query.reply(tile_key, tile.payload)
-        if selector.intersects(self._tracks_key):
-            query.reply(self._tracks_key, self._tracks_payload)
-        self.metrics.query()
+        try:
+            selector = query.key_expr
+            for tile in self.joint.tiles():
+                tile_key = self.keys.joint_tile(tile.cls, tile.z, tile.x, tile.y)
+                if selector.intersects(tile_key):
+                    query.reply(tile_key, tile.payload)
+            if selector.intersects(self._tracks_key):
+                query.reply(self._tracks_key, self._tracks_payload)
+            self.metrics.query()
+        except Exception:
+            log.exception("internal error answering a query")
 
     # ---- publisher thread ----------------------------------------------------------------------
+    def _publisher(self, key: str) -> zenoh.Publisher:
+        publisher = self._publishers.get(key)
+        if publisher is None:
+            assert self.session is not None
+            # BLOCK: a joint tile must arrive (the default DROP loses some under load)
+            publisher = self._publishers[key] = self.session.declare_publisher(
+                key, congestion_control=zenoh.CongestionControl.BLOCK
+            )
+        return publisher
+
     def _publish_tiles(self) -> float | None:
         updates, next_due = self.joint.step()
-        assert self._publishers is not None
         for update in updates:
             cls, z, x, y = update.key
             key = self.keys.joint_tile(cls, z, x, y)
-            self._publishers.put(key, update.payload)
+            self._publisher(key).put(update.payload)
             dropped = update.tile is None
             if dropped:
-                self._publishers.drop(key)
+                publisher = self._publishers.pop(key)
+                publisher.undeclare()
             self.metrics.published(time.monotonic() - update.pending_since, dropped=dropped)
-            if self.store is not None:
-                self.store.save_joint(update.key, update.tile)
+        if self.store is not None and updates:
+            self.store.save_joints([(update.key, update.tile) for update in updates])
         return next_due
 
     def _publish_tracks(self) -> None:
@@ -284,6 +382,14 @@ class FusionNode:
         uavs, forgotten = self.uavs.drain_changes()
         self.store.save_uavs(uavs, forgotten)
 
+    def _drain(self) -> list[zenoh.Sample]:
+        """Up to _BATCH samples from the inbox, oldest first."""
+        inbox = self._inbox
+        batch = []
+        for _ in range(min(len(inbox), _BATCH)):
+            batch.append(inbox.popleft())
+        return batch
+
     def _run(self) -> None:
         tracks_version = -1
         last_tracks = -float("inf")
@@ -291,6 +397,9 @@ class FusionNode:
         next_forget = 0.0
         next_persist = time.monotonic() + self.persist_interval_s
         while not self._stop.is_set():
+            batch = self._drain()
+            if batch:
+                self._step("ingest", functools.partial(self._ingest, batch))
             next_due = self._step("joint_tiles", self._publish_tiles)
             now = time.monotonic()
             if now >= next_housekeeping:
@@ -306,7 +415,11 @@ class FusionNode:
             if self.store is not None and now >= next_persist:
                 self._step("persist", self._persist_tracks)
                 next_persist = now + self.persist_interval_s
+            self._wakeup.clear()
+            if self._inbox:
+                continue
             timeout = _TICK_S if next_due is None else min(_TICK_S, next_due - time.monotonic())
-            self.joint.wait(max(timeout, 0.0))
+            if timeout > 0:
+                self._wakeup.wait(timeout)
         if self.store is not None:
             self._step("persist", self._persist_tracks)

@@ -31,9 +31,11 @@ from shared.tiles import MAX_N, MAX_ZOOM
 __all__ = [
     "DEFAULT_MAX_TILE_BYTES",
     "MAX_SEQ",
+    "SparseTile",
     "TileDecodeError",
     "TileMessage",
     "decode_tile",
+    "decode_tile_sparse",
     "encode_tile",
     "encode_tile_sparse",
     "quantise",
@@ -226,6 +228,77 @@ def decode_tile(payload: bytes, *, max_bytes: int = DEFAULT_MAX_TILE_BYTES) -> T
     for name, value in zip(("uav", "cls", "z", "x", "y", "n", "t", "seq", "values"), (*header, values), strict=True):
         object.__setattr__(msg, name, value)
     return msg
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class SparseTile:
+    """A decoded tile as its non-zero cells, the form the fusion server works in (no dense floats).
+
+    Header fields as in :class:`TileMessage`. idx: (k,) uint16 row-major cell indices, strictly
+    increasing; val: (k,) uint8 bytes, all non-zero (value = byte / 255). Built only by
+    :func:`decode_tile_sparse`, which has validated them.
+    """
+
+    uav: str
+    cls: str
+    z: int
+    x: int
+    y: int
+    n: int
+    t: float
+    seq: int
+    idx: NDArray[np.uint16]
+    val: NDArray[np.uint8]
+
+
+def decode_tile_sparse(payload: bytes, *, max_bytes: int = DEFAULT_MAX_TILE_BYTES) -> SparseTile:
+    """Parse and validate a tile payload exactly as :func:`decode_tile` does (same reasons), but
+    return its non-zero cells, sorted, instead of a dense float tile: ~10 x cheaper for sparse tiles."""
+    record = unpack_map(payload, max_bytes, TileDecodeError)
+    try:
+        check_version(get_field(record, "v"))
+        header = _check_header(*(get_field(record, key) for key in ("uav", "cls", "z", "x", "y", "n", "t", "seq")))
+        idx, val = _decode_sparse(record, header[5])
+    except TileDecodeError:
+        raise
+    except MessageError as exc:
+        raise TileDecodeError(exc.reason, str(exc), exc.field) from None
+    return SparseTile(*header, idx, val)
+
+
+def _decode_sparse(record: dict, n: int) -> tuple[NDArray[np.uint16], NDArray[np.uint8]]:
+    cells = n * n
+    val = get_field(record, "val")
+    if not isinstance(val, bytes):
+        raise TileDecodeError("bad_type", f"val must be msgpack bin, got {type(val).__name__}", "val")
+    if "idx" not in record:
+        if len(val) != cells:
+            raise TileDecodeError("bad_length", f"dense val must have n*n = {cells} bytes, got {len(val)}", "val")
+        dense = np.frombuffer(val, dtype=np.uint8)
+        indices = np.flatnonzero(dense).astype(np.uint16)
+        return indices, dense[indices]
+    idx = record["idx"]
+    if not isinstance(idx, bytes):
+        raise TileDecodeError("bad_type", f"idx must be msgpack bin, got {type(idx).__name__}", "idx")
+    if len(idx) % 2:
+        raise TileDecodeError("bad_length", f"idx must have an even byte length, got {len(idx)}", "idx")
+    if len(idx) // 2 != len(val):
+        raise TileDecodeError("bad_length", f"idx has {len(idx) // 2} indices but val has {len(val)} bytes", "val")
+    indices = np.frombuffer(idx, dtype="<u2").astype(np.uint16)
+    values = np.frombuffer(val, dtype=np.uint8)
+    ordered = indices.size < 2 or bool(np.all(indices[1:] > indices[:-1]))  # encoders sort
+    top = (int(indices[-1]) if ordered else int(indices.max())) if indices.size else 0
+    if top >= cells:
+        raise TileDecodeError("index_out_of_range", f"idx holds {top}, must be < n*n = {cells}", "idx")
+    if not ordered:
+        order = np.argsort(indices, kind="stable")
+        indices, values = indices[order], values[order]
+        if bool(np.any(indices[1:] == indices[:-1])):
+            raise TileDecodeError("duplicate_index", "idx repeats a cell", "idx")
+    if values.size and not bool(values.all()):
+        keep = values != 0
+        indices, values = indices[keep], values[keep]
+    return indices, values
 
 
 def _decode_values(record: dict, n: int) -> NDArray[np.float32]:
