@@ -197,7 +197,9 @@ class JointMap:
         self._n_uav_tiles = 0
         self._joint: dict[TileKey, JointTile] = {}
         self._joint_cells: dict[TileKey, tuple[bytes, bytes]] = {}  # idx, val bytes of each joint tile
-        self._dirty: dict[TileKey, float] = {}
+        self._dirty: dict[TileKey, float] = {}  # tiles to fuse -> monotonic time of their oldest change
+        self._fresh: list[TileKey] = []  # dirty tiles step() has not looked at yet
+        self._held: list[tuple[float, TileKey]] = []  # heap of dirty tiles waiting for a token: (when, key)
         # token bucket per tile: (tokens, time of the last refill); rate max_hz, burst _BURST, so the
         # average rate is capped while a put arriving a little early (jitter) is not held back
         self._buckets: dict[TileKey, tuple[float, float]] = {}
@@ -261,7 +263,7 @@ class JointMap:
         if len(self._classes) < _MAX_CLASSES:
             self._classes.add(key[0])
         heapq.heappush(self._expiries, (now + self.ttl_s, key, uav, now))
-        self._dirty.setdefault(key, now)
+        self._mark(key, now)
         return None
 
     def put_footprint(self, uav: str, footprint_latlon, now: float | None = None) -> bool:
@@ -288,7 +290,7 @@ class JointMap:
                 del prints[0]
             self._bump_footprints(uav)
             for key in self._uav_keys.get(uav, ()):
-                self._dirty.setdefault(key, now)
+                self._mark(key, now)
             self._poked = True
             self._wake.notify_all()
         return True
@@ -376,11 +378,16 @@ class JointMap:
         updates: list[JointUpdate] = []
         with self._lock:
             self._expire(now)
-            next_due = math.inf
-            for key in list(self._dirty):
+            # only the tiles changed since the last step and those whose token is due are looked at
+            candidates = self._fresh
+            self._fresh = []
+            held = self._held
+            while held and held[0][0] <= now:
+                candidates.append(heapq.heappop(held)[1])
+            for key in candidates:
                 tokens = self._tokens(key, now)
-                if tokens < 1.0:
-                    next_due = min(next_due, now + (1.0 - tokens) / self.max_hz)
+                if tokens < 1.0 - 1e-9:
+                    heapq.heappush(held, (now + (1.0 - tokens) / self.max_hz, key))
                     continue
                 pending_since = self._dirty.pop(key)
                 update = self._fuse(key, pending_since, now)
@@ -388,9 +395,16 @@ class JointMap:
                     updates.append(update)
                     if update.tile is not None:
                         self._buckets[key] = (tokens - 1.0, now)
+            next_due = held[0][0] if held else math.inf
             if self._expiries:
                 next_due = min(next_due, self._expiries[0][0])
         return updates, (None if next_due == math.inf else next_due)
+
+    def _mark(self, key: TileKey, since: float) -> None:
+        """Tile ``key`` changed at ``since``: fuse it at the next step its token bucket allows."""
+        if key not in self._dirty:
+            self._dirty[key] = since
+            self._fresh.append(key)
 
     def _tokens(self, key: TileKey, now: float) -> float:
         bucket = self._buckets.get(key)
@@ -421,7 +435,7 @@ class JointMap:
         while heap and heap[0][0] <= now:
             expiry, key, uav, received = heapq.heappop(heap)
             if uav is None:  # a restored tile's grace time is over: recompute from real coverage
-                self._dirty.setdefault(key, expiry)
+                self._mark(key, expiry)
                 continue
             per_uav = self._covers.get(key)
             entry = per_uav.get(uav) if per_uav is not None else None
@@ -438,7 +452,7 @@ class JointMap:
                     del self._uav_keys[uav]
             if not per_uav:
                 del self._covers[key]
-            self._dirty.setdefault(key, expiry)
+            self._mark(key, expiry)
 
     def _fuse(self, key: TileKey, pending_since: float, now: float) -> JointUpdate | None:
         per_uav = self._covers.get(key)

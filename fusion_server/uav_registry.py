@@ -160,6 +160,10 @@ class UavRegistry:
 
     def _seen_session(self, uav: str, entry: _Uav, session: str, now: float) -> None:
         sessions = entry.sessions
+        if len(sessions) == 1 and session in sessions:  # the common case: one session, no conflict
+            sessions[session] = now
+            entry.conflict_reported = False
+            return
         sessions[session] = now
         sessions.move_to_end(session)
         while len(sessions) > _MAX_SESSIONS:
