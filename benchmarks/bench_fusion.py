@@ -11,6 +11,7 @@ state and tracks at 5 Hz), against the 100 kB/s budget. Loopback, shared memory 
 
 from __future__ import annotations
 
+import gc
 import json
 import logging
 import multiprocessing as mp
@@ -349,6 +350,7 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
             with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
                 receiver = _JointLatency()
                 sub = session.declare_subscriber("uavmm/v1/joint/tiles/**", receiver)
+                gc.freeze()  # as uavmm fusion does: no full-collection pauses over start-up objects here
                 for step, n in enumerate(steps):
                     result = _run_load(ctx, endpoint, receiver, n, duration_s, step, n_procs=2 if n >= 100 else 1)
                     ok = (result["p99"] <= P99_BUDGET_S and result["received_ratio"] >= 0.95

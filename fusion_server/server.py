@@ -7,6 +7,7 @@ database. :func:`run` does that until a stop event is set (the CLI sets it on SI
 
 from __future__ import annotations
 
+import gc
 import logging
 import threading
 import time
@@ -229,6 +230,9 @@ def run(settings: FusionSettings, stop: threading.Event,
         server.start()
         if on_ready is not None:
             on_ready(server)
+        # the objects of start-up (modules, the restored state) are never garbage: keep the cyclic
+        # collector from scanning them again in every full collection (a 50 ms pause at 200 UAVs)
+        gc.freeze()
         while not stop.wait(0.5):
             pass
         log.info("shutting down")

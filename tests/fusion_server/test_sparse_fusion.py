@@ -1,0 +1,160 @@
+"""The fusion server's sparse path: decode_tile_sparse agrees with decode_tile, fusion over the union
+of non-zero cells equals the dense rule, batched puts, and the fusion node's bounded inbox."""
+
+from __future__ import annotations
+
+import msgpack
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from fusion_server.joint_map import JointMap
+from fusion_server.rules import FUSION_RULES, get_fusion_rule
+from shared.tilecodec import TileDecodeError, decode_tile, decode_tile_sparse
+from shared.tiles import TileGrid
+from tests.fusion_server.fake_agent import GRID as GRID_FULL
+from tests.fusion_server.fake_agent import TILE_X, wait_until
+from tests.shared.test_tilecodec import MALFORMED, mutated
+
+N = 8
+GRID = TileGrid(18, N)
+KEY = ("person", 18, 100, 200)
+
+
+# ---- decode_tile_sparse == decode_tile -----------------------------------------------------------
+@pytest.mark.parametrize(("reason", "payload"), MALFORMED)
+def test_sparse_decoder_rejects_what_the_dense_one_rejects_for_the_same_reason(reason: str, payload: bytes):
+    with pytest.raises(TileDecodeError) as dense:
+        decode_tile(payload)
+    with pytest.raises(TileDecodeError) as sparse:
+        decode_tile_sparse(payload)
+    assert sparse.value.reason == dense.value.reason == reason
+
+
+@settings(max_examples=300)
+@given(data=st.data(), sparse=st.booleans())
+def test_sparse_decoder_agrees_with_the_dense_one_on_corrupted_payloads(data: st.DataObject, sparse: bool):
+    payload = bytearray(mutated(sparse=sparse))
+    for _ in range(data.draw(st.integers(1, 4))):
+        payload[data.draw(st.integers(0, len(payload) - 1))] = data.draw(st.integers(0, 255))
+    payload = bytes(payload[: data.draw(st.integers(0, len(payload)))])
+    try:
+        dense = decode_tile(payload)
+    except TileDecodeError as exc:
+        with pytest.raises(TileDecodeError) as info:
+            decode_tile_sparse(payload)
+        assert info.value.reason == exc.reason
+        return
+    cells = decode_tile_sparse(payload)
+    assert (cells.uav, cells.cls, cells.z, cells.x, cells.y, cells.n, cells.t, cells.seq) == (
+        dense.uav, dense.cls, dense.z, dense.x, dense.y, dense.n, dense.t, dense.seq)
+    flat = np.rint(dense.values.reshape(-1) * 255).astype(np.uint8)
+    np.testing.assert_array_equal(cells.idx, np.flatnonzero(flat))
+    np.testing.assert_array_equal(cells.val, flat[cells.idx])
+
+
+@settings(max_examples=200)
+@given(cells=st.dictionaries(st.integers(0, N * N - 1), st.integers(0, 255), max_size=N * N),
+       shuffle=st.randoms())
+def test_unsorted_indices_and_zero_values_decode_to_sorted_non_zero_cells(cells: dict[int, int], shuffle):
+    items = list(cells.items())
+    shuffle.shuffle(items)
+    idx = np.array([i for i, _ in items], dtype="<u2")
+    val = np.array([v for _, v in items], dtype=np.uint8)
+    record = {"v": 1, "uav": "a", "cls": "person", "z": 18, "x": 1, "y": 2, "n": N, "t": 1.0, "seq": 1,
+              "idx": idx.tobytes(), "val": val.tobytes()}
+    tile = decode_tile_sparse(msgpack.packb(record, use_bin_type=True))
+    expected = sorted((i, v) for i, v in cells.items() if v)
+    assert tile.idx.tolist() == [i for i, _ in expected]
+    assert tile.val.tolist() == [v for _, v in expected]
+
+
+def test_duplicate_indices_are_refused_also_unsorted():
+    record = {"v": 1, "uav": "a", "cls": "person", "z": 18, "x": 1, "y": 2, "n": N, "t": 1.0, "seq": 1,
+              "idx": np.array([5, 3, 5], "<u2").tobytes(), "val": bytes([1, 2, 3])}
+    with pytest.raises(TileDecodeError) as info:
+        decode_tile_sparse(msgpack.packb(record, use_bin_type=True))
+    assert info.value.reason == "duplicate_index"
+
+
+# ---- fusion over the union of non-zero cells == the dense rule -----------------------------------
+layers = st.lists(st.lists(st.sampled_from([0, 0, 0, 1, 17, 128, 254, 255]), min_size=N * N, max_size=N * N),
+                  min_size=2, max_size=4)
+
+
+@settings(max_examples=150, deadline=None)
+@given(values=layers, rule=st.sampled_from(sorted(FUSION_RULES)), data=st.data())
+def test_sparse_fusion_equals_the_rule_on_dense_stacks(values, rule: str, data: st.DataObject):
+    stack = np.array(values, dtype=np.uint8).reshape(-1, N, N)
+    jm = JointMap(GRID, get_fusion_rule(rule), 2.0, 5.0, coverage="footprint", clock=lambda: 0.0, wall=lambda: 1e9)
+    covered = np.ones_like(stack, dtype=bool)
+    for k, layer in enumerate(stack):
+        jm.put(f"u{k}", KEY, layer, t=1.0, seq=1, now=0.0)
+        if data.draw(st.booleans(), label=f"footprint of u{k}"):  # u{k} sees columns [c0, c1) only
+            c0 = data.draw(st.integers(0, N - 1))
+            c1 = data.draw(st.integers(c0 + 1, N))
+            gx = np.array([c0, c1, c1, c0]) + KEY[2] * N
+            gy = np.array([0, 0, N, N]) + KEY[3] * N
+            assert jm.put_footprint(f"u{k}", np.column_stack(GRID.cell_to_latlon(gx, gy)), now=0.0)
+            covered[k] = jm._coverage_mask(f"u{k}", KEY, 0.0)
+    jm.step(now=0.0)
+    expected = get_fusion_rule(rule)(stack, covered)
+    tile = jm.get(KEY)
+    if not expected.any():
+        assert tile is None or not tile.values.any()
+        return
+    np.testing.assert_array_equal(tile.values, expected)
+    decoded = decode_tile(tile.payload)
+    np.testing.assert_array_equal(np.rint(decoded.values * 255).astype(np.uint8), expected)
+
+
+def test_put_many_takes_a_batch_and_reports_each_tile():
+    jm = JointMap(GRID, get_fusion_rule("mean"), 2.0, 5.0, max_tiles_per_uav=1, clock=lambda: 0.0, wall=lambda: 1e9)
+    idx = np.array([0, 9], dtype=np.uint16)
+    val = np.array([100, 200], dtype=np.uint8)
+    other = ("person", 18, 101, 200)
+    reasons = jm.put_many([("a", KEY, idx, val, 1.0, 2), ("a", KEY, idx, val, 1.0, 1),
+                           ("a", other, idx, val, 1.0, 1), ("b", KEY, idx, val // 2, 1.0, 1)], now=0.0)
+    assert reasons == [None, "stale", "too_many_tiles", None]
+    jm.step(now=0.0)
+    values = jm.get(KEY).values.reshape(-1)
+    assert (values[0], values[9], int(values.sum())) == (75, 150, 225)
+    assert jm.get(other) is None
+
+
+def test_an_unchanged_fused_tile_is_not_published_again_until_the_refresh():
+    jm = JointMap(GRID, get_fusion_rule("mean"), 5.0, 100.0, refresh_s=1.0, clock=lambda: 0.0, wall=lambda: 1e9)
+    layer = np.zeros((N, N), np.uint8)
+    layer[2, 3] = 90
+    jm.put("a", KEY, layer, t=1.0, seq=1, now=0.0)
+    assert len(jm.step(now=0.0)[0]) == 1
+    jm.put("a", KEY, layer, t=1.1, seq=2, now=0.1)
+    assert jm.step(now=0.1)[0] == []
+    jm.put("a", KEY, layer, t=2.2, seq=3, now=1.2)
+    assert len(jm.step(now=1.2)[0]) == 1
+
+
+# ---- the fusion node's inbox ---------------------------------------------------------------------
+def test_the_node_fuses_what_its_callback_enqueued(server_factory, agent_factory):
+    server = server_factory()
+    agent = agent_factory("u1")
+    values = np.zeros((GRID_FULL.n, GRID_FULL.n), np.float32)
+    values[0, 5], values[0, 7] = 100 / 255, 200 / 255
+    for x in range(3):
+        agent.tile(values, x=TILE_X + x)
+    assert wait_until(lambda: len(server.joint.tiles()) == 3)
+    tile = server.joint.tiles()[0]
+    assert tile.values.reshape(-1)[[5, 7]].tolist() == [100, 200]
+    assert server.metrics.received.get("tile") == 3
+
+
+def test_a_full_inbox_drops_and_counts_samples_as_overloaded(server_factory, agent_factory):
+    server = server_factory()
+    server.node.inbox_max = 0  # as if the fusion thread had fallen behind by a whole inbox
+    agent = agent_factory("u1")
+    for x in range(3):
+        agent.tile(np.full((GRID_FULL.n, GRID_FULL.n), 0.5, np.float32), x=TILE_X + x)
+    assert wait_until(lambda: server.metrics.rejected.get(("unknown", "overloaded"), 0) == 3)
+    assert server.joint.tiles() == []
+    assert 'reason="overloaded"' in server.prometheus()
