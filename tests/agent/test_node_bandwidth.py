@@ -1,8 +1,10 @@
-"""Bandwidth of one agent on the wire with ~20 objects in view: within the 100 kB/s budget per UAV.
+"""Bandwidth of one agent on the wire with ~20 objects in view: within the 100 kB/s budget per UAV,
+uplink and downlink.
 
-The bytes are counted by a TCP relay between the agent and the test's server session, with Zenoh's
-same-host shared memory off on both sides (it would bypass the socket), so they are what a radio
-link would carry. docs/agent.md quotes the numbers this measures.
+The bytes are counted by a TCP relay between the agent and a real fusion server (which sends the
+joint tiles and tracks back), with Zenoh's same-host shared memory off on both sides (it would
+bypass the socket), so they are what a radio link would carry. docs/agent.md quotes the numbers
+this measures.
 """
 
 from __future__ import annotations
@@ -16,10 +18,11 @@ import pytest
 
 from agent.node import AgentNode, AgentSettings
 from agent.zenoh_config import ZenohOptions
+from fusion_server.config import FusionSettings
+from fusion_server.server import FusionServer
 from sim.scenarios import get_scenario
 from sim.source import SimSource
-from tests.agent.test_node_zenoh import FakeServer
-from tests.netutil import free_port
+from tests.netutil import free_port, wait_until
 
 BUDGET_BYTES_PER_S = 100_000
 SECONDS = 8.0
@@ -72,29 +75,39 @@ def crowded_meadow(n_objects: int = 20):
     return dataclasses.replace(scenario, world=world, name=f"grass{n_objects}")
 
 
-def test_one_uav_with_20_objects_in_view_stays_within_100_kB_per_s():
+def test_one_uav_with_20_objects_in_view_stays_within_100_kB_per_s_up_and_down():
     source = SimSource(crowded_meadow(), uav_index=0, frames=int(SECONDS * 30) + 60)
     in_view = [sum(o.in_view for o in fs.objects) for fs in source.sim.frames() if fs.video_id == 1]
     assert np.mean(in_view) >= 18
     port = free_port()
-    server = FakeServer(port, shared_memory=False)
+    server = FusionServer(FusionSettings(
+        zenoh=ZenohOptions(mode="router", listen=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False,
+                                 cfg=("transport/shared_memory/enabled:false",)), db_path=None))
+    server.start(http=False)
     relay = ByteCountingRelay(port)
     options = ZenohOptions(connect=(f"tcp/127.0.0.1:{relay.port}",), multicast_scouting=False,
                            cfg=("transport/shared_memory/enabled:false",))
     node = AgentNode(AgentSettings(uav_id="uav1", zenoh=options, duration_s=SECONDS), source)
     try:
         summary = node.run()
+        sent_tiles = summary["link"]["counts"]["sent_tile"]
+        wait_until(lambda: server.metrics.received.get("tile", 0) + sum(server.metrics.rejected.values())
+                   >= sent_tiles, timeout_s=10.0)
+        received = dict(server.metrics.received)
     finally:
         server.close()
         relay.close()
     elapsed = summary["elapsed_s"]
     sent = summary["link"]["bytes"]
     assert summary["tiles_deferred_by_budget"] > 0  # the budget is what holds it down, not an empty map
-    assert server.count("uav_tile") == summary["link"]["counts"]["sent_tile"]
+    assert received["tile"] == sent_tiles  # the server took every tile
+    assert summary["joint_tiles_applied"] > 0  # and the joint map came back
     up = relay.up / elapsed
-    print(f"\nwire up {up / 1000:.1f} kB/s, down {relay.down / elapsed / 1000:.1f} kB/s; payload kB/s: "
+    down = relay.down / elapsed
+    print(f"\nwire up {up / 1000:.1f} kB/s, down {down / 1000:.1f} kB/s; payload kB/s: "
           + ", ".join(f"{k} {v / elapsed / 1000:.1f}" for k, v in sorted(sent.items())))
     assert up <= BUDGET_BYTES_PER_S
+    assert down <= BUDGET_BYTES_PER_S
     assert sent["sent_tile"] / elapsed == pytest.approx(70_000, rel=0.25)  # the default tile budget
 
 
