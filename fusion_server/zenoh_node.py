@@ -24,6 +24,8 @@ from fusion_server.joint_map import JointMap, TileKey
 from fusion_server.validation import MessageValidator, Received, Rejected
 from shared.messages import MAX_TRACKS, StateMessage, TracksMessage, encode_joint_tracks
 from shared.tilecodec import SparseTile
+from transport.guard import RateLimitedLog, guarded
+from transport.publishers import PublisherCache
 
 if TYPE_CHECKING:
     from fusion_server.global_tracks import GlobalTracker
@@ -33,7 +35,7 @@ if TYPE_CHECKING:
     from fusion_server.uav_registry import UavRegistry
     from shared.keys import KeySpace
 
-__all__ = ["FusionNode", "RateLimitedLog"]
+__all__ = ["FusionNode"]
 
 log = logging.getLogger(__name__)
 
@@ -43,30 +45,6 @@ _T = TypeVar("_T")
 _TICK_S = 0.05
 #: Samples handled between two publishing steps of the fusion thread.
 _BATCH = 256
-
-
-class RateLimitedLog:
-    """Logs a warning per reason at most once every ``interval_s`` seconds, with the count suppressed."""
-
-    def __init__(self, logger: logging.Logger, interval_s: float = 10.0) -> None:
-        self.logger = logger
-        self.interval_s = interval_s
-        self._last: dict[str, float] = {}
-        self._suppressed: dict[str, int] = {}
-        self._lock = threading.Lock()
-
-    def warning(self, reason: str, message: str, *args: object) -> None:
-        """Log ``message % args`` under ``reason`` unless one was logged less than interval_s ago."""
-        now = time.monotonic()
-        with self._lock:
-            last = self._last.get(reason)
-            if last is not None and now - last < self.interval_s:
-                self._suppressed[reason] = self._suppressed.get(reason, 0) + 1
-                return
-            self._last[reason] = now
-            suppressed = self._suppressed.pop(reason, 0)
-        suffix = f" ({suppressed} more like it suppressed)" if suppressed else ""
-        self.logger.warning(message + suffix, *args)
 
 
 def _session_of(raw: bytes) -> str:
@@ -120,7 +98,7 @@ class FusionNode:
         self.uav_keep_s = uav_keep_s
         self.session: zenoh.Session | None = None
         self._declared: list = []
-        self._publishers: dict[str, zenoh.Publisher] = {}
+        self._publishers: PublisherCache | None = None
         self._tracks_publisher: zenoh.Publisher | None = None
         self._tracks_payload = encode_joint_tracks(tracker.joint_message())
         self._tracks_key = keys.joint_tracks()
@@ -141,14 +119,14 @@ class FusionNode:
         """
         self.session = zenoh.open(self.conf)
         session = self.session
-        self._tracks_publisher = session.declare_publisher(
-            self._tracks_key, congestion_control=zenoh.CongestionControl.BLOCK
-        )
+        # BLOCK: a joint tile must arrive (the default DROP loses some under load)
+        self._publishers = PublisherCache(session)
+        self._tracks_publisher = self._publishers.get(self._tracks_key)
         # keep references: declared entities are undeclared when garbage-collected
         self._declared = [
             session.declare_subscriber(self.keys.uav_all(), self._on_sample),
             session.liveliness().declare_subscriber(self.keys.uav_alive("*"), self._on_alive, history=True),
-            session.declare_queryable(self.keys.joint_all(), self._on_query),
+            session.declare_queryable(self.keys.joint_all(), guarded(self._on_query, log, "a query")),
         ]
         self._thread = threading.Thread(target=self._run, name="uavmm-fusion", daemon=True)
         self._thread.start()
@@ -168,7 +146,8 @@ class FusionNode:
                 except zenoh.ZError:
                     pass
             self._declared = []
-            self._publishers.clear()
+            if self._publishers is not None:
+                self._publishers.clear()
             self.session.close()
             self.session = None
 
@@ -306,39 +285,26 @@ class FusionNode:
             log.exception("internal error handling liveliness on %.120s", key)
 
     def _on_query(self, query: zenoh.Query) -> None:
-        try:
-            selector = query.key_expr
-            for tile in self.joint.tiles():
-                tile_key = self.keys.joint_tile(tile.cls, tile.z, tile.x, tile.y)
-                if selector.intersects(tile_key):
-                    query.reply(tile_key, tile.payload)
-            if selector.intersects(self._tracks_key):
-                query.reply(self._tracks_key, self._tracks_payload)
-            self.metrics.query()
-        except Exception:
-            log.exception("internal error answering a query")
+        selector = query.key_expr
+        for tile in self.joint.tiles():
+            tile_key = self.keys.joint_tile(tile.cls, tile.z, tile.x, tile.y)
+            if selector.intersects(tile_key):
+                query.reply(tile_key, tile.payload)
+        if selector.intersects(self._tracks_key):
+            query.reply(self._tracks_key, self._tracks_payload)
+        self.metrics.query()
 
     # ---- publisher thread ----------------------------------------------------------------------
-    def _publisher(self, key: str) -> zenoh.Publisher:
-        publisher = self._publishers.get(key)
-        if publisher is None:
-            assert self.session is not None
-            # BLOCK: a joint tile must arrive (the default DROP loses some under load)
-            publisher = self._publishers[key] = self.session.declare_publisher(
-                key, congestion_control=zenoh.CongestionControl.BLOCK
-            )
-        return publisher
-
     def _publish_tiles(self) -> float | None:
+        assert self._publishers is not None
         updates, next_due = self.joint.step()
         for update in updates:
             cls, z, x, y = update.key
             key = self.keys.joint_tile(cls, z, x, y)
-            self._publisher(key).put(update.payload)
+            self._publishers.put(key, update.payload)
             dropped = update.tile is None
             if dropped:
-                publisher = self._publishers.pop(key)
-                publisher.undeclare()
+                self._publishers.drop(key)
             self.metrics.published(time.monotonic() - update.pending_since, dropped=dropped)
         if self.store is not None and updates:
             self.store.save_joints([(update.key, update.tile) for update in updates])

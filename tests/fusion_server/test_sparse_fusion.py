@@ -14,7 +14,8 @@ from fusion_server.rules import FUSION_RULES, get_fusion_rule
 from shared.tilecodec import TileDecodeError, decode_tile, decode_tile_sparse
 from shared.tiles import TileGrid
 from tests.fusion_server.fake_agent import GRID as GRID_FULL
-from tests.fusion_server.fake_agent import TILE_X, wait_until
+from tests.fusion_server.fake_agent import TILE_X
+from tests.netutil import wait_until
 from tests.shared.test_tilecodec import MALFORMED, mutated
 
 N = 8
