@@ -109,16 +109,16 @@ class FusionMetrics:
         self.queries = 0
         self.fusion_latency = LatencyHistogram()
 
-    def message(self, kind: str, nbytes: int) -> None:
-        """Count one accepted message of ``kind`` and ``nbytes`` payload bytes."""
+    def message(self, kind: str, nbytes: int, count: int = 1) -> None:
+        """Count ``count`` accepted messages of ``kind`` and ``nbytes`` payload bytes in total."""
         now = self._clock()
         with self._lock:
-            self.received[kind] = self.received.get(kind, 0) + 1
+            self.received[kind] = self.received.get(kind, 0) + count
             self.received_bytes[kind] = self.received_bytes.get(kind, 0) + nbytes
             window = self.rates.get(kind)
             if window is None:
                 window = self.rates[kind] = RateWindow()
-            window.add(now, 1, nbytes)
+            window.add(now, count, nbytes)
 
     def reject(self, kind: str, reason: str) -> None:
         """Count one dropped message."""

@@ -69,6 +69,7 @@ class Received:
 
 
 _KINDS = {"uav_tile": "tile", "uav_state": "state", "uav_tracks": "tracks"}
+_MAX_KNOWN_KEYS = 65_536
 
 
 class MessageValidator:
@@ -100,9 +101,24 @@ class MessageValidator:
         self.max_tracks_bytes = max_tracks_bytes
         self.max_clock_skew_s = float(max_clock_skew_s)
         self._wall = wall
+        self._known_keys: dict[str, tuple[ParsedKey, str]] = {}
 
     def parse_key(self, key: str) -> tuple[ParsedKey, str]:
-        """The parsed key and its message kind; Rejected("bad_key" | "unexpected_key") otherwise."""
+        """The parsed key and its message kind; Rejected("bad_key" | "unexpected_key") otherwise.
+
+        Valid keys are remembered (a UAV puts on the same keys every cycle; at most 65,536, then the
+        memory starts over), so a key is parsed once, not per message.
+        """
+        known = self._known_keys.get(key)
+        if known is not None:
+            return known
+        found = self._parse_key(key)
+        if len(self._known_keys) >= _MAX_KNOWN_KEYS:
+            self._known_keys.clear()
+        self._known_keys[key] = found
+        return found
+
+    def _parse_key(self, key: str) -> tuple[ParsedKey, str]:
         try:
             parsed = self.keys.parse(key)
         except ValueError as exc:

@@ -218,11 +218,15 @@ class FusionNode:
         if not tiles:
             return
         reasons = self.joint.put_many(tiles)  # type: ignore[arg-type]
+        count = nbytes = 0
         for reason, (received, key) in zip(reasons, accepted, strict=True):
             if reason is None:
-                self.metrics.message(received.kind, received.nbytes)
+                count += 1
+                nbytes += received.nbytes
             else:
                 self._reject("tile", reason, key, f"seq {received.message.seq}", received.key.uav)
+        if count:
+            self.metrics.message("tile", nbytes, count)
 
     def _admit(self, sample: zenoh.Sample) -> tuple[Received | None, str]:
         """Key, rate limit, decoding, registry of one sample: (the valid message, key) or (None, key)."""
