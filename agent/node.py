@@ -24,6 +24,7 @@ import numpy as np
 from agent.boost import results_to_coco, write_results
 from agent.frame_result import FrameResult
 from agent.global_ids import GlobalIdAdopter
+from agent.joint_window import window_tiles
 from agent.memory_map import JointLayer
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
@@ -91,6 +92,9 @@ class AgentSettings:
         and tracks (~10 kB/s) come on top. See docs/agent.md for the measured rates.
     joint_ttl_s : float
         A joint tile not refreshed for this many wall seconds stops boosting.
+    joint_window : bool
+        Receive the joint tiles of the memory map's window (and one tile around it) only, not the
+        whole fleet's (agent.joint_window); False subscribes to every joint tile.
     speed : float
         Playback speed against the source's clock (1 = real time); 0 = as fast as possible.
     duration_s : float or None
@@ -125,6 +129,7 @@ class AgentSettings:
     tile_min_value: float = 0.05
     tile_budget_bytes_per_s: float | None = 70_000.0
     joint_ttl_s: float = 3.0
+    joint_window: bool = True
     speed: float = 1.0
     duration_s: float | None = None
     loop: bool = False
@@ -440,7 +445,10 @@ class AgentNode:
         s = self.settings
         t = self._t_frame
         messages: list[tuple[str, str, bytes]] = []
-        for cls, x, y, payload in self.tiles.messages(self.pipeline.memory, t):
+        memory = self.pipeline.memory
+        if s.joint_window and memory.size_cells > 0:
+            self.link.set_joint_window(window_tiles(memory.origin, memory.size_cells, memory.grid.n))
+        for cls, x, y, payload in self.tiles.messages(memory, t):
             messages.append(("tile", self.link.tile_key(cls, x, y), payload))
         if self._last_pose is not None:
             t_pose, pose, camera = self._last_pose

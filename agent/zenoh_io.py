@@ -21,6 +21,7 @@ import numpy as np
 import zenoh
 from numpy.typing import NDArray
 
+from agent.joint_window import JointWindowSubscriptions
 from shared.keys import JOINT_UAV, KeySpace
 from shared.messages import (
     DEFAULT_MAX_STATE_BYTES,
@@ -137,6 +138,7 @@ class AgentLink:
         self.session: zenoh.Session | None = None
         self._session_tag = b""
         self._declared: list[Any] = []
+        self._window: JointWindowSubscriptions | None = None
         self._token: zenoh.LivelinessToken | None = None
         self._publishers: PublisherCache | None = None
         self._lock = threading.Lock()
@@ -175,8 +177,9 @@ class AgentLink:
         # keep references: declared entities are undeclared when garbage-collected
         self._publishers = PublisherCache(session, self.max_publishers)
         on_sample = self._guarded(self._on_sample, "a sample")
+        # every joint tile until set_joint_window() narrows it to the UAV's window
+        self._window = JointWindowSubscriptions(session, self.keys, self.grid.z, on_sample)
         self._declared = [
-            session.declare_subscriber(self.keys.joint_tiles_all(), on_sample),
             session.declare_subscriber(self.keys.joint_tracks(), on_sample),
             # the other UAVs' footprints: where the joint mean holds their evidence (JointLayer.others_cover)
             session.declare_subscriber(self.keys.uav_state("*"), on_sample),
@@ -202,6 +205,9 @@ class AgentLink:
             if self._publishers is not None:
                 self._publishers.clear()
             self._declared = []
+            if self._window is not None:
+                self._window.clear()
+                self._window = None
             self._token = None
             try:
                 self.session.close()
@@ -254,6 +260,14 @@ class AgentLink:
                     self._counts["coalesced"] += 1
                 self._outbox[key] = (kind, payload)
             self._wake.notify_all()
+
+    def set_joint_window(self, tiles: set[tuple[int, int]] | None) -> None:
+        """Receive the joint tiles of these (x, y) only (None: every joint tile); see agent.joint_window."""
+        if self._window is None:
+            raise RuntimeError("AgentLink.set_joint_window before open()")
+        if tiles != self._window.tiles:
+            self._window.set(tiles)
+            self._count("joint_window_changes")
 
     def tile_key(self, cls: str, x: int, y: int) -> str:
         """Key of one of this UAV's tiles on the agent's grid."""

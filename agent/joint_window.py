@@ -1,0 +1,92 @@
+"""Which joint tiles reach the agent: those of its window only, through one Zenoh subscriber per tile.
+
+A fleet's joint map is the sum of every UAV's window; a UAV needs the tiles of its own. Subscribing to
+``{prefix}/joint/tiles/**`` would bring every joint tile of the fleet over the UAV's radio link
+(~70 kB/s per UAV at defaults, so 14 MB/s in a fleet of 200). With one subscriber per window tile,
+``{prefix}/joint/tiles/*/{z}/{x}/{y}`` (the DESIGN.md key space as it is: all classes of one tile),
+Zenoh routes only those (a router or peer sends a sample only to sessions whose subscriptions match).
+Until the first window is known, and with ``set(None)``, it subscribes to every joint tile.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable, Iterable
+from typing import Any
+
+import zenoh
+
+from shared.keys import KeySpace
+
+__all__ = ["JointWindowSubscriptions", "window_tiles"]
+
+log = logging.getLogger(__name__)
+
+
+def window_tiles(origin: tuple[int, int], size_cells: int, n: int, margin: int = 1) -> set[tuple[int, int]]:
+    """(x, y) of the tiles a window of ``size_cells`` cells at global cell ``origin`` (north-west)
+    overlaps, plus ``margin`` tiles around it (so a tile is subscribed before the window reaches it)."""
+    if size_cells <= 0:
+        return set()
+    gx0, gy0 = origin
+    tx0, ty0 = gx0 // n - margin, gy0 // n - margin
+    tx1, ty1 = (gx0 + size_cells - 1) // n + margin, (gy0 + size_cells - 1) // n + margin
+    return {(x, y) for y in range(max(ty0, 0), ty1 + 1) for x in range(max(tx0, 0), tx1 + 1)}
+
+
+class JointWindowSubscriptions:
+    """The joint-tile subscribers of one session: every tile, or one per tile of a window.
+
+    session: an open Zenoh session; callback: the sample handler (must not raise); z: the grid's zoom.
+    Use from one thread (the agent's loop).
+    """
+
+    def __init__(self, session: zenoh.Session, keys: KeySpace, z: int, callback: Callable[[zenoh.Sample], Any]) -> None:
+        self.session = session
+        self.z = int(z)
+        self.callback = callback
+        self._base = keys.joint_tiles_all()[: -len("*/**")]  # "{prefix}/joint/tiles/"
+        self._all: Any = session.declare_subscriber(keys.joint_tiles_all(), callback)
+        self._tiles: dict[tuple[int, int], Any] = {}
+
+    @property
+    def tiles(self) -> set[tuple[int, int]] | None:
+        """The (x, y) subscribed to, or None while every joint tile is."""
+        return None if self._all is not None else set(self._tiles)
+
+    def key(self, x: int, y: int) -> str:
+        """The selector of one tile's joint tiles, all classes."""
+        return f"{self._base}*/{self.z}/{int(x)}/{int(y)}"
+
+    def set(self, tiles: Iterable[tuple[int, int]] | None) -> None:
+        """Subscribe to the joint tiles of ``tiles`` only (None: to every joint tile). New tiles are
+        declared before the old ones and the all-tiles subscriber are undeclared, so nothing in both
+        the old and the new window is missed."""
+        if tiles is None:
+            if self._all is None:
+                self._all = self.session.declare_subscriber(f"{self._base}*/**", self.callback)
+            self._undeclare(list(self._tiles))
+            return
+        wanted = set(tiles)
+        for xy in wanted - self._tiles.keys():
+            self._tiles[xy] = self.session.declare_subscriber(self.key(*xy), self.callback)
+        self._undeclare([xy for xy in self._tiles if xy not in wanted])
+        if self._all is not None:
+            _undeclare(self._all)
+            self._all = None
+
+    def _undeclare(self, tiles: list[tuple[int, int]]) -> None:
+        for xy in tiles:
+            _undeclare(self._tiles.pop(xy))
+
+    def clear(self) -> None:
+        """Forget the subscribers (they go with the session when it closes)."""
+        self._all = None
+        self._tiles.clear()
+
+
+def _undeclare(subscriber: Any) -> None:
+    try:
+        subscriber.undeclare()
+    except zenoh.ZError as exc:  # the session is closing
+        log.debug("undeclaring a joint-tile subscriber: %s", exc)
