@@ -385,7 +385,9 @@ def test_tiles_flow_again_after_the_server_goes_away_and_comes_back(server_port,
 
 def test_malformed_joint_messages_are_counted_and_never_fatal(server, server_port):
     lat, lon = box_ground(BOX_A)
-    node = AgentNode(agent_settings(server_port, speed=1.0, loop=True), SimSource("coop", frames=300))
+    # every joint key, so that off-window ones (another grid, a bad key) reach the validation too
+    node = AgentNode(agent_settings(server_port, speed=1.0, loop=True, joint_window=False),
+                     SimSource("coop", frames=300))
     good_key, good = joint_tile_with_blob(lat, lon)
     x, y = (int(v) for v in GRID.tile_of(lat, lon))
     base = msgpack.unpackb(good)
