@@ -160,8 +160,18 @@ def _start_fusion(port: int, db_dir: str) -> subprocess.Popen:
     return proc
 
 
+def _cpu_s(pid: int) -> float | None:
+    """User + system CPU seconds of process ``pid`` so far (Linux /proc), None where unavailable."""
+    try:
+        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+    except (OSError, ValueError, IndexError):
+        return None
+
+
 def _run_load(ctx, endpoint: str, receiver: _JointLatency, n_uavs: int, duration_s: float, step: int,
-              shared_pairs: bool = False, n_procs: int = 1) -> dict[str, float]:
+              shared_pairs: bool = False, n_procs: int = 1, fusion_pid: int | None = None) -> dict[str, float]:
+    cpu0 = _cpu_s(fusion_pid) if fusion_pid is not None else None
     out = ctx.Queue()
     start = time.time() + 2.0  # a child needs ~1 s to import and declare its publishers
     procs = [ctx.Process(target=_load_generator,
@@ -173,6 +183,9 @@ def _run_load(ctx, endpoint: str, receiver: _JointLatency, n_uavs: int, duration
         proc.join(timeout=duration_s + 60)
     ok = all(proc.exitcode == 0 for proc in procs)
     reports = [out.get(timeout=5) for _ in procs] if ok else [{"puts": 0, "lag_p99_s": float("inf")}]
+    cpu1 = _cpu_s(fusion_pid) if fusion_pid is not None else None
+    puts = sum(report["puts"] for report in reports)
+    cpu_per_msg = (cpu1 - cpu0) / puts if cpu0 is not None and cpu1 is not None and puts else None
     warm = 0.6
     t0, t1 = start + warm, start + duration_s
     lat = receiver.window(t0, t1)
@@ -188,6 +201,7 @@ def _run_load(ctx, endpoint: str, receiver: _JointLatency, n_uavs: int, duration
         "p99": float(np.quantile(lat, 0.99)) if lat.size else float("inf"),
         "received_ratio": lat.size / expected,
         "lag_p99_s": max(report["lag_p99_s"] for report in reports),
+        "cpu_per_msg_s": cpu_per_msg,
     }
 
 
@@ -349,6 +363,7 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
     port = _free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     sustained = 0
+    cpu_per_msg: float | None = None  # of the largest load run
     with tempfile.TemporaryDirectory() as db_dir:
         fusion = _start_fusion(port, db_dir)
         try:
@@ -357,7 +372,10 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
                 sub = session.declare_subscriber("uavmm/v1/joint/tiles/**", receiver)
                 gc.freeze()  # as uavmm fusion does: no full-collection pauses over start-up objects here
                 for step, n in enumerate(steps):
-                    result = _run_load(ctx, endpoint, receiver, n, duration_s, step, n_procs=2 if n >= 100 else 1)
+                    result = _run_load(ctx, endpoint, receiver, n, duration_s, step, n_procs=2 if n >= 100 else 1,
+                                       fusion_pid=fusion.pid)
+                    if result["cpu_per_msg_s"] is not None:
+                        cpu_per_msg = result["cpu_per_msg_s"]
                     ok = (result["p99"] <= P99_BUDGET_S and result["received_ratio"] >= 0.95
                           and result["lag_p99_s"] <= P99_BUDGET_S)
                     log.info("fusion bench: %s -> %s", result, "ok" if ok else "not sustained")
@@ -394,6 +412,12 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
         "baseline_name": f"raw zenoh = {raw_uavs:.0f} UAV-equivalents",
         "ratio": sustained / raw_uavs if raw_uavs else None,
     })
+    if cpu_per_msg:
+        rows.append({
+            "case": f"fusion process CPU per UAV message (largest load; UAVs one core holds: "
+                    f"{1.0 / (cpu_per_msg * RATE_HZ * TILES_PER_UAV):.0f})",
+            "value": cpu_per_msg * 1e6, "unit": "us",
+        })
     bw = uav_bytes_per_s(seconds=2.5 if quick else 4.0)
     rows += [
         {"case": f"uplink per UAV, 20 objects, defaults (tiles {bw['tiles'] / 1e3:.0f}, state+tracks "
