@@ -43,6 +43,11 @@ _DECIMAL = re.compile(r"(?:0|[1-9][0-9]*)\Z")
 #: ``_ . -`` only, starting with a letter or digit, so no two ids look alike (no homoglyphs such as a
 #: Cyrillic 'а' in 'uаv1', no invisible characters) and every id is safe in a file name or a config.
 _UAV_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]*\Z")
+#: Names and UAV ids found valid (a fleet repeats a few in every message): checked once, not per
+#: message. Bounded: beyond _MAX_KNOWN they are checked every time.
+_KNOWN_NAMES: set[str] = set()
+_KNOWN_UAV_IDS: set[str] = set()
+_MAX_KNOWN = 65_536
 
 
 def name_problem(value: object) -> str | None:
@@ -51,6 +56,8 @@ def name_problem(value: object) -> str | None:
     A valid name is a ``str`` of 1..128 characters, all printable, none of them whitespace or one of
     ``/ * $ ? #``, and not starting with ``@``. Such a name is exactly one Zenoh key chunk.
     """
+    if type(value) is str and value in _KNOWN_NAMES:
+        return None
     if not isinstance(value, str):
         return f"must be a str, got {type(value).__name__}"
     if not value:
@@ -64,6 +71,8 @@ def name_problem(value: object) -> str | None:
             return f"must not contain {char!r}, got {value!r}"
         if char.isspace() or not char.isprintable():
             return f"must not contain whitespace or non-printable characters, got {value!r}"
+    if type(value) is str and len(_KNOWN_NAMES) < _MAX_KNOWN:
+        _KNOWN_NAMES.add(value)
     return None
 
 
@@ -74,6 +83,8 @@ def uav_id_problem(value: object) -> str | None:
     ``-`` only, starting with a letter or digit, and not ``"joint"`` (reserved for the fusion
     server's own messages).
     """
+    if type(value) is str and value in _KNOWN_UAV_IDS:
+        return None
     problem = name_problem(value)
     if problem is not None:
         return problem
@@ -82,6 +93,8 @@ def uav_id_problem(value: object) -> str | None:
         return f"must use only ASCII letters, digits, '_', '.' and '-' and start with a letter or digit, got {value!r}"
     if value == JOINT_UAV:
         return f"{JOINT_UAV!r} is reserved for the fusion server"
+    if type(value) is str and len(_KNOWN_UAV_IDS) < _MAX_KNOWN:
+        _KNOWN_UAV_IDS.add(value)
     return None
 
 

@@ -286,7 +286,7 @@ def _decode_sparse(record: dict, n: int) -> tuple[NDArray[np.uint16], NDArray[np
         raise TileDecodeError("bad_length", f"idx has {len(idx) // 2} indices but val has {len(val)} bytes", "val")
     indices = np.frombuffer(idx, dtype="<u2").astype(np.uint16)
     values = np.frombuffer(val, dtype=np.uint8)
-    ordered = indices.size < 2 or bool(np.all(indices[1:] > indices[:-1]))  # encoders sort
+    ordered = indices.size < 2 or bool((indices[1:] > indices[:-1]).all())  # encoders sort
     top = (int(indices[-1]) if ordered else int(indices.max())) if indices.size else 0
     if top >= cells:
         raise TileDecodeError("index_out_of_range", f"idx holds {top}, must be < n*n = {cells}", "idx")
