@@ -42,6 +42,9 @@ __all__ = ["AgentLink", "FootprintUpdate", "JointTileUpdate", "encode_tracks_wit
 
 log = logging.getLogger(__name__)
 
+#: Track regions held (agent.joint_window; a window touches 1-4), and how long one counts, seconds.
+_MAX_REGIONS = 64
+MAX_REGION_AGE_S = 3.0
 #: Largest joint tracks payload accepted, bytes.
 MAX_JOINT_TRACKS_BYTES = 8 * 1024 * 1024
 #: How often the publisher thread looks for new routers/peers (to query the joint map again), seconds.
@@ -151,6 +154,7 @@ class AgentLink:
             OrderedDict()
         self._joint_pending: set[tuple[str, int, int]] = set()
         self._joint_tracks: tuple[JointTracksMessage, float] | None = None
+        self._region_tracks: OrderedDict[tuple[Any, Any, Any], tuple[JointTracksMessage, float]] = OrderedDict()
         # other UAVs' latest footprints: uav -> (footprint, monotonic receive time), and the new ones
         self._footprints: dict[str, tuple[tuple[tuple[float, float], ...], float]] = {}
         self._footprints_pending: set[str] = set()
@@ -177,10 +181,9 @@ class AgentLink:
         # keep references: declared entities are undeclared when garbage-collected
         self._publishers = PublisherCache(session, self.max_publishers)
         on_sample = self._guarded(self._on_sample, "a sample")
-        # every joint tile until set_joint_window() narrows it to the UAV's window
+        # every joint tile and the global tracks until set_joint_window() narrows them to the window
         self._window = JointWindowSubscriptions(session, self.keys, self.grid.z, on_sample)
         self._declared = [
-            session.declare_subscriber(self.keys.joint_tracks(), on_sample),
             # the other UAVs' footprints: where the joint mean holds their evidence (JointLayer.others_cover)
             session.declare_subscriber(self.keys.uav_state("*"), on_sample),
         ]
@@ -387,6 +390,8 @@ class AgentLink:
             self._on_joint_tile(key, parsed, sample.payload)
         elif parsed.kind == "joint_tracks":
             self._on_joint_tracks(key, sample.payload)
+        elif parsed.kind == "joint_tracks_region":
+            self._on_joint_tracks(key, sample.payload, (parsed.z, parsed.x, parsed.y))
         elif parsed.kind == "uav_state":
             if parsed.uav != self.uav:
                 self._on_state(key, parsed.uav, sample.payload)
@@ -433,7 +438,7 @@ class AgentLink:
             self._counts["joint_tiles"] += 1
             self._bytes["joint_tiles"] += len(payload)
 
-    def _on_joint_tracks(self, key: str, payload: zenoh.ZBytes) -> None:
+    def _on_joint_tracks(self, key: str, payload: zenoh.ZBytes, region: tuple[Any, Any, Any] | None = None) -> None:
         if len(payload) > MAX_JOINT_TRACKS_BYTES:
             self._reject("too_large", key, f"{len(payload)} bytes")
             return
@@ -449,7 +454,13 @@ class AgentLink:
             self._reject("t_in_future", key, f"t {msg.t!r:.30} is ahead of this clock")
             return
         with self._lock:
-            self._joint_tracks = (msg, time.monotonic())
+            if region is None:
+                self._joint_tracks = (msg, time.monotonic())
+            else:  # the tracks of one region (agent.joint_window); at most _MAX_REGIONS held
+                self._region_tracks.pop(region, None)
+                self._region_tracks[region] = (msg, time.monotonic())
+                while len(self._region_tracks) > _MAX_REGIONS:
+                    self._region_tracks.popitem(last=False)
             self._counts["joint_tracks"] += 1
             self._bytes["joint_tracks"] += len(payload)
 
@@ -510,12 +521,28 @@ class AgentLink:
         return out
 
     def joint_tracks(self) -> tuple[JointTracksMessage, float] | None:
-        """The latest global tracks and their age in seconds, or None before any arrived."""
+        """The latest global tracks and their age in seconds, or None before any arrived.
+
+        With track regions (agent.joint_window): the tracks of every region heard from within
+        MAX_REGION_AGE_S, merged, aged as the newest of them, unless the global message is newer.
+        """
+        now = time.monotonic()
         with self._lock:
-            if self._joint_tracks is None:
-                return None
-            msg, received = self._joint_tracks
-        return msg, time.monotonic() - received
+            fresh = [(msg, received) for msg, received in self._region_tracks.values()
+                     if now - received <= MAX_REGION_AGE_S]
+            latest = self._joint_tracks
+        if fresh:
+            newest = max(received for _, received in fresh)
+            if latest is None or newest >= latest[1]:
+                by_gid = {}  # a track that moved between regions: the newer region's message wins
+                for msg, _ in sorted(fresh, key=lambda entry: entry[1]):
+                    by_gid.update((item.gid, item) for item in msg.tracks)
+                merged = JointTracksMessage(t=max(msg.t for msg, _ in fresh),
+                                            tracks=tuple(by_gid[gid] for gid in sorted(by_gid)))
+                return merged, now - newest
+        if latest is None:
+            return None
+        return latest[0], now - latest[1]
 
     def stats(self) -> dict[str, Any]:
         """Counters: messages and bytes sent per kind, joint messages received, rejects by reason,

@@ -18,11 +18,20 @@ from collections import deque
 from collections.abc import Callable
 from typing import TYPE_CHECKING, TypeVar
 
+import numpy as np
 import zenoh
 
 from fusion_server.joint_map import JointMap, TileKey
 from fusion_server.validation import MessageValidator, Received, Rejected
-from shared.messages import MAX_TRACKS, StateMessage, TracksMessage, encode_joint_tracks
+from shared.keys import track_region
+from shared.messages import (
+    MAX_TRACKS,
+    JointTrackItem,
+    JointTracksMessage,
+    StateMessage,
+    TracksMessage,
+    encode_joint_tracks,
+)
 from shared.tilecodec import SparseTile
 from transport.guard import RateLimitedLog, guarded
 from transport.publishers import PublisherCache
@@ -45,6 +54,9 @@ _T = TypeVar("_T")
 _TICK_S = 0.05
 #: Samples handled between two publishing steps of the fusion thread.
 _BATCH = 256
+#: A region's joint tracks are published again after this long even when unchanged (agents drop joint
+#: tracks older than their joint TTL, 3 s by default), seconds.
+_REGION_REFRESH_S = 1.0
 
 
 def _session_of(raw: bytes) -> str:
@@ -110,6 +122,8 @@ class FusionNode:
         self._inbox: deque[zenoh.Sample] = deque()
         self._wakeup = threading.Event()
         self._sessions: dict[bytes, str] = {}  # attachment bytes -> session id (bounded cache)
+        # region -> (its tracks, payload, monotonic time) as last published on joint/tracks/{z}/{x}/{y}
+        self._region_payloads: dict[tuple[int, int, int], tuple[tuple[JointTrackItem, ...], bytes, float]] = {}
 
     # ---- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -296,6 +310,10 @@ class FusionNode:
                 query.reply(tile_key, tile.payload)
         if selector.intersects(self._tracks_key):
             query.reply(self._tracks_key, self._tracks_payload)
+        for region, (_, payload, _) in list(self._region_payloads.items()):
+            region_key = self.keys.joint_tracks_region(*region)
+            if selector.intersects(region_key):
+                query.reply(region_key, payload)
         self.metrics.query()
 
     # ---- publisher thread ----------------------------------------------------------------------
@@ -331,6 +349,40 @@ class FusionNode:
         assert self._tracks_publisher is not None
         self._tracks_publisher.put(payload)
         self.metrics.tracks_sent()
+        self._publish_track_regions(message if left_out <= 0 else self.tracker.joint_message())
+
+    def _publish_track_regions(self, message: JointTracksMessage) -> None:
+        """The global tracks again per region tile (``joint/tracks/{z}/{x}/{y}``, shared.keys.track_region),
+        so a UAV receives those near it only: a region whose tracks changed, or whose last message is
+        1 s old; one empty message for a region that has none any more."""
+        assert self._publishers is not None
+        grid = self.joint.grid
+        by_region: dict[tuple[int, int, int], list[JointTrackItem]] = {}
+        if message.tracks:
+            lat = np.array([item.lat for item in message.tracks])
+            lon = np.array([item.lon for item in message.tracks])
+            xs, ys = grid.tile_of(lat, lon)
+            for item, x, y in zip(message.tracks, xs.tolist(), ys.tolist(), strict=True):
+                by_region.setdefault(track_region(grid.z, x, y), []).append(item)
+        now = time.monotonic()
+        for region in [r for r in self._region_payloads if r not in by_region]:
+            by_region[region] = []
+        for region, found in by_region.items():
+            items = tuple(found)
+            last = self._region_payloads.get(region)
+            if last is not None and last[0] == items and now - last[2] < _REGION_REFRESH_S:
+                continue  # the same tracks, published less than a second ago
+            payload = encode_joint_tracks(JointTracksMessage(t=message.t, tracks=items))
+            while len(payload) > self.max_tracks_bytes and len(items) > 1:
+                items = items[: len(items) // 2]
+                payload = encode_joint_tracks(JointTracksMessage(t=message.t, tracks=items))
+            key = self.keys.joint_tracks_region(*region)
+            self._publishers.put(key, payload)
+            if items:
+                self._region_payloads[region] = (tuple(found), payload, now)
+            else:
+                self._region_payloads.pop(region, None)
+                self._publishers.drop(key)
 
     def _step(self, name: str, action: Callable[[], _T]) -> _T | None:
         """Run one step of the publisher thread; a failure is logged (rate-limited) and counted, and

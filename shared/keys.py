@@ -18,9 +18,11 @@ __all__ = [
     "KEY_KINDS",
     "MAX_NAME_LEN",
     "MAX_ZOOM",
+    "TRACK_REGION_ZOOM_DROP",
     "KeySpace",
     "ParsedKey",
     "name_problem",
+    "track_region",
     "uav_id_problem",
     "validate_name",
     "validate_uav_id",
@@ -32,7 +34,10 @@ DEFAULT_PREFIX = "uavmm/v1"
 JOINT_UAV = "joint"
 MAX_NAME_LEN = 128
 MAX_ZOOM = 24
-KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks")
+KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks", "joint_tracks_region")
+#: Joint tracks are also published per region: the tile of the grid's zoom minus this (z 15 for z 18,
+#: 8 x 8 grid tiles, ~1.2 km at 48 N), so a UAV subscribes to the few regions its window touches.
+TRACK_REGION_ZOOM_DROP = 3
 
 # Characters with a meaning in Zenoh key expressions ('/' separates chunks, the rest are wildcards or
 # reserved); '@' is refused only as the first character because Zenoh treats '@...' chunks as verbatim
@@ -135,6 +140,12 @@ def _validate_tile(z: object, x: object, y: object) -> tuple[int, int, int]:
     return z, x, y
 
 
+def track_region(z: int, x: int, y: int) -> tuple[int, int, int]:
+    """The region tile (z - TRACK_REGION_ZOOM_DROP, x >> drop, y >> drop) of grid tile (z, x, y)."""
+    drop = min(TRACK_REGION_ZOOM_DROP, z)
+    return z - drop, x >> drop, y >> drop
+
+
 def _name_or_star(value: object, field: str) -> str:
     if value == "*":
         return "*"
@@ -231,6 +242,12 @@ class KeySpace:
         """Key of the global tracks: ``{prefix}/joint/tracks``."""
         return f"{self.prefix}/joint/tracks"
 
+    def joint_tracks_region(self, z: int, x: int, y: int) -> str:
+        """Key of the global tracks inside one region tile: ``{prefix}/joint/tracks/{z}/{x}/{y}``
+        (z = grid zoom - TRACK_REGION_ZOOM_DROP; see :func:`track_region`)."""
+        z, x, y = _validate_tile(z, x, y)
+        return f"{self.prefix}/joint/tracks/{z}/{x}/{y}"
+
     def joint_all(self) -> str:
         """Selector (and queryable) of everything the fusion server publishes: ``{prefix}/joint/**``."""
         return f"{self.prefix}/joint/**"
@@ -267,6 +284,9 @@ class KeySpace:
         elif parts[0] == "joint":
             if parts[1:] == ["tracks"]:
                 return ParsedKey(kind="joint_tracks", uav=JOINT_UAV)
+            if len(parts) == 5 and parts[1] == "tracks":
+                _, z, x, y = self._parse_tile(["tracks", *parts[2:]])
+                return ParsedKey(kind="joint_tracks_region", uav=JOINT_UAV, z=z, x=x, y=y)
             if len(parts) == 6 and parts[1] == "tiles":
                 cls, z, x, y = self._parse_tile(parts[2:])
                 return ParsedKey(kind="joint_tile", uav=JOINT_UAV, cls=cls, z=z, x=x, y=y)

@@ -1,4 +1,4 @@
-"""An agent receives the joint tiles of its window only: the fleet's other tiles never cross its link."""
+"""An agent receives the joint tiles and tracks of its window only: the fleet's others never cross its link."""
 
 from __future__ import annotations
 
@@ -11,6 +11,8 @@ from hypothesis import strategies as st
 from agent.joint_window import window_tiles
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink
+from shared.keys import track_region
+from shared.messages import JointTrackItem, JointTracksMessage, encode_joint_tracks
 from shared.tilecodec import encode_tile_sparse
 from tests.agent.test_node_bandwidth import ByteCountingRelay
 from tests.agent.test_node_zenoh import GRID, KEYS, FakeServer
@@ -67,6 +69,40 @@ def test_only_the_window_tiles_reach_the_agent_and_the_others_stay_off_its_link(
         got = wait_until(lambda: link.drain_joint_tiles(), 10.0, "a joint tile outside the window")
         assert {(u.x, u.y) for u in got} == {(x, y)}
         assert link.stats()["counts"]["joint_window_changes"] == 2
+    finally:
+        link.close()
+        relay.close()
+        server.close()
+
+
+def _tracks(gids: range, lat: float) -> bytes:
+    return encode_joint_tracks(JointTracksMessage(t=time.time(), tracks=tuple(
+        JointTrackItem(g, "person", lat, 9.27, 0.9, (0.0, 0.0), (("uav2", g),)) for g in gids)))
+
+
+def test_only_the_track_regions_of_the_window_reach_the_agent():
+    port = free_port()
+    server = FakeServer(port, shared_memory=False)
+    relay = ByteCountingRelay(port)
+    conf = agent_zenoh_config(ZenohOptions(connect=(f"tcp/127.0.0.1:{relay.port}",), multicast_scouting=False,
+                                           cfg=("transport/shared_memory/enabled:false",)))
+    link = AgentLink(conf, KEYS, "uav1", GRID)
+    near = track_region(GRID.z, X0, Y0)
+    far = track_region(GRID.z, X0 + 64, Y0)
+    try:
+        assert link.open(timeout_s=10.0)
+        link.set_joint_window({(X0, Y0)})
+        time.sleep(1.0)
+        down_before = relay.down
+        for _ in range(3):
+            server.put(KEYS.joint_tracks(), _tracks(range(1, 2001), 47.0))  # the whole fleet's
+            server.put(KEYS.joint_tracks_region(*far), _tracks(range(100, 2000), 47.1))
+            server.put(KEYS.joint_tracks_region(*near), _tracks(range(1, 4), 47.67))
+        wait_until(lambda: link.stats()["counts"].get("joint_tracks", 0) >= 3, 10.0, "the near region's tracks")
+        time.sleep(0.5)
+        msg, age = link.joint_tracks()
+        assert [t.gid for t in msg.tracks] == [1, 2, 3] and age < 3.0
+        assert relay.down - down_before < 20_000  # the global and the far region's (~1 MB) stayed away
     finally:
         link.close()
         relay.close()

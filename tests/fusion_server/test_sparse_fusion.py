@@ -1,20 +1,24 @@
-"""The fusion server's sparse path: decode_tile_sparse agrees with decode_tile, fusion over the union
-of non-zero cells equals the dense rule, batched puts, and the fusion node's bounded inbox."""
+"""The fusion server at fleet rates: decode_tile_sparse agrees with decode_tile, fusion over the union
+of non-zero cells equals the dense rule, batched puts, the fusion node's bounded inbox, and joint
+tracks per region."""
 
 from __future__ import annotations
 
 import msgpack
 import numpy as np
 import pytest
+import zenoh
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from fusion_server.joint_map import JointMap
 from fusion_server.rules import FUSION_RULES, get_fusion_rule
+from shared.keys import KeySpace, track_region
+from shared.messages import decode_joint_tracks
 from shared.tilecodec import TileDecodeError, decode_tile, decode_tile_sparse
 from shared.tiles import TileGrid
 from tests.fusion_server.fake_agent import GRID as GRID_FULL
-from tests.fusion_server.fake_agent import TILE_X
+from tests.fusion_server.fake_agent import LAT, LON, TILE_X, client_config
 from tests.netutil import wait_until
 from tests.shared.test_tilecodec import MALFORMED, mutated
 
@@ -159,3 +163,30 @@ def test_a_full_inbox_drops_and_counts_samples_as_overloaded(server_factory, age
     assert wait_until(lambda: server.metrics.rejected.get(("unknown", "overloaded"), 0) == 3)
     assert server.joint.tiles() == []
     assert 'reason="overloaded"' in server.prometheus()
+
+
+# ---- joint tracks per region ---------------------------------------------------------------------
+def test_joint_tracks_are_also_published_per_region_with_only_their_tracks(server_factory, agent_factory):
+    server = server_factory()
+    keys = KeySpace()
+    got: dict[str, list[int]] = {}
+    port = server.settings.zenoh.listen[0]
+    with zenoh.open(client_config(port)) as session:
+        sub = session.declare_subscriber(f"{keys.prefix}/joint/tracks/*/*/*",
+                                         lambda s: got.__setitem__(str(s.key_expr), [
+                                             t.gid for t in decode_joint_tracks(s.payload.to_bytes()).tracks]))
+        near = agent_factory("u1")
+        far = agent_factory("u2")
+        wait_until(lambda: len(server.uavs.online()) == 2)
+        far_lat = LAT + 0.1  # ~11 km north: another region
+        region_near = keys.joint_tracks_region(*track_region(18, *(int(v) for v in GRID_FULL.tile_of(LAT, LON))))
+        region_far = keys.joint_tracks_region(*track_region(18, *(int(v) for v in GRID_FULL.tile_of(far_lat, LON))))
+        for _ in range(3):
+            near.tracks([(1, "person", LAT, LON), (2, "person", LAT + 1e-4, LON)])
+            far.tracks([(1, "person", far_lat, LON)])
+        wait_until(lambda: region_near in got and region_far in got, what="both regions' tracks")
+        tracks = {t.gid: t for t in server.tracker.joint_message().tracks}
+        assert len(tracks) == 3
+        assert sorted(got[region_near]) == sorted(g for g, t in tracks.items() if t.lat < LAT + 0.05)
+        assert len(got[region_far]) == 1
+        sub.undeclare()

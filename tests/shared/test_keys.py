@@ -196,3 +196,23 @@ def test_parse_rejects_keys_outside_the_space(key: str) -> None:
 def test_parse_rejects_non_strings() -> None:
     with pytest.raises(ValueError, match="str"):
         KS.parse(b"uavmm/v1/joint/tracks")  # type: ignore[arg-type]
+
+
+@given(z=st.integers(0, 24), data=st.data())
+def test_track_region_keys_round_trip_and_hold_their_tile(z: int, data: st.DataObject) -> None:
+    from shared.keys import TRACK_REGION_ZOOM_DROP, track_region
+
+    x = data.draw(st.integers(0, 2**z - 1))
+    y = data.draw(st.integers(0, 2**z - 1))
+    rz, rx, ry = track_region(z, x, y)
+    assert rz == max(z - TRACK_REGION_ZOOM_DROP, 0)
+    assert (x >> (z - rz), y >> (z - rz)) == (rx, ry)
+    keys = KeySpace()
+    parsed = keys.parse(keys.joint_tracks_region(rz, rx, ry))
+    assert (parsed.kind, parsed.uav, parsed.z, parsed.x, parsed.y) == ("joint_tracks_region", "joint", rz, rx, ry)
+
+
+@pytest.mark.parametrize("tail", ["tracks/15/1", "tracks/15/01/2", "tracks/15/1/2/3", "tracks/3/8/0", "tracks/x/1/2"])
+def test_malformed_track_region_keys_are_refused(tail: str) -> None:
+    with pytest.raises(ValueError):
+        KeySpace().parse(f"uavmm/v1/joint/{tail}")
