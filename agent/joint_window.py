@@ -70,10 +70,12 @@ class JointWindowSubscriptions:
         """The selector of one tile's joint tiles, all classes."""
         return f"{self._base}*/{self.z}/{int(x)}/{int(y)}"
 
-    def set(self, tiles: Iterable[tuple[int, int]] | None) -> None:
-        """Subscribe to the joint tiles of ``tiles`` only (None: to every joint tile). New tiles are
-        declared before the old ones and the all-tiles subscriber are undeclared, so nothing in both
-        the old and the new window is missed."""
+    def set(self, tiles: Iterable[tuple[int, int]] | None,
+            track_tiles: Iterable[tuple[int, int]] | None = None) -> None:
+        """Subscribe to the joint tiles of ``tiles`` only and to the track regions of ``track_tiles``
+        (default: of ``tiles``); None: to every joint tile and the global tracks. New subscribers are
+        declared before the old ones and the all-tiles ones are undeclared, so nothing in both the
+        old and the new window is missed."""
         if tiles is None:
             if self._all is None:
                 self._all = self.session.declare_subscriber(f"{self._base}*/**", self.callback)
@@ -83,7 +85,7 @@ class JointWindowSubscriptions:
                 self._undeclare(subscribers, list(subscribers))  # type: ignore[arg-type]
             return
         wanted = set(tiles)
-        regions = {track_region(self.z, x, y) for x, y in wanted}
+        regions = {track_region(self.z, x, y) for x, y in (wanted if track_tiles is None else track_tiles)}
         for xy in wanted - self._tiles.keys():
             self._tiles[xy] = self.session.declare_subscriber(self.key(*xy), self.callback)
         for region in regions - self._regions.keys():

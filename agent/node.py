@@ -447,7 +447,9 @@ class AgentNode:
         messages: list[tuple[str, str, bytes]] = []
         memory = self.pipeline.memory
         if s.joint_window and memory.size_cells > 0:
-            self.link.set_joint_window(window_tiles(memory.origin, memory.size_cells, memory.grid.n))
+            # joint tiles of the window and one tile around it; tracks of the regions the window touches
+            self.link.set_joint_window(window_tiles(memory.origin, memory.size_cells, memory.grid.n),
+                                       window_tiles(memory.origin, memory.size_cells, memory.grid.n, margin=0))
         for cls, x, y, payload in self.tiles.messages(memory, t):
             messages.append(("tile", self.link.tile_key(cls, x, y), payload))
         if self._last_pose is not None:

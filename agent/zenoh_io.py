@@ -22,7 +22,7 @@ import zenoh
 from numpy.typing import NDArray
 
 from agent.joint_window import JointWindowSubscriptions
-from shared.keys import JOINT_UAV, KeySpace
+from shared.keys import JOINT_UAV, KeySpace, track_region
 from shared.messages import (
     DEFAULT_MAX_STATE_BYTES,
     VERSION,
@@ -264,12 +264,16 @@ class AgentLink:
                 self._outbox[key] = (kind, payload)
             self._wake.notify_all()
 
-    def set_joint_window(self, tiles: set[tuple[int, int]] | None) -> None:
-        """Receive the joint tiles of these (x, y) only (None: every joint tile); see agent.joint_window."""
+    def set_joint_window(self, tiles: set[tuple[int, int]] | None,
+                         track_tiles: set[tuple[int, int]] | None = None) -> None:
+        """Receive the joint tiles of these (x, y) only and the joint tracks of the regions of
+        ``track_tiles`` (default: of ``tiles``); None: every joint tile and track. See agent.joint_window."""
         if self._window is None:
             raise RuntimeError("AgentLink.set_joint_window before open()")
-        if tiles != self._window.tiles:
-            self._window.set(tiles)
+        regions = None if tiles is None else {track_region(self.grid.z, x, y)
+                                               for x, y in (tiles if track_tiles is None else track_tiles)}
+        if tiles != self._window.tiles or regions != self._window.regions:
+            self._window.set(tiles, track_tiles)
             self._count("joint_window_changes")
 
     def tile_key(self, cls: str, x: int, y: int) -> str:

@@ -35,9 +35,9 @@ JOINT_UAV = "joint"
 MAX_NAME_LEN = 128
 MAX_ZOOM = 24
 KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks", "joint_tracks_region")
-#: Joint tracks are also published per region: the tile of the grid's zoom minus this (z 15 for z 18,
-#: 8 x 8 grid tiles, ~1.2 km at 48 N), so a UAV subscribes to the few regions its window touches.
-TRACK_REGION_ZOOM_DROP = 3
+#: Joint tracks are also published per region: the tile of the grid's zoom minus this (z 16 for z 18,
+#: 4 x 4 grid tiles, ~610 m at 48 N), so a UAV subscribes to the one to four regions its window touches.
+TRACK_REGION_ZOOM_DROP = 2
 
 # Characters with a meaning in Zenoh key expressions ('/' separates chunks, the rest are wildcards or
 # reserved); '@' is refused only as the first character because Zenoh treats '@...' chunks as verbatim

@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 import zenoh
 
+from shared.keys import track_region
 from shared.messages import decode_joint_tracks
 from shared.tilecodec import decode_tile
 from tests.fusion_server.fake_agent import (
@@ -104,7 +105,8 @@ def test_late_joiner_gets_the_joint_map_and_tracks_at_once(server, agent_factory
         elapsed = time.monotonic() - t0
         keys = sorted(str(s.key_expr) for s in replies)
         assert keys == sorted([KEYS.joint_tile("person", 18, TILE_X, TILE_Y),
-                               KEYS.joint_tile("person", 18, TILE_X + 1, TILE_Y), KEYS.joint_tracks()])
+                               KEYS.joint_tile("person", 18, TILE_X + 1, TILE_Y), KEYS.joint_tracks(),
+                               KEYS.joint_tracks_region(*track_region(18, TILE_X, TILE_Y))])
         assert elapsed < 2.0
         tracks = next(s for s in replies if str(s.key_expr) == KEYS.joint_tracks())
         joint = decode_joint_tracks(tracks.payload.to_bytes())
