@@ -1,4 +1,4 @@
-"""Which joint tiles and tracks reach the agent: those of its window only, one Zenoh subscriber per tile.
+"""Which joint tiles, tracks and other UAVs' states reach the agent: those of its window only.
 
 A fleet's joint map is the sum of every UAV's window; a UAV needs the tiles of its own. Subscribing to
 ``{prefix}/joint/tiles/**`` would bring every joint tile of the fleet over the UAV's radio link
@@ -7,9 +7,11 @@ A fleet's joint map is the sum of every UAV's window; a UAV needs the tiles of i
 Zenoh routes only those (a router or peer sends a sample only to sessions whose subscriptions match).
 The global tracks likewise: instead of ``{prefix}/joint/tracks`` (every track of the fleet: 425 kB
 for 4,000 tracks, at 5 Hz) the regions the window touches, ``{prefix}/joint/tracks/{z}/{x}/{y}``
-(shared.keys.track_region, published by the fusion server beside the global message).
-Until the first window is known, and with ``set(None)``, it subscribes to every joint tile and to the
-global tracks.
+(shared.keys.track_region, published by the fusion server beside the global message), and the
+other UAVs' states (for their footprints) as the fusion server forwards them to those regions,
+``{prefix}/joint/states/{z}/{x}/{y}/*``, instead of ``{prefix}/uav/*/state`` (every UAV's).
+Until the first window is known, and with ``set(None)``, it subscribes to every joint tile, to the
+global tracks and to every state.
 """
 
 from __future__ import annotations
@@ -53,8 +55,9 @@ class JointWindowSubscriptions:
         self._base = keys.joint_tiles_all()[: -len("*/**")]  # "{prefix}/joint/tiles/"
         self._all: Any = session.declare_subscriber(keys.joint_tiles_all(), callback)
         self._all_tracks: Any = session.declare_subscriber(keys.joint_tracks(), callback)
+        self._all_states: Any = session.declare_subscriber(keys.uav_state("*"), callback)
         self._tiles: dict[tuple[int, int], Any] = {}
-        self._regions: dict[tuple[int, int, int], Any] = {}
+        self._regions: dict[tuple[int, int, int], tuple[Any, Any]] = {}  # tracks and states subscribers
 
     @property
     def tiles(self) -> set[tuple[int, int]] | None:
@@ -81,6 +84,8 @@ class JointWindowSubscriptions:
                 self._all = self.session.declare_subscriber(f"{self._base}*/**", self.callback)
             if self._all_tracks is None:
                 self._all_tracks = self.session.declare_subscriber(self.keys.joint_tracks(), self.callback)
+            if self._all_states is None:
+                self._all_states = self.session.declare_subscriber(self.keys.uav_state("*"), self.callback)
             for subscribers in (self._tiles, self._regions):
                 self._undeclare(subscribers, list(subscribers))  # type: ignore[arg-type]
             return
@@ -89,11 +94,12 @@ class JointWindowSubscriptions:
         for xy in wanted - self._tiles.keys():
             self._tiles[xy] = self.session.declare_subscriber(self.key(*xy), self.callback)
         for region in regions - self._regions.keys():
-            self._regions[region] = self.session.declare_subscriber(self.keys.joint_tracks_region(*region),
-                                                                    self.callback)
+            self._regions[region] = (
+                self.session.declare_subscriber(self.keys.joint_tracks_region(*region), self.callback),
+                self.session.declare_subscriber(self.keys.joint_states_region(*region), self.callback))
         self._undeclare(self._tiles, [xy for xy in self._tiles if xy not in wanted])
         self._undeclare(self._regions, [r for r in self._regions if r not in regions])
-        for name in ("_all", "_all_tracks"):
+        for name in ("_all", "_all_tracks", "_all_states"):
             if getattr(self, name) is not None:
                 _undeclare(getattr(self, name))
                 setattr(self, name, None)
@@ -101,11 +107,13 @@ class JointWindowSubscriptions:
     @staticmethod
     def _undeclare(subscribers: dict[Any, Any], keys: list[Any]) -> None:
         for key in keys:
-            _undeclare(subscribers.pop(key))
+            entry = subscribers.pop(key)
+            for subscriber in entry if isinstance(entry, tuple) else (entry,):
+                _undeclare(subscriber)
 
     def clear(self) -> None:
         """Forget the subscribers (they go with the session when it closes)."""
-        self._all = self._all_tracks = None
+        self._all = self._all_tracks = self._all_states = None
         self._tiles.clear()
         self._regions.clear()
 

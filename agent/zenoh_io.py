@@ -183,10 +183,9 @@ class AgentLink:
         on_sample = self._guarded(self._on_sample, "a sample")
         # every joint tile and the global tracks until set_joint_window() narrows them to the window
         self._window = JointWindowSubscriptions(session, self.keys, self.grid.z, on_sample)
-        self._declared = [
-            # the other UAVs' footprints: where the joint mean holds their evidence (JointLayer.others_cover)
-            session.declare_subscriber(self.keys.uav_state("*"), on_sample),
-        ]
+        # (it also brings the other UAVs' states: their footprints say where the joint mean holds
+        # their evidence, JointLayer.others_cover)
+        self._declared = []
         self._known_remotes = self._remotes()
         self._alone_since = None if self._known_remotes else time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"uavmm-agent-{self.uav}-publisher", daemon=True)
@@ -396,6 +395,9 @@ class AgentLink:
             self._on_joint_tracks(key, sample.payload)
         elif parsed.kind == "joint_tracks_region":
             self._on_joint_tracks(key, sample.payload, (parsed.z, parsed.x, parsed.y))
+        elif parsed.kind == "joint_state_region":  # a state the fusion server forwarded to a region
+            if parsed.uav != self.uav:
+                self._on_state(key, parsed.uav, sample.payload)
         elif parsed.kind == "uav_state":
             if parsed.uav != self.uav:
                 self._on_state(key, parsed.uav, sample.payload)

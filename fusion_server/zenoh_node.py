@@ -57,6 +57,11 @@ _BATCH = 256
 #: A region's joint tracks are published again after this long even when unchanged (agents drop joint
 #: tracks older than their joint TTL, 3 s by default), seconds.
 _REGION_REFRESH_S = 1.0
+#: Region tracks messages a second (at most, per region): 2 Hz keeps a UAV's share of the fleet's
+#: tracks within its downlink budget; the global joint tracks go at --tracks-max-hz.
+REGION_TRACKS_HZ = 2.0
+#: Most regions a state message is forwarded to (a footprint over more: its UAV's region only).
+_MAX_STATE_REGIONS = 16
 
 
 def _session_of(raw: bytes) -> str:
@@ -223,6 +228,7 @@ class FusionNode:
                     continue
                 if isinstance(message, StateMessage):
                     self.joint.put_footprint(message.uav, message.footprint)
+                    self._forward_state(message, sample.payload.to_bytes())
                 elif isinstance(message, TracksMessage):
                     self.tracker.update(message)
                 self.metrics.message(received.kind, received.nbytes)
@@ -241,6 +247,25 @@ class FusionNode:
                 self._reject("tile", reason, key, f"seq {received.message.seq}", received.key.uav)
         if count:
             self.metrics.message("tile", nbytes, count)
+
+    def _forward_state(self, message: StateMessage, payload: bytes) -> None:
+        """Put a UAV's state message, as it came, on ``joint/states/{z}/{x}/{y}/{uav}`` for each region
+        its footprint and position touch (at most _MAX_STATE_REGIONS; beyond, its position's only), so
+        an agent receives the states of the UAVs near it only (agent.joint_window)."""
+        if self.session is None:
+            return
+        grid = self.joint.grid
+        points = np.array([*message.footprint, (message.lat, message.lon)], dtype=np.float64)
+        xs, ys = grid.tile_of(points[:, 0], points[:, 1])
+        z, rx0, ry0 = track_region(grid.z, int(xs.min()), int(ys.min()))
+        _, rx1, ry1 = track_region(grid.z, int(xs.max()), int(ys.max()))
+        if (rx1 - rx0 + 1) * (ry1 - ry0 + 1) > _MAX_STATE_REGIONS:
+            z, rx0, ry0 = track_region(grid.z, int(xs[-1]), int(ys[-1]))
+            rx1, ry1 = rx0, ry0
+        for ry in range(ry0, ry1 + 1):
+            for rx in range(rx0, rx1 + 1):
+                self.session.put(self.keys.joint_state_region(z, rx, ry, message.uav), payload,
+                                 congestion_control=zenoh.CongestionControl.BLOCK)
 
     def _admit(self, sample: zenoh.Sample) -> tuple[Received | None, str]:
         """Key, rate limit, decoding, registry of one sample: (the valid message, key) or (None, key)."""
@@ -349,13 +374,14 @@ class FusionNode:
         assert self._tracks_publisher is not None
         self._tracks_publisher.put(payload)
         self.metrics.tracks_sent()
-        self._publish_track_regions(message if left_out <= 0 else self.tracker.joint_message())
 
-    def _publish_track_regions(self, message: JointTracksMessage) -> None:
+    def _publish_track_regions(self) -> None:
         """The global tracks again per region tile (``joint/tracks/{z}/{x}/{y}``, shared.keys.track_region),
         so a UAV receives those near it only: a region whose tracks changed, or whose last message is
-        1 s old; one empty message for a region that has none any more."""
+        1 s old; one empty message for a region that has none any more. Run REGION_TRACKS_HZ times a
+        second."""
         assert self._publishers is not None
+        message = self.tracker.joint_message()
         grid = self.joint.grid
         by_region: dict[tuple[int, int, int], list[JointTrackItem]] = {}
         if message.tracks:
@@ -417,6 +443,7 @@ class FusionNode:
         last_tracks = -float("inf")
         next_housekeeping = 0.0
         next_forget = 0.0
+        next_regions = 0.0
         next_persist = time.monotonic() + self.persist_interval_s
         while not self._stop.is_set():
             batch = self._drain()
@@ -434,6 +461,9 @@ class FusionNode:
                 tracks_version = self.tracker.version
                 last_tracks = now
                 self._step("joint_tracks", self._publish_tracks)
+            if now >= next_regions:
+                self._step("track_regions", self._publish_track_regions)
+                next_regions = now + 1.0 / REGION_TRACKS_HZ
             if self.store is not None and now >= next_persist:
                 self._step("persist", self._persist_tracks)
                 next_persist = now + self.persist_interval_s

@@ -34,7 +34,8 @@ DEFAULT_PREFIX = "uavmm/v1"
 JOINT_UAV = "joint"
 MAX_NAME_LEN = 128
 MAX_ZOOM = 24
-KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks", "joint_tracks_region")
+KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks", "joint_tracks_region",
+             "joint_state_region")
 #: Joint tracks are also published per region: the tile of the grid's zoom minus this (z 16 for z 18,
 #: 4 x 4 grid tiles, ~610 m at 48 N), so a UAV subscribes to the one to four regions its window touches.
 TRACK_REGION_ZOOM_DROP = 2
@@ -162,7 +163,8 @@ def _uav_or_star(value: object) -> str:
 class ParsedKey:
     """A key of the key space taken apart by :meth:`KeySpace.parse`.
 
-    kind: one of ``KEY_KINDS``. ``uav`` is the UAV id, or ``"joint"`` for ``joint/...`` keys.
+    kind: one of ``KEY_KINDS``. ``uav`` is the UAV id, or ``"joint"`` for ``joint/...`` keys (but the
+    forwarded state's UAV for ``joint/states/...``).
     ``cls``, ``z``, ``x``, ``y`` are set for tile keys and None otherwise.
     """
 
@@ -248,6 +250,17 @@ class KeySpace:
         z, x, y = _validate_tile(z, x, y)
         return f"{self.prefix}/joint/tracks/{z}/{x}/{y}"
 
+    def joint_state_region(self, z: int, x: int, y: int, uav: str) -> str:
+        """Key of a UAV's state message as the fusion server forwards it to a region its footprint
+        touches: ``{prefix}/joint/states/{z}/{x}/{y}/{uav}`` (regions as :meth:`joint_tracks_region`)."""
+        z, x, y = _validate_tile(z, x, y)
+        return f"{self.prefix}/joint/states/{z}/{x}/{y}/{validate_uav_id(uav, 'uav')}"
+
+    def joint_states_region(self, z: int, x: int, y: int) -> str:
+        """Selector of the states forwarded to one region: ``{prefix}/joint/states/{z}/{x}/{y}/*``."""
+        z, x, y = _validate_tile(z, x, y)
+        return f"{self.prefix}/joint/states/{z}/{x}/{y}/*"
+
     def joint_all(self) -> str:
         """Selector (and queryable) of everything the fusion server publishes: ``{prefix}/joint/**``."""
         return f"{self.prefix}/joint/**"
@@ -287,6 +300,9 @@ class KeySpace:
             if len(parts) == 5 and parts[1] == "tracks":
                 _, z, x, y = self._parse_tile(["tracks", *parts[2:]])
                 return ParsedKey(kind="joint_tracks_region", uav=JOINT_UAV, z=z, x=x, y=y)
+            if len(parts) == 6 and parts[1] == "states":
+                _, z, x, y = self._parse_tile(["states", *parts[2:5]])
+                return ParsedKey(kind="joint_state_region", uav=validate_uav_id(parts[5], "uav"), z=z, x=x, y=y)
             if len(parts) == 6 and parts[1] == "tiles":
                 cls, z, x, y = self._parse_tile(parts[2:])
                 return ParsedKey(kind="joint_tile", uav=JOINT_UAV, cls=cls, z=z, x=x, y=y)

@@ -107,3 +107,35 @@ def test_only_the_track_regions_of_the_window_reach_the_agent():
         link.close()
         relay.close()
         server.close()
+
+
+def test_only_the_states_forwarded_to_the_window_regions_reach_the_agent():
+    port = free_port()
+    server = FakeServer(port, shared_memory=False)
+    conf = agent_zenoh_config(ZenohOptions(connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False))
+    link = AgentLink(conf, KEYS, "uav1", GRID)
+    near = track_region(GRID.z, X0, Y0)
+    far = track_region(GRID.z, X0 + 64, Y0)
+    try:
+        assert link.open(timeout_s=10.0)
+        link.set_joint_window({(X0, Y0)})
+        time.sleep(1.0)
+        for _ in range(3):
+            server.put(KEYS.joint_state_region(*near, "uav2"), _state("uav2"))
+            server.put(KEYS.joint_state_region(*far, "uav3"), _state("uav3"))
+            server.put(KEYS.uav_state("uav4"), _state("uav4"))  # not subscribed with a window
+        got = wait_until(lambda: link.drain_footprints(), 10.0, "the near UAV's footprint")
+        time.sleep(0.5)
+        got += link.drain_footprints()
+        assert {f.uav for f in got} == {"uav2"}
+    finally:
+        link.close()
+        server.close()
+
+
+def _state(uav: str) -> bytes:
+    from shared.messages import CameraInfo, StateMessage, encode_state
+
+    camera = CameraInfo(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+    return encode_state(StateMessage(uav, time.time(), 47.67, 9.27, 40.0, 60.0, 90.0,
+                                     ((47.67, 9.27), (47.6701, 9.27), (47.67, 9.2701)), camera))

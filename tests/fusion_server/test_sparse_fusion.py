@@ -4,6 +4,8 @@ tracks per region."""
 
 from __future__ import annotations
 
+import time
+
 import msgpack
 import numpy as np
 import pytest
@@ -189,4 +191,20 @@ def test_joint_tracks_are_also_published_per_region_with_only_their_tracks(serve
         assert len(tracks) == 3
         assert sorted(got[region_near]) == sorted(g for g, t in tracks.items() if t.lat < LAT + 0.05)
         assert len(got[region_far]) == 1
+        sub.undeclare()
+
+
+def test_states_are_forwarded_to_the_regions_their_footprint_touches(server_factory, agent_factory):
+    server = server_factory()
+    keys = KeySpace()
+    got: list[str] = []
+    with zenoh.open(client_config(server.settings.zenoh.listen[0])) as session:
+        sub = session.declare_subscriber(f"{keys.prefix}/joint/states/**", lambda s: got.append(str(s.key_expr)))
+        agent = agent_factory("u1")
+        time.sleep(0.5)
+        x, y = (int(v) for v in GRID_FULL.tile_of(LAT, LON))
+        region = track_region(18, x, y)
+        agent.state()  # a small footprint at LAT, LON: one region
+        wait_until(lambda: got, what="the forwarded state")
+        assert got == [keys.joint_state_region(*region, "u1")]
         sub.undeclare()

@@ -97,16 +97,20 @@ def test_late_joiner_gets_the_joint_map_and_tracks_at_once(server, agent_factory
     agent.tracks([(3, "person", LAT, LON)])
     wait_until(lambda: len(server.joint.tiles()) == 2 and len(server.tracker) == 1)
     time.sleep(0.3)  # the joint tracks message is rate-limited
+    region = KEYS.joint_tracks_region(*track_region(18, TILE_X, TILE_Y))
 
     late = FakeAgent("late", f"tcp/{server.settings.zenoh.listen[0].split('/', 1)[1]}", alive=False)
     try:
+        # the region's tracks are published (and so held for queries) twice a second
+        wait_until(lambda: [r for r in late.session.get(region, timeout=2.0) if r.ok is not None],
+                   what="the region's tracks")
         t0 = time.monotonic()
         replies = [r.ok for r in late.session.get(KEYS.joint_all(), timeout=5.0) if r.ok is not None]
         elapsed = time.monotonic() - t0
         keys = sorted(str(s.key_expr) for s in replies)
         assert keys == sorted([KEYS.joint_tile("person", 18, TILE_X, TILE_Y),
                                KEYS.joint_tile("person", 18, TILE_X + 1, TILE_Y), KEYS.joint_tracks(),
-                               KEYS.joint_tracks_region(*track_region(18, TILE_X, TILE_Y))])
+                               region])
         assert elapsed < 2.0
         tracks = next(s for s in replies if str(s.key_expr) == KEYS.joint_tracks())
         joint = decode_joint_tracks(tracks.payload.to_bytes())
