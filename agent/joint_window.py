@@ -69,6 +69,12 @@ class JointWindowSubscriptions:
         """The track regions (z, x, y) subscribed to, or None while the global tracks are."""
         return None if self._all_tracks is not None else set(self._regions)
 
+    def selectors(self) -> list[str]:
+        """What the window receives, as query selectors: its tiles' and its track regions' keys
+        (empty while every joint tile is subscribed to)."""
+        return ([self.key(x, y) for x, y in sorted(self._tiles)]
+                + [self.keys.joint_tracks_region(*region) for region in sorted(self._regions)])
+
     def key(self, x: int, y: int) -> str:
         """The selector of one tile's joint tiles, all classes."""
         return f"{self._base}*/{self.z}/{int(x)}/{int(y)}"

@@ -242,9 +242,20 @@ class AgentLink:
         return n
 
     def _query_async(self) -> None:
+        """Ask for the current joint map again (a new connection): the window's tiles and track
+        regions when a window is set (agent.joint_window), else everything."""
         assert self.session is not None
-        self._count("queries")
-        self.session.get(self.keys.joint_all(), self._on_reply_guarded, timeout=5.0)
+        window = self._window
+        if window is not None and window.tiles is not None:
+            self._query_selectors(window.selectors())
+            return
+        self._query_selectors([self.keys.joint_all()])
+
+    def _query_selectors(self, selectors: list[str]) -> None:
+        assert self.session is not None
+        for selector in selectors:
+            self._count("queries")
+            self.session.get(selector, self._on_reply_guarded, timeout=5.0)
 
     def _remotes(self) -> set[str]:
         return set() if self.session is None else remote_ids(self.session)
@@ -272,8 +283,13 @@ class AgentLink:
         regions = None if tiles is None else {track_region(self.grid.z, x, y)
                                                for x, y in (tiles if track_tiles is None else track_tiles)}
         if tiles != self._window.tiles or regions != self._window.regions:
+            before = set(self._window.selectors()) if self._window.tiles is not None else None
             self._window.set(tiles, track_tiles)
             self._count("joint_window_changes")
+            if tiles is not None and before is not None:
+                # tiles and regions new to the window: their current joint data now, not at the next
+                # publication (the first window: the start-up query brought everything already)
+                self._query_selectors([s for s in self._window.selectors() if s not in before])
 
     def tile_key(self, cls: str, x: int, y: int) -> str:
         """Key of one of this UAV's tiles on the agent's grid."""

@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 
 import numpy as np
+import zenoh
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -139,3 +140,33 @@ def _state(uav: str) -> bytes:
     camera = CameraInfo(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
     return encode_state(StateMessage(uav, time.time(), 47.67, 9.27, 40.0, 60.0, 90.0,
                                      ((47.67, 9.27), (47.6701, 9.27), (47.67, 9.2701)), camera))
+
+
+def test_a_tile_entering_the_window_is_fetched_at_once_from_the_queryable():
+    port = free_port()
+    server = FakeServer(port, shared_memory=False)
+    held = {(x, y): _joint(x, y, 1, 50) for x, y in [(X0, Y0), (X0 + 1, Y0), (X0 + 30, Y0)]}
+
+    def on_query(query: zenoh.Query) -> None:  # the fusion server's late-join queryable, in short
+        for (x, y), payload in held.items():
+            key = KEYS.joint_tile("person", GRID.z, x, y)
+            if query.key_expr.intersects(key):
+                query.reply(key, payload)
+
+    queryable = server.session.declare_queryable(KEYS.joint_all(), on_query)
+    conf = agent_zenoh_config(ZenohOptions(connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False))
+    link = AgentLink(conf, KEYS, "uav1", GRID)
+    try:
+        assert link.open(timeout_s=10.0)
+        link.set_joint_window({(X0, Y0)})  # the first window: the start-up query has brought the map
+        time.sleep(0.5)
+        assert link.drain_joint_tiles() == []
+        link.set_joint_window({(X0, Y0), (X0 + 1, Y0)})  # (X0 + 1, Y0) enters the window
+        got = wait_until(lambda: link.drain_joint_tiles(), 10.0, "the tile that entered the window")
+        time.sleep(0.3)
+        got += link.drain_joint_tiles()
+        assert {(u.x, u.y) for u in got} == {(X0 + 1, Y0)}
+    finally:
+        link.close()
+        queryable.undeclare()
+        server.close()
