@@ -475,6 +475,8 @@ def test_page_time_slider_replays_the_tracks_from_the_history(tmp_path):
         devtools = DevTools(ws_url)
         slider_ready = "(s => s && !s.disabled && +s.max - +s.min >= 2)(document.getElementById('time-slider'))"
         wait_until(lambda: devtools.evaluate(slider_ready), 30.0, "the time slider with a history range")
+        # the live tracks come with the page's own polling, which need not be done when the slider is
+        wait_until(lambda: devtools.evaluate("window.uavmmMap.state.liveTracks.length"), 30.0, "the live tracks")
         live_lon = devtools.evaluate("window.uavmmMap.state.liveTracks[0].geometry.coordinates[0]")
         devtools.evaluate("(s => { s.value = String(+s.min + 1); s.dispatchEvent(new Event('input')); })"
                           "(document.getElementById('time-slider'))")
