@@ -6,10 +6,10 @@ A fleet's joint map is the sum of every UAV's window; a UAV needs the tiles of i
 ``{prefix}/joint/tiles/*/{z}/{x}/{y}`` (the DESIGN.md key space as it is: all classes of one tile),
 Zenoh routes only those (a router or peer sends a sample only to sessions whose subscriptions match).
 The global tracks likewise: instead of ``{prefix}/joint/tracks`` (every track of the fleet: 425 kB
-for 4,000 tracks, at 5 Hz) the regions the window touches, ``{prefix}/joint/tracks/{z}/{x}/{y}``
+for 4,000 tracks, at 5 Hz) the regions the window touches, ``{prefix}/region/tracks/{z}/{x}/{y}``
 (shared.keys.track_region, published by the fusion server beside the global message), and the
 other UAVs' states (for their footprints) as the fusion server forwards them to those regions,
-``{prefix}/joint/states/{z}/{x}/{y}/*``, instead of ``{prefix}/uav/*/state`` (every UAV's).
+``{prefix}/region/states/{z}/{x}/{y}/*``, instead of ``{prefix}/uav/*/state`` (every UAV's).
 Until the first window is known, and with ``set(None)``, it subscribes to every joint tile, to the
 global tracks and to every state.
 """
@@ -73,7 +73,7 @@ class JointWindowSubscriptions:
         """What the window receives, as query selectors: its tiles' and its track regions' keys
         (empty while every joint tile is subscribed to)."""
         return ([self.key(x, y) for x, y in sorted(self._tiles)]
-                + [self.keys.joint_tracks_region(*region) for region in sorted(self._regions)])
+                + [self.keys.region_tracks(*region) for region in sorted(self._regions)])
 
     def key(self, x: int, y: int) -> str:
         """The selector of one tile's joint tiles, all classes."""
@@ -101,8 +101,8 @@ class JointWindowSubscriptions:
             self._tiles[xy] = self.session.declare_subscriber(self.key(*xy), self.callback)
         for region in regions - self._regions.keys():
             self._regions[region] = (
-                self.session.declare_subscriber(self.keys.joint_tracks_region(*region), self.callback),
-                self.session.declare_subscriber(self.keys.joint_states_region(*region), self.callback))
+                self.session.declare_subscriber(self.keys.region_tracks(*region), self.callback),
+                self.session.declare_subscriber(self.keys.region_states(*region), self.callback))
         self._undeclare(self._tiles, [xy for xy in self._tiles if xy not in wanted])
         self._undeclare(self._regions, [r for r in self._regions if r not in regions])
         for name in ("_all", "_all_tracks", "_all_states"):

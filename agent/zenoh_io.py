@@ -409,9 +409,9 @@ class AgentLink:
             self._on_joint_tile(key, parsed, sample.payload)
         elif parsed.kind == "joint_tracks":
             self._on_joint_tracks(key, sample.payload)
-        elif parsed.kind == "joint_tracks_region":
+        elif parsed.kind == "region_tracks":
             self._on_joint_tracks(key, sample.payload, (parsed.z, parsed.x, parsed.y))
-        elif parsed.kind == "joint_state_region":  # a state the fusion server forwarded to a region
+        elif parsed.kind == "region_state":  # a state the fusion server forwarded to a region
             if parsed.uav != self.uav:
                 self._on_state(key, parsed.uav, sample.payload)
         elif parsed.kind == "uav_state":

@@ -56,10 +56,11 @@ def access_control(identities: FleetIdentities, *, prefix: str = "uavmm/v1",
     """The ``access_control`` config section for the fleet (Zenoh 1.x schema), deny by default.
 
     A UAV ``K`` may put and delete only under ``{prefix}/uav/K/**`` and declare only its own liveliness
-    token; it may subscribe to the joint keys and to the other UAVs' state (its joint detections use
-    their footprints) and query the joint keys. The fusion identity may do anything under the prefix (it
-    alone puts on ``{prefix}/joint/**``); operators may only subscribe and query. Everything else, and
-    every other identity, is denied: their messages never reach the server.
+    token; it may subscribe to the joint and region keys and to the other UAVs' state (its joint detections
+    use their footprints) and query the joint and region keys. The fusion identity may do anything under
+    the prefix (it alone puts on ``{prefix}/joint/**`` and ``{prefix}/region/**``); operators may only
+    subscribe and query. Everything else, and every other identity, is denied: their messages never reach
+    the server.
 
     subject_field: ``cert_common_names`` (mutual TLS) or ``usernames`` (usrpwd).
     """
@@ -68,6 +69,7 @@ def access_control(identities: FleetIdentities, *, prefix: str = "uavmm/v1",
     keys = KeySpace(prefix)  # raises ValueError naming a bad chunk
     everything = f"{keys.prefix}/**"
     joint = keys.joint_all()
+    regions = keys.region_all()
     states = keys.uav_state("*")
     rules: list[dict[str, Any]] = [
         _rule("fusion-in", ACL_MESSAGES, "ingress", [everything]),
@@ -78,9 +80,9 @@ def access_control(identities: FleetIdentities, *, prefix: str = "uavmm/v1",
                                        "subjects": [FUSION_IDENTITY]}]
     # what every UAV and operator may receive: joint data, the UAVs' state, replies from the joint queryable
     rules += [
-        _rule("fleet-receive", ["put", "reply"], "egress", [joint, states]),
+        _rule("fleet-receive", ["put", "reply"], "egress", [joint, regions, states]),
         _rule("fleet-see-queryables", ["declare_queryable", "declare_subscriber"], "egress", [everything]),
-        _rule("fleet-subscribe", ["declare_subscriber", "query"], "ingress", [joint, states]),
+        _rule("fleet-subscribe", ["declare_subscriber", "query"], "ingress", [joint, regions, states]),
     ]
     fleet_rules = ["fleet-receive", "fleet-see-queryables", "fleet-subscribe"]
     for uav in identities.uavs:

@@ -127,7 +127,7 @@ class FusionNode:
         self._inbox: deque[zenoh.Sample] = deque()
         self._wakeup = threading.Event()
         self._sessions: dict[bytes, str] = {}  # attachment bytes -> session id (bounded cache)
-        # region -> (its tracks, payload, monotonic time) as last published on joint/tracks/{z}/{x}/{y}
+        # region -> (its tracks, payload, monotonic time) as last published on region/tracks/{z}/{x}/{y}
         self._region_payloads: dict[tuple[int, int, int], tuple[tuple[JointTrackItem, ...], bytes, float]] = {}
 
     # ---- lifecycle -----------------------------------------------------------------------------
@@ -146,6 +146,7 @@ class FusionNode:
             session.declare_subscriber(self.keys.uav_all(), self._on_sample),
             session.liveliness().declare_subscriber(self.keys.uav_alive("*"), self._on_alive, history=True),
             session.declare_queryable(self.keys.joint_all(), guarded(self._on_query, log, "a query")),
+            session.declare_queryable(self.keys.region_all(), guarded(self._on_query, log, "a region query")),
         ]
         self._thread = threading.Thread(target=self._run, name="uavmm-fusion", daemon=True)
         self._thread.start()
@@ -249,7 +250,7 @@ class FusionNode:
             self.metrics.message("tile", nbytes, count)
 
     def _forward_state(self, message: StateMessage, payload: bytes) -> None:
-        """Put a UAV's state message, as it came, on ``joint/states/{z}/{x}/{y}/{uav}`` for each region
+        """Put a UAV's state message, as it came, on ``region/states/{z}/{x}/{y}/{uav}`` for each region
         its footprint and position touch (at most _MAX_STATE_REGIONS; beyond, its position's only), so
         an agent receives the states of the UAVs near it only (agent.joint_window)."""
         if self.session is None:
@@ -264,7 +265,7 @@ class FusionNode:
             rx1, ry1 = rx0, ry0
         for ry in range(ry0, ry1 + 1):
             for rx in range(rx0, rx1 + 1):
-                self.session.put(self.keys.joint_state_region(z, rx, ry, message.uav), payload,
+                self.session.put(self.keys.region_state(z, rx, ry, message.uav), payload,
                                  congestion_control=zenoh.CongestionControl.BLOCK)
 
     def _admit(self, sample: zenoh.Sample) -> tuple[Received | None, str]:
@@ -336,7 +337,7 @@ class FusionNode:
         if selector.intersects(self._tracks_key):
             query.reply(self._tracks_key, self._tracks_payload)
         for region, (_, payload, _) in list(self._region_payloads.items()):
-            region_key = self.keys.joint_tracks_region(*region)
+            region_key = self.keys.region_tracks(*region)
             if selector.intersects(region_key):
                 query.reply(region_key, payload)
         self.metrics.query()
@@ -376,7 +377,7 @@ class FusionNode:
         self.metrics.tracks_sent()
 
     def _publish_track_regions(self) -> None:
-        """The global tracks again per region tile (``joint/tracks/{z}/{x}/{y}``, shared.keys.track_region),
+        """The global tracks again per region tile (``region/tracks/{z}/{x}/{y}``, shared.keys.track_region),
         so a UAV receives those near it only: a region whose tracks changed, or whose last message is
         1 s old; one empty message for a region that has none any more. Run REGION_TRACKS_HZ times a
         second."""
@@ -402,7 +403,7 @@ class FusionNode:
             while len(payload) > self.max_tracks_bytes and len(items) > 1:
                 items = items[: len(items) // 2]
                 payload = encode_joint_tracks(JointTracksMessage(t=message.t, tracks=items))
-            key = self.keys.joint_tracks_region(*region)
+            key = self.keys.region_tracks(*region)
             self._publishers.put(key, payload)
             if items:
                 self._region_payloads[region] = (tuple(found), payload, now)

@@ -34,8 +34,8 @@ DEFAULT_PREFIX = "uavmm/v1"
 JOINT_UAV = "joint"
 MAX_NAME_LEN = 128
 MAX_ZOOM = 24
-KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks", "joint_tracks_region",
-             "joint_state_region")
+KEY_KINDS = ("uav_tile", "uav_state", "uav_tracks", "uav_alive", "joint_tile", "joint_tracks", "region_tracks",
+             "region_state")
 #: Joint tracks are also published per region: the tile of the grid's zoom minus this (z 16 for z 18,
 #: 4 x 4 grid tiles, ~610 m at 48 N), so a UAV subscribes to the one to four regions its window touches.
 TRACK_REGION_ZOOM_DROP = 2
@@ -164,7 +164,7 @@ class ParsedKey:
     """A key of the key space taken apart by :meth:`KeySpace.parse`.
 
     kind: one of ``KEY_KINDS``. ``uav`` is the UAV id, or ``"joint"`` for ``joint/...`` keys (but the
-    forwarded state's UAV for ``joint/states/...``).
+    forwarded state's UAV for ``region/states/...``).
     ``cls``, ``z``, ``x``, ``y`` are set for tile keys and None otherwise.
     """
 
@@ -244,22 +244,30 @@ class KeySpace:
         """Key of the global tracks: ``{prefix}/joint/tracks``."""
         return f"{self.prefix}/joint/tracks"
 
-    def joint_tracks_region(self, z: int, x: int, y: int) -> str:
-        """Key of the global tracks inside one region tile: ``{prefix}/joint/tracks/{z}/{x}/{y}``
+    def region_tracks(self, z: int, x: int, y: int) -> str:
+        """Key of the global tracks inside one region tile: ``{prefix}/region/tracks/{z}/{x}/{y}``
         (z = grid zoom - TRACK_REGION_ZOOM_DROP; see :func:`track_region`)."""
         z, x, y = _validate_tile(z, x, y)
-        return f"{self.prefix}/joint/tracks/{z}/{x}/{y}"
+        return f"{self.prefix}/region/tracks/{z}/{x}/{y}"
 
-    def joint_state_region(self, z: int, x: int, y: int, uav: str) -> str:
+    def region_state(self, z: int, x: int, y: int, uav: str) -> str:
         """Key of a UAV's state message as the fusion server forwards it to a region its footprint
-        touches: ``{prefix}/joint/states/{z}/{x}/{y}/{uav}`` (regions as :meth:`joint_tracks_region`)."""
+        touches: ``{prefix}/region/states/{z}/{x}/{y}/{uav}`` (regions as :meth:`region_tracks`)."""
         z, x, y = _validate_tile(z, x, y)
-        return f"{self.prefix}/joint/states/{z}/{x}/{y}/{validate_uav_id(uav, 'uav')}"
+        return f"{self.prefix}/region/states/{z}/{x}/{y}/{validate_uav_id(uav, 'uav')}"
 
-    def joint_states_region(self, z: int, x: int, y: int) -> str:
-        """Selector of the states forwarded to one region: ``{prefix}/joint/states/{z}/{x}/{y}/*``."""
+    def region_states(self, z: int, x: int, y: int) -> str:
+        """Selector of the states forwarded to one region: ``{prefix}/region/states/{z}/{x}/{y}/*``."""
         z, x, y = _validate_tile(z, x, y)
-        return f"{self.prefix}/joint/states/{z}/{x}/{y}/*"
+        return f"{self.prefix}/region/states/{z}/{x}/{y}/*"
+
+    def region_all(self) -> str:
+        """Selector (and queryable) of the fusion server's per-region messages: ``{prefix}/region/**``.
+
+        Outside ``{prefix}/joint/**`` on purpose: that selector keeps exactly DESIGN.md's joint tiles and
+        global tracks for its subscribers and late-join queries.
+        """
+        return f"{self.prefix}/region/**"
 
     def joint_all(self) -> str:
         """Selector (and queryable) of everything the fusion server publishes: ``{prefix}/joint/**``."""
@@ -294,15 +302,16 @@ class KeySpace:
             if len(rest) == 5 and rest[0] == "tiles":
                 cls, z, x, y = self._parse_tile(rest[1:])
                 return ParsedKey(kind="uav_tile", uav=uav, cls=cls, z=z, x=x, y=y)
+        elif parts[0] == "region":
+            if len(parts) == 5 and parts[1] == "tracks":
+                _, z, x, y = self._parse_tile(["tracks", *parts[2:]])
+                return ParsedKey(kind="region_tracks", uav=JOINT_UAV, z=z, x=x, y=y)
+            if len(parts) == 6 and parts[1] == "states":
+                _, z, x, y = self._parse_tile(["states", *parts[2:5]])
+                return ParsedKey(kind="region_state", uav=validate_uav_id(parts[5], "uav"), z=z, x=x, y=y)
         elif parts[0] == "joint":
             if parts[1:] == ["tracks"]:
                 return ParsedKey(kind="joint_tracks", uav=JOINT_UAV)
-            if len(parts) == 5 and parts[1] == "tracks":
-                _, z, x, y = self._parse_tile(["tracks", *parts[2:]])
-                return ParsedKey(kind="joint_tracks_region", uav=JOINT_UAV, z=z, x=x, y=y)
-            if len(parts) == 6 and parts[1] == "states":
-                _, z, x, y = self._parse_tile(["states", *parts[2:5]])
-                return ParsedKey(kind="joint_state_region", uav=validate_uav_id(parts[5], "uav"), z=z, x=x, y=y)
             if len(parts) == 6 and parts[1] == "tiles":
                 cls, z, x, y = self._parse_tile(parts[2:])
                 return ParsedKey(kind="joint_tile", uav=JOINT_UAV, cls=cls, z=z, x=x, y=y)

@@ -97,8 +97,8 @@ def test_only_the_track_regions_of_the_window_reach_the_agent():
         down_before = relay.down
         for _ in range(3):
             server.put(KEYS.joint_tracks(), _tracks(range(1, 2001), 47.0))  # the whole fleet's
-            server.put(KEYS.joint_tracks_region(*far), _tracks(range(100, 2000), 47.1))
-            server.put(KEYS.joint_tracks_region(*near), _tracks(range(1, 4), 47.67))
+            server.put(KEYS.region_tracks(*far), _tracks(range(100, 2000), 47.1))
+            server.put(KEYS.region_tracks(*near), _tracks(range(1, 4), 47.67))
         wait_until(lambda: link.stats()["counts"].get("joint_tracks", 0) >= 3, 10.0, "the near region's tracks")
         time.sleep(0.5)
         msg, age = link.joint_tracks()
@@ -122,8 +122,8 @@ def test_only_the_states_forwarded_to_the_window_regions_reach_the_agent():
         link.set_joint_window({(X0, Y0)})
         time.sleep(1.0)
         for _ in range(3):
-            server.put(KEYS.joint_state_region(*near, "uav2"), _state("uav2"))
-            server.put(KEYS.joint_state_region(*far, "uav3"), _state("uav3"))
+            server.put(KEYS.region_state(*near, "uav2"), _state("uav2"))
+            server.put(KEYS.region_state(*far, "uav3"), _state("uav3"))
             server.put(KEYS.uav_state("uav4"), _state("uav4"))  # not subscribed with a window
         got = wait_until(lambda: link.drain_footprints(), 10.0, "the near UAV's footprint")
         time.sleep(0.5)

@@ -174,15 +174,15 @@ def test_joint_tracks_are_also_published_per_region_with_only_their_tracks(serve
     got: dict[str, list[int]] = {}
     port = server.settings.zenoh.listen[0]
     with zenoh.open(client_config(port)) as session:
-        sub = session.declare_subscriber(f"{keys.prefix}/joint/tracks/*/*/*",
+        sub = session.declare_subscriber(f"{keys.prefix}/region/tracks/*/*/*",
                                          lambda s: got.__setitem__(str(s.key_expr), [
                                              t.gid for t in decode_joint_tracks(s.payload.to_bytes()).tracks]))
         near = agent_factory("u1")
         far = agent_factory("u2")
         wait_until(lambda: len(server.uavs.online()) == 2)
         far_lat = LAT + 0.1  # ~11 km north: another region
-        region_near = keys.joint_tracks_region(*track_region(18, *(int(v) for v in GRID_FULL.tile_of(LAT, LON))))
-        region_far = keys.joint_tracks_region(*track_region(18, *(int(v) for v in GRID_FULL.tile_of(far_lat, LON))))
+        region_near = keys.region_tracks(*track_region(18, *(int(v) for v in GRID_FULL.tile_of(LAT, LON))))
+        region_far = keys.region_tracks(*track_region(18, *(int(v) for v in GRID_FULL.tile_of(far_lat, LON))))
         for _ in range(3):
             near.tracks([(1, "person", LAT, LON), (2, "person", LAT + 1e-4, LON)])
             far.tracks([(1, "person", far_lat, LON)])
@@ -199,12 +199,12 @@ def test_states_are_forwarded_to_the_regions_their_footprint_touches(server_fact
     keys = KeySpace()
     got: list[str] = []
     with zenoh.open(client_config(server.settings.zenoh.listen[0])) as session:
-        sub = session.declare_subscriber(f"{keys.prefix}/joint/states/**", lambda s: got.append(str(s.key_expr)))
+        sub = session.declare_subscriber(f"{keys.prefix}/region/states/**", lambda s: got.append(str(s.key_expr)))
         agent = agent_factory("u1")
         time.sleep(0.5)
         x, y = (int(v) for v in GRID_FULL.tile_of(LAT, LON))
         region = track_region(18, x, y)
         agent.state()  # a small footprint at LAT, LON: one region
         wait_until(lambda: got, what="the forwarded state")
-        assert got == [keys.joint_state_region(*region, "u1")]
+        assert got == [keys.region_state(*region, "u1")]
         sub.undeclare()

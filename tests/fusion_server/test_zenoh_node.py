@@ -97,7 +97,7 @@ def test_late_joiner_gets_the_joint_map_and_tracks_at_once(server, agent_factory
     agent.tracks([(3, "person", LAT, LON)])
     wait_until(lambda: len(server.joint.tiles()) == 2 and len(server.tracker) == 1)
     time.sleep(0.3)  # the joint tracks message is rate-limited
-    region = KEYS.joint_tracks_region(*track_region(18, TILE_X, TILE_Y))
+    region = KEYS.region_tracks(*track_region(18, TILE_X, TILE_Y))
 
     late = FakeAgent("late", f"tcp/{server.settings.zenoh.listen[0].split('/', 1)[1]}", alive=False)
     try:
@@ -108,9 +108,11 @@ def test_late_joiner_gets_the_joint_map_and_tracks_at_once(server, agent_factory
         replies = [r.ok for r in late.session.get(KEYS.joint_all(), timeout=5.0) if r.ok is not None]
         elapsed = time.monotonic() - t0
         keys = sorted(str(s.key_expr) for s in replies)
+        # joint/** is DESIGN.md's late-join answer exactly: the joint tiles and the global tracks
         assert keys == sorted([KEYS.joint_tile("person", 18, TILE_X, TILE_Y),
-                               KEYS.joint_tile("person", 18, TILE_X + 1, TILE_Y), KEYS.joint_tracks(),
-                               region])
+                               KEYS.joint_tile("person", 18, TILE_X + 1, TILE_Y), KEYS.joint_tracks()])
+        region_replies = [r.ok for r in late.session.get(KEYS.region_all(), timeout=5.0) if r.ok is not None]
+        assert [str(s.key_expr) for s in region_replies] == [region]
         assert elapsed < 2.0
         tracks = next(s for s in replies if str(s.key_expr) == KEYS.joint_tracks())
         joint = decode_joint_tracks(tracks.payload.to_bytes())

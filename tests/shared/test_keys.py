@@ -208,11 +208,22 @@ def test_track_region_keys_round_trip_and_hold_their_tile(z: int, data: st.DataO
     assert rz == max(z - TRACK_REGION_ZOOM_DROP, 0)
     assert (x >> (z - rz), y >> (z - rz)) == (rx, ry)
     keys = KeySpace()
-    parsed = keys.parse(keys.joint_tracks_region(rz, rx, ry))
-    assert (parsed.kind, parsed.uav, parsed.z, parsed.x, parsed.y) == ("joint_tracks_region", "joint", rz, rx, ry)
+    parsed = keys.parse(keys.region_tracks(rz, rx, ry))
+    assert (parsed.kind, parsed.uav, parsed.z, parsed.x, parsed.y) == ("region_tracks", "joint", rz, rx, ry)
 
 
 @pytest.mark.parametrize("tail", ["tracks/15/1", "tracks/15/01/2", "tracks/15/1/2/3", "tracks/3/8/0", "tracks/x/1/2"])
 def test_malformed_track_region_keys_are_refused(tail: str) -> None:
     with pytest.raises(ValueError):
-        KeySpace().parse(f"uavmm/v1/joint/{tail}")
+        KeySpace().parse(f"uavmm/v1/region/{tail}")
+
+
+def test_region_keys_stay_outside_the_joint_selector() -> None:
+    """`{prefix}/joint/**` (DESIGN.md's subscription and late-join query) keeps only joint tiles and tracks."""
+    joint = zenoh.KeyExpr(KS.joint_all())
+    regions = zenoh.KeyExpr(KS.region_all())
+    for key in (KS.region_tracks(16, 1, 2), KS.region_state(16, 1, 2, "uav1")):
+        assert regions.includes(zenoh.KeyExpr(key)) and not joint.intersects(zenoh.KeyExpr(key))
+    assert KS.parse(KS.region_state(16, 1, 2, "uav1")).uav == "uav1"
+    with pytest.raises(ValueError):
+        KS.parse("uavmm/v1/joint/tracks/16/1/2")  # the region keys live under region/ only
