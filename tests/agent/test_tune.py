@@ -8,6 +8,7 @@ import pytest
 
 from agent.boost import load_params
 from agent.params_file import PARAMS_FORMAT
+from agent.pipeline_config import PipelineConfig
 from agent.tune import SEARCH_SPACE, tune
 from tests.agent.test_boost_cli import make_dataset, run_boost
 from uavmm.cli import main
@@ -64,8 +65,11 @@ def test_a_min_gain_out_of_reach_keeps_the_defaults(tmp_path):
     d = make_dataset(tmp_path, frames=20)
     result = tune(d / "images.json", d / "pre_nms.json", d / "camera.json", min_gain=101.0, holdout=False)
     assert result.report["steps"] == [] and result.report["AP50_tuned"] == result.report["AP50_start"]
-    assert result.report["settings"] == {"memory": {"gain_per_s": 1.0, "half_life_s": 1.0, "radius_m": 4.0},
-                                         "boost_weight": 1.0}
+    defaults = PipelineConfig()
+    assert result.report["settings"] == {
+        "memory": {"gain_per_s": defaults.memory.gain_per_s, "half_life_s": defaults.memory.half_life_s,
+                   "radius_m": defaults.memory.radius_m},
+        "boost_weight": defaults.boost_weight}
 
 
 @pytest.mark.parametrize(("change", "message"), [
