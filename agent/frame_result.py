@@ -9,6 +9,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.telemetry_correction import GroundCorrection
+
 __all__ = ["FrameResult"]
 
 
@@ -21,7 +23,9 @@ class FrameResult:
     where not georeferenced); counts: candidates in, dropped by the size filter, georeferenced;
     embeddings (K, D) float32 appearance descriptors of the kept boxes (NaN rows: none) or None;
     from_joint (K,) bool: True for detections the joint map added or promoted (agent.joint_detections),
-    or None when the frame had no joint detections step (no joint layer).
+    or None when the frame had no joint detections step (no joint layer); correction: the telemetry
+    correction applied to the frame's ground points (agent.telemetry_correction.GroundCorrection), None
+    when none ran (no pose, no memory map, or switched off).
     """
 
     boxes_xyxy: NDArray[np.float32]
@@ -35,6 +39,7 @@ class FrameResult:
     n_georeferenced: int
     embeddings: NDArray[np.float32] | None = None
     from_joint: NDArray[np.bool_] | None = None
+    correction: GroundCorrection | None = None
 
     def __len__(self) -> int:
         return len(self.scores)

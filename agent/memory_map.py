@@ -45,6 +45,10 @@ class MemoryMapConfig:
     stamp: "sum" (the paper: every pre-NMS box adds its Gaussian, so a detector that emits 30 boxes
         per object adds 30x the evidence) or "max" (per cell and frame the strongest box counts once:
         the evidence no longer depends on how many candidates a detector emits per object).
+    forget_per_frame, gain_per_frame: the paper's literal per-frame constants (phi and s), kept as a
+        baseline: when set, the map decays by forget_per_frame at every frame (whatever time passed) and
+        each box adds gain_per_frame * confidence, so the evidence depends on the frame rate (None: the
+        per-second half_life_s and gain_per_s).
     """
 
     window_m: float = 300.0
@@ -55,8 +59,14 @@ class MemoryMapConfig:
     max_step_s: float = 0.2
     recentre_m: float = 10.0
     stamp: str = "max"
+    forget_per_frame: float | None = None
+    gain_per_frame: float | None = None
 
     def __post_init__(self) -> None:
+        if self.forget_per_frame is not None and not (0.0 < self.forget_per_frame <= 1.0):
+            raise ValueError(f"MemoryMapConfig.forget_per_frame must be in (0, 1], got {self.forget_per_frame!r}")
+        if self.gain_per_frame is not None and not (math.isfinite(self.gain_per_frame) and self.gain_per_frame > 0):
+            raise ValueError(f"MemoryMapConfig.gain_per_frame must be > 0, got {self.gain_per_frame!r}")
         if self.stamp not in STAMP_MODES:
             raise ValueError(f"MemoryMapConfig.stamp must be one of {', '.join(STAMP_MODES)}, got {self.stamp!r}")
         for name in ("window_m", "radius_m", "gain_per_s", "half_life_s", "max_step_s"):
@@ -162,7 +172,8 @@ class MemoryMap:
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t if self._t is None else max(self._t, t)
         if dt > 0 and self._maps:
-            self._scale *= self.config.phi(dt)
+            phi = self.config.forget_per_frame
+            self._scale *= self.config.phi(dt) if phi is None else phi
             if self._scale < _MIN_SCALE:
                 self._renormalise()
         self._place_window(lat, lon)
@@ -223,6 +234,29 @@ class MemoryMap:
         out = map_values(m, np.ravel(gx_arr), np.ravel(gy), self._gx0, self._gy0, float(self.grid.world_cells),
                          self._scale)  # agent._kernels: ~10x the numpy indexing at 5,000 points
         return out.reshape(gx_arr.shape)
+
+    def patches(self, cls: str, gx: ArrayLike, gy: ArrayLike, radius_cells: int) -> NDArray[np.float32]:
+        """Evidence around global cells: (N, 2r+1, 2r+1) float32, patch[i, r + dy, r + dx] = value at cell
+        (floor(gx[i]) + dx, floor(gy[i]) + dy); 0 outside the window or for an unseen class."""
+        gx_arr = np.atleast_1d(np.asarray(gx, dtype=np.float64))
+        gy_arr = np.atleast_1d(np.asarray(gy, dtype=np.float64))
+        r = int(radius_cells)
+        out = np.zeros((len(gx_arr), 2 * r + 1, 2 * r + 1), dtype=np.float32)
+        m = self._maps.get(cls)
+        if m is None or not len(gx_arr) or self._size == 0:
+            return out
+        row, col, _ = self.local_indices(gx_arr, gy_arr)
+        offsets = np.arange(-r, r + 1)
+        rows = row[:, None] + offsets  # (N, 2r+1)
+        cols = col[:, None] + offsets
+        ok_r = (rows >= 0) & (rows < self._size)
+        ok_c = (cols >= 0) & (cols < self._size)
+        vals = m[np.clip(rows, 0, self._size - 1)[:, :, None], np.clip(cols, 0, self._size - 1)[:, None, :]]
+        vals *= (ok_r[:, :, None] & ok_c[:, None, :])
+        if self._scale != 1.0:
+            vals *= np.float32(self._scale)
+        np.minimum(vals, 1.0, out=out)
+        return out
 
     def _kernel_for(self) -> tuple[int, NDArray[np.float32]]:
         radius = max(1, int(round(self.config.radius_m / self._cell_m)))

@@ -5,6 +5,7 @@ Arrays in, arrays out: the same code serves `uavmm boost`, the tracker and the l
 
 from __future__ import annotations
 
+import logging
 import math
 
 import numpy as np
@@ -17,6 +18,7 @@ from agent.joint_detections import JointCarry, JointRegistration, add_joint_dete
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter, _warn_unfiltered
+from agent.telemetry_correction import GroundCorrection, GroundOffsetEstimator, register_offset
 from shared.geo import (
     Camera,
     Pose,
@@ -27,6 +29,8 @@ from shared.geo import (
     prime_vertical_radius_m,
 )
 from shared.tiles import TileGrid
+
+log = logging.getLogger(__name__)
 
 #: Observation time credited to the first frame of a video (no previous frame to measure from).
 FIRST_FRAME_INTERVAL_S = 1.0 / 30.0
@@ -69,8 +73,9 @@ class DetectionPipeline:
         return math.sqrt(self.camera.fx * self.camera.fy)
 
     def reset(self) -> None:
-        """Forget the memory (start of another video)."""
+        """Forget the memory and the telemetry correction (start of another video)."""
         self.memory.reset()
+        self.__dict__.pop("_corrector", None)
 
     def process(self, boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray,
                 pose: Pose | None, t: float, embeddings: NDArray | None = None) -> FrameResult:
@@ -96,6 +101,7 @@ class DetectionPipeline:
         if embeddings is not None:
             embeddings = np.asarray(embeddings, dtype=np.float32).reshape(n, -1)
         boosted = conf.copy()
+        correction: GroundCorrection | None = None
         n_filtered = 0
         n_geo = 0
         if pose is None or not n:
@@ -119,10 +125,11 @@ class DetectionPipeline:
                     lat, lon, valid = lat[ok], lon[ok], valid[ok]
             n_geo = int(np.count_nonzero(valid))
             if cfg.use_memory:
-                boosted = self._boost_and_update(conf, boosted, cids, valid, lat, lon, pose, t)
+                boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, valid, lat, lon, pose, t)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         result = FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
-                             n, n_filtered, n_geo, None if embeddings is None else embeddings[src[keep]])
+                             n, n_filtered, n_geo, None if embeddings is None else embeddings[src[keep]],
+                             correction=correction)
         if (self.joint is not None and cfg.use_memory and cfg.joint_detections and cfg.joint_mode != "local"
                 and pose is not None):
             result = self._with_joint_detections(result, pose, t)
@@ -217,16 +224,64 @@ class DetectionPipeline:
                                                     depression[sel], self._focal_px)
         return ok
 
+    def _correct(self, conf: NDArray, cids: NDArray, idx: NDArray, gx: NDArray, gy: NDArray, pose: Pose,
+                 t: float) -> GroundCorrection | None:
+        """This frame's ground correction (agent.telemetry_correction): the offset that lays its confident
+        boxes (rows idx, global cells gx, gy) onto the memory map, smoothed; None when switched off."""
+        cfg = self.config
+        if not cfg.correct_telemetry:
+            return None
+        est = self.__dict__.get("_corrector")
+        if est is None or est.settings != cfg.correction_settings():
+            est = self.__dict__["_corrector"] = GroundOffsetEstimator(cfg.correction_settings())
+        s = est.settings
+        c = conf[idx]
+        strong = np.flatnonzero(c >= s.min_score)
+        measurement = None
+        support = 0.0
+        if len(strong) >= s.min_points and self.memory.classes:
+            if len(strong) > s.max_points:
+                strong = strong[np.argsort(-c[strong], kind="stable")[:s.max_points]]
+            cell_m = self.memory.cell_m
+            e0, n0 = est.current_en
+            # search around the last correction: the map holds corrected positions
+            sx, sy = gx[strong] + e0 / cell_m, gy[strong] - n0 / cell_m
+            radius = max(1, int(round(s.search_m / cell_m)))
+            scid = cids[idx[strong]]
+            patches = np.zeros((len(strong), 2 * radius + 1, 2 * radius + 1), dtype=np.float32)
+            for cid in distinct_ids(scid):
+                sel = scid == cid
+                patches[sel] = self.memory.patches(self.class_names[int(cid)], sx[sel], sy[sel], radius)
+            dx, dy, support = register_offset(patches, c[strong])
+            if support >= s.min_support:
+                measurement = (e0 + dx * cell_m, n0 - dy * cell_m)
+        corr = est.update(t, measurement, int(len(strong)), support)
+        if log.isEnabledFor(logging.DEBUG):
+            log.debug("t=%.3f correction east %.2f north %.2f m (measured %s, %d boxes, support %.2f)", t,
+                      corr.east_m, corr.north_m, corr.measured, corr.points, corr.support)
+        return corr
+
     def _boost_and_update(self, conf, boosted, cids, valid, lat, lon, pose: Pose, t: float):
+        """Boost with the map from before this frame, then stamp; the frame's ground points moved by the
+        telemetry correction first. Returns boosted, lat, lon (corrected) and the correction (or None)."""
         cfg = self.config
         first = self.memory.t is None
         dt = self.memory.advance(t, pose.lat, pose.lon)
         # Observation time this update stands for: the frame interval, capped after gaps.
         step_s = min(FIRST_FRAME_INTERVAL_S if first else dt, cfg.memory.max_step_s)
         if not valid.any():
-            return boosted
+            return boosted, lat, lon, self._correct(conf, cids, np.zeros(0, np.int64), np.zeros(0), np.zeros(0),
+                                                    pose, t)
         idx = np.flatnonzero(valid)
         gx, gy = self.grid.latlon_to_cell(lat[idx], lon[idx])
+        correction = self._correct(conf, cids, idx, gx, gy, pose, t)
+        if correction is not None and (correction.east_m or correction.north_m):
+            cell_m = self.memory.cell_m
+            gx = gx + correction.east_m / cell_m
+            gy = gy - correction.north_m / cell_m
+            lat0, lon0 = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
+            lat = lat + (float(lat0) - pose.lat)
+            lon = lon + (float(lon0) - pose.lon)
         vcids = cids[idx]
         for cid in distinct_ids(vcids):
             name = self.class_names[int(cid)]
@@ -243,5 +298,6 @@ class DetectionPipeline:
             c = conf[idx[sel]]
             boosted[idx[sel]] = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
             # The update uses the detector's confidence, not the boosted one (paper IV).
-            self.memory.add(name, gx[sel], gy[sel], cfg.memory.gain_per_s * step_s * c)
-        return boosted
+            gain = cfg.memory.gain_per_s * step_s if cfg.memory.gain_per_frame is None else cfg.memory.gain_per_frame
+            self.memory.add(name, gx[sel], gy[sel], gain * c)
+        return boosted, lat, lon, correction

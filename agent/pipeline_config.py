@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 from agent.boxes import ANCHORS
 from agent.memory_map import MemoryMapConfig
+from agent.telemetry_correction import CorrectionSettings
 
 __all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig"]
 
@@ -67,6 +68,14 @@ class PipelineConfig:
         joint_carry_s: for this long after this UAV last saw an object the others' evidence points at (a
         promoted or confident box), a frame with no box for it reports the last one moved on by its image
         velocity (agent.joint_detections.JointCarry; 0 = off), scored the peak's times joint_carry_factor.
+
+    correct_telemetry: before boosting and stamping, register the frame's confident boxes to the memory
+        map and move all its ground points by the common offset found (agent.telemetry_correction; needs
+        use_memory). correction_min_score, correction_search_m, correction_min_points,
+        correction_min_support, correction_smoothing_s, correction_hold_s: its settings
+        (CorrectionSettings: the detector score that registers, the largest offset searched around the
+        last correction, the boxes and mean evidence a measurement needs, the smoothing time constant and
+        how long a correction is held without measurements).
 
     Tuning of the joint detections (agent.joint_detections; measured on the simulator's `coop`):
     joint_peak_smoothing_m: standard deviation (m) of the Gaussian that smooths the others' evidence
@@ -137,8 +146,16 @@ class PipelineConfig:
     joint_carry_match_iou: float = 0.3
     joint_carry_blend: float = 0.5
     joint_carry_velocity_gain: float = 0.1
+    correct_telemetry: bool = True
+    correction_min_score: float = 0.5
+    correction_search_m: float = 8.0
+    correction_min_points: int = 2
+    correction_min_support: float = 0.3
+    correction_smoothing_s: float = 0.0
+    correction_hold_s: float = 2.0
 
     def __post_init__(self) -> None:
+        self.correction_settings()  # validates the correction_* fields
         if self.anchor not in ANCHORS:
             raise ValueError(f"anchor must be one of {', '.join(ANCHORS)}, got {self.anchor!r}")
         if self.boost_mode not in BOOST_MODES:
@@ -175,6 +192,12 @@ class PipelineConfig:
         for name in ("joint_register_min_pairs", "joint_register_candidates", "joint_carry_min_sightings"):
             if not isinstance(getattr(self, name), int):
                 raise ValueError(f"{name} must be an integer, got {getattr(self, name)!r}")
+
+    def correction_settings(self) -> CorrectionSettings:
+        """The telemetry correction's settings (agent.telemetry_correction)."""
+        return CorrectionSettings(min_score=self.correction_min_score, search_m=self.correction_search_m,
+                                  min_points=self.correction_min_points, min_support=self.correction_min_support,
+                                  smoothing_s=self.correction_smoothing_s, hold_s=self.correction_hold_s)
 
     @property
     def range_limit_m(self) -> float:

@@ -73,6 +73,8 @@ CAMERA_PRESETS: dict[str, dict[str, float]] = {
     "dji-mavic-pro": {"sensor_width_mm": 6.17, "focal_mm": 4.73},
     # Matrice 30 wide camera: 1/2" CMOS 6.4 x 4.8 mm, 4.5 mm (24 mm equivalent)
     "dji-m30-wide": {"sensor_width_mm": 6.4, "focal_mm": 4.5},
+    # Mavic 3 Pro medium tele: 1/1.3" CMOS 9.6 x 7.2 mm, 18.7 mm (70 mm equivalent)
+    "dji-mavic3pro-tele": {"sensor_width_mm": 9.6, "focal_mm": 18.7},
 }
 
 

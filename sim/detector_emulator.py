@@ -37,6 +37,9 @@ a distance-size filter removes).
 Blur: a frame is blurred when the gimbal turns faster than ``blur_heading_rate_deg_s`` [30 deg/s] or at
 random with probability ``blur_random_rate`` [0.03]; then every score is multiplied by one factor from
 U(``blur_score_factor``) [(0.1, 0.3)] and all jitter by ``blur_jitter_mult`` [1.5].
+Score regime: every score is finally mapped through logit -> ``score_logit_scale`` [1] * logit +
+``score_logit_shift`` [0] (an over-confident detector: scale > 1 or shift > 0; under-confident: below);
+the identity draws nothing and changes nothing.
 Finally boxes are clipped to the image; boxes under 1 px or scoring below ``score_threshold`` [0.02] are
 dropped. Candidates of the class's category only (no class confusion).
 
@@ -112,6 +115,8 @@ class EmulatorParams:
     appearance_noise: float = 0.45
     appearance_blur_mult: float = 2.0
     appearance_min_score: float = 0.25
+    score_logit_scale: float = 1.0
+    score_logit_shift: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -130,6 +135,8 @@ class EmulatorParams:
                 raise ValueError(f"EmulatorParams.{name}={getattr(self, name)!r} must be a probability")
         if self.difficulty_corr_s <= 0 or self.fp_per_frame < 0:
             raise ValueError("EmulatorParams.difficulty_corr_s must be > 0 and fp_per_frame >= 0")
+        if self.score_logit_scale <= 0:
+            raise ValueError(f"EmulatorParams.score_logit_scale={self.score_logit_scale!r} must be > 0")
         for name in ("appearance_dim", "appearance_groups"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < (0 if name == "appearance_dim" else 1):
@@ -381,6 +388,9 @@ class DetectorEmulator:
         cats = np.concatenate([obj_cats, category_ids[dup], np.full(len(fp_scores), self.fp_category_id)])
         if blurred:
             scores = scores * rng.uniform(*p.blur_score_factor)
+        if p.score_logit_scale != 1.0 or p.score_logit_shift != 0.0:
+            logit = np.log(np.clip(scores, 1e-9, 1 - 1e-9) / np.clip(1.0 - scores, 1e-9, None))
+            scores = _sigmoid(p.score_logit_scale * logit + p.score_logit_shift)
         boxes[:, 0::2] = np.clip(boxes[:, 0::2], 0.0, float(cam.width))
         boxes[:, 1::2] = np.clip(boxes[:, 1::2], 0.0, float(cam.height))
         bw, bh = boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]

@@ -9,7 +9,13 @@ Model, per flight (video):
   (GPS: RMS horizontal length `gps_jitter_m`);
 - timing: telemetry is sampled at `telemetry_hz` (random phase) and lags the frames by `time_offset_s`; a
   frame gets the newest sample measured at or before its time minus the offset (sample and hold);
-- dropouts: a frame has no meta (None) with probability `missing_meta_rate`.
+- dropouts: a frame has no meta (None) with probability `missing_meta_rate`;
+- defects of real logs (all off by default): white jitter per telemetry sample on top of the AR(1) one
+  (`white_gps_m`, `white_heading_deg`, `white_pitch_deg`; at `telemetry_hz` = the frame rate it is
+  per-frame jitter), GPS rounded to `gps_decimals` decimals (old DJI SRT: 4 = 11 m steps), the altitude
+  reported in steps of `altitude_step_m`, and a time offset that drifts by `time_offset_drift` seconds per
+  second (clocks of video and telemetry running apart). Their random numbers come from a generator of
+  their own, so a scenario without them gives exactly the telemetry it gave before they existed.
 The compass (aircraft) heading shares the heading bias and jitter (the gimbal yaw is referenced to it).
 """
 
@@ -57,6 +63,17 @@ class TelemetryNoise:
         Correlation time of the AR(1) jitter, seconds.
     missing_meta_rate : float
         Probability that a frame has no meta at all.
+    white_gps_m, white_heading_deg, white_pitch_deg : float
+        White (independent per telemetry sample) jitter added to the AR(1) one: GPS RMS horizontal
+        length (m), gimbal heading and pitch (deg).
+    gps_decimals : int
+        Latitude/longitude rounded to this many decimals (0 = full precision; 4, 5, 6 as DJI logs).
+    altitude_step_m : float
+        Reported altitude rounded to multiples of this (0 = off).
+    time_offset_drift : float
+        The telemetry lag grows by this many seconds per second of flight (clock drift).
+    camera_roll_deg : float
+        White per-frame roll of the camera that the telemetry does not report (gimbal wobble), deg.
     """
 
     gps_bias_m: float = 1.5
@@ -72,6 +89,13 @@ class TelemetryNoise:
     telemetry_hz: float = 10.0
     jitter_corr_s: float = 0.5
     missing_meta_rate: float = 0.0
+    white_gps_m: float = 0.0
+    white_heading_deg: float = 0.0
+    white_pitch_deg: float = 0.0
+    gps_decimals: int = 0
+    altitude_step_m: float = 0.0
+    time_offset_drift: float = 0.0
+    camera_roll_deg: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -82,15 +106,18 @@ class TelemetryNoise:
             raise ValueError("TelemetryNoise.telemetry_hz and jitter_corr_s must be > 0")
         if self.missing_meta_rate > 1:
             raise ValueError(f"TelemetryNoise.missing_meta_rate={self.missing_meta_rate!r} must be in [0, 1]")
+        if isinstance(self.gps_decimals, bool) or not isinstance(self.gps_decimals, int) or self.gps_decimals > 8:
+            raise ValueError(f"TelemetryNoise.gps_decimals={self.gps_decimals!r} must be an integer in 0..8")
 
     def scaled(self, k: float) -> TelemetryNoise:
         """The same noise with every bias, jitter and the time offset multiplied by k (k >= 0).
 
-        The telemetry rate, correlation time and dropout rate are kept.
+        The telemetry rate, correlation time, dropout rate and the log format (GPS decimals, altitude
+        step) are kept.
         """
         if not math.isfinite(k) or k < 0:
             raise ValueError(f"noise scale must be a finite number >= 0, got {k!r}")
-        keep = {"telemetry_hz", "jitter_corr_s", "missing_meta_rate"}
+        keep = {"telemetry_hz", "jitter_corr_s", "missing_meta_rate", "gps_decimals", "altitude_step_m"}
         return replace(self, **{f.name: getattr(self, f.name) * k for f in fields(self) if f.name not in keep})
 
 
@@ -147,6 +174,14 @@ class TelemetryStream:
         self._z = rng.standard_normal(len(_CH))  # stationary start
         self._k: int | None = None
         self._missing_rng = np.random.default_rng(rng.integers(0, 2**63))
+        # The log defects draw from a child of the seed (spawning consumes nothing from `rng`).
+        seed_seq = getattr(rng.bit_generator, "seed_seq", None)
+        self._defect_rng = np.random.default_rng(seed_seq.spawn(1)[0] if seed_seq is not None
+                                                 else rng.integers(0, 2**63))
+        wg = noise.white_gps_m / math.sqrt(2.0)
+        self._white_sigma = np.array([wg, wg, noise.white_heading_deg, noise.white_pitch_deg])
+        self._white = np.zeros(4)
+        self._white_k: int | None = None
         self.bias = {"east_m": float(self._bias[0]), "north_m": float(self._bias[1]),
                      "heading_deg": float(self._bias[2]), "pitch_deg": float(self._bias[3]),
                      "height_m": float(self._bias[4])}
@@ -159,10 +194,29 @@ class TelemetryStream:
             self._z = self._a * self._z + math.sqrt(1.0 - self._a * self._a) * self._rng.standard_normal(len(_CH))
         self._k = max(self._k, k)
 
+    def offset_s(self, t_s: float) -> float:
+        """Telemetry lag behind the frame at flight time t_s (constant plus drift), seconds."""
+        return self.noise.time_offset_s + self.noise.time_offset_drift * max(t_s, 0.0)
+
     def sample_time(self, t_s: float) -> float:
         """Flight time (s) at which the telemetry attached to the frame at t_s was measured."""
-        k = math.floor((t_s - self.noise.time_offset_s - self.phase_s) * self.noise.telemetry_hz + 1e-9)
+        k = math.floor((t_s - self.offset_s(t_s) - self.phase_s) * self.noise.telemetry_hz + 1e-9)
         return self.phase_s + k / self.noise.telemetry_hz
+
+    def camera_roll_deg(self) -> float:
+        """The camera's true roll in the next frame (white, unreported), degrees; 0 when off."""
+        if self.noise.camera_roll_deg <= 0:
+            return 0.0
+        return float(np.clip(self.noise.camera_roll_deg * self._defect_rng.standard_normal(), -30.0, 30.0))
+
+    def _white_at(self, k: int) -> np.ndarray:
+        """White jitter (east, north, heading, pitch) of telemetry sample k (one draw per new sample)."""
+        if not self._white_sigma.any():
+            return self._white
+        if self._white_k != k:
+            self._white = self._white_sigma * self._defect_rng.standard_normal(4)
+            self._white_k = k
+        return self._white
 
     def meta(self, t_s: float) -> tuple[dict[str, Any] | None, FlightState]:
         """The SeaDronesSee meta for the frame at flight time t_s (frames must come in time order).
@@ -184,17 +238,23 @@ class TelemetryStream:
         missing = self._missing_rng.uniform() < self.noise.missing_meta_rate
         st = self.flight.state(ts)
         err = self._bias + self._sigma * self._z
+        white = self._white_at(k)
         if missing:
             return None, st
-        lat_arr, lon_arr = local_to_latlon(st.east_m + err[0], st.north_m + err[1], *self.origin)
+        lat_arr, lon_arr = local_to_latlon(st.east_m + err[0] + white[0], st.north_m + err[1] + white[1],
+                                           *self.origin)
         lat, lon = float(lat_arr), float(lon_arr)
+        digits = self.noise.gps_decimals or 8
         height = max(st.height_m + err[4], 0.1)
-        pitch = min(max(st.pitch_deg + err[3], 0.0), 90.0)
+        if self.noise.altitude_step_m > 0:
+            height = max(round(height / self.noise.altitude_step_m) * self.noise.altitude_step_m, 0.1)
+        pitch = min(max(st.pitch_deg + err[3] + white[3], 0.0), 90.0)
+        err[2] += white[2]
         ve, vn, vu = st.vel_east_mps + err[5], st.vel_north_mps + err[6], st.vel_up_mps + err[7]
         meta = {
-            "gps_latitude": round(abs(lat), 8),
+            "gps_latitude": round(abs(lat), digits),
             "gps_latitude_ref": "N" if lat >= 0 else "S",
-            "gps_longitude": round(abs(lon), 8),
+            "gps_longitude": round(abs(lon), digits),
             "gps_longitude_ref": "E" if lon >= 0 else "W",
             "altitude": round(height, 3),
             "gimbal_pitch": round(pitch, 3),
@@ -204,6 +264,6 @@ class TelemetryStream:
             "xspeed": round(vn, 3),
             "yspeed": round(ve, 3),
             "zspeed": round(-vu, 3),
-            "date_time": format_time(self.t0_unix_s + ts + self.noise.time_offset_s),
+            "date_time": format_time(self.t0_unix_s + ts + self.offset_s(t_s)),
         }
         return meta, st

@@ -263,8 +263,9 @@ class Simulation:
                 for v in videos:
                     st = flights[v.id].state(t_rel)
                     plat, plon = local_to_latlon(st.east_m, st.north_m, wp.origin_lat, wp.origin_lon)
-                    pose = Pose(float(plat), float(plon), st.height_m, st.pitch_deg, st.heading_deg)
                     meta, _ = streams[v.id].meta(t_rel)
+                    pose = Pose(float(plat), float(plon), st.height_m, st.pitch_deg, st.heading_deg,
+                                streams[v.id].camera_roll_deg())
                     proj = project_objects(all_lat, all_lon, all_yaw, world.box_m, cam, pose)
                     occluded = world.occluded(st.east_m, st.north_m, st.height_m, all_e, all_n, world.box_m[2] / 2.0)
                     in_view = proj.in_view

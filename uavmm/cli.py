@@ -233,9 +233,15 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--frames", type=int, default=None, help="frames per video (scenario default)")
     p.add_argument("--noise-scales", default="1,2", help="telemetry noise multipliers (1,2)")
     p.add_argument("--ablations", action="store_true", help="also sweep half-life, radius, gain, filter")
-    p.add_argument("--tasks", default="detection",
+    p.add_argument("--tasks", default=None,
                    help="comma-separated: detection (AP50/AR), tracking (HOTA/MOTA/IDs/Frag vs norfair), "
-                        "coop (two UAVs with a joint map) (default: detection)")
+                        "coop (two UAVs with a joint map) (default: detection; with --domains: detection,tracking)")
+    p.add_argument("--domains", default=None,
+                   help="comma-separated evaluation domains (sim.domains) or the groups all, tune, heldout: "
+                        "detection and tracking per domain, held-out domains reported apart (seeds default 0,1,2; "
+                        "tasks detection,tracking)")
+    p.add_argument("--list-domains", action="store_true", help="print the domains as a table and exit")
+    p.add_argument("--full", action="store_true", help="with --domains: 5x longer clips")
     p.add_argument("--out", type=Path, default=Path("out/eval"), help="report directory (out/eval)")
     p.set_defaults(handler=_run_eval)
 
@@ -254,6 +260,9 @@ def _run_eval(args: argparse.Namespace) -> int:
     from sim.evaluate import run_eval, stderr_progress
     from sim.scenarios import get_scenario
 
+    if args.list_domains or args.domains is not None:
+        return _run_domain_eval(args)
+
     scenarios = _csv_list(args.scenarios, str, "--scenarios")
     for name in scenarios:
         get_scenario(name)  # unknown names fail before any work
@@ -263,7 +272,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be >= 1, got {args.frames}")
     noise = tuple(_csv_list(args.noise_scales, float, "--noise-scales"))
-    tasks = _csv_list(args.tasks, str, "--tasks")
+    tasks = _csv_list(args.tasks or "detection", str, "--tasks")
     unknown = sorted(set(tasks) - {"detection", "tracking", "coop"})
     if unknown:
         raise CliError(f"--tasks: unknown task(s) {', '.join(unknown)}; valid: detection, tracking, coop")
@@ -284,6 +293,34 @@ def _run_eval(args: argparse.Namespace) -> int:
         out = args.out / "coop"
         run_coop_eval(seeds, frames=args.frames, out_dir=out, progress=stderr_progress)
         print((out / "report.md").read_text())
+    return 0
+
+
+def _run_domain_eval(args: argparse.Namespace) -> int:
+    from sim.domain_eval import run_domain_eval
+    from sim.domains import domain_table, resolve_domains
+    from sim.evaluate import stderr_progress
+
+    if args.list_domains:
+        print(domain_table())
+        return 0
+    try:
+        domains = resolve_domains(_csv_list(args.domains, str, "--domains"))
+    except ValueError as exc:
+        raise CliError(f"--domains: {exc}") from None
+    seeds = _csv_list(args.seeds, int, "--seeds")
+    if any(s < 0 for s in seeds):
+        raise CliError("--seeds must be >= 0")
+    tasks = tuple(_csv_list(args.tasks or "detection,tracking", str, "--tasks"))
+    unknown = sorted(set(tasks) - {"detection", "tracking"})
+    if unknown:
+        raise CliError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
+    noise = tuple(_csv_list(args.noise_scales, float, "--noise-scales"))
+    out = args.out if args.out != Path("out/eval") else Path("out/eval-domains")
+    report = run_domain_eval(domains, seeds, noise_scales=noise, tasks=tasks, full=args.full, out_dir=out,
+                             progress=stderr_progress)
+    print((out / "report.md").read_text())
+    print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0
 
 

@@ -1,0 +1,130 @@
+"""Telemetry self-correction: the common-mode ground offset of one frame's projection, found by registering
+the frame's confident detections to the memory map's evidence, bounded, smoothed, with a fallback to the
+raw telemetry.
+
+Every box of a frame is projected with the same pose, so a GPS error, a time offset or a jittering gimbal
+angle moves all of them together (to first order, by one ground offset). The memory map holds where the
+previous frames put the objects; the offset that best lays this frame's confident boxes onto that
+evidence is the frame's correction. Arrays in, arrays out: the map is read, never written.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+__all__ = ["CorrectionSettings", "GroundCorrection", "GroundOffsetEstimator", "register_offset"]
+
+
+@dataclass(frozen=True, slots=True)
+class CorrectionSettings:
+    """Settings of the correction (PipelineConfig.correction_* hold them for the pipeline).
+
+    min_score: detections at least this confident (the detector's own score) register.
+    search_m: largest offset searched, metres (the bound: a larger error is not corrected).
+    min_points: confident detections a frame needs for a measurement.
+    min_support: the mean evidence under the registered detections a measurement needs (0..1).
+    smoothing_s: time constant of the exponential smoothing of the measurements (0: none).
+    hold_s: without a measurement, the last correction is held this long, then decays to 0 (raw
+        telemetry) with the same time constant.
+    max_points: at most this many detections (the most confident) register.
+    """
+
+    min_score: float = 0.5
+    search_m: float = 8.0
+    min_points: int = 2
+    min_support: float = 0.3
+    smoothing_s: float = 0.0
+    hold_s: float = 2.0
+    max_points: int = 48
+
+    def __post_init__(self) -> None:
+        for name in ("min_score", "search_m", "min_support", "smoothing_s", "hold_s"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
+                raise ValueError(f"correction {name} must be a finite number >= 0, got {value!r}")
+        for name in ("min_points", "max_points"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"correction {name} must be an integer >= 1, got {value!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class GroundCorrection:
+    """The correction applied to one frame.
+
+    east_m, north_m: offset added to every ground point, metres; measured: this frame registered (else
+    the held or decayed earlier correction, or 0); points: detections that registered; support: mean
+    evidence under them at the measured offset (0 without a measurement).
+    """
+
+    east_m: float = 0.0
+    north_m: float = 0.0
+    measured: bool = False
+    points: int = 0
+    support: float = 0.0
+
+
+def register_offset(patches: NDArray[np.float32], weights: NDArray) -> tuple[float, float, float]:
+    """The shift that lays points onto evidence, from the evidence around each point.
+
+    patches: (N, 2R+1, 2R+1) evidence around each point (row = y, col = x offset + R, cells);
+    weights: (N,) non-negative. Returns (dx, dy, support): the weighted centroid of the offsets whose
+    summed evidence is within 5 % of the best (a steadily seen object is a clipped plateau, so the
+    centre of the top region, not its first maximum), in cells, and support = best summed evidence /
+    sum of weights. (0, 0, 0) without evidence.
+    """
+    w = np.asarray(weights, dtype=np.float32).reshape(-1, 1, 1)
+    total = float(w.sum())
+    if not len(patches) or total <= 0:
+        return 0.0, 0.0, 0.0
+    score = (patches * w).sum(axis=0)
+    best = float(score.max())
+    if best <= 0:
+        return 0.0, 0.0, 0.0
+    r = score.shape[0] // 2
+    top = np.clip(score - 0.95 * best, 0.0, None)
+    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+    mass = float(top.sum())
+    return float((top * xs).sum() / mass), float((top * ys).sum() / mass), best / total
+
+
+class GroundOffsetEstimator:
+    """Per-video state of the correction: the smoothed offset and when it was last measured."""
+
+    def __init__(self, settings: CorrectionSettings | None = None) -> None:
+        self.settings = settings or CorrectionSettings()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the correction (start of another video)."""
+        self._east = self._north = 0.0
+        self._t: float | None = None
+        self._t_measured: float | None = None
+
+    @property
+    def current_en(self) -> tuple[float, float]:
+        """The correction (east, north) metres as last applied."""
+        return self._east, self._north
+
+    def update(self, t: float, measurement_en: tuple[float, float] | None, points: int = 0,
+               support: float = 0.0) -> GroundCorrection:
+        """Advance to time t with this frame's measured offset (east, north metres) or None; returns the
+        correction to apply (smoothed, held, or decaying to 0 without measurements)."""
+        s = self.settings
+        dt = 0.0 if self._t is None else max(0.0, t - self._t)
+        self._t = t if self._t is None else max(self._t, t)
+        if measurement_en is not None:
+            a = 1.0 if s.smoothing_s <= 0 or self._t_measured is None else 1.0 - math.exp(-dt / s.smoothing_s)
+            self._east += a * (measurement_en[0] - self._east)
+            self._north += a * (measurement_en[1] - self._north)
+            self._t_measured = self._t
+            return GroundCorrection(self._east, self._north, True, points, support)
+        if self._t_measured is not None and self._t - self._t_measured > s.hold_s:
+            k = math.exp(-dt / max(s.hold_s, 1e-3))
+            self._east *= k
+            self._north *= k
+        return GroundCorrection(self._east, self._north, False, points, 0.0)

@@ -1,0 +1,219 @@
+"""Evaluation domains: scenarios shifted the way real data differs from our simulator, split into the
+domains parameters are tuned on and held-out ones nobody tunes to.
+
+A `Domain` takes a base scenario (`sim.scenarios`) and changes what a new user's data changes: the
+telemetry's defects (white per-frame jitter, GPS rounded to 4-6 decimals, altitude steps, constant or
+drifting time offsets), the frame rate (24/30/60 fps), the clip length, the detector's regime (over- or
+under-confident scores, more or less persistent clutter at fixed ground spots, more part boxes) and the
+camera (the base 4K Mavic 2 Pro, a 1080p wide camera, a 4K 70 mm tele). Each domain flies either gentle
+flights (orbit, lawnmower, line) or heading sweeps and jumps (hover with fast sweeps), so tracking can be
+judged per kind. `DOMAINS` lists them; `TUNING_DOMAINS` and `HELDOUT_DOMAINS` are the split: every
+default and design choice of the memory map, the telemetry correction and the tracker is chosen on the
+tuning domains (and the base scenarios); the held-out ones are only reported.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+from sim.detector_emulator import EmulatorParams
+from sim.flight import HoverSweepsSpec, LawnmowerSpec, LineSpec, OrbitSpec
+from sim.noise import TelemetryNoise
+from sim.scenarios import Scenario, get_scenario
+from sim.world import WorldParams
+
+SPLITS = ("tune", "heldout")
+MOTIONS = ("gentle", "sweeps")
+#: Cameras of the domains: name -> (shared.geo preset, width, height).
+CAMERAS: dict[str, tuple[str, int, int]] = {
+    "4k": ("dji-mavic2-pro", 3840, 2160),
+    "1080p-wide": ("dji-m30-wide", 1920, 1080),
+    "4k-tele": ("dji-mavic3pro-tele", 3840, 2160),
+}
+
+
+@dataclass(frozen=True, slots=True)
+class Domain:
+    """One evaluation domain (see the module docstring).
+
+    Attributes
+    ----------
+    name, description : str
+    split : str
+        "tune" or "heldout".
+    motion : str
+        "gentle" or "sweeps" (heading sweeps and jumps): which tracking bar applies.
+    base : str
+        Base scenario (its world, class and emulator defaults).
+    flights : tuple of flight specs
+    fps : float
+    clip_s : float
+        Clip length in seconds (frames = round(clip_s * fps)); `--full` evaluates 5x longer clips.
+    camera : str
+        A key of CAMERAS.
+    noise : dict
+        TelemetryNoise fields replaced on the base scenario's noise.
+    emulator : dict
+        EmulatorParams fields replaced on the base scenario's emulator.
+    world : dict
+        WorldParams fields replaced on the base scenario's world.
+    """
+
+    name: str
+    description: str
+    split: str
+    motion: str
+    base: str
+    flights: tuple[Any, ...]
+    fps: float = 30.0
+    clip_s: float = 8.0
+    camera: str = "4k"
+    noise: dict[str, Any] = field(default_factory=dict)
+    emulator: dict[str, Any] = field(default_factory=dict)
+    world: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.split not in SPLITS:
+            raise ValueError(f"Domain {self.name!r}: split must be one of {SPLITS}, got {self.split!r}")
+        if self.motion not in MOTIONS:
+            raise ValueError(f"Domain {self.name!r}: motion must be one of {MOTIONS}, got {self.motion!r}")
+        if self.camera not in CAMERAS:
+            raise ValueError(f"Domain {self.name!r}: unknown camera {self.camera!r}; valid: {', '.join(CAMERAS)}")
+        if not (math.isfinite(self.fps) and self.fps > 0 and math.isfinite(self.clip_s) and self.clip_s > 0):
+            raise ValueError(f"Domain {self.name!r}: fps and clip_s must be > 0")
+        self.scenario()  # every field name and value is checked by the dataclasses it builds
+
+    def frames(self, full: bool = False) -> int:
+        """Frames per video: the clip length at the domain's frame rate (5x with full)."""
+        return max(1, round(self.clip_s * (5.0 if full else 1.0) * self.fps))
+
+    def scenario(self) -> Scenario:
+        """The domain as a Scenario (name = the domain's name)."""
+        base = get_scenario(self.base)
+        preset, width, height = CAMERAS[self.camera]
+        noise: TelemetryNoise = dataclasses.replace(base.noise, **self.noise)
+        emulator: EmulatorParams = dataclasses.replace(base.emulator, **self.emulator)
+        world: WorldParams = dataclasses.replace(base.world, **self.world)
+        return dataclasses.replace(base, name=self.name, description=self.description, world=world,
+                                   flights=self.flights, simultaneous=False, noise=noise, emulator=emulator,
+                                   default_frames=self.frames(), fps=self.fps, camera_preset=preset,
+                                   image_size=(width, height))
+
+    @property
+    def tag(self) -> str:
+        """Short hash of the definition: dataset caches keyed by it regenerate when a domain changes."""
+        return hashlib.sha1(repr(self).encode()).hexdigest()[:8]
+
+    def summary(self) -> str:
+        """One line: split, motion, fps, clip, camera and what differs from the base scenario."""
+        changes = ", ".join(f"{k}={v}" for k, v in {**self.noise, **self.emulator, **self.world}.items())
+        return (f"{self.split:7s} {self.motion:6s} {self.base:5s} {self.fps:g} fps {self.clip_s:g} s "
+                f"{self.camera}: {changes}")
+
+
+# Telemetry profiles (replacements of TelemetryNoise fields).
+#: A DJI log at the frame rate whose gimbal angles and GPS jitter frame to frame (white), 6 decimals.
+_JITTER: dict[str, Any] = {"white_gps_m": 0.5, "white_heading_deg": 0.6, "white_pitch_deg": 0.4,
+                           "gps_decimals": 6, "camera_roll_deg": 0.3}
+#: 5-decimal GPS (1.1 m steps), 0.5 m altitude steps.
+_GPS5: dict[str, Any] = {"gps_decimals": 5, "altitude_step_m": 0.5}
+#: An old DJI SRT: 4-decimal GPS (11 m steps north, 7 m east at 48 N), whole-metre altitude, the video
+#: 0.3 s ahead of its subtitle track.
+_OLD_SRT: dict[str, Any] = {"gps_decimals": 4, "altitude_step_m": 1.0, "time_offset_s": 0.3}
+#: Clocks drifting apart: 0.1 s offset at the start, growing 0.02 s per second.
+_DRIFT: dict[str, Any] = {"time_offset_s": 0.1, "time_offset_drift": 0.02}
+
+# Detector regimes (replacements of EmulatorParams fields).
+_OVERCONFIDENT: dict[str, Any] = {"score_logit_scale": 1.6, "score_logit_shift": 0.8}
+_UNDERCONFIDENT: dict[str, Any] = {"score_logit_scale": 0.6, "score_logit_shift": -0.4}
+_MORE_CLUTTER_EMU: dict[str, Any] = {"clutter_detect_prob": 0.85, "clutter_logit_drop": 1.5}
+_MORE_PARTS: dict[str, Any] = {"duplicate_box_rate": 0.25, "duplicate_score_range": (0.2, 0.7)}
+
+_GENTLE_SEA = (OrbitSpec(radius_m=(45.0, 70.0), height_m=(30.0, 60.0)),
+               LawnmowerSpec(height_m=(40.0, 80.0), pitch_deg=(70.0, 90.0)))
+_GENTLE_GRASS = (OrbitSpec(radius_m=(40.0, 70.0), height_m=(25.0, 60.0)),
+                 LineSpec(bearing_deg=(0.0, 360.0), distance_m=(40.0, 55.0), height_m=(25.0, 40.0),
+                          pitch_deg=(30.0, 45.0)))
+_SWEEPS = (HoverSweepsSpec(height_m=(20.0, 40.0), pitch_deg=(25.0, 40.0), sweep_deg=(50.0, 100.0),
+                           sweep_rate_deg_s=(60.0, 100.0), dwell_s=(1.5, 3.0)),
+           HoverSweepsSpec(height_m=(25.0, 45.0), pitch_deg=(30.0, 45.0), sweep_deg=(30.0, 80.0),
+                           sweep_rate_deg_s=(40.0, 90.0), dwell_s=(2.0, 4.0)))
+_TELE_SWEEPS = (HoverSweepsSpec(distance_m=(60.0, 80.0), height_m=(30.0, 50.0), pitch_deg=(25.0, 35.0),
+                                sweep_deg=(20.0, 50.0), sweep_rate_deg_s=(30.0, 60.0), dwell_s=(1.5, 3.0)),
+                HoverSweepsSpec(distance_m=(50.0, 70.0), height_m=(30.0, 45.0), pitch_deg=(30.0, 40.0),
+                                sweep_deg=(30.0, 60.0), sweep_rate_deg_s=(40.0, 80.0), dwell_s=(2.0, 3.0)))
+
+_DOMAIN_LIST = (
+    # ---------------------------------------------------------------- tuning domains
+    Domain("sea-jitter", "sea, gentle flights, per-frame telemetry jitter at 30 fps", "tune", "gentle", "sea",
+           _GENTLE_SEA, noise={**_JITTER, "telemetry_hz": 30.0}),
+    Domain("grass-gps5-24", "grass, gentle flights at 24 fps, 5-decimal GPS, under-confident detector with "
+           "more part boxes", "tune", "gentle", "grass", _GENTLE_GRASS, fps=24.0, clip_s=10.0,
+           noise={**_GPS5, "time_offset_s": 0.1}, emulator={**_UNDERCONFIDENT, **_MORE_PARTS}),
+    Domain("grass-sweeps-wide", "grass, heading sweeps with a 1080p wide camera, jitter and drifting clocks, "
+           "over-confident detector, more clutter", "tune", "sweeps", "grass", _SWEEPS, camera="1080p-wide",
+           noise={**_JITTER, **_DRIFT, "telemetry_hz": 30.0}, emulator={**_OVERCONFIDENT, **_MORE_CLUTTER_EMU},
+           world={"n_clutter": 6}),
+    Domain("sea-sweeps-60", "sea, heading sweeps at 60 fps, 5-decimal GPS, 0.2 s offset, less clutter",
+           "tune", "sweeps", "sea", _SWEEPS, fps=60.0, clip_s=6.0, noise={**_GPS5, "time_offset_s": 0.2},
+           world={"n_clutter": 1}),
+    # ---------------------------------------------------------------- held-out domains
+    Domain("grass-tele-clutter", "grass, gentle flights with a 4K tele camera, per-frame jitter, 5-decimal "
+           "GPS, over-confident detector, persistent clutter at fixed ground spots, 1 % frames without meta",
+           "heldout", "gentle", "grass", _GENTLE_GRASS, camera="4k-tele",
+           noise={**_JITTER, **_GPS5, "telemetry_hz": 30.0, "missing_meta_rate": 0.01},
+           emulator={**_OVERCONFIDENT, **_MORE_CLUTTER_EMU}, world={"n_clutter": 8}),
+    Domain("sea-oldsrt-60", "sea, gentle flights at 60 fps, old SRT telemetry (4-decimal GPS, 1 m altitude, "
+           "0.3 s offset), under-confident detector, more part boxes", "heldout", "gentle", "sea", _GENTLE_SEA,
+           fps=60.0, clip_s=6.0, noise=_OLD_SRT, emulator={**_UNDERCONFIDENT, **_MORE_PARTS}),
+    Domain("grass-wide-jitter", "grass, gentle flights with a 1080p wide camera at 30 fps, per-frame jitter, "
+           "drifting clocks, less clutter", "heldout", "gentle", "grass", _GENTLE_GRASS, camera="1080p-wide",
+           noise={**_JITTER, **_DRIFT, "telemetry_hz": 30.0}, world={"n_clutter": 1}),
+    Domain("grass-sweeps-24", "grass, heading sweeps and jumps at 24 fps, per-frame jitter, 5-decimal GPS, "
+           "over-confident detector", "heldout", "sweeps", "grass", _SWEEPS, fps=24.0, clip_s=10.0,
+           noise={**_JITTER, **_GPS5, "telemetry_hz": 24.0}, emulator=_OVERCONFIDENT),
+    Domain("sea-sweeps-tele", "sea, heading sweeps with a 4K tele camera, 0.3 s offset, under-confident "
+           "detector, more clutter", "heldout", "sweeps", "sea", _TELE_SWEEPS, camera="4k-tele",
+           noise={"time_offset_s": 0.3, "white_heading_deg": 0.3}, emulator={**_UNDERCONFIDENT, **_MORE_CLUTTER_EMU},
+           world={"n_clutter": 6}),
+)
+
+#: All domains by name.
+DOMAINS: dict[str, Domain] = {d.name: d for d in _DOMAIN_LIST}
+TUNING_DOMAINS: tuple[str, ...] = tuple(d.name for d in _DOMAIN_LIST if d.split == "tune")
+HELDOUT_DOMAINS: tuple[str, ...] = tuple(d.name for d in _DOMAIN_LIST if d.split == "heldout")
+
+
+def get_domain(name: str) -> Domain:
+    """The domain called `name`; ValueError listing the valid names if there is none."""
+    try:
+        return DOMAINS[name]
+    except (KeyError, TypeError):
+        raise ValueError(f"unknown domain {name!r}; valid domains: {', '.join(DOMAINS)} "
+                         "(or the groups all, tune, heldout)") from None
+
+
+def resolve_domains(names: list[str]) -> list[Domain]:
+    """Domains named in `names` (the groups "all", "tune", "heldout" expand), in order, without repeats."""
+    out: list[Domain] = []
+    for name in names:
+        group = {"all": tuple(DOMAINS), "tune": TUNING_DOMAINS, "heldout": HELDOUT_DOMAINS}.get(name)
+        for n in group if group is not None else (name,):
+            d = get_domain(n)
+            if d not in out:
+                out.append(d)
+    return out
+
+
+def domain_table() -> str:
+    """Markdown table of the domains (the `uavmm eval --list-domains` output and docs/simulator.md)."""
+    lines = ["| domain | split | flights | base | fps | clip | camera | changes |", "|---|---|---|---|---|---|---|---|"]
+    for d in _DOMAIN_LIST:
+        changes = ", ".join(f"{k}={v}" for k, v in {**d.noise, **d.emulator, **d.world}.items())
+        lines.append(f"| {d.name} | {d.split} | {d.motion} | {d.base} | {d.fps:g} | {d.clip_s:g} s | {d.camera} | "
+                     f"{changes} |")
+    return "\n".join(lines)

@@ -1,0 +1,96 @@
+"""Telemetry self-correction: a common-mode ground offset of the whole frame is found by registering its
+confident detections to the memory map, within 0.3 m, and applied to the frame's ground points."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from agent.pipeline import DetectionPipeline
+from agent.pipeline_config import PipelineConfig
+from agent.telemetry_correction import CorrectionSettings, GroundOffsetEstimator, register_offset
+from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon
+
+CAM = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+LAT0, LON0 = 48.53, 9.06
+# objects (east, north) metres, irregular and >= 12 m apart
+OBJECTS = np.array([[0.0, 30.0], [-14.0, 38.0], [13.0, 44.0], [4.0, 56.0], [-9.0, 22.0], [16.0, 26.0]])
+
+
+def _pose(east_m: float = 0.0, north_m: float = 0.0) -> Pose:
+    lat, lon = local_to_latlon(east_m, north_m, LAT0, LON0)
+    return Pose(float(lat), float(lon), 30.0, 50.0, 0.0)
+
+
+def _frame_boxes(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Boxes of the objects as the TRUE pose sees them (20 px, 1 px jitter), confident, plus weak clutter."""
+    lat, lon = local_to_latlon(OBJECTS[:, 0], OBJECTS[:, 1], LAT0, LON0)
+    uv, valid = latlon_to_pixel(lat, lon, CAM, _pose())
+    assert valid.all()
+    uv = uv + rng.normal(0.0, 1.0, uv.shape)
+    boxes = np.column_stack([uv[:, 0] - 10, uv[:, 1] - 10, uv[:, 0] + 10, uv[:, 1] + 10])
+    scores = rng.uniform(0.7, 0.95, len(boxes))
+    fp = rng.uniform([0, 600, 0, 0], [1900, 1060, 0, 0], (5, 4))
+    fp[:, 2:] = fp[:, :2] + 20
+    return (np.vstack([boxes, fp]).astype(np.float32), np.concatenate([scores, rng.uniform(0.05, 0.2, 5)]),
+            np.ones(len(boxes) + 5, dtype=np.int64))
+
+
+@pytest.mark.parametrize("offset_en", [(4.0, -3.0), (-5.5, 2.0), (0.0, 6.0)])
+def test_common_mode_offset_recovered_within_30_cm(offset_en: tuple[float, float]) -> None:
+    cfg = dataclasses.replace(PipelineConfig(), use_size_filter=False)
+    pipe = DetectionPipeline(CAM, {1: "person"}, cfg)
+    rng = np.random.default_rng(0)
+    t = 0.0
+    for _ in range(30):  # one second with true telemetry: the map learns where the objects are
+        result = pipe.process(*_frame_boxes(rng), _pose(), t)
+        t += 1 / 30
+    # Now the GPS is off: every ground point moves by offset_en; the correction must undo it.
+    for _ in range(3):
+        result = pipe.process(*_frame_boxes(rng), _pose(*offset_en), t)
+        t += 1 / 30
+        assert result.correction is not None and result.correction.measured
+        assert result.correction.east_m == pytest.approx(-offset_en[0], abs=0.3)
+        assert result.correction.north_m == pytest.approx(-offset_en[1], abs=0.3)
+    # The kept detections' ground points are back on the objects.
+    strong = result.raw_scores >= 0.5
+    e, n = latlon_to_local(result.lat[strong], result.lon[strong], LAT0, LON0)
+    d = np.hypot(e[:, None] - OBJECTS[None, :, 0], n[:, None] - OBJECTS[None, :, 1]).min(axis=1)
+    assert np.median(d) < 1.0
+
+
+def test_without_memory_or_switched_off_no_correction_is_applied() -> None:
+    rng = np.random.default_rng(1)
+    for cfg in (dataclasses.replace(PipelineConfig(), use_memory=False),
+                dataclasses.replace(PipelineConfig(), correct_telemetry=False)):
+        pipe = DetectionPipeline(CAM, {1: "person"}, dataclasses.replace(cfg, use_size_filter=False))
+        result = pipe.process(*_frame_boxes(rng), _pose(3.0, 0.0), 0.0)
+        assert result.correction is None
+
+
+def test_too_few_confident_boxes_fall_back_to_raw_telemetry() -> None:
+    est = GroundOffsetEstimator(CorrectionSettings(hold_s=0.5))
+    assert est.update(0.0, (2.0, -1.0), 5, 0.9).east_m == 2.0
+    held = est.update(0.3, None)
+    assert not held.measured and held.east_m == 2.0  # held ...
+    later = est.update(5.0, None)
+    assert abs(later.east_m) < 0.01 and abs(later.north_m) < 0.01  # ... then back to the raw telemetry
+
+
+def test_register_offset_finds_the_centre_of_a_clipped_plateau() -> None:
+    r = 10
+    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+    blob = np.clip(2.0 * np.exp(-((xs - 3) ** 2 + (ys + 2) ** 2) / 8.0), 0.0, 1.0).astype(np.float32)
+    dx, dy, support = register_offset(np.stack([blob, blob]), np.array([1.0, 0.5]))
+    assert dx == pytest.approx(3.0, abs=0.05) and dy == pytest.approx(-2.0, abs=0.05)
+    assert support == pytest.approx(1.0, abs=0.01)
+    assert register_offset(np.zeros((2, 3, 3), np.float32), np.ones(2)) == (0.0, 0.0, 0.0)
+
+
+def test_settings_reject_bad_values() -> None:
+    with pytest.raises(ValueError, match="search_m"):
+        CorrectionSettings(search_m=-1.0)
+    with pytest.raises(ValueError, match="min_points"):
+        PipelineConfig(correction_min_points=0)
