@@ -237,25 +237,27 @@ class MemoryMap:
 
     def patches(self, cls: str, gx: ArrayLike, gy: ArrayLike, radius_cells: int) -> NDArray[np.float32]:
         """Evidence around global cells: (N, 2r+1, 2r+1) float32, patch[i, r + dy, r + dx] = value at cell
-        (floor(gx[i]) + dx, floor(gy[i]) + dy); 0 outside the window or for an unseen class."""
+        (floor(gx[i]) + dx, floor(gy[i]) + dy); 0 outside the window or for an unseen class.
+
+        One slice per point (callers pass a few dozen points at most)."""
         gx_arr = np.atleast_1d(np.asarray(gx, dtype=np.float64))
         gy_arr = np.atleast_1d(np.asarray(gy, dtype=np.float64))
         r = int(radius_cells)
-        out = np.zeros((len(gx_arr), 2 * r + 1, 2 * r + 1), dtype=np.float32)
+        side = 2 * r + 1
+        out = np.zeros((len(gx_arr), side, side), dtype=np.float32)
         m = self._maps.get(cls)
         if m is None or not len(gx_arr) or self._size == 0:
             return out
         row, col, _ = self.local_indices(gx_arr, gy_arr)
-        offsets = np.arange(-r, r + 1)
-        rows = row[:, None] + offsets  # (N, 2r+1)
-        cols = col[:, None] + offsets
-        ok_r = (rows >= 0) & (rows < self._size)
-        ok_c = (cols >= 0) & (cols < self._size)
-        vals = m[np.clip(rows, 0, self._size - 1)[:, :, None], np.clip(cols, 0, self._size - 1)[:, None, :]]
-        vals *= (ok_r[:, :, None] & ok_c[:, None, :])
+        size = self._size
+        for i, (r0, c0) in enumerate(zip((row - r).tolist(), (col - r).tolist(), strict=True)):
+            a0, b0 = max(r0, 0), max(c0, 0)
+            a1, b1 = min(r0 + side, size), min(c0 + side, size)
+            if a1 > a0 and b1 > b0:
+                out[i, a0 - r0:a1 - r0, b0 - c0:b1 - c0] = m[a0:a1, b0:b1]
         if self._scale != 1.0:
-            vals *= np.float32(self._scale)
-        np.minimum(vals, 1.0, out=out)
+            out *= np.float32(self._scale)
+            np.minimum(out, 1.0, out=out)
         return out
 
     def _kernel_for(self) -> tuple[int, NDArray[np.float32]]:

@@ -17,6 +17,7 @@ from agent.frame_result import FrameResult
 from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
+from agent.score_calibration import ScoreCalibration
 from agent.size_filter import SizeFilter, _warn_unfiltered
 from agent.telemetry_correction import GroundCorrection, GroundOffsetEstimator, register_offset
 from shared.geo import (
@@ -76,6 +77,7 @@ class DetectionPipeline:
         """Forget the memory and the telemetry correction (start of another video)."""
         self.memory.reset()
         self.__dict__.pop("_corrector", None)
+        self.__dict__.pop("_score_calibration", None)
 
     def process(self, boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray,
                 pose: Pose | None, t: float, embeddings: NDArray | None = None) -> FrameResult:
@@ -100,6 +102,10 @@ class DetectionPipeline:
         src = np.arange(n)  # rows of the input still in play (for the embeddings)
         if embeddings is not None:
             embeddings = np.asarray(embeddings, dtype=np.float32).reshape(n, -1)
+        raw = conf
+        calibration = self._calibration()
+        if calibration is not None:  # the detector's scores at the reference temperature
+            conf = calibration.apply(conf)
         boosted = conf.copy()
         correction: GroundCorrection | None = None
         n_filtered = 0
@@ -121,12 +127,14 @@ class DetectionPipeline:
                 if n_filtered:
                     # np.compress: a boolean index on (N, 4) costs ~6x more
                     boxes = np.compress(ok, boxes, axis=0)
-                    conf, boosted, cids, src = conf[ok], boosted[ok], cids[ok], src[ok]
+                    conf, boosted, cids, src, raw = conf[ok], boosted[ok], cids[ok], src[ok], raw[ok]
                     lat, lon, valid = lat[ok], lon[ok], valid[ok]
             n_geo = int(np.count_nonzero(valid))
             if cfg.use_memory:
                 boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, valid, lat, lon, pose, t)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
+        if calibration is not None:
+            calibration.observe(t, raw[keep])
         result = FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
                              n, n_filtered, n_geo, None if embeddings is None else embeddings[src[keep]],
                              correction=correction)
@@ -134,6 +142,17 @@ class DetectionPipeline:
                 and pose is not None):
             result = self._with_joint_detections(result, pose, t)
         return result
+
+    def _calibration(self) -> ScoreCalibration | None:
+        """The video's score calibration (agent.score_calibration), None when off or without the memory map."""
+        cfg = self.config
+        if not (cfg.use_memory and cfg.calibrate_scores):
+            return None
+        cal = self.__dict__.get("_score_calibration")
+        settings = cfg.calibration_settings()
+        if cal is None or cal.settings != settings:
+            cal = self.__dict__["_score_calibration"] = ScoreCalibration(settings)
+        return cal
 
     def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float) -> FrameResult:
         """The frame's detections plus the joint map's (agent.joint_detections)."""
@@ -243,9 +262,8 @@ class DetectionPipeline:
             if len(strong) > s.max_points:
                 strong = strong[np.argsort(-c[strong], kind="stable")[:s.max_points]]
             cell_m = self.memory.cell_m
-            e0, n0 = est.current_en
-            # search around the last correction: the map holds corrected positions
-            sx, sy = gx[strong] + e0 / cell_m, gy[strong] - n0 / cell_m
+            # the offset is searched within search_m of the raw telemetry: bounded, it cannot run away
+            sx, sy = gx[strong], gy[strong]
             radius = max(1, int(round(s.search_m / cell_m)))
             scid = cids[idx[strong]]
             patches = np.zeros((len(strong), 2 * radius + 1, 2 * radius + 1), dtype=np.float32)
@@ -254,7 +272,7 @@ class DetectionPipeline:
                 patches[sel] = self.memory.patches(self.class_names[int(cid)], sx[sel], sy[sel], radius)
             dx, dy, support = register_offset(patches, c[strong])
             if support >= s.min_support:
-                measurement = (e0 + dx * cell_m, n0 - dy * cell_m)
+                measurement = (dx * cell_m, -dy * cell_m)
         corr = est.update(t, measurement, int(len(strong)), support)
         if log.isEnabledFor(logging.DEBUG):
             log.debug("t=%.3f correction east %.2f north %.2f m (measured %s, %d boxes, support %.2f)", t,

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 
 from agent.boxes import ANCHORS
 from agent.memory_map import MemoryMapConfig
+from agent.score_calibration import CalibrationSettings
 from agent.telemetry_correction import CorrectionSettings
 
 __all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig"]
@@ -76,6 +77,12 @@ class PipelineConfig:
         (CorrectionSettings: the detector score that registers, the largest offset searched around the
         last correction, the boxes and mean evidence a measurement needs, the smoothing time constant and
         how long a correction is held without measurements).
+
+    calibrate_scores: with use_memory, scale the detector's logits to the reference temperature from the
+        spread of each frame's strongest detections, estimated online (agent.score_calibration), before
+        boosting, stamping and the tracker (FrameResult.raw_scores are then the calibrated scores);
+        calibration_tau_s: time constant of that estimate, seconds; calibration_ref_sd: the reference
+        spread (the simulator's default detector on the tuning domains).
 
     Tuning of the joint detections (agent.joint_detections; measured on the simulator's `coop`):
     joint_peak_smoothing_m: standard deviation (m) of the Gaussian that smooths the others' evidence
@@ -146,6 +153,9 @@ class PipelineConfig:
     joint_carry_match_iou: float = 0.3
     joint_carry_blend: float = 0.5
     joint_carry_velocity_gain: float = 0.1
+    calibrate_scores: bool = True
+    calibration_tau_s: float = 30.0
+    calibration_ref_sd: float = 1.35
     correct_telemetry: bool = True
     correction_min_score: float = 0.5
     correction_search_m: float = 8.0
@@ -156,6 +166,7 @@ class PipelineConfig:
 
     def __post_init__(self) -> None:
         self.correction_settings()  # validates the correction_* fields
+        self.calibration_settings()  # and the calibration_* ones
         if self.anchor not in ANCHORS:
             raise ValueError(f"anchor must be one of {', '.join(ANCHORS)}, got {self.anchor!r}")
         if self.boost_mode not in BOOST_MODES:
@@ -198,6 +209,10 @@ class PipelineConfig:
         return CorrectionSettings(min_score=self.correction_min_score, search_m=self.correction_search_m,
                                   min_points=self.correction_min_points, min_support=self.correction_min_support,
                                   smoothing_s=self.correction_smoothing_s, hold_s=self.correction_hold_s)
+
+    def calibration_settings(self) -> CalibrationSettings:
+        """The score calibration's settings (agent.score_calibration)."""
+        return CalibrationSettings(tau_s=self.calibration_tau_s, ref_sd_logit=self.calibration_ref_sd)
 
     @property
     def range_limit_m(self) -> float:

@@ -24,7 +24,8 @@ class CorrectionSettings:
     """Settings of the correction (PipelineConfig.correction_* hold them for the pipeline).
 
     min_score: detections at least this confident (the detector's own score) register.
-    search_m: largest offset searched, metres (the bound: a larger error is not corrected).
+    search_m: largest offset searched around the raw telemetry's ground points, metres (the bound: a
+        larger error is not corrected).
     min_points: confident detections a frame needs for a measurement.
     min_support: the mean evidence under the registered detections a measurement needs (0..1).
     smoothing_s: time constant of the exponential smoothing of the measurements (0: none).
@@ -39,7 +40,7 @@ class CorrectionSettings:
     min_support: float = 0.3
     smoothing_s: float = 0.0
     hold_s: float = 2.0
-    max_points: int = 48
+    max_points: int = 16
 
     def __post_init__(self) -> None:
         for name in ("min_score", "search_m", "min_support", "smoothing_s", "hold_s"):

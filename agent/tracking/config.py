@@ -180,6 +180,19 @@ class TrackerConfig:
         (`GpsTracker.report`) only while quality >= report_quality: persistent clutter and objects
         behind foliage are followed but not reported.
 
+    Telemetry error (common mode)
+    ---------
+    register_tracks : bool
+        Before gating, move the frame's ground points by the common offset between its confident
+        detections and the confirmed tracks they lie next to (agent.tracking.registration): what
+        per-frame GPS or gimbal jitter puts on every detection of a frame.
+    register_gate_m, register_min_pairs : float, int
+        A detection pairs with a predicted track within this distance (mutual nearest neighbours); a
+        frame needs this many pairs for an offset.
+    heading_smoothing_s : float
+        Time constant of the low-pass heading the image cue compares (image_max_turn_deg): the reported
+        gimbal heading jitters from frame to frame while the camera holds still (0: raw heading).
+
     Other
     -----
     reanchor_m : float
@@ -240,6 +253,10 @@ class TrackerConfig:
     quality_rate: float = 0.1
     report_quality: float = 0.4
     reanchor_m: float = 2000.0
+    register_tracks: bool = True
+    register_gate_m: float = 4.0
+    register_min_pairs: int = 3
+    heading_smoothing_s: float = 0.15
     class_motion: tuple[tuple[str, ClassMotion], ...] = DEFAULT_CLASS_MOTION
     default_motion: ClassMotion = field(default_factory=lambda: ClassMotion(2.0, 10.0, 1.0))
 
@@ -250,7 +267,8 @@ class TrackerConfig:
         unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate"}
         for f in fields(self):
             value = getattr(self, f.name)
-            if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "class_motion", "default_motion",
+            if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "register_tracks", "register_min_pairs",
+                          "class_motion", "default_motion",
                           "pair_max_cost", "exit_margin_px"):
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
@@ -267,7 +285,10 @@ class TrackerConfig:
         if not isinstance(self.exit_margin_px, (int, float)) or not math.isfinite(self.exit_margin_px):
             raise ValueError(f"TrackerConfig.exit_margin_px must be a finite number (< 0: off), "
                              f"got {self.exit_margin_px!r}")
-        for name in ("birth_on_raw", "use_appearance"):
+        if isinstance(self.register_min_pairs, bool) or not isinstance(self.register_min_pairs, int) \
+                or self.register_min_pairs < 1:
+            raise ValueError(f"TrackerConfig.register_min_pairs={self.register_min_pairs!r} must be an integer >= 1")
+        for name in ("birth_on_raw", "use_appearance", "register_tracks"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
         if not self.appearance_ema < 1.0:

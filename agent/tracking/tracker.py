@@ -17,6 +17,7 @@ from agent.tracking.association import associate_ground, associate_iou, frame_de
 from agent.tracking.config import TrackerConfig
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, retire
 from agent.tracking.model import MotionModels, ground_measurement_cov, predict_constant_velocity
+from agent.tracking.registration import track_offset
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon
 
@@ -106,6 +107,10 @@ class GpsTracker:
         self._pose_interval_s = 0.0
         self._heading_rate_deg_s = 0.0
         self._pitch_rate_deg_s = 0.0
+        self._heading_lp: float | None = None
+        #: The common offset (east, north) metres the last frame's ground points were moved by to meet the
+        #: predicted tracks (TrackerConfig.register_tracks), None when none was applied.
+        self.last_offset_en: tuple[float, float] | None = None
 
     # ----------------------------------------------------------------------------- views
     @property
@@ -208,7 +213,7 @@ class GpsTracker:
         else:
             pose_t = t if pose_t is None or not math.isfinite(pose_t) else pose_t
             self._update_rates(pose, pose_t, t)
-            state.heading_now = pose.heading_deg
+            state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
             self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0))
             merge_duplicates(state, t)
@@ -240,6 +245,17 @@ class GpsTracker:
                 c, s = math.cos(delta), math.sin(delta)
                 rel_e, rel_n = rel_e * c + rel_n * s, -rel_e * s + rel_n * c
             dets.z[geo, 0], dets.z[geo, 1] = rel_e + uav_e, rel_n + uav_n
+            self.last_offset_en = None
+            if cfg.register_tracks:
+                act = state.active
+                confirmed = act["confirmed"] & (t - act["t_hit"] <= cfg.max_coast_s)
+                strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
+                if confirmed.sum() >= cfg.register_min_pairs and strong.sum() >= cfg.register_min_pairs:
+                    offset = track_offset(dets.z[strong], act["x"][confirmed, :2], cfg.register_gate_m,
+                                          cfg.register_min_pairs)
+                    if offset is not None:
+                        dets.z[geo] += offset
+                        self.last_offset_en = offset
             rate = abs(self._heading_rate_deg_s)
             heading_sd = math.hypot(cfg.heading_sigma_deg, rate * cfg.timing_sigma_s)
             pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
@@ -285,6 +301,17 @@ class GpsTracker:
             birth(state, dets, cand, t)
         if cfg.reid_delay_s > 0:
             reid.resolve_pending(state, t)
+
+    def _smoothed_heading(self, heading_deg: float, dt: float) -> float:
+        """Low-pass gimbal heading (TrackerConfig.heading_smoothing_s), degrees in [0, 360)."""
+        tau = self.config.heading_smoothing_s
+        prev = self._heading_lp
+        if prev is None or tau <= 0:
+            self._heading_lp = heading_deg
+        else:
+            a = 1.0 - math.exp(-max(dt, 0.0) / tau)
+            self._heading_lp = (prev + a * ((heading_deg - prev + 180.0) % 360.0 - 180.0)) % 360.0
+        return self._heading_lp
 
     def _update_rates(self, pose: Pose, pose_t: float, t: float) -> None:
         """Signed gimbal turn rates (deg/s) from successive distinct poses (telemetry is often
