@@ -1,0 +1,100 @@
+"""Evaluation domains: every domain builds a valid scenario, the split is disjoint, the telemetry defects
+do what they say, and `uavmm eval --domains` runs a grid and reports the held-out split apart."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from shared.geo import latlon_to_local
+from sim.domain_eval import run_domain_eval
+from sim.domains import DOMAINS, HELDOUT_DOMAINS, TUNING_DOMAINS, Domain, domain_table, get_domain, resolve_domains
+from sim.flight import KeyframeFlight
+from sim.noise import TelemetryNoise, TelemetryStream
+
+REPO = Path(__file__).resolve().parents[2]
+
+
+def test_every_domain_builds_and_the_split_is_disjoint() -> None:
+    assert TUNING_DOMAINS and HELDOUT_DOMAINS and not set(TUNING_DOMAINS) & set(HELDOUT_DOMAINS)
+    assert {d.motion for d in DOMAINS.values() if d.split == "heldout"} == {"gentle", "sweeps"}
+    assert {d.fps for d in DOMAINS.values()} >= {24.0, 30.0, 60.0}
+    assert {d.camera for d in DOMAINS.values()} >= {"4k", "1080p-wide", "4k-tele"}
+    for d in DOMAINS.values():
+        sc = d.scenario()
+        assert sc.name == d.name and sc.fps == d.fps and sc.default_frames == d.frames()
+        assert d.frames(full=True) == pytest.approx(5 * d.frames(), abs=1)
+    assert [d.name for d in resolve_domains(["heldout", HELDOUT_DOMAINS[0]])] == list(HELDOUT_DOMAINS)
+    assert "| domain | split |" in domain_table()
+    with pytest.raises(ValueError, match="unknown domain 'nope'"):
+        get_domain("nope")
+    with pytest.raises(ValueError, match="camera"):
+        dataclasses.replace(DOMAINS[TUNING_DOMAINS[0]], camera="8k")
+
+
+def _metas(noise: TelemetryNoise, frames: int, fps: float = 30.0) -> list[dict]:
+    flight = KeyframeFlight([0.0], [10.0], [-20.0], [40.0], [45.0], [30.0])
+    stream = TelemetryStream(noise, flight, np.random.default_rng(3), 48.53, 9.06, 1685613600.0)
+    return [stream.meta(f / fps)[0] for f in range(frames)]
+
+
+def test_gps_decimals_and_altitude_steps_round_the_log() -> None:
+    for meta in _metas(TelemetryNoise(gps_decimals=4, altitude_step_m=0.5), 20):
+        assert round(meta["gps_latitude"], 4) == meta["gps_latitude"]
+        assert round(meta["gps_longitude"], 4) == meta["gps_longitude"]
+        assert math.isclose(meta["altitude"] / 0.5, round(meta["altitude"] / 0.5), abs_tol=1e-6)
+
+
+def test_white_jitter_at_the_frame_rate_changes_every_frame() -> None:
+    base = TelemetryNoise(telemetry_hz=30.0, gps_bias_m=0, gps_jitter_m=0, heading_jitter_deg=0, heading_bias_deg=0)
+    quiet = _metas(base, 30)
+    noisy = _metas(dataclasses.replace(base, white_heading_deg=1.0, white_gps_m=1.0), 30)
+    d_heading = np.diff([m["gimbal_heading"] for m in noisy])
+    assert np.count_nonzero(np.abs(d_heading) > 1e-3) >= 28 and 0.5 < np.std(d_heading) < 3.0
+    assert np.ptp([m["gimbal_heading"] for m in quiet]) < 1e-6
+    e, n = latlon_to_local(np.array([m["gps_latitude"] for m in noisy]), np.array([m["gps_longitude"] for m in noisy]),
+                           48.53, 9.06)
+    assert 0.3 < float(np.std(np.diff(e))) < 3.0
+
+
+def test_defects_off_leave_the_telemetry_as_it_was() -> None:
+    a = _metas(TelemetryNoise(), 40)
+    b = _metas(TelemetryNoise(white_gps_m=0.0, gps_decimals=0, time_offset_drift=0.0), 40)
+    assert a == b
+
+
+def test_a_drifting_offset_grows_with_time() -> None:
+    flight = KeyframeFlight([0.0], [0.0], [0.0], [40.0], [45.0], [0.0])
+    stream = TelemetryStream(TelemetryNoise(time_offset_s=0.1, time_offset_drift=0.02), flight,
+                             np.random.default_rng(0), 48.53, 9.06, 0.0)
+    assert stream.offset_s(0.0) == pytest.approx(0.1) and stream.offset_s(10.0) == pytest.approx(0.3)
+
+
+def test_domain_eval_reports_tuning_and_heldout_apart(tmp_path: Path) -> None:
+    tiny = [dataclasses.replace(DOMAINS[TUNING_DOMAINS[0]], clip_s=0.7),
+            dataclasses.replace(DOMAINS[HELDOUT_DOMAINS[0]], clip_s=0.7)]
+    report = run_domain_eval(tiny, [0], noise_scales=(1.0,), tasks=("detection",), out_dir=tmp_path)
+    assert {s["split"] for s in report["detection"]} == {"tune", "heldout"}
+    row = report["detection"][0]
+    assert {"AP50_baseline", "AP50_ours", "AP50_paper", "gain_ours"} <= set(row)
+    assert any("held-out" in a["criterion"] for a in report["acceptance"])
+    md = (tmp_path / "report.md").read_text()
+    assert "| heldout |" in md and "paper rule" in md
+    assert json.loads((tmp_path / "report.json").read_text())["domains"] == [d.name for d in tiny]
+
+
+def test_cli_lists_domains_and_refuses_unknown_ones() -> None:
+    proc = subprocess.run([sys.executable, "-m", "uavmm", "eval", "--list-domains"], cwd=REPO, capture_output=True,
+                          text=True, timeout=120)
+    assert proc.returncode == 0 and all(name in proc.stdout for name in DOMAINS)
+    proc = subprocess.run([sys.executable, "-m", "uavmm", "eval", "--domains", "nope"], cwd=REPO,
+                          capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "unknown domain 'nope'" in proc.stderr
+    assert isinstance(DOMAINS[TUNING_DOMAINS[0]], Domain)
