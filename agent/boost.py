@@ -8,6 +8,8 @@ from __future__ import annotations
 import dataclasses
 import json
 import logging
+import math
+import statistics
 import time
 from pathlib import Path
 from typing import Any
@@ -91,12 +93,15 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
                  on_frame=None) -> dict[str, Any]:
     """Run the pipeline over every video; on_frame(frame, result) is called per frame.
 
-    Returns counts: frames, frames_without_pose, candidates, size_filtered, detections, seconds.
+    Returns counts: frames, frames_without_pose, candidates, size_filtered, detections, seconds, and the
+    telemetry correction's: frames_corrected (frames whose offset was measured) and correction_median_m
+    (median length of the applied offsets; per frame in FrameResult.correction and the DEBUG log).
     """
     stats = {"frames": 0, "frames_without_pose": 0, "candidates": 0, "size_filtered": 0, "detections": 0}
     problems: list[str] = []
     t0 = time.perf_counter()
     pipeline_time = 0.0
+    corrections: list[float] = []
     for video_id in video_ids if video_ids is not None else list(dataset.videos):
         if video_id not in dataset.videos:
             raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
@@ -113,11 +118,16 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
             stats["candidates"] += result.n_candidates
             stats["size_filtered"] += result.n_size_filtered
             stats["detections"] += len(result)
+            if result.correction is not None:
+                stats["frames_corrected"] = stats.get("frames_corrected", 0) + result.correction.measured
+                corrections.append(math.hypot(result.correction.east_m, result.correction.north_m))
             if on_frame is not None:
                 on_frame(frame, result)
     if problems:
         log.warning("%d frame(s) had unusable meta and were not boosted; first: %s", len(problems), problems[0])
     stats["frames_with_bad_meta"] = len(problems)
+    if corrections:
+        stats["correction_median_m"] = round(statistics.median(corrections), 3)
     stats["seconds"] = round(time.perf_counter() - t0, 3)
     stats["pipeline_ms_per_frame"] = round(1000 * pipeline_time / max(stats["frames"], 1), 3)
     return stats
