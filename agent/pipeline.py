@@ -5,6 +5,7 @@ Arrays in, arrays out: the same code serves `uavmm boost`, the tracker and the l
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 
@@ -140,6 +141,10 @@ class DetectionPipeline:
                              correction=correction)
         if (self.joint is not None and cfg.use_memory and cfg.joint_detections and cfg.joint_mode != "local"
                 and pose is not None):
+            if correction is not None and (correction.east_m or correction.north_m):
+                # the maps hold corrected ground points: project them with the pose moved the same way
+                lat_c, lon_c = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
+                pose = dataclasses.replace(pose, lat=float(lat_c), lon=float(lon_c))
             result = self._with_joint_detections(result, pose, t)
         return result
 
