@@ -108,6 +108,7 @@ class GpsTracker:
         self._heading_rate_deg_s = 0.0
         self._pitch_rate_deg_s = 0.0
         self._heading_lp: float | None = None
+        self._heading_lp_rate_deg_s = 0.0  # turn rate of the low-pass heading (quiet under per-frame jitter)
         #: The common offset (east, north) metres the last frame's ground points were moved by to meet the
         #: predicted tracks (TrackerConfig.register_tracks), None when none was applied.
         self.last_offset_en: tuple[float, float] | None = None
@@ -246,7 +247,8 @@ class GpsTracker:
                 rel_e, rel_n = rel_e * c + rel_n * s, -rel_e * s + rel_n * c
             dets.z[geo, 0], dets.z[geo, 1] = rel_e + uav_e, rel_n + uav_n
             self.last_offset_en = None
-            if cfg.register_tracks:
+            # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
+            if cfg.register_tracks and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
                 act = state.active
                 confirmed = act["confirmed"] & (t - act["t_hit"] <= cfg.max_coast_s)
                 strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
@@ -310,7 +312,10 @@ class GpsTracker:
             self._heading_lp = heading_deg
         else:
             a = 1.0 - math.exp(-max(dt, 0.0) / tau)
-            self._heading_lp = (prev + a * ((heading_deg - prev + 180.0) % 360.0 - 180.0)) % 360.0
+            step = a * ((heading_deg - prev + 180.0) % 360.0 - 180.0)
+            self._heading_lp = (prev + step) % 360.0
+            if dt > 0:
+                self._heading_lp_rate_deg_s = step / dt
         return self._heading_lp
 
     def _update_rates(self, pose: Pose, pose_t: float, t: float) -> None:

@@ -40,7 +40,7 @@ def test_the_tracker_removes_a_per_frame_common_offset_before_gating() -> None:
     east, north = (np.array(v) for v in zip(*people, strict=True))
     pose = pose_at()
     rng = np.random.default_rng(5)
-    tracker = GpsTracker(TrackerConfig(), CLASSES)
+    tracker = GpsTracker(TrackerConfig(register_tracks=True), CLASSES)  # off by default
     ids: list[set[int]] = [set() for _ in people]
     residual = []
     for k in range(90):
