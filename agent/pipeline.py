@@ -153,11 +153,10 @@ class DetectionPipeline:
         cfg = self.config
         if not (cfg.use_memory and cfg.calibrate_scores):
             return None
-        cal = self.__dict__.get("_score_calibration")
-        settings = cfg.calibration_settings()
-        if cal is None or cal.settings != settings:
-            cal = self.__dict__["_score_calibration"] = ScoreCalibration(settings)
-        return cal
+        cached = self.__dict__.get("_score_calibration")
+        if cached is None or cached[0] is not cfg:  # rebuilt when the config object changes
+            cached = self.__dict__["_score_calibration"] = (cfg, ScoreCalibration(cfg.calibration_settings()))
+        return cached[1]
 
     def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float) -> FrameResult:
         """The frame's detections plus the joint map's (agent.joint_detections)."""
@@ -255,17 +254,18 @@ class DetectionPipeline:
         cfg = self.config
         if not cfg.correct_telemetry:
             return None
-        est = self.__dict__.get("_corrector")
-        if est is None or est.settings != cfg.correction_settings():
-            est = self.__dict__["_corrector"] = GroundOffsetEstimator(cfg.correction_settings())
+        cached = self.__dict__.get("_corrector")
+        if cached is None or cached[0] is not cfg:  # rebuilt when the config object changes
+            cached = self.__dict__["_corrector"] = (cfg, GroundOffsetEstimator(cfg.correction_settings()))
+        est = cached[1]
         s = est.settings
         c = conf[idx]
         strong = np.flatnonzero(c >= s.min_score)
         measurement = None
         support = 0.0
         if len(strong) >= s.min_points and self.memory.classes:
-            if len(strong) > s.max_points:
-                strong = strong[np.argsort(-c[strong], kind="stable")[:s.max_points]]
+            if len(strong) > s.max_points:  # the most confident ones (argpartition: linear time)
+                strong = strong[np.argpartition(-c[strong], s.max_points - 1)[:s.max_points]]
             cell_m = self.memory.cell_m
             # the offset is searched within search_m of the raw telemetry: bounded, it cannot run away
             sx, sy = gx[strong], gy[strong]

@@ -78,19 +78,20 @@ def register_offset(patches: NDArray[np.float32], weights: NDArray) -> tuple[flo
     centre of the top region, not its first maximum), in cells, and support = best summed evidence /
     sum of weights. (0, 0, 0) without evidence.
     """
-    w = np.asarray(weights, dtype=np.float32).reshape(-1, 1, 1)
+    w = np.asarray(weights, dtype=np.float32).reshape(-1)
     total = float(w.sum())
     if not len(patches) or total <= 0:
         return 0.0, 0.0, 0.0
-    score = (patches * w).sum(axis=0)
+    score = np.tensordot(w, patches, axes=1)  # (2R+1, 2R+1)
     best = float(score.max())
     if best <= 0:
         return 0.0, 0.0, 0.0
     r = score.shape[0] // 2
-    top = np.clip(score - 0.95 * best, 0.0, None)
-    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+    top = score - np.float32(0.95 * best)
+    np.maximum(top, 0.0, out=top)
+    offsets = np.arange(-r, r + 1, dtype=np.float32)
     mass = float(top.sum())
-    return float((top * xs).sum() / mass), float((top * ys).sum() / mass), best / total
+    return float(top.sum(axis=0) @ offsets / mass), float(top.sum(axis=1) @ offsets / mass), best / total
 
 
 class GroundOffsetEstimator:
