@@ -127,6 +127,24 @@ def evaluate_detection(data_dir: Path, variants: Iterable[Variant], *,
     return out
 
 
+#: Offset of the seed whose flight the fitted size filter is learnt from (never the scored flight).
+FIT_SEED_OFFSET = 1000
+
+
+def evaluate_fitted_filter(scenario: str, seed: int, frames: int | None, noise_scale: float, cache_dir: Path,
+                           data_dir: Path) -> dict[str, dict[str, Any]]:
+    """Baseline and memory map with the size filter fitted (`uavmm fit-size-filter`, `uavmm tune`) on another
+    flight of the scenario (seed + FIT_SEED_OFFSET), scored on ``data_dir``: rows of `evaluate_detection`."""
+    from agent.size_filter_fit import fit_from_dataset
+
+    fit_dir = ensure_dataset(scenario, seed + FIT_SEED_OFFSET, frames, noise_scale, cache_dir)
+    fitted, _ = fit_from_dataset(fit_dir / "images.json", fit_dir / "camera.json")
+    base = PipelineConfig()
+    variants = [Variant("baseline, fitted size filter", dataclasses.replace(base, use_memory=False)),
+                Variant("memory map, fitted size filter", base)]
+    return evaluate_detection(data_dir, variants, size_filter=fitted)
+
+
 def size_filter_table(data_dir: Path, config: PipelineConfig | None = None,
                       size_filter: SizeFilter | None = None) -> dict[str, int]:
     """The paper's Table I: candidates the size filter removes, split into true and false positives.
@@ -197,6 +215,9 @@ def run_eval(scenarios: list[str], seeds: list[int], *, frames: int | None = Non
         vs = variants if noise == 1.0 else default_variants()
         for name, m in evaluate_detection(data_dir, vs).items():
             rows.append({"scenario": scenario, "seed": seed, "noise_scale": noise, "variant": name, **m})
+        if noise == 1.0:  # the size filter `uavmm tune` fits, from another flight of the scenario
+            for name, m in evaluate_fitted_filter(scenario, seed, frames, noise, cache, data_dir).items():
+                rows.append({"scenario": scenario, "seed": seed, "noise_scale": noise, "variant": name, **m})
         if noise == noise_scales[0]:
             table = size_filter[scenario] = size_filter.get(scenario, {})
             for k, v in size_filter_table(data_dir).items():
