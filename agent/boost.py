@@ -144,17 +144,49 @@ def results_to_coco(image_id: int, result: FrameResult) -> list[dict[str, Any]]:
     ]
 
 
+#: Columns of `uavmm boost --corrections-out`: the telemetry correction applied to each frame.
+CORRECTION_COLUMNS = ("image_id", "video_id", "frame_index", "east_m", "north_m", "measured", "points", "support")
+
+
 def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path,
-                  config: PipelineConfig, size_filter: SizeFilter | None = None) -> tuple[list[dict], dict]:
-    """Load the three files, run, and return (COCO results, stats)."""
+                  config: PipelineConfig, size_filter: SizeFilter | None = None, *,
+                  corrections: list[tuple] | None = None) -> tuple[list[dict], dict]:
+    """Load the three files, run, and return (COCO results, stats).
+
+    corrections: when a list, one row per frame is appended (CORRECTION_COLUMNS; a frame without pose
+    or correction gets zeros and measured False).
+    """
     dataset = Dataset.load(images_path)
     candidates = Candidates.load(candidates_path, dataset)
     camera = Camera.from_spec(camera_path)
     results: list[dict[str, Any]] = []
-    stats = run_pipeline(dataset, candidates, camera, config, size_filter,
-                         on_frame=lambda frame, res: results.extend(results_to_coco(frame.image.id, res)))
+
+    def on_frame(frame, res: FrameResult) -> None:
+        results.extend(results_to_coco(frame.image.id, res))
+        if corrections is not None:
+            c = res.correction
+            corrections.append((frame.image.id, frame.image.video_id, frame.image.frame_index,
+                                round(c.east_m, 3) if c else 0.0, round(c.north_m, 3) if c else 0.0,
+                                bool(c and c.measured), c.points if c else 0, round(c.support, 4) if c else 0.0))
+
+    stats = run_pipeline(dataset, candidates, camera, config, size_filter, on_frame=on_frame)
     stats["skipped_candidates"] = candidates.skipped
     return results, stats
+
+
+def write_corrections(rows: list[tuple], out_path: str | Path) -> None:
+    """The per-frame telemetry corrections as CSV (CORRECTION_COLUMNS), written atomically."""
+    import csv
+    import io
+
+    buffer = io.StringIO()
+    writer = csv.writer(buffer)
+    writer.writerow(CORRECTION_COLUMNS)
+    writer.writerows(rows)
+    out_path = Path(out_path)
+    tmp = out_path.with_name(out_path.name + ".tmp")
+    tmp.write_text(buffer.getvalue())
+    tmp.replace(out_path)
 
 
 def write_results(results: list[dict[str, Any]], out_path: str | Path) -> None:

@@ -178,18 +178,26 @@ def _add_boost(sub: argparse._SubParsersAction) -> None:
                    help="CAMERA.json (width, height, fx, fy, cx, cy) or a camera preset's name")
     p.add_argument("--out", type=Path, required=True, help="RESULTS.json to write")
     p.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting")
+    p.add_argument("--corrections-out", type=Path, default=None, metavar="FILE.csv",
+                   help="write the telemetry correction applied to each frame (east/north metres, measured or "
+                        "held) as CSV")
     _add_pipeline_options(p)
     p.set_defaults(handler=_run_boost)
 
 
 def _run_boost(args: argparse.Namespace) -> int:
-    from agent.boost import boost_dataset, write_results
+    from agent.boost import boost_dataset, write_corrections, write_results
 
     cfg, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
-    if not args.out.parent.is_dir():  # before the run, not after it
-        raise CliError(f"output directory {args.out.parent} does not exist (for {args.out})")
-    results, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter)
+    for path in (args.out, args.corrections_out):
+        if path is not None and not path.parent.is_dir():  # before the run, not after it
+            raise CliError(f"output directory {path.parent} does not exist (for {path})")
+    corrections: list[tuple] | None = [] if args.corrections_out is not None else None
+    results, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter,
+                                   corrections=corrections)
     write_results(results, args.out)
+    if corrections is not None:
+        write_corrections(corrections, args.corrections_out)
     print(f"wrote {len(results)} detections to {args.out}: " + ", ".join(f"{k}={v}" for k, v in stats.items()))
     return 0
 

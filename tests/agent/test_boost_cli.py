@@ -190,3 +190,17 @@ def test_a_missing_output_folder_is_named_before_the_run(tmp_path, capsys):
                  "--camera", str(d / "camera.json"), "--out", str(d / "no" / "such" / "r.json")]) == 2
     err = capsys.readouterr().err
     assert f"output directory {d / 'no' / 'such'} does not exist" in err and ".tmp" not in err
+
+
+def test_boost_writes_the_per_frame_telemetry_correction(tmp_path):
+    import csv
+
+    d = make_dataset(tmp_path, frames=20)
+    out = d / "corrections.csv"
+    assert run_boost(d, "--corrections-out", str(out)) == 0
+    rows = list(csv.DictReader(out.open()))
+    assert [int(r["image_id"]) for r in rows] == list(range(1, 21))
+    assert set(rows[0]) == {"image_id", "video_id", "frame_index", "east_m", "north_m", "measured", "points", "support"}
+    # a steady scene with exact telemetry: whatever is applied stays small
+    assert all(abs(float(r["east_m"])) < 1.0 and abs(float(r["north_m"])) < 1.0 for r in rows)
+    assert run_boost(d, "--corrections-out", str(d / "missing" / "c.csv")) == 2
