@@ -251,12 +251,15 @@ class AgentNode:
         Called after each frame with (frame, pipeline result, tracks): for tests and tools.
     on_ready : callable, optional
         Called with the node once Zenoh is open and the start-up joint query answered.
+    anomaly : agent.anomaly.AnomalyDetector, optional
+        Also run anomaly detection on the frames' pixels and publish its ground layer as tiles of class
+        ``anomaly`` (docs/anomaly.md); frames without pixels are skipped.
     """
 
     def __init__(self, settings: AgentSettings, source: FrameSource, pipeline_config: PipelineConfig | None = None,
                  size_filter: SizeFilter | None = None, tracker_config: TrackerConfig | None = None, *,
                  on_frame: Callable[[SourceFrame, FrameResult, list[TrackOutput]], None] | None = None,
-                 on_ready: Callable[[AgentNode], None] | None = None) -> None:
+                 on_ready: Callable[[AgentNode], None] | None = None, anomaly: Any | None = None) -> None:
         self.settings = settings
         self.source = source
         grid = settings.grid
@@ -270,6 +273,10 @@ class AgentNode:
         self.tiles = TileChangeTracker(settings.uav_id, list(dict.fromkeys(source.class_names.values())), grid,
                                        refresh_s=settings.refresh_s, min_value=settings.tile_min_value,
                                        budget_bytes_per_s=settings.tile_budget_bytes_per_s)
+        self.anomaly = anomaly
+        self.anomaly_tiles = None if anomaly is None else TileChangeTracker(
+            settings.uav_id, ["anomaly"], grid, refresh_s=settings.refresh_s, min_value=settings.tile_min_value,
+            budget_bytes_per_s=settings.tile_budget_bytes_per_s)
         self.adopter = GlobalIdAdopter(settings.uav_id, gate_m=settings.gid_gate_m, window_s=settings.gid_window_s)
         self.on_frame = on_frame
         self.on_ready = on_ready
@@ -393,6 +400,9 @@ class AgentNode:
         if frame.image is not None:  # appearance of the kept boxes for re-ID (docs/agent.md)
             result = with_image_descriptors(result, frame.image)
         tracks = self.tracker.update(result, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t)
+        if self.anomaly is not None and frame.image is not None:
+            self.anomaly.process(frame.image, frame.pose, frame.t, frame.camera)
+            self.counts["anomaly_frames"] = self.counts.get("anomaly_frames", 0) + 1
         self._tracks = tracks
         self._t_frame = frame.t
         if frame.pose is not None:
@@ -452,6 +462,9 @@ class AgentNode:
                                        window_tiles(memory.origin, memory.size_cells, memory.grid.n, margin=0))
         for cls, x, y, payload in self.tiles.messages(memory, t):
             messages.append(("tile", self.link.tile_key(cls, x, y), payload))
+        if self.anomaly_tiles is not None and self.anomaly is not None:
+            for cls, x, y, payload in self.anomaly_tiles.messages(self.anomaly.map, t):
+                messages.append(("tile", self.link.tile_key(cls, x, y), payload))
         if self._last_pose is not None:
             t_pose, pose, camera = self._last_pose
             state = state_message(s.uav_id, t_pose, pose, camera, range_m=self.pipeline.config.range_limit_m,

@@ -22,6 +22,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "tracker": "benchmarks.bench_tracker",
     "hostile": "benchmarks.bench_hostile",
     "render": "benchmarks.bench_render",
+    "anomaly": "benchmarks.bench_anomaly",
 }
 
 

@@ -84,7 +84,23 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "ids of --dataset, frame indices otherwise; score it like `uavmm boost` output")
     _add_pipeline_options(p, config_flag="--pipeline-config", joint_mode=True)
     p.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting at all")
+    p.add_argument("--anomaly", metavar="METHOD", default=None,
+                   help="also run anomaly detection on the frames' pixels (autoencoder, diff, mean, median, mog2) "
+                        "and publish its ground layer as tiles of class 'anomaly' (--video, or --dataset with "
+                        "image files; docs/anomaly.md)")
     p.set_defaults(handler=_run_agent)
+
+
+def anomaly_from_args(args: argparse.Namespace):
+    """The anomaly detector --anomaly asks for, or None; ValueError for an unknown method or a source without
+    pixels."""
+    if args.anomaly is None:
+        return None
+    if args.sim is not None:
+        raise ValueError("--anomaly needs the frames' pixels: use --video or --dataset with rendered images")
+    from agent.anomaly import AnomalyConfig, AnomalyDetector
+
+    return AnomalyDetector(AnomalyConfig(method=args.anomaly))
 
 
 def source_from_args(args: argparse.Namespace):
@@ -165,6 +181,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     if problem is not None:
         raise ValueError(problem)
     pipeline_config, size_filter = pipeline_from_args(args)
+    anomaly = anomaly_from_args(args)
     source = source_from_args(args)
     stop = threading.Event()
 
@@ -184,7 +201,7 @@ def _run_agent(args: argparse.Namespace) -> int:
         sys.stdout.write(f"uavmm agent: {settings.uav_id} up: {source.name}, zenoh {mode} {where}\n")
         sys.stdout.flush()
 
-    node = AgentNode(settings, source, pipeline_config, size_filter, on_ready=on_ready)
+    node = AgentNode(settings, source, pipeline_config, size_filter, on_ready=on_ready, anomaly=anomaly)
     summary = node.run(stop)
     sys.stdout.write("uavmm agent: summary " + json.dumps(summary, sort_keys=True) + "\n")
     sys.stdout.flush()

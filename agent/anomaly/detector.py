@@ -1,0 +1,149 @@
+"""Anomaly detection per frame: heatmap method -> (optionally) the ground memory layer -> regions of interest.
+
+`AnomalyDetector.process(image, pose, t, camera)` runs the chosen heatmap method, cuts the pixels above the
+horizon and beyond the range limit, adds the heatmap to the anomaly layer (`agent.anomaly.ground`) and reads
+the layer back into the frame; with ``use_memory=False`` the frame's own heatmap is used (the per-frame
+baseline). Regions of interest are the connected components of the score image above a threshold, as image
+boxes with the component's peak score.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import cv2
+import numpy as np
+from numpy.typing import NDArray
+from scipy import ndimage
+
+from agent.anomaly.ground import AnomalyMap, AnomalyMapConfig, cut_row
+from agent.anomaly.methods import DEFAULT_METHOD, AnomalyMethod, make_method
+from shared.geo import Camera, Pose, image_to_ground_homography, latlon_to_local
+from shared.tiles import TileGrid
+
+
+@dataclass(frozen=True, slots=True)
+class AnomalyConfig:
+    """What `AnomalyDetector` runs.
+
+    method: a heatmap method name (`agent.anomaly.methods.ANOMALY_METHODS`); method_options its keyword options.
+    use_memory: aggregate on the ground (True) or use each frame's heatmap alone (the baseline).
+    map: the anomaly layer's parameters.
+    roi_threshold: score a pixel needs to belong to a region of interest.
+    max_rois: regions kept per frame (highest peaks first).
+    roi_dilate_px: regions closer than this (working pixels) merge.
+    """
+
+    method: str = DEFAULT_METHOD
+    method_options: dict[str, Any] = field(default_factory=dict)
+    use_memory: bool = True
+    map: AnomalyMapConfig = field(default_factory=AnomalyMapConfig)
+    roi_threshold: float = 0.3
+    max_rois: int = 100
+    roi_dilate_px: int = 2
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.roi_threshold) and 0 < self.roi_threshold < 1):
+            raise ValueError(f"AnomalyConfig.roi_threshold must be in (0, 1), got {self.roi_threshold!r}")
+        if self.max_rois < 1:
+            raise ValueError(f"AnomalyConfig.max_rois must be >= 1, got {self.max_rois!r}")
+        if self.roi_dilate_px < 0:
+            raise ValueError(f"AnomalyConfig.roi_dilate_px must be >= 0, got {self.roi_dilate_px!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class AnomalyFrame:
+    """One frame's outcome.
+
+    scores: (h, w) float32 in [0, 1] at the method's working scale: the per-frame heatmap (baseline) or the
+        memory layer seen from the frame, 0 above the cut row.
+    boxes_xyxy: (N, 4) float32 regions of interest in full-resolution pixels; roi_scores (N,) their peaks.
+    heat: the method's own heatmap of the frame (before the cut).
+    cut_row: first full-resolution row mapped to the ground (0 without a pose in baseline mode).
+    """
+
+    scores: NDArray[np.float32]
+    boxes_xyxy: NDArray[np.float32]
+    roi_scores: NDArray[np.float32]
+    heat: NDArray[np.float32]
+    cut_row: int
+
+
+def extract_rois(scores: NDArray[np.float32], threshold: float, *, max_rois: int = 100, dilate_px: int = 2,
+                 full_size: tuple[int, int] | None = None) -> tuple[NDArray[np.float32], NDArray[np.float32]]:
+    """Regions of interest of a score image: connected components (8-neighbour) of ``scores >= threshold``
+    (dilated by dilate_px so near pixels merge), highest peak first.
+
+    scores: (h, w) float32. full_size: (width, height) of the frame the boxes are for (default the score
+    image's). Returns boxes (N, 4) float32 xyxy in that frame's pixels and their peak scores (N,) float32.
+    """
+    mask = (scores >= threshold).astype(np.uint8)
+    if dilate_px > 0 and mask.any():
+        mask = cv2.dilate(mask, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+    n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
+    if n <= 1:
+        return np.zeros((0, 4), np.float32), np.zeros(0, np.float32)
+    peaks = np.asarray(ndimage.maximum(scores, labels, np.arange(1, n)), dtype=np.float32)
+    order = np.argsort(-peaks, kind="stable")[:max_rois]
+    st = stats[1:][order].astype(np.float32)
+    boxes = np.column_stack([st[:, 0], st[:, 1], st[:, 0] + st[:, 2], st[:, 1] + st[:, 3]])
+    if full_size is not None:
+        boxes *= np.array([full_size[0] / scores.shape[1], full_size[1] / scores.shape[0]] * 2, dtype=np.float32)
+    return boxes.astype(np.float32), peaks[order]
+
+
+class AnomalyDetector:
+    """Heatmaps, the ground layer and regions of interest for a sequence of frames (one video).
+
+    Parameters
+    ----------
+    config : AnomalyConfig, optional
+    method : AnomalyMethod, optional
+        A ready method (default: built from config.method and config.method_options).
+    grid : TileGrid, optional
+        The shared tile grid of the anomaly layer.
+    """
+
+    def __init__(self, config: AnomalyConfig | None = None, method: AnomalyMethod | None = None,
+                 grid: TileGrid | None = None) -> None:
+        self.config = config or AnomalyConfig()
+        self.method = method if method is not None else make_method(self.config.method, **self.config.method_options)
+        self.map = AnomalyMap(self.config.map, grid)
+        self._ref: tuple[float, float] | None = None
+
+    def reset(self) -> None:
+        """A new video: forget the previous frames and the layer."""
+        self.method.reset()
+        self.map.reset()
+        self._ref = None
+
+    def image_to_world(self, camera: Camera, pose: Pose) -> NDArray[np.float64]:
+        """(3, 3) homography from full-resolution pixels to metres east/north of the sequence's first pose."""
+        if self._ref is None:
+            self._ref = (pose.lat, pose.lon)
+        east, north = latlon_to_local(pose.lat, pose.lon, *self._ref)
+        shift = np.array([[1.0, 0.0, float(east)], [0.0, 1.0, float(north)], [0.0, 0.0, 1.0]])
+        return shift @ image_to_ground_homography(camera, pose)
+
+    def process(self, image: NDArray[np.uint8], pose: Pose | None, t: float, camera: Camera) -> AnomalyFrame:
+        """One frame: (H, W, 3) uint8 BGR with its pose (None: no ground help) at time t (s)."""
+        if (image.shape[1], image.shape[0]) != (camera.width, camera.height):
+            raise ValueError(f"frame is {image.shape[1]}x{image.shape[0]} but the camera is "
+                             f"{camera.width}x{camera.height}")
+        g = self.image_to_world(camera, pose) if pose is not None else None
+        heat = self.method.heatmap(image, g)
+        cfg = self.config
+        row = 0
+        if pose is not None:
+            row = cut_row(camera, pose, cfg.map.max_range_m, cfg.map.horizon_margin_deg)
+        if pose is not None and cfg.use_memory:
+            self.map.update(heat, camera, pose, t)
+            scores = self.map.image_scores(camera, pose, heat.shape)
+        else:
+            scores = heat.copy()
+            scores[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0
+        boxes, peaks = extract_rois(scores, cfg.roi_threshold, max_rois=cfg.max_rois, dilate_px=cfg.roi_dilate_px,
+                                    full_size=(camera.width, camera.height))
+        return AnomalyFrame(scores, boxes, peaks, heat, row)

@@ -1,0 +1,111 @@
+"""Frames for `uavmm anomaly`: the images of a dataset (images.json) or a video with its telemetry, each with
+its pose, time and camera; no detector involved. Bad input raises ValueError with one line naming it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from numpy.typing import NDArray
+
+from shared.geo import Camera, Pose
+from shared.telemetry import interpolate
+
+
+@dataclass(frozen=True, slots=True, eq=False)
+class AnomalyInput:
+    """One frame: image_id (COCO id; the frame index for videos), video (id or 0), its BGR pixels, time (s),
+    pose (None without telemetry) and the camera fitted to its size."""
+
+    image_id: int
+    video: int
+    image: NDArray[np.uint8]
+    t: float
+    pose: Pose | None
+    camera: Camera
+
+
+def dataset_frames(images_json: str | Path, camera: Camera) -> Iterator[AnomalyInput]:
+    """Every image of a COCO/SeaDronesSee images.json, video by video in frame order; the image files are read
+    relative to the file's folder. ValueError when one is missing or unreadable."""
+    from agent.dataset import Dataset, image_file, iter_video_frames, read_image
+
+    path = Path(images_json)
+    ds = Dataset.load(path)
+    for video_id in ds.videos:
+        for frame in iter_video_frames(ds, camera, video_id):
+            pixels = read_image(path.parent, frame.image)
+            if pixels is None:
+                where = image_file(path.parent, frame.image) or frame.image.file_name
+                raise ValueError(f"image {frame.image.id} ({where}) is missing or cannot be read")
+            if (pixels.shape[1], pixels.shape[0]) != (frame.camera.width, frame.camera.height):
+                raise ValueError(f"image {frame.image.id} is {pixels.shape[1]}x{pixels.shape[0]} but images.json "
+                                 f"says {frame.camera.width}x{frame.camera.height}")
+            yield AnomalyInput(frame.image.id, video_id, pixels, frame.t, frame.pose, frame.camera)
+
+
+class VideoFrames:
+    """A video file (OpenCV) with its telemetry (``.srt``, ``.csv``, SeaDronesSee ``.json``) interpolated to the
+    frame times; frame i is at the first record's time + i / fps (or ``telemetry_offset_s`` + i / fps).
+
+    Checked at construction, each a one-line ValueError: the video opens and has frames, the camera's aspect
+    matches the frames, and the telemetry covers the video's duration (within ``max_gap_s``).
+    """
+
+    def __init__(self, video: str | Path, telemetry: str | Path, camera: Camera, *,
+                 telemetry_offset_s: float | None = None, max_gap_s: float = 1.0,
+                 height_m: float | None = None) -> None:
+        import cv2
+
+        from agent.sources import load_video_telemetry
+
+        for what, p in (("video", video), ("telemetry", telemetry)):
+            if not Path(p).is_file():
+                raise ValueError(f"{what} file {p} does not exist")
+        self.path = Path(video)
+        capture = cv2.VideoCapture(str(self.path))
+        ok, first = capture.read() if capture.isOpened() else (False, None)
+        fps = float(capture.get(cv2.CAP_PROP_FPS)) if capture.isOpened() else 0.0
+        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
+        capture.release()
+        if not ok or first is None:
+            raise ValueError(f"video file {self.path} cannot be read by OpenCV (not a video, or no frames)")
+        self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
+        self.camera = camera.fitted_to(first.shape[1], first.shape[0], source=f"the frames of {self.path}")
+        self.records = sorted(load_video_telemetry(telemetry, height_m=height_m), key=lambda r: r.t)
+        self.height_m = height_m
+        self.offset_s = self.records[0].t if telemetry_offset_s is None else float(telemetry_offset_s)
+        self.max_gap_s = float(max_gap_s)
+        duration = max(count - 1, 0) / self.fps
+        t0, t1 = self.records[0].t, self.records[-1].t
+        if self.offset_s < t0 - max_gap_s or self.offset_s + duration > t1 + max_gap_s:
+            raise ValueError(f"telemetry {telemetry} covers {t1 - t0:.1f} s ({t0 - self.offset_s:+.1f} s .. "
+                             f"{t1 - self.offset_s:+.1f} s of video time) but the video {self.path.name} lasts "
+                             f"{duration:.1f} s: give the telemetry file recorded with it")
+
+    def __iter__(self) -> Iterator[AnomalyInput]:
+        import cv2
+
+        capture = cv2.VideoCapture(str(self.path))
+        try:
+            index = 0
+            while True:
+                ok, image = capture.read()
+                if not ok:
+                    break
+                t = self.offset_s + index / self.fps
+                tel = interpolate(self.records, np.array([t]), extrapolate_s=self.max_gap_s)[0]
+                pose = None
+                if tel is not None:
+                    try:
+                        pose = tel.to_pose(height_m=self.height_m)
+                    except ValueError:
+                        pose = None
+                yield AnomalyInput(index, 0, image, t, pose, self.camera)
+                index += 1
+        finally:
+            capture.release()

@@ -1,0 +1,124 @@
+"""`uavmm eval --tasks anomaly`: the paper's anomaly protocol (section IV-C, Table III) on rendered datasets.
+
+For each frame a method gives a score image (the per-frame heatmap, or the memory layer read back into the
+frame); flagging its highest-scoring pixels until a fraction p of the image is flagged (the "broadcasting
+rate": the share of the frame a UAV would transmit), an annotated object is found when one of its box's
+pixels is flagged. R@p is the share of objects found over all frames; AR averages R@p over `RATES`. Both
+modes use the same pixels below the horizon cut, so the only difference is the ground aggregation.
+Parameters are chosen on tuning seeds and reported on held-out seeds (docs/anomaly.md).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.anomaly import AnomalyConfig, AnomalyDetector
+from agent.dataset import Dataset, iter_video_frames, read_image
+from shared.geo import Camera
+
+#: Broadcasting rates (fraction of the image flagged) averaged into AR.
+RATES = (0.01, 0.02, 0.05, 0.10, 0.20)
+#: Image size the evaluation renders its scenes at (objects of 4-20 pixels, like SeaDronesSee at 4K / 3).
+EVAL_IMAGE_SIZE = (1280, 720)
+MODES = ("frame", "memory")
+
+
+def frame_hits(scores: NDArray[np.float32], boxes_xywh: NDArray[np.float64], full_size: tuple[int, int],
+               rates: Sequence[float] = RATES) -> NDArray[np.bool_]:
+    """Which objects are found at each broadcasting rate: (len(rates), N) bool.
+
+    scores: (h, w) score image at any scale of the frame (full_size = (width, height)); boxes_xywh (N, 4) in
+    full-resolution pixels. At rate p the ceil(p h w) highest pixels are flagged (ties at the threshold are
+    flagged too; zero scores never are); an object is found when the maximum over its box (grown to whole
+    pixels of the score image) is flagged.
+    """
+    h, w = scores.shape
+    out = np.zeros((len(rates), len(boxes_xywh)), dtype=bool)
+    if len(boxes_xywh) == 0:
+        return out
+    flat = np.sort(scores.ravel())[::-1]
+    sx, sy = w / full_size[0], h / full_size[1]
+    peaks = np.empty(len(boxes_xywh), dtype=np.float32)
+    for i, (x, y, bw, bh) in enumerate(boxes_xywh):
+        c0, r0 = max(int(math.floor(x * sx)), 0), max(int(math.floor(y * sy)), 0)
+        c1, r1 = min(int(math.ceil((x + bw) * sx)), w), min(int(math.ceil((y + bh) * sy)), h)
+        peaks[i] = scores[r0:max(r1, r0 + 1), c0:max(c1, c0 + 1)].max() if c1 > c0 and r1 > r0 else 0.0
+    for j, p in enumerate(rates):
+        k = min(max(int(math.ceil(p * h * w)), 1), flat.size)
+        thr = max(float(flat[k - 1]), np.finfo(np.float32).tiny)
+        out[j] = peaks >= thr
+    return out
+
+
+def evaluate_dataset(directory: str | Path, config: AnomalyConfig, *, rates: Sequence[float] = RATES,
+                     every: int = 1) -> dict[str, Any]:
+    """Run one method over every video of a rendered dataset; both modes from the same heatmaps.
+
+    Returns ``{"objects": N, "frames": F, "fps": heatmap+map frames per second, "frame": {"hits": [per rate]},
+    "memory": {...}}`` where hits count found objects; objects are scored on every ``every``-th frame (the
+    heatmaps and the layer still see every frame).
+    """
+    directory = Path(directory)
+    ds = Dataset.load(directory / "images.json")
+    camera = Camera.from_file(directory / "camera.json")
+    by_image: dict[int, list[list[float]]] = {}
+    coco = json.loads((directory / "images.json").read_text())
+    for a in coco["annotations"]:
+        by_image.setdefault(int(a["image_id"]), []).append(a["bbox"])
+    hits = {m: np.zeros(len(rates), dtype=np.int64) for m in MODES}
+    objects = frames = 0
+    busy = 0.0
+    detector = AnomalyDetector(config)
+    for video_id in ds.videos:
+        detector.reset()
+        for i, frame in enumerate(iter_video_frames(ds, camera, video_id)):
+            image = read_image(directory, frame.image)
+            if image is None:
+                raise ValueError(f"{directory}: image file of image {frame.image.id} is missing (render the dataset)")
+            t0 = time.perf_counter()
+            result = detector.process(image, frame.pose, frame.t, frame.camera)
+            busy += time.perf_counter() - t0
+            frames += 1
+            boxes = by_image.get(frame.image.id)
+            if not boxes or i % every:
+                continue
+            arr = np.asarray(boxes, dtype=np.float64)
+            objects += len(arr)
+            per_frame = result.heat.copy()
+            per_frame[:int(math.ceil(result.cut_row * per_frame.shape[0] / camera.height))] = 0.0
+            size = (frame.camera.width, frame.camera.height)
+            hits["frame"] += frame_hits(per_frame, arr, size, rates).sum(axis=1)
+            memory = result.scores if frame.pose is not None else per_frame
+            hits["memory"] += frame_hits(memory, arr, size, rates).sum(axis=1)
+    return {"objects": objects, "frames": frames, "fps": round(frames / busy, 2) if busy > 0 else None,
+            **{m: {"hits": hits[m].tolist()} for m in MODES}}
+
+
+def summarise(results: Sequence[dict[str, Any]], rates: Sequence[float] = RATES) -> dict[str, Any]:
+    """Mean over datasets (seeds) of AR and R@5% per mode, in percent, with the per-seed values."""
+    out: dict[str, Any] = {}
+    i5 = list(rates).index(0.05) if 0.05 in rates else None
+    for m in MODES:
+        ars, r5s = [], []
+        for r in results:
+            rec = np.asarray(r[m]["hits"], dtype=np.float64) / max(r["objects"], 1) * 100.0
+            ars.append(float(rec.mean()))
+            if i5 is not None:
+                r5s.append(float(rec[i5]))
+        out[m] = {"AR": round(float(np.mean(ars)), 1), "R@5%": round(float(np.mean(r5s)), 1) if r5s else None,
+                  "AR_per_seed": [round(a, 1) for a in ars], "R@5%_per_seed": [round(a, 1) for a in r5s]}
+    out["gain"] = {"AR": round(out["memory"]["AR"] - out["frame"]["AR"], 1),
+                   "R@5%": round((out["memory"]["R@5%"] or 0) - (out["frame"]["R@5%"] or 0), 1)}
+    out["fps"] = round(float(np.mean([r["fps"] for r in results if r["fps"]])), 1)
+    return out
+
+
+Progress = Callable[[str], None]

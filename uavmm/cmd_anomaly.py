@@ -1,0 +1,134 @@
+"""`uavmm anomaly` (regions of interest from anomaly heatmaps, per frame or through the ground memory layer)
+and `uavmm anomaly-train` (the autoencoder). Registered through `uavmm.cli.COMMAND_MODULES`; docs/anomaly.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from pathlib import Path
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    """Add the `anomaly` and `anomaly-train` subcommands."""
+    from agent.anomaly.methods import ANOMALY_METHODS, DEFAULT_METHOD
+
+    p = sub.add_parser(
+        "anomaly", help="regions of interest from anomaly heatmaps (COCO results, category anomaly)",
+        description="Per-frame anomaly heatmaps (autoencoder, frame differencing after ego-motion compensation, "
+                    "mean/median filter residual, MOG2) mapped below the horizon onto the ground grid, averaged "
+                    "there with forgetting, read back into each frame; regions of interest are its connected "
+                    "components above a threshold. Writes a COCO result list (category 'anomaly'). --no-memory "
+                    "gives the per-frame baseline. See docs/anomaly.md.",
+    )
+    src = p.add_mutually_exclusive_group(required=True)
+    src.add_argument("--frames", type=Path, help="IMAGES.json (image files relative to its folder)")
+    src.add_argument("--video", type=Path, help="video file (with --telemetry)")
+    p.add_argument("--telemetry", type=Path, help="telemetry of --video: DJI .srt, .csv or SeaDronesSee .json")
+    p.add_argument("--camera", required=True, help="CAMERA.json (or a camera preset's name)")
+    p.add_argument("--out", type=Path, required=True, help="ROIS.json to write (COCO result list)")
+    p.add_argument("--method", default=DEFAULT_METHOD,
+                   help=f"heatmap method: {', '.join(sorted(ANOMALY_METHODS))} (default {DEFAULT_METHOD})")
+    p.add_argument("--model", type=Path, default=None, help="ONNX autoencoder for --method autoencoder "
+                                                            "(default: the shipped sea model)")
+    p.add_argument("--no-memory", action="store_true", help="per-frame baseline: no ground aggregation")
+    p.add_argument("--threshold", type=float, default=None, help="score a region needs (0.3)")
+    p.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life of the layer, s (2)")
+    p.add_argument("--max-range-m", type=float, default=None, help="ground range mapped, m (120)")
+    p.add_argument("--height-m", type=float, default=None, help="height above ground for telemetry without one")
+    p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    p.set_defaults(handler=run_anomaly)
+
+    t = sub.add_parser(
+        "anomaly-train", help="train the anomaly autoencoder on rendered sea frames (needs the train extra)",
+        description="Simulate and render sea scenes from fixed seeds (not used by the evaluation), train the "
+                    "convolutional autoencoder on them and export ONNX. Needs PyTorch: pip install -e '.[train]'. "
+                    "The default reproduces agent/anomaly/sea_autoencoder.onnx.",
+    )
+    t.add_argument("--out", type=Path, required=True, help="ONNX file to write")
+    t.add_argument("--work-dir", type=Path, default=Path("out/anomaly-train"), help="rendered training scenes")
+    t.add_argument("--seeds", default="100,101", help="simulator seeds of the training scenes (100,101)")
+    t.add_argument("--frames", type=int, default=120, help="frames per video (120)")
+    t.add_argument("--steps", type=int, default=1500, help="optimiser steps (1500)")
+    t.set_defaults(handler=run_train)
+
+
+def _config(args: argparse.Namespace):
+    import dataclasses
+
+    from agent.anomaly import AnomalyConfig, AnomalyMapConfig, make_method
+
+    options = {"model": args.model} if args.model is not None else {}
+    if args.model is not None and args.method != "autoencoder":
+        raise ValueError(f"--model is for --method autoencoder, not {args.method}")
+    method = make_method(args.method, **options)  # unknown names: one line listing the valid ones
+    map_kw = {k: v for k, v in (("half_life_s", args.half_life_s), ("max_range_m", args.max_range_m)) if v is not None}
+    cfg = AnomalyConfig(method=args.method, use_memory=not args.no_memory,
+                        map=dataclasses.replace(AnomalyMapConfig(), **map_kw))
+    if args.threshold is not None:
+        cfg = dataclasses.replace(cfg, roi_threshold=args.threshold)
+    return cfg, method
+
+
+def run_anomaly(args: argparse.Namespace) -> int:
+    """Handler of `uavmm anomaly`: returns the exit code; ValueError/OSError become one line and exit 2."""
+    from agent.anomaly import ANOMALY_CLASS, AnomalyDetector
+    from agent.anomaly.frames import VideoFrames, dataset_frames
+    from shared.geo import Camera
+
+    if args.video is not None and args.telemetry is None:
+        raise ValueError("--video needs --telemetry FILE")
+    if args.frames is not None and args.telemetry is not None:
+        raise ValueError("--telemetry goes with --video (--frames carries its telemetry in images.json meta)")
+    if not args.out.parent.is_dir():
+        raise ValueError(f"output directory {args.out.parent} does not exist (for {args.out})")
+    cfg, method = _config(args)
+    camera = Camera.from_spec(args.camera)
+    frames = (dataset_frames(args.frames, camera) if args.frames is not None
+              else iter(VideoFrames(args.video, args.telemetry, camera, height_m=args.height_m)))
+    detector = AnomalyDetector(cfg, method)
+    results = []
+    video = None
+    n = without_pose = 0
+    started = time.perf_counter()
+    for frame in frames:
+        if frame.video != video:
+            detector.reset()
+            video = frame.video
+        out = detector.process(frame.image, frame.pose, frame.t, frame.camera)
+        for (x0, y0, x1, y1), score in zip(out.boxes_xyxy.tolist(), out.roi_scores.tolist(), strict=True):
+            results.append({"image_id": frame.image_id, "category_id": 1, "category": ANOMALY_CLASS,
+                            "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
+                            "score": round(float(score), 4)})
+        n += 1
+        without_pose += frame.pose is None
+        if not args.quiet and n % 50 == 0:
+            print(f"\ranomaly: {n} frames", end="", file=sys.stderr, flush=True)
+    if not args.quiet and n >= 50:
+        print(file=sys.stderr)
+    tmp = args.out.with_name(f".{args.out.name}.tmp")
+    tmp.write_text(json.dumps(results))
+    os.replace(tmp, args.out)
+    seconds = time.perf_counter() - started
+    mode = "per-frame" if args.no_memory else "memory map"
+    print(f"wrote {len(results)} regions of interest for {n} frames to {args.out} ({args.method}, {mode}; "
+          f"{without_pose} frames without telemetry; {n / max(seconds, 1e-9):.1f} frames/s)")
+    return 0
+
+
+def run_train(args: argparse.Namespace) -> int:
+    """Handler of `uavmm anomaly-train`."""
+    from sim.anomaly_train import train_autoencoder
+
+    try:
+        seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
+    except ValueError:
+        raise ValueError(f"--seeds: expected comma-separated integers, got {args.seeds!r}") from None
+    if not seeds or args.frames < 1 or args.steps < 1:
+        raise ValueError("--seeds, --frames and --steps must be non-empty / >= 1")
+    summary = train_autoencoder(args.out, work_dir=args.work_dir, seeds=seeds, frames=args.frames, steps=args.steps)
+    print("trained: " + ", ".join(f"{k}={v}" for k, v in summary.items()))
+    return 0
