@@ -58,7 +58,7 @@ def load_frames(directories: Sequence[Path], work_width: int, every: int = 2) ->
 
         for a in json.loads((d / "images.json").read_text())["annotations"]:
             boxes.setdefault(int(a["image_id"]), []).append(a["bbox"])
-        for k, image in enumerate(ds.images):
+        for k, image in enumerate(ds.images.values()):
             if k % every:
                 continue
             pixels = read_image(d, image)

@@ -243,7 +243,8 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--ablations", action="store_true", help="also sweep half-life, radius, gain, filter")
     p.add_argument("--tasks", default=None,
                    help="comma-separated: detection (AP50/AR), tracking (HOTA/MOTA/IDs/Frag vs norfair), "
-                        "coop (two UAVs with a joint map) (default: detection; with --domains: detection,tracking)")
+                        "coop (two UAVs with a joint map), anomaly (rendered frames, docs/anomaly.md) "
+                        "(default: detection; with --domains: detection,tracking)")
     p.add_argument("--domains", default=None,
                    help="comma-separated evaluation domains (sim.domains) or the groups all, tune, heldout: "
                         "detection and tracking per domain, held-out domains reported apart (seeds default 0,1,2; "
@@ -281,9 +282,9 @@ def _run_eval(args: argparse.Namespace) -> int:
         raise CliError(f"--frames must be >= 1, got {args.frames}")
     noise = tuple(_csv_list(args.noise_scales, float, "--noise-scales"))
     tasks = _csv_list(args.tasks or "detection", str, "--tasks")
-    unknown = sorted(set(tasks) - {"detection", "tracking", "coop"})
+    unknown = sorted(set(tasks) - {"detection", "tracking", "coop", "anomaly"})
     if unknown:
-        raise CliError(f"--tasks: unknown task(s) {', '.join(unknown)}; valid: detection, tracking, coop")
+        raise CliError(f"--tasks: unknown task(s) {', '.join(unknown)}; valid: detection, tracking, coop, anomaly")
     if "detection" in tasks:
         report = run_eval(scenarios, seeds, frames=args.frames, noise_scales=noise, ablations=args.ablations,
                           out_dir=args.out, progress=stderr_progress)
@@ -300,6 +301,12 @@ def _run_eval(args: argparse.Namespace) -> int:
 
         out = args.out / "coop"
         run_coop_eval(seeds, frames=args.frames, out_dir=out, progress=stderr_progress)
+        print((out / "report.md").read_text())
+    if "anomaly" in tasks:  # rendered frames; docs/anomaly.md
+        from sim.anomaly_eval import run_anomaly_eval
+
+        out = args.out / "anomaly"
+        run_anomaly_eval(scenarios, seeds, frames=args.frames, out_dir=out, progress=stderr_progress)
         print((out / "report.md").read_text())
     return 0
 

@@ -42,7 +42,7 @@ class AnomalyMapConfig:
     """
 
     window_m: float = 300.0
-    half_life_s: float = 2.0
+    half_life_s: float = 0.5
     prior_s: float = 0.1
     max_range_m: float = 120.0
     horizon_margin_deg: float = 3.0

@@ -226,6 +226,7 @@ class FrameDifference:
                                    borderMode=cv2.BORDER_CONSTANT)
         valid = cv2.erode(seen, np.ones((5, 5), np.uint8)) > 0
         residual = _colour_residual(small, warped)
+        residual[~valid] = 0.0  # before blurring: the unseen border must not bleed into its neighbours
         if self.blur_sigma_px > 0:
             residual = cv2.GaussianBlur(residual, (0, 0), self.blur_sigma_px)
         return normalise_robust(residual, self.z_max, valid)

@@ -1,0 +1,155 @@
+"""Anomaly heatmap methods, the ground layer and regions of interest (agent.anomaly), on small synthetic frames."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agent.anomaly import ANOMALY_CLASS, AnomalyConfig, AnomalyDetector, AnomalyMap, AnomalyMapConfig, extract_rois
+from agent.anomaly.methods import FrameDifference, make_method
+from shared.geo import Camera, Pose
+
+CAM = Camera(width=640, height=360, fx=450.0, fy=450.0, cx=320.0, cy=180.0)
+POSE = Pose(lat=47.6, lon=9.3, height_m=40.0, pitch_deg=50.0, heading_deg=30.0)
+
+
+def _sea(seed: int = 0, shape: tuple[int, int] = (360, 640)) -> np.ndarray:
+    rng = np.random.default_rng(seed)
+    base = np.array([120, 110, 40], np.float32)  # teal water, BGR
+    return np.clip(base + rng.normal(0, 4, (*shape, 3)), 0, 255).astype(np.uint8)
+
+
+def _with_blob(image: np.ndarray, row: int, col: int) -> np.ndarray:
+    out = image.copy()
+    out[row - 3:row + 3, col - 3:col + 3] = (20, 40, 230)  # a red life jacket
+    return out
+
+
+@pytest.mark.parametrize("name", ["mean", "median", "autoencoder"])
+def test_spatial_methods_score_a_small_object_highest(name):
+    frame = _with_blob(_sea(), 200, 300)
+    heat = make_method(name, work_width=320).heatmap(frame)
+    assert heat.dtype == np.float32 and heat.shape == (180, 320)
+    assert 0.0 <= heat.min() and heat.max() <= 1.0
+    assert heat[100, 150] == heat.max() > 0.5
+    top = np.argsort(heat.ravel())[-9:]  # the nine hottest pixels are the object's
+    rows, cols = np.unravel_index(top, heat.shape)
+    assert np.abs(rows - 100).max() <= 6 and np.abs(cols - 150).max() <= 6  # (the mean filter's halo)
+
+
+def test_unknown_method_names_the_valid_ones():
+    with pytest.raises(ValueError, match="unknown anomaly method 'nope'; valid: autoencoder, diff, mean, median, mog2"):
+        make_method("nope")
+
+
+def test_frame_difference_undoes_the_camera_motion_given_by_telemetry():
+    """The second frame is the first moved 8 px right with a new object: the homographies (pixel -> world)
+    say so, and the difference lights up the object only, not the shifted texture."""
+    rng = np.random.default_rng(1)
+    texture = (rng.random((360, 660, 3)) * 255).astype(np.uint8)
+    first, second = texture[:, 8:648].copy(), _with_blob(texture[:, 0:640], 180, 320)
+    g1 = np.eye(3)
+    g2 = np.array([[1.0, 0, -8.0], [0, 1.0, 0], [0, 0, 1.0]])  # pixel u of frame 2 shows world u - 8
+    method = FrameDifference(work_width=640, register="telemetry")
+    assert method.heatmap(first, g1).max() == 0.0  # nothing to compare with yet
+    heat = method.heatmap(second, g2)
+    assert heat[175:186, 315:326].max() == pytest.approx(1.0)
+    heat[170:191, 310:331] = 0
+    assert heat.max() < 0.3
+    unregistered = FrameDifference(work_width=640, register="telemetry")
+    unregistered.heatmap(first, g1)
+    # without undoing the motion the whole texture differs and the object drowns in it
+    assert unregistered.heatmap(second, g1)[175:186, 315:326].max() < 0.5
+
+
+def test_mog2_flags_what_appears_in_a_still_scene():
+    method = make_method("mog2", work_width=320)
+    for seed in range(20):
+        method.heatmap(_sea(seed))
+    heat = method.heatmap(_with_blob(_sea(99), 100, 100))
+    assert heat[50, 50] > 0.3 and heat[150, 250] < 0.1
+
+
+def _blobs(points: list[tuple[int, int]]) -> np.ndarray:
+    heat = np.zeros((180, 320), np.float32)
+    for r, c in points:
+        heat[r - 2:r + 3, c - 2:c + 3] = 1.0
+    return heat
+
+
+@settings(max_examples=15, deadline=None)
+@given(height=st.floats(15, 100), pitch=st.floats(30, 90), heading=st.floats(0, 360),
+       row=st.integers(110, 170), col=st.integers(20, 300))
+def test_heat_put_on_the_ground_comes_back_at_the_same_pixel(height, pitch, heading, row, col):
+    pose = Pose(lat=47.6, lon=9.3, height_m=height, pitch_deg=pitch, heading_deg=heading)
+    layer = AnomalyMap(AnomalyMapConfig(max_range_m=400.0))
+    for i in range(6):
+        layer.update(_blobs([(row, col)]), CAM, pose, i / 30)
+    back = layer.image_scores(CAM, pose, (180, 320))
+    peak = np.unravel_index(np.argmax(back), back.shape)
+    assert back.max() > 0.3
+    assert abs(peak[0] - row) <= 2 and abs(peak[1] - col) <= 2
+
+
+def test_the_layer_forgets_what_is_no_longer_seen():
+    layer = AnomalyMap(AnomalyMapConfig(half_life_s=0.5))
+    for i in range(10):
+        layer.update(_blobs([(140, 160)]), CAM, POSE, i / 30)
+    assert layer.image_scores(CAM, POSE, (180, 320)).max() > 0.5
+    away = Pose(lat=47.6, lon=9.3, height_m=40.0, pitch_deg=50.0, heading_deg=210.0)  # looking the other way
+    for i in range(10, 100):
+        layer.update(np.zeros((180, 320), np.float32), CAM, away, i / 30)  # 3 s = 6 half-lives
+    assert layer.image_scores(CAM, POSE, (180, 320)).max() < 0.05
+
+
+def test_a_steady_object_outscores_flicker_in_the_layer():
+    """An object seen in every frame beats glints of equal strength that land elsewhere each frame."""
+    rng = np.random.default_rng(3)
+    layer = AnomalyMap()
+    for i in range(30):
+        glints = [(int(rng.integers(100, 175)), int(rng.integers(10, 310))) for _ in range(5)]
+        layer.update(_blobs([(150, 160), *glints]), CAM, POSE, i / 30)
+    back = layer.image_scores(CAM, POSE, (180, 320))
+    peak = np.unravel_index(np.argmax(back), back.shape)
+    assert abs(peak[0] - 150) <= 2 and abs(peak[1] - 160) <= 2
+    back[145:156, 155:166] = 0
+    assert back.max() < 0.5
+
+
+def test_layer_tiles_hold_the_heat_on_the_shared_grid():
+    layer = AnomalyMap()
+    assert layer.tiles() == [] and layer.classes == []
+    for i in range(5):
+        layer.update(_blobs([(150, 160)]), CAM, POSE, i / 30)
+    tiles = layer.tiles()
+    assert layer.classes == [ANOMALY_CLASS]
+    assert tiles and all(t.shape == (256, 256) and t.dtype == np.float32 for _, _, t in tiles)
+    assert max(float(t.max()) for _, _, t in tiles) > 0.3
+    assert len(layer.tiles(min_value=0.3)) < len(tiles)
+    assert layer.tiles("person") == []
+
+
+def test_regions_of_interest_are_components_with_their_peaks():
+    scores = np.zeros((90, 160), np.float32)
+    scores[10:14, 20:25] = 0.6
+    scores[50:60, 100:104] = 0.9
+    scores[80, 150] = 0.2  # below the threshold
+    boxes, peaks = extract_rois(scores, 0.3, dilate_px=0, full_size=(640, 360))
+    assert peaks.tolist() == pytest.approx([0.9, 0.6])
+    assert boxes.tolist() == [[400.0, 200.0, 416.0, 240.0], [80.0, 40.0, 100.0, 56.0]]
+    assert extract_rois(np.zeros((9, 9), np.float32), 0.3)[0].shape == (0, 4)
+
+
+def test_detector_cuts_the_sky_and_rejects_a_frame_of_another_size():
+    pose = Pose(lat=47.6, lon=9.3, height_m=40.0, pitch_deg=10.0, heading_deg=0.0)  # horizon in the image
+    frame = _sea()
+    frame[:40] = (255, 255, 255)  # bright sky edge
+    for use_memory in (False, True):
+        det = AnomalyDetector(AnomalyConfig(method="mean", use_memory=use_memory, method_options={"work_width": 320}))
+        out = det.process(frame, pose, 0.0, CAM)
+        assert out.cut_row > 40
+        assert out.scores[: out.cut_row // 2].max() == 0.0
+    with pytest.raises(ValueError, match="frame is 320x180 but the camera is 640x360"):
+        det.process(frame[:180, :320], pose, 0.1, CAM)
