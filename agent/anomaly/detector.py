@@ -34,6 +34,9 @@ class AnomalyConfig:
     roi_threshold: score a pixel needs to belong to a region of interest.
     max_rois: regions kept per frame (highest peaks first).
     roi_dilate_px: regions closer than this (working pixels) merge.
+    memory_weight: how the layer enters the frame's scores, as the memory map boosts detections (c + w p):
+        scores = (heat + w * layer) / (1 + w), so the frame keeps its own sharp peaks and what persisted on
+        the ground is raised; None uses the layer alone (the paper's "replace the 2D heat map").
     """
 
     method: str = DEFAULT_METHOD
@@ -43,6 +46,7 @@ class AnomalyConfig:
     roi_threshold: float = 0.3
     max_rois: int = 100
     roi_dilate_px: int = 2
+    memory_weight: float | None = 1.0
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.roi_threshold) and 0 < self.roi_threshold < 1):
@@ -141,6 +145,11 @@ class AnomalyDetector:
         if pose is not None and cfg.use_memory:
             self.map.update(heat, camera, pose, t)
             scores = self.map.image_scores(camera, pose, heat.shape)
+            if cfg.memory_weight is not None:
+                w = np.float32(cfg.memory_weight)
+                cut = heat.copy()
+                cut[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0
+                scores = (cut + w * scores) / (1 + w)
         else:
             scores = heat.copy()
             scores[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0

@@ -1,0 +1,91 @@
+"""`uavmm anomaly` on a small rendered dataset and its video: COCO results per frame, and one-line errors."""
+
+from __future__ import annotations
+
+import json
+import shutil
+
+import pytest
+
+from uavmm.cli import main
+
+FRAMES = 45  # 1.5 s at 30 fps: one telemetry record (held 1 s) does not cover it
+
+
+@pytest.fixture(scope="module")
+def rendered(tmp_path_factory: pytest.TempPathFactory):
+    """sea at 320x180, images + MP4 + SRT/CSV."""
+    out = tmp_path_factory.mktemp("anomaly") / "sea"
+    assert main(["sim", "sea", "--out", str(out), "--frames", str(FRAMES), "--image-size", "320x180", "--render",
+                 "--video", "--max-texture-px", "1024", "--quiet"]) == 0
+    return out
+
+
+def _video(rendered, suffix: str) -> str:
+    name = json.loads((rendered / "images.json").read_text())["videos"][0]["name"]
+    return str(rendered / f"{name}.{suffix}")
+
+
+@pytest.mark.parametrize("method,memory", [("median", True), ("diff", False), ("autoencoder", True)])
+def test_anomaly_writes_coco_regions_for_the_dataset_frames(rendered, tmp_path, capsys, method, memory):
+    out = tmp_path / "rois.json"
+    args = ["anomaly", "--frames", str(rendered / "images.json"), "--camera", str(rendered / "camera.json"),
+            "--out", str(out), "--method", method, "--quiet"] + ([] if memory else ["--no-memory"])
+    assert main(args) == 0
+    rois = json.loads(out.read_text())
+    ids = {im["id"] for im in json.loads((rendered / "images.json").read_text())["images"]}
+    assert rois and {r["image_id"] for r in rois} <= ids
+    for r in rois:
+        assert r["category_id"] == 1 and r["category"] == "anomaly" and 0 < r["score"] <= 1
+        x, y, w, h = r["bbox"]
+        assert 0 <= x and 0 <= y and w > 0 and h > 0 and x + w <= 320 and y + h <= 180
+    assert f"for {3 * FRAMES} frames" in capsys.readouterr().out
+
+
+def test_anomaly_reads_a_video_with_its_telemetry(rendered, tmp_path):
+    out = tmp_path / "rois.json"
+    assert main(["anomaly", "--video", _video(rendered, "mp4"), "--telemetry", _video(rendered, "srt"),
+                 "--camera", str(rendered / "camera.json"), "--out", str(out), "--method", "mean", "--quiet"]) == 0
+    rois = json.loads(out.read_text())
+    assert {r["image_id"] for r in rois} <= set(range(FRAMES)) and rois
+
+
+def _error(capsys, args) -> str:
+    assert main([*args, "--method", "mean"] if "--method" not in args else args) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err
+    return err
+
+
+def test_anomaly_bad_input_is_one_line_and_exit_2(rendered, tmp_path, capsys):
+    cam, out = str(rendered / "camera.json"), str(tmp_path / "rois.json")
+    video, srt = _video(rendered, "mp4"), _video(rendered, "srt")
+    frames = ["--frames", str(rendered / "images.json")]
+    err = _error(capsys, ["anomaly", *frames, "--camera", cam, "--out", out, "--method", "nope"])
+    assert "unknown anomaly method 'nope'; valid: autoencoder, diff, mean, median, mog2" in err
+    not_video = tmp_path / "clip.mp4"
+    not_video.write_text("not a video")
+    err = _error(capsys, ["anomaly", "--video", str(not_video), "--telemetry", srt, "--camera", cam, "--out", out])
+    assert "cannot be read by OpenCV" in err
+    short = tmp_path / "short.srt"
+    blocks = _read(srt).strip().split("\n\n")
+    short.write_text(blocks[0] + "\n\n")  # one record: does not cover the video
+    err = _error(capsys, ["anomaly", "--video", video, "--telemetry", str(short), "--camera", cam, "--out", out])
+    assert "covers" in err and "the video" in err
+    wide = tmp_path / "camera.json"
+    wide.write_text(json.dumps({"width": 400, "height": 300, "fx": 300.0, "fy": 300.0, "cx": 200.0, "cy": 150.0}))
+    err = _error(capsys, ["anomaly", "--video", video, "--telemetry", srt, "--camera", str(wide), "--out", out])
+    assert "another aspect ratio" in err
+    err = _error(capsys, ["anomaly", "--video", video, "--camera", cam, "--out", out])
+    assert "--video needs --telemetry" in err
+    moved = tmp_path / "copy"
+    moved.mkdir()
+    shutil.copy(rendered / "images.json", moved / "images.json")  # without its image files
+    err = _error(capsys, ["anomaly", "--frames", str(moved / "images.json"), "--camera", cam, "--out", out])
+    assert "is missing or cannot be read" in err
+    assert not (tmp_path / "rois.json").exists()
+
+
+def _read(path: str) -> str:
+    with open(path) as f:
+        return f.read()
