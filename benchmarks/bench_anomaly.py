@@ -103,7 +103,8 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
                 det.process(image, p, t, camera)
             per_mode[use_memory] = len(images) / (time.perf_counter() - t0)
         rows.append({"case": f"1080p pipeline {name} + memory map, frames/s", "value": per_mode[True],
-                     "unit": "frames/s", "baseline_name": f"target {TARGET_FPS:g} fps", "ratio": per_mode[True] / TARGET_FPS})
+                     "unit": "frames/s", "baseline_name": f"target {TARGET_FPS:g} fps",
+                     "ratio": per_mode[True] / TARGET_FPS})
         rows.append({"case": f"1080p pipeline {name} per frame (no memory), frames/s", "value": per_mode[False],
                      "unit": "frames/s", "baseline_name": "with memory map", "ratio": per_mode[False] / per_mode[True]})
     return rows

@@ -30,7 +30,8 @@ TRAIN_SEEDS = (100, 101)
 CROP = 128
 
 
-def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int, image_size: tuple[int, int]) -> list[Path]:
+def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int,
+                           image_size: tuple[int, int]) -> list[Path]:
     """Simulate and render the sea scenario for each seed under work_dir (reused when already complete)."""
     from sim.dataset import write_dataset
     from sim.render import render_dataset
@@ -68,7 +69,8 @@ def load_frames(directories: Sequence[Path], work_width: int, every: int = 2) ->
             s = small.shape[1] / pixels.shape[1]
             mask = np.ones(small.shape[:2], np.uint8)
             for x, y, w, h in boxes.get(image.id, []):
-                cv2.rectangle(mask, (int(x * s) - 3, int(y * s) - 3), (int((x + w) * s) + 3, int((y + h) * s) + 3), 0, -1)
+                cv2.rectangle(mask, (int(x * s) - 3, int(y * s) - 3), (int((x + w) * s) + 3, int((y + h) * s) + 3),
+                              0, -1)
             images.append(small)
             masks.append(mask)
     return np.stack(images), np.stack(masks)
@@ -88,7 +90,8 @@ def build_model() -> Any:
     )
 
 
-def train_autoencoder(out: str | Path, *, work_dir: str | Path = "out/anomaly-train", seeds: Sequence[int] = TRAIN_SEEDS,
+def train_autoencoder(out: str | Path, *, work_dir: str | Path = "out/anomaly-train",
+                      seeds: Sequence[int] = TRAIN_SEEDS,
                       frames: int = 120, image_size: tuple[int, int] = (1280, 720), steps: int = 1500,
                       batch: int = 16, lr: float = 2e-3, seed: int = 0, work_width: int = DEFAULT_WORK_WIDTH
                       ) -> dict[str, Any]:

@@ -20,6 +20,7 @@ from scipy import ndimage
 
 from agent.anomaly.ground import AnomalyMap, AnomalyMapConfig, cut_row
 from agent.anomaly.methods import DEFAULT_METHOD, AnomalyMethod, make_method
+from agent.anomaly.registration import GroundRegistration
 from shared.geo import Camera, Pose, image_to_ground_homography, latlon_to_local
 from shared.tiles import TileGrid
 
@@ -47,6 +48,7 @@ class AnomalyConfig:
     max_rois: int = 100
     roi_dilate_px: int = 2
     memory_weight: float | None = 1.0
+    register: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.roi_threshold) and 0 < self.roi_threshold < 1):
@@ -115,12 +117,15 @@ class AnomalyDetector:
         self.config = config or AnomalyConfig()
         self.method = method if method is not None else make_method(self.config.method, **self.config.method_options)
         self.map = AnomalyMap(self.config.map, grid)
+        self.registration = GroundRegistration() if self.config.register else None
         self._ref: tuple[float, float] | None = None
 
     def reset(self) -> None:
         """A new video: forget the previous frames and the layer."""
         self.method.reset()
         self.map.reset()
+        if self.registration is not None:
+            self.registration.reset()
         self._ref = None
 
     def image_to_world(self, camera: Camera, pose: Pose) -> NDArray[np.float64]:
@@ -143,8 +148,11 @@ class AnomalyDetector:
         if pose is not None:
             row = cut_row(camera, pose, cfg.map.max_range_m, cfg.map.horizon_margin_deg)
         if pose is not None and cfg.use_memory:
-            self.map.update(heat, camera, pose, t)
-            scores = self.map.image_scores(camera, pose, heat.shape)
+            g = None
+            if self.registration is not None:
+                g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row), pose)
+            self.map.update(heat, camera, pose, t, g)
+            scores = self.map.image_scores(camera, pose, heat.shape, g)
             if cfg.memory_weight is not None:
                 w = np.float32(cfg.memory_weight)
                 cut = heat.copy()

@@ -2,7 +2,8 @@
 horizon, averaged over time with forgetting, and read back into any frame (paper section IV-C).
 
 One `cv2.warpPerspective` per frame moves the whole heatmap (max-pooled and area-downscaled first so a grid
-cell samples a heatmap pixel of about its own size holding the strongest heat inside it) into the block of cells the camera sees within ``max_range_m``.
+cell samples a heatmap pixel of about its own size holding the strongest heat inside it) into the block of
+cells the camera sees within ``max_range_m``.
 The layer keeps two decaying sums per cell on a `agent.memory_map.MemoryMap` window (same grid, window,
 recentring and forgetting as the detection maps): heat x observation time and observation time. Their
 ratio is the cell's heat averaged over the recent frames that saw it; cells seen for less than
@@ -144,14 +145,20 @@ class AnomalyMap:
         a = cv2.getAffineTransform(src, dst).astype(np.float64)
         return np.vstack([a, [0.0, 0.0, 1.0]])
 
-    def _cell_to_image(self, camera: Camera, pose: Pose) -> NDArray[np.float64]:
+    def _cell_to_image(self, camera: Camera, pose: Pose, ground_to_image: NDArray[np.float64] | None = None
+                       ) -> NDArray[np.float64]:
         """(3, 3) homography from window (col, row) cell coordinates to full-resolution image pixels."""
-        return ground_to_image_homography(camera, pose) @ self._cell_to_local(pose)
+        g = ground_to_image_homography(camera, pose) if ground_to_image is None else ground_to_image
+        return g @ self._cell_to_local(pose)
 
     # ------------------------------------------------------------------ write
-    def update(self, heat: NDArray[np.float32], camera: Camera, pose: Pose, t: float) -> bool:
+    def update(self, heat: NDArray[np.float32], camera: Camera, pose: Pose, t: float,
+               ground_to_image: NDArray[np.float64] | None = None) -> bool:
         """Add one frame's heatmap (h, w) float32 in [0, 1] (any scale of the camera's frame) seen at time t
-        (seconds) with the camera pose. Returns False when no pixel of the frame maps to the ground."""
+        (seconds) with the camera pose. Returns False when no pixel of the frame maps to the ground.
+
+        ground_to_image: the frame's (3, 3) homography from metres east/north of the pose's position to
+        full-resolution pixels when known better than the pose's own (`agent.anomaly.registration`)."""
         cfg = self.config
         dt = 0.0 if self._t_prev is None else min(max(t - self._t_prev, 0.0), cfg.max_step_s)
         self._t_prev = t if self._t_prev is None else max(self._t_prev, t)
@@ -163,7 +170,7 @@ class AnomalyMap:
         hh, hw = heat.shape
         scale = hw / camera.width
         # footprint of the mapped band: its four corners on the ground (lines stay lines under a homography)
-        c2i = self._cell_to_image(camera, pose)
+        c2i = self._cell_to_image(camera, pose, ground_to_image)
         i2c = np.linalg.inv(c2i)
         corners = np.array([[0.0, row], [camera.width, row], [camera.width, camera.height], [0.0, camera.height]])
         cells = cv2.perspectiveTransform(corners[None].astype(np.float64), i2c)[0]
@@ -217,9 +224,10 @@ class AnomalyMap:
         np.clip(out, 0.0, 1.0, out=out)
         return out
 
-    def image_scores(self, camera: Camera, pose: Pose, shape: tuple[int, int]) -> NDArray[np.float32]:
+    def image_scores(self, camera: Camera, pose: Pose, shape: tuple[int, int],
+                     ground_to_image: NDArray[np.float64] | None = None) -> NDArray[np.float32]:
         """The layer seen from a frame: (h, w) float32 at an image scale of the camera (shape = (h, w)),
-        0 above the cut row (horizon, range) and where the window holds nothing."""
+        0 above the cut row (horizon, range) and where the window holds nothing (ground_to_image as in update)."""
         out = np.zeros(shape, dtype=np.float32)
         layer = self.layer()
         if layer is None:
@@ -231,7 +239,7 @@ class AnomalyMap:
             return out
         # image pixel (u + 0.5)/s -> cell coordinates; warp with the inverse map of output pixels
         s = np.diag([w / camera.width, h / camera.height, 1.0])
-        img_to_cell = _translate(-0.5, -0.5) @ np.linalg.inv(self._cell_to_image(camera, pose)) @ \
+        img_to_cell = _translate(-0.5, -0.5) @ np.linalg.inv(self._cell_to_image(camera, pose, ground_to_image)) @ \
             np.linalg.inv(s) @ _translate(0.5, first + 0.5)
         out[first:] = cv2.warpPerspective(layer, img_to_cell, (w, h - first),
                                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
