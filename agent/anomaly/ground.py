@@ -84,8 +84,22 @@ def _translate(dx: float, dy: float) -> NDArray[np.float64]:
 
 
 def cut_row(camera: Camera, pose: Pose, max_range_m: float, horizon_margin_deg: float) -> int:
-    """First image row (full resolution) that is mapped to the ground: below the horizon by the margin and
-    with ground points within max_range_m on the centre column. camera.height when no row qualifies."""
+    """First image row (full resolution) that is mapped to the ground: its ray on the centre column points
+    at least horizon_margin_deg below the horizontal and meets the ground within max_range_m.
+    camera.height when no row qualifies (camera looking too high).
+
+    Closed form for the usual zero roll and no distortion (the row of the limiting depression); otherwise
+    the rows' ground distances are computed.
+    """
+    min_dep = max(horizon_margin_deg, math.degrees(math.atan2(pose.height_m, max_range_m)))
+    if pose.roll_deg == 0.0 and camera.dist is None:
+        offset = min_dep - pose.pitch_deg  # the limiting ray's angle below the optical axis
+        if offset <= -89.0:
+            return 0
+        if offset >= 89.0:
+            return camera.height
+        v = camera.cy + camera.fy * math.tan(math.radians(offset))
+        return int(min(max(math.ceil(v - 0.5), 0), camera.height))
     rows = np.arange(camera.height, dtype=np.float64) + 0.5
     uv = np.column_stack([np.full_like(rows, camera.cx), rows])
     dist = pixel_ground_distance_m(uv, camera, pose)
@@ -93,8 +107,23 @@ def cut_row(camera: Camera, pose: Pose, max_range_m: float, horizon_margin_deg: 
     ok = np.isfinite(dist) & (dist <= max_range_m) & (depression >= horizon_margin_deg)
     if not ok.any():
         return camera.height
-    # rows farther down are nearer: the first qualifying row starts the mapped band
-    return int(np.argmax(ok))
+    return int(np.argmax(ok))  # rows farther down are nearer: the first qualifying row starts the band
+
+
+def _max_pool_down(band: NDArray[np.float32], k: float) -> NDArray[np.float32]:
+    """Downscale by k < 1 keeping local maxima: a cell holds the strongest heat it contains, so an object
+    smaller than a cell is not averaged away with the water around it. Large inputs (a 4K heatmap) are first
+    area-downscaled to 4 pixels a target pixel, so the cost is one pass over the input."""
+    h, w = band.shape
+    size = (max(1, int(round(w * k))), max(1, int(round(h * k))))
+    if 1.0 / k > 4.0:
+        band = cv2.resize(band, (size[0] * 4, size[1] * 4), interpolation=cv2.INTER_AREA)
+        side = 4
+    else:
+        side = int(math.ceil(1.0 / k))
+    if side > 1:
+        band = cv2.dilate(band, np.ones((side, side), np.uint8))
+    return cv2.resize(band, size, interpolation=cv2.INTER_AREA)
 
 
 class AnomalyMap:
@@ -152,6 +181,26 @@ class AnomalyMap:
         return g @ self._cell_to_local(pose)
 
     # ------------------------------------------------------------------ write
+    def _footprint(self, camera: Camera, pose: Pose, ground_to_image: NDArray[np.float64] | None
+                   ) -> tuple[int, NDArray[np.float64], NDArray[np.float64], tuple[int, int, int, int]] | None:
+        """The mapped band of a frame: (cut row, cell -> image homography, its corners in window cells (4, 2),
+        block (c0, r0, c1, r1) of window cells it covers), or None when nothing of it lies in the window."""
+        cfg = self.config
+        row = cut_row(camera, pose, cfg.max_range_m, cfg.horizon_margin_deg)
+        if row >= camera.height or self.size_cells == 0:
+            return None
+        c2i = self._cell_to_image(camera, pose, ground_to_image)
+        corners = np.array([[[0.0, row], [camera.width, row], [camera.width, camera.height], [0.0, camera.height]]])
+        cells = cv2.perspectiveTransform(corners, np.linalg.inv(c2i))[0]
+        if not np.isfinite(cells).all():
+            return None
+        s = self.size_cells
+        c0, r0 = (max(int(v), 0) for v in np.floor(cells.min(axis=0)))
+        c1, r1 = (min(int(v) + 1, s) for v in np.ceil(cells.max(axis=0)))
+        if c1 <= c0 or r1 <= r0:
+            return None
+        return row, c2i, cells, (c0, r0, c1, r1)
+
     def update(self, heat: NDArray[np.float32], camera: Camera, pose: Pose, t: float,
                ground_to_image: NDArray[np.float64] | None = None) -> bool:
         """Add one frame's heatmap (h, w) float32 in [0, 1] (any scale of the camera's frame) seen at time t
@@ -164,62 +213,48 @@ class AnomalyMap:
         self._t_prev = t if self._t_prev is None else max(self._t_prev, t)
         self._sums.advance(t, pose.lat, pose.lon)
         amount = dt if dt > 0 else 1.0 / 30.0  # the first frame counts as one frame at 30 fps
-        row = cut_row(camera, pose, cfg.max_range_m, cfg.horizon_margin_deg)
-        if row >= camera.height:
+        foot = self._footprint(camera, pose, ground_to_image)
+        if foot is None:
             return False
+        row, c2i, cells, (c0, r0, c1, r1) = foot
         hh, hw = heat.shape
         scale = hw / camera.width
-        # footprint of the mapped band: its four corners on the ground (lines stay lines under a homography)
-        c2i = self._cell_to_image(camera, pose, ground_to_image)
-        i2c = np.linalg.inv(c2i)
-        corners = np.array([[0.0, row], [camera.width, row], [camera.width, camera.height], [0.0, camera.height]])
-        cells = cv2.perspectiveTransform(corners[None].astype(np.float64), i2c)[0]
-        if not np.isfinite(cells).all():
-            return False
-        s = self.size_cells
-        c0, r0 = np.floor(cells.min(axis=0)).astype(int)
-        c1, r1 = np.ceil(cells.max(axis=0)).astype(int) + 1
-        c0, r0, c1, r1 = max(c0, 0), max(r0, 0), min(c1, s), min(r1, s)
-        if c1 <= c0 or r1 <= r0:
-            return False
-        # area-downscale the heatmap so that its finest pixels (the image's bottom row) are about a cell
-        bottom = np.array([[camera.cx, camera.height - 0.5], [camera.cx + 1.0, camera.height - 0.5]])
-        step = np.diff(cv2.perspectiveTransform(bottom[None], i2c)[0], axis=0)[0]  # cells per full pixel
-        heat_px_per_cell = scale / max(float(np.hypot(step[0], step[1])), 1e-9)
-        k = 1.0 / heat_px_per_cell if heat_px_per_cell > 1.0 else 1.0
-        band = heat.copy()
-        band[:max(0, min(hh, int(math.ceil(row * scale)))), :] = 0.0
-        if k < 1.0:
-            # max-pool (dilate, then area-downscale): a cell holds the strongest heat it contains, so an
-            # object smaller than a cell is not averaged away with the water around it
-            side = int(math.ceil(1.0 / k))
-            if side > 1:
-                band = cv2.dilate(band, np.ones((side, side), np.uint8))
-            band = cv2.resize(band, (max(1, int(round(hw * k))), max(1, int(round(hh * k)))),
-                              interpolation=cv2.INTER_AREA)
-        sx, sy = band.shape[1] / camera.width, band.shape[0] / camera.height
+        # only the band below the cut row is read (a view: no copy of the heatmap)
+        first = min(hh - 1, int(row * hh / camera.height))
+        band = heat[first:]
+        # downscale so that the band's finest pixels (the image's bottom row) are about a cell
+        bottom = np.array([[[camera.cx, camera.height - 0.5], [camera.cx + 1.0, camera.height - 0.5]]])
+        step = np.diff(cv2.perspectiveTransform(bottom, np.linalg.inv(c2i))[0], axis=0)[0]  # cells a full pixel
+        px_per_cell = scale / max(float(np.hypot(step[0], step[1])), 1e-9)
+        if px_per_cell > 1.0:
+            band = _max_pool_down(band, 1.0 / px_per_cell)
+        sx, sy = band.shape[1] / camera.width, band.shape[0] / ((hh - first) * camera.height / hh)
+        y0 = first * camera.height / hh  # full-resolution row of the band's top edge
         # block index (x, y) -> cell centre -> image pixel -> band array index (pixel centres at integers)
-        block_to_band = _translate(-0.5, -0.5) @ np.diag([sx, sy, 1.0]) @ c2i @ _translate(c0 + 0.5, r0 + 0.5)
+        block_to_band = (_translate(-0.5, -0.5) @ np.diag([sx, sy, 1.0]) @ _translate(0.0, -y0) @ c2i
+                         @ _translate(c0 + 0.5, r0 + 0.5))
         size = (c1 - c0, r1 - r0)
         warped = cv2.warpPerspective(band, block_to_band, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                      borderMode=cv2.BORDER_CONSTANT)
-        seen = np.zeros((size[1], size[0]), np.uint8)
+        seen = np.zeros((size[1], size[0]), np.float32)
         poly = np.round((cells - [c0 + 0.5, r0 + 0.5]) * 16).astype(np.int32)
-        cv2.fillPoly(seen, [poly], 1, lineType=cv2.LINE_8, shift=4)
-        seen_f = seen.astype(np.float32) * np.float32(amount)
-        self._sums.add_block(_HEAT, warped * seen_f, r0, c0)
-        self._sums.add_block(_SEEN, seen_f, r0, c0)
+        cv2.fillPoly(seen, [poly], float(amount), lineType=cv2.LINE_8, shift=4)
+        self._sums.add_block(_HEAT, cv2.multiply(warped, seen), r0, c0)
+        self._sums.add_block(_SEEN, seen, r0, c0)
         return True
 
     # ------------------------------------------------------------------ read
-    def layer(self) -> NDArray[np.float32] | None:
-        """The whole window's averaged heat, (size, size) float32 in [0, 1] (north-west cell first), or None
-        before the first update."""
+    def layer(self, block: tuple[int, int, int, int] | None = None) -> NDArray[np.float32] | None:
+        """The averaged heat, float32 in [0, 1]: the whole window (size, size), north-west cell first, or the
+        block (c0, r0, c1, r1) of window cells; None before the first update."""
         heat, f_heat = self._sums.stored(_HEAT)
-        seen, f_seen = self._sums.stored(_SEEN)
+        seen, _ = self._sums.stored(_SEEN)
         if heat is None or seen is None:
             return None
-        prior = np.float32(self.config.prior_s / f_seen)  # in stored units: both sums share the factor
+        if block is not None:
+            c0, r0, c1, r1 = block
+            heat, seen = heat[r0:r1, c0:c1], seen[r0:r1, c0:c1]
+        prior = np.float32(self.config.prior_s / f_heat)  # in stored units: both sums share the factor
         out = heat / (seen + prior)
         np.clip(out, 0.0, 1.0, out=out)
         return out
@@ -229,19 +264,22 @@ class AnomalyMap:
         """The layer seen from a frame: (h, w) float32 at an image scale of the camera (shape = (h, w)),
         0 above the cut row (horizon, range) and where the window holds nothing (ground_to_image as in update)."""
         out = np.zeros(shape, dtype=np.float32)
-        layer = self.layer()
-        if layer is None:
+        foot = self._footprint(camera, pose, ground_to_image)
+        if foot is None:
             return out
-        row = cut_row(camera, pose, self.config.max_range_m, self.config.horizon_margin_deg)
+        row, c2i, _, (c0, r0, c1, r1) = foot
+        block = self.layer((c0, r0, c1, r1))
+        if block is None:
+            return out
         h, w = shape
         first = int(math.ceil(row * h / camera.height))
         if first >= h:
             return out
-        # image pixel (u + 0.5)/s -> cell coordinates; warp with the inverse map of output pixels
+        # output pixel (x, y) -> image point -> window cell -> block array index; one inverse warp
         s = np.diag([w / camera.width, h / camera.height, 1.0])
-        img_to_cell = _translate(-0.5, -0.5) @ np.linalg.inv(self._cell_to_image(camera, pose, ground_to_image)) @ \
-            np.linalg.inv(s) @ _translate(0.5, first + 0.5)
-        out[first:] = cv2.warpPerspective(layer, img_to_cell, (w, h - first),
+        img_to_block = (_translate(-0.5 - c0, -0.5 - r0) @ np.linalg.inv(c2i) @ np.linalg.inv(s)
+                        @ _translate(0.5, first + 0.5))
+        out[first:] = cv2.warpPerspective(block, img_to_block, (w, h - first),
                                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                           borderMode=cv2.BORDER_CONSTANT)
         return out
