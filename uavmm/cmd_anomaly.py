@@ -14,7 +14,7 @@ from pathlib import Path
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `anomaly` and `anomaly-train` subcommands."""
-    from agent.anomaly.methods import ANOMALY_METHODS, DEFAULT_METHOD
+    from agent.anomaly.registry import ANOMALY_METHODS, DEFAULT_METHOD
 
     p = sub.add_parser(
         "anomaly", help="regions of interest from anomaly heatmaps (COCO results, category anomaly)",

@@ -19,8 +19,9 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from agent.anomaly.ground import AnomalyMap, AnomalyMapConfig, cut_row
-from agent.anomaly.methods import DEFAULT_METHOD, AnomalyMethod, make_method
+from agent.anomaly.methods import AnomalyMethod
 from agent.anomaly.registration import GroundRegistration
+from agent.anomaly.registry import DEFAULT_METHOD, make_method
 from shared.geo import Camera, Pose, image_to_ground_homography, latlon_to_local
 from shared.tiles import TileGrid
 

@@ -4,15 +4,14 @@ A method turns one BGR frame into a float32 heatmap in [0, 1] at its working sca
 to ``work_width`` pixels across): high where the frame looks unlike water/meadow. The classic methods are the
 paper's baselines (Table III): frame differencing after ego-motion compensation, mean and median filter
 residuals, and OpenCV's MOG2 background model; the learned one (`agent.anomaly.autoencoder`) registers here
-too. Look a method up by name with `make_method`.
+too. `agent.anomaly.registry` looks methods up by name.
 """
 
 from __future__ import annotations
 
 import logging
 import math
-from collections.abc import Callable
-from typing import Any, Protocol
+from typing import Protocol
 
 import cv2
 import numpy as np
@@ -230,34 +229,6 @@ class FrameDifference:
         if self.blur_sigma_px > 0:
             residual = cv2.GaussianBlur(residual, (0, 0), self.blur_sigma_px)
         return normalise_robust(residual, self.z_max, valid)
-
-
-# ---------------------------------------------------------------------------------------------------- registry
-
-def _autoencoder(**kwargs: Any) -> AnomalyMethod:
-    from agent.anomaly.autoencoder import OnnxAutoencoder
-
-    return OnnxAutoencoder(**kwargs)
-
-
-#: Heatmap methods by name (STYLE: plug-ins looked up by name). Each factory takes keyword options.
-ANOMALY_METHODS: dict[str, Callable[..., AnomalyMethod]] = {
-    "autoencoder": _autoencoder,
-    "diff": FrameDifference,
-    "mean": lambda **kw: FilterResidual("mean", **kw),
-    "median": lambda **kw: FilterResidual("median", **kw),
-    "mog2": Mog2,
-}
-#: The method `uavmm anomaly` and the agent use when none is named.
-DEFAULT_METHOD = "autoencoder"
-
-
-def make_method(name: str, **options: Any) -> AnomalyMethod:
-    """A heatmap method by name with keyword options; ValueError listing the valid names for an unknown one."""
-    factory = ANOMALY_METHODS.get(name)
-    if factory is None:
-        raise ValueError(f"unknown anomaly method {name!r}; valid: {', '.join(sorted(ANOMALY_METHODS))}")
-    return factory(**options)
 
 
 def check_heatmap(heat: NDArray, frame_shape: tuple[int, ...]) -> None:

@@ -9,7 +9,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.anomaly import ANOMALY_CLASS, AnomalyConfig, AnomalyDetector, AnomalyMap, AnomalyMapConfig, extract_rois
-from agent.anomaly.methods import FrameDifference, make_method
+from agent.anomaly.methods import FrameDifference
+from agent.anomaly.registry import make_method
 from shared.geo import Camera, Pose, metres_per_pixel
 
 CAM = Camera(width=640, height=360, fx=450.0, fy=450.0, cx=320.0, cy=180.0)
