@@ -72,13 +72,16 @@ class OnnxAutoencoder:
     def reconstruct(self, small_bgr: NDArray[np.uint8]) -> NDArray[np.float32]:
         """The model's reconstruction of a working-size BGR frame: (h, w, 3) float32 in [0, 1]."""
         h, w = small_bgr.shape[:2]
-        ph, pw = (-h) % STRIDE, (-w) % STRIDE
-        padded = cv2.copyMakeBorder(small_bgr, 0, ph, 0, pw, cv2.BORDER_REFLECT) if ph or pw else small_bgr
+        # a mirrored margin of one stride all round (the network's zero padding spoils the outermost pixels),
+        # then up to multiples of the stride
+        m = STRIDE
+        ph, pw = (-(h + 2 * m)) % STRIDE, (-(w + 2 * m)) % STRIDE
+        padded = cv2.copyMakeBorder(small_bgr, m, m + ph, m, m + pw, cv2.BORDER_REFLECT_101)
         x = np.ascontiguousarray(padded.transpose(2, 0, 1)[None], dtype=np.float32) * np.float32(1.0 / 255.0)
         y = self._session.run(None, {self._input: x})[0]
         if y.shape != x.shape:
             raise ValueError(f"autoencoder {self.model_path} returned {y.shape} for an input of {x.shape}")
-        return np.ascontiguousarray(y[0, :, :h, :w].transpose(1, 2, 0))
+        return np.ascontiguousarray(y[0, :, m:m + h, m:m + w].transpose(1, 2, 0))
 
     def heatmap(self, frame_bgr: NDArray[np.uint8], image_to_world: NDArray[np.float64] | None = None) -> FloatImage:
         small = to_work(frame_bgr, self.work_width)
