@@ -7,7 +7,8 @@ from __future__ import annotations
 import httpx
 import pytest
 
-from tests.e2e.conftest import agent_cmd, finish, free_port, start_agent, start_fusion, wait_for
+from tests.e2e.conftest import agent_cmd, finish, start_agent, start_fusion
+from tests.netutil import free_port, wait_until
 from uavmm.cli import main
 
 pytestmark = pytest.mark.e2e
@@ -23,9 +24,9 @@ def test_agent_publishes_the_anomaly_layer_to_the_fusion_server(tmp_path):
     try:
         agent = start_agent(agent_cmd(zenoh_port, "--dataset", str(data), "--anomaly", "median", "--loop"))
         with httpx.Client(base_url=url, timeout=10) as http:
-            wait_for(lambda: "anomaly" in http.get("/healthz").json().get("classes", []), 30.0,
+            wait_until(lambda: "anomaly" in http.get("/healthz").json().get("classes", []), 30.0,
                      "class anomaly at the fusion server")
-            tiles = wait_for(lambda: [t for t in http.get("/v1/joint/tiles", params={"cls": "anomaly"}).json()
+            tiles = wait_until(lambda: [t for t in http.get("/v1/joint/tiles", params={"cls": "anomaly"}).json()
                                       if t["max"] > 0], 30.0, "non-empty joint anomaly tiles")
             t = tiles[0]
             png = http.get(f"/v1/tiles/anomaly/{t['z']}/{t['x']}/{t['y']}.png")
