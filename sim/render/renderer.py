@@ -36,6 +36,7 @@ from sim.render.geometry import (
     uav_world_en,
 )
 from sim.render.scene import SceneFrame, SceneVideo, SceneWorld, SimulatedDataset
+from sim.render.sea_motion import SeaEvents
 from sim.render.sprites import Model, Placed
 from sim.render.texture import (
     GroundTexture,
@@ -51,6 +52,7 @@ logger = logging.getLogger(__name__)
 
 # roles of the generators derived from the seed (apart from the simulator's own)
 ROLE_GROUND, ROLE_ATMOSPHERE, ROLE_SCENERY, ROLE_FRAME, ROLE_EXPOSURE, ROLE_NOISE = 101, 102, 103, 104, 105, 106
+ROLE_SEA_EVENTS = 107
 #: Exposure time that turns the gimbal's yaw rate into blur length (1/50 s).
 EXPOSURE_S = 0.02
 #: Side of the far ground (metres) drawn beyond the near texture, and its texels a side.
@@ -76,6 +78,8 @@ class RenderOptions:
         Add boats (sea) and cars on the roads (meadow): not annotated, listed in render.json.
     sensor_noise_std : float
         Standard deviation of the sensor noise, grey levels (0 = none).
+    sea_events : bool
+        Transient whitecaps and glint sparkles on the sea (`sim.render.sea_motion`): clutter that moves.
     """
 
     max_texture_px: int = 4096
@@ -83,6 +87,7 @@ class RenderOptions:
     ground_res_m: float | None = None
     scenery: bool = True
     sensor_noise_std: float = 2.0
+    sea_events: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.max_texture_px, bool) or not isinstance(self.max_texture_px, int) \
@@ -194,6 +199,8 @@ class WorldRenderer:
         self._models: dict[int, Model] = {}
         self.noise = (SensorNoise(self.camera.width, self.camera.height, self.options.sensor_noise_std,
                                   self._rng(ROLE_NOISE)) if self.options.sensor_noise_std > 0 else None)
+        self.sea_events = (SeaEvents(self.seed, world.group, ROLE_SEA_EVENTS, self.ground.extent_m)
+                           if world.kind == "sea" and self.options.sea_events else None)
         self._buffer = np.empty((self.camera.height, self.camera.width, 4), np.uint8)
         logger.info("world %d (%s): ground %dx%d texels at %.3f m (far %.2f m), sun az %.0f el %.0f deg, %d trees, "
                     "%d scenery", world.group, world.kind, self.ground.levels[0].shape[1],
@@ -363,6 +370,8 @@ class WorldRenderer:
             glint = effects.glint_map(cam, pose, atm, first)
             if glint is not None:
                 effects.add_glint(image, buf[..., 3], glint[0], glint[1], atm.glint_strength)
+            if self.sea_events is not None:
+                self.sea_events.draw(image, cam, pose, uav_en, frame.t - self.t0, first, glint)
         self._draw_objects(image, frame, uav_en)
         gains = drift.channel_gains(frame.frame_index, first / cam.height) if drift is not None else np.ones(3)
         effects.tone(image, effects.haze_rows(cam, pose, atm, first), atm.horizon_bgr, gains)

@@ -116,6 +116,16 @@ def _shade(bgr: tuple[int, ...], k: float) -> tuple[float, float, float]:
     return (min(bgr[0] * k, 255.0), min(bgr[1] * k, 255.0), min(bgr[2] * k, 255.0))
 
 
+#: The sea's mean colour (BGR, `sim.render.texture`), which water on a swimmer pulls colours towards.
+_WATER = (100.0, 90.0, 45.0)
+
+
+def _washed(bgr: tuple[int, ...], k: float) -> tuple[int, int, int]:
+    """A colour pulled a fraction k towards the water's (desaturated and darkened by a film of water)."""
+    return (int(round(bgr[0] + k * (_WATER[0] - bgr[0]))), int(round(bgr[1] + k * (_WATER[1] - bgr[1]))),
+            int(round(bgr[2] + k * (_WATER[2] - bgr[2]))))
+
+
 def appearance_rng(seed: int, key: int, kind: str) -> np.random.Generator:
     """The generator of an object's look: the same for a (seed, key, kind) in every frame and video."""
     return np.random.default_rng([int(seed), int(key) & 0x7FFFFFFF, sum(kind.encode()) + 1009])
@@ -146,12 +156,18 @@ def swimmer(rng: np.random.Generator) -> Model:
     cap, suit, skin = _pick(rng, _CAPS), _pick(rng, _SUITS), _pick(rng, _SKIN)
     vest = rng.uniform() < 0.3
     shoulders = (0, 140, 250) if vest else suit
+    # partly submerged: the water film and spray wash the colours towards the sea's, by a per-swimmer amount
+    wash = float(rng.uniform(0.3, 0.75))
+    cap, shoulders = _washed(cap, wash), _washed(shoulders, min(0.9, wash + 0.15))
+    above = float(rng.uniform(0.45, 0.9))  # how much of the shoulders shows through the water
     parts = (
-        Part(ellipse(0.95, 1.1, 14), 0.0, 0.02, (215, 220, 220), (225, 230, 230), alpha=0.35, casts_shadow=False),
-        Part(ellipse(0.42, 1.1, 12, forward_m=-0.45), 0.0, 0.01, _shade(suit, 0.7), _shade(suit, 0.8), alpha=0.25,
+        Part(ellipse(0.95, 1.1, 14), 0.0, 0.02, (215, 220, 220), (225, 230, 230), alpha=0.25, casts_shadow=False),
+        Part(ellipse(0.42, 1.1, 12, forward_m=-0.45), 0.0, 0.01, _shade(suit, 0.7), _shade(suit, 0.8), alpha=0.2,
              casts_shadow=False),
-        Part(ellipse(0.5, 0.26), 0.0, 0.12, _shade(shoulders, 0.8), _shade(shoulders, 1.0), casts_shadow=False),
-        Part(ellipse(0.2, 0.23, 10, forward_m=0.08), 0.05, 0.30, _shade(skin, 0.85), _shade(cap, 1.0)),
+        Part(ellipse(0.5, 0.26), 0.0, 0.12, _shade(shoulders, 0.8), _shade(shoulders, 1.0), alpha=above,
+             casts_shadow=False),
+        Part(ellipse(0.2, 0.23, 10, forward_m=0.08), 0.05, 0.30, _shade(_washed(skin, wash), 0.85),
+             _shade(cap, 1.0)),
     )
     return Model(parts, _texture(rng), 0.1)
 
