@@ -136,10 +136,13 @@ class SeaEvents:
 def _blend_disc(image: np.ndarray, poly: np.ndarray, colour: np.ndarray, opacity: float, first_row: int) -> int:
     """Alpha-blend a filled polygon (at least one pixel) of `colour` into image; returns 1 if drawn."""
     h, w = image.shape[:2]
-    x0 = max(int(math.floor(poly[:, 0].min())) - 1, 0)
-    y0 = max(int(math.floor(poly[:, 1].min())) - 1, first_row, 0)
-    x1 = min(int(math.ceil(poly[:, 0].max())) + 2, w)
-    y1 = min(int(math.ceil(poly[:, 1].max())) + 2, h)
+    span = poly.max(axis=0) - poly.min(axis=0)
+    sigma = 0.25 * float(span.min())  # foam fades out towards its edge
+    pad = int(math.ceil(2.5 * sigma)) + 1 if sigma >= 0.7 else 1
+    x0 = max(int(math.floor(poly[:, 0].min())) - pad, 0)
+    y0 = max(int(math.floor(poly[:, 1].min())) - pad, first_row, 0)
+    x1 = min(int(math.ceil(poly[:, 0].max())) + pad + 1, w)
+    y1 = min(int(math.ceil(poly[:, 1].max())) + pad + 1, h)
     if x1 <= x0 or y1 <= y0:
         return 0
     mask = np.zeros((y1 - y0, x1 - x0), np.uint8)
@@ -151,8 +154,7 @@ def _blend_disc(image: np.ndarray, poly: np.ndarray, colour: np.ndarray, opacity
         mask[iy, ix] = 255
         opacity *= 0.5
     a = mask.astype(np.float32) * (opacity / 255.0)
-    sigma = 0.25 * min(x1 - x0, y1 - y0)
-    if sigma >= 0.7:  # foam fades out towards its edge
+    if sigma >= 0.7:
         a = cv2.GaussianBlur(a, (0, 0), sigma)
     roi = image[y0:y1, x0:x1].astype(np.float32)
     roi += a[..., None] * (colour[None, None, :] - roi)
