@@ -162,6 +162,7 @@ class AgentLink:
         self._bytes: Counter[str] = Counter()
         self._rejects: Counter[str] = Counter()
         self._warn = RateLimitedLog(log).warning
+        self._on_reply_guarded = self._guarded(self._on_reply, "a query reply")  # built once, used per reply
         self._known_remotes: set[str] = set()
         self._alone_since: float | None = None  # monotonic time since when no router/peer is connected
         self._alone_warned = False
@@ -385,8 +386,6 @@ class AgentLink:
         with self._lock:
             self._rejects["internal_error"] += 1
 
-    def _on_reply_guarded(self, reply: zenoh.Reply) -> None:
-        self._guarded(self._on_reply, "a query reply")(reply)
 
     def _on_reply(self, reply: zenoh.Reply) -> None:
         sample = reply.ok
