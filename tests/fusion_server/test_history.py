@@ -31,12 +31,20 @@ def test_history_window_positions_and_range(server_factory, agent_factory, tmp_p
     agent = agent_factory("uav-a")
     _walk(agent)
 
-    def full():
+    previous: list = [None]
+
+    def settled():
+        """Eight rows or more, and the same answer twice 0.3 s apart (the last rows may still be landing)."""
         body = http.get("/v1/history").json()
         rows = body["features"][0]["properties"]["history"] if body["features"] else []
-        return body if len(rows) >= 8 else None
+        same = body == previous[0]
+        previous[0] = body
+        if len(rows) >= 8 and same:
+            return body
+        time.sleep(0.3)
+        return None
 
-    body = wait_until(full, 10.0, "eight history rows")
+    body = wait_until(settled, 15.0, "eight history rows, settled")
     assert body["type"] == "FeatureCollection" and len(body["features"]) == 1
     rows = body["features"][0]["properties"]["history"]
     first, last = body["time_range"]
