@@ -72,6 +72,11 @@ class FusionView(Protocol):
 
     def count_http_denied(self, reason: str) -> None: ...
 
+    def cluster_health(self) -> dict[str, Any]:
+        """Extra /healthz fields of a sharded deployment (``shard``; a gateway's ``shards``); ``degraded``
+        True turns the status to degraded. Empty for a single server."""
+        ...
+
 __all__ = ["create_app"]
 
 _BBOX_HELP = "minlon,minlat,maxlon,maxlat in degrees (WGS84)"
@@ -185,8 +190,11 @@ def create_app(server: FusionView) -> FastAPI:
              responses={200: {"model": schemas.Health}})
     def healthz() -> dict[str, Any]:
         db = server.db_health()
+        cluster = server.cluster_health()
+        healthy = server.zenoh_open() and db["status"] != "failing" and not cluster.get("degraded", False)
         return {
-            "status": "ok" if server.zenoh_open() and db["status"] != "failing" else "degraded",
+            **cluster,
+            "status": "ok" if healthy else "degraded",
             "db": db,
             "zenoh": "open" if server.zenoh_open() else "closed",
             "uptime_s": round(time.monotonic() - server.started, 3),

@@ -18,6 +18,7 @@ from fusion_server.http_auth import HttpToken, is_loopback_host
 from fusion_server.joint_map import COVERAGE_MODES
 from fusion_server.rules import FUSION_RULES
 from shared.keys import DEFAULT_PREFIX, KeySpace
+from shared.sharding import DEFAULT_REGION_ZOOM, ShardSpec
 from shared.tiles import TileGrid
 from transport.options import ZENOH_MODES, ZenohOptions, zenoh_config  # re-exported
 
@@ -88,6 +89,11 @@ class FusionSettings:
     #: map under the live page: an http(s) XYZ template with {z}/{x}/{y} or an MBTiles file (None: none)
     basemap: str | None = None
     basemap_attribution: str | None = None
+    #: this process is shard ``shard_index`` of ``shard_count`` over regions of zoom ``region_zoom``
+    #: (shared.sharding; 0 of 1: the whole map)
+    shard_index: int = 0
+    shard_count: int = 1
+    region_zoom: int = DEFAULT_REGION_ZOOM
 
     def __post_init__(self) -> None:
         if self.fusion_rule not in FUSION_RULES:
@@ -96,6 +102,7 @@ class FusionSettings:
             raise ValueError(f"coverage must be one of {', '.join(COVERAGE_MODES)}, got {self.coverage!r}")
         KeySpace(self.prefix)  # raises ValueError naming the bad chunk
         TileGrid(self.grid_z, self.grid_n)
+        ShardSpec(self.shard_index, self.shard_count, self.region_zoom).check_grid(self.grid_z)
         if not isinstance(self.http_port, int) or not 0 <= self.http_port <= 65535:
             raise ValueError(f"http_port must be in 0..65535, got {self.http_port!r}")
         if not all(isinstance(t, HttpToken) for t in self.http_tokens):
@@ -129,6 +136,11 @@ class FusionSettings:
     def grid(self) -> TileGrid:
         """The shared tile grid the server accepts (tiles of another z or n are rejected)."""
         return TileGrid(self.grid_z, self.grid_n)
+
+    @property
+    def shard(self) -> ShardSpec:
+        """The part of the map this process owns (ShardSpec.single() unless --shard)."""
+        return ShardSpec(self.shard_index, self.shard_count, self.region_zoom)
 
     @property
     def keys(self) -> KeySpace:

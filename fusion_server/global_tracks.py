@@ -12,7 +12,7 @@ import math
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -156,6 +156,8 @@ class GlobalTracker:
         max_tracks_per_uav: int = 2000,
         max_global_tracks: int = 20_000,
         next_gid: int = 1,
+        gid_step: int = 1,
+        adopt: Callable[[str, int, str, float, float], int | None] | None = None,
         clock=time.monotonic,
         wall=time.time,
     ) -> None:
@@ -173,6 +175,17 @@ class GlobalTracker:
         self._tracks: dict[int, GlobalTrack] = {}
         self._local: dict[tuple[str, int], int] = {}
         self._ended: deque[TrackRecord] = deque(maxlen=max_ended)
+        if isinstance(gid_step, bool) or not isinstance(gid_step, int) or gid_step < 1:
+            raise ValueError(f"gid_step must be an int >= 1, got {gid_step!r}")
+        #: new global ids are next_gid, next_gid + gid_step, ... (a shard K of N: K + 1 + i N, disjoint)
+        self.gid_step = gid_step
+        self._gid_residue = next_gid % gid_step
+        #: when set, asked for the global id of a local track about to start a new global track: another
+        #: shard's id for the same object (handover across a region border), or None for a new id
+        self.adopt = adopt
+        #: global ids taken over from another shard ("in") and held ones ended because another shard
+        #: carries them on ("out")
+        self.handovers: Counter[str] = Counter()
         self._next_gid = next_gid
         self._dirty: set[int] = set()  # for persistence
         self._history_out: list[tuple[int, float, float, float]] = []
@@ -249,18 +262,28 @@ class GlobalTracker:
                 assigned[int(r)] = candidates[int(c)]
         for i, item in enumerate(items):
             track = assigned.get(i)
+            adopted = self.adopt(uav, item.id, item.cls, item.lat, item.lon) if track is None and self.adopt else None
+            if adopted is not None and adopted in self._tracks:  # our held copy of the handed-over track
+                mine = self._tracks[adopted]
+                track = mine if mine.cls == item.cls and adopted not in claimed else None
+                adopted = None
             if track is None:
                 if not self._make_room(uav):
                     continue
+                gid = adopted
+                if gid is None:
+                    gid = self._next_gid
+                    self._next_gid += self.gid_step
+                else:
+                    self.handovers["in"] += 1
                 track = GlobalTrack(
-                    gid=self._next_gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score,
+                    gid=gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score,
                     vel_en=item.vel_en, created=wall, last_update=wall,
                     history=deque(maxlen=self.history_len),
                 )
                 self._tracks[track.gid] = track
                 self._owner[track.gid] = uav
                 self._owned.setdefault(uav, {})[track.gid] = None
-                self._next_gid += 1
             key = (uav, item.id)
             track.members.pop(key, None)  # re-insert: most recent last
             track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
@@ -418,7 +441,7 @@ class GlobalTracker:
         count = 0
         with self._lock:
             for rec in records:
-                self._next_gid = max(self._next_gid, rec.gid + 1)
+                self._next_gid = max(self._next_gid, self._aligned(rec.gid + 1))
                 if rec.ended is not None:
                     self._ended.append(rec)
                     continue
@@ -438,6 +461,21 @@ class GlobalTracker:
                 count += 1
             self.version += 1
         return count
+
+    def _aligned(self, value: int) -> int:
+        """The smallest id >= value in this tracker's id series (next_gid modulo gid_step)."""
+        return value + (self._gid_residue - value) % self.gid_step
+
+    def hand_over(self, gid: int) -> bool:
+        """End global track ``gid`` if it is held (no UAV reports it here any more) because another
+        shard carries it on; returns whether it ended. A track still reported here stays."""
+        with self._lock:
+            if gid not in self._lost:
+                return False
+            self.handovers["out"] += 1
+            self._end(gid, self._wall())
+            self.version += 1
+            return True
 
     def drain_changes(self) -> tuple[list[TrackRecord], list[tuple[int, float, float, float]]]:
         """Tracks changed (or ended) since the last call, and new history rows (gid, t, lat, lon)."""

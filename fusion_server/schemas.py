@@ -9,7 +9,7 @@ servers may add fields, as DESIGN.md allows, without breaking generated clients.
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Any, Literal
 
 from pydantic import BaseModel, ConfigDict, Field
 
@@ -63,6 +63,9 @@ class Health(_Open):
     coverage_masks: int
     footprints: int
     global_tracks: int
+    shard: str | None = Field(None, description="a shard: K/N (`uavmm fusion --shard K/N`)")
+    shards: dict[str, Any] | None = Field(None, description="a gateway: each shard's liveliness and regions")
+    degraded: bool | None = Field(None, description="a gateway: True while a shard is missing")
 
 
 # ---- /v1/uavs ------------------------------------------------------------------------------------------------

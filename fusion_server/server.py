@@ -77,9 +77,11 @@ class FusionServer:
         self.joint = JointMap(grid, get_fusion_rule(settings.fusion_rule), settings.ttl_s, settings.joint_max_hz,
                               max_uav_tiles=settings.max_uav_tiles, max_tiles_per_uav=settings.max_tiles_per_uav,
                               coverage=settings.coverage)
+        shard = settings.shard
         self.tracker = GlobalTracker(
             gate_m=settings.track_gate_m, hold_s=settings.track_hold_s, member_ttl_s=settings.ttl_s,
             history_len=settings.track_history_len, history_interval_s=settings.track_history_interval_s,
+            next_gid=shard.index + 1, gid_step=shard.count,  # shards hand out disjoint ids
         )
         self.uavs = UavRegistry(max_uavs=settings.max_uavs)
         #: (what was wrong, where the bad file went) when --db-recover moved a database aside
@@ -101,8 +103,10 @@ class FusionServer:
             self.uavs, self.metrics, self.store,
             UavRateLimiter(settings.uav_max_msgs_per_s, settings.uav_max_bytes_per_s, max_uavs=4 * settings.max_uavs),
             tracks_max_hz=settings.tracks_max_hz,
-            persist_interval_s=settings.persist_interval_s, uav_keep_s=settings.uav_keep_s,
+            persist_interval_s=settings.persist_interval_s, uav_keep_s=settings.uav_keep_s, shard=shard,
         )
+        if self.node.handover is not None:
+            self.tracker.adopt = self.node.handover.adopt
         #: REST requests refused for a missing or wrong bearer token, by reason
         self.http_denied: dict[str, int] = {}
         self.basemap = open_basemap(settings.basemap, settings.basemap_attribution) if settings.basemap else None
@@ -216,6 +220,15 @@ class FusionServer:
                                                           "database could not be written.", db["history_dropped"]),
             })
         return self.metrics.prometheus(gauges, reasons)
+
+    def cluster_health(self) -> dict[str, Any]:
+        """``shard`` (K/N) and what crossed its borders, for /healthz of a shard; empty when unsharded."""
+        handover = self.node.handover
+        if handover is None:
+            return {}
+        return {"shard": self.settings.shard.label(), "region_zoom": self.settings.region_zoom,
+                "skipped_tiles": self.node.skipped, "handovers": dict(self.tracker.handovers),
+                "foreign_region_messages": handover.received}
 
     def db_health(self) -> dict[str, Any]:
         """The database's health for /healthz: FusionStore.health(), or ``{"status": "off"}``."""

@@ -21,6 +21,7 @@ from typing import TYPE_CHECKING, TypeVar
 import numpy as np
 import zenoh
 
+from fusion_server.handover import Handover
 from fusion_server.joint_map import JointMap, TileKey
 from fusion_server.validation import MessageValidator, Received, Rejected
 from shared.keys import track_region
@@ -32,6 +33,7 @@ from shared.messages import (
     TracksMessage,
     encode_joint_tracks,
 )
+from shared.sharding import ShardSpec
 from shared.tilecodec import SparseTile
 from transport.guard import RateLimitedLog, guarded
 from transport.publishers import PublisherCache
@@ -99,6 +101,7 @@ class FusionNode:
         max_tracks_bytes: int = 1024 * 1024,
         uav_keep_s: float = 3600.0,
         inbox_max: int = 65_536,
+        shard: ShardSpec | None = None,
     ) -> None:
         self.conf = conf
         self.keys = keys
@@ -113,6 +116,10 @@ class FusionNode:
         self.persist_interval_s = persist_interval_s
         self.max_tracks_bytes = max_tracks_bytes
         self.uav_keep_s = uav_keep_s
+        self.shard = shard if shard is not None else ShardSpec.single()
+        self.handover = Handover(self.shard, keys, tracker, joint.grid) if self.shard.sharded else None
+        #: tile samples of other shards' regions dropped by key, before decoding
+        self.skipped = 0
         self.session: zenoh.Session | None = None
         self._declared: list = []
         self._publishers: PublisherCache | None = None
@@ -148,6 +155,13 @@ class FusionNode:
             session.declare_queryable(self.keys.joint_all(), guarded(self._on_query, log, "a query")),
             session.declare_queryable(self.keys.region_all(), guarded(self._on_query, log, "a region query")),
         ]
+        if self.handover is not None:
+            shard = self.shard
+            self._declared += [
+                session.liveliness().declare_token(self.keys.shard_alive(shard.index, shard.count)),
+                session.declare_subscriber(self.keys.region_tracks_all(),
+                                           guarded(self.handover.on_region_tracks, log, "foreign region tracks")),
+            ]
         self._thread = threading.Thread(target=self._run, name="uavmm-fusion", daemon=True)
         self._thread.start()
         log.info("fusion node %s up, subscribed to %s", session.zid(), self.keys.uav_all())
@@ -186,6 +200,9 @@ class FusionNode:
     def _on_sample(self, sample: zenoh.Sample) -> None:
         """Zenoh thread: enqueue only (the fusion thread validates and fuses)."""
         try:
+            if self.handover is not None and not self._mine(str(sample.key_expr)):
+                self.skipped += 1
+                return
             if len(self._inbox) >= self.inbox_max:
                 self.metrics.reject("unknown", "overloaded")
                 self._reject_log.warning("overloaded", "fusion inbox full (%d samples): dropped a sample on %.120s",
@@ -196,6 +213,17 @@ class FusionNode:
         except Exception:
             self.metrics.reject("unknown", "internal_error")
             log.exception("internal error enqueueing a sample")
+
+    def _mine(self, key: str) -> bool:
+        """Whether a sample on ``key`` is this shard's: tiles of its regions and every other message
+        (states and tracks are split later, by position). Cheap: no decoding."""
+        parts = key.rsplit("/", 5)
+        if len(parts) != 6 or parts[1] != "tiles":
+            return True
+        try:
+            return self.shard.owns(int(parts[3]), int(parts[4]), int(parts[5]))
+        except ValueError:
+            return True  # the validator rejects it with its reason
 
     def _session_of(self, sample: zenoh.Sample) -> str | None:
         """The sending agent's Zenoh session id from the sample's attachment (docs/protocol.md), if any."""
@@ -231,6 +259,8 @@ class FusionNode:
                     self.joint.put_footprint(message.uav, message.footprint)
                     self._forward_state(message, sample.payload.to_bytes())
                 elif isinstance(message, TracksMessage):
+                    if self.handover is not None:
+                        message = self.handover.own_tracks(message)
                     self.tracker.update(message)
                 self.metrics.message(received.kind, received.nbytes)
             except Exception:  # a bug must not take the fusion thread down: count it, log it
@@ -265,6 +295,8 @@ class FusionNode:
             rx1, ry1 = rx0, ry0
         for ry in range(ry0, ry1 + 1):
             for rx in range(rx0, rx1 + 1):
+                if not self.shard.owns(z, rx, ry):
+                    continue  # the region's shard forwards it
                 self.session.put(self.keys.region_state(z, rx, ry, message.uav), payload,
                                  congestion_control=zenoh.CongestionControl.BLOCK)
 
@@ -334,7 +366,7 @@ class FusionNode:
             tile_key = self.keys.joint_tile(tile.cls, tile.z, tile.x, tile.y)
             if selector.intersects(tile_key):
                 query.reply(tile_key, tile.payload)
-        if selector.intersects(self._tracks_key):
+        if not self.shard.sharded and selector.intersects(self._tracks_key):
             query.reply(self._tracks_key, self._tracks_payload)
         for region, (_, payload, _) in list(self._region_payloads.items()):
             region_key = self.keys.region_tracks(*region)
@@ -390,7 +422,9 @@ class FusionNode:
             lon = np.array([item.lon for item in message.tracks])
             xs, ys = grid.tile_of(lat, lon)
             for item, x, y in zip(message.tracks, xs.tolist(), ys.tolist(), strict=True):
-                by_region.setdefault(track_region(grid.z, x, y), []).append(item)
+                region = track_region(grid.z, x, y)
+                if self.shard.owns(*region):  # a held track drifted across a border: not ours to publish
+                    by_region.setdefault(region, []).append(item)
         now = time.monotonic()
         for region in [r for r in self._region_payloads if r not in by_region]:
             by_region[region] = []
@@ -458,7 +492,8 @@ class FusionNode:
             if now >= next_forget:
                 self._step("forget_uavs", lambda: self.uavs.forget_offline(self.uav_keep_s))
                 next_forget = now + 5.0
-            if self.tracker.version != tracks_version and now - last_tracks >= self.tracks_min_interval_s:
+            if (not self.shard.sharded and self.tracker.version != tracks_version
+                    and now - last_tracks >= self.tracks_min_interval_s):
                 tracks_version = self.tracker.version
                 last_tracks = now
                 self._step("joint_tracks", self._publish_tracks)

@@ -250,6 +250,10 @@ class KeySpace:
         z, x, y = _validate_tile(z, x, y)
         return f"{self.prefix}/region/tracks/{z}/{x}/{y}"
 
+    def region_tracks_all(self) -> str:
+        """Selector of every region's global tracks: ``{prefix}/region/tracks/**``."""
+        return f"{self.prefix}/region/tracks/**"
+
     def region_state(self, z: int, x: int, y: int, uav: str) -> str:
         """Key of a UAV's state message as the fusion server forwards it to a region its footprint
         touches: ``{prefix}/region/states/{z}/{x}/{y}/{uav}`` (regions as :meth:`region_tracks`)."""
@@ -268,6 +272,30 @@ class KeySpace:
         global tracks for its subscribers and late-join queries.
         """
         return f"{self.prefix}/region/**"
+
+    def shard_alive(self, index: int, count: int) -> str:
+        """Liveliness token of fusion shard ``index`` of ``count``: ``{prefix}/fusion/shards/{count}/{index}``
+        (``index="*"``: every shard of ``count``; ``count="*"`` too: every shard)."""
+        parts = []
+        for name, value in (("count", count), ("index", index)):
+            if value == "*":
+                parts.append("*")
+            elif isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"shard {name} must be an int >= 0 or '*', got {value!r}")
+            else:
+                parts.append(str(value))
+        return f"{self.prefix}/fusion/shards/{parts[0]}/{parts[1]}"
+
+    def parse_shard_alive(self, key: str) -> tuple[int, int]:
+        """(index, count) of a shard liveliness key; ValueError for any other key."""
+        head = f"{self.prefix}/fusion/shards/"
+        parts = key[len(head):].split("/") if key.startswith(head) else []
+        if len(parts) != 2 or not all(_DECIMAL.match(p) for p in parts):
+            raise ValueError(f"key {key!r} is not a shard liveliness key {head}COUNT/INDEX")
+        count, index = int(parts[0]), int(parts[1])
+        if not 0 <= index < count:
+            raise ValueError(f"key {key!r}: shard index {index} is not below the count {count}")
+        return index, count
 
     def joint_all(self) -> str:
         """Selector (and queryable) of everything the fusion server publishes: ``{prefix}/joint/**``."""

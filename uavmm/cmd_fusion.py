@@ -16,7 +16,7 @@ from pathlib import Path
 
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
 
-__all__ = ["DEFAULT_LISTEN", "add_zenoh_arguments", "register", "settings_from_args"]
+__all__ = ["DEFAULT_LISTEN", "add_zenoh_arguments", "register", "settings_from_args", "shard_from_args"]
 
 log = logging.getLogger("uavmm.fusion")
 
@@ -89,7 +89,28 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="per-UAV payload rate limit, bytes/s (4 MiB; bursts of 2 s)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
+    p.add_argument("--shard", default=None, metavar="K/N",
+                   help="run as shard K of N (from 0): fuse and track only the regions hashed to K; a "
+                        "`uavmm gateway` serves the whole map (docs/deploy.md, 'Sharding')")
+    p.add_argument("--region-zoom", type=int, default=None, metavar="Z",
+                   help="zoom of the shard regions (14: 16 x 16 grid tiles, 2.4 km x cos(lat)); all shards "
+                        "and the gateway must agree")
     p.set_defaults(handler=_run_fusion)
+
+
+def shard_from_args(args: argparse.Namespace):
+    """The ShardSpec of --shard / --region-zoom (single() without --shard); ValueError naming the flag."""
+    from shared.sharding import DEFAULT_REGION_ZOOM, ShardSpec, parse_shard
+
+    zoom = DEFAULT_REGION_ZOOM if args.region_zoom is None else args.region_zoom
+    if args.shard is None:
+        if args.region_zoom is not None:
+            raise ValueError("--region-zoom needs --shard K/N")
+        return ShardSpec.single()
+    try:
+        return parse_shard(args.shard, zoom)
+    except ValueError as exc:
+        raise ValueError(f"--shard: {exc}") from None
 
 
 def _http_address(text: str) -> tuple[str, int]:
@@ -130,7 +151,9 @@ def settings_from_args(args: argparse.Namespace):
     zenoh_options = zenoh_options_from_args(args, default_listen=default_listen)
     host, port = _http_address(args.http)
     tokens, _ = http_tokens_from_args(args, host)
+    shard = shard_from_args(args)
     return FusionSettings(
+        shard_index=shard.index, shard_count=shard.count, region_zoom=shard.region_zoom,
         zenoh=zenoh_options, http_host=host, http_port=port,
         db_path=None if args.no_db else (args.db or default_db_path()),
         prefix=args.prefix, ttl_s=args.ttl_s, fusion_rule=args.fusion_rule, coverage=args.coverage, grid_z=args.grid_z,
@@ -185,7 +208,10 @@ def _run_fusion(args: argparse.Namespace) -> int:
             listen = ", ".join(settings.zenoh.listen or ("from config",))
             where = f"map: {server.url}" if server.url else "REST API off"
             db = settings.db_path or "off"
-            sys.stdout.write(f"uavmm fusion: zenoh {settings.zenoh.mode or 'peer'} on {listen}; db {db}; {where}\n")
+            part = f"shard {settings.shard.label()} (regions of zoom {settings.region_zoom}); " \
+                if settings.shard.sharded else ""
+            sys.stdout.write(f"uavmm fusion: {part}zenoh {settings.zenoh.mode or 'peer'} on {listen}; db {db}; "
+                             f"{where}\n")
             if server.url:
                 sys.stdout.write(_rest_access_line(settings, server.url, args) + "\n")
             sys.stdout.flush()
