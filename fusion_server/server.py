@@ -203,6 +203,12 @@ class FusionServer:
             "(bounds of the global tracker), by reason.", self.tracker.dropped()),
             "uavmm_fusion_http_denied_total": (
                 "REST requests refused without a valid bearer token, by reason.", dict(self.http_denied))}
+        if self.node.handover is not None:
+            gauges["uavmm_fusion_shard_skipped_tiles_total"] = (
+                "Tile messages of other shards' regions dropped by key (--shard).", self.node.skipped)
+            reasons["uavmm_fusion_handovers_total"] = (
+                "Global ids taken over from another shard (in) and held copies ended because another shard "
+                "carries them on (out).", dict(self.tracker.handovers))
         if self.cot is not None:
             gauges["uavmm_fusion_cot_events_total"] = ("Cursor-on-Target events sent (--cot-url).", self.cot.sent)
             gauges["uavmm_fusion_cot_failures_total"] = ("Cursor-on-Target rounds that failed to send.",

@@ -115,7 +115,14 @@ def test_each_shard_fuses_only_its_regions(shards):
 
         have = wait_until(fused, 10.0, "both shards fusing")
         assert have[0] == {tiles[0]} and have[1] == {tiles[1]}
-        assert s0.node.skipped > 0 and s1.node.skipped > 0
+
+        def skipping():  # both hear the other's tiles and drop them by key
+            for x, y in tiles.values():
+                agent.tile(blob(100, 100), x=x, y=y)
+            return s0.node.skipped > 0 and s1.node.skipped > 0
+
+        wait_until(skipping, 5.0, "both shards dropping the other's tiles")
+        assert [{(t.x, t.y) for t in s.joint.tiles("person")} for s in (s0, s1)] == [{tiles[0]}, {tiles[1]}]
         health = s1.cluster_health()
         assert health["shard"] == "1/2" and health["skipped_tiles"] == s1.node.skipped
     finally:
@@ -180,3 +187,14 @@ def test_new_ids_of_two_shards_never_collide(shards):
 def _center(x: int, y: int) -> tuple[float, float]:
     west, south, east, north = GRID.tile_bounds(x, y)
     return 0.5 * (south + north), 0.5 * (west + east)
+
+
+def test_shard_health_and_metrics_over_http(shards):
+    import httpx
+
+    (s0, _), _ = shards
+    with httpx.Client(base_url=s0.url.rstrip("/"), timeout=10.0) as http:
+        health = http.get("/healthz").json()
+        assert health["status"] == "ok" and health["shard"] == "0/2" and health["region_zoom"] == ZOOM
+        text = http.get("/metrics").text
+    assert "uavmm_fusion_shard_skipped_tiles_total" in text
