@@ -22,6 +22,7 @@ import zenoh
 from numpy.typing import NDArray
 
 from agent.joint_window import JointWindowSubscriptions
+from agent.shard_routing import ShardRouting
 from shared.keys import JOINT_UAV, KeySpace, track_region
 from shared.messages import (
     DEFAULT_MAX_STATE_BYTES,
@@ -163,6 +164,7 @@ class AgentLink:
         self._rejects: Counter[str] = Counter()
         self._warn = RateLimitedLog(log).warning
         self._on_reply_guarded = self._guarded(self._on_reply, "a query reply")  # built once, used per reply
+        self._routing = ShardRouting(keys, uav, grid.z, lambda key, exc: self._reject("bad_key", key, exc), self._warn)
         self._known_remotes: set[str] = set()
         self._alone_since: float | None = None  # monotonic time since when no router/peer is connected
         self._alone_warned = False
@@ -186,7 +188,7 @@ class AgentLink:
         self._window = JointWindowSubscriptions(session, self.keys, self.grid.z, on_sample)
         # (it also brings the other UAVs' states: their footprints say where the joint mean holds
         # their evidence, JointLayer.others_cover)
-        self._declared = []
+        self._declared = [self._routing.declare(session, lambda callback: self._guarded(callback, "a shard token"))]
         self._known_remotes = self._remotes()
         self._alone_since = None if self._known_remotes else time.monotonic()
         self._thread = threading.Thread(target=self._run, name=f"uavmm-agent-{self.uav}-publisher", daemon=True)
@@ -293,8 +295,9 @@ class AgentLink:
                 self._query_selectors([s for s in self._window.selectors() if s not in before])
 
     def tile_key(self, cls: str, x: int, y: int) -> str:
-        """Key of one of this UAV's tiles on the agent's grid."""
-        return self.keys.uav_tile(self.uav, cls, self.grid.z, x, y)
+        """Key of one of this UAV's tiles on the agent's grid: DESIGN.md's, or the shard-routed one while
+        fusion shards announce themselves."""
+        return self._routing.tile_key(cls, x, y)
 
     def state_key(self) -> str:
         """Key of this UAV's state."""

@@ -57,7 +57,8 @@ def access_control(identities: FleetIdentities, *, prefix: str = "uavmm/v1",
 
     A UAV ``K`` may put and delete only under ``{prefix}/uav/K/**`` and declare only its own liveliness
     token; it may subscribe to the joint and region keys and to the other UAVs' state (its joint detections
-    use their footprints) and query the joint and region keys. The fusion identity may do anything under
+    use their footprints), query the joint and region keys and watch the fusion shards' liveliness
+    tokens (to route its tiles to their shard). The fusion identity may do anything under
     the prefix (it alone puts on ``{prefix}/joint/**`` and ``{prefix}/region/**``); operators may only
     subscribe and query. Everything else, and every other identity, is denied: their messages never reach
     the server.
@@ -84,7 +85,14 @@ def access_control(identities: FleetIdentities, *, prefix: str = "uavmm/v1",
         _rule("fleet-see-queryables", ["declare_queryable", "declare_subscriber"], "egress", [everything]),
         _rule("fleet-subscribe", ["declare_subscriber", "query"], "ingress", [joint, regions, states]),
     ]
-    fleet_rules = ["fleet-receive", "fleet-see-queryables", "fleet-subscribe"]
+    # the fusion shards' liveliness tokens: an agent routes its tiles to their shards (shared.sharding)
+    shards = f"{keys.prefix}/fusion/shards/**"
+    rules += [
+        _rule("fleet-shards-receive", ["liveliness_token"], "egress", [shards]),
+        _rule("fleet-shards-watch", ["declare_liveliness_subscriber", "liveliness_query"], "ingress", [shards]),
+    ]
+    fleet_rules = ["fleet-receive", "fleet-see-queryables", "fleet-subscribe", "fleet-shards-receive",
+                   "fleet-shards-watch"]
     for uav in identities.uavs:
         own = [f"{keys.prefix}/uav/{uav}/**"]
         rules += [

@@ -150,7 +150,7 @@ class FusionNode:
         self._tracks_publisher = self._publishers.get(self._tracks_key)
         # keep references: declared entities are undeclared when garbage-collected
         self._declared = [
-            session.declare_subscriber(self.keys.uav_all(), self._on_sample),
+            *[session.declare_subscriber(selector, self._on_sample) for selector in self._data_selectors()],
             session.liveliness().declare_subscriber(self.keys.uav_alive("*"), self._on_alive, history=True),
             session.declare_queryable(self.keys.joint_all(), guarded(self._on_query, log, "a query")),
             session.declare_queryable(self.keys.region_all(), guarded(self._on_query, log, "a region query")),
@@ -158,13 +158,25 @@ class FusionNode:
         if self.handover is not None:
             shard = self.shard
             self._declared += [
-                session.liveliness().declare_token(self.keys.shard_alive(shard.index, shard.count)),
+                session.liveliness().declare_token(self.keys.shard_alive(shard.index, shard.count, shard.region_zoom)),
                 session.declare_subscriber(self.keys.region_tracks_all(),
                                            guarded(self.handover.on_region_tracks, log, "foreign region tracks")),
             ]
         self._thread = threading.Thread(target=self._run, name="uavmm-fusion", daemon=True)
         self._thread.start()
-        log.info("fusion node %s up, subscribed to %s", session.zid(), self.keys.uav_all())
+        log.info("fusion node %s up, subscribed to %s", session.zid(),
+                 self.keys.uav_all() if not self.shard.sharded else
+                 f"shard {self.shard.label()}: states, tracks, plain tile keys and buckets {self.shard.buckets()}")
+
+    def _data_selectors(self) -> list[str]:
+        """What the agents publish that this process takes: everything (``uav/**``), or for a shard the
+        states, tracks, the plain tile keys (dropped by key unless its own) and its own buckets of
+        shard-routed tile keys (shared.sharding)."""
+        keys, shard = self.keys, self.shard
+        if not shard.sharded:
+            return [keys.uav_all()]
+        return [keys.uav_state("*"), keys.uav_tracks("*"), keys.uav_tiles_all(),
+                *[keys.uav_bucket_tiles(shard.region_zoom, b) for b in shard.buckets()]]
 
     def close(self) -> None:
         """Stop the fusion thread and close the session (idempotent)."""

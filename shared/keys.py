@@ -273,29 +273,48 @@ class KeySpace:
         """
         return f"{self.prefix}/region/**"
 
-    def shard_alive(self, index: int, count: int) -> str:
-        """Liveliness token of fusion shard ``index`` of ``count``: ``{prefix}/fusion/shards/{count}/{index}``
-        (``index="*"``: every shard of ``count``; ``count="*"`` too: every shard)."""
+    def shard_alive(self, index: int | str, count: int | str, region_zoom: int | str = "*") -> str:
+        """Liveliness token of fusion shard ``index`` of ``count`` over regions of zoom ``region_zoom``:
+        ``{prefix}/fusion/shards/{count}/{index}/{region_zoom}`` (any of them ``"*"``: a selector)."""
         parts = []
-        for name, value in (("count", count), ("index", index)):
+        for name, value in (("count", count), ("index", index), ("region zoom", region_zoom)):
             if value == "*":
                 parts.append("*")
             elif isinstance(value, bool) or not isinstance(value, int) or value < 0:
                 raise ValueError(f"shard {name} must be an int >= 0 or '*', got {value!r}")
             else:
                 parts.append(str(value))
-        return f"{self.prefix}/fusion/shards/{parts[0]}/{parts[1]}"
+        return f"{self.prefix}/fusion/shards/{'/'.join(parts)}"
+
+    def parse_shard_token(self, key: str) -> tuple[int, int, int]:
+        """(index, count, region zoom) of a shard liveliness key; ValueError for any other key."""
+        head = f"{self.prefix}/fusion/shards/"
+        parts = key[len(head):].split("/") if key.startswith(head) else []
+        if len(parts) != 3 or not all(_DECIMAL.match(p) for p in parts):
+            raise ValueError(f"key {key!r} is not a shard liveliness key {head}COUNT/INDEX/REGION_ZOOM")
+        count, index, zoom = (int(p) for p in parts)
+        if not 0 <= index < count:
+            raise ValueError(f"key {key!r}: shard index {index} is not below the count {count}")
+        return index, count, zoom
 
     def parse_shard_alive(self, key: str) -> tuple[int, int]:
         """(index, count) of a shard liveliness key; ValueError for any other key."""
-        head = f"{self.prefix}/fusion/shards/"
-        parts = key[len(head):].split("/") if key.startswith(head) else []
-        if len(parts) != 2 or not all(_DECIMAL.match(p) for p in parts):
-            raise ValueError(f"key {key!r} is not a shard liveliness key {head}COUNT/INDEX")
-        count, index = int(parts[0]), int(parts[1])
-        if not 0 <= index < count:
-            raise ValueError(f"key {key!r}: shard index {index} is not below the count {count}")
+        index, count, _ = self.parse_shard_token(key)
         return index, count
+
+    def uav_bucket_tile(self, uav: str, region_zoom: int, bucket: int, cls: str, z: int, x: int, y: int) -> str:
+        """Key of one tile of one UAV routed to its fusion shard:
+        ``{prefix}/uav/{uav}/shard/{region_zoom}/{bucket}/tiles/{cls}/{z}/{x}/{y}`` (``shared.sharding``: the
+        bucket of the tile's region; a shard subscribes to its buckets only). Parsed as kind ``uav_tile``."""
+        for name, value in (("region_zoom", region_zoom), ("bucket", bucket)):
+            if isinstance(value, bool) or not isinstance(value, int) or not 0 <= value < 1024:
+                raise ValueError(f"{name} must be an int in 0..1023, got {value!r}")
+        return (f"{self.prefix}/uav/{validate_uav_id(uav, 'uav')}/shard/{region_zoom}/{bucket}/tiles/"
+                f"{validate_name(cls, 'cls')}/{'/'.join(str(v) for v in _validate_tile(z, x, y))}")
+
+    def uav_bucket_tiles(self, region_zoom: int, bucket: int) -> str:
+        """Selector of every UAV's tiles of one bucket: ``{prefix}/uav/*/shard/{region_zoom}/{bucket}/tiles/**``."""
+        return f"{self.prefix}/uav/*/shard/{int(region_zoom)}/{int(bucket)}/tiles/**"
 
     def joint_all(self) -> str:
         """Selector (and queryable) of everything the fusion server publishes: ``{prefix}/joint/**``."""
@@ -329,6 +348,12 @@ class KeySpace:
                 return ParsedKey(kind=f"uav_{rest[0]}", uav=uav)
             if len(rest) == 5 and rest[0] == "tiles":
                 cls, z, x, y = self._parse_tile(rest[1:])
+                return ParsedKey(kind="uav_tile", uav=uav, cls=cls, z=z, x=x, y=y)
+            if len(rest) == 8 and rest[0] == "shard" and rest[3] == "tiles":
+                if not (_DECIMAL.match(rest[1]) and _DECIMAL.match(rest[2])):
+                    raise ValueError(f"region zoom and bucket must be canonical decimal integers, got "
+                                     f"{rest[1]!r}, {rest[2]!r}")
+                cls, z, x, y = self._parse_tile(rest[4:])
                 return ParsedKey(kind="uav_tile", uav=uav, cls=cls, z=z, x=x, y=y)
         elif parts[0] == "region":
             if len(parts) == 5 and parts[1] == "tracks":

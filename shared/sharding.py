@@ -8,6 +8,13 @@ gateway, test) computes the same owner from the key alone. Region zoom is at mos
 track regions (``shared.keys.track_region``), so every track region and state region lies inside
 one shard region and has one owner.
 
+Routing by Zenoh: a region hashes to one of ``BUCKETS`` (64) buckets and bucket ``b`` belongs to
+shard ``b mod N``. An agent that sees shard liveliness tokens (``KeySpace.shard_alive``, which carry
+the region zoom) publishes each tile on ``{prefix}/uav/{uav}/shard/{region_zoom}/{bucket}/tiles/...``
+(``KeySpace.uav_bucket_tile``), and each shard subscribes to its own buckets only
+(``KeySpace.uav_bucket_tiles``): Zenoh delivers a tile to the one shard that fuses it, on whichever
+machine it runs. Tiles on DESIGN.md's plain key still reach every shard, which drops the others' by key.
+
 Shards are numbered from 0; ``ShardSpec.single()`` (0 of 1) is the unsharded server.
 """
 
@@ -18,10 +25,13 @@ from dataclasses import dataclass
 
 from shared.keys import TRACK_REGION_ZOOM_DROP
 
-__all__ = ["DEFAULT_REGION_ZOOM", "ShardSpec", "parse_shard", "region_owner"]
+__all__ = ["BUCKETS", "DEFAULT_REGION_ZOOM", "ShardSpec", "parse_shard", "region_bucket", "region_owner", "tile_bucket"]
 
 #: Zoom of the shard regions: 16 x 16 tiles of the default zoom-18 grid.
 DEFAULT_REGION_ZOOM = 14
+
+#: Buckets the regions hash to; bucket b belongs to shard b mod N (so at most 64 shards).
+BUCKETS = 64
 
 _MASK = 0xFFFFFFFFFFFFFFFF
 
@@ -33,11 +43,20 @@ def _mix(value: int) -> int:
     return value ^ (value >> 31)
 
 
+def region_bucket(region_z: int, rx: int, ry: int) -> int:
+    """The bucket (0..BUCKETS-1) of region tile (region_z, rx, ry)."""
+    return _mix(_mix((region_z << 58) ^ (rx << 29) ^ ry) + 0x9E3779B97F4A7C15 & _MASK) % BUCKETS
+
+
+def tile_bucket(region_zoom: int, z: int, x: int, y: int) -> int:
+    """The bucket of grid tile (z, x, y) when regions have zoom ``region_zoom`` (what an agent needs)."""
+    drop = max(z - region_zoom, 0)
+    return region_bucket(min(z, region_zoom), x >> drop, y >> drop)
+
+
 def region_owner(region_z: int, rx: int, ry: int, count: int) -> int:
-    """The shard (0..count-1) that owns region tile (region_z, rx, ry)."""
-    if count == 1:
-        return 0
-    return _mix(_mix((region_z << 58) ^ (rx << 29) ^ ry) + 0x9E3779B97F4A7C15 & _MASK) % count
+    """The shard (0..count-1) that owns region tile (region_z, rx, ry): its bucket modulo count."""
+    return 0 if count == 1 else region_bucket(region_z, rx, ry) % count
 
 
 @dataclass(frozen=True, slots=True)
@@ -53,8 +72,8 @@ class ShardSpec:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int):
                 raise ValueError(f"shard {name} must be an int, got {value!r}")
-        if not 1 <= self.count <= 1024:
-            raise ValueError(f"shard count must be in 1..1024, got {self.count}")
+        if not 1 <= self.count <= BUCKETS:
+            raise ValueError(f"shard count must be in 1..{BUCKETS}, got {self.count}")
         if not 0 <= self.index < self.count:
             raise ValueError(f"shard index must be in 0..{self.count - 1} for {self.count} shards, got {self.index}")
         if not 0 <= self.region_zoom <= 30:
@@ -89,6 +108,14 @@ class ShardSpec:
         if self.count == 1:
             return 0
         return region_owner(*self.region(z, x, y), self.count)
+
+    def bucket(self, z: int, x: int, y: int) -> int:
+        """The bucket of tile (z, x, y)'s region (the chunk of its shard-routed key)."""
+        return region_bucket(*self.region(z, x, y))
+
+    def buckets(self) -> list[int]:
+        """The buckets this shard owns (its Zenoh subscriptions)."""
+        return list(range(self.index, BUCKETS, self.count))
 
     def owns(self, z: int, x: int, y: int) -> bool:
         """Whether this shard owns tile (z, x, y)."""
