@@ -197,3 +197,39 @@ def test_the_global_tracks_are_capped_and_a_flooding_uav_pays_with_its_own(clock
     assert {("honest", 1), ("honest", 2)} <= members
     assert len(tracker) <= 50
     assert tracker.dropped().get("evicted_lost", 0) > 0
+
+
+# ---- shards: disjoint id series, adoption of another shard's id, handing a held id over ----------------
+def test_id_series_of_a_shard_survives_restore(clock):
+    shard1 = GlobalTracker(gate_m=5.0, next_gid=2, gid_step=3, clock=clock, wall=clock)  # shard 1 of 3
+    shard1.update(msg("a", (1, 0, 0), (2, 100, 0)))
+    assert sorted(r.gid for r in shard1.records()) == [2, 5]
+    again = GlobalTracker(gate_m=5.0, next_gid=2, gid_step=3, clock=clock, wall=clock)
+    again.restore(shard1.records())
+    again.update(msg("b", (1, 500, 0)))
+    assert max(r.gid for r in again.records()) == 8  # after 5 in the series 2, 5, 8: never another shard's
+    with pytest.raises(ValueError, match="gid_step"):
+        GlobalTracker(gid_step=0)
+
+
+def test_adopted_id_and_hand_over(clock):
+    asked = []
+
+    def adopt(uav, local_id, cls, lat, lon):
+        asked.append((uav, local_id, cls))
+        return 41 if local_id == 7 else None
+
+    tracker = GlobalTracker(gate_m=5.0, hold_s=10.0, member_ttl_s=2.0, next_gid=2, gid_step=2, adopt=adopt,
+                            clock=clock, wall=clock)
+    tracker.update(msg("a", (7, 0, 0), (8, 100, 0)))
+    assert sorted(r.gid for r in tracker.records()) == [2, 41] and tracker.handovers["in"] == 1
+    assert asked == [("a", 7, "person"), ("a", 8, "person")]
+    tracker.update(msg("a", (7, 0, 1)))  # a known local track: no question asked
+    assert len(asked) == 2
+    assert not tracker.hand_over(41)  # still reported here: it stays
+    tracker.update(msg("a", (8, 100, 0)))  # 7 not reported any more: 41 is held
+    clock.now += 0.1
+    tracker.expire()
+    assert tracker.hand_over(41) and tracker.handovers["out"] == 1
+    assert [r.gid for r in tracker.records()] == [2]
+    assert not tracker.hand_over(12345)

@@ -249,3 +249,26 @@ def test_agent_routes_tiles_to_their_shard_by_bucket(shards):
                    5.0, "the plain key once no shard is up")
     finally:
         link.close()
+
+
+def test_another_uav_across_the_border_adopts_the_id_by_position(shards):
+    (s0, s1), port = shards
+    walk = _walk_points(s0.settings.shard, steps=2)  # the last point of shard 0, the first of shard 1 (~1.5 m)
+    a = FakeAgent("uav-a", f"tcp/127.0.0.1:{port}")
+    b = FakeAgent("uav-b", f"tcp/127.0.0.1:{port}")
+    try:
+        def tracked():
+            a.tracks([(3, "person", *walk[0])])
+            return [r.gid for r in s0.tracker.records()]
+
+        (gid,) = wait_until(tracked, 5.0, "shard 0 tracking")
+        wait_until(lambda: s1.node.handover.received > 0, 5.0, "shard 1 hearing shard 0's regions")
+        b.tracks([(99, "person", *walk[1])])  # another UAV, another local id, 1.5 m away across the border
+        wait_until(lambda: [r.gid for r in s1.tracker.records()] == [gid], 5.0, "shard 1 adopting by position")
+        b.tracks([(99, "person", *walk[1]), (100, "boat", *walk[1])])  # another class: a new id of shard 1
+        wait_until(lambda: len(s1.tracker) == 2, 5.0, "a new track")
+        (new,) = {r.gid for r in s1.tracker.records()} - {gid}
+        assert new % 2 == 0  # shard 1's own series
+    finally:
+        a.close()
+        b.close()
