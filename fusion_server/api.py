@@ -46,19 +46,42 @@ from shared.kml import KML_MEDIA_TYPE, feature_collections_kml
 if TYPE_CHECKING:
     from fusion_server.basemap import Basemap
     from fusion_server.config import FusionSettings
-    from fusion_server.global_tracks import GlobalTracker
-    from fusion_server.joint_map import JointMap
+    from fusion_server.global_tracks import TrackRecord
+    from fusion_server.joint_map import JointTile
     from fusion_server.uav_registry import UavRegistry
 
 
+class JointView(Protocol):
+    """The read side of a joint map the API uses: `fusion_server.joint_map.JointMap` (a server's own)
+    or `fusion_server.remote_joint.RemoteJoint` (a gateway's, asked of the shards)."""
+
+    def tiles(self, cls: str | None = None) -> list[JointTile]: ...
+
+    def tiles_in_range(self, cls: str, x0: int, x1: int, y0: int, y1: int) -> list[JointTile]: ...
+
+    def uav_tile_counts(self) -> dict[str, int] | None: ...
+
+    def stats(self) -> dict[str, int]: ...
+
+
+class TracksView(Protocol):
+    """The read side of the global tracks the API uses: `fusion_server.global_tracks.GlobalTracker` or a
+    gateway's `fusion_server.merged_tracks.MergedTracks`."""
+
+    def records(self, include_ended: bool = False) -> list[TrackRecord]: ...
+
+    def __len__(self) -> int: ...
+
+
 class FusionView(Protocol):
-    """What the API reads of a running server (`fusion_server.server.FusionServer` is one): the API
-    depends on this view, not on the server module, so the server can build the app without a cycle."""
+    """What the API reads of a running server (`fusion_server.server.FusionServer` is one, a gateway's
+    `fusion_server.gateway.Gateway` another): the API depends on this view, not on the server module, so
+    the server can build the app without a cycle."""
 
     settings: FusionSettings
     started: float
-    joint: JointMap
-    tracker: GlobalTracker
+    joint: JointView
+    tracker: TracksView
     uavs: UavRegistry
     basemap: Basemap | None
 

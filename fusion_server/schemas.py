@@ -66,6 +66,7 @@ class Health(_Open):
     shard: str | None = Field(None, description="a shard: K/N (`uavmm fusion --shard K/N`)")
     shards: dict[str, Any] | None = Field(None, description="a gateway: each shard's liveliness and regions")
     degraded: bool | None = Field(None, description="a gateway: True while a shard is missing")
+    down: list[int] | None = Field(None, description="a gateway: the shards that are missing")
 
 
 # ---- /v1/uavs ------------------------------------------------------------------------------------------------
@@ -107,7 +108,10 @@ class Uav(_Open):
     rejected: dict[str, int] = Field(description="dropped messages by reason")
     sessions: list[str]
     conflict: bool = Field(description="more than one Zenoh session speaks for this id")
-    tiles: int | None = Field(None, description="fresh tiles it covers")
+    tiles: int | None = Field(None, description="fresh tiles it covers (a fusion server; not on a gateway)")
+    shard: int | None = Field(None, description="a gateway: the shard owning the region under the UAV "
+                                                "(None without a state)")
+    degraded: bool | None = Field(None, description="a gateway: True while that shard is down")
 
 
 # ---- GeoJSON ---------------------------------------------------------------------------------------------------

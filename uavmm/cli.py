@@ -379,7 +379,7 @@ COMMANDS: tuple[Callable[[argparse._SubParsersAction], None], ...] = (
 #: (a function of the parsed Namespace returning an exit code) on its parser.
 COMMAND_MODULES: tuple[str, ...] = ("uavmm.cmd_fusion", "uavmm.cmd_agent", "uavmm.cmd_track", "uavmm.cmd_demo",
                                      "uavmm.cmd_secure", "uavmm.cmd_export", "uavmm.cmd_render", "uavmm.cmd_tune",
-                                     "uavmm.cmd_detect", "uavmm.cmd_anomaly")
+                                     "uavmm.cmd_detect", "uavmm.cmd_anomaly", "uavmm.cmd_gateway")
 
 
 LOG_LEVELS = ["DEBUG", "INFO", "WARNING", "ERROR"]

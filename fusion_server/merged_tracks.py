@@ -1,0 +1,160 @@
+"""The global tracks of a sharded deployment, merged by the gateway from the shards' per-region messages.
+
+Every shard publishes the global tracks of its regions on ``{prefix}/region/tracks/{z}/{x}/{y}`` (at
+least once a second while a region has tracks, one empty message when it has none left). The gateway
+keeps each region's last message; the merged view is the union of the regions heard from within
+``stale_s`` seconds (3 by default: a region of a dead shard drops out), one track per global id, the
+one from the newest message (during a handover both shards may publish the id for a moment). The
+gateway builds each track's history itself from what it hears (a point per ``history_interval_s``),
+and keeps the tracks that left the view as ended ones. It offers the read side of
+:class:`fusion_server.global_tracks.GlobalTracker` that the REST API and the ``joint/tracks``
+publisher use (``records``, ``joint_message``, ``len``). Thread-safe.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections import OrderedDict, deque
+
+from fusion_server.global_tracks import TrackRecord
+from shared.messages import MAX_TRACKS, JointTrackItem, JointTracksMessage
+
+__all__ = ["DEFAULT_STALE_S", "MergedTracks"]
+
+#: A region whose last message is older than this drops out of the merged view, seconds.
+DEFAULT_STALE_S = 3.0
+#: Most regions remembered (the oldest are forgotten beyond it).
+_MAX_REGIONS = 65_536
+#: Ended tracks kept for ``include_ended``.
+_MAX_ENDED = 256
+
+Region = tuple[int, int, int]
+
+
+class _Seen:
+    """What the gateway remembers of one global id: first seen, history of (t, lat, lon)."""
+
+    __slots__ = ("created", "history")
+
+    def __init__(self, created: float, history_len: int) -> None:
+        self.created = created
+        self.history: deque[tuple[float, float, float]] = deque(maxlen=history_len)
+
+
+class MergedTracks:
+    """The shards' region tracks merged by global id (newest message wins), regions older than
+    ``stale_s`` left out.
+
+    history_len: most history rows per track; history_interval_s: least time between two rows.
+    clock: monotonic seconds (freshness); wall: epoch seconds (ended times, message times).
+    """
+
+    def __init__(self, *, stale_s: float = DEFAULT_STALE_S, history_len: int = 600,
+                 history_interval_s: float = 1.0, clock=time.monotonic, wall=time.time) -> None:
+        self.stale_s = float(stale_s)
+        self.history_len = int(history_len)
+        self.history_interval_s = float(history_interval_s)
+        self._clock = clock
+        self._wall = wall
+        self._lock = threading.Lock()
+        # region -> (monotonic receive time, message t, its tracks)
+        self._regions: OrderedDict[Region, tuple[float, float, tuple[JointTrackItem, ...]]] = OrderedDict()
+        self._seen: dict[int, _Seen] = {}
+        self._current: dict[int, tuple[float, JointTrackItem]] = {}
+        self._ended: OrderedDict[int, TrackRecord] = OrderedDict()
+        #: bumped whenever the merged view changes (the joint/tracks publisher compares it)
+        self.version = 0
+
+    def put(self, region: Region, message: JointTracksMessage) -> None:
+        """Record a region's tracks message (an empty one: the region has no tracks any more)."""
+        now = self._clock()
+        with self._lock:
+            self._regions[region] = (now, message.t, message.tracks)
+            self._regions.move_to_end(region)
+            while len(self._regions) > _MAX_REGIONS:
+                self._regions.popitem(last=False)
+            for item in message.tracks:
+                seen = self._seen.get(item.gid)
+                if seen is None:
+                    seen = self._seen[item.gid] = _Seen(message.t, self.history_len)
+                history = seen.history
+                if not history or message.t - history[-1][0] >= self.history_interval_s:
+                    history.append((message.t, item.lat, item.lon))
+            self._merge(now)
+
+    def refresh(self) -> None:
+        """Drop regions that went stale (their shard stopped publishing) from the merged view."""
+        with self._lock:
+            self._merge(self._clock())
+
+    def regions(self) -> dict[Region, float]:
+        """Fresh regions and the age of their last message, seconds."""
+        now = self._clock()
+        with self._lock:
+            return {region: now - entry[0] for region, entry in self._regions.items()
+                    if now - entry[0] <= self.stale_s}
+
+    def _merge(self, now: float) -> None:
+        """Recompute the merged view (lock held); tracks that left it become ended ones."""
+        merged: dict[int, tuple[float, JointTrackItem]] = {}
+        for received, t, items in self._regions.values():
+            if now - received > self.stale_s:
+                continue
+            for item in items:
+                old = merged.get(item.gid)
+                if old is None or t > old[0]:
+                    merged[item.gid] = (t, item)
+        if merged == self._current:
+            return
+        wall = self._wall()
+        for gid in self._current.keys() - merged.keys():
+            t, item = self._current[gid]
+            self._ended[gid] = self._record(gid, t, item, ended=wall)
+            self._ended.move_to_end(gid)
+            while len(self._ended) > _MAX_ENDED:
+                old_gid, _ = self._ended.popitem(last=False)
+                if old_gid not in merged:
+                    self._seen.pop(old_gid, None)
+        for gid in merged.keys() & self._ended.keys():
+            del self._ended[gid]  # back (a shard restarted, a region came back)
+        self._current = merged
+        self.version += 1
+
+    def _record(self, gid: int, t: float, item: JointTrackItem, ended: float | None = None) -> TrackRecord:
+        seen = self._seen.get(gid)
+        # a region message says which local tracks a global track absorbed, not which still report
+        # it: the gateway shows every track it hears of as tracked (members = active members)
+        return TrackRecord(gid=gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score, vel_en=item.vel_en,
+                           created=seen.created if seen is not None else t, last_update=t, members=item.members,
+                           active=item.members if ended is None else (), ended=ended,
+                           history=tuple(seen.history) if seen is not None else ())
+
+    # ---- the read side the REST API uses (GlobalTracker's) ------------------------------------------
+    def records(self, include_ended: bool = False) -> list[TrackRecord]:
+        """The merged global tracks, plus those that recently left the view if asked, by gid."""
+        with self._lock:
+            self._merge(self._clock())
+            rows = [self._record(gid, t, item) for gid, (t, item) in self._current.items()]
+            if include_ended:
+                rows.extend(self._ended.values())
+        return sorted(rows, key=lambda r: r.gid)
+
+    def joint_message(self, max_tracks: int = MAX_TRACKS) -> JointTracksMessage:
+        """The ``joint/tracks`` message of the whole map: at most ``max_tracks``, the newest first, by gid."""
+        with self._lock:
+            self._merge(self._clock())
+            found = list(self._current.values())
+        if len(found) > max_tracks:
+            found.sort(key=lambda entry: -entry[0])
+            found = found[:max_tracks]
+        items = tuple(item for _, item in sorted(found, key=lambda entry: entry[1].gid))
+        return JointTracksMessage(t=self._wall(), tracks=items)
+
+    def gids(self) -> set[int]:
+        """Global ids in the merged view."""
+        with self._lock:
+            return set(self._current)
+
+    def __len__(self) -> int:
+        return len(self._current)

@@ -1,0 +1,207 @@
+"""The joint map of a sharded deployment as the gateway reads it: joint tiles asked of the shards by Zenoh queries.
+
+Each shard answers ``{prefix}/joint/tiles/...`` queries for the tiles of its regions (its queryable,
+``fusion_server.zenoh_node``). :class:`RemoteJoint` offers the read side of
+:class:`fusion_server.joint_map.JointMap` that the REST API uses (``tiles``, ``tiles_in_range``,
+``classes``, ``stats``, ``uav_tile_counts``): a small range (a PNG tile at the grid's zoom, a
+``/v1/map`` window) asks for its tiles by key; anything larger, and the class list, ask for every tile
+once and keep the answer ``cache_s`` seconds (0.4 by default), so a page loading twenty PNG tiles at once
+costs one query. Replies are validated like every message (key, version, grid): a bad one is dropped
+and counted, never raised.
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from collections.abc import Callable, Iterable
+
+import zenoh
+
+from fusion_server.joint_map import JointTile, TileKey
+from shared.keys import JOINT_UAV, KeySpace
+from shared.messages import MessageError
+from shared.tilecodec import decode_tile_sparse
+from shared.tiles import TileGrid
+from transport.guard import RateLimitedLog
+
+__all__ = ["DEFAULT_CACHE_S", "SMALL_RANGE_TILES", "RemoteJoint"]
+
+log = logging.getLogger(__name__)
+
+#: How long an answer of the shards is served again, seconds (the shards publish at most 5 Hz per tile).
+DEFAULT_CACHE_S = 0.4
+#: Ranges of at most this many tiles are asked for tile by tile; larger ones by one query of the class.
+SMALL_RANGE_TILES = 16
+#: Longest wait for the shards' replies, seconds (a query ends earlier, once every shard has answered).
+QUERY_TIMEOUT_S = 2.0
+#: Most classes remembered (as JointMap).
+_MAX_CLASSES = 1024
+
+
+class RemoteJoint:
+    """Joint tiles of all shards, asked for on demand over ``session`` (None until the gateway opens).
+
+    keys: the key space; grid: the shared grid (replies of another z or n are rejected).
+    on_reject(reason): called for every reply dropped (the gateway counts them by reason).
+    cache_s: how long an answer is reused. Thread-safe: HTTP threads call it concurrently; one query
+    of the whole map runs at a time and the others wait for its answer.
+    """
+
+    def __init__(self, keys: KeySpace, grid: TileGrid, *, cache_s: float = DEFAULT_CACHE_S,
+                 on_reject: Callable[[str], None] | None = None, clock=time.monotonic) -> None:
+        self.keys = keys
+        self.grid = grid
+        self.cache_s = float(cache_s)
+        self.session: zenoh.Session | None = None
+        self.queries = 0
+        self._on_reject = on_reject
+        self._clock = clock
+        self._lock = threading.Lock()
+        self._all_lock = threading.Lock()  # one query of everything at a time
+        self._all: tuple[float, dict[TileKey, JointTile]] | None = None
+        self._by_key: dict[TileKey, tuple[float, JointTile | None]] = {}
+        self._classes: set[str] = set()
+        self._log = RateLimitedLog(log)
+
+    # ---- the read side the REST API uses (JointMap's) ---------------------------------------------
+    def tiles(self, cls: str | None = None) -> list[JointTile]:
+        """The current joint tiles of every shard (of one class, or all)."""
+        tiles = self._everything().values()
+        return list(tiles) if cls is None else [t for t in tiles if t.cls == cls]
+
+    def tiles_in_range(self, cls: str, x0: int, x1: int, y0: int, y1: int) -> list[JointTile]:
+        """Joint tiles of ``cls`` at the grid's zoom with x0 <= x <= x1 and y0 <= y <= y1."""
+        z = self.grid.z
+        whole = self._fresh_all()
+        if whole is None and (x1 - x0 + 1) * (y1 - y0 + 1) <= SMALL_RANGE_TILES:
+            keys = [(cls, z, x, y) for y in range(y0, y1 + 1) for x in range(x0, x1 + 1)]
+            return [tile for tile in self._by_keys(keys) if tile is not None]
+        tiles = whole if whole is not None else self._everything()
+        return [t for t in tiles.values() if t.cls == cls and x0 <= t.x <= x1 and y0 <= t.y <= y1]
+
+    def get(self, key: TileKey) -> JointTile | None:
+        """The current joint tile at key (cls, z, x, y), or None."""
+        return self._by_keys([key])[0]
+
+    def classes(self) -> set[str]:
+        """Classes of the joint tiles seen since start (at most 1024)."""
+        self._everything()
+        with self._lock:
+            return set(self._classes)
+
+    def uav_tile_counts(self) -> None:
+        """None: the shards' UAV tiles stay on the shards (/v1/uavs rows of a gateway have no ``tiles``)."""
+        return None
+
+    def stats(self) -> dict[str, int]:
+        """JointMap.stats() of the gateway: the joint tiles of all shards; it holds no UAV tiles,
+        pending fusions, coverage masks or footprints (those are the shards', on their /healthz)."""
+        return {"joint_tiles": len(self._everything()), "uav_tiles": 0, "pending": 0, "coverage_masks": 0,
+                "footprints": 0}
+
+    # ---- queries ----------------------------------------------------------------------------------
+    def _fresh_all(self) -> dict[TileKey, JointTile] | None:
+        with self._lock:
+            found = self._all
+        if found is not None and self._clock() - found[0] <= self.cache_s:
+            return found[1]
+        return None
+
+    def _everything(self) -> dict[TileKey, JointTile]:
+        """Every joint tile of every shard: one query ``joint/tiles/**``, reused for cache_s seconds."""
+        found = self._fresh_all()
+        if found is not None:
+            return found
+        with self._all_lock:
+            found = self._fresh_all()  # another thread asked while this one waited
+            if found is not None:
+                return found
+            asked = self._clock()
+            tiles: dict[TileKey, JointTile] = {}
+            for tile in self._ask([self.keys.joint_tiles_all()]):
+                old = tiles.get(tile.key)
+                if old is None or (tile.t, tile.seq) > (old.t, old.seq):
+                    tiles[tile.key] = tile
+            with self._lock:
+                self._all = (asked, tiles)
+            return tiles
+
+    def _by_keys(self, keys: list[TileKey]) -> list[JointTile | None]:
+        """The tiles at ``keys`` (None where no shard has one), each asked for unless cached."""
+        now = self._clock()
+        with self._lock:
+            cached = {key: self._by_key.get(key) for key in keys}
+        missing = [key for key, entry in cached.items() if entry is None or now - entry[0] > self.cache_s]
+        if missing:
+            found: dict[TileKey, JointTile] = {}
+            for tile in self._ask([self.keys.joint_tile(*key) for key in missing]):
+                old = found.get(tile.key)
+                if old is None or (tile.t, tile.seq) > (old.t, old.seq):
+                    found[tile.key] = tile
+            with self._lock:
+                if len(self._by_key) > 4096:
+                    self._by_key.clear()
+                for key in missing:
+                    entry = (now, found.get(key))
+                    self._by_key[key] = entry
+                    cached[key] = entry
+        return [entry[1] if entry is not None else None for entry in (cached[key] for key in keys)]
+
+    def _ask(self, selectors: Iterable[str]) -> list[JointTile]:
+        """Send every selector's query at once, then gather the valid replies of all shards."""
+        session = self.session
+        if session is None or session.is_closed():
+            return []
+        handlers = []
+        for selector in selectors:
+            self.queries += 1
+            try:
+                handlers.append(session.get(selector, target=zenoh.QueryTarget.ALL,
+                                            consolidation=zenoh.ConsolidationMode.NONE, timeout=QUERY_TIMEOUT_S))
+            except zenoh.ZError as exc:
+                self._reject("query_failed", f"{selector}: {exc}")
+        tiles = []
+        for handler in handlers:
+            for reply in handler:
+                tile = self._tile_of(reply)
+                if tile is not None:
+                    tiles.append(tile)
+        return tiles
+
+    def _tile_of(self, reply: zenoh.Reply) -> JointTile | None:
+        """A reply as a JointTile, or None (counted) when it is an error or not a valid joint tile."""
+        if reply.ok is None:
+            self._reject("reply_error", "a shard answered with an error")
+            return None
+        sample = reply.ok
+        key = str(sample.key_expr)
+        try:
+            parsed = self.keys.parse(key)
+            if parsed.kind != "joint_tile":
+                raise MessageError("unexpected_key", f"not a joint tile key: {key:.120}")
+            message = decode_tile_sparse(sample.payload.to_bytes())
+            if message.uav != JOINT_UAV or (message.cls, message.z, message.x, message.y) != (
+                    parsed.cls, parsed.z, parsed.x, parsed.y):
+                raise MessageError("tile_mismatch", f"tile {message.uav}/{message.cls}/{message.z}/{message.x}/"
+                                                    f"{message.y} on key {key:.120}")
+            if message.z != self.grid.z or message.n != self.grid.n:
+                raise MessageError("wrong_grid", f"tile z={message.z} n={message.n}, grid z={self.grid.z} "
+                                                 f"n={self.grid.n}")
+        except MessageError as exc:
+            self._reject(exc.reason, str(exc))
+            return None
+        except ValueError as exc:
+            self._reject("bad_key", str(exc))
+            return None
+        with self._lock:
+            if len(self._classes) < _MAX_CLASSES:
+                self._classes.add(message.cls)
+        return JointTile(message.cls, message.z, message.x, message.y, None, message.t, message.seq,
+                         sample.payload.to_bytes(), (), time.time(), cells=(message.n, message.idx, message.val))
+
+    def _reject(self, reason: str, detail: str) -> None:
+        if self._on_reject is not None:
+            self._on_reject(reason)
+        self._log.warning(reason, "gateway: dropped a joint tile reply: %s: %.200s", reason, detail)

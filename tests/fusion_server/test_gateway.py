@@ -1,0 +1,226 @@
+"""The gateway of a sharded deployment (`uavmm gateway`): the whole map's REST API over two real shards on
+loopback, global tracks merged from their regions and published on joint/tracks, shard liveliness and
+degraded UAVs, malformed messages dropped and counted."""
+
+from __future__ import annotations
+
+import json
+import time
+
+import httpx
+import pytest
+import zenoh
+
+from fusion_server import schemas
+from fusion_server.config import FusionSettings, ZenohOptions
+from fusion_server.gateway import Gateway
+from fusion_server.merged_tracks import MergedTracks
+from fusion_server.server import FusionServer
+from shared.keys import KeySpace
+from shared.messages import JointTrackItem, JointTracksMessage, decode_joint_tracks
+from shared.sharding import ShardSpec
+from tests.fusion_server.fake_agent import GRID, TILE_X, TILE_Y, FakeAgent, blob, client_config
+from tests.netutil import free_port, wait_until
+
+ZOOM = 16
+KEYS = KeySpace()
+
+
+def _tiles_by_owner(spec: ShardSpec) -> dict[int, tuple[int, int]]:
+    found: dict[int, tuple[int, int]] = {}
+    for dx in range(0, 64, 4):
+        for dy in range(0, 64, 4):
+            x, y = TILE_X + dx, TILE_Y + dy
+            found.setdefault(spec.owner(GRID.z, x, y), (x, y))
+    assert len(found) == spec.count
+    return found
+
+
+def _center(x: int, y: int) -> tuple[float, float]:
+    west, south, east, north = GRID.tile_bounds(x, y)
+    return 0.5 * (south + north), 0.5 * (west + east)
+
+
+def _shard(index: int, port: int, tmp_path) -> FusionServer:
+    options = ZenohOptions(mode="router", listen=(f"tcp/127.0.0.1:{port if index == 0 else free_port()}",),
+                           connect=() if index == 0 else (f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
+    server = FusionServer(FusionSettings(zenoh=options, http_port=0, db_path=tmp_path / f"shard{index}.sqlite",
+                                         ttl_s=1.0, shard_index=index, shard_count=2, region_zoom=ZOOM))
+    server.start(http=False)
+    return server
+
+
+@pytest.fixture
+def cluster(tmp_path):
+    """Two shards (0/2 routing on a free port, 1/2 connected to it) and a gateway (a peer connected to
+    shard 0, HTTP on a free port); yields (shards, gateway, port)."""
+    port = free_port()
+    shards = [_shard(0, port, tmp_path)]
+    shards.append(_shard(1, port, tmp_path))
+    options = ZenohOptions(mode="peer", connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
+    gateway = Gateway(FusionSettings(zenoh=options, http_port=0, db_path=None, shard_count=2, region_zoom=ZOOM))
+    gateway.start()
+    try:
+        yield shards, gateway, port
+    finally:
+        gateway.close()
+        for shard in shards:
+            shard.close()
+
+
+def _get(gateway: Gateway, path: str) -> httpx.Response:
+    return httpx.get(gateway.url.rstrip("/") + path, timeout=10)
+
+
+def test_gateway_serves_both_shards_tiles_tracks_and_uavs(cluster):
+    (s0, s1), gateway, port = cluster
+    tiles = _tiles_by_owner(s0.settings.shard)
+    agents = {k: FakeAgent(f"uav-{k}", f"tcp/127.0.0.1:{port}") for k in tiles}
+    try:
+        wait_until(lambda: gateway.cluster_health()["degraded"] is False, 10.0, "both shards up at the gateway")
+
+        def published():
+            for k, (x, y) in tiles.items():
+                lat, lon = _center(x, y)
+                agents[k].tile(blob(100, 100), x=x, y=y)
+                agents[k].state(lat, lon)
+                agents[k].tracks([(1, "person", lat, lon)])
+            return len(gateway.tracker) == 2 and {(t.x, t.y) for t in gateway.joint.tiles("person")} == set(
+                tiles.values())
+
+        wait_until(published, 10.0, "the gateway seeing both shards' tiles and tracks")
+        # REST: joint tiles index, objects and a map window of each shard's tile, tracks, UAVs
+        index = _get(gateway, "/v1/joint/tiles?cls=person").json()
+        assert {(t["x"], t["y"]) for t in index} == set(tiles.values())
+        objects = _get(gateway, "/v1/objects?cls=person&min_score=0.3").json()["features"]
+        assert len(objects) == 2
+        for x, y in tiles.values():
+            west, south, east, north = GRID.tile_bounds(x, y)
+            body = _get(gateway, f"/v1/map?cls=person&bbox={west},{south},{east},{north}").json()
+            assert max(max(row) for row in body["values"]) > 0.5
+            png = _get(gateway, f"/v1/tiles/person/18/{x}/{y}.png")
+            assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+        tracks = _get(gateway, "/v1/tracks").json()["features"]
+        gids = sorted(f["properties"]["gid"] for f in tracks)
+        assert len(gids) == 2 and gids[0] % 2 != gids[1] % 2  # one id of each shard (K+1+iN)
+        rows = wait_until(lambda: [r for r in _get(gateway, "/v1/uavs").json() if r["state"] is not None]
+                          if len(_get(gateway, "/v1/uavs").json()) == 2 else None, 5.0, "two UAVs")
+        for row in rows:
+            schemas.Uav.model_validate(row)
+            assert row["online"] and row["degraded"] is False
+            assert row["shard"] == int(row["id"].split("-")[1])
+        health = _get(gateway, "/healthz").json()
+        schemas.Health.model_validate(health)
+        assert health["status"] == "ok" and health["shards"]["0"]["status"] == "up"
+        assert health["joint_tiles"] == 2 and health["global_tracks"] == 2
+        assert health["classes"] == ["person"]
+        assert "uavmm_gateway_shards_down 0" in _get(gateway, "/metrics").text
+    finally:
+        for agent in agents.values():
+            agent.close()
+
+
+def test_gateway_publishes_and_answers_joint_tracks(cluster):
+    (s0, s1), gateway, port = cluster
+    tiles = _tiles_by_owner(s0.settings.shard)
+    listener = zenoh.open(client_config(f"tcp/127.0.0.1:{port}"))
+    heard: list[bytes] = []
+    sub = listener.declare_subscriber(KEYS.joint_tracks(), lambda s: heard.append(s.payload.to_bytes()))
+    agent = FakeAgent("uav-a", f"tcp/127.0.0.1:{port}")
+    try:
+        items = [(k, "person", *_center(x, y)) for k, (x, y) in tiles.items()]
+
+        def both():
+            agent.tracks(items)
+            return heard and len(decode_joint_tracks(heard[-1]).tracks) == 2
+
+        wait_until(both, 10.0, "joint/tracks with the tracks of both shards")
+        replies = list(listener.get(KEYS.joint_tracks(), timeout=5.0))
+        answers = [r.ok for r in replies if r.ok is not None]
+        # the gateway alone answers joint/tracks: shards do not when sharded
+        assert len(answers) == 1
+        assert {t.gid for t in decode_joint_tracks(answers[0].payload.to_bytes()).tracks} == gateway.tracker.gids()
+    finally:
+        sub.undeclare()
+        agent.close()
+        listener.close()
+
+
+def test_dead_shard_degrades_its_uavs_and_health_and_the_other_keeps_serving(cluster):
+    (s0, s1), gateway, port = cluster
+    tiles = _tiles_by_owner(s0.settings.shard)
+    agents = {k: FakeAgent(f"uav-{k}", f"tcp/127.0.0.1:{port}") for k in tiles}
+    try:
+        def published():
+            for k, (x, y) in tiles.items():
+                agents[k].tile(blob(100, 100), x=x, y=y)
+                agents[k].state(*_center(x, y))
+            return len(gateway.joint.tiles("person")) == 2 and gateway.cluster_health()["degraded"] is False
+
+        wait_until(published, 10.0, "both shards serving")
+        s1.close()  # its session ends: its liveliness token goes
+        health = wait_until(lambda: (h := _get(gateway, "/healthz").json())["status"] == "degraded" and h, 5.0,
+                            "healthz degraded")
+        assert health["degraded"] is True and health["down"] == [1]
+        assert health["shards"]["1"]["status"] == "down" and health["shards"]["0"]["status"] == "up"
+        rows = {r["id"]: r for r in _get(gateway, "/v1/uavs").json()}
+        assert rows["uav-1"]["degraded"] is True and rows["uav-0"]["degraded"] is False
+        x, y = tiles[0]
+        agents[0].tile(blob(100, 100), x=x, y=y)
+        time.sleep(gateway.joint.cache_s)
+        assert {(t.x, t.y) for t in gateway.joint.tiles("person")} == {tiles[0]}
+        assert _get(gateway, f"/v1/tiles/person/18/{x}/{y}.png").status_code == 200
+    finally:
+        for agent in agents.values():
+            agent.close()
+
+
+def test_malformed_region_tracks_and_states_are_dropped_and_counted(cluster):
+    _, gateway, port = cluster
+    bad = zenoh.open(client_config(f"tcp/127.0.0.1:{port}"))
+    try:
+        def sent():
+            bad.put(KEYS.region_tracks(16, 1, 1), b"\x93not msgpack")
+            bad.put(KEYS.uav_state("uav-x"), b"garbage")
+            bad.put(KEYS.uav_state("uav-x"), json.dumps({"v": 1}).encode())
+            reasons = gateway.metrics.rejected
+            return {("region_tracks", "not_msgpack"), ("state", "not_msgpack")} <= set(reasons)
+
+        wait_until(sent, 5.0, "the drops counted by kind")
+        assert gateway.zenoh_open() and _get(gateway, "/healthz").status_code == 200
+        assert len(gateway.tracker) == 0
+    finally:
+        bad.close()
+
+
+# ---- merging without Zenoh ----------------------------------------------------------------------------------
+class Clock:
+    def __init__(self) -> None:
+        self.now = 100.0
+
+    def __call__(self) -> float:
+        return self.now
+
+
+def _item(gid: int, lon: float) -> JointTrackItem:
+    return JointTrackItem(gid=gid, cls="person", lat=47.0, lon=lon, score=0.9, vel_en=(0.0, 0.0),
+                          members=(("uav-a", 1),))
+
+
+def test_merge_newest_message_wins_and_stale_regions_drop_out():
+    clock = Clock()
+    merged = MergedTracks(stale_s=3.0, clock=clock, wall=clock)
+    merged.put((16, 1, 1), JointTracksMessage(t=10.0, tracks=(_item(3, 9.0),)))
+    merged.put((16, 2, 1), JointTracksMessage(t=11.0, tracks=(_item(3, 9.1), _item(4, 9.2))))
+    records = {r.gid: r for r in merged.records()}
+    assert records[3].lon == 9.1 and set(records) == {3, 4}  # the newer region's copy of gid 3
+    clock.now += 2.0
+    merged.put((16, 1, 1), JointTracksMessage(t=12.0, tracks=(_item(5, 9.3),)))
+    clock.now += 2.0  # region (16, 2, 1) is 4 s old now
+    assert {r.gid for r in merged.records()} == {5}
+    ended = {r.gid: r for r in merged.records(include_ended=True) if r.ended is not None}
+    assert set(ended) == {3, 4} and ended[3].status == "ended"
+    merged.put((16, 2, 1), JointTracksMessage(t=15.0, tracks=(_item(4, 9.2),)))  # the shard is back
+    assert {r.gid for r in merged.records()} == {4, 5}
+    assert 4 not in {r.gid for r in merged.records(include_ended=True) if r.ended is not None}
+    assert merged.joint_message().tracks == tuple(sorted((_item(4, 9.2), _item(5, 9.3)), key=lambda i: i.gid))
