@@ -137,7 +137,9 @@
       state.objects = objects.features || [];
       state.jointIndex = index;
       state.updates += 1;
-      setStatus('ok', `${health.uavs_online} UAV(s) online · updated ${new Date().toLocaleTimeString()}`);
+      // a gateway of sharded servers says which shards are down: their UAVs and regions are stale
+      const down = health.degraded && health.down ? ` · DEGRADED: shard ${health.down.join(', ')} down` : '';
+      setStatus('ok', `${health.uavs_online} UAV(s) online${down} · updated ${new Date().toLocaleTimeString()}`);
       // fit the view when a UAV appears, until the user takes over the view
       const placed = uavs.filter((u) => u.state).length;
       if (!state.userMoved && placed > state.fittedUavs && fit()) state.fittedUavs = placed;
@@ -490,6 +492,7 @@
       if (s) parts.push(`${s.height_m.toFixed(0)} m, pitch ${s.pitch_deg.toFixed(0)}°, heading ${s.heading_deg.toFixed(0)}°`);
       parts.push(`${(rates.tile || 0).toFixed(0)} tiles/s, ${((u.bytes_per_s || 0) / 1000).toFixed(0)} kB/s`);
       if (u.tiles !== undefined) parts.push(`covers ${u.tiles} tiles`);
+      if (u.shard !== undefined && u.shard !== null) parts.push(`shard ${u.shard}${u.degraded ? ' (down: degraded)' : ''}`);
       detail.textContent = parts.join(' · ');
       li.append(swatch, name, detail);
       return li;
