@@ -224,3 +224,42 @@ def test_merge_newest_message_wins_and_stale_regions_drop_out():
     assert {r.gid for r in merged.records()} == {4, 5}
     assert 4 not in {r.gid for r in merged.records(include_ended=True) if r.ended is not None}
     assert merged.joint_message().tracks == tuple(sorted((_item(4, 9.2), _item(5, 9.3)), key=lambda i: i.gid))
+
+
+def test_tiles_are_asked_by_key_for_a_small_range_and_cached(cluster):
+    (s0, _), gateway, port = cluster
+    tiles = _tiles_by_owner(s0.settings.shard)
+    agent = FakeAgent("uav-a", f"tcp/127.0.0.1:{port}")
+    try:
+        def both():
+            for x, y in tiles.values():
+                agent.tile(blob(100, 100), x=x, y=y)
+            return all(gateway.joint.get(("person", GRID.z, x, y)) is not None for x, y in tiles.values())
+
+        wait_until(both, 10.0, "each shard's tile asked for by key")
+        x, y = tiles[1]
+        tile = gateway.joint.get(("person", GRID.z, x, y))
+        assert tile.values[100, 100] > 200 and tile.uavs == ()
+        asked = gateway.joint.queries
+        assert gateway.joint.get(("person", GRID.z, x, y)) is tile  # within the cache time: no query
+        assert gateway.joint.queries == asked
+        assert gateway.joint.get(("person", GRID.z, x + 1, y)) is None and gateway.joint.queries == asked + 1
+        found = gateway.joint.tiles_in_range("person", x - 1, x + 1, y - 1, y + 1)  # 9 tiles: by key
+        assert [(t.x, t.y) for t in found] == [(x, y)]
+    finally:
+        agent.close()
+
+
+@pytest.mark.parametrize(("argv", "message"), [
+    (["--shards", "0"], "shard count must be in 1..1024"),
+    (["--shards", "2", "--region-zoom", "17"], "region zoom 17 is finer"),
+    (["--shards", "2", "--http", "nohost"], "--http must be HOST:PORT"),
+    (["--shards", "2", "--http", "0.0.0.0:0", "--cors-origin", "ftp://x"], "cors_origins"),
+])
+def test_gateway_cli_rejects_bad_flags(argv, message, capsys, monkeypatch):
+    from uavmm.cli import main
+
+    monkeypatch.delenv("UAVMM_HTTP_TOKEN", raising=False)
+    assert main(["gateway", *argv]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("uavmm gateway: error:") and message in err
