@@ -34,6 +34,8 @@ log = logging.getLogger(__name__)
 DEFAULT_CACHE_S = 0.4
 #: Ranges of at most this many tiles are asked for tile by tile; larger ones by one query of the class.
 SMALL_RANGE_TILES = 16
+#: The class list and /healthz's tile count reuse a whole-map answer up to this old, seconds.
+SUMMARY_MAX_AGE_S = 2.0
 #: Longest wait for the shards' replies, seconds (a query ends earlier, once every shard has answered).
 QUERY_TIMEOUT_S = 2.0
 #: Most classes remembered (as JointMap).
@@ -86,8 +88,8 @@ class RemoteJoint:
         return self._by_keys([key])[0]
 
     def classes(self) -> set[str]:
-        """Classes of the joint tiles seen since start (at most 1024)."""
-        self._everything()
+        """Classes of the joint tiles seen since start (at most 1024; a new class shows within 2 s)."""
+        self._everything(SUMMARY_MAX_AGE_S)
         with self._lock:
             return set(self._classes)
 
@@ -98,24 +100,26 @@ class RemoteJoint:
     def stats(self) -> dict[str, int]:
         """JointMap.stats() of the gateway: the joint tiles of all shards; it holds no UAV tiles,
         pending fusions, coverage masks or footprints (those are the shards', on their /healthz)."""
-        return {"joint_tiles": len(self._everything()), "uav_tiles": 0, "pending": 0, "coverage_masks": 0,
-                "footprints": 0}
+        return {"joint_tiles": len(self._everything(SUMMARY_MAX_AGE_S)), "uav_tiles": 0, "pending": 0,
+                "coverage_masks": 0, "footprints": 0}
 
     # ---- queries ----------------------------------------------------------------------------------
-    def _fresh_all(self) -> dict[TileKey, JointTile] | None:
+    def _fresh_all(self, max_age_s: float | None = None) -> dict[TileKey, JointTile] | None:
         with self._lock:
             found = self._all
-        if found is not None and self._clock() - found[0] <= self.cache_s:
+        max_age_s = self.cache_s if max_age_s is None else max_age_s
+        if found is not None and self._clock() - found[0] <= max_age_s:
             return found[1]
         return None
 
-    def _everything(self) -> dict[TileKey, JointTile]:
-        """Every joint tile of every shard: one query ``joint/tiles/**``, reused for cache_s seconds."""
-        found = self._fresh_all()
+    def _everything(self, max_age_s: float | None = None) -> dict[TileKey, JointTile]:
+        """Every joint tile of every shard: one query ``joint/tiles/**``, reused up to ``max_age_s``
+        (default cache_s) seconds."""
+        found = self._fresh_all(max_age_s)
         if found is not None:
             return found
         with self._all_lock:
-            found = self._fresh_all()  # another thread asked while this one waited
+            found = self._fresh_all(max_age_s)  # another thread asked while this one waited
             if found is not None:
                 return found
             asked = self._clock()

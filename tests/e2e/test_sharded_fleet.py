@@ -183,7 +183,12 @@ def test_three_shards_a_gateway_and_six_uavs(tmp_path):
                 wait_until(lambda: http.get("/healthz").json()["status"] == "ok", 10.0, "healthz ok again")
                 wait_until(lambda: {(t["x"], t["y"]) for t in http.get("/v1/joint/tiles").json()} == everything,
                            10.0, "the restarted shard's restored tiles")
-                wait_until(lambda: _tracks(http) == gids, 10.0, "every track with its global id again")
+                seen: list[dict] = []
+                try:
+                    wait_until(lambda: seen.append(_tracks(http)) or seen[-1] == gids, 10.0,
+                               "every track with its global id again")
+                except AssertionError:
+                    raise AssertionError(f"{gids} != {seen[-1]}; {read_stderr(procs[f'shard{victim}'])[-3000:]}")
                 assert not any(r["degraded"] for r in http.get("/v1/uavs").json())
                 fleet.tiles_off = set()
 
@@ -196,12 +201,18 @@ def test_three_shards_a_gateway_and_six_uavs(tmp_path):
                 for point in points:
                     fleet.extra[walker] = [(99, "person", *point)]
                     time.sleep(0.1)
-                wait_until(lambda: _tracks(http).get((f"uav-{walker}", 99)) == gid and http.get(
-                    f"/v1/tracks").json(), 5.0, "the walked track's id after the border")
-                feature = next(f for f in http.get("/v1/tracks").json()["features"] if f["properties"]["gid"] == gid)
-                lon = feature["geometry"]["coordinates"][0]
-                x, y = GRID.tile_of(LAT, lon)
-                assert spec.owner(GRID.z, int(x), int(y)) == after  # it is the other shard's track now
+
+                def walked():
+                    features = http.get("/v1/tracks", params={"history": "false"}).json()["features"]
+                    mine = [f for f in features if [f"uav-{walker}", 99] in f["properties"]["members"]]
+                    if len(mine) != 1:
+                        return None
+                    lon = mine[0]["geometry"]["coordinates"][0]
+                    x, y = GRID.tile_of(LAT, lon)
+                    # the track is the other shard's now
+                    return spec.owner(GRID.z, int(x), int(y)) == after and mine[0]["properties"]["gid"]
+
+                assert wait_until(walked, 5.0, "the walked track in the next shard's region") == gid
                 assert sum(f["properties"]["gid"] == gid for f in http.get("/v1/tracks").json()["features"]) == 1
         finally:
             if fleet is not None:
