@@ -263,3 +263,21 @@ def test_gateway_cli_rejects_bad_flags(argv, message, capsys, monkeypatch):
     assert main(["gateway", *argv]) == 2
     err = capsys.readouterr().err
     assert err.startswith("uavmm gateway: error:") and message in err
+
+
+def test_gateway_without_shards_is_degraded_and_keeps_its_token():
+    from fusion_server.http_auth import HttpToken
+
+    token = "t" * 32
+    options = ZenohOptions(mode="peer", listen=(f"tcp/127.0.0.1:{free_port()}",), multicast_scouting=False)
+    settings = FusionSettings(zenoh=options, http_port=0, db_path=None, shard_count=3, region_zoom=ZOOM,
+                              http_tokens=(HttpToken("ops", token),))
+    with Gateway(settings) as gateway:
+        gateway.start()
+        health = _get(gateway, "/healthz").json()  # /healthz needs no token
+        assert health["status"] == "degraded" and health["down"] == [0, 1, 2]
+        assert {v["status"] for v in health["shards"].values()} == {"down"}
+        assert _get(gateway, "/v1/tracks").status_code == 401
+        answer = httpx.get(gateway.url + "v1/joint/tiles", headers={"Authorization": f"Bearer {token}"}, timeout=10)
+        assert answer.status_code == 200 and answer.json() == []  # nobody to ask: an empty map, at once
+        assert gateway.http_denied == {"no_token": 1}
