@@ -147,13 +147,11 @@ class Gateway:
     def cluster_health(self) -> dict[str, Any]:
         """/healthz fields of a gateway: ``shards`` ({"K": {status, since, changes, regions, tracks}}),
         ``degraded`` (a shard is down), ``down`` (their indices), the shard count and region zoom."""
-        status = self.shards.status()
-        for info in status.values():
-            info["regions"] = 0
+        regions: dict[str, int] = {}
         for region in self.tracker.regions():
-            entry = status.get(str(self.spec.owner(*region)))
-            if entry is not None:
-                entry["regions"] = int(entry["regions"]) + 1  # type: ignore[call-overload]
+            owner = str(self.spec.owner(*region))
+            regions[owner] = regions.get(owner, 0) + 1
+        status = {k: {**info, "regions": regions.get(k, 0)} for k, info in self.shards.status().items()}
         down = sorted(self.shards.down())
         body: dict[str, Any] = {"gateway": True, "shard_count": self.spec.count, "region_zoom": self.spec.region_zoom,
                                 "shards": status, "degraded": bool(down), "down": down}

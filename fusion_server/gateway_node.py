@@ -205,7 +205,7 @@ class GatewayNode:
             if sample.kind != zenoh.SampleKind.PUT:
                 self._reject("state", "unexpected_delete", key, "DELETE sample")
                 return
-            parsed, kind = self.validator.parse_key(key)
+            parsed, _ = self.validator.parse_key(key)
             uav = parsed.uav
             received = self.validator.validate(key, sample.payload, parsed=parsed)
             message = received.message

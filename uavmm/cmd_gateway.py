@@ -60,6 +60,8 @@ def settings_from_args(args: argparse.Namespace):
         ShardSpec(0, args.shards, zoom)
     except ValueError as exc:
         raise ValueError(f"--shards/--region-zoom: {exc}") from None
+    if args.shards < 2:
+        raise ValueError(f"--shards must be at least 2, got {args.shards} (one fusion server serves its own map)")
     host, port = _http_address(args.http)
     tokens, _ = http_tokens_from_args(args, host)
     return FusionSettings(

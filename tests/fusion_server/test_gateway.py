@@ -252,6 +252,7 @@ def test_tiles_are_asked_by_key_for_a_small_range_and_cached(cluster):
 
 @pytest.mark.parametrize(("argv", "message"), [
     (["--shards", "0"], "shard count must be in 1..1024"),
+    (["--shards", "1"], "--shards must be at least 2"),
     (["--shards", "2", "--region-zoom", "17"], "region zoom 17 is finer"),
     (["--shards", "2", "--http", "nohost"], "--http must be HOST:PORT"),
     (["--shards", "2", "--http", "0.0.0.0:0", "--cors-origin", "ftp://x"], "cors_origins"),
@@ -281,3 +282,18 @@ def test_gateway_without_shards_is_degraded_and_keeps_its_token():
         answer = httpx.get(gateway.url + "v1/joint/tiles", headers={"Authorization": f"Bearer {token}"}, timeout=10)
         assert answer.status_code == 200 and answer.json() == []  # nobody to ask: an empty map, at once
         assert gateway.http_denied == {"no_token": 1}
+
+
+def test_shard_watch_counts_only_its_shard_count():
+    from fusion_server.gateway_node import ShardWatch
+
+    clock = Clock()
+    watch = ShardWatch(3, wall=clock)
+    assert watch.down() == {0, 1, 2} and watch.status()["0"] == {"status": "down", "since": None, "changes": 0}
+    watch.token(1, 3, True)
+    watch.token(0, 2, True)  # a shard started with --shard 0/2: reported, not counted
+    assert watch.down() == {0, 2} and watch.foreign == {"0/2": True}
+    clock.now = 200.0
+    watch.token(1, 3, False)
+    watch.token(1, 3, False)  # a repeated DELETE changes nothing
+    assert watch.status()["1"] == {"status": "down", "since": 200.0, "changes": 2}
