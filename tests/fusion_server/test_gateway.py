@@ -251,7 +251,7 @@ def test_tiles_are_asked_by_key_for_a_small_range_and_cached(cluster):
 
 
 @pytest.mark.parametrize(("argv", "message"), [
-    (["--shards", "0"], "shard count must be in 1..1024"),
+    (["--shards", "0"], "shard count must be in 1.."),
     (["--shards", "1"], "--shards must be at least 2"),
     (["--shards", "2", "--region-zoom", "17"], "region zoom 17 is finer"),
     (["--shards", "2", "--http", "nohost"], "--http must be HOST:PORT"),
