@@ -27,6 +27,8 @@ from pathlib import Path
 log = logging.getLogger("uavmm.demo")
 
 DEFAULT_SCENARIO = "trio"
+#: Region zoom of a sharded demo: regions of 4 x 4 tiles (~400 m), so one scene spans several shards.
+DEMO_REGION_ZOOM = 16
 
 # The reaper: reads process-group ids from stdin, one a line. "done" means the demo cleaned up itself;
 # end of input without it means the demo died: SIGTERM every group, SIGKILL what is left after the grace,
@@ -79,6 +81,8 @@ class DemoOptions:
     uavs: how many of the scenario's UAVs fly (None: all of them).
     duration_s: stop this long after the agents are up (None: run until a signal).
     cot_url: the fusion server's Cursor-on-Target output (``udp://HOST:PORT``), or None.
+    shards: 1 (one fusion server), or that many fusion shards (regions of zoom DEMO_REGION_ZOOM, so the
+    scenario's few hundred metres spread over them) behind a `uavmm gateway` serving the map.
     """
 
     http: str = "127.0.0.1:8000"
@@ -95,8 +99,13 @@ class DemoOptions:
     status_interval_s: float = 10.0
     log_level: str = "WARNING"
     cot_url: str | None = None
+    shards: int = 1
 
     def __post_init__(self) -> None:
+        if not 1 <= self.shards <= 8:
+            raise ValueError(f"--shards must be in 1..8, got {self.shards}")
+        if self.shards > 1 and self.cot_url is not None:
+            raise ValueError("--cot-url works with one fusion server, not with --shards")
         if not 0 <= self.zenoh_port <= 65535:
             raise ValueError(f"--port must be in 0..65535, got {self.zenoh_port}")
         if self.seed < 0:
@@ -280,23 +289,25 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
     env = _child_env()
     common = ["--log-level", options.log_level]
     reaper = Reaper(options.stop_timeout_s, workdir)
-    fusion: Child | None = None
+    servers: list[Child] = []  # the fusion server, or the shards and the gateway
     agents: list[Child] = []
     failed: Child | None = None
     code = 1  # until everything came up
     try:
-        cot = ["--cot-url", options.cot_url] if options.cot_url else []
-        fusion = Child("fusion", [*common, "fusion", "--listen", endpoint, "--http", options.http, "--db", str(db),
-                                  "--no-multicast-scouting", *cot], log_dir / "fusion.log", env)
-        reaper.watch(fusion.pid)
-        match = fusion.wait_for(r"map: (http://\S+)", options.startup_timeout_s, stop)
-        if match is None:
-            if stop.is_set():
-                code = 0
+        for name, label, argv, pattern in _server_commands(options, endpoint, db):
+            child = Child(name, [*common, *argv], log_dir / f"{name}.log", env)
+            reaper.watch(child.pid)
+            servers.append(child)
+            match = child.wait_for(pattern, options.startup_timeout_s, stop)
+            if match is None:
+                if stop.is_set():
+                    code = 0
+                    return code
+                hint = " (--http 127.0.0.1:0 picks a free port)" if "address already in use" in child.log_text() \
+                    else ""
+                _warn(f"the {label} did not start{hint} (log {child.log_path}):\n{child.log_tail()}")
                 return code
-            hint = " (--http 127.0.0.1:0 picks a free port)" if "address already in use" in fusion.log_text() else ""
-            _warn(f"the fusion server did not start{hint} (log {fusion.log_path}):\n{fusion.log_tail()}")
-            return code
+        fusion = servers[-1]  # the process that serves the map
         url = match.group(1)
         # an --http beyond loopback: the server generated a REST token and printed the page with it
         from fusion_server.http_auth import is_loopback_host
@@ -306,7 +317,11 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
             page = fusion.wait_for(r"page: (http://\S+#token=[\w-]+)", 2.0, stop)
         if page is not None:
             url = page.group(1)
-        _say(f"fusion server up: zenoh {endpoint}, db {db}")
+        if options.shards > 1:
+            _say(f"{options.shards} fusion shards up (regions of zoom {DEMO_REGION_ZOOM}), zenoh {endpoint}, "
+                 f"databases {db.with_name(db.stem + '-shard*.sqlite')}; the gateway serves the map")
+        else:
+            _say(f"fusion server up: zenoh {endpoint}, db {db}")
         _say(f"map: {url}")
         for index, uav in enumerate(uavs):
             child = Child(uav, [*common, "agent", "--uav-id", uav, "--connect", endpoint, "--no-multicast-scouting",
@@ -328,7 +343,7 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
         next_status = time.monotonic() + options.status_interval_s if options.status_interval_s > 0 else None
         while not stop.wait(0.2):
             now = time.monotonic()
-            failed = next((c for c in (fusion, *agents) if not c.running()), None)
+            failed = next((c for c in (*servers, *agents) if not c.running()), None)
             if failed is not None:
                 _warn(f"{failed.name} exited unexpectedly (code {failed.proc.returncode}; log {failed.log_path}):\n"
                       f"{failed.log_tail()}")
@@ -345,13 +360,37 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
         return code
     finally:
         stop_children(agents, options.stop_timeout_s)  # agents first: their liveliness tokens go cleanly
-        if fusion is not None:
-            stop_children([fusion], options.stop_timeout_s)
+        stop_children(servers[::-1], options.stop_timeout_s)  # the gateway before the shards
         reaper.release()
         if code == 0:
             shutil.rmtree(workdir, ignore_errors=True)
         else:
             _warn(f"kept {workdir} for inspection")
+
+
+def _server_commands(options: DemoOptions, endpoint: str, db: Path) -> list[tuple[str, str, list[str], str]]:
+    """(name, what it is, uavmm arguments, line that says it is up) of each server process, in start order: the
+    fusion server; or the shards (shard 0 the router the others and the agents connect to) and the
+    gateway (whose line names the map)."""
+    map_line = r"map: (http://\S+)"
+    if options.shards == 1:
+        cot = ["--cot-url", options.cot_url] if options.cot_url else []
+        return [("fusion", "fusion server", ["fusion", "--listen", endpoint, "--http", options.http, "--db", str(db),
+                                   "--no-multicast-scouting", *cot], map_line)]
+    n, zoom = options.shards, str(DEMO_REGION_ZOOM)
+    commands = []
+    for k in range(n):
+        # shard 0 is the router; the others and the gateway are its clients (everything through it, as
+        # with a zenohd router on a ground station: no peer-to-peer links to get wrong)
+        where = ["--listen", endpoint] if k == 0 else ["--mode", "client", "--connect", endpoint]
+        db_k = str(db.with_name(f"{db.stem}-shard{k}.sqlite"))
+        commands.append((f"fusion-shard{k}", f"fusion shard {k}/{n}",
+                         ["fusion", "--shard", f"{k}/{n}", "--region-zoom", zoom, *where, "--db", db_k, "--no-http",
+                          "--no-multicast-scouting"], r"uavmm fusion: shard "))
+    commands.append(("gateway", "gateway", ["gateway", "--shards", str(n), "--region-zoom", zoom, "--mode", "client",
+                                            "--connect", endpoint, "--http", options.http, "--no-multicast-scouting"],
+                     map_line))
+    return commands
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -386,6 +425,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--cot-url", default=None, metavar="URL",
                    help="also send Cursor-on-Target events to TAK (udp://HOST:PORT or tcp://HOST:PORT; see "
                         "uavmm fusion --help)")
+    p.add_argument("--shards", type=int, default=1, metavar="N",
+                   help="run N fusion shards (uavmm fusion --shard K/N) and a uavmm gateway serving the map "
+                        "instead of one fusion server (1; docs/fusion.md, 'Sharding')")
     p.set_defaults(handler=_run_demo_command)
 
 
@@ -395,7 +437,7 @@ def options_from_args(args: argparse.Namespace) -> DemoOptions:
         http=args.http, zenoh_port=args.port, db=args.db, log_dir=args.log_dir, scenario=args.scenario,
         seed=args.seed, speed=args.speed, uavs=args.uavs, duration_s=args.duration,
         startup_timeout_s=args.startup_timeout, stop_timeout_s=args.stop_timeout,
-        status_interval_s=args.status_every, log_level=args.log_level, cot_url=args.cot_url,
+        status_interval_s=args.status_every, log_level=args.log_level, cot_url=args.cot_url, shards=args.shards,
     )
 
 

@@ -146,7 +146,7 @@ def settings_from_args(args: argparse.Namespace):
     from fusion_server.config import FusionSettings, default_db_path
 
     default_listen = None
-    if args.listen is None and not _config_sets_listen(args.config):
+    if args.listen is None and args.mode != "client" and not _config_sets_listen(args.config):
         default_listen = [DEFAULT_LISTEN]
     zenoh_options = zenoh_options_from_args(args, default_listen=default_listen)
     host, port = _http_address(args.http)
@@ -205,13 +205,14 @@ def _run_fusion(args: argparse.Namespace) -> int:
                 sys.stderr.write(f"uavmm fusion: database {settings.db_path} {problem}: moved it to {moved} "
                                  "and started a new database\n")
             server.start(http=not args.no_http)
-            listen = ", ".join(settings.zenoh.listen or ("from config",))
+            listen = "on " + ", ".join(settings.zenoh.listen or ("from config",))
+            if settings.zenoh.mode == "client":
+                listen = "to " + ", ".join(settings.zenoh.connect or ("from config",))
             where = f"map: {server.url}" if server.url else "REST API off"
             db = settings.db_path or "off"
             part = f"shard {settings.shard.label()} (regions of zoom {settings.region_zoom}); " \
                 if settings.shard.sharded else ""
-            sys.stdout.write(f"uavmm fusion: {part}zenoh {settings.zenoh.mode or 'peer'} on {listen}; db {db}; "
-                             f"{where}\n")
+            sys.stdout.write(f"uavmm fusion: {part}zenoh {settings.zenoh.mode or 'peer'} {listen}; db {db}; {where}\n")
             if server.url:
                 sys.stdout.write(_rest_access_line(settings, server.url, args) + "\n")
             sys.stdout.flush()

@@ -80,6 +80,27 @@ def test_demo_flies_three_uavs_and_leaves_nothing_behind_after_its_duration(tmp_
     assert not Path(logs).exists()  # the temporary work folder (db and logs) is removed after a clean run
 
 
+def test_sharded_demo_serves_the_map_through_a_gateway(tmp_path):
+    out = tmp_path / "demo.out"
+    proc = start_demo(out, "--shards", "2", "--duration", "10", "--status-every", "0")
+    try:
+        url, endpoint = wait_flying(proc, out)
+        assert len(processes_with(endpoint)) == 6  # two shards, the gateway, three agents
+        wait_until(lambda: uavs_online(url) == ["uav1", "uav2", "uav3"], 20.0, "three UAVs online at the gateway")
+        with urllib.request.urlopen(url + "healthz", timeout=5) as response:
+            health = json.loads(response.read())
+        assert health["status"] == "ok" and sorted(health["shards"]) == ["0", "1"]
+        assert all(shard["status"] == "up" for shard in health["shards"].values())
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = out.read_text()
+    assert code == 0, text
+    assert "2 fusion shards up (regions of zoom 16)" in text
+    assert processes_with(endpoint) == []
+
+
 def test_demo_killed_with_sigkill_leaves_no_orphans(tmp_path):
     out = tmp_path / "demo.out"
     proc = start_demo(out, "--stop-timeout", "3", "--status-every", "0")
