@@ -3,8 +3,10 @@
 For each frame a method gives a score image (the per-frame heatmap, or the memory layer read back into the
 frame); flagging its highest-scoring pixels until a fraction p of the image is flagged (the "broadcasting
 rate": the share of the frame a UAV would transmit), an annotated object is found when one of its box's
-pixels is flagged. R@p is the share of objects found over all frames; AR averages R@p over `RATES`. Both
-modes use the same pixels below the horizon cut, so the only difference is the ground aggregation.
+pixels is flagged. Exactly that share is flagged for every score image: pixels tied at the threshold are drawn
+at random (the expected hit counts), so a saturated heatmap is not judged at a larger share than a smooth one.
+R@p is the share of objects found over all frames; AR averages R@p over `RATES`. Both modes use the same pixels
+below the horizon cut, so the only difference is the ground aggregation.
 Parameters are chosen on tuning seeds and reported on held-out seeds (docs/anomaly.md).
 """
 
@@ -33,29 +35,47 @@ MODES = ("frame", "memory")
 
 
 def frame_hits(scores: NDArray[np.float32], boxes_xywh: NDArray[np.float64], full_size: tuple[int, int],
-               rates: Sequence[float] = RATES) -> NDArray[np.bool_]:
-    """Which objects are found at each broadcasting rate: (len(rates), N) bool.
+               rates: Sequence[float] = RATES) -> NDArray[np.float64]:
+    """How likely each object is found at each broadcasting rate: (len(rates), N) float64 in [0, 1].
 
     scores: (h, w) score image at any scale of the frame (full_size = (width, height)); boxes_xywh (N, 4) in
-    full-resolution pixels. At rate p the ceil(p h w) highest pixels are flagged (ties at the threshold are
-    flagged too; zero scores never are); an object is found when the maximum over its box (grown to whole
-    pixels of the score image) is flagged.
+    full-resolution pixels. At rate p exactly k = ceil(p h w) pixels are flagged, the highest first; pixels
+    tied at the threshold score are drawn at random (zero scores never are), so every score image is judged
+    at the same flagged share whatever its ties (a heatmap saturated over 1.3 % of the frame flagged all of
+    that at the "0.2 %" rate when ties were all flagged). An object is found when a pixel of its box (grown to
+    whole pixels of the score image) is flagged: 1 when its maximum is above the threshold, else the chance
+    that the random draw of the tied pixels hits one of its own.
     """
     h, w = scores.shape
-    out = np.zeros((len(rates), len(boxes_xywh)), dtype=bool)
+    out = np.zeros((len(rates), len(boxes_xywh)), dtype=np.float64)
     if len(boxes_xywh) == 0:
         return out
-    flat = np.sort(scores.ravel())[::-1]
+    desc = -np.sort(scores.ravel())[::-1]  # ascending negated scores, for searchsorted
     sx, sy = w / full_size[0], h / full_size[1]
-    peaks = np.empty(len(boxes_xywh), dtype=np.float32)
-    for i, (x, y, bw, bh) in enumerate(boxes_xywh):
+    crops = []
+    for x, y, bw, bh in boxes_xywh:
         c0, r0 = max(int(math.floor(x * sx)), 0), max(int(math.floor(y * sy)), 0)
         c1, r1 = min(int(math.ceil((x + bw) * sx)), w), min(int(math.ceil((y + bh) * sy)), h)
-        peaks[i] = scores[r0:max(r1, r0 + 1), c0:max(c1, c0 + 1)].max() if c1 > c0 and r1 > r0 else 0.0
+        crops.append(scores[r0:max(r1, r0 + 1), c0:max(c1, c0 + 1)] if c1 > c0 and r1 > r0
+                     else np.zeros((1, 1), np.float32))
+    peaks = np.array([float(c.max()) for c in crops])
     for j, p in enumerate(rates):
-        k = min(max(int(math.ceil(p * h * w)), 1), flat.size)
-        thr = max(float(flat[k - 1]), np.finfo(np.float32).tiny)
-        out[j] = peaks >= thr
+        k = min(max(int(math.ceil(p * h * w)), 1), desc.size)
+        thr = float(-desc[k - 1])
+        if thr <= 0.0:  # fewer than k positive pixels: all of them are flagged, nothing else
+            out[j] = peaks > 0.0
+            continue
+        above = int(np.searchsorted(desc, -thr, side="left"))
+        ties = int(np.searchsorted(desc, -thr, side="right")) - above
+        drawn = k - above  # tied pixels flagged, drawn at random among the ties
+        out[j] = peaks > thr
+        for i in np.flatnonzero(peaks == thr):
+            own = int((crops[i] == thr).sum())
+            if ties - drawn < own:
+                out[j, i] = 1.0
+            else:  # 1 - P(no own pixel among the drawn) = 1 - C(ties - own, drawn) / C(ties, drawn)
+                out[j, i] = 1.0 - math.exp(math.lgamma(ties - own + 1) - math.lgamma(ties - own - drawn + 1)
+                                           - math.lgamma(ties + 1) + math.lgamma(ties - drawn + 1))
     return out
 
 
@@ -64,7 +84,7 @@ def evaluate_dataset(directory: str | Path, config: AnomalyConfig, *, rates: Seq
     """Run one method over every video of a rendered dataset; both modes from the same heatmaps.
 
     Returns ``{"objects": N, "frames": F, "fps": heatmap+map frames per second, "frame": {"hits": [per rate]},
-    "memory": {...}}`` where hits count found objects; objects are scored on every ``every``-th frame (the
+    "memory": {...}}`` where hits count found objects (expected counts: ties are drawn at random, `frame_hits`); objects are scored on every ``every``-th frame (the
     heatmaps and the layer still see every frame).
     """
     directory = Path(directory)
@@ -74,7 +94,7 @@ def evaluate_dataset(directory: str | Path, config: AnomalyConfig, *, rates: Seq
     coco = json.loads((directory / "images.json").read_text())
     for a in coco["annotations"]:
         by_image.setdefault(int(a["image_id"]), []).append(a["bbox"])
-    hits = {m: np.zeros(len(rates), dtype=np.int64) for m in MODES}
+    hits = {m: np.zeros(len(rates), dtype=np.float64) for m in MODES}
     objects = frames = 0
     busy = 0.0
     detector = AnomalyDetector(config)
@@ -100,7 +120,7 @@ def evaluate_dataset(directory: str | Path, config: AnomalyConfig, *, rates: Seq
             memory = result.scores if frame.pose is not None else per_frame
             hits["memory"] += frame_hits(memory, arr, size, rates).sum(axis=1)
     return {"objects": objects, "frames": frames, "fps": round(frames / busy, 2) if busy > 0 else None,
-            **{m: {"hits": hits[m].tolist()} for m in MODES}}
+            **{m: {"hits": [round(float(v), 3) for v in hits[m]]} for m in MODES}}
 
 
 def summarise(results: Sequence[dict[str, Any]], rates: Sequence[float] = RATES) -> dict[str, Any]:

@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.anomaly import ANOMALY_CLASS, AnomalyConfig, AnomalyDetector, AnomalyMap, AnomalyMapConfig, extract_rois
-from agent.anomaly.methods import FrameDifference
+from agent.anomaly.methods import FrameDifference, normalise_robust
 from agent.anomaly.registry import make_method
 from shared.geo import Camera, Pose, metres_per_pixel
 
@@ -39,6 +39,16 @@ def test_spatial_methods_score_a_small_object_highest(name):
     top = np.argsort(heat.ravel())[-9:]  # the nine hottest pixels are the object's
     rows, cols = np.unravel_index(top, heat.shape)
     assert np.abs(rows - 100).max() <= 6 and np.abs(cols - 150).max() <= 6  # (the mean filter's halo)
+
+
+def test_strong_responses_keep_their_order_in_the_heat():
+    # a swimmer (z 12) and a whitecap (z 40) above the old clip at z 8 must not tie, nor reach past 1
+    rng = np.random.default_rng(0)
+    residual = rng.normal(10.0, 1.0, (64, 64)).astype(np.float32)
+    residual[5, 5], residual[9, 9], residual[20, 20] = 10.0 + 4.0, 10.0 + 12.0, 10.0 + 40.0
+    heat = normalise_robust(residual, 8.0)
+    assert 0.0 < heat[5, 5] < heat[9, 9] < heat[20, 20] <= 1.0
+    assert heat.min() == 0.0 and heat.dtype == np.float32
 
 
 def test_unknown_method_names_the_valid_ones():

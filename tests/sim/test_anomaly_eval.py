@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import itertools
+import math
+
 import numpy as np
 
 from sim.anomaly_eval import frame_hits, summarise
@@ -16,6 +19,38 @@ def test_an_object_is_found_once_its_pixels_rank_within_the_flagged_share():
     hits = frame_hits(scores, boxes, (200, 200), rates=(0.0004, 0.01, 0.05, 0.5))
     # 4 px flag A only; 100 px add part of the glare; 500 px reach B's single pixel; object C has no heat
     assert hits.tolist() == [[True, False, False], [True, False, False], [True, True, False], [True, True, False]]
+
+
+def test_ties_at_the_threshold_are_drawn_at_random_so_the_flagged_share_is_exact():
+    # a saturated heatmap: 1000 pixels tied at 1; flagging all of them at a 1 % rate (100 px) overstated recall
+    scores = np.zeros((100, 100), np.float32)
+    scores[:10, :] = 1.0
+    boxes = np.array([[5.0, 5.0, 1.0, 1.0],  # one tied pixel
+                      [20.0, 3.0, 3.0, 2.0],  # six tied pixels
+                      [50.0, 50.0, 2.0, 2.0]])  # below the ties
+    hits = frame_hits(scores, boxes, (100, 100), rates=(0.01, 0.2))
+    assert math.isclose(hits[0, 0], 100 / 1000)
+    assert math.isclose(hits[0, 1], 1 - math.comb(994, 100) / math.comb(1000, 100))
+    assert hits[0, 2] == 0.0
+    assert hits[1].tolist() == [1.0, 1.0, 0.0]  # 2000 px flagged: all ties and zero scores never count
+
+
+def test_tie_chances_match_enumerating_every_draw():
+    rng = np.random.default_rng(3)
+    scores = rng.choice(np.array([0.2, 0.5, 0.5, 0.5, 0.9], np.float32), size=(3, 4))
+    boxes = np.array([[0.0, 0.0, 2.0, 1.0], [2.0, 1.0, 2.0, 2.0], [1.0, 2.0, 1.0, 1.0]])
+    flat = scores.ravel()
+    order = sorted(range(flat.size), key=lambda i: -flat[i])
+    for p in (0.1, 0.25, 0.5):
+        k = math.ceil(p * flat.size)
+        thr = flat[order[k - 1]]
+        above = [i for i in range(flat.size) if flat[i] > thr]
+        tied = [i for i in range(flat.size) if flat[i] == thr]
+        draws = list(itertools.combinations(tied, k - len(above)))
+        for j, (x, y, w, h) in enumerate(boxes):
+            own = {r * 4 + c for r in range(int(y), int(y + h)) for c in range(int(x), int(x + w))}
+            found = sum(bool(own & (set(above) | set(d))) for d in draws) / len(draws)
+            assert math.isclose(frame_hits(scores, boxes, (4, 3), rates=(p,))[0, j], found), (p, j)
 
 
 def test_summary_is_recall_in_percent_averaged_over_rates_and_seeds():
