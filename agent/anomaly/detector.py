@@ -69,6 +69,7 @@ class AnomalyFrame:
     boxes_xyxy: (N, 4) float32 regions of interest in full-resolution pixels; roi_scores (N,) their peaks.
     heat: the method's own heatmap of the frame (before the cut).
     cut_row: first full-resolution row mapped to the ground (0 without a pose in baseline mode).
+    layer: the ground layer read back into the frame (the heat's shape), None when the layer was not used.
     """
 
     scores: NDArray[np.float32]
@@ -76,6 +77,7 @@ class AnomalyFrame:
     roi_scores: NDArray[np.float32]
     heat: NDArray[np.float32]
     cut_row: int
+    layer: NDArray[np.float32] | None = None
 
 
 def extract_rois(scores: NDArray[np.float32], threshold: float, *, max_rois: int = 100, dilate_px: int = 2,
@@ -146,6 +148,7 @@ class AnomalyDetector:
         heat = self.method.heatmap(image, g)
         cfg = self.config
         row = 0
+        layer = None
         if pose is not None:
             row = cut_row(camera, pose, cfg.map.max_range_m, cfg.map.horizon_margin_deg)
         if pose is not None and cfg.use_memory:
@@ -153,15 +156,15 @@ class AnomalyDetector:
             if self.registration is not None:
                 g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row), pose)
             self.map.update(heat, camera, pose, t, g)
-            scores = self.map.image_scores(camera, pose, heat.shape, g)
+            scores = layer = self.map.image_scores(camera, pose, heat.shape, g)
             if cfg.memory_weight is not None:
                 w = np.float32(cfg.memory_weight)
                 cut = heat.copy()
                 cut[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0
-                scores = (cut + w * scores) / (1 + w)
+                scores = (cut + w * layer) / (1 + w)
         else:
             scores = heat.copy()
             scores[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0
         boxes, peaks = extract_rois(scores, cfg.roi_threshold, max_rois=cfg.max_rois, dilate_px=cfg.roi_dilate_px,
                                     full_size=(camera.width, camera.height))
-        return AnomalyFrame(scores, boxes, peaks, heat, row)
+        return AnomalyFrame(scores, boxes, peaks, heat, row, layer)

@@ -7,7 +7,7 @@ import math
 
 import numpy as np
 
-from sim.anomaly_eval import frame_hits, summarise
+from sim.anomaly_eval import frame_hits, persistence, persistence_summary, summarise
 
 
 def test_an_object_is_found_once_its_pixels_rank_within_the_flagged_share():
@@ -59,3 +59,16 @@ def test_summary_is_recall_in_percent_averaged_over_rates_and_seeds():
     out = summarise(runs, rates=(0.01, 0.05))
     assert out["frame"]["AR"] == 75.0 and out["memory"]["AR"] == 87.5
     assert out["frame"]["R@5%"] == 100.0 and out["gain"]["AR"] == 12.5 and out["fps"] == 25.0
+
+
+def test_persistence_tells_kept_from_transient_false_alarms():
+    heat = np.zeros((50, 50), np.float32)
+    layer = np.zeros((50, 50), np.float32)
+    heat[10, 10], layer[10, 10] = 0.9, 0.6  # the object: the layer keeps 2/3 of it
+    heat[30, 30], layer[30, 30] = 0.8, 0.7  # a buoy that is not annotated: kept as well as the object
+    heat[40, 5], layer[40, 5] = 0.95, 0.1  # a whitecap: gone from the layer
+    alarms, objects = persistence(heat, layer, np.array([[20.0, 20.0, 2.0, 2.0]]), (100, 100), rate=3 / 2500)
+    assert sorted(alarms.round(3).tolist()) == [round(0.1 / 0.95, 3), round(0.7 / 0.8, 3)]
+    assert objects.round(3).tolist() == [round(0.6 / 0.9, 3)]
+    assert persistence_summary(alarms, objects) == {"kept": 50.0, "transient": 50.0, "object_ratio": 0.67}
+    assert persistence_summary(np.zeros(0), objects)["kept"] is None
