@@ -89,3 +89,21 @@ def test_anomaly_bad_input_is_one_line_and_exit_2(rendered, tmp_path, capsys):
 def _read(path: str) -> str:
     with open(path) as f:
         return f.read()
+
+
+def test_the_protocol_gives_recall_per_rate_and_false_alarm_persistence(rendered):
+    from agent.anomaly import AnomalyConfig
+    from sim.anomaly_eval import RATES, evaluate_dataset, format_report, summarise
+
+    run = evaluate_dataset(rendered, AnomalyConfig(method="mean"), every=5)
+    assert run["objects"] > 0 and run["frames"] == 3 * FRAMES
+    for mode in ("frame", "memory"):
+        hits = run[mode]["hits"]
+        assert len(hits) == len(RATES) and all(0 <= h <= run["objects"] for h in hits)
+        assert hits == sorted(hits)  # flagging more never finds less
+    kept, transient = run["persistence"]["kept"], run["persistence"]["transient"]
+    assert 0 <= kept <= 100 and 0 <= transient <= 100 and kept + transient <= 100
+    summary = summarise([run])
+    report = {"rates": list(RATES), "seeds": [0], "frames": FRAMES, "image_size": [320, 180],
+              "results": {"sea": {"mean": {**summary, "objects": run["objects"]}}}}
+    assert f"| mean | {summary['frame']['AR']} | {summary['memory']['AR']} |" in format_report(report)
