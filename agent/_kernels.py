@@ -355,14 +355,20 @@ def georeference_and_filter(boxes_xyxy, class_ids, anchor_frac, intrinsics, rota
 
 
 @nb.njit(**_INLINE)
-def _window_cell(gx, gy, gx0, gy0, world_cells, size):  # pragma: no cover - compiled
-    """(row, col) of global cell (gx, gy) in the window of `size` cells at (gx0, gy0), lon wrapped as
-    MemoryMap.local_indices does (bit for bit); (-1, -1) outside the window or for NaN."""
+def _window_dx(gx, gx0, world_cells):  # pragma: no cover - compiled
+    """gx - gx0 wrapped round the world as MemoryMap._wrap does (bit for bit)."""
     half = world_cells / 2
     t = gx - gx0 + half
     if not (0.0 <= t < world_cells):  # inside, the modulo is the identity (and costs ~20 ns)
         t = t % world_cells
-    dx = t - half
+    return t - half
+
+
+@nb.njit(**_INLINE)
+def _window_cell(gx, gy, gx0, gy0, world_cells, size):  # pragma: no cover - compiled
+    """(row, col) of global cell (gx, gy) in the window of `size` cells at (gx0, gy0), lon wrapped as
+    MemoryMap.local_indices does (bit for bit); (-1, -1) outside the window or for NaN."""
+    dx = _window_dx(gx, gx0, world_cells)
     dy = gy - gy0
     if 0 <= dx < size and 0 <= dy < size:
         return int(np.floor(dy)), int(np.floor(dx))
@@ -429,3 +435,39 @@ def stamp_impulses(gx, gy, amplitudes, gx0, gy0, world_cells, size, radius, take
         else:
             impulses[r, c] += amps[j]
     return impulses, r0, c0, count
+
+
+@_compiled([nbt.float32[:, :, ::1](nbt.float32[:, ::1], nbt.float64[::1], nbt.float64[::1], nbt.int64, nbt.int64,
+                                   nbt.float64, nbt.int64, nbt.float64)])
+def map_patches(layer, gx, gy, gx0, gy0, world_cells, radius, scale):  # pragma: no cover - compiled
+    """MemoryMap.patches for one (size, size) layer stored at window origin (gx0, gy0): (N, 2r+1, 2r+1)
+    float32, the stored values around each point's cell * float32(scale), clipped at 1 (when scale != 1);
+    0 outside the window. The point's cell is floor() of its offset from the origin, lon wrapped, as
+    MemoryMap.local_indices gives it; NaN points (no cell) give zero patches."""
+    n = gx.shape[0]
+    size = layer.shape[0]
+    side = 2 * radius + 1
+    out = np.zeros((n, side, side), np.float32)
+    f = np.float32(scale)
+    for i in range(n):
+        dx = np.floor(_window_dx(gx[i], gx0, world_cells))
+        dy = np.floor(gy[i] - gy0)
+        if not (np.isfinite(dx) and np.isfinite(dy)):
+            continue
+        r0 = int(dy) - radius
+        c0 = int(dx) - radius
+        for a in range(max(r0, 0), min(r0 + side, size)):
+            for b in range(max(c0, 0), min(c0 + side, size)):
+                v = layer[a, b]
+                if scale != 1.0:
+                    v = min(v * f, np.float32(1.0))
+                out[i, a - r0, b - c0] = v
+    return out
+
+
+@_compiled([nbt.void(nbt.float32[:, :], nbt.float32[:, ::1], nbt.float32)])
+def add_clipped(target, spread, cap):  # pragma: no cover - compiled
+    """target = minimum(target + spread, cap) in place, in float32 (as numpy's += and np.minimum), in one pass."""
+    for r in range(target.shape[0]):
+        for c in range(target.shape[1]):
+            target[r, c] = min(target[r, c] + spread[r, c], cap)

@@ -15,7 +15,7 @@ import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from agent._kernels import map_values, stamp_impulses
+from agent._kernels import add_clipped, map_patches, map_values, stamp_impulses
 from shared.tiles import TileGrid, fill_cell_polygons
 
 FloatArray = NDArray[np.float64]
@@ -85,6 +85,18 @@ class MemoryMapConfig:
     def phi(self, dt_s: float) -> float:
         """Forgetting factor for an elapsed time dt_s (seconds)."""
         return 0.5 ** (max(dt_s, 0.0) / self.half_life_s)
+
+
+def _points(values: ArrayLike) -> NDArray[np.float64]:
+    """Coordinates as a contiguous (N,) float64 array (no copy when they already are one)."""
+    return np.ascontiguousarray(values, dtype=np.float64).reshape(-1)
+
+
+def _broadcast(*arrays: NDArray) -> tuple[NDArray, ...]:
+    """np.broadcast_arrays, skipped (~5 us a call) when the shapes already agree."""
+    if all(a.shape == arrays[0].shape for a in arrays):
+        return arrays
+    return tuple(np.broadcast_arrays(*arrays))
 
 
 def gaussian_kernel_1d(radius_cells: int, sigma_cells: float) -> NDArray[np.float32]:
@@ -225,40 +237,26 @@ class MemoryMap:
     # ------------------------------------------------------------------ read and write
     def values_at(self, cls: str, gx: ArrayLike, gy: ArrayLike) -> NDArray[np.float32]:
         """Map values at global cells (N,) -> (N,) float32; 0 outside the window or for unseen classes."""
-        gx_arr = np.atleast_1d(np.asarray(gx, dtype=np.float64))
-        gy = np.atleast_1d(np.asarray(gy, dtype=np.float64))
+        gx_arr, gy_arr = _broadcast(np.atleast_1d(np.asarray(gx, dtype=np.float64)),
+                                    np.atleast_1d(np.asarray(gy, dtype=np.float64)))
         m = self._maps.get(cls)
         if m is None or gx_arr.size == 0:
             return np.zeros(gx_arr.shape, dtype=np.float32)
-        gx_arr, gy = np.broadcast_arrays(gx_arr, gy)
-        out = map_values(m, np.ravel(gx_arr), np.ravel(gy), self._gx0, self._gy0, float(self.grid.world_cells),
+        out = map_values(m, _points(gx_arr), _points(gy_arr), self._gx0, self._gy0, float(self.grid.world_cells),
                          self._scale)  # agent._kernels: ~10x the numpy indexing at 5,000 points
         return out.reshape(gx_arr.shape)
 
     def patches(self, cls: str, gx: ArrayLike, gy: ArrayLike, radius_cells: int) -> NDArray[np.float32]:
         """Evidence around global cells: (N, 2r+1, 2r+1) float32, patch[i, r + dy, r + dx] = value at cell
         (floor(gx[i]) + dx, floor(gy[i]) + dy); 0 outside the window or for an unseen class.
-
-        One slice per point (callers pass a few dozen points at most)."""
-        gx_arr = np.atleast_1d(np.asarray(gx, dtype=np.float64))
-        gy_arr = np.atleast_1d(np.asarray(gy, dtype=np.float64))
+        """
+        gx_arr = _points(gx)
+        gy_arr = _points(gy)
         r = int(radius_cells)
-        side = 2 * r + 1
-        out = np.zeros((len(gx_arr), side, side), dtype=np.float32)
         m = self._maps.get(cls)
         if m is None or not len(gx_arr) or self._size == 0:
-            return out
-        row, col, _ = self.local_indices(gx_arr, gy_arr)
-        size = self._size
-        for i, (r0, c0) in enumerate(zip((row - r).tolist(), (col - r).tolist(), strict=True)):
-            a0, b0 = max(r0, 0), max(c0, 0)
-            a1, b1 = min(r0 + side, size), min(c0 + side, size)
-            if a1 > a0 and b1 > b0:
-                out[i, a0 - r0:a1 - r0, b0 - c0:b1 - c0] = m[a0:a1, b0:b1]
-        if self._scale != 1.0:
-            out *= np.float32(self._scale)
-            np.minimum(out, 1.0, out=out)
-        return out
+            return np.zeros((len(gx_arr), 2 * r + 1, 2 * r + 1), dtype=np.float32)
+        return map_patches(m, gx_arr, gy_arr, self._gx0, self._gy0, float(self.grid.world_cells), r, self._scale)
 
     def _kernel_for(self) -> tuple[int, NDArray[np.float32]]:
         radius = max(1, int(round(self.config.radius_m / self._cell_m)))
@@ -276,14 +274,13 @@ class MemoryMap:
         """
         if self._size == 0:
             raise RuntimeError("MemoryMap.add before advance(): the window is not placed yet")
-        gx_arr, gy_arr, amp = np.broadcast_arrays(np.atleast_1d(np.asarray(gx, dtype=np.float64)),
-                                                  np.atleast_1d(np.asarray(gy, dtype=np.float64)),
-                                                  np.atleast_1d(np.asarray(amplitudes, dtype=np.float32)))
+        gx_arr, gy_arr, amp = _broadcast(np.asarray(gx, dtype=np.float64), np.asarray(gy, dtype=np.float64),
+                                         np.asarray(amplitudes, dtype=np.float32))
         radius, kernel = self._kernel_for()
         # the impulses in stored units (max stamping commutes with the scaling), from agent._kernels
         impulses, r0, c0, stamped = stamp_impulses(
-            np.ravel(gx_arr), np.ravel(gy_arr), np.ravel(amp), self._gx0, self._gy0, float(self.grid.world_cells),
-            self._size, radius, self.config.stamp == "max", self._scale)
+            _points(gx_arr), _points(gy_arr), np.ascontiguousarray(amp).reshape(-1), self._gx0, self._gy0,
+            float(self.grid.world_cells), self._size, radius, self.config.stamp == "max", self._scale)
         if not stamped:
             return 0
         m = self._maps.get(cls)
@@ -291,8 +288,7 @@ class MemoryMap:
             m = self._maps[cls] = np.zeros((self._size, self._size), dtype=np.float32)
         spread = cv2.sepFilter2D(impulses, cv2.CV_32F, kernel, kernel, borderType=cv2.BORDER_CONSTANT)
         roi = m[r0:r0 + impulses.shape[0], c0:c0 + impulses.shape[1]]
-        roi += spread
-        np.minimum(roi, np.float32(1.0 / self._scale), out=roi)  # true values clip at 1
+        add_clipped(roi, spread, np.float32(1.0 / self._scale))  # true values clip at 1
         return int(stamped)
 
     # ------------------------------------------------------------------ tiles
