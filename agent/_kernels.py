@@ -283,13 +283,13 @@ def _band_at(x, knots, curves, row, k):  # pragma: no cover - compiled
 _GEO_SIGNATURE = nbt.Tuple((nbt.float64[::1], nbt.float64[::1], nbt.boolean[::1], nbt.boolean[::1]))(
     nbt.float32[:, ::1], nbt.int64[::1], nbt.float64, nbt.float64[::1], nbt.float64[:, ::1], nbt.float64,
     nbt.float64, nbt.float64, nbt.float64[::1], nbt.int64, nbt.int64[::1], nbt.float64[:, ::1], nbt.float64[:, :, ::1],
-    nbt.int64[::1], nbt.float64, nbt.float64)
+    nbt.int64[::1], nbt.float64[:, :, ::1], nbt.float64, nbt.float64)
 
 
 @_compiled([_GEO_SIGNATURE])
 def georeference_and_filter(boxes_xyxy, class_ids, anchor_frac, intrinsics, rotation, sin_min_depression,
                             height_m, max_range_m, origin, class_lo, band_of_class, knots_deg, band_curves, n_knots,
-                            k, focal_px):  # pragma: no cover - compiled
+                            sure_bounds, k, focal_px):  # pragma: no cover - compiled
     """Ground point of each box's anchor and the size filter's decision, in one pass over the boxes.
 
     boxes_xyxy (N, 4) float32 pixels; class_ids (N,); anchor_frac: the anchor's height in the box
@@ -300,12 +300,16 @@ def georeference_and_filter(boxes_xyxy, class_ids, anchor_frac, intrinsics, rota
     band_of_class[class_id - class_lo]: the class's row of the band tables, -1 (or outside the table)
     for no filtering; knots_deg (B, K) band knots, n_knots (B,) of them used per row, band_curves
     (B, 4, K): mean and std of log diameter at the knots and their slopes to the next knot, (v[j + 1] -
-    v[j]) / (knot[j + 1] - knot[j]); k: the band's half width in stds; focal_px: sqrt(fx * fy).
+    v[j]) / (knot[j + 1] - knot[j]); sure_bounds (B, M, 4): SizeBand.sure_bounds(k, M) of each row;
+    k: the band's half width in stds; focal_px: sqrt(fx * fy).
     Returns lat, lon (N,) degrees (NaN where invalid), valid (N,) and plausible (N,) bool: the same as
     shared.geo.pixel_to_local, local_to_latlon and DetectionPipeline.plausible, to float rounding (the
     ray's rotation sums in another order than numpy's matmul, and numpy's SIMD arcsin and log may
-    differ in the last bit). Scalar libm calls make this ~70 ns a box, most of it in the filter; the
-    tile cells (tan, arcsinh) stay with numpy's SIMD functions, which are ~3x faster there.
+    differ in the last bit). The exact test (scalar arcsin, log and the band's interpolation, ~60 ns a
+    box) runs only for boxes whose size lies within the sure bounds' margin of the band's edge; the
+    others are decided by the sure bounds (~5 ns). The range limit is tested on the squared distance
+    unless it is within 1e-9 of the limit (hypot there). The tile cells (tan, arcsinh) stay with
+    numpy's SIMD functions, which are ~3x faster there.
     """
     n = boxes_xyxy.shape[0]
     lat = np.empty(n)
@@ -315,6 +319,11 @@ def georeference_and_filter(boxes_xyxy, class_ids, anchor_frac, intrinsics, rota
     plausible = np.empty(n, np.bool_)
     fx, fy, cx, cy = intrinsics[0], intrinsics[1], intrinsics[2], intrinsics[3]
     h2 = height_m ** 2
+    # below range_in2 the distance is surely within the limit, above range_out2 surely beyond it
+    range_in2 = (max_range_m * (1 - 1e-9)) ** 2 if max_range_m < 1e150 else -1.0
+    range_out2 = (max_range_m * (1 + 1e-9)) ** 2 if max_range_m < 1e150 else np.inf
+    n_bins = sure_bounds.shape[1]
+    focal2 = focal_px * focal_px
     for i in range(n):
         x1 = np.float64(boxes_xyxy[i, 0])
         y1 = np.float64(boxes_xyxy[i, 1])
@@ -333,7 +342,8 @@ def georeference_and_filter(boxes_xyxy, class_ids, anchor_frac, intrinsics, rota
             t = -height_m / rz
             e = t * rx
             n_ = t * ry
-            if not (np.hypot(e, n_) <= max_range_m):
+            d2 = e * e + n_ * n_
+            if not (d2 <= range_in2 or (d2 <= range_out2 and np.hypot(e, n_) <= max_range_m)):
                 ok = False
                 e = n_ = np.nan
         lat[i] = origin[0] + (n_ / origin[2]) * to_deg
@@ -344,8 +354,20 @@ def georeference_and_filter(boxes_xyxy, class_ids, anchor_frac, intrinsics, rota
         row = band_of_class[c] if 0 <= c < band_of_class.shape[0] else -1
         if row >= 0:
             slant = np.sqrt(e ** 2 + n_ ** 2 + h2)
-            depression = np.arcsin(height_m / slant) * to_deg
-            if np.isfinite(slant) and np.isfinite(depression):
+            sin_depression = height_m / slant
+            sure = False
+            if np.isfinite(slant) and 0.0 <= sin_depression < 1.0:
+                b = int(sin_depression * n_bins)
+                dw = np.float64(boxes_xyxy[i, 2] - boxes_xyxy[i, 0])
+                dh = np.float64(boxes_xyxy[i, 3] - boxes_xyxy[i, 1])
+                size2 = (dw * dw + dh * dh) * (slant * slant) / focal2
+                if sure_bounds[row, b, 1] <= size2 <= sure_bounds[row, b, 2]:
+                    sure = True
+                elif size2 < sure_bounds[row, b, 0] or size2 > sure_bounds[row, b, 3]:
+                    sure = True
+                    keep = False
+            depression = np.nan if sure else np.arcsin(sin_depression) * to_deg
+            if np.isfinite(slant) and np.isfinite(depression):  # the exact test
                 diag = np.float64(np.hypot(boxes_xyxy[i, 2] - boxes_xyxy[i, 0], boxes_xyxy[i, 3] - boxes_xyxy[i, 1]))
                 log_size = np.log(diag * slant / focal_px)
                 mean, std = _band_at(depression, knots_deg, band_curves, row, n_knots[row])

@@ -57,6 +57,36 @@ class SizeBand:
         mean, std = self.mean_std(depression_deg)
         return np.exp(mean - k * std), np.exp(mean + k * std)
 
+    def sure_bounds(self, k: float, bins: int) -> NDArray[np.float64]:
+        """Where the filter's decision is sure without interpolating at a box's own depression.
+
+        For boxes whose depression's sine (height / slant range) lies in [i / bins, (i + 1) / bins), row i
+        of the (bins, 4) float64 table holds, in squared metric diameters (m^2): below [i, 0] every box is
+        rejected, from [i, 1] up to [i, 2] every one is accepted, above [i, 3] every one is rejected;
+        elsewhere only the exact test (|log d - mean| <= k std at its depression) decides. The bounds are
+        the extremes of mean +- k std over the bin's depressions (piecewise linear: at the bin's ends or a
+        knot inside), widened by a relative margin of 1e-6, far beyond the rounding of the exact test
+        (~1e-15) and of a float32 box diagonal (~6e-8), so a sure decision equals the exact one.
+        """
+        eps_deg = 1e-9  # the bin's depressions as any arcsin rounds them (~1e-14 deg) lie inside
+        edges = np.degrees(np.arcsin(np.arange(bins + 1) / bins))
+        lo_deg, hi_deg = edges[:-1] - eps_deg, edges[1:] + eps_deg
+        mean, std = self.mean_std(np.stack([lo_deg, hi_deg]))
+        low, high = mean - k * std, mean + k * std
+        low_min, low_max, high_min, high_max = low.min(0), low.max(0), high.min(0), high.max(0)
+        knot_mean, knot_std = self.mean_std(self.depression_deg)
+        for d, knot_low, knot_high in zip(self.depression_deg, knot_mean - k * knot_std, knot_mean + k * knot_std,
+                                          strict=True):
+            inside = (lo_deg < d) & (d < hi_deg)
+            np.minimum(low_min, knot_low, out=low_min, where=inside)
+            np.maximum(low_max, knot_low, out=low_max, where=inside)
+            np.minimum(high_min, knot_high, out=high_min, where=inside)
+            np.maximum(high_max, knot_high, out=high_max, where=inside)
+        margin = 1e-6
+        with np.errstate(over="ignore"):
+            return np.column_stack([np.exp(2 * low_min) * (1 - margin), np.exp(2 * low_max) * (1 + margin),
+                                    np.exp(2 * high_min) * (1 - margin), np.exp(2 * high_max) * (1 + margin)])
+
 
 def _upright_prior(width_m: float, depth_m: float, height_m: float, std_log: float) -> SizeBand:
     """Prior for a box-shaped object: its image extent seen at each depression."""

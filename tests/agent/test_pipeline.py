@@ -8,9 +8,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.boxes import ANCHORS, box_anchor_points, nms
+from agent.boxes import ANCHORS, anchor_fraction, anchor_points, box_anchor_points, nms
 from agent.pipeline import DetectionPipeline, distinct_ids
 from agent.pipeline_config import PipelineConfig
+from agent.size_filter import SizeFilter
 from benchmarks.bench_memory_map import clustered_candidates
 from shared.geo import Camera, Pose, local_to_latlon, pixel_to_local
 
@@ -208,6 +209,45 @@ def test_fused_georeference_and_filter_equals_pixel_to_local_and_plausible(frame
     np.testing.assert_array_equal(ok, want_ok)
     np.testing.assert_allclose(lat, want_lat, rtol=0, atol=1e-12)
     np.testing.assert_allclose(lon, want_lon, rtol=0, atol=1e-12)
+
+
+@settings(max_examples=60, deadline=None)
+@given(frames(), st.sampled_from([-1e-5, -1e-7, -1e-9, -1e-12, 0.0, 1e-12, 1e-9, 1e-7, 1e-5]))
+def test_size_filter_sure_bounds_decide_as_the_exact_test_at_the_band_edges(frame, delta):
+    camera, boxes, scores, cids, pose = frame
+    pipe = DetectionPipeline(camera, {1: "person", 2: "swimmer"})
+    # scale each box about its anchor so that its metric size sits at a band edge, times (1 + delta)
+    frac = anchor_fraction(pipe.config.anchor, pose.pitch_deg)
+    anchors = anchor_points(boxes, frac)
+    east, north, _ = pixel_to_local(anchors, camera, pose, max_range_m=pipe.config.range_limit_m)
+    slant = np.sqrt(east**2 + north**2 + pose.height_m**2)
+    depression = np.degrees(np.arcsin(pose.height_m / slant))
+    diag = np.hypot(boxes[:, 2] - boxes[:, 0], boxes[:, 3] - boxes[:, 1]).astype(np.float64)
+    edge = np.ones(len(boxes))
+    for cid, name in pipe.class_names.items():
+        sel = cids == cid
+        lo, hi = pipe.size_filter.bands[name].bounds_m(depression[sel], pipe.size_filter.k)
+        edge[sel] = np.where(np.arange(sel.sum()) % 2 == 0, lo, hi)
+    scale = np.nan_to_num(edge * pipe._focal_px / (diag * slant), nan=1.0) * (1 + delta)
+    ax, ay = anchors[:, 0], anchors[:, 1]
+    edged = np.column_stack([ax + (boxes[:, 0] - ax) * scale, ay + (boxes[:, 1] - ay) * scale,
+                             ax + (boxes[:, 2] - ax) * scale, ay + (boxes[:, 3] - ay) * scale]).astype(np.float32)
+    fast = pipe._georeference_and_filter(edged, cids, [1, 2], pose)
+    exact = pipe._georeference_and_filter(edged, cids, [1, 2], pose, exact_only=True)
+    for got, want in zip(fast, exact, strict=True):
+        np.testing.assert_array_equal(got, want)
+
+
+def test_size_band_sure_bounds_bracket_the_band():
+    band = SizeFilter.builtin().bands["person"]
+    sure = band.sure_bounds(3.0, 64)
+    assert sure.shape == (64, 4)
+    assert np.all(sure[:, 0] <= sure[:, 1]) and np.all(sure[:, 1] < sure[:, 2]) and np.all(sure[:, 2] <= sure[:, 3])
+    # a depression inside each bin: its accepted squared size range lies between the sure bounds
+    mid = np.degrees(np.arcsin((np.arange(64) + 0.5) / 64))
+    lo, hi = band.bounds_m(mid, 3.0)
+    assert np.all(sure[:, 0] < lo**2) and np.all(lo**2 <= sure[:, 1])
+    assert np.all(sure[:, 2] <= hi**2) and np.all(hi**2 < sure[:, 3])
 
 
 def test_pipeline_uses_numpy_path_for_distorted_cameras_with_the_same_result():
