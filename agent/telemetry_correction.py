@@ -82,7 +82,9 @@ def register_offset(patches: NDArray[np.float32], weights: NDArray) -> tuple[flo
     total = float(w.sum())
     if not len(patches) or total <= 0:
         return 0.0, 0.0, 0.0
-    score = np.tensordot(w, patches, axes=1)  # (2R+1, 2R+1)
+    # np.tensordot(w, patches, axes=1) as the one matrix product it makes, without its ~10 us of set-up
+    side = patches.shape[1]
+    score = np.dot(w.reshape(1, -1), patches.reshape(len(w), -1)).reshape(side, side)  # (2R+1, 2R+1)
     best = float(score.max())
     if best <= 0:
         return 0.0, 0.0, 0.0

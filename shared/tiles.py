@@ -50,7 +50,9 @@ def _check_int(value: object, field: str, low: int, high: int) -> int:
 
 def _check_lat(lat: ArrayLike) -> NDArray[np.float64]:
     lat = np.asarray(lat, dtype=np.float64)
-    bad = ~(np.abs(lat) <= MAX_LAT_DEG)  # also catches NaN
+    if (np.abs(lat) <= MAX_LAT_DEG).all():  # False for NaN too
+        return lat
+    bad = ~(np.abs(lat) <= MAX_LAT_DEG)
     if np.any(bad):
         raise ValueError(
             f"lat must be finite and within +-{MAX_LAT_DEG:.7f} deg (Web-Mercator), got {lat[bad].flat[0]!r}"
@@ -60,6 +62,8 @@ def _check_lat(lat: ArrayLike) -> NDArray[np.float64]:
 
 def _check_lon(lon: ArrayLike) -> NDArray[np.float64]:
     lon = np.asarray(lon, dtype=np.float64)
+    if np.isfinite(lon).all():
+        return lon
     bad = ~np.isfinite(lon)
     if np.any(bad):
         raise ValueError(f"lon must be finite, got {lon[bad].flat[0]!r}")
@@ -70,6 +74,8 @@ def _wrap_lon(lon: NDArray[np.float64]) -> NDArray[np.float64]:
     """Longitude wrapped to [-180, 180) degrees; values already inside are returned unchanged."""
     # wrapping an in-range lon through mod would round 180 - 3e-14 to -180 (the wrong tile)
     inside = (lon >= -180.0) & (lon < 180.0)
+    if inside.all():  # the usual case: no wrapping to compute
+        return lon
     return np.where(inside, lon, np.mod(lon + 180.0, 360.0) - 180.0)
 
 
@@ -147,7 +153,9 @@ class TileGrid:
         [0, world_cells) (lon wrapped), gy in [0, world_cells] (gy = world_cells only at the south
         limit of the map).
         """
-        lat, lon = np.broadcast_arrays(_check_lat(lat), _wrap_lon(_check_lon(lon)))
+        lat, lon = _check_lat(lat), _wrap_lon(_check_lon(lon))
+        if lat.shape != lon.shape:
+            lat, lon = np.broadcast_arrays(lat, lon)
         cells = float(self.world_cells)
         gx = (lon + 180.0) * (cells / 360.0)
         gy = _lat_to_unit_y(lat) * cells
