@@ -135,7 +135,8 @@ class DetectionPipeline:
         conf = raw if calibration is None else calibration.apply(raw)
         boosted = conf.copy()
         if pose is not None and n and cfg.use_memory:
-            boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, valid, lat, lon, pose, t)
+            boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, present, valid, lat, lon,
+                                                                   pose, t)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         if calibration is not None:
             calibration.observe(t, raw[keep])
@@ -281,10 +282,14 @@ class DetectionPipeline:
             sx, sy = gx[strong], gy[strong]
             radius = max(1, int(round(s.search_m / cell_m)))
             scid = cids[idx[strong]]
-            patches = np.zeros((len(strong), 2 * radius + 1, 2 * radius + 1), dtype=np.float32)
-            for cid in distinct_ids(scid):
-                sel = scid == cid
-                patches[sel] = self.memory.patches(self.class_names[int(cid)], sx[sel], sy[sel], radius)
+            strong_classes = sorted(set(scid.tolist()))  # a few dozen ids at most: no numpy round trips
+            if len(strong_classes) == 1:
+                patches = self.memory.patches(self.class_names[strong_classes[0]], sx, sy, radius)
+            else:
+                patches = np.zeros((len(strong), 2 * radius + 1, 2 * radius + 1), dtype=np.float32)
+                for cid in strong_classes:
+                    sel = scid == cid
+                    patches[sel] = self.memory.patches(self.class_names[cid], sx[sel], sy[sel], radius)
             dx, dy, support = register_offset(patches, c[strong])
             if support >= s.min_support:
                 measurement = (dx * cell_m, -dy * cell_m)
@@ -294,9 +299,10 @@ class DetectionPipeline:
                       corr.east_m, corr.north_m, corr.measured, corr.points, corr.support)
         return corr
 
-    def _boost_and_update(self, conf, boosted, cids, valid, lat, lon, pose: Pose, t: float):
+    def _boost_and_update(self, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose, t: float):
         """Boost with the map from before this frame, then stamp; the frame's ground points moved by the
-        telemetry correction first. Returns boosted, lat, lon (corrected) and the correction (or None)."""
+        telemetry correction first. present: the frame's class ids, ascending (cids holds no others).
+        Returns boosted, lat, lon (corrected) and the correction (or None)."""
         cfg = self.config
         first = self.memory.t is None
         dt = self.memory.advance(t, pose.lat, pose.lon)
@@ -316,16 +322,18 @@ class DetectionPipeline:
             lat = lat + (float(lat0) - pose.lat)
             lon = lon + (float(lon0) - pose.lon)
         vcids = cids[idx]
-        classes = distinct_ids(vcids)
         # The update uses the detector's confidence, not the boosted one (paper IV).
         gain = cfg.memory.gain_per_s * step_s if cfg.memory.gain_per_frame is None else cfg.memory.gain_per_frame
-        for cid in classes:
-            name = self.class_names[int(cid)]
-            if len(classes) == 1:
+        for cid in present:
+            name = self.class_names[cid]
+            if len(present) == 1:
                 rows, gxs, gys = idx, gx, gy
             else:
                 sel = vcids == cid
-                rows, gxs, gys = idx[sel], gx[sel], gy[sel]
+                rows = idx[sel]
+                if not len(rows):  # no ground point of this class
+                    continue
+                gxs, gys = gx[sel], gy[sel]
             p = self.memory.values_at(name, gxs, gys)
             if self.joint is not None and cfg.joint_mode != "local":
                 pj = self.joint.values_at(name, gxs, gys, t)
