@@ -493,3 +493,22 @@ def add_clipped(target, spread, cap):  # pragma: no cover - compiled
     for r in range(target.shape[0]):
         for c in range(target.shape[1]):
             target[r, c] = min(target[r, c] + spread[r, c], cap)
+
+
+@_compiled([nbt.Tuple((nbt.int64[::1], nbt.boolean))(nbt.int64[::1], nbt.int64)])
+def small_distinct(ids, max_span):  # pragma: no cover - compiled
+    """Sorted distinct values of ids (N,) when they span fewer than max_span values, from one pass for the
+    range and one to mark them; (empty, False) when they span more (the caller falls back to np.unique)."""
+    n = ids.shape[0]
+    if n == 0:
+        return np.empty(0, np.int64), True
+    lo = hi = ids[0]
+    for i in range(n):
+        lo = min(lo, ids[i])
+        hi = max(hi, ids[i])
+    if hi - lo >= max_span:
+        return np.empty(0, np.int64), False
+    seen = np.zeros(hi - lo + 1, np.bool_)
+    for i in range(n):
+        seen[ids[i] - lo] = True
+    return np.flatnonzero(seen) + lo, True

@@ -12,7 +12,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from agent._kernels import georeference_and_filter
+from agent._kernels import georeference_and_filter, small_distinct
 from agent.boxes import anchor_fraction, box_anchor_points, nms
 from agent.frame_result import FrameResult
 from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
@@ -44,15 +44,13 @@ FIRST_FRAME_INTERVAL_S = 1.0 / 30.0
 def distinct_ids(ids: NDArray) -> NDArray:
     """Sorted distinct values of an (N,) id array, as np.unique.
 
-    Class ids span a few values: counting them is ~8x faster than np.unique's hashing at 5,000
-    boxes; other dtypes and wide ranges fall back to np.unique.
+    Class ids span a few values: marking them in a compiled pass (agent._kernels.small_distinct) is ~30x
+    faster than np.unique's sort at 5,000 boxes; other dtypes and wide ranges fall back to np.unique.
     """
     if len(ids) == 0 or ids.dtype.kind != "i":
         return np.unique(ids)
-    lo, hi = int(ids.min()), int(ids.max())
-    if hi - lo >= 4096:
-        return np.unique(ids)
-    return (np.flatnonzero(np.bincount(ids - lo)) + lo).astype(ids.dtype, copy=False)
+    found, ok = small_distinct(np.ascontiguousarray(ids, dtype=np.int64), 4096)
+    return found.astype(ids.dtype, copy=False) if ok else np.unique(ids)
 
 
 class DetectionPipeline:
@@ -270,7 +268,7 @@ class DetectionPipeline:
             cached = self.__dict__["_corrector"] = (cfg, GroundOffsetEstimator(cfg.correction_settings()))
         est = cached[1]
         s = est.settings
-        c = conf[idx]
+        c = conf if len(idx) == len(conf) else conf[idx]
         strong = np.flatnonzero(c >= s.min_score)
         measurement = None
         support = 0.0
@@ -312,7 +310,8 @@ class DetectionPipeline:
             return boosted, lat, lon, self._correct(conf, cids, np.zeros(0, np.int64), np.zeros(0), np.zeros(0),
                                                     pose, t)
         idx = np.flatnonzero(valid)
-        gx, gy = self.grid.latlon_to_cell(lat[idx], lon[idx])
+        everywhere = len(idx) == len(valid)  # every box has a ground point (the usual case): no gathers
+        gx, gy = self.grid.latlon_to_cell(lat, lon) if everywhere else self.grid.latlon_to_cell(lat[idx], lon[idx])
         correction = self._correct(conf, cids, idx, gx, gy, pose, t)
         if correction is not None and (correction.east_m or correction.north_m):
             cell_m = self.memory.cell_m
@@ -321,7 +320,7 @@ class DetectionPipeline:
             lat0, lon0 = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
             lat = lat + (float(lat0) - pose.lat)
             lon = lon + (float(lon0) - pose.lon)
-        vcids = cids[idx]
+        vcids = cids if everywhere else cids[idx]
         # The update uses the detector's confidence, not the boosted one (paper IV).
         gain = cfg.memory.gain_per_s * step_s if cfg.memory.gain_per_frame is None else cfg.memory.gain_per_frame
         for cid in present:
