@@ -1,6 +1,6 @@
 """Compiled (numba) inner loops of the per-frame detection pipeline: exact class-wise NMS, the fused
-georeference + size filter, and the memory map's reads and impulse stamping. agent.pipeline and
-agent.memory_map wrap them; nothing else should call them directly.
+georeference + size filter, the memory map's reads, patches and impulse stamping, and the distinct class
+ids of a frame. agent.pipeline and agent.memory_map wrap them; nothing else should call them directly.
 
 The kernels have explicit signatures, so they are compiled when this module is first imported (~10 s
 on the 2-core development machine), and with cache=True numba stores the machine code next to this
