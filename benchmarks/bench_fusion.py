@@ -1,10 +1,12 @@
-"""Benchmark of the fusion server: how many UAVs one `uavmm fusion` process sustains, and UAV bandwidth.
+"""Benchmark of the fusion server: how many UAVs one `uavmm fusion` process sustains, two shards against
+one, and UAV bandwidth.
 
 A real `uavmm fusion` subprocess is fed by a load-generator process (N simulated UAVs, each putting
 9 tiles of 1 class at 5 Hz, values changing every cycle); this process subscribes to the joint tiles
-and measures agent put -> joint tile received (the joint tile's ``t`` is the newest fused tile's
-``t``, stamped at put). A load is sustained when p99 <= 50 ms and >= 95 % of the expected joint
-tiles arrive. Baseline in the same run: the raw Zenoh put -> receive rate of the same payloads.
+and measures agent put -> joint tile received (benchmarks.fusion_load). A load is sustained when p99
+<= 50 ms and >= 95 % of the expected joint tiles arrive. Baseline in the same run: the raw Zenoh put ->
+receive rate of the same payloads. Then the same search behind a Zenoh router, for one process and
+for two `--shard K/2` processes (benchmarks.fusion_shards).
 Bandwidth: bytes per second one agent publishes with 20 objects in view (agent.memory_map tiles,
 state and tracks at 5 Hz), against the 100 kB/s budget. Loopback, shared memory off.
 """
@@ -12,204 +14,49 @@ state and tracks at 5 Hz), against the 100 kB/s budget. Loopback, shared memory 
 from __future__ import annotations
 
 import gc
-import json
 import logging
 import multiprocessing as mp
 import os
-import socket
-import subprocess
-import sys
 import tempfile
-import threading
 import time
-from pathlib import Path
 from typing import Any
 
-import msgpack
 import numpy as np
 
-DESCRIPTION = "UAVs one fusion process holds at p99 put->joint <= 50 ms vs raw zenoh; CPU/message; up/downlink per UAV"
+from benchmarks.fusion_load import (
+    BASE_X,
+    BASE_Y,
+    P99_BUDGET_S,
+    P99_LIMITED_BUDGET_S,
+    RATE_HZ,
+    TILES_PER_UAV,
+    JointLatency,
+    blob_cells,
+    blocks_of,
+    free_port,
+    latency_case,
+    run_load,
+    search,
+    start_fusion,
+    stop_process,
+    zenoh_config,
+)
+from benchmarks.fusion_shards import run_sharded
+
+DESCRIPTION = ("UAVs one fusion process holds at p99 put->joint <= 50 ms vs raw zenoh; two shards vs one; "
+               "CPU/message; up/downlink per UAV")
 
 log = logging.getLogger(__name__)
 
-RATE_HZ = 5.0
-TILES_PER_UAV = 9
-P99_BUDGET_S = 0.050
-#: where two UAVs share a tile its joint tile is published at most 5 Hz: up to one period later
-P99_LIMITED_BUDGET_S = 0.250
+
 BYTES_BUDGET = 100_000.0
-_REPO = Path(__file__).resolve().parents[1]
-_BASE_X, _BASE_Y = 137_700, 91_400  # z18 tiles near 47.7 N 9.3 E
-_NO_SHM = "transport/shared_memory/enabled:false"
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
-
-
-def _zenoh_config(mode: str, *, connect: str | None = None, listen: str | None = None):
-    import zenoh
-
-    conf = zenoh.Config()
-    conf.insert_json5("mode", json.dumps(mode))
-    conf.insert_json5("scouting/multicast/enabled", "false")
-    conf.insert_json5("transport/shared_memory/enabled", "false")
-    if connect:
-        conf.insert_json5("connect/endpoints", json.dumps([connect]))
-        conf.insert_json5("connect/timeout_ms", "5000")
-        conf.insert_json5("connect/exit_on_failure", "true")
-    if listen:
-        conf.insert_json5("listen/endpoints", json.dumps([listen]))
-    return conf
-
-
-def _uav_tiles(i: int, shared_pairs: bool) -> list[tuple[int, int]]:
-    """The 3 x 3 tile block of UAV i; with shared_pairs UAVs 2k and 2k+1 cover the same block."""
-    block = i // 2 if shared_pairs else i
-    x0 = _BASE_X + 4 * (block % 50)
-    y0 = _BASE_Y + 4 * (block // 50)
-    return [(x0 + dx, y0 + dy) for dy in range(3) for dx in range(3)]
-
-
-def _blob_cells(n: int = 256, count: int = 3, radius: int = 7) -> np.ndarray:
-    """Row-major indices of ``count`` discs of ``radius`` cells: the non-zero cells of a tile."""
-    rng = np.random.default_rng(1)
-    mask = np.zeros((n, n), bool)
-    rows, cols = np.ogrid[:n, :n]
-    for r, c in rng.integers(radius, n - radius, size=(count, 2)):
-        mask |= (rows - r) ** 2 + (cols - c) ** 2 <= radius**2
-    return np.flatnonzero(mask)
-
-
-def _load_generator(endpoint: str, prefix: str, n_uavs: int, duration_s: float, start_wall: float,
-                    shared_pairs: bool, out: Any, part: tuple[int, int] = (0, 1)) -> None:
-    """Child process: N UAVs putting 9 tiles each at 5 Hz from ``start_wall`` for ``duration_s``
-    (with ``part = (j, m)`` only the UAVs i with i % m == j, so m processes share the load)."""
-    import zenoh
-
-    from shared.keys import KeySpace
-    from shared.messages import VERSION
-
-    keys = KeySpace()
-    idx = _blob_cells()
-    idx_bytes = idx.astype("<u2").tobytes()  # sorted, as every encoder writes them
-    base_val = (np.arange(idx.size) % 200 + 30).astype(np.int64)
-    lags: list[float] = []
-    puts = 0
-    mine = [i for i in range(n_uavs) if i % part[1] == part[0]]
-    with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
-        uavs = {}
-        for i in mine:
-            uav = f"{prefix}{i}"
-            pubs = [(x, y, session.declare_publisher(keys.uav_tile(uav, "person", 18, x, y),
-                                                     congestion_control=zenoh.CongestionControl.BLOCK))
-                    for x, y in _uav_tiles(i, shared_pairs)]
-            uavs[i] = (uav, pubs)
-        period = 1.0 / RATE_HZ
-        cycles = int(duration_s * RATE_HZ)
-        events = sorted((start_wall + k * period + (i / n_uavs) * period, k, i)
-                        for k in range(cycles) for i in mine)
-        for when, k, i in events:
-            delay = when - time.time()
-            if delay > 0:
-                time.sleep(delay)
-            lags.append(max(-delay, 0.0))
-            uav, pubs = uavs[i]
-            val = (((base_val + 7 * k + i) % 225) + 30).astype(np.uint8).tobytes()
-            for x, y, pub in pubs:  # the wire form of shared.tilecodec.encode_tile_sparse, packed directly
-                pub.put(msgpack.packb({"v": VERSION, "uav": uav, "cls": "person", "z": 18, "x": x, "y": y,
-                                       "n": 256, "t": time.time(), "seq": k + 1, "idx": idx_bytes, "val": val},
-                                      use_bin_type=True))
-                puts += 1
-        time.sleep(0.3)
-    out.put({"puts": puts, "lag_p99_s": float(np.quantile(lags, 0.99)) if lags else 0.0})
-
-
-class _JointLatency:
-    """Subscriber callback: put time (the joint tile's ``t``) and latency of every non-empty joint tile."""
-
-    def __init__(self) -> None:
-        self.lock = threading.Lock()
-        self.samples: list[tuple[float, float]] = []  # (put wall time, latency)
-
-    def __call__(self, sample) -> None:
-        now = time.time()
-        record = msgpack.unpackb(sample.payload.to_bytes(), raw=False)
-        if record.get("idx", b"x") == b"" or not record.get("val"):
-            return  # an empty "nobody covers this any more" tile carries no agent put
-        with self.lock:
-            self.samples.append((record["t"], now - record["t"]))
-
-    def window(self, t0: float, t1: float) -> np.ndarray:
-        """Latencies of the tiles put in [t0, t1)."""
-        with self.lock:
-            return np.array([lat for put, lat in self.samples if t0 <= put < t1])
-
-
-def _start_fusion(port: int, db_dir: str) -> subprocess.Popen:
-    cmd = [sys.executable, "-m", "uavmm", "fusion", "--listen", f"tcp/127.0.0.1:{port}", "--no-http",
-           "--db", os.path.join(db_dir, "bench.sqlite"), "--no-multicast-scouting", "--cfg", _NO_SHM]
-    env = {**os.environ, "PYTHONPATH": str(_REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    proc = subprocess.Popen(cmd, cwd=_REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
-    line = proc.stdout.readline()  # printed once the node is up
-    if "uavmm fusion" not in line:
-        proc.kill()
-        raise RuntimeError(f"uavmm fusion did not start: {line!r}")
-    return proc
-
-
-def _cpu_s(pid: int) -> float | None:
-    """User + system CPU seconds of process ``pid`` so far (Linux /proc), None where unavailable."""
-    try:
-        fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
-        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def _run_load(ctx, endpoint: str, receiver: _JointLatency, n_uavs: int, duration_s: float, step: int,
-              shared_pairs: bool = False, n_procs: int = 1, fusion_pid: int | None = None) -> dict[str, float]:
-    cpu0 = _cpu_s(fusion_pid) if fusion_pid is not None else None
-    out = ctx.Queue()
-    start = time.time() + 2.0  # a child needs ~1 s to import and declare its publishers
-    procs = [ctx.Process(target=_load_generator,
-                         args=(endpoint, f"s{step}u", n_uavs, duration_s, start, shared_pairs, out, (j, n_procs)))
-             for j in range(n_procs)]
-    for proc in procs:
-        proc.start()
-    for proc in procs:
-        proc.join(timeout=duration_s + 60)
-    ok = all(proc.exitcode == 0 for proc in procs)
-    reports = [out.get(timeout=5) for _ in procs] if ok else [{"puts": 0, "lag_p99_s": float("inf")}]
-    cpu1 = _cpu_s(fusion_pid) if fusion_pid is not None else None
-    puts = sum(report["puts"] for report in reports)
-    cpu_per_msg = (cpu1 - cpu0) / puts if cpu0 is not None and cpu1 is not None and puts else None
-    warm = 0.6
-    t0, t1 = start + warm, start + duration_s
-    lat = receiver.window(t0, t1)
-    period = 1.0 / RATE_HZ
-    puts_in_window = sum(1 for k in range(int(duration_s * RATE_HZ)) for i in range(n_uavs)
-                         if t0 <= start + k * period + (i / n_uavs) * period < t1)
-    expected = puts_in_window * TILES_PER_UAV
-    if shared_pairs:
-        expected /= 2  # two UAVs per tile, still at most 5 joint publications per tile a second
-    return {
-        "n": n_uavs,
-        "p50": float(np.quantile(lat, 0.5)) if lat.size else float("inf"),
-        "p99": float(np.quantile(lat, 0.99)) if lat.size else float("inf"),
-        "received_ratio": lat.size / expected,
-        "lag_p99_s": max(report["lag_p99_s"] for report in reports),
-        "cpu_per_msg_s": cpu_per_msg,
-    }
 
 
 def _raw_zenoh_rate(ctx, duration_s: float) -> float:
     """Messages per second from a publisher process to a subscriber here, same payloads, BLOCK."""
     import zenoh
 
-    port = _free_port()
+    port = free_port()
     endpoint = f"tcp/127.0.0.1:{port}"
     count = [0]
     first: list[float] = []
@@ -222,7 +69,7 @@ def _raw_zenoh_rate(ctx, duration_s: float) -> float:
         count[0] += 1
         last[0] = now
 
-    with zenoh.open(_zenoh_config("peer", listen=endpoint)) as session:
+    with zenoh.open(zenoh_config("peer", listen=endpoint)) as session:
         sub = session.declare_subscriber("bench/raw/**", on_sample)
         proc = ctx.Process(target=_raw_publisher, args=(endpoint, duration_s))
         proc.start()
@@ -239,10 +86,10 @@ def _raw_publisher(endpoint: str, duration_s: float) -> None:
 
     from shared.tilecodec import encode_tile_sparse
 
-    idx = _blob_cells()
-    payloads = [encode_tile_sparse("u", "person", 18, _BASE_X, _BASE_Y, 256, time.time(), k + 1, idx,
+    idx = blob_cells()
+    payloads = [encode_tile_sparse("u", "person", 18, BASE_X, BASE_Y, 256, time.time(), k + 1, idx,
                                    (np.arange(idx.size) + k) % 225 + 30) for k in range(16)]
-    with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
+    with zenoh.open(zenoh_config("peer", connect=endpoint)) as session:
         pub = session.declare_publisher("bench/raw/tile", congestion_control=zenoh.CongestionControl.BLOCK)
         time.sleep(0.5)
         end = time.perf_counter() + duration_s
@@ -373,7 +220,7 @@ def _most_in_regions(grid, rng: np.random.Generator, cell_m: float, fleet: int, 
     from shared.keys import track_region
 
     n = grid.n
-    centres = [((_BASE_X + 4 * (b % 50) + shift) * n, (_BASE_Y + 4 * (b // 50) + shift) * n) for b in range(fleet)]
+    centres = [((BASE_X + 4 * (b % 50) + shift) * n, (BASE_Y + 4 * (b // 50) + shift) * n) for b in range(fleet)]
     cells = np.vstack([np.column_stack([cx + rng.uniform(-100, 100, objects) / cell_m,
                                         cy + rng.uniform(-100, 100, objects) / cell_m]) for cx, cy in centres])
     track_regions = [track_region(grid.z, int(x), int(y)) for x, y in (cells // n).astype(np.int64)]
@@ -400,51 +247,31 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
     ]
     import zenoh
 
-    port = _free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
-    sustained = 0
-    cpu_per_msg: float | None = None  # of the largest load run
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     with tempfile.TemporaryDirectory() as db_dir:
-        fusion = _start_fusion(port, db_dir)
+        fusion = start_fusion(os.path.join(db_dir, "bench.sqlite"), listen=endpoint)
         try:
-            with zenoh.open(_zenoh_config("peer", connect=endpoint)) as session:
-                receiver = _JointLatency()
+            with zenoh.open(zenoh_config("peer", connect=endpoint)) as session:
+                receiver = JointLatency()
                 sub = session.declare_subscriber("uavmm/v1/joint/tiles/**", receiver)
                 gc.freeze()  # as uavmm fusion does: no full-collection pauses over start-up objects here
-                for step, n in enumerate(steps):
-                    result = _run_load(ctx, endpoint, receiver, n, duration_s, step, n_procs=2 if n >= 100 else 1,
-                                       fusion_pid=fusion.pid)
-                    if result["cpu_per_msg_s"] is not None:
-                        cpu_per_msg = result["cpu_per_msg_s"]
-                    ok = (result["p99"] <= P99_BUDGET_S and result["received_ratio"] >= 0.95
-                          and result["lag_p99_s"] <= P99_BUDGET_S)
-                    log.info("fusion bench: %s -> %s", result, "ok" if ok else "not sustained")
-                    rows.append({
-                        "case": f"{n} UAVs x 9 tiles @5 Hz, no overlap: p99 put->joint (p50 "
-                                f"{result['p50'] * 1e3:.1f} ms, {result['received_ratio']:.0%} received)",
-                        "value": result["p99"] * 1e3, "unit": "ms", "baseline_name": "budget 50 ms",
-                        "ratio": result["p99"] / P99_BUDGET_S,
-                    })
-                    time.sleep(2.5)  # let the UAVs' tiles expire (TTL 2 s)
-                    if not ok:
-                        break
-                    sustained = n
-                pairs = _run_load(ctx, endpoint, receiver, pair_n, duration_s, len(steps) + 1, shared_pairs=True,
-                                  n_procs=2 if pair_n >= 100 else 1)
+                sustained, results = search(ctx, endpoint, receiver, steps, duration_s, "s",
+                                            watch={"fusion": fusion.pid})
+                rows += [{"case": latency_case(r, f"{r.n} UAVs x 9 tiles @5 Hz, no overlap"),
+                          "value": r.p99 * 1e3, "unit": "ms", "baseline_name": "budget 50 ms",
+                          "ratio": r.p99 / P99_BUDGET_S} for r in results]
+                cpu_per_msg = results[-1].cpu_per_msg("fusion") if results else None  # of the largest load run
+                pairs = run_load(ctx, endpoint, receiver, blocks_of(pair_n, shared_pairs=True), duration_s, "sp",
+                                 shared_pairs=True, n_procs=2 if pair_n >= 100 else 1)
                 log.info("fusion bench, pairs: %s", pairs)
                 rows.append({
-                    "case": f"{pair_n} UAVs, 2 per tile (rate limit 5 Hz/tile): p99 put->joint "
-                            f"(p50 {pairs['p50'] * 1e3:.1f} ms, {pairs['received_ratio']:.0%} received)",
-                    "value": pairs["p99"] * 1e3, "unit": "ms", "baseline_name": "budget 250 ms",
-                    "ratio": pairs["p99"] / P99_LIMITED_BUDGET_S,
+                    "case": latency_case(pairs, f"{pair_n} UAVs, 2 per tile (rate limit 5 Hz/tile)"),
+                    "value": pairs.p99 * 1e3, "unit": "ms", "baseline_name": "budget 250 ms",
+                    "ratio": pairs.p99 / P99_LIMITED_BUDGET_S,
                 })
                 sub.undeclare()
         finally:
-            fusion.terminate()
-            try:
-                fusion.wait(timeout=15)
-            except subprocess.TimeoutExpired:
-                fusion.kill()
+            stop_process(fusion)
     capped = sustained == steps[-1]
     rows.append({
         "case": "UAVs sustained, no overlap, p99 <= 50 ms" + (" (largest load tried)" if capped else ""),
@@ -458,6 +285,7 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
                     f"{1.0 / (cpu_per_msg * RATE_HZ * TILES_PER_UAV):.0f})",
             "value": cpu_per_msg * 1e6, "unit": "us",
         })
+    rows += run_sharded(ctx, quick, duration_s, sustained)
     bw = uav_bytes_per_s(seconds=2.5 if quick else 4.0)
     rows += [
         {"case": f"uplink per UAV, 20 objects, defaults (tiles {bw['tiles'] / 1e3:.0f}, state+tracks "

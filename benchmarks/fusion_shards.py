@@ -1,0 +1,180 @@
+"""Sharded fusion in `uavmm bench fusion`: how many UAVs two `uavmm fusion --shard K/2` processes hold
+behind a Zenoh router, against one process behind the same router, in the same run.
+
+The topology is the deployment's (deploy/docker-compose.sharded.yml): a router, and the fusion
+processes, the load generators and the joint-tile subscriber all Zenoh clients of it. Every shard
+subscribes to every UAV's tiles (the tile keys carry no region chunk) and drops other shards' tiles
+by key before decoding; the last run here prices that: a load whose tiles all lie in shard 1's
+regions, so shard 0's CPU per message is what a dropped sample costs.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import tempfile
+from collections.abc import Sequence
+from typing import Any
+
+from benchmarks.fusion_load import (
+    GRID_Z,
+    P99_BUDGET_S,
+    RATE_HZ,
+    TILES_PER_UAV,
+    JointLatency,
+    LoadResult,
+    block_tiles,
+    blocks_of,
+    free_port,
+    latency_case,
+    router_process,
+    run_load,
+    search,
+    start_fusion,
+    stop_process,
+    zenoh_config,
+)
+from shared.sharding import DEFAULT_REGION_ZOOM, ShardSpec
+
+log = logging.getLogger(__name__)
+
+#: the issue's acceptance: two shards on one machine hold this many times one process
+SHARD_TARGET = 1.6
+
+
+def shard_shares(blocks: Sequence[int], count: int = 2, region_zoom: int = DEFAULT_REGION_ZOOM) -> list[float]:
+    """Share of the tile messages of UAVs on ``blocks`` that each of ``count`` shards owns (sums to 1)."""
+    spec = ShardSpec(0, count, region_zoom)
+    counts = [0] * count
+    for block in blocks:
+        for x, y in block_tiles(block):
+            counts[spec.owner(GRID_Z, x, y)] += 1
+    total = sum(counts)
+    return [c / total if total else 0.0 for c in counts]
+
+
+def blocks_owned_by(shard: int, count: int, n: int, region_zoom: int = DEFAULT_REGION_ZOOM) -> list[int]:
+    """The first ``n`` blocks whose 9 tiles all lie in regions of shard ``shard`` of ``count``."""
+    spec = ShardSpec(shard, count, region_zoom)
+    found: list[int] = []
+    block = 0
+    while len(found) < n:
+        if all(spec.owns(GRID_Z, x, y) for x, y in block_tiles(block)):
+            found.append(block)
+        block += 1
+    return found
+
+
+def _last(results: list[LoadResult], sustained: int) -> LoadResult | None:
+    """The run at the largest sustained load (else the first run): where CPU per message is read."""
+    for result in results:
+        if result.n == sustained:
+            return result
+    return results[0] if results else None
+
+
+def _step_rows(results: list[LoadResult], what: str) -> list[dict[str, Any]]:
+    return [{"case": latency_case(r, f"{what}, {r.n} UAVs"), "value": r.p99 * 1e3, "unit": "ms",
+             "baseline_name": "budget 50 ms", "ratio": r.p99 / P99_BUDGET_S} for r in results]
+
+
+def _capped(sustained: int, steps: Sequence[int]) -> str:
+    return " (largest load tried)" if sustained == steps[-1] else ""
+
+
+def _us(value: float | None) -> float:
+    return float("nan") if value is None else value * 1e6
+
+
+def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> list[dict[str, Any]]:
+    """The rows of the sharded comparison (see the module docstring); ``direct_sustained``: UAVs one
+    process held with the generators as its direct peers, earlier in the run."""
+    import zenoh
+
+    steps_one = [4] if quick else [50, 100, 150, 200, 225, 250, 275, 300]
+    steps_two = [8] if quick else [100, 200, 250, 300, 325, 350, 375, 400, 450, 500]
+    drop_n = 0 if quick else 100
+    port = free_port()
+    endpoint = f"tcp/127.0.0.1:{port}"
+    ready, stop = ctx.Event(), ctx.Event()
+    router = ctx.Process(target=router_process, args=(endpoint, ready, stop))
+    router.start()
+    rows: list[dict[str, Any]] = []
+    try:
+        if not ready.wait(30):
+            raise RuntimeError("the zenoh router process did not start")
+        with tempfile.TemporaryDirectory() as db_dir, \
+                zenoh.open(zenoh_config("client", connect=endpoint)) as session:
+            receiver = JointLatency()
+            sub = session.declare_subscriber("uavmm/v1/joint/tiles/**", receiver)
+            one = start_fusion(os.path.join(db_dir, "one.sqlite"), connect=endpoint)
+            try:
+                one_n, one_results = search(ctx, endpoint, receiver, steps_one, duration_s, "r1s", mode="client",
+                                            watch={"fusion": one.pid, "router": router.pid})
+            finally:
+                stop_process(one)
+            shards = [start_fusion(os.path.join(db_dir, f"shard{k}.sqlite"), connect=endpoint, shard=f"{k}/2")
+                      for k in range(2)]
+            watch = {"shard0": shards[0].pid, "shard1": shards[1].pid, "router": router.pid}
+            try:
+                two_n, two_results = search(ctx, endpoint, receiver, steps_two, duration_s, "r2s", mode="client",
+                                            watch=watch)
+                drop = (run_load(ctx, endpoint, receiver, blocks_owned_by(1, 2, drop_n), duration_s, "r2d",
+                                 n_procs=2, mode="client", watch=watch) if drop_n else None)
+            finally:
+                for proc in shards:
+                    stop_process(proc)
+            sub.undeclare()
+    finally:
+        stop.set()
+        router.join(timeout=10)
+        if router.is_alive():
+            router.terminate()
+    rows += _step_rows(one_results, "one fusion process behind a zenoh router")
+    rows += _step_rows(two_results, "two shards (--shard 0/2, 1/2) behind the router")
+    shares = shard_shares(blocks_of(max(two_n, steps_two[0])))
+    rows.append({
+        "case": f"UAVs sustained, one process behind the router, p99 <= 50 ms{_capped(one_n, steps_one)} "
+                f"(as direct peers earlier: {direct_sustained})",
+        "value": float(one_n), "unit": "UAVs"})
+    rows.append({
+        "case": f"UAVs sustained, two shards behind the router{_capped(two_n, steps_two)} (tile messages per shard "
+                f"{shares[0]:.0%} / {shares[1]:.0%}; acceptance >= {SHARD_TARGET} x one process)",
+        "value": float(two_n), "unit": "UAVs", "baseline_name": f"one process behind the router = {one_n}",
+        "ratio": two_n / one_n if one_n else None})
+    rows += _cpu_rows(_last(one_results, one_n), _last(two_results, two_n))
+    if drop is not None:
+        owned, dropped = drop.cpu_per_msg("shard1"), drop.cpu_per_msg("shard0")
+        rows.append({
+            "case": f"shard 0 CPU per dropped tile sample ({drop.n} UAVs, all in shard 1's regions: Zenoh "
+                    "receive + Python callback + key check)",
+            "value": _us(dropped), "unit": "us",
+            "baseline_name": f"shard 1 per owned message = {_us(owned):.0f} us",
+            "ratio": dropped / owned if owned and dropped is not None else None})
+    return rows
+
+
+def _cpu_rows(one: LoadResult | None, two: LoadResult | None) -> list[dict[str, Any]]:
+    """CPU per tile message of every process, at the largest sustained load of each search."""
+    rows: list[dict[str, Any]] = []
+    if one is not None:
+        per = one.cpu_per_msg("fusion")
+        rows.append({"case": f"one process behind the router, CPU per UAV message ({one.n} UAVs; router "
+                             f"{_us(one.cpu_per_msg('router')):.0f} us, load generator "
+                             f"{_us(one.cpu_per_msg('generator')):.0f} us)",
+                     "value": _us(per), "unit": "us"})
+    if two is not None:
+        shares = shard_shares(blocks_of(two.n))
+        for k in range(2):
+            total = two.cpu_per_msg(f"shard{k}")
+            owned = two.cpu_per_msg(f"shard{k}", two.puts * shares[k])
+            rows.append({"case": f"shard {k} CPU per UAV message it receives ({two.n} UAVs: all of them; per "
+                                 f"message it owns ({shares[k]:.0%}): {_us(owned):.0f} us)",
+                         "value": _us(total), "unit": "us"})
+        cores = sum(two.cpu.get(name, 0.0) for name in ("shard0", "shard1", "router", "generator"))
+        seconds = two.puts / (two.n * TILES_PER_UAV * RATE_HZ) if two.n else 0.0
+        rows.append({"case": f"two shards at {two.n} UAVs: cores busy (shards + router "
+                             f"{_us(two.cpu_per_msg('router')):.0f} us/msg + generators "
+                             f"{_us(two.cpu_per_msg('generator')):.0f} us/msg) of the machine's {os.cpu_count()}",
+                     "value": cores / seconds if seconds else float("nan"), "unit": "cores"})
+    return rows
