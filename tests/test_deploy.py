@@ -9,6 +9,7 @@ import re
 import shlex
 from pathlib import Path
 
+import numpy as np
 import pytest
 import yaml
 
@@ -18,7 +19,9 @@ REPO = Path(__file__).resolve().parents[1]
 DEPLOY = REPO / "deploy"
 COMPOSE_FILES = ["docker-compose.yml", "docker-compose.router.yml"]
 SECURE = "docker-compose.secure.yml"
+SHARDED = "docker-compose.sharded.yml"
 ALL_COMPOSE_FILES = [*COMPOSE_FILES, SECURE]
+SHARDS = ["shard0", "shard1"]
 AGENTS = ["uav1", "uav2", "uav3"]
 _VARIABLE = re.compile(r"\$\{(\w+)(?::?-([^}]*))?\}")
 
@@ -118,14 +121,15 @@ def test_fusion_healthcheck_asks_healthz(name):
     assert check["retries"] >= 1 and check["interval"].endswith("s")
 
 
-@pytest.mark.parametrize("name", ALL_COMPOSE_FILES)
+@pytest.mark.parametrize("name", [*ALL_COMPOSE_FILES, SHARDED])
 def test_ports_are_published_on_the_hosts_loopback_only(name):
     services = load(name)["services"]
     published = [p for spec in services.values() for p in spec.get("ports", [])]
     assert published
     for mapping in published:
         assert mapping.startswith("127.0.0.1:"), f"{mapping} is reachable from other hosts by default"
-    assert "127.0.0.1:8000:8000" in services["fusion"]["ports"]
+    rest = "gateway" if name == SHARDED else "fusion"
+    assert "127.0.0.1:8000:8000" in services[rest]["ports"]
 
 
 def test_agents_connect_to_the_fusion_server_directly():
@@ -148,7 +152,7 @@ def test_router_variant_puts_zenohd_between_fusion_and_agents():
         assert flag(command, "--mode") == "client" and flag(command, "--connect") == "tcp/router:7447"
 
 
-@pytest.mark.parametrize("name", ALL_COMPOSE_FILES)
+@pytest.mark.parametrize("name", [*ALL_COMPOSE_FILES, SHARDED])
 def test_compose_variables_are_documented_in_env_example_with_the_same_defaults(name):
     env = env_example()
     used: set[str] = set()
@@ -156,6 +160,83 @@ def test_compose_variables_are_documented_in_env_example_with_the_same_defaults(
     with_defaults = interpolate(raw, {}, used)
     assert used <= set(env), f"undocumented variables: {sorted(used - set(env))}"
     assert interpolate(raw, env, set()) == with_defaults, ".env.example and the compose defaults disagree"
+
+
+def test_sharded_variant_runs_two_shards_and_a_gateway_behind_zenohd():
+    """The commands of docker-compose.sharded.yml through the real CLI and their settings: two shards of
+    one count and region zoom, each with its own database volume; everyone a Zenoh client of the
+    official router."""
+    from uavmm import cmd_agent, cmd_fusion
+
+    services = load(SHARDED)["services"]
+    assert {"router", "gateway", *SHARDS, *AGENTS, "uav4"} == set(services)
+    router = services["router"]
+    assert router["image"].startswith("eclipse/zenoh:") and flag(router["command"], "--listen") == "tcp/0.0.0.0:7447"
+    shard_settings = []
+    for name in SHARDS:
+        spec = services[name]
+        args = parse(spec["command"])
+        assert args.command == "fusion"
+        settings = cmd_fusion.settings_from_args(args)
+        shard_settings.append(settings)
+        assert str(settings.db_path) == "/data/fusion.sqlite"
+        assert spec["volumes"] == [f"{name}-data:/data"], "each shard keeps its own database"
+        # its REST API on the container's loopback only: the health check's, not the operators'
+        assert (settings.http_host, settings.http_port) == ("127.0.0.1", 8000) and not settings.insecure_public
+        assert "ports" not in spec
+    assert sorted((s.shard_index, s.shard_count) for s in shard_settings) == [(0, 2), (1, 2)]
+    assert services["shard0"]["build"] == {"context": "..", "dockerfile": "deploy/Dockerfile"}
+    assert "build" not in services["shard1"] and services["shard1"]["pull_policy"] == "never"
+    assert set(load(SHARDED).get("volumes", {})) == {"shard0-data", "shard1-data"}
+    for name in ["gateway", *SHARDS]:
+        test = " ".join(services[name]["healthcheck"]["test"])
+        assert "http://127.0.0.1:8000/healthz" in test
+    for name in [*SHARDS, "gateway", *AGENTS, "uav4"]:
+        command = services[name]["command"]
+        assert flag(command, "--mode") == "client" and flag(command, "--connect") == "tcp/router:7447", name
+        assert "--no-multicast-scouting" in command
+    for name in [*AGENTS, "uav4"]:
+        spec = services[name]
+        args = parse(spec["command"])
+        assert cmd_agent.settings_from_args(args).uav_id == name
+        cmd_agent.source_from_args(args)  # the scenario and UAV index exist
+        assert args.loop and spec["depends_on"] == {"gateway": {"condition": "service_healthy"}}
+        assert spec["image"] == services["shard0"]["image"] and "ports" not in spec
+
+
+def test_sharded_gateway_serves_both_shards_on_the_hosts_loopback():
+    """The gateway's command through the real CLI: as many shards as the compose file runs, at their
+    region zoom, its REST API on the container's 0.0.0.0 published on the host's loopback."""
+    from uavmm import cmd_fusion, cmd_gateway
+
+    services = load(SHARDED)["services"]
+    shard_settings = [cmd_fusion.settings_from_args(parse(services[name]["command"])) for name in SHARDS]
+    gateway_spec = services["gateway"]
+    gateway_args = parse(gateway_spec["command"])
+    assert gateway_args.command == "gateway"
+    gateway = cmd_gateway.settings_from_args(gateway_args)
+    assert gateway.shard_count == 2 and gateway.db_path is None
+    assert {s.region_zoom for s in shard_settings} == {gateway.region_zoom}, "shards and gateway must agree"
+    assert (gateway.http_host, gateway.http_port) == ("0.0.0.0", 8000) and gateway.insecure_public
+    assert gateway_spec["depends_on"] == {s: {"condition": "service_healthy"} for s in SHARDS}
+
+
+def test_sharded_demo_gives_each_shard_a_meadow():
+    """The demo's agents fly over regions of both shards at the compose file's region zoom (its header
+    says so): the trio meadow is shard 0's, the second scenario's shard 1's."""
+    from shared.sharding import ShardSpec
+    from shared.tiles import TileGrid
+    from sim.scenarios import get_scenario
+
+    services = load(SHARDED)["services"]
+    zoom = int(flag(services["shard0"]["command"], "--region-zoom"))
+    grid = TileGrid()
+    owners = {}
+    for agent in ["uav1", "uav4"]:
+        world = get_scenario(flag(services[agent]["command"], "--sim")).world
+        x, y = grid.tile_of(np.array([world.origin_lat]), np.array([world.origin_lon]))
+        owners[agent] = ShardSpec(0, 2, zoom).owner(grid.z, int(x[0]), int(y[0]))
+    assert owners == {"uav1": 0, "uav4": 1}
 
 
 def test_secure_variant_runs_on_the_files_secure_init_writes(tmp_path):
