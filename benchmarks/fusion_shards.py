@@ -65,6 +65,18 @@ def blocks_owned_by(shard: int, count: int, n: int, region_zoom: int = DEFAULT_R
     return found
 
 
+def balanced_blocks(n: int, count: int = 2, region_zoom: int = DEFAULT_REGION_ZOOM) -> list[int]:
+    """Blocks of ``n`` UAVs taken in turn from each shard's regions (blocks_owned_by), so every shard
+    owns 1/count of the tiles: the sharded capacity, not the luck of the hash over a few regions."""
+    per_shard = [blocks_owned_by(k, count, -(-n // count), region_zoom) for k in range(count)]
+    return [per_shard[i % count][i // count] for i in range(n)]
+
+
+def _regions(blocks: Sequence[int], region_zoom: int = DEFAULT_REGION_ZOOM) -> int:
+    spec = ShardSpec(0, 1, region_zoom)
+    return len({spec.region(GRID_Z, x, y) for block in blocks for x, y in block_tiles(block)})
+
+
 def _last(results: list[LoadResult], sustained: int) -> LoadResult | None:
     """The run at the largest sustained load (else the first run): where CPU per message is read."""
     for result in results:
@@ -91,15 +103,13 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
     process held with the generators as its direct peers, earlier in the run."""
     import zenoh
 
-    steps_one = [4] if quick else [50, 100, 150, 200, 225, 250, 275, 300]
-    steps_two = [8] if quick else [100, 200, 250, 300, 325, 350, 375, 400, 450, 500]
+    steps_one = [4] if quick else [50, 100, 125, 150, 175, 200, 225, 250, 275, 300]
+    steps_two = [8] if quick else [100, 150, 175, 200, 225, 250, 275, 300, 325, 350, 400, 450]
     drop_n = 0 if quick else 100
-    port = free_port()
-    endpoint = f"tcp/127.0.0.1:{port}"
+    endpoint = f"tcp/127.0.0.1:{free_port()}"
     ready, stop = ctx.Event(), ctx.Event()
     router = ctx.Process(target=router_process, args=(endpoint, ready, stop))
     router.start()
-    rows: list[dict[str, Any]] = []
     try:
         if not ready.wait(30):
             raise RuntimeError("the zenoh router process did not start")
@@ -108,9 +118,10 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
             receiver = JointLatency()
             sub = session.declare_subscriber("uavmm/v1/joint/tiles/**", receiver)
             one = start_fusion(os.path.join(db_dir, "one.sqlite"), connect=endpoint)
-            try:
+            try:  # the same UAVs as the shards get: one load, two deployments
                 one_n, one_results = search(ctx, endpoint, receiver, steps_one, duration_s, "r1s", mode="client",
-                                            watch={"fusion": one.pid, "router": router.pid})
+                                            watch={"fusion": one.pid, "router": router.pid},
+                                            layout=balanced_blocks)
             finally:
                 stop_process(one)
             shards = [start_fusion(os.path.join(db_dir, f"shard{k}.sqlite"), connect=endpoint, shard=f"{k}/2")
@@ -118,7 +129,7 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
             watch = {"shard0": shards[0].pid, "shard1": shards[1].pid, "router": router.pid}
             try:
                 two_n, two_results = search(ctx, endpoint, receiver, steps_two, duration_s, "r2s", mode="client",
-                                            watch=watch)
+                                            watch=watch, layout=balanced_blocks)
                 drop = (run_load(ctx, endpoint, receiver, blocks_owned_by(1, 2, drop_n), duration_s, "r2d",
                                  n_procs=2, mode="client", watch=watch) if drop_n else None)
             finally:
@@ -130,9 +141,10 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
         router.join(timeout=10)
         if router.is_alive():
             router.terminate()
-    rows += _step_rows(one_results, "one fusion process behind a zenoh router")
+    rows = _step_rows(one_results, "one fusion process behind a zenoh router")
     rows += _step_rows(two_results, "two shards (--shard 0/2, 1/2) behind the router")
-    shares = shard_shares(blocks_of(max(two_n, steps_two[0])))
+    at = max(two_n, steps_two[0])
+    shares, plain = shard_shares(balanced_blocks(at)), shard_shares(blocks_of(at))
     rows.append({
         "case": f"UAVs sustained, one process behind the router, p99 <= 50 ms{_capped(one_n, steps_one)} "
                 f"(as direct peers earlier: {direct_sustained})",
@@ -142,7 +154,13 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
                 f"{shares[0]:.0%} / {shares[1]:.0%}; acceptance >= {SHARD_TARGET} x one process)",
         "value": float(two_n), "unit": "UAVs", "baseline_name": f"one process behind the router = {one_n}",
         "ratio": two_n / one_n if one_n else None})
-    rows += _cpu_rows(_last(one_results, one_n), _last(two_results, two_n))
+    rows.append({
+        "case": f"busiest shard's share of the tiles of {at} UAVs laid out in rows instead ({_regions(blocks_of(at))} "
+                f"regions of zoom {DEFAULT_REGION_ZOOM}: the hash over few regions; the search above uses "
+                f"UAVs taken in turn from each shard's regions)",
+        "value": max(plain) * 100, "unit": "%", "baseline_name": "even = 50 %", "ratio": max(plain) / 0.5})
+    one_last, two_last = _last(one_results, one_n), _last(two_results, two_n)
+    rows += _cpu_rows(one_last, two_last)
     if drop is not None:
         owned, dropped = drop.cpu_per_msg("shard1"), drop.cpu_per_msg("shard0")
         rows.append({
@@ -154,27 +172,41 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
     return rows
 
 
+def _total_per_msg(result: LoadResult, names: Sequence[str]) -> float | None:
+    """CPU seconds per UAV message of the named processes together."""
+    return sum(result.cpu.get(name, 0.0) for name in names) / result.puts if result.puts else None
+
+
 def _cpu_rows(one: LoadResult | None, two: LoadResult | None) -> list[dict[str, Any]]:
-    """CPU per tile message of every process, at the largest sustained load of each search."""
+    """CPU per tile message of every process, at the largest sustained load of each search, and the
+    cores two shards with their router and load generator need at the acceptance load."""
     rows: list[dict[str, Any]] = []
+    one_total = None
     if one is not None:
-        per = one.cpu_per_msg("fusion")
+        one_total = _total_per_msg(one, ("fusion", "router", "generator"))
         rows.append({"case": f"one process behind the router, CPU per UAV message ({one.n} UAVs; router "
                              f"{_us(one.cpu_per_msg('router')):.0f} us, load generator "
-                             f"{_us(one.cpu_per_msg('generator')):.0f} us)",
-                     "value": _us(per), "unit": "us"})
+                             f"{_us(one.cpu_per_msg('generator')):.0f} us; all three {_us(one_total):.0f} us)",
+                     "value": _us(one.cpu_per_msg("fusion")), "unit": "us"})
     if two is not None:
-        shares = shard_shares(blocks_of(two.n))
+        shares = shard_shares(balanced_blocks(two.n))
         for k in range(2):
-            total = two.cpu_per_msg(f"shard{k}")
             owned = two.cpu_per_msg(f"shard{k}", two.puts * shares[k])
             rows.append({"case": f"shard {k} CPU per UAV message it receives ({two.n} UAVs: all of them; per "
                                  f"message it owns ({shares[k]:.0%}): {_us(owned):.0f} us)",
-                         "value": _us(total), "unit": "us"})
-        cores = sum(two.cpu.get(name, 0.0) for name in ("shard0", "shard1", "router", "generator"))
-        seconds = two.puts / (two.n * TILES_PER_UAV * RATE_HZ) if two.n else 0.0
-        rows.append({"case": f"two shards at {two.n} UAVs: cores busy (shards + router "
-                             f"{_us(two.cpu_per_msg('router')):.0f} us/msg + generators "
-                             f"{_us(two.cpu_per_msg('generator')):.0f} us/msg) of the machine's {os.cpu_count()}",
-                     "value": cores / seconds if seconds else float("nan"), "unit": "cores"})
+                         "value": _us(two.cpu_per_msg(f"shard{k}")), "unit": "us"})
+        two_total = _total_per_msg(two, ("shard0", "shard1", "router", "generator"))
+        rows.append({"case": f"two shards, CPU per UAV message of shards + router "
+                             f"({_us(two.cpu_per_msg('router')):.0f} us) + load generator "
+                             f"({_us(two.cpu_per_msg('generator')):.0f} us), {two.n} UAVs",
+                     "value": _us(two_total), "unit": "us",
+                     "baseline_name": f"one process + router + generator = {_us(one_total):.0f} us",
+                     "ratio": two_total / one_total if two_total and one_total else None})
+        if one is not None and two_total:
+            target = SHARD_TARGET * one.n
+            rows.append({"case": f"cores two shards + router + generator need for {SHARD_TARGET} x {one.n} = "
+                                 f"{target:.0f} UAVs at the CPU per message above",
+                         "value": two_total * target * TILES_PER_UAV * RATE_HZ, "unit": "cores",
+                         "baseline_name": f"this machine: {os.cpu_count()}, shared",
+                         "ratio": two_total * target * TILES_PER_UAV * RATE_HZ / (os.cpu_count() or 1)})
     return rows
