@@ -268,19 +268,27 @@ def run_load(ctx, endpoint: str, receiver: JointLatency, blocks: Sequence[int], 
 
 
 def search(ctx, endpoint: str, receiver: JointLatency, steps: Sequence[int], duration_s: float, tag: str, *,
-           mode: str = "peer", watch: dict[str, int] | None = None,
-           layout=blocks_of) -> tuple[int, list[LoadResult]]:
+           mode: str = "peer", watch: dict[str, int] | None = None, layout=blocks_of,
+           retries: int = 1) -> tuple[int, list[LoadResult]]:
     """Run the loads of ``steps`` UAVs (no overlap, ``layout(n)`` blocks) in order until one is not
-    sustained: (the largest sustained, every result)."""
+    sustained ``retries + 1`` times in a row (other jobs on a shared machine take the cores in bursts):
+    (the largest sustained, every result; of a retried load the better run)."""
     sustained = 0
     results = []
     for step, n in enumerate(steps):
-        result = run_load(ctx, endpoint, receiver, layout(n), duration_s, f"{tag}{step}u",
-                          n_procs=2 if n >= 100 else 1, mode=mode, watch=watch)
-        results.append(result)
-        log.info("fusion bench %s: %s -> %s", tag, result, "ok" if result.sustained else "not sustained")
-        time.sleep(2.5)  # let the UAVs' tiles expire (TTL 2 s)
-        if not result.sustained:
+        best: LoadResult | None = None
+        for attempt in range(retries + 1):
+            result = run_load(ctx, endpoint, receiver, layout(n), duration_s, f"{tag}{step}a{attempt}u",
+                              n_procs=2 if n >= 100 else 1, mode=mode, watch=watch)
+            log.info("fusion bench %s: %s -> %s", tag, result, "ok" if result.sustained else "not sustained")
+            time.sleep(2.5)  # let the UAVs' tiles expire (TTL 2 s)
+            if best is None or (result.sustained, -result.p99) > (best.sustained, -best.p99):
+                best = result
+            if result.sustained:
+                break
+        assert best is not None
+        results.append(best)
+        if not best.sustained:
             break
         sustained = n
     return sustained, results

@@ -13,6 +13,7 @@ from __future__ import annotations
 import logging
 import os
 import tempfile
+import time
 from collections.abc import Sequence
 from typing import Any
 
@@ -135,6 +136,8 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
             finally:
                 for proc in shards:
                     stop_process(proc)
+            assert router.pid is not None
+            routing = routing_rows(ctx, endpoint, router.pid, receiver, drop_n, duration_s) if drop_n else []
             sub.undeclare()
     finally:
         stop.set()
@@ -169,7 +172,7 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
             "value": _us(dropped), "unit": "us",
             "baseline_name": f"shard 1 per owned message = {_us(owned):.0f} us",
             "ratio": dropped / owned if owned and dropped is not None else None})
-    return rows
+    return rows + routing
 
 
 def _total_per_msg(result: LoadResult, names: Sequence[str]) -> float | None:
@@ -209,4 +212,96 @@ def _cpu_rows(one: LoadResult | None, two: LoadResult | None) -> list[dict[str, 
                          "value": two_total * target * TILES_PER_UAV * RATE_HZ, "unit": "cores",
                          "baseline_name": f"this machine: {os.cpu_count()}, shared",
                          "ratio": two_total * target * TILES_PER_UAV * RATE_HZ / (os.cpu_count() or 1)})
+    return rows
+
+
+def region_selectors(blocks: Sequence[int], shard: int, count: int = 2, region_zoom: int = DEFAULT_REGION_ZOOM,
+                     prefix: str = "uavmm/v1", exact: bool = True) -> list[str]:
+    """Key expressions in DESIGN's tile keys for the regions of shard ``shard`` that UAVs on ``blocks``
+    touch: what would let Zenoh route a tile to its shard only. A key expression cannot say "x in 16 rx
+    .. 16 rx + 15": ``exact`` gives one selector per tile (256 a region); otherwise one per decade of x
+    and of y (``1377$*``: 4-9 a region), which also matches some neighbouring tiles (and far-away
+    shorter or longer numbers) that the shard's key check then drops."""
+    spec = ShardSpec(shard, count, region_zoom)
+    regions = {spec.region(GRID_Z, x, y) for block in blocks for x, y in block_tiles(block)
+               if spec.owns(GRID_Z, x, y)}
+    side = 1 << (GRID_Z - region_zoom)
+    selectors: list[str] = []
+    for _, rx, ry in sorted(regions):
+        xs, ys = range(rx * side, (rx + 1) * side), range(ry * side, (ry + 1) * side)
+        if exact:
+            selectors += [f"{prefix}/uav/*/tiles/*/{GRID_Z}/{x}/{y}" for x in xs for y in ys]
+        else:
+            selectors += [f"{prefix}/uav/*/tiles/*/{GRID_Z}/{dx}$*/{dy}$*"
+                          for dx in sorted({x // 10 for x in xs}) for dy in sorted({y // 10 for y in ys})]
+    return sorted(set(selectors))
+
+
+def probe_subscriber(endpoint: str, selectors: list[str], shard: int, ready: Any, stop: Any, out: Any) -> None:
+    """Child process: a Zenoh client subscribed to ``selectors`` whose callback does what a shard's does
+    before its inbox (key -> owner check, count): (samples received, samples of shard ``shard``)."""
+    import zenoh
+
+    spec = ShardSpec(shard, 2)
+    counts = [0, 0]
+
+    def on_sample(sample) -> None:
+        parts = str(sample.key_expr).rsplit("/", 5)
+        counts[0] += 1
+        if spec.owns(int(parts[3]), int(parts[4]), int(parts[5])):
+            counts[1] += 1
+
+    with zenoh.open(zenoh_config("client", connect=endpoint)) as session:
+        subscribers = [session.declare_subscriber(selector, on_sample) for selector in selectors]
+        ready.set()
+        stop.wait()
+        out.put(tuple(counts))
+        del subscribers
+
+
+def _probe(ctx, endpoint: str, router_pid: int, receiver: JointLatency, n: int, duration_s: float,
+           selectors: list[str], tag: str) -> tuple[LoadResult, tuple[int, int], float]:
+    """One load of ``n`` balanced UAVs with a probe subscriber on ``selectors`` (no fusion process):
+    (the load, the probe's counts, seconds it took to declare its subscriptions)."""
+    ready, stop, out = ctx.Event(), ctx.Event(), ctx.Queue()
+    proc = ctx.Process(target=probe_subscriber, args=(endpoint, selectors, 1, ready, stop, out))
+    declared = time.monotonic()
+    proc.start()
+    try:
+        if not ready.wait(120):
+            raise RuntimeError("the probe subscriber did not start")
+        declared = time.monotonic() - declared
+        assert proc.pid is not None
+        result = run_load(ctx, endpoint, receiver, balanced_blocks(n), duration_s, tag, n_procs=2, mode="client",
+                          watch={"probe": proc.pid, "router": router_pid})
+        stop.set()
+        counts = out.get(timeout=30)
+    finally:
+        stop.set()
+        proc.join(timeout=10)
+        if proc.is_alive():
+            proc.terminate()
+    return result, counts, declared
+
+
+def routing_rows(ctx, endpoint: str, router_pid: int, receiver: JointLatency, n: int,
+                 duration_s: float) -> list[dict[str, Any]]:
+    """Shard 1's receive side priced two ways under the same load: subscribed to every tile (as uavmm
+    fusion is; the callback drops the other shard's) and subscribed per tile to its own regions only
+    (Zenoh routes each tile to its shard)."""
+    everything, counts_all, _ = _probe(ctx, endpoint, router_pid, receiver, n, duration_s,
+                                       ["uavmm/v1/uav/*/tiles/**"], "pa")
+    cases = [("every tile, dropped in the callback", everything, counts_all)]
+    for exact in (False, True):
+        selectors = region_selectors(balanced_blocks(n), 1, exact=exact)
+        routed, counts, declare_s = _probe(ctx, endpoint, router_pid, receiver, n, duration_s, selectors,
+                                           f"p{int(exact)}")
+        cases.append((f"its regions only, {len(selectors)} {'per-tile' if exact else 'per-decade'} selectors "
+                      f"(declared in {declare_s:.1f} s)", routed, counts))
+    rows = []
+    for name, result, counts in cases:
+        rows.append({"case": f"shard-1 receive side, {n} UAVs, subscribed to {name}: CPU per UAV message "
+                             f"(received {counts[0]}, its own {counts[1]}; router "
+                             f"{_us(result.cpu_per_msg('router')):.0f} us/msg)",
+                     "value": _us(result.cpu_per_msg("probe")), "unit": "us"})
     return rows
