@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import logging
 import os
+import subprocess
 import tempfile
 import time
 from collections.abc import Sequence
@@ -128,10 +129,12 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
                                             layout=balanced_blocks)
             finally:
                 stop_process(one)
-            shards = [start_fusion(os.path.join(db_dir, f"shard{k}.sqlite"), connect=endpoint, shard=f"{k}/2")
-                      for k in range(2)]
-            watch = {"shard0": shards[0].pid, "shard1": shards[1].pid, "router": router.pid}
+            shards: list[subprocess.Popen] = []
             try:
+                for k in range(2):  # one by one: a shard that fails to start stops the one before it too
+                    shards.append(start_fusion(os.path.join(db_dir, f"shard{k}.sqlite"), connect=endpoint,
+                                               shard=f"{k}/2"))
+                watch = {"shard0": shards[0].pid, "shard1": shards[1].pid, "router": router.pid}
                 two_n, two_results = search(ctx, endpoint, receiver, steps_two, duration_s, "r2s", mode="client",
                                             watch=watch, layout=balanced_blocks)
                 drop = (run_load(ctx, endpoint, receiver, blocks_owned_by(1, 2, drop_n), duration_s, "r2d",
