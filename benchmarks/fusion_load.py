@@ -84,13 +84,22 @@ def blob_cells(n: int = 256, count: int = 3, radius: int = 7) -> np.ndarray:
 
 
 def load_generator(endpoint: str, prefix: str, blocks: Sequence[int], duration_s: float, start_wall: float,
-                   out: Any, part: tuple[int, int] = (0, 1), mode: str = "peer") -> None:
+                   out: Any, part: tuple[int, int] = (0, 1), mode: str = "peer",
+                   routed_zoom: int | None = None) -> None:
     """Child process: UAV i puts the 9 tiles of ``blocks[i]`` at 5 Hz from ``start_wall`` for ``duration_s``
-    (with ``part = (j, m)`` only the UAVs i with i % m == j, so m processes share the load)."""
+    (with ``part = (j, m)`` only the UAVs i with i % m == j, so m processes share the load). With
+    ``routed_zoom`` the tiles go on the shard-routed keys of regions of that zoom, as an agent puts them
+    while fusion shards are up (agent.shard_routing); else on DESIGN's plain keys."""
     import zenoh
 
     from shared.keys import KeySpace
     from shared.messages import VERSION
+    from shared.sharding import tile_bucket
+
+    def tile_key(uav: str, x: int, y: int) -> str:
+        if routed_zoom is None:
+            return keys.uav_tile(uav, "person", GRID_Z, x, y)
+        return keys.uav_bucket_tile(uav, routed_zoom, tile_bucket(routed_zoom, GRID_Z, x, y), "person", GRID_Z, x, y)
 
     keys = KeySpace()
     idx = blob_cells()
@@ -105,7 +114,7 @@ def load_generator(endpoint: str, prefix: str, blocks: Sequence[int], duration_s
         uavs = {}
         for i in mine:
             uav = f"{prefix}{i}"
-            pubs = [(x, y, session.declare_publisher(keys.uav_tile(uav, "person", GRID_Z, x, y),
+            pubs = [(x, y, session.declare_publisher(tile_key(uav, x, y),
                                                      congestion_control=zenoh.CongestionControl.BLOCK))
                     for x, y in block_tiles(blocks[i])]
             uavs[i] = (uav, pubs)
@@ -226,15 +235,16 @@ class LoadResult:
 
 def run_load(ctx, endpoint: str, receiver: JointLatency, blocks: Sequence[int], duration_s: float, prefix: str,
              *, shared_pairs: bool = False, n_procs: int = 1, mode: str = "peer",
-             watch: dict[str, int] | None = None) -> LoadResult:
+             watch: dict[str, int] | None = None, routed_zoom: int | None = None) -> LoadResult:
     """Put the load of UAVs on ``blocks`` through ``endpoint`` and time the joint tiles; ``watch``:
-    processes (name -> pid) whose CPU time over the run is reported."""
+    processes (name -> pid) whose CPU time over the run is reported; ``routed_zoom``: see load_generator."""
     watch = watch or {}
     cpu0 = {name: cpu_s(pid) for name, pid in watch.items()}
     out = ctx.Queue()
     start = time.time() + 2.0  # a child needs ~1 s to import and declare its publishers
     procs = [ctx.Process(target=load_generator,
-                         args=(endpoint, prefix, list(blocks), duration_s, start, out, (j, n_procs), mode))
+                         args=(endpoint, prefix, list(blocks), duration_s, start, out, (j, n_procs), mode,
+                               routed_zoom))
              for j in range(n_procs)]
     for proc in procs:
         proc.start()
@@ -269,7 +279,7 @@ def run_load(ctx, endpoint: str, receiver: JointLatency, blocks: Sequence[int], 
 
 def search(ctx, endpoint: str, receiver: JointLatency, steps: Sequence[int], duration_s: float, tag: str, *,
            mode: str = "peer", watch: dict[str, int] | None = None, layout=blocks_of,
-           retries: int = 1) -> tuple[int, list[LoadResult]]:
+           retries: int = 1, routed_zoom: int | None = None) -> tuple[int, list[LoadResult]]:
     """Run the loads of ``steps`` UAVs (no overlap, ``layout(n)`` blocks) in order until one is not
     sustained ``retries + 1`` times in a row (other jobs on a shared machine take the cores in bursts):
     (the largest sustained, every result; of a retried load the better run)."""
@@ -279,7 +289,7 @@ def search(ctx, endpoint: str, receiver: JointLatency, steps: Sequence[int], dur
         best: LoadResult | None = None
         for attempt in range(retries + 1):
             result = run_load(ctx, endpoint, receiver, layout(n), duration_s, f"{tag}{step}a{attempt}u",
-                              n_procs=2 if n >= 100 else 1, mode=mode, watch=watch)
+                              n_procs=2 if n >= 100 else 1, mode=mode, watch=watch, routed_zoom=routed_zoom)
             log.info("fusion bench %s: %s -> %s", tag, result, "ok" if result.sustained else "not sustained")
             time.sleep(2.5)  # let the UAVs' tiles expire (TTL 2 s)
             if best is None or (result.sustained, -result.p99) > (best.sustained, -best.p99):

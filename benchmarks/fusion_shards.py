@@ -2,10 +2,11 @@
 behind a Zenoh router, against one process behind the same router, in the same run.
 
 The topology is the deployment's (deploy/docker-compose.sharded.yml): a router, and the fusion
-processes, the load generators and the joint-tile subscriber all Zenoh clients of it. Every shard
-subscribes to every UAV's tiles (the tile keys carry no region chunk) and drops other shards' tiles
-by key before decoding; the last run here prices that: a load whose tiles all lie in shard 1's
-regions, so shard 0's CPU per message is what a dropped sample costs.
+processes, the load generators and the joint-tile subscriber all Zenoh clients of it. The generators
+put each tile on its shard's bucket key, as agents do while shards are up (agent.shard_routing), so
+Zenoh delivers it to that shard only. Two more loads price the plain DESIGN keys, which reach every
+shard: the same load, and one whose tiles all lie in shard 1's regions, so shard 0's CPU per message
+is what a dropped sample costs.
 """
 
 from __future__ import annotations
@@ -110,7 +111,7 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
 
     steps_one = [4] if quick else [50, 100, 125, 150, 175, 200, 225, 250, 275, 300]
     steps_two = [8] if quick else [100, 150, 175, 200, 225, 250, 275, 300, 325, 350, 400, 450]
-    drop_n = 0 if quick else 100
+    drop_n = 100
     endpoint = f"tcp/127.0.0.1:{free_port()}"
     ready, stop = ctx.Event(), ctx.Event()
     router = ctx.Process(target=router_process, args=(endpoint, ready, stop))
@@ -135,15 +136,20 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
                     shards.append(start_fusion(os.path.join(db_dir, f"shard{k}.sqlite"), connect=endpoint,
                                                shard=f"{k}/2"))
                 watch = {"shard0": shards[0].pid, "shard1": shards[1].pid, "router": router.pid}
+                # the agents see the shards' tokens and put each tile on its shard's bucket key
                 two_n, two_results = search(ctx, endpoint, receiver, steps_two, duration_s, "r2s", mode="client",
-                                            watch=watch, layout=balanced_blocks)
-                drop = (run_load(ctx, endpoint, receiver, blocks_owned_by(1, 2, drop_n), duration_s, "r2d",
-                                 n_procs=2, mode="client", watch=watch) if drop_n else None)
+                                            watch=watch, layout=balanced_blocks, routed_zoom=DEFAULT_REGION_ZOOM)
+                plain_run = drop = None
+                if not quick:  # the same load on DESIGN's plain keys (agents that do not route): both get all
+                    same = _same_load(one_results, two_results)[1]
+                    plain_run = run_load(ctx, endpoint, receiver, balanced_blocks(same.n if same else 100), duration_s,
+                                     "r2p", n_procs=2, mode="client", watch=watch)
+                    time.sleep(2.5)
+                    drop = run_load(ctx, endpoint, receiver, blocks_owned_by(1, 2, drop_n), duration_s, "r2d",
+                                    n_procs=2, mode="client", watch=watch)
             finally:
                 for proc in shards:
                     stop_process(proc)
-            assert router.pid is not None
-            routing = routing_rows(ctx, endpoint, router.pid, receiver, drop_n, duration_s) if drop_n else []
             sub.undeclare()
     finally:
         stop.set()
@@ -151,7 +157,7 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
         if router.is_alive():
             router.terminate()
     rows = _step_rows(one_results, "one fusion process behind a zenoh router")
-    rows += _step_rows(two_results, "two shards (--shard 0/2, 1/2) behind the router")
+    rows += _step_rows(two_results, "two shards (--shard 0/2, 1/2) behind the router, bucket keys")
     at = max(two_n, steps_two[0])
     shares, plain = shard_shares(balanced_blocks(at)), shard_shares(blocks_of(at))
     rows.append({
@@ -159,7 +165,8 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
                 f"(as direct peers earlier: {direct_sustained})",
         "value": float(one_n), "unit": "UAVs"})
     rows.append({
-        "case": f"UAVs sustained, two shards behind the router{_capped(two_n, steps_two)} (tile messages per shard "
+        "case": f"UAVs sustained, two shards behind the router, tiles on their shard's bucket keys"
+                f"{_capped(two_n, steps_two)} (tile messages per shard "
                 f"{shares[0]:.0%} / {shares[1]:.0%}; acceptance >= {SHARD_TARGET} x one process)",
         "value": float(two_n), "unit": "UAVs", "baseline_name": f"one process behind the router = {one_n}",
         "ratio": two_n / one_n if one_n else None})
@@ -169,15 +176,23 @@ def run_sharded(ctx, quick: bool, duration_s: float, direct_sustained: int) -> l
                 f"UAVs taken in turn from each shard's regions)",
         "value": max(plain) * 100, "unit": "%", "baseline_name": "even = 50 %", "ratio": max(plain) / 0.5})
     rows += _cpu_rows(*_same_load(one_results, two_results))
+    if plain_run is not None:
+        shares = shard_shares(balanced_blocks(plain_run.n))
+        per = [plain_run.cpu_per_msg(f"shard{k}", plain_run.puts * shares[k]) for k in range(2)]
+        rows.append({
+            "case": f"two shards, same load on DESIGN's plain tile keys ({plain_run.n} UAVs: every shard gets every "
+                    f"tile, drops the other's; p99 {plain_run.p99 * 1e3:.0f} ms): CPU per message owned, shard 0 / 1 "
+                    f"{_us(per[0]):.0f} / {_us(per[1]):.0f} us, all processes",
+            "value": _us(_total_per_msg(plain_run, ("shard0", "shard1", "router", "generator"))), "unit": "us"})
     if drop is not None:
         owned, dropped = drop.cpu_per_msg("shard1"), drop.cpu_per_msg("shard0")
         rows.append({
-            "case": f"shard 0 CPU per dropped tile sample ({drop.n} UAVs, all in shard 1's regions: Zenoh "
-                    "receive + Python callback + key check)",
+            "case": f"shard 0 CPU per dropped tile sample on the plain keys ({drop.n} UAVs, all in shard 1's "
+                    "regions: Zenoh receive + Python callback + key check)",
             "value": _us(dropped), "unit": "us",
             "baseline_name": f"shard 1 per owned message = {_us(owned):.0f} us",
             "ratio": dropped / owned if owned and dropped is not None else None})
-    return rows + routing
+    return rows
 
 
 def _total_per_msg(result: LoadResult, names: Sequence[str]) -> float | None:
@@ -200,9 +215,10 @@ def _cpu_rows(one: LoadResult | None, two: LoadResult | None) -> list[dict[str, 
         shares = shard_shares(balanced_blocks(two.n))
         for k in range(2):
             owned = two.cpu_per_msg(f"shard{k}", two.puts * shares[k])
-            rows.append({"case": f"shard {k} CPU per UAV message it receives ({two.n} UAVs: all of them; per "
-                                 f"message it owns ({shares[k]:.0%}): {_us(owned):.0f} us)",
-                         "value": _us(two.cpu_per_msg(f"shard{k}")), "unit": "us"})
+            rows.append({"case": f"shard {k} CPU per UAV message it owns ({shares[k]:.0%} of {two.n} UAVs' tiles, "
+                                 f"routed to it by bucket key; per message of the fleet: "
+                                 f"{_us(two.cpu_per_msg(f'shard{k}')):.0f} us)",
+                         "value": _us(owned), "unit": "us"})
         two_total = _total_per_msg(two, ("shard0", "shard1", "router", "generator"))
         rows.append({"case": f"two shards, CPU per UAV message of shards + router "
                              f"({_us(two.cpu_per_msg('router')):.0f} us) + load generator "
@@ -234,95 +250,3 @@ def _dedicated_rows(one: LoadResult, two: LoadResult, one_total: float, two_tota
                 f"{need:.1f} cores",
         "value": two_cap / one_cap, "unit": "x", "baseline_name": f"acceptance {SHARD_TARGET} x",
         "ratio": two_cap / one_cap / SHARD_TARGET}]
-
-
-def region_selectors(blocks: Sequence[int], shard: int, count: int = 2, region_zoom: int = DEFAULT_REGION_ZOOM,
-                     prefix: str = "uavmm/v1", exact: bool = True) -> list[str]:
-    """Key expressions in DESIGN's tile keys for the regions of shard ``shard`` that UAVs on ``blocks``
-    touch: what would let Zenoh route a tile to its shard only. A key expression cannot say "x in 16 rx
-    .. 16 rx + 15": ``exact`` gives one selector per tile (256 a region); otherwise one per decade of x
-    and of y (``1377$*``: 4-9 a region), which also matches some neighbouring tiles (and far-away
-    shorter or longer numbers) that the shard's key check then drops."""
-    spec = ShardSpec(shard, count, region_zoom)
-    regions = {spec.region(GRID_Z, x, y) for block in blocks for x, y in block_tiles(block)
-               if spec.owns(GRID_Z, x, y)}
-    side = 1 << (GRID_Z - region_zoom)
-    selectors: list[str] = []
-    for _, rx, ry in sorted(regions):
-        xs, ys = range(rx * side, (rx + 1) * side), range(ry * side, (ry + 1) * side)
-        if exact:
-            selectors += [f"{prefix}/uav/*/tiles/*/{GRID_Z}/{x}/{y}" for x in xs for y in ys]
-        else:
-            selectors += [f"{prefix}/uav/*/tiles/*/{GRID_Z}/{dx}$*/{dy}$*"
-                          for dx in sorted({x // 10 for x in xs}) for dy in sorted({y // 10 for y in ys})]
-    return sorted(set(selectors))
-
-
-def probe_subscriber(endpoint: str, selectors: list[str], shard: int, ready: Any, stop: Any, out: Any) -> None:
-    """Child process: a Zenoh client subscribed to ``selectors`` whose callback does what a shard's does
-    before its inbox (key -> owner check, count): (samples received, samples of shard ``shard``)."""
-    import zenoh
-
-    spec = ShardSpec(shard, 2)
-    counts = [0, 0]
-
-    def on_sample(sample) -> None:
-        parts = str(sample.key_expr).rsplit("/", 5)
-        counts[0] += 1
-        if spec.owns(int(parts[3]), int(parts[4]), int(parts[5])):
-            counts[1] += 1
-
-    with zenoh.open(zenoh_config("client", connect=endpoint)) as session:
-        subscribers = [session.declare_subscriber(selector, on_sample) for selector in selectors]
-        ready.set()
-        stop.wait()
-        out.put(tuple(counts))
-        del subscribers
-
-
-def _probe(ctx, endpoint: str, router_pid: int, receiver: JointLatency, n: int, duration_s: float,
-           selectors: list[str], tag: str) -> tuple[LoadResult, tuple[int, int], float]:
-    """One load of ``n`` balanced UAVs with a probe subscriber on ``selectors`` (no fusion process):
-    (the load, the probe's counts, seconds it took to declare its subscriptions)."""
-    ready, stop, out = ctx.Event(), ctx.Event(), ctx.Queue()
-    proc = ctx.Process(target=probe_subscriber, args=(endpoint, selectors, 1, ready, stop, out))
-    declared = time.monotonic()
-    proc.start()
-    try:
-        if not ready.wait(120):
-            raise RuntimeError("the probe subscriber did not start")
-        declared = time.monotonic() - declared
-        assert proc.pid is not None
-        result = run_load(ctx, endpoint, receiver, balanced_blocks(n), duration_s, tag, n_procs=2, mode="client",
-                          watch={"probe": proc.pid, "router": router_pid})
-        stop.set()
-        counts = out.get(timeout=30)
-    finally:
-        stop.set()
-        proc.join(timeout=10)
-        if proc.is_alive():
-            proc.terminate()
-    return result, counts, declared
-
-
-def routing_rows(ctx, endpoint: str, router_pid: int, receiver: JointLatency, n: int,
-                 duration_s: float) -> list[dict[str, Any]]:
-    """Shard 1's receive side priced two ways under the same load: subscribed to every tile (as uavmm
-    fusion is; the callback drops the other shard's) and subscribed per tile to its own regions only
-    (Zenoh routes each tile to its shard)."""
-    everything, counts_all, _ = _probe(ctx, endpoint, router_pid, receiver, n, duration_s,
-                                       ["uavmm/v1/uav/*/tiles/**"], "pa")
-    cases = [("every tile, dropped in the callback", everything, counts_all)]
-    for exact in (False, True):
-        selectors = region_selectors(balanced_blocks(n), 1, exact=exact)
-        routed, counts, declare_s = _probe(ctx, endpoint, router_pid, receiver, n, duration_s, selectors,
-                                           f"p{int(exact)}")
-        cases.append((f"its regions only, {len(selectors)} {'per-tile' if exact else 'per-decade'} selectors "
-                      f"(declared in {declare_s:.1f} s)", routed, counts))
-    rows = []
-    for name, result, counts in cases:
-        rows.append({"case": f"shard-1 receive side, {n} UAVs, subscribed to {name}: CPU per UAV message "
-                             f"(received {counts[0]}, its own {counts[1]}; router "
-                             f"{_us(result.cpu_per_msg('router')):.0f} us/msg)",
-                     "value": _us(result.cpu_per_msg("probe")), "unit": "us"})
-    return rows
