@@ -178,8 +178,8 @@ def start_fusion(db_path: str, *, listen: str | None = None, connect: str | None
            "--cfg", NO_SHM]
     if listen:
         cmd += ["--listen", listen]
-    if connect:  # uavmm fusion listens on 7447 unless told otherwise, also as a client
-        cmd += ["--mode", "client", "--connect", connect, "--listen", f"tcp/127.0.0.1:{free_port()}"]
+    if connect:
+        cmd += ["--mode", "client", "--connect", connect]
     if shard:
         cmd += ["--shard", shard]
     env = {**os.environ, "PYTHONPATH": str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}

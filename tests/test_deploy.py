@@ -180,6 +180,7 @@ def test_sharded_variant_runs_two_shards_and_a_gateway_behind_zenohd():
         settings = cmd_fusion.settings_from_args(args)
         shard_settings.append(settings)
         assert str(settings.db_path) == "/data/fusion.sqlite"
+        assert not settings.zenoh.listen, "a client of the router opens no listener"
         assert spec["volumes"] == [f"{name}-data:/data"], "each shard keeps its own database"
         # its REST API on the container's loopback only: the health check's, not the operators'
         assert (settings.http_host, settings.http_port) == ("127.0.0.1", 8000) and not settings.insecure_public

@@ -27,9 +27,9 @@ AGENTS = ("uav1", "uav4")
 
 def localise(command: list[str], router: str, http: str, db: Path) -> list[str]:
     """A container command with the compose network's addresses and paths replaced by this machine's
-    (every container has its own loopback; here the shards need their own ports)."""
+    (every container has its own loopback; here the shards need their own HTTP ports)."""
     replace = {"tcp/router:7447": router, "0.0.0.0:8000": http, "127.0.0.1:8000": http,
-               "tcp/127.0.0.1:7447": f"tcp/127.0.0.1:{free_port()}", "/data/fusion.sqlite": str(db)}
+               "/data/fusion.sqlite": str(db)}
     return [replace.get(arg, arg) for arg in command]
 
 
