@@ -8,6 +8,7 @@ import math
 from dataclasses import dataclass, field
 
 from agent.boxes import ANCHORS
+from agent.clock_offset import ClockOffsetSettings
 from agent.memory_map import MemoryMapConfig
 from agent.score_calibration import CalibrationSettings
 from agent.telemetry_correction import CorrectionSettings
@@ -77,6 +78,13 @@ class PipelineConfig:
         (CorrectionSettings: the detector score that registers, the largest offset searched around the
         last correction, the boxes and mean evidence a measurement needs, the smoothing time constant and
         how long a correction is held without measurements).
+
+    estimate_clock_offset: the frame drivers of tracking (`uavmm track`, the tracking evaluations) estimate
+        the video/telemetry clock offset online from the confident detections and give the pipeline and the
+        tracker poses with the telemetry interpolated at frame time + offset (agent.clock_offset); the
+        frame loop of `uavmm boost` and the live agent do not (yet). clock_offset_fallback_s: the offset used
+        until a window of frames turned enough to measure it (the configured telemetry latency);
+        clock_offset_search_s: the estimate stays within +- this.
 
     calibrate_scores: with use_memory, scale the detector's logits to the reference temperature from the
         spread of each frame's strongest detections, estimated online (agent.score_calibration), before
@@ -163,9 +171,13 @@ class PipelineConfig:
     correction_min_support: float = 0.3
     correction_smoothing_s: float = 0.0
     correction_hold_s: float = 2.0
+    estimate_clock_offset: bool = True
+    clock_offset_fallback_s: float = 0.05
+    clock_offset_search_s: float = 1.0
 
     def __post_init__(self) -> None:
         self.correction_settings()  # validates the correction_* fields
+        self.clock_offset_settings()  # and the clock_offset_* ones
         self.calibration_settings()  # and the calibration_* ones
         if self.anchor not in ANCHORS:
             raise ValueError(f"anchor must be one of {', '.join(ANCHORS)}, got {self.anchor!r}")
@@ -209,6 +221,11 @@ class PipelineConfig:
         return CorrectionSettings(min_score=self.correction_min_score, search_m=self.correction_search_m,
                                   min_points=self.correction_min_points, min_support=self.correction_min_support,
                                   smoothing_s=self.correction_smoothing_s, hold_s=self.correction_hold_s)
+
+    def clock_offset_settings(self) -> ClockOffsetSettings | None:
+        """The clock-offset estimate's settings (agent.clock_offset), None when it is off."""
+        settings = ClockOffsetSettings(fallback_s=self.clock_offset_fallback_s, search_s=self.clock_offset_search_s)
+        return settings if self.estimate_clock_offset else None
 
     def calibration_settings(self) -> CalibrationSettings:
         """The score calibration's settings (agent.score_calibration)."""

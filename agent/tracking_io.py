@@ -12,6 +12,7 @@ import logging
 import math
 import os
 import re
+import statistics
 import tempfile
 import time
 from collections.abc import Callable
@@ -21,7 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from agent.dataset import Candidates, Dataset, Frame, iter_video_frames, read_image, read_json
+from agent.clock_offset import video_frames
+from agent.dataset import Candidates, Dataset, Frame, read_image, read_json
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
@@ -111,7 +113,8 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
                 pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
                 size_filter: SizeFilter | None = None, *,
                 on_frame: Callable[[Frame, FrameResult, list[TrackOutput]], None] | None = None,
-                stats: dict[str, Any] | None = None, image_dir: str | Path | None = None) -> list[TrackRow]:
+                stats: dict[str, Any] | None = None, image_dir: str | Path | None = None,
+                clock_offsets: list[tuple] | None = None) -> list[TrackRow]:
     """Run pipeline and tracker over one video.
 
     Parameters
@@ -134,6 +137,9 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         kept boxes get `hsv_histogram_descriptors` (`with_image_descriptors`; descriptors from the
         candidates file win). Missing or unreadable images are skipped (counted, logged once), never an
         error.
+    clock_offsets : list, optional
+        With `pipeline_config.estimate_clock_offset`, one row per frame is appended: CLOCK_OFFSET_COLUMNS
+        (the video/telemetry clock offset applied, agent.clock_offset; frames without pose: NaN).
 
     Returns
     -------
@@ -149,7 +155,11 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
     counts = {"frames": 0, "frames_without_pose": 0, "detections": 0, "pipeline_s": 0.0, "tracker_s": 0.0,
               "images_read": 0, "images_missing": 0, "appearance_s": 0.0}
     t_prev = -math.inf
-    for frame in iter_video_frames(dataset, camera, video_id):
+    for frame, offset in video_frames(dataset, camera, video_id, candidates, pipeline_config.clock_offset_settings()):
+        if clock_offsets is not None and pipeline_config.estimate_clock_offset:
+            clock_offsets.append((frame.image.id, frame.image.video_id, frame.image.frame_index,
+                                  round(offset.offset_s, 4) if offset is not None else math.nan,
+                                  bool(offset is not None and offset.measured)))
         if pipe.camera != frame.camera:
             pipe.camera = frame.camera
         boxes, scores, cids = candidates.get(frame.image.id)
@@ -314,15 +324,20 @@ def write_geojson(rows_by_video: dict[int, list[TrackRow]], class_names: dict[in
     return len(collection["features"])
 
 
+#: Columns of `uavmm track --clock-offsets-out`: the video/telemetry clock offset applied to each frame.
+CLOCK_OFFSET_COLUMNS = ("image_id", "video_id", "frame_index", "offset_s", "measured")
+
+
 def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path, out: str | Path,
                   pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
                   size_filter: SizeFilter | None = None, *, video_id: int | None = None,
                   geojson_path: str | Path | None = None, image_dir: str | Path | None = None,
-                  use_images: bool = True) -> dict[str, Any]:
+                  use_images: bool = True, clock_offsets_path: str | Path | None = None) -> dict[str, Any]:
     """Load the three files, track every video (or `video_id`), write MOT files (and GeoJSON).
 
     Image files (``file_name`` relative to `image_dir`, default the directory of images.json) that exist
     give the kept boxes appearance descriptors (`track_video`); `use_images=False` reads none.
+    clock_offsets_path: a CSV of the clock offset applied to each frame (CLOCK_OFFSET_COLUMNS).
 
     Output paths are checked before any work: an unknown video id raises ValueError, an unwritable
     output OSError. Returns a summary: ``files`` {video_id: path}, ``rows``, ``tracks`` (distinct ids
@@ -338,17 +353,19 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     out_is_dir = Path(out).is_dir() or str(out).endswith(("/", os.sep))
     for p in paths.values():
         check_writable(p, create_dir=out_is_dir)
-    if geojson_path is not None:
-        check_writable(geojson_path)
+    for extra in (geojson_path, clock_offsets_path):
+        if extra is not None:
+            check_writable(extra)
     candidates = Candidates.load(candidates_path, dataset)
     camera = Camera.from_spec(camera_path)
     stats: dict[str, Any] = {}
     rows_by_video: dict[int, list[TrackRow]] = {}
     t0 = time.perf_counter()
     images = (Path(images_path).parent if image_dir is None else Path(image_dir)) if use_images else None
+    offsets: list[tuple] = []
     for v in video_ids:
         rows_by_video[v] = track_video(dataset, candidates, camera, v, pipeline_config, tracker_config, size_filter,
-                                       stats=stats, image_dir=images)
+                                       stats=stats, image_dir=images, clock_offsets=offsets)
     summary: dict[str, Any] = {"files": {}, "rows": 0, "tracks": {}}
     for v, rows in rows_by_video.items():
         summary["rows"] += write_mot(rows, paths[v])
@@ -357,6 +374,14 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     if geojson_path is not None:
         summary["geojson"] = str(geojson_path)
         summary["geojson_features"] = write_geojson(rows_by_video, dataset.categories, geojson_path)
+    if clock_offsets_path is not None:
+        _write_atomic(Path(clock_offsets_path), ",".join(CLOCK_OFFSET_COLUMNS) + "\n"
+                      + "".join(",".join(str(v) for v in row) + "\n" for row in offsets))
+        summary["clock_offsets"] = str(clock_offsets_path)
+    applied = [row[3] for row in offsets if math.isfinite(row[3])]
+    if applied:
+        summary["clock_offset_median_s"] = round(statistics.median(applied), 3)
+        summary["clock_offset_frames_measured"] = sum(row[4] for row in offsets)
     frames = max(stats.get("frames", 0), 1)
     summary.update({
         "frames": stats.get("frames", 0), "frames_without_pose": stats.get("frames_without_pose", 0),

@@ -7,6 +7,7 @@ Registered through `uavmm.cli.COMMAND_MODULES`; argument parsing stays here, the
 from __future__ import annotations
 
 import argparse
+import dataclasses
 from pathlib import Path
 
 from uavmm.cli import CliError, _add_pipeline_options, _pipeline_from_args
@@ -48,6 +49,12 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="minimum running detector score of a reported track (0.4)")
     g.add_argument("--telemetry-latency-s", type=float, default=None,
                    help="how much older the telemetry is than its stamp (0.05)")
+    g.add_argument("--no-clock-offset", action="store_true",
+                   help="do not estimate the video/telemetry clock offset from the detections (use the "
+                        "telemetry as stamped, turned by --telemetry-latency-s)")
+    p.add_argument("--clock-offsets-out", type=Path, default=None, metavar="FILE.csv",
+                   help="write the clock offset applied to each frame (image_id, video_id, frame_index, "
+                        "offset_s, measured)")
     _add_pipeline_options(p)
     p.set_defaults(handler=run)
 
@@ -59,15 +66,27 @@ def run(args: argparse.Namespace) -> int:
     if args.video_id is not None and args.video_id < 0:
         raise CliError(f"--video-id must be >= 0, got {args.video_id}")
     pipeline_config, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
+    if args.no_clock_offset:
+        pipeline_config = dataclasses.replace(pipeline_config, estimate_clock_offset=False)
+    elif args.telemetry_latency_s is not None:
+        if not abs(args.telemetry_latency_s) <= pipeline_config.clock_offset_search_s:
+            raise CliError(f"--telemetry-latency-s must be within +-{pipeline_config.clock_offset_search_s} s, "
+                           f"got {args.telemetry_latency_s}")
+        pipeline_config = dataclasses.replace(pipeline_config, clock_offset_fallback_s=args.telemetry_latency_s)
     tracker_config = load_tracker_config(args.tracker_config, {
         "reid_horizon_s": args.reid_horizon_s, "max_coast_s": args.max_coast_s, "birth_score": args.birth_score,
         "report_quality": args.report_quality, "telemetry_latency_s": args.telemetry_latency_s,
     })
     summary = track_dataset(args.frames, args.candidates, args.camera, args.out, pipeline_config, tracker_config,
                             size_filter, video_id=args.video_id, geojson_path=args.geojson,
-                            image_dir=args.image_dir, use_images=not args.no_images)
+                            image_dir=args.image_dir, use_images=not args.no_images,
+                            clock_offsets_path=args.clock_offsets_out)
     for video_id, path in summary["files"].items():
         print(f"video {video_id}: {summary['tracks'][video_id]} tracks -> {path}")
+    if "clock_offset_median_s" in summary:
+        print(f"clock offset: median {summary['clock_offset_median_s']} s, measured on "
+              f"{summary['clock_offset_frames_measured']} frames"
+              + (f" -> {summary['clock_offsets']}" if "clock_offsets" in summary else ""))
     if "geojson" in summary:
         print(f"geojson: {summary['geojson_features']} features -> {summary['geojson']}")
     keys = ("rows", "frames", "frames_without_pose", "reidentified", "pipeline_ms_per_frame", "tracker_ms_per_frame",

@@ -156,3 +156,26 @@ def test_track_help_runs_as_a_process():
                           timeout=60, cwd=Path(__file__).resolve().parents[2])
     assert proc.returncode == 0
     assert "--video-id" in proc.stdout and "--geojson" in proc.stdout and "--no-memory" in proc.stdout
+
+
+def test_clock_offsets_out_has_one_row_per_frame_within_the_search_bound(data, tmp_path, capsys):
+    out, csv = tmp_path / "tracks.txt", tmp_path / "offsets.csv"
+    assert track(data, out, "--video-id", "1", "--clock-offsets-out", str(csv)) == 0
+    assert "clock offset: median" in capsys.readouterr().out
+    lines = csv.read_text().splitlines()
+    assert lines[0] == "image_id,video_id,frame_index,offset_s,measured"
+    rows = [line.split(",") for line in lines[1:]]
+    assert len(rows) == 90
+    assert [int(r[2]) for r in rows] == list(range(90))
+    offsets = [float(r[3]) for r in rows if r[3] != "nan"]
+    assert offsets and all(-1.0 <= v <= 1.0 for v in offsets)
+    assert {r[4] for r in rows} <= {"True", "False"}
+
+
+def test_clock_offset_off_writes_no_rows_and_bad_latency_is_a_clear_error(data, tmp_path, capsys):
+    csv = tmp_path / "offsets.csv"
+    assert track(data, tmp_path / "t.txt", "--video-id", "1", "--no-clock-offset", "--clock-offsets-out", str(csv)) == 0
+    assert csv.read_text().splitlines() == ["image_id,video_id,frame_index,offset_s,measured"]
+    capsys.readouterr()
+    assert track(data, tmp_path / "t2.txt", "--telemetry-latency-s", "3") == 2
+    assert "--telemetry-latency-s" in capsys.readouterr().err

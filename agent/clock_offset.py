@@ -1,0 +1,305 @@
+"""Video/telemetry clock offset, estimated from the detections themselves, and frames re-timed by it.
+
+A drone's telemetry stamps can run ahead of or behind its video (0.3 s is common on real logs). While the
+gimbal sweeps at 30-80 deg/s that puts 10-20 deg of heading error on every ground point. The offset d is
+the one that makes the ground positions of the confident detections most consistent between nearby
+frames when the telemetry is interpolated at frame time + d (the world is static or slow at the scale of
+a fraction of a second; a wrong d moves the ground points of two frames apart whenever the turn rate
+changed between them). It is searched within +-`search_s`, coarse to fine, on a sliding window of the past
+frames, updated only when the window turned enough to be informative, smoothed, bounded, and it falls back
+to the configured latency until then. Interpolating at t + d needs the telemetry up to `search_s` after
+each frame: files (`uavmm track`, evaluations) have it; a live feed would have to delay by that much.
+Arrays in, arrays out: no I/O.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections import deque
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.boxes import nms
+from agent.dataset import Candidates, Dataset, Frame, iter_video_frames
+from shared.geo import Camera, Pose, latlon_to_local, pixel_to_local
+
+__all__ = ["ClockOffset", "ClockOffsetEstimator", "ClockOffsetSettings", "HeadingTrack", "retime_frames",
+           "video_frames"]
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True, slots=True)
+class ClockOffsetSettings:
+    """Settings of the clock-offset estimate.
+
+    fallback_s: the offset used before (and instead of) an estimate, seconds (the configured latency).
+    search_s: the estimate stays within +-search_s, seconds. coarse_step_s, fine_step_s: grid steps of the
+    coarse search over +-search_s and of the fine one around its best. window_s: frames of this many past
+    seconds are compared. lags_s: a frame is compared with the frames this many seconds earlier (the
+    nearest one). update_every_s: how often the window is searched. min_rate_change_deg_s: a window is
+    informative only when the interpolated turn rate differs by at least this much between some compared
+    frames (a constant turn moves all frames alike: no information). min_points: confident detections a
+    compared pair needs. trim_m: a point's distance to its nearest neighbour counts at most this much.
+    min_contrast: the best cost must be below this fraction of the median over the coarse grid.
+    smoothing_s: time constant of the exponential smoothing of the measurements. min_score, max_points:
+    detections at least this confident (the detector's score) take part, at most this many per frame.
+    """
+
+    fallback_s: float = 0.05
+    search_s: float = 1.0
+    coarse_step_s: float = 0.05
+    fine_step_s: float = 0.01
+    window_s: float = 3.0
+    lags_s: tuple[float, ...] = (0.1, 0.2, 0.4, 0.8)
+    update_every_s: float = 0.25
+    min_rate_change_deg_s: float = 15.0
+    min_points: int = 2
+    trim_m: float = 3.0
+    min_contrast: float = 0.97
+    smoothing_s: float = 1.0
+    min_score: float = 0.5
+    max_points: int = 16
+
+    def __post_init__(self) -> None:
+        for name in ("search_s", "coarse_step_s", "fine_step_s", "window_s", "update_every_s", "trim_m"):
+            value = getattr(self, name)
+            if not math.isfinite(value) or value <= 0:
+                raise ValueError(f"clock offset {name} must be a finite number > 0, got {value!r}")
+        if not math.isfinite(self.fallback_s) or abs(self.fallback_s) > self.search_s:
+            raise ValueError(f"clock offset fallback_s must be within +-search_s ({self.search_s}), "
+                             f"got {self.fallback_s!r}")
+        if not self.lags_s or any(not math.isfinite(v) or v <= 0 for v in self.lags_s):
+            raise ValueError(f"clock offset lags_s must be positive seconds, got {self.lags_s!r}")
+        if not 0 < self.min_contrast <= 1:
+            raise ValueError(f"clock offset min_contrast must be in (0, 1], got {self.min_contrast!r}")
+
+
+@dataclass(frozen=True, slots=True)
+class ClockOffset:
+    """The clock offset applied to one frame: offset_s (telemetry interpolated at frame time + it);
+    measured: a new measurement was taken at this frame; informative: the window used turned enough."""
+
+    offset_s: float
+    measured: bool = False
+    informative: bool = False
+
+
+class HeadingTrack:
+    """The telemetry's gimbal heading and pitch against its own clock, for interpolation.
+
+    stamps_s (M,) increasing seconds, heading_deg, pitch_deg (M,). `at(t)` returns (heading in [0, 360),
+    pitch) interpolated linearly (heading unwrapped), held at the ends; `rate_at(t)` the heading rate
+    (deg/s) of the segment containing t.
+    """
+
+    def __init__(self, stamps_s: NDArray, heading_deg: NDArray, pitch_deg: NDArray) -> None:
+        t = np.asarray(stamps_s, dtype=np.float64)
+        order = np.argsort(t, kind="stable")
+        self.t = t[order]
+        self.h = np.degrees(np.unwrap(np.radians(np.asarray(heading_deg, dtype=np.float64)[order])))
+        self.p = np.asarray(pitch_deg, dtype=np.float64)[order]
+
+    @classmethod
+    def from_frames(cls, frames: Iterable[Frame]) -> HeadingTrack:
+        """The distinct telemetry samples behind the frames' poses (pose_t, else frame time)."""
+        seen: dict[float, tuple[float, float]] = {}
+        for fr in frames:
+            if fr.pose is None:
+                continue
+            stamp = fr.pose_t if fr.pose_t is not None and math.isfinite(fr.pose_t) else fr.t
+            seen.setdefault(round(stamp, 6), (fr.pose.heading_deg, fr.pose.pitch_deg))
+        stamps = np.array(sorted(seen), dtype=np.float64)
+        return cls(stamps, np.array([seen[s][0] for s in stamps]), np.array([seen[s][1] for s in stamps]))
+
+    def __len__(self) -> int:
+        return len(self.t)
+
+    def heading_unwrapped(self, t: NDArray | float) -> NDArray:
+        """Unwrapped heading (deg) at times t (any shape)."""
+        return np.interp(t, self.t, self.h)
+
+    def at(self, t: float) -> tuple[float, float]:
+        """(heading in [0, 360), pitch) degrees at time t."""
+        return float(np.interp(t, self.t, self.h)) % 360.0, float(np.interp(t, self.t, self.p))
+
+    def rate_at(self, t: NDArray | float) -> NDArray:
+        """Heading rate (deg/s) of the telemetry segment containing t (0 with fewer than 2 samples)."""
+        if len(self.t) < 2:
+            return np.zeros(np.shape(t))
+        i = np.clip(np.searchsorted(self.t, t) - 1, 0, len(self.t) - 2)
+        return (self.h[i + 1] - self.h[i]) / np.maximum(self.t[i + 1] - self.t[i], 1e-3)
+
+
+def _rotate(rel: NDArray, delta_deg: NDArray) -> NDArray:
+    """Rotate (..., N, 2) east/north points clockwise (a heading increase) by delta (..., N) degrees."""
+    d = np.radians(delta_deg)
+    c, s = np.cos(d), np.sin(d)
+    return np.stack([rel[..., 0] * c + rel[..., 1] * s, -rel[..., 0] * s + rel[..., 1] * c], axis=-1)
+
+
+class ClockOffsetEstimator:
+    """Per-video state: a window of past frames' confident ground points and the smoothed offset.
+
+    Feed frames in time order with `add` (ground points relative to the UAV as the raw telemetry put
+    them, the UAV position in a fixed local frame, the raw heading and the frame time); `offset_at`
+    returns the offset to apply to that frame, updating the estimate when due.
+    """
+
+    def __init__(self, track: HeadingTrack, settings: ClockOffsetSettings | None = None) -> None:
+        self.settings = settings or ClockOffsetSettings()
+        self.track = track
+        self.offset_s = self.settings.fallback_s
+        self._frames: deque[tuple[float, NDArray, NDArray, float]] = deque()
+        self._t_update: float | None = None
+        self._t_measured: float | None = None
+
+    def add(self, t: float, rel_en: NDArray, uav_en: NDArray, heading_deg: float) -> None:
+        """Remember one frame: rel_en (N, 2) ground points minus the UAV (m, raw telemetry), uav_en (2,)."""
+        self._frames.append((t, np.asarray(rel_en, dtype=np.float64).reshape(-1, 2),
+                             np.asarray(uav_en, dtype=np.float64).reshape(2), float(heading_deg)))
+        while self._frames and self._frames[0][0] < t - self.settings.window_s:
+            self._frames.popleft()
+
+    def offset_at(self, t: float) -> ClockOffset:
+        """The smoothed offset for the frame at t (searching the window when due)."""
+        s = self.settings
+        if self._t_update is not None and t - self._t_update < s.update_every_s:
+            return ClockOffset(self.offset_s)
+        self._t_update = t
+        found = self.measure()
+        if found is None:
+            return ClockOffset(self.offset_s)
+        measured, informative = found
+        if not informative:
+            return ClockOffset(self.offset_s, False, False)
+        dt = 0.0 if self._t_measured is None else t - self._t_measured
+        a = 1.0 if s.smoothing_s <= 0 else 1.0 - math.exp(-max(dt, s.update_every_s) / s.smoothing_s)
+        self.offset_s = float(np.clip(self.offset_s + a * (measured - self.offset_s), -s.search_s, s.search_s))
+        self._t_measured = t
+        log.debug("t=%.3f clock offset measured %.3f s, applied %.3f s", t, measured, self.offset_s)
+        return ClockOffset(self.offset_s, True, True)
+
+    def _pairs(self) -> list[tuple[int, int]]:
+        s = self.settings
+        times = np.array([f[0] for f in self._frames])
+        pairs = []
+        for j in range(len(times)):
+            if len(self._frames[j][1]) < s.min_points:
+                continue
+            for lag in s.lags_s:
+                k = int(np.argmin(np.abs(times - (times[j] - lag))))
+                if k < j and abs(times[j] - times[k] - lag) <= 0.5 * lag and len(self._frames[k][1]) >= s.min_points:
+                    pairs.append((k, j))
+        return sorted(set(pairs))
+
+    def measure(self) -> tuple[float, bool] | None:
+        """Search the window: (best offset s, informative) or None without enough points."""
+        s = self.settings
+        pairs = self._pairs()
+        if not pairs or len(self.track) < 2:
+            return None
+        frames = list(self._frames)
+        # all points of the window, with their frame's time, UAV position and raw heading
+        counts = [len(f[1]) for f in frames]
+        start = np.concatenate([[0], np.cumsum(counts)])
+        rel = np.concatenate([f[1] for f in frames])
+        uav = np.repeat(np.stack([f[2] for f in frames]), counts, axis=0)
+        t_pt = np.repeat([f[0] for f in frames], counts)
+        h_raw = np.repeat([f[3] for f in frames], counts)
+        # point index pairs (later point q, earlier point p) and the group (q, pair) each belongs to
+        qs, ps, groups = [], [], []
+        g = 0
+        for k, j in pairs:
+            pk = np.arange(start[k], start[k + 1])
+            for q in range(start[j], start[j + 1]):
+                qs.append(np.full(len(pk), q))
+                ps.append(pk)
+                groups.append(np.full(len(pk), g))
+                g += 1
+        q_idx, p_idx, grp = np.concatenate(qs), np.concatenate(ps), np.concatenate(groups)
+        bounds = np.flatnonzero(np.r_[True, grp[1:] != grp[:-1]])
+        t_frames = np.array([f[0] for f in frames])
+        rate_change = max(abs(float(self.track.rate_at(t_frames[j] + self.offset_s))
+                              - float(self.track.rate_at(t_frames[k] + self.offset_s))) for k, j in pairs)
+
+        def cost(offsets: NDArray) -> NDArray:
+            h_unwrapped_raw = h_raw  # raw headings are wrapped: the delta is wrapped below
+            h_new = self.track.heading_unwrapped(t_pt[None, :] + offsets[:, None])  # (D, P)
+            delta = (h_new - h_unwrapped_raw[None, :] + 180.0) % 360.0 - 180.0
+            pts = _rotate(np.broadcast_to(rel, (len(offsets), *rel.shape)), delta) + uav[None]
+            d = np.hypot(*(pts[:, q_idx] - pts[:, p_idx]).transpose(2, 0, 1))  # (D, pairs of points)
+            nearest = np.minimum.reduceat(np.minimum(d, s.trim_m), bounds, axis=1)
+            return (nearest ** 2).sum(axis=1)
+
+        coarse = np.arange(-s.search_s, s.search_s + 1e-9, s.coarse_step_s)
+        c = cost(coarse)
+        i = int(np.argmin(c))
+        informative = rate_change >= s.min_rate_change_deg_s and c[i] < s.min_contrast * float(np.median(c))
+        fine = np.clip(np.arange(coarse[i] - s.coarse_step_s, coarse[i] + s.coarse_step_s + 1e-9, s.fine_step_s),
+                       -s.search_s, s.search_s)
+        best = float(fine[int(np.argmin(cost(fine)))])
+        log.debug("clock offset window: best %.2f s, cost/median %.3f, rate change %.0f deg/s", best,
+                  c[i] / max(float(np.median(c)), 1e-9), rate_change)
+        return best, informative
+
+
+def frame_points(frame: Frame, boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray,
+                 settings: ClockOffsetSettings) -> NDArray:
+    """Ground points (N, 2) east/north metres relative to the point below the UAV, raw telemetry, of the
+    frame's confident candidates (NMS'd, bottom-centre anchors, at most max_points); (0, 2) without pose."""
+    if frame.pose is None or not len(scores):
+        return np.zeros((0, 2))
+    keep = np.flatnonzero(np.asarray(scores) >= settings.min_score)
+    if not len(keep):
+        return np.zeros((0, 2))
+    kept = nms(np.asarray(boxes_xyxy)[keep], np.asarray(scores)[keep], np.asarray(class_ids)[keep], 0.5, 0.0,
+               settings.max_points)
+    idx = keep[kept]
+    b = np.asarray(boxes_xyxy, dtype=np.float64)[idx]
+    uv = np.stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 3]], axis=1)
+    e, n, valid = pixel_to_local(uv, frame.camera, frame.pose)
+    return np.stack([e[valid], n[valid]], axis=1)
+
+
+def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArray, NDArray, NDArray]],
+                  settings: ClockOffsetSettings | None = None) -> list[tuple[Frame, ClockOffset | None]]:
+    """The video's frames with poses re-timed by the online clock-offset estimate.
+
+    frames: one video's frames in time order; candidates(frame) -> (boxes_xyxy (K, 4), scores (K,),
+    class_ids (K,)) of the frame's detections. Each frame's offset comes from the frames before it (and the
+    telemetry up to search_s after it); its pose gets the heading and pitch interpolated at t + offset and
+    pose_t = t. Frames without pose are returned unchanged with None.
+    """
+    settings = settings or ClockOffsetSettings()
+    track = HeadingTrack.from_frames(frames)
+    est = ClockOffsetEstimator(track, settings)
+    origin: tuple[float, float] | None = None
+    out: list[tuple[Frame, ClockOffset | None]] = []
+    for fr in frames:
+        if fr.pose is None or len(track) < 2:
+            out.append((fr, None))
+            continue
+        if origin is None:
+            origin = (fr.pose.lat, fr.pose.lon)
+        off = est.offset_at(fr.t)
+        heading, pitch = track.at(fr.t + off.offset_s)
+        pose = Pose(fr.pose.lat, fr.pose.lon, fr.pose.height_m, min(max(pitch, 0.0), 90.0), heading, fr.pose.roll_deg)
+        out.append((replace(fr, pose=pose, pose_t=fr.t), off))
+        uav = np.array([float(v) for v in latlon_to_local(fr.pose.lat, fr.pose.lon, *origin)])
+        est.add(fr.t, frame_points(fr, *candidates(fr), settings), uav, fr.pose.heading_deg)
+    return out
+
+
+def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Candidates,
+                 settings: ClockOffsetSettings | None) -> list[tuple[Frame, ClockOffset | None]]:
+    """One video's frames (`iter_video_frames`), re-timed by the clock-offset estimate when settings are
+    given (`retime_frames`; its detections: the candidates), else as they are, with None."""
+    frames = list(iter_video_frames(dataset, camera, video_id))
+    if settings is None:
+        return [(f, None) for f in frames]
+    return retime_frames(frames, lambda f: candidates.get(f.image.id), settings)
