@@ -5,8 +5,8 @@ gimbal sweeps at 30-80 deg/s that puts 10-20 deg of heading error on every groun
 the one that makes the ground positions of the confident detections most consistent between nearby
 frames when the telemetry is interpolated at frame time + d (the world is static or slow at the scale of
 a fraction of a second; a wrong d moves the ground points of two frames apart whenever the turn rate
-changed between them). It is searched within +-`search_s`, coarse to fine, on a sliding window of the past
-frames, updated only when the window turned enough to be informative, smoothed, bounded, and it falls back
+changed between them). It is searched within +-`search_s` (a grid, refined by a parabola) on a sliding window of
+the past frames, updated only when the window turned enough to be informative, smoothed, bounded, and it falls back
 to the configured latency until then. Interpolating at t + d needs the telemetry up to `search_s` after
 each frame: files (`uavmm track`, evaluations) have it; a live feed would have to delay by that much.
 Arrays in, arrays out: no I/O.
@@ -38,22 +38,24 @@ class ClockOffsetSettings:
     """Settings of the clock-offset estimate.
 
     fallback_s: the offset used before (and instead of) an estimate, seconds (the configured latency).
-    search_s: the estimate stays within +-search_s, seconds. coarse_step_s, fine_step_s: grid steps of the
-    coarse search over +-search_s and of the fine one around its best. window_s: frames of this many past
+    search_s: the estimate stays within +-search_s, seconds. coarse_step_s: step of the grid of offsets
+    over +-search_s (the minimum is refined by a parabola through the best three). window_s: frames of this many past
     seconds are compared. lags_s: a frame is compared with the frames this many seconds earlier (the
     nearest one). update_every_s: how often the window is searched. min_rate_change_deg_s: a window is
     informative only when the interpolated turn rate differs by at least this much between some compared
     frames (a constant turn moves all frames alike: no information). min_points: confident detections a
     compared pair needs. trim_m: a point's distance to its nearest neighbour counts at most this much.
-    min_contrast: the best cost must be below this fraction of the median over the coarse grid.
-    smoothing_s: time constant of the exponential smoothing of the measurements. min_score, max_points:
-    detections at least this confident (the detector's score) take part, at most this many per frame.
+    min_contrast: the best cost must be below this fraction of the median over the grid. memory_s: the
+    informative windows' cost curves (each divided by its median) are summed with this forgetting time
+    constant, and the measurement is the minimum of the sum; min_windows: informative windows needed
+    before the first measurement. smoothing_s: time constant of the exponential smoothing of the
+    measurements. min_score, max_points: detections at least this confident (the detector's score) take
+    part, at most this many per frame.
     """
 
     fallback_s: float = 0.05
     search_s: float = 1.0
     coarse_step_s: float = 0.05
-    fine_step_s: float = 0.01
     window_s: float = 3.0
     lags_s: tuple[float, ...] = (0.1, 0.2, 0.4, 0.8)
     update_every_s: float = 0.25
@@ -61,12 +63,14 @@ class ClockOffsetSettings:
     min_points: int = 2
     trim_m: float = 3.0
     min_contrast: float = 0.97
-    smoothing_s: float = 1.0
+    smoothing_s: float = 0.25
+    memory_s: float = 10.0
+    min_windows: int = 3
     min_score: float = 0.5
     max_points: int = 16
 
     def __post_init__(self) -> None:
-        for name in ("search_s", "coarse_step_s", "fine_step_s", "window_s", "update_every_s", "trim_m"):
+        for name in ("search_s", "coarse_step_s", "window_s", "update_every_s", "trim_m", "memory_s"):
             value = getattr(self, name)
             if not math.isfinite(value) or value <= 0:
                 raise ValueError(f"clock offset {name} must be a finite number > 0, got {value!r}")
@@ -157,6 +161,9 @@ class ClockOffsetEstimator:
         self._frames: deque[tuple[float, NDArray, NDArray, float]] = deque()
         self._t_update: float | None = None
         self._t_measured: float | None = None
+        self._grid = np.arange(-self.settings.search_s, self.settings.search_s + 1e-9, self.settings.coarse_step_s)
+        self._acc = np.zeros(len(self._grid))
+        self._n_informative = 0
 
     def add(self, t: float, rel_en: NDArray, uav_en: NDArray, heading_deg: float) -> None:
         """Remember one frame: rel_en (N, 2) ground points minus the UAV (m, raw telemetry), uav_en (2,)."""
@@ -172,15 +179,19 @@ class ClockOffsetEstimator:
             return ClockOffset(self.offset_s)
         self._t_update = t
         found = self.measure()
-        if found is None:
-            return ClockOffset(self.offset_s)
-        measured, informative = found
-        if not informative:
-            return ClockOffset(self.offset_s, False, False)
+        if found is None or not found[1]:
+            return ClockOffset(self.offset_s, False, found is not None and found[1])
+        curve, _ = found
+        # accumulate the informative windows' normalised cost curves (memory_s), the argmin of the sum
         dt = 0.0 if self._t_measured is None else t - self._t_measured
+        self._acc = self._acc * math.exp(-dt / s.memory_s) + curve
+        self._n_informative += 1
+        self._t_measured = t
+        if self._n_informative < s.min_windows:
+            return ClockOffset(self.offset_s, False, True)
+        measured = _parabolic_argmin(self._grid, self._acc)
         a = 1.0 if s.smoothing_s <= 0 else 1.0 - math.exp(-max(dt, s.update_every_s) / s.smoothing_s)
         self.offset_s = float(np.clip(self.offset_s + a * (measured - self.offset_s), -s.search_s, s.search_s))
-        self._t_measured = t
         log.debug("t=%.3f clock offset measured %.3f s, applied %.3f s", t, measured, self.offset_s)
         return ClockOffset(self.offset_s, True, True)
 
@@ -197,8 +208,9 @@ class ClockOffsetEstimator:
                     pairs.append((k, j))
         return sorted(set(pairs))
 
-    def measure(self) -> tuple[float, bool] | None:
-        """Search the window: (best offset s, informative) or None without enough points."""
+    def measure(self) -> tuple[NDArray, bool] | None:
+        """Search the window: (cost (D,) over the offset grid divided by its median, informative), None
+        without enough points."""
         s = self.settings
         pairs = self._pairs()
         if not pairs or len(self.track) < 2:
@@ -212,40 +224,55 @@ class ClockOffsetEstimator:
         t_pt = np.repeat([f[0] for f in frames], counts)
         h_raw = np.repeat([f[3] for f in frames], counts)
         # point index pairs (later point q, earlier point p) and the group (q, pair) each belongs to
-        qs, ps, groups = [], [], []
-        g = 0
-        for k, j in pairs:
-            pk = np.arange(start[k], start[k + 1])
-            for q in range(start[j], start[j + 1]):
-                qs.append(np.full(len(pk), q))
-                ps.append(pk)
-                groups.append(np.full(len(pk), g))
-                g += 1
-        q_idx, p_idx, grp = np.concatenate(qs), np.concatenate(ps), np.concatenate(groups)
-        bounds = np.flatnonzero(np.r_[True, grp[1:] != grp[:-1]])
         t_frames = np.array([f[0] for f in frames])
-        rate_change = max(abs(float(self.track.rate_at(t_frames[j] + self.offset_s))
-                              - float(self.track.rate_at(t_frames[k] + self.offset_s))) for k, j in pairs)
+        ks, js = np.array(pairs).T
+        rate_change = float(np.abs(self.track.rate_at(t_frames[js] + self.offset_s)
+                                   - self.track.rate_at(t_frames[ks] + self.offset_s)).max())
+        if rate_change < s.min_rate_change_deg_s:
+            return np.ones(len(self._grid)), False  # a steady (or no) turn says nothing: skip the search
+        # every later point q against every point p of the earlier frame; group = (q, frame pair)
+        qs, ps = [], []
+        for k, j in pairs:
+            nk, nj = start[k + 1] - start[k], start[j + 1] - start[j]
+            qs.append(np.repeat(np.arange(start[j], start[j + 1]), nk))
+            ps.append(np.tile(np.arange(start[k], start[k + 1]), nj))
+        q_idx, p_idx = np.concatenate(qs), np.concatenate(ps)
+        sizes = np.concatenate([np.full(start[j + 1] - start[j], start[k + 1] - start[k]) for k, j in pairs])
+        bounds = np.concatenate([[0], np.cumsum(sizes)[:-1]])
 
         def cost(offsets: NDArray) -> NDArray:
-            h_unwrapped_raw = h_raw  # raw headings are wrapped: the delta is wrapped below
-            h_new = self.track.heading_unwrapped(t_pt[None, :] + offsets[:, None])  # (D, P)
-            delta = (h_new - h_unwrapped_raw[None, :] + 180.0) % 360.0 - 180.0
-            pts = _rotate(np.broadcast_to(rel, (len(offsets), *rel.shape)), delta) + uav[None]
-            d = np.hypot(*(pts[:, q_idx] - pts[:, p_idx]).transpose(2, 0, 1))  # (D, pairs of points)
-            nearest = np.minimum.reduceat(np.minimum(d, s.trim_m), bounds, axis=1)
-            return (nearest ** 2).sum(axis=1)
+            out = np.empty(len(offsets))
+            for i, off in enumerate(offsets):  # one offset at a time keeps the (pairs,) arrays small
+                delta = (self.track.heading_unwrapped(t_pt + off) - h_raw + 180.0) % 360.0 - 180.0
+                pts = _rotate(rel, delta) + uav
+                d = np.hypot(pts[q_idx, 0] - pts[p_idx, 0], pts[q_idx, 1] - pts[p_idx, 1])
+                nearest = np.minimum.reduceat(np.minimum(d, s.trim_m), bounds)
+                out[i] = float(nearest @ nearest)
+            return out
 
-        coarse = np.arange(-s.search_s, s.search_s + 1e-9, s.coarse_step_s)
-        c = cost(coarse)
-        i = int(np.argmin(c))
-        informative = rate_change >= s.min_rate_change_deg_s and c[i] < s.min_contrast * float(np.median(c))
-        fine = np.clip(np.arange(coarse[i] - s.coarse_step_s, coarse[i] + s.coarse_step_s + 1e-9, s.fine_step_s),
-                       -s.search_s, s.search_s)
-        best = float(fine[int(np.argmin(cost(fine)))])
-        log.debug("clock offset window: best %.2f s, cost/median %.3f, rate change %.0f deg/s", best,
-                  c[i] / max(float(np.median(c)), 1e-9), rate_change)
-        return best, informative
+        # offsets that send a frame beyond the telemetry's span would compare held (clamped) headings
+        inside = (t_frames.min() + self._grid >= self.track.t[0]) & (t_frames.max() + self._grid <= self.track.t[-1])
+        if inside.sum() < 3:
+            return None
+        c = np.ones(len(self._grid))
+        c[inside] = cost(self._grid[inside])
+        c[inside] /= max(float(np.median(c[inside])), 1e-12)
+        c[~inside] = 1.0
+        informative = rate_change >= s.min_rate_change_deg_s and float(c.min()) < s.min_contrast
+        log.debug("clock offset window: best %.2f s, cost/median %.3f, rate change %.0f deg/s",
+                  self._grid[int(np.argmin(c))], float(c.min()), rate_change)
+        return c, bool(informative)
+
+
+def _parabolic_argmin(grid: NDArray, values: NDArray) -> float:
+    """The minimum of values over an evenly spaced grid, refined by a parabola through the best three."""
+    i = int(np.argmin(values))
+    if 0 < i < len(grid) - 1:
+        left, mid, right = values[i - 1], values[i], values[i + 1]
+        den = left - 2.0 * mid + right
+        if den > 0:
+            return float(grid[i] + 0.5 * (left - right) / den * (grid[1] - grid[0]))
+    return float(grid[i])
 
 
 def frame_points(frame: Frame, boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray,

@@ -31,12 +31,12 @@ def _heading(t: float, sweeping: bool) -> float:
     return base + sign * amp * (1.0 - math.cos(math.pi * frac)) / 2.0
 
 
-def _clip(sweeping: bool, offset_s: float, seconds: float = 6.0) -> tuple[list[Frame], dict[int, tuple]]:
+def _clip(sweeping: bool, offset_s: float, seconds: float = 5.0) -> tuple[list[Frame], dict[int, tuple]]:
     """Frames whose telemetry lags by offset_s (10 Hz sample-and-hold, stamps on the telemetry clock) and
     the detections of static ground points projected with the TRUE pose."""
     rng = np.random.default_rng(0)
-    ang = rng.uniform(-20.0, 75.0, 80)  # a field of static objects around the swept bearings
-    rng_m = rng.uniform(50.0, 90.0, 80)
+    ang = rng.uniform(-20.0, 75.0, 40)  # a field of static objects around the swept bearings
+    rng_m = rng.uniform(50.0, 90.0, 40)
     east, north = rng_m * np.sin(np.radians(ang)), rng_m * np.cos(np.radians(ang))
     frames, dets = [], {}
     for i in range(int(seconds * FPS)):
