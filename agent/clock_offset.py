@@ -62,7 +62,7 @@ class ClockOffsetSettings:
     min_rate_change_deg_s: float = 15.0
     min_points: int = 2
     trim_m: float = 3.0
-    min_contrast: float = 0.97
+    min_contrast: float = 0.95
     smoothing_s: float = 0.25
     memory_s: float = 10.0
     min_windows: int = 3
