@@ -125,7 +125,7 @@ class HeadingTrack:
 
     def heading_unwrapped(self, t: NDArray | float) -> NDArray:
         """Unwrapped heading (deg) at times t (any shape)."""
-        return np.interp(t, self.t, self.h)
+        return np.asarray(np.interp(t, self.t, self.h))
 
     def at(self, t: float) -> tuple[float, float]:
         """(heading in [0, 360), pitch) degrees at time t."""
