@@ -49,7 +49,8 @@ class ClockOffsetSettings:
     informative windows' cost curves (each divided by its median) are summed with this forgetting time
     constant, and the measurement is the minimum of the sum; min_windows: informative windows needed
     before the first measurement. smoothing_s: time constant of the exponential smoothing of the
-    measurements. min_score, max_points: detections at least this confident (the detector's score) take
+    measurements; max_slew: the applied offset moves by at most this many seconds per update second (0:
+    unlimited). min_score, max_points: detections at least this confident (the detector's score) take
     part, at most this many per frame.
     """
 
@@ -66,6 +67,7 @@ class ClockOffsetSettings:
     smoothing_s: float = 0.25
     memory_s: float = 10.0
     min_windows: int = 3
+    max_slew: float = 0.1
     min_score: float = 0.5
     max_points: int = 16
 
@@ -191,7 +193,10 @@ class ClockOffsetEstimator:
             return ClockOffset(self.offset_s, False, True)
         measured = _parabolic_argmin(self._grid, self._acc)
         a = 1.0 if s.smoothing_s <= 0 else 1.0 - math.exp(-max(dt, s.update_every_s) / s.smoothing_s)
-        self.offset_s = float(np.clip(self.offset_s + a * (measured - self.offset_s), -s.search_s, s.search_s))
+        step = a * (measured - self.offset_s)
+        if s.max_slew > 0:  # a wrong early measurement cannot throw the offset far before more evidence comes
+            step = float(np.clip(step, -s.max_slew * s.update_every_s, s.max_slew * s.update_every_s))
+        self.offset_s = float(np.clip(self.offset_s + step, -s.search_s, s.search_s))
         log.debug("t=%.3f clock offset measured %.3f s, applied %.3f s", t, measured, self.offset_s)
         return ClockOffset(self.offset_s, True, True)
 
