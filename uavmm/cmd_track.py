@@ -49,12 +49,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="minimum running detector score of a reported track (0.4)")
     g.add_argument("--telemetry-latency-s", type=float, default=None,
                    help="how much older the telemetry is than its stamp (0.05)")
-    g.add_argument("--no-clock-offset", action="store_true",
-                   help="do not estimate the video/telemetry clock offset from the detections (use the "
-                        "telemetry as stamped, turned by --telemetry-latency-s)")
+    g.add_argument("--clock-offset", action="store_true",
+                   help="estimate the video/telemetry clock offset online from the detections and interpolate "
+                        "the telemetry at frame time + offset (--telemetry-latency-s is then its fallback; "
+                        "off by default, see docs/tracking.md)")
     p.add_argument("--clock-offsets-out", type=Path, default=None, metavar="FILE.csv",
-                   help="write the clock offset applied to each frame (image_id, video_id, frame_index, "
-                        "offset_s, measured)")
+                   help="with --clock-offset: write the clock offset applied to each frame (image_id, "
+                        "video_id, frame_index, offset_s, measured)")
     _add_pipeline_options(p)
     p.set_defaults(handler=run)
 
@@ -66,9 +67,9 @@ def run(args: argparse.Namespace) -> int:
     if args.video_id is not None and args.video_id < 0:
         raise CliError(f"--video-id must be >= 0, got {args.video_id}")
     pipeline_config, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
-    if args.no_clock_offset:
-        pipeline_config = dataclasses.replace(pipeline_config, estimate_clock_offset=False)
-    elif args.telemetry_latency_s is not None:
+    if args.clock_offset:
+        pipeline_config = dataclasses.replace(pipeline_config, estimate_clock_offset=True)
+    if args.clock_offset and args.telemetry_latency_s is not None:
         if not abs(args.telemetry_latency_s) <= pipeline_config.clock_offset_search_s:
             raise CliError(f"--telemetry-latency-s must be within +-{pipeline_config.clock_offset_search_s} s, "
                            f"got {args.telemetry_latency_s}")

@@ -160,7 +160,7 @@ def test_track_help_runs_as_a_process():
 
 def test_clock_offsets_out_has_one_row_per_frame_within_the_search_bound(data, tmp_path, capsys):
     out, csv = tmp_path / "tracks.txt", tmp_path / "offsets.csv"
-    assert track(data, out, "--video-id", "1", "--clock-offsets-out", str(csv)) == 0
+    assert track(data, out, "--video-id", "1", "--clock-offset", "--clock-offsets-out", str(csv)) == 0
     assert "clock offset: median" in capsys.readouterr().out
     lines = csv.read_text().splitlines()
     assert lines[0] == "image_id,video_id,frame_index,offset_s,measured"
@@ -174,8 +174,8 @@ def test_clock_offsets_out_has_one_row_per_frame_within_the_search_bound(data, t
 
 def test_clock_offset_off_writes_no_rows_and_bad_latency_is_a_clear_error(data, tmp_path, capsys):
     csv = tmp_path / "offsets.csv"
-    assert track(data, tmp_path / "t.txt", "--video-id", "1", "--no-clock-offset", "--clock-offsets-out", str(csv)) == 0
+    assert track(data, tmp_path / "t.txt", "--video-id", "1", "--clock-offsets-out", str(csv)) == 0  # off
     assert csv.read_text().splitlines() == ["image_id,video_id,frame_index,offset_s,measured"]
     capsys.readouterr()
-    assert track(data, tmp_path / "t2.txt", "--telemetry-latency-s", "3") == 2
+    assert track(data, tmp_path / "t2.txt", "--clock-offset", "--telemetry-latency-s", "3") == 2
     assert "--telemetry-latency-s" in capsys.readouterr().err
