@@ -5,6 +5,9 @@
 - with ``video=True``, per video ``<name>.mp4`` (MPEG-4 Part 2, OpenCV's ``mp4v``, the scenario's fps) and its
   telemetry as ``<name>.srt`` (DJI style) and ``<name>.csv`` (`sim.render.telemetry_files`), so that
   ``uavmm agent --video <name>.mp4 --telemetry <name>.srt --camera camera.json --model M.onnx`` plays it;
+- ``unannotated.json``: per image the boxes of the drawn objects images.json does not annotate (buoys and boats
+  on the sea; rocks, trees and cars on the meadow): ``{"annotations": [{image_id, kind, bbox}]}``, bbox
+  [x, y, w, h] pixels (the anomaly evaluation counts boats and buoys as anomalies, `sim.anomaly_eval`);
 - ``render.json``: the options, each world's ground, sun, atmosphere and unannotated scenery (boats, cars),
   the files written and the measured speed. It is written last: its presence marks a complete render.
 
@@ -98,6 +101,7 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     total = sum(len(v.image_ids) for v in dataset.videos)
     bar = _Progress(f"render {dataset.scenario}", total, progress)
     written_images, videos, telemetry, worlds = 0, [], [], []
+    unannotated: list[dict[str, Any]] = []
     draw_s = setup_s = 0.0
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="uavmm-render-encode")
     pending: deque[Future] = deque()
@@ -124,6 +128,8 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
                         image = renderer.render(frame, drift)
                         draw_s += time.perf_counter() - t0
                         frame_meta.append((frame.frame_index, frame.t, frame.meta))
+                        unannotated.extend({"image_id": frame.image_id, "kind": kind, "bbox": box}
+                                           for kind, box in renderer.unannotated_boxes(frame))
                         path = out / frame.file_name if images and frame.file_name else None
                         if images and path is None:
                             raise ValueError(f"image {frame.image_id} has no file_name in images.json")
@@ -168,6 +174,7 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     }
     report = {"options": dataclasses.asdict(options), "jpeg_quality": jpeg_quality, "mp4_fourcc": MP4_FOURCC,
               "worlds": worlds, "summary": summary}
+    _write_text(out / "unannotated.json", json.dumps({"annotations": unannotated}))
     _write_text(out / "render.json", json.dumps(report, indent=1))
     logger.info("rendered %s: %s", out, summary)
     return summary

@@ -6,7 +6,9 @@ model. `render(frame, drift)` then draws a `sim.render.scene.SceneFrame` with it
 
 1. ground: one `cv2.warpPerspective` of the texture per band of rows, each band from the mip level that
    matches its ground sampling (no aliasing far away, full detail near); rows above the horizon are sky;
-2. sun glint on water around the sun's mirror image (the texture's A channel holds the wave facets);
+   on the sea the texture travels with the waves and its facets with the short waves (`sea_motion.WaveDrift`);
+2. sun glint on water around the sun's mirror image (the texture's A channel holds the wave facets, the facets
+   channel whether the short waves tilt them towards the sun now);
 3. objects far to near: shadow, then the textured prisms (`sim.render.sprites`);
 4. haze with range, motion blur on the frames the simulator marks blurred, exposure/white-balance drift and
    sensor noise.
@@ -36,9 +38,10 @@ from sim.render.geometry import (
     uav_world_en,
 )
 from sim.render.scene import SceneFrame, SceneVideo, SceneWorld, SimulatedDataset
-from sim.render.sea_motion import SeaEvents
+from sim.render.sea_motion import SeaEvents, WaveDrift
 from sim.render.sprites import Model, Placed
 from sim.render.texture import (
+    FACET_SCALE,
     GroundTexture,
     NoiseBank,
     Road,
@@ -52,7 +55,7 @@ logger = logging.getLogger(__name__)
 
 # roles of the generators derived from the seed (apart from the simulator's own)
 ROLE_GROUND, ROLE_ATMOSPHERE, ROLE_SCENERY, ROLE_FRAME, ROLE_EXPOSURE, ROLE_NOISE = 101, 102, 103, 104, 105, 106
-ROLE_SEA_EVENTS = 107
+ROLE_SEA_EVENTS, ROLE_WAVES = 107, 108
 #: Exposure time that turns the gimbal's yaw rate into blur length (1/50 s).
 EXPOSURE_S = 0.02
 #: Side of the far ground (metres) drawn beyond the near texture, and its texels a side.
@@ -80,6 +83,9 @@ class RenderOptions:
         Standard deviation of the sensor noise, grey levels (0 = none).
     sea_events : bool
         Transient whitecaps and glint sparkles on the sea (`sim.render.sea_motion`): clutter that moves.
+    sea_waves : bool
+        The sea's texture travels with the waves and its glint facets twinkle (`sea_motion.WaveDrift`);
+        False keeps it fixed in the world (the renderer before 25 Nov 2026).
     """
 
     max_texture_px: int = 4096
@@ -88,6 +94,7 @@ class RenderOptions:
     scenery: bool = True
     sensor_noise_std: float = 2.0
     sea_events: bool = True
+    sea_waves: bool = True
 
     def __post_init__(self) -> None:
         if isinstance(self.max_texture_px, bool) or not isinstance(self.max_texture_px, int) \
@@ -167,6 +174,9 @@ class WorldRenderer:
         self.t0 = ds.time_of(self.videos[0].image_ids[0])
         az, el = sun_position(world.origin_lat, world.origin_lon, self.t0)
         self.atmosphere: Atmosphere = effects.make_atmosphere(world.kind, az, el, self._rng(ROLE_ATMOSPHERE))
+        wind_deg = float(self._rng(ROLE_WAVES).uniform(0.0, 360.0))
+        self.drift: WaveDrift | None = (WaveDrift(wind_deg) if world.kind == "sea" and self.options.sea_waves
+                                        else None)
         extent, res = self._ground_extent()
         far_extent, far_res = self._far_extent(extent, res)
         rng = self._rng(ROLE_GROUND)
@@ -176,7 +186,8 @@ class WorldRenderer:
                  for t in world.trees]
 
         def ground(ext: tuple[float, float, float, float], r: float, detail: bool, key: int) -> GroundTexture:
-            g = make_ground(world.kind, ext, r, bank, self._rng(ROLE_GROUND, key), roads=roads, detail=detail)
+            g = make_ground(world.kind, ext, r, bank, self._rng(ROLE_GROUND, key), roads=roads, detail=detail,
+                            wind_deg=wind_deg)
             bake_shadows(g, trees, [t.height_m for t in world.trees], az, el, self.atmosphere.shadow_darkness)
             return with_mips(g)
 
@@ -191,10 +202,12 @@ class WorldRenderer:
             model = sprites.tree(sprites.appearance_rng(self.seed, 10_000 + 100 * world.group + i, "tree"),
                                  t.radius_m, t.height_m)
             self.static.append(Placed(model, t.east_m, t.north_m, 0.0))
+        self.static_kinds: list[str] = ["tree"] * len(self.static)
         clutter_model = sprites.buoy if world.kind == "sea" else sprites.rock
         for i, (e, n) in enumerate(world.clutter_en):
             arng = sprites.appearance_rng(self.seed, 20_000 + 100 * world.group + i, "clutter")
             self.static.append(Placed(clutter_model(arng), float(e), float(n), float(arng.uniform(0, 360))))
+            self.static_kinds.append("buoy" if world.kind == "sea" else "rock")
         self.scenery: list[Scenery] = self._scenery(roads) if self.options.scenery else []
         self._models: dict[int, Model] = {}
         self.noise = (SensorNoise(self.camera.width, self.camera.height, self.options.sensor_noise_std,
@@ -229,6 +242,9 @@ class WorldRenderer:
         margin = 10.0
         extent = (float(allp[:, 0].min() - margin), float(allp[:, 1].min() - margin),
                   float(allp[:, 0].max() + margin), float(allp[:, 1].max() + margin))
+        if self.drift is not None:  # the waves carry the texture downwind: more of it upwind
+            times = np.array([ds.time_of(i) - self.t0 for v in self.videos for i in v.image_ids])
+            extent = self.drift.grow(extent, times)
         side = max(extent[2] - extent[0], extent[3] - extent[1])
         finest = float(np.percentile(gsd, 5)) if gsd else 0.05
         res = o.ground_res_m if o.ground_res_m is not None else finest
@@ -297,6 +313,9 @@ class WorldRenderer:
             "roads": [{"surface": r.surface, "width_m": r.width_m, "points_en": [list(p) for p in r.points_en]}
                       for r in g.roads],
             "scenery": [s.describe() for s in self.scenery],
+            "waves": None if self.drift is None else {
+                "towards_deg": round(self.drift.wind_deg, 2), "long_mps": self.drift.long_mps,
+                "short_mps": self.drift.short_mps, "wrap_s": round(self.drift.period_s, 1)},
         }
 
     def model_of(self, track_id: int, cls: str) -> Model:
@@ -310,12 +329,14 @@ class WorldRenderer:
 
     # ------------------------------------------------------------------ per frame
 
-    def ground_bands(self, pose: Pose, first_row: int) -> tuple[list[tuple[int, int, GroundTexture, int]], int]:
+    def ground_bands(self, pose: Pose, first_row: int,
+                     t_s: float = 0.0) -> tuple[list[tuple[int, int, GroundTexture, int]], int]:
         """(row0, row1, texture, level) bands of the ground rows, top to bottom, and the first near row.
 
         Rows whose ground (at the left, centre and right columns) lies inside the near texture use it, the
         rows above the far one; within each, the mip level whose texel matches the rows' ground sampling
-        (the geometric mean of the along- and across-range pixel footprints).
+        (the geometric mean of the along- and across-range pixel footprints). t_s: seconds since the world's
+        first frame (the near texture has travelled with the waves).
         """
         cam = self.camera
         rows = np.arange(first_row, cam.height, dtype=np.float64)
@@ -333,6 +354,9 @@ class WorldRenderer:
             across = np.sqrt(pose.height_m ** 2 + ground[:-1] ** 2) / cam.fx
             footprint = np.sqrt(along * across)
         e0, n0, e1, n1 = self.ground.extent_m
+        if self.drift is not None:
+            de, dn = self.drift.offset_en(t_s, self.drift.long_mps)
+            e0, n0, e1, n1 = e0 + de, n0 + dn, e1 + de, n1 + dn
         pad = 2.0 * self.ground.res_m
         inside = ((east >= e0 + pad) & (east <= e1 - pad) & (north >= n0 + pad) & (north <= n1 - pad)).all(axis=1)
         outside = np.flatnonzero(~inside[:-1])
@@ -358,20 +382,22 @@ class WorldRenderer:
         uav_en = uav_world_en(pose, self.world.origin_lat, self.world.origin_lon)
         first = first_ground_row(cam, pose)
         buf = self._buffer
-        bands, split = self.ground_bands(pose, first)
+        t_rel = frame.t - self.t0
+        bands, split = self.ground_bands(pose, first, t_rel)
         for r0, r1, tex, level in bands:
-            m = texture_to_image_homography(cam, pose, uav_en, tex.texel_to_world(level), r0)
+            m = texture_to_image_homography(cam, pose, uav_en, self._texel_to_world(tex, level, t_rel), r0)
             cv2.warpPerspective(tex.levels[level], m, (cam.width, r1 - r0), dst=buf[r0:r1],
                                 flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-        self._fade_to_near(bands, split, first, pose, uav_en)
+        self._fade_to_near(bands, split, first, pose, uav_en, t_rel)
         image = cv2.cvtColor(buf, cv2.COLOR_BGRA2BGR)
         effects.fill_sky(image, first, cam, pose, atm)
         if self.world.kind == "sea":
             glint = effects.glint_map(cam, pose, atm, first)
             if glint is not None:
+                self._twinkle(bands, glint[1], pose, uav_en, t_rel)
                 effects.add_glint(image, buf[..., 3], glint[0], glint[1], atm.glint_strength)
             if self.sea_events is not None:
-                self.sea_events.draw(image, cam, pose, uav_en, frame.t - self.t0, first, glint)
+                self.sea_events.draw(image, cam, pose, uav_en, t_rel, first, glint)
         self._draw_objects(image, frame, uav_en)
         gains = drift.channel_gains(frame.frame_index, first / cam.height) if drift is not None else np.ones(3)
         effects.tone(image, effects.haze_rows(cam, pose, atm, first), atm.horizon_bgr, gains)
@@ -382,8 +408,37 @@ class WorldRenderer:
             image = self.noise.apply(image, rng)
         return image
 
+    def _texel_to_world(self, tex: GroundTexture, level: int, t_s: float, facets: bool = False) -> np.ndarray:
+        """Texel -> world affine of a texture level at t_s: carried by the long waves (its facets channel by
+        the short waves) on a moving sea, fixed otherwise."""
+        if self.drift is None:
+            return tex.texel_to_world(level)
+        return self.drift.moved(tex.texel_to_world(level), t_s,
+                                self.drift.short_mps if facets else self.drift.long_mps)
+
+    def _twinkle(self, bands: list[tuple[int, int, GroundTexture, int]], rect: tuple[int, int, int, int],
+                 pose: Pose, uav_en: tuple[float, float], t_s: float) -> None:
+        """Multiply the glint potential (A of the buffer) inside rect by the near texture's facets channel as
+        the short waves carry it now (in place): where the two patterns slide over each other, facets turn
+        towards the sun and away. Rows of the far ground keep their potential."""
+        if self.drift is None or not self.ground.facets:
+            return
+        x0, y0, x1, y1 = rect
+        factor = np.full((y1 - y0, x1 - x0), int(FACET_SCALE), np.uint8)
+        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
+        for r0, r1, tex, level in bands:
+            a, b = max(r0, y0), min(r1, y1)
+            if tex is not self.ground or b <= a:
+                continue
+            m = shift @ texture_to_image_homography(self.camera, pose, uav_en,
+                                                    self._texel_to_world(tex, level, t_s, facets=True), a)
+            cv2.warpPerspective(tex.facets[level], m, (x1 - x0, b - a), dst=factor[a - y0:b - y0],
+                                flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
+        alpha = np.ascontiguousarray(self._buffer[y0:y1, x0:x1, 3])
+        self._buffer[y0:y1, x0:x1, 3] = cv2.multiply(alpha, factor, scale=1.0 / FACET_SCALE)
+
     def _fade_to_near(self, bands: list[tuple[int, int, GroundTexture, int]], split: int, first: int, pose: Pose,
-                      uav_en: tuple[float, float]) -> None:
+                      uav_en: tuple[float, float], t_s: float = 0.0) -> None:
         """Cross-fade the last far rows above `split` into the near ground (no seam between the two)."""
         cam = self.camera
         fade0 = max(first, split - max(2, int(FADE_FRACTION * cam.height)))
@@ -391,7 +446,7 @@ class WorldRenderer:
         if not near or split <= fade0 or split >= cam.height:
             return
         level = near[0][3]
-        m = texture_to_image_homography(cam, pose, uav_en, self.ground.texel_to_world(level), fade0)
+        m = texture_to_image_homography(cam, pose, uav_en, self._texel_to_world(self.ground, level, t_s), fade0)
         near_rows = cv2.warpPerspective(self.ground.levels[level], m, (cam.width, split - fade0),
                                         flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
         ramp = ((np.arange(split - fade0, dtype=np.float32) + 0.5) / (split - fade0))[:, None]
@@ -419,6 +474,32 @@ class WorldRenderer:
         placed.extend(Placed(self.model_of(o.track_id, o.cls), o.east_m, o.north_m, o.yaw_deg, border_only=not o.known)
                       for o in frame.objects)
         return placed
+
+    def unannotated_boxes(self, frame: SceneFrame, min_inside: float = 0.5) -> list[tuple[str, list[float]]]:
+        """(kind, [x, y, w, h]) image boxes of the drawn objects that images.json does not annotate: buoys and
+        boats on the sea; rocks, trees and cars on the meadow. Like the annotations, a box is cut to the image
+        and kept when at least `min_inside` of it is inside (and it is at least a pixel a side)."""
+        cam, pose = self.camera, frame.pose
+        uav_en = uav_world_en(pose, self.world.origin_lat, self.world.origin_lon)
+        t_rel = frame.t - self.t0
+        placed = list(self.static) + [s.at(t_rel) for s in self.scenery]
+        kinds = self.static_kinds + [s.kind for s in self.scenery]
+        if not placed:
+            return []
+        in_view = np.flatnonzero(self._cull(placed, pose, uav_en, 0.0))
+        out = []
+        for i, proj in zip(in_view, sprites.project_many([placed[i] for i in in_view], cam, pose, uav_en, None),
+                           strict=True):
+            if proj is None:
+                continue
+            bx0, by0, bx1, by1 = proj.box
+            cx0, cy0 = max(bx0, 0.0), max(by0, 0.0)
+            cx1, cy1 = min(bx1, float(cam.width)), min(by1, float(cam.height))
+            full = max(bx1 - bx0, 1e-9) * max(by1 - by0, 1e-9)
+            if cx1 - cx0 < 1.0 or cy1 - cy0 < 1.0 or (cx1 - cx0) * (cy1 - cy0) < min_inside * full:
+                continue
+            out.append((kinds[int(i)], [round(cx0, 2), round(cy0, 2), round(cx1 - cx0, 2), round(cy1 - cy0, 2)]))
+        return out
 
     def _cull(self, placed: list[Placed], pose: Pose, uav_en: tuple[float, float],
               shadow_m_per_m: float) -> np.ndarray:

@@ -1,8 +1,15 @@
-"""Transient sea clutter: whitecaps and glint sparkles that appear at random world spots for a moment.
+"""The sea in motion: travelling waves, twinkling glint facets, transient whitecaps and glint sparkles.
 
-The sea texture is fixed in the world; a real sea is not. Breaking crests flash white for a fraction of a
-second and the sun's glitter twinkles from frame to frame. These events are drawn on top of the warped
-texture so a per-frame heatmap sees clutter that moves, and aggregation over time has something to average.
+A real sea is not fixed in the world. Its crests travel (deep water: phase speed sqrt(g lambda / 2 pi), about
+1.8 m/s for 2 m waves), the short waves riding on them travel slower (about 0.9 m/s at 0.5 m) and tilt the
+long waves' facets towards the sun and away again, so a glint facet lives a fraction of a second; breaking
+crests flash white for a moment and the sun's glitter twinkles from frame to frame.
+
+`WaveDrift` moves the ground texture (colour, crests, glint potential) with the long waves' phase speed
+towards the wind direction and the texture's facets channel with the short waves' speed: the glint
+(potential x facets) changes where the two patterns slide over each other, about 0.9 m/s, i.e. a 0.4 m
+facet lives ~0.4 s. The drift is a function of the world time alone, so every UAV sees the same sea.
+`SeaEvents` draws transient whitecaps and sparkles on top of the warped texture.
 
 Events live in world space-time: time is cut into buckets of `BUCKET_S`; bucket k's events (positions over
 the ground texture's extent, start times within the bucket, lifetimes, sizes) come from a generator seeded by
@@ -23,11 +30,56 @@ from sim.render.geometry import project_enu
 
 #: Length of a time bucket of events, seconds.
 BUCKET_S = 0.1
+#: Phase speeds (m/s) of the long waves (~2 m: the texture's colour, crests, glint potential) and of the short
+#: waves that tilt its facets (~0.5 m), deep water.
+LONG_WAVE_MPS, SHORT_WAVE_MPS = 1.8, 0.9
+#: The drift wraps after the long waves have travelled this far (the near texture is grown upwind by as much
+#: as the world's videos need, at most this): a sea shown for longer jumps back once per wrap (67 s).
+MAX_DRIFT_M = 120.0
 #: Outline points of a projected event disc.
 _N_OUTLINE = 10
 _CIRCLE = np.column_stack([np.cos(np.linspace(0, 2 * math.pi, _N_OUTLINE, endpoint=False)),
                            np.sin(np.linspace(0, 2 * math.pi, _N_OUTLINE, endpoint=False))])
 _SHIFT = 4
+
+
+@dataclass(frozen=True, slots=True)
+class WaveDrift:
+    """How far the sea's texture has travelled at a world time (seconds since the world's first frame).
+
+    wind_deg: where the waves travel towards, degrees clockwise from north.
+    """
+
+    wind_deg: float
+    long_mps: float = LONG_WAVE_MPS
+    short_mps: float = SHORT_WAVE_MPS
+    max_drift_m: float = MAX_DRIFT_M
+
+    @property
+    def period_s(self) -> float:
+        """Seconds after which the drift wraps."""
+        return self.max_drift_m / self.long_mps
+
+    def offset_en(self, t_s: float, speed_mps: float) -> tuple[float, float]:
+        """(east, north) metres the pattern moving at speed_mps has travelled at t_s (wrapped, >= 0 along)."""
+        d = speed_mps * (t_s % self.period_s)
+        a = math.radians(self.wind_deg)
+        return d * math.sin(a), d * math.cos(a)
+
+    def moved(self, texel_to_world: np.ndarray, t_s: float, speed_mps: float) -> np.ndarray:
+        """(3, 3) texel -> world affine of a texture carried by the waves moving at speed_mps."""
+        de, dn = self.offset_en(t_s, speed_mps)
+        return np.array([[1.0, 0.0, de], [0.0, 1.0, dn], [0.0, 0.0, 1.0]]) @ np.asarray(texel_to_world, np.float64)
+
+    def grow(self, extent_m: tuple[float, float, float, float],
+             times_s: np.ndarray) -> tuple[float, float, float, float]:
+        """extent_m grown upwind so the texture still covers it at every time in times_s (the ground at world
+        point p shows the texel at p - offset)."""
+        reach = self.long_mps * float(np.max(np.asarray(times_s) % self.period_s, initial=0.0))
+        a = math.radians(self.wind_deg)
+        de, dn = reach * math.sin(a), reach * math.cos(a)
+        e0, n0, e1, n1 = extent_m
+        return e0 - max(de, 0.0), n0 - max(dn, 0.0), e1 - min(de, 0.0), n1 - min(dn, 0.0)
 
 
 @dataclass(frozen=True, slots=True)

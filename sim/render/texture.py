@@ -2,8 +2,10 @@
 
 A `GroundTexture` is made once per world: a BGRA image of the ground around the flights at one resolution
 (metres per texel) plus its mip levels. Colour is in B, G, R; A holds the sun-glint potential of water
-(sparse wave facets, 0 on land). Features are sized in metres, so a texture looks the same at any
-resolution. Deterministic for a generator.
+(sparse wave facets, 0 on land). A detailed sea also has a `facets` channel: the short waves' tilt that turns
+those facets towards the sun or away (mean 1), which the renderer moves at another speed than the long waves
+(`sim.render.renderer`), so the glint twinkles. Features are sized in metres, so a texture looks the same at
+any resolution. Deterministic for a generator.
 """
 
 from __future__ import annotations
@@ -17,6 +19,10 @@ from numpy.typing import NDArray
 
 #: Mip levels kept (each half the resolution of the one before).
 MIP_LEVELS = 6
+#: The facets channel stores the glint factor times this (factor 0..2.55 in uint8).
+FACET_SCALE = 100.0
+#: Feature sizes (metres) of the short waves' facets (capillary and short gravity waves).
+FACET_SCALES_M = (0.8, 0.4)
 
 
 @dataclass(frozen=True, slots=True)
@@ -43,6 +49,11 @@ class GroundTexture:
     kind : str
         "sea" or "meadow".
     roads : tuple of Road
+    facets : tuple of (H, W) uint8
+        Detailed sea only (else empty): per mip level, the short waves' glint factor times `FACET_SCALE`
+        (mean ~1: multiplies A where the renderer draws the glint).
+    wind_deg : float or None
+        Sea only: the direction the waves travel towards, degrees clockwise from north.
     """
 
     levels: tuple[np.ndarray, ...]
@@ -51,6 +62,8 @@ class GroundTexture:
     north0_m: float
     kind: str
     roads: tuple[Road, ...] = ()
+    facets: tuple[np.ndarray, ...] = ()
+    wind_deg: float | None = None
 
     def texel_to_world(self, level: int = 0) -> NDArray[np.float64]:
         """(3, 3) affine from a texel index (column, row) of `level` to world east/north metres.
@@ -212,14 +225,17 @@ def _wave_tile(tile: int, res_m: float, wind_deg: float, rng: np.random.Generato
     return height, slope
 
 
-def _sea(grid: TexelGrid, bank: NoiseBank, rng: np.random.Generator, detail: bool) -> np.ndarray:
+def _sea(grid: TexelGrid, bank: NoiseBank, rng: np.random.Generator, detail: bool,
+         wind_deg: float | None) -> tuple[np.ndarray, np.ndarray | None, float]:
+    """(BGRA level 0, facets level 0 or None, wind direction deg)."""
     h, w = grid.shape
     deep = np.array([92.0, 78.0, 34.0], np.float32)  # BGR: Lake Constance teal
     shallow = np.array([112.0, 104.0, 60.0], np.float32)
     tint = np.clip(0.5 + fractal_noise(grid, (90.0, 30.0), bank, "sea/tint"), 0.0, 1.0)
+    if wind_deg is None:
+        wind_deg = float(rng.uniform(0.0, 360.0))
     if not (detail and grid.res_m < 1.0):
-        return _to_bgra(_channels(deep, [(shallow - deep, tint)], None))
-    wind_deg = float(rng.uniform(0.0, 360.0))
+        return _to_bgra(_channels(deep, [(shallow - deep, tint)], None)), None, wind_deg
     tile = int(min(512, max(64, 2 ** round(math.log2(max(8.0 / grid.res_m, 64))))))
     wave_h, wave_s = _wave_tile(tile, grid.res_m, wind_deg, rng)
     reps = (h // tile + 1, w // tile + 1)
@@ -232,7 +248,10 @@ def _sea(grid: TexelGrid, bank: NoiseBank, rng: np.random.Generator, detail: boo
     crest = np.clip((height - 2.6) * 1.6, 0.0, 1.0) * np.clip(0.5 + fine, 0.0, 1.0)
     _blend_where(planes, np.array([225.0, 228.0, 225.0], np.float32), 0.7 * crest)  # whitecaps
     glint = np.clip((slope - 0.6) / 1.6, 0.0, 1.0) ** 2 * np.clip(0.6 + fine, 0.0, 1.5)
-    return _to_bgra(planes, np.clip(255.0 * glint, 0, 255).astype(np.uint8))
+    del fine, height, slope
+    facet = fractal_noise(grid, FACET_SCALES_M, bank, "sea/facets")  # std ~0.5 where resolved
+    facets = np.clip(FACET_SCALE * (1.0 + 1.6 * facet), 0, 255).astype(np.uint8)
+    return _to_bgra(planes, np.clip(255.0 * glint, 0, 255).astype(np.uint8)), facets, wind_deg
 
 
 # --------------------------------------------------------------------------------------------- meadow
@@ -363,14 +382,16 @@ def bake_shadows(tex: GroundTexture, footprints_en: list[np.ndarray], heights_m:
 # --------------------------------------------------------------------------------------------- entry
 
 def make_ground(kind: str, extent_m: tuple[float, float, float, float], res_m: float, bank: NoiseBank,
-                rng: np.random.Generator, *, roads: tuple[Road, ...] = (), detail: bool = True) -> GroundTexture:
+                rng: np.random.Generator, *, roads: tuple[Road, ...] = (), detail: bool = True,
+                wind_deg: float | None = None) -> GroundTexture:
     """Level 0 of the ground over `extent_m` = (east_min, north_min, east_max, north_max) at `res_m` metres per
     texel (call `with_mips` after any baking).
 
     kind "sea": water with colour drift and (with `detail`) a short-crested wind sea, whitecaps and glint
     potential in A. "meadow": grass with dry and lush patches, soil, (with `detail`) flowers, and the roads.
     Patterns come from `bank` (world-anchored: textures of one world agree where they overlap); `rng` draws
-    what is only in detailed textures (wind direction, flowers).
+    what is only in detailed textures (flowers, the waves) and the sea's wind direction unless `wind_deg`
+    (degrees clockwise from north, where the waves travel) is given.
     """
     if kind not in ("sea", "meadow"):
         raise ValueError(f"unknown ground kind {kind!r}; valid: meadow, sea")
@@ -382,16 +403,27 @@ def make_ground(kind: str, extent_m: tuple[float, float, float, float], res_m: f
     if w < 2 or h < 2:
         raise ValueError(f"ground extent {extent_m} is empty at {res_m} m per texel")
     grid = TexelGrid((h, w), res_m, e0, n1)
-    img = _sea(grid, bank, rng, detail) if kind == "sea" else _meadow(grid, bank, rng, detail)
-    tex = GroundTexture((img,), res_m, e0, n1, kind, roads)
+    facets: tuple[np.ndarray, ...] = ()
+    wind: float | None = None
+    if kind == "sea":
+        img, facet0, wind = _sea(grid, bank, rng, detail, wind_deg)
+        facets = (facet0,) if facet0 is not None else ()
+    else:
+        img = _meadow(grid, bank, rng, detail)
+    tex = GroundTexture((img,), res_m, e0, n1, kind, roads, facets, wind)
     if roads:
         _draw_roads(img, tex, roads, bank)
     return tex
 
 
 def with_mips(tex: GroundTexture, levels: int = MIP_LEVELS) -> GroundTexture:
-    """The texture with its mip levels (cv2.pyrDown of level 0, up to `levels` levels, at least 8 texels)."""
+    """The texture with its mip levels (cv2.pyrDown of level 0, up to `levels` levels, at least 8 texels);
+    the facets channel gets the same levels."""
     mips = [tex.levels[0]]
     while len(mips) < levels and min(mips[-1].shape[:2]) >= 16:
         mips.append(cv2.pyrDown(mips[-1]))
-    return GroundTexture(tuple(mips), tex.res_m, tex.east0_m, tex.north0_m, tex.kind, tex.roads)
+    facets = list(tex.facets[:1])
+    while facets and len(facets) < len(mips):
+        facets.append(cv2.pyrDown(facets[-1]))
+    return GroundTexture(tuple(mips), tex.res_m, tex.east0_m, tex.north0_m, tex.kind, tex.roads, tuple(facets),
+                         tex.wind_deg)

@@ -1,51 +1,97 @@
-"""Transient sea clutter (sim.render.sea_motion): whitecaps and sparkles that come and go, fixed per seed."""
+"""The moving sea (sim.render.sea_motion.WaveDrift): the texture travels, the glint twinkles, per seed and time."""
 
 from __future__ import annotations
 
+import dataclasses
+import math
+from pathlib import Path
+
 import numpy as np
+import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
-from shared.geo import Camera, Pose
-from sim.render.sea_motion import BUCKET_S, WHITECAPS, SeaEvents
-from sim.render.sprites import _WATER, _washed
+from sim.dataset import write_dataset
+from sim.render import RenderOptions, SimulatedDataset, WorldRenderer
+from sim.render.effects import glint_map
+from sim.render.geometry import first_ground_row
+from sim.render.sea_motion import WaveDrift
+from sim.scenarios import get_scenario
 
-EXTENT = (-100.0, -100.0, 100.0, 100.0)
-
-
-def test_events_are_the_same_for_a_seed_and_differ_for_another():
-    a = SeaEvents(1, 0, 107, EXTENT).active(0, 3.0)
-    b = SeaEvents(1, 0, 107, EXTENT).active(0, 3.0)
-    c = SeaEvents(2, 0, 107, EXTENT).active(0, 3.0)
-    assert len(a) > 0
-    np.testing.assert_array_equal(a, b)
-    assert len(a) != len(c) or not np.array_equal(a, c)
+QUIET = RenderOptions(max_texture_px=1024, sensor_noise_std=0.0, sea_events=False, scenery=False)
 
 
-def test_whitecaps_live_less_than_a_second_and_are_replaced_by_others():
-    ev = SeaEvents(0, 0, 107, EXTENT)
-    now = ev.active(0, 10.0)
-    later = ev.active(0, 10.0 + WHITECAPS.life_s[1] + BUCKET_S)
-    assert len(now) and len(later)
-    # nothing alive now is still alive a lifetime later: the clutter moves, it does not stay put
-    assert not set(map(tuple, now[:, :2].round(6))) & set(map(tuple, later[:, :2].round(6)))
-    assert np.all((now[:, 5] >= 0) & (now[:, 5] <= WHITECAPS.opacity[1]))
-    area = (EXTENT[2] - EXTENT[0]) * (EXTENT[3] - EXTENT[1])
-    expected = WHITECAPS.rate_per_m2_s * area * np.mean(WHITECAPS.life_s)
-    assert 0.5 * expected < len(now) < 1.5 * expected
+@pytest.fixture(scope="module")
+def sea(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sea-motion") / "data"
+    write_dataset(dataclasses.replace(get_scenario("sea"), image_size=(320, 180)), out, seed=0, frames=6,
+                  progress=False)
+    return out
 
 
-def test_whitecaps_are_drawn_in_a_nadir_view_and_only_below_the_first_row():
-    cam = Camera(width=320, height=240, fx=200.0, fy=200.0, cx=160.0, cy=120.0)
-    pose = Pose(lat=48.0, lon=9.0, height_m=30.0, pitch_deg=90.0, heading_deg=0.0)
-    ev = SeaEvents(0, 0, 107, EXTENT, kinds=(WHITECAPS,))
-    image = np.full((240, 320, 3), 60, np.uint8)
-    drawn = sum(ev.draw(image, cam, pose, (0.0, 0.0), t, 120, None) for t in (1.0, 2.0, 3.0, 4.0))
-    assert drawn > 0
-    assert (image[120:] > 100).any()
-    assert (image[:120] == 60).all()
+def _glint_frame(ds: SimulatedDataset, options: RenderOptions):
+    """A renderer and a frame (no objects) whose view holds the sun's glint patch."""
+    for video in ds.videos:
+        renderer = WorldRenderer(ds, ds.worlds[video.group], options)
+        frame = next(ds.frames(video))
+        glint = glint_map(renderer.camera, frame.pose, renderer.atmosphere,
+                          first_ground_row(renderer.camera, frame.pose))
+        if glint is not None and (glint[1][2] - glint[1][0]) * (glint[1][3] - glint[1][1]) > 2000:
+            return renderer, dataclasses.replace(frame, objects=(), blurred=False), glint[1]
+    raise AssertionError("no frame of the fixture sees the glint")
 
 
-def test_water_washes_a_swimmers_colour_towards_the_sea():
-    cap = (0, 120, 255)
-    half = _washed(cap, 0.5)
-    assert _washed(cap, 0.0) == cap and _washed(cap, 1.0) == tuple(round(c) for c in _WATER)
-    assert max(half) - min(half) < max(cap) - min(cap)
+def _brightest(image: np.ndarray, rect: tuple[int, int, int, int], share: float = 0.01) -> np.ndarray:
+    x0, y0, x1, y1 = rect
+    grey = image[y0:y1, x0:x1].astype(np.float32).sum(axis=2)
+    return grey >= np.quantile(grey, 1.0 - share)
+
+
+def test_the_sea_moves_and_its_glint_twinkles_while_a_frozen_sea_stays(sea):
+    ds = SimulatedDataset(sea)
+    for waves in (True, False):
+        renderer, frame, rect = _glint_frame(ds, dataclasses.replace(QUIET, sea_waves=waves))
+        now = renderer.render(frame)
+        later = renderer.render(dataclasses.replace(frame, t=frame.t + 0.5))  # same pose, half a second on
+        first = first_ground_row(renderer.camera, frame.pose)
+        change = np.abs(now[first:].astype(int) - later[first:].astype(int)).mean()
+        a, b = _brightest(now, rect), _brightest(later, rect)
+        overlap = (a & b).sum() / max((a | b).sum(), 1)
+        if waves:
+            assert change > 2.0  # the waves travelled ~0.9 m
+            assert overlap < 0.3  # other glint facets are lit now
+        else:
+            assert change == 0.0 and overlap == 1.0
+
+
+def test_the_moving_sea_is_the_same_for_every_renderer_of_a_seed(sea):
+    ds = SimulatedDataset(sea)
+    first_renderer, frame, _ = _glint_frame(ds, QUIET)
+    second_renderer, _, _ = _glint_frame(ds, QUIET)
+    later = dataclasses.replace(frame, t=frame.t + 1.3)
+    assert np.array_equal(first_renderer.render(later), second_renderer.render(later))
+    assert first_renderer.describe()["waves"] == second_renderer.describe()["waves"]
+
+
+@given(st.floats(0.0, 360.0), st.floats(0.0, 60.0), st.floats(0.0, 5.0))
+def test_the_drift_is_the_phase_speed_times_the_time_towards_the_wind(wind, t, dt):
+    drift = WaveDrift(wind)
+    (e0, n0), (e1, n1) = drift.offset_en(t, drift.long_mps), drift.offset_en(t + dt, drift.long_mps)
+    if (t + dt) < drift.period_s:  # no wrap in between
+        assert math.isclose(math.hypot(e1 - e0, n1 - n0), drift.long_mps * dt, abs_tol=1e-6)
+        if dt > 0.1:
+            assert math.isclose(math.degrees(math.atan2(e1 - e0, n1 - n0)) % 360.0, wind % 360.0, abs_tol=1e-3) \
+                or math.isclose(abs(math.degrees(math.atan2(e1 - e0, n1 - n0)) % 360.0 - wind % 360.0), 360.0,
+                                abs_tol=1e-3)
+
+
+@given(st.floats(0.0, 360.0), st.lists(st.floats(-30.0, 200.0), min_size=1, max_size=8))
+def test_the_grown_texture_covers_the_ground_at_every_time(wind, times):
+    drift = WaveDrift(wind)
+    extent = (-50.0, -40.0, 60.0, 70.0)
+    g0, gn0, g1, gn1 = drift.grow(extent, np.array(times))
+    for t in times:
+        for speed in (drift.long_mps, drift.short_mps):
+            de, dn = drift.offset_en(t, speed)  # world p shows texel p - offset
+            assert g0 - 1e-6 <= extent[0] - de and extent[2] - de <= g1 + 1e-6
+            assert gn0 - 1e-6 <= extent[1] - dn and extent[3] - dn <= gn1 + 1e-6
