@@ -23,6 +23,9 @@ def add_render_options(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-scenery", action="store_true",
                    help="no boats or cars (unannotated objects the renderer adds; listed in render.json)")
     g.add_argument("--sensor-noise", type=float, default=2.0, help="sensor noise std, grey levels (2; 0 = none)")
+    g.add_argument("--frozen-sea", action="store_true",
+                   help="keep the sea's waves and glint fixed in the world (the renderer before 25 Nov 2026; "
+                        "for comparisons)")
 
 
 def render_kwargs(args: argparse.Namespace) -> dict[str, Any]:
@@ -35,7 +38,7 @@ def render_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     if not 1 <= args.jpeg_quality <= 100:
         raise ValueError(f"--jpeg-quality must be in 1..100, got {args.jpeg_quality}")
     options = RenderOptions(max_texture_px=args.max_texture_px, scenery=not args.no_scenery,
-                            sensor_noise_std=args.sensor_noise)
+                            sensor_noise_std=args.sensor_noise, sea_waves=not args.frozen_sea)
     return {"images": not args.no_images, "video": args.video, "options": options, "jpeg_quality": args.jpeg_quality}
 
 

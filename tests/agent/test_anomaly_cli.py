@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 import shutil
 
+import numpy as np
 import pytest
 
 from uavmm.cli import main
@@ -101,6 +102,11 @@ def test_the_protocol_gives_recall_per_rate_and_false_alarm_persistence(rendered
         hits = run[mode]["hits"]
         assert len(hits) == len(RATES) and all(0 <= h <= run["objects"] for h in hits)
         assert hits == sorted(hits)  # flagging more never finds less
+    classes = run["classes"]  # the swimmers and the rendered buoys/boats, each with its own recall
+    assert "swimmer" in classes and set(classes) <= {"swimmer", "buoy", "boat"}
+    assert sum(c["objects"] for c in classes.values()) == run["objects"]
+    for mode in ("frame", "memory"):
+        assert np.allclose(np.sum([c[mode]["hits"] for c in classes.values()], axis=0), run[mode]["hits"], atol=0.01)
     kept, transient = run["persistence"]["kept"], run["persistence"]["transient"]
     assert 0 <= kept <= 100 and 0 <= transient <= 100 and kept + transient <= 100
     summary = summarise([run])

@@ -72,3 +72,33 @@ def test_persistence_tells_kept_from_transient_false_alarms():
     assert objects.round(3).tolist() == [round(0.6 / 0.9, 3)]
     assert persistence_summary(alarms, objects) == {"kept": 50.0, "transient": 50.0, "object_ratio": 0.67}
     assert persistence_summary(np.zeros(0), objects)["kept"] is None
+
+
+def test_boats_and_buoys_are_anomalies_beside_the_annotated_swimmers(tmp_path):
+    import json
+
+    import pytest
+
+    from sim.anomaly_eval import anomaly_boxes
+
+    coco = {"categories": [{"id": 1, "name": "swimmer"}],
+            "annotations": [{"image_id": 7, "category_id": 1, "bbox": [1, 2, 3, 4]}]}
+    with pytest.raises(ValueError, match="unannotated.json is missing"):
+        anomaly_boxes(tmp_path, coco)
+    (tmp_path / "unannotated.json").write_text(json.dumps({"annotations": [
+        {"image_id": 7, "kind": "buoy", "bbox": [10, 10, 2, 2]}, {"image_id": 8, "kind": "boat", "bbox": [0, 0, 9, 5]},
+        {"image_id": 8, "kind": "tree", "bbox": [20, 20, 9, 9]}]}))
+    assert anomaly_boxes(tmp_path, coco) == {7: [("swimmer", [1, 2, 3, 4]), ("buoy", [10, 10, 2, 2])],
+                                             8: [("boat", [0, 0, 9, 5])]}
+
+
+def test_the_summary_gives_recall_per_class_pooled_over_seeds():
+    runs = [{"objects": 12, "fps": 20.0, "frame": {"hits": [6, 12]}, "memory": {"hits": [8, 12]},
+             "classes": {"swimmer": {"objects": 10, "frame": {"hits": [4, 10]}, "memory": {"hits": [6, 10]}},
+                         "boat": {"objects": 2, "frame": {"hits": [2, 2]}, "memory": {"hits": [2, 2]}}}},
+            {"objects": 10, "fps": 20.0, "frame": {"hits": [5, 10]}, "memory": {"hits": [5, 10]},
+             "classes": {"swimmer": {"objects": 10, "frame": {"hits": [5, 10]}, "memory": {"hits": [5, 10]}}}}]
+    out = summarise(runs, rates=(0.01, 0.05))
+    assert out["classes"]["swimmer"] == {"objects": 20, "frame": {"AR": 72.5, "R@5%": 100.0},
+                                         "memory": {"AR": 77.5, "R@5%": 100.0}}
+    assert out["classes"]["boat"]["objects"] == 2 and out["classes"]["boat"]["frame"]["AR"] == 100.0

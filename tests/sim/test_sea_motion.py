@@ -95,3 +95,28 @@ def test_the_grown_texture_covers_the_ground_at_every_time(wind, times):
             de, dn = drift.offset_en(t, speed)  # world p shows texel p - offset
             assert g0 - 1e-6 <= extent[0] - de and extent[2] - de <= g1 + 1e-6
             assert gn0 - 1e-6 <= extent[1] - dn and extent[3] - dn <= gn1 + 1e-6
+
+
+# ---------------------------------------------------------------------------------------------- ground truth
+
+def test_the_unannotated_boxes_hold_the_drawn_buoys_and_boats(sea):
+    ds = SimulatedDataset(sea)
+    options = dataclasses.replace(QUIET, scenery=True, sea_waves=False)
+    kinds, boxes_seen = set(), 0
+    for video in ds.videos:
+        drawn = WorldRenderer(ds, ds.worlds[video.group], options)
+        bare = WorldRenderer(ds, ds.worlds[video.group], options)
+        bare.static, bare.scenery = [], []  # the same world without its unannotated objects
+        for frame in list(ds.frames(video))[::3]:
+            frame = dataclasses.replace(frame, objects=(), blurred=False)
+            boxes = drawn.unannotated_boxes(frame)
+            if not boxes:
+                continue
+            diff = np.abs(drawn.render(frame).astype(int) - bare.render(frame).astype(int)).sum(axis=2)
+            for kind, (x, y, w, h) in boxes:
+                kinds.add(kind)
+                assert 0 <= x and 0 <= y and x + w <= 320 + 1e-6 and y + h <= 180 + 1e-6 and w >= 1 and h >= 1
+                box = diff[int(y):int(math.ceil(y + h)), int(x):int(math.ceil(x + w))]
+                assert box.max() > 30, (kind, x, y, w, h)  # the object is drawn inside its box
+                boxes_seen += 1
+    assert boxes_seen >= 3 and kinds <= {"buoy", "boat"} and "buoy" in kinds
