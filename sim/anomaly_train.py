@@ -34,7 +34,7 @@ def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int,
                            image_size: tuple[int, int]) -> list[Path]:
     """Simulate and render the sea scenario for each seed under work_dir (reused when already complete)."""
     from sim.dataset import write_dataset
-    from sim.render import render_dataset
+    from sim.render import RenderOptions, render_dataset
     from sim.scenarios import get_scenario
 
     scenario = dataclasses.replace(get_scenario("sea"), image_size=image_size)
@@ -43,7 +43,9 @@ def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int,
         d = work_dir / f"sea_{image_size[0]}x{image_size[1]}_s{seed}_f{frames}"
         if not (d / "render.json").is_file():
             write_dataset(scenario, d, seed=seed, frames=frames, progress=False)
-            render_dataset(d, progress=False)
+            # the frozen sea the shipped model was trained on (the autoencoder sees single frames, and a frame
+            # of the moving sea has the same statistics: docs/anomaly.md)
+            render_dataset(d, options=RenderOptions(sea_waves=False), progress=False)
         out.append(d)
     return out
 

@@ -186,8 +186,9 @@ class WorldRenderer:
                  for t in world.trees]
 
         def ground(ext: tuple[float, float, float, float], r: float, detail: bool, key: int) -> GroundTexture:
+            # a frozen sea draws its wind from the texture's generator, as before the waves moved (same pixels)
             g = make_ground(world.kind, ext, r, bank, self._rng(ROLE_GROUND, key), roads=roads, detail=detail,
-                            wind_deg=wind_deg)
+                            wind_deg=wind_deg if self.drift is not None else None)
             bake_shadows(g, trees, [t.height_m for t in world.trees], az, el, self.atmosphere.shadow_darkness)
             return with_mips(g)
 
