@@ -425,24 +425,18 @@ class WorldRenderer:
         if self.drift is None or not self.ground.facets:
             return
         x0, y0, x1, y1 = rect
-        # at half resolution (facets are 0.4-0.8 m: many pixels where the glint is visible), then upsampled
-        hw, hh = (x1 - x0 + 1) // 2, (y1 - y0 + 1) // 2
-        factor = np.full((hh, hw), int(FACET_SCALE), np.uint8)
-        half = np.array([[0.5, 0.0, -0.25], [0.0, 0.5, -0.25], [0.0, 0.0, 1.0]])  # pixel centres stay centres
+        factor = np.full((y1 - y0, x1 - x0), int(FACET_SCALE), np.uint8)
+        shift = np.array([[1.0, 0.0, -x0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]])
         for r0, r1, tex, level in bands:
             a, b = max(r0, y0), min(r1, y1)
-            ha, hb = (a - y0) // 2, min((b - y0 + 1) // 2, hh)
-            if tex is not self.ground or hb <= ha:
+            if tex is not self.ground or b <= a:
                 continue
-            m = np.array([[1.0, 0.0, 0.0], [0.0, 1.0, -ha], [0.0, 0.0, 1.0]]) @ half \
-                @ np.array([[1.0, 0.0, -x0], [0.0, 1.0, a - y0], [0.0, 0.0, 1.0]]) \
-                @ texture_to_image_homography(self.camera, pose, uav_en,
-                                              self._texel_to_world(tex, level, t_s, facets=True), a)
-            cv2.warpPerspective(tex.facets[level], m, (hw, hb - ha), dst=factor[ha:hb],
+            m = shift @ texture_to_image_homography(self.camera, pose, uav_en,
+                                                    self._texel_to_world(tex, level, t_s, facets=True), a)
+            cv2.warpPerspective(tex.facets[level], m, (x1 - x0, b - a), dst=factor[a - y0:b - y0],
                                 flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REFLECT_101)
-        full = cv2.resize(factor, (2 * hw, 2 * hh), interpolation=cv2.INTER_LINEAR)[:y1 - y0, :x1 - x0]
         alpha = np.ascontiguousarray(self._buffer[y0:y1, x0:x1, 3])
-        self._buffer[y0:y1, x0:x1, 3] = cv2.multiply(alpha, full, scale=1.0 / FACET_SCALE)
+        self._buffer[y0:y1, x0:x1, 3] = cv2.multiply(alpha, factor, scale=1.0 / FACET_SCALE)
 
     def _fade_to_near(self, bands: list[tuple[int, int, GroundTexture, int]], split: int, first: int, pose: Pose,
                       uav_en: tuple[float, float], t_s: float = 0.0) -> None:
