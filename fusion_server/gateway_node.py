@@ -27,6 +27,7 @@ from shared.keys import KeySpace
 from shared.messages import MessageError, StateMessage, decode_joint_tracks, encode_joint_tracks
 from transport.guard import RateLimitedLog, guarded
 from transport.publishers import PublisherCache
+from transport.session import close_session
 
 __all__ = ["GatewayNode", "ShardWatch"]
 
@@ -139,15 +140,7 @@ class GatewayNode:
             self._thread.join(timeout=10.0)
             self._thread = None
         if self.session is not None:
-            for entity in self._declared:
-                try:
-                    entity.undeclare()
-                except zenoh.ZError:
-                    pass
-            self._declared = []
-            if self._publishers is not None:
-                self._publishers.clear()
-            self.session.close()
+            close_session(self.session, self._declared, self._publishers)
             self.session = None
 
     # ---- callbacks (Zenoh threads; never raise) -----------------------------------------------------

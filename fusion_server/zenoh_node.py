@@ -37,6 +37,7 @@ from shared.sharding import ShardSpec
 from shared.tilecodec import SparseTile
 from transport.guard import RateLimitedLog, guarded
 from transport.publishers import PublisherCache
+from transport.session import close_session
 
 if TYPE_CHECKING:
     from fusion_server.global_tracks import GlobalTracker
@@ -186,15 +187,7 @@ class FusionNode:
             self._thread.join(timeout=10.0)
             self._thread = None
         if self.session is not None:
-            for entity in self._declared:
-                try:
-                    entity.undeclare()
-                except zenoh.ZError:
-                    pass
-            self._declared = []
-            if self._publishers is not None:
-                self._publishers.clear()
-            self.session.close()
+            close_session(self.session, self._declared, self._publishers)
             self.session = None
 
     # ---- callbacks (Zenoh threads; never raise) ------------------------------------------------

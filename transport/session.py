@@ -15,7 +15,9 @@ import time
 
 import zenoh
 
-__all__ = ["config_value", "open_session", "remote_ids"]
+from transport.publishers import PublisherCache
+
+__all__ = ["close_session", "config_value", "open_session", "remote_ids"]
 
 log = logging.getLogger(__name__)
 
@@ -59,3 +61,17 @@ def remote_ids(session: zenoh.Session) -> set[str]:
     """Ids of the routers and peers the session is connected to right now."""
     info = session.info
     return {str(z) for z in info.routers_zid()} | {str(z) for z in info.peers_zid()}
+
+
+def close_session(session: zenoh.Session, declared: list, publishers: PublisherCache | None = None) -> None:
+    """Undeclare ``declared`` (subscribers, queryables, tokens; errors ignored), drop the cached
+    publishers and close ``session``."""
+    for entity in declared:
+        try:
+            entity.undeclare()
+        except zenoh.ZError:
+            pass
+    declared.clear()
+    if publishers is not None:
+        publishers.clear()
+    session.close()
