@@ -7,11 +7,10 @@ from __future__ import annotations
 import argparse
 import json
 import logging
-import signal
 import sys
-import threading
 from pathlib import Path
 
+from uavmm._signals import stop_on_signals
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
 from uavmm.cli import _add_pipeline_options
 
@@ -183,14 +182,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     pipeline_config, size_filter = pipeline_from_args(args)
     anomaly = anomaly_from_args(args)
     source = source_from_args(args)
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("signal %d: stopping", signum)
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals(log)
 
     def on_ready(node: AgentNode) -> None:
         from agent.zenoh_config import AGENT_DEFAULT_MODE

@@ -24,6 +24,8 @@ import urllib.request
 from dataclasses import dataclass
 from pathlib import Path
 
+from uavmm._signals import stop_on_signals
+
 log = logging.getLogger("uavmm.demo")
 
 DEFAULT_SCENARIO = "trio"
@@ -444,12 +446,5 @@ def options_from_args(args: argparse.Namespace) -> DemoOptions:
 def _run_demo_command(args: argparse.Namespace) -> int:
     options = options_from_args(args)
     flying_uavs(options.scenario, options.uavs)  # a bad scenario fails before any process starts
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("signal %d: stopping", signum)
-        stop.set()
-
-    for signum in (signal.SIGINT, signal.SIGTERM, signal.SIGHUP):
-        signal.signal(signum, on_signal)
+    stop = stop_on_signals(log, (signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
     return run_demo(options, stop)

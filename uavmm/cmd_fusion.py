@@ -9,11 +9,10 @@ import argparse
 import logging
 import os
 import secrets
-import signal
 import sys
-import threading
 from pathlib import Path
 
+from uavmm._signals import stop_on_signals
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
 
 __all__ = ["DEFAULT_LISTEN", "add_zenoh_arguments", "register", "settings_from_args", "shard_from_args"]
@@ -190,14 +189,7 @@ def _run_fusion(args: argparse.Namespace) -> int:
     from fusion_server.server import FusionServer
 
     settings = settings_from_args(args)
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("signal %d: stopping", signum)
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals(log)
     try:
         with FusionServer(settings) as server:
             if server.db_recovered is not None:

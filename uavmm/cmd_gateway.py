@@ -8,11 +8,10 @@ from __future__ import annotations
 
 import argparse
 import logging
-import signal
 import sys
-import threading
 from pathlib import Path
 
+from uavmm._signals import stop_on_signals
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
 from uavmm.cmd_fusion import _http_address, _rest_access_line, http_tokens_from_args
 
@@ -77,14 +76,7 @@ def _run_gateway(args: argparse.Namespace) -> int:
     from fusion_server.gateway import Gateway
 
     settings = settings_from_args(args)
-    stop = threading.Event()
-
-    def on_signal(signum: int, _frame: object) -> None:
-        log.info("signal %d: stopping", signum)
-        stop.set()
-
-    signal.signal(signal.SIGINT, on_signal)
-    signal.signal(signal.SIGTERM, on_signal)
+    stop = stop_on_signals(log)
     try:
         with Gateway(settings) as gateway:
             gateway.start()
