@@ -105,13 +105,11 @@ class ShardSpec:
 
     def owner(self, z: int, x: int, y: int) -> int:
         """The shard that owns tile (z, x, y) (any zoom >= region_zoom)."""
-        if self.count == 1:
-            return 0
-        return region_owner(*self.region(z, x, y), self.count)
+        return 0 if self.count == 1 else self.bucket(z, x, y) % self.count
 
     def bucket(self, z: int, x: int, y: int) -> int:
         """The bucket of tile (z, x, y)'s region (the chunk of its shard-routed key)."""
-        return region_bucket(*self.region(z, x, y))
+        return tile_bucket(self.region_zoom, z, x, y)
 
     def buckets(self) -> list[int]:
         """The buckets this shard owns (its Zenoh subscriptions)."""
