@@ -120,11 +120,7 @@ class Gateway:
     @property
     def url(self) -> str | None:
         """Base URL of the REST API and map page, or None when HTTP is off."""
-        if self.http is None:
-            return None
-        host = self.http.host
-        shown = "127.0.0.1" if host in ("0.0.0.0", "") else f"[{host}]" if ":" in host else host
-        return f"http://{shown}:{self.http.port}/"
+        return None if self.http is None else self.http.url
 
     # ---- FusionView ---------------------------------------------------------------------------------
     def classes(self) -> set[str]:

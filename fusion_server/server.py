@@ -64,6 +64,13 @@ class HttpThread:
         self._server.should_exit = True
         self._thread.join(timeout=10.0)
 
+    @property
+    def url(self) -> str:
+        """Base URL of the REST API and map page (a wildcard bind shows as 127.0.0.1)."""
+        host = self.host
+        shown = "127.0.0.1" if host in ("0.0.0.0", "") else f"[{host}]" if ":" in host else host
+        return f"http://{shown}:{self.port}/"
+
 
 class FusionServer:
     """All components of one fusion server, built from validated settings."""
@@ -163,11 +170,7 @@ class FusionServer:
     @property
     def url(self) -> str | None:
         """Base URL of the REST API and map page, or None when HTTP is off."""
-        if self.http is None:
-            return None
-        host = self.http.host
-        shown = "127.0.0.1" if host in ("0.0.0.0", "") else f"[{host}]" if ":" in host else host
-        return f"http://{shown}:{self.http.port}/"
+        return None if self.http is None else self.http.url
 
     def zenoh_open(self) -> bool:
         """Whether the Zenoh session is open."""
