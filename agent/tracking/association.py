@@ -17,8 +17,8 @@ from agent.tracking.config import TrackerConfig
 from agent.tracking.model import FloatArray, kalman_update, mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
 
-__all__ = ["associate_ground", "associate_iou", "duplicate_mask", "frame_detections", "ground_duplicates",
-           "mark_hit"]
+__all__ = ["associate_ground", "associate_iou", "duplicate_mask", "expected_boxes", "fresh_in_image",
+           "frame_detections", "ground_duplicates", "mark_hit"]
 
 
 def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetections:
@@ -150,17 +150,34 @@ def associate_ground(state: TrackState, dets: FrameDetections, det_mask: NDArray
         mark_hit(state, r, dets, c, t)
 
 
-def _image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: float) -> FloatArray:
-    """(K,) 1 - IoU of track ti[k]'s last box with boxes[k] where the image still shows the track
-    where it was (matched within image_max_age_s, heading turned by at most image_max_turn_deg
-    since); 0.5 elsewhere (no image evidence either way)."""
+def fresh_in_image(state: TrackState, ti: NDArray[np.int64], t: float) -> NDArray[np.bool_]:
+    """(K,) bool: the image still shows track ti[k] about where it was last seen (matched within
+    image_max_age_s, the heading turned by at most image_max_turn_deg since)."""
     cfg = state.config
     act = state.active
-    cost = np.full(len(ti), 0.5)
     turned = np.abs((state.heading_now - act["heading_hit"][ti] + 180.0) % 360.0 - 180.0)
-    fresh = (t - act["t_hit"][ti] <= cfg.image_max_age_s) & (turned <= cfg.image_max_turn_deg)
+    return (t - act["t_hit"][ti] <= cfg.image_max_age_s) & (turned <= cfg.image_max_turn_deg)
+
+
+def expected_boxes(state: TrackState, ti: NDArray[np.int64], t: float) -> FloatArray:
+    """(K, 4) xyxy pixels: where track ti[k] is expected in the image at time t, its last box moved by its
+    image velocity since it was matched (`TrackerConfig.image_velocity`; else, or unknown: the last box)."""
+    act = state.active
+    boxes = act["box"][ti]
+    if not state.config.image_velocity or not len(ti):
+        return boxes
+    vel = act["vel_img"][ti]
+    shift = np.where(np.isfinite(vel), vel, 0.0) * (t - act["t_hit"][ti])[:, None]
+    return boxes + np.concatenate([shift, shift], axis=1)
+
+
+def _image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: float) -> FloatArray:
+    """(K,) 1 - IoU of track ti[k]'s expected box with boxes[k] where the image still shows the track
+    where it was (`fresh_in_image`); 0.5 elsewhere (no image evidence either way)."""
+    cost = np.full(len(ti), 0.5)
+    fresh = fresh_in_image(state, ti, t)
     if fresh.any():
-        a, b = act["box"][ti[fresh]], boxes[fresh]
+        a, b = expected_boxes(state, ti[fresh], t), boxes[fresh]
         inter = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0.0, None) \
             * np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
         union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
@@ -188,6 +205,15 @@ def mark_hit(state: TrackState, ti: NDArray[np.int64], dets: FrameDetections, di
              t: float) -> None:
     """Active tracks ti took detections di at time t: their box, score, counts, quality and descriptor."""
     act = state.active
+    if state.config.image_velocity:
+        # image velocity of the box centre from the last matched box (px/s), averaged over matches
+        gap = t - act["t_hit"][ti]
+        step = 0.5 * (dets.boxes[di, :2] + dets.boxes[di, 2:] - act["box"][ti, :2] - act["box"][ti, 2:])
+        ok = (gap > 0) & (gap <= state.config.image_max_age_s)
+        new = np.where(ok[:, None], step / np.where(ok, gap, 1.0)[:, None], np.nan)
+        old = act["vel_img"][ti]
+        a = state.config.image_velocity_ema
+        act.cols["vel_img"][ti] = np.where(np.isfinite(old) & ok[:, None], a * old + (1.0 - a) * new, new)
     act.cols["box"][ti] = dets.boxes[di]
     act.cols["score"][ti] = dets.scores[di]
     act.cols["hits"][ti] += 1

@@ -197,6 +197,22 @@ class TrackerConfig:
     heading_smoothing_s : float
         Time constant of the low-pass heading the image cue compares (image_max_turn_deg): the reported
         gimbal heading jitters from frame to frame while the camera holds still (0: raw heading).
+    image_register : bool
+        Before gating, move the frame's ground points by the common offset between its confident
+        detections and the tracks they overlap in the image (agent.tracking.registration.anchored_offset):
+        pairs made in pixels do not depend on the telemetry, so a GPS step (4-decimal GPS: 7-11 m) or a
+        gimbal angle that jitters from frame to frame no longer breaks every track of the frame at once.
+    image_register_iou, image_register_min_pairs, image_register_inlier_m : float, int, float
+        A pair is a track's expected box and a detection that are each other's best overlap with at least
+        this IoU; a frame needs this many pairs agreeing within this many metres of their median.
+    track_follow_s : float
+        After a registered frame the tracks (and the re-ID memory) move toward the telemetry's frame by
+        the offset, with this time constant (0: at once): a GPS step is followed in about this time, while
+        white jitter is smoothed out of the tracks' positions.
+    image_velocity : bool
+        The image cue and the registration expect a track's box where its last box moves with its image
+        velocity (an exponential average of its box centres' motion, image_velocity_ema of the past per
+        matched detection), not at its last place: a camera flying an orbit moves every box steadily.
 
     Other
     -----
@@ -263,6 +279,13 @@ class TrackerConfig:
     register_min_pairs: int = 3
     register_max_turn_deg_s: float = 10.0
     heading_smoothing_s: float = 0.15
+    image_register: bool = False
+    image_register_iou: float = 0.5
+    image_register_min_pairs: int = 2
+    image_register_inlier_m: float = 2.0
+    track_follow_s: float = 0.5
+    image_velocity: bool = False
+    image_velocity_ema: float = 0.5
     class_motion: tuple[tuple[str, ClassMotion], ...] = DEFAULT_CLASS_MOTION
     default_motion: ClassMotion = field(default_factory=lambda: ClassMotion(2.0, 10.0, 1.0))
 
@@ -270,10 +293,12 @@ class TrackerConfig:
         positive = {"confirm_window_s", "tentative_coast_s", "max_coast_s", "gate_chi2", "max_gate_m",
                     "position_sigma_m", "max_measurement_sigma_m", "merge_chi2", "merge_max_m", "reid_gate_chi2",
                     "reanchor_m"}
-        unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate"}
+        unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate",
+                "image_register_iou"}
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "register_tracks", "register_min_pairs",
+                          "image_register", "image_register_min_pairs", "image_velocity",
                           "class_motion", "default_motion",
                           "pair_max_cost", "exit_margin_px"):
                 continue
@@ -291,14 +316,16 @@ class TrackerConfig:
         if not isinstance(self.exit_margin_px, (int, float)) or not math.isfinite(self.exit_margin_px):
             raise ValueError(f"TrackerConfig.exit_margin_px must be a finite number (< 0: off), "
                              f"got {self.exit_margin_px!r}")
-        if isinstance(self.register_min_pairs, bool) or not isinstance(self.register_min_pairs, int) \
-                or self.register_min_pairs < 1:
-            raise ValueError(f"TrackerConfig.register_min_pairs={self.register_min_pairs!r} must be an integer >= 1")
-        for name in ("birth_on_raw", "use_appearance", "register_tracks"):
+        for name in ("register_min_pairs", "image_register_min_pairs"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or value < 1:
+                raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 1")
+        for name in ("birth_on_raw", "use_appearance", "register_tracks", "image_register", "image_velocity"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
-        if not self.appearance_ema < 1.0:
-            raise ValueError(f"TrackerConfig.appearance_ema={self.appearance_ema!r} must be in [0, 1)")
+        for name in ("appearance_ema", "image_velocity_ema"):
+            if not getattr(self, name) < 1.0:
+                raise ValueError(f"TrackerConfig.{name}={getattr(self, name)!r} must be in [0, 1)")
         if isinstance(self.confirm_hits, bool) or not isinstance(self.confirm_hits, int) or self.confirm_hits < 1:
             raise ValueError(f"TrackerConfig.confirm_hits={self.confirm_hits!r} must be an integer >= 1")
         if self.low_score > self.match_score:

@@ -11,9 +11,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.boxes import box_iou
 from agent.tracking.assignment import near_pairs
 
-__all__ = ["track_offset"]
+__all__ = ["anchored_offset", "track_offset"]
 
 
 def track_offset(det_xy: NDArray, track_xy: NDArray, gate_m: float, min_pairs: int,
@@ -52,3 +53,42 @@ def track_offset(det_xy: NDArray, track_xy: NDArray, gate_m: float, min_pairs: i
         return None
     off = diff[inl].mean(axis=0)
     return float(off[0]), float(off[1])
+
+
+def anchored_offset(track_boxes: NDArray, track_cls: NDArray, track_xy: NDArray, det_boxes: NDArray,
+                    det_cls: NDArray, det_xy: NDArray, iou_min: float, min_pairs: int,
+                    inlier_m: float) -> tuple[tuple[float, float], int] | None:
+    """The common ground offset (east, north) metres from detections to the tracks they overlap in the image.
+
+    track_boxes (M, 4) xyxy pixels: where each track is expected in this image (its last box moved by its
+    image velocity); track_cls (M,), track_xy (M, 2) predicted ground positions; det_boxes (N, 4),
+    det_cls (N,), det_xy (N, 2) the frame's confident detections and their ground points. A detection
+    and a track pair when they are each other's best overlap of their class with IoU >= iou_min: the
+    pair is made in the image, so an error of the telemetry (a GPS step, a jittering gimbal angle) that
+    moves every ground point of the frame does not break it, and the pairs' ground differences measure
+    that error. The offset is the mean of the differences within inlier_m of their median. Returns
+    (offset, inliers), or None with fewer than min_pairs inliers or when fewer than half agree.
+    """
+    track_boxes = np.asarray(track_boxes, dtype=np.float64).reshape(-1, 4)
+    det_boxes = np.asarray(det_boxes, dtype=np.float64).reshape(-1, 4)
+    if len(track_boxes) < min_pairs or len(det_boxes) < min_pairs:
+        return None
+    iou = box_iou(track_boxes, det_boxes)
+    iou[np.asarray(track_cls)[:, None] != np.asarray(det_cls)[None, :]] = 0.0
+    best_det = iou.argmax(axis=1)
+    best_track = iou.argmax(axis=0)
+    ti = np.flatnonzero((best_track[best_det] == np.arange(len(track_boxes)))
+                        & (iou[np.arange(len(track_boxes)), best_det] >= iou_min))
+    if len(ti) < min_pairs:
+        return None
+    diff = np.asarray(track_xy, dtype=np.float64)[ti] - np.asarray(det_xy, dtype=np.float64)[best_det[ti]]
+    diff = diff[np.isfinite(diff).all(axis=1)]
+    if len(diff) < min_pairs:
+        return None
+    med = np.median(diff, axis=0)
+    inl = np.hypot(*(diff - med).T) <= inlier_m
+    n_in = int(inl.sum())
+    if n_in < min_pairs or 2 * n_in < len(diff):
+        return None
+    off = diff[inl].mean(axis=0)
+    return (float(off[0]), float(off[1])), n_in

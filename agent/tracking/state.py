@@ -28,6 +28,8 @@ ACTIVE_FIELDS = {
     "heading_hit": ((), np.float64), "pending": ((), np.bool_), "probation": ((), np.bool_),
     # shown: the id has been reported (or came from the memory); det_row: this frame's detection, -1 none
     "shown": ((), np.bool_), "det_row": ((), np.int64),
+    # vel_img: image velocity of the box centre, px/s (NaN: unknown)
+    "vel_img": ((2,), np.float64),
 }
 LOST_FIELDS = {
     "id": ((), np.int64), "cls": ((), np.int64), "pos": ((2,), np.float64), "vel": ((2,), np.float64),

@@ -13,11 +13,18 @@ from numpy.typing import NDArray
 
 from agent.frame_result import FrameResult
 from agent.tracking import reid
-from agent.tracking.association import associate_ground, associate_iou, frame_detections, ground_duplicates
+from agent.tracking.association import (
+    associate_ground,
+    associate_iou,
+    expected_boxes,
+    frame_detections,
+    fresh_in_image,
+    ground_duplicates,
+)
 from agent.tracking.config import TrackerConfig
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, retire
 from agent.tracking.model import MotionModels, ground_measurement_cov, predict_constant_velocity
-from agent.tracking.registration import track_offset
+from agent.tracking.registration import anchored_offset, track_offset
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon
 
@@ -216,7 +223,7 @@ class GpsTracker:
             self._update_rates(pose, pose_t, t)
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
-            self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0))
+            self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt)
             merge_duplicates(state, t)
             decay_unseen_quality(state, pose, camera)
 
@@ -228,12 +235,13 @@ class GpsTracker:
 
     # ----------------------------------------------------------------------------- stages
     def _frame_with_pose(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera,
-                         staleness_s: float) -> None:
+                         staleness_s: float, dt: float) -> None:
         cfg = self.config
         state = self._state
         assert state.origin is not None
         geo = np.isfinite(dets.lat) & np.isfinite(dets.lon)
         dets.geo = geo
+        anchored: tuple[float, float] | None = None
         if geo.any():
             e, n = latlon_to_local(dets.lat[geo], dets.lon[geo], *state.origin)
             uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
@@ -247,8 +255,12 @@ class GpsTracker:
                 rel_e, rel_n = rel_e * c + rel_n * s, -rel_e * s + rel_n * c
             dets.z[geo, 0], dets.z[geo, 1] = rel_e + uav_e, rel_n + uav_n
             self.last_offset_en = None
+            anchored = self._image_offset(dets, t) if cfg.image_register else None
+            if anchored is not None:
+                dets.z[geo] += anchored
+                self.last_offset_en = anchored
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
-            if cfg.register_tracks and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
+            elif cfg.register_tracks and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
                 act = state.active
                 confirmed = act["confirmed"] & (t - act["t_hit"] <= cfg.max_coast_s)
                 strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
@@ -303,6 +315,40 @@ class GpsTracker:
             birth(state, dets, cand, t)
         if cfg.reid_delay_s > 0:
             reid.resolve_pending(state, t)
+        if anchored is not None:
+            self._follow_telemetry(anchored, dt)
+
+    def _image_offset(self, dets: FrameDetections, t: float) -> tuple[float, float] | None:
+        """The common offset (east, north) metres from this frame's confident ground points to the confirmed
+        tracks they overlap in the image (TrackerConfig.image_register), None when the image pairs none."""
+        cfg = self.config
+        act = self._state.active
+        need = cfg.image_register_min_pairs
+        strong = np.flatnonzero(dets.geo & ~dets.used & (dets.scores >= cfg.match_score))
+        if len(act) < need or len(strong) < need:
+            return None
+        ti = np.flatnonzero(act["confirmed"])
+        ti = ti[fresh_in_image(self._state, ti, t)]
+        if len(ti) < need:
+            return None
+        found = anchored_offset(expected_boxes(self._state, ti, t), act["cls"][ti], act["x"][ti, :2],
+                                dets.boxes[strong], dets.cls[strong], dets.z[strong], cfg.image_register_iou,
+                                need, cfg.image_register_inlier_m)
+        return None if found is None else found[0]
+
+    def _follow_telemetry(self, offset_en: tuple[float, float], dt: float) -> None:
+        """Move the tracks and the re-ID memory toward the telemetry's frame by the registered offset, with
+        time constant track_follow_s (what stays is measured again in the next frame)."""
+        tau = self.config.track_follow_s
+        gain = 1.0 if tau <= 0 else 1.0 - math.exp(-max(dt, 0.0) / tau)
+        if gain <= 0:
+            return
+        shift = gain * np.asarray(offset_en)
+        state = self._state
+        if len(state.active):
+            state.active.cols["x"][:, :2] -= shift
+        if len(state.lost):
+            state.lost.cols["pos"] -= shift
 
     def _smoothed_heading(self, heading_deg: float, dt: float) -> float:
         """Low-pass gimbal heading (TrackerConfig.heading_smoothing_s), degrees in [0, 360)."""

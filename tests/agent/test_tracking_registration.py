@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.tracking.registration import track_offset
+from agent.tracking.registration import anchored_offset, track_offset
 
 TRACKS = np.array([[0.0, 0.0], [12.0, 3.0], [-9.0, 14.0], [20.0, -11.0], [-15.0, -8.0]])
 
@@ -58,3 +58,74 @@ def test_the_tracker_removes_a_per_frame_common_offset_before_gating() -> None:
             ids[i].update(tid for tid, b in boxes.items() if np.allclose(b, box))
     assert np.std(np.array(residual), axis=0).max() < 0.2
     assert all(len(s) == 1 for s in ids), ids  # every person keeps one id
+
+
+# --------------------------------------------------------------------------- pairs made in the image
+BOXES = np.array([[100.0, 100.0, 130.0, 160.0], [400.0, 120.0, 430.0, 180.0], [800.0, 600.0, 840.0, 680.0],
+                  [1500.0, 900.0, 1530.0, 960.0]])
+CLS = np.ones(len(BOXES), np.int64)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.floats(-12.0, 12.0), st.floats(-12.0, 12.0), st.integers(0, 2**31))
+def test_image_pairs_recover_an_offset_larger_than_any_ground_gate(dx: float, dy: float, seed: int) -> None:
+    """A 4-decimal GPS step moves every ground point by 7-11 m; the boxes stay where they were."""
+    rng = np.random.default_rng(seed)
+    tracks_xy = TRACKS[: len(BOXES)]
+    dets_xy = tracks_xy - np.array([dx, dy]) + rng.normal(0.0, 0.1, tracks_xy.shape)
+    found = anchored_offset(BOXES, CLS, tracks_xy, BOXES + rng.normal(0.0, 2.0, BOXES.shape), CLS, dets_xy,
+                            iou_min=0.5, min_pairs=2, inlier_m=2.0)
+    assert found is not None
+    (ox, oy), n = found
+    assert n == len(BOXES)
+    assert ox == pytest.approx(dx, abs=0.2) and oy == pytest.approx(dy, abs=0.2)
+
+
+def test_image_pairs_need_overlap_the_same_class_and_agreement() -> None:
+    xy = TRACKS[: len(BOXES)]
+    moved = BOXES + np.array([60.0, 0.0, 60.0, 0.0])  # the camera turned: no box overlaps its track
+    assert anchored_offset(BOXES, CLS, xy, moved, CLS, xy - 5.0, 0.5, 2, 2.0) is None
+    assert anchored_offset(BOXES, CLS, xy, BOXES, CLS + 1, xy - 5.0, 0.5, 2, 2.0) is None  # other class
+    scattered = xy + np.array([[6.0, 0.0], [-6.0, 0.0], [0.0, 6.0], [0.0, -6.0]])  # no common offset
+    assert anchored_offset(BOXES, CLS, xy, BOXES, CLS, scattered, 0.5, 2, 2.0) is None
+    assert anchored_offset(BOXES[:1], CLS[:1], xy[:1], BOXES[:1], CLS[:1], xy[:1], 0.5, 2, 2.0) is None
+    # one wrong pair among four: the three that agree give the offset
+    one_off = xy - 3.0
+    one_off[2] += np.array([5.0, -4.0])
+    found = anchored_offset(BOXES, CLS, xy, BOXES, CLS, one_off, 0.5, 2, 2.0)
+    assert found is not None and found[1] == 3
+    assert found[0] == pytest.approx((3.0, 3.0))
+
+
+def test_the_tracker_keeps_every_id_through_a_gps_step() -> None:
+    """Old DJI SRT files round GPS to 4 decimals: the UAV position jumps by 7.4 m east at once. Without
+    image pairs every track of the frame fails its gate and is replaced by a new one."""
+    from agent.tracking import GpsTracker, TrackerConfig
+    from tests.agent.test_tracker import CAM, CLASSES, FPS, observe, pose_at
+
+    people = [(-8.0, 25.0), (0.0, 30.0), (7.0, 26.0), (-3.0, 38.0), (9.0, 40.0)]
+    east, north = (np.array(v) for v in zip(*people, strict=True))
+    rng = np.random.default_rng(3)
+
+    def run(config: TrackerConfig) -> tuple[set[int], list]:
+        tracker = GpsTracker(config, CLASSES)
+        seen: set[int] = set()
+        offsets = []
+        for k in range(90):
+            step = 7.4 if k >= 20 else 0.0  # the reported position steps east; the drone did not move
+            reported = pose_at(east_m=step)
+            # the same pixels, projected with the reported pose: every ground point moves 7.4 m east
+            result = observe(east + step, north, reported, noise_m=0.05, rng=rng)
+            outs = tracker.update(result, reported, 1.7e9 + k / FPS, CAM)
+            if k >= 10:
+                seen |= {tr.id for tr in tracker.report(outs)}
+            offsets.append(tracker.last_offset_en)
+        return seen, offsets
+
+    seen, offsets = run(TrackerConfig(image_register=True))
+    assert len(seen) == len(people), seen
+    assert offsets[20] is not None and offsets[20][0] == pytest.approx(-7.4, abs=0.3)
+    # the tracks follow the telemetry's frame within a few track_follow_s: later frames need little offset
+    assert abs(offsets[-1][0]) < 0.3
+    seen_without, _ = run(TrackerConfig(image_register=False))
+    assert len(seen_without) > len(people)
