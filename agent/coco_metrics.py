@@ -9,24 +9,18 @@ from __future__ import annotations
 
 import contextlib
 import io
-import json
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
+
+from agent.dataset import read_json
 
 __all__ = ["coco_detection_metrics", "load_images", "load_results"]
 
 
 def _load_json(obj: Any, what: str) -> Any:
-    if isinstance(obj, (str, Path)):
-        path = Path(obj)
-        try:
-            return json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"{what} file {path} does not exist") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{what} file {path} is not valid JSON: {exc}") from None
-    return obj
+    """obj itself, or the JSON file it names (agent.dataset.read_json: errors name the file)."""
+    return read_json(obj, what) if isinstance(obj, (str, Path)) else obj
 
 
 def load_images(images_json: str | Path | dict[str, Any]) -> dict[str, Any]:

@@ -14,7 +14,7 @@ import time
 from collections import Counter, OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, TypeVar
 
 import msgpack
 import numpy as np
@@ -42,6 +42,8 @@ from transport.session import config_value, open_session, remote_ids
 __all__ = ["AgentLink", "FootprintUpdate", "JointTileUpdate", "encode_tracks_with_gid"]
 
 log = logging.getLogger(__name__)
+
+_M = TypeVar("_M")  # a decoded message
 
 #: Track regions held (agent.joint_window; a window touches 1-4), and how long one counts, seconds.
 _MAX_REGIONS = 64
@@ -389,7 +391,6 @@ class AgentLink:
         with self._lock:
             self._rejects["internal_error"] += 1
 
-
     def _on_reply(self, reply: zenoh.Reply) -> None:
         sample = reply.ok
         if sample is None:
@@ -422,14 +423,28 @@ class AgentLink:
         else:
             self._reject("unexpected_key", key, "not a joint key")
 
-    def _on_joint_tile(self, key: str, parsed, payload: zenoh.ZBytes) -> None:
-        if len(payload) > self.max_tile_bytes:
+    def _decode(self, key: str, payload: zenoh.ZBytes, decode: Callable[..., _M], max_bytes: int) -> _M | None:
+        """``decode(payload, max_bytes=...)``, or None after rejecting it: "too_large" before reading
+        it, else the decoder's reason."""
+        if len(payload) > max_bytes:
             self._reject("too_large", key, f"{len(payload)} bytes")
-            return
+            return None
         try:
-            msg = decode_tile(payload.to_bytes(), max_bytes=self.max_tile_bytes)
+            return decode(payload.to_bytes(), max_bytes=max_bytes)
         except MessageError as exc:
             self._reject(exc.reason, key, exc)
+            return None
+
+    def _in_future(self, key: str, t: float) -> bool:
+        """Whether a joint message's t is ahead of this clock by more than MAX_CLOCK_SKEW_S (rejected)."""
+        if t > time.time() + MAX_CLOCK_SKEW_S:
+            self._reject("t_in_future", key, f"t {t!r:.30} is ahead of this clock")
+            return True
+        return False
+
+    def _on_joint_tile(self, key: str, parsed, payload: zenoh.ZBytes) -> None:
+        msg = self._decode(key, payload, decode_tile, self.max_tile_bytes)
+        if msg is None:
             return
         if msg.uav != JOINT_UAV:
             self._reject("uav_mismatch", key, f"uav {msg.uav!r} on a joint key")
@@ -440,8 +455,7 @@ class AgentLink:
         if msg.z != self.grid.z or msg.n != self.grid.n:
             self._reject("wrong_grid", key, f"z={msg.z} n={msg.n}, agent grid z={self.grid.z} n={self.grid.n}")
             return
-        if msg.t > time.time() + MAX_CLOCK_SKEW_S:
-            self._reject("t_in_future", key, f"t {msg.t!r:.30} is ahead of this clock")
+        if self._in_future(key, msg.t):
             return
         tile_id = (msg.cls, msg.x, msg.y)
         now = time.monotonic()
@@ -463,19 +477,13 @@ class AgentLink:
             self._bytes["joint_tiles"] += len(payload)
 
     def _on_joint_tracks(self, key: str, payload: zenoh.ZBytes, region: tuple[Any, Any, Any] | None = None) -> None:
-        if len(payload) > MAX_JOINT_TRACKS_BYTES:
-            self._reject("too_large", key, f"{len(payload)} bytes")
-            return
-        try:
-            msg = decode_joint_tracks(payload.to_bytes(), max_bytes=MAX_JOINT_TRACKS_BYTES)
-        except MessageError as exc:
-            self._reject(exc.reason, key, exc)
+        msg = self._decode(key, payload, decode_joint_tracks, MAX_JOINT_TRACKS_BYTES)
+        if msg is None:
             return
         if msg.uav != JOINT_UAV:
             self._reject("uav_mismatch", key, f"uav {msg.uav!r} on the joint tracks key")
             return
-        if msg.t > time.time() + MAX_CLOCK_SKEW_S:
-            self._reject("t_in_future", key, f"t {msg.t!r:.30} is ahead of this clock")
+        if self._in_future(key, msg.t):
             return
         with self._lock:
             if region is None:
@@ -489,13 +497,8 @@ class AgentLink:
             self._bytes["joint_tracks"] += len(payload)
 
     def _on_state(self, key: str, uav: str, payload: zenoh.ZBytes) -> None:
-        if len(payload) > DEFAULT_MAX_STATE_BYTES:
-            self._reject("too_large", key, f"{len(payload)} bytes")
-            return
-        try:
-            msg = decode_state(payload.to_bytes(), max_bytes=DEFAULT_MAX_STATE_BYTES)
-        except MessageError as exc:
-            self._reject(exc.reason, key, exc)
+        msg = self._decode(key, payload, decode_state, DEFAULT_MAX_STATE_BYTES)
+        if msg is None:
             return
         if msg.uav != uav:
             self._reject("uav_mismatch", key, f"uav {msg.uav!r} on the state key of {uav!r}")

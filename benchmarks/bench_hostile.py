@@ -17,7 +17,6 @@ from __future__ import annotations
 import json
 import os
 import re
-import socket
 import subprocess
 import sys
 import tempfile
@@ -29,17 +28,12 @@ from typing import Any
 import msgpack
 import numpy as np
 
+from benchmarks.fusion_load import NO_SHM, free_port, zenoh_config
+
 DESCRIPTION = "fusion server RSS and drop counts under 100,000 malformed/oversized messages from one UAV"
 
 _REPO = Path(__file__).resolve().parents[1]
-_NO_SHM = "transport/shared_memory/enabled:false"
 _X, _Y = 137_700, 91_400
-
-
-def _free_port() -> int:
-    with socket.socket() as sock:
-        sock.bind(("127.0.0.1", 0))
-        return sock.getsockname()[1]
 
 
 def _rss_mb(pid: int) -> float:
@@ -50,10 +44,8 @@ def _rss_mb(pid: int) -> float:
 
 def _session_config(endpoint: str, fleet: Path | None, identity: str):
     """A client config: plain, or the identity's own from the fleet folder (TLS with its certificate)."""
-    from benchmarks.bench_fusion import _zenoh_config
-
     if fleet is None:
-        return _zenoh_config("client", connect=endpoint)
+        return zenoh_config("client", connect=endpoint)
     import zenoh
 
     conf = zenoh.Config.from_file(str(fleet / "uavs" / identity / "zenoh.json5"))
@@ -69,7 +61,7 @@ def _start_fusion(port: int, http_port: int, db_dir: str, extra: list[str], flee
     secure = [] if fleet is None else ["--config", str(fleet / "fusion" / "zenoh.json5")]
     cmd = [sys.executable, "-m", "uavmm", "fusion", *secure, "--listen", f"{scheme}/127.0.0.1:{port}",
            "--http", f"127.0.0.1:{http_port}", "--db", os.path.join(db_dir, "hostile.sqlite"),
-           "--no-multicast-scouting", "--cfg", _NO_SHM, *extra]
+           "--no-multicast-scouting", "--cfg", NO_SHM, *extra]
     env = {**os.environ, "PYTHONPATH": str(_REPO) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen(cmd, cwd=_REPO, env=env, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True)
     assert proc.stdout is not None
@@ -189,7 +181,7 @@ class _Honest:
 
 
 def _one_run(n_messages: int, extra: list[str], label: str, secure: bool = False) -> list[dict[str, Any]]:
-    port, http_port = _free_port(), _free_port()
+    port, http_port = free_port(), free_port()
     endpoint = f"{'tls' if secure else 'tcp'}/{'localhost' if secure else '127.0.0.1'}:{port}"
     with tempfile.TemporaryDirectory() as db_dir:
         fleet = None

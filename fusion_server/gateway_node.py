@@ -21,11 +21,12 @@ import zenoh
 
 from fusion_server.merged_tracks import MergedTracks
 from fusion_server.metrics import FusionMetrics
+from fusion_server.uav_intake import UavIntake
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator, Rejected
 from shared.keys import KeySpace
 from shared.messages import MessageError, StateMessage, decode_joint_tracks, encode_joint_tracks
-from transport.guard import RateLimitedLog, guarded
+from transport.guard import guarded
 from transport.publishers import PublisherCache
 from transport.session import close_session
 
@@ -106,7 +107,8 @@ class GatewayNode:
         self._tracks_payload = encode_joint_tracks(tracks.joint_message())
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._log = RateLimitedLog(log)
+        self._intake = UavIntake(keys, uavs, metrics, log, prefix="gateway: ")
+        self._log = self._intake.warnings
 
     # ---- lifecycle ----------------------------------------------------------------------------------
     def start(self, late_join_timeout_s: float = 2.0) -> None:
@@ -119,7 +121,7 @@ class GatewayNode:
         liveliness = session.liveliness()
         self._declared = [
             liveliness.declare_subscriber(self.keys.shard_alive("*", "*"), self._on_shard, history=True),
-            liveliness.declare_subscriber(self.keys.uav_alive("*"), self._on_alive, history=True),
+            liveliness.declare_subscriber(self.keys.uav_alive("*"), self._intake.on_alive, history=True),
             session.declare_subscriber(self.keys.uav_state("*"), self._on_state),
             session.declare_subscriber(self.keys.region_tracks_all(), self._on_region_tracks),
             session.declare_queryable(self._tracks_key, guarded(self._on_query, log, "a joint/tracks query")),
@@ -144,12 +146,6 @@ class GatewayNode:
             self.session = None
 
     # ---- callbacks (Zenoh threads; never raise) -----------------------------------------------------
-    def _reject(self, kind: str, reason: str, key: str, detail: object, uav: str | None = None) -> None:
-        self.metrics.reject(kind, reason)
-        if uav is not None:
-            self.uavs.rejected(uav, reason)
-        self._log.warning(reason, "gateway: dropped %s message on %.120s: %s: %.200s", kind, key, reason, detail)
-
     def _on_shard(self, sample: zenoh.Sample) -> None:
         key = "?"
         try:
@@ -157,7 +153,7 @@ class GatewayNode:
             try:
                 index, count = self.keys.parse_shard_alive(key)
             except ValueError as exc:
-                self._reject("shard_alive", "bad_key", key, exc)
+                self._intake.reject("shard_alive", "bad_key", key, exc)
                 return
             alive = sample.kind == zenoh.SampleKind.PUT
             self.shards.token(index, count, alive)
@@ -170,33 +166,13 @@ class GatewayNode:
             self.metrics.reject("shard_alive", "internal_error")
             log.exception("internal error handling shard liveliness on %.120s", key)
 
-    def _on_alive(self, sample: zenoh.Sample) -> None:
-        key = "?"
-        try:
-            key = str(sample.key_expr)
-            try:
-                parsed = self.keys.parse(key)
-            except ValueError as exc:
-                self._reject("alive", "bad_key", key, exc)
-                return
-            if parsed.kind != "uav_alive":
-                self._reject("alive", "unexpected_key", key, "not an alive key")
-                return
-            if not self.uavs.alive(parsed.uav, sample.kind == zenoh.SampleKind.PUT):
-                self._reject("alive", "too_many_uavs", key, "UAV registry full")
-                return
-            self.metrics.message("alive", 0)
-        except Exception:
-            self.metrics.reject("alive", "internal_error")
-            log.exception("internal error handling liveliness on %.120s", key)
-
     def _on_state(self, sample: zenoh.Sample) -> None:
         key = "?"
         uav: str | None = None
         try:
             key = str(sample.key_expr)
             if sample.kind != zenoh.SampleKind.PUT:
-                self._reject("state", "unexpected_delete", key, "DELETE sample")
+                self._intake.reject("state", "unexpected_delete", key, "DELETE sample")
                 return
             parsed, _ = self.validator.parse_key(key)
             uav = parsed.uav
@@ -204,11 +180,11 @@ class GatewayNode:
             message = received.message
             assert isinstance(message, StateMessage)
             if not self.uavs.message(uav, "state", received.nbytes, message):
-                self._reject("state", "too_many_uavs", key, "UAV registry full")
+                self._intake.reject("state", "too_many_uavs", key, "UAV registry full")
                 return
             self.metrics.message("state", received.nbytes)
         except Rejected as exc:
-            self._reject(exc.kind, exc.reason, key, exc, uav)
+            self._intake.reject(exc.kind, exc.reason, key, exc, uav)
         except Exception:
             self.metrics.reject("state", "internal_error")
             log.exception("internal error handling a state on %.120s", key)
@@ -220,15 +196,15 @@ class GatewayNode:
             try:
                 parsed = self.keys.parse(key)
             except ValueError as exc:
-                self._reject("region_tracks", "bad_key", key, exc)
+                self._intake.reject("region_tracks", "bad_key", key, exc)
                 return
             if parsed.kind != "region_tracks" or sample.kind != zenoh.SampleKind.PUT:
-                self._reject("region_tracks", "unexpected_key", key, "not a region tracks message")
+                self._intake.reject("region_tracks", "unexpected_key", key, "not a region tracks message")
                 return
             try:
                 message = decode_joint_tracks(sample.payload.to_bytes())
             except MessageError as exc:
-                self._reject("region_tracks", exc.reason, key, exc)
+                self._intake.reject("region_tracks", exc.reason, key, exc)
                 return
             assert parsed.z is not None and parsed.x is not None and parsed.y is not None
             self.tracks.put((parsed.z, parsed.x, parsed.y), message)

@@ -23,6 +23,7 @@ import zenoh
 
 from fusion_server.handover import Handover
 from fusion_server.joint_map import JointMap, TileKey
+from fusion_server.uav_intake import UavIntake
 from fusion_server.validation import MessageValidator, Received, Rejected
 from shared.keys import track_region
 from shared.messages import (
@@ -129,7 +130,7 @@ class FusionNode:
         self._tracks_key = keys.joint_tracks()
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
-        self._reject_log = RateLimitedLog(log)
+        self._intake = UavIntake(keys, uavs, metrics, log)
         self._step_log = RateLimitedLog(log)
         self.inbox_max = int(inbox_max)
         self._inbox: deque[zenoh.Sample] = deque()
@@ -191,12 +192,6 @@ class FusionNode:
             self.session = None
 
     # ---- callbacks (Zenoh threads; never raise) ------------------------------------------------
-    def _reject(self, kind: str, reason: str, key: str, detail: object, uav: str | None = None) -> None:
-        self.metrics.reject(kind, reason)
-        if uav is not None:
-            self.uavs.rejected(uav, reason)
-        self._reject_log.warning(reason, "dropped %s message on %.120s: %s: %.200s", kind, key, reason, detail)
-
     def _wake(self) -> None:
         """Wake the fusion thread (a sample, a tracks change, shutdown)."""
         if not self._wakeup.is_set():
@@ -210,8 +205,9 @@ class FusionNode:
                 return
             if len(self._inbox) >= self.inbox_max:
                 self.metrics.reject("unknown", "overloaded")
-                self._reject_log.warning("overloaded", "fusion inbox full (%d samples): dropped a sample on %.120s",
-                                         self.inbox_max, str(sample.key_expr))
+                self._intake.warnings.warning(
+                    "overloaded", "fusion inbox full (%d samples): dropped a sample on %.120s", self.inbox_max,
+                    str(sample.key_expr))
                 return
             self._inbox.append(sample)
             self._wake()
@@ -280,7 +276,7 @@ class FusionNode:
                 count += 1
                 nbytes += received.nbytes
             else:
-                self._reject("tile", reason, key, f"seq {received.message.seq}", received.key.uav)
+                self._intake.reject("tile", reason, key, f"seq {received.message.seq}", received.key.uav)
         if count:
             self.metrics.message("tile", nbytes, count)
 
@@ -317,53 +313,38 @@ class FusionNode:
                     kind = self.validator.parse_key(key)[1]
                 except Rejected:
                     pass
-                self._reject(kind, "unexpected_delete", key, "DELETE sample")
+                self._intake.reject(kind, "unexpected_delete", key, "DELETE sample")
                 return None, key
             parsed, kind = self.validator.parse_key(key)
             uav = parsed.uav
             nbytes = len(sample.payload)
             limited = self.limiter.check(uav, nbytes) if self.limiter is not None else None
             if limited is not None:  # before decoding: a flood costs a lookup per message
-                self._reject(kind, limited, key, f"{nbytes} bytes", uav)
+                self._intake.reject(kind, limited, key, f"{nbytes} bytes", uav)
                 return None, key
             received = self.validator.validate(key, sample.payload, parsed=parsed, sparse=True)
             message = received.message
             if not self.uavs.message(uav, received.kind, received.nbytes,
                                      message if isinstance(message, StateMessage) else None,
                                      session=self._session_of(sample)):
-                self._reject(received.kind, "too_many_uavs", key, "UAV registry full")
+                self._intake.reject(received.kind, "too_many_uavs", key, "UAV registry full")
                 return None, key
             return received, key
         except Rejected as exc:
-            self._reject(exc.kind, exc.reason, key, exc, uav)
+            self._intake.reject(exc.kind, exc.reason, key, exc, uav)
         except Exception:  # a bug must not take the fusion thread down: count it, log it
             self.metrics.reject("unknown", "internal_error")
             log.exception("internal error handling a sample on %.120s", key)
         return None, key
 
     def _on_alive(self, sample: zenoh.Sample) -> None:
-        key = "?"
-        try:
-            key = str(sample.key_expr)
-            try:
-                parsed = self.keys.parse(key)
-            except ValueError as exc:
-                self._reject("alive", "bad_key", key, exc)
-                return
-            if parsed.kind != "uav_alive":
-                self._reject("alive", "unexpected_key", key, "not an alive key")
-                return
-            online = sample.kind == zenoh.SampleKind.PUT
-            if not self.uavs.alive(parsed.uav, online):
-                self._reject("alive", "too_many_uavs", key, "UAV registry full")
-                return
-            self.metrics.message("alive", 0)
-            log.info("UAV %s %s", parsed.uav, "online" if online else "offline")
-            if not online and self.tracker.uav_lost(parsed.uav):
-                self._wake()
-        except Exception:
-            self.metrics.reject("alive", "internal_error")
-            log.exception("internal error handling liveliness on %.120s", key)
+        self._intake.on_alive(sample, self._uav_alive)
+
+    def _uav_alive(self, uav: str, online: bool) -> None:
+        """A UAV's token came or went (accepted): logged; an offline UAV's track members are marked lost."""
+        log.info("UAV %s %s", uav, "online" if online else "offline")
+        if not online and self.tracker.uav_lost(uav):
+            self._wake()
 
     def _on_query(self, query: zenoh.Query) -> None:
         selector = query.key_expr

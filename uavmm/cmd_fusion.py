@@ -23,14 +23,12 @@ DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 
 
 def _config_sets_listen(path: Path | None) -> bool:
+    """Whether the Zenoh config file sets listen/endpoints; ValueError naming an unreadable file."""
     if path is None:
         return False
-    import zenoh
+    from transport.options import ZenohOptions, zenoh_config
 
-    try:
-        return zenoh.Config.from_file(str(path)).get_json("listen/endpoints") not in ("null", "[]", "{}")
-    except zenoh.ZError as exc:
-        raise ValueError(f"cannot read zenoh config {path}: {exc}") from None
+    return zenoh_config(ZenohOptions(config_file=path)).get_json("listen/endpoints") not in ("null", "[]", "{}")
 
 
 def register(sub: argparse._SubParsersAction) -> None:

@@ -4,7 +4,6 @@ receive valid Cursor-on-Target events for the three UAVs and for global tracks."
 from __future__ import annotations
 
 import signal
-import socket
 import subprocess
 import time
 import xml.etree.ElementTree as ET
@@ -12,15 +11,13 @@ import xml.etree.ElementTree as ET
 import pytest
 
 from tests.e2e.conftest import ENV, REPO, uavmm
+from tests.netutil import udp_listener
 
 pytestmark = pytest.mark.e2e
 
 
 def test_demo_sends_cot_events_of_its_uavs_and_tracks(tmp_path):
-    listener = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    listener.bind(("127.0.0.1", 0))
-    listener.settimeout(0.5)
-    port = listener.getsockname()[1]
+    listener, port = udp_listener(0.5)
     demo = subprocess.Popen(
         uavmm("demo", "--http", "127.0.0.1:0", "--duration", "60", "--status-every", "0", "--log-dir",
               str(tmp_path / "logs"), "--cot-url", f"udp://127.0.0.1:{port}"),

@@ -4,7 +4,6 @@
 from __future__ import annotations
 
 import json
-import socket
 import threading
 
 import pytest
@@ -13,18 +12,12 @@ from shared.messages import decode_state
 from shared.telemetry import read_csv
 from tests.agent.test_node_zenoh import KEYS, FakeServer
 from tests.e2e.conftest import agent_cmd, finish, start_agent
-from tests.netutil import free_port, wait_until
+from tests.netutil import free_port, free_udp_port, wait_until
 from tests.shared.mavlink_writer import flight_packets, replay_udp
 from uavmm.cli import main
 
 pytestmark = pytest.mark.e2e
 FRAMES = 20
-
-
-def free_udp_port() -> int:
-    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
-        sock.bind(("127.0.0.1", 0))
-        return int(sock.getsockname()[1])
 
 
 @pytest.fixture(scope="module")

@@ -43,6 +43,12 @@ def test_a_config_file_with_listen_endpoints_is_not_overridden(tmp_path: Path):
     assert json.loads(zenoh_config(settings.zenoh).get_json("listen/endpoints")) == ["tcp/127.0.0.1:7777"]
 
 
+def test_an_unreadable_config_file_raises_value_error_naming_it(tmp_path: Path):
+    missing = tmp_path / "missing.json5"
+    with pytest.raises(ValueError, match=f"cannot read zenoh config {missing}"):
+        parse("--config", str(missing))
+
+
 @pytest.mark.parametrize(
     ("argv", "message"),
     [

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 from fusion_server.config import FusionSettings
 from fusion_server.cot import CotSender, CotTarget, parse_cot_url, track_event, uav_event
 from tests.fusion_server.fake_agent import LAT, LON
-from tests.netutil import wait_until
+from tests.netutil import free_port, udp_listener, wait_until
 
 NOW = 1_790_000_000.0
 
@@ -83,13 +83,6 @@ def test_good_urls():
     assert parse_cot_url("tcp://tak.local:8087") == CotTarget("tcp", "tak.local", 8087)
 
 
-def _udp_listener() -> tuple[socket.socket, int]:
-    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
-    sock.bind(("127.0.0.1", 0))
-    sock.settimeout(0.2)
-    return sock, sock.getsockname()[1]
-
-
 def _received(sock: socket.socket, until_s: float) -> list[ET.Element]:
     events, deadline = [], time.monotonic() + until_s
     while time.monotonic() < deadline:
@@ -101,7 +94,7 @@ def _received(sock: socket.socket, until_s: float) -> list[ET.Element]:
 
 
 def test_a_server_sends_uavs_and_tracks_over_udp(server_factory, agent_factory):
-    listener, port = _udp_listener()
+    listener, port = udp_listener(0.2)
     try:
         server = server_factory(cot_url=f"udp://127.0.0.1:{port}", cot_interval_s=0.2)
         agent = agent_factory("uav1")
@@ -124,10 +117,7 @@ def test_a_server_sends_uavs_and_tracks_over_udp(server_factory, agent_factory):
 
 
 def test_tcp_to_a_tak_server_that_comes_up_later(server_factory, agent_factory):
-    probe = socket.socket()
-    probe.bind(("127.0.0.1", 0))
-    port = probe.getsockname()[1]
-    probe.close()  # nothing listens yet
+    port = free_port()  # nothing listens yet
     server = server_factory(cot_url=f"tcp://127.0.0.1:{port}", cot_interval_s=0.2)
     agent = agent_factory("uav1")
     agent.state()

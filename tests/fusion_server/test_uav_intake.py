@@ -1,0 +1,82 @@
+"""fusion_server.uav_intake: the rejections and liveliness the fusion node and the gateway share."""
+
+from __future__ import annotations
+
+import logging
+
+import pytest
+import zenoh
+
+from fusion_server.metrics import FusionMetrics
+from fusion_server.uav_intake import UavIntake
+from fusion_server.uav_registry import UavRegistry
+from shared.keys import KeySpace
+
+KEYS = KeySpace()
+LOG = logging.getLogger("tests.uav_intake")
+
+
+class Sample:
+    """The two fields of a zenoh.Sample the intake reads."""
+
+    def __init__(self, key_expr: str, kind: zenoh.SampleKind = zenoh.SampleKind.PUT) -> None:
+        self.key_expr = key_expr
+        self.kind = kind
+
+
+def intake(max_uavs: int = 4, prefix: str = "") -> UavIntake:
+    return UavIntake(KEYS, UavRegistry(max_uavs=max_uavs), FusionMetrics(), LOG, prefix)
+
+
+def test_a_token_coming_and_going_is_recorded_and_handed_on():
+    node, seen = intake(), []
+
+    def then(uav: str, online: bool) -> None:
+        seen.append((uav, online))
+
+    node.on_alive(Sample(KEYS.uav_alive("uav1")), then)
+    assert node.uavs.online() == ["uav1"] and node.metrics.received == {"alive": 1}
+    node.on_alive(Sample(KEYS.uav_alive("uav1"), zenoh.SampleKind.DELETE), then)
+    assert node.uavs.online() == [] and seen == [("uav1", True), ("uav1", False)]
+
+
+@pytest.mark.parametrize(("key", "reason"), [(f"{KEYS.prefix}/uav/a b/alive", "bad_key"),
+                                             (KEYS.uav_state("uav1"), "unexpected_key")])
+def test_a_sample_on_another_key_is_rejected_with_its_reason(key, reason):
+    node, seen = intake(), []
+    node.on_alive(Sample(key), lambda uav, online: seen.append(uav))
+    assert node.metrics.rejected == {("alive", reason): 1} and seen == [] and node.uavs.online() == []
+
+
+class FullRegistry(UavRegistry):
+    def alive(self, uav: str, online: bool) -> bool:
+        return False
+
+
+def test_a_token_the_full_registry_refuses_is_rejected_and_not_handed_on():
+    node, seen = UavIntake(KEYS, FullRegistry(), FusionMetrics(), LOG), []
+    node.on_alive(Sample(KEYS.uav_alive("uav1")), lambda uav, online: seen.append(uav))
+    assert node.metrics.rejected == {("alive", "too_many_uavs"): 1} and seen == [] and node.metrics.received == {}
+
+
+def test_an_exception_after_the_registry_is_counted_not_raised(caplog):
+    def boom(uav: str, online: bool) -> None:
+        raise RuntimeError("bug")
+
+    node = intake()
+    with caplog.at_level(logging.ERROR, LOG.name):
+        node.on_alive(Sample(KEYS.uav_alive("uav1")), boom)
+    assert node.metrics.rejected == {("alive", "internal_error"): 1}
+    assert "internal error handling liveliness" in caplog.text
+
+
+def test_a_rejection_is_counted_on_its_uav_and_logged_once_per_interval_with_the_prefix(caplog):
+    node = intake(prefix="gateway: ")
+    node.uavs.message("uav1", "state", 10)
+    with caplog.at_level(logging.WARNING, LOG.name):
+        node.reject("state", "bad_version", KEYS.uav_state("uav1"), "v 2", "uav1")
+        node.reject("state", "bad_version", KEYS.uav_state("uav1"), "v 2", "uav1")
+    assert node.metrics.rejected == {("state", "bad_version"): 2}
+    assert node.uavs.snapshot()[0]["rejected"] == {"bad_version": 2}
+    assert [r.getMessage() for r in caplog.records] == [
+        f"gateway: dropped state message on {KEYS.uav_state('uav1')}: bad_version: v 2"]
