@@ -198,17 +198,33 @@ class TrackerConfig:
         Time constant of the low-pass heading the image cue compares (image_max_turn_deg): the reported
         gimbal heading jitters from frame to frame while the camera holds still (0: raw heading).
     image_register : bool
-        Before gating, move the frame's ground points by the common offset between its confident
-        detections and the tracks they overlap in the image (agent.tracking.registration.anchored_offset):
+        Before gating, move the frame's ground points by the pose correction that lays its confident
+        detections onto the tracks they overlap in the image (agent.tracking.registration):
         pairs made in pixels do not depend on the telemetry, so a GPS step (4-decimal GPS: 7-11 m) or a
         gimbal angle that jitters from frame to frame no longer breaks every track of the frame at once.
-    image_register_iou, image_register_min_pairs, image_register_inlier_m : float, int, float
-        A pair is a track's expected box and a detection that are each other's best overlap with at least
-        this IoU; a frame needs this many pairs agreeing within this many metres of their median.
+    image_register_iou, image_register_min_pairs : float, int
+        A pair is a confirmed track's expected box and a confident detection that are each other's best
+        overlap with at least this IoU; a frame needs this many pairs whose ground differences one pose
+        correction (east, north, heading, pitch; agent.tracking.registration.fit_pose_correction)
+        explains within gate_chi2.
     track_follow_s : float
         After a registered frame the tracks (and the re-ID memory) move toward the telemetry's frame by
         the offset, with this time constant (0: at once): a GPS step is followed in about this time, while
         white jitter is smoothed out of the tracks' positions.
+    registered_floor_m : float
+        In a registered frame a detection's ground error is its pixel error, the correction's own
+        uncertainty at its place and this isotropic floor (metres, 1 sigma).
+    registered_error_scale : float
+        ... plus this share of the unregistered error model's telemetry part (0: none).
+    registered_scale_s : float
+        The pixel error and the floor are scaled by how much noisier than that the registration's pairs
+        were (the median of their squared Mahalanobis residuals against its chi-square value), smoothed
+        over frames with this time constant, seconds (0: no scaling).
+    register_position_sd_m, register_angle_scale : float
+        Prior of the correction: its position part is expected within this many metres (a GPS step of old
+        SRT files is 11 m), its heading and pitch parts within register_angle_scale times the frame's
+        heading and pitch errors (heading_sigma_deg, pitch_sigma_deg with the turn terms). A cluster of
+        pairs far away is explained as a shift, pairs spread in range and bearing as a turn.
     image_velocity : bool
         The image cue and the registration expect a track's box where its last box moves with its image
         velocity (an exponential average of its box centres' motion, image_velocity_ema of the past per
@@ -282,8 +298,12 @@ class TrackerConfig:
     image_register: bool = False
     image_register_iou: float = 0.5
     image_register_min_pairs: int = 2
-    image_register_inlier_m: float = 2.0
     track_follow_s: float = 0.5
+    registered_floor_m: float = 0.2
+    registered_error_scale: float = 0.0
+    registered_scale_s: float = 1.0
+    register_position_sd_m: float = 10.0
+    register_angle_scale: float = 1.0
     image_velocity: bool = False
     image_velocity_ema: float = 0.5
     class_motion: tuple[tuple[str, ClassMotion], ...] = DEFAULT_CLASS_MOTION

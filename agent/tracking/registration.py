@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 from agent.boxes import box_iou
 from agent.tracking.assignment import near_pairs
 
-__all__ = ["anchored_offset", "track_offset"]
+__all__ = ["anchored_offset", "correction_jacobian", "fit_pose_correction", "image_pairs", "track_offset"]
 
 
 def track_offset(det_xy: NDArray, track_xy: NDArray, gate_m: float, min_pairs: int,
@@ -55,33 +55,42 @@ def track_offset(det_xy: NDArray, track_xy: NDArray, gate_m: float, min_pairs: i
     return float(off[0]), float(off[1])
 
 
+def image_pairs(track_boxes: NDArray, track_cls: NDArray, det_boxes: NDArray, det_cls: NDArray,
+                iou_min: float) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Tracks and detections that are each other's best image overlap of their class, with IoU >= iou_min.
+
+    track_boxes (M, 4), det_boxes (N, 4) xyxy pixels (where each track is expected in this image, and the
+    frame's detections); track_cls (M,), det_cls (N,). Returns (K,) int64 indices into each. Pairs made in
+    the image do not depend on the telemetry: an error that moves every ground point of the frame (a GPS
+    step, a jittering gimbal angle) leaves them as they are, so their ground differences measure it.
+    """
+    empty = np.zeros(0, np.int64)
+    track_boxes = np.asarray(track_boxes, dtype=np.float64).reshape(-1, 4)
+    det_boxes = np.asarray(det_boxes, dtype=np.float64).reshape(-1, 4)
+    if not len(track_boxes) or not len(det_boxes):
+        return empty, empty
+    iou = box_iou(track_boxes, det_boxes)
+    iou[np.asarray(track_cls)[:, None] != np.asarray(det_cls)[None, :]] = 0.0
+    best_det = iou.argmax(axis=1)
+    best_track = iou.argmax(axis=0)
+    rows = np.arange(len(track_boxes))
+    ti = np.flatnonzero((best_track[best_det] == rows) & (iou[rows, best_det] >= iou_min))
+    return ti.astype(np.int64), best_det[ti].astype(np.int64)
+
+
 def anchored_offset(track_boxes: NDArray, track_cls: NDArray, track_xy: NDArray, det_boxes: NDArray,
                     det_cls: NDArray, det_xy: NDArray, iou_min: float, min_pairs: int,
                     inlier_m: float) -> tuple[tuple[float, float], int] | None:
     """The common ground offset (east, north) metres from detections to the tracks they overlap in the image.
 
-    track_boxes (M, 4) xyxy pixels: where each track is expected in this image (its last box moved by its
-    image velocity); track_cls (M,), track_xy (M, 2) predicted ground positions; det_boxes (N, 4),
-    det_cls (N,), det_xy (N, 2) the frame's confident detections and their ground points. A detection
-    and a track pair when they are each other's best overlap of their class with IoU >= iou_min: the
-    pair is made in the image, so an error of the telemetry (a GPS step, a jittering gimbal angle) that
-    moves every ground point of the frame does not break it, and the pairs' ground differences measure
-    that error. The offset is the mean of the differences within inlier_m of their median. Returns
-    (offset, inliers), or None with fewer than min_pairs inliers or when fewer than half agree.
+    Pairs as `image_pairs`; track_xy (M, 2) predicted ground positions, det_xy (N, 2) the detections'
+    ground points. The offset is the mean of the pairs' differences within inlier_m of their median.
+    Returns (offset, inliers), or None with fewer than min_pairs inliers or when fewer than half agree.
     """
-    track_boxes = np.asarray(track_boxes, dtype=np.float64).reshape(-1, 4)
-    det_boxes = np.asarray(det_boxes, dtype=np.float64).reshape(-1, 4)
-    if len(track_boxes) < min_pairs or len(det_boxes) < min_pairs:
-        return None
-    iou = box_iou(track_boxes, det_boxes)
-    iou[np.asarray(track_cls)[:, None] != np.asarray(det_cls)[None, :]] = 0.0
-    best_det = iou.argmax(axis=1)
-    best_track = iou.argmax(axis=0)
-    ti = np.flatnonzero((best_track[best_det] == np.arange(len(track_boxes)))
-                        & (iou[np.arange(len(track_boxes)), best_det] >= iou_min))
+    ti, di = image_pairs(track_boxes, track_cls, det_boxes, det_cls, iou_min)
     if len(ti) < min_pairs:
         return None
-    diff = np.asarray(track_xy, dtype=np.float64)[ti] - np.asarray(det_xy, dtype=np.float64)[best_det[ti]]
+    diff = np.asarray(track_xy, dtype=np.float64)[ti] - np.asarray(det_xy, dtype=np.float64)[di]
     diff = diff[np.isfinite(diff).all(axis=1)]
     if len(diff) < min_pairs:
         return None
@@ -92,3 +101,80 @@ def anchored_offset(track_boxes: NDArray, track_cls: NDArray, track_xy: NDArray,
         return None
     off = diff[inl].mean(axis=0)
     return (float(off[0]), float(off[1])), n_in
+
+
+def correction_jacobian(rel_xy: NDArray, height_m: float) -> NDArray[np.float64]:
+    """How ground points move with a small pose correction: (N, 2) east/north metres relative to the point
+    below the UAV -> (N, 2, 4), the derivative of each point by (east m, north m, heading rad, pitch rad).
+
+    A position error moves every point alike; a heading error turns the points about the UAV (clockwise:
+    range * d_theta sideways); a pitch error (more depression) pulls them in along the ray by
+    slant^2 / h * d_beta (flat ground).
+    """
+    rel = np.asarray(rel_xy, dtype=np.float64).reshape(-1, 2)
+    e, n = rel[:, 0], rel[:, 1]
+    r = np.hypot(e, n)
+    along = (r * r + height_m * height_m) / height_m
+    unit = np.where(r[:, None] > 1e-9, rel / np.where(r > 1e-9, r, 1.0)[:, None], 0.0)
+    J = np.zeros((len(rel), 2, 4))
+    J[:, 0, 0] = J[:, 1, 1] = 1.0
+    J[:, 0, 2], J[:, 1, 2] = n, -e
+    J[:, :, 3] = -along[:, None] * unit
+    return J
+
+
+def fit_pose_correction(rel_xy: NDArray, residual: NDArray, S: NDArray, height_m: float, prior_sd: NDArray,
+                        gate_chi2: float, min_pairs: int, *,
+                        robust_scale: bool = False) -> tuple[NDArray, NDArray, NDArray[np.bool_], float] | None:
+    """The pose correction (east m, north m, heading rad, pitch rad) that moves detections onto their tracks.
+
+    rel_xy (K, 2): the paired detections' ground points relative to the point below the UAV, metres;
+    residual (K, 2): track position - detection point; S (K, 2, 2): each pair's own error (track
+    prediction + the detection's pixel error), square metres; prior_sd (4,): how large each part of the
+    correction is expected to be (a weak position prior and tight angle priors make a far cluster of
+    pairs a shift, pairs spread in range and bearing a turn). Weighted least squares with that prior
+    (ridge), refitted without the pairs beyond gate_chi2 (squared Mahalanobis, each pair's S; on the
+    better half of them when most are beyond it) until the inliers settle.
+    With robust_scale, S is first scaled by c = max(1, median(d2) / 1.386) (the median of a chi-square of
+    2 degrees of freedom is 1.386) from the residuals of a first fit: pairs noisier than their S says
+    (part boxes, walking people) widen the gate and the correction's covariance instead of failing.
+    Returns (p (4,), cov (4, 4), inliers (K,) bool, c), or None with fewer than min_pairs inliers or
+    fewer than half of the pairs.
+    """
+    rel = np.asarray(rel_xy, dtype=np.float64).reshape(-1, 2)
+    res = np.asarray(residual, dtype=np.float64).reshape(-1, 2)
+    k = len(rel)
+    if k < min_pairs:
+        return None
+    J = correction_jacobian(rel, height_m)
+    W = np.linalg.inv(np.asarray(S, dtype=np.float64).reshape(-1, 2, 2))
+    prior = np.diag(1.0 / np.square(np.asarray(prior_sd, dtype=np.float64)))
+    inl = np.ones(k, dtype=bool)
+    p = cov = np.zeros(4)
+    scale = 1.0
+    if robust_scale:
+        A = (J.transpose(0, 2, 1) @ W @ J).sum(axis=0) + prior
+        p0 = np.linalg.solve(A, np.einsum("kij,kj->i", J.transpose(0, 2, 1) @ W, res))
+        left = res - np.einsum("kij,j->ki", J, p0)
+        scale = max(1.0, float(np.median(np.einsum("ki,kij,kj->k", left, W, left))) / 1.386)
+        W = W / scale
+    for _ in range(4):
+        JtW = J[inl].transpose(0, 2, 1) @ W[inl]  # (k, 4, 2)
+        A = (JtW @ J[inl]).sum(axis=0) + prior
+        b = np.einsum("kij,kj->i", JtW, res[inl])
+        cov = np.linalg.inv(A)
+        p = cov @ b
+        left = res - np.einsum("kij,j->ki", J, p)
+        d2 = np.einsum("ki,kij,kj->k", left, W, left)
+        new = d2 <= gate_chi2
+        if 2 * new.sum() < k:
+            # a wrong pair pulled the fit so far that most pairs fail the gate: refit on the better half
+            new = d2 <= np.median(d2)
+        if (new == inl).all():
+            break
+        inl = new
+    n_in = int((d2 <= gate_chi2).sum())
+    inl = d2 <= gate_chi2
+    if n_in < min_pairs or 2 * n_in < k:
+        return None
+    return p, cov, inl, scale

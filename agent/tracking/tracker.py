@@ -23,8 +23,8 @@ from agent.tracking.association import (
 )
 from agent.tracking.config import TrackerConfig
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, retire
-from agent.tracking.model import MotionModels, ground_measurement_cov, predict_constant_velocity
-from agent.tracking.registration import anchored_offset, track_offset
+from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
+from agent.tracking.registration import correction_jacobian, fit_pose_correction, image_pairs, track_offset
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon
 
@@ -119,6 +119,14 @@ class GpsTracker:
         #: The common offset (east, north) metres the last frame's ground points were moved by to meet the
         #: predicted tracks (TrackerConfig.register_tracks), None when none was applied.
         self.last_offset_en: tuple[float, float] | None = None
+        #: The pose correction (east m, north m, heading deg, pitch deg) the last frame's ground points were
+        #: moved by (TrackerConfig.image_register), None when none was found.
+        self.last_correction: tuple[float, float, float, float] | None = None
+        self._correction = np.zeros(4)
+        self._log_scale = 0.0  # log of the smoothed residual scale of registered frames
+        self._scale_t: float | None = None
+        self._uav_en = (0.0, 0.0)
+        self._height_m = 1.0
 
     # ----------------------------------------------------------------------------- views
     @property
@@ -241,7 +249,7 @@ class GpsTracker:
         assert state.origin is not None
         geo = np.isfinite(dets.lat) & np.isfinite(dets.lon)
         dets.geo = geo
-        anchored: tuple[float, float] | None = None
+        anchored: tuple[float, float, float, float] | None = None
         if geo.any():
             e, n = latlon_to_local(dets.lat[geo], dets.lon[geo], *state.origin)
             uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
@@ -255,12 +263,43 @@ class GpsTracker:
                 rel_e, rel_n = rel_e * c + rel_n * s, -rel_e * s + rel_n * c
             dets.z[geo, 0], dets.z[geo, 1] = rel_e + uav_e, rel_n + uav_n
             self.last_offset_en = None
-            anchored = self._image_offset(dets, t) if cfg.image_register else None
-            if anchored is not None:
-                dets.z[geo] += anchored
-                self.last_offset_en = anchored
+            self.last_correction = None
+            rate = abs(self._heading_rate_deg_s)
+            heading_sd = math.hypot(cfg.heading_sigma_deg, rate * cfg.timing_sigma_s)
+            pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
+            focal = math.sqrt(camera.fx * camera.fy)
+            rel = np.column_stack([rel_e, rel_n])
+            if cfg.image_register:
+                fit = self._register_in_image(dets, t, geo, rel, pose, focal, heading_sd, pitch_sd)
+                if fit is not None:
+                    correction, cov, scale = fit
+                    J = correction_jacobian(rel, pose.height_m)
+                    dets.z[geo] += J @ correction
+                    # what is left of the telemetry's error: the correction's own uncertainty at each point,
+                    # the pixel error and the floor, as noisy as the pairs' residuals showed (smoothed)
+                    a = 1.0 if self._scale_t is None else 1.0 - math.exp(-max(t - self._scale_t, 0.0)
+                                                                       / max(cfg.registered_scale_s, 1e-6))
+                    self._log_scale += a * (math.log(scale) - self._log_scale)
+                    self._scale_t = t
+                    floor = cfg.registered_floor_m ** 2 * np.eye(2)
+                    dets.R[geo] = math.exp(self._log_scale) * (self._pixel_cov(rel, pose, focal) + floor) \
+                        + J @ cov @ J.transpose(0, 2, 1)
+                    if cfg.registered_error_scale > 0:
+                        k = cfg.registered_error_scale
+                        dets.R[geo] += ground_measurement_cov(
+                            rel_e, rel_n, pose.height_m, focal, position_sigma_m=k * cfg.position_sigma_m,
+                            heading_sigma_deg=k * heading_sd, pitch_sigma_deg=k * pitch_sd,
+                            height_sigma_m=k * cfg.height_sigma_m, pixel_sigma_px=0.0,
+                            max_sigma_m=cfg.max_measurement_sigma_m)
+                    anchored = (float(correction[0]), float(correction[1]),
+                                math.degrees(correction[2]), math.degrees(correction[3]))
+                    self.last_correction = anchored
+                    self.last_offset_en = anchored[:2]
+                    self._uav_en = (uav_e, uav_n)
+                    self._correction = correction
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
-            elif cfg.register_tracks and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
+            if anchored is None and cfg.register_tracks \
+                    and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
                 act = state.active
                 confirmed = act["confirmed"] & (t - act["t_hit"] <= cfg.max_coast_s)
                 strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
@@ -270,14 +309,11 @@ class GpsTracker:
                     if offset is not None:
                         dets.z[geo] += offset
                         self.last_offset_en = offset
-            rate = abs(self._heading_rate_deg_s)
-            heading_sd = math.hypot(cfg.heading_sigma_deg, rate * cfg.timing_sigma_s)
-            pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
-            dets.R[geo] = ground_measurement_cov(
-                rel_e, rel_n, pose.height_m, math.sqrt(camera.fx * camera.fy),
-                position_sigma_m=cfg.position_sigma_m, heading_sigma_deg=heading_sd, pitch_sigma_deg=pitch_sd,
-                height_sigma_m=cfg.height_sigma_m, pixel_sigma_px=cfg.pixel_sigma_px,
-                max_sigma_m=cfg.max_measurement_sigma_m)
+            if anchored is None:
+                dets.R[geo] = ground_measurement_cov(
+                    rel_e, rel_n, pose.height_m, focal, position_sigma_m=cfg.position_sigma_m,
+                    heading_sigma_deg=heading_sd, pitch_sigma_deg=pitch_sd, height_sigma_m=cfg.height_sigma_m,
+                    pixel_sigma_px=cfg.pixel_sigma_px, max_sigma_m=cfg.max_measurement_sigma_m)
 
         if cfg.duplicate_raw_ratio > 0 and geo.sum() > 1:
             dets.used |= ground_duplicates(dets.z, dets.R, dets.raw, dets.cls, geo & ~dets.used,
@@ -316,39 +352,65 @@ class GpsTracker:
         if cfg.reid_delay_s > 0:
             reid.resolve_pending(state, t)
         if anchored is not None:
-            self._follow_telemetry(anchored, dt)
+            self._height_m = pose.height_m
+            self._follow_telemetry(dt)
 
-    def _image_offset(self, dets: FrameDetections, t: float) -> tuple[float, float] | None:
-        """The common offset (east, north) metres from this frame's confident ground points to the confirmed
-        tracks they overlap in the image (TrackerConfig.image_register), None when the image pairs none."""
+    def _pixel_cov(self, rel: FloatArray, pose: Pose, focal_px: float) -> FloatArray:
+        """(N, 2, 2) ground error of points (N, 2) relative to the UAV from the pixel error alone."""
+        cfg = self.config
+        return ground_measurement_cov(rel[:, 0], rel[:, 1], pose.height_m, focal_px, position_sigma_m=0.0,
+                                      heading_sigma_deg=0.0, pitch_sigma_deg=0.0, height_sigma_m=0.0,
+                                      pixel_sigma_px=cfg.pixel_sigma_px, max_sigma_m=cfg.max_measurement_sigma_m)
+
+    def _register_in_image(self, dets: FrameDetections, t: float, geo: NDArray[np.bool_], rel: FloatArray,
+                           pose: Pose, focal_px: float, heading_sd_deg: float,
+                           pitch_sd_deg: float) -> tuple[FloatArray, FloatArray, float] | None:
+        """The frame's pose correction (east m, north m, heading rad, pitch rad) and its covariance, from its
+        confident detections and the confirmed tracks they overlap in the image (TrackerConfig.image_register);
+        None when the image pairs too few. rel: (G, 2) the geo detections' points relative to the UAV."""
         cfg = self.config
         act = self._state.active
         need = cfg.image_register_min_pairs
-        strong = np.flatnonzero(dets.geo & ~dets.used & (dets.scores >= cfg.match_score))
+        row_of = np.full(len(geo), -1)
+        row_of[geo] = np.arange(int(geo.sum()))
+        strong = np.flatnonzero(geo & ~dets.used & (dets.scores >= cfg.match_score))
         if len(act) < need or len(strong) < need:
             return None
         ti = np.flatnonzero(act["confirmed"])
         ti = ti[fresh_in_image(self._state, ti, t)]
         if len(ti) < need:
             return None
-        found = anchored_offset(expected_boxes(self._state, ti, t), act["cls"][ti], act["x"][ti, :2],
-                                dets.boxes[strong], dets.cls[strong], dets.z[strong], cfg.image_register_iou,
-                                need, cfg.image_register_inlier_m)
-        return None if found is None else found[0]
+        pt, pd = image_pairs(expected_boxes(self._state, ti, t), act["cls"][ti], dets.boxes[strong],
+                             dets.cls[strong], cfg.image_register_iou)
+        if len(pt) < need:
+            return None
+        ti, di = ti[pt], strong[pd]
+        rel_pairs = rel[row_of[di]]
+        S = act["P"][ti, :2, :2] + self._pixel_cov(rel_pairs, pose, focal_px) \
+            + cfg.registered_floor_m ** 2 * np.eye(2)
+        prior = np.array([cfg.register_position_sd_m, cfg.register_position_sd_m,
+                          math.radians(cfg.register_angle_scale * heading_sd_deg),
+                          math.radians(cfg.register_angle_scale * pitch_sd_deg)])
+        fit = fit_pose_correction(rel_pairs, act["x"][ti, :2] - dets.z[di], S, pose.height_m, prior,
+                                  cfg.gate_chi2, need, robust_scale=cfg.registered_scale_s > 0)
+        return None if fit is None else (fit[0], fit[1], fit[3])
 
-    def _follow_telemetry(self, offset_en: tuple[float, float], dt: float) -> None:
-        """Move the tracks and the re-ID memory toward the telemetry's frame by the registered offset, with
-        time constant track_follow_s (what stays is measured again in the next frame)."""
+    def _follow_telemetry(self, dt: float) -> None:
+        """Move the tracks and the re-ID memory toward the telemetry's frame by the frame's pose correction,
+        with time constant track_follow_s (what stays is measured again in the next frame)."""
         tau = self.config.track_follow_s
         gain = 1.0 if tau <= 0 else 1.0 - math.exp(-max(dt, 0.0) / tau)
         if gain <= 0:
             return
-        shift = gain * np.asarray(offset_en)
         state = self._state
+        uav = np.asarray(self._uav_en)
+        p = gain * self._correction
         if len(state.active):
-            state.active.cols["x"][:, :2] -= shift
+            x = state.active.cols["x"]
+            x[:, :2] -= correction_jacobian(x[:, :2] - uav, self._height_m) @ p
         if len(state.lost):
-            state.lost.cols["pos"] -= shift
+            pos = state.lost.cols["pos"]
+            pos -= correction_jacobian(pos - uav, self._height_m) @ p
 
     def _smoothed_heading(self, heading_deg: float, dt: float) -> float:
         """Low-pass gimbal heading (TrackerConfig.heading_smoothing_s), degrees in [0, 360)."""

@@ -8,7 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.tracking.registration import anchored_offset, track_offset
+from agent.tracking.registration import anchored_offset, correction_jacobian, fit_pose_correction, track_offset
 
 TRACKS = np.array([[0.0, 0.0], [12.0, 3.0], [-9.0, 14.0], [20.0, -11.0], [-15.0, -8.0]])
 
@@ -129,3 +129,30 @@ def test_the_tracker_keeps_every_id_through_a_gps_step() -> None:
     assert abs(offsets[-1][0]) < 0.3
     seen_without, _ = run(TrackerConfig(image_register=False))
     assert len(seen_without) > len(people)
+
+
+def test_a_pose_correction_separates_a_turn_from_a_shift() -> None:
+    """Pairs spread in range and bearing: a heading error turns them about the UAV, a GPS error shifts
+    them; the fit tells the two apart and lays the detections back onto the tracks."""
+    rng = np.random.default_rng(1)
+    tracks = rng.uniform([-30.0, 20.0], [30.0, 70.0], (12, 2))  # relative to the UAV, metres
+    true = np.array([1.5, -0.8, np.radians(1.2), np.radians(-0.4)])
+    dets = tracks - correction_jacobian(tracks, 40.0) @ true + rng.normal(0.0, 0.05, tracks.shape)
+    S = np.repeat(0.05**2 * np.eye(2)[None], len(tracks), axis=0)
+    prior = np.array([10.0, 10.0, np.radians(1.0), np.radians(0.5)])
+    fit = fit_pose_correction(dets, tracks - dets, S, 40.0, prior, gate_chi2=9.21, min_pairs=2)
+    assert fit is not None
+    p, cov, inliers, _ = fit
+    assert inliers.all()
+    assert p[:2] == pytest.approx(true[:2], abs=0.2)
+    assert np.degrees(p[2:]) == pytest.approx(np.degrees(true[2:]), abs=0.1)
+    moved = dets + correction_jacobian(dets, 40.0) @ p
+    assert np.hypot(*(moved - tracks).T).max() < 0.3
+    # a wrong pair is left out and does not pull the fit
+    bad = dets.copy()
+    bad[0] += np.array([6.0, -5.0])
+    p2, _, inl2, _ = fit_pose_correction(bad, tracks - bad, S, 40.0, prior, gate_chi2=9.21, min_pairs=2)
+    assert not inl2[0] and inl2[1:].all()
+    assert p2 == pytest.approx(p, abs=0.05)
+    # too few pairs
+    assert fit_pose_correction(dets[:1], (tracks - dets)[:1], S[:1], 40.0, prior, 9.21, 2) is None
