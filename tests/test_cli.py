@@ -82,3 +82,17 @@ def test_the_pinned_baselines_match_the_message():
     pinned = [ln.split("#")[0].strip() for ln in (REPO / "requirements-nodeps.txt").read_text().splitlines()]
     for requirement in ("trackeval==1.3.0", "norfair==2.3.0"):
         assert requirement in pinned and requirement in NODEPS_INSTALL
+
+
+@pytest.mark.parametrize("argv", [
+    ["fit-size-filter", "--frames", "{tmp}/images.json", "--camera", "dji-mavic2-pro", "--out", "{tmp}/no/such/f.json"],
+    ["bench", "geo", "--quick", "--json", "{tmp}/no/such/bench.json"],
+])
+def test_a_missing_output_folder_is_named_before_any_work(argv, tmp_path, capsys):
+    from uavmm.cli import main
+
+    # the input does not exist either: the output folder is checked first, so no work is done and lost
+    assert main([a.format(tmp=tmp_path) for a in argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"uavmm {argv[0]}: error: output directory {tmp_path / 'no' / 'such'} does not exist "
+                   f"(for {tmp_path / 'no' / 'such' / argv[-1].rsplit('/', 1)[1]})"]
