@@ -30,10 +30,18 @@ def test_version_is_the_packages():
     assert proc.returncode == 0 and proc.stdout.strip() == f"uavmm {declared}"
 
 
-def test_every_subcommand_takes_log_level():
+def test_version_after_a_subcommand_too(capsys):
+    with pytest.raises(SystemExit) as stop:
+        build_parser().parse_args(["secure", "init", "--version"])  # before the required arguments are missed
+    assert stop.value.code == 0
+    assert capsys.readouterr().out.strip().startswith("uavmm ")
+
+
+def test_every_subcommand_takes_log_level_and_version():
     names = []
     for path, sub in _subparsers(build_parser()):
         assert any("--log-level" in a.option_strings for a in sub._actions), path
+        assert any("--version" in a.option_strings for a in sub._actions), path
         names.append(" ".join(path))
     assert {"fusion", "agent", "demo", "secure init", "boost", "track"} <= set(names)
 

@@ -404,13 +404,16 @@ def package_version() -> str:
 
 
 def _global_flags_everywhere(sub: argparse._SubParsersAction) -> None:
-    """Accept ``--log-level`` after the subcommand too (``uavmm fusion --log-level INFO``).
+    """Accept the global flags after the subcommand too (``uavmm fusion --log-level INFO``, ``uavmm agent
+    --version``).
 
     The copy's default is SUPPRESS, so a value given before the subcommand is kept when none is given after.
     """
     for parser in sub.choices.values():
         parser.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
                             help="logging level (stderr); also accepted before the subcommand")
+        parser.add_argument("--version", action="version", version=f"uavmm {package_version()}",
+                            help="print the version and exit")
         for action in parser._actions:
             if isinstance(action, argparse._SubParsersAction):
                 _global_flags_everywhere(action)
