@@ -95,6 +95,11 @@ def test_the_pinned_baselines_match_the_message():
 @pytest.mark.parametrize("argv", [
     ["fit-size-filter", "--frames", "{tmp}/images.json", "--camera", "dji-mavic2-pro", "--out", "{tmp}/no/such/f.json"],
     ["bench", "geo", "--quick", "--json", "{tmp}/no/such/bench.json"],
+    ["anomaly", "--frames", "{tmp}/images.json", "--camera", "dji-mavic2-pro", "--out", "{tmp}/no/such/rois.json"],
+    ["boost", "--frames", "{tmp}/images.json", "--candidates", "{tmp}/p.json", "--camera", "dji-mavic2-pro",
+     "--out", "{tmp}/no/such/results.json"],
+    ["tune", "--frames", "{tmp}/images.json", "--candidates", "{tmp}/p.json", "--camera", "dji-mavic2-pro",
+     "--out", "{tmp}/no/such/params.json"],
 ])
 def test_a_missing_output_folder_is_named_before_any_work(argv, tmp_path, capsys):
     from uavmm.cli import main
