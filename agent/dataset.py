@@ -279,7 +279,7 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         key = (image.width, image.height)
         if key not in cameras:
             cameras[key] = camera.fitted_to(*key, source=f"the frames of video {video_id}")
-            if key != (camera.width, camera.height):
+            if key != (camera.width, camera.height) and camera.preset is None:  # a preset has no size of its own
                 log.warning("camera is %dx%d, the frames of video %s are %dx%d: scaled the intrinsics to them",
                             camera.width, camera.height, video_id, *key)
         pose, pose_t, problem = frame_pose(image)

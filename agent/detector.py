@@ -27,10 +27,13 @@ import numpy as np
 from agent.letterbox import PAD_VALUE, LetterboxTransform, letterbox
 from agent.yolo_format import (
     LAYOUTS,
+    RAW_EXPORT_HINT,
     check_layout,
     decode_raw_output,
     detect_layout,
+    kept_boxes_shape,
     names_from_metadata,
+    nms_inside,
     resolve_class_names,
 )
 
@@ -281,6 +284,10 @@ class OnnxYoloDetector:
         self._names_from_user = user_names is not None
         self._names = user_names if user_names is not None else names_from_metadata(metadata)
 
+        reason = nms_inside(metadata, [o.name for o in self._session.get_outputs()])
+        if reason is not None:
+            raise ValueError(f"model {self.model_path.name} {reason}; {RAW_EXPORT_HINT}")
+
         self._requested_layout = layout
         self._layout: str | None = None
         self._num_classes: int | None = None
@@ -399,6 +406,10 @@ class OnnxYoloDetector:
         names_count = len(self._names) if self._names is not None else None
         if self._requested_layout == "auto":
             layout = detect_layout(shape, names_count)
+            if layout == "v5" and kept_boxes_shape(shape):  # a 1-class model's [1, 300, 6] fits v5 by its width
+                raise ValueError(f"model {self.model_path.name} output {list(shape)} looks like the kept boxes of an "
+                                 f"export with NMS inside (x1, y1, x2, y2, score, class), not a raw YOLOv5 head "
+                                 f"(pass layout='v5' if it is one); {RAW_EXPORT_HINT}")
         else:
             layout = self._requested_layout
         num_classes = check_layout(shape, layout)

@@ -346,7 +346,9 @@ class VideoSource:
         same_size = (width, height) in ((0, 0), (self.camera_file.width, self.camera_file.height))
         self.camera = self.camera_file if same_size else self.camera_file.fitted_to(width, height,
                                                                                       source=f"the frames of {video}")
-        if not same_size:  # same field of view at another resolution: fine, but the user should know
+        # a camera file at another resolution: the same field of view, fine, but the user should know (a preset has
+        # no size of its own: it is made at the frames' size)
+        if not same_size and self.camera_file.preset is None:
             log.warning("camera %s is %dx%d but the frames of %s are %dx%d: using it scaled to the frames",
                         camera, self.camera_file.width, self.camera_file.height, self.video_path.name, width, height)
         self.detector: Callable[[NDArray[np.uint8]], Detections] = OnnxYoloDetector(

@@ -29,12 +29,46 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LAYOUTS", "check_layout", "decode_raw_output", "detect_layout", "load_class_names",
-           "names_from_metadata", "resolve_class_names"]
+__all__ = ["LAYOUTS", "RAW_EXPORT_HINT", "check_layout", "decode_raw_output", "detect_layout", "load_class_names",
+           "kept_boxes_shape", "names_from_metadata", "nms_inside", "resolve_class_names"]
 
 logger = logging.getLogger(__name__)
 
 LAYOUTS = ("auto", "v5", "v8")
+#: What to do about a model with NMS inside (docs/detect.md has the whole recipe).
+RAW_EXPORT_HINT = ("the memory map needs the raw candidates before NMS: export the model without it "
+                   "(yolo export model=M.pt format=onnx nms=False end2end=False; docs/detect.md, "
+                   "'Raw candidates from ultralytics')")
+#: Output names of exports with an NMS operator or plugin at the end (TensorRT EfficientNMS, ONNX NMS).
+_NMS_OUTPUT_NAMES = {"num_dets", "det_boxes", "det_scores", "det_classes", "num_detections", "detection_boxes",
+                     "detection_scores", "detection_classes", "selected_indices"}
+#: An ultralytics end-to-end or NMS export is [1, max_det, 6] (x1, y1, x2, y2, score, class), max_det 300 by
+#: default; a raw YOLOv5 head has thousands of candidates (25200 at 640, 1008 even at 128).
+_KEPT_BOXES_MAX = 1000
+
+
+def nms_inside(metadata: Mapping[str, str], output_names: Sequence[str]) -> str | None:
+    """Why a model's output is already NMS-filtered (ultralytics metadata, NMS output names), or None.
+
+    Reads ultralytics' ``end2end`` and ``args`` (``nms=True``) metadata as literals (never evaluated).
+    """
+    if str(metadata.get("end2end", "")).strip().lower() == "true":
+        return "is an end-to-end export (ultralytics metadata end2end=True: its output holds the kept boxes only)"
+    try:
+        args = ast.literal_eval(metadata.get("args", "{}"))
+    except (ValueError, SyntaxError, TypeError, MemoryError, RecursionError):
+        args = {}
+    if isinstance(args, dict) and args.get("nms") is True:
+        return "was exported with nms=True (ultralytics metadata: its output holds the kept boxes only)"
+    named = sorted(_NMS_OUTPUT_NAMES & {str(n).lower() for n in output_names})
+    if named:
+        return f"has NMS outputs ({', '.join(named)}): only the kept boxes come out"
+    return None
+
+
+def kept_boxes_shape(shape: tuple[int, ...]) -> bool:
+    """True for an output shaped like kept boxes, [1, K, 6] with K <= 1000, rather than a raw 1-class v5 head."""
+    return len(shape) == 3 and shape[0] == 1 and shape[2] == 6 and shape[1] <= _KEPT_BOXES_MAX
 
 
 # --------------------------------------------------------------------------------------------------

@@ -41,7 +41,7 @@ from fusion_server.render import (
 )
 from fusion_server.replay import history_window, stored_tracks
 from shared.keys import name_problem
-from shared.kml import KML_MEDIA_TYPE, feature_collections_kml
+from shared.kml import KML_MEDIA_TYPE, KMZ_MEDIA_TYPE, feature_collections_kml, kmz
 
 if TYPE_CHECKING:
     from fusion_server.basemap import Basemap
@@ -154,8 +154,14 @@ def _index_html() -> str:
         return "<!doctype html><title>uavmm fusion</title><p>uavmm fusion server: see <a href='/docs'>/docs</a>."
 
 
-def _kml(name: str, folders: dict[str, dict[str, Any]]) -> Response:
-    return Response(feature_collections_kml(name, folders), media_type=KML_MEDIA_TYPE)
+def _kml(name: str, folders: dict[str, dict[str, Any]], format: str = "kml") -> Response:
+    """KML, or with format "kmz" the same document zipped (a download named after the document)."""
+    document = feature_collections_kml(name, folders)
+    if format == "kmz":
+        filename = name.replace(" ", "-") + ".kmz"
+        return Response(kmz(document), media_type=KMZ_MEDIA_TYPE,
+                        headers={"Content-Disposition": f'attachment; filename="{filename}"'})
+    return Response(document, media_type=KML_MEDIA_TYPE)
 
 
 def _etags(header: str | None) -> set[str]:
@@ -229,18 +235,21 @@ def create_app(server: FusionView) -> FastAPI:
 
     @app.get("/v1/uavs", summary="The UAVs: liveliness, last seen, last state, message rates", response_model=None,
              responses={200: {"model": list[schemas.Uav], "description": "format=json: a list of UAVs; "
-                              "format=geojson: a FeatureCollection (schema UavCollection); format=kml: KML",
+                              "format=geojson: a FeatureCollection (schema UavCollection); format=kml: KML; "
+                              "format=kmz: zipped KML",
                               "content": {GEOJSON_MEDIA_TYPE: {"schema": _ref("UavCollection")}}}})
     def uavs(
-        format: Literal["json", "geojson", "kml"] = Query(
-            "json", description="json list, or a GeoJSON FeatureCollection / KML of Points (UAVs with a position)"),
-        footprints: bool = Query(False, description="geojson, kml: also each UAV's ground footprint as a Polygon"),
+        format: Literal["json", "geojson", "kml", "kmz"] = Query(
+            "json", description="json list, or a GeoJSON FeatureCollection / KML / KMZ of Points (UAVs with a "
+                                "position)"),
+        footprints: bool = Query(False, description="geojson, kml, kmz: also each UAV's ground footprint as a "
+                                                    "Polygon"),
     ) -> Any:
         rows = server.uavs.snapshot(server.joint.uav_tile_counts())
         if format == "geojson":
             return GeoJSONResponse(uavs_geojson(rows, footprints=footprints))
-        if format == "kml":
-            return _kml("uavmm UAVs", {"UAVs": uavs_geojson(rows, footprints=footprints)})
+        if format in ("kml", "kmz"):
+            return _kml("uavmm UAVs", {"UAVs": uavs_geojson(rows, footprints=footprints)}, format)
         return rows
 
     @app.get("/v1/map", summary="Joint map window over a bbox (grid geometry + values)", response_model=None,
@@ -334,13 +343,14 @@ def create_app(server: FusionView) -> FastAPI:
 
     @app.get("/v1/objects", summary="Fused object candidates (joint map peaks) as GeoJSON",
              response_class=GeoJSONResponse, response_model=None,
-             responses={200: {"model": schemas.ObjectCollection, "description": "format=geojson: GeoJSON; kml: KML"}})
+             responses={200: {"model": schemas.ObjectCollection,
+                              "description": "format=geojson: GeoJSON; kml: KML; kmz: zipped KML"}})
     def objects(
         cls: str | None = Query(None, description="class name (default: all classes)"),
         bbox: str | None = Query(None, description=_BBOX_HELP + " (default: everywhere)"),
         min_score: float = Query(0.5, ge=0.0, le=1.0, description="lowest peak value in [0, 1]"),
         limit: int = Query(1000, ge=1, le=100_000, description="most features returned"),
-        format: Literal["geojson", "kml"] = Query("geojson", description="geojson or kml"),
+        format: Literal["geojson", "kml", "kmz"] = Query("geojson", description="geojson, kml or kmz (zipped KML)"),
     ) -> Any:
         box = _bbox(bbox)
         classes = [_check_cls(server, cls)] if cls is not None else sorted(server.classes())
@@ -358,22 +368,23 @@ def create_app(server: FusionView) -> FastAPI:
                 tiles = server.joint.tiles(name)
             peaks.extend(find_peaks(tiles, grid, min_score, bbox=box, limit=limit))
         peaks.sort(key=lambda p: -p.score)
-        if format == "kml":
-            return _kml("uavmm fused objects", {"objects": peaks_geojson(peaks[:limit])})
+        if format in ("kml", "kmz"):
+            return _kml("uavmm fused objects", {"objects": peaks_geojson(peaks[:limit])}, format)
         return peaks_geojson(peaks[:limit])
 
     @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history", response_class=GeoJSONResponse,
              response_model=None,
              responses={200: {"model": schemas.TrackCollection | schemas.TrackLineCollection,
                               "description": "geometry=point: TrackCollection; geometry=line: TrackLineCollection; "
-                                             "format=kml: KML"}})
+                                             "format=kml: KML; format=kmz: zipped KML"}})
     def tracks(
         include_ended: bool = Query(False, description="also list recently ended tracks"),
         history: bool = Query(True, description="include each track's (t, lat, lon) history"),
         geometry: Literal["point", "line"] = Query(
             "point", description="point: the current position; line: the history as a LineString [lon, lat] "
                                  "(its times in the times property)"),
-        format: Literal["geojson", "kml"] = Query("geojson", description="geojson, or kml (positions and lines)"),
+        format: Literal["geojson", "kml", "kmz"] = Query(
+            "geojson", description="geojson, or kml / kmz (positions and lines; kmz: zipped)"),
     ) -> Any:
         features = []
         for record in server.tracker.records(include_ended=include_ended):
@@ -381,10 +392,10 @@ def create_app(server: FusionView) -> FastAPI:
             if not history and geometry == "point":
                 del feature["properties"]["history"]
             features.append(feature)
-        if format == "kml":
+        if format in ("kml", "kmz"):
             return _kml("uavmm global tracks", {
                 "tracks": {"type": "FeatureCollection", "features": features},
-                "track lines": track_lines_geojson(features)})
+                "track lines": track_lines_geojson(features)}, format)
         if geometry == "line":
             return track_lines_geojson(features)
         return {"type": "FeatureCollection", "features": features}

@@ -86,6 +86,9 @@ class FusionSettings:
     #: Cursor-on-Target events of UAVs and global tracks to udp://HOST:PORT or tcp://HOST:PORT (None: off)
     cot_url: str | None = None
     cot_interval_s: float = 1.0
+    #: with cot_url: also the fused objects (joint-map peaks at or above this value) no global track explains
+    #: (None: none)
+    cot_objects_min_score: float | None = 0.5
     #: map under the live page: an http(s) XYZ template with {z}/{x}/{y} or an MBTiles file (None: none)
     basemap: str | None = None
     basemap_attribution: str | None = None
@@ -109,6 +112,8 @@ class FusionSettings:
             raise ValueError("http_tokens must be HttpToken values")
         if self.cot_url is not None:
             parse_cot_url(self.cot_url)
+        if self.cot_objects_min_score is not None and not 0.0 < self.cot_objects_min_score <= 1.0:
+            raise ValueError(f"cot_objects_min_score must be in (0, 1], got {self.cot_objects_min_score!r}")
         if self.basemap is not None:
             basemap = open_basemap(self.basemap, self.basemap_attribution)  # raises ValueError naming the problem
             if basemap.mbtiles is not None:

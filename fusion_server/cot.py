@@ -1,13 +1,15 @@
 """Cursor-on-Target (CoT) events for TAK clients (ATAK, WinTAK, iTAK, a TAK server): the fleet on their map.
 
-Every interval, one event per UAV (its position, heading and camera as a sensor) and per global track
-(class, score, course and speed), each with a stale time; an ended track gets one last event that is
-already stale, so TAK removes it. Sent as UDP datagrams (unicast or multicast, e.g. the SA group
+Every interval, one event per UAV (its position, heading and camera as a sensor), per global track
+(class, score, course and speed) and per fused object (a joint-map peak) that no global track of its class
+explains (an early sighting not tracked yet, an anomaly), each with a stale time; an ended track gets one
+last event that is already stale, so TAK removes it. Sent as UDP datagrams (unicast or multicast, e.g. the SA group
 ``udp://239.2.3.1:6969``) or streamed over TCP to a TAK server's plain input (``tcp://HOST:8087``).
 """
 
 from __future__ import annotations
 
+import itertools
 import logging
 import math
 import socket
@@ -20,7 +22,9 @@ from datetime import datetime, timezone
 from typing import Any
 from urllib.parse import urlsplit
 
-__all__ = ["CLASS_TYPES", "CotSender", "CotTarget", "parse_cot_url", "track_event", "uav_event"]
+from fusion_server.peaks import Peak
+
+__all__ = ["CLASS_TYPES", "CotSender", "CotTarget", "object_event", "parse_cot_url", "track_event", "uav_event"]
 
 log = logging.getLogger(__name__)
 
@@ -31,6 +35,10 @@ CLASS_TYPES = {
 }
 UAV_TYPE = "a-f-A-M-F-Q"  # friendly, air, military, fixed wing, UAV (TAK's drone icon)
 UNKNOWN = "9999999.0"  # CoT's value for an unknown height or error
+#: A fused object within this many metres of a live global track of its class is that track (no own event).
+OBJECT_GATE_M = 5.0
+#: Fused objects sent per round at most (the strongest first), so a noisy map cannot flood a TAK network.
+MAX_OBJECTS = 100
 
 
 @dataclass(frozen=True, slots=True)
@@ -94,6 +102,29 @@ def track_event(feature: Mapping[str, Any], now: float, stale_s: float, *, uid_p
     return _bytes(event)
 
 
+def object_event(peak: Peak, now: float, stale_s: float, *, uid_prefix: str = "uavmm") -> bytes:
+    """The CoT event of one fused object (a joint-map peak, `fusion_server.peaks.Peak`).
+
+    The uid names the peak's map cell (``uavmm.object.CLS.GX.GY``, cells of 0.6 m at the default zoom): a peak
+    that drifts to another cell is a new event and the old one goes stale, so keep ``stale_s`` short.
+    """
+    event, detail = _event(f"{uid_prefix}.object.{peak.cls}.{int(peak.gx)}.{int(peak.gy)}",
+                           CLASS_TYPES.get(peak.cls, "a-u-G"), peak.lat, peak.lon, now, stale_s, ce_m=5.0)
+    ET.SubElement(detail, "contact", {"callsign": f"{peak.cls} {peak.score:.2f}"})
+    ET.SubElement(detail, "remarks").text = (
+        f"uavmm fused object ({peak.cls}): joint memory map peak {peak.score:.2f}, not a global track (yet)")
+    return _bytes(event)
+
+
+def _explained(peak: Peak, tracks: list[tuple[str, float, float]], gate_m: float) -> bool:
+    """True when a live track of the peak's class lies within gate_m of it (equirectangular metres)."""
+    cos_lat = math.cos(math.radians(peak.lat))
+    for cls, lat, lon in tracks:
+        if cls == peak.cls and math.hypot((lon - peak.lon) * cos_lat, lat - peak.lat) * 111_320.0 <= gate_m:
+            return True
+    return False
+
+
 def uav_event(row: Mapping[str, Any], now: float, stale_s: float, *, uid_prefix: str = "uavmm") -> bytes | None:
     """The CoT event of one UAV (a row of ``/v1/uavs``), or None without a position (no state yet)."""
     state = row.get("state")
@@ -119,18 +150,24 @@ class CotSender:
     """A background thread sending the fleet's CoT events every ``interval_s``; never raises into the server.
 
     tracks: () -> Features of the global tracks (with recently ended ones). uavs: () -> ``/v1/uavs`` rows.
+    objects: () -> the fused objects (joint-map peaks, strongest first) or None for none; those within
+    ``OBJECT_GATE_M`` of a live track of their class are left out, at most ``MAX_OBJECTS`` are sent, and they
+    go stale after ``object_stale_s`` (3 intervals by default: a peak that moves on leaves no ghost for long).
     Failures (no route, a TAK server that is down) are logged once per state change, counted and retried
     at the next interval (TCP reconnects).
     """
 
     def __init__(self, target: CotTarget, tracks: Callable[[], Iterable[Mapping[str, Any]]],
                  uavs: Callable[[], Iterable[Mapping[str, Any]]], *, interval_s: float = 1.0,
-                 stale_s: float = 10.0, clock: Callable[[], float] = time.time) -> None:
+                 stale_s: float = 10.0, clock: Callable[[], float] = time.time,
+                 objects: Callable[[], Iterable[Peak]] | None = None, object_stale_s: float | None = None) -> None:
         self.target = target
         self._tracks = tracks
         self._uavs = uavs
+        self._objects = objects
         self.interval_s = interval_s
         self.stale_s = stale_s
+        self.object_stale_s = 3.0 * interval_s if object_stale_s is None else object_stale_s
         self._clock = clock
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name="uavmm-cot", daemon=True)
@@ -150,16 +187,24 @@ class CotSender:
         self._disconnect()
 
     def events(self) -> list[bytes]:
-        """This round's events: every UAV with a position, every live track, each ended track once."""
+        """This round's events: every UAV with a position, every live track, each ended track once, and the
+        fused objects no live track explains."""
         now = self._clock()
         out = [e for row in self._uavs() if (e := uav_event(row, now, self.stale_s)) is not None]
+        live: list[tuple[str, float, float]] = []
         for feature in self._tracks():
             gid = feature["properties"]["gid"]
             if feature["properties"].get("status") == "ended":
                 if gid in self._ended_sent:
                     continue
                 self._ended_sent.add(gid)
+            else:
+                lon, lat = feature["geometry"]["coordinates"]
+                live.append((str(feature["properties"]["cls"]), float(lat), float(lon)))
             out.append(track_event(feature, now, self.stale_s))
+        if self._objects is not None:
+            untracked = (p for p in self._objects() if not _explained(p, live, OBJECT_GATE_M))
+            out.extend(object_event(p, now, self.object_stale_s) for p in itertools.islice(untracked, MAX_OBJECTS))
         if len(self._ended_sent) > 100_000:  # ended tracks age out of the tracker long before this
             self._ended_sent.clear()
         return out

@@ -16,11 +16,11 @@ from typing import Any
 
 from fusion_server.geo_formats import track_lines_geojson
 from fusion_server.gpkg import Layer, write_geopackage
-from shared.kml import feature_collections_kml
+from shared.kml import feature_collections_kml, kmz
 
 __all__ = ["EXPORT_FORMATS", "HistoryExport", "export_history", "read_history"]
 
-EXPORT_FORMATS = {".gpkg": "GeoPackage", ".kml": "KML", ".geojson": "GeoJSON", ".json": "GeoJSON"}
+EXPORT_FORMATS = {".gpkg": "GeoPackage", ".kml": "KML", ".kmz": "KMZ", ".geojson": "GeoJSON", ".json": "GeoJSON"}
 
 
 def _iso(t: float | None) -> str | None:
@@ -112,7 +112,7 @@ def _layers(export: HistoryExport) -> list[Layer]:
 
 def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None = None,
                    since: float | None = None) -> dict[str, int]:
-    """Write the database's history to ``out_path`` (format by extension: .gpkg, .kml, .geojson/.json).
+    """Write the database's history to ``out_path`` (format by extension: .gpkg, .kml, .kmz, .geojson/.json).
 
     Returns the feature count per layer. ValueError for an unknown extension or a bad database;
     FileNotFoundError when the output folder does not exist.
@@ -127,9 +127,10 @@ def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None
     collections = export.collections()
     if suffix == ".gpkg":
         write_geopackage(out, _layers(export))
-    elif suffix == ".kml":
-        out.write_bytes(feature_collections_kml("uavmm tracks", {
-            "tracks": collections["tracks"], "track lines": collections["track_lines"]}))
+    elif suffix in (".kml", ".kmz"):
+        document = feature_collections_kml("uavmm tracks", {
+            "tracks": collections["tracks"], "track lines": collections["track_lines"]})
+        out.write_bytes(kmz(document) if suffix == ".kmz" else document)
     else:  # one GeoJSON file: the lines (with times) and the last positions
         features = collections["track_lines"]["features"] + collections["tracks"]["features"]
         out.write_text(json.dumps({"type": "FeatureCollection", "features": features}))

@@ -20,11 +20,12 @@ import uvicorn
 from fusion_server.api import create_app
 from fusion_server.basemap import open_basemap
 from fusion_server.config import FusionSettings, zenoh_config
-from fusion_server.cot import CotSender, parse_cot_url
+from fusion_server.cot import MAX_OBJECTS, CotSender, parse_cot_url
 from fusion_server.db_check import check_database, move_aside
 from fusion_server.global_tracks import GlobalTracker
 from fusion_server.joint_map import JointMap
 from fusion_server.metrics import FusionMetrics
+from fusion_server.peaks import Peak, find_peaks
 from fusion_server.persistence import FusionStore
 from fusion_server.rate_limit import UavRateLimiter
 from fusion_server.rules import get_fusion_rule
@@ -122,7 +123,8 @@ class FusionServer:
         self.cot: CotSender | None = None
         if settings.cot_url is not None:
             self.cot = CotSender(parse_cot_url(settings.cot_url), self._track_features, self.uavs.snapshot,
-                                 interval_s=settings.cot_interval_s)
+                                 interval_s=settings.cot_interval_s,
+                                 objects=None if settings.cot_objects_min_score is None else self._object_peaks)
 
     def start(self, *, http: bool = True) -> None:
         """Restore the database, open Zenoh, start publishing and (if ``http``) the REST API."""
@@ -183,6 +185,13 @@ class FusionServer:
 
     def _track_features(self) -> list[dict[str, Any]]:
         return [record.to_geojson() for record in self.tracker.records(include_ended=True)]
+
+    def _object_peaks(self) -> list[Peak]:
+        """The fused objects of every class at or above ``cot_objects_min_score``, strongest first (for CoT)."""
+        min_score = self.settings.cot_objects_min_score or 0.5
+        peaks = [peak for cls in sorted(self.classes())
+                 for peak in find_peaks(self.joint.tiles(cls), self.joint.grid, min_score, limit=MAX_OBJECTS)]
+        return sorted(peaks, key=lambda p: -p.score)
 
     def count_http_denied(self, reason: str) -> None:
         """Count a REST request refused for ``reason`` (``no_token`` or ``bad_token``)."""

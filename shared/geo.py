@@ -83,6 +83,9 @@ class Camera:
     """Pinhole camera intrinsics in pixels, with optional OpenCV distortion coefficients.
 
     dist: None or a tuple of 4, 5, 8, 12 or 14 OpenCV coefficients (k1, k2, p1, p2[, k3, ...]).
+    preset: the CAMERA_PRESETS name the camera was made from (None for a camera file's measured intrinsics).
+    A preset knows the lens and the sensor width, not a frame size, so `fitted_to` makes it at any frame size
+    (any aspect ratio, no warning). Not compared: equal intrinsics are the same camera.
     """
 
     width: int
@@ -92,6 +95,7 @@ class Camera:
     cx: float
     cy: float
     dist: tuple[float, ...] | None = None
+    preset: str | None = field(default=None, compare=False)
 
     def __post_init__(self) -> None:
         for name in ("width", "height"):
@@ -140,17 +144,21 @@ class Camera:
             valid = ", ".join(sorted(CAMERA_PRESETS))
             raise ValueError(f"unknown camera preset {name!r}; valid presets: {valid}") from None
         f_px = preset["focal_mm"] / preset["sensor_width_mm"] * width
-        return cls(width=width, height=height, fx=f_px, fy=f_px, cx=width / 2.0, cy=height / 2.0)
+        return cls(width=width, height=height, fx=f_px, fy=f_px, cx=width / 2.0, cy=height / 2.0, preset=name)
 
     @classmethod
     def from_dict(cls, d: dict[str, Any]) -> Camera:
-        """A camera from a mapping: {width, height, fx, fy, cx, cy[, dist]} or {preset, width, height}.
+        """A camera from a mapping: {width, height, fx, fy, cx, cy[, dist]} or {preset[, width, height]}.
 
         `cx`/`cy` default to the image centre, `fy` to `fx`.
         """
         if not isinstance(d, dict):
             raise ValueError(f"camera must be a JSON object, got {type(d).__name__}")
         if "preset" in d:
+            both = [k for k in ("fx", "fy", "cx", "cy", "dist", "distortion") if k in d]
+            if both:  # which one was meant? the preset would win silently over measured intrinsics
+                raise ValueError(f"camera gives both a preset ({d['preset']!r}) and intrinsics ({', '.join(both)}): "
+                                 "keep one")
             return cls.from_preset(str(d["preset"]), int(d.get("width", 3840)), int(d.get("height", 2160)))
         missing = [k for k in ("width", "height", "fx") if k not in d]
         if missing:
@@ -204,9 +212,13 @@ class Camera:
 
         Raises ValueError when the aspect ratio differs by more than 1 %: scaling would stretch the
         intrinsics, so the camera file does not belong to these frames (a different camera or a crop).
+        A preset's camera (`preset` set) is made again at the frames' size, whatever their aspect ratio:
+        the preset's video and photo modes read the whole sensor width.
         """
         if (width, height) == (self.width, self.height):
             return self
+        if self.preset is not None:
+            return Camera.from_preset(self.preset, width, height)
         ratio = (width / height) / (self.width / self.height)
         if abs(ratio - 1.0) > 0.01:
             raise ValueError(f"the camera is {self.width}x{self.height} but {source} are {width}x{height} (another "

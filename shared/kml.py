@@ -2,19 +2,23 @@
 
 Each Feature becomes a Placemark named after its id (or a property), its properties listed in
 ExtendedData; a feature with ``times`` (track lines) gets a TimeSpan, one with ``t`` a TimeStamp.
+KMZ is the same document zipped as ``doc.kml`` (what ATAK data packages and Google Earth exchange).
 """
 
 from __future__ import annotations
 
+import io
 import json
 import xml.etree.ElementTree as ET
+import zipfile
 from collections.abc import Iterable, Mapping
 from datetime import datetime, timezone
 from typing import Any
 
-__all__ = ["KML_MEDIA_TYPE", "feature_collections_kml"]
+__all__ = ["KML_MEDIA_TYPE", "KMZ_MEDIA_TYPE", "feature_collections_kml", "kmz"]
 
 KML_MEDIA_TYPE = "application/vnd.google-earth.kml+xml"
+KMZ_MEDIA_TYPE = "application/vnd.google-earth.kmz"
 _NS = "http://www.opengis.net/kml/2.2"
 
 
@@ -78,3 +82,13 @@ def feature_collections_kml(name: str, folders: Mapping[str, Mapping[str, Any]])
         for feature in collection.get("features", ()):
             _placemark(folder, feature)
     return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(kml, encoding="utf-8")
+
+
+def kmz(kml: bytes) -> bytes:
+    """A KMZ archive (ZIP, deflated) holding the KML document as ``doc.kml``, the name readers open first."""
+    buffer = io.BytesIO()
+    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
+        info = zipfile.ZipInfo("doc.kml", date_time=(1980, 1, 1, 0, 0, 0))  # fixed: same input, same bytes
+        info.compress_type = zipfile.ZIP_DEFLATED
+        archive.writestr(info, kml)
+    return buffer.getvalue()

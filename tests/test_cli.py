@@ -30,10 +30,18 @@ def test_version_is_the_packages():
     assert proc.returncode == 0 and proc.stdout.strip() == f"uavmm {declared}"
 
 
-def test_every_subcommand_takes_log_level():
+def test_version_after_a_subcommand_too(capsys):
+    with pytest.raises(SystemExit) as stop:
+        build_parser().parse_args(["secure", "init", "--version"])  # before the required arguments are missed
+    assert stop.value.code == 0
+    assert capsys.readouterr().out.strip().startswith("uavmm ")
+
+
+def test_every_subcommand_takes_log_level_and_version():
     names = []
     for path, sub in _subparsers(build_parser()):
         assert any("--log-level" in a.option_strings for a in sub._actions), path
+        assert any("--version" in a.option_strings for a in sub._actions), path
         names.append(" ".join(path))
     assert {"fusion", "agent", "demo", "secure init", "boost", "track"} <= set(names)
 
@@ -82,3 +90,22 @@ def test_the_pinned_baselines_match_the_message():
     pinned = [ln.split("#")[0].strip() for ln in (REPO / "requirements-nodeps.txt").read_text().splitlines()]
     for requirement in ("trackeval==1.3.0", "norfair==2.3.0"):
         assert requirement in pinned and requirement in NODEPS_INSTALL
+
+
+@pytest.mark.parametrize("argv", [
+    ["fit-size-filter", "--frames", "{tmp}/images.json", "--camera", "dji-mavic2-pro", "--out", "{tmp}/no/such/f.json"],
+    ["bench", "geo", "--quick", "--json", "{tmp}/no/such/bench.json"],
+    ["anomaly", "--frames", "{tmp}/images.json", "--camera", "dji-mavic2-pro", "--out", "{tmp}/no/such/rois.json"],
+    ["boost", "--frames", "{tmp}/images.json", "--candidates", "{tmp}/p.json", "--camera", "dji-mavic2-pro",
+     "--out", "{tmp}/no/such/results.json"],
+    ["tune", "--frames", "{tmp}/images.json", "--candidates", "{tmp}/p.json", "--camera", "dji-mavic2-pro",
+     "--out", "{tmp}/no/such/params.json"],
+])
+def test_a_missing_output_folder_is_named_before_any_work(argv, tmp_path, capsys):
+    from uavmm.cli import main
+
+    # the input does not exist either: the output folder is checked first, so no work is done and lost
+    assert main([a.format(tmp=tmp_path) for a in argv]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == [f"uavmm {argv[0]}: error: output directory {tmp_path / 'no' / 'such'} does not exist "
+                   f"(for {tmp_path / 'no' / 'such' / argv[-1].rsplit('/', 1)[1]})"]

@@ -21,6 +21,14 @@ class CliError(Exception):
     """A user error: printed as one line on stderr, exit code 2."""
 
 
+def require_out_parent(*paths: Path | None) -> None:
+    """CliError naming the folder when an output file's folder does not exist: checked before the work, so a
+    long run does not end in an OSError about a file (or a temporary file) the user never named."""
+    for path in paths:
+        if path is not None and not path.parent.is_dir():
+            raise CliError(f"output directory {path.parent} does not exist (for {path})")
+
+
 # --------------------------------------------------------------------------------------------- sim
 
 def _add_sim(sub: argparse._SubParsersAction) -> None:
@@ -189,9 +197,7 @@ def _run_boost(args: argparse.Namespace) -> int:
     from agent.boost import boost_dataset, write_corrections, write_results
 
     cfg, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
-    for path in (args.out, args.corrections_out):
-        if path is not None and not path.parent.is_dir():  # before the run, not after it
-            raise CliError(f"output directory {path.parent} does not exist (for {path})")
+    require_out_parent(args.out, args.corrections_out)
     corrections: list[tuple] | None = [] if args.corrections_out is not None else None
     results, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter,
                                    corrections=corrections)
@@ -219,6 +225,7 @@ def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
 def _run_fit_size_filter(args: argparse.Namespace) -> int:
     from agent.size_filter_fit import fit_from_dataset
 
+    require_out_parent(args.out)
     sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor)
     sf.save(args.out)
     for name, row in report.items():
@@ -360,6 +367,7 @@ def _run_bench(args: argparse.Namespace) -> int:
         for name in BENCHMARK_MODULES:
             print(f"{name:14s} {load_benchmark(name).DESCRIPTION}")
         return 0
+    require_out_parent(args.json)  # before minutes of benchmarks, not after them
     try:
         rows = run_benchmarks(args.names or None, quick=args.quick, json_path=args.json)
     except ValueError as exc:
@@ -396,13 +404,16 @@ def package_version() -> str:
 
 
 def _global_flags_everywhere(sub: argparse._SubParsersAction) -> None:
-    """Accept ``--log-level`` after the subcommand too (``uavmm fusion --log-level INFO``).
+    """Accept the global flags after the subcommand too (``uavmm fusion --log-level INFO``, ``uavmm agent
+    --version``).
 
     The copy's default is SUPPRESS, so a value given before the subcommand is kept when none is given after.
     """
     for parser in sub.choices.values():
         parser.add_argument("--log-level", choices=LOG_LEVELS, default=argparse.SUPPRESS,
                             help="logging level (stderr); also accepted before the subcommand")
+        parser.add_argument("--version", action="version", version=f"uavmm {package_version()}",
+                            help="print the version and exit")
         for action in parser._actions:
             if isinstance(action, argparse._SubParsersAction):
                 _global_flags_everywhere(action)

@@ -1,4 +1,4 @@
-"""`uavmm export --db FUSION.sqlite --out FILE.gpkg|.kml|.geojson`: the fusion server's history for GIS tools."""
+"""`uavmm export --db FUSION.sqlite --out FILE.gpkg|.kml|.kmz|.geojson`: the fusion server's history for GIS tools."""
 
 from __future__ import annotations
 
@@ -12,13 +12,14 @@ __all__ = ["register"]
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``export`` subcommand."""
     p = sub.add_parser(
-        "export", help="the fusion server's stored tracks as GeoPackage (QGIS), KML (Google Earth) or GeoJSON",
+        "export", help="the fusion server's stored tracks as GeoPackage (QGIS), KML/KMZ (Google Earth, ATAK) or "
+                       "GeoJSON",
         description="Read a fusion server's SQLite database (read-only; the server may keep running) and write "
                     "its global tracks: a GeoPackage with the layers tracks, track_lines and track_points, a KML "
-                    "document, or a GeoJSON FeatureCollection, chosen by the --out extension.",
+                    "document (zipped: .kmz), or a GeoJSON FeatureCollection, chosen by the --out extension.",
     )
     p.add_argument("--db", type=Path, required=True, help="the fusion server's database (uavmm fusion --db)")
-    p.add_argument("--out", type=Path, required=True, help="output file: .gpkg, .kml or .geojson")
+    p.add_argument("--out", type=Path, required=True, help="output file: .gpkg, .kml, .kmz or .geojson")
     p.add_argument("--cls", default=None, help="only this class")
     p.add_argument("--since", type=float, default=None, metavar="EPOCH_S",
                    help="only tracks updated since this time (seconds since the epoch), and history from then on")

@@ -51,8 +51,13 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="let pages from ORIGIN (e.g. https://maps.example.org) read the REST API in a browser "
                         "(repeatable; none by default)")
     p.add_argument("--cot-url", default=None, metavar="URL",
-                   help="send Cursor-on-Target events of the UAVs and global tracks to TAK: udp://HOST:PORT "
-                        "(unicast or multicast, e.g. udp://239.2.3.1:6969) or tcp://HOST:PORT (a TAK server)")
+                   help="send Cursor-on-Target events of the UAVs, global tracks and untracked fused objects to "
+                        "TAK: udp://HOST:PORT (unicast or multicast, e.g. udp://239.2.3.1:6969) or tcp://HOST:PORT "
+                        "(a TAK server)")
+    p.add_argument("--cot-objects-min-score", type=float, default=0.5, metavar="S",
+                   help="--cot-url: also send the fused objects (joint-map peaks >= S, as /v1/objects) that no "
+                        "global track explains (0.5)")
+    p.add_argument("--no-cot-objects", action="store_true", help="--cot-url: UAVs and global tracks only")
     p.add_argument("--basemap", default=None, metavar="URL|FILE.mbtiles",
                    help="map under the live page: an XYZ tile URL with {z}/{x}/{y} (fetched by the browser) or "
                         "an MBTiles file served by this server (offline)")
@@ -159,7 +164,8 @@ def settings_from_args(args: argparse.Namespace):
         uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
         db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
         http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
-        cot_url=args.cot_url, basemap=args.basemap, basemap_attribution=args.basemap_attribution,
+        cot_url=args.cot_url, cot_objects_min_score=None if args.no_cot_objects else args.cot_objects_min_score,
+        basemap=args.basemap, basemap_attribution=args.basemap_attribution,
     )
 
 

@@ -77,7 +77,13 @@ class VideoAnnotator:
     # ---- per frame -----------------------------------------------------------------------------
     def write(self, image: NDArray[np.uint8], t: float, camera: Camera, pose: Pose | None, result: FrameResult,
               tracks: list[TrackOutput], memory: MemoryMap | None = None) -> None:
-        """Draw one frame and append it to the video.
+        """Draw one frame (`draw`) and append it to the video."""
+        self._writer.write(self.draw(image, t, camera, pose, result, tracks, memory))
+        self.frames += 1
+
+    def draw(self, image: NDArray[np.uint8], t: float, camera: Camera, pose: Pose | None, result: FrameResult,
+             tracks: list[TrackOutput], memory: MemoryMap | None = None) -> NDArray[np.uint8]:
+        """The annotated frame at the video's size, (H, W, 3) uint8 BGR; remembers the tracks for their trails.
 
         image: (H, W, 3) uint8 BGR (not modified); result: the pipeline's kept detections; tracks: the
         tracks to show (reported ones); memory: the pipeline's memory map for the inset (None: no inset).
@@ -100,8 +106,7 @@ class VideoAnnotator:
             self._draw_inset(canvas, memory, camera, pose, tracks)
         if (canvas.shape[1], canvas.shape[0]) != self.size:
             canvas = cv2.resize(canvas, self.size, interpolation=cv2.INTER_AREA)
-        self._writer.write(canvas)
-        self.frames += 1
+        return canvas
 
     def _remember(self, t: float, tracks: list[TrackOutput]) -> None:
         for tr in tracks:

@@ -184,6 +184,20 @@ def test_a_camera_preset_name_works_and_a_wrong_name_lists_the_presets(tmp_path,
         Camera.from_spec(d / "missing.json")
 
 
+def test_a_preset_fits_frames_of_any_aspect_ratio_without_a_warning(tmp_path, caplog):
+    d = make_dataset(tmp_path, frames=3)
+    coco = json.loads((d / "images.json").read_text())
+    for image in coco["images"]:  # 3:2 frames (SeaDronesSee's 5456x3632 photos), a 16:9 preset made at their size
+        image["width"], image["height"] = 1920, 1280
+    (d / "images.json").write_text(json.dumps(coco))
+    (d / "preset.json").write_text(json.dumps({"preset": "dji-mavic2-pro"}))
+    for camera in ("dji-mavic2-pro", str(d / "preset.json")):
+        caplog.clear()
+        assert main(["boost", "--frames", str(d / "images.json"), "--candidates", str(d / "pre_nms.json"),
+                     "--camera", camera, "--out", str(d / "results.json")]) == 0
+        assert not [r for r in caplog.records if r.levelname == "WARNING" and "camera" in r.getMessage()]
+
+
 def test_a_missing_output_folder_is_named_before_the_run(tmp_path, capsys):
     d = make_dataset(tmp_path)
     assert main(["boost", "--frames", str(d / "images.json"), "--candidates", str(d / "pre_nms.json"),

@@ -438,6 +438,33 @@ def test_explicit_layout_that_does_not_fit_is_an_error(tmp_path):
         OnnxYoloDetector(path, layout="v5")
 
 
+@pytest.mark.parametrize(("metadata", "reason"), [
+    ({"names": "{0: 'person'}", "end2end": "True"}, "is an end-to-end export"),
+    ({"names": "{0: 'person'}", "args": "{'batch': 1, 'half': False, 'nms': True}"}, "was exported with nms=True"),
+    ({"names": "{0: 'person'}"}, "looks like the kept boxes of an export with NMS inside"),  # shape alone
+])
+def test_a_model_with_nms_inside_is_refused_with_the_export_recipe(tmp_path, metadata, reason):
+    # YOLO26's default export, or any ultralytics export with nms=True: [1, 300, 6] = x1, y1, x2, y2, score, class.
+    # A one-class model's output is 6 wide like a raw YOLOv5 head: it used to be decoded as one, silently wrong.
+    kept = np.zeros((1, 300, 6), np.float32)
+    kept[0, 0] = [100, 100, 140, 180, 0.9, 0]
+    path = make_constant_model(tmp_path / "e2e.onnx", kept, metadata=metadata)
+    with pytest.raises(ValueError, match=reason) as info:
+        OnnxYoloDetector(path)
+    assert "nms=False end2end=False" in str(info.value) and "docs/detect.md" in str(info.value)
+    if "end2end" not in metadata and "args" not in metadata:
+        assert OnnxYoloDetector(path, layout="v5").layout == "v5"  # an explicit layout is believed
+
+
+def test_raw_exports_with_false_flags_and_raw_v5_heads_load(tmp_path):
+    raw = v8_raw(BOXES_IN, PROBS)
+    path = make_constant_model(tmp_path / "v8.onnx", raw, metadata={"end2end": "False", "args": "{'nms': False}"})
+    assert OnnxYoloDetector(path).layout == "v8"
+    one_class = v5_raw(BOXES_IN, np.ones(4, np.float32), PROBS[:, :1], n=1008)  # a 1-class v5 head at 128 px
+    path = make_constant_model(tmp_path / "v5.onnx", one_class, metadata={"names": "{0: 'person'}"})
+    assert OnnxYoloDetector(path).layout == "v5"
+
+
 @pytest.mark.parametrize("shape", [(1, 84), (2, 84, 8400), (1, 4, 4), (1, 84, 8400, 1)])
 def test_unsupported_output_shape_names_the_shape_and_the_layouts(tmp_path, shape):
     path = make_constant_model(tmp_path / "m.onnx", np.zeros(shape, np.float32))

@@ -119,6 +119,22 @@ def test_video_source_detects_and_interpolates_telemetry(tmp_path):
     assert (x1 + x2) / 2 == pytest.approx(160, abs=1) and (y1 + y2) / 2 == pytest.approx(90, abs=1)
 
 
+def test_video_source_makes_a_preset_at_the_videos_size_without_a_warning(tmp_path, caplog):
+    video = _write_video(tmp_path / "flight.avi", 2, size=(320, 240))  # 4:3 frames, a preset made at their size
+    telemetry = tmp_path / "flight.csv"
+    telemetry.write_text("time_s,lat,lon,height_m,pitch_deg,heading_deg\n0,48.53,9.06,30,90,0\n1,48.53,9.06,30,90,0\n")
+    model = _write_model(tmp_path / "model.onnx")
+    with caplog.at_level("WARNING", logger="agent.sources"):
+        source = VideoSource(video, telemetry, model, "dji-mavic2-pro")
+    assert source.camera == Camera.from_preset("dji-mavic2-pro", 320, 240)
+    assert not [r for r in caplog.records if "camera" in r.getMessage()]
+    source.close()
+    (tmp_path / "cam.json").write_text(json.dumps({"width": 640, "height": 360, "fx": 500.0}))
+    with pytest.raises(ValueError, match="the camera is 640x360 but the frames of .*flight.avi are 320x240 "
+                                         r"\(another aspect ratio\)"):
+        VideoSource(video, telemetry, model, tmp_path / "cam.json")
+
+
 def test_video_source_errors_name_the_missing_file(tmp_path):
     video = _write_video(tmp_path / "v.avi", 2)
     model = _write_model(tmp_path / "m.onnx")

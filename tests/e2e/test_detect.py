@@ -178,3 +178,17 @@ def test_detect_fits_a_camera_of_another_resolution_and_says_so(flight, tmp_path
     matching = json.loads((tmp_path / "p" / "objects.geojson").read_text())["features"]
     assert np.allclose([f["geometry"]["coordinates"] for f in fitted],
                        [f["geometry"]["coordinates"] for f in matching], atol=1e-7)
+
+
+def test_detect_refuses_a_model_with_nms_inside_in_one_line(flight, tmp_path, capsys):
+    from tests.agent.test_detector import make_constant_model
+
+    kept = np.zeros((1, 300, 6), np.float32)  # YOLO26's default export of a one-class model
+    model = make_constant_model(tmp_path / "yolo26n.onnx", kept, metadata={"names": str({0: "person"}),
+                                                                          "end2end": "True"})
+    d = flight["dir"]
+    assert main(["detect", str(d / f"{flight['name']}.mp4"), "--telemetry", str(d / f"{flight['name']}.srt"),
+                 "--model", str(model), "--camera", str(d / "camera.json"), "--out", str(tmp_path / "o")]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "yolo26n.onnx is an end-to-end export" in err[0] and "nms=False end2end=False" in err[0]
+    assert not list((tmp_path / "o").glob("*"))  # nothing written

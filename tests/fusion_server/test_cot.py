@@ -14,8 +14,9 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from fusion_server.config import FusionSettings
-from fusion_server.cot import CotSender, CotTarget, parse_cot_url, track_event, uav_event
-from tests.fusion_server.fake_agent import LAT, LON
+from fusion_server.cot import MAX_OBJECTS, CotSender, CotTarget, object_event, parse_cot_url, track_event, uav_event
+from fusion_server.peaks import Peak
+from tests.fusion_server.fake_agent import LAT, LON, blob
 from tests.netutil import free_port, udp_listener, wait_until
 
 NOW = 1_790_000_000.0
@@ -57,6 +58,38 @@ def test_class_names_are_escaped(cls):
     assert event.find("detail/contact").get("callsign") == f"{cls} 7"
 
 
+def _peak(cls="swimmer", dlat=0.0, score=0.9, gx=140_000.5, gy=90_000.5) -> Peak:
+    return Peak(cls=cls, lat=LAT + dlat, lon=LON, score=score, gx=gx, gy=gy)
+
+
+def test_object_event_is_valid_cot_named_after_its_cell():
+    event = ET.fromstring(object_event(_peak(), NOW, 3.0))
+    assert event.get("uid") == "uavmm.object.swimmer.140000.90000" and event.get("type") == "a-u-S"
+    assert _time(event.get("stale")) == pytest.approx(NOW + 3.0, abs=0.001)
+    point = event.find("point")
+    assert float(point.get("lat")) == pytest.approx(LAT) and float(point.get("lon")) == pytest.approx(LON)
+    assert event.find("detail/contact").get("callsign") == "swimmer 0.90"
+    assert "not a global track" in event.find("detail/remarks").text
+
+
+def test_fused_objects_a_track_explains_are_not_sent_twice():
+    features = [_track(gid=1, cls="swimmer")]
+    objects = [_peak(dlat=2e-5),  # 2 m from the swimmer's track: that track
+               _peak(cls="person", dlat=2e-5, gx=1.5),  # as close, another class: its own object
+               _peak(dlat=2e-4, gx=2.5)]  # 22 m away: an untracked swimmer
+    sender = CotSender(CotTarget("udp", "127.0.0.1", 9), lambda: features, lambda: [], clock=lambda: NOW,
+                       objects=lambda: objects, interval_s=0.5)
+    events = [ET.fromstring(e) for e in sender.events()]
+    assert [e.get("uid") for e in events] == ["uavmm.track.1", "uavmm.object.person.1.90000",
+                                              "uavmm.object.swimmer.2.90000"]
+    assert _time(events[1].get("stale")) == pytest.approx(NOW + 1.5, abs=0.001)  # three intervals
+    many = [_peak(dlat=1e-3 * (i + 1), gx=float(i)) for i in range(MAX_OBJECTS + 20)]
+    sender = CotSender(CotTarget("udp", "127.0.0.1", 9), lambda: [], lambda: [], clock=lambda: NOW,
+                       objects=lambda: many)
+    assert len(sender.events()) == MAX_OBJECTS  # the strongest first, never a flood
+    assert CotSender(CotTarget("udp", "127.0.0.1", 9), lambda: [], lambda: []).events() == []
+
+
 def test_uav_event_has_a_sensor_and_none_without_a_position():
     row = {"id": "uav1", "online": True, "state": {
         "lat": LAT, "lon": LON, "height_m": 40.0, "pitch_deg": 30.0, "heading_deg": 370.0, "t": NOW,
@@ -76,6 +109,12 @@ def test_bad_urls_are_refused(url):
         parse_cot_url(url)
     with pytest.raises(ValueError, match="--cot-url"):
         FusionSettings(db_path=None, cot_url=url)
+
+
+@pytest.mark.parametrize("score", [0.0, -0.5, 1.5])
+def test_a_bad_object_score_is_refused(score):
+    with pytest.raises(ValueError, match="cot_objects_min_score must be in"):
+        FusionSettings(db_path=None, cot_url="udp://127.0.0.1:6969", cot_objects_min_score=score)
 
 
 def test_good_urls():
@@ -112,6 +151,28 @@ def test_a_server_sends_uavs_and_tracks_over_udp(server_factory, agent_factory):
         wait_until(lambda: server.cot.sent >= len(events), 5.0)  # counted once its round is sent
         metrics = server.prometheus()
         assert "uavmm_fusion_cot_events_total" in metrics
+    finally:
+        listener.close()
+
+
+@pytest.mark.parametrize("min_score", [0.5, None])
+def test_a_server_sends_untracked_fused_objects_unless_told_not_to(server_factory, agent_factory, min_score):
+    listener, port = udp_listener(0.2)
+    try:
+        server = server_factory(cot_url=f"udp://127.0.0.1:{port}", cot_interval_s=0.2,
+                                cot_objects_min_score=min_score)
+        agent = agent_factory("uav1")
+        agent.state()
+        agent.tile(blob(128, 128, value=0.9))  # a strong spot in the map, no track
+        wait_until(lambda: server.joint.tiles("person"), 5.0)
+        events = _received(listener, 1.0)
+        objects = [e for e in events if e.get("uid").startswith("uavmm.object.person.")]
+        if min_score is None:
+            assert not objects and any(e.get("uid") == "uavmm.uav.uav1" for e in events)
+            return
+        assert objects and {e.get("type") for e in objects} == {"a-u-G"}
+        peak = server._object_peaks()[0]
+        assert float(objects[-1].find("point").get("lat")) == pytest.approx(peak.lat, abs=1e-7)
     finally:
         listener.close()
 

@@ -105,10 +105,23 @@ def test_kml_and_geojson_exports(history_db, tmp_path):
     assert read_history(history_db, since=9e18).tracks == []
 
 
+def test_kmz_export_is_the_kml_zipped_as_doc_kml(history_db, tmp_path):
+    import zipfile
+
+    assert main(["export", "--db", str(history_db), "--out", str(tmp_path / "t.kml")]) == 0
+    assert main(["export", "--db", str(history_db), "--out", str(tmp_path / "t.kmz")]) == 0
+    with zipfile.ZipFile(tmp_path / "t.kmz") as archive:
+        assert archive.namelist() == ["doc.kml"] and archive.testzip() is None
+        assert archive.read("doc.kml") == (tmp_path / "t.kml").read_bytes()
+    pyogrio = pytest.importorskip("pyogrio")  # GDAL's KML driver reads a KMZ through /vsizip/, as QGIS does
+    layers = {name for name, _ in pyogrio.list_layers(f"/vsizip/{tmp_path / 't.kmz'}/doc.kml")}
+    assert {"tracks", "track lines"} <= layers
+
+
 @pytest.mark.parametrize(("argv", "problem"), [
     (["--db", "{tmp}/missing.sqlite", "--out", "{tmp}/x.gpkg"], "does not exist"),
     (["--db", "{tmp}/notes.txt", "--out", "{tmp}/x.gpkg"], "is not a uavmm fusion database"),
-    (["--db", "{db}", "--out", "{tmp}/x.shp"], "--out must end in .gpkg, .kml, .geojson"),
+    (["--db", "{db}", "--out", "{tmp}/x.shp"], "--out must end in .gpkg, .kml, .kmz, .geojson"),
     (["--db", "{db}", "--out", "{tmp}/no/such/dir/x.gpkg"], "output directory"),
 ])
 def test_export_errors_say_what_is_wrong(history_db, tmp_path, capsys, argv, problem):
@@ -134,6 +147,21 @@ def test_rest_kml(server, http, agent_factory):
         assert folder in [f.find(f"{KML}name").text for f in root.iter(f"{KML}Folder")]
     tracks = ET.fromstring(http.get("/v1/tracks?format=kml").content)
     (point,) = tracks.findall(f".//{KML}Point/{KML}coordinates")
+    assert [float(v) for v in point.text.split(",")] == pytest.approx([LON, LAT])
+    # format=kmz: the same documents zipped, offered as a download
+    import io
+    import zipfile
+
+    for path in ("/v1/tracks", "/v1/uavs", "/v1/objects"):
+        response = http.get(f"{path}?format=kmz")
+        assert response.headers["content-type"] == "application/vnd.google-earth.kmz", path
+        assert response.headers["content-disposition"].startswith("attachment; filename=") and ".kmz" in \
+            response.headers["content-disposition"]
+        with zipfile.ZipFile(io.BytesIO(response.content)) as archive:
+            assert archive.namelist() == ["doc.kml"]
+            assert ET.fromstring(archive.read("doc.kml")).tag == f"{KML}kml"
+    with zipfile.ZipFile(io.BytesIO(http.get("/v1/tracks?format=kmz").content)) as archive:
+        (point,) = ET.fromstring(archive.read("doc.kml")).findall(f".//{KML}Point/{KML}coordinates")
     assert [float(v) for v in point.text.split(",")] == pytest.approx([LON, LAT])
 
 

@@ -30,7 +30,9 @@ def flight_packets(records: Sequence[Telemetry], *, gimbal: str = "device-earth"
     """(UNIX receive time, packet) per message of a flight whose camera follows `records`.
 
     gimbal: "device-earth" (GIMBAL_DEVICE_ATTITUDE_STATUS, yaw in the earth frame), "device-vehicle" (yaw in the
-    vehicle frame), "mount-status" (ArduPilot MOUNT_STATUS, centidegrees, yaw relative to the vehicle), "none"
+    vehicle frame), "mount-orientation" (ArduPilot MOUNT_ORIENTATION, degrees, with yaw_absolute),
+    "mount-orientation-relative" (yaw_absolute NaN: only the yaw relative to the vehicle), "mount-status" (ArduPilot
+    MOUNT_STATUS, centidegrees, yaw relative to the vehicle), "none"
     (a fixed camera: the vehicle's yaw is the camera heading). The vehicle heads `vehicle_yaw_offset_deg` off the
     camera (0 for "none").
     """
@@ -56,6 +58,10 @@ def flight_packets(records: Sequence[Telemetry], *, gimbal: str = "device-earth"
         elif gimbal == "device-vehicle":
             q = euler_to_quaternion(rec.roll_deg, pitch_up, heading - yaw_vehicle)
             msgs.append((gimbal_mav.gimbal_device_attitude_status_encode(0, 0, boot_ms, 32, q, 0, 0, 0, 0), gimbal_mav))
+        elif gimbal in ("mount-orientation", "mount-orientation-relative"):  # ArduPilot 4.x: degrees
+            absolute = heading % 360.0 if gimbal == "mount-orientation" else math.nan  # NaN: unknown (older firmware)
+            msgs.append((mav.mount_orientation_encode(boot_ms, rec.roll_deg, pitch_up, heading - yaw_vehicle,
+                                                      absolute), mav))
         elif gimbal == "mount-status":
             msgs.append((mav.mount_status_encode(0, 0, int(round(pitch_up * 100)), int(round(rec.roll_deg * 100)),
                                                  int(round((heading - yaw_vehicle) * 100))), mav))

@@ -158,6 +158,25 @@ def test_presets_match_published_fov():
         Camera.from_preset("gopro")
 
 
+@pytest.mark.parametrize("size", [(1920, 1080), (4000, 3000), (5456, 3632), (640, 360)])
+def test_a_preset_is_made_at_the_frames_size_whatever_their_aspect_ratio(size):
+    # a preset knows the lens and the sensor width, not a frame size: 4:3 and 3:2 frames are not "another camera"
+    for camera in (Camera.from_preset("dji-mavic2-pro"), Camera.from_dict({"preset": "dji-mavic2-pro"}),
+                   Camera.from_spec("dji-mavic2-pro")):
+        fitted = camera.fitted_to(*size)
+        assert fitted == Camera.from_preset("dji-mavic2-pro", *size) and fitted.preset == "dji-mavic2-pro"
+    assert Camera.from_preset("dji-mavic2-pro") == Camera.from_preset("dji-mavic2-pro").scaled(3840, 2160)
+    assert Camera(**{**Camera.from_preset("dji-mavic3").to_dict()}).preset is None  # a file's intrinsics
+
+
+def test_a_camera_file_with_a_preset_and_intrinsics_is_refused(tmp_path):
+    p = tmp_path / "cam.json"
+    p.write_text(json.dumps({"preset": "dji-mavic2-pro", "width": 1920, "height": 1080, "fx": 1500.0}))
+    with pytest.raises(ValueError, match=r"cam.json: camera gives both a preset \('dji-mavic2-pro'\) and "
+                                         r"intrinsics \(fx\): keep one"):
+        Camera.from_file(p)
+
+
 # ----------------------------------------------------------------------------- earth model
 
 def test_wgs84_radii_known_values():

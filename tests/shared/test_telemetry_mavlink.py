@@ -39,11 +39,27 @@ def _same(got: list[Telemetry], want: list[Telemetry], *, angles: bool = True) -
             assert math.cos(math.radians(g.heading_deg - w.heading_deg)) == pytest.approx(1.0, abs=1e-6)
 
 
-@pytest.mark.parametrize("gimbal", ["device-earth", "device-vehicle", "mount-status"])
+@pytest.mark.parametrize("gimbal", ["device-earth", "device-vehicle", "mount-orientation", "mount-orientation-relative",
+                                    "mount-status"])
 def test_tlog_gives_the_records_the_flight_logged(tmp_path, gimbal):
     flight = _flight()
     path = write_tlog(tmp_path / "flight.tlog", flight_packets(flight, gimbal=gimbal))
     _same(read_telemetry(path), flight)
+
+
+def test_mount_orientation_prefers_the_absolute_yaw_to_the_vehicle_relative_one():
+    from shared.telemetry.mavlink import MavlinkAssembler
+
+    position = {"time_boot_ms": 1000, "lat": 485300000, "lon": 90600000, "relative_alt": 30000, "vx": 0, "vy": 0,
+                "hdg": 65535}
+    assembler = MavlinkAssembler()
+    assembler.add("ATTITUDE", {"yaw": math.radians(100.0)}, 1)
+    assembler.add("MOUNT_ORIENTATION", {"roll": 0.0, "pitch": -45.0, "yaw": 20.0, "yaw_absolute": 250.0}, 1)
+    sample = assembler.add("GLOBAL_POSITION_INT", position, 1)
+    assert sample.heading_deg == pytest.approx(250.0) and sample.pitch_deg == pytest.approx(45.0)
+    for unknown in (math.nan, 0.0):  # NaN (MAVLink: unknown) or 0 (the field's default in older firmware)
+        assembler.add("MOUNT_ORIENTATION", {"roll": 0.0, "pitch": -45.0, "yaw": 20.0, "yaw_absolute": unknown}, 1)
+        assert assembler.add("GLOBAL_POSITION_INT", position, 1).heading_deg == pytest.approx(120.0)
 
 
 def test_without_a_gimbal_the_camera_heads_where_the_vehicle_does_and_needs_a_pitch(tmp_path):
