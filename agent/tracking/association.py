@@ -17,7 +17,7 @@ from agent.tracking.config import TrackerConfig
 from agent.tracking.model import FloatArray, kalman_update, mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
 
-__all__ = ["associate_ground", "associate_iou", "duplicate_mask", "expected_boxes", "fresh_in_image",
+__all__ = ["associate_ground", "associate_image", "associate_iou", "duplicate_mask", "expected_boxes", "fresh_in_image",
            "frame_detections", "ground_duplicates", "mark_hit"]
 
 
@@ -133,6 +133,8 @@ def associate_ground(state: TrackState, dets: FrameDetections, det_mask: NDArray
     diff = dets.z[dt_] - act["x"][tr, :2]
     d2, logdet = mahalanobis2_and_logdet(diff, act["P"][tr, :2, :2] + dets.R[dt_])
     keep = (d2 <= cfg.gate_chi2) & (np.hypot(diff[:, 0], diff[:, 1]) <= cfg.max_gate_m)
+    if state.image_steady and cfg.image_gate > 0 and keep.any():
+        keep[keep] = _image_gate(state, tr[keep], dets.boxes[dt_[keep]], t)
     tr, dt_, d2, logdet = tr[keep], dt_[keep], d2[keep], logdet[keep]
     # Negative log-likelihood: distance, the track's own uncertainty (relative to the detection's,
     # so uncertain tracks pay for their wide gates), the detector's confidence, the image overlap.
@@ -171,6 +173,28 @@ def expected_boxes(state: TrackState, ti: NDArray[np.int64], t: float) -> FloatA
     return boxes + np.concatenate([shift, shift], axis=1)
 
 
+def _image_gate(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: float) -> NDArray[np.bool_]:
+    """(K,) bool: box k is where the image can show track ti[k]. For a track matched within image_gate_age_s
+    while the heading turned by at most image_max_turn_deg, the box centre must lie within (image_gate +
+    image_gate_growth_per_s * seconds since) times the two boxes' mean size (square root of the area) of
+    the track's expected box; other tracks pass. Only used in frames whose image the
+    registration found steady (`TrackState.image_steady`): ground gates of narrow cameras span hundreds
+    of pixels, wide enough to chain a track through the detector's scattered false positives."""
+    cfg = state.config
+    ok = np.ones(len(ti), dtype=bool)
+    act = state.active
+    age = t - act["t_hit"][ti]
+    turned = np.abs((state.heading_now - act["heading_hit"][ti] + 180.0) % 360.0 - 180.0)
+    held = (age <= cfg.image_gate_age_s) & (turned <= cfg.image_max_turn_deg)
+    if held.any():
+        a, b = expected_boxes(state, ti[held], t), boxes[held]
+        size = 0.5 * (np.sqrt(np.abs((a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1])))
+                      + np.sqrt(np.abs((b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]))))
+        dist = 0.5 * np.hypot(a[:, 0] + a[:, 2] - b[:, 0] - b[:, 2], a[:, 1] + a[:, 3] - b[:, 1] - b[:, 3])
+        ok[held] = dist <= size * (cfg.image_gate + cfg.image_gate_growth_per_s * age[held])
+    return ok
+
+
 def _image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: float) -> FloatArray:
     """(K,) 1 - IoU of track ti[k]'s expected box with boxes[k] where the image still shows the track
     where it was (`fresh_in_image`); 0.5 elsewhere (no image evidence either way)."""
@@ -183,6 +207,36 @@ def _image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: 
         union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
         cost[fresh] = 1.0 - np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
     return cost
+
+
+def associate_image(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_], t: float,
+                    track_mask: NDArray[np.bool_], iou_min: float) -> None:
+    """First round where the image is the better cue: tracks (track_mask) the image still shows
+    (`fresh_in_image`) take the detections (det_mask) that overlap their expected box by IoU >= iou_min
+    (optimal assignment on IoU, one class), whatever the ground says. A pair whose ground point is within
+    the gate updates the track's filter; one beyond it (a telemetry error the registration did not remove)
+    only moves its box, and the filter coasts."""
+    cfg = state.config
+    act = state.active
+    ti = np.flatnonzero(track_mask & ~act["matched"])
+    ti = ti[fresh_in_image(state, ti, t)]
+    di = np.flatnonzero(det_mask & ~dets.used)
+    if not len(ti) or not len(di):
+        return
+    iou = box_iou(expected_boxes(state, ti, t), dets.boxes[di])
+    allowed = (iou >= iou_min) & (act["cls"][ti][:, None] == dets.cls[di][None, :])
+    r, c = gated_assignment(-iou, allowed)
+    if not len(r):
+        return
+    tr, dr = ti[r], di[c]
+    diff = dets.z[dr] - act["x"][tr, :2]
+    d2, _ = mahalanobis2_and_logdet(diff, act["P"][tr, :2, :2] + dets.R[dr])
+    upd = dets.geo[dr] & (d2 <= cfg.gate_chi2)
+    if upd.any():
+        u, z = tr[upd], dr[upd]
+        _, speed_cap = state.motion.accel_and_cap(act["cls"][u])
+        act.cols["x"][u], act.cols["P"][u] = kalman_update(act["x"][u], act["P"][u], dets.z[z], dets.R[z], speed_cap)
+    mark_hit(state, tr, dets, dr, t)
 
 
 def associate_iou(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_]) -> None:

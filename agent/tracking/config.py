@@ -179,6 +179,9 @@ class TrackerConfig:
         frames where it is in view and not detected (weight quality_rate per frame); it is reported
         (`GpsTracker.report`) only while quality >= report_quality: persistent clutter and objects
         behind foliage are followed but not reported.
+    unseen_margin : float
+        "In view" for that: the track's ground point projects inside the image by at least this fraction
+        of the width (left and right) and of the height (top and bottom).
 
     Telemetry error (common mode)
     ---------
@@ -225,6 +228,17 @@ class TrackerConfig:
         SRT files is 11 m), its heading and pitch parts within register_angle_scale times the frame's
         heading and pitch errors (heading_sigma_deg, pitch_sigma_deg with the turn terms). A cluster of
         pairs far away is explained as a shift, pairs spread in range and bearing as a turn.
+    image_gate : float
+        In a frame whose image the registration paired with the tracks (the camera did what the telemetry
+        said), a track matched within image_gate_age_s seconds (and the heading turned by at most
+        image_max_turn_deg since) takes only detections whose box centre lies within image_gate +
+        image_gate_growth_per_s * (seconds since) box sizes (square root of the area) of its expected box
+        (0: off).
+    image_first_iou : float
+        First association round in the image (agent.tracking.association.associate_image): a confirmed
+        track the image still shows takes the confident detection overlapping its expected box by at
+        least this IoU, before the ground rounds; its filter is updated only when the ground agrees
+        (0: off).
     image_velocity : bool
         The image cue and the registration expect a track's box where its last box moves with its image
         velocity (an exponential average of its box centres' motion, image_velocity_ema of the past per
@@ -288,6 +302,7 @@ class TrackerConfig:
     reid_appearance_gate: float = 0.5
     appearance_weight: float = 2.0
     quality_rate: float = 0.1
+    unseen_margin: float = 0.05
     report_quality: float = 0.4
     reanchor_m: float = 2000.0
     register_tracks: bool = False
@@ -305,6 +320,10 @@ class TrackerConfig:
     register_position_sd_m: float = 10.0
     register_angle_scale: float = 1.0
     image_velocity: bool = False
+    image_gate: float = 0.0
+    image_first_iou: float = 0.0
+    image_gate_age_s: float = 0.2
+    image_gate_growth_per_s: float = 0.0
     image_velocity_ema: float = 0.5
     class_motion: tuple[tuple[str, ClassMotion], ...] = DEFAULT_CLASS_MOTION
     default_motion: ClassMotion = field(default_factory=lambda: ClassMotion(2.0, 10.0, 1.0))
@@ -315,6 +334,8 @@ class TrackerConfig:
                     "reanchor_m"}
         unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate",
                 "image_register_iou"}
+        if self.image_first_iou and not 0.0 < self.image_first_iou <= 1.0:
+            raise ValueError(f"TrackerConfig.image_first_iou={self.image_first_iou!r} must be 0 (off) or in (0, 1]")
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "register_tracks", "register_min_pairs",

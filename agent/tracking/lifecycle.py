@@ -102,9 +102,9 @@ def decay_unseen_quality(state: TrackState, pose: Pose, camera: Camera) -> None:
         return
     uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
     uv, ok = local_to_pixel(act["x"][miss, 0] - uav_e, act["x"][miss, 1] - uav_n, camera, pose)
-    m = 0.05 * camera.width
-    inside = ok & (uv[:, 0] >= m) & (uv[:, 0] <= camera.width - m) & (uv[:, 1] >= m) \
-        & (uv[:, 1] <= camera.height - m)
+    mu, mv = state.config.unseen_margin * camera.width, state.config.unseen_margin * camera.height
+    inside = ok & (uv[:, 0] >= mu) & (uv[:, 0] <= camera.width - mu) & (uv[:, 1] >= mv) \
+        & (uv[:, 1] <= camera.height - mv)
     act.cols["quality"][miss[inside]] *= 1.0 - state.config.quality_rate
 
 

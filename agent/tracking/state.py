@@ -99,7 +99,8 @@ class TrackState:
     active: tracks being followed (ACTIVE_FIELDS); lost: the re-ID memory (LOST_FIELDS); next_id: id
     of the next new track; origin: (lat, lon) of the local east/north frame, None before the first pose;
     heading_now: gimbal heading of the last frame with a pose, degrees (image cue); n_reidentified:
-    re-identifications so far.
+    re-identifications so far; image_steady: the frame's image registration paired its boxes with the
+    tracks' expected ones (the image gate applies).
     """
 
     config: TrackerConfig
@@ -111,6 +112,8 @@ class TrackState:
     origin: tuple[float, float] | None = None
     heading_now: float = 0.0
     n_reidentified: int = 0
+    #: this frame's image agreed with the tracks' expected boxes (the image registration found it)
+    image_steady: bool = False
 
     def ensure_descriptor_columns(self, dim: int) -> None:
         """Descriptor columns ("emb", (dim,)) in the track tables, added at the first descriptor."""

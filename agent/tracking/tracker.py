@@ -15,6 +15,7 @@ from agent.frame_result import FrameResult
 from agent.tracking import reid
 from agent.tracking.association import (
     associate_ground,
+    associate_image,
     associate_iou,
     expected_boxes,
     frame_detections,
@@ -264,6 +265,7 @@ class GpsTracker:
             dets.z[geo, 0], dets.z[geo, 1] = rel_e + uav_e, rel_n + uav_n
             self.last_offset_en = None
             self.last_correction = None
+            state.image_steady = False
             rate = abs(self._heading_rate_deg_s)
             heading_sd = math.hypot(cfg.heading_sigma_deg, rate * cfg.timing_sigma_s)
             pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
@@ -297,6 +299,7 @@ class GpsTracker:
                     self.last_offset_en = anchored[:2]
                     self._uav_en = (uav_e, uav_n)
                     self._correction = correction
+                    state.image_steady = True
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
             if anchored is None and cfg.register_tracks \
                     and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
@@ -323,6 +326,9 @@ class GpsTracker:
         # 2. weak detections to confirmed tracks left over.
         confirmed = state.active["confirmed"].copy()
         strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
+        if cfg.image_first_iou > 0:
+            associate_image(state, dets, strong, t, confirmed, cfg.image_first_iou)
+            strong &= ~dets.used
         associate_ground(state, dets, strong, t, confirmed)
         strong &= ~dets.used
         associate_ground(state, dets, strong, t, ~confirmed)
