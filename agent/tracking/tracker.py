@@ -299,7 +299,6 @@ class GpsTracker:
                     self.last_offset_en = anchored[:2]
                     self._uav_en = (uav_e, uav_n)
                     self._correction = correction
-                    state.image_steady = True
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
             if anchored is None and cfg.register_tracks \
                     and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
@@ -380,14 +379,17 @@ class GpsTracker:
         row_of = np.full(len(geo), -1)
         row_of[geo] = np.arange(int(geo.sum()))
         strong = np.flatnonzero(geo & ~dets.used & (dets.scores >= cfg.match_score))
-        if len(act) < need or len(strong) < need:
+        if not len(act) or not len(strong):
             return None
         ti = np.flatnonzero(act["confirmed"])
         ti = ti[fresh_in_image(self._state, ti, t)]
-        if len(ti) < need:
+        if not len(ti):
             return None
         pt, pd = image_pairs(expected_boxes(self._state, ti, t), act["cls"][ti], dets.boxes[strong],
                              dets.cls[strong], cfg.image_register_iou)
+        # the image shows a track where it was expected: the camera did not move unlike the telemetry says
+        # (at the start of a turn the telemetry lags, and every box leaves its expected place at once)
+        self._state.image_steady = len(pt) >= 1
         if len(pt) < need:
             return None
         ti, di = ti[pt], strong[pd]
