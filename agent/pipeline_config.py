@@ -84,9 +84,10 @@ class PipelineConfig:
         tracker poses with the telemetry interpolated at frame time + offset (agent.clock_offset); the
         frame loop of `uavmm boost` and the live agent do not (yet). clock_offset_fallback_s: the offset used
         until a window of frames turned enough to measure it (the configured telemetry latency);
-        clock_offset_search_s: the estimate stays within +- this. Off by default: on the base `sea`/`grass`
-        scenarios it cost 0.2 / 0.1 HOTA and raised id switches 15.5 -> 21.5 / 14.5 -> 17.0 per seed
-        (docs/tracking.md, held-out domains).
+        clock_offset_search_s: the estimate stays within +- this. On by default since the tracker registers
+        its frames in the image (issue 15, third round): with it the sweeps of the tuning domains lost most
+        of their id switches (grass-sweeps-wide 34 -> 15, sea-sweeps-60 47 -> 7, reid 26 -> 18 over seeds
+        0-2) while the base `sea`/`grass` scenarios stayed within one switch per seed (docs/tracking.md).
 
     calibrate_scores: with use_memory, scale the detector's logits to the reference temperature from the
         spread of each frame's strongest detections, estimated online (agent.score_calibration), before
@@ -173,7 +174,7 @@ class PipelineConfig:
     correction_min_support: float = 0.3
     correction_smoothing_s: float = 0.0
     correction_hold_s: float = 2.0
-    estimate_clock_offset: bool = False
+    estimate_clock_offset: bool = True
     clock_offset_fallback_s: float = 0.05
     clock_offset_search_s: float = 1.0
 

@@ -114,7 +114,8 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
                 size_filter: SizeFilter | None = None, *,
                 on_frame: Callable[[Frame, FrameResult, list[TrackOutput]], None] | None = None,
                 stats: dict[str, Any] | None = None, image_dir: str | Path | None = None,
-                clock_offsets: list[tuple] | None = None) -> list[TrackRow]:
+                clock_offsets: list[tuple] | None = None,
+                registrations: list[tuple] | None = None) -> list[TrackRow]:
     """Run pipeline and tracker over one video.
 
     Parameters
@@ -140,6 +141,9 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
     clock_offsets : list, optional
         With `pipeline_config.estimate_clock_offset`, one row per frame is appended: CLOCK_OFFSET_COLUMNS
         (the video/telemetry clock offset applied, agent.clock_offset; frames without pose: NaN).
+    registrations : list, optional
+        One row per frame is appended: REGISTRATION_COLUMNS (the tracker's pose correction from its image
+        registration, `GpsTracker.last_correction`; zeros and registered False where none was found).
 
     Returns
     -------
@@ -183,6 +187,10 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         t_prev = t
         tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t)
         counts["tracker_s"] += time.perf_counter() - t1
+        if registrations is not None:
+            c = tracker.last_correction
+            registrations.append((frame.image.id, frame.image.video_id, frame.image.frame_index,
+                                  *(round(v, 4) for v in (c or (0.0, 0.0, 0.0, 0.0))), c is not None))
         counts["frames"] += 1
         counts["frames_without_pose"] += frame.pose is None
         counts["detections"] += len(result)
@@ -326,18 +334,24 @@ def write_geojson(rows_by_video: dict[int, list[TrackRow]], class_names: dict[in
 
 #: Columns of `uavmm track --clock-offsets-out`: the video/telemetry clock offset applied to each frame.
 CLOCK_OFFSET_COLUMNS = ("image_id", "video_id", "frame_index", "offset_s", "measured")
+#: Columns of `uavmm track --registrations-out`: the pose correction the tracker's image registration
+#: applied to each frame's ground points (metres east/north, degrees heading/pitch).
+REGISTRATION_COLUMNS = ("image_id", "video_id", "frame_index", "east_m", "north_m", "heading_deg", "pitch_deg",
+                        "registered")
 
 
 def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path, out: str | Path,
                   pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
                   size_filter: SizeFilter | None = None, *, video_id: int | None = None,
                   geojson_path: str | Path | None = None, image_dir: str | Path | None = None,
-                  use_images: bool = True, clock_offsets_path: str | Path | None = None) -> dict[str, Any]:
+                  use_images: bool = True, clock_offsets_path: str | Path | None = None,
+                  registrations_path: str | Path | None = None) -> dict[str, Any]:
     """Load the three files, track every video (or `video_id`), write MOT files (and GeoJSON).
 
     Image files (``file_name`` relative to `image_dir`, default the directory of images.json) that exist
     give the kept boxes appearance descriptors (`track_video`); `use_images=False` reads none.
     clock_offsets_path: a CSV of the clock offset applied to each frame (CLOCK_OFFSET_COLUMNS).
+    registrations_path: a CSV of the tracker's pose correction of each frame (REGISTRATION_COLUMNS).
 
     Output paths are checked before any work: an unknown video id raises ValueError, an unwritable
     output OSError. Returns a summary: ``files`` {video_id: path}, ``rows``, ``tracks`` (distinct ids
@@ -353,7 +367,7 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     out_is_dir = Path(out).is_dir() or str(out).endswith(("/", os.sep))
     for p in paths.values():
         check_writable(p, create_dir=out_is_dir)
-    for extra in (geojson_path, clock_offsets_path):
+    for extra in (geojson_path, clock_offsets_path, registrations_path):
         if extra is not None:
             check_writable(extra)
     candidates = Candidates.load(candidates_path, dataset)
@@ -363,9 +377,11 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     t0 = time.perf_counter()
     images = (Path(images_path).parent if image_dir is None else Path(image_dir)) if use_images else None
     offsets: list[tuple] = []
+    registered: list[tuple] = []
     for v in video_ids:
         rows_by_video[v] = track_video(dataset, candidates, camera, v, pipeline_config, tracker_config, size_filter,
-                                       stats=stats, image_dir=images, clock_offsets=offsets)
+                                       stats=stats, image_dir=images, clock_offsets=offsets,
+                                       registrations=registered)
     summary: dict[str, Any] = {"files": {}, "rows": 0, "tracks": {}}
     for v, rows in rows_by_video.items():
         summary["rows"] += write_mot(rows, paths[v])
@@ -378,6 +394,11 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
         _write_atomic(Path(clock_offsets_path), ",".join(CLOCK_OFFSET_COLUMNS) + "\n"
                       + "".join(",".join(str(v) for v in row) + "\n" for row in offsets))
         summary["clock_offsets"] = str(clock_offsets_path)
+    if registrations_path is not None:
+        _write_atomic(Path(registrations_path), ",".join(REGISTRATION_COLUMNS) + "\n"
+                      + "".join(",".join(str(v) for v in row) + "\n" for row in registered))
+        summary["registrations"] = str(registrations_path)
+    summary["frames_registered"] = sum(row[-1] for row in registered)
     applied = [row[3] for row in offsets if math.isfinite(row[3])]
     if applied:
         summary["clock_offset_median_s"] = round(statistics.median(applied), 3)

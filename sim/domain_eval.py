@@ -82,7 +82,9 @@ def run_domain_eval(domains: list[Domain], seeds: list[int], *, noise_scales: tu
             from sim.track_eval import TrackingVariant, evaluate_tracking
 
             base_cfg = PipelineConfig()
-            variants = [TrackingVariant(NORFAIR, dataclasses.replace(base_cfg, use_memory=False), kind="pixel"),
+            # norfair on the single-frame detections of the telemetry as stamped (it does not use poses)
+            variants = [TrackingVariant(NORFAIR, dataclasses.replace(base_cfg, use_memory=False,
+                                                                     estimate_clock_offset=False), kind="pixel"),
                         TrackingVariant(GPS, base_cfg, kind="gps")]
             for name, m in evaluate_tracking(data_dir, variants, fps=domain.fps).items():
                 trk_rows.append({**base, "variant": name, **m})

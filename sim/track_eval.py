@@ -141,7 +141,8 @@ def default_tracking_variants() -> list[TrackingVariant]:
     base = PipelineConfig()
     single = dataclasses.replace(base, use_memory=False)
     return [
-        TrackingVariant("norfair (pixel IoU)", single, kind="pixel"),
+        # norfair does not use poses: the telemetry as stamped (the size filter is the only pose user)
+        TrackingVariant("norfair (pixel IoU)", dataclasses.replace(single, estimate_clock_offset=False), kind="pixel"),
         TrackingVariant("GPS tracker, no memory", single, kind="gps"),
         TrackingVariant("GPS tracker + memory map, motion only", base, kind="gps",
                         tracker=TrackerConfig(use_appearance=False)),

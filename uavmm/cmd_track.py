@@ -49,13 +49,20 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="minimum running detector score of a reported track (0.4)")
     g.add_argument("--telemetry-latency-s", type=float, default=None,
                    help="how much older the telemetry is than its stamp (0.05)")
-    g.add_argument("--clock-offset", action="store_true",
-                   help="estimate the video/telemetry clock offset online from the detections and interpolate "
-                        "the telemetry at frame time + offset (--telemetry-latency-s is then its fallback; "
-                        "off by default, see docs/tracking.md)")
+    clock = g.add_mutually_exclusive_group()
+    clock.add_argument("--clock-offset", dest="clock_offset", action="store_true", default=None,
+                       help="estimate the video/telemetry clock offset online from the detections and interpolate "
+                            "the telemetry at frame time + offset (--telemetry-latency-s is then its fallback; "
+                            "the default, see docs/tracking.md)")
+    clock.add_argument("--no-clock-offset", dest="clock_offset", action="store_false",
+                       help="use the telemetry at its own stamps (turns are then compensated by "
+                            "--telemetry-latency-s only)")
     p.add_argument("--clock-offsets-out", type=Path, default=None, metavar="FILE.csv",
-                   help="with --clock-offset: write the clock offset applied to each frame (image_id, "
+                   help="write the clock offset applied to each frame (image_id, "
                         "video_id, frame_index, offset_s, measured)")
+    p.add_argument("--registrations-out", type=Path, default=None, metavar="FILE.csv",
+                   help="write the pose correction the tracker's image registration applied to each frame "
+                        "(image_id, video_id, frame_index, east_m, north_m, heading_deg, pitch_deg, registered)")
     _add_pipeline_options(p)
     p.set_defaults(handler=run)
 
@@ -67,9 +74,9 @@ def run(args: argparse.Namespace) -> int:
     if args.video_id is not None and args.video_id < 0:
         raise CliError(f"--video-id must be >= 0, got {args.video_id}")
     pipeline_config, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
-    if args.clock_offset:
-        pipeline_config = dataclasses.replace(pipeline_config, estimate_clock_offset=True)
-    if args.clock_offset and args.telemetry_latency_s is not None:
+    if args.clock_offset is not None:  # else the configuration's (on by default)
+        pipeline_config = dataclasses.replace(pipeline_config, estimate_clock_offset=args.clock_offset)
+    if pipeline_config.estimate_clock_offset and args.telemetry_latency_s is not None:
         if not abs(args.telemetry_latency_s) <= pipeline_config.clock_offset_search_s:
             raise CliError(f"--telemetry-latency-s must be within +-{pipeline_config.clock_offset_search_s} s, "
                            f"got {args.telemetry_latency_s}")
@@ -81,7 +88,8 @@ def run(args: argparse.Namespace) -> int:
     summary = track_dataset(args.frames, args.candidates, args.camera, args.out, pipeline_config, tracker_config,
                             size_filter, video_id=args.video_id, geojson_path=args.geojson,
                             image_dir=args.image_dir, use_images=not args.no_images,
-                            clock_offsets_path=args.clock_offsets_out)
+                            clock_offsets_path=args.clock_offsets_out,
+                            registrations_path=args.registrations_out)
     for video_id, path in summary["files"].items():
         print(f"video {video_id}: {summary['tracks'][video_id]} tracks -> {path}")
     if "clock_offset_median_s" in summary:
@@ -90,7 +98,10 @@ def run(args: argparse.Namespace) -> int:
               + (f" -> {summary['clock_offsets']}" if "clock_offsets" in summary else ""))
     if "geojson" in summary:
         print(f"geojson: {summary['geojson_features']} features -> {summary['geojson']}")
-    keys = ("rows", "frames", "frames_without_pose", "reidentified", "pipeline_ms_per_frame", "tracker_ms_per_frame",
+    if "registrations" in summary:
+        print(f"registrations: {summary['frames_registered']} of {summary['frames']} frames -> "
+              f"{summary['registrations']}")
+    keys = ("rows", "frames", "frames_without_pose", "frames_registered", "reidentified", "pipeline_ms_per_frame", "tracker_ms_per_frame",
             "images_read", "images_missing", "appearance_ms_per_image", "seconds")
     print(", ".join(f"{k}={summary[k]}" for k in keys))
     return 0

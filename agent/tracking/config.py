@@ -302,7 +302,7 @@ class TrackerConfig:
     reid_appearance_gate: float = 0.5
     appearance_weight: float = 2.0
     quality_rate: float = 0.1
-    unseen_margin: float = 0.05
+    unseen_margin: float = 0.02
     report_quality: float = 0.4
     reanchor_m: float = 2000.0
     register_tracks: bool = False
@@ -310,20 +310,20 @@ class TrackerConfig:
     register_min_pairs: int = 3
     register_max_turn_deg_s: float = 10.0
     heading_smoothing_s: float = 0.15
-    image_register: bool = False
+    image_register: bool = True
     image_register_iou: float = 0.5
     image_register_min_pairs: int = 2
     track_follow_s: float = 0.5
     registered_floor_m: float = 0.2
-    registered_error_scale: float = 0.0
+    registered_error_scale: float = 0.3
     registered_scale_s: float = 1.0
     register_position_sd_m: float = 10.0
     register_angle_scale: float = 1.0
-    image_velocity: bool = False
-    image_gate: float = 0.0
+    image_velocity: bool = True
+    image_gate: float = 2.0
     image_first_iou: float = 0.0
-    image_gate_age_s: float = 0.2
-    image_gate_growth_per_s: float = 0.0
+    image_gate_age_s: float = 1.0
+    image_gate_growth_per_s: float = 4.0
     image_velocity_ema: float = 0.5
     class_motion: tuple[tuple[str, ClassMotion], ...] = DEFAULT_CLASS_MOTION
     default_motion: ClassMotion = field(default_factory=lambda: ClassMotion(2.0, 10.0, 1.0))

@@ -296,6 +296,8 @@ class GpsTracker:
                     anchored = (float(correction[0]), float(correction[1]),
                                 math.degrees(correction[2]), math.degrees(correction[3]))
                     self.last_correction = anchored
+                    log.debug("t=%.3f registered in the image: east %.2f north %.2f m, heading %.2f pitch %.2f deg",
+                              t, *anchored)
                     self.last_offset_en = anchored[:2]
                     self._uav_en = (uav_e, uav_n)
                     self._correction = correction

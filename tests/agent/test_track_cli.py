@@ -174,8 +174,24 @@ def test_clock_offsets_out_has_one_row_per_frame_within_the_search_bound(data, t
 
 def test_clock_offset_off_writes_no_rows_and_bad_latency_is_a_clear_error(data, tmp_path, capsys):
     csv = tmp_path / "offsets.csv"
-    assert track(data, tmp_path / "t.txt", "--video-id", "1", "--clock-offsets-out", str(csv)) == 0  # off
+    assert track(data, tmp_path / "t.txt", "--video-id", "1", "--no-clock-offset", "--clock-offsets-out", str(csv)) == 0
     assert csv.read_text().splitlines() == ["image_id,video_id,frame_index,offset_s,measured"]
     capsys.readouterr()
     assert track(data, tmp_path / "t2.txt", "--clock-offset", "--telemetry-latency-s", "3") == 2
     assert "--telemetry-latency-s" in capsys.readouterr().err
+
+
+def test_registrations_out_has_the_tracker_pose_correction_of_every_frame(data, tmp_path, capsys):
+    out, csv = tmp_path / "tracks.txt", tmp_path / "registrations.csv"
+    assert track(data, out, "--video-id", "1", "--registrations-out", str(csv)) == 0
+    printed = capsys.readouterr().out
+    lines = csv.read_text().splitlines()
+    assert lines[0] == "image_id,video_id,frame_index,east_m,north_m,heading_deg,pitch_deg,registered"
+    rows = [line.split(",") for line in lines[1:]]
+    assert [int(r[2]) for r in rows] == list(range(90))
+    registered = [r for r in rows if r[7] == "True"]
+    assert f"registrations: {len(registered)} of 90 frames" in printed
+    if TrackerConfig().image_register:
+        assert len(registered) > 45  # a hover with people in view: most frames pair their boxes
+        assert all(abs(float(r[3])) < 15 and abs(float(r[4])) < 15 for r in registered)
+    assert all(float(r[3]) == float(r[4]) == 0.0 for r in rows if r[7] == "False")

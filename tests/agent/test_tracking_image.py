@@ -16,9 +16,10 @@ FPS = 30.0
 CLASSES = {1: "person"}
 #: a 4K camera behind a 70 mm-class tele lens: 1 m on the ground at 70 m is about 120 px
 TELE = Camera(width=3840, height=2160, fx=8400.0, fy=8400.0, cx=1920.0, cy=1080.0)
-#: the image registration, image velocity and image gate (the defaults of this module's subject)
+#: the image registration, image velocity and image gate (the defaults), and the tracker without them
 IMAGE_CUES = {"image_register": True, "image_velocity": True, "image_gate": 2.0, "image_gate_age_s": 1.0,
               "image_gate_growth_per_s": 4.0}
+GROUND_ONLY = {"image_register": False, "image_velocity": False, "image_gate": 0.0}
 
 
 def pose_at(heading_deg: float = 0.0) -> Pose:
@@ -85,8 +86,9 @@ def _run_with_false_positives(config: TrackerConfig, seed: int = 0) -> tuple[set
 
 
 def test_the_image_gate_keeps_scattered_false_positives_from_forming_tracks() -> None:
+    assert all(getattr(TrackerConfig(), k) == v for k, v in IMAGE_CUES.items())  # the defaults
     on_people, elsewhere = _run_with_false_positives(TrackerConfig(**IMAGE_CUES))
     assert len(on_people) == 3  # every person keeps one id
     # without the image cues the ground gate chains tracks through the false positives
-    on_people_ground, elsewhere_ground_only = _run_with_false_positives(TrackerConfig())
+    on_people_ground, elsewhere_ground_only = _run_with_false_positives(TrackerConfig(**GROUND_ONLY))
     assert len(elsewhere) < len(elsewhere_ground_only)
