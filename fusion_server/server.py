@@ -111,7 +111,7 @@ class FusionServer:
             self.uavs, self.metrics, self.store,
             UavRateLimiter(settings.uav_max_msgs_per_s, settings.uav_max_bytes_per_s, max_uavs=4 * settings.max_uavs),
             tracks_max_hz=settings.tracks_max_hz,
-            persist_interval_s=settings.persist_interval_s, uav_keep_s=settings.uav_keep_s, shard=shard,
+            uav_keep_s=settings.uav_keep_s, shard=shard,
         )
         if self.node.handover is not None:
             self.tracker.adopt = self.node.handover.adopt

@@ -4,8 +4,9 @@ The data subscriber's callback only enqueues the sample (a bounded inbox: beyond
 dropped and counted as "overloaded"). One thread drains the inbox in batches, validates every
 sample and feeds the joint map (one lock per batch), the global tracker and the UAV registry,
 counting and logging (rate-limited) what it drops; between batches it fuses and publishes joint
-tiles and joint tracks (``CongestionControl.BLOCK``) and hands changes to persistence, whose
-writer thread batches them into SQLite. Callbacks never raise.
+tiles and joint tracks (``CongestionControl.BLOCK``) and hands the joint tiles to persistence, whose
+writer thread batches them into SQLite with the tracks' and UAVs' changes it collects itself at each
+flush. Callbacks never raise.
 """
 
 from __future__ import annotations
@@ -99,7 +100,6 @@ class FusionNode:
         limiter: UavRateLimiter | None = None,
         *,
         tracks_max_hz: float = 5.0,
-        persist_interval_s: float = 0.5,
         max_tracks_bytes: int = 1024 * 1024,
         uav_keep_s: float = 3600.0,
         inbox_max: int = 65_536,
@@ -115,7 +115,6 @@ class FusionNode:
         self.store = store
         self.limiter = limiter
         self.tracks_min_interval_s = 1.0 / tracks_max_hz
-        self.persist_interval_s = persist_interval_s
         self.max_tracks_bytes = max_tracks_bytes
         self.uav_keep_s = uav_keep_s
         self.shard = shard if shard is not None else ShardSpec.single()
@@ -138,6 +137,10 @@ class FusionNode:
         self._sessions: dict[bytes, str] = {}  # attachment bytes -> session id (bounded cache)
         # region -> (its tracks, payload, monotonic time) as last published on region/tracks/{z}/{x}/{y}
         self._region_payloads: dict[tuple[int, int, int], tuple[tuple[JointTrackItem, ...], bytes, float]] = {}
+        if store is not None:
+            # pulled by the store's writer at each flush, so a commit never holds tiles without the
+            # UAVs and tracks of that moment (a SIGKILL between two ticks of this thread lost them)
+            store.sources.append(self._persist_tracks)
 
     # ---- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -445,6 +448,7 @@ class FusionNode:
             return None
 
     def _persist_tracks(self) -> None:
+        """Queue the tracks' and UAVs' changes since the last call (the store's writer thread calls it)."""
         assert self.store is not None
         records, history = self.tracker.drain_changes()
         self.store.save_tracks(records, history, self.tracker.next_gid)
@@ -465,7 +469,6 @@ class FusionNode:
         next_housekeeping = 0.0
         next_forget = 0.0
         next_regions = 0.0
-        next_persist = time.monotonic() + self.persist_interval_s
         while not self._stop.is_set():
             batch = self._drain()
             if batch:
@@ -486,14 +489,9 @@ class FusionNode:
             if now >= next_regions:
                 self._step("track_regions", self._publish_track_regions)
                 next_regions = now + 1.0 / REGION_TRACKS_HZ
-            if self.store is not None and now >= next_persist:
-                self._step("persist", self._persist_tracks)
-                next_persist = now + self.persist_interval_s
             self._wakeup.clear()
             if self._inbox:
                 continue
             timeout = _TICK_S if next_due is None else min(_TICK_S, next_due - time.monotonic())
             if timeout > 0:
                 self._wakeup.wait(timeout)
-        if self.store is not None:
-            self._step("persist", self._persist_tracks)
