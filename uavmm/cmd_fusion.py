@@ -23,12 +23,15 @@ DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
 
 
 def _config_sets_listen(path: Path | None) -> bool:
-    """Whether the Zenoh config file sets listen/endpoints; ValueError naming an unreadable file."""
+    """Whether the Zenoh config file itself sets ``listen/endpoints`` (as ``--listen``'s help says: only
+    then is DEFAULT_LISTEN left out). Zenoh's own default, a per-mode table that is never empty, does
+    not count: the file's keys are read. ValueError naming a file Zenoh or the parser cannot read."""
     if path is None:
         return False
-    from transport.options import ZenohOptions, zenoh_config
+    from transport.options import ZenohOptions, config_file_value, zenoh_config
 
-    return zenoh_config(ZenohOptions(config_file=path)).get_json("listen/endpoints") not in ("null", "[]", "{}")
+    zenoh_config(ZenohOptions(config_file=path))  # the server's own errors for a file Zenoh refuses
+    return config_file_value(path, "listen/endpoints") is not None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
