@@ -4,7 +4,9 @@ Every shard publishes the global tracks of its regions on ``{prefix}/region/trac
 least once a second while a region has tracks, one empty message when it has none left). The gateway
 keeps each region's last message; the merged view is the union of the regions heard from within
 ``stale_s`` seconds (3 by default: a region of a dead shard drops out), one track per global id, the
-one from the newest message (during a handover both shards may publish the id for a moment). The
+one from the newest message (during a handover both shards may publish the id for a moment). A track's
+status comes with it: the region message lists which members still report it (``JointTrackItem.active``;
+a message of an older shard without it reads as all of them: "tracked"). The
 gateway builds each track's history itself from what it hears (a point per ``history_interval_s``),
 and keeps the tracks that left the view as ended ones. It offers the read side of
 :class:`fusion_server.global_tracks.GlobalTracker` that the REST API and the ``joint/tracks``
@@ -123,11 +125,10 @@ class MergedTracks:
 
     def _record(self, gid: int, t: float, item: JointTrackItem, ended: float | None = None) -> TrackRecord:
         seen = self._seen.get(gid)
-        # a region message says which local tracks a global track absorbed, not which still report
-        # it: the gateway shows every track it hears of as tracked (members = active members)
+        # the region message says which members still report it (all of them in an older shard's message)
         return TrackRecord(gid=gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score, vel_en=item.vel_en,
                            created=seen.created if seen is not None else t, last_update=t, members=item.members,
-                           active=item.members if ended is None else (), ended=ended,
+                           active=item.active_members if ended is None else (), ended=ended,
                            history=tuple(seen.history) if seen is not None else ())
 
     # ---- the read side the REST API uses (GlobalTracker's) ------------------------------------------

@@ -207,6 +207,19 @@ def _item(gid: int, lon: float) -> JointTrackItem:
                           members=(("uav-a", 1),))
 
 
+def test_status_comes_from_the_region_message_and_an_older_shards_message_reads_as_tracked():
+    clock = Clock()
+    merged = MergedTracks(stale_s=3.0, clock=clock, wall=clock)
+    members = (("uav-a", 1), ("uav-b", 2))
+    held = JointTrackItem(3, "person", 47.0, 9.0, 0.9, (0.0, 0.0), members, active=())
+    half = JointTrackItem(4, "person", 47.0, 9.1, 0.9, (0.0, 0.0), members, active=(1,))
+    old = JointTrackItem(5, "person", 47.0, 9.2, 0.9, (0.0, 0.0), members)  # no active: an older shard
+    merged.put((16, 1, 1), JointTracksMessage(t=10.0, tracks=(held, half, old)))
+    records = {r.gid: r for r in merged.records()}
+    assert [records[g].status for g in (3, 4, 5)] == ["lost", "tracked", "tracked"]
+    assert records[4].active == (("uav-b", 2),) and records[5].active == members
+
+
 def test_merge_newest_message_wins_and_stale_regions_drop_out():
     clock = Clock()
     merged = MergedTracks(stale_s=3.0, clock=clock, wall=clock)
