@@ -17,13 +17,14 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import zenoh
 
 from fusion_server.handover import Handover
 from fusion_server.joint_map import JointMap, TileKey
+from fusion_server.shard_tracks import TrackQuery, TracksQueryable
 from fusion_server.uav_intake import UavIntake
 from fusion_server.validation import MessageValidator, Received, Rejected
 from shared.keys import track_region
@@ -137,6 +138,11 @@ class FusionNode:
         self._sessions: dict[bytes, str] = {}  # attachment bytes -> session id (bounded cache)
         # region -> (its tracks, payload, monotonic time) as last published on region/tracks/{z}/{x}/{y}
         self._region_payloads: dict[tuple[int, int, int], tuple[tuple[JointTrackItem, ...], bytes, float]] = {}
+        #: a shard's track features for ``fusion/tracks`` queries (the server sets it: what its REST API
+        #: lists for /v1/tracks and /v1/history); None: no such queryable
+        self.track_source: Callable[[TrackQuery], list[dict[str, Any]]] | None = None
+        #: the queryable answering them (while started)
+        self.tracks_queryable: TracksQueryable | None = None
         if store is not None:
             # pulled by the store's writer at each flush, so a commit never holds tiles without the
             # UAVs and tracks of that moment (a SIGKILL between two ticks of this thread lost them)
@@ -167,6 +173,11 @@ class FusionNode:
                 session.declare_subscriber(self.keys.region_tracks_all(),
                                            guarded(self.handover.on_region_tracks, log, "foreign region tracks")),
             ]
+            if self.track_source is not None:  # the gateway asks here for the tracks' history
+                key = self.keys.shard_tracks(shard.index, shard.count)
+                self.tracks_queryable = TracksQueryable(self.track_source, key, shard.index, shard.count)
+                self.tracks_queryable.start()
+                self._declared.append(session.declare_queryable(key, self.tracks_queryable.on_query))
         self._thread = threading.Thread(target=self._run, name="uavmm-fusion", daemon=True)
         self._thread.start()
         log.info("fusion node %s up, subscribed to %s", session.zid(),
@@ -190,6 +201,9 @@ class FusionNode:
         if self._thread is not None:
             self._thread.join(timeout=10.0)
             self._thread = None
+        if self.tracks_queryable is not None:
+            self.tracks_queryable.close()
+            self.tracks_queryable = None
         if self.session is not None:
             close_session(self.session, self._declared, self._publishers)
             self.session = None
