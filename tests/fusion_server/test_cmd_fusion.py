@@ -79,7 +79,9 @@ def test_a_config_file_that_sets_listen_endpoints_keeps_them(tmp_path: Path, nam
 def test_the_help_promises_the_default_unless_the_config_file_sets_listen_endpoints(capsys):
     with pytest.raises(SystemExit):
         build_parser().parse_args(["fusion", "--help"])
-    assert "default tcp/0.0.0.0:7447 unless --config sets listen/endpoints" in " ".join(capsys.readouterr().out.split())
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "default tcp/0.0.0.0:7447 unless --config sets listen/endpoints" in help_text
+    assert "Zenoh session mode (default: router unless --config sets mode)" in help_text
 
 
 def test_a_config_file_zenoh_reads_but_that_is_not_a_map_or_json5_is_refused_naming_it(tmp_path: Path):
@@ -92,6 +94,27 @@ def test_a_config_file_zenoh_reads_but_that_is_not_a_map_or_json5_is_refused_nam
     config.write_text("{ listen: ")
     with pytest.raises(ValueError, match=f"cannot parse zenoh config {config}"):
         config_file_value(config, "listen/endpoints")
+
+
+def test_the_config_files_own_mode_beats_the_default_mode_and_a_client_file_gets_no_listener(tmp_path: Path):
+    """`uavmm secure init` writes fusion/zenoh-client.json5 for "uavmm fusion --config zenoh-client.json5: the
+    fusion server as a client of a zenohd router"; the --mode default (router) used to override the file's
+    mode, so that server ran as a router listening on 7447 instead."""
+    client = tmp_path / "zenoh-client.json5"
+    client.write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:7999"] } }')
+    settings = parse("--config", str(client))
+    assert settings.zenoh.mode is None and settings.zenoh.listen is None
+    conf = zenoh_config(settings.zenoh)
+    assert json.loads(conf.get_json("mode")) == "client"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7999"]
+    # an explicit --mode still wins over the file, and then the default listener applies
+    forced = parse("--config", str(client), "--mode", "router")
+    assert forced.zenoh.mode == "router" and forced.zenoh.listen == (DEFAULT_LISTEN,)
+    peer = tmp_path / "peer.json5"
+    peer.write_text('{ mode: "peer" }')
+    settings = parse("--config", str(peer))
+    assert settings.zenoh.mode is None and settings.zenoh.listen == (DEFAULT_LISTEN,)
+    assert json.loads(zenoh_config(settings.zenoh).get_json("mode")) == "peer"
 
 
 def test_a_client_gets_no_default_listener_whatever_its_config_file(tmp_path: Path):
