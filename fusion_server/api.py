@@ -39,7 +39,7 @@ from fusion_server.render import (
     window_bounds,
     window_for_bbox,
 )
-from fusion_server.replay import history_window, stored_tracks
+from fusion_server.replay import history_window
 from shared.keys import name_problem
 from shared.kml import KML_MEDIA_TYPE, KMZ_MEDIA_TYPE, feature_collections_kml, kmz
 
@@ -94,6 +94,10 @@ class FusionView(Protocol):
     def prometheus(self) -> str: ...
 
     def count_http_denied(self, reason: str) -> None: ...
+
+    def history_tracks(self, cls: str | None = None, since: float | None = None) -> list[dict[str, Any]]:
+        """Track features with their history rows (class ``cls``, updated since ``since``) for /v1/history."""
+        ...
 
     def cluster_health(self) -> dict[str, Any]:
         """Extra /healthz fields of a sharded deployment (``shard``; a gateway's ``shards``); ``degraded``
@@ -416,8 +420,7 @@ def create_app(server: FusionView) -> FastAPI:
             raise HTTPException(status_code=400, detail=f"since ({since}) is after until ({until})")
         if cls is not None:
             _check_cls(server, cls, must_exist=False)
-        live = [record.to_geojson() for record in server.tracker.records(include_ended=True)]
-        window = history_window(stored_tracks(server.settings.db_path, live, cls=cls, since=since), since, until)
+        window = history_window(server.history_tracks(cls=cls, since=since), since, until)
         if not rows:
             for feature in window["features"]:
                 del feature["properties"]["history"]

@@ -2,7 +2,8 @@
 
 ``uavmm gateway --shards N`` fuses nothing: joint tiles are asked of the shards by Zenoh queries
 (:mod:`fusion_server.remote_joint`), global tracks merged from their region messages
-(:mod:`fusion_server.merged_tracks`), UAVs and shard liveliness heard on Zenoh
+(:mod:`fusion_server.merged_tracks`) with their history asked of the shards by Zenoh queries
+(:mod:`fusion_server.shard_tracks`), UAVs and shard liveliness heard on Zenoh
 (:mod:`fusion_server.gateway_node`). :class:`Gateway` offers these through the same view as a fusion
 server (``fusion_server.api.FusionView``), so ``create_app`` serves the same routes and page. While a
 shard is down, /healthz says ``degraded`` and names it, and the UAVs over its regions are ``degraded``
@@ -23,6 +24,7 @@ from fusion_server.merged_tracks import DEFAULT_STALE_S, MergedTracks
 from fusion_server.metrics import FusionMetrics
 from fusion_server.remote_joint import DEFAULT_CACHE_S, RemoteJoint
 from fusion_server.server import HttpThread
+from fusion_server.shard_tracks import ShardTracks
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
 from shared.sharding import ShardSpec
@@ -85,6 +87,11 @@ class Gateway:
                                  on_reject=lambda reason: self.metrics.reject("joint_tile", reason))
         self.tracker = MergedTracks(stale_s=stale_s, history_len=settings.track_history_len,
                                     history_interval_s=settings.track_history_interval_s)
+        # the tracks' history, times and ended ones, asked of the shards (their region messages carry
+        # where each track is and its status only)
+        self.shard_tracks = ShardTracks(keys, settings.shard_count, history_len=settings.track_history_len,
+                                        on_reject=lambda reason: self.metrics.reject("shard_tracks", reason))
+        self.tracker.details = self.shard_tracks.live
         self.uavs = ShardedUavs(self.spec, grid, self.shards, max_uavs=settings.max_uavs)
         validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s)
         self.node = GatewayNode(zenoh_config(settings.zenoh), keys, validator, self.tracker, self.uavs,
@@ -99,6 +106,7 @@ class Gateway:
         """Open Zenoh (and ask the shards for their tracks), then serve the REST API if ``http``."""
         self.node.start()
         self.joint.session = self.node.session
+        self.shard_tracks.session = self.node.session
         if http:
             self.http = HttpThread(self.app, self.settings.http_host, self.settings.http_port)
             self.http.start()
@@ -109,6 +117,7 @@ class Gateway:
             self.http.stop()
             self.http = None
         self.joint.session = None
+        self.shard_tracks.session = None
         self.node.close()
 
     def __enter__(self) -> Gateway:
@@ -126,6 +135,15 @@ class Gateway:
     def classes(self) -> set[str]:
         """Classes of the shards' joint tiles (seen since start)."""
         return self.joint.classes()
+
+    def history_tracks(self, cls: str | None = None, since: float | None = None) -> list[dict[str, Any]]:
+        """/v1/history's tracks: every shard's stored tracks (class ``cls``, updated since ``since``) with
+        their history rows, merged by global id; the gateway's own merged tracks when no shard answers."""
+        found = self.shard_tracks.stored(cls, since)
+        if found is None:
+            return [record.to_geojson() for record in self.tracker.records(include_ended=True)
+                    if cls is None or record.cls == cls]
+        return [track.to_feature() for track in found]
 
     def db_health(self) -> dict[str, Any]:
         """``{"status": "off"}``: a gateway keeps nothing; each shard reports its own database."""
@@ -163,6 +181,8 @@ class Gateway:
             "uavmm_gateway_shards_down": ("Shards without a liveliness token.", len(down)),
             "uavmm_gateway_joint_queries_total": ("Zenoh queries sent to the shards for joint tiles.",
                                                   self.joint.queries),
+            "uavmm_gateway_track_queries_total": ("Zenoh queries sent to the shards for their tracks' history.",
+                                                  self.shard_tracks.queries),
             "uavmm_fusion_uavs_online": ("UAVs whose liveliness token is present.", len(self.uavs.online())),
             "uavmm_fusion_global_tracks": ("Global tracks merged from the shards.", len(self.tracker)),
         }

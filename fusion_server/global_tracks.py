@@ -81,6 +81,14 @@ class GlobalTrack:
         )
 
 
+def _active_indexes(track: GlobalTrack) -> tuple[int, ...] | None:
+    """``JointTrackItem.active`` of a track: the indexes of its active members, None when all are."""
+    flags = [member.active for member in track.members.values()]
+    if flags and all(flags):
+        return None
+    return tuple(i for i, active in enumerate(flags) if active)
+
+
 @dataclass(frozen=True, slots=True)
 class TrackRecord:
     """Immutable view of a global track (see :class:`GlobalTrack`); ``ended`` is None while alive."""
@@ -508,7 +516,8 @@ class GlobalTracker:
         return sorted(rows, key=lambda r: r.gid)
 
     def joint_message(self, max_tracks: int = MAX_TRACKS) -> JointTracksMessage:
-        """The ``joint/tracks`` message: the current global tracks with the local ids they absorbed.
+        """The ``joint/tracks`` message: the current global tracks with the local ids they absorbed, and
+        (``active``) which of them still report each track when not all do.
 
         At most ``max_tracks`` (by gid): tracked ones first, then the most recently updated held ones.
         """
@@ -520,7 +529,7 @@ class GlobalTracker:
             items = tuple(
                 JointTrackItem(
                     gid=t.gid, cls=t.cls, lat=t.lat, lon=t.lon, score=min(max(t.score, 0.0), 1.0),
-                    vel_en=t.vel_en, members=tuple(t.members),
+                    vel_en=t.vel_en, members=tuple(t.members), active=_active_indexes(t),
                 )
                 for t in sorted(tracks, key=lambda t: t.gid)
             )

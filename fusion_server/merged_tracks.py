@@ -4,20 +4,28 @@ Every shard publishes the global tracks of its regions on ``{prefix}/region/trac
 least once a second while a region has tracks, one empty message when it has none left). The gateway
 keeps each region's last message; the merged view is the union of the regions heard from within
 ``stale_s`` seconds (3 by default: a region of a dead shard drops out), one track per global id, the
-one from the newest message (during a handover both shards may publish the id for a moment). The
-gateway builds each track's history itself from what it hears (a point per ``history_interval_s``),
-and keeps the tracks that left the view as ended ones. It offers the read side of
+one from the newest message (during a handover both shards may publish the id for a moment). A track's
+status comes with it: the region message lists which members still report it (``JointTrackItem.active``;
+a message of an older shard without it reads as all of them: "tracked"). Its history, creation and
+last-update times and the ended tracks come from the shards themselves when ``details`` is set (the
+gateway's :class:`fusion_server.shard_tracks.ShardTracks`, asked over Zenoh); without it, or for a
+track no shard answered about, the gateway's own record stands in: the history it built from what it
+heard (a point per ``history_interval_s``), and the tracks that left the view as ended ones. It offers
+the read side of
 :class:`fusion_server.global_tracks.GlobalTracker` that the REST API and the ``joint/tracks``
 publisher use (``records``, ``joint_message``, ``len``). Thread-safe.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import threading
 import time
 from collections import OrderedDict, deque
+from collections.abc import Callable
 
 from fusion_server.global_tracks import TrackRecord
+from fusion_server.shard_tracks import ShardTrack
 from shared.messages import MAX_TRACKS, JointTrackItem, JointTracksMessage
 
 __all__ = ["DEFAULT_STALE_S", "MergedTracks"]
@@ -65,6 +73,9 @@ class MergedTracks:
         self._ended: OrderedDict[int, TrackRecord] = OrderedDict()
         #: bumped whenever the merged view changes (the joint/tracks publisher compares it)
         self.version = 0
+        #: when set, ``details(include_ended)`` gives the shards' own records of their tracks (history,
+        #: times, the ended ones), or None when no shard answered (ShardTracks.live)
+        self.details: Callable[[bool], list[ShardTrack] | None] | None = None
 
     def put(self, region: Region, message: JointTracksMessage) -> None:
         """Record a region's tracks message (an empty one: the region has no tracks any more)."""
@@ -123,22 +134,24 @@ class MergedTracks:
 
     def _record(self, gid: int, t: float, item: JointTrackItem, ended: float | None = None) -> TrackRecord:
         seen = self._seen.get(gid)
-        # a region message says which local tracks a global track absorbed, not which still report
-        # it: the gateway shows every track it hears of as tracked (members = active members)
+        # the region message says which members still report it (all of them in an older shard's message)
         return TrackRecord(gid=gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score, vel_en=item.vel_en,
                            created=seen.created if seen is not None else t, last_update=t, members=item.members,
-                           active=item.members if ended is None else (), ended=ended,
+                           active=item.active_members if ended is None else (), ended=ended,
                            history=tuple(seen.history) if seen is not None else ())
 
     # ---- the read side the REST API uses (GlobalTracker's) ------------------------------------------
     def records(self, include_ended: bool = False) -> list[TrackRecord]:
-        """The merged global tracks, plus those that recently left the view if asked, by gid."""
+        """The merged global tracks, plus the recently ended ones if asked, by gid: where each is and its
+        status from the regions, its history and times from the shards (``details``) when they answer."""
+        details = self.details(include_ended) if self.details is not None else None  # a query: not under the lock
         with self._lock:
             self._merge(self._clock())
             rows = [self._record(gid, t, item) for gid, (t, item) in self._current.items()]
-            if include_ended:
-                rows.extend(self._ended.values())
-        return sorted(rows, key=lambda r: r.gid)
+            ended = list(self._ended.values()) if include_ended else []
+        if details is not None:
+            rows, ended = _with_details(rows, ended, details, include_ended)
+        return sorted(rows + ended, key=lambda r: r.gid)
 
     def joint_message(self, max_tracks: int = MAX_TRACKS) -> JointTracksMessage:
         """The ``joint/tracks`` message of the whole map: at most ``max_tracks``, the newest first, by gid."""
@@ -158,3 +171,25 @@ class MergedTracks:
 
     def __len__(self) -> int:
         return len(self._current)
+
+
+def _with_details(rows: list[TrackRecord], ended: list[TrackRecord], details: list[ShardTrack],
+                  include_ended: bool) -> tuple[list[TrackRecord], list[TrackRecord]]:
+    """The live rows with the shards' history, creation and last-update times (their members too: after a
+    handover they hold every copy's); the ended tracks the shards list instead of the gateway's own,
+    except for those no shard answered about (a dead shard's tracks that left the view)."""
+    by_gid = {track.gid: track for track in details}
+    live = []
+    for row in rows:
+        track = by_gid.get(row.gid)
+        if track is not None:
+            members = track.members if set(row.active) <= set(track.members) else row.members
+            row = dataclasses.replace(row, created=track.created, last_update=track.last_update, members=members,
+                                      history=track.history)
+        live.append(row)
+    if not include_ended:
+        return live, []
+    alive = {row.gid for row in rows}
+    shards_ended = [track.to_record() for track in details if track.ended is not None and track.gid not in alive]
+    listed = {record.gid for record in shards_ended}
+    return live, shards_ended + [record for record in ended if record.gid not in listed and record.gid not in by_gid]

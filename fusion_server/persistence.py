@@ -2,7 +2,11 @@
 
 WAL mode; all writes go through one writer thread that commits the changes collected since its last
 flush in one transaction (latest value per track / tile / UAV wins), so Zenoh callbacks never touch
-the disk. A failed flush keeps its batch (merged under what came since) and is retried with backoff;
+the disk. Joint tiles are queued as they are published; the tracks and UAVs are pulled from their
+owners by the writer itself at the start of each flush (:attr:`FusionStore.sources`), so every
+commit holds the tracks and UAVs as they stood when the tiles in it were queued: a process killed
+(SIGKILL) after a commit restores its UAVs, their last state and the tracks with the tiles. A
+failed flush keeps its batch (merged under what came since) and is retried with backoff;
 :meth:`FusionStore.health` reports it (``/healthz`` says "degraded", ``/metrics`` counts the errors).
 The file is checked when opened (:mod:`fusion_server.db_check`). A restarted server
 :meth:`FusionStore.load` s what the previous run had flushed.
@@ -15,6 +19,7 @@ import logging
 import sqlite3
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -115,6 +120,9 @@ class FusionStore:
         self._since_trim: dict[int, int] = {}
         self._uavs: dict[str, UavRecord | None] = {}
         self._next_gid: int | None = None
+        #: called by the writer at the start of every flush (and the last one at close): each queues what
+        #: changed since its last call (save_tracks, save_uavs); a failing source is logged and skipped
+        self.sources: list[Callable[[], None]] = []
         self._stop = False
         self._thread: threading.Thread | None = None
         self.flushes = 0
@@ -356,7 +364,16 @@ class FusionStore:
             if self._next_gid is None:
                 self._next_gid = next_gid
 
+    def _pull_sources(self) -> None:
+        for source in self.sources:
+            try:
+                source()
+            except Exception:  # a bug in one source must not stop the writer (the tiles still get saved)
+                log.exception("database %s: collecting changes from %s failed", self.path,
+                              getattr(source, "__qualname__", source))
+
     def _flush(self, conn: sqlite3.Connection) -> None:
+        self._pull_sources()
         with self._lock:
             tracks, self._tracks = self._tracks, {}
             history, self._history = self._history, []

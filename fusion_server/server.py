@@ -28,7 +28,9 @@ from fusion_server.metrics import FusionMetrics
 from fusion_server.peaks import Peak, find_peaks
 from fusion_server.persistence import FusionStore
 from fusion_server.rate_limit import UavRateLimiter
+from fusion_server.replay import stored_tracks
 from fusion_server.rules import get_fusion_rule
+from fusion_server.shard_tracks import TrackQuery
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
 from fusion_server.zenoh_node import FusionNode
@@ -111,10 +113,11 @@ class FusionServer:
             self.uavs, self.metrics, self.store,
             UavRateLimiter(settings.uav_max_msgs_per_s, settings.uav_max_bytes_per_s, max_uavs=4 * settings.max_uavs),
             tracks_max_hz=settings.tracks_max_hz,
-            persist_interval_s=settings.persist_interval_s, uav_keep_s=settings.uav_keep_s, shard=shard,
+            uav_keep_s=settings.uav_keep_s, shard=shard,
         )
         if self.node.handover is not None:
             self.tracker.adopt = self.node.handover.adopt
+            self.node.track_source = self._track_features_for
         #: REST requests refused for a missing or wrong bearer token, by reason
         self.http_denied: dict[str, int] = {}
         self.basemap = open_basemap(settings.basemap, settings.basemap_attribution) if settings.basemap else None
@@ -186,6 +189,18 @@ class FusionServer:
     def _track_features(self) -> list[dict[str, Any]]:
         return [record.to_geojson() for record in self.tracker.records(include_ended=True)]
 
+    def history_tracks(self, cls: str | None = None, since: float | None = None) -> list[dict[str, Any]]:
+        """Track features with their history rows for ``/v1/history``: from the database when there is one
+        (class ``cls``, updated since ``since``), else the tracker's own (fusion_server.replay)."""
+        return stored_tracks(self.settings.db_path, self._track_features(), cls=cls, since=since)
+
+    def _track_features_for(self, request: TrackQuery) -> list[dict[str, Any]]:
+        """What a shard answers a ``fusion/tracks`` query with (fusion_server.shard_tracks): the features its
+        ``/v1/tracks`` (``live``) or ``/v1/history`` (``stored``) would list."""
+        if request.source == "stored":
+            return self.history_tracks(request.cls, request.since)
+        return [record.to_geojson() for record in self.tracker.records(include_ended=request.ended)]
+
     def _object_peaks(self) -> list[Peak]:
         """The fused objects of every class at or above ``cot_objects_min_score``, strongest first (for CoT)."""
         min_score = self.settings.cot_objects_min_score or 0.5
@@ -240,13 +255,18 @@ class FusionServer:
         return self.metrics.prometheus(gauges, reasons)
 
     def cluster_health(self) -> dict[str, Any]:
-        """``shard`` (K/N) and what crossed its borders, for /healthz of a shard; empty when unsharded."""
+        """``shard`` (K/N), what crossed its borders and the ``fusion/tracks`` queries it answered and
+        refused, for /healthz of a shard; empty when unsharded."""
         handover = self.node.handover
         if handover is None:
             return {}
-        return {"shard": self.settings.shard.label(), "region_zoom": self.settings.region_zoom,
+        body = {"shard": self.settings.shard.label(), "region_zoom": self.settings.region_zoom,
                 "skipped_tiles": self.node.skipped, "handovers": dict(self.tracker.handovers),
                 "foreign_region_messages": handover.received}
+        queryable = self.node.tracks_queryable
+        if queryable is not None:  # the gateway's questions for the tracks' history (fusion/tracks)
+            body["track_queries"] = {"answered": queryable.answered, "refused": queryable.refused}
+        return body
 
     def db_health(self) -> dict[str, Any]:
         """The database's health for /healthz: FusionStore.health(), or ``{"status": "off"}``."""

@@ -4,8 +4,9 @@ The data subscriber's callback only enqueues the sample (a bounded inbox: beyond
 dropped and counted as "overloaded"). One thread drains the inbox in batches, validates every
 sample and feeds the joint map (one lock per batch), the global tracker and the UAV registry,
 counting and logging (rate-limited) what it drops; between batches it fuses and publishes joint
-tiles and joint tracks (``CongestionControl.BLOCK``) and hands changes to persistence, whose
-writer thread batches them into SQLite. Callbacks never raise.
+tiles and joint tracks (``CongestionControl.BLOCK``) and hands the joint tiles to persistence, whose
+writer thread batches them into SQLite with the tracks' and UAVs' changes it collects itself at each
+flush. Callbacks never raise.
 """
 
 from __future__ import annotations
@@ -16,13 +17,14 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 import zenoh
 
 from fusion_server.handover import Handover
 from fusion_server.joint_map import JointMap, TileKey
+from fusion_server.shard_tracks import TrackQuery, TracksQueryable
 from fusion_server.uav_intake import UavIntake
 from fusion_server.validation import MessageValidator, Received, Rejected
 from shared.keys import track_region
@@ -99,7 +101,6 @@ class FusionNode:
         limiter: UavRateLimiter | None = None,
         *,
         tracks_max_hz: float = 5.0,
-        persist_interval_s: float = 0.5,
         max_tracks_bytes: int = 1024 * 1024,
         uav_keep_s: float = 3600.0,
         inbox_max: int = 65_536,
@@ -115,7 +116,6 @@ class FusionNode:
         self.store = store
         self.limiter = limiter
         self.tracks_min_interval_s = 1.0 / tracks_max_hz
-        self.persist_interval_s = persist_interval_s
         self.max_tracks_bytes = max_tracks_bytes
         self.uav_keep_s = uav_keep_s
         self.shard = shard if shard is not None else ShardSpec.single()
@@ -138,6 +138,15 @@ class FusionNode:
         self._sessions: dict[bytes, str] = {}  # attachment bytes -> session id (bounded cache)
         # region -> (its tracks, payload, monotonic time) as last published on region/tracks/{z}/{x}/{y}
         self._region_payloads: dict[tuple[int, int, int], tuple[tuple[JointTrackItem, ...], bytes, float]] = {}
+        #: a shard's track features for ``fusion/tracks`` queries (the server sets it: what its REST API
+        #: lists for /v1/tracks and /v1/history); None: no such queryable
+        self.track_source: Callable[[TrackQuery], list[dict[str, Any]]] | None = None
+        #: the queryable answering them (while started)
+        self.tracks_queryable: TracksQueryable | None = None
+        if store is not None:
+            # pulled by the store's writer at each flush, so a commit never holds tiles without the
+            # UAVs and tracks of that moment (a SIGKILL between two ticks of this thread lost them)
+            store.sources.append(self._persist_tracks)
 
     # ---- lifecycle -----------------------------------------------------------------------------
     def start(self) -> None:
@@ -164,6 +173,11 @@ class FusionNode:
                 session.declare_subscriber(self.keys.region_tracks_all(),
                                            guarded(self.handover.on_region_tracks, log, "foreign region tracks")),
             ]
+            if self.track_source is not None:  # the gateway asks here for the tracks' history
+                key = self.keys.shard_tracks(shard.index, shard.count)
+                self.tracks_queryable = TracksQueryable(self.track_source, key, shard.index, shard.count)
+                self.tracks_queryable.start()
+                self._declared.append(session.declare_queryable(key, self.tracks_queryable.on_query))
         self._thread = threading.Thread(target=self._run, name="uavmm-fusion", daemon=True)
         self._thread.start()
         log.info("fusion node %s up, subscribed to %s", session.zid(),
@@ -187,6 +201,9 @@ class FusionNode:
         if self._thread is not None:
             self._thread.join(timeout=10.0)
             self._thread = None
+        if self.tracks_queryable is not None:
+            self.tracks_queryable.close()
+            self.tracks_queryable = None
         if self.session is not None:
             close_session(self.session, self._declared, self._publishers)
             self.session = None
@@ -445,6 +462,7 @@ class FusionNode:
             return None
 
     def _persist_tracks(self) -> None:
+        """Queue the tracks' and UAVs' changes since the last call (the store's writer thread calls it)."""
         assert self.store is not None
         records, history = self.tracker.drain_changes()
         self.store.save_tracks(records, history, self.tracker.next_gid)
@@ -465,7 +483,6 @@ class FusionNode:
         next_housekeeping = 0.0
         next_forget = 0.0
         next_regions = 0.0
-        next_persist = time.monotonic() + self.persist_interval_s
         while not self._stop.is_set():
             batch = self._drain()
             if batch:
@@ -486,14 +503,9 @@ class FusionNode:
             if now >= next_regions:
                 self._step("track_regions", self._publish_track_regions)
                 next_regions = now + 1.0 / REGION_TRACKS_HZ
-            if self.store is not None and now >= next_persist:
-                self._step("persist", self._persist_tracks)
-                next_persist = now + self.persist_interval_s
             self._wakeup.clear()
             if self._inbox:
                 continue
             timeout = _TICK_S if next_due is None else min(_TICK_S, next_due - time.monotonic())
             if timeout > 0:
                 self._wakeup.wait(timeout)
-        if self.store is not None:
-            self._step("persist", self._persist_tracks)

@@ -302,6 +302,31 @@ class KeySpace:
         index, count, _ = self.parse_shard_token(key)
         return index, count
 
+    def shard_tracks(self, index: int | str, count: int | str) -> str:
+        """Queryable of fusion shard ``index`` of ``count`` answering with its global tracks and their
+        history (``fusion_server.shard_tracks``): ``{prefix}/fusion/tracks/{count}/{index}`` (either
+        ``"*"``: a selector, e.g. the gateway's ``fusion/tracks/{count}/*``)."""
+        parts = []
+        for name, value in (("count", count), ("index", index)):
+            if value == "*":
+                parts.append("*")
+            elif isinstance(value, bool) or not isinstance(value, int) or value < 0:
+                raise ValueError(f"shard {name} must be an int >= 0 or '*', got {value!r}")
+            else:
+                parts.append(str(value))
+        return f"{self.prefix}/fusion/tracks/{'/'.join(parts)}"
+
+    def parse_shard_tracks(self, key: str) -> tuple[int, int]:
+        """(index, count) of a :meth:`shard_tracks` key; ValueError for any other key."""
+        head = f"{self.prefix}/fusion/tracks/"
+        parts = key[len(head):].split("/") if key.startswith(head) else []
+        if len(parts) != 2 or not all(_DECIMAL.match(p) for p in parts):
+            raise ValueError(f"key {key!r} is not a shard tracks key {head}COUNT/INDEX")
+        count, index = (int(p) for p in parts)
+        if not 0 <= index < count:
+            raise ValueError(f"key {key!r}: shard index {index} is not below the count {count}")
+        return index, count
+
     def uav_bucket_tile(self, uav: str, region_zoom: int, bucket: int, cls: str, z: int, x: int, y: int) -> str:
         """Key of one tile of one UAV routed to its fusion shard:
         ``{prefix}/uav/{uav}/shard/{region_zoom}/{bucket}/tiles/{cls}/{z}/{x}/{y}`` (``shared.sharding``: the

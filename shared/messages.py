@@ -463,6 +463,10 @@ class JointTrackItem:
 
     gid: global id, int in 0..2**63-1. cls, lat, lon, score, vel_en: as in :class:`TrackItem`.
     members: the local tracks it absorbed, ``((uav, local_id), ...)``, at most 1024, no repeats.
+    active (optional extension, docs/protocol.md): indexes into ``members`` of the members their UAVs
+    still report (distinct; kept increasing); ``()`` for a track nobody reports (held, "lost"). None when the message
+    does not say, which means every member reports it (the field is left out then, and messages of
+    servers older than the field read so).
     """
 
     gid: int
@@ -472,22 +476,49 @@ class JointTrackItem:
     score: float
     vel_en: tuple[float, float]
     members: tuple[tuple[str, int], ...]
+    active: tuple[int, ...] | None = None
 
     def __post_init__(self) -> None:
         _set(self, "gid", check_int(self.gid, "gid", 0, MAX_TRACK_ID))
         _check_track_body(self, "")
-        object.__setattr__(self, "members", _check_members(self.members, "members"))
+        object.__setattr__(self, "members", check_members(self.members, "members"))
+        if self.active is not None:
+            _set(self, "active", _check_active(self.active, "active", len(self.members)))
+
+    @property
+    def active_members(self) -> tuple[tuple[str, int], ...]:
+        """The members still reporting the track (all of them when ``active`` is None)."""
+        if self.active is None:
+            return self.members
+        return tuple(self.members[i] for i in self.active)
 
     def to_dict(self) -> dict[str, Any]:
-        """The msgpack map ``{gid, cls, lat, lon, score, vel_en, members}``."""
-        return {
+        """The msgpack map ``{gid, cls, lat, lon, score, vel_en, members}``, and ``active`` unless None."""
+        body = {
             "gid": self.gid,
             **_track_body(self),
             "members": [[uav, local_id] for uav, local_id in self.members],
         }
+        if self.active is not None:
+            body["active"] = list(self.active)
+        return body
 
 
-def _check_members(value: object, field: str) -> tuple[tuple[str, int], ...]:
+def _check_active(value: object, field: str, n_members: int) -> tuple[int, ...]:
+    """Distinct member indexes in 0..n_members-1, returned increasing; MessageError naming ``field``
+    ("bad_type" | "too_many" | "out_of_range" | "duplicate_index") otherwise."""
+    indexes = [check_int(v, f"{field}[{i}]", 0, max(n_members - 1, 0))
+               for i, v in enumerate(_check_list(value, field, MAX_MEMBERS))]
+    if n_members == 0 and indexes:
+        raise MessageError("out_of_range", f"{field} names members of a track without any", field)
+    distinct = sorted(set(indexes))
+    if len(distinct) != len(indexes):
+        raise MessageError("duplicate_index", f"{field} repeats a member index", field)
+    return tuple(distinct)
+
+
+def check_members(value: object, field: str) -> tuple[tuple[str, int], ...]:
+    """``((uav, local_id), ...)`` of a global track: at most MAX_MEMBERS valid, distinct pairs; else MessageError."""
     members = []
     for i, member in enumerate(_check_list(value, field, MAX_MEMBERS)):
         uav, local_id = _check_list(member, f"{field}[{i}]", 2, exact=2)
@@ -520,9 +551,12 @@ def encode_joint_tracks(msg: JointTracksMessage) -> bytes:
 def decode_joint_tracks(payload: bytes, *, max_bytes: int = DEFAULT_MAX_TRACKS_BYTES) -> JointTracksMessage:
     """Parse and validate a global tracks message; raise MessageError on anything malformed."""
     def item(raw: Mapping[Any, Any], path: str) -> JointTrackItem:
+        members = check_members(get_field(raw, "members", path), f"{path}members")
+        active = raw.get("active")  # optional: absent in older servers' messages
         return JointTrackItem(
             gid=check_int(get_field(raw, "gid", path), f"{path}gid", 0, MAX_TRACK_ID),
-            members=_check_members(get_field(raw, "members", path), f"{path}members"),
+            members=members,
+            active=None if active is None else _check_active(active, f"{path}active", len(members)),
             **_track_kwargs(raw, path),
         )
 

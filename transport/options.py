@@ -9,12 +9,12 @@ from __future__ import annotations
 import json
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
     import zenoh
 
-__all__ = ["ZENOH_MODES", "ZenohOptions", "zenoh_config"]
+__all__ = ["ZENOH_MODES", "ZenohOptions", "config_file_value", "zenoh_config"]
 
 ZENOH_MODES = ("peer", "router", "client")
 
@@ -71,3 +71,41 @@ def zenoh_config(options: ZenohOptions) -> zenoh.Config:
         except zenoh.ZError as exc:
             raise ValueError(f"--cfg {item!r}: {exc}") from None
     return conf
+
+
+def config_file_value(path: Path, key: str) -> Any:
+    """The value the Zenoh config file at ``path`` itself gives ``key`` (a config path such as
+    ``"listen/endpoints"``), or None where the file leaves it to Zenoh (absent, or null).
+
+    Unlike ``zenoh.Config.get_json``, which also answers with Zenoh's defaults (``listen/endpoints`` is
+    a per-mode table that is never empty), this reads the file's own keys: JSON5 for ``.json`` and
+    ``.json5``, YAML for ``.yaml`` and ``.yml`` (the formats Zenoh reads). ValueError naming the file
+    when it cannot be read or parsed, or its top level is not a map.
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise ValueError(f"cannot read zenoh config {path}: {exc}") from None
+    if path.suffix.lower() in (".yaml", ".yml"):
+        import yaml
+
+        try:
+            document = yaml.safe_load(text)
+        except yaml.YAMLError as exc:
+            raise ValueError(f"cannot parse zenoh config {path}: {exc}") from None
+    else:
+        import json5
+
+        try:
+            document = json5.loads(text)
+        except ValueError as exc:
+            raise ValueError(f"cannot parse zenoh config {path}: {exc}") from None
+    if not isinstance(document, dict):
+        raise ValueError(f"zenoh config {path}: the top level is not a map")
+    value: Any = document
+    for part in key.strip("/").split("/"):
+        if not isinstance(value, dict) or part not in value:
+            return None
+        value = value[part]
+    return value

@@ -18,12 +18,14 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str | 
                         default_listen: str | None = None) -> None:
     """The Zenoh options every uavmm process takes (as zenoh-python's examples/common/common.py).
 
-    default_mode: the mode when ``--mode`` is absent (None: the config file's, else Zenoh's peer).
-    default_listen: only shown in the help; the caller applies it (see `zenoh_options_from_args`).
+    default_mode, default_listen: only shown in the help; the caller applies them unless the --config
+    file sets ``mode`` / ``listen/endpoints`` itself (see `zenoh_options_from_args`). Without them the
+    config file's values, else Zenoh's defaults, apply.
     """
     group = parser.add_argument_group("zenoh")
-    group.add_argument("--mode", "-m", choices=list(ZENOH_MODES), default=default_mode,
-                       help=f"Zenoh session mode (default: {default_mode or 'from --config, else peer'})")
+    shown = f"{default_mode} unless --config sets mode" if default_mode else "from --config, else peer"
+    group.add_argument("--mode", "-m", choices=list(ZENOH_MODES), default=None,
+                       help=f"Zenoh session mode (default: {shown})")
     group.add_argument("--connect", "-e", metavar="ENDPOINT", action="append",
                        help="endpoint to connect to, e.g. tcp/10.0.0.2:7447 (repeatable)")
     group.add_argument("--listen", "-l", metavar="ENDPOINT", action="append",
@@ -36,15 +38,16 @@ def add_zenoh_arguments(parser: argparse.ArgumentParser, *, default_mode: str | 
                        help="extra Zenoh config entry, VALUE in JSON5, e.g. 'transport/link/tx/lease:2000'")
 
 
-def zenoh_options_from_args(args: argparse.Namespace, *,
-                            default_listen: Sequence[str] | None = None) -> ZenohOptions:
+def zenoh_options_from_args(args: argparse.Namespace, *, default_listen: Sequence[str] | None = None,
+                            default_mode: str | None = None) -> ZenohOptions:
     """ZenohOptions from the flags `add_zenoh_arguments` added; ValueError on bad values.
 
     default_listen: endpoints used when no ``--listen`` was given (None: the config file's / Zenoh's).
+    default_mode: the mode used when no ``--mode`` was given (None: the config file's / Zenoh's peer).
     """
     listen = args.listen if args.listen is not None else default_listen
     return ZenohOptions(
-        mode=args.mode,
+        mode=args.mode if args.mode is not None else default_mode,
         connect=tuple(args.connect) if args.connect else None,
         listen=tuple(listen) if listen else None,
         config_file=args.config,

@@ -20,15 +20,21 @@ __all__ = ["DEFAULT_LISTEN", "add_zenoh_arguments", "register", "settings_from_a
 log = logging.getLogger("uavmm.fusion")
 
 DEFAULT_LISTEN = "tcp/0.0.0.0:7447"
+DEFAULT_MODE = "router"
 
 
-def _config_sets_listen(path: Path | None) -> bool:
-    """Whether the Zenoh config file sets listen/endpoints; ValueError naming an unreadable file."""
+def _config_file_sets(path: Path | None) -> tuple[str | None, bool]:
+    """The ``mode`` the Zenoh config file itself sets (None if it does not), and whether it sets
+    ``listen/endpoints``: as the help of ``--mode`` and ``--listen`` says, only then are DEFAULT_MODE and
+    DEFAULT_LISTEN left out. Zenoh's own defaults (listen/endpoints is a per-mode table that is never
+    empty) do not count: the file's keys are read. ValueError naming a file Zenoh or the parser cannot read."""
     if path is None:
-        return False
-    from transport.options import ZenohOptions, zenoh_config
+        return None, False
+    from transport.options import ZenohOptions, config_file_value, zenoh_config
 
-    return zenoh_config(ZenohOptions(config_file=path)).get_json("listen/endpoints") not in ("null", "[]", "{}")
+    zenoh_config(ZenohOptions(config_file=path))  # the server's own errors for a file Zenoh refuses
+    mode = config_file_value(path, "mode")
+    return (str(mode) if mode is not None else None), config_file_value(path, "listen/endpoints") is not None
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -39,7 +45,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "UAVs covering a cell), associate their tracks into global tracks, publish both, keep "
                     "them in SQLite and serve the read-only REST API and map page.",
     )
-    add_zenoh_arguments(p, default_mode="router", default_listen=DEFAULT_LISTEN)
+    add_zenoh_arguments(p, default_mode=DEFAULT_MODE, default_listen=DEFAULT_LISTEN)
     p.add_argument("--http", default="127.0.0.1:8000", metavar="HOST:PORT",
                    help="REST API address (default 127.0.0.1:8000; port 0 picks a free one)")
     p.add_argument("--no-http", action="store_true", help="do not serve the REST API")
@@ -147,10 +153,13 @@ def settings_from_args(args: argparse.Namespace):
     """FusionSettings from parsed flags; ValueError on bad values."""
     from fusion_server.config import FusionSettings, default_db_path
 
+    file_mode, file_listens = _config_file_sets(args.config)
+    mode = args.mode or file_mode or DEFAULT_MODE
     default_listen = None
-    if args.listen is None and args.mode != "client" and not _config_sets_listen(args.config):
+    if args.listen is None and mode != "client" and not file_listens:
         default_listen = [DEFAULT_LISTEN]
-    zenoh_options = zenoh_options_from_args(args, default_listen=default_listen)
+    zenoh_options = zenoh_options_from_args(args, default_listen=default_listen,
+                                            default_mode=None if file_mode is not None else DEFAULT_MODE)
     host, port = _http_address(args.http)
     tokens, _ = http_tokens_from_args(args, host)
     shard = shard_from_args(args)
@@ -201,14 +210,15 @@ def _run_fusion(args: argparse.Namespace) -> int:
                 sys.stderr.write(f"uavmm fusion: database {settings.db_path} {problem}: moved it to {moved} "
                                  "and started a new database\n")
             server.start(http=not args.no_http)
+            mode = settings.zenoh.mode or _config_file_sets(settings.zenoh.config_file)[0] or "peer"
             listen = "on " + ", ".join(settings.zenoh.listen or ("from config",))
-            if settings.zenoh.mode == "client":
+            if mode == "client":
                 listen = "to " + ", ".join(settings.zenoh.connect or ("from config",))
             where = f"map: {server.url}" if server.url else "REST API off"
             db = settings.db_path or "off"
             part = f"shard {settings.shard.label()} (regions of zoom {settings.region_zoom}); " \
                 if settings.shard.sharded else ""
-            sys.stdout.write(f"uavmm fusion: {part}zenoh {settings.zenoh.mode or 'peer'} {listen}; db {db}; {where}\n")
+            sys.stdout.write(f"uavmm fusion: {part}zenoh {mode} {listen}; db {db}; {where}\n")
             if server.url:
                 sys.stdout.write(_rest_access_line(settings, server.url, args) + "\n")
             sys.stdout.flush()

@@ -43,6 +43,86 @@ def test_a_config_file_with_listen_endpoints_is_not_overridden(tmp_path: Path):
     assert json.loads(zenoh_config(settings.zenoh).get_json("listen/endpoints")) == ["tcp/127.0.0.1:7777"]
 
 
+@pytest.mark.parametrize(("name", "text"), [
+    ("z.json5", '{ mode: "router", scouting: { multicast: { enabled: false } } }'),
+    ("z.json5", '{ listen: { timeout_ms: 2000 } }'),  # listen, but not its endpoints
+    ("z.json", '{ "connect": { "endpoints": ["tcp/10.0.0.1:7447"] } }'),
+    ("z.yaml", "mode: router\nscouting:\n  multicast:\n    enabled: false\n"),
+    ("z.json5", "// the fleet's ground station\n{ /* nothing about listening */ }\n"),
+])
+def test_a_config_file_without_listen_endpoints_gets_the_documented_default(tmp_path: Path, name, text):
+    """--listen's help: "default tcp/0.0.0.0:7447 unless --config sets listen/endpoints". Zenoh's own default
+    for listen/endpoints is a per-mode table that is never empty: it used to count as set, so any --config
+    file dropped the default (issue 17)."""
+    config = tmp_path / name
+    config.write_text(text)
+    settings = parse("--config", str(config))
+    assert settings.zenoh.listen == (DEFAULT_LISTEN,)
+    assert json.loads(zenoh_config(settings.zenoh).get_json("listen/endpoints")) == [DEFAULT_LISTEN]
+
+
+@pytest.mark.parametrize(("name", "text"), [
+    ("z.json5", '// JSON5: comments, quoted and bare keys, trailing commas\n'
+                '{ "listen": { endpoints: ["tcp/127.0.0.1:7777",], }, }'),
+    ("z.json5", '{ listen: { endpoints: { router: ["tcp/127.0.0.1:7777"], peer: ["tcp/127.0.0.1:7777"] } } }'),
+    ("z.yaml", "listen:\n  endpoints: [tcp/127.0.0.1:7777]\n"),
+])
+def test_a_config_file_that_sets_listen_endpoints_keeps_them(tmp_path: Path, name, text):
+    config = tmp_path / name
+    config.write_text(text)
+    settings = parse("--config", str(config))
+    assert settings.zenoh.listen is None
+    assert "tcp/127.0.0.1:7777" in zenoh_config(settings.zenoh).get_json("listen/endpoints")
+    assert parse("--config", str(config), "--listen", "tcp/127.0.0.1:7001").zenoh.listen == ("tcp/127.0.0.1:7001",)
+
+
+def test_the_help_promises_the_default_unless_the_config_file_sets_listen_endpoints(capsys):
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["fusion", "--help"])
+    help_text = " ".join(capsys.readouterr().out.split())
+    assert "default tcp/0.0.0.0:7447 unless --config sets listen/endpoints" in help_text
+    assert "Zenoh session mode (default: router unless --config sets mode)" in help_text
+
+
+def test_a_config_file_zenoh_reads_but_that_is_not_a_map_or_json5_is_refused_naming_it(tmp_path: Path):
+    from transport.options import config_file_value
+
+    config = tmp_path / "z.json5"
+    config.write_text("[1, 2]")
+    with pytest.raises(ValueError, match=f"zenoh config {config}: the top level is not a map"):
+        config_file_value(config, "listen/endpoints")
+    config.write_text("{ listen: ")
+    with pytest.raises(ValueError, match=f"cannot parse zenoh config {config}"):
+        config_file_value(config, "listen/endpoints")
+
+
+def test_the_config_files_own_mode_beats_the_default_mode_and_a_client_file_gets_no_listener(tmp_path: Path):
+    """`uavmm secure init` writes fusion/zenoh-client.json5 for "uavmm fusion --config zenoh-client.json5: the
+    fusion server as a client of a zenohd router"; the --mode default (router) used to override the file's
+    mode, so that server ran as a router listening on 7447 instead."""
+    client = tmp_path / "zenoh-client.json5"
+    client.write_text('{ mode: "client", connect: { endpoints: ["tcp/127.0.0.1:7999"] } }')
+    settings = parse("--config", str(client))
+    assert settings.zenoh.mode is None and settings.zenoh.listen is None
+    conf = zenoh_config(settings.zenoh)
+    assert json.loads(conf.get_json("mode")) == "client"
+    assert json.loads(conf.get_json("connect/endpoints")) == ["tcp/127.0.0.1:7999"]
+    # an explicit --mode still wins over the file, and then the default listener applies
+    forced = parse("--config", str(client), "--mode", "router")
+    assert forced.zenoh.mode == "router" and forced.zenoh.listen == (DEFAULT_LISTEN,)
+    peer = tmp_path / "peer.json5"
+    peer.write_text('{ mode: "peer" }')
+    settings = parse("--config", str(peer))
+    assert settings.zenoh.mode is None and settings.zenoh.listen == (DEFAULT_LISTEN,)
+    assert json.loads(zenoh_config(settings.zenoh).get_json("mode")) == "peer"
+
+
+def test_a_client_gets_no_default_listener_whatever_its_config_file(tmp_path: Path):
+    config = tmp_path / "z.json5"
+    config.write_text("{}")
+    assert parse("--config", str(config), "--mode", "client").zenoh.listen is None
+
+
 def test_an_unreadable_config_file_raises_value_error_naming_it(tmp_path: Path):
     missing = tmp_path / "missing.json5"
     with pytest.raises(ValueError, match=f"cannot read zenoh config {missing}"):

@@ -41,11 +41,11 @@ def _center(x: int, y: int) -> tuple[float, float]:
     return 0.5 * (south + north), 0.5 * (west + east)
 
 
-def _shard(index: int, port: int, tmp_path) -> FusionServer:
+def _shard(index: int, port: int, tmp_path, **settings) -> FusionServer:
     options = ZenohOptions(mode="router", listen=(f"tcp/127.0.0.1:{port if index == 0 else free_port()}",),
                            connect=() if index == 0 else (f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
     server = FusionServer(FusionSettings(zenoh=options, http_port=0, db_path=tmp_path / f"shard{index}.sqlite",
-                                         ttl_s=1.0, shard_index=index, shard_count=2, region_zoom=ZOOM))
+                                         ttl_s=1.0, shard_index=index, shard_count=2, region_zoom=ZOOM, **settings))
     server.start(http=False)
     return server
 
@@ -175,6 +175,66 @@ def test_dead_shard_degrades_its_uavs_and_health_and_the_other_keeps_serving(clu
             agent.close()
 
 
+def test_gateway_tracks_and_history_are_what_the_shard_itself_answers(tmp_path):
+    """Issue 17: through the gateway every track showed as tracked (region messages said nothing of
+    which members still report it) and its history started when the gateway did. Now the status comes
+    in the region messages and the history from the shards' fusion/tracks queryable: /v1/tracks and
+    /v1/history through the gateway are the shard's own answers."""
+    port = free_port()
+    quick = {"track_history_interval_s": 0.1, "track_hold_s": 60.0, "persist_interval_s": 0.1}
+    shards = [_shard(0, port, tmp_path, **quick), _shard(1, port, tmp_path, **quick)]
+    tiles = _tiles_by_owner(shards[0].settings.shard)
+    agent = FakeAgent("uav-a", f"tcp/127.0.0.1:{port}")
+    gateway: Gateway | None = None
+    try:
+        (owner, (x, y)), = [(k, tile) for k, tile in tiles.items() if k == 0]
+        lat, lon = _center(x, y)
+        for i in range(8):  # 1.6 s of reports before the gateway exists
+            agent.tracks([(1, "person", lat + i * 1e-6, lon)])
+            time.sleep(0.2)
+        shard = shards[owner]
+        assert len(shard.tracker.records()[0].history) >= 5
+        options = ZenohOptions(mode="peer", connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
+        gateway = Gateway(FusionSettings(zenoh=options, http_port=0, db_path=None, shard_count=2, region_zoom=ZOOM,
+                                         track_history_interval_s=0.1))
+        started = time.time()
+        gateway.start()
+
+        def tracked():
+            agent.tracks([(1, "person", lat + 8e-6, lon)])
+            features = _get(gateway, "/v1/tracks").json()["features"]
+            return len(features) == 1 and features[0]["properties"]["status"] == "tracked" and features[0]
+
+        feature = wait_until(tracked, 10.0, "the track through the gateway")
+        assert feature["properties"]["active_members"] == [["uav-a", 1]]
+        assert feature["properties"]["history"][0][0] < started - 1.0  # rows from before the gateway
+        # the UAV stops reporting: the shard holds the track as lost, and the gateway says so
+        wait_until(lambda: _get(gateway, "/v1/tracks").json()["features"][0]["properties"]["status"] == "lost",
+                   5.0, "the held track lost through the gateway")
+
+        def same(path: str, own):
+            return lambda: (found := _get(gateway, path).json()) == own() or found
+
+        wait_until(same("/v1/tracks", lambda: {"type": "FeatureCollection",
+                                               "features": [r.to_geojson() for r in shard.tracker.records()]}),
+                   5.0, "/v1/tracks as the shard lists its track")
+        from fusion_server.replay import history_window
+
+        t0 = feature["properties"]["history"][2][0]
+        for query, since, until in (("", None, None), (f"?since={t0}&until={t0 + 0.5}", t0, t0 + 0.5),
+                                    ("?cls=person&rows=true", None, None)):
+            wait_until(same(f"/v1/history{query}", lambda s=since, u=until: json.loads(json.dumps(
+                history_window(shard.history_tracks(since=s), s, u)))), 5.0, f"/v1/history{query} as the shard's")
+        assert gateway.shard_tracks.queries >= 2
+        assert "uavmm_gateway_track_queries_total" in _get(gateway, "/metrics").text
+    finally:
+        agent.close()
+        if gateway is not None:
+            gateway.close()
+        for server in shards:
+            server.close()
+
+
 def test_malformed_region_tracks_and_states_are_dropped_and_counted(cluster):
     _, gateway, port = cluster
     bad = zenoh.open(client_config(f"tcp/127.0.0.1:{port}"))
@@ -205,6 +265,19 @@ class Clock:
 def _item(gid: int, lon: float) -> JointTrackItem:
     return JointTrackItem(gid=gid, cls="person", lat=47.0, lon=lon, score=0.9, vel_en=(0.0, 0.0),
                           members=(("uav-a", 1),))
+
+
+def test_status_comes_from_the_region_message_and_an_older_shards_message_reads_as_tracked():
+    clock = Clock()
+    merged = MergedTracks(stale_s=3.0, clock=clock, wall=clock)
+    members = (("uav-a", 1), ("uav-b", 2))
+    held = JointTrackItem(3, "person", 47.0, 9.0, 0.9, (0.0, 0.0), members, active=())
+    half = JointTrackItem(4, "person", 47.0, 9.1, 0.9, (0.0, 0.0), members, active=(1,))
+    old = JointTrackItem(5, "person", 47.0, 9.2, 0.9, (0.0, 0.0), members)  # no active: an older shard
+    merged.put((16, 1, 1), JointTracksMessage(t=10.0, tracks=(held, half, old)))
+    records = {r.gid: r for r in merged.records()}
+    assert [records[g].status for g in (3, 4, 5)] == ["lost", "tracked", "tracked"]
+    assert records[4].active == (("uav-b", 2),) and records[5].active == members
 
 
 def test_merge_newest_message_wins_and_stale_regions_drop_out():

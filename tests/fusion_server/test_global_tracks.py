@@ -233,3 +233,18 @@ def test_adopted_id_and_hand_over(clock):
     assert tracker.hand_over(41) and tracker.handovers["out"] == 1
     assert [r.gid for r in tracker.records()] == [2]
     assert not tracker.hand_over(12345)
+
+
+def test_joint_message_says_which_members_still_report_each_track(tracker, clock):
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    tracker.update(msg("b", (7, 1.0, 1.0)))
+    (item,) = tracker.joint_message().tracks
+    assert item.active is None and item.active_members == item.members  # all report it: left out
+    tracker.update(msg("a"))  # a no longer sees it, b does
+    (item,) = tracker.joint_message().tracks
+    assert item.members == (("a", 1), ("b", 7)) and item.active == (1,)
+    assert (item.active_members == (("b", 7),)) and tracker.records()[0].status == "tracked"
+    clock.now += 3.0  # b's member times out: held, nobody reports it
+    tracker.expire()
+    (item,) = tracker.joint_message().tracks
+    assert item.active == () and tracker.records()[0].status == "lost"

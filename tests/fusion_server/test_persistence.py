@@ -59,3 +59,28 @@ def test_load_returns_alive_tracks_and_only_the_most_recent_ended_ones(tmp_path)
     assert [r.gid for r in restored.tracks] == [1, 5, 6]
     assert all(len(r.history) == 1 for r in restored.tracks)
     assert restored.next_gid == 7
+
+
+def test_each_flush_pulls_the_sources_into_the_same_commit_and_survives_a_failing_one(tmp_path, caplog):
+    from fusion_server.uav_registry import UavRecord, UavRegistry
+
+    path = tmp_path / "f.sqlite"
+    store = FusionStore(path)
+    registry = UavRegistry()
+    registry.message("uav-a", "state", 10)
+    store.sources.append(lambda: store.save_uavs(*registry.drain_changes()))
+
+    def broken() -> None:
+        raise RuntimeError("a bug in a source")
+
+    store.sources.insert(0, broken)
+    store.save_joint(("person", 18, 5, 6), joint_tile())
+    assert store._attempt()  # one flush (no writer thread): the tile and what the sources had, together
+    assert "a bug in a source" in caplog.text
+    restored = FusionStore(path).load()
+    assert [t.key for t in restored.joint_tiles] == [("person", 18, 5, 6)]
+    assert [u.id for u in restored.uavs] == ["uav-a"]
+    registry.message("uav-b", "state", 10)
+    store.close()  # the last flush pulls again
+    assert [u.id for u in FusionStore(path).load().uavs] == ["uav-a", "uav-b"]
+    assert isinstance(restored.uavs[0], UavRecord)

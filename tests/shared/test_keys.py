@@ -227,3 +227,17 @@ def test_region_keys_stay_outside_the_joint_selector() -> None:
     assert KS.parse(KS.region_state(16, 1, 2, "uav1")).uav == "uav1"
     with pytest.raises(ValueError):
         KS.parse("uavmm/v1/joint/tracks/16/1/2")  # the region keys live under region/ only
+
+
+def test_shard_tracks_keys_round_trip_and_the_gateways_selector_matches_every_shard():
+    key = KS.shard_tracks(2, 3)
+    assert key == "uavmm/v1/fusion/tracks/3/2" and KS.parse_shard_tracks(key) == (2, 3)
+    selector = zenoh.KeyExpr(KS.shard_tracks("*", 3))
+    assert all(selector.intersects(zenoh.KeyExpr(KS.shard_tracks(k, 3))) for k in range(3))
+    assert not selector.intersects(zenoh.KeyExpr(KS.shard_tracks(0, 4)))
+    for bad in ("uavmm/v1/fusion/tracks/3/3", "uavmm/v1/fusion/tracks/3/02", "uavmm/v1/fusion/shards/3/2/14",
+                "uavmm/v1/fusion/tracks/3"):
+        with pytest.raises(ValueError):
+            KS.parse_shard_tracks(bad)
+    with pytest.raises(ValueError):
+        KS.shard_tracks(-1, 3)

@@ -414,3 +414,49 @@ def test_random_field_values_raise_only_message_error(which: int, path: str, val
         DECODERS[which](payload)
     except MessageError as exc:
         assert exc.reason in MESSAGE_ERROR_REASONS
+
+
+# ---- joint track items: the optional `active` extension (docs/protocol.md) -----------------------
+def test_active_members_round_trip_and_are_left_out_when_all_members_report() -> None:
+    held = JointTrackItem(1, "person", 47.0, 9.0, 0.9, (0.0, 0.0), (("a", 1), ("b", 7)), active=())
+    half = JointTrackItem(2, "person", 47.0, 9.0, 0.9, (0.0, 0.0), (("a", 2), ("b", 8)), active=(1,))
+    every = JointTrackItem(3, "person", 47.0, 9.0, 0.9, (0.0, 0.0), (("a", 3),))
+    payload = encode_joint_tracks(JointTracksMessage(5.0, [held, half, every]))
+    raw = msgpack.unpackb(payload)
+    assert [t.get("active") for t in raw["tracks"]] == [[], [1], None]
+    assert "active" not in raw["tracks"][2]  # nothing added to the common case
+    decoded = decode_joint_tracks(payload).tracks
+    assert decoded == (held, half, every)
+    assert [t.active_members for t in decoded] == [(), (("b", 8),), (("a", 3),)]
+
+
+def test_a_message_without_active_reads_as_every_member_reporting_and_unknown_fields_are_ignored() -> None:
+    record = joint_record()  # as an older server wrote it: no "active"
+    record["tracks"][0]["future_field"] = {"anything": [1, 2]}
+    record["future_envelope"] = "ignored"
+    (first, second) = decode_joint_tracks(msgpack.packb(record, use_bin_type=True)).tracks
+    assert first.active is None and first.active_members == (("a", 1), ("b", 7))
+    assert second.active is None and second.active_members == ()
+
+
+@pytest.mark.parametrize(("active", "reason"), [
+    ([2], "out_of_range"),  # two members: indexes 0 and 1
+    ([-1], "out_of_range"),
+    ([1, 1], "duplicate_index"),
+    (["a"], "bad_type"),
+    ([True], "bad_type"),
+    ("0", "bad_type"),
+])
+def test_a_malformed_active_field_is_refused_naming_it(active: Any, reason: str) -> None:
+    with pytest.raises(MessageError) as info:
+        decode_joint_tracks(edit(joint_record, "tracks.0.active", active))
+    assert info.value.reason == reason and info.value.field.startswith("tracks[0].active")
+    assert reason in MESSAGE_ERROR_REASONS
+
+
+def test_active_indexes_of_a_track_without_members_are_refused_and_kept_increasing() -> None:
+    with pytest.raises(MessageError) as info:
+        JointTrackItem(1, "p", 0.0, 0.0, 0.5, (0, 0), (), active=(0,))
+    assert info.value.reason == "out_of_range"
+    item = JointTrackItem(1, "p", 0.0, 0.0, 0.5, (0, 0), (("a", 1), ("b", 2)), active=(1, 0))
+    assert item.active == (0, 1)

@@ -1,0 +1,171 @@
+"""fusion_server.shard_tracks: the tracks-with-history query between the shards and the gateway (codec,
+merging a handed-over id's copies, the shard's queryable and the gateway's client over real Zenoh)."""
+
+from __future__ import annotations
+
+import json
+from typing import Any
+
+import msgpack
+import pytest
+import zenoh
+
+from fusion_server.global_tracks import TrackRecord
+from fusion_server.shard_tracks import (
+    ShardTrack,
+    ShardTracks,
+    TrackQuery,
+    TracksQueryable,
+    decode_reply,
+    decode_request,
+    encode_reply,
+    encode_request,
+    merge_tracks,
+)
+from shared.keys import KeySpace
+from shared.messages import MESSAGE_ERROR_REASONS, MessageError
+from tests.netutil import free_port
+
+KEYS = KeySpace()
+
+
+def record(gid: int, *, active=(("a", 1),), ended=None, history=((10.0, 47.0, 9.0), (11.0, 47.001, 9.0)),
+           created=10.0, last_update=11.0, members=(("a", 1),)) -> TrackRecord:
+    return TrackRecord(gid=gid, cls="person", lat=47.001, lon=9.0, score=0.9, vel_en=(0.5, -0.25), created=created,
+                       last_update=last_update, members=members, active=active, ended=ended, history=history)
+
+
+def stored_feature(gid: int) -> dict[str, Any]:
+    """A stored track as fusion_server.history_export.read_history lists it (no active_members)."""
+    return {"type": "Feature", "id": gid, "geometry": {"type": "Point", "coordinates": [9.0, 47.0]},
+            "properties": {"gid": gid, "cls": "person", "score": 0.8, "vel_en": [0.0, 0.0], "status": "tracked",
+                           "created": 1.0, "last_update": 2.0, "ended": None, "members": [["a", 3]],
+                           "history": [[1.0, 47.0, 9.0], [2.0, 47.0, 9.0]]}}
+
+
+def test_a_reply_carries_the_features_as_the_shards_rest_api_lists_them():
+    live = [record(1).to_geojson(), record(4, active=()).to_geojson(), record(7, active=(), ended=12.0).to_geojson()]
+    shard, count, source, tracks = decode_reply(encode_reply(1, 3, "live", live))
+    assert (shard, count, source) == (1, 3, "live")
+    assert [t.to_feature() for t in tracks] == live  # the same GeoJSON, key for key
+    assert [t.to_record().status for t in tracks] == ["tracked", "lost", "ended"]
+    assert [t.to_record() for t in tracks] == [record(1), record(4, active=()), record(7, active=(), ended=12.0)]
+    _, _, _, (stored,) = decode_reply(encode_reply(0, 3, "stored", [stored_feature(5)]))
+    assert stored.to_feature() == stored_feature(5) and stored.active_members is None
+
+
+def _reply(**track: Any) -> bytes:
+    body = msgpack.unpackb(encode_reply(0, 2, "live", [record(1).to_geojson()]))
+    body["tracks"][0].update(track)
+    return msgpack.packb(body, use_bin_type=True)
+
+
+@pytest.mark.parametrize(("payload", "reason"), [
+    (msgpack.packb({"v": 2, "shard": 0, "shards": 1, "source": "live", "tracks": []}), "bad_version"),
+    (msgpack.packb({"v": 1, "shard": 2, "shards": 2, "source": "live", "tracks": []}), "out_of_range"),
+    (msgpack.packb({"v": 1, "shard": 0, "shards": 2, "source": "all", "tracks": []}), "out_of_range"),
+    (msgpack.packb({"v": 1, "shard": 0, "shards": 2, "source": "live", "tracks": [1]}), "not_a_map"),
+    (_reply(history=b"\x00" * 23), "bad_length"),
+    (_reply(history=[[1.0, 47.0, 9.0]]), "bad_type"),
+    (_reply(history=msgpack.unpackb(encode_reply(0, 1, "live", [record(
+        1, history=((float("nan"), 47.0, 9.0),)).to_geojson()]))["tracks"][0]["history"]), "non_finite"),
+    (_reply(status="gone"), "out_of_range"),
+    (_reply(active_members=[["b", 2]]), "out_of_range"),
+    (_reply(lat=91.0), "out_of_range"),
+    (_reply(gid=True), "bad_type"),
+    (b"\xc1", "not_msgpack"),
+])
+def test_malformed_replies_are_refused_with_a_reason(payload: bytes, reason: str):
+    with pytest.raises(MessageError) as info:
+        decode_reply(payload)
+    assert info.value.reason == reason and reason in MESSAGE_ERROR_REASONS
+
+
+def test_requests_round_trip_and_an_empty_query_asks_for_the_live_tracks():
+    for request in (TrackQuery(), TrackQuery(ended=True), TrackQuery("stored", cls="person", since=12.5)):
+        assert decode_request(encode_request(request)) == request
+    assert decode_request(None) == TrackQuery() == decode_request(b"")
+    with pytest.raises(MessageError):
+        decode_request(msgpack.packb({"v": 1, "source": "everything"}))
+    with pytest.raises(MessageError):
+        decode_request(msgpack.packb({"v": 1, "cls": "a/b"}))
+
+
+def _track(gid: int, **fields: Any) -> ShardTrack:
+    _, _, _, (track,) = decode_reply(encode_reply(0, 1, "live", [record(gid, **fields).to_geojson()]))
+    return track
+
+
+def test_the_copies_of_a_handed_over_id_merge_into_one_track_with_the_whole_history():
+    # the shard the object left: its held copy, ended when the other shard took the id on
+    before = _track(5, active=(), ended=30.0, created=10.0, last_update=20.0, members=(("a", 1),),
+                    history=((10.0, 47.0, 9.0), (15.0, 47.0, 9.001), (20.0, 47.0, 9.002)))
+    after = _track(5, active=(("a", 1),), created=21.0, last_update=29.0, members=(("a", 1), ("b", 4)),
+                   history=((20.0, 47.0, 9.002), (25.0, 47.0, 9.003), (29.0, 47.0, 9.004)))
+    other = _track(8)
+    merged = merge_tracks([after, other, before])
+    assert [t.gid for t in merged] == [5, 8] and merged[1] == other
+    track = merged[0]
+    assert track.status == "tracked" and track.ended is None and track.active_members == (("a", 1),)
+    assert (track.created, track.last_update) == (10.0, 29.0)
+    assert track.members == (("a", 1), ("b", 4))
+    assert [row[0] for row in track.history] == [10.0, 15.0, 20.0, 25.0, 29.0]  # the shared row once
+    assert [row[0] for row in merge_tracks([before, after], history_len=2)[0].history] == [25.0, 29.0]
+
+
+@pytest.fixture
+def sessions():
+    port = free_port()
+    conf = zenoh.Config()
+    conf.insert_json5("mode", '"peer"')
+    conf.insert_json5("listen/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    conf.insert_json5("scouting/multicast/enabled", "false")
+    other = zenoh.Config()
+    other.insert_json5("mode", '"peer"')
+    other.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
+    other.insert_json5("scouting/multicast/enabled", "false")
+    with zenoh.open(conf) as shard_side, zenoh.open(other) as gateway_side:
+        yield shard_side, gateway_side
+
+
+def test_two_shards_answer_the_gateway_from_their_workers_and_bad_queries_get_errors(sessions):
+    shard_side, gateway_side = sessions
+    asked: list[TrackQuery] = []
+
+    def source_of(shard: int):
+        def source(request: TrackQuery) -> list[dict[str, Any]]:
+            asked.append(request)
+            if request.source == "stored":
+                return [stored_feature(10 + shard)]
+            return [record(shard + 1).to_geojson()] + ([record(9, active=(), ended=5.0).to_geojson()]
+                                                        if request.ended else [])
+        return source
+
+    queryables = [TracksQueryable(source_of(k), KEYS.shard_tracks(k, 2), k, 2) for k in range(2)]
+    declared = []
+    for queryable in queryables:
+        queryable.start()
+        declared.append(shard_side.declare_queryable(queryable.key, queryable.on_query))
+    try:
+        client = ShardTracks(KEYS, 2, cache_s=60.0)
+        assert client.live() is None  # no session yet: nobody asked
+        client.session = gateway_side
+        live = client.live()
+        assert live is not None and [t.gid for t in live] == [1, 2]
+        assert [t.gid for t in client.live(include_ended=True) or []] == [1, 2, 9]
+        assert client.live() is live and client.queries == 2  # cached
+        stored = client.stored(cls="person", since=1.0)
+        assert stored is not None and [t.gid for t in stored] == [10, 11]
+        assert TrackQuery("stored", cls="person", since=1.0) in asked
+        # a malformed query is answered with an error, not a crash
+        replies = list(gateway_side.get(KEYS.shard_tracks("*", 2), payload=b"\x01\x02", timeout=5.0))
+        assert len(replies) == 2 and all(r.err is not None for r in replies)
+        assert all(q.refused == 1 for q in queryables)
+        other_count = ShardTracks(KEYS, 3, cache_s=0.0)  # a gateway of another N hears nobody
+        other_count.session = gateway_side
+        assert other_count.live() is None
+    finally:
+        for entity in declared:
+            entity.undeclare()
+        for queryable in queryables:
+            queryable.close()
