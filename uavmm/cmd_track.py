@@ -101,7 +101,8 @@ def run(args: argparse.Namespace) -> int:
     if "registrations" in summary:
         print(f"registrations: {summary['frames_registered']} of {summary['frames']} frames -> "
               f"{summary['registrations']}")
-    keys = ("rows", "frames", "frames_without_pose", "frames_registered", "reidentified", "pipeline_ms_per_frame", "tracker_ms_per_frame",
+    keys = ("rows", "frames", "frames_without_pose", "frames_registered", "reidentified", "pipeline_ms_per_frame",
+            "tracker_ms_per_frame",
             "images_read", "images_missing", "appearance_ms_per_image", "seconds")
     print(", ".join(f"{k}={summary[k]}" for k in keys))
     return 0
