@@ -272,35 +272,9 @@ class GpsTracker:
             focal = math.sqrt(camera.fx * camera.fy)
             rel = np.column_stack([rel_e, rel_n])
             if cfg.image_register:
-                fit = self._register_in_image(dets, t, geo, rel, pose, focal, heading_sd, pitch_sd)
-                if fit is not None:
-                    correction, cov, scale = fit
-                    J = correction_jacobian(rel, pose.height_m)
-                    dets.z[geo] += J @ correction
-                    # what is left of the telemetry's error: the correction's own uncertainty at each point,
-                    # the pixel error and the floor, as noisy as the pairs' residuals showed (smoothed)
-                    a = 1.0 if self._scale_t is None else 1.0 - math.exp(-max(t - self._scale_t, 0.0)
-                                                                       / max(cfg.registered_scale_s, 1e-6))
-                    self._log_scale += a * (math.log(scale) - self._log_scale)
-                    self._scale_t = t
-                    floor = cfg.registered_floor_m ** 2 * np.eye(2)
-                    dets.R[geo] = math.exp(self._log_scale) * (self._pixel_cov(rel, pose, focal) + floor) \
-                        + J @ cov @ J.transpose(0, 2, 1)
-                    if cfg.registered_error_scale > 0:
-                        k = cfg.registered_error_scale
-                        dets.R[geo] += ground_measurement_cov(
-                            rel_e, rel_n, pose.height_m, focal, position_sigma_m=k * cfg.position_sigma_m,
-                            heading_sigma_deg=k * heading_sd, pitch_sigma_deg=k * pitch_sd,
-                            height_sigma_m=k * cfg.height_sigma_m, pixel_sigma_px=0.0,
-                            max_sigma_m=cfg.max_measurement_sigma_m)
-                    anchored = (float(correction[0]), float(correction[1]),
-                                math.degrees(correction[2]), math.degrees(correction[3]))
-                    self.last_correction = anchored
-                    log.debug("t=%.3f registered in the image: east %.2f north %.2f m, heading %.2f pitch %.2f deg",
-                              t, *anchored)
-                    self.last_offset_en = anchored[:2]
+                anchored = self._apply_image_registration(dets, t, geo, rel, pose, focal, heading_sd, pitch_sd)
+                if anchored is not None:
                     self._uav_en = (uav_e, uav_n)
-                    self._correction = correction
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
             if anchored is None and cfg.register_tracks \
                     and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
@@ -361,6 +335,41 @@ class GpsTracker:
         if anchored is not None:
             self._height_m = pose.height_m
             self._follow_telemetry(dt)
+
+    def _apply_image_registration(self, dets: FrameDetections, t: float, geo: NDArray[np.bool_], rel: FloatArray,
+                                  pose: Pose, focal_px: float, heading_sd_deg: float,
+                                  pitch_sd_deg: float) -> tuple[float, float, float, float] | None:
+        """Register the frame in the image (`_register_in_image`) and, when that worked, move its ground points
+        by the correction and give them what is left of the telemetry's error: the correction's own
+        uncertainty at each point, the pixel error and the floor as noisy as the pairs' residuals showed
+        (smoothed over registered_scale_s), and registered_error_scale of the unregistered model's
+        telemetry part. Returns the correction (east m, north m, heading deg, pitch deg) or None."""
+        cfg = self.config
+        fit = self._register_in_image(dets, t, geo, rel, pose, focal_px, heading_sd_deg, pitch_sd_deg)
+        if fit is None:
+            return None
+        correction, cov, scale = fit
+        J = correction_jacobian(rel, pose.height_m)
+        dets.z[geo] += J @ correction
+        a = 1.0 if self._scale_t is None else 1.0 - math.exp(-max(t - self._scale_t, 0.0)
+                                                           / max(cfg.registered_scale_s, 1e-6))
+        self._log_scale += a * (math.log(scale) - self._log_scale)
+        self._scale_t = t
+        floor = cfg.registered_floor_m ** 2 * np.eye(2)
+        dets.R[geo] = math.exp(self._log_scale) * (self._pixel_cov(rel, pose, focal_px) + floor) \
+            + J @ cov @ J.transpose(0, 2, 1)
+        if cfg.registered_error_scale > 0:
+            k = cfg.registered_error_scale
+            dets.R[geo] += ground_measurement_cov(
+                rel[:, 0], rel[:, 1], pose.height_m, focal_px, position_sigma_m=k * cfg.position_sigma_m,
+                heading_sigma_deg=k * heading_sd_deg, pitch_sigma_deg=k * pitch_sd_deg,
+                height_sigma_m=k * cfg.height_sigma_m, pixel_sigma_px=0.0, max_sigma_m=cfg.max_measurement_sigma_m)
+        self._correction = correction
+        out = (float(correction[0]), float(correction[1]), math.degrees(correction[2]), math.degrees(correction[3]))
+        self.last_correction = out
+        self.last_offset_en = out[:2]
+        log.debug("t=%.3f registered in the image: east %.2f north %.2f m, heading %.2f pitch %.2f deg", t, *out)
+        return out
 
     def _pixel_cov(self, rel: FloatArray, pose: Pose, focal_px: float) -> FloatArray:
         """(N, 2, 2) ground error of points (N, 2) relative to the UAV from the pixel error alone."""
