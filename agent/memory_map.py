@@ -38,7 +38,8 @@ class MemoryMapConfig:
     gain_per_s: evidence added per second of observation per unit confidence (the paper's s per
         frame = gain_per_s * frame interval; frame-rate independent: at 30 fps and 1.0 /s, s = 0.033).
     half_life_s: time for unrefreshed evidence to halve (the paper's forgetting factor per frame is
-        phi = 0.5 ** (frame interval / half_life_s)).
+        phi = 0.5 ** (frame interval / half_life_s); 0.5 s chosen on the tuning domains, issue 15: 1 s
+        before).
     max_step_s: the longest frame interval one update counts as observation time (a gap after
         dropped frames decays the map for the whole gap but adds one normal update).
     recentre_m: how far the UAV may drift from the window centre before the window is moved.
@@ -55,7 +56,7 @@ class MemoryMapConfig:
     radius_m: float = 4.0
     sigma_m: float | None = None
     gain_per_s: float = 1.0
-    half_life_s: float = 1.0
+    half_life_s: float = 0.5
     max_step_s: float = 0.2
     recentre_m: float = 10.0
     stamp: str = "max"

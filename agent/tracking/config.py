@@ -133,6 +133,9 @@ class TrackerConfig:
         Two confirmed tracks of a class within merge_chi2 (track and measurement errors) and
         merge_max_m metres for merge_after_s seconds, never both taking a convincing detection in one
         frame, follow one object: the one with fewer hits is dropped.
+    merge_keep_idle : bool
+        A frame where neither of two such tracks took a detection (the detector missed the object) keeps
+        the time they have been found taking turns instead of starting it again.
 
     Re-identification
     -----------------
@@ -214,6 +217,9 @@ class TrackerConfig:
         After a registered frame the tracks (and the re-ID memory) move toward the telemetry's frame by
         the offset, with this time constant (0: at once): a GPS step is followed in about this time, while
         white jitter is smoothed out of the tracks' positions.
+    image_register_alone : bool
+        When the image shows a single confirmed track, its one pair registers the frame (the object
+        cannot tell its own motion from the telemetry's error; the image says it stayed).
     registered_floor_m : float
         In a registered frame a detection's ground error is its pixel error, the correction's own
         uncertainty at its place and this isotropic floor (metres, 1 sigma).
@@ -291,6 +297,7 @@ class TrackerConfig:
     merge_chi2: float = 9.21
     merge_max_m: float = 10.0
     merge_after_s: float = 0.5
+    merge_keep_idle: bool = True
     reid_horizon_s: float = 30.0
     reid_gate_chi2: float = 9.21
     reid_delay_s: float = 0.0
@@ -313,6 +320,7 @@ class TrackerConfig:
     image_register: bool = True
     image_register_iou: float = 0.5
     image_register_min_pairs: int = 2
+    image_register_alone: bool = True
     track_follow_s: float = 0.5
     registered_floor_m: float = 0.2
     registered_error_scale: float = 0.3
@@ -339,7 +347,8 @@ class TrackerConfig:
         for f in fields(self):
             value = getattr(self, f.name)
             if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "register_tracks", "register_min_pairs",
-                          "image_register", "image_register_min_pairs", "image_velocity",
+                          "image_register", "image_register_min_pairs", "image_velocity", "image_register_alone",
+                          "merge_keep_idle",
                           "class_motion", "default_motion",
                           "pair_max_cost", "exit_margin_px"):
                 continue
@@ -361,7 +370,8 @@ class TrackerConfig:
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 1")
-        for name in ("birth_on_raw", "use_appearance", "register_tracks", "image_register", "image_velocity"):
+        for name in ("birth_on_raw", "use_appearance", "register_tracks", "image_register", "image_velocity",
+                     "image_register_alone", "merge_keep_idle"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in ("appearance_ema", "image_velocity_ema"):

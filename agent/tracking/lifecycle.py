@@ -115,6 +115,7 @@ def merge_duplicates(state: TrackState, t: float) -> None:
     act = state.active
     conf = np.flatnonzero(act["confirmed"])
     shadowed = np.zeros(len(act), dtype=bool)
+    idle = np.zeros(len(act), dtype=bool)  # next to a duplicate, neither took a detection: no evidence either way
     if len(conf) >= 2:
         pos = act["x"][conf, :2]
         pairs = cKDTree(pos).query_pairs(cfg.merge_max_m, output_type="ndarray")
@@ -124,8 +125,11 @@ def merge_duplicates(state: TrackState, t: float) -> None:
             # Two convincing detections in one frame: two objects, whatever their distance.
             same &= ~(act["strong"][i] & act["strong"][j])
             # Taking turns needs a turn: two tracks coasting side by side (out of view, their
-            # covariances growing) are no evidence of a duplicate.
-            same &= act["matched"][i] | act["matched"][j]
+            # covariances growing) are no evidence of a duplicate; a frame where neither took a detection
+            # (an object the detector missed) keeps the count of one that is (cfg.merge_keep_idle).
+            turn = act["matched"][i] | act["matched"][j]
+            i_idle, j_idle = i[same & ~turn], j[same & ~turn]
+            same &= turn
             i, j = i[same], j[same]
             diff = act["x"][i, :2] - act["x"][j, :2]
             # Tracks that take turns on one object's detections differ by about a measurement error.
@@ -137,8 +141,10 @@ def merge_duplicates(state: TrackState, t: float) -> None:
             j_weaker = (act["hits"][j] < act["hits"][i]) | ((act["hits"][j] == act["hits"][i])
                                                              & (act["id"][j] > act["id"][i]))
             shadowed[np.where(j_weaker, j, i)] = True
+            if cfg.merge_keep_idle and len(i_idle):
+                idle[i_idle] = idle[j_idle] = True
     t_shadow = act.cols["t_shadow"]
-    t_shadow[~shadowed] = np.nan
+    t_shadow[~shadowed & ~idle] = np.nan
     t_shadow[shadowed & np.isnan(t_shadow)] = t
     merged = shadowed & (t - t_shadow >= cfg.merge_after_s)
     if merged.any():

@@ -401,6 +401,8 @@ class GpsTracker:
         # the image shows a track where it was expected: the camera did not move unlike the telemetry says
         # (at the start of a turn the telemetry lags, and every box leaves its expected place at once)
         self._state.image_steady = len(pt) >= 1
+        if cfg.image_register_alone and len(ti) == 1:
+            need = 1  # the one object followed: its own pair (the image says it stayed, whatever the GPS says)
         if len(pt) < need:
             return None
         ti, di = ti[pt], strong[pd]

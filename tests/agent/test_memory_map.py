@@ -174,7 +174,7 @@ def test_lazy_decay_reads_true_values_across_renormalisation_and_recentring():
 
 
 def test_clip_at_one_applies_to_true_values_while_decay_is_pending():
-    mm = MemoryMap(MemoryMapConfig(stamp="sum"))
+    mm = MemoryMap(MemoryMapConfig(stamp="sum", half_life_s=1.0))
     mm.advance(0.0, LAT, LON)
     gx, gy = cell_of(5.0, 5.0)
     mm.advance(3.0, LAT, LON)  # evidence added now is stored at 8x its value
@@ -350,8 +350,8 @@ def test_joint_map_boosts_an_object_the_uav_never_saw():
     tile[int(gy[0]) - y * GRID.n, int(gx[0]) - x * GRID.n] = 0.5
     joint.update("person", x, y, tile, t=0.0)
     res = frame(pipe, object_box(0.0, 30.0), 0.2, 0.1)
-    # default log-odds boost: logit(c_hat) = logit(0.2) + 4 * 1.0 * 0.5
-    expected = 1 / (1 + math.exp(-(math.log(0.2 / 0.8) + 4 * 0.5)))
+    # default log-odds boost: logit(c_hat) = logit(0.2) + logodds_scale * 1.0 * 0.5
+    expected = 1 / (1 + math.exp(-(math.log(0.2 / 0.8) + PipelineConfig().logodds_scale * 0.5)))
     assert res.scores[0] == pytest.approx(expected, rel=1e-4)
     add = DetectionPipeline(CAM, CLASSES, PipelineConfig(boost_mode="add", joint_detections=False), joint=joint)
     assert frame(add, object_box(0.0, 30.0), 0.2, 0.1).scores[0] == pytest.approx(0.7, rel=1e-4)

@@ -175,12 +175,14 @@ def box_ground(box: tuple) -> tuple[float, float]:
     return float(lat[0]), float(lon[0])
 
 
-def boosted(c: float, p: float) -> float:
-    """The default pipeline's boost of confidence c by map evidence p (see agent.pipeline)."""
+def boosted(c: float, p: float, scale: float | None = None) -> float:
+    """The default pipeline's boost of confidence c by map evidence p (see agent.pipeline); scale: the
+    log-odds scale (default the boost's own; joint detections score with joint_logodds_scale)."""
     cfg = PipelineConfig()
     if cfg.boost_mode == "add":
         return c + cfg.boost_weight * p
-    return 1.0 / (1.0 + math.exp(-(math.log(c / (1 - c)) + cfg.boost_weight * cfg.logodds_scale * p)))
+    scale = cfg.logodds_scale if scale is None else scale
+    return 1.0 / (1.0 + math.exp(-(math.log(c / (1 - c)) + cfg.boost_weight * scale * p)))
 
 
 def joint_tile_with_blob(lat: float, lon: float, value: float = 0.8, cls: str = "person",
@@ -326,10 +328,10 @@ def test_late_joiner_gets_the_joint_map_before_its_first_frame(server, server_po
     assert summary["joint_query_replies"] == 2
     # the weak box sits on the others' peak: boosted by the joint map, then promoted by the joint
     # detections to the score of the others' evidence (2 * 0.6 - own ~0, clipped to 1; docs/agent.md)
-    prior = PipelineConfig().joint_prior_score
-    assert scores_of(results[0], BOX_A) == [pytest.approx(boosted(prior, 1.0), abs=0.01)]
+    prior, joint_scale = PipelineConfig().joint_prior_score, PipelineConfig().joint_logodds_scale
+    assert scores_of(results[0], BOX_A) == [pytest.approx(boosted(prior, 1.0, joint_scale), abs=0.01)]
     assert results[0].from_joint is not None and results[0].from_joint.tolist() == [True]
-    assert boosted(prior, 1.0) > boosted(0.2, 0.6)
+    assert boosted(prior, 1.0, joint_scale) > boosted(0.2, 0.6)
     joint = node.link.joint_tracks()
     assert joint is not None and joint[0].tracks[0].gid == 7
 

@@ -156,3 +156,28 @@ def test_a_pose_correction_separates_a_turn_from_a_shift() -> None:
     assert p2 == pytest.approx(p, abs=0.05)
     # too few pairs
     assert fit_pose_correction(dets[:1], (tracks - dets)[:1], S[:1], 40.0, prior, 9.21, 2) is None
+
+
+def test_a_lone_object_keeps_its_id_through_a_gps_step() -> None:
+    """One object gives no two pairs to register: by default its own pair registers the frame
+    (image_register_alone), and the image-first round (off by default) would pair its box with its track
+    as well; without either, a 7.4 m GPS step gives it a new track."""
+    from agent.tracking import GpsTracker, TrackerConfig
+    from tests.agent.test_tracker import CAM, CLASSES, FPS, observe, pose_at
+
+    def ids(config: TrackerConfig) -> set[int]:
+        rng = np.random.default_rng(4)
+        tracker = GpsTracker(config, CLASSES)
+        seen: set[int] = set()
+        for k in range(60):
+            step = 7.4 if k >= 20 else 0.0
+            reported = pose_at(east_m=step)
+            outs = tracker.update(observe(np.array([3.0 + step]), np.array([30.0]), reported, noise_m=0.05, rng=rng),
+                                  reported, 1.7e9 + k / FPS, CAM)
+            if k >= 10:
+                seen |= {tr.id for tr in tracker.report(outs)}
+        return seen
+
+    assert len(ids(TrackerConfig())) == 1
+    assert len(ids(TrackerConfig(image_register_alone=False, image_first_iou=0.3))) == 1
+    assert len(ids(TrackerConfig(image_register_alone=False))) > 1
