@@ -51,6 +51,10 @@ def test_two_agents_mean_where_both_cover_single_where_one_covers_then_ttl(serve
     body = http.get("/v1/map", params={"cls": "person", "bbox": f"{west},{south},{east},{north}"}).json()
     assert np.array(body["values"])[105, 105] == pytest.approx(0.6, abs=0.003)  # the single value
 
+    # refreshed: the TTL is 1 s and a loaded machine can take that long for the requests above
+    a.tile(values_a)
+    b.tile(values_b)
+    wait_until(lambda: joint_uavs(server) == ("uav-a", "uav-b"))
     png = http.get(f"/v1/tiles/person/18/{TILE_X}/{TILE_Y}.png")
     assert png.status_code == 200 and png.headers["content-type"] == "image/png"
     image = cv2.imdecode(np.frombuffer(png.content, np.uint8), cv2.IMREAD_UNCHANGED)
