@@ -101,7 +101,9 @@ def test_heat_put_on_the_ground_comes_back_at_the_same_pixel(height, pitch, head
         layer.update(_blobs([(row, col)]), CAM, pose, i / 30)
     back = layer.image_scores(CAM, pose, (180, 320))
     peak = np.unravel_index(np.argmax(back), back.shape)
-    assert back.max() > 0.3
+    # a cell holds the mean heat of its ground: at 15 m a 5-pixel blob is a third of the box around a rotated
+    # cell's footprint, and 6 frames are 0.17 s of the 0.1 s prior's pull towards 0
+    assert back.max() > 0.1
     # the layer's resolution is a grid cell: allow half a cell (in working pixels) besides 2 pixels
     cell_px = layer.grid.cell_size_m(47.6) / metres_per_pixel([[2 * col + 1, 2 * row + 1]], CAM, pose)[0] / 2
     tol = 2 + 0.5 * float(cell_px)
@@ -131,6 +133,28 @@ def test_a_steady_object_outscores_flicker_in_the_layer():
     assert abs(peak[0] - 150) <= 2 and abs(peak[1] - 160) <= 2
     back[145:156, 155:166] = 0
     assert back.max() < 0.5
+
+
+def test_a_cell_holds_the_mean_heat_of_its_ground():
+    """Near rows (a cell covers many pixels): a one-pixel glint counts by its share of the cell, a blob that
+    covers the cell keeps its heat. Far rows (a pixel is taller than a cell on the ground): a 3-pixel object comes
+    back about 3 rows tall, not stretched to the near rows' cell size (a uniform downscale of the whole band by
+    the near rows' pixels per cell stretched it over 8 rows, and a glint kept 0.22 of its heat)."""
+    pose = Pose(lat=47.6, lon=9.3, height_m=20.0, pitch_deg=30.0, heading_deg=0.0)
+    layer = AnomalyMap(AnomalyMapConfig(max_range_m=200.0))
+    heat = np.zeros((180, 320), np.float32)
+    heat[172, 100] = 1.0  # glint, near
+    heat[166:179, 200:213] = 1.0  # blob of about a cell and more, near
+    heat[101:104, 150:153] = 1.0  # small object, far
+    for i in range(30):
+        layer.update(heat, CAM, pose, i / 30)
+    back = layer.image_scores(CAM, pose, (180, 320))
+    assert back[172, 206] > 0.6
+    assert back[166:179, 94:107].max() < 0.2
+    far = back[96:110, 140:165]
+    assert far.max() > 0.3
+    rows = np.flatnonzero(far.max(axis=1) >= 0.5 * far.max())
+    assert rows.size <= 4 and abs(96 + rows.mean() - 102) <= 1
 
 
 def test_layer_tiles_hold_the_heat_on_the_shared_grid():
@@ -212,8 +236,9 @@ def test_registration_places_frames_more_consistently_than_noisy_telemetry():
 
 
 def test_a_full_resolution_4k_heatmap_keeps_a_small_object():
-    """The 4K path (resampled to 4 pixels a cell, then max-pooled) keeps a 12-pixel object's heat as well as
-    the working-size heatmap of the same frame does."""
+    """The 4K path (resampled to 4 pixels a cell, then averaged over each cell's footprint) keeps a 12-pixel
+    object's heat as well as the working-size heatmap of the same frame does. The object is 0.2 m across, a
+    sixth of the box around a 0.4 m cell's footprint there, so both keep the same small share of its heat."""
     cam = Camera(width=3840, height=2160, fx=2700.0, fy=2700.0, cx=1920.0, cy=1080.0)
     heat = np.zeros((2160, 3840), np.float32)
     heat[1794:1806, 2394:2406] = 1.0
@@ -228,4 +253,4 @@ def test_a_full_resolution_4k_heatmap_keeps_a_small_object():
         peak = np.unravel_index(np.argmax(back), back.shape)
         assert abs(peak[0] - 300) <= 2 and abs(peak[1] - 400) <= 2
         peaks.append(back.max())
-    assert peaks[0] >= 0.9 * peaks[1] > 0.1
+    assert peaks[0] >= 0.9 * peaks[1] > 0.03
