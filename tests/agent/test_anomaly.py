@@ -157,6 +157,28 @@ def test_a_cell_holds_the_mean_heat_of_its_ground():
     assert rows.size <= 4 and abs(96 + rows.mean() - 102) <= 1
 
 
+def test_the_layer_is_put_on_the_heat_scale_before_it_is_added():
+    """An averaged layer has less noise than a frame: a steady object at 0.4 over water at 0.05 +- 0.01 (robust
+    standard deviation) is 35 of them above it, and boosts its pixel as much as a heat of tanh(35 / 8) would,
+    beating a glint the frame alone scores higher but the layer hardly keeps. The raw layer (z_max None) adds
+    0.4."""
+    from agent.anomaly.detector import combine_scores
+
+    rng = np.random.default_rng(1)
+    heat = (rng.random((90, 160)) * 0.3).astype(np.float32)
+    layer = (0.05 + rng.normal(0, 0.01, (90, 160))).astype(np.float32)
+    heat[60, 40], layer[60, 40] = 0.8, 0.4  # steady object
+    heat[70, 120], layer[70, 120] = 0.95, 0.1  # glint
+    scores = combine_scores(heat, layer, 20, 1.0)
+    assert scores[:20].max() == 0.0
+    assert scores[60, 40] > scores[70, 120]
+    assert scores[60, 40] == pytest.approx((0.8 + np.tanh((0.4 - 0.05) / 0.01 / 8)) / 2, abs=0.03)
+    raw = combine_scores(heat, layer, 20, 1.0, None)
+    assert raw[60, 40] == pytest.approx(0.6) and raw[70, 120] == pytest.approx(0.525)
+    mog2 = AnomalyDetector(AnomalyConfig(method="mog2"))
+    assert mog2._layer_z_max() is None  # a foreground probability is not a z-score: its layer stays raw
+
+
 def test_layer_tiles_hold_the_heat_on_the_shared_grid():
     layer = AnomalyMap()
     assert layer.tiles() == [] and layer.classes == []
