@@ -190,7 +190,7 @@ class AnomalyDetector:
         if pose is not None and cfg.use_memory:
             g = None
             if self.registration is not None:
-                g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row), pose)
+                g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row, t), pose)
             self.map.update(heat, camera, pose, t, g)
             scores = layer = self.map.image_scores(camera, pose, heat.shape, g)
             if cfg.memory_weight is not None:
