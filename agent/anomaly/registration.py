@@ -8,7 +8,10 @@ relative motion and the previous frame's image motion), and pulls it a little to
 frame (a complementary filter), so it follows the images from frame to frame and the telemetry over seconds.
 On open water the image motion is that of the water's surface, which drifts with the waves: the filter also
 estimates that drift (a velocity on the ground, from the telemetry's steady pull) and takes it out of the
-prediction (an alpha-beta filter). Without a usable image alignment it falls back to the telemetry.
+prediction (an alpha-beta filter). While the view sweeps the ground fast the telemetry's placement is only as
+good as its timing (a 10 Hz sample held for three frames, a latency): the pull is weighted down by the share
+of the telemetry's error that its timing adds at that speed. Without a usable image alignment it falls back to
+the telemetry.
 """
 
 from __future__ import annotations
@@ -23,6 +26,8 @@ from shared.geo import Camera, Pose, ground_to_image_homography, latlon_to_local
 
 #: Frame interval assumed when update() is not given the frame times (seconds).
 DEFAULT_FRAME_S = 1.0 / 30.0
+#: Interval between fresh telemetry samples assumed until one is measured (seconds; 10 Hz).
+DEFAULT_TELEMETRY_S = 0.1
 
 
 def _ncc(a: NDArray[np.uint8], b: NDArray[np.uint8], mask: NDArray[np.bool_]) -> float:
@@ -51,16 +56,24 @@ class GroundRegistration:
     drift_gain : float, optional
         The alpha-beta filter's beta: share of the gap that feeds the drift velocity each frame (default
         pull ** 2 / (2 - pull), the critically damped choice for alpha = pull; 0 turns the drift estimate off).
+    telemetry_noise_m : float
+        Placement error of the telemetry while the view is still (metres): the pull and the drift are weighted
+        by telemetry_noise_m^2 / (telemetry_noise_m^2 + (sweep speed x telemetry interval)^2), the share of the
+        telemetry's error that is not its timing. The interval is measured online (time between fresh
+        samples: a sample-and-hold stream repeats its pose). None: always the full pull.
     """
 
     def __init__(self, ecc_width: int = 320, pull: float = 0.05, iterations: int = 30,
-                 drift_gain: float | None = None) -> None:
+                 drift_gain: float | None = None, telemetry_noise_m: float | None = 0.5) -> None:
         if not 0 < pull <= 1:
             raise ValueError(f"pull must be in (0, 1], got {pull!r}")
         beta = pull ** 2 / (2.0 - pull) if drift_gain is None else float(drift_gain)
         if not (math.isfinite(beta) and 0 <= beta < 1):
             raise ValueError(f"drift_gain must be in [0, 1), got {drift_gain!r}")
+        if telemetry_noise_m is not None and not (math.isfinite(telemetry_noise_m) and telemetry_noise_m > 0):
+            raise ValueError(f"telemetry_noise_m must be > 0 or None, got {telemetry_noise_m!r}")
         self.ecc_width, self.pull, self.iterations, self.drift_gain = int(ecc_width), float(pull), int(iterations), beta
+        self.telemetry_noise_m = telemetry_noise_m
         self.failures = 0
         self.reset()
 
@@ -73,6 +86,11 @@ class GroundRegistration:
         self._t_prev: float | None = None
         #: Estimated drift of what the images align on (the water's surface), metres/second east, north.
         self.drift_mps = np.zeros(2)
+        #: Measured interval between fresh telemetry samples (seconds).
+        self.telemetry_interval_s = DEFAULT_TELEMETRY_S
+        self._last_pose: Pose | None = None
+        self._last_fresh_t: float | None = None
+        self._placed: NDArray[np.float64] | None = None  # the previous frame's ground anchors (metres)
 
     def _telemetry(self, camera: Camera, pose: Pose) -> NDArray[np.float64]:
         if self._ref is None:
@@ -101,6 +119,11 @@ class GroundRegistration:
         if t is not None and self._t_prev is not None and t > self._t_prev:
             dt = min(t - self._t_prev, 0.2)
         self._t_prev = t if t is not None else self._t_prev
+        if t is not None and pose != self._last_pose:  # a fresh telemetry sample
+            if self._last_fresh_t is not None and t > self._last_fresh_t:
+                self.telemetry_interval_s += 0.1 * (min(t - self._last_fresh_t, 1.0) - self.telemetry_interval_s)
+            self._last_fresh_t = t
+        self._last_pose = pose
         tel = self._telemetry(camera, pose)
         prev = self._prev
         g = tel
@@ -128,6 +151,8 @@ class GroundRegistration:
             except cv2.error:
                 self.failures += 1
                 g = tel
+        if motion is None:
+            self._placed = None
         self._motion_prev = motion
         self._prev = (grey, g, camera)
         self._tel_prev = tel
@@ -153,21 +178,31 @@ class GroundRegistration:
 
     def _blend(self, predicted: NDArray[np.float64], tel: NDArray[np.float64], camera: Camera, row0: int,
                dt: float = DEFAULT_FRAME_S) -> NDArray[np.float64]:
-        """Move the predicted placement, shifted by the estimated drift, a `pull` share towards the telemetry's
-        on four ground anchor points; what is left of the gap feeds the drift (alpha-beta filter)."""
+        """Move the predicted placement, shifted by the estimated drift, a share of `pull` towards the telemetry's
+        on four ground anchor points; what is left of the gap feeds the drift (alpha-beta filter). The share is
+        `pull` while the view is still and less while it sweeps the ground fast (`telemetry_noise_m`)."""
         top = min(max(row0 + 0.25 * (camera.height - row0), 0.0), camera.height - 1.0)
         px = np.array([[0.1 * camera.width, top], [0.9 * camera.width, top],
                        [0.9 * camera.width, camera.height - 1.0], [0.1 * camera.width, camera.height - 1.0]])
         ground_pred = cv2.perspectiveTransform(px[None], np.linalg.inv(predicted))[0]
         ground_tel = cv2.perspectiveTransform(px[None], np.linalg.inv(tel))[0]
         if not (np.isfinite(ground_pred).all() and np.isfinite(ground_tel).all()):
+            self._placed = None
             return tel
+        weight = 1.0
+        if self.telemetry_noise_m is not None and self._placed is not None:
+            # how fast the anchors sweep the ground, and the placement error the telemetry's timing adds at that
+            sweep_mps = float(np.linalg.norm(ground_pred - self._placed, axis=1).mean()) / dt
+            timing_m = sweep_mps * self.telemetry_interval_s
+            weight = self.telemetry_noise_m ** 2 / (self.telemetry_noise_m ** 2 + timing_m ** 2)
         # the images follow the water: a point the previous frame placed is now dt * drift further on
         ground_pred = ground_pred + self.drift_mps * dt
         gap = ground_tel - ground_pred
-        target = ground_pred + self.pull * gap
-        self.drift_mps = self.drift_mps + (self.drift_gain / dt) * gap.mean(axis=0)
+        target = ground_pred + self.pull * weight * gap
+        self.drift_mps = self.drift_mps + (self.drift_gain * weight / dt) * gap.mean(axis=0)
+        self._placed = target
         g = cv2.getPerspectiveTransform(target.astype(np.float32), px.astype(np.float32)).astype(np.float64)
         if not np.isfinite(g).all() or math.isclose(float(np.linalg.det(g)), 0.0, abs_tol=1e-18):
+            self._placed = None
             return tel
         return g
