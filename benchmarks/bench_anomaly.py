@@ -2,9 +2,9 @@
 
 Measured in the same run on rendered sea frames (`sim.render`):
 - projecting a 4K (3840x2160) heatmap onto the ground layer (`agent.anomaly.ground.AnomalyMap.update`: cut,
-  max-pool + area downscale, one warpPerspective, add) in ms, beside the per-pixel baseline (every pixel's
-  ground point with `shared.geo.pixel_to_local`, then `np.bincount` into the grid) and the projection of the
-  methods' own working-size heatmap (640x360, what the pipeline projects);
+  resample to 4 pixels a cell, mean over each cell's footprint, one warpPerspective, add) in ms, beside the
+  per-pixel baseline (every pixel's ground point with `shared.geo.pixel_to_local`, then `np.bincount` into the
+  grid) and the projection of the methods' own working-size heatmap (640x360, what the pipeline projects);
 - the whole pipeline at 1080p per method (`AnomalyDetector.process`: heatmap, projection, read-back, regions)
   in frames/s against the 10 fps target, beside the heatmap method alone (--no-memory).
 """

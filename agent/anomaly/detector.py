@@ -19,7 +19,7 @@ from numpy.typing import NDArray
 from scipy import ndimage
 
 from agent.anomaly.ground import AnomalyMap, AnomalyMapConfig, cut_row
-from agent.anomaly.methods import AnomalyMethod
+from agent.anomaly.methods import DEFAULT_Z_MAX, AnomalyMethod, normalise_robust
 from agent.anomaly.registration import GroundRegistration
 from agent.anomaly.registry import DEFAULT_METHOD, make_method
 from shared.geo import Camera, Pose, image_to_ground_homography, latlon_to_local
@@ -39,6 +39,15 @@ class AnomalyConfig:
     memory_weight: how the layer enters the frame's scores, as the memory map boosts detections (c + w p):
         scores = (heat + w * layer) / (1 + w), so the frame keeps its own sharp peaks and what persisted on
         the ground is raised; None uses the layer alone (the paper's "replace the 2D heat map").
+    normalise_layer: before it is added, the layer read back into the frame is put on the heat's own scale: its
+        robust z-score over the mapped band (median and MAD of this frame's layer), mapped by the same
+        tanh(z / z_max) as the method's heat (`agent.anomaly.methods.normalise_robust`; methods whose heat is
+        not such a z-score, MOG2's foreground probability, keep the raw layer). Averaging over frames
+        shrinks the layer's noise (the water) more than a steady object's heat; measured against its own noise,
+        the steady object stands out as far as it does in the average, not at the heat's scale. False: the raw
+        layer (mean heat), as before 26 Nov 2026.
+    register: place the frames on the ground with `GroundRegistration` (telemetry made consistent by image
+        alignment) instead of the telemetry alone.
     """
 
     method: str = DEFAULT_METHOD
@@ -49,6 +58,7 @@ class AnomalyConfig:
     max_rois: int = 100
     roi_dilate_px: int = 2
     memory_weight: float | None = 1.0
+    normalise_layer: bool = True
     register: bool = True
 
     def __post_init__(self) -> None:
@@ -103,6 +113,26 @@ def extract_rois(scores: NDArray[np.float32], threshold: float, *, max_rois: int
     return boxes.astype(np.float32), peaks[order]
 
 
+def combine_scores(heat: NDArray[np.float32], layer: NDArray[np.float32], first_row: int, weight: float,
+                   z_max: float | None = DEFAULT_Z_MAX) -> NDArray[np.float32]:
+    """A frame's scores from its heat and the ground layer read back into it: (heat + w * boost) / (1 + w).
+
+    heat, layer: (h, w) float32 in [0, 1], same shape; rows above first_row (the cut) score 0. boost is the
+    layer's robust z-score over the rows from first_row on, mapped by tanh(z / z_max) as the heat was
+    (`normalise_robust`), or the layer as it is when z_max is None. Returns (h, w) float32 in [0, 1].
+    """
+    first = min(max(int(first_row), 0), heat.shape[0])
+    cut = heat.copy()
+    cut[:first] = 0.0
+    boost = layer
+    if z_max is not None and first < heat.shape[0]:
+        band = np.zeros(heat.shape, dtype=bool)
+        band[first:] = True
+        boost = normalise_robust(layer, z_max, band)
+    w = np.float32(weight)
+    return ((cut + w * boost) / (1 + w)).astype(np.float32, copy=False)
+
+
 class AnomalyDetector:
     """Heatmaps, the ground layer and regions of interest for a sequence of frames (one video).
 
@@ -139,6 +169,12 @@ class AnomalyDetector:
         shift = np.array([[1.0, 0.0, float(east)], [0.0, 1.0, float(north)], [0.0, 0.0, 1.0]])
         return shift @ image_to_ground_homography(camera, pose)
 
+    def _layer_z_max(self) -> float | None:
+        """The z_max of the method's heat (its robust z-score mapping), or None for a method whose heat is not a
+        z-score (MOG2's foreground probability: its layer is already on the heat's scale)."""
+        z_max = getattr(self.method, "z_max", None)
+        return float(z_max) if isinstance(z_max, int | float) and z_max > 0 else None
+
     def process(self, image: NDArray[np.uint8], pose: Pose | None, t: float, camera: Camera) -> AnomalyFrame:
         """One frame: (H, W, 3) uint8 BGR with its pose (None: no ground help) at time t (s)."""
         if (image.shape[1], image.shape[0]) != (camera.width, camera.height):
@@ -154,14 +190,13 @@ class AnomalyDetector:
         if pose is not None and cfg.use_memory:
             g = None
             if self.registration is not None:
-                g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row), pose)
+                g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row, t), pose)
             self.map.update(heat, camera, pose, t, g)
             scores = layer = self.map.image_scores(camera, pose, heat.shape, g)
             if cfg.memory_weight is not None:
-                w = np.float32(cfg.memory_weight)
-                cut = heat.copy()
-                cut[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0
-                scores = (cut + w * layer) / (1 + w)
+                first = min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))
+                scores = combine_scores(heat, layer, first, cfg.memory_weight,
+                                        self._layer_z_max() if cfg.normalise_layer else None)
         else:
             scores = heat.copy()
             scores[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0

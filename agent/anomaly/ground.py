@@ -1,9 +1,11 @@
 """The anomaly layer of the memory map: per-frame heatmaps warped onto the global ground grid below the
 horizon, averaged over time with forgetting, and read back into any frame (paper section IV-C).
 
-One `cv2.warpPerspective` per frame moves the whole heatmap (max-pooled and area-downscaled first so a grid
-cell samples a heatmap pixel of about its own size holding the strongest heat inside it) into the block of
-cells the camera sees within ``max_range_m``.
+One `cv2.warpPerspective` per frame moves the whole heatmap into the block of cells the camera sees within
+``max_range_m``; before it, each band of image rows is averaged over the footprint one grid cell has there
+(`cell_mean`), so a cell holds the mean heat of its own ground area wherever it lies in the frame: near rows,
+where a cell covers many pixels, are averaged over all of them (a one-pixel glint counts by its share of the
+cell), far rows, where a pixel covers several cells, are sampled as they are.
 The layer keeps two decaying sums per cell on a `agent.memory_map.MemoryMap` window (same grid, window,
 recentring and forgetting as the detection maps): heat x observation time and observation time. Their
 ratio is the cell's heat averaged over the recent frames that saw it; cells seen for less than
@@ -26,6 +28,10 @@ from shared.tiles import CellWindow, TileGrid
 #: Class name of the layer on the wire (tiles ``uav/{uav}/tiles/anomaly/...``) and in COCO results.
 ANOMALY_CLASS = "anomaly"
 _HEAT, _SEEN = "anomaly_heat", "anomaly_seen"
+#: Heatmaps finer than _MAX_PX_PER_CELL pixels a grid cell (at their finest row: a full-resolution 4K heatmap) are
+#: first resampled to _RESAMPLE_PX_PER_CELL; the working-size heatmaps (up to ~6 pixels a cell) are used as they are.
+_MAX_PX_PER_CELL = 8.0
+_RESAMPLE_PX_PER_CELL = 4.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -110,21 +116,56 @@ def cut_row(camera: Camera, pose: Pose, max_range_m: float, horizon_margin_deg: 
     return int(np.argmax(ok))  # rows farther down are nearer: the first qualifying row starts the band
 
 
-def _max_pool_down(band: NDArray[np.float32], k: float) -> NDArray[np.float32]:
-    """Downscale by k < 1 keeping local maxima: a cell holds the strongest heat it contains, so an object
-    smaller than a cell is not averaged away with the water around it. Large inputs (a full-resolution 4K
-    heatmap) are first resampled (bilinear) to 4 pixels a target pixel: the cost follows the output, not the
-    33 MB input, and anything wider than a quarter of a cell still reaches the max-pool."""
+def _odd(k: NDArray[np.float64]) -> NDArray[np.int64]:
+    """The odd kernel sizes nearest to k pixels (at least 1; 1 where k is not finite)."""
+    k = np.where(np.isfinite(k), k, 1.0)
+    return (2 * np.round(np.maximum(k - 1.0, 0.0) / 2.0) + 1).astype(np.int64)
+
+
+def cell_footprint_px(cell_to_band: NDArray[np.float64], band_rows: NDArray[np.float64], centre_col: float
+                      ) -> NDArray[np.float64]:
+    """Width and height (band pixels) of the box around one grid cell's footprint at each band row.
+
+    cell_to_band: (3, 3) homography from window cells (col, row) to band pixels; band_rows (N,) pixel rows,
+    taken at the band column centre_col. Returns (N, 2) float64: (kx, ky), the sums of the absolute image steps
+    of one cell east and one cell south (the bounding box of the cell's parallelogram); NaN where the row has no
+    ground point.
+    """
+    pts = np.column_stack([np.full_like(band_rows, centre_col), band_rows])[None]
+    cells = cv2.perspectiveTransform(pts, np.linalg.inv(cell_to_band))[0]
+    corners = np.concatenate([cells, cells + [1.0, 0.0], cells + [0.0, 1.0]])[None]
+    img = cv2.perspectiveTransform(corners, cell_to_band)[0].reshape(3, -1, 2)
+    de, dn = np.abs(img[1] - img[0]), np.abs(img[2] - img[0])
+    return de + dn
+
+
+def cell_mean(band: NDArray[np.float32], cell_to_band: NDArray[np.float64], rows_step: int = 8
+              ) -> NDArray[np.float32]:
+    """The band averaged, row by row, over the footprint one grid cell has there (a box of odd size about the
+    cell's bounding box, `cell_footprint_px`): sampling the result at a cell's centre gives about the mean heat
+    of the cell's ground. Rows where a cell is smaller than a pixel are left as they are.
+
+    band: (h, w) float32; cell_to_band: (3, 3) homography from window cells to band pixels. The footprint is
+    taken every rows_step rows (centre column); runs of rows with the same box are filtered together
+    (`cv2.blur` on the strip: the cost does not grow with the box). Returns a new (h, w) float32 array.
+    """
     h, w = band.shape
-    size = (max(1, int(round(w * k))), max(1, int(round(h * k))))
-    if 1.0 / k > 4.0:
-        band = cv2.resize(band, (size[0] * 4, size[1] * 4), interpolation=cv2.INTER_LINEAR)
-        side = 4
-    else:
-        side = int(math.ceil(1.0 / k))
-    if side > 1:
-        band = cv2.dilate(band, np.ones((side, side), np.uint8))
-    return cv2.resize(band, size, interpolation=cv2.INTER_AREA)
+    rows = np.arange(0, h, rows_step, dtype=np.float64)
+    fp = cell_footprint_px(cell_to_band, rows + 0.5 * min(rows_step, h), 0.5 * w)
+    sizes = list(zip(_odd(fp[:, 0]).tolist(), _odd(fp[:, 1]).tolist(), strict=True))
+    out = band.copy()
+    i = 0
+    while i < len(sizes):
+        j = i
+        while j + 1 < len(sizes) and sizes[j + 1] == sizes[i]:
+            j += 1
+        kx, ky = sizes[i]
+        if (kx, ky) != (1, 1):
+            a, b = i * rows_step, min((j + 1) * rows_step, h)
+            lo, hi = max(a - ky // 2, 0), min(b + ky // 2, h)
+            out[a:b] = cv2.blur(band[lo:hi], (kx, ky), borderType=cv2.BORDER_REFLECT)[a - lo:b - lo]
+        i = j + 1
+    return out
 
 
 class AnomalyMap:
@@ -223,14 +264,19 @@ class AnomalyMap:
         # only the band below the cut row is read (a view: no copy of the heatmap)
         first = min(hh - 1, int(row * hh / camera.height))
         band = heat[first:]
-        # downscale so that the band's finest pixels (the image's bottom row) are about a cell
+        # a large heatmap (a full-resolution 4K one) is first resampled to 4 pixels a cell at its finest row
+        # (bilinear: the cost follows the output, not the 33 MB input; anything wider than a quarter of a cell
+        # still reaches the cell's mean)
         bottom = np.array([[[camera.cx, camera.height - 0.5], [camera.cx + 1.0, camera.height - 0.5]]])
         step = np.diff(cv2.perspectiveTransform(bottom, np.linalg.inv(c2i))[0], axis=0)[0]  # cells a full pixel
         px_per_cell = scale / max(float(np.hypot(step[0], step[1])), 1e-9)
-        if px_per_cell > 1.0:
-            band = _max_pool_down(band, 1.0 / px_per_cell)
+        if px_per_cell > _MAX_PX_PER_CELL:
+            k = _RESAMPLE_PX_PER_CELL / px_per_cell
+            band = cv2.resize(band, (max(1, int(round(band.shape[1] * k))), max(1, int(round(band.shape[0] * k)))),
+                              interpolation=cv2.INTER_LINEAR)
         sx, sy = band.shape[1] / camera.width, band.shape[0] / ((hh - first) * camera.height / hh)
         y0 = first * camera.height / hh  # full-resolution row of the band's top edge
+        band = cell_mean(band, np.diag([sx, sy, 1.0]) @ _translate(0.0, -y0) @ c2i)
         # block index (x, y) -> cell centre -> image pixel -> band array index (pixel centres at integers)
         block_to_band = (_translate(-0.5, -0.5) @ np.diag([sx, sy, 1.0]) @ _translate(0.0, -y0) @ c2i
                          @ _translate(c0 + 0.5, r0 + 0.5))
