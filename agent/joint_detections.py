@@ -368,7 +368,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
 
     Settings from `config` (PipelineConfig): range_m = range_limit_m, anchor_frac from anchor, and
     joint_min_value, joint_gate_m, joint_cover_uavs, joint_prior_score, the boost settings (the log-odds
-    scale is joint_logodds_scale),
+    scale is PipelineConfig.joint_scale),
     joint_peak_smoothing_m, joint_peak_gate_across_rad / _down_rad, joint_register_score,
     joint_synth_factor, joint_carry_gate, joint_carry_min_sightings, joint_carry_match_iou and
     joint_carry_factor (named without their joint_ prefix below).
@@ -440,7 +440,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         with np.errstate(invalid="ignore"):
             valid &= (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)
         score = joint_score(evidence, cfg.joint_prior_score, cfg.boost_mode, cfg.boost_weight,
-                            cfg.joint_logodds_scale)
+                            cfg.joint_scale)
         carried: set[int] = set()
         for i in np.flatnonzero(valid):
             close = np.hypot(k_east[mine] - east[i], k_north[mine] - north[i]) <= gate_m

@@ -67,8 +67,10 @@ class PipelineConfig:
         of the joint mean (1: use the joint value as is); joint_prior_score: the confidence a joint
         detection is credited with before the boost by the others' evidence (see joint_score; 0.5: a
         promoted weak box ranks with confident detections, as it was right in ~88 % of cases on `coop`);
-        joint_logodds_scale: the log-odds scale of that score (with boost_mode "logodds"; 4, the value the
-        joint detections were tuned with on `coop`: the boost's own logodds_scale moved to 6 later);
+        joint_logodds_scale: the log-odds scale of that score (with boost_mode "logodds"; None, the
+        default: the boost's own logodds_scale, so a promoted box ranks on the same scale as the boosted
+        detections it competes with: after logodds_scale moved from 4 to 6, keeping 4 here cost uav1 2.0
+        AP50 on `coop` seeds 0-2);
         joint_synth_factor: multiplies the score of boxes synthesised where no real candidate exists
         (their pixel position carries the cross-UAV georeferencing error: on `coop` at 80 m they overlapped
         the object in 4 of ~1,200 cases; default 0 = only promote and carry real candidates).
@@ -150,7 +152,7 @@ class PipelineConfig:
     joint_gate_m: float = 3.0
     joint_cover_uavs: int = 2
     joint_prior_score: float = 0.5
-    joint_logodds_scale: float = 4.0
+    joint_logodds_scale: float | None = None
     joint_synth_factor: float = 0.0
     joint_carry_s: float = 0.5
     joint_carry_factor: float = 0.8
@@ -206,7 +208,8 @@ class PipelineConfig:
             raise ValueError(f"joint_gate_m must be >= 0, got {self.joint_gate_m!r}")
         if self.joint_cover_uavs < 1:
             raise ValueError(f"joint_cover_uavs must be >= 1, got {self.joint_cover_uavs!r}")
-        if not (math.isfinite(self.joint_logodds_scale) and self.joint_logodds_scale > 0):
+        if self.joint_logodds_scale is not None and not (
+                math.isfinite(self.joint_logodds_scale) and self.joint_logodds_scale > 0):
             raise ValueError(f"joint_logodds_scale must be > 0, got {self.joint_logodds_scale!r}")
         if not (0.0 < self.joint_prior_score < 1.0):
             raise ValueError(f"joint_prior_score must be in (0, 1), got {self.joint_prior_score!r}")
@@ -232,6 +235,11 @@ class PipelineConfig:
         return CorrectionSettings(min_score=self.correction_min_score, search_m=self.correction_search_m,
                                   min_points=self.correction_min_points, min_support=self.correction_min_support,
                                   smoothing_s=self.correction_smoothing_s, hold_s=self.correction_hold_s)
+
+    @property
+    def joint_scale(self) -> float:
+        """The log-odds scale joint detections score with (joint_logodds_scale, else logodds_scale)."""
+        return self.logodds_scale if self.joint_logodds_scale is None else self.joint_logodds_scale
 
     def clock_offset_settings(self) -> ClockOffsetSettings | None:
         """The clock-offset estimate's settings (agent.clock_offset), None when it is off."""

@@ -99,10 +99,12 @@ def _box_at(lat: float, lon: float, w: float = 20.0, h: float = 60.0) -> list[li
 
 def test_a_peak_explained_by_a_confident_kept_box_adds_nothing():
     joint, lat, lon = joint_with_blob(2.0, 40.0)
-    result = run(DetectionPipeline(CAM, CLASSES, joint=joint), _box_at(lat, lon), [0.9])
+    # confident: its boost by the joint value (0.6) ranks above the peak's score (prior 0.5, the others'
+    # evidence 1): logit(0.95) + 6 * 0.6 > logit(0.5) + 6 * 1
+    result = run(DetectionPipeline(CAM, CLASSES, joint=joint), _box_at(lat, lon), [0.95])
     assert len(result) == 1
     assert result.from_joint is not None and not result.from_joint.any()
-    assert result.raw_scores[0] == pytest.approx(0.9)
+    assert result.raw_scores[0] == pytest.approx(0.95)
 
 
 def test_a_weak_real_candidate_at_the_peak_is_promoted_instead_of_synthesising_a_box():
@@ -369,3 +371,11 @@ def test_registration_and_carry_take_their_settings_from_the_pipeline_config():
     assert vars(default).keys() == vars(plain).keys()
     assert all(np.all(vars(default)[k] == vars(plain)[k]) for k in vars(plain) if not k.startswith("_"))
     assert vars(jd.JointCarry.from_config(PipelineConfig())) == vars(jd.JointCarry())
+
+
+def test_joint_detections_score_on_the_boost_scale_unless_set():
+    assert PipelineConfig().joint_scale == PipelineConfig().logodds_scale
+    assert PipelineConfig(logodds_scale=3.0).joint_scale == 3.0
+    assert PipelineConfig(joint_logodds_scale=4.0).joint_scale == 4.0
+    with pytest.raises(ValueError, match="joint_logodds_scale"):
+        PipelineConfig(joint_logodds_scale=0.0)

@@ -177,7 +177,7 @@ def box_ground(box: tuple) -> tuple[float, float]:
 
 def boosted(c: float, p: float, scale: float | None = None) -> float:
     """The default pipeline's boost of confidence c by map evidence p (see agent.pipeline); scale: the
-    log-odds scale (default the boost's own; joint detections score with joint_logodds_scale)."""
+    log-odds scale (default the boost's own; joint detections score with PipelineConfig.joint_scale)."""
     cfg = PipelineConfig()
     if cfg.boost_mode == "add":
         return c + cfg.boost_weight * p
@@ -328,7 +328,7 @@ def test_late_joiner_gets_the_joint_map_before_its_first_frame(server, server_po
     assert summary["joint_query_replies"] == 2
     # the weak box sits on the others' peak: boosted by the joint map, then promoted by the joint
     # detections to the score of the others' evidence (2 * 0.6 - own ~0, clipped to 1; docs/agent.md)
-    prior, joint_scale = PipelineConfig().joint_prior_score, PipelineConfig().joint_logodds_scale
+    prior, joint_scale = PipelineConfig().joint_prior_score, PipelineConfig().joint_scale
     assert scores_of(results[0], BOX_A) == [pytest.approx(boosted(prior, 1.0, joint_scale), abs=0.01)]
     assert results[0].from_joint is not None and results[0].from_joint.tolist() == [True]
     assert boosted(prior, 1.0, joint_scale) > boosted(0.2, 0.6)
