@@ -39,7 +39,7 @@ from sim.render.geometry import (
     uav_world_en,
 )
 from sim.render.scene import SceneFrame, SceneVideo, SceneWorld, SimulatedDataset
-from sim.render.sea_motion import FOAM, SPARKLES, WHITECAPS, SeaEvents, WaveDrift
+from sim.render.sea_motion import FOAM, SPARKLES, WHITECAPS, EventKind, SeaEvents, WaveDrift
 from sim.render.sprites import Model, Placed
 from sim.render.texture import (
     FACET_SCALE,
@@ -221,8 +221,9 @@ class WorldRenderer:
         self.noise = (SensorNoise(self.camera.width, self.camera.height, self.options.sensor_noise_std,
                                   self._rng(ROLE_NOISE)) if self.options.sensor_noise_std > 0 else None)
         st = self.sea_state
-        kinds = (dataclasses.replace(WHITECAPS, rate_per_m2_s=WHITECAPS.rate_per_m2_s * st.whitecap_rate),
-                 dataclasses.replace(SPARKLES, rate_per_m2_s=SPARKLES.rate_per_m2_s * st.sparkle_rate))
+        kinds: tuple[EventKind, ...] = (
+            dataclasses.replace(WHITECAPS, rate_per_m2_s=WHITECAPS.rate_per_m2_s * st.whitecap_rate),
+            dataclasses.replace(SPARKLES, rate_per_m2_s=SPARKLES.rate_per_m2_s * st.sparkle_rate))
         if st.foam_rate > 0:  # (a calm sea keeps its two kinds and their generators)
             kinds += (dataclasses.replace(FOAM, rate_per_m2_s=st.foam_rate),)
         self.sea_events = (SeaEvents(self.seed, world.group, ROLE_SEA_EVENTS, self.ground.extent_m, kinds)
