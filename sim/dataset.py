@@ -174,6 +174,7 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
                 "camera_preset": sc.camera_preset, "world": _spec_dict(sc.world),
                 "flights": [_spec_dict(f) for f in sc.flights], "emulator": _spec_dict(sc.emulator),
                 "noise_base": _spec_dict(sc.noise),
+                **({"sea_state": sc.sea_state.to_dict()} if sc.sea_state is not None else {}),
             },
             "seed": sim.seed, "frames_per_video": sim.frames_per_video, "noise_scale": sim.noise_scale,
             "noise": _spec_dict(sim.noise),

@@ -18,6 +18,7 @@ Deterministic for the dataset's seed: every generator is seeded from (seed, grou
 
 from __future__ import annotations
 
+import dataclasses
 import logging
 import math
 from concurrent.futures import ThreadPoolExecutor
@@ -38,7 +39,7 @@ from sim.render.geometry import (
     uav_world_en,
 )
 from sim.render.scene import SceneFrame, SceneVideo, SceneWorld, SimulatedDataset
-from sim.render.sea_motion import SeaEvents, WaveDrift
+from sim.render.sea_motion import FOAM, SPARKLES, WHITECAPS, EventKind, SeaEvents, WaveDrift
 from sim.render.sprites import Model, Placed
 from sim.render.texture import (
     FACET_SCALE,
@@ -50,6 +51,7 @@ from sim.render.texture import (
     meadow_roads,
     with_mips,
 )
+from sim.sea_state import CALM, SeaState
 
 logger = logging.getLogger(__name__)
 
@@ -174,6 +176,11 @@ class WorldRenderer:
         self.t0 = ds.time_of(self.videos[0].image_ids[0])
         az, el = sun_position(world.origin_lat, world.origin_lon, self.t0)
         self.atmosphere: Atmosphere = effects.make_atmosphere(world.kind, az, el, self._rng(ROLE_ATMOSPHERE))
+        self.sea_state: SeaState = ds.sea_state if world.kind == "sea" else CALM
+        if not self.sea_state.calm:  # the calm sea keeps exactly the atmosphere it always had
+            self.atmosphere = dataclasses.replace(
+                self.atmosphere, glint_strength=self.atmosphere.glint_strength * self.sea_state.glint_gain,
+                visibility_m=self.atmosphere.visibility_m * self.sea_state.visibility_scale)
         wind_deg = float(self._rng(ROLE_WAVES).uniform(0.0, 360.0))
         self.drift: WaveDrift | None = (WaveDrift(wind_deg) if world.kind == "sea" and self.options.sea_waves
                                         else None)
@@ -213,7 +220,13 @@ class WorldRenderer:
         self._models: dict[int, Model] = {}
         self.noise = (SensorNoise(self.camera.width, self.camera.height, self.options.sensor_noise_std,
                                   self._rng(ROLE_NOISE)) if self.options.sensor_noise_std > 0 else None)
-        self.sea_events = (SeaEvents(self.seed, world.group, ROLE_SEA_EVENTS, self.ground.extent_m)
+        st = self.sea_state
+        kinds: tuple[EventKind, ...] = (
+            dataclasses.replace(WHITECAPS, rate_per_m2_s=WHITECAPS.rate_per_m2_s * st.whitecap_rate),
+            dataclasses.replace(SPARKLES, rate_per_m2_s=SPARKLES.rate_per_m2_s * st.sparkle_rate))
+        if st.foam_rate > 0:  # (a calm sea keeps its two kinds and their generators)
+            kinds += (dataclasses.replace(FOAM, rate_per_m2_s=st.foam_rate),)
+        self.sea_events = (SeaEvents(self.seed, world.group, ROLE_SEA_EVENTS, self.ground.extent_m, kinds)
                            if world.kind == "sea" and self.options.sea_events else None)
         self._buffer = np.empty((self.camera.height, self.camera.width, 4), np.uint8)
         logger.info("world %d (%s): ground %dx%d texels at %.3f m (far %.2f m), sun az %.0f el %.0f deg, %d trees, "
@@ -317,6 +330,7 @@ class WorldRenderer:
             "waves": None if self.drift is None else {
                 "towards_deg": round(self.drift.wind_deg, 2), "long_mps": self.drift.long_mps,
                 "short_mps": self.drift.short_mps, "wrap_s": round(self.drift.period_s, 1)},
+            **({} if self.sea_state.calm else {"sea_state": self.sea_state.to_dict()}),
         }
 
     def model_of(self, track_id: int, cls: str) -> Model:
@@ -324,7 +338,8 @@ class WorldRenderer:
         model = self._models.get(track_id)
         if model is None:
             arng = sprites.appearance_rng(self.seed, track_id, cls)
-            model = sprites.swimmer(arng) if cls == "swimmer" else sprites.person(arng)
+            model = (sprites.submerged(sprites.swimmer(arng), self.sea_state.swimmer_wash) if cls == "swimmer"
+                     else sprites.person(arng))
             self._models[track_id] = model
         return model
 
@@ -405,6 +420,8 @@ class WorldRenderer:
         rng = np.random.default_rng([self.seed, frame.video_id, frame.frame_index, ROLE_FRAME])
         if frame.blurred:
             image = self._blur(image, frame, rng)
+        if self.sea_state.blur_mrad > 0:
+            image = cv2.GaussianBlur(image, (0, 0), self.sea_state.blur_mrad * 1e-3 * cam.fx)
         if self.noise is not None:
             image = self.noise.apply(image, rng)
         return image

@@ -22,6 +22,7 @@ import numpy as np
 
 from shared.geo import Camera, Pose, latlon_to_local
 from shared.telemetry import parse_datetime
+from sim.sea_state import SeaState
 from sim.world import CLASS_BOX_M, Tree  # Tree: the cylinder the simulator occludes with
 
 logger = logging.getLogger(__name__)
@@ -138,6 +139,8 @@ class SimulatedDataset:
     fps : float
     seed : int
     scenario : str
+    sea_state : SeaState
+        How rough the sea is drawn (truth.json ``scenario.sea_state``; absent: the calm sea).
     videos : list of SceneVideo
     worlds : dict of int to SceneWorld
         By group.
@@ -170,6 +173,7 @@ class SimulatedDataset:
     def _parse(self, coco: dict[str, Any], truth: dict[str, Any]) -> None:
         sc = truth["scenario"]
         self.scenario = str(sc["name"])
+        self.sea_state = SeaState.from_dict(sc.get("sea_state"))
         self.fps = float(sc["fps"])
         self.seed = int(truth["seed"])
         self.blur_heading_rate_deg_s = float(sc.get("emulator", {}).get("blur_heading_rate_deg_s", 30.0))

@@ -103,6 +103,9 @@ WHITECAPS = EventKind(0.006, (0.2, 0.7), (0.25, 0.8), (228.0, 232.0, 228.0), (0.
 #: Glitter: facets mirroring the sun for one or two frames, only inside the glint patch.
 SPARKLES = EventKind(0.08, (0.03, 0.12), (0.05, 0.15), (255.0, 255.0, 255.0), (0.7, 1.0), in_glint=True)
 
+#: Residual foam: the patches a broken crest leaves behind, fading over seconds (rate set by `SeaState.foam_rate`).
+FOAM = EventKind(1.0, (1.5, 4.0), (0.15, 0.45), (220.0, 226.0, 222.0), (0.3, 0.7))
+
 
 class SeaEvents:
     """The transient events of one world (deterministic for its seed and group)."""

@@ -12,6 +12,7 @@ Sizes follow `sim.world.CLASS_BOX_M`: a person fills 0.5 x 0.3 x 1.7 m, a swimme
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 
@@ -170,6 +171,20 @@ def swimmer(rng: np.random.Generator) -> Model:
              _shade(cap, 1.0)),
     )
     return Model(parts, _texture(rng), 0.1)
+
+
+def submerged(model: Model, k: float) -> Model:
+    """A swimmer `model` with its body, shoulders and head a further share k (0..1) towards the water's colour
+    and the shoulders k less opaque (rougher water: spray, a film of water, more of the body under the
+    surface); the foam ring (the first part) is kept. k = 0 returns the model itself."""
+    if k <= 0.0:
+        return model
+    parts = [model.parts[0]]
+    for i, p in enumerate(model.parts[1:], start=1):
+        alpha = p.alpha * (1.0 - k) if i == 2 else p.alpha
+        parts.append(dataclasses.replace(p, side_bgr=_washed(p.side_bgr, k), top_bgr=_washed(p.top_bgr, k),
+                                         alpha=alpha))
+    return Model(tuple(parts), model.texture, model.texture_contrast)
 
 
 def buoy(rng: np.random.Generator) -> Model:
