@@ -36,7 +36,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                                                             "(default: the shipped sea model)")
     p.add_argument("--no-memory", action="store_true", help="per-frame baseline: no ground aggregation")
     p.add_argument("--threshold", type=float, default=None, help="score a region needs (0.3)")
-    p.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life of the layer, s (0.5)")
+    p.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life of the layer, s (0.75)")
     p.add_argument("--max-range-m", type=float, default=None, help="ground range mapped, m (120)")
     p.add_argument("--height-m", type=float, default=None, help="height above ground for telemetry without one")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")

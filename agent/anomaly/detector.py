@@ -25,6 +25,10 @@ from agent.anomaly.registry import DEFAULT_METHOD, make_method
 from shared.geo import Camera, Pose, image_to_ground_homography, latlon_to_local
 from shared.tiles import TileGrid
 
+#: Robust z-score scale of the layer's boost (`AnomalyConfig.layer_z_max`), chosen on the tuning seeds 0 and 1 of
+#: sea and sea-hard (docs/anomaly.md).
+LAYER_Z_MAX = 6.0
+
 
 @dataclass(frozen=True, slots=True)
 class AnomalyConfig:
@@ -38,14 +42,18 @@ class AnomalyConfig:
     roi_dilate_px: regions closer than this (working pixels) merge.
     memory_weight: how the layer enters the frame's scores, as the memory map boosts detections (c + w p):
         scores = (heat + w * layer) / (1 + w), so the frame keeps its own sharp peaks and what persisted on
-        the ground is raised; None uses the layer alone (the paper's "replace the 2D heat map").
+        the ground is raised; None uses the layer alone (the paper's "replace the 2D heat map"). 1.5 since
+        26 Nov 2026 (1 before; docs/anomaly.md, sea-hard).
     normalise_layer: before it is added, the layer read back into the frame is put on the heat's own scale: its
-        robust z-score over the mapped band (median and MAD of this frame's layer), mapped by the same
-        tanh(z / z_max) as the method's heat (`agent.anomaly.methods.normalise_robust`; methods whose heat is
-        not such a z-score, MOG2's foreground probability, keep the raw layer). Averaging over frames
-        shrinks the layer's noise (the water) more than a steady object's heat; measured against its own noise,
-        the steady object stands out as far as it does in the average, not at the heat's scale. False: the raw
-        layer (mean heat), as before 26 Nov 2026.
+        robust z-score over the mapped band (median and MAD of this frame's layer), mapped by
+        tanh(z / layer_z_max) as the method maps its residuals (`agent.anomaly.methods.normalise_robust`;
+        methods whose heat is not such a z-score, MOG2's foreground probability, keep the raw layer). Averaging
+        over frames shrinks the layer's noise (the water) more than a steady object's heat; measured against its
+        own noise, the steady object stands out as far as it does in the average, not at the heat's scale.
+        False: the raw layer (mean heat), as before 26 Nov 2026.
+    layer_z_max: the z-score scale of that boost. Smaller than the heat's own (8): a faint object the layer keeps
+        a few robust deviations above the water is raised more, the strongest ones saturate sooner. LAYER_Z_MAX
+        since 26 Nov 2026 (the method's z_max, 8, before).
     register: place the frames on the ground with `GroundRegistration` (telemetry made consistent by image
         alignment) instead of the telemetry alone.
     """
@@ -57,8 +65,9 @@ class AnomalyConfig:
     roi_threshold: float = 0.3
     max_rois: int = 100
     roi_dilate_px: int = 2
-    memory_weight: float | None = 1.0
+    memory_weight: float | None = 1.5
     normalise_layer: bool = True
+    layer_z_max: float = LAYER_Z_MAX
     register: bool = True
 
     def __post_init__(self) -> None:
@@ -68,6 +77,11 @@ class AnomalyConfig:
             raise ValueError(f"AnomalyConfig.max_rois must be >= 1, got {self.max_rois!r}")
         if self.roi_dilate_px < 0:
             raise ValueError(f"AnomalyConfig.roi_dilate_px must be >= 0, got {self.roi_dilate_px!r}")
+        if not (isinstance(self.layer_z_max, int | float) and math.isfinite(self.layer_z_max) and self.layer_z_max > 0):
+            raise ValueError(f"AnomalyConfig.layer_z_max must be a finite number > 0, got {self.layer_z_max!r}")
+        if self.memory_weight is not None and not (math.isfinite(self.memory_weight) and self.memory_weight >= 0):
+            raise ValueError(f"AnomalyConfig.memory_weight must be None or a finite number >= 0, "
+                             f"got {self.memory_weight!r}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -170,10 +184,11 @@ class AnomalyDetector:
         return shift @ image_to_ground_homography(camera, pose)
 
     def _layer_z_max(self) -> float | None:
-        """The z_max of the method's heat (its robust z-score mapping), or None for a method whose heat is not a
-        z-score (MOG2's foreground probability: its layer is already on the heat's scale)."""
+        """The z-score scale of the layer's boost (`AnomalyConfig.layer_z_max`) for a method whose heat is a robust
+        z-score (it has a z_max), or None for one whose heat is not (MOG2's foreground probability: its layer is
+        already on the heat's scale)."""
         z_max = getattr(self.method, "z_max", None)
-        return float(z_max) if isinstance(z_max, int | float) and z_max > 0 else None
+        return self.config.layer_z_max if isinstance(z_max, int | float) and z_max > 0 else None
 
     def process(self, image: NDArray[np.uint8], pose: Pose | None, t: float, camera: Camera) -> AnomalyFrame:
         """One frame: (H, W, 3) uint8 BGR with its pose (None: no ground help) at time t (s)."""

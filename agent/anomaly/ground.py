@@ -40,7 +40,8 @@ class AnomalyMapConfig:
 
     window_m: edge of the UAV-centric window (as the detection maps).
     half_life_s: time for unrefreshed heat to halve (the paper's forgetting factor phi per frame is
-        0.5 ** (frame interval / half_life_s)).
+        0.5 ** (frame interval / half_life_s)). 0.75 s since 26 Nov 2026 (0.5 s before; docs/anomaly.md,
+        sea-hard).
     prior_s: observation time a cell needs before its average counts fully (value = heat sum /
         (seen + prior_s)).
     max_range_m: pixels whose ground point is farther from the UAV are cut (the paper: far pixels are noise).
@@ -49,7 +50,7 @@ class AnomalyMapConfig:
     """
 
     window_m: float = 300.0
-    half_life_s: float = 0.5
+    half_life_s: float = 0.75
     prior_s: float = 0.1
     max_range_m: float = 120.0
     horizon_margin_deg: float = 3.0

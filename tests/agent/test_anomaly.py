@@ -179,6 +179,21 @@ def test_the_layer_is_put_on_the_heat_scale_before_it_is_added():
     assert mog2._layer_z_max() is None  # a foreground probability is not a z-score: its layer stays raw
 
 
+def test_the_layer_boost_uses_its_own_z_scale_not_the_heats():
+    """The boost's scale is AnomalyConfig.layer_z_max (6 by default, below the heat's 8: a faint steady object a
+    few robust deviations above the water is raised more); MOG2's layer stays raw; bad values are refused."""
+    default = AnomalyDetector(AnomalyConfig(method="median"))
+    assert default.method.z_max == 8.0 and default._layer_z_max() == 6.0
+    assert AnomalyDetector(AnomalyConfig(method="median", layer_z_max=3.0))._layer_z_max() == 3.0
+    assert AnomalyDetector(AnomalyConfig(method="mog2", layer_z_max=3.0))._layer_z_max() is None
+    assert AnomalyConfig().memory_weight == 1.5 and AnomalyMapConfig().half_life_s == 0.75
+    for bad in (0.0, -1.0, float("nan")):
+        with pytest.raises(ValueError, match="layer_z_max"):
+            AnomalyConfig(layer_z_max=bad)
+    with pytest.raises(ValueError, match="memory_weight"):
+        AnomalyConfig(memory_weight=-0.5)
+
+
 def test_layer_tiles_hold_the_heat_on_the_shared_grid():
     layer = AnomalyMap()
     assert layer.tiles() == [] and layer.classes == []
