@@ -202,6 +202,7 @@ class AnomalyDetector:
         layer = None
         if pose is not None:
             row = cut_row(camera, pose, cfg.map.max_range_m, cfg.map.horizon_margin_deg)
+        first = min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))  # the cut in heat rows
         if pose is not None and cfg.use_memory:
             g = None
             if self.registration is not None:
@@ -209,12 +210,11 @@ class AnomalyDetector:
             self.map.update(heat, camera, pose, t, g)
             scores = layer = self.map.image_scores(camera, pose, heat.shape, g)
             if cfg.memory_weight is not None:
-                first = min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))
                 scores = combine_scores(heat, layer, first, cfg.memory_weight,
                                         self._layer_z_max() if cfg.normalise_layer else None)
         else:
             scores = heat.copy()
-            scores[:min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))] = 0.0
+            scores[:first] = 0.0
         boxes, peaks = extract_rois(scores, cfg.roi_threshold, max_rois=cfg.max_rois, dilate_px=cfg.roi_dilate_px,
                                     full_size=(camera.width, camera.height))
         return AnomalyFrame(scores, boxes, peaks, heat, row, layer)

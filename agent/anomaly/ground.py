@@ -277,10 +277,10 @@ class AnomalyMap:
                               interpolation=cv2.INTER_LINEAR)
         sx, sy = band.shape[1] / camera.width, band.shape[0] / ((hh - first) * camera.height / hh)
         y0 = first * camera.height / hh  # full-resolution row of the band's top edge
-        band = cell_mean(band, np.diag([sx, sy, 1.0]) @ _translate(0.0, -y0) @ c2i)
+        cell_to_band = np.diag([sx, sy, 1.0]) @ _translate(0.0, -y0) @ c2i
+        band = cell_mean(band, cell_to_band)
         # block index (x, y) -> cell centre -> image pixel -> band array index (pixel centres at integers)
-        block_to_band = (_translate(-0.5, -0.5) @ np.diag([sx, sy, 1.0]) @ _translate(0.0, -y0) @ c2i
-                         @ _translate(c0 + 0.5, r0 + 0.5))
+        block_to_band = _translate(-0.5, -0.5) @ cell_to_band @ _translate(c0 + 0.5, r0 + 0.5)
         size = (c1 - c0, r1 - r0)
         warped = cv2.warpPerspective(band, block_to_band, size, flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                      borderMode=cv2.BORDER_CONSTANT)
