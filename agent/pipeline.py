@@ -288,7 +288,11 @@ class DetectionPipeline:
                 for cid in strong_classes:
                     sel = scid == cid
                     patches[sel] = self.memory.patches(self.class_names[cid], sx[sel], sy[sel], radius)
-            dx, dy, support = register_offset(patches, c[strong])
+            near = None
+            if s.local_m > 0:  # around the current correction first (cells; y grows southward)
+                east, north = est.current_en
+                near = (east / cell_m, -north / cell_m, s.local_m / cell_m)
+            dx, dy, support = register_offset(patches, c[strong], near=near, near_support=s.min_support)
             if support >= s.min_support:
                 measurement = (dx * cell_m, -dy * cell_m)
         corr = est.update(t, measurement, int(len(strong)), support)

@@ -81,10 +81,11 @@ class PipelineConfig:
     correct_telemetry: before boosting and stamping, register the frame's confident boxes to the memory
         map and move all its ground points by the common offset found (agent.telemetry_correction; needs
         use_memory). correction_min_score, correction_search_m, correction_min_points,
-        correction_min_support, correction_smoothing_s, correction_hold_s: its settings
+        correction_min_support, correction_smoothing_s, correction_hold_s, correction_local_m: its settings
         (CorrectionSettings: the detector score that registers, the largest offset searched around the
-        last correction, the boxes and mean evidence a measurement needs, the smoothing time constant and
-        how long a correction is held without measurements).
+        last correction, the boxes and mean evidence a measurement needs, the smoothing time constant,
+        how long a correction is held without measurements, and the radius around the current correction
+        searched first).
 
     estimate_clock_offset: the frame drivers of tracking (`uavmm track`, the tracking evaluations) estimate
         the video/telemetry clock offset online from the confident detections and give the pipeline and the
@@ -182,6 +183,7 @@ class PipelineConfig:
     correction_min_support: float = 0.3
     correction_smoothing_s: float = 0.0
     correction_hold_s: float = 2.0
+    correction_local_m: float = 0.0
     estimate_clock_offset: bool = True
     clock_offset_fallback_s: float = 0.05
     clock_offset_search_s: float = 1.0
@@ -234,7 +236,8 @@ class PipelineConfig:
         """The telemetry correction's settings (agent.telemetry_correction)."""
         return CorrectionSettings(min_score=self.correction_min_score, search_m=self.correction_search_m,
                                   min_points=self.correction_min_points, min_support=self.correction_min_support,
-                                  smoothing_s=self.correction_smoothing_s, hold_s=self.correction_hold_s)
+                                  smoothing_s=self.correction_smoothing_s, hold_s=self.correction_hold_s,
+                                  local_m=self.correction_local_m)
 
     @property
     def joint_scale(self) -> float:

@@ -32,6 +32,13 @@ class CorrectionSettings:
     hold_s: without a measurement, the last correction is held this long, then decays to 0 (raw
         telemetry) with the same time constant.
     max_points: at most this many detections (the most confident) register.
+    local_m: the offset is first searched within this many metres of the current correction; only when
+        the evidence there gives less than min_support is the whole search_m window searched (a GPS
+        step). Two objects some metres apart make an alias: the shift that lays one of them onto the
+        other's evidence can score as well as the true one in a frame where the other is faint, and the
+        correction jumped by it for single frames. 0 (default): the whole window every frame; 2 m halved
+        the tracker's id switches on sea-tele-gps4 when it tracked on corrected points, and cost 0.2 AP50
+        on the tuning domains (docs/memory-map.md).
     """
 
     min_score: float = 0.5
@@ -41,9 +48,10 @@ class CorrectionSettings:
     smoothing_s: float = 0.0
     hold_s: float = 2.0
     max_points: int = 16
+    local_m: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("min_score", "search_m", "min_support", "smoothing_s", "hold_s"):
+        for name in ("min_score", "search_m", "min_support", "smoothing_s", "hold_s", "local_m"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise ValueError(f"correction {name} must be a finite number >= 0, got {value!r}")
@@ -69,7 +77,9 @@ class GroundCorrection:
     support: float = 0.0
 
 
-def register_offset(patches: NDArray[np.float32], weights: NDArray) -> tuple[float, float, float]:
+def register_offset(patches: NDArray[np.float32], weights: NDArray, *,
+                    near: tuple[float, float, float] | None = None,
+                    near_support: float = 0.0) -> tuple[float, float, float]:
     """The shift that lays points onto evidence, from the evidence around each point.
 
     patches: (N, 2R+1, 2R+1) evidence around each point (row = y, col = x offset + R, cells);
@@ -77,6 +87,8 @@ def register_offset(patches: NDArray[np.float32], weights: NDArray) -> tuple[flo
     summed evidence is within 5 % of the best (a steadily seen object is a clipped plateau, so the
     centre of the top region, not its first maximum), in cells, and support = best summed evidence /
     sum of weights. (0, 0, 0) without evidence.
+    near: (dx, dy, r) cells: search the offsets within r of (dx, dy) first and keep that answer when its
+    support reaches near_support; otherwise (or when the disc lies outside the window) the whole window.
     """
     w = np.asarray(weights, dtype=np.float32).reshape(-1)
     total = float(w.sum())
@@ -85,10 +97,18 @@ def register_offset(patches: NDArray[np.float32], weights: NDArray) -> tuple[flo
     # np.tensordot(w, patches, axes=1) as the one matrix product it makes, without its ~10 us of set-up
     side = patches.shape[1]
     score = np.dot(w.reshape(1, -1), patches.reshape(len(w), -1)).reshape(side, side)  # (2R+1, 2R+1)
+    r = score.shape[0] // 2
+    if near is not None:
+        offsets = np.arange(-r, r + 1, dtype=np.float32)
+        disc = (offsets[None, :] - near[0]) ** 2 + (offsets[:, None] - near[1]) ** 2 <= near[2] ** 2
+        if disc.any():
+            local = np.where(disc, score, np.float32(0.0))
+            best = float(local.max())
+            if best > 0 and best / total >= near_support:
+                score = local
     best = float(score.max())
     if best <= 0:
         return 0.0, 0.0, 0.0
-    r = score.shape[0] // 2
     top = score - np.float32(0.95 * best)
     np.maximum(top, 0.0, out=top)
     offsets = np.arange(-r, r + 1, dtype=np.float32)

@@ -143,7 +143,9 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         (the video/telemetry clock offset applied, agent.clock_offset; frames without pose: NaN).
     registrations : list, optional
         One row per frame is appended: REGISTRATION_COLUMNS (the tracker's pose correction from its image
-        registration, `GpsTracker.last_correction`; zeros and registered False where none was found).
+        registration, `GpsTracker.last_correction`; registered True where this frame was registered, carried
+        True where the pending part of an earlier correction was applied instead (TrackerConfig.carry_correction),
+        zeros where neither).
 
     Returns
     -------
@@ -189,8 +191,10 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         counts["tracker_s"] += time.perf_counter() - t1
         if registrations is not None:
             c = tracker.last_correction
+            carried = tracker.last_correction_carried
             registrations.append((frame.image.id, frame.image.video_id, frame.image.frame_index,
-                                  *(round(v, 4) for v in (c or (0.0, 0.0, 0.0, 0.0))), c is not None))
+                                  *(round(v, 4) for v in (c or (0.0, 0.0, 0.0, 0.0))), c is not None and not carried,
+                                  carried))
         counts["frames"] += 1
         counts["frames_without_pose"] += frame.pose is None
         counts["detections"] += len(result)
@@ -337,7 +341,7 @@ CLOCK_OFFSET_COLUMNS = ("image_id", "video_id", "frame_index", "offset_s", "meas
 #: Columns of `uavmm track --registrations-out`: the pose correction the tracker's image registration
 #: applied to each frame's ground points (metres east/north, degrees heading/pitch).
 REGISTRATION_COLUMNS = ("image_id", "video_id", "frame_index", "east_m", "north_m", "heading_deg", "pitch_deg",
-                        "registered")
+                        "registered", "carried")
 
 
 def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path, out: str | Path,
@@ -398,7 +402,8 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
         _write_atomic(Path(registrations_path), ",".join(REGISTRATION_COLUMNS) + "\n"
                       + "".join(",".join(str(v) for v in row) + "\n" for row in registered))
         summary["registrations"] = str(registrations_path)
-    summary["frames_registered"] = sum(row[-1] for row in registered)
+    summary["frames_registered"] = sum(row[-2] for row in registered)
+    summary["frames_carried"] = sum(row[-1] for row in registered)
     applied = [row[3] for row in offsets if math.isfinite(row[3])]
     if applied:
         summary["clock_offset_median_s"] = round(statistics.median(applied), 3)

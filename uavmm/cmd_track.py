@@ -62,7 +62,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "video_id, frame_index, offset_s, measured)")
     p.add_argument("--registrations-out", type=Path, default=None, metavar="FILE.csv",
                    help="write the pose correction the tracker's image registration applied to each frame "
-                        "(image_id, video_id, frame_index, east_m, north_m, heading_deg, pitch_deg, registered)")
+                        "(image_id, video_id, frame_index, east_m, north_m, heading_deg, pitch_deg, registered, "
+                        "carried)")
     _add_pipeline_options(p)
     p.set_defaults(handler=run)
 
@@ -99,10 +100,10 @@ def run(args: argparse.Namespace) -> int:
     if "geojson" in summary:
         print(f"geojson: {summary['geojson_features']} features -> {summary['geojson']}")
     if "registrations" in summary:
-        print(f"registrations: {summary['frames_registered']} of {summary['frames']} frames -> "
-              f"{summary['registrations']}")
-    keys = ("rows", "frames", "frames_without_pose", "frames_registered", "reidentified", "pipeline_ms_per_frame",
-            "tracker_ms_per_frame",
+        print(f"registrations: {summary['frames_registered']} of {summary['frames']} frames "
+              f"({summary['frames_carried']} carried) -> {summary['registrations']}")
+    keys = ("rows", "frames", "frames_without_pose", "frames_registered", "frames_carried", "reidentified",
+            "pipeline_ms_per_frame", "tracker_ms_per_frame",
             "images_read", "images_missing", "appearance_ms_per_image", "seconds")
     print(", ".join(f"{k}={summary[k]}" for k in keys))
     return 0

@@ -217,6 +217,20 @@ class TrackerConfig:
         After a registered frame the tracks (and the re-ID memory) move toward the telemetry's frame by
         the offset, with this time constant (0: at once): a GPS step is followed in about this time, while
         white jitter is smoothed out of the tracks' positions.
+    carry_correction : bool
+        A frame the image cannot register (fewer than image_register_min_pairs pairs: the one confident
+        object of two, a detector that faded for a frame) keeps the part of the last registered correction
+        the tracks have not yet followed, and the tracks keep following it: the raw telemetry would put its
+        points as far from the tracks as that part (a 4-decimal GPS error of 7 m stays until the next GPS
+        step), where a neighbour's detection may be the nearer one. Not while the gimbal turns faster than
+        register_max_turn_deg_s.
+    use_pipeline_correction : bool
+        Track on the ground points as the pipeline corrected them by the memory map
+        (FrameResult.correction, PipelineConfig.correct_telemetry); False (default since 26 Nov 2026): take
+        that offset back off and work from the telemetry's own points, registered in the image only. The
+        map's correction jumps when two objects alias (one laid onto the other's evidence), and tracks that
+        follow the corrected frame (track_follow_s) and carry its corrections followed those jumps; the
+        telemetry's own frame jumps only at GPS steps.
     image_register_alone : bool
         When the image shows a single confirmed track, its one pair registers the frame (the object
         cannot tell its own motion from the telemetry's error; the image says it stayed).
@@ -322,6 +336,8 @@ class TrackerConfig:
     image_register_min_pairs: int = 2
     image_register_alone: bool = True
     track_follow_s: float = 0.5
+    carry_correction: bool = True
+    use_pipeline_correction: bool = False
     registered_floor_m: float = 0.2
     registered_error_scale: float = 0.3
     registered_scale_s: float = 1.0
@@ -348,6 +364,7 @@ class TrackerConfig:
             value = getattr(self, f.name)
             if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "register_tracks", "register_min_pairs",
                           "image_register", "image_register_min_pairs", "image_velocity", "image_register_alone",
+                          "carry_correction", "use_pipeline_correction",
                           "merge_keep_idle",
                           "class_motion", "default_motion",
                           "pair_max_cost", "exit_margin_px"):
@@ -371,7 +388,8 @@ class TrackerConfig:
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 1")
         for name in ("birth_on_raw", "use_appearance", "register_tracks", "image_register", "image_velocity",
-                     "image_register_alone", "merge_keep_idle"):
+                     "image_register_alone", "merge_keep_idle", "carry_correction",
+                     "use_pipeline_correction"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in ("appearance_ema", "image_velocity_ema"):

@@ -124,6 +124,10 @@ class GpsTracker:
         #: moved by (TrackerConfig.image_register), None when none was found.
         self.last_correction: tuple[float, float, float, float] | None = None
         self._correction = np.zeros(4)
+        #: What the tracks have not followed yet of the last registered correction (TrackerConfig.carry_correction).
+        self._pending = np.zeros(4)
+        #: True when the last frame's ground points were moved by that carried part (no registration of its own).
+        self.last_correction_carried = False
         self._log_scale = 0.0  # log of the smoothed residual scale of registered frames
         self._scale_t: float | None = None
         self._uav_en = (0.0, 0.0)
@@ -232,7 +236,11 @@ class GpsTracker:
             self._update_rates(pose, pose_t, t)
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
-            self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt)
+            undo = None
+            corr = getattr(result, "correction", None)
+            if not self.config.use_pipeline_correction and corr is not None:
+                undo = (float(corr.east_m), float(corr.north_m))
+            self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt, undo_en=undo)
             merge_duplicates(state, t)
             decay_unseen_quality(state, pose, camera)
 
@@ -244,15 +252,18 @@ class GpsTracker:
 
     # ----------------------------------------------------------------------------- stages
     def _frame_with_pose(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera,
-                         staleness_s: float, dt: float) -> None:
+                         staleness_s: float, dt: float, undo_en: tuple[float, float] | None = None) -> None:
         cfg = self.config
         state = self._state
         assert state.origin is not None
         geo = np.isfinite(dets.lat) & np.isfinite(dets.lon)
         dets.geo = geo
         anchored: tuple[float, float, float, float] | None = None
+        carried = False
         if geo.any():
             e, n = latlon_to_local(dets.lat[geo], dets.lon[geo], *state.origin)
+            if undo_en is not None:  # back to the telemetry's own ground points (use_pipeline_correction off)
+                e, n = e - undo_en[0], n - undo_en[1]
             uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
             rel_e, rel_n = e - uav_e, n - uav_n
             # The telemetry's heading is older than the frame: turn the ground points about the UAV
@@ -271,9 +282,13 @@ class GpsTracker:
             pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
             focal = math.sqrt(camera.fx * camera.fy)
             rel = np.column_stack([rel_e, rel_n])
+            self.last_correction_carried = False
             if cfg.image_register:
                 anchored = self._apply_image_registration(dets, t, geo, rel, pose, focal, heading_sd, pitch_sd)
                 if anchored is not None:
+                    self._uav_en = (uav_e, uav_n)
+                elif cfg.carry_correction and np.any(self._pending):
+                    carried = self._carry_correction(dets, geo, rel, pose)
                     self._uav_en = (uav_e, uav_n)
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
             if anchored is None and cfg.register_tracks \
@@ -335,6 +350,9 @@ class GpsTracker:
         if anchored is not None:
             self._height_m = pose.height_m
             self._follow_telemetry(dt)
+        elif carried:
+            self._height_m = pose.height_m
+            self._follow_telemetry(dt, carried=True)
 
     def _apply_image_registration(self, dets: FrameDetections, t: float, geo: NDArray[np.bool_], rel: FloatArray,
                                   pose: Pose, focal_px: float, heading_sd_deg: float,
@@ -416,16 +434,38 @@ class GpsTracker:
                                   cfg.gate_chi2, need, robust_scale=cfg.registered_scale_s > 0)
         return None if fit is None else (fit[0], fit[1], fit[3])
 
-    def _follow_telemetry(self, dt: float) -> None:
-        """Move the tracks and the re-ID memory toward the telemetry's frame by the frame's pose correction,
-        with time constant track_follow_s (what stays is measured again in the next frame)."""
+    def _carry_correction(self, dets: FrameDetections, geo: NDArray[np.bool_], rel: FloatArray, pose: Pose) -> bool:
+        """A frame the image could not register: move its ground points by what the tracks have not yet followed
+        of the last registered correction (`_pending`; TrackerConfig.carry_correction). The tracks sit that far
+        from the telemetry's frame, whatever this frame's telemetry says, so the raw points would miss them by
+        it (a 4-decimal GPS error of 7 m stays 7 m between two GPS steps). Not while the gimbal turns faster than
+        register_max_turn_deg_s (low-pass rate): then the angle part was the telemetry's lag, which does not
+        last. Returns True when applied."""
+        if not geo.any():
+            return False
+        if abs(self._heading_lp_rate_deg_s) > self.config.register_max_turn_deg_s:
+            return False  # a turning gimbal: the correction's angle part was the telemetry's lag, not lasting
+        dets.z[geo] += correction_jacobian(rel, pose.height_m) @ self._pending
+        out = (float(self._pending[0]), float(self._pending[1]), math.degrees(self._pending[2]),
+               math.degrees(self._pending[3]))
+        self.last_correction = out
+        self.last_offset_en = out[:2]
+        self.last_correction_carried = True
+        return True
+
+    def _follow_telemetry(self, dt: float, *, carried: bool = False) -> None:
+        """Move the tracks and the re-ID memory toward the telemetry's frame by the frame's pose correction
+        (carried: by the part of the last one still pending), with time constant track_follow_s (what stays
+        is measured again in the next frame, or carried to it)."""
         tau = self.config.track_follow_s
         gain = 1.0 if tau <= 0 else 1.0 - math.exp(-max(dt, 0.0) / tau)
+        base = self._pending if carried else self._correction
+        self._pending = (1.0 - gain) * base
         if gain <= 0:
             return
         state = self._state
         uav = np.asarray(self._uav_en)
-        p = gain * self._correction
+        p = gain * base
         if len(state.active):
             x = state.active.cols["x"]
             x[:, :2] -= correction_jacobian(x[:, :2] - uav, self._height_m) @ p

@@ -89,8 +89,33 @@ def test_register_offset_finds_the_centre_of_a_clipped_plateau() -> None:
     assert register_offset(np.zeros((2, 3, 3), np.float32), np.ones(2)) == (0.0, 0.0, 0.0)
 
 
+def test_register_offset_keeps_to_the_current_correction_over_an_alias() -> None:
+    """Two blobs: the true offset near the current correction (support 0.8) and an alias 9 cells away that
+    scores higher in this frame (1.0): searched near the current one first, the alias is not taken unless
+    nothing near it reaches the support asked for."""
+    r = 12
+    ys, xs = np.mgrid[-r:r + 1, -r:r + 1]
+
+    def blob(cx: float, cy: float, peak: float) -> np.ndarray:
+        return (peak * np.exp(-((xs - cx) ** 2 + (ys - cy) ** 2) / 2.0)).astype(np.float32)
+
+    patches = np.stack([blob(1, 0, 0.8) + blob(-8, 4, 1.0)])
+    dx, dy, support = register_offset(patches, np.ones(1))
+    assert (dx, dy) == pytest.approx((-8.0, 4.0), abs=0.3)  # the whole window: the alias wins
+    dx, dy, support = register_offset(patches, np.ones(1), near=(0.5, 0.0, 3.0), near_support=0.5)
+    assert (dx, dy) == pytest.approx((1.0, 0.0), abs=0.3) and support == pytest.approx(0.8, abs=0.02)
+    # nothing near the current correction reaches the support: a step, the whole window is searched
+    dx, dy, _ = register_offset(patches, np.ones(1), near=(0.5, 0.0, 3.0), near_support=0.9)
+    assert (dx, dy) == pytest.approx((-8.0, 4.0), abs=0.3)
+    # a disc outside the window is ignored
+    dx, dy, _ = register_offset(patches, np.ones(1), near=(40.0, 0.0, 3.0), near_support=0.5)
+    assert (dx, dy) == pytest.approx((-8.0, 4.0), abs=0.3)
+
+
 def test_settings_reject_bad_values() -> None:
     with pytest.raises(ValueError, match="search_m"):
         CorrectionSettings(search_m=-1.0)
+    with pytest.raises(ValueError, match="local_m"):
+        PipelineConfig(correction_local_m=float("nan"))
     with pytest.raises(ValueError, match="min_points"):
         PipelineConfig(correction_min_points=0)

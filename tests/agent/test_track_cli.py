@@ -186,12 +186,14 @@ def test_registrations_out_has_the_tracker_pose_correction_of_every_frame(data, 
     assert track(data, out, "--video-id", "1", "--registrations-out", str(csv)) == 0
     printed = capsys.readouterr().out
     lines = csv.read_text().splitlines()
-    assert lines[0] == "image_id,video_id,frame_index,east_m,north_m,heading_deg,pitch_deg,registered"
+    assert lines[0] == "image_id,video_id,frame_index,east_m,north_m,heading_deg,pitch_deg,registered,carried"
     rows = [line.split(",") for line in lines[1:]]
     assert [int(r[2]) for r in rows] == list(range(90))
     registered = [r for r in rows if r[7] == "True"]
-    assert f"registrations: {len(registered)} of 90 frames" in printed
+    carried = [r for r in rows if r[8] == "True"]
+    assert f"registrations: {len(registered)} of 90 frames ({len(carried)} carried)" in printed
     if TrackerConfig().image_register:
         assert len(registered) > 45  # a hover with people in view: most frames pair their boxes
         assert all(abs(float(r[3])) < 15 and abs(float(r[4])) < 15 for r in registered)
-    assert all(float(r[3]) == float(r[4]) == 0.0 for r in rows if r[7] == "False")
+    assert not any(r[7] == r[8] == "True" for r in rows)  # a frame is registered or carries, not both
+    assert all(float(r[3]) == float(r[4]) == 0.0 for r in rows if r[7] == r[8] == "False")

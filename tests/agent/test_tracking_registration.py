@@ -181,3 +181,43 @@ def test_a_lone_object_keeps_its_id_through_a_gps_step() -> None:
     assert len(ids(TrackerConfig())) == 1
     assert len(ids(TrackerConfig(image_register_alone=False, image_first_iou=0.3))) == 1
     assert len(ids(TrackerConfig(image_register_alone=False))) > 1
+
+
+def test_a_frame_the_image_cannot_register_keeps_the_pending_correction() -> None:
+    """Two people a GPS step apart; the reported position steps 7.4 m east, then one of them is missed for a
+    while. With one pair of two the frame cannot be registered: raw telemetry would lay the other person's
+    detection onto the missed one's track (the tracks have followed only part of the step yet). The
+    tracker carries what the tracks have not followed of the last correction instead."""
+    from agent.tracking import GpsTracker, TrackerConfig
+    from tests.agent.test_tracker import CAM, CLASSES, FPS, observe, pose_at
+
+    east, north = np.array([0.0, 7.4]), np.array([30.0, 30.0])
+
+    def run(config: TrackerConfig) -> tuple[list[set[int]], list[bool], list]:
+        tracker = GpsTracker(config, CLASSES)
+        ids: list[set[int]] = [set(), set()]
+        carried, corrections = [], []
+        for k in range(80):
+            step = 7.4 if k >= 20 else 0.0
+            reported = pose_at(east_m=step)
+            seen = [0] if 30 <= k < 42 else [0, 1]  # B missed for 0.4 s
+            result = observe(east[seen] + step, north[seen], reported)
+            outs = tracker.update(result, reported, 1.7e9 + k / FPS, CAM)
+            carried.append(tracker.last_correction_carried)
+            corrections.append(tracker.last_correction)
+            boxes = {tr.id: tr.box_xyxy for tr in outs if tr.confirmed and tr.matched}
+            for i, box in zip(seen, result.boxes_xyxy, strict=True):
+                ids[i].update(tid for tid, b in boxes.items() if np.allclose(b, box))
+        return ids, carried, corrections
+
+    ids, carried, corrections = run(TrackerConfig())
+    assert all(len(s) == 1 for s in ids) and ids[0] != ids[1], ids
+    # carried while the missed track is still expected in the image; then its one pair registers alone
+    assert not any(carried[:30]) and all(carried[30:34]) and not any(carried[43:])
+    # the carried part shrinks as the tracks follow the telemetry's frame (track_follow_s)
+    east_parts = [c[0] for c in corrections[30:42]]
+    assert -7.4 < east_parts[0] < 0 and all(b > a for a, b in zip(east_parts, east_parts[1:], strict=False))
+    ids_raw, carried_raw, _ = run(TrackerConfig(carry_correction=False))
+    assert not any(carried_raw)
+    # from raw telemetry both confirmed tracks miss the frame and are replaced by new ids
+    assert all(len(s) > 1 for s in ids_raw), ids_raw
