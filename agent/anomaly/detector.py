@@ -25,9 +25,12 @@ from agent.anomaly.registry import DEFAULT_METHOD, make_method
 from shared.geo import Camera, Pose, image_to_ground_homography, latlon_to_local
 from shared.tiles import TileGrid
 
-#: Robust z-score scale of the layer's boost (`AnomalyConfig.layer_z_max`), chosen on the tuning seeds 0 and 1 of
-#: sea and sea-hard (docs/anomaly.md).
+#: Robust z-score scale of the layer's boost (`AnomalyConfig.layer_z_max`, the "sum" rule), chosen on the tuning
+#: seeds 0 and 1 of sea and sea-hard (docs/anomaly.md).
 LAYER_Z_MAX = 6.0
+#: How the ground layer enters a frame's scores (`AnomalyConfig.combine`): "min" (`agree_scores`), "sum"
+#: (`combine_scores`).
+COMBINE_RULES = ("min", "sum")
 
 
 @dataclass(frozen=True, slots=True)
@@ -40,20 +43,29 @@ class AnomalyConfig:
     roi_threshold: score a pixel needs to belong to a region of interest.
     max_rois: regions kept per frame (highest peaks first).
     roi_dilate_px: regions closer than this (working pixels) merge.
-    memory_weight: how the layer enters the frame's scores, as the memory map boosts detections (c + w p):
-        scores = (heat + w * layer) / (1 + w), so the frame keeps its own sharp peaks and what persisted on
-        the ground is raised; None uses the layer alone (the paper's "replace the 2D heat map"). 1.5 since
-        26 Nov 2026 (1 before; docs/anomaly.md, sea-hard).
-    normalise_layer: before it is added, the layer read back into the frame is put on the heat's own scale: its
-        robust z-score over the mapped band (median and MAD of this frame's layer), mapped by
-        tanh(z / layer_z_max) as the method maps its residuals (`agent.anomaly.methods.normalise_robust`;
-        methods whose heat is not such a z-score, MOG2's foreground probability, keep the raw layer). Averaging
-        over frames shrinks the layer's noise (the water) more than a steady object's heat; measured against its
-        own noise, the steady object stands out as far as it does in the average, not at the heat's scale.
-        False: the raw layer (mean heat), as before 26 Nov 2026.
-    layer_z_max: the z-score scale of that boost. Smaller than the heat's own (8): a faint object the layer keeps
-        a few robust deviations above the water is raised more, the strongest ones saturate sooner. LAYER_Z_MAX
-        since 26 Nov 2026 (the method's z_max, 8, before).
+    combine: how the layer read back into the frame enters its scores (`COMBINE_RULES`):
+        "min" (default since 26 Nov 2026, `agree_scores`): scores = min(heat, layer), both on the heat's own
+        scale, i.e. tanh(min(z_frame, z_layer) / z_max): a pixel scores as far as both this frame and the ground
+        memory put it above their own noise. A glint or a whitecap of this frame alone (the layer does not keep
+        it) and a ghost the layer keeps where the frame sees nothing (misregistration, an object that left) are
+        both capped by the other; an object that is in the frame and stayed put keeps its heat. Chosen on the
+        tuning seeds 0 and 1 of sea and sea-hard over "sum" (every method's AR and R@5% gain rose there;
+        docs/anomaly.md, "Min rule"); it has no parameter: memory_weight and layer_z_max do not enter it.
+        "sum" (`combine_scores`, the rule before): (heat + w * boost) / (1 + w), boost on layer_z_max's scale.
+    memory_weight: the "sum" rule's weight w, as the memory map boosts detections (c + w p): the frame keeps its
+        own sharp peaks and what persisted on the ground is raised. 1.5 since 26 Nov 2026 (1 before). None, with
+        either rule: the layer alone (the paper's "replace the 2D heat map").
+    normalise_layer: before it is combined, the layer read back into the frame is put on the heat's own scale: its
+        robust z-score over the mapped band (median and MAD of this frame's layer), mapped by tanh(z / z_max) as
+        the method maps its residuals (`agent.anomaly.methods.normalise_robust`; z_max is the method's own for
+        "min" and layer_z_max for "sum"; methods whose heat is not such a z-score, MOG2's foreground probability,
+        keep the raw layer, already on their heat's scale). Averaging over frames shrinks the layer's noise (the
+        water) more than a steady object's heat; measured against its own noise, the steady object stands out as
+        far as it does in the average, not at the heat's scale. False: the raw layer (mean heat), as before
+        26 Nov 2026.
+    layer_z_max: the z-score scale of the "sum" rule's boost. Smaller than the heat's own (8): a faint object the
+        layer keeps a few robust deviations above the water is raised more, the strongest ones saturate sooner.
+        LAYER_Z_MAX since 26 Nov 2026 (the method's z_max, 8, before).
     register: place the frames on the ground with `GroundRegistration` (telemetry made consistent by image
         alignment) instead of the telemetry alone.
     """
@@ -62,6 +74,7 @@ class AnomalyConfig:
     method_options: dict[str, Any] = field(default_factory=dict)
     use_memory: bool = True
     map: AnomalyMapConfig = field(default_factory=AnomalyMapConfig)
+    combine: str = "min"
     roi_threshold: float = 0.3
     max_rois: int = 100
     roi_dilate_px: int = 2
@@ -71,6 +84,8 @@ class AnomalyConfig:
     register: bool = True
 
     def __post_init__(self) -> None:
+        if self.combine not in COMBINE_RULES:
+            raise ValueError(f"AnomalyConfig.combine must be one of {', '.join(COMBINE_RULES)}, got {self.combine!r}")
         if not (math.isfinite(self.roi_threshold) and 0 < self.roi_threshold < 1):
             raise ValueError(f"AnomalyConfig.roi_threshold must be in (0, 1), got {self.roi_threshold!r}")
         if self.max_rois < 1:
@@ -147,6 +162,27 @@ def combine_scores(heat: NDArray[np.float32], layer: NDArray[np.float32], first_
     return ((cut + w * boost) / (1 + w)).astype(np.float32, copy=False)
 
 
+def agree_scores(heat: NDArray[np.float32], layer: NDArray[np.float32], first_row: int,
+                 z_max: float | None = DEFAULT_Z_MAX) -> NDArray[np.float32]:
+    """A frame's scores as far as its heat and the ground layer read back into it agree: min(heat, boost).
+
+    heat, layer: (h, w) float32 in [0, 1], same shape; rows above first_row (the cut) score 0. boost is the
+    layer's robust z-score over the rows from first_row on, mapped by tanh(z / z_max) (`normalise_robust`), with
+    z_max the scale of the heat's own z-scores, so the result is tanh(min(z_heat, z_layer) / z_max); z_max None:
+    the layer as it is (a heat that is not a z-score, on the layer's scale already). Returns (h, w) float32 in
+    [0, 1], never above the heat.
+    """
+    first = min(max(int(first_row), 0), heat.shape[0])
+    boost = layer
+    if z_max is not None and first < heat.shape[0]:
+        band = np.zeros(heat.shape, dtype=bool)
+        band[first:] = True
+        boost = normalise_robust(layer, z_max, band)
+    out = np.minimum(heat, boost).astype(np.float32, copy=False)
+    out[:first] = 0.0
+    return out
+
+
 class AnomalyDetector:
     """Heatmaps, the ground layer and regions of interest for a sequence of frames (one video).
 
@@ -190,6 +226,12 @@ class AnomalyDetector:
         z_max = getattr(self.method, "z_max", None)
         return self.config.layer_z_max if isinstance(z_max, int | float) and z_max > 0 else None
 
+    def _heat_z_max(self) -> float | None:
+        """The z-score scale of the method's own heat (its z_max), or None for a heat that is not a robust z-score
+        (MOG2): the scale the "min" rule puts the layer on."""
+        z_max = getattr(self.method, "z_max", None)
+        return float(z_max) if isinstance(z_max, int | float) and z_max > 0 else None
+
     def process(self, image: NDArray[np.uint8], pose: Pose | None, t: float, camera: Camera) -> AnomalyFrame:
         """One frame: (H, W, 3) uint8 BGR with its pose (None: no ground help) at time t (s)."""
         if (image.shape[1], image.shape[0]) != (camera.width, camera.height):
@@ -209,7 +251,9 @@ class AnomalyDetector:
                 g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row, t), pose)
             self.map.update(heat, camera, pose, t, g)
             scores = layer = self.map.image_scores(camera, pose, heat.shape, g)
-            if cfg.memory_weight is not None:
+            if cfg.memory_weight is not None and cfg.combine == "min":
+                scores = agree_scores(heat, layer, first, self._heat_z_max() if cfg.normalise_layer else None)
+            elif cfg.memory_weight is not None:
                 scores = combine_scores(heat, layer, first, cfg.memory_weight,
                                         self._layer_z_max() if cfg.normalise_layer else None)
         else:

@@ -194,6 +194,62 @@ def test_the_layer_boost_uses_its_own_z_scale_not_the_heats():
         AnomalyConfig(memory_weight=-0.5)
 
 
+def test_the_min_rule_keeps_what_the_frame_and_the_layer_agree_on():
+    """combine="min": a pixel scores min(heat, tanh(z_layer / 8)) = tanh(min(z_heat, z_layer) / 8). A steady object
+    (in the frame and in the layer) keeps its heat; a glint of this frame alone (the layer hardly keeps it) and a
+    ghost the layer keeps where the frame sees nothing are each capped by the other; nothing scores above its heat
+    and the rows above the cut score 0. The raw layer (z_max None, MOG2) is taken as it is."""
+    from agent.anomaly.detector import agree_scores
+
+    rng = np.random.default_rng(1)
+    heat = (rng.random((90, 160)) * 0.3).astype(np.float32)
+    layer = (0.05 + rng.normal(0, 0.01, (90, 160))).astype(np.float32)
+    heat[60, 40], layer[60, 40] = 0.8, 0.4  # steady object: 35 robust deviations above the layer's water
+    heat[70, 120], layer[70, 120] = 0.95, 0.06  # glint: ~1 robust deviation in the layer
+    heat[30, 80], layer[30, 80] = 0.05, 0.4  # ghost: the layer keeps it, this frame does not see it
+    heat[10, 10], layer[10, 10] = 0.9, 0.4  # above the cut
+    scores = agree_scores(heat, layer, 20)
+    assert scores.dtype == np.float32 and scores.shape == heat.shape
+    assert scores[:20].max() == 0.0
+    assert np.all(scores[20:] <= heat[20:])
+    assert scores[60, 40] == pytest.approx(0.8)  # tanh(35 / 8) ~ 1 > 0.8: the frame's heat is what both agree on
+    assert scores[70, 120] < 0.2 and scores[30, 80] == pytest.approx(0.05)
+    assert scores[60, 40] > 3 * max(scores[70, 120], scores[30, 80])
+    band = np.zeros(heat.shape, bool)
+    band[20:] = True
+    assert np.allclose(scores, np.where(band, np.minimum(heat, normalise_robust(layer, 8.0, band)), 0.0))
+    raw = agree_scores(heat, layer, 20, None)
+    assert raw[60, 40] == pytest.approx(0.4) and raw[70, 120] == pytest.approx(0.06) and raw[:20].max() == 0.0
+
+
+def test_the_detector_combines_heat_and_layer_by_the_configured_rule():
+    """The default rule is "min" on the method's own z scale (MOG2: the raw layer); "sum" is the weighted boost of
+    before; an unknown rule is refused, naming the valid ones."""
+    from agent.anomaly.detector import COMBINE_RULES, agree_scores, combine_scores
+
+    assert AnomalyConfig().combine == "min" and COMBINE_RULES == ("min", "sum")
+    with pytest.raises(ValueError, match="combine must be one of min, sum, got 'max'"):
+        AnomalyConfig(combine="max")
+    assert AnomalyDetector(AnomalyConfig(method="median"))._heat_z_max() == 8.0
+    assert AnomalyDetector(AnomalyConfig(method="mog2"))._heat_z_max() is None
+    frames = [_with_blob(_sea(i), 300, 200) for i in range(3)]
+    outs = {}
+    for rule in COMBINE_RULES:
+        det = AnomalyDetector(AnomalyConfig(method="median", combine=rule, method_options={"work_width": 320}))
+        for i, frame in enumerate(frames):
+            outs[rule] = det.process(frame, POSE, i / 10, CAM)
+    first = int(np.ceil(outs["min"].cut_row * outs["min"].heat.shape[0] / CAM.height))
+    for rule, expected in (("min", agree_scores(outs["min"].heat, outs["min"].layer, first, 8.0)),
+                           ("sum", combine_scores(outs["sum"].heat, outs["sum"].layer, first, 1.5, 6.0))):
+        out = outs[rule]
+        assert out.layer is not None
+        np.testing.assert_allclose(out.scores, expected, atol=1e-6)
+        assert out.scores[150, 100] > 0.5  # the blob (300, 200 full resolution) is in the frame and stayed put
+    alone = AnomalyDetector(AnomalyConfig(method="median", memory_weight=None, method_options={"work_width": 320}))
+    out = alone.process(frames[0], POSE, 0.0, CAM)
+    assert out.layer is not None and np.array_equal(out.scores, out.layer)  # None: the layer alone, either rule
+
+
 def test_layer_tiles_hold_the_heat_on_the_shared_grid():
     layer = AnomalyMap()
     assert layer.tiles() == [] and layer.classes == []
