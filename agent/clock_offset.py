@@ -321,7 +321,7 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
         off = est.offset_at(fr.t)
         heading, pitch = track.at(fr.t + off.offset_s)
         pose = Pose(fr.pose.lat, fr.pose.lon, fr.pose.height_m, min(max(pitch, 0.0), 90.0), heading, fr.pose.roll_deg)
-        out.append((replace(fr, pose=pose, pose_t=fr.t), off))
+        out.append((replace(fr, pose=pose, pose_t=fr.t, pose_retimed=True), off))
         uav = np.array([float(v) for v in latlon_to_local(fr.pose.lat, fr.pose.lon, *origin)])
         est.add(fr.t, frame_points(fr, *candidates(fr), settings), uav, fr.pose.heading_deg)
     return out

@@ -246,6 +246,9 @@ class Frame:
     t: float
     camera: Camera
     pose_t: float | None = None  # time of the telemetry sample behind the pose (may lag t)
+    #: The pose was interpolated at the frame's time by the clock-offset estimate (agent.clock_offset): it
+    #: needs no latency compensation (GpsTracker.update(pose_retimed=True)).
+    pose_retimed: bool = False
 
 
 def frame_pose(image: ImageRecord) -> tuple[Pose | None, float | None, str | None]:

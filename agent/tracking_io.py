@@ -187,7 +187,8 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         t1 = time.perf_counter()
         t = max(frame_time_s(frame), t_prev)
         t_prev = t
-        tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t)
+        tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t,
+                                pose_retimed=frame.pose_retimed)
         counts["tracker_s"] += time.perf_counter() - t1
         if registrations is not None:
             c = tracker.last_correction

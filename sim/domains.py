@@ -170,6 +170,10 @@ _DOMAIN_LIST = (
            "clutter", "tune", "gentle", "grass", _GENTLE_GRASS,
            noise={"gps_decimals": 4, "time_offset_s": 0.2}, emulator={**_MORE_PARTS, **_MORE_CLUTTER_EMU},
            world={"n_clutter": 5}),
+    # Added in the fourth round (issue 15): tele camera on heading sweeps, in a combination no held-out
+    # domain has (grass, per-frame jitter, default detector).
+    Domain("grass-sweeps-tele", "grass, heading sweeps with a 4K tele camera, per-frame jitter at 30 fps",
+           "tune", "sweeps", "grass", _TELE_SWEEPS, camera="4k-tele", noise={**_JITTER, "telemetry_hz": 30.0}),
     # ---------------------------------------------------------------- held-out domains
     Domain("grass-tele-clutter", "grass, gentle flights with a 4K tele camera, per-frame jitter, 5-decimal "
            "GPS, over-confident detector, persistent clutter at fixed ground spots, 1 % frames without meta",

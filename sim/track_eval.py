@@ -182,7 +182,8 @@ def run_tracker_on_frames(frames: list[tuple[Frame, FrameResult, float]], varian
     elif variant.kind == "gps":
         tracker = GpsTracker(variant.tracker, class_names)
         for frame, result, t in frames:
-            tracks = tracker.report(tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t))
+            tracks = tracker.report(tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t,
+                                                   pose_retimed=frame.pose_retimed))
             seq.frames[frame.image.frame_index] = (
                 np.array([tr.id for tr in tracks], dtype=np.int64),
                 np.array([tr.box_xyxy for tr in tracks], dtype=np.float64).reshape(-1, 4),

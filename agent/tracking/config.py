@@ -115,6 +115,8 @@ class TrackerConfig:
     telemetry_latency_s, max_heading_correction_deg : float
         How much older the telemetry is than its stamp (s): while the gimbal turns, ground points are
         turned about the UAV by rate * (frame time - pose time + latency), at most this many degrees.
+        Not for poses re-timed by the clock-offset estimate (`GpsTracker.update(pose_retimed=True)`):
+        their heading is already interpolated at the frame's time.
     timing_sigma_s : float
         Timing error left after that (s): the heading and pitch errors grow by turn rate * it.
 
