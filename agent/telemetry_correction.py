@@ -98,8 +98,8 @@ def register_offset(patches: NDArray[np.float32], weights: NDArray, *,
     side = patches.shape[1]
     score = np.dot(w.reshape(1, -1), patches.reshape(len(w), -1)).reshape(side, side)  # (2R+1, 2R+1)
     r = score.shape[0] // 2
+    offsets = np.arange(-r, r + 1, dtype=np.float32)
     if near is not None:
-        offsets = np.arange(-r, r + 1, dtype=np.float32)
         disc = (offsets[None, :] - near[0]) ** 2 + (offsets[:, None] - near[1]) ** 2 <= near[2] ** 2
         if disc.any():
             local = np.where(disc, score, np.float32(0.0))
@@ -111,7 +111,6 @@ def register_offset(patches: NDArray[np.float32], weights: NDArray, *,
         return 0.0, 0.0, 0.0
     top = score - np.float32(0.95 * best)
     np.maximum(top, 0.0, out=top)
-    offsets = np.arange(-r, r + 1, dtype=np.float32)
     mass = float(top.sum())
     return float(top.sum(axis=0) @ offsets / mass), float(top.sum(axis=1) @ offsets / mass), best / total
 

@@ -142,6 +142,16 @@ def extract_rois(scores: NDArray[np.float32], threshold: float, *, max_rois: int
     return boxes.astype(np.float32), peaks[order]
 
 
+def _layer_boost(layer: NDArray[np.float32], first: int, z_max: float | None) -> NDArray[np.float32]:
+    """The layer on the heat's scale: its robust z-score over the rows from first on, mapped by tanh(z / z_max)
+    (`normalise_robust`); the layer as it is when z_max is None or no row is mapped."""
+    if z_max is None or first >= layer.shape[0]:
+        return layer
+    band = np.zeros(layer.shape, dtype=bool)
+    band[first:] = True
+    return normalise_robust(layer, z_max, band)
+
+
 def combine_scores(heat: NDArray[np.float32], layer: NDArray[np.float32], first_row: int, weight: float,
                    z_max: float | None = DEFAULT_Z_MAX) -> NDArray[np.float32]:
     """A frame's scores from its heat and the ground layer read back into it: (heat + w * boost) / (1 + w).
@@ -153,11 +163,7 @@ def combine_scores(heat: NDArray[np.float32], layer: NDArray[np.float32], first_
     first = min(max(int(first_row), 0), heat.shape[0])
     cut = heat.copy()
     cut[:first] = 0.0
-    boost = layer
-    if z_max is not None and first < heat.shape[0]:
-        band = np.zeros(heat.shape, dtype=bool)
-        band[first:] = True
-        boost = normalise_robust(layer, z_max, band)
+    boost = _layer_boost(layer, first, z_max)
     w = np.float32(weight)
     return ((cut + w * boost) / (1 + w)).astype(np.float32, copy=False)
 
@@ -173,12 +179,7 @@ def agree_scores(heat: NDArray[np.float32], layer: NDArray[np.float32], first_ro
     [0, 1], never above the heat.
     """
     first = min(max(int(first_row), 0), heat.shape[0])
-    boost = layer
-    if z_max is not None and first < heat.shape[0]:
-        band = np.zeros(heat.shape, dtype=bool)
-        band[first:] = True
-        boost = normalise_robust(layer, z_max, band)
-    out = np.minimum(heat, boost).astype(np.float32, copy=False)
+    out = np.minimum(heat, _layer_boost(layer, first, z_max)).astype(np.float32, copy=False)
     out[:first] = 0.0
     return out
 
@@ -223,8 +224,7 @@ class AnomalyDetector:
         """The z-score scale of the layer's boost (`AnomalyConfig.layer_z_max`) for a method whose heat is a robust
         z-score (it has a z_max), or None for one whose heat is not (MOG2's foreground probability: its layer is
         already on the heat's scale)."""
-        z_max = getattr(self.method, "z_max", None)
-        return self.config.layer_z_max if isinstance(z_max, int | float) and z_max > 0 else None
+        return self.config.layer_z_max if self._heat_z_max() is not None else None
 
     def _heat_z_max(self) -> float | None:
         """The z-score scale of the method's own heat (its z_max), or None for a heat that is not a robust z-score
@@ -251,9 +251,11 @@ class AnomalyDetector:
                 g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row, t), pose)
             self.map.update(heat, camera, pose, t, g)
             scores = layer = self.map.image_scores(camera, pose, heat.shape, g)
-            if cfg.memory_weight is not None and cfg.combine == "min":
+            if cfg.memory_weight is None:
+                pass  # the layer alone
+            elif cfg.combine == "min":
                 scores = agree_scores(heat, layer, first, self._heat_z_max() if cfg.normalise_layer else None)
-            elif cfg.memory_weight is not None:
+            else:
                 scores = combine_scores(heat, layer, first, cfg.memory_weight,
                                         self._layer_z_max() if cfg.normalise_layer else None)
         else:

@@ -242,9 +242,8 @@ class GpsTracker:
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
             undo = None
-            corr = getattr(result, "correction", None)
-            if not self.config.use_pipeline_correction and corr is not None:
-                undo = (float(corr.east_m), float(corr.north_m))
+            if not self.config.use_pipeline_correction and result.correction is not None:
+                undo = (float(result.correction.east_m), float(result.correction.north_m))
             self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt, undo_en=undo,
                                   latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s)
             merge_duplicates(state, t)
@@ -292,10 +291,9 @@ class GpsTracker:
             self.last_correction_carried = False
             if cfg.image_register:
                 anchored = self._apply_image_registration(dets, t, geo, rel, pose, focal, heading_sd, pitch_sd)
-                if anchored is not None:
-                    self._uav_en = (uav_e, uav_n)
-                elif cfg.carry_correction and np.any(self._pending):
+                if anchored is None and cfg.carry_correction and np.any(self._pending):
                     carried = self._carry_correction(dets, geo, rel, pose)
+                if anchored is not None or carried:
                     self._uav_en = (uav_e, uav_n)
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
             if anchored is None and cfg.register_tracks \
@@ -354,12 +352,9 @@ class GpsTracker:
             birth(state, dets, cand, t)
         if cfg.reid_delay_s > 0:
             reid.resolve_pending(state, t)
-        if anchored is not None:
+        if anchored is not None or carried:
             self._height_m = pose.height_m
-            self._follow_telemetry(dt)
-        elif carried:
-            self._height_m = pose.height_m
-            self._follow_telemetry(dt, carried=True)
+            self._follow_telemetry(dt, carried=carried)
 
     def _apply_image_registration(self, dets: FrameDetections, t: float, geo: NDArray[np.bool_], rel: FloatArray,
                                   pose: Pose, focal_px: float, heading_sd_deg: float,
@@ -448,8 +443,6 @@ class GpsTracker:
         it (a 4-decimal GPS error of 7 m stays 7 m between two GPS steps). Not while the gimbal turns faster than
         register_max_turn_deg_s (low-pass rate): then the angle part was the telemetry's lag, which does not
         last. Returns True when applied."""
-        if not geo.any():
-            return False
         if abs(self._heading_lp_rate_deg_s) > self.config.register_max_turn_deg_s:
             return False  # a turning gimbal: the correction's angle part was the telemetry's lag, not lasting
         dets.z[geo] += correction_jacobian(rel, pose.height_m) @ self._pending
