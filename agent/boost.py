@@ -14,7 +14,8 @@ import time
 from pathlib import Path
 from typing import Any
 
-from agent.dataset import Candidates, Dataset, iter_video_frames, read_json
+from agent.clock_offset import ClockOffset, video_frames
+from agent.dataset import Candidates, Dataset, read_json
 from agent.frame_result import FrameResult
 from agent.memory_map import MemoryMapConfig
 from agent.params_file import is_params, split_params
@@ -90,23 +91,36 @@ def load_params(path: str | Path | None,
 
 def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, config: PipelineConfig,
                  size_filter: SizeFilter | None = None, *, video_ids: list[int] | None = None,
-                 on_frame=None) -> dict[str, Any]:
+                 on_frame=None, clock_offsets: dict[int, ClockOffset] | None = None) -> dict[str, Any]:
     """Run the pipeline over every video; on_frame(frame, result) is called per frame.
 
-    Returns counts: frames, frames_without_pose, candidates, size_filtered, detections, seconds, and the
+    With config.estimate_clock_offset (the default) each video's poses are first re-timed by the online
+    video/telemetry clock-offset estimate (agent.clock_offset.video_frames), as `uavmm track` does, so the
+    boxes are stamped and boosted where the camera looked when the frame was taken.
+
+    Returns counts: frames, frames_without_pose, candidates, size_filtered, detections, seconds, the
     telemetry correction's: frames_corrected (frames whose offset was measured) and correction_median_m
-    (median length of the applied offsets; per frame in FrameResult.correction and the DEBUG log).
+    (median length of the applied offsets; per frame in FrameResult.correction and the DEBUG log), and,
+    when the clock offset is estimated, clock_offset_median_s and clock_offset_frames_measured (per frame
+    in ``clock_offsets``: a dict image id -> ClockOffset, filled when given).
     """
     stats = {"frames": 0, "frames_without_pose": 0, "candidates": 0, "size_filtered": 0, "detections": 0}
     problems: list[str] = []
     t0 = time.perf_counter()
     pipeline_time = 0.0
     corrections: list[float] = []
+    offsets: list[ClockOffset] = []
     for video_id in video_ids if video_ids is not None else list(dataset.videos):
         if video_id not in dataset.videos:
             raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
         pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
-        for frame in iter_video_frames(dataset, camera, video_id, problems=problems):
+        retimed = video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings(),
+                               problems=problems)
+        for frame, offset in retimed:
+            if offset is not None:
+                offsets.append(offset)
+                if clock_offsets is not None:
+                    clock_offsets[frame.image.id] = offset
             if pipe.camera != frame.camera:
                 pipe.camera = frame.camera
             boxes, scores, cids = candidates.get(frame.image.id)
@@ -128,6 +142,9 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
     stats["frames_with_bad_meta"] = len(problems)
     if corrections:
         stats["correction_median_m"] = round(statistics.median(corrections), 3)
+    if offsets:
+        stats["clock_offset_median_s"] = round(statistics.median(o.offset_s for o in offsets), 3)
+        stats["clock_offset_frames_measured"] = sum(o.measured for o in offsets)
     stats["seconds"] = round(time.perf_counter() - t0, 3)
     stats["pipeline_ms_per_frame"] = round(1000 * pipeline_time / max(stats["frames"], 1), 3)
     return stats
@@ -145,7 +162,8 @@ def results_to_coco(image_id: int, result: FrameResult) -> list[dict[str, Any]]:
 
 
 #: Columns of `uavmm boost --corrections-out`: the telemetry correction applied to each frame.
-CORRECTION_COLUMNS = ("image_id", "video_id", "frame_index", "east_m", "north_m", "measured", "points", "support")
+CORRECTION_COLUMNS = ("image_id", "video_id", "frame_index", "east_m", "north_m", "measured", "points", "support",
+                      "clock_offset_s")
 
 
 def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path,
@@ -154,22 +172,27 @@ def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     """Load the three files, run, and return (COCO results, stats).
 
     corrections: when a list, one row per frame is appended (CORRECTION_COLUMNS; a frame without pose
-    or correction gets zeros and measured False).
+    or correction gets zeros and measured False; clock_offset_s: the video/telemetry clock offset its pose
+    was re-timed by, empty when the estimate is off or the frame has no pose).
     """
     dataset = Dataset.load(images_path)
     candidates = Candidates.load(candidates_path, dataset)
     camera = Camera.from_spec(camera_path)
     results: list[dict[str, Any]] = []
+    offsets: dict[int, ClockOffset] = {}
 
     def on_frame(frame, res: FrameResult) -> None:
         results.extend(results_to_coco(frame.image.id, res))
         if corrections is not None:
             c = res.correction
+            offset = offsets.get(frame.image.id)
             corrections.append((frame.image.id, frame.image.video_id, frame.image.frame_index,
                                 round(c.east_m, 3) if c else 0.0, round(c.north_m, 3) if c else 0.0,
-                                bool(c and c.measured), c.points if c else 0, round(c.support, 4) if c else 0.0))
+                                bool(c and c.measured), c.points if c else 0, round(c.support, 4) if c else 0.0,
+                                round(offset.offset_s, 4) if offset is not None else ""))
 
-    stats = run_pipeline(dataset, candidates, camera, config, size_filter, on_frame=on_frame)
+    stats = run_pipeline(dataset, candidates, camera, config, size_filter, on_frame=on_frame,
+                         clock_offsets=offsets)
     stats["skipped_candidates"] = candidates.skipped
     return results, stats
 

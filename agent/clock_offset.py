@@ -328,10 +328,12 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
 
 
 def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Candidates,
-                 settings: ClockOffsetSettings | None) -> list[tuple[Frame, ClockOffset | None]]:
-    """One video's frames (`iter_video_frames`), re-timed by the clock-offset estimate when settings are
-    given (`retime_frames`; its detections: the candidates), else as they are, with None."""
-    frames = list(iter_video_frames(dataset, camera, video_id))
+                 settings: ClockOffsetSettings | None, *,
+                 problems: list[str] | None = None) -> list[tuple[Frame, ClockOffset | None]]:
+    """One video's frames (`iter_video_frames`, which appends unusable meta to problems), re-timed by the
+    clock-offset estimate when settings are given (`retime_frames`; its detections: the candidates), else
+    as they are, with None."""
+    frames = list(iter_video_frames(dataset, camera, video_id, problems=problems))
     if settings is None:
         return [(f, None) for f in frames]
     return retime_frames(frames, lambda f: candidates.get(f.image.id), settings)

@@ -6,6 +6,7 @@ Argument parsing lives here; each handler imports its module lazily and calls a 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import importlib
 import logging
 import sys
@@ -147,6 +148,20 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
                             "(0.5; 0 = off)")
 
 
+def _add_clock_offset_flags(g: argparse._ArgumentGroup, *, fallback: str | None = None) -> None:
+    """--clock-offset / --no-clock-offset (dest clock_offset: None = the configuration's, on by default).
+
+    fallback: the flag that sets the offset used until it is measured, named in the help."""
+    clock = g.add_mutually_exclusive_group()
+    until = f"{fallback} is then its fallback" if fallback else "0.05 s until it is measured"
+    clock.add_argument("--clock-offset", dest="clock_offset", action="store_true", default=None,
+                       help="estimate the video/telemetry clock offset online from the detections and interpolate "
+                            f"the telemetry at frame time + offset ({until}; the default, see docs/tracking.md)")
+    clock.add_argument("--no-clock-offset", dest="clock_offset", action="store_false",
+                       help="use the telemetry at its own stamps"
+                            + (f" (turns are then compensated by {fallback} only)" if fallback else ""))
+
+
 def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
     from agent.boost import load_params
     from agent.size_filter import SizeFilter
@@ -161,8 +176,6 @@ def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
         "joint_carry_s": getattr(args, "joint_carry_s", None),
     }
     cfg, tuned_filter = load_params(args.pipeline_config, overrides)
-    import dataclasses
-
     cfg = dataclasses.replace(cfg, use_memory=use_memory and cfg.use_memory,
                               use_size_filter=cfg.use_size_filter and not args.no_size_filter,
                               joint_detections=cfg.joint_detections and not getattr(args, "no_joint_detections", False))
@@ -188,8 +201,9 @@ def _add_boost(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--no-memory", action="store_true", help="single-frame baseline: no boosting")
     p.add_argument("--corrections-out", type=Path, default=None, metavar="FILE.csv",
                    help="write the telemetry correction applied to each frame (east/north metres, measured or "
-                        "held) as CSV")
+                        "held) and the clock offset the frame's pose was re-timed by, as CSV")
     _add_pipeline_options(p)
+    _add_clock_offset_flags(p.add_argument_group("telemetry clock"))
     p.set_defaults(handler=_run_boost)
 
 
@@ -197,6 +211,8 @@ def _run_boost(args: argparse.Namespace) -> int:
     from agent.boost import boost_dataset, write_corrections, write_results
 
     cfg, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
+    if args.clock_offset is not None:  # else the configuration's (on by default)
+        cfg = dataclasses.replace(cfg, estimate_clock_offset=args.clock_offset)
     require_out_parent(args.out, args.corrections_out)
     corrections: list[tuple] | None = [] if args.corrections_out is not None else None
     results, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter,

@@ -10,7 +10,7 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from uavmm.cli import CliError, _add_pipeline_options, _pipeline_from_args
+from uavmm.cli import CliError, _add_clock_offset_flags, _add_pipeline_options, _pipeline_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -49,14 +49,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="minimum running detector score of a reported track (0.4)")
     g.add_argument("--telemetry-latency-s", type=float, default=None,
                    help="how much older the telemetry is than its stamp (0.05)")
-    clock = g.add_mutually_exclusive_group()
-    clock.add_argument("--clock-offset", dest="clock_offset", action="store_true", default=None,
-                       help="estimate the video/telemetry clock offset online from the detections and interpolate "
-                            "the telemetry at frame time + offset (--telemetry-latency-s is then its fallback; "
-                            "the default, see docs/tracking.md)")
-    clock.add_argument("--no-clock-offset", dest="clock_offset", action="store_false",
-                       help="use the telemetry at its own stamps (turns are then compensated by "
-                            "--telemetry-latency-s only)")
+    _add_clock_offset_flags(g, fallback="--telemetry-latency-s")
     p.add_argument("--clock-offsets-out", type=Path, default=None, metavar="FILE.csv",
                    help="write the clock offset applied to each frame (image_id, "
                         "video_id, frame_index, offset_s, measured)")

@@ -214,7 +214,51 @@ def test_boost_writes_the_per_frame_telemetry_correction(tmp_path):
     assert run_boost(d, "--corrections-out", str(out)) == 0
     rows = list(csv.DictReader(out.open()))
     assert [int(r["image_id"]) for r in rows] == list(range(1, 21))
-    assert set(rows[0]) == {"image_id", "video_id", "frame_index", "east_m", "north_m", "measured", "points", "support"}
+    assert set(rows[0]) == {"image_id", "video_id", "frame_index", "east_m", "north_m", "measured", "points", "support",
+                            "clock_offset_s"}
     # a steady scene with exact telemetry: whatever is applied stays small
     assert all(abs(float(r["east_m"])) < 1.0 and abs(float(r["north_m"])) < 1.0 for r in rows)
+    # the camera never turns: nothing to measure the clock offset on, every pose is re-timed by the fallback
+    assert {r["clock_offset_s"] for r in rows} == {"0.05"}
     assert run_boost(d, "--corrections-out", str(d / "missing" / "c.csv")) == 2
+
+
+def test_no_clock_offset_uses_the_telemetry_as_stamped(tmp_path, capsys):
+    import csv
+
+    d = make_dataset(tmp_path, frames=10)
+    out = d / "corrections.csv"
+    assert run_boost(d, "--no-clock-offset", "--corrections-out", str(out)) == 0
+    assert {r["clock_offset_s"] for r in csv.DictReader(out.open())} == {""}
+    assert "clock_offset_median_s" not in capsys.readouterr().out
+    with pytest.raises(SystemExit) as exc:  # one or the other
+        run_boost(d, "--clock-offset", "--no-clock-offset")
+    assert exc.value.code == 2
+    assert "not allowed with argument" in capsys.readouterr().err
+
+
+@pytest.fixture(scope="module")
+def late_telemetry(tmp_path_factory: pytest.TempPathFactory):
+    """Heading sweeps with the telemetry 0.3 s behind the video: two 15 s videos."""
+    import dataclasses
+
+    from sim.dataset import write_dataset
+    from sim.domains import get_domain
+
+    scenario = get_domain("grass-sweeps-wide").scenario()
+    noise = dataclasses.replace(scenario.noise, time_offset_s=0.3, time_offset_drift=0.0)
+    out = tmp_path_factory.mktemp("late") / "data"
+    write_dataset(dataclasses.replace(scenario, noise=noise), out, seed=0, frames=450, progress=False)
+    return out
+
+
+def test_boost_measures_a_late_telemetry_clock_and_re_times_the_poses(late_telemetry, capsys):
+    import csv
+
+    out = late_telemetry / "corrections.csv"
+    assert run_boost(late_telemetry, "--corrections-out", str(out)) == 0
+    assert "clock_offset_frames_measured=" in capsys.readouterr().out
+    rows = list(csv.DictReader(out.open()))
+    last = [float(r["clock_offset_s"]) for r in rows if r["frame_index"] == "449"]
+    # 0.3 s plus half a 30 Hz telemetry sample held: measured by the end of each video
+    assert len(last) == 2 and all(abs(v - 0.31) < 0.06 for v in last), last
