@@ -52,6 +52,12 @@ class ClockOffsetSettings:
     measurements; max_slew: the applied offset moves by at most this many seconds per update second (0:
     unlimited). min_score, max_points: detections at least this confident (the detector's score) take
     part, at most this many per frame.
+    two_pass: files (`retime_frames`) are searched twice: the first pass collects every informative
+    window's cost curve over the whole video, the second gives each frame the minimum of the curves
+    weighted by exp(-|t - t_window| / memory_s), the windows after it included (a clip is re-timed from
+    its first frame, not once the online estimate has caught up; smoothing_s and max_slew then do not
+    apply). With fewer than min_windows informative windows in the video every frame keeps the
+    fallback. False: the online (causal) estimate alone, as a live feed would have it.
     """
 
     fallback_s: float = 0.05
@@ -70,6 +76,7 @@ class ClockOffsetSettings:
     max_slew: float = 0.1
     min_score: float = 0.5
     max_points: int = 16
+    two_pass: bool = True
 
     def __post_init__(self) -> None:
         for name in ("search_s", "coarse_step_s", "window_s", "update_every_s", "trim_m", "memory_s"):
@@ -166,6 +173,8 @@ class ClockOffsetEstimator:
         self._grid = np.arange(-self.settings.search_s, self.settings.search_s + 1e-9, self.settings.coarse_step_s)
         self._acc = np.zeros(len(self._grid))
         self._n_informative = 0
+        #: every informative window's (time, cost curve divided by its median), for the second pass
+        self.windows: list[tuple[float, NDArray]] = []
 
     def add(self, t: float, rel_en: NDArray, uav_en: NDArray, heading_deg: float) -> None:
         """Remember one frame: rel_en (N, 2) ground points minus the UAV (m, raw telemetry), uav_en (2,)."""
@@ -184,6 +193,7 @@ class ClockOffsetEstimator:
         if found is None or not found[1]:
             return ClockOffset(self.offset_s, False, found is not None and found[1])
         curve, _ = found
+        self.windows.append((t, curve))
         # accumulate the informative windows' normalised cost curves (memory_s), the argmin of the sum
         dt = 0.0 if self._t_measured is None else t - self._t_measured
         self._acc = self._acc * math.exp(-dt / s.memory_s) + curve
@@ -199,6 +209,17 @@ class ClockOffsetEstimator:
         self.offset_s = float(np.clip(self.offset_s + step, -s.search_s, s.search_s))
         log.debug("t=%.3f clock offset measured %.3f s, applied %.3f s", t, measured, self.offset_s)
         return ClockOffset(self.offset_s, True, True)
+
+    def smoothed_at(self, times: NDArray) -> NDArray | None:
+        """The two-sided estimate at each time (s): the minimum (parabola-refined) of the informative
+        windows' curves weighted by exp(-|t - t_window| / memory_s); None with fewer than min_windows."""
+        if len(self.windows) < max(self.settings.min_windows, 1):
+            return None
+        t_w = np.array([w[0] for w in self.windows])
+        curves = np.stack([w[1] for w in self.windows])  # (W, D)
+        weights = np.exp(-np.abs(np.asarray(times, dtype=np.float64)[:, None] - t_w[None, :]) / self.settings.memory_s)
+        acc = weights @ curves  # (T, D)
+        return np.array([_parabolic_argmin(self._grid, row) for row in acc])
 
     def _pairs(self) -> list[tuple[int, int]]:
         s = self.settings
@@ -304,26 +325,44 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
 
     frames: one video's frames in time order; candidates(frame) -> (boxes_xyxy (K, 4), scores (K,),
     class_ids (K,)) of the frame's detections. Each frame's offset comes from the frames before it (and the
-    telemetry up to search_s after it); its pose gets the heading and pitch interpolated at t + offset and
-    pose_t = t. Frames without pose are returned unchanged with None.
+    telemetry up to search_s after it) or, with settings.two_pass (the default), from the whole video's
+    informative windows weighted by their distance in time; its pose gets the heading and pitch
+    interpolated at t + offset and pose_t = t. Frames without pose are returned unchanged with None.
     """
     settings = settings or ClockOffsetSettings()
     track = HeadingTrack.from_frames(frames)
     est = ClockOffsetEstimator(track, settings)
     origin: tuple[float, float] | None = None
-    out: list[tuple[Frame, ClockOffset | None]] = []
+    online: list[ClockOffset | None] = []
     for fr in frames:
         if fr.pose is None or len(track) < 2:
-            out.append((fr, None))
+            online.append(None)
             continue
         if origin is None:
             origin = (fr.pose.lat, fr.pose.lon)
-        off = est.offset_at(fr.t)
+        online.append(est.offset_at(fr.t))
+        uav = np.array([float(v) for v in latlon_to_local(fr.pose.lat, fr.pose.lon, *origin)])
+        est.add(fr.t, frame_points(fr, *candidates(fr), settings), uav, fr.pose.heading_deg)
+    offsets = online
+    if settings.two_pass:
+        posed = [i for i, off in enumerate(online) if off is not None]
+        smoothed = est.smoothed_at(np.array([frames[i].t for i in posed])) if posed else None
+        if smoothed is not None:
+            lo, hi = -settings.search_s, settings.search_s
+            offsets = list(online)
+            for i, value in zip(posed, smoothed, strict=True):
+                first = online[i]
+                offsets[i] = ClockOffset(float(np.clip(value, lo, hi)), first is not None and first.measured, True)
+            log.debug("clock offset (two passes over %d informative windows): %.3f .. %.3f s", len(est.windows),
+                      float(smoothed.min()), float(smoothed.max()))
+    out: list[tuple[Frame, ClockOffset | None]] = []
+    for fr, off in zip(frames, offsets, strict=True):
+        if off is None or fr.pose is None:
+            out.append((fr, None))
+            continue
         heading, pitch = track.at(fr.t + off.offset_s)
         pose = Pose(fr.pose.lat, fr.pose.lon, fr.pose.height_m, min(max(pitch, 0.0), 90.0), heading, fr.pose.roll_deg)
         out.append((replace(fr, pose=pose, pose_t=fr.t, pose_retimed=True), off))
-        uav = np.array([float(v) for v in latlon_to_local(fr.pose.lat, fr.pose.lon, *origin)])
-        est.add(fr.t, frame_points(fr, *candidates(fr), settings), uav, fr.pose.heading_deg)
     return out
 
 

@@ -91,13 +91,16 @@ class PipelineConfig:
         evaluations) estimate the video/telemetry clock offset online from the confident detections and
         give the pipeline and the tracker poses with the telemetry interpolated at frame time + offset
         (agent.clock_offset); the live agent does not (it would have to hold frames back by the search
-        window). In `uavmm boost` since issue 15's fifth round: +0.26 / +0.27 mean AP50 on the tuning
-        domains at noise x1 / x2 (docs/memory-map.md). clock_offset_fallback_s: the offset used
+        window). In `uavmm boost` since issue 15's fifth round: +0.44 / +0.41 mean AP50 on the tuning
+        domains at noise x1 / x2 (two passes; docs/memory-map.md). clock_offset_fallback_s: the offset used
         until a window of frames turned enough to measure it (the configured telemetry latency);
-        clock_offset_search_s: the estimate stays within +- this. On by default since the tracker registers
-        its frames in the image (issue 15, third round): with it the sweeps of the tuning domains lost most
-        of their id switches (grass-sweeps-wide 34 -> 15, sea-sweeps-60 47 -> 7, reid 26 -> 18 over seeds
-        0-2) while the base `sea`/`grass` scenarios stayed within one switch per seed (docs/tracking.md).
+        clock_offset_search_s: the estimate stays within +- this. clock_offset_two_pass: files are searched
+        twice and each frame gets the estimate from the whole video's informative windows weighted by their
+        distance in time (ClockOffsetSettings.two_pass; False: the online estimate alone). The estimate is on
+        by default since the tracker registers its frames in the image (issue 15, third round): with it the
+        sweeps of the tuning domains lost most of their id switches (grass-sweeps-wide 34 -> 15,
+        sea-sweeps-60 47 -> 7, reid 26 -> 18 over seeds 0-2) while the base `sea`/`grass` scenarios stayed
+        within one switch per seed (docs/tracking.md).
 
     calibrate_scores: with use_memory, scale the detector's logits to the reference temperature from the
         spread of each frame's strongest detections, estimated online (agent.score_calibration), before
@@ -189,6 +192,7 @@ class PipelineConfig:
     estimate_clock_offset: bool = True
     clock_offset_fallback_s: float = 0.05
     clock_offset_search_s: float = 1.0
+    clock_offset_two_pass: bool = True
 
     def __post_init__(self) -> None:
         self.correction_settings()  # validates the correction_* fields
@@ -248,7 +252,8 @@ class PipelineConfig:
 
     def clock_offset_settings(self) -> ClockOffsetSettings | None:
         """The clock-offset estimate's settings (agent.clock_offset), None when it is off."""
-        settings = ClockOffsetSettings(fallback_s=self.clock_offset_fallback_s, search_s=self.clock_offset_search_s)
+        settings = ClockOffsetSettings(fallback_s=self.clock_offset_fallback_s, search_s=self.clock_offset_search_s,
+                                       two_pass=self.clock_offset_two_pass)
         return settings if self.estimate_clock_offset else None
 
     def calibration_settings(self) -> CalibrationSettings:

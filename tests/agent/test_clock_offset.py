@@ -67,6 +67,16 @@ def test_a_constant_offset_during_sweeps_is_recovered_within_50_ms() -> None:
     assert offset == pytest.approx(0.3, abs=0.05)
 
 
+def test_two_passes_re_time_a_file_from_its_first_frame_and_the_online_estimate_catches_up() -> None:
+    frames, dets = _clip(True, 0.3)
+    two = [o for _, o in retime_frames(frames, lambda f: dets[f.image.id], ClockOffsetSettings())]
+    online = [o for _, o in retime_frames(frames, lambda f: dets[f.image.id], ClockOffsetSettings(two_pass=False))]
+    assert all(o is not None and o.offset_s == pytest.approx(0.3, abs=0.05) for o in two)
+    assert [o.measured for o in two if o] == [o.measured for o in online if o]  # measured: where a window was
+    assert online[0] is not None and online[0].offset_s == ClockOffsetSettings().fallback_s  # nothing seen yet
+    assert online[-1] is not None and online[-1].offset_s == pytest.approx(0.3, abs=0.05)
+
+
 def test_no_offset_is_invented_on_a_hover() -> None:
     offset, measured = _final_offset(*_clip(False, 0.3))
     assert measured == 0
