@@ -33,6 +33,11 @@ __all__ = ["ClockOffset", "ClockOffsetEstimator", "ClockOffsetSettings", "Headin
 log = logging.getLogger(__name__)
 
 
+#: The two-pass estimate weighs windows within this many memory_s of a frame, frames this many at a time.
+_TWO_PASS_REACH = 7.0
+_TWO_PASS_CHUNK = 1024
+
+
 @dataclass(frozen=True, slots=True)
 class ClockOffsetSettings:
     """Settings of the clock-offset estimate.
@@ -167,7 +172,12 @@ class ClockOffsetEstimator:
         self.settings = settings or ClockOffsetSettings()
         self.track = track
         self.offset_s = self.settings.fallback_s
-        self._frames: deque[tuple[float, NDArray, NDArray, float]] = deque()
+        # (time, ground points minus the UAV, UAV position, raw heading, frame number)
+        self._frames: deque[tuple[float, NDArray, NDArray, float, int]] = deque()
+        self._added = 0
+        # cost curve over the offset grid of each compared frame pair (earlier, later frame number): a pair
+        # is searched once, not in every window that holds it (windows overlap 12-fold)
+        self._pair_cost: dict[tuple[int, int], NDArray] = {}
         self._t_update: float | None = None
         self._t_measured: float | None = None
         self._grid = np.arange(-self.settings.search_s, self.settings.search_s + 1e-9, self.settings.coarse_step_s)
@@ -179,9 +189,14 @@ class ClockOffsetEstimator:
     def add(self, t: float, rel_en: NDArray, uav_en: NDArray, heading_deg: float) -> None:
         """Remember one frame: rel_en (N, 2) ground points minus the UAV (m, raw telemetry), uav_en (2,)."""
         self._frames.append((t, np.asarray(rel_en, dtype=np.float64).reshape(-1, 2),
-                             np.asarray(uav_en, dtype=np.float64).reshape(2), float(heading_deg)))
+                             np.asarray(uav_en, dtype=np.float64).reshape(2), float(heading_deg), self._added))
+        self._added += 1
         while self._frames and self._frames[0][0] < t - self.settings.window_s:
             self._frames.popleft()
+        if self._pair_cost and self._frames:
+            first = self._frames[0][4]
+            for key in [key for key in self._pair_cost if key[0] < first]:
+                del self._pair_cost[key]
 
     def offset_at(self, t: float) -> ClockOffset:
         """The smoothed offset for the frame at t (searching the window when due)."""
@@ -217,9 +232,18 @@ class ClockOffsetEstimator:
             return None
         t_w = np.array([w[0] for w in self.windows])
         curves = np.stack([w[1] for w in self.windows])  # (W, D)
-        weights = np.exp(-np.abs(np.asarray(times, dtype=np.float64)[:, None] - t_w[None, :]) / self.settings.memory_s)
-        acc = weights @ curves  # (T, D)
-        return np.array([_parabolic_argmin(self._grid, row) for row in acc])
+        times = np.asarray(times, dtype=np.float64).reshape(-1)
+        reach = _TWO_PASS_REACH * self.settings.memory_s  # weights beyond are < 1e-3 of a window at the frame
+        out = np.empty(len(times))
+        for lo in range(0, len(times), _TWO_PASS_CHUNK):  # (chunk, W) weights: bounded memory on long flights
+            t = times[lo:lo + _TWO_PASS_CHUNK]
+            a, b = np.searchsorted(t_w, [t.min() - reach, t.max() + reach])
+            if b <= a:  # no window near these frames: the nearest ones decide
+                a, b = max(0, min(a, len(t_w) - 1)), max(1, min(a + 1, len(t_w)))
+            weights = np.exp(-np.abs(t[:, None] - t_w[None, a:b]) / self.settings.memory_s)
+            acc = weights @ curves[a:b]  # (chunk, D)
+            out[lo:lo + len(t)] = [_parabolic_argmin(self._grid, row) for row in acc]
+        return out
 
     def _pairs(self) -> list[tuple[int, int]]:
         s = self.settings
@@ -242,52 +266,48 @@ class ClockOffsetEstimator:
         if not pairs or len(self.track) < 2:
             return None
         frames = list(self._frames)
-        # all points of the window, with their frame's time, UAV position and raw heading
-        counts = [len(f[1]) for f in frames]
-        start = np.concatenate([[0], np.cumsum(counts)])
-        rel = np.concatenate([f[1] for f in frames])
-        uav = np.repeat(np.stack([f[2] for f in frames]), counts, axis=0)
-        t_pt = np.repeat([f[0] for f in frames], counts)
-        h_raw = np.repeat([f[3] for f in frames], counts)
-        # point index pairs (later point q, earlier point p) and the group (q, pair) each belongs to
         t_frames = np.array([f[0] for f in frames])
         ks, js = np.array(pairs).T
         rate_change = float(np.abs(self.track.rate_at(t_frames[js] + self.offset_s)
                                    - self.track.rate_at(t_frames[ks] + self.offset_s)).max())
         if rate_change < s.min_rate_change_deg_s:
             return np.ones(len(self._grid)), False  # a steady (or no) turn says nothing: skip the search
-        # every later point q against every point p of the earlier frame; group = (q, frame pair)
-        qs, ps = [], []
-        for k, j in pairs:
-            nk, nj = start[k + 1] - start[k], start[j + 1] - start[j]
-            qs.append(np.repeat(np.arange(start[j], start[j + 1]), nk))
-            ps.append(np.tile(np.arange(start[k], start[k + 1]), nj))
-        q_idx, p_idx = np.concatenate(qs), np.concatenate(ps)
-        sizes = np.concatenate([np.full(start[j + 1] - start[j], start[k + 1] - start[k]) for k, j in pairs])
-        bounds = np.concatenate([[0], np.cumsum(sizes)[:-1]])
-
-        def cost(offsets: NDArray) -> NDArray:
-            out = np.empty(len(offsets))
-            for i, off in enumerate(offsets):  # one offset at a time keeps the (pairs,) arrays small
-                delta = (self.track.heading_unwrapped(t_pt + off) - h_raw + 180.0) % 360.0 - 180.0
-                pts = _rotate(rel, delta) + uav
-                d = np.hypot(pts[q_idx, 0] - pts[p_idx, 0], pts[q_idx, 1] - pts[p_idx, 1])
-                nearest = np.minimum.reduceat(np.minimum(d, s.trim_m), bounds)
-                out[i] = float(nearest @ nearest)
-            return out
 
         # offsets that send a frame beyond the telemetry's span would compare held (clamped) headings
         inside = (t_frames.min() + self._grid >= self.track.t[0]) & (t_frames.max() + self._grid <= self.track.t[-1])
         if inside.sum() < 3:
             return None
+        total = np.zeros(len(self._grid))
+        for k, j in pairs:
+            key = (frames[k][4], frames[j][4])
+            curve = self._pair_cost.get(key)
+            if curve is None:
+                curve = self._pair_cost[key] = _pair_curve(self.track, self._grid, s.trim_m, frames[k], frames[j])
+            total += curve
         c = np.ones(len(self._grid))
-        c[inside] = cost(self._grid[inside])
+        c[inside] = total[inside]
         c[inside] /= max(float(np.median(c[inside])), 1e-12)
         c[~inside] = 1.0
         informative = rate_change >= s.min_rate_change_deg_s and float(c.min()) < s.min_contrast
         log.debug("clock offset window: best %.2f s, cost/median %.3f, rate change %.0f deg/s",
                   self._grid[int(np.argmin(c))], float(c.min()), rate_change)
         return c, bool(informative)
+
+
+def _pair_curve(track: HeadingTrack, grid: NDArray, trim_m: float,
+                earlier: tuple[float, NDArray, NDArray, float, int],
+                later: tuple[float, NDArray, NDArray, float, int]) -> NDArray:
+    """Sum over the later frame's points of the squared distance (capped at trim_m) to the nearest point of
+    the earlier frame, both turned about their UAV by the heading change each offset of the grid implies."""
+    placed = []
+    for t, rel, uav, h_raw, _ in (earlier, later):
+        delta = (track.heading_unwrapped(t + grid) - h_raw + 180.0) % 360.0 - 180.0  # (D,)
+        placed.append(_rotate(np.broadcast_to(rel, (len(grid), *rel.shape)), np.repeat(delta[:, None], len(rel), 1))
+                      + uav)  # (D, N, 2)
+    p, q = placed
+    d = np.hypot(q[:, :, None, 0] - p[:, None, :, 0], q[:, :, None, 1] - p[:, None, :, 1])  # (D, Nq, Np)
+    nearest = np.minimum(d.min(axis=2), trim_m)
+    return np.einsum("dn,dn->d", nearest, nearest)
 
 
 def _parabolic_argmin(grid: NDArray, values: NDArray) -> float:
