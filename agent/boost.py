@@ -115,7 +115,7 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
             raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
         pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
         retimed = video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings(),
-                               problems=problems)
+                               problems=problems, dequantize=config.dequantize_telemetry)
         for frame, offset in retimed:
             if offset is not None:
                 offsets.append(offset)

@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from agent.boxes import nms
 from agent.dataset import Candidates, Dataset, Frame, iter_video_frames
+from agent.telemetry_dequantize import dequantize_frames
 from shared.geo import Camera, Pose, latlon_to_local, pixel_to_local
 
 __all__ = ["ClockOffset", "ClockOffsetEstimator", "ClockOffsetSettings", "HeadingTrack", "retime_frames",
@@ -387,12 +388,18 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
 
 
 def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Candidates,
-                 settings: ClockOffsetSettings | None, *,
-                 problems: list[str] | None = None) -> list[tuple[Frame, ClockOffset | None]]:
-    """One video's frames (`iter_video_frames`, which appends unusable meta to problems), re-timed by the
+                 settings: ClockOffsetSettings | None, *, problems: list[str] | None = None,
+                 dequantize: bool = False) -> list[tuple[Frame, ClockOffset | None]]:
+    """One video's frames (`iter_video_frames`, which appends unusable meta to problems), with quantised
+    GPS and altitude made continuous when dequantize (agent.telemetry_dequantize), re-timed by the
     clock-offset estimate when settings are given (`retime_frames`; its detections: the candidates), else
     as they are, with None."""
     frames = list(iter_video_frames(dataset, camera, video_id, problems=problems))
+    if dequantize:
+        frames, quanta = dequantize_frames(frames)
+        if quanta:
+            log.info("video %s: quantised telemetry (%s) made continuous", video_id,
+                     ", ".join(f"{k} {v:g}" for k, v in quanta.items()))
     if settings is None:
         return [(f, None) for f in frames]
     return retime_frames(frames, lambda f: candidates.get(f.image.id), settings)

@@ -102,6 +102,11 @@ class PipelineConfig:
         sea-sweeps-60 47 -> 7, reid 26 -> 18 over seeds 0-2) while the base `sea`/`grass` scenarios stayed
         within one switch per seed (docs/tracking.md).
 
+    dequantize_telemetry: the frame drivers of files make GPS written with 4 or 5 decimals (and altitude in
+        whole or half metres) continuous again before anything else (agent.telemetry_dequantize: linear
+        through the midpoints of the steps, inside the rounding interval); detected per video from the
+        values themselves, a no-op on other telemetry. The live agent does not.
+
     calibrate_scores: with use_memory, scale the detector's logits to the reference temperature from the
         spread of each frame's strongest detections, estimated online (agent.score_calibration), before
         boosting, stamping and the tracker (FrameResult.raw_scores are then the calibrated scores);
@@ -193,6 +198,7 @@ class PipelineConfig:
     clock_offset_fallback_s: float = 0.05
     clock_offset_search_s: float = 1.0
     clock_offset_two_pass: bool = True
+    dequantize_telemetry: bool = True
 
     def __post_init__(self) -> None:
         self.correction_settings()  # validates the correction_* fields

@@ -32,10 +32,11 @@ PAPER_GAIN_PER_FRAME = 0.02
 
 def paper_rule_config() -> PipelineConfig:
     """The paper's rule as printed: every pre-NMS box adds s * c * Gaussian (r 6 m), phi per frame, c + p,
-    on the telemetry as stamped (no clock-offset estimate: that is ours, agent.clock_offset)."""
+    on the telemetry as stamped (no clock-offset estimate and no dequantised GPS: those are ours)."""
     memory = MemoryMapConfig(radius_m=6.0, stamp="sum", forget_per_frame=PAPER_FORGET_PER_FRAME,
                              gain_per_frame=PAPER_GAIN_PER_FRAME)
-    return PipelineConfig(memory=memory, boost_mode="add", boost_weight=1.0, estimate_clock_offset=False)
+    return PipelineConfig(memory=memory, boost_mode="add", boost_weight=1.0, estimate_clock_offset=False,
+                          dequantize_telemetry=False)
 
 
 def domain_detection_variants() -> list[Variant]:

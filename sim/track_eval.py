@@ -158,7 +158,8 @@ def pipeline_frames(dataset: Dataset, candidates: Candidates, camera: Camera, vi
     pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
     out = []
     t_prev = -np.inf
-    for frame, _ in video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings()):
+    for frame, _ in video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings(),
+                                 dequantize=config.dequantize_telemetry):
         if pipe.camera != frame.camera:
             pipe.camera = frame.camera
         boxes, scores, cids = candidates.get(frame.image.id)

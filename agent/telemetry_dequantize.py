@@ -1,0 +1,113 @@
+"""Quantised telemetry made continuous again: GPS written with 4 or 5 decimals, altitude in whole or half
+metres.
+
+Old DJI SRT files round latitude and longitude to 4 decimals: the position holds for seconds and then jumps
+by 11 m (north) or 7 m (east at 48 N) in one frame, and every ground point of that frame jumps with it.
+The value written is the true one rounded, so while the UAV moves the true coordinate crosses the middle
+between two written levels at the moment the written value steps: the midpoint of a step, placed halfway
+between the two samples, is a measurement of the true position that is far better than either level.
+Between such crossings the coordinate is interpolated linearly, kept inside the rounding interval of the
+level written at each sample (never more than half a quantum from what the file says), and beyond the
+first and last crossing it is extrapolated with the neighbouring slope, clipped the same way. A hovering
+UAV whose value never steps keeps its written level.
+
+The quantum is detected from the file itself: a coordinate is treated as quantised when every sample of
+the video is a multiple of 1e-4 or 1e-5 degrees (height: 1 m or 0.5 m) and it has at least two distinct
+values; otherwise the poses are left alone. Needs the samples after each frame, so it is for files
+(`uavmm boost`, `uavmm track`, `uavmm tune`, the evaluations), not for a live feed. Arrays in, arrays out.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+
+import numpy as np
+from numpy.typing import NDArray
+
+from agent.dataset import Frame
+from shared.geo import Pose
+
+__all__ = ["GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_frames", "detect_quantum"]
+
+#: Quanta tried, coarsest first: 4 and 5 decimals of a degree (6 decimals, 0.11 m, is left alone).
+GPS_QUANTA_DEG = (1e-4, 1e-5)
+#: Altitude steps tried: whole and half metres.
+HEIGHT_QUANTA_M = (1.0, 0.5)
+
+
+def detect_quantum(values: NDArray, quanta: tuple[float, ...]) -> float | None:
+    """The coarsest quantum of which every value is a multiple (to 1e-6 of it), None when none is or
+    when fewer than two distinct values were written."""
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if len(v) < 2 or len(np.unique(v)) < 2 or not np.isfinite(v).all():
+        return None
+    for q in quanta:
+        k = v / q
+        if np.all(np.abs(k - np.round(k)) < 1e-6):
+            return q
+    return None
+
+
+def dequantize(t: NDArray, x: NDArray, q: float) -> NDArray:
+    """The continuous coordinate behind samples x (rounded to multiples of q) at their times t (increasing):
+    linear through the midpoints of the steps, placed halfway between the samples that step, clipped to
+    [x - q/2, x + q/2]; x itself where it never steps."""
+    t = np.asarray(t, dtype=np.float64)
+    x = np.asarray(x, dtype=np.float64)
+    steps = np.flatnonzero(x[1:] != x[:-1]) + 1
+    if not len(steps):
+        return x.copy()
+    tau = (t[steps - 1] + t[steps]) / 2.0
+    mid = (x[steps - 1] + x[steps]) / 2.0
+    out = np.interp(t, tau, mid)
+    if len(tau) >= 2:  # extrapolate beyond the first and last crossing with the neighbouring slope
+        dt0, dt1 = tau[1] - tau[0], tau[-1] - tau[-2]
+        slope0 = (mid[1] - mid[0]) / dt0 if dt0 > 0 else 0.0
+        slope1 = (mid[-1] - mid[-2]) / dt1 if dt1 > 0 else 0.0
+        before, after = t < tau[0], t > tau[-1]
+        out[before] = mid[0] + slope0 * (t[before] - tau[0])
+        out[after] = mid[-1] + slope1 * (t[after] - tau[-1])
+    return np.clip(out, x - q / 2.0, x + q / 2.0)
+
+
+def dequantize_frames(frames: list[Frame]) -> tuple[list[Frame], dict[str, float]]:
+    """One video's frames (time order) with quantised latitude, longitude and height made continuous.
+
+    The telemetry samples are the frames' distinct pose stamps (pose_t, else the frame time); returns the
+    frames (unchanged ones as they are) and the quanta found per coordinate ({} when none).
+    """
+    posed = [(i, f.pose_t if f.pose_t is not None and math.isfinite(f.pose_t) else f.t)
+             for i, f in enumerate(frames) if f.pose is not None]
+    if len(posed) < 2:
+        return frames, {}
+    samples: dict[float, Pose] = {}
+    for i, stamp in posed:
+        pose = frames[i].pose
+        assert pose is not None
+        samples.setdefault(round(stamp, 6), pose)
+    stamps = np.array(sorted(samples))
+    if len(stamps) < 2:
+        return frames, {}
+    series = {"lat": np.array([samples[s].lat for s in stamps]), "lon": np.array([samples[s].lon for s in stamps]),
+              "height_m": np.array([samples[s].height_m for s in stamps])}
+    quanta: dict[str, float] = {}
+    fixed: dict[str, NDArray] = {}
+    for name, values in series.items():
+        q = detect_quantum(values, HEIGHT_QUANTA_M if name == "height_m" else GPS_QUANTA_DEG)
+        if q is not None:
+            quanta[name] = q
+            fixed[name] = dequantize(stamps, values, q)
+    if not quanta:
+        return frames, {}
+    index = {s: k for k, s in enumerate(stamps)}
+    out = list(frames)
+    for i, stamp in posed:
+        pose = frames[i].pose
+        assert pose is not None
+        k = index[round(stamp, 6)]
+        changes = {name: float(v[k]) for name, v in fixed.items()}
+        if "height_m" in changes:
+            changes["height_m"] = max(changes["height_m"], 0.1)
+        out[i] = replace(frames[i], pose=replace(pose, **changes))
+    return out, quanta
