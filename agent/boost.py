@@ -109,7 +109,7 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
     t0 = time.perf_counter()
     pipeline_time = 0.0
     corrections: list[float] = []
-    offsets: list[ClockOffset] = []
+    offsets = clock_offsets if clock_offsets is not None else {}
     for video_id in video_ids if video_ids is not None else list(dataset.videos):
         if video_id not in dataset.videos:
             raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
@@ -118,9 +118,7 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
                                problems=problems, dequantize=config.dequantize_telemetry)
         for frame, offset in retimed:
             if offset is not None:
-                offsets.append(offset)
-                if clock_offsets is not None:
-                    clock_offsets[frame.image.id] = offset
+                offsets[frame.image.id] = offset
             if pipe.camera != frame.camera:
                 pipe.camera = frame.camera
             boxes, scores, cids = candidates.get(frame.image.id)
@@ -143,8 +141,8 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
     if corrections:
         stats["correction_median_m"] = round(statistics.median(corrections), 3)
     if offsets:
-        stats["clock_offset_median_s"] = round(statistics.median(o.offset_s for o in offsets), 3)
-        stats["clock_offset_frames_measured"] = sum(o.measured for o in offsets)
+        stats["clock_offset_median_s"] = round(statistics.median(o.offset_s for o in offsets.values()), 3)
+        stats["clock_offset_frames_measured"] = sum(o.measured for o in offsets.values())
     stats["seconds"] = round(time.perf_counter() - t0, 3)
     stats["pipeline_ms_per_frame"] = round(1000 * pipeline_time / max(stats["frames"], 1), 3)
     return stats

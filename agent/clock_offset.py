@@ -194,10 +194,6 @@ class ClockOffsetEstimator:
         self._added += 1
         while self._frames and self._frames[0][0] < t - self.settings.window_s:
             self._frames.popleft()
-        if self._pair_cost and self._frames:
-            first = self._frames[0][4]
-            for key in [key for key in self._pair_cost if key[0] < first]:
-                del self._pair_cost[key]
 
     def offset_at(self, t: float) -> ClockOffset:
         """The smoothed offset for the frame at t (searching the window when due)."""
@@ -278,6 +274,8 @@ class ClockOffsetEstimator:
         inside = (t_frames.min() + self._grid >= self.track.t[0]) & (t_frames.max() + self._grid <= self.track.t[-1])
         if inside.sum() < 3:
             return None
+        first = frames[0][4]  # pairs with a frame that left the window are not needed again
+        self._pair_cost = {key: curve for key, curve in self._pair_cost.items() if key[0] >= first}
         total = np.zeros(len(self._grid))
         for k, j in pairs:
             key = (frames[k][4], frames[j][4])
