@@ -174,6 +174,14 @@ _DOMAIN_LIST = (
     # domain has (grass, per-frame jitter, default detector).
     Domain("grass-sweeps-tele", "grass, heading sweeps with a 4K tele camera, per-frame jitter at 30 fps",
            "tune", "sweeps", "grass", _TELE_SWEEPS, camera="4k-tele", noise={**_JITTER, "telemetry_hz": 30.0}),
+    # Added in the sixth round (issue 15): tele camera on gentle flights over persistent clutter, in a
+    # combination no held-out domain has (24 fps, drifting clocks, jitter in the gimbal angles only, 6-decimal
+    # GPS, the default detector).
+    Domain("grass-tele-drift", "grass, gentle flights with a 4K tele camera at 24 fps, drifting clocks, gimbal "
+           "jitter, more persistent clutter at fixed ground spots", "tune", "gentle", "grass", _GENTLE_GRASS,
+           camera="4k-tele", fps=24.0, noise={**_DRIFT, "white_heading_deg": 0.4, "white_pitch_deg": 0.3,
+                                              "telemetry_hz": 24.0},
+           emulator=_MORE_CLUTTER_EMU, world={"n_clutter": 8}),
     # ---------------------------------------------------------------- held-out domains
     Domain("grass-tele-clutter", "grass, gentle flights with a 4K tele camera, per-frame jitter, 5-decimal "
            "GPS, over-confident detector, persistent clutter at fixed ground spots, 1 % frames without meta",

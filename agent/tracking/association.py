@@ -18,7 +18,7 @@ from agent.tracking.model import FloatArray, kalman_update, mahalanobis2_and_log
 from agent.tracking.state import FrameDetections, TrackState
 
 __all__ = ["associate_ground", "associate_image", "associate_iou", "duplicate_mask", "expected_boxes", "fresh_in_image",
-           "frame_detections", "ground_duplicates", "mark_hit"]
+           "frame_detections", "ground_duplicates", "image_cost", "mark_hit"]
 
 
 def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetections:
@@ -141,7 +141,7 @@ def associate_ground(state: TrackState, dets: FrameDetections, det_mask: NDArray
     _, logdet_r = mahalanobis2_and_logdet(diff[keep], dets.R[dt_])
     cost = d2 + (logdet - logdet_r) + dets.score_cost[dt_]
     if cfg.image_weight > 0:
-        cost += cfg.image_weight * _image_cost(state, tr, dets.boxes[dt_], t)
+        cost += cfg.image_weight * image_cost(state, tr, dets.boxes[dt_], t)
     if cfg.appearance_weight > 0 and dets.emb is not None and len(tr):
         app, _ = descriptor_distance(act["emb"][tr], dets.emb[dt_])
         cost += cfg.appearance_weight * app
@@ -195,9 +195,12 @@ def _image_gate(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: 
     return ok
 
 
-def _image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: float) -> FloatArray:
-    """(K,) 1 - IoU of track ti[k]'s expected box with boxes[k] where the image still shows the track
-    where it was (`fresh_in_image`); 0.5 elsewhere (no image evidence either way)."""
+def image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: float) -> FloatArray:
+    """(K,) 1 - overlap of track ti[k]'s expected box with boxes[k] where the image still shows the track
+    where it was (`fresh_in_image`); 0.5 elsewhere (no image evidence either way). The overlap is the IoU,
+    or with `TrackerConfig.image_overlap` "giou", in a frame whose image the registration paired with the
+    tracks (`TrackState.image_steady`), the generalised IoU (cost in [0, 2], growing with the distance between
+    boxes that do not overlap). Where a shake moved the whole image, the distance is the shake's: IoU then."""
     cost = np.full(len(ti), 0.5)
     fresh = fresh_in_image(state, ti, t)
     if fresh.any():
@@ -205,7 +208,12 @@ def _image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: 
         inter = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0.0, None) \
             * np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
         union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
-        cost[fresh] = 1.0 - np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+        overlap = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+        if state.config.image_overlap == "giou" and state.image_steady:
+            hull = (np.maximum(a[:, 2], b[:, 2]) - np.minimum(a[:, 0], b[:, 0])) \
+                * (np.maximum(a[:, 3], b[:, 3]) - np.minimum(a[:, 1], b[:, 1]))
+            overlap -= np.where(hull > 0, (hull - union) / np.where(hull > 0, hull, 1.0), 0.0)
+        cost[fresh] = 1.0 - overlap
     return cost
 
 

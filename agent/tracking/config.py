@@ -49,6 +49,10 @@ DEFAULT_CLASS_MOTION: tuple[tuple[str, ClassMotion], ...] = (
 )
 
 
+#: How the image cue compares a track's expected box with a detection's (TrackerConfig.image_overlap).
+IMAGE_OVERLAPS = ("iou", "giou")
+
+
 @dataclass(frozen=True, slots=True)
 class TrackerConfig:
     """Tracker parameters, in metres, seconds and degrees (frame-rate independent).
@@ -96,9 +100,15 @@ class TrackerConfig:
         two poor ones (None: as many pairs as the gate allows, like plain linear_sum_assignment).
     image_weight, image_max_age_s, image_max_turn_deg : float
         Image cue: a track matched within image_max_age_s (s) while the gimbal turned by at most
-        image_max_turn_deg (deg) adds image_weight * (1 - IoU of its last box) to each pair cost (0.5
-        * image_weight for other tracks): with a steady camera, pixels separate close objects better
+        image_max_turn_deg (deg) adds image_weight * (1 - overlap with its expected box) to each pair cost
+        (0.5 * image_weight for other tracks): with a steady camera, pixels separate close objects better
         than ground points carrying the pose noise.
+    image_overlap : str
+        The overlap of that cue: "giou" (default since 27 Nov 2026; generalised IoU, Rezatofighi et al.
+        2019: IoU minus the share of the boxes' enclosing box they leave empty, so the cost keeps growing
+        past IoU 0 and a box far from the track costs more than one beside it) or "iou" (cost at most
+        image_weight: a track could give its own object's box to a neighbour and take a far box instead,
+        two middling pairs beating one good one).
     iou_threshold : float
         Minimum image IoU with a track's last box for detections without ground position (frames
         without pose, boxes beyond the georeferencing range).
@@ -184,6 +194,11 @@ class TrackerConfig:
         frames where it is in view and not detected (weight quality_rate per frame); it is reported
         (`GpsTracker.report`) only while quality >= report_quality: persistent clutter and objects
         behind foliage are followed but not reported.
+    report_level_ref, report_level_top_k : float, int
+        The detector's score level is the mean of each frame's report_level_top_k highest raw scores,
+        averaged over frames at quality_rate (as a track's quality). While it is below report_level_ref,
+        report_quality is scaled by level / report_level_ref: motion blur in a sweep, or an under-confident
+        detector, lowers the scores of objects and clutter alike, and the objects stay reported (0: off).
     unseen_margin : float
         "In view" for that: the track's ground point projects inside the image by at least this fraction
         of the width (left and right) and of the height (top and bottom).
@@ -292,7 +307,8 @@ class TrackerConfig:
     score_weight: float = 1.0
     pair_max_cost: float | None = 17.0
     image_weight: float = 8.0
-    image_max_age_s: float = 0.2
+    image_overlap: str = "giou"
+    image_max_age_s: float = 0.3
     image_max_turn_deg: float = 1.0
     iou_threshold: float = 0.2
     position_sigma_m: float = 0.5
@@ -327,6 +343,8 @@ class TrackerConfig:
     quality_rate: float = 0.1
     unseen_margin: float = 0.02
     report_quality: float = 0.4
+    report_level_ref: float = 0.0
+    report_level_top_k: int = 5
     reanchor_m: float = 2000.0
     register_tracks: bool = False
     register_gate_m: float = 4.0
@@ -366,10 +384,11 @@ class TrackerConfig:
             value = getattr(self, f.name)
             if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "register_tracks", "register_min_pairs",
                           "image_register", "image_register_min_pairs", "image_velocity", "image_register_alone",
+                          "report_level_top_k",
                           "carry_correction", "use_pipeline_correction",
                           "merge_keep_idle",
                           "class_motion", "default_motion",
-                          "pair_max_cost", "exit_margin_px"):
+                          "pair_max_cost", "exit_margin_px", "image_overlap"):
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"TrackerConfig.{f.name} must be a finite number, got {value!r}")
@@ -385,7 +404,9 @@ class TrackerConfig:
         if not isinstance(self.exit_margin_px, (int, float)) or not math.isfinite(self.exit_margin_px):
             raise ValueError(f"TrackerConfig.exit_margin_px must be a finite number (< 0: off), "
                              f"got {self.exit_margin_px!r}")
-        for name in ("register_min_pairs", "image_register_min_pairs"):
+        if self.image_overlap not in IMAGE_OVERLAPS:
+            raise ValueError(f"TrackerConfig.image_overlap must be one of {IMAGE_OVERLAPS}, got {self.image_overlap!r}")
+        for name in ("register_min_pairs", "image_register_min_pairs", "report_level_top_k"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 1")

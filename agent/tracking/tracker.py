@@ -132,6 +132,7 @@ class GpsTracker:
         self._scale_t: float | None = None
         self._uav_en = (0.0, 0.0)
         self._height_m = 1.0
+        self._level: float | None = None  # running mean of the frames' top raw scores (report_level_ref)
 
     # ----------------------------------------------------------------------------- views
     @property
@@ -178,8 +179,18 @@ class GpsTracker:
     def report(self, tracks: list[TrackOutput]) -> list[TrackOutput]:
         """The tracks to report for a frame (MOT rows): confirmed, matched in this frame, and with a
         `quality` of at least `TrackerConfig.report_quality`."""
-        q = self.config.report_quality
+        q = self.report_threshold
         return [tr for tr in tracks if tr.confirmed and tr.matched and tr.quality >= q]
+
+    @property
+    def report_threshold(self) -> float:
+        """The quality a track needs to be reported now: `TrackerConfig.report_quality`, scaled by the
+        detector's running score level relative to report_level_ref when that is set (a blurred sweep or
+        an under-confident detector lowers every score, the clutter's with the objects')."""
+        cfg = self.config
+        if cfg.report_level_ref <= 0 or self._level is None:
+            return cfg.report_quality
+        return cfg.report_quality * min(1.0, self._level / cfg.report_level_ref)
 
     # ----------------------------------------------------------------------------- update
     def update(self, result: FrameResult, pose: Pose | None, t: float, camera: Camera, *,
@@ -232,6 +243,7 @@ class GpsTracker:
             predict_constant_velocity(act["x"], act["P"], dt, accel)
 
         dets = frame_detections(result, self.config)
+        self._observe_level(dets.raw)
         if dets.emb is not None:
             state.ensure_descriptor_columns(dets.emb.shape[1])
         if pose is None:
@@ -252,8 +264,18 @@ class GpsTracker:
         reid.settle_probation(state)
         retire(state, t, camera)
         act = state.active
-        act.cols["shown"] |= act["confirmed"] & act["matched"] & (act["quality"] >= self.config.report_quality)
+        act.cols["shown"] |= act["confirmed"] & act["matched"] & (act["quality"] >= self.report_threshold)
         return self._outputs()
+
+    def _observe_level(self, raw: NDArray) -> None:
+        """Follow the detector's score level: the mean of the frame's report_level_top_k highest raw scores
+        (0 without detections), averaged over frames at quality_rate like a track's quality."""
+        cfg = self.config
+        if cfg.report_level_ref <= 0:
+            return
+        top = np.sort(raw)[::-1][:cfg.report_level_top_k]
+        level = float(top.mean()) if len(top) else 0.0
+        self._level = level if self._level is None else self._level + cfg.quality_rate * (level - self._level)
 
     # ----------------------------------------------------------------------------- stages
     def _frame_with_pose(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera,

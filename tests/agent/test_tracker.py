@@ -630,3 +630,41 @@ def test_a_retimed_pose_is_not_turned_again_by_the_telemetry_latency(retimed):
         assert shift < 0.05  # the detection's own point
     else:
         assert shift > 0.2  # the point turned by 60 deg/s * 0.1 s = 6 deg about the UAV (3 m at 30 m) pulls the track
+
+
+def _blurred_sweep(config: TrackerConfig) -> tuple[GpsTracker, list]:
+    """Two people seen sharp (raw 0.9) for 1 s, then blurred (raw 0.2, as in a fast sweep) for 1 s."""
+    tracker = GpsTracker(config, CLASSES)
+    pose = pose_at()
+    sharp, blurred = observe([0.0, 4.0], [25.0, 25.0], pose, raw=0.9), observe([0.0, 4.0], [25.0, 25.0], pose, raw=0.2)
+    return tracker, run(tracker, [(sharp, pose)] * 30 + [(blurred, pose)] * 30)
+
+
+def test_report_level_keeps_objects_reported_while_every_score_drops() -> None:
+    """A blur that lowers every score: with a fixed report_quality both matched tracks fall out of the report;
+    scaled by the detector's running score level (report_level_ref) they stay, with their ids."""
+    fixed, outs = _blurred_sweep(TrackerConfig())
+    assert len(fixed.report(outs[29])) == 2 and not fixed.report(outs[-1])
+    scaled, outs = _blurred_sweep(TrackerConfig(report_level_ref=0.9))
+    assert {tr.id for tr in scaled.report(outs[-1])} == {tr.id for tr in scaled.report(outs[29])} == {1, 2}
+    assert scaled.report_threshold < 0.15 and fixed.report_threshold == 0.4
+
+
+def test_report_level_still_hides_clutter_weaker_than_the_objects() -> None:
+    """Objects stay sharp (raw 0.9) while a false positive born strong fades to raw 0.1: the level stays high,
+    the clutter's quality falls below the threshold and it is no longer reported."""
+    tracker = GpsTracker(TrackerConfig(report_level_ref=0.9), CLASSES)
+    pose = pose_at()
+    objects = observe([0.0, 4.0], [25.0, 25.0], pose, raw=0.9)
+    frames = [(concat_results(objects, observe(-4.0, 25.0, pose, raw=r)), pose) for r in [0.9] * 30 + [0.1] * 40]
+    outs = run(tracker, frames)
+    assert ids_near(tracker.report(outs[29]), -4.0, 25.0)
+    assert not ids_near(tracker.report(outs[-1]), -4.0, 25.0) and len(tracker.report(outs[-1])) == 2
+    assert tracker.report_threshold > 0.25  # (0.9 + 0.9 + 0.1) / 3 of 0.9: scaled by 0.7
+
+
+@pytest.mark.parametrize("bad", [{"report_level_top_k": 0}, {"report_level_top_k": 2.5}, {"report_level_ref": -0.1},
+                                 {"report_level_ref": float("nan")}])
+def test_report_level_settings_are_checked(bad) -> None:
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        TrackerConfig(**bad)

@@ -5,10 +5,13 @@ chaining a track through scattered false positives."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from agent.frame_result import FrameResult
 from agent.tracking import GpsTracker, TrackerConfig
-from agent.tracking.association import expected_boxes
+from agent.tracking.association import expected_boxes, image_cost
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon, local_to_pixel, pixel_to_local
 
 LAT0, LON0 = 48.53, 9.06
@@ -92,3 +95,76 @@ def test_the_image_gate_keeps_scattered_false_positives_from_forming_tracks() ->
     # without the image cues the ground gate chains tracks through the false positives
     on_people_ground, elsewhere_ground_only = _run_with_false_positives(TrackerConfig(**GROUND_ONLY))
     assert len(elsewhere) < len(elsewhere_ground_only)
+
+
+def _one_steady_track(config: TrackerConfig) -> tuple[GpsTracker, float]:
+    """A person followed for 10 frames by a still tele camera; returns the tracker and the next frame's time."""
+    person = np.array([[0.0, 60.0]])
+    tracker = GpsTracker(config, CLASSES)
+    for k in range(10):
+        tracker.update(detections(person, pose_at(), TELE, np.full(1, 0.9)), pose_at(), 1.7e9 + k / FPS, TELE)
+    return tracker, 1.7e9 + 10 / FPS
+
+
+@settings(max_examples=60, deadline=None)
+@given(dx=st.floats(-800.0, 800.0), dy=st.floats(-400.0, 400.0), grow=st.floats(0.5, 2.0))
+def test_giou_image_cost_is_bounded_and_never_below_the_iou_cost(dx: float, dy: float, grow: float) -> None:
+    """The generalised IoU's cost lies in [0, 2] and is never below the IoU cost (the hull's empty share only
+    adds)."""
+    costs = {}
+    for overlap in ("iou", "giou"):
+        tracker, t = _one_steady_track(TrackerConfig(image_overlap=overlap))
+        state = tracker._state  # noqa: SLF001 - the image cost is the stage under test
+        e = expected_boxes(state, np.array([0]), t)[0]
+        w, h = (e[2] - e[0]) * grow, (e[3] - e[1]) * grow
+        cx, cy = 0.5 * (e[0] + e[2]) + dx, 0.5 * (e[1] + e[3]) + dy
+        box = np.array([[cx - w / 2, cy - h / 2, cx + w / 2, cy + h / 2]])
+        costs[overlap] = float(image_cost(state, np.array([0]), box, t)[0])
+    assert 0.0 <= costs["iou"] <= 1.0 + 1e-9
+    assert 0.0 <= costs["giou"] <= 2.0 + 1e-9
+    assert costs["giou"] >= costs["iou"] - 1e-9
+
+
+def test_giou_image_cost_keeps_growing_past_no_overlap_where_the_iou_cost_stops() -> None:
+    """Boxes moved ever further right of a track's expected box: the IoU cost stops at 1 once they no longer
+    overlap, the generalised IoU's keeps growing (a far false positive costs more than a neighbour's box)."""
+    out = {}
+    for overlap in ("iou", "giou"):
+        tracker, t = _one_steady_track(TrackerConfig(image_overlap=overlap))
+        state = tracker._state  # noqa: SLF001
+        e = expected_boxes(state, np.array([0]), t)[0]
+        w = e[2] - e[0]
+        shifts = w * np.array([0.0, 0.5, 1.5, 3.0, 6.0])
+        boxes = np.tile(e, (len(shifts), 1)) + np.column_stack([shifts, 0 * shifts, shifts, 0 * shifts])
+        out[overlap] = image_cost(state, np.zeros(len(shifts), np.int64), boxes, t)
+    assert out["iou"][0] < 1e-9 and out["giou"][0] < 1e-9
+    np.testing.assert_allclose(out["iou"][2:], 1.0)
+    assert np.all(np.diff(out["giou"]) > 0) and out["giou"][-1] > 1.5
+
+
+def test_a_track_the_image_no_longer_shows_costs_the_neutral_half() -> None:
+    """After a 1 s gap the image says nothing either way: 0.5 whatever the box, with either overlap."""
+    for overlap in ("iou", "giou"):
+        tracker, t = _one_steady_track(TrackerConfig(image_overlap=overlap))
+        state = tracker._state  # noqa: SLF001
+        far = expected_boxes(state, np.array([0]), t) + 2000.0
+        assert float(image_cost(state, np.array([0]), far, t + 1.0)[0]) == 0.5
+
+
+def test_image_overlap_must_be_a_known_kind() -> None:
+    with pytest.raises(ValueError, match="image_overlap"):
+        TrackerConfig(image_overlap="diou")
+
+
+def test_giou_gives_way_to_iou_where_a_shake_moved_the_whole_image() -> None:
+    """In a frame the registration could not pair with the tracks (image_steady False: the whole image moved
+    unlike the telemetry says), a box's distance from its expected place is the shake's, not the object's:
+    the cost is the IoU's (at most 1), not the generalised IoU's."""
+    tracker, t = _one_steady_track(TrackerConfig(image_overlap="giou"))
+    state = tracker._state  # noqa: SLF001
+    far = expected_boxes(state, np.array([0]), t) + np.array([400.0, 0.0, 400.0, 0.0])
+    state.image_steady = True
+    steady = float(image_cost(state, np.array([0]), far, t)[0])
+    state.image_steady = False
+    shaken = float(image_cost(state, np.array([0]), far, t)[0])
+    assert steady > 1.5 and shaken == 1.0
