@@ -8,7 +8,14 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.tracking.registration import anchored_offset, correction_jacobian, fit_pose_correction, track_offset
+from agent.boxes import box_iou
+from agent.tracking.registration import (
+    anchored_offset,
+    correction_jacobian,
+    fit_pose_correction,
+    image_pairs,
+    track_offset,
+)
 
 TRACKS = np.array([[0.0, 0.0], [12.0, 3.0], [-9.0, 14.0], [20.0, -11.0], [-15.0, -8.0]])
 
@@ -221,3 +228,37 @@ def test_a_frame_the_image_cannot_register_keeps_the_pending_correction() -> Non
     assert not any(carried_raw)
     # from raw telemetry both confirmed tracks miss the frame and are replaced by new ids
     assert all(len(s) > 1 for s in ids_raw), ids_raw
+
+
+def _dense_image_pairs(tb: np.ndarray, tc: np.ndarray, db: np.ndarray, dc: np.ndarray,
+                       iou_min: float) -> tuple[np.ndarray, np.ndarray]:
+    """The reference: mutual argmax over the dense IoU matrix (what image_pairs computed before it went sparse)."""
+    iou = box_iou(tb, db)
+    iou[tc[:, None] != dc[None, :]] = 0.0
+    best_det, best_track = iou.argmax(axis=1), iou.argmax(axis=0)
+    rows = np.arange(len(tb))
+    ti = np.flatnonzero((best_track[best_det] == rows) & (iou[rows, best_det] >= iou_min))
+    return ti, best_det[ti]
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.integers(0, 40), st.integers(0, 40), st.floats(0.05, 0.9), st.integers(0, 2**31), st.booleans())
+def test_sparse_image_pairs_equal_the_dense_mutual_best_overlaps(m: int, n: int, iou_min: float, seed: int,
+                                                                 snap: bool) -> None:
+    """Random boxes of two classes in a small image (many overlaps; with snap, on a coarse grid so that equal
+    IoUs tie): the k-d tree version pairs exactly what the dense matrix's mutual argmax pairs."""
+    rng = np.random.default_rng(seed)
+
+    def boxes(k: int) -> np.ndarray:
+        xy = rng.uniform(0, 300, (k, 2))
+        wh = rng.uniform(5, 80, (k, 2))
+        if snap:
+            xy, wh = np.round(xy / 20) * 20, np.round(wh / 20) * 20 + 20
+        return np.column_stack([xy, xy + wh])
+
+    tb, db = boxes(m), boxes(n)
+    tc, dc = rng.integers(0, 2, m), rng.integers(0, 2, n)
+    got = image_pairs(tb, tc, db, dc, iou_min)
+    want = _dense_image_pairs(tb, tc, db, dc, iou_min) if m and n else (np.zeros(0), np.zeros(0))
+    np.testing.assert_array_equal(got[0], want[0])
+    np.testing.assert_array_equal(got[1], want[1])
