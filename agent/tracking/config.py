@@ -85,6 +85,11 @@ class TrackerConfig:
         view: it goes to the re-ID memory at once instead of coasting for max_coast_s. A coasting
         track of an object that left used to take a neighbour's detection near the border while the
         gimbal turned faster than the telemetry showed (an exit swap); a negative margin disables it.
+    exit_expected : bool
+        The border test takes the track's expected box (its last box moved by its image velocity,
+        `image_velocity`) instead of its last box: in a sweep every box streams out of the view at 50-70 px
+        a frame, and an object last seen 100 px inside the border has left two frames later (its coasting
+        track took the next object reaching the border).
 
     Association
     -----------
@@ -302,6 +307,7 @@ class TrackerConfig:
     max_coast_s: float = 1.0
     exit_margin_px: float = 4.0
     exit_coast_s: float = 0.0
+    exit_expected: bool = True
     gate_chi2: float = 9.21
     max_gate_m: float = 40.0
     score_weight: float = 1.0
@@ -384,7 +390,7 @@ class TrackerConfig:
             value = getattr(self, f.name)
             if f.name in ("birth_on_raw", "use_appearance", "confirm_hits", "register_tracks", "register_min_pairs",
                           "image_register", "image_register_min_pairs", "image_velocity", "image_register_alone",
-                          "report_level_top_k",
+                          "report_level_top_k", "exit_expected",
                           "carry_correction", "use_pipeline_correction",
                           "merge_keep_idle",
                           "class_motion", "default_motion",
@@ -412,7 +418,7 @@ class TrackerConfig:
                 raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 1")
         for name in ("birth_on_raw", "use_appearance", "register_tracks", "image_register", "image_velocity",
                      "image_register_alone", "merge_keep_idle", "carry_correction",
-                     "use_pipeline_correction"):
+                     "use_pipeline_correction", "exit_expected"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"TrackerConfig.{name} must be a bool, got {getattr(self, name)!r}")
         for name in ("appearance_ema", "image_velocity_ema"):

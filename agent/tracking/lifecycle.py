@@ -13,6 +13,7 @@ from scipy.spatial import cKDTree
 
 from agent.boxes import box_iou
 from agent.tracking.assignment import near_pairs
+from agent.tracking.association import expected_boxes
 from agent.tracking.model import mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
 from shared.geo import Camera, Pose, latlon_to_local, local_to_pixel
@@ -162,8 +163,12 @@ def retire(state: TrackState, t: float, camera: Camera | None = None) -> None:
         conf = act["confirmed"]
         drop = (conf & (idle > cfg.max_coast_s)) | (~conf & (idle > cfg.tentative_coast_s))
         if camera is not None and cfg.exit_margin_px >= 0:
+            boxes = act["box"]
+            if cfg.exit_expected:
+                # where the track's image motion (a sweep streams every box out of the view) has taken it
+                boxes = expected_boxes(state, np.arange(len(act)), t)
             drop |= conf & (idle > cfg.exit_coast_s) & at_image_border(
-                act["box"], camera.width, camera.height, cfg.exit_margin_px)
+                boxes, camera.width, camera.height, cfg.exit_margin_px)
         # A tentative track not confirmed soon lives on boosted leftovers around some object.
         drop |= ~conf & (t - act["t_born"] > cfg.confirm_window_s + cfg.reid_delay_s)
         to_lost = drop & conf

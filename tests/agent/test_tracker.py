@@ -668,3 +668,25 @@ def test_report_level_still_hides_clutter_weaker_than_the_objects() -> None:
 def test_report_level_settings_are_checked(bad) -> None:
     with pytest.raises(ValueError, match=next(iter(bad))):
         TrackerConfig(**bad)
+
+
+def _sweep_out_of_view(exit_expected: bool) -> tuple[GpsTracker, list]:
+    """The gimbal turns 1 deg a frame (boxes stream left ~45 px a frame); the western person, last seen
+    124 px inside the left border, is not detected from frame 20 on (it left the view)."""
+    tracker = GpsTracker(TrackerConfig(exit_expected=exit_expected), CLASSES)
+    frames = []
+    for k in range(26):
+        pose = pose_at(heading_deg=float(k))
+        frames.append((observe([-13.0, 6.0] if k < 20 else [6.0], [25.0, 25.0] if k < 20 else [25.0], pose), pose))
+    return tracker, run(tracker, frames)
+
+
+def test_a_track_whose_expected_box_streamed_out_of_view_is_lost_at_once() -> None:
+    tracker, outs = _sweep_out_of_view(True)
+    assert min(tr.box_xyxy[0] for tr in outs[19] if tr.matched) > 100.0  # not at the border when last seen
+    assert {tr.id for tr in outs[19] if tr.matched} == {1, 2}
+    assert 1 not in {tr.id for tr in outs[22]} and [tr.id for tr in tracker.lost_tracks] == [1]
+    assert {tr.id for tr in outs[-1] if tr.matched} == {2}
+    # with the last box only, the track coasts on (for max_coast_s), free to take the next box at the border
+    tracker, outs = _sweep_out_of_view(False)
+    assert 1 in {tr.id for tr in outs[-1] if not tr.matched} and not tracker.lost_tracks
