@@ -178,7 +178,8 @@ class GpsTracker:
 
     def report(self, tracks: list[TrackOutput]) -> list[TrackOutput]:
         """The tracks to report for a frame (MOT rows): confirmed, matched in this frame, and with a
-        `quality` of at least `TrackerConfig.report_quality`."""
+        `quality` of at least `report_threshold` (`TrackerConfig.report_quality`, or less with
+        report_level_ref set)."""
         q = self.report_threshold
         return [tr for tr in tracks if tr.confirmed and tr.matched and tr.quality >= q]
 
@@ -273,7 +274,7 @@ class GpsTracker:
         cfg = self.config
         if cfg.report_level_ref <= 0:
             return
-        top = np.sort(raw)[::-1][:cfg.report_level_top_k]
+        top = np.sort(raw[np.isfinite(raw)])[::-1][:cfg.report_level_top_k]  # a NaN score would stick
         level = float(top.mean()) if len(top) else 0.0
         self._level = level if self._level is None else self._level + cfg.quality_rate * (level - self._level)
 

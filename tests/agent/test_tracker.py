@@ -690,3 +690,16 @@ def test_a_track_whose_expected_box_streamed_out_of_view_is_lost_at_once() -> No
     # with the last box only, the track coasts on (for max_coast_s), free to take the next box at the border
     tracker, outs = _sweep_out_of_view(False)
     assert 1 in {tr.id for tr in outs[-1] if not tr.matched} and not tracker.lost_tracks
+
+
+def test_report_level_ignores_a_nan_score() -> None:
+    """A detector output with a NaN score among the frame's detections does not poison the running level: a
+    blur after it still lowers the threshold (a NaN level would stay NaN and switch the scaling off for the
+    rest of the flight)."""
+    tracker = GpsTracker(TrackerConfig(report_level_ref=0.9), CLASSES)
+    pose = pose_at()
+    good = observe([0.0, 4.0], [25.0, 25.0], pose, raw=0.9)
+    bad = dataclasses.replace(good, raw_scores=np.array([np.nan, 0.9], np.float32))
+    blurred = observe([0.0, 4.0], [25.0, 25.0], pose, raw=0.2)
+    outs = run(tracker, [(good, pose)] * 20 + [(bad, pose)] + [(blurred, pose)] * 30)
+    assert tracker.report_threshold < 0.15 and len(tracker.report(outs[-1])) == 2
