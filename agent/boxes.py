@@ -11,7 +11,7 @@ from numpy.typing import NDArray
 
 from agent._kernels import nms_ranked, rank_keys
 
-__all__ = ["ANCHORS", "anchor_fraction", "anchor_points", "box_anchor_points", "box_iou", "nms"]
+__all__ = ["ANCHORS", "anchor_fraction", "anchor_points", "box_anchor_points", "box_iou", "nms", "paired_iou"]
 
 #: Where on a box its ground point is (`PipelineConfig.anchor`).
 ANCHORS = ("auto", "center", "bottom")
@@ -49,6 +49,23 @@ def box_iou(a_xyxy: NDArray, b_xyxy: NDArray) -> NDArray[np.float64]:
     area_b = (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1])
     union = area_a[:, None] + area_b[None, :] - inter
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+
+
+def paired_iou(a_xyxy: NDArray, b_xyxy: NDArray, *, generalised: bool = False) -> NDArray[np.float64]:
+    """(K, 4) x (K, 4) xyxy boxes -> (K,) IoU of a[k] with b[k] (0 for empty unions); generalised: the
+    generalised IoU (Rezatofighi et al. 2019), IoU minus the share of the two boxes' hull they leave empty,
+    in [-1, 1]."""
+    a = np.asarray(a_xyxy, dtype=np.float64).reshape(-1, 4)
+    b = np.asarray(b_xyxy, dtype=np.float64).reshape(-1, 4)
+    inter = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0.0, None) \
+        * np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
+    union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
+    iou = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+    if generalised:
+        hull = (np.maximum(a[:, 2], b[:, 2]) - np.minimum(a[:, 0], b[:, 0])) \
+            * (np.maximum(a[:, 3], b[:, 3]) - np.minimum(a[:, 1], b[:, 1]))
+        iou -= np.where(hull > 0, (hull - union) / np.where(hull > 0, hull, 1.0), 0.0)
+    return iou
 
 
 def nms(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,

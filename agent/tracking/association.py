@@ -9,7 +9,7 @@ import math
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.boxes import box_iou
+from agent.boxes import box_iou, paired_iou
 from agent.frame_result import FrameResult
 from agent.tracking.appearance import blend_descriptors, descriptor_distance, unit_rows
 from agent.tracking.assignment import gated_assignment, near_pairs, sparse_assignment
@@ -204,16 +204,8 @@ def image_cost(state: TrackState, ti: NDArray[np.int64], boxes: FloatArray, t: f
     cost = np.full(len(ti), 0.5)
     fresh = fresh_in_image(state, ti, t)
     if fresh.any():
-        a, b = expected_boxes(state, ti[fresh], t), boxes[fresh]
-        inter = np.clip(np.minimum(a[:, 2], b[:, 2]) - np.maximum(a[:, 0], b[:, 0]), 0.0, None) \
-            * np.clip(np.minimum(a[:, 3], b[:, 3]) - np.maximum(a[:, 1], b[:, 1]), 0.0, None)
-        union = (a[:, 2] - a[:, 0]) * (a[:, 3] - a[:, 1]) + (b[:, 2] - b[:, 0]) * (b[:, 3] - b[:, 1]) - inter
-        overlap = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
-        if state.config.image_overlap == "giou" and state.image_steady:
-            hull = (np.maximum(a[:, 2], b[:, 2]) - np.minimum(a[:, 0], b[:, 0])) \
-                * (np.maximum(a[:, 3], b[:, 3]) - np.minimum(a[:, 1], b[:, 1]))
-            overlap -= np.where(hull > 0, (hull - union) / np.where(hull > 0, hull, 1.0), 0.0)
-        cost[fresh] = 1.0 - overlap
+        generalised = state.config.image_overlap == "giou" and state.image_steady
+        cost[fresh] = 1.0 - paired_iou(expected_boxes(state, ti[fresh], t), boxes[fresh], generalised=generalised)
     return cost
 
 

@@ -11,6 +11,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.boxes import paired_iou
 from agent.tracking.assignment import near_pairs
 
 __all__ = ["anchored_offset", "correction_jacobian", "fit_pose_correction", "image_pairs", "track_offset"]
@@ -74,10 +75,7 @@ def image_pairs(track_boxes: NDArray, track_cls: NDArray, det_boxes: NDArray, de
                       0.5 * (b[:, :2] + b[:, 2:]), 0.5 * np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1]))
     keep = np.asarray(track_cls)[i] == np.asarray(det_cls)[j]
     i, j = i[keep], j[keep]
-    inter = np.clip(np.minimum(a[i, 2], b[j, 2]) - np.maximum(a[i, 0], b[j, 0]), 0.0, None) \
-        * np.clip(np.minimum(a[i, 3], b[j, 3]) - np.maximum(a[i, 1], b[j, 1]), 0.0, None)
-    union = (a[i, 2] - a[i, 0]) * (a[i, 3] - a[i, 1]) + (b[j, 2] - b[j, 0]) * (b[j, 3] - b[j, 1]) - inter
-    iou = np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
+    iou = paired_iou(a[i], b[j])
     keep = iou > 0
     i, j, iou = i[keep], j[keep], iou[keep]
     if not len(i):

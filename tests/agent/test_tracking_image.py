@@ -9,6 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from agent.boxes import box_iou, paired_iou
 from agent.frame_result import FrameResult
 from agent.tracking import GpsTracker, TrackerConfig
 from agent.tracking.association import expected_boxes, image_cost
@@ -168,3 +169,18 @@ def test_giou_gives_way_to_iou_where_a_shake_moved_the_whole_image() -> None:
     state.image_steady = False
     shaken = float(image_cost(state, np.array([0]), far, t)[0])
     assert steady > 1.5 and shaken == 1.0
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(1, 30), st.integers(0, 2**31))
+def test_paired_iou_is_the_diagonal_of_box_iou(n: int, seed: int) -> None:
+    """The row-wise IoU the image cue and the registration share equals the dense matrix's diagonal; its
+    generalised form never exceeds it and stays in [-1, 1]."""
+    rng = np.random.default_rng(seed)
+    xy = rng.uniform(0, 200, (2, n, 2))
+    wh = rng.uniform(0, 60, (2, n, 2))
+    a, b = np.concatenate([xy[0], xy[0] + wh[0]], axis=1), np.concatenate([xy[1], xy[1] + wh[1]], axis=1)
+    iou = paired_iou(a, b)
+    np.testing.assert_allclose(iou, np.diag(box_iou(a, b)))
+    giou = paired_iou(a, b, generalised=True)
+    assert np.all(giou <= iou + 1e-12) and np.all((giou >= -1 - 1e-12) & (giou <= 1 + 1e-12))
