@@ -14,14 +14,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from agent.clock_offset import ClockOffset, video_frames
-from agent.dataset import Candidates, Dataset, read_json
+from agent.clock_offset import ClockOffset, ClockOffsetSettings
+from agent.dataset import Candidates, Dataset, PoseProblem, VideoTelemetry, count_reasons, read_json
+from agent.file_frames import prepared_frames
 from agent.frame_result import FrameResult
 from agent.memory_map import MemoryMapConfig
 from agent.params_file import is_params, split_params
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
+from agent.stage_report import StageReport, StageSummary
 from shared.geo import Camera
 
 log = logging.getLogger(__name__)
@@ -104,18 +106,24 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
     when the clock offset is estimated, clock_offset_median_s and clock_offset_frames_measured (per frame
     in ``clock_offsets``: a dict image id -> ClockOffset, filled when given).
     """
-    stats = {"frames": 0, "frames_without_pose": 0, "candidates": 0, "size_filtered": 0, "detections": 0}
-    problems: list[str] = []
+    stats: dict[str, Any] = {"frames": 0, "frames_without_pose": 0, "candidates": 0, "size_filtered": 0,
+                             "detections": 0}
+    problems: list[PoseProblem] = []
+    stages = StageSummary()
     t0 = time.perf_counter()
     pipeline_time = 0.0
     corrections: list[float] = []
     offsets = clock_offsets if clock_offsets is not None else {}
+    settings = config.clock_offset_settings()
     for video_id in video_ids if video_ids is not None else list(dataset.videos):
         if video_id not in dataset.videos:
             raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
         pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
-        retimed = video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings(),
-                               problems=problems, dequantize=config.dequantize_telemetry)
+        telemetry = VideoTelemetry()
+        retimed = prepared_frames(dataset, camera, video_id, candidates, config, pipe, problems=problems,
+                                  report=telemetry)
+        for report in telemetry_reports(telemetry, settings):
+            stages.add(report)
         for frame, offset in retimed:
             if offset is not None:
                 offsets[frame.image.id] = offset
@@ -135,17 +143,50 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
                 corrections.append(math.hypot(result.correction.east_m, result.correction.north_m))
             if on_frame is not None:
                 on_frame(frame, result)
+        for report in pipe.stage_reports():
+            stages.add(report)
+    reasons = count_reasons(problems)
     if problems:
-        log.warning("%d frame(s) had unusable meta and were not boosted; first: %s", len(problems), problems[0])
-    stats["frames_with_bad_meta"] = len(problems)
+        log.warning("%d frame(s) have no pose and were not boosted (%s); first: %s", len(problems),
+                    ", ".join(f"{k} {v}" for k, v in reasons.items()), problems[0])
+    stats["frames_with_bad_meta"] = sum(v for k, v in reasons.items() if k != "no meta")
+    stats["frames_without_pose_by_reason"] = reasons
     if corrections:
         stats["correction_median_m"] = round(statistics.median(corrections), 3)
     if offsets:
         stats["clock_offset_median_s"] = round(statistics.median(o.offset_s for o in offsets.values()), 3)
         stats["clock_offset_frames_measured"] = sum(o.measured for o in offsets.values())
+    stats["stages"] = stages.as_dict()
     stats["seconds"] = round(time.perf_counter() - t0, 3)
     stats["pipeline_ms_per_frame"] = round(1000 * pipeline_time / max(stats["frames"], 1), 3)
     return stats
+
+
+def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings | None) -> list[StageReport]:
+    """The decisions of one video's telemetry stages (agent.telemetry_clock, agent.telemetry_dequantize,
+    agent.clock_offset) as stage reports."""
+    clock = info.clock
+    out = []
+    if clock.frames:
+        if clock.zone_offset_s:
+            out.append(StageReport("time zone", True, f"{clock.zone_offset_s / 3600:+g} h removed from the stamps"))
+        else:
+            out.append(StageReport("time zone", False, clock.reason or "stamps and frames on one clock"))
+        if info.at_frame_time:
+            whole = ", stamps at whole seconds" if clock.whole_seconds else ""
+            held = ", sample and hold" if clock.held_frames else ""
+            out.append(StageReport("telemetry at frame time", clock.samples >= 2,
+                                   f"interpolated between the telemetry's samples{whole}{held}"
+                                   if clock.samples >= 2 else "one telemetry sample"))
+        out.append(StageReport("dequantize", bool(info.quanta),
+                               ", ".join(f"{k} {v:g}" for k, v in info.quanta.items()) or "no quantised coordinate"))
+    if offset_settings is not None and clock.frames:
+        need = offset_settings.min_windows
+        acted = info.offset_windows >= need
+        out.append(StageReport("clock offset", acted,
+                               f"measured on {info.offset_windows} turning windows" if acted else
+                               f"{info.offset_windows} of {need} turning windows needed: telemetry as stamped"))
+    return out
 
 
 def results_to_coco(image_id: int, result: FrameResult) -> list[dict[str, Any]]:

@@ -24,8 +24,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.boxes import nms
-from agent.dataset import Candidates, Dataset, Frame, iter_video_frames
-from agent.telemetry_dequantize import dequantize_frames
+from agent.dataset import Candidates, Dataset, Frame, PoseProblem, VideoTelemetry, iter_video_frames
 from shared.geo import Camera, Pose, latlon_to_local, pixel_to_local
 
 __all__ = ["ClockOffset", "ClockOffsetEstimator", "ClockOffsetSettings", "HeadingTrack", "retime_frames",
@@ -43,7 +42,9 @@ _TWO_PASS_CHUNK = 1024
 class ClockOffsetSettings:
     """Settings of the clock-offset estimate.
 
-    fallback_s: the offset used before (and instead of) an estimate, seconds (the configured latency).
+    fallback_s: the offset used before (and instead of) an estimate, seconds: 0, the telemetry as stamped
+    (an offset is applied only where it was measured; 0.05 s, the simulator's latency, was the default
+    until real files showed it applied to every frame of flights it was never measured on).
     search_s: the estimate stays within +-search_s, seconds. coarse_step_s: step of the grid of offsets
     over +-search_s (the minimum is refined by a parabola through the best three). window_s: frames of this many past
     seconds are compared. lags_s: a frame is compared with the frames this many seconds earlier (the
@@ -66,7 +67,7 @@ class ClockOffsetSettings:
     fallback. False: the online (causal) estimate alone, as a live feed would have it.
     """
 
-    fallback_s: float = 0.05
+    fallback_s: float = 0.0
     search_s: float = 1.0
     coarse_step_s: float = 0.05
     window_s: float = 3.0
@@ -125,7 +126,13 @@ class HeadingTrack:
 
     @classmethod
     def from_frames(cls, frames: Iterable[Frame]) -> HeadingTrack:
-        """The distinct telemetry samples behind the frames' poses (pose_t, else frame time)."""
+        """The distinct telemetry samples behind the frames' poses: the video's track on the frame clock
+        (agent.telemetry_clock) when the frames carry it, else the frames' pose stamps (pose_t, else frame
+        time)."""
+        frames = list(frames)
+        track = next((fr.track for fr in frames if fr.track is not None), None)
+        if track is not None and len(track):
+            return cls(track.t, track.column("heading_deg"), track.column("pitch_deg"))
         seen: dict[float, tuple[float, float]] = {}
         for fr in frames:
             if fr.pose is None:
@@ -339,14 +346,18 @@ def frame_points(frame: Frame, boxes_xyxy: NDArray, scores: NDArray, class_ids: 
 
 
 def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArray, NDArray, NDArray]],
-                  settings: ClockOffsetSettings | None = None) -> list[tuple[Frame, ClockOffset | None]]:
+                  settings: ClockOffsetSettings | None = None, *,
+                  windows_out: list[int] | None = None) -> list[tuple[Frame, ClockOffset | None]]:
     """The video's frames with poses re-timed by the online clock-offset estimate.
 
     frames: one video's frames in time order; candidates(frame) -> (boxes_xyxy (K, 4), scores (K,),
     class_ids (K,)) of the frame's detections. Each frame's offset comes from the frames before it (and the
     telemetry up to search_s after it) or, with settings.two_pass (the default), from the whole video's
     informative windows weighted by their distance in time; its pose gets the heading and pitch
-    interpolated at t + offset and pose_t = t. Frames without pose are returned unchanged with None.
+    interpolated at t + offset (with the video's telemetry track, agent.telemetry_clock: the whole pose)
+    and pose_t = t. Frames without pose are returned unchanged with None. windows_out: the number of
+    informative windows found is appended (the estimate's evidence; below min_windows it stood down and
+    every frame keeps fallback_s).
     """
     settings = settings or ClockOffsetSettings()
     track = HeadingTrack.from_frames(frames)
@@ -363,6 +374,8 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
         uav = np.array([float(v) for v in latlon_to_local(fr.pose.lat, fr.pose.lon, *origin)])
         est.add(fr.t, frame_points(fr, *candidates(fr), settings), uav, fr.pose.heading_deg)
     offsets = online
+    if windows_out is not None:
+        windows_out.append(len(est.windows))
     if settings.two_pass:
         posed = [i for i, off in enumerate(online) if off is not None]
         smoothed = est.smoothed_at(np.array([frames[i].t for i in posed])) if posed else None
@@ -379,25 +392,35 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
         if off is None or fr.pose is None:
             out.append((fr, None))
             continue
-        heading, pitch = track.at(fr.t + off.offset_s)
-        pose = Pose(fr.pose.lat, fr.pose.lon, fr.pose.height_m, min(max(pitch, 0.0), 90.0), heading, fr.pose.roll_deg)
+        if fr.track is not None and len(fr.track):  # the whole pose at t + offset (positions too)
+            lat, lon, height, heading, pitch = (float(v) for v in fr.track.at(fr.t + off.offset_s)[0])
+            pose = Pose(lat, lon, max(height, 0.1), min(max(pitch, 0.0), 90.0), heading, fr.pose.roll_deg)
+        else:
+            heading, pitch = track.at(fr.t + off.offset_s)
+            pose = Pose(fr.pose.lat, fr.pose.lon, fr.pose.height_m, min(max(pitch, 0.0), 90.0), heading,
+                        fr.pose.roll_deg)
         out.append((replace(fr, pose=pose, pose_t=fr.t, pose_retimed=True), off))
     return out
 
 
 def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Candidates,
-                 settings: ClockOffsetSettings | None, *, problems: list[str] | None = None,
-                 dequantize: bool = False) -> list[tuple[Frame, ClockOffset | None]]:
-    """One video's frames (`iter_video_frames`, which appends unusable meta to problems), with quantised
-    GPS and altitude made continuous when dequantize (agent.telemetry_dequantize), re-timed by the
-    clock-offset estimate when settings are given (`retime_frames`; its detections: the candidates), else
-    as they are, with None."""
-    frames = list(iter_video_frames(dataset, camera, video_id, problems=problems))
-    if dequantize:
-        frames, quanta = dequantize_frames(frames)
-        if quanta:
-            log.info("video %s: quantised telemetry (%s) made continuous", video_id,
-                     ", ".join(f"{k} {v:g}" for k, v in quanta.items()))
+                 settings: ClockOffsetSettings | None, *, problems: list[PoseProblem] | None = None,
+                 dequantize: bool = False, at_frame_time: bool = True,
+                 report: VideoTelemetry | None = None) -> list[tuple[Frame, ClockOffset | None]]:
+    """One video's frames (`iter_video_frames`: telemetry on the frame clock, unusable meta appended to
+    problems, quantised GPS and altitude made continuous when dequantize, poses at the frames' times unless
+    not at_frame_time), re-timed by the clock-offset estimate when settings are given (`retime_frames`; its
+    detections: the candidates), else as they are, with None. report: filled as `iter_video_frames` does,
+    with the clock offset's informative windows."""
+    info = report if report is not None else VideoTelemetry()
+    frames = list(iter_video_frames(dataset, camera, video_id, problems=problems, dequantize=dequantize,
+                                    at_frame_time=at_frame_time, report=info))
+    if info.quanta:
+        log.info("video %s: quantised telemetry (%s) made continuous", video_id,
+                 ", ".join(f"{k} {v:g}" for k, v in info.quanta.items()))
     if settings is None:
         return [(f, None) for f in frames]
-    return retime_frames(frames, lambda f: candidates.get(f.image.id), settings)
+    windows: list[int] = []
+    out = retime_frames(frames, lambda f: candidates.get(f.image.id), settings, windows_out=windows)
+    info.offset_windows = windows[0] if windows else 0
+    return out

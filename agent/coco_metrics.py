@@ -15,7 +15,7 @@ from typing import Any
 
 from agent.dataset import read_json
 
-__all__ = ["coco_detection_metrics", "load_images", "load_results"]
+__all__ = ["coco_detection_metrics", "load_images", "load_results", "per_class_metrics"]
 
 
 def _load_json(obj: Any, what: str) -> Any:
@@ -37,6 +37,21 @@ def load_results(results: str | Path | Sequence[dict[str, Any]]) -> list[dict[st
     if not isinstance(res, list):
         raise ValueError(f"results must be a list of COCO result dicts, got {type(res).__name__}")
     return res
+
+
+def _gt_dataset(gt: dict[str, Any]) -> dict[str, Any]:
+    """The ground truth as pycocotools reads it: real files often leave out ``iscrowd`` and ``area`` (COCO's
+    own loader needs both), which default to 0 and the box's area."""
+    annotations = []
+    for a in gt["annotations"]:
+        if "iscrowd" not in a or "area" not in a:
+            a = dict(a)
+            a.setdefault("iscrowd", 0)
+            if "area" not in a:
+                box = a.get("bbox") or [0, 0, 0, 0]
+                a["area"] = float(box[2]) * float(box[3])
+        annotations.append(a)
+    return {"images": gt["images"], "annotations": annotations, "categories": gt.get("categories", [])}
 
 
 def coco_detection_metrics(images_json: str | Path | dict[str, Any],
@@ -73,8 +88,7 @@ def coco_detection_metrics(images_json: str | Path | dict[str, Any],
         return {"AP50": 0.0, "AP": 0.0, "AR100": 0.0}
     with contextlib.redirect_stdout(io.StringIO()):
         coco_gt = COCO()
-        coco_gt.dataset = {"images": gt["images"], "annotations": gt["annotations"],
-                           "categories": gt.get("categories", [])}
+        coco_gt.dataset = _gt_dataset(gt)
         coco_gt.createIndex()
         coco_dt = coco_gt.loadRes(res)
         ev = COCOeval(coco_gt, coco_dt, "bbox")
@@ -84,3 +98,60 @@ def coco_detection_metrics(images_json: str | Path | dict[str, Any],
         ev.summarize()
     stats = [max(float(s), 0.0) for s in ev.stats]  # -1 (no ground truth) -> 0
     return {"AP50": stats[1], "AP": stats[0], "AR100": stats[8]}
+
+
+def per_class_metrics(images_json: str | Path | dict[str, Any],
+                      results: str | Path | Sequence[dict[str, Any]], *,
+                      image_ids: Iterable[int] | None = None) -> dict[str, dict[str, float]]:
+    """AP50 and AR@100 per category and over all of them, from one pycocotools evaluation.
+
+    Returns ``{"all": {...}, name: {...}, ...}`` with ``AP50``, ``AR100`` and ``gt`` (ground-truth boxes) per
+    category that has ground truth in the evaluated images, fractions in [0, 1] as `coco_detection_metrics`
+    gives them ("all" is COCO's mean over those categories, the figure `coco_detection_metrics` reports).
+    """
+    import numpy as np
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    gt = load_images(images_json)
+    res = [dict(r) for r in load_results(results)]
+    ids = sorted({int(i["id"]) for i in gt["images"]}) if image_ids is None else sorted({int(i) for i in image_ids})
+    id_set = set(ids)
+    res = [r for r in res if int(r["image_id"]) in id_set]
+    names = {int(c["id"]): str(c["name"]) for c in gt.get("categories", [])}
+    counts: dict[int, int] = {}
+    for a in gt["annotations"]:
+        if int(a["image_id"]) in id_set and not a.get("iscrowd", 0):
+            counts[int(a["category_id"])] = counts.get(int(a["category_id"]), 0) + 1
+    out: dict[str, dict[str, float]] = {}
+    if not res or not ids:
+        out["all"] = {"AP50": 0.0, "AR100": 0.0, "gt": float(sum(counts.values()))}
+        for cid, n in sorted(counts.items()):
+            out[names.get(cid, str(cid))] = {"AP50": 0.0, "AR100": 0.0, "gt": float(n)}
+        return out
+    with contextlib.redirect_stdout(io.StringIO()):
+        coco_gt = COCO()
+        coco_gt.dataset = _gt_dataset(gt)
+        coco_gt.createIndex()
+        coco_dt = coco_gt.loadRes(res)
+        ev = COCOeval(coco_gt, coco_dt, "bbox")
+        ev.params.imgIds = ids
+        ev.evaluate()
+        ev.accumulate()
+    precision = ev.eval["precision"]  # (T, R, K, A, M): IoU thresholds, recall points, classes, areas, max dets
+    recall = ev.eval["recall"]  # (T, K, A, M)
+    t50 = int(np.argmin(np.abs(ev.params.iouThrs - 0.5)))
+    ap50, ar100 = [], []
+    for k, cid in enumerate(ev.params.catIds):
+        if cid not in counts:
+            continue
+        p = precision[t50, :, k, 0, -1]
+        r = recall[:, k, 0, -1]
+        ap = float(np.mean(p[p > -1])) if (p > -1).any() else 0.0
+        ar = float(np.mean(r[r > -1])) if (r > -1).any() else 0.0
+        out[names.get(cid, str(cid))] = {"AP50": ap, "AR100": ar, "gt": float(counts[cid])}
+        ap50.append(ap)
+        ar100.append(ar)
+    out = {"all": {"AP50": float(np.mean(ap50)) if ap50 else 0.0, "AR100": float(np.mean(ar100)) if ar100 else 0.0,
+                   "gt": float(sum(counts.values()))}, **out}
+    return out

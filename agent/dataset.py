@@ -8,8 +8,8 @@ from __future__ import annotations
 import json
 import logging
 import math
-from collections import defaultdict
-from collections.abc import Iterator
+from collections import Counter, defaultdict
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -17,12 +17,19 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.telemetry_clock import ClockReport, TelemetryClockSettings, TelemetryTrack, reconcile_clock
+from agent.telemetry_dequantize import dequantize_track
 from shared.geo import Camera, Pose
-from shared.telemetry import from_seadronessee_meta, parse_datetime
+from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
+from shared.telemetry.seadronessee import MetaProblem, pitch_convention_of
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FPS = 30.0
+#: Images with neither ``source.video`` nor ``video_id`` are split into videos where their clock jumps by
+#: more than this many seconds (and more than TIME_GAP_STEPS of their median step).
+TIME_GAP_S = 10.0
+TIME_GAP_STEPS = 20.0
 
 
 def read_json(path: str | Path, what: str) -> Any:
@@ -51,12 +58,18 @@ class ImageRecord:
 
 @dataclass
 class Dataset:
-    """A COCO images file: images grouped by video (sorted by frame index) and categories."""
+    """A COCO images file: images grouped by video (sorted by frame index) and categories.
+
+    Videos: ``source.video`` (SeaDronesSee Object Detection v2, per ``source.drone``), else ``video_id``,
+    else split by the images' clock; frame index: ``source.frame_no``, else ``frame_index``.
+    """
 
     images: dict[int, ImageRecord]
     videos: dict[int, list[ImageRecord]]
     categories: dict[int, str]
     coco: dict[str, Any] = field(repr=False)
+    #: video id -> name (the COCO ``videos`` list, ``source.video``); videos without one are absent
+    video_names: dict[int, str] = field(default_factory=dict)
 
     @classmethod
     def load(cls, path: str | Path) -> Dataset:
@@ -74,14 +87,16 @@ class Dataset:
             if not isinstance(c, dict) or not isinstance(c.get("id"), int) or not isinstance(c.get("name"), str):
                 raise ValueError(f"{source}: categories[{i}] needs an integer 'id' and a string 'name'")
             categories[c["id"]] = c["name"]
+        ids = _video_ids([im for im in coco["images"] if isinstance(im, dict)])
         images: dict[int, ImageRecord] = {}
         for i, im in enumerate(coco["images"]):
             if not isinstance(im, dict):
                 raise ValueError(f"{source}: images[{i}] is not an object")
             try:
+                video_id, frame_index = ids[id(im)]
                 rec = ImageRecord(
                     id=_int(im, "id"), width=_int(im, "width"), height=_int(im, "height"),
-                    video_id=_int(im, "video_id", 0), frame_index=_int(im, "frame_index", i),
+                    video_id=video_id, frame_index=i if frame_index is None else frame_index,
                     date_time=im.get("date_time") if isinstance(im.get("date_time"), str) else None,
                     meta=im.get("meta") if isinstance(im.get("meta"), dict) else None,
                     file_name=str(im.get("file_name", "")),
@@ -96,7 +111,118 @@ class Dataset:
             videos[rec.video_id].append(rec)
         for frames in videos.values():
             frames.sort(key=lambda r: r.frame_index)
-        return cls(images, dict(sorted(videos.items())), categories, coco)
+        names = _video_names(coco, ids, [im for im in coco["images"] if isinstance(im, dict)])
+        return cls(images, dict(sorted(videos.items())), categories, coco, names)
+
+
+def _source(im: dict) -> dict:
+    src = im.get("source")
+    return src if isinstance(src, dict) else {}
+
+
+def _source_video(im: dict) -> tuple[str, str] | None:
+    """(drone, video) of SeaDronesSee Object Detection v2's ``source``, None without a video name."""
+    src = _source(im)
+    video = src.get("video")
+    if not isinstance(video, str) or not video.strip():
+        return None
+    drone = src.get("drone")
+    return (drone.strip() if isinstance(drone, str) else "", video.strip())
+
+
+def _image_time(im: dict) -> float | None:
+    """An image's time for grouping: its own date_time, else its meta's; None when neither parses."""
+    texts = [im.get("date_time")]
+    meta = im.get("meta")
+    if isinstance(meta, dict):
+        texts += [meta.get("date_time")] + [v for k, v in meta.items() if isinstance(k, str)
+                                            and k.lower().startswith("datetime")]
+    for text in texts:
+        if isinstance(text, str) and text.strip():
+            try:
+                return parse_datetime(text)
+            except ValueError:
+                continue
+    return None
+
+
+def _video_ids(images: list[dict]) -> dict[int, tuple[int, int | None]]:
+    """Video id and frame index of every image (keyed by id() of its dict).
+
+    Videos come from ``source.video`` (with ``source.drone``: two drones' files may share a name), else
+    ``video_id``, else the images' clock: sorted by time and split where it jumps (TIME_GAP_S). Frame
+    indices: ``source.frame_no``, else ``frame_index``, else the order in time (None: the file's order).
+    Names from ``source`` get integer ids after the largest ``video_id`` in the file, in sorted order.
+    """
+    out: dict[int, tuple[int, int | None]] = {}
+    named: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    loose: list[dict] = []
+    used: set[int] = set()
+    for im in images:
+        key = _source_video(im)
+        frame = _source(im).get("frame_no", im.get("frame_index"))
+        if key is not None:
+            named[key].append(im)
+        elif "video_id" in im:
+            vid = _int(im, "video_id")
+            used.add(vid)
+            out[id(im)] = (vid, None if frame is None else _int({"frame_index": frame}, "frame_index"))
+        else:
+            loose.append(im)
+    next_id = max(used) + 1 if used else (1 if named else 0)  # a file of loose images alone: video 0, as before
+    for key in sorted(named):
+        for im in named[key]:
+            frame = _source(im).get("frame_no", im.get("frame_index"))
+            out[id(im)] = (next_id, None if frame is None else _int({"frame_index": frame}, "frame_index"))
+        next_id += 1
+    if loose:
+        for group in _split_by_time(loose):
+            timed = all(_image_time(im) is not None for im in group)
+            for rank, im in enumerate(group):
+                frame = im.get("frame_index")
+                out[id(im)] = (next_id, _int(im, "frame_index") if frame is not None else (rank if timed else None))
+            next_id += 1
+    return out
+
+
+def _split_by_time(images: list[dict]) -> list[list[dict]]:
+    """Images without a video, as videos: in time order, split where the clock jumps by more than
+    TIME_GAP_S and TIME_GAP_STEPS median steps; images without a time form one video in file order."""
+    timed = [(t, i, im) for i, im in enumerate(images) if (t := _image_time(im)) is not None]
+    untimed = [im for im in images if _image_time(im) is None]
+    groups: list[list[dict]] = []
+    if timed:
+        timed.sort(key=lambda item: (item[0], item[1]))
+        times = np.array([item[0] for item in timed])
+        steps = np.diff(times)
+        median = float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
+        gap = max(TIME_GAP_S, TIME_GAP_STEPS * median)
+        cuts = np.flatnonzero(steps > gap) + 1
+        for part in np.split(np.arange(len(timed)), cuts):
+            groups.append([timed[k][2] for k in part])
+    if untimed:
+        groups.append(untimed)
+    return groups
+
+
+def _video_names(coco: dict, ids: dict[int, tuple[int, int | None]], images: list[dict]) -> dict[int, str]:
+    """Video id -> name: the COCO ``videos`` list, ``source.video`` (with the drone when two share it)."""
+    names: dict[int, str] = {}
+    for v in coco.get("videos") or []:
+        if isinstance(v, dict) and isinstance(v.get("id"), int) and isinstance(v.get("name"), str) and v["name"]:
+            names[v["id"]] = v["name"]
+    by_name: dict[str, set[str]] = defaultdict(set)
+    for im in images:
+        key = _source_video(im)
+        if key is not None:
+            by_name[key[1]].add(key[0])
+    for im in images:
+        key = _source_video(im)
+        vid = ids[id(im)][0]
+        if key is not None and vid not in names:
+            drone, video = key
+            names[vid] = f"{drone}_{video}" if len(by_name[video]) > 1 and drone else video
+    return names
 
 
 def _int(d: dict, key: str, default: int | None = None) -> int:
@@ -246,61 +372,172 @@ class Frame:
     t: float
     camera: Camera
     pose_t: float | None = None  # time of the telemetry sample behind the pose (may lag t)
-    #: The pose was interpolated at the frame's time by the clock-offset estimate (agent.clock_offset): it
-    #: needs no latency compensation (GpsTracker.update(pose_retimed=True)).
+    #: The pose is the telemetry at the frame's own time (interpolated between its samples, or re-timed by the
+    #: clock-offset estimate, agent.clock_offset): it needs no latency compensation
+    #: (GpsTracker.update(pose_retimed=True)).
     pose_retimed: bool = False
+    #: The video's telemetry samples on the frame clock (shared by its frames), for stages that re-time poses.
+    track: TelemetryTrack | None = None
+
+
+@dataclass(frozen=True, slots=True)
+class PoseProblem:
+    """Why a frame has no pose: reason (a short class, counted in summaries) and the detail."""
+
+    image_id: int
+    reason: str
+    detail: str
+
+    def __str__(self) -> str:
+        return f"image {self.image_id}: {self.detail}"
+
+
+def count_reasons(problems: Iterable[PoseProblem]) -> dict[str, int]:
+    """{reason: frames}, most frequent first."""
+    counts = Counter(p.reason for p in problems)
+    return dict(counts.most_common())
+
+
+@dataclass
+class VideoTelemetry:
+    """What reading one video's telemetry found and did: the pitch convention of its meta, the clock stage's
+    report (agent.telemetry_clock), the quanta made continuous (agent.telemetry_dequantize), and whether
+    poses were interpolated at the frames' times."""
+
+    pitch_convention: str = "depression"
+    clock: ClockReport = field(default_factory=ClockReport)
+    quanta: dict[str, float] = field(default_factory=dict)
+    at_frame_time: bool = False
+    #: informative windows the clock-offset estimate found (agent.clock_offset; 0 when it did not run)
+    offset_windows: int = 0
+
+
+def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto") -> tuple[Telemetry | None, PoseProblem | None]:
+    """An image's telemetry record from its meta, or (None, the problem). A frame without meta has the
+    problem "no meta"; its own date_time stands in for a meta without a time."""
+    if image.meta is None:
+        return None, PoseProblem(image.id, "no meta", "no meta")
+    t_default = None
+    if image.date_time:
+        try:
+            t_default = parse_datetime(image.date_time)
+        except ValueError:
+            t_default = None
+    try:
+        tel = from_seadronessee_meta(image.meta, image.frame_index, pitch_convention=pitch_convention,
+                                     t_default=t_default)
+    except MetaProblem as exc:
+        return None, PoseProblem(image.id, exc.reason, str(exc))
+    except ValueError as exc:
+        return None, PoseProblem(image.id, "bad value", str(exc))
+    assert tel is not None
+    if tel.pitch_deg is None:
+        return None, PoseProblem(image.id, "no pitch", "telemetry has no gimbal pitch")
+    if tel.heading_deg is None:
+        return None, PoseProblem(image.id, "no heading", "telemetry has no gimbal heading")
+    if tel.height_m is None or tel.height_m <= 0:
+        return None, PoseProblem(image.id, "no height", f"height above ground {tel.height_m!r} is not > 0 m")
+    return tel, None
 
 
 def frame_pose(image: ImageRecord) -> tuple[Pose | None, float | None, str | None]:
-    """Pose and time from an image's meta: (pose, t, problem). Problem names why pose is None."""
-    if image.meta is None:
-        return None, None, None
-    meta = image.meta
-    if "date_time" not in meta and image.date_time:
-        meta = {**meta, "date_time": image.date_time}
+    """Pose and time from an image's own meta: (pose, t, problem). Problem names why pose is None (None too
+    when the frame has no meta)."""
+    tel, problem = frame_telemetry(image)
+    if tel is None:
+        return None, None, None if problem is None or problem.reason == "no meta" else problem.detail
     try:
-        tel = from_seadronessee_meta(meta, image.frame_index)
-        assert tel is not None
         return tel.to_pose(), tel.t, None
     except ValueError as exc:
         return None, None, str(exc)
 
 
+def _frame_clock(image: ImageRecord) -> float | None:
+    if not image.date_time:
+        return None
+    try:
+        t = parse_datetime(image.date_time)
+    except ValueError:
+        return None
+    return t if math.isfinite(t) else None
+
+
 def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: float = DEFAULT_FPS,
-                      problems: list[str] | None = None) -> Iterator[Frame]:
+                      problems: list[PoseProblem] | None = None, at_frame_time: bool = True,
+                      dequantize: bool = False, clock: TelemetryClockSettings | None = None,
+                      report: VideoTelemetry | None = None) -> Iterator[Frame]:
     """Frames of one video in frame order, with pose and time.
 
-    Time: the image's date_time (the frame clock), else the meta's, else the previous frame's time plus
-    the frame-index step / fps (frame_index / fps for the first); a frame whose
-    meta cannot be used (missing gimbal angles, garbage values) gets pose None and its problem is
-    appended to `problems` (when given). The camera is rescaled when the image size differs.
+    Time: the image's date_time (the frame clock), else its telemetry stamp moved onto the frame clock,
+    else the previous frame's time plus the frame-index step / fps (frame_index / fps for the first); never
+    backwards. The telemetry is put on the frame clock first (agent.telemetry_clock: a time-zone offset
+    removed, sample-and-hold repeats recognised). at_frame_time: each pose is the telemetry interpolated at
+    its frame's time between the samples (pose_retimed, with the video's track); False: each frame keeps the
+    sample it carries (the paper's rule), stamped on the frame clock. dequantize: GPS written with 4-5
+    decimals and altitude in whole or half metres made continuous (agent.telemetry_dequantize; with
+    at_frame_time). A frame whose meta is missing or cannot be used gets pose None and its problem is
+    appended to `problems` (when given); `report` (when given) is filled with what was found. The camera is
+    rescaled when the image size differs. The pitch convention (positive or, as DJI writes it, negative
+    below the horizon) is decided per video (`shared.telemetry.seadronessee.pitch_convention_of`).
     """
+    images = dataset.videos[video_id]
+    info = report if report is not None else VideoTelemetry()
+    info.pitch_convention = pitch_convention_of(image.meta for image in images)
+    info.at_frame_time = at_frame_time
     cameras: dict[tuple[int, int], Camera] = {}
-    t_prev: float | None = None
-    i_prev = 0
-    for image in dataset.videos[video_id]:
+    records: list[Telemetry | None] = []
+    clocks: list[float | None] = []
+    for image in images:
         key = (image.width, image.height)
         if key not in cameras:
             cameras[key] = camera.fitted_to(*key, source=f"the frames of video {video_id}")
             if key != (camera.width, camera.height) and camera.preset is None:  # a preset has no size of its own
                 log.warning("camera is %dx%d, the frames of video %s are %dx%d: scaled the intrinsics to them",
                             camera.width, camera.height, video_id, *key)
-        pose, pose_t, problem = frame_pose(image)
+        tel, problem = frame_telemetry(image, info.pitch_convention)
         if problem is not None and problems is not None:
-            problems.append(f"image {image.id}: {problem}")
+            problems.append(problem)
+        records.append(tel)
+        clocks.append(_frame_clock(image))
+    posed = [i for i, tel in enumerate(records) if tel is not None]
+    track: TelemetryTrack | None = None
+    zone = 0.0
+    if posed:
+        stamps = np.array([records[i].t for i in posed])  # type: ignore[union-attr]
+        own_clock = np.array([clocks[i] is not None for i in posed])
+        frame_t = np.array([clocks[i] if clocks[i] is not None else records[i].t for i in posed])  # type: ignore
+        values = np.array([[r.lat, r.lon, r.height_m, r.heading_deg, r.pitch_deg]
+                           for r in (records[i] for i in posed)], dtype=np.float64)  # type: ignore[union-attr]
+        track, info.clock = reconcile_clock(frame_t, stamps, values, own_clock, clock)
+        zone = info.clock.zone_offset_s
+        if dequantize and at_frame_time:
+            track, info.quanta = dequantize_track(track)
+    t_prev: float | None = None
+    i_prev = 0
+    for image, tel, frame_clock in zip(images, records, clocks, strict=True):
         # The frame's own clock first: telemetry at 10 Hz repeats its time for 3 frames at 30 fps.
-        t = None
-        if image.date_time:
-            try:
-                t = parse_datetime(image.date_time)
-            except ValueError:
-                t = None
-        if t is None:
-            t = pose_t
+        t = frame_clock
+        if t is None and tel is not None:
+            t = tel.t + zone
         if t is None or not math.isfinite(t):
             # No clock on this frame: continue the last one by the frame-index step.
             t = image.frame_index / fps if t_prev is None else t_prev + (image.frame_index - i_prev) / fps
         if t_prev is not None and t < t_prev:
             t = t_prev  # non-monotonic clocks: never run the memory backwards
         t_prev, i_prev = t, image.frame_index
-        yield Frame(image, pose, t, cameras[key], pose_t)
+        cam = cameras[(image.width, image.height)]
+        if tel is None:
+            yield Frame(image, None, t, cam)
+            continue
+        try:
+            if at_frame_time and track is not None:
+                lat, lon, height, heading, pitch = (float(v) for v in track.at(t)[0])
+                pose = Pose(lat, lon, max(height, 0.1), min(max(pitch, 0.0), 90.0), heading, tel.roll_deg)
+                frame = Frame(image, pose, t, cam, t, True, track)
+            else:
+                frame = Frame(image, tel.to_pose(), t, cam, tel.t + zone)
+        except ValueError as exc:
+            if problems is not None:
+                problems.append(PoseProblem(image.id, "bad pose", str(exc)))
+            frame = Frame(image, None, t, cam)
+        yield frame

@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+from collections.abc import Iterable
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +21,8 @@ from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
 from agent.score_calibration import ScoreCalibration
 from agent.size_filter import SizeFilter, _warn_unfiltered
+from agent.size_filter_check import SizeFilterCheck
+from agent.stage_report import StageReport
 from agent.telemetry_correction import GroundCorrection, GroundOffsetEstimator, register_offset
 from shared.geo import (
     Camera,
@@ -69,6 +72,64 @@ class DetectionPipeline:
         self.grid = grid or TileGrid()
         self.memory = MemoryMap(self.config.memory, self.grid)
         self.joint = joint
+        self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
+        self._classes_seen: set[str] = set()  # classes with candidates in this video, for the reports
+
+    @property
+    def active_size_filter(self) -> SizeFilter:
+        """The size filter as applied: the priors of the classes whose check against the data passed
+        (agent.size_filter_check); the others pass unfiltered."""
+        check = self._size_check
+        if check.size_filter is not self.size_filter:  # a caller swapped the filter: check it afresh
+            check = self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
+        return check.active
+
+    def prime(self, frames: Iterable[tuple[Pose | None, Camera, NDArray, NDArray, NDArray]]) -> None:
+        """Let the adaptive stages judge their evidence on a whole video before its first frame (files):
+        frames: (pose, camera, boxes_xyxy, scores, class_ids) per frame. The size filter's check and the
+        score calibration's input check decide on it and observe no more."""
+        calibration = self._calibration()
+        for pose, camera, boxes, scores, cids in frames:
+            scores = np.asarray(scores, dtype=np.float32).reshape(-1)
+            if calibration is not None:
+                calibration.check.observe(scores)
+            if pose is not None and self.config.use_size_filter and len(scores):
+                saved, self.camera = self.camera, camera
+                try:
+                    self._observe_sizes(np.asarray(boxes, dtype=np.float32).reshape(-1, 4), scores,
+                                        np.asarray(cids, dtype=np.int64).reshape(-1), pose)
+                finally:
+                    self.camera = saved
+        self._size_check.freeze()
+        if calibration is not None:
+            calibration.check.freeze()
+
+    def _observe_sizes(self, boxes: NDArray[np.float32], conf: NDArray[np.float32], cids: NDArray[np.int64],
+                       pose: Pose) -> None:
+        """Show the size filter's check the frame's confident boxes and what the full prior says of them."""
+        check = self._size_check
+        if check.frozen:
+            return
+        sure = np.flatnonzero(conf >= check.settings.min_score)
+        if not len(sure):
+            return
+        b, c = boxes[sure], cids[sure]
+        east, north, valid = pixel_to_local(box_anchor_points(b, self.config.anchor, pose.pitch_deg), self.camera,
+                                            pose, max_range_m=self.config.range_limit_m)
+        if not valid.any():
+            return
+        b, c, east, north = b[valid], c[valid], east[valid], north[valid]
+        slant = np.sqrt(east**2 + north**2 + pose.height_m**2)
+        depression = np.degrees(np.arcsin(pose.height_m / slant))
+        diag = np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
+        for cid in distinct_ids(c).tolist():
+            name = self.class_names[cid]
+            band = self.size_filter.bands.get(name)
+            if band is None:
+                continue
+            sel = c == cid
+            check.observe(name, self.size_filter.accept_class(name, diag[sel], slant[sel], depression[sel],
+                                                              self._focal_px))
 
     @property
     def _focal_px(self) -> float:
@@ -76,10 +137,13 @@ class DetectionPipeline:
         return math.sqrt(self.camera.fx * self.camera.fy)
 
     def reset(self) -> None:
-        """Forget the memory and the telemetry correction (start of another video)."""
+        """Forget the memory, the telemetry correction and what the adaptive stages judged (start of another
+        video)."""
         self.memory.reset()
         self.__dict__.pop("_corrector", None)
         self.__dict__.pop("_score_calibration", None)
+        self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
+        self._classes_seen = set()
 
     def process(self, boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray,
                 pose: Pose | None, t: float, embeddings: NDArray | None = None) -> FrameResult:
@@ -100,6 +164,8 @@ class DetectionPipeline:
         unknown = set(present) - set(self.class_names)
         if unknown:
             raise ValueError(f"unknown class id(s) {sorted(unknown)}; known: {sorted(self.class_names)}")
+        if len(present) and not self._classes_seen.issuperset(self.class_names[c] for c in present):
+            self._classes_seen.update(self.class_names[c] for c in present)
         cfg = self.config
         src: NDArray[np.int64] | None = None  # rows of the input still in play (None: all), for the embeddings
         if embeddings is not None:
@@ -112,6 +178,8 @@ class DetectionPipeline:
             lat = np.full(n, np.nan)
             lon = np.full(n, np.nan)
         else:
+            if cfg.use_size_filter and not self._size_check.frozen:
+                self._observe_sizes(boxes, conf, cids, pose)
             # one compiled pass, unless the lens distortion needs OpenCV's undistortion (or class ids are sparse)
             if self.camera.dist is None and self._band_tables() is not None:
                 lat, lon, valid, ok = self._georeference_and_filter(boxes, cids, present, pose)
@@ -151,6 +219,21 @@ class DetectionPipeline:
             result = self._with_joint_detections(result, pose, t)
         return result
 
+    def stage_reports(self) -> list[StageReport]:
+        """What the adaptive per-frame stages did in this video (agent.stage_report): the size filter per
+        class, the score calibration, the telemetry correction."""
+        cfg = self.config
+        out: list[StageReport] = []
+        if cfg.use_size_filter:
+            out += self._size_check.reports(sorted(self._classes_seen))
+        calibration = self._calibration()
+        if calibration is not None:
+            out.append(calibration.report())
+        corrector = self.__dict__.get("_corrector")
+        if corrector is not None:
+            out.append(corrector[1].report())
+        return out
+
     def _calibration(self) -> ScoreCalibration | None:
         """The video's score calibration (agent.score_calibration), None when off or without the memory map."""
         cfg = self.config
@@ -170,7 +253,8 @@ class DetectionPipeline:
             registration.reset()
             carry.reset()
         return add_joint_detections(result, pose, t, config=self.config, joint=self.joint, memory=self.memory,
-                                    camera=self.camera, class_names=self.class_names, size_filter=self.size_filter,
+                                    camera=self.camera, class_names=self.class_names,
+                                    size_filter=self.active_size_filter,
                                     registration=registration, carry=carry if self.config.joint_carry_s > 0 else None)
 
     def _georeference_and_filter(self, boxes: NDArray[np.float32], cids: NDArray[np.int64], present: list[int],
@@ -191,7 +275,7 @@ class DetectionPipeline:
             band_of_class = band_of_class[:0]
         else:
             for cid in present:  # as SizeFilter.accept_class does for a class without a band
-                if band_of_class[cid - lo] < 0:
+                if band_of_class[cid - lo] < 0 and self.class_names[cid] not in self.size_filter.bands:
                     _warn_unfiltered(self.class_names[cid])
         # the radii shared.geo.local_to_latlon divides by
         origin = np.array([pose.lat, pose.lon, float(meridian_radius_m(pose.lat)),
@@ -201,7 +285,7 @@ class DetectionPipeline:
             np.ascontiguousarray(pose.R_world_from_cam, dtype=np.float64),
             math.sin(math.radians(horizon_dip_deg(pose.height_m))), float(pose.height_m),
             float(cfg.range_limit_m), origin, lo, band_of_class, knots, curves, n_knots, sure,
-            float(self.size_filter.k), self._focal_px)
+            float(self.active_size_filter.k), self._focal_px)
         return lat, lon, valid, ok if cfg.use_size_filter else None
 
     def _band_tables(self) -> tuple[int, NDArray[np.int64], NDArray, NDArray, NDArray[np.int64], NDArray] | None:
@@ -211,8 +295,9 @@ class DetectionPipeline:
         sure bounds (B, SURE_BINS, 4)), rebuilt when the size filter or the classes change; None when the
         class ids span over 65,536.
         """
+        size_filter = self.active_size_filter
         cached = self.__dict__.get("_bands")
-        if cached is not None and cached[0] is self.size_filter and cached[1] == self.class_names:
+        if cached is not None and cached[0] is size_filter and cached[1] == self.class_names:
             return cached[2]
         ids = sorted(self.class_names)
         lo = ids[0] if ids else 0
@@ -221,7 +306,7 @@ class DetectionPipeline:
         band_of_class = np.full(ids[-1] - lo + 1 if ids else 0, -1, dtype=np.int64)
         bands = []
         for cid in ids:
-            band = self.size_filter.bands.get(self.class_names[cid])
+            band = size_filter.bands.get(self.class_names[cid])
             if band is not None:
                 band_of_class[cid - lo] = len(bands)
                 bands.append(band)
@@ -235,9 +320,9 @@ class DetectionPipeline:
                 curves[row, c, :len(fp)] = fp
                 curves[row, 2 + c, :len(fp) - 1] = (fp[1:] - fp[:-1]) / (xp[1:] - xp[:-1])  # as np.interp does
         n_knots = np.array([len(b.depression_deg) for b in bands], dtype=np.int64)
-        sure = np.array([b.sure_bounds(self.size_filter.k, SURE_BINS) for b in bands]).reshape(len(bands), SURE_BINS, 4)
+        sure = np.array([b.sure_bounds(size_filter.k, SURE_BINS) for b in bands]).reshape(len(bands), SURE_BINS, 4)
         result = (lo, band_of_class, knots, curves, n_knots, sure)
-        self.__dict__["_bands"] = (self.size_filter, dict(self.class_names), result)
+        self.__dict__["_bands"] = (size_filter, dict(self.class_names), result)
         return result
 
     def plausible(self, boxes_xyxy: NDArray, class_ids: NDArray, east_m: NDArray, north_m: NDArray,
@@ -250,10 +335,15 @@ class DetectionPipeline:
         depression = np.degrees(np.arcsin(pose.height_m / slant))
         diag = np.hypot(boxes_xyxy[:, 2] - boxes_xyxy[:, 0], boxes_xyxy[:, 3] - boxes_xyxy[:, 1])
         ok = np.ones(len(diag), dtype=bool)
+        active = self.active_size_filter
         for cid in distinct_ids(np.asarray(class_ids)):
+            name = self.class_names[int(cid)]
+            if name not in active.bands:  # stood down for this class (or no prior at all)
+                if name not in self.size_filter.bands:
+                    _warn_unfiltered(name)
+                continue
             sel = class_ids == cid
-            ok[sel] = self.size_filter.accept_class(self.class_names[int(cid)], diag[sel], slant[sel],
-                                                    depression[sel], self._focal_px)
+            ok[sel] = active.accept_class(name, diag[sel], slant[sel], depression[sel], self._focal_px)
         return ok
 
     def _correct(self, conf: NDArray, cids: NDArray, idx: NDArray, gx: NDArray, gy: NDArray, pose: Pose,
@@ -293,8 +383,15 @@ class DetectionPipeline:
                 east, north = est.current_en
                 near = (east / cell_m, -north / cell_m, s.local_m / cell_m)
             dx, dy, support = register_offset(patches, c[strong], near=near, near_support=s.min_support)
-            if support >= s.min_support:
+            if support < s.min_support:
+                est.count("low support")
+            elif max(abs(dx), abs(dy)) >= radius - 0.5:
+                est.count("at the search bound")  # the best offset may lie beyond: not applied
+            else:
                 measurement = (dx * cell_m, -dy * cell_m)
+                est.count("measured")
+        else:
+            est.count("too few boxes")
         corr = est.update(t, measurement, int(len(strong)), support)
         if log.isEnabledFor(logging.DEBUG):
             log.debug("t=%.3f correction east %.2f north %.2f m (measured %s, %d boxes, support %.2f)", t,

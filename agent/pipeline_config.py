@@ -11,6 +11,7 @@ from agent.boxes import ANCHORS
 from agent.clock_offset import ClockOffsetSettings
 from agent.memory_map import MemoryMapConfig
 from agent.score_calibration import CalibrationSettings
+from agent.size_filter_check import SizeCheckSettings
 from agent.telemetry_correction import CorrectionSettings
 
 __all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig"]
@@ -49,7 +50,10 @@ class PipelineConfig:
         +7.0 AP50 over no memory at noise x1 / x2 against +6.3 / +6.1 with 4 and 1 s, and the paper's rule
         +6.6 / +6.6)).
     use_memory: False gives the single-frame baseline (same filter and NMS, no boosting).
-    use_size_filter: apply the distance-size filter.
+    use_size_filter: apply the distance-size filter, per class only where its prior agrees with the data:
+        size_check_min_score, size_check_min_boxes, size_check_max_rejected (agent.size_filter_check: the
+        confident boxes that stand for real objects, how many a class needs, the share of them the prior may
+        reject; the built-in priors rejected a fifth of the real swimmers of SeaDronesSee).
     anchor: where on a box its ground point is: "center" (the paper), "bottom" (feet of an upright
         object) or "auto" (from the bottom at grazing views to the centre at nadir).
     joint_mode: how a joint map from the fusion server combines with the local one for boosting:
@@ -107,11 +111,18 @@ class PipelineConfig:
         through the midpoints of the steps, inside the rounding interval); detected per video from the
         values themselves, a no-op on other telemetry. The live agent does not.
 
+    telemetry_at_frame_time: the frame drivers of files give each frame the telemetry interpolated at its own
+        time between the telemetry's samples, put on the frame clock first (agent.telemetry_clock: a time-zone
+        offset removed, sample-and-hold repeats recognised); False: each frame keeps the sample it carries, as
+        the paper's rule does.
+
     calibrate_scores: with use_memory, scale the detector's logits to the reference temperature from the
         spread of each frame's strongest detections, estimated online (agent.score_calibration), before
         boosting, stamping and the tracker (FrameResult.raw_scores are then the calibrated scores);
         calibration_tau_s: time constant of that estimate, seconds; calibration_ref_sd: the reference
-        spread (the simulator's default detector on the tuning domains).
+        spread (the simulator's default detector on the tuning domains); calibration_max_floor: the
+        calibration stands down on input thresholded above this score (a detector's final output: fewer than
+        1 % of its scores lie below it), whose strongest detections' spread the threshold truncates.
 
     Tuning of the joint detections (agent.joint_detections; measured on the simulator's `coop`):
     joint_peak_smoothing_m: standard deviation (m) of the Gaussian that smooths the others' evidence
@@ -183,7 +194,11 @@ class PipelineConfig:
     joint_carry_match_iou: float = 0.3
     joint_carry_blend: float = 0.5
     joint_carry_velocity_gain: float = 0.1
+    size_check_min_score: float = 0.5
+    size_check_min_boxes: int = 15
+    size_check_max_rejected: float = 0.05
     calibrate_scores: bool = True
+    calibration_max_floor: float = 0.05
     calibration_tau_s: float = 30.0
     calibration_ref_sd: float = 1.35
     correct_telemetry: bool = True
@@ -195,15 +210,17 @@ class PipelineConfig:
     correction_hold_s: float = 2.0
     correction_local_m: float = 0.0
     estimate_clock_offset: bool = True
-    clock_offset_fallback_s: float = 0.05
+    clock_offset_fallback_s: float = 0.0
     clock_offset_search_s: float = 1.0
     clock_offset_two_pass: bool = True
     dequantize_telemetry: bool = True
+    telemetry_at_frame_time: bool = True
 
     def __post_init__(self) -> None:
         self.correction_settings()  # validates the correction_* fields
         self.clock_offset_settings()  # and the clock_offset_* ones
         self.calibration_settings()  # and the calibration_* ones
+        self.size_check_settings()  # and the size_check_* ones
         if self.anchor not in ANCHORS:
             raise ValueError(f"anchor must be one of {', '.join(ANCHORS)}, got {self.anchor!r}")
         if self.boost_mode not in BOOST_MODES:
@@ -264,7 +281,13 @@ class PipelineConfig:
 
     def calibration_settings(self) -> CalibrationSettings:
         """The score calibration's settings (agent.score_calibration)."""
-        return CalibrationSettings(tau_s=self.calibration_tau_s, ref_sd_logit=self.calibration_ref_sd)
+        return CalibrationSettings(tau_s=self.calibration_tau_s, ref_sd_logit=self.calibration_ref_sd,
+                                   max_floor=self.calibration_max_floor)
+
+    def size_check_settings(self) -> SizeCheckSettings:
+        """The size filter's check of its priors against the data (agent.size_filter_check)."""
+        return SizeCheckSettings(min_score=self.size_check_min_score, min_boxes=self.size_check_min_boxes,
+                                 max_rejected=self.size_check_max_rejected)
 
     @property
     def range_limit_m(self) -> float:

@@ -21,7 +21,9 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CalibrationSettings", "ScoreCalibration"]
+from agent.stage_report import StageReport
+
+__all__ = ["CalibrationSettings", "InputCheck", "ScoreCalibration"]
 
 _EPS = 1e-6
 
@@ -37,13 +39,19 @@ class CalibrationSettings:
     running spread, seconds; prior_s: weight of the reference spread, in seconds of data (the estimate is
     the reference at the start and mostly the data's after a few prior_s); ref_sd_logit: the reference
     detector's within-frame spread of those logits; max_scale: the largest factor (and its inverse the
-    smallest) the logits are scaled by."""
+    smallest) the logits are scaled by. The input check (`InputCheck`): the calibration acts only once
+    min_candidates scores were seen and at least min_low_share of them lie below max_floor (pre-NMS
+    candidates reach down to the detector's floor; a thresholded final output does not, and the spread of
+    its strongest detections is the threshold's, not the temperature's)."""
 
     top_k: int = 10
     tau_s: float = 30.0
     prior_s: float = 2.0
     ref_sd_logit: float = 1.35
     max_scale: float = 3.0
+    max_floor: float = 0.05
+    min_low_share: float = 0.01
+    min_candidates: int = 100
 
     def __post_init__(self) -> None:
         if isinstance(self.top_k, bool) or not isinstance(self.top_k, int) or self.top_k < 2:
@@ -52,6 +60,49 @@ class CalibrationSettings:
             value = getattr(self, name)
             if isinstance(value, bool) or not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
                 raise ValueError(f"calibration {name} must be a finite number > 0, got {value!r}")
+        for name in ("max_floor", "min_low_share"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not (isinstance(value, (int, float)) and 0.0 <= value < 1.0):
+                raise ValueError(f"calibration {name} must be a number in [0, 1), got {value!r}")
+        if isinstance(self.min_candidates, bool) or not isinstance(self.min_candidates, int) or self.min_candidates < 1:
+            raise ValueError(f"calibration min_candidates must be an integer >= 1, got {self.min_candidates!r}")
+
+
+class InputCheck:
+    """Is the input pre-NMS candidates (scores down to the detector's floor) or a thresholded final output?
+    Counts the scores seen and those below max_floor; decided once min_candidates were seen (or `freeze`)."""
+
+    def __init__(self, settings: CalibrationSettings) -> None:
+        self.settings = settings
+        self.seen = 0
+        self.low = 0
+        self.frozen = False
+
+    def observe(self, scores: NDArray) -> None:
+        """Count a frame's candidate scores (ignored once frozen)."""
+        if self.frozen:
+            return
+        scores = np.asarray(scores).reshape(-1)
+        self.seen += len(scores)
+        self.low += int(np.count_nonzero(scores < self.settings.max_floor))
+
+    def freeze(self) -> None:
+        """Decide on what was seen (a file's whole video) and observe no more."""
+        self.frozen = True
+
+    @property
+    def acts(self) -> bool:
+        s = self.settings
+        return self.seen >= s.min_candidates and self.low >= s.min_low_share * self.seen
+
+    def why(self) -> str:
+        s = self.settings
+        if self.seen < s.min_candidates:
+            return f"{self.seen} scores seen, {s.min_candidates} needed to tell pre-NMS from final output"
+        share = 100.0 * self.low / self.seen
+        if self.acts:
+            return f"pre-NMS input ({share:.0f} % of scores below {s.max_floor:g})"
+        return f"thresholded input ({share:.1f} % of scores below {s.max_floor:g}): its spread is the threshold's"
 
 
 class ScoreCalibration:
@@ -65,6 +116,7 @@ class ScoreCalibration:
 
     def reset(self) -> None:
         """Back to the reference (start of another video)."""
+        self.check = InputCheck(self.settings)
         self._weight_s = 0.0  # seconds of data in the running mean (decayed)
         self._var = self.settings.ref_sd_logit ** 2
         self._t: float | None = None
@@ -82,8 +134,18 @@ class ScoreCalibration:
         s = self.settings
         return min(max(s.ref_sd_logit / max(self.sd, 1e-9), 1.0 / s.max_scale), s.max_scale)
 
+    def report(self) -> StageReport:
+        """Whether the calibration acted in this video, and why (agent.stage_report)."""
+        why = self.check.why()
+        if self.check.acts:
+            why += f", scale {self.scale:.2f}"
+        return StageReport("score calibration", self.check.acts, why)
+
     def observe(self, t: float, kept_scores: NDArray) -> None:
-        """Fold in a frame's kept detections (raw detector scores, any order) at time t (seconds)."""
+        """Fold in a frame's kept detections (raw detector scores, any order) at time t (seconds); nothing
+        while the input check says the input is not pre-NMS candidates."""
+        if not self.check.acts:
+            return
         s = self.settings
         scores = np.asarray(kept_scores, dtype=np.float64).reshape(-1)
         dt = 1.0 / 30.0 if self._t is None else min(max(t - self._t, 0.0), 1.0)
@@ -98,8 +160,10 @@ class ScoreCalibration:
 
     def apply(self, scores: NDArray) -> NDArray[np.float32]:
         """Scores at the reference temperature: sigmoid(scale * logit(score)), float32, same shape (the
-        scores themselves, as float32, while the scale is 1)."""
-        a = self.scale
+        scores themselves, as float32, while the scale is 1 or the input check stands the calibration down).
+        The scores are counted by the input check first (unless it is frozen)."""
+        self.check.observe(scores)
+        a = self.scale if self.check.acts else 1.0
         if abs(a - 1.0) < 1e-6:
             return np.asarray(scores, dtype=np.float32)
         # float32 throughout: this runs on every candidate of every frame

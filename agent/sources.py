@@ -23,6 +23,7 @@ from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, parse_datetime
 
 if TYPE_CHECKING:
+    from agent.dataset import PoseProblem
     from agent.detector import Detections
     from agent.slicing import SliceGrid
 
@@ -169,7 +170,7 @@ class DatasetSource:
         self.video_id = video_id
         self.class_names = dict(self.dataset.categories)
         self.name = f"dataset:{self.directory.name}:video{video_id}"
-        self.problems: list[str] = []
+        self.problems: list[PoseProblem] = []
         self.image_dir = (self.directory if image_dir is None else Path(image_dir)) if use_images else None
         self.images_missing = 0
 
@@ -178,8 +179,10 @@ class DatasetSource:
         from agent.dataset import iter_video_frames, read_image
 
         t_prev = -math.inf
+        # live semantics: each frame keeps the telemetry sample it carries (stamped on the frame clock); a
+        # live feed cannot interpolate towards samples that have not arrived
         for index, frame in enumerate(iter_video_frames(self.dataset, self.camera, self.video_id,
-                                                        problems=self.problems)):
+                                                        problems=self.problems, at_frame_time=False)):
             t = frame.t
             if frame.image.date_time:  # the frame's own clock (telemetry stamps repeat at 10 Hz)
                 try:

@@ -16,6 +16,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.stage_report import StageReport
+
 __all__ = ["CorrectionSettings", "GroundCorrection", "GroundOffsetEstimator", "register_offset"]
 
 
@@ -25,7 +27,8 @@ class CorrectionSettings:
 
     min_score: detections at least this confident (the detector's own score) register.
     search_m: largest offset searched around the raw telemetry's ground points, metres (the bound: a
-        larger error is not corrected).
+        larger error is not corrected, and a best offset on the bound is not applied: the true one may lie
+        beyond it, or the evidence is another object's).
     min_points: confident detections a frame needs for a measurement.
     min_support: the mean evidence under the registered detections a measurement needs (0..1).
     smoothing_s: time constant of the exponential smoothing of the measurements (0: none).
@@ -127,6 +130,21 @@ class GroundOffsetEstimator:
         self._east = self._north = 0.0
         self._t: float | None = None
         self._t_measured: float | None = None
+        #: frames per outcome: "measured", "at the search bound", "low support", "too few boxes"
+        self.outcomes: dict[str, int] = {}
+
+    def count(self, outcome: str) -> None:
+        """Count one frame's outcome for the report."""
+        self.outcomes[outcome] = self.outcomes.get(outcome, 0) + 1
+
+    def report(self) -> StageReport:
+        """Acted when some frame was measured (agent.stage_report); why: the frames per outcome."""
+        measured = self.outcomes.get("measured", 0)
+        if measured:
+            total = sum(self.outcomes.values())
+            return StageReport("telemetry correction", True, f"measured in {100 * measured / total:.0f} % of frames")
+        others = sorted(self.outcomes.items(), key=lambda kv: -kv[1])
+        return StageReport("telemetry correction", False, f"never measured: {others[0][0]}" if others else "no frames")
 
     @property
     def current_en(self) -> tuple[float, float]:

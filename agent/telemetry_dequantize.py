@@ -19,16 +19,12 @@ values; otherwise the poses are left alone. Needs the samples after each frame, 
 
 from __future__ import annotations
 
-import math
-from dataclasses import replace
-
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.dataset import Frame
-from shared.geo import Pose
+from agent.telemetry_clock import TelemetryTrack
 
-__all__ = ["GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_frames", "detect_quantum"]
+__all__ = ["GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_track", "detect_quantum"]
 
 #: Quanta tried, coarsest first: 4 and 5 decimals of a degree (6 decimals, 0.11 m, is left alone).
 GPS_QUANTA_DEG = (1e-4, 1e-5)
@@ -71,43 +67,25 @@ def dequantize(t: NDArray, x: NDArray, q: float) -> NDArray:
     return np.clip(out, x - q / 2.0, x + q / 2.0)
 
 
-def dequantize_frames(frames: list[Frame]) -> tuple[list[Frame], dict[str, float]]:
-    """One video's frames (time order) with quantised latitude, longitude and height made continuous.
+def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, float]]:
+    """One video's telemetry samples (agent.telemetry_clock) with quantised latitude, longitude and height
+    made continuous.
 
-    The telemetry samples are the frames' distinct pose stamps (pose_t, else the frame time); returns the
-    frames (unchanged ones as they are) and the quanta found per coordinate ({} when none).
+    Returns the track (the same object when nothing is quantised) and the quanta found per coordinate
+    ({} when none): the stage acts only where every sample of a coordinate sits on one quantum's grid.
     """
-    posed = [(i, f.pose_t if f.pose_t is not None and math.isfinite(f.pose_t) else f.t)
-             for i, f in enumerate(frames) if f.pose is not None]
-    if len(posed) < 2:
-        return frames, {}
-    samples: dict[float, Pose] = {}
-    for i, stamp in posed:
-        pose = frames[i].pose
-        assert pose is not None
-        samples.setdefault(round(stamp, 6), pose)
-    stamps = np.array(sorted(samples))
-    if len(stamps) < 2:
-        return frames, {}
-    series = {"lat": np.array([samples[s].lat for s in stamps]), "lon": np.array([samples[s].lon for s in stamps]),
-              "height_m": np.array([samples[s].height_m for s in stamps])}
+    if len(track) < 2:
+        return track, {}
     quanta: dict[str, float] = {}
-    fixed: dict[str, NDArray] = {}
-    for name, values in series.items():
+    out = track
+    for name in ("lat", "lon", "height_m"):
+        values = track.column(name)
         q = detect_quantum(values, HEIGHT_QUANTA_M if name == "height_m" else GPS_QUANTA_DEG)
-        if q is not None:
-            quanta[name] = q
-            fixed[name] = dequantize(stamps, values, q)
-    if not quanta:
-        return frames, {}
-    index = {s: k for k, s in enumerate(stamps)}
-    out = list(frames)
-    for i, stamp in posed:
-        pose = frames[i].pose
-        assert pose is not None
-        k = index[round(stamp, 6)]
-        changes = {name: float(v[k]) for name, v in fixed.items()}
-        if "height_m" in changes:
-            changes["height_m"] = max(changes["height_m"], 0.1)
-        out[i] = replace(frames[i], pose=replace(pose, **changes))
+        if q is None:
+            continue
+        quanta[name] = q
+        fixed = dequantize(track.t, values, q)
+        if name == "height_m":
+            fixed = np.maximum(fixed, 0.1)
+        out = out.replace_column(name, fixed)
     return out, quanta

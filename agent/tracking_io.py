@@ -22,8 +22,8 @@ from typing import Any
 
 import numpy as np
 
-from agent.clock_offset import video_frames
 from agent.dataset import Candidates, Dataset, Frame, read_image, read_json
+from agent.file_frames import prepared_frames
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
@@ -161,8 +161,7 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
     counts = {"frames": 0, "frames_without_pose": 0, "detections": 0, "pipeline_s": 0.0, "tracker_s": 0.0,
               "images_read": 0, "images_missing": 0, "appearance_s": 0.0}
     t_prev = -math.inf
-    for frame, offset in video_frames(dataset, camera, video_id, candidates, pipeline_config.clock_offset_settings(),
-                                      dequantize=pipeline_config.dequantize_telemetry):
+    for frame, offset in prepared_frames(dataset, camera, video_id, candidates, pipeline_config, pipe):
         if clock_offsets is not None and pipeline_config.estimate_clock_offset:
             clock_offsets.append((frame.image.id, frame.image.video_id, frame.image.frame_index,
                                   round(offset.offset_s, 4) if offset is not None else math.nan,

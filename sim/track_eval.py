@@ -23,8 +23,8 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from agent.boxes import box_iou
-from agent.clock_offset import video_frames
 from agent.dataset import Candidates, Dataset, Frame
+from agent.file_frames import prepared_frames
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
@@ -158,8 +158,7 @@ def pipeline_frames(dataset: Dataset, candidates: Candidates, camera: Camera, vi
     pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
     out = []
     t_prev = -np.inf
-    for frame, _ in video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings(),
-                                 dequantize=config.dequantize_telemetry):
+    for frame, _ in prepared_frames(dataset, camera, video_id, candidates, config, pipe):
         if pipe.camera != frame.camera:
             pipe.camera = frame.camera
         boxes, scores, cids = candidates.get(frame.image.id)

@@ -153,7 +153,7 @@ def _add_clock_offset_flags(g: argparse._ArgumentGroup, *, fallback: str | None 
 
     fallback: the flag that sets the offset used until it is measured, named in the help."""
     clock = g.add_mutually_exclusive_group()
-    until = f"{fallback} is then its fallback" if fallback else "0.05 s until it is measured"
+    until = f"{fallback} is then its fallback" if fallback else "the telemetry as stamped until it is measured"
     clock.add_argument("--clock-offset", dest="clock_offset", action="store_true", default=None,
                        help="estimate the video/telemetry clock offset online from the detections and interpolate "
                             f"the telemetry at frame time + offset ({until}; the default, see docs/tracking.md)")
@@ -220,8 +220,23 @@ def _run_boost(args: argparse.Namespace) -> int:
     write_results(results, args.out)
     if corrections is not None:
         write_corrections(corrections, args.corrections_out)
-    print(f"wrote {len(results)} detections to {args.out}: " + ", ".join(f"{k}={v}" for k, v in stats.items()))
+    print_run_summary(f"wrote {len(results)} detections to {args.out}", stats)
     return 0
+
+
+def print_run_summary(head: str, stats: dict) -> None:
+    """A run's summary: the counters on one line, then the frames without pose by reason and what each
+    adaptive stage did (agent.stage_report), one line each."""
+    from agent.stage_report import stage_lines
+
+    nested = ("stages", "frames_without_pose_by_reason")
+    print(f"{head}: " + ", ".join(f"{k}={v}" for k, v in stats.items() if k not in nested))
+    reasons = stats.get("frames_without_pose_by_reason") or {}
+    if reasons:
+        print(f"frames without pose: {sum(reasons.values())} (" + ", ".join(f"{k} {v}" for k, v in reasons.items())
+              + ")")
+    for line in stage_lines(stats.get("stages") or {}):
+        print(f"  {line}")
 
 
 def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:

@@ -33,6 +33,9 @@ CSV_COLUMNS: dict[str, tuple[tuple[str, ...], Mapping[str, float]]] = {
     "heading": (("heading_deg", "gimbal_heading", "gb_yaw", "heading", "yaw"), _ANGLE_UNITS),
     "roll": (("roll_deg", "gimbal_roll", "gb_roll", "roll"), _ANGLE_UNITS),
     "speed": (("speed_mps", "speed"), _SPEED_UNITS),
+    # DJI flight logs: x north, y east (AirData writes xSpeed(mph), ySpeed(mph))
+    "vel_north": (("vel_north_mps", "xspeed"), _SPEED_UNITS),
+    "vel_east": (("vel_east_mps", "yspeed"), _SPEED_UNITS),
     "frame": (("frame", "frame_index", "framecnt"), {"": 1.0}),
 }
 _DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
@@ -48,28 +51,45 @@ class _CsvColumn:
     scale: float
 
 
+def match_column(cell: str) -> tuple[str, str, float] | None:
+    """The telemetry field a column name stands for: (field, alias, factor to SI), or None for other columns.
+
+    `cell` is a header cell or a flight-log meta key, matched case-insensitively with an optional unit in
+    parentheses or brackets (``height_above_takeoff(feet)`` -> ("height", "height_above_takeoff", 0.3048)).
+    ValueError when the name is known but its unit is not.
+    """
+    match = _HEADER_RE.fullmatch(cell.strip().lower())
+    assert match is not None  # every string matches: the unit group is optional
+    name, unit = match["name"].strip(), (match["paren"] or match["bracket"] or "").strip()
+    for fld, (aliases, units) in CSV_COLUMNS.items():
+        if name not in aliases:
+            continue
+        if unit not in units:
+            accepted = ", ".join(u for u in units if u) or "none"
+            raise ValueError(f"column {cell.strip()!r}: unknown unit {unit!r} (accepted: {accepted})")
+        return fld, name, units[unit]
+    return None
+
+
 def _csv_columns(header: list[str], header_line: int, source: str) -> dict[str, _CsvColumn]:
     found: dict[str, _CsvColumn] = {}
     for index, cell in enumerate(header):
-        match = _HEADER_RE.fullmatch(cell.strip().lower())
-        assert match is not None  # every string matches: the unit group is optional
-        name, unit = match["name"].strip(), (match["paren"] or match["bracket"] or "").strip()
-        for fld, (aliases, units) in CSV_COLUMNS.items():
-            if name not in aliases:
-                continue
-            if unit not in units:
-                accepted = ", ".join(u for u in units if u) or "none"
-                raise ValueError(
-                    f"{source}:{header_line}: column {cell!r}: unknown unit {unit!r} (accepted: {accepted})"
-                )
-            column = _CsvColumn(fld, cell.strip(), name, index, units[unit])
-            previous = found.get(fld)
-            if previous is not None and previous.alias == name:
-                raise ValueError(
-                    f"{source}:{header_line}: columns {previous.name!r} and {cell.strip()!r} are the same field"
-                )
-            if previous is None or aliases.index(name) < aliases.index(previous.alias):
-                found[fld] = column
+        try:
+            matched = match_column(cell)
+        except ValueError as err:
+            raise ValueError(f"{source}:{header_line}: {err}") from None
+        if matched is None:
+            continue
+        fld, name, scale = matched
+        aliases = CSV_COLUMNS[fld][0]
+        column = _CsvColumn(fld, cell.strip(), name, index, scale)
+        previous = found.get(fld)
+        if previous is not None and previous.alias == name:
+            raise ValueError(
+                f"{source}:{header_line}: columns {previous.name!r} and {cell.strip()!r} are the same field"
+            )
+        if previous is None or aliases.index(name) < aliases.index(previous.alias):
+            found[fld] = column
     for required in ("lat", "lon", "height"):
         if required not in found:
             names = ", ".join(CSV_COLUMNS[required][0])
@@ -103,12 +123,14 @@ def parse_csv(
 
     - time: ``time_s, time, t, timestamp`` (seconds or ms; numbers, or date-times) and/or ``date_time,
       datetime, datetime(utc)``. With both, t = first date + (time - first time): the date anchors the
-      epoch, the finer time column spaces the rows. A naive date is UTC unless ``utc_offset_s`` is given.
+      epoch, the finer time column spaces the rows. A naive date is UTC unless ``utc_offset_s`` is given
+      (a column named ``(utc)`` is UTC whatever ``utc_offset_s`` says).
     - required: ``lat, latitude``; ``lon, lng, longitude``; height ``height_m, rel_alt,
       height_above_takeoff, height, altitude`` (m or ft; ``height_offset_m`` is added).
     - optional: pitch ``pitch_deg, gimbal_pitch, gb_pitch, gimbal_pitch_dji, pitch``; heading
       ``heading_deg, gimbal_heading, gb_yaw, heading, yaw``; roll ``roll_deg, gimbal_roll, gb_roll, roll``;
-      ``speed_mps, speed``; ``frame, frame_index, framecnt``. An empty optional cell is None.
+      ``speed_mps, speed``; velocity ``vel_north_mps, xspeed`` and ``vel_east_mps, yspeed`` (DJI flight logs:
+      x north, y east); ``frame, frame_index, framecnt``. An empty optional cell is None.
 
     When several names of one field are present the earlier one in these lists wins (a gimbal column
     beats the aircraft's ``pitch``/``yaw``/``roll``).
@@ -179,6 +201,7 @@ def parse_csv(
     times = _csv_times(rows[1:], columns, source, utc_offset_s)
     pitch = _csv_pitch(rows[1:], columns, floats("pitch"), source)
     heading, roll, speed = floats("heading"), floats("roll"), floats("speed")
+    north, east = floats("vel_north"), floats("vel_east")
     frames = _csv_frames(rows[1:], columns.get("frame"), source)
     records = []
     for i, (line, _) in enumerate(rows[1:]):
@@ -193,6 +216,8 @@ def parse_csv(
                     heading_deg=None if heading is None else heading[i],
                     roll_deg=0.0 if roll is None else roll[i] or 0.0,
                     speed_mps=None if speed is None else speed[i],
+                    vel_en_mps=None if east is None or north is None or east[i] is None or north[i] is None
+                    else (east[i], north[i]),
                     frame=frames[i],
                 )
             )
@@ -206,9 +231,12 @@ def _csv_times(
 ) -> list[float]:
     def dates(column: _CsvColumn) -> list[float]:
         out = []
+        # a column that names its zone (AirData's datetime(utc)) is not shifted by the local offset
+        utc = column.alias == "datetime_utc" or re.search(r"[(\[]\s*utc\s*[)\]]", column.name, re.IGNORECASE)
+        offset = 0.0 if utc else utc_offset_s
         for line, row in rows:
             try:
-                out.append(parse_datetime(row[column.index], utc_offset_s=utc_offset_s))
+                out.append(parse_datetime(row[column.index], utc_offset_s=offset))
             except ValueError as err:
                 raise ValueError(f"{source}:{line}: column {column.name!r}: {err}") from None
         return out

@@ -5,12 +5,13 @@ from __future__ import annotations
 import json
 import logging
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from shared.telemetry.csv_table import match_column
 from shared.telemetry.dates import format_datetime, parse_datetime
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch
 from shared.telemetry.text import read_text
@@ -34,109 +35,326 @@ SEADRONESSEE_META_FIELDS = (
 )
 
 
-def _meta_number(meta: Mapping[str, Any], name: str, *, required: bool) -> float | None:
-    value = meta.get(name)
+class MetaProblem(ValueError):
+    """Why a frame's meta gives no telemetry record.
+
+    `reason` is a short class of problem for counting in summaries (e.g. ``"no position"``, ``"bad time"``);
+    the message names the field and its value.
+    """
+
+    def __init__(self, reason: str, message: str) -> None:
+        super().__init__(message)
+        self.reason = reason
+
+
+#: Pitch conventions of a meta's gimbal pitch: "depression" (positive below the horizon, SeaDronesSee),
+#: "dji" (negative below, DJI logs and AirData exports), "auto" (the SeaDronesSee layout's is a depression;
+#: in the flight-log layout a negative reading is DJI's). A reader that sees a whole video decides better
+#: (`pitch_convention_of`).
+PITCH_CONVENTIONS = ("auto", "depression", "dji")
+
+
+def _number(value: Any, name: str, what: str, *, required: bool) -> float | None:
     if value is None or (isinstance(value, str) and not value.strip()):
         if required:
-            raise ValueError(f"SeaDronesSee meta field {name!r} is missing")
+            raise MetaProblem(f"no {what}", f"SeaDronesSee meta field {name!r} is missing")
         return None
     if isinstance(value, bool) or not isinstance(value, (str, int, float, np.integer, np.floating)):
-        raise ValueError(f"SeaDronesSee meta field {name!r}={value!r} is not a number")
+        raise MetaProblem(f"bad {what}", f"SeaDronesSee meta field {name!r}={value!r} is not a number")
     try:
         number = float(value)
     except ValueError:
-        raise ValueError(f"SeaDronesSee meta field {name!r}={value!r} is not a number") from None
+        raise MetaProblem(f"bad {what}", f"SeaDronesSee meta field {name!r}={value!r} is not a number") from None
     if not math.isfinite(number):
-        raise ValueError(f"SeaDronesSee meta field {name!r}={value!r} is not finite")
+        raise MetaProblem(f"bad {what}", f"SeaDronesSee meta field {name!r}={value!r} is not finite")
     return number
 
 
+def _meta_number(meta: Mapping[str, Any], name: str, what: str, *, required: bool) -> float | None:
+    return _number(meta.get(name), name, what, required=required)
+
+
+def _is_number(value: Any) -> bool:
+    if isinstance(value, bool):
+        return False
+    if isinstance(value, (int, float, np.integer, np.floating)):
+        return True
+    if isinstance(value, str):
+        try:
+            float(value)
+        except ValueError:
+            return False
+        return True
+    return False
+
+
 def _meta_coordinate(meta: Mapping[str, Any], name: str, refs: tuple[str, str], limit_deg: float) -> float:
-    value = _meta_number(meta, name, required=True)
-    assert value is not None
+    """A signed coordinate from ``name`` and ``name_ref``.
+
+    The usual layout is a positive number with a hemisphere letter in the ref. Files that mix drones also
+    hold a layout where the ref field holds the (signed) coordinate as a number, with or without the letter
+    in the other field: whichever of the two is a number is the coordinate, and a letter, when present,
+    signs it. Two different numbers are ambiguous and refused.
+    """
     ref_name = f"{name}_ref"
-    ref = meta.get(ref_name)
+    value_raw, ref = meta.get(name), meta.get(ref_name)
+    if _is_number(ref):
+        ref_number = _number(ref, ref_name, "position", required=True)
+        assert ref_number is not None
+        if _is_number(value_raw):
+            value = _number(value_raw, name, "position", required=True)
+            if value is not None and abs(value - ref_number) > 1e-9:
+                raise MetaProblem("bad position", f"SeaDronesSee meta fields {name!r}={value_raw!r} and "
+                                                  f"{ref_name!r}={ref!r} are two different coordinates")
+        value_raw, ref = ref_number, (value_raw if isinstance(value_raw, str) and value_raw.strip() else None)
+        if ref is None:  # a bare signed number
+            if abs(ref_number) > limit_deg:
+                raise MetaProblem("bad position",
+                                  f"SeaDronesSee meta field {ref_name!r}={ref_number!r} is outside +-{limit_deg:g} deg")
+            return ref_number
+    value = _number(value_raw, name, "position", required=True)
+    assert value is not None
     if not isinstance(ref, str) or not ref.strip():
-        raise ValueError(f"SeaDronesSee meta field {ref_name!r} is missing (expected {refs[0]!r} or {refs[1]!r})")
+        raise MetaProblem("no position", f"SeaDronesSee meta field {ref_name!r} is missing "
+                                         f"(expected {refs[0]!r} or {refs[1]!r})")
     letter = ref.strip().upper()
     positive, negative = refs
     if letter not in (positive, negative, {"N": "NORTH", "E": "EAST"}[positive], {"S": "SOUTH", "W": "WEST"}[negative]):
-        raise ValueError(f"SeaDronesSee meta field {ref_name!r}={ref!r} is not {positive!r} or {negative!r}")
+        raise MetaProblem("bad position",
+                          f"SeaDronesSee meta field {ref_name!r}={ref!r} is not {positive!r} or {negative!r}")
     if abs(value) > limit_deg:
-        raise ValueError(f"SeaDronesSee meta field {name!r}={value!r} is outside +-{limit_deg:g} degrees")
+        raise MetaProblem("bad position",
+                          f"SeaDronesSee meta field {name!r}={value!r} is outside +-{limit_deg:g} degrees")
     if letter[0] == negative:
         return -abs(value)
     if value < 0.0:
-        raise ValueError(f"SeaDronesSee meta field {name!r}={value!r} is negative but {ref_name!r} is {ref!r}")
+        raise MetaProblem("bad position",
+                          f"SeaDronesSee meta field {name!r}={value!r} is negative but {ref_name!r} is {ref!r}")
     return value
 
 
+def _pitch(raw: float | None, name: str, convention: str, *, flight_log: bool) -> float | None:
+    if raw is None:
+        return None
+    dji = convention == "dji" or (convention == "auto" and flight_log and raw < 0.0)
+    depression = -raw if dji else raw
+    try:
+        return clamp_pitch(depression, PITCH_TOLERANCE_DEG, f"SeaDronesSee meta field {name!r}={raw!r}")
+    except ValueError as err:
+        raise MetaProblem("pitch out of range", str(err)) from None
+
+
+def _time(value: Any, name: str, utc_offset_s: float) -> float:
+    if not isinstance(value, str) or not value.strip():
+        raise MetaProblem("no time", f"SeaDronesSee meta field {name!r} is missing or not a string: {value!r}")
+    try:
+        return parse_datetime(value, utc_offset_s=utc_offset_s)
+    except ValueError as err:
+        raise MetaProblem("bad time", f"SeaDronesSee meta field {name!r}: {err}") from None
+
+
+#: Flight-log names a meta field may carry per telemetry field (the aircraft's own attitude columns,
+#: ``pitch``/``roll``/``yaw``, are not the camera's and are not read from meta).
+_FLIGHT_LOG_ALIASES = {
+    "datetime": ("date_time", "datetime", "datetime_utc"),
+    "lat": ("lat", "latitude"),
+    "lon": ("lon", "lng", "longitude"),
+    "height": ("height_m", "rel_alt", "height_above_takeoff"),
+    "pitch": ("pitch_deg", "gimbal_pitch"),
+    "heading": ("heading_deg", "gimbal_heading"),
+    "roll": ("roll_deg", "gimbal_roll"),
+    "speed": ("speed_mps", "speed"),
+    "vel_north": ("vel_north_mps", "xspeed"),
+    "vel_east": ("vel_east_mps", "yspeed"),
+}
+
+
+def raw_pitch(meta: Mapping[str, Any] | None) -> float | None:
+    """The gimbal pitch a meta dict holds, as written (either layout), or None when absent or not a number."""
+    if not isinstance(meta, Mapping):
+        return None
+    if is_flight_log_meta(meta):
+        try:
+            found = _flight_log_fields(meta).get("pitch")
+        except MetaProblem:
+            return None
+        value = None if found is None else meta[found[0]]
+    else:
+        value = meta.get("gimbal_pitch")
+    try:
+        number = _number(value, "gimbal_pitch", "pitch", required=False)
+    except MetaProblem:
+        return None
+    return number
+
+
+def pitch_convention_of(metas: Iterable[Mapping[str, Any] | None]) -> str:
+    """The pitch convention of one video's metas: "dji" when more of its readings are clearly negative
+    (below -1 deg) than clearly positive, else "depression" (a camera looks down far more than up)."""
+    negative = positive = 0
+    for meta in metas:
+        value = raw_pitch(meta)
+        if value is not None:
+            negative += value < -PITCH_TOLERANCE_DEG
+            positive += value > PITCH_TOLERANCE_DEG
+    return "dji" if negative > positive else "depression"
+
+
+def is_flight_log_meta(meta: Mapping[str, Any]) -> bool:
+    """True for the flight-log layout (``latitude``, ``height_above_takeoff(meter)``, ``datetime(utc)``, ...)
+    of SeaDronesSee Object Detection v2 and AirData-style exports; False for the ``gps_latitude`` layout."""
+    if "gps_latitude" in meta or "gps_latitude_ref" in meta:
+        return False
+    return any(isinstance(k, str) and k.strip().lower().split("(")[0].strip() in ("latitude", "lat") for k in meta)
+
+
+def _flight_log_fields(meta: Mapping[str, Any]) -> dict[str, tuple[str, float]]:
+    """field -> (meta key, factor to SI) of the flight-log keys present (the earlier alias wins)."""
+    found: dict[str, tuple[str, float, int]] = {}
+    for key in meta:
+        if not isinstance(key, str):
+            continue
+        try:
+            matched = match_column(key)
+        except ValueError as err:
+            raise MetaProblem("bad unit", f"SeaDronesSee meta field {err}") from None
+        if matched is None:
+            continue
+        fld, alias, scale = matched
+        aliases = _FLIGHT_LOG_ALIASES.get(fld, ())
+        if alias not in aliases:
+            continue
+        rank = aliases.index(alias)
+        if fld not in found or rank < found[fld][2]:
+            found[fld] = (key, scale, rank)
+    return {fld: (key, scale) for fld, (key, scale, _) in found.items()}
+
+
+def _from_flight_log(meta: Mapping[str, Any], frame: int | None, utc_offset_s: float, pitch_convention: str,
+                     t_default: float | None) -> Telemetry:
+    fields = _flight_log_fields(meta)
+
+    def number(fld: str, what: str, *, required: bool) -> float | None:
+        if fld not in fields:
+            if required:
+                names = ", ".join(_FLIGHT_LOG_ALIASES[fld])
+                raise MetaProblem(f"no {what}", f"SeaDronesSee meta has no {what} (flight-log names: {names})")
+            return None
+        key, scale = fields[fld]
+        value = _number(meta[key], key, what, required=required)
+        return None if value is None else value * scale
+
+    lat, lon = number("lat", "position", required=True), number("lon", "position", required=True)
+    assert lat is not None and lon is not None
+    for value, name, limit in ((lat, "latitude", 90.0), (lon, "longitude", 180.0)):
+        if abs(value) > limit:
+            raise MetaProblem("bad position", f"SeaDronesSee meta field {name!r}={value!r} is outside +-{limit:g} deg")
+    height_m = number("height", "height", required=True)
+    pitch = _pitch(number("pitch", "pitch", required=False), fields.get("pitch", ("pitch",))[0], pitch_convention,
+                   flight_log=True)
+    heading = number("heading", "heading", required=False)
+    roll = number("roll", "roll", required=False)
+    speed = number("speed", "speed", required=False)
+    if speed is not None and speed < 0.0:
+        raise MetaProblem("bad speed", f"SeaDronesSee meta field {fields['speed'][0]!r}={speed!r} is negative")
+    north, east = number("vel_north", "speed", required=False), number("vel_east", "speed", required=False)
+    if "datetime" in fields:
+        key = fields["datetime"][0]
+        utc = "utc" in key.lower()
+        t = _time(meta[key], key, 0.0 if utc else utc_offset_s)
+    elif t_default is not None:
+        t = t_default
+    else:
+        raise MetaProblem("no time", "SeaDronesSee meta has no time (flight-log name: datetime(utc))")
+    return Telemetry(t=t, lat=lat, lon=lon, height_m=height_m, pitch_deg=pitch, heading_deg=heading,
+                     roll_deg=roll or 0.0, speed_mps=speed,
+                     vel_en_mps=None if north is None or east is None else (east, north), frame=frame)
+
+
 def from_seadronessee_meta(
-    meta: Mapping[str, Any] | None, frame: int | None = None, *, utc_offset_s: float = 0.0
+    meta: Mapping[str, Any] | None, frame: int | None = None, *, utc_offset_s: float = 0.0,
+    pitch_convention: str = "auto", t_default: float | None = None,
 ) -> Telemetry | None:
-    """Build a record from a SeaDronesSee image ``meta`` dict.
+    """Build a record from a SeaDronesSee image ``meta`` dict, in either of its layouts.
 
     Parameters
     ----------
     meta : dict or None
-        SeaDronesSee fields (numbers or numeric strings): ``gps_latitude`` + ``gps_latitude_ref`` ('N'/'S'),
-        ``gps_longitude`` + ``gps_longitude_ref`` ('E'/'W'), ``altitude`` (height above the water, m),
-        ``gimbal_pitch`` (positive depression), ``gimbal_heading`` (camera yaw; the aircraft's
+        The SeaDronesSee layout (numbers or numeric strings): ``gps_latitude`` + ``gps_latitude_ref``
+        ('N'/'S'), ``gps_longitude`` + ``gps_longitude_ref`` ('E'/'W'), ``altitude`` (height above the water,
+        m), ``gimbal_pitch`` (positive depression), ``gimbal_heading`` (camera yaw; the aircraft's
         ``compass_heading`` is deliberately not used), ``speed``, ``xspeed`` (north) and ``yspeed`` (east)
-        in m/s as DJI logs them, ``date_time`` (e.g. ``2020-08-24T15:45:20``).
+        in m/s as DJI logs them, ``date_time`` (e.g. ``2020-08-24T15:45:20``). A ref that holds the
+        coordinate as a number (a layout of other drones in the same files) is read as that coordinate.
+        Or the flight-log layout (SeaDronesSee Object Detection v2, AirData names): ``latitude``,
+        ``longitude``, ``height_above_takeoff(meter)`` (or ``(feet)``), ``gimbal_pitch(degrees)``,
+        ``gimbal_heading(degrees)``, ``speed(m/s)``, ``xspeed(m/s)``, ``yspeed(m/s)``, ``datetime(utc)``
+        (units as in `shared.telemetry.csv_table.CSV_COLUMNS`; a time named ``(utc)`` is UTC).
     frame : int, optional
         The image's frame index, stored in `Telemetry.frame`.
     utc_offset_s : float
-        Offset of a naive ``date_time`` from UTC (default: it is UTC).
+        Offset of a naive time from UTC (default: it is UTC).
+    pitch_convention : str
+        One of `PITCH_CONVENTIONS`: "auto" (default) reads a negative pitch as DJI's (negative down).
+    t_default : float, optional
+        The time to use when a flight-log meta has no time of its own (e.g. the frame's clock).
 
     Returns
     -------
     Telemetry or None
         None when ``meta`` is None (frames without metadata get no memory-map help, never an error).
-        Missing ``gimbal_pitch`` / ``gimbal_heading`` / speeds give None fields.
+        Missing gimbal pitch / heading / speeds give None fields.
 
     Raises
     ------
-    ValueError
-        Naming the field, when a required field (position, refs, altitude, date_time) is missing or any
-        field is not a finite number in range.
+    MetaProblem
+        A ValueError naming the field, when a required field (position, refs, altitude, time) is missing
+        or any field is not a finite number in range; its ``reason`` classifies the problem.
     """
     if meta is None:
         return None
+    if pitch_convention not in PITCH_CONVENTIONS:
+        raise ValueError(f"pitch_convention must be one of {', '.join(PITCH_CONVENTIONS)}, got {pitch_convention!r}")
     if not isinstance(meta, Mapping):
-        raise ValueError(f"SeaDronesSee meta must be a dict or None, got {type(meta).__name__}")
+        raise MetaProblem("not a dict", f"SeaDronesSee meta must be a dict or None, got {type(meta).__name__}")
+    if is_flight_log_meta(meta):
+        try:
+            return _from_flight_log(meta, frame, utc_offset_s, pitch_convention, t_default)
+        except MetaProblem:
+            raise
+        except ValueError as err:  # Telemetry's own range checks
+            raise MetaProblem("bad value", f"SeaDronesSee meta: {err}") from None
     lat = _meta_coordinate(meta, "gps_latitude", ("N", "S"), 90.0)
     lon = _meta_coordinate(meta, "gps_longitude", ("E", "W"), 180.0)
-    height_m = _meta_number(meta, "altitude", required=True)
-    pitch_raw = _meta_number(meta, "gimbal_pitch", required=False)
-    pitch = None
-    if pitch_raw is not None:
-        pitch = clamp_pitch(pitch_raw, PITCH_TOLERANCE_DEG, f"SeaDronesSee meta field 'gimbal_pitch'={pitch_raw!r}")
-    heading = _meta_number(meta, "gimbal_heading", required=False)
-    speed = _meta_number(meta, "speed", required=False)
+    height_m = _meta_number(meta, "altitude", "height", required=True)
+    pitch = _pitch(_meta_number(meta, "gimbal_pitch", "pitch", required=False), "gimbal_pitch", pitch_convention,
+                   flight_log=False)
+    heading = _meta_number(meta, "gimbal_heading", "heading", required=False)
+    speed = _meta_number(meta, "speed", "speed", required=False)
     if speed is not None and speed < 0.0:
-        raise ValueError(f"SeaDronesSee meta field 'speed'={speed!r} is negative")
-    north = _meta_number(meta, "xspeed", required=False)
-    east = _meta_number(meta, "yspeed", required=False)
+        raise MetaProblem("bad speed", f"SeaDronesSee meta field 'speed'={speed!r} is negative")
+    north = _meta_number(meta, "xspeed", "speed", required=False)
+    east = _meta_number(meta, "yspeed", "speed", required=False)
     date_time = meta.get("date_time")
-    if not isinstance(date_time, str) or not date_time.strip():
-        raise ValueError(f"SeaDronesSee meta field 'date_time' is missing or not a string: {date_time!r}")
-    try:
-        t = parse_datetime(date_time, utc_offset_s=utc_offset_s)
-    except ValueError as err:
-        raise ValueError(f"SeaDronesSee meta field 'date_time': {err}") from None
+    if (date_time is None or (isinstance(date_time, str) and not date_time.strip())) and t_default is not None:
+        t = t_default
+    else:
+        t = _time(date_time, "date_time", utc_offset_s)
     assert height_m is not None
-    return Telemetry(
-        t=t,
-        lat=lat,
-        lon=lon,
-        height_m=height_m,
-        pitch_deg=pitch,
-        heading_deg=heading,
-        speed_mps=speed,
-        vel_en_mps=None if north is None or east is None else (east, north),
-        frame=frame,
-    )
+    try:
+        return Telemetry(
+            t=t,
+            lat=lat,
+            lon=lon,
+            height_m=height_m,
+            pitch_deg=pitch,
+            heading_deg=heading,
+            speed_mps=speed,
+            vel_en_mps=None if north is None or east is None else (east, north),
+            frame=frame,
+        )
+    except ValueError as err:
+        raise MetaProblem("bad value", f"SeaDronesSee meta: {err}") from None
 
 
 def to_seadronessee_meta(

@@ -218,8 +218,8 @@ def test_boost_writes_the_per_frame_telemetry_correction(tmp_path):
                             "clock_offset_s"}
     # a steady scene with exact telemetry: whatever is applied stays small
     assert all(abs(float(r["east_m"])) < 1.0 and abs(float(r["north_m"])) < 1.0 for r in rows)
-    # the camera never turns: nothing to measure the clock offset on, every pose is re-timed by the fallback
-    assert {r["clock_offset_s"] for r in rows} == {"0.05"}
+    # the camera never turns: nothing to measure the clock offset on, so none is applied (no fallback offset)
+    assert {r["clock_offset_s"] for r in rows} == {"0.0"}
     assert run_boost(d, "--corrections-out", str(d / "missing" / "c.csv")) == 2
 
 

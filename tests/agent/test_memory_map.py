@@ -334,10 +334,39 @@ def test_size_filter_drops_implausible_boxes_only():
     good = object_box(0.0, 30.0, size_px=40.0)
     huge = object_box(0.0, 30.0, size_px=600.0)   # a "person" 15 m tall
     tiny = object_box(0.0, 30.0, size_px=1.0)
+    # the video's confident boxes agree with the prior: the filter may act (agent.size_filter_check)
+    pipe.prime([(POSE, CAM, np.repeat(good, 20, axis=0), np.full(20, 0.9, np.float32), np.ones(20, int))])
     res = pipe.process(np.vstack([good, huge + [[700, 0, 700, 0]], tiny + [[-500, 0, -500, 0]]]),
                        np.array([0.5, 0.9, 0.9], np.float32), np.array([1, 1, 1]), POSE, 0.0)
     assert res.n_size_filtered == 2
     assert len(res) == 1 and res.raw_scores[0] == pytest.approx(0.5)
+    report = next(r for r in pipe.stage_reports() if r.stage == "size filter")
+    assert report.acted and "person" in report.why
+
+
+def test_size_filter_stands_down_where_the_confident_boxes_contradict_its_prior():
+    # a camera or height reference the prior was not made for: every confident person is "too large"
+    pipe = DetectionPipeline(CAM, CLASSES)
+    large = object_box(0.0, 30.0, size_px=300.0)
+    pipe.prime([(POSE, CAM, np.repeat(large, 20, axis=0), np.full(20, 0.9, np.float32), np.ones(20, int))])
+    res = pipe.process(np.vstack([large, large + [[700, 0, 700, 0]]]), np.array([0.5, 0.9], np.float32),
+                       np.array([1, 1]), POSE, 0.0)
+    assert res.n_size_filtered == 0 and len(res) == 2
+    report = next(r for r in pipe.stage_reports() if r.stage == "size filter")
+    assert not report.acted and "contradict" in report.why
+
+
+def test_size_filter_waits_for_evidence_online():
+    # a live feed: unfiltered until enough confident boxes were checked, then the prior acts
+    pipe = DetectionPipeline(CAM, CLASSES, PipelineConfig(size_check_min_boxes=5))
+    good = object_box(0.0, 30.0, size_px=40.0)
+    huge = object_box(0.0, 30.0, size_px=600.0) + [[700, 0, 700, 0]]
+    first = pipe.process(np.vstack([good, huge]), np.array([0.9, 0.3], np.float32), np.array([1, 1]), POSE, 0.0)
+    assert first.n_size_filtered == 0  # one confident box checked: not enough to trust the prior
+    for k in range(1, 5):
+        pipe.process(good, np.array([0.9], np.float32), np.array([1]), POSE, k / 30.0)
+    later = pipe.process(np.vstack([good, huge]), np.array([0.9, 0.3], np.float32), np.array([1, 1]), POSE, 0.2)
+    assert later.n_size_filtered == 1
 
 
 def test_joint_map_boosts_an_object_the_uav_never_saw():

@@ -258,7 +258,9 @@ def test_pipeline_uses_numpy_path_for_distorted_cameras_with_the_same_result():
     pose = Pose(lat=47.67, lon=9.27, height_m=40.0, pitch_deg=45.0, heading_deg=140.0)
     results = []
     for cam in (camera, distorted):
-        pipe = DetectionPipeline(cam, {1: "person", 2: "swimmer"})
+        # random box sizes: trust the priors without checking them, so that the filter is exercised
+        pipe = DetectionPipeline(cam, {1: "person", 2: "swimmer"},
+                                 PipelineConfig(size_check_max_rejected=0.99, size_check_min_boxes=1))
         for k in range(3):
             res = pipe.process(boxes, scores, cids, pose, k / 30.0)
         results.append(res)

@@ -8,9 +8,10 @@ import numpy as np
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.dataset import Frame, ImageRecord
-from agent.telemetry_dequantize import dequantize, dequantize_frames, detect_quantum
-from shared.geo import Camera, Pose
+from agent.dataset import Dataset, VideoTelemetry, iter_video_frames
+from agent.telemetry_clock import TelemetryTrack
+from agent.telemetry_dequantize import dequantize, dequantize_track, detect_quantum
+from shared.geo import Camera
 
 CAMERA = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
 
@@ -47,35 +48,51 @@ def test_a_value_that_never_steps_is_kept() -> None:
     assert np.array_equal(dequantize(t, x, 1.0), x)
 
 
-def _frames(lats: list[float], lons: list[float], heights: list[float]) -> list[Frame]:
-    out = []
-    for i, (lat, lon, h) in enumerate(zip(lats, lons, heights, strict=True)):
-        image = ImageRecord(i, CAMERA.width, CAMERA.height, 1, i, None, None)
-        out.append(Frame(image, Pose(lat, lon, h, 45.0, 10.0), i / 10.0, CAMERA, i / 10.0))
-    return out
+def _track(lats: list[float], lons: list[float], heights: list[float]) -> TelemetryTrack:
+    n = len(lats)
+    values = np.column_stack([lats, lons, heights, np.full(n, 10.0), np.full(n, 45.0)])
+    return TelemetryTrack(np.arange(n) / 10.0, values)
 
 
-def test_frames_with_4_decimal_gps_get_continuous_positions_and_others_are_untouched() -> None:
+def test_tracks_with_4_decimal_gps_get_continuous_positions_and_others_are_untouched() -> None:
     n = 60
     true_lat = 47.59983 + 1.0e-5 * np.arange(n)  # 11 m/s north, sampled at 10 Hz: six steps in 6 s
     lats = [round(v, 4) for v in true_lat]
     lons = [9.3] * n
     heights = [40.0 + (i // 20) for i in range(n)]  # 1 m altitude steps
-    frames, quanta = dequantize_frames(_frames(lats, lons, heights))
+    track, quanta = dequantize_track(_track(lats, lons, heights))
     assert quanta == {"lat": 1e-4, "height_m": 1.0}
-    got = np.array([f.pose.lat for f in frames if f.pose])
+    got = track.column("lat")
     assert np.abs(got - true_lat).max() < np.abs(np.array(lats) - true_lat).max()
-    assert all(f.pose is not None and f.pose.lon == 9.3 for f in frames)  # never stepped: kept
-    assert all(abs(f.pose.lat - lat) <= 0.5e-4 + 1e-12 for f, lat in zip(frames, lats, strict=True) if f.pose)
-    # six decimals: nothing to do, the very same frames come back
-    fine = _frames([47.599801 + 1e-6 * i for i in range(n)], lons, [40.123] * n)
-    same, none = dequantize_frames(fine)
-    assert none == {} and same == fine
+    assert np.all(track.column("lon") == 9.3)  # never stepped: kept
+    assert np.all(np.abs(got - np.array(lats)) <= 0.5e-4 + 1e-12)
+    # six decimals: nothing to do, the very same track comes back
+    fine = _track([47.599801 + 1e-6 * i for i in range(n)], lons, [40.123] * n)
+    same, none = dequantize_track(fine)
+    assert none == {} and same is fine
 
 
-def test_frames_without_pose_pass_through() -> None:
-    frames = _frames([47.5998, 47.5999, 47.6000], [9.3] * 3, [40.0] * 3)
-    frames[1] = Frame(frames[1].image, None, frames[1].t, CAMERA)
-    out, quanta = dequantize_frames(frames)
-    assert out[1].pose is None and quanta == {"lat": 1e-4}
-    assert out[0].pose is not None and out[2].pose is not None and out[0].pose.lat < out[2].pose.lat
+def test_a_track_of_one_sample_is_left_alone() -> None:
+    one = _track([47.5998], [9.3], [40.0])
+    same, quanta = dequantize_track(one)
+    assert same is one and quanta == {}
+
+
+def test_dataset_frames_get_dequantised_positions_between_the_samples() -> None:
+    # 4-decimal GPS on a file: iter_video_frames(dequantize=True) interpolates the continuous track
+    images = []
+    for i in range(40):
+        lat = round(47.59983 + 2.0e-5 * i, 4)
+        images.append({"id": i + 1, "width": 1920, "height": 1080, "video_id": 1, "frame_index": i,
+                       "meta": {"gps_latitude": lat, "gps_latitude_ref": "N", "gps_longitude": 9.3,
+                                "gps_longitude_ref": "E", "altitude": 40.0, "gimbal_pitch": 45.0,
+                                "gimbal_heading": 10.0, "date_time": f"2020-08-24T15:45:{20 + i * 0.1:09.6f}"}})
+    ds = Dataset.from_dict({"images": images, "annotations": [], "categories": [{"id": 1, "name": "person"}]})
+    report = VideoTelemetry()
+    frames = list(iter_video_frames(ds, CAMERA, 1, dequantize=True, report=report))
+    assert report.quanta == {"lat": 1e-4}
+    lats = np.array([f.pose.lat for f in frames if f.pose is not None])
+    truth = 47.59983 + 2.0e-5 * np.arange(40)
+    assert np.abs(lats - truth)[5:-5].max() < 0.3e-4  # the rounded values err by up to 0.5e-4
+    plain = list(iter_video_frames(ds, CAMERA, 1))
+    assert all(f.pose is not None and round(f.pose.lat, 4) == f.pose.lat for f in plain)
