@@ -196,7 +196,7 @@ class PipelineConfig:
     joint_carry_velocity_gain: float = 0.1
     size_check_min_score: float = 0.5
     size_check_min_boxes: int = 15
-    size_check_max_rejected: float = 0.05
+    size_check_max_rejected: float = 0.02
     calibrate_scores: bool = True
     calibration_max_floor: float = 0.05
     calibration_tau_s: float = 30.0

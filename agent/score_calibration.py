@@ -51,7 +51,7 @@ class CalibrationSettings:
     max_scale: float = 3.0
     max_floor: float = 0.05
     min_low_share: float = 0.01
-    min_candidates: int = 100
+    min_candidates: int = 50
 
     def __post_init__(self) -> None:
         if isinstance(self.top_k, bool) or not isinstance(self.top_k, int) or self.top_k < 2:

@@ -27,11 +27,12 @@ __all__ = ["SizeCheckSettings", "SizeFilterCheck"]
 class SizeCheckSettings:
     """min_score: boxes at least this confident stand for real objects; min_boxes: confident boxes of a
     class needed before its prior may act; max_rejected: the largest fraction of them the prior may reject
-    (a correct prior at k = 3 rejects well under 1 %)."""
+    (a correct prior at k = 3 rejects well under 1 %: 0.27 % of a normal distribution; 2 % leaves room for the
+    confident false positives it should reject)."""
 
     min_score: float = 0.5
     min_boxes: int = 15
-    max_rejected: float = 0.05
+    max_rejected: float = 0.02
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.min_score <= 1.0):

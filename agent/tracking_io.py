@@ -214,12 +214,13 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
 # ---------------------------------------------------------------------------------------------
 
 def video_name(dataset: Dataset, video_id: int) -> str:
-    """A file-name-safe name of a video: its name in the COCO `videos` list, else ``video<id>``."""
-    for v in dataset.coco.get("videos") or []:
-        if isinstance(v, dict) and v.get("id") == video_id and isinstance(v.get("name"), str) and v["name"]:
-            safe = re.sub(r"[^A-Za-z0-9._-]+", "_", v["name"]).strip("._")
-            if safe:
-                return safe
+    """A file-name-safe name of a video: its name (the COCO `videos` list, SeaDronesSee's ``source.video``),
+    else ``video<id>``."""
+    name = dataset.video_names.get(video_id)
+    if isinstance(name, str) and name:
+        safe = re.sub(r"[^A-Za-z0-9._-]+", "_", name).strip("._")
+        if safe:
+            return safe
     return f"video{video_id}"
 
 

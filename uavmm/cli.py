@@ -289,8 +289,32 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
                         "tasks detection,tracking)")
     p.add_argument("--list-domains", action="store_true", help="print the domains as a table and exit")
     p.add_argument("--full", action="store_true", help="with --domains: 5x longer clips")
+    real = p.add_argument_group("real data (docs/memory-map.md, Real data)")
+    real.add_argument("--real", type=Path, default=None, metavar="IMAGES.json|DIR",
+                      help="a real COCO file with meta (or a folder holding it, its detections and camera.json): "
+                           "per class AP50/AR of the detector's own results, memory off, our defaults and the "
+                           "paper's rule (report in --out/real)")
+    real.add_argument("--detections", type=Path, default=None, metavar="RESULTS.json",
+                      help="with --real: the detector's COCO results on it (default: the folder's detections*.json)")
+    real.add_argument("--camera", default=None, metavar="CAMERA.json|PRESET",
+                      help="with --real: the camera (default: the folder's camera.json)")
+    real.add_argument("--config", dest="pipeline_config", type=Path, default=None, metavar="PARAMS.json",
+                      help="with --real: our variant's settings (a pipeline config or `uavmm tune` parameters)")
     p.add_argument("--out", type=Path, default=Path("out/eval"), help="report directory (out/eval)")
     p.set_defaults(handler=_run_eval)
+
+
+def _run_real_eval(args: argparse.Namespace) -> int:
+    from agent.boost import load_params
+    from sim.real_eval import real_files, run_real_eval
+
+    images, detections, camera = real_files(args.real, args.detections, args.camera)
+    config, size_filter = load_params(args.pipeline_config)
+    out = args.out / "real"
+    report = run_real_eval(images, detections, camera, config=config, size_filter=size_filter, out_dir=out)
+    print((out / "report.md").read_text())
+    print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
+    return 0
 
 
 def _csv_list(text: str, kind: type, flag: str) -> list:
@@ -307,6 +331,10 @@ def _run_eval(args: argparse.Namespace) -> int:
     from sim.evaluate import run_eval, stderr_progress
     from sim.scenarios import get_scenario
 
+    if args.real is not None:
+        return _run_real_eval(args)
+    if args.detections is not None or args.camera is not None or args.pipeline_config is not None:
+        raise CliError("--detections, --camera and --config go with --real")
     if args.list_domains or args.domains is not None:
         return _run_domain_eval(args)
 

@@ -5,6 +5,7 @@ Metres, seconds and degrees throughout, so a configuration holds across frame ra
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field, fields
 
@@ -51,6 +52,11 @@ DEFAULT_CLASS_MOTION: tuple[tuple[str, ClassMotion], ...] = (
 
 #: How the image cue compares a track's expected box with a detection's (TrackerConfig.image_overlap).
 IMAGE_OVERLAPS = ("iou", "giou")
+
+
+#: Windows (seconds) of TrackerConfig floored to this many frame intervals (`TrackerConfig.at_frame_interval`).
+FRAME_FLOORS: dict[str, float] = {"tentative_coast_s": 1.5, "max_coast_s": 2.5, "image_max_age_s": 1.5,
+                                  "merge_after_s": 1.5}
 
 
 @dataclass(frozen=True, slots=True)
@@ -434,6 +440,20 @@ class TrackerConfig:
                 raise ValueError(f"TrackerConfig.class_motion entries must be (name, ClassMotion), got {entry!r}")
         if not isinstance(self.default_motion, ClassMotion):
             raise ValueError(f"TrackerConfig.default_motion must be a ClassMotion, got {self.default_motion!r}")
+
+    def at_frame_interval(self, dt_s: float) -> TrackerConfig:
+        """These settings for frames dt_s seconds apart: the windows in seconds floored to what such frames
+        allow (FRAME_FLOORS: a tentative track survives until the next frame, can be confirmed by
+        confirm_hits frames, a confirmed one coasts over two missed frames, the image cue reaches the last
+        frame). At 24 fps and faster no floor binds and the same object is returned; a detector's output
+        every 15th frame (2 fps, SeaDronesSee) otherwise deleted every tentative track before its second frame.
+        """
+        if not (math.isfinite(dt_s) and dt_s > 0):
+            return self
+        floors = {name: k * dt_s for name, k in FRAME_FLOORS.items()}
+        floors["confirm_window_s"] = (self.confirm_hits - 0.5) * dt_s
+        changes = {name: value for name, value in floors.items() if getattr(self, name) < value}
+        return dataclasses.replace(self, **changes) if changes else self
 
     def motion_for(self, class_name: str | None) -> ClassMotion:
         """The motion model of a class name (`default_motion` when it has none)."""

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import logging
 import math
+from collections import deque
 from dataclasses import dataclass
 
 import numpy as np
@@ -104,6 +105,8 @@ class GpsTracker:
         if isinstance(first_id, bool) or not isinstance(first_id, int) or not 0 <= first_id < 2**62:
             raise ValueError(f"first_id must be an int in 0..2**62-1, got {first_id!r}")
         config = config or TrackerConfig()
+        self.base_config = config
+        self._intervals: deque[float] = deque(maxlen=9)  # recent frame intervals (s), for the frame floors
         self.class_names = dict(class_names or {})
         self._state = TrackState(config=config, motion=MotionModels(config, self.class_names),
                                  evidence_at=evidence_at, next_id=first_id)
@@ -137,8 +140,19 @@ class GpsTracker:
     # ----------------------------------------------------------------------------- views
     @property
     def config(self) -> TrackerConfig:
-        """The tracker's settings (fixed at construction)."""
+        """The tracker's settings in use: those given at construction (`base_config`), their windows floored to
+        the measured frame interval (`TrackerConfig.at_frame_interval`; unchanged at 24 fps and faster)."""
         return self._state.config
+
+    def _follow_frame_interval(self, dt: float) -> None:
+        """Track the median frame interval and floor the config's windows to it."""
+        if dt <= 0:
+            return
+        self._intervals.append(dt)
+        median = float(np.median(self._intervals))
+        config = self.base_config.at_frame_interval(median)
+        if config is not self._state.config and config != self._state.config:
+            self._state.config = config
 
     @property
     def evidence_at(self) -> EvidenceFn | None:
@@ -233,6 +247,7 @@ class GpsTracker:
             dt = 0.0
             t = self._t if self._t is not None else t
         self._t = t
+        self._follow_frame_interval(dt)
         state = self._state
         act = state.active
         act.cols["matched"][:] = False

@@ -203,9 +203,10 @@ def pitch_convention_of(metas: Iterable[Mapping[str, Any] | None]) -> str:
 def is_flight_log_meta(meta: Mapping[str, Any]) -> bool:
     """True for the flight-log layout (``latitude``, ``height_above_takeoff(meter)``, ``datetime(utc)``, ...)
     of SeaDronesSee Object Detection v2 and AirData-style exports; False for the ``gps_latitude`` layout."""
-    if "gps_latitude" in meta or "gps_latitude_ref" in meta:
+    if any(isinstance(k, str) and k.startswith("gps_") for k in meta):
         return False
-    return any(isinstance(k, str) and k.strip().lower().split("(")[0].strip() in ("latitude", "lat") for k in meta)
+    names = {alias for aliases in _FLIGHT_LOG_ALIASES.values() for alias in aliases}
+    return any(isinstance(k, str) and k.strip().lower().split("(")[0].strip() in names for k in meta)
 
 
 def _flight_log_fields(meta: Mapping[str, Any]) -> dict[str, tuple[str, float]]:

@@ -1,0 +1,127 @@
+"""`uavmm eval --real`: a real COCO + meta file and a detector's results on it, per class: the detector's own
+AP50/AR, the pipeline with memory off, our defaults, and the paper's literal rule, from one run.
+
+The detector's results are the pipeline's candidates as they are (a final, thresholded output or pre-NMS
+candidates alike); "memory off" is the same size filter and NMS without boosting; "paper rule" is
+`sim.domain_eval.paper_rule_config`. Every figure is pycocotools' AP at IoU 0.5 and AR@100 on the file's
+own ground truth; what each adaptive stage of our run did is reported beside (agent.stage_report).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+from agent.boost import results_to_coco, run_pipeline
+from agent.coco_metrics import per_class_metrics
+from agent.dataset import Candidates, Dataset, read_json
+from agent.pipeline_config import PipelineConfig
+from agent.size_filter import SizeFilter
+from agent.stage_report import stage_lines
+from shared.geo import Camera
+from sim.domain_eval import paper_rule_config
+
+__all__ = ["DETECTOR", "MEMORY_OFF", "OURS", "PAPER", "real_files", "run_real_eval"]
+
+DETECTOR, MEMORY_OFF, OURS, PAPER = "detector", "memory off", "ours", "paper rule"
+
+
+def real_files(path: str | Path, detections: str | Path | None,
+               camera: str | Path | None) -> tuple[Path, Path, str | Path]:
+    """(images, detections, camera spec) of `uavmm eval --real PATH`: PATH is the images JSON, or a folder
+    holding it (``images.json`` or the one ``instances*.json``) with the detections (``detections*.json``,
+    else ``pre_nms.json``) and possibly ``camera.json``. ValueError naming what is missing."""
+    path = Path(path)
+    folder = path if path.is_dir() else path.parent
+    if path.is_dir():
+        found = [folder / "images.json"] if (folder / "images.json").is_file() else sorted(folder.glob("instances*.json"))
+        if len(found) != 1:
+            raise ValueError(f"{folder}: expected images.json or one instances*.json, found "
+                             f"{', '.join(p.name for p in found) or 'none'}")
+        images = found[0]
+    elif path.is_file():
+        images = path
+    else:
+        raise ValueError(f"--real {path} does not exist")
+    if detections is None:
+        found = sorted(folder.glob("detections*.json")) or [p for p in [folder / "pre_nms.json"] if p.is_file()]
+        if len(found) != 1:
+            raise ValueError(f"{folder}: pass --detections RESULTS.json (found "
+                             f"{', '.join(p.name for p in found) or 'no detections*.json or pre_nms.json'})")
+        detections = found[0]
+    if camera is None:
+        if not (folder / "camera.json").is_file():
+            raise ValueError(f"{folder}: no camera.json: pass --camera CAMERA.json or a preset "
+                             "(SeaDronesSee meta has no focal length; its Mavic videos: dji-mavic2-pro)")
+        camera = folder / "camera.json"
+    return images, Path(detections), camera
+
+
+def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_spec: str | Path, *,
+                  config: PipelineConfig | None = None, size_filter: SizeFilter | None = None,
+                  out_dir: Path | None = None) -> dict[str, Any]:
+    """Score the four variants; returns the report (also report.json/report.md in out_dir when given).
+
+    config, size_filter: our variant's settings (default PipelineConfig() and the built-in priors), e.g. a
+    `uavmm tune` parameters file; memory off is the same with use_memory False.
+    """
+    t0 = time.perf_counter()
+    coco = read_json(images_path, "images")
+    dataset = Dataset.from_dict(coco, source=str(images_path))
+    candidates = Candidates.load(detections_path, dataset)
+    camera = Camera.from_spec(camera_spec)
+    raw = read_json(detections_path, "detections")
+    ours = config or PipelineConfig()
+    variants = {MEMORY_OFF: dataclasses.replace(ours, use_memory=False), OURS: ours, PAPER: paper_rule_config()}
+    metrics = {DETECTOR: per_class_metrics(coco, raw)}
+    stats: dict[str, dict[str, Any]] = {}
+    for name, cfg in variants.items():
+        results: list[dict[str, Any]] = []
+        stats[name] = run_pipeline(dataset, candidates, camera, cfg, size_filter,
+                                   on_frame=lambda frame, res, out=results: out.extend(
+                                       results_to_coco(frame.image.id, res)))
+        metrics[name] = per_class_metrics(coco, results)
+    classes = list(metrics[DETECTOR])
+    rows = []
+    for cls in classes:
+        row: dict[str, Any] = {"class": cls, "gt": int(metrics[DETECTOR][cls]["gt"])}
+        for name, m in metrics.items():
+            row[f"AP50 {name}"] = round(100 * m.get(cls, {}).get("AP50", 0.0), 2)
+            row[f"AR100 {name}"] = round(100 * m.get(cls, {}).get("AR100", 0.0), 2)
+        row["gain"] = round(row[f"AP50 {OURS}"] - row[f"AP50 {DETECTOR}"], 2)
+        row["paper gain"] = round(row[f"AP50 {PAPER}"] - row[f"AP50 {DETECTOR}"], 2)
+        rows.append(row)
+    ours_stats = stats[OURS]
+    report = {"images": str(images_path), "detections": str(detections_path), "camera": str(camera_spec),
+              "frames": ours_stats["frames"], "videos": len(dataset.videos),
+              "frames_without_pose": ours_stats["frames_without_pose"],
+              "frames_without_pose_by_reason": ours_stats["frames_without_pose_by_reason"],
+              "rows": rows, "stages": ours_stats["stages"], "seconds": round(time.perf_counter() - t0, 2)}
+    if out_dir is not None:
+        out_dir.mkdir(parents=True, exist_ok=True)
+        (out_dir / "report.json").write_text(json.dumps(report, indent=1))
+        (out_dir / "report.md").write_text(markdown_real_report(report))
+    return report
+
+
+def markdown_real_report(report: dict[str, Any]) -> str:
+    """The report as a markdown table per class (AP50 / AR@100), the stage decisions below it."""
+    names = (DETECTOR, MEMORY_OFF, OURS, PAPER)
+    lines = [f"Real data: {report['images']} with {report['detections']}, camera {report['camera']} "
+             f"({report['videos']} videos, {report['frames']} frames, {report['frames_without_pose']} without pose)",
+             "", "AP50 / AR@100 per class (pycocotools); gain = ours - detector.", "",
+             "| class | boxes | " + " | ".join(names) + " | gain | paper gain |",
+             "|---|---|" + "---|" * (len(names) + 2)]
+    for row in report["rows"]:
+        cells = [f"{row[f'AP50 {n}']:.1f} / {row[f'AR100 {n}']:.1f}" for n in names]
+        lines.append(f"| {row['class']} | {row['gt']} | " + " | ".join(cells)
+                     + f" | {row['gain']:+.1f} | {row['paper gain']:+.1f} |")
+    reasons = report.get("frames_without_pose_by_reason") or {}
+    if reasons:
+        lines += ["", "Frames without pose: " + ", ".join(f"{k} {v}" for k, v in reasons.items())]
+    lines += ["", "What our run's adaptive stages did (per video, per class of a video for the size filter):", ""]
+    lines += [f"- {line}" for line in stage_lines(report.get("stages") or {})]
+    return "\n".join(lines) + "\n"

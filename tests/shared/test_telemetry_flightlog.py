@@ -1,0 +1,163 @@
+"""The flight-log layout of SeaDronesSee meta (Object Detection v2, AirData names) and the layouts of other
+drones found in the same files: read as they are, problems classified by reason."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared.telemetry import parse_csv
+from shared.telemetry.dates import parse_datetime
+from shared.telemetry.seadronessee import (
+    MetaProblem,
+    from_seadronessee_meta,
+    is_flight_log_meta,
+    pitch_convention_of,
+)
+
+#: One frame's meta of the real file (instances_dev.json, image 3464), as it is.
+REAL_META = {
+    "compass_heading(degrees)": 116.5,
+    "datetime(utc)": "2020-08-25 12:19:22",
+    "gimbal_heading(degrees)": 99.3,
+    "gimbal_pitch(degrees)": 13.7,
+    "height_above_takeoff(meter)": 9.999512343797623,
+    "image_name": "DJI_0032_merged.MP4_image5316.png",
+    "latitude": 47.67209,
+    "longitude": 9.267889,
+    "speed(m/s)": 2.8019248457755923,
+    "xspeed(m/s)": -0.09999731783638802,
+    "yspeed(m/s)": -2.7999248994188646,
+    "zspeed(m/s)": 0.0,
+}
+
+
+def test_the_real_flight_log_meta_is_read_as_it_is():
+    assert is_flight_log_meta(REAL_META)
+    tel = from_seadronessee_meta(REAL_META, frame=5415)
+    assert tel is not None
+    assert (tel.lat, tel.lon) == (47.67209, 9.267889)
+    assert tel.height_m == pytest.approx(9.9995, abs=1e-4)
+    assert tel.pitch_deg == pytest.approx(13.7) and tel.heading_deg == pytest.approx(99.3)  # gimbal, not compass
+    assert tel.t == parse_datetime("2020-08-25T12:19:22Z")  # named (utc): UTC whatever the local offset
+    assert from_seadronessee_meta(REAL_META, utc_offset_s=7200).t == tel.t
+    assert tel.vel_en_mps == pytest.approx((-2.7999, -0.1), abs=1e-3)  # (east, north): y east, x north
+    assert tel.speed_mps == pytest.approx(2.802, abs=1e-3) and tel.frame == 5415
+
+
+def test_feet_and_mph_are_converted_and_dji_pitch_is_read_in_the_flight_log_layout():
+    meta = {"latitude": -33.9, "longitude": 151.2, "height_above_takeoff(feet)": 100.0, "speed(mph)": 10.0,
+            "gimbal_pitch(degrees)": -45.0, "gimbal_heading(degrees)": 270.0, "datetime(utc)": "2021-01-01 00:00:00"}
+    tel = from_seadronessee_meta(meta)
+    assert tel.height_m == pytest.approx(30.48) and tel.speed_mps == pytest.approx(4.4704)
+    assert tel.pitch_deg == pytest.approx(45.0)  # negative down in the flight-log layout: DJI's convention
+    with pytest.raises(MetaProblem) as err:
+        from_seadronessee_meta(meta, pitch_convention="depression")  # -45 as a depression: camera up
+    assert err.value.reason == "pitch out of range"
+
+
+def test_a_flight_log_meta_without_a_time_takes_the_frames_clock():
+    meta = {k: v for k, v in REAL_META.items() if k != "datetime(utc)"}
+    with pytest.raises(MetaProblem) as err:
+        from_seadronessee_meta(meta)
+    assert err.value.reason == "no time"
+    assert from_seadronessee_meta(meta, t_default=123.5).t == 123.5
+
+
+@pytest.mark.parametrize("drop, reason", [
+    ("latitude", "no position"), ("height_above_takeoff(meter)", "no height"),
+])
+def test_missing_flight_log_fields_are_named_and_classified(drop, reason):
+    with pytest.raises(MetaProblem) as err:
+        from_seadronessee_meta({k: v for k, v in REAL_META.items() if k != drop})
+    assert err.value.reason == reason and "flight-log names" in str(err.value)
+
+
+@pytest.mark.parametrize("change, reason", [
+    ({"latitude": "north"}, "bad position"), ({"latitude": 95.0}, "bad position"),
+    ({"longitude": math.inf}, "bad position"), ({"datetime(utc)": "yesterday"}, "bad time"),
+    ({"height_above_takeoff(parsecs)": 3.0}, "bad unit"), ({"gimbal_pitch(degrees)": 120.0}, "pitch out of range"),
+    ({"speed(m/s)": -1.0}, "bad speed"),
+])
+def test_bad_flight_log_values_are_classified(change, reason):
+    with pytest.raises(MetaProblem) as err:
+        from_seadronessee_meta({**REAL_META, **change})
+    assert err.value.reason == reason
+
+
+def test_missing_gimbal_angles_give_none_not_an_error():
+    meta = {k: v for k, v in REAL_META.items() if not k.startswith("gimbal")}
+    tel = from_seadronessee_meta(meta)
+    assert tel.pitch_deg is None and tel.heading_deg is None
+
+
+def test_the_aircrafts_own_attitude_is_not_taken_for_the_cameras():
+    meta = {k: v for k, v in REAL_META.items() if not k.startswith("gimbal")}
+    meta.update({"pitch(degrees)": -3.0, "yaw(degrees)": 40.0})  # AirData's aircraft attitude columns
+    tel = from_seadronessee_meta(meta)
+    assert tel.pitch_deg is None and tel.heading_deg is None
+
+
+def test_a_ref_field_holding_the_coordinate_is_read_as_the_coordinate():
+    # other drones in the same public file: the ref holds the latitude as a number
+    base = {"altitude": 80.0, "gimbal_pitch": 90.0, "gimbal_heading": 10.0, "date_time": "2020-08-24T15:45:20"}
+    bare = {**base, "gps_latitude_ref": 53.72, "gps_longitude_ref": -7.16}
+    tel = from_seadronessee_meta(bare)
+    assert (tel.lat, tel.lon) == (53.72, -7.16)
+    swapped = {**base, "gps_latitude": "S", "gps_latitude_ref": 33.9, "gps_longitude": "E", "gps_longitude_ref": 151.2}
+    tel = from_seadronessee_meta(swapped)
+    assert (tel.lat, tel.lon) == (-33.9, 151.2)
+    agree = {**base, "gps_latitude": 53.72, "gps_latitude_ref": 53.72, "gps_longitude": 7.16, "gps_longitude_ref": "E"}
+    assert from_seadronessee_meta(agree).lat == 53.72
+    with pytest.raises(MetaProblem) as err:
+        from_seadronessee_meta({**agree, "gps_latitude_ref": 12.0})
+    assert err.value.reason == "bad position" and "two different coordinates" in str(err.value)
+
+
+def test_the_seadronessee_layout_keeps_its_positive_down_pitch():
+    meta = {"gps_latitude": 47.6, "gps_latitude_ref": "N", "gps_longitude": 9.3, "gps_longitude_ref": "E",
+            "altitude": 30.0, "gimbal_pitch": -0.5, "gimbal_heading": 10.0, "date_time": "2020-08-24T15:45:20"}
+    assert from_seadronessee_meta(meta).pitch_deg == 0.0  # a small overshoot above the horizon: clamped
+    with pytest.raises(MetaProblem):
+        from_seadronessee_meta({**meta, "gimbal_pitch": -30.0})  # camera up: no ground view
+    assert from_seadronessee_meta({**meta, "gimbal_pitch": -30.0}, pitch_convention="dji").pitch_deg == 30.0
+
+
+def test_a_video_s_pitch_convention_is_decided_by_its_majority():
+    dji = [{**REAL_META, "gimbal_pitch(degrees)": v} for v in (-30.0, -45.0, 5.0)]
+    sds = [{**REAL_META, "gimbal_pitch(degrees)": v} for v in (30.0, 45.0, -0.5)]
+    assert pitch_convention_of(dji) == "dji"
+    assert pitch_convention_of(sds) == "depression"
+    assert pitch_convention_of([None, {"gimbal_pitch": "x"}]) == "depression"
+    with pytest.raises(ValueError, match="pitch_convention"):
+        from_seadronessee_meta(REAL_META, pitch_convention="up")
+
+
+@settings(max_examples=80, deadline=None)
+@given(lat=st.floats(-89.9, 89.9), lon=st.floats(-179.9, 179.9), height=st.floats(0.5, 500.0),
+       pitch=st.floats(0.0, 90.0), heading=st.floats(0.0, 359.9), feet=st.booleans(),
+       stamp=st.integers(1_500_000_000, 1_800_000_000))
+def test_property_flight_log_values_round_trip(lat, lon, height, pitch, heading, feet, stamp):
+    from datetime import datetime, timezone
+
+    text = datetime.fromtimestamp(stamp, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
+    unit, factor = ("feet", 0.3048) if feet else ("meter", 1.0)
+    meta = {"latitude": lat, "longitude": lon, f"height_above_takeoff({unit})": height / factor,
+            "gimbal_pitch(degrees)": pitch, "gimbal_heading(degrees)": heading, "datetime(utc)": text}
+    tel = from_seadronessee_meta(meta)
+    assert tel.lat == lat and tel.lon == lon and tel.t == stamp
+    assert tel.height_m == pytest.approx(height, rel=1e-9)
+    assert tel.pitch_deg == pytest.approx(pitch) and tel.heading_deg == pytest.approx(heading % 360.0)
+
+
+def test_a_flight_log_csv_gives_velocities_and_its_utc_column_ignores_the_local_offset():
+    text = ("datetime(utc),latitude,longitude,height_above_takeoff(meter),gimbal_pitch(degrees),"
+            "gimbal_heading(degrees),xSpeed(mph),ySpeed(mph)\n"
+            "2020-08-25 12:19:22,47.67209,9.267889,10.0,-13.7,99.3,1.0,-2.0\n")
+    (tel,) = parse_csv(text, utc_offset_s=7200)
+    assert tel.t == parse_datetime("2020-08-25T12:19:22Z")
+    assert tel.vel_en_mps == pytest.approx((-2.0 * 0.44704, 1.0 * 0.44704))
+    assert tel.pitch_deg == pytest.approx(13.7)  # a negative column: DJI's convention
