@@ -37,7 +37,9 @@ def real_files(path: str | Path, detections: str | Path | None,
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     if path.is_dir():
-        found = [folder / "images.json"] if (folder / "images.json").is_file() else sorted(folder.glob("instances*.json"))
+        found = [folder / "images.json"]
+        if not found[0].is_file():
+            found = sorted(folder.glob("instances*.json"))
         if len(found) != 1:
             raise ValueError(f"{folder}: expected images.json or one instances*.json, found "
                              f"{', '.join(p.name for p in found) or 'none'}")

@@ -205,6 +205,8 @@ def parse_csv(
     frames = _csv_frames(rows[1:], columns.get("frame"), source)
     records = []
     for i, (line, _) in enumerate(rows[1:]):
+        ve = None if east is None else east[i]
+        vn = None if north is None else north[i]
         try:
             records.append(
                 Telemetry(
@@ -216,8 +218,7 @@ def parse_csv(
                     heading_deg=None if heading is None else heading[i],
                     roll_deg=0.0 if roll is None else roll[i] or 0.0,
                     speed_mps=None if speed is None else speed[i],
-                    vel_en_mps=None if east is None or north is None or east[i] is None or north[i] is None
-                    else (east[i], north[i]),
+                    vel_en_mps=None if ve is None or vn is None else (ve, vn),
                     frame=frames[i],
                 )
             )
