@@ -146,9 +146,11 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
         for report in pipe.stage_reports():
             stages.add(report)
     reasons = count_reasons(problems)
-    if problems:
-        log.warning("%d frame(s) have no pose and were not boosted (%s); first: %s", len(problems),
-                    ", ".join(f"{k} {v}" for k, v in reasons.items()), problems[0])
+    if problems:  # frames without meta are normal (passed through); unusable meta is worth a warning
+        unusable = [p for p in problems if p.reason != "no meta"]
+        log.log(logging.WARNING if unusable else logging.INFO,
+                "%d frame(s) have no pose and were not boosted (%s); first: %s", len(problems),
+                ", ".join(f"{k} {v}" for k, v in reasons.items()), (unusable or problems)[0])
     stats["frames_with_bad_meta"] = sum(v for k, v in reasons.items() if k != "no meta")
     stats["frames_without_pose_by_reason"] = reasons
     if corrections:

@@ -28,6 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from shared.telemetry.interpolation import spread_repeated_stamps
+
 __all__ = ["ClockReport", "TelemetryClockSettings", "TelemetryTrack", "reconcile_clock"]
 
 
@@ -151,31 +153,6 @@ def _samples(stamps: NDArray, values: NDArray) -> NDArray[np.int64]:
     return np.cumsum(~same) - 1
 
 
-def _spread_within_stamps(stamps: NDArray, whole_seconds: bool) -> NDArray:
-    """Sample times from their stamps: samples under one stamp are spread evenly up to the next stamp (a
-    whole-second stamp: over its second; the last stamp: over the median step between stamps)."""
-    out = stamps.astype(np.float64).copy()
-    m = len(stamps)
-    if m == 0:
-        return out
-    distinct = np.unique(stamps)
-    default_step = 1.0 if whole_seconds else (float(np.median(np.diff(distinct))) if len(distinct) > 1 else 0.0)
-    start = 0
-    while start < m:
-        end = start
-        while end + 1 < m and stamps[end + 1] == stamps[start]:
-            end += 1
-        count = end - start + 1
-        if count > 1:
-            nxt = stamps[end + 1] if end + 1 < m else stamps[start] + default_step
-            step = (nxt - stamps[start]) / count
-            if whole_seconds:
-                step = min(step, 1.0 / count)
-            out[start:end + 1] = stamps[start] + step * np.arange(count)
-        start = end + 1
-    return out
-
-
 def reconcile_clock(frame_t: NDArray, stamp_t: NDArray, values: NDArray, frame_clock: NDArray,
                     settings: TelemetryClockSettings | None = None) -> tuple[TelemetryTrack, ClockReport]:
     """One video's telemetry samples on the frame clock.
@@ -221,7 +198,7 @@ def reconcile_clock(frame_t: NDArray, stamp_t: NDArray, values: NDArray, frame_c
         stamps_used = False
         reason = f"only {int(both.sum())} frame(s) carry both clocks"
     if stamps_used:
-        t = _spread_within_stamps(stamp_t[first] + zone, whole)
+        t = spread_repeated_stamps(stamp_t[first] + zone, whole)
     else:
         t = frame_t[first].copy()  # where each sample's values first appear
     # a log that goes back in time (or repeats a stamp after other values) keeps its order: nudge forward

@@ -167,7 +167,8 @@ def evaluate_dataset(directory: str | Path, config: AnomalyConfig, *, rates: Seq
     object_ratios: list[NDArray[np.float64]] = []
     for video_id in ds.videos:
         detector.reset()
-        for i, frame in enumerate(iter_video_frames(ds, camera, video_id)):
+        # the poses each frame carries, as the anomaly layer was measured with (docs/anomaly.md)
+        for i, frame in enumerate(iter_video_frames(ds, camera, video_id, at_frame_time=False)):
             image = read_image(directory, frame.image)
             if image is None:
                 raise ValueError(f"{directory}: image file of image {frame.image.id} is missing (render the dataset)")

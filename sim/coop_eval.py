@@ -107,7 +107,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                         {uav_of[v]: p for v, p in pipes.items()}, rule=rule, coverage=coverage) if share else None
     trackers = {vid: GpsTracker(None, dataset.categories, evidence_at=memory_evidence(pipes[vid]))
                 for vid in dataset.videos} if track_boxes is not None else {}
-    iters = {vid: iter_video_frames(dataset, camera, vid) for vid in dataset.videos}
+    # live agents: each frame keeps the telemetry sample it carries (no look-ahead to later samples)
+    iters = {vid: iter_video_frames(dataset, camera, vid, at_frame_time=False) for vid in dataset.videos}
     results: dict[int, list[dict]] = {vid: [] for vid in dataset.videos}
     poses: dict[str, tuple] = {}
     next_publish: float | None = None

@@ -300,6 +300,8 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
                       help="with --real: the camera (default: the folder's camera.json)")
     real.add_argument("--config", dest="pipeline_config", type=Path, default=None, metavar="PARAMS.json",
                       help="with --real: our variant's settings (a pipeline config or `uavmm tune` parameters)")
+    real.add_argument("--size-filter", type=Path, default=None, metavar="FILTER.json",
+                      help="with --real: a fitted size filter (uavmm fit-size-filter) for our variant and memory off")
     p.add_argument("--out", type=Path, default=Path("out/eval"), help="report directory (out/eval)")
     p.set_defaults(handler=_run_eval)
 
@@ -310,6 +312,10 @@ def _run_real_eval(args: argparse.Namespace) -> int:
 
     images, detections, camera = real_files(args.real, args.detections, args.camera)
     config, size_filter = load_params(args.pipeline_config)
+    if args.size_filter is not None:
+        from agent.size_filter import SizeFilter
+
+        size_filter = SizeFilter.load(args.size_filter)
     out = args.out / "real"
     report = run_real_eval(images, detections, camera, config=config, size_filter=size_filter, out_dir=out)
     print((out / "report.md").read_text())
@@ -333,8 +339,8 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     if args.real is not None:
         return _run_real_eval(args)
-    if args.detections is not None or args.camera is not None or args.pipeline_config is not None:
-        raise CliError("--detections, --camera and --config go with --real")
+    if any(v is not None for v in (args.detections, args.camera, args.pipeline_config, args.size_filter)):
+        raise CliError("--detections, --camera, --config and --size-filter go with --real")
     if args.list_domains or args.domains is not None:
         return _run_domain_eval(args)
 

@@ -37,7 +37,8 @@ def dataset_frames(images_json: str | Path, camera: Camera) -> Iterator[AnomalyI
     path = Path(images_json)
     ds = Dataset.load(path)
     for video_id in ds.videos:
-        for frame in iter_video_frames(ds, camera, video_id):
+        # the poses each frame carries, as the anomaly layer was measured with (docs/anomaly.md)
+        for frame in iter_video_frames(ds, camera, video_id, at_frame_time=False):
             pixels = read_image(path.parent, frame.image)
             if pixels is None:
                 where = image_file(path.parent, frame.image) or frame.image.file_name

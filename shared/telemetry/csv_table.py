@@ -12,6 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from shared.telemetry.dates import DATETIME_RE, parse_datetime
+from shared.telemetry.interpolation import spread_repeated_stamps
 from shared.telemetry.record import Telemetry, pitch_or_none
 from shared.telemetry.text import NUM_RE, read_text
 
@@ -261,6 +262,11 @@ def _csv_times(
         return numeric
     anchors = dates(date_column)
     if numeric is None:
+        # a log stamped at whole seconds (AirData's datetime(utc) without its time(millisecond)): the rows of
+        # one second are spread over it in their order
+        whole = all(a == round(a) for a in anchors)
+        if whole and len(set(anchors)) < len(anchors):
+            return [float(v) for v in spread_repeated_stamps(anchors, True)]
         return anchors
     return [anchors[0] + (value - numeric[0]) for value in numeric]
 

@@ -106,3 +106,30 @@ def interpolate(
             )
         )
     return out
+
+
+def spread_repeated_stamps(stamps: ArrayLike, whole_seconds: bool) -> np.ndarray:
+    """Sample times from stamps that repeat: consecutive samples under one stamp (a 10 Hz log stamped at whole
+    seconds) are spread evenly up to the next stamp (a whole-second stamp: over its second at most; the last
+    stamp: over the median step between stamps). (M,) in, (M,) float64 out; other stamps are kept."""
+    stamps = np.asarray(stamps, dtype=np.float64).reshape(-1)
+    out = stamps.copy()
+    m = len(stamps)
+    if m == 0:
+        return out
+    distinct = np.unique(stamps)
+    default_step = 1.0 if whole_seconds else (float(np.median(np.diff(distinct))) if len(distinct) > 1 else 0.0)
+    start = 0
+    while start < m:
+        end = start
+        while end + 1 < m and stamps[end + 1] == stamps[start]:
+            end += 1
+        count = end - start + 1
+        if count > 1:
+            nxt = stamps[end + 1] if end + 1 < m else stamps[start] + default_step
+            step = (nxt - stamps[start]) / count
+            if whole_seconds:
+                step = min(step, 1.0 / count)
+            out[start:end + 1] = stamps[start] + step * np.arange(count)
+        start = end + 1
+    return out

@@ -161,3 +161,13 @@ def test_a_flight_log_csv_gives_velocities_and_its_utc_column_ignores_the_local_
     assert tel.t == parse_datetime("2020-08-25T12:19:22Z")
     assert tel.vel_en_mps == pytest.approx((-2.0 * 0.44704, 1.0 * 0.44704))
     assert tel.pitch_deg == pytest.approx(13.7)  # a negative column: DJI's convention
+
+
+def test_a_csv_stamped_at_whole_seconds_spreads_each_seconds_rows_over_it():
+    header = ("datetime(utc),latitude,longitude,height_above_takeoff(meter),gimbal_pitch(degrees),"
+              "gimbal_heading(degrees)")
+    rows = [f"2020-08-25 12:19:{22 + k // 10:02d},47.6,9.3,30.0,-45.0,{k}.0" for k in range(25)]
+    records = parse_csv("\n".join([header, *rows]) + "\n")
+    t0 = parse_datetime("2020-08-25T12:19:22Z")
+    assert [round(r.t - t0, 6) for r in records] == pytest.approx([0.1 * k for k in range(20)] + [2.0 + 0.2 * k
+                                                                                                  for k in range(5)])
