@@ -20,7 +20,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from shared.geo import Camera, Pose
-from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, parse_datetime
+from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, parse_datetime, recording_start
 
 if TYPE_CHECKING:
     from agent.dataset import PoseProblem
@@ -289,7 +289,8 @@ class VideoSource:
     camera : path
         Camera JSON; rescaled when the video's frame size differs.
     telemetry_offset_s : float, optional
-        Telemetry time of video time 0, seconds (default: the first telemetry record's time).
+        Telemetry time of video time 0, seconds (default: where the log starts recording, AirData's isVideo,
+        else the first telemetry record's time).
     class_names : path or list, optional
         Overrides the model's class names.
     conf_threshold : float
@@ -369,12 +370,26 @@ class VideoSource:
             log.info("telemetry %s: live MAVLink, first record at t=%.3f", telemetry, self.records[0].t)
         self.records.sort(key=lambda r: r.t)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
-        self.telemetry_offset_s = self.records[0].t if telemetry_offset_s is None else float(telemetry_offset_s)
+        self.telemetry_offset_s = self._default_offset(telemetry) if telemetry_offset_s is None \
+            else float(telemetry_offset_s)
         self.max_gap_s = float(max_gap_s)
         self.pitch_deg = pitch_deg
         self.heading_deg = heading_deg
         self.name = f"video:{self.video_path.name}"
         self.problems = 0
+
+    def _default_offset(self, telemetry: str | Path) -> float:
+        """Telemetry time of video time 0: where the log says the camera started recording (AirData's
+        isVideo), else the first record's time."""
+        start, starts = recording_start(self.records)
+        if start is None:
+            return self.records[0].t
+        if starts > 1:
+            log.warning("telemetry %s marks %d recordings: the video is taken to be the first (t=%.3f); pass "
+                        "--telemetry-offset-s for another", telemetry, starts, start)
+        else:
+            log.info("telemetry %s: the video starts where the log starts recording (t=%.3f)", telemetry, start)
+        return start
 
     def _pose(self, tel: Telemetry | None) -> Pose | None:
         if tel is None:

@@ -47,7 +47,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--class-names", type=Path, default=None, help="--video: class names file (model's default)")
     src.add_argument("--conf-threshold", type=float, default=0.01, help="--video: lowest candidate score (0.01)")
     src.add_argument("--telemetry-offset-s", type=float, default=None,
-                     help="--video: telemetry time of video time 0 (default: the first record's)")
+                     help="--video: telemetry time of video time 0 (default: where the log starts recording, "
+                          "AirData's isVideo, else the first record's)")
     src.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     src.add_argument("--heading-deg", type=float, default=None,
                      help="--video: fixed gimbal heading if telemetry lacks it")

@@ -55,7 +55,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     tel = p.add_argument_group("telemetry")
     tel.add_argument("--telemetry-offset-s", type=float, default=None,
                      help="telemetry time of the video's first frame, seconds on the telemetry's clock "
-                          "(default: the first record's)")
+                          "(default: where the log starts recording, AirData's isVideo, else the first record's)")
     tel.add_argument("--telemetry-timeout-s", type=float, default=10.0,
                      help="udp:HOST:PORT: seconds to wait for the first MAVLink position (10)")
     tel.add_argument("--pitch-deg", type=float, default=None, help="fixed gimbal pitch if telemetry lacks it")

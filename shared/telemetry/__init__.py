@@ -11,7 +11,13 @@ from shared.telemetry.dates import parse_datetime
 from shared.telemetry.interpolation import interpolate
 from shared.telemetry.mavlink import MavlinkAssembler, MavlinkByteParser, MavlinkSample, parse_tlog, read_tlog
 from shared.telemetry.readers import read_telemetry
-from shared.telemetry.record import NO_HEIGHT_MESSAGE, PITCH_TOLERANCE_DEG, Telemetry, pitch_from_dji
+from shared.telemetry.record import (
+    NO_HEIGHT_MESSAGE,
+    PITCH_TOLERANCE_DEG,
+    Telemetry,
+    pitch_from_dji,
+    recording_start,
+)
 from shared.telemetry.seadronessee import (
     SEADRONESSEE_META_FIELDS,
     from_seadronessee_meta,
@@ -48,5 +54,6 @@ __all__ = [
     "read_telemetry",
     "read_tlog",
     "read_ulog",
+    "recording_start",
     "to_seadronessee_meta",
 ]

@@ -38,6 +38,7 @@ CSV_COLUMNS: dict[str, tuple[tuple[str, ...], Mapping[str, float]]] = {
     "vel_north": (("vel_north_mps", "xspeed"), _SPEED_UNITS),
     "vel_east": (("vel_east_mps", "yspeed"), _SPEED_UNITS),
     "frame": (("frame", "frame_index", "framecnt"), {"": 1.0}),
+    "recording": (("isvideo", "is_video", "recording"), {"": 1.0}),
 }
 _DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
 _HEADER_RE = re.compile(r"(?P<name>.*?)\s*(?:\((?P<paren>[^()]*)\)|\[(?P<bracket>[^\[\]]*)\])?")
@@ -131,7 +132,8 @@ def parse_csv(
     - optional: pitch ``pitch_deg, gimbal_pitch, gb_pitch, gimbal_pitch_dji, pitch``; heading
       ``heading_deg, gimbal_heading, gb_yaw, heading, yaw``; roll ``roll_deg, gimbal_roll, gb_roll, roll``;
       ``speed_mps, speed``; velocity ``vel_north_mps, xspeed`` and ``vel_east_mps, yspeed`` (DJI flight logs:
-      x north, y east); ``frame, frame_index, framecnt``. An empty optional cell is None.
+      x north, y east); ``frame, frame_index, framecnt``; ``isvideo, is_video, recording`` (AirData: 1 while
+      the camera records). An empty optional cell is None.
 
     When several names of one field are present the earlier one in these lists wins (a gimbal column
     beats the aircraft's ``pitch``/``yaw``/``roll``).
@@ -203,6 +205,7 @@ def parse_csv(
     pitch = _csv_pitch(rows[1:], columns, floats("pitch"), source)
     heading, roll, speed = floats("heading"), floats("roll"), floats("speed")
     north, east = floats("vel_north"), floats("vel_east")
+    recording = floats("recording")
     frames = _csv_frames(rows[1:], columns.get("frame"), source)
     records = []
     for i, (line, _) in enumerate(rows[1:]):
@@ -221,6 +224,7 @@ def parse_csv(
                     speed_mps=None if speed is None else speed[i],
                     vel_en_mps=None if ve is None or vn is None else (ve, vn),
                     frame=frames[i],
+                    recording=None if recording is None or recording[i] is None else recording[i] != 0.0,
                 )
             )
         except ValueError as err:

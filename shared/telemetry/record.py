@@ -71,6 +71,9 @@ class Telemetry:
         (east, north) velocity in m/s if known.
     frame : int or None
         The source's frame counter or index (DJI counters start at 1), >= 0.
+    recording : bool or None
+        The camera was recording video at this sample (AirData's ``isVideo``); None when the source does
+        not say.
     """
 
     t: float
@@ -83,6 +86,7 @@ class Telemetry:
     speed_mps: float | None = None
     vel_en_mps: tuple[float, float] | None = None
     frame: int | None = None
+    recording: bool | None = None
 
     def __post_init__(self) -> None:
         put = object.__setattr__  # frozen: normalised values are written once, here
@@ -121,6 +125,10 @@ class Telemetry:
             if self.frame < 0:
                 raise ValueError(f"Telemetry.frame={self.frame!r} must be >= 0")
             put(self, "frame", int(self.frame))
+        if self.recording is not None and not isinstance(self.recording, (bool, np.bool_)):
+            raise ValueError(f"Telemetry.recording must be a bool or None, got {self.recording!r}")
+        if self.recording is not None:
+            put(self, "recording", bool(self.recording))
 
     def to_pose(
         self, pitch_deg: float | None = None, heading_deg: float | None = None, *, height_m: float | None = None
@@ -214,3 +222,22 @@ def pitch_or_none(depression_deg: float, what: str) -> float | None:
     except ValueError as err:
         logger.warning("%s: no pose for this sample", err)
         return None
+
+
+def recording_start(records: list[Telemetry]) -> tuple[float | None, int]:
+    """(time of the first sample recording video, number of recordings) of records in time order.
+
+    A log that marks when the camera records (AirData's ``isVideo``) says where a video's first frame
+    lies on the telemetry's clock; (None, 0) when no record says it records.
+    """
+    start: float | None = None
+    starts = 0
+    previous = False
+    for record in records:
+        now = bool(record.recording)
+        if now and not previous:
+            starts += 1
+            if start is None:
+                start = record.t
+        previous = now
+    return start, starts

@@ -171,3 +171,20 @@ def test_a_csv_stamped_at_whole_seconds_spreads_each_seconds_rows_over_it():
     t0 = parse_datetime("2020-08-25T12:19:22Z")
     assert [round(r.t - t0, 6) for r in records] == pytest.approx([0.1 * k for k in range(20)] + [2.0 + 0.2 * k
                                                                                                   for k in range(5)])
+
+
+def test_an_airdata_log_says_where_its_video_starts():
+    from shared.telemetry import recording_start
+
+    header = "time(millisecond),datetime(utc),latitude,longitude,height_above_takeoff(feet),isVideo"
+    flags = [0, 0, 1, 1, 1, 0, 1, 1]
+    rows = [f"{100 * k},2020-08-25 12:19:22,47.6,9.3,100,{f}" for k, f in enumerate(flags)]
+    records = parse_csv("\n".join([header, *rows]) + "\n")
+    assert [r.recording for r in records] == [bool(f) for f in flags]
+    start, starts = recording_start(records)
+    assert starts == 2 and start == pytest.approx(parse_datetime("2020-08-25T12:19:22Z") + 0.2)
+    assert recording_start(parse_csv("t,lat,lon,height\n0,47.6,9.3,30\n")) == (None, 0)
+    with pytest.raises(ValueError, match="recording"):
+        from shared.telemetry import Telemetry
+
+        Telemetry(t=0.0, lat=0.0, lon=0.0, height_m=1.0, pitch_deg=None, heading_deg=None, recording="yes")
