@@ -134,6 +134,24 @@ def test_domain_eval_reports_tuning_and_heldout_apart(tmp_path: Path) -> None:
     assert json.loads((tmp_path / "report.json").read_text())["domains"] == [d.name for d in tiny]
 
 
+def test_domain_eval_tracking_reports_the_position_error_of_ours_beside_hota(tmp_path: Path) -> None:
+    tiny = [dataclasses.replace(DOMAINS["sea-sds-clocks"], clip_s=2.0)]
+    report = run_domain_eval(tiny, [0], noise_scales=(1.0,), tasks=("tracking",), out_dir=tmp_path)
+    rows = {r["variant"]: r for r in report["tracking_rows"]}
+    assert rows["norfair (pixel IoU)"]["pos_err_m"] is None and rows["norfair (pixel IoU)"]["pos_err_n"] is None
+    ours = rows["GPS tracker + memory map"]
+    assert ours["pos_err_n"] > 50 and 0.0 < ours["pos_err_m"] <= ours["pos_err_p90_m"] < 15.0
+    (s,) = report["tracking"]
+    assert s["pos_err_m_ours"] == pytest.approx(ours["pos_err_m"]) and s["pos_err_m_norfair"] is None
+    assert {"HOTA_ours", "HOTA_norfair", "IDs_ours", "IDs_norfair", "pos_err_p90_m_ours"} <= set(s)
+    md = (tmp_path / "report.md").read_text()
+    assert "| IDs norfair | IDs ours | pos err ours m | pos err p90 ours m |" in md
+    line = next(x for x in md.splitlines() if x.startswith("| heldout | sea-sds-clocks |"))
+    assert line.endswith(f"| {ours['pos_err_m']:.2f} | {ours['pos_err_p90_m']:.2f} |")
+    saved = json.loads((tmp_path / "report.json").read_text())
+    assert saved["tracking"][0]["pos_err_m_ours"] == pytest.approx(ours["pos_err_m"])
+
+
 def test_cli_lists_domains_and_refuses_unknown_ones() -> None:
     proc = subprocess.run([sys.executable, "-m", "uavmm", "eval", "--list-domains"], cwd=REPO, capture_output=True,
                           text=True, timeout=120)
