@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sim.noise import format_time
+from sim.noise import CLOCK_FIELDS, TelemetryNoise, format_time
 from sim.scenarios import START_UNIX_S, Scenario
 from sim.simulator import FrameSample, Simulation
 
@@ -58,6 +58,17 @@ class _Progress:
 def _spec_dict(obj: Any) -> dict[str, Any]:
     d = dataclasses.asdict(obj)
     d["type"] = type(obj).__name__
+    return d
+
+
+def _noise_dict(noise: TelemetryNoise) -> dict[str, Any]:
+    """The noise as truth.json writes it: the clock fields (`sim.noise.CLOCK_FIELDS`) only when they are not
+    at their defaults, so the datasets of scenarios without them stay byte-identical."""
+    d = _spec_dict(noise)
+    default = TelemetryNoise()
+    for name in CLOCK_FIELDS:
+        if getattr(noise, name) == getattr(default, name):
+            del d[name]
     return d
 
 
@@ -173,11 +184,11 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
                 "name": sc.name, "description": sc.description, "fps": sc.fps, "simultaneous": sc.simultaneous,
                 "camera_preset": sc.camera_preset, "world": _spec_dict(sc.world),
                 "flights": [_spec_dict(f) for f in sc.flights], "emulator": _spec_dict(sc.emulator),
-                "noise_base": _spec_dict(sc.noise),
+                "noise_base": _noise_dict(sc.noise),
                 **({"sea_state": sc.sea_state.to_dict()} if sc.sea_state is not None else {}),
             },
             "seed": sim.seed, "frames_per_video": sim.frames_per_video, "noise_scale": sim.noise_scale,
-            "noise": _spec_dict(sim.noise),
+            "noise": _noise_dict(sim.noise),
             "videos": [{**dataclasses.asdict(v), **fv}
                        for v, fv in zip(sim.videos, _by_video(facts, sim), strict=True)],
             "occlusion": facts["occlusion"], "occluded_boxes": occluded_boxes,

@@ -5,7 +5,8 @@ Per domain, seed and telemetry-noise scale a dataset is simulated once (cached u
 the domain's definition), then scored like `sim.evaluate` (pycocotools AP50) for three variants: the
 single-frame baseline, our memory map, and the paper's literal rule (sum stamping, c + p, r 6 m,
 per-frame forgetting and gain); tracking (TrackEval HOTA, IDs) compares our GPS tracker with norfair
-on the same detections at noise x1.
+on the same detections at noise x1, beside the ground error of our tracker's reported positions
+(`pos_err_m`, `pos_err_p90_m`; `sim.position_error`).
 """
 
 from __future__ import annotations
@@ -22,6 +23,7 @@ from agent.memory_map import MemoryMapConfig
 from agent.pipeline_config import PipelineConfig
 from sim.domains import Domain
 from sim.evaluate import Variant, evaluate_detection
+from sim.position_error import format_metres, mean_known
 
 BASELINE, OURS, PAPER = "baseline", "memory map", "paper rule"
 NORFAIR, GPS = "norfair (pixel IoU)", "GPS tracker + memory map"
@@ -124,7 +126,9 @@ def summarise_detection(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 
 
 def summarise_tracking(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
-    """Per domain: mean HOTA, MOTA, IDF1 and summed IDs over seeds of norfair and ours."""
+    """Per domain: mean HOTA, MOTA, IDF1 and summed IDs over seeds of norfair and ours, and the ground error
+    of the reported positions (`pos_err_m` median, `pos_err_p90_m`; metres, mean over seeds of each seed's
+    figure; None for norfair, which reports no ground positions, and where nothing matched)."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault(r["domain"], []).append(r)
@@ -137,6 +141,8 @@ def summarise_tracking(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
             for m in ("HOTA", "MOTA", "IDF1"):
                 row[f"{m}_{key}"] = _mean([r[m] for r in vr])
             row[f"IDs_{key}"] = sum(r["IDs"] for r in vr)
+            for m in ("pos_err_m", "pos_err_p90_m"):
+                row[f"{m}_{key}"] = mean_known([r.get(m) for r in vr])
         out.append(row)
     return out
 
@@ -200,13 +206,19 @@ def markdown_domain_report(report: dict[str, Any]) -> str:
         lines.append("")
     if report["tracking"]:
         lines += ["## Tracking (noise x1): TrackEval HOTA, MOTA, IDF1 (mean), IDs (sum over seeds)", "",
+                  "Pos err: metres between our reported track positions and the truth of the objects their boxes "
+                  "match (IoU >= 0.5), median and 90th percentile (mean over seeds); norfair has no ground "
+                  "positions.", "",
                   "| split | domain | flights | HOTA norfair | HOTA ours | MOTA norfair | MOTA ours | IDF1 norfair | "
-                  "IDF1 ours | IDs norfair | IDs ours |", "|---|---|---|---|---|---|---|---|---|---|---|"]
+                  "IDF1 ours | IDs norfair | IDs ours | pos err ours m | pos err p90 ours m |",
+                  "|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
         for split in ("tune", "heldout"):
             for s in (s for s in report["tracking"] if s["split"] == split):
                 lines.append(f"| {split} | {s['domain']} | {s['motion']} | {s['HOTA_norfair']:.1f} | "
                              f"{s['HOTA_ours']:.1f} | {s['MOTA_norfair']:.1f} | {s['MOTA_ours']:.1f} | "
-                             f"{s['IDF1_norfair']:.1f} | {s['IDF1_ours']:.1f} | {s['IDs_norfair']} | {s['IDs_ours']} |")
+                             f"{s['IDF1_norfair']:.1f} | {s['IDF1_ours']:.1f} | {s['IDs_norfair']} | {s['IDs_ours']} | "
+                             f"{format_metres(s.get('pos_err_m_ours'))} | "
+                             f"{format_metres(s.get('pos_err_p90_m_ours'))} |")
         lines.append("")
     if report.get("acceptance"):
         lines += ["## Acceptance (held-out domains)", "", "| criterion | value | bar | holds |", "|---|---|---|---|"]

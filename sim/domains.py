@@ -126,6 +126,12 @@ _GPS5: dict[str, Any] = {"gps_decimals": 5, "altitude_step_m": 0.5}
 _OLD_SRT: dict[str, Any] = {"gps_decimals": 4, "altitude_step_m": 1.0, "time_offset_s": 0.3}
 #: Clocks drifting apart: 0.1 s offset at the start, growing 0.02 s per second.
 _DRIFT: dict[str, Any] = {"time_offset_s": 0.1, "time_offset_drift": 0.02}
+#: SeaDronesSee Object Detection v2's clocks: a 10 Hz flight log in its own column names, stamped in UTC at
+#: whole seconds, beside frames stamped in local time two hours ahead (CEST).
+_SDS_CLOCKS: dict[str, Any] = {"meta_layout": "flight_log", "stamp_resolution_s": 1.0,
+                               "frame_clock_utc_offset_s": 7200.0}
+#: The telemetry both clock domains share (values and timing), so the twins differ in their clocks alone.
+_SDS_TELEMETRY: dict[str, Any] = {"telemetry_hz": 10.0, "time_offset_s": 0.05}
 
 # Detector regimes (replacements of EmulatorParams fields).
 _OVERCONFIDENT: dict[str, Any] = {"score_logit_scale": 1.6, "score_logit_shift": 0.8}
@@ -142,6 +148,11 @@ _SWEEPS = (HoverSweepsSpec(height_m=(20.0, 40.0), pitch_deg=(25.0, 40.0), sweep_
                            sweep_rate_deg_s=(60.0, 100.0), dwell_s=(1.5, 3.0)),
            HoverSweepsSpec(height_m=(25.0, 45.0), pitch_deg=(30.0, 45.0), sweep_deg=(30.0, 80.0),
                            sweep_rate_deg_s=(40.0, 90.0), dwell_s=(2.0, 4.0)))
+#: Gentle flights whose camera turns like a pilot panning (5-15 deg/s): a hover panning 20-45 deg to the
+#: sides at a peak rate of 5-15 deg/s, and a tight orbit (4.9-11.5 deg/s), so the telemetry's timing matters.
+_PANNING_SEA = (HoverSweepsSpec(distance_m=(40.0, 60.0), height_m=(25.0, 45.0), pitch_deg=(30.0, 45.0),
+                                sweep_deg=(20.0, 45.0), sweep_rate_deg_s=(5.0, 15.0), dwell_s=(1.0, 2.5)),
+                OrbitSpec(radius_m=(25.0, 35.0), height_m=(25.0, 45.0), speed_mps=(3.0, 5.0)))
 _TELE_SWEEPS = (HoverSweepsSpec(distance_m=(60.0, 80.0), height_m=(30.0, 50.0), pitch_deg=(25.0, 35.0),
                                 sweep_deg=(20.0, 50.0), sweep_rate_deg_s=(30.0, 60.0), dwell_s=(1.5, 3.0)),
                 HoverSweepsSpec(distance_m=(50.0, 70.0), height_m=(30.0, 45.0), pitch_deg=(30.0, 40.0),
@@ -201,6 +212,15 @@ _DOMAIN_LIST = (
            "detector, more clutter", "heldout", "sweeps", "sea", _TELE_SWEEPS, camera="4k-tele",
            noise={"time_offset_s": 0.3, "white_heading_deg": 0.3}, emulator={**_UNDERCONFIDENT, **_MORE_CLUTTER_EMU},
            world={"n_clutter": 6}),
+    # Added with the simulator's SeaDronesSee-style clocks: the clocks of real SeaDronesSee v2 files, and a twin
+    # with agreeing clocks that simulates the same world, flights, detections and telemetry values per seed.
+    Domain("sea-sds-clocks", "sea, gentle flights panning at 5-15 deg/s, SeaDronesSee v2 clocks: flight-log "
+           "meta stamped in UTC at whole seconds (10 Hz, sample and hold), frames in local time (UTC+2)",
+           "heldout", "gentle", "sea", _PANNING_SEA, noise={**_SDS_TELEMETRY, **_SDS_CLOCKS}),
+    Domain("sea-sds-clocks-agree", "reference twin of sea-sds-clocks with agreeing clocks (SeaDronesSee meta "
+           "stamped in UTC with milliseconds, frames in UTC): the same world, flights, detections and telemetry "
+           "values per seed, for comparisons only", "heldout", "gentle", "sea", _PANNING_SEA,
+           noise=dict(_SDS_TELEMETRY)),
 )
 
 #: All domains by name.

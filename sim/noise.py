@@ -17,6 +17,12 @@ Model, per flight (video):
   second (clocks of video and telemetry running apart). Their random numbers come from a generator of
   their own, so a scenario without them gives exactly the telemetry it gave before they existed.
 The compass (aircraft) heading shares the heading bias and jitter (the gimbal yaw is referenced to it).
+
+Clocks and layout as real files write them (`CLOCK_FIELDS`, all off by default; they change how the meta
+and the frame's ``date_time`` are written, never what is measured, and draw no random numbers): the meta's
+stamp truncated to `stamp_resolution_s` (1 s: a flight log's ``datetime(utc)`` column), the flight-log
+layout of SeaDronesSee Object Detection v2 (`meta_layout` "flight_log"), and frames stamped in local time
+(`frame_clock_utc_offset_s`, applied by the simulator through `format_frame_time`).
 """
 
 from __future__ import annotations
@@ -31,12 +37,48 @@ import numpy as np
 from shared.geo import local_to_latlon
 from sim.flight import Flight, FlightState
 
+#: Layouts of the written meta: SeaDronesSee's ``gps_latitude ... date_time`` and the flight-log column names
+#: of SeaDronesSee Object Detection v2 (``datetime(utc)``, ``latitude``, ``height_above_takeoff(meter)``, ...).
+META_LAYOUTS = ("seadronessee", "flight_log")
+#: TelemetryNoise fields that set how clocks and meta are written, not how large the errors are.
+CLOCK_FIELDS = ("stamp_resolution_s", "meta_layout", "frame_clock_utc_offset_s")
+#: Largest time-zone offset in use (UTC+14), seconds.
+MAX_UTC_OFFSET_S = 14 * 3600.0
+
 
 def format_time(t_s: float) -> str:
     """UNIX seconds -> ISO 8601 UTC with milliseconds, e.g. ``2023-06-01T10:00:00.033Z``."""
     ms = int(round(t_s * 1000.0))
     stamp = datetime.fromtimestamp(ms // 1000, tz=timezone.utc)
     return stamp.strftime("%Y-%m-%dT%H:%M:%S") + f".{ms % 1000:03d}Z"
+
+
+def format_frame_time(t_s: float, utc_offset_s: float = 0.0) -> str:
+    """A frame's ``date_time``: `format_time` when utc_offset_s is 0, else naive local time (UTC + offset,
+    seconds) with microseconds as SeaDronesSee's frames have it, e.g. ``2023-06-01T12:00:00.033333``."""
+    if utc_offset_s == 0:
+        return format_time(t_s)
+    us = int(round((t_s + utc_offset_s) * 1e6))
+    stamp = datetime.fromtimestamp(us // 1_000_000, tz=timezone.utc)
+    return stamp.strftime("%Y-%m-%dT%H:%M:%S") + f".{us % 1_000_000:06d}"
+
+
+def format_log_time(t_s: float) -> str:
+    """UNIX seconds -> a flight log's naive UTC ``YYYY-MM-DD HH:MM:SS`` (milliseconds appended only when
+    the time is not a whole second), e.g. ``2023-06-01 10:00:01``."""
+    ms = int(round(t_s * 1000.0))
+    text = datetime.fromtimestamp(ms // 1000, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
+    return text + (f".{ms % 1000:03d}" if ms % 1000 else "")
+
+
+def truncate_stamp(t_s: float, resolution_s: float) -> float:
+    """t_s cut down to a multiple of resolution_s (0: unchanged), on a millisecond grid so that float
+    round-off cannot push a whole second into the one before."""
+    if resolution_s <= 0:
+        return t_s
+    ms = int(round(t_s * 1000.0))
+    step = max(1, int(round(resolution_s * 1000.0)))
+    return (ms // step * step) / 1000.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -74,6 +116,17 @@ class TelemetryNoise:
         The telemetry lag grows by this many seconds per second of flight (clock drift).
     camera_roll_deg : float
         White per-frame roll of the camera that the telemetry does not report (gimbal wobble), deg.
+    stamp_resolution_s : float
+        The meta's stamp is the sample's stamp truncated down to a multiple of this (0 = not truncated,
+        milliseconds; 1 = whole seconds, as a flight log's ``datetime(utc)`` column). 0 or >= 0.001.
+    meta_layout : str
+        One of `META_LAYOUTS`: "seadronessee" (``gps_latitude ... date_time``, UTC ISO 8601) or
+        "flight_log" (SeaDronesSee Object Detection v2's column names, ``datetime(utc)`` naive UTC
+        ``YYYY-MM-DD HH:MM:SS``; see `TelemetryStream.meta`).
+    frame_clock_utc_offset_s : float
+        The frames' own ``date_time`` is naive local time = UTC + this (seconds, e.g. 7200 for CEST;
+        within +-14 h), with microseconds; 0 = UTC with milliseconds as before. Only the written string
+        changes: simulation time, true poses and truth.json stay in UTC.
     """
 
     gps_bias_m: float = 1.5
@@ -96,9 +149,14 @@ class TelemetryNoise:
     altitude_step_m: float = 0.0
     time_offset_drift: float = 0.0
     camera_roll_deg: float = 0.0
+    stamp_resolution_s: float = 0.0
+    meta_layout: str = "seadronessee"
+    frame_clock_utc_offset_s: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
+            if f.name in ("meta_layout", "frame_clock_utc_offset_s"):
+                continue  # checked below: a name, and an offset that may be negative
             value = getattr(self, f.name)
             if not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise ValueError(f"TelemetryNoise.{f.name}={value!r} must be a finite number >= 0")
@@ -108,16 +166,27 @@ class TelemetryNoise:
             raise ValueError(f"TelemetryNoise.missing_meta_rate={self.missing_meta_rate!r} must be in [0, 1]")
         if isinstance(self.gps_decimals, bool) or not isinstance(self.gps_decimals, int) or self.gps_decimals > 8:
             raise ValueError(f"TelemetryNoise.gps_decimals={self.gps_decimals!r} must be an integer in 0..8")
+        if 0 < self.stamp_resolution_s < 0.001:
+            raise ValueError(f"TelemetryNoise.stamp_resolution_s={self.stamp_resolution_s!r} must be 0 or >= 0.001 s")
+        if self.meta_layout not in META_LAYOUTS:
+            raise ValueError(f"TelemetryNoise.meta_layout={self.meta_layout!r} must be one of "
+                             f"{', '.join(META_LAYOUTS)}")
+        offset = self.frame_clock_utc_offset_s
+        if isinstance(offset, bool) or not isinstance(offset, (int, float)) or not math.isfinite(offset) \
+                or abs(offset) > MAX_UTC_OFFSET_S:
+            raise ValueError(f"TelemetryNoise.frame_clock_utc_offset_s={offset!r} must be a finite number of "
+                             f"seconds within +-{MAX_UTC_OFFSET_S:g}")
 
     def scaled(self, k: float) -> TelemetryNoise:
         """The same noise with every bias, jitter and the time offset multiplied by k (k >= 0).
 
-        The telemetry rate, correlation time, dropout rate and the log format (GPS decimals, altitude
-        step) are kept.
+        The telemetry rate, correlation time, dropout rate, the log format (GPS decimals, altitude
+        step) and the clocks and layout (`CLOCK_FIELDS`) are kept.
         """
         if not math.isfinite(k) or k < 0:
             raise ValueError(f"noise scale must be a finite number >= 0, got {k!r}")
-        keep = {"telemetry_hz", "jitter_corr_s", "missing_meta_rate", "gps_decimals", "altitude_step_m"}
+        keep = {"telemetry_hz", "jitter_corr_s", "missing_meta_rate", "gps_decimals", "altitude_step_m",
+                *CLOCK_FIELDS}
         return replace(self, **{f.name: getattr(self, f.name) * k for f in fields(self) if f.name not in keep})
 
 
@@ -224,11 +293,16 @@ class TelemetryStream:
         Returns
         -------
         meta : dict or None
-            Fields ``gps_latitude, gps_latitude_ref, gps_longitude, gps_longitude_ref, altitude,
-            gimbal_pitch, compass_heading, gimbal_heading, speed, xspeed, yspeed, zspeed, date_time``:
-            positive lat/lon with N/S/E/W refs, altitude = height above ground (m), gimbal_pitch =
-            depression (deg, 0..90), headings in [0, 360), speeds m/s with xspeed north, yspeed east,
-            zspeed down (DJI), date_time the sample's stamp on the video clock. None for a dropout.
+            Layout "seadronessee": ``gps_latitude, gps_latitude_ref, gps_longitude, gps_longitude_ref,
+            altitude, gimbal_pitch, compass_heading, gimbal_heading, speed, xspeed, yspeed, zspeed,
+            date_time``: positive lat/lon with N/S/E/W refs, altitude = height above ground (m), gimbal_pitch
+            = depression (deg, 0..90), headings in [0, 360), speeds m/s with xspeed north, yspeed east,
+            zspeed down (DJI), date_time the sample's stamp on the video clock (ISO 8601 UTC, ms).
+            Layout "flight_log": the same values as ``datetime(utc)`` (naive UTC ``YYYY-MM-DD HH:MM:SS``),
+            ``latitude``, ``longitude`` (signed degrees), ``height_above_takeoff(meter)``, ``speed(m/s)``,
+            ``xspeed(m/s)``, ``yspeed(m/s)``, ``zspeed(m/s)``, ``compass_heading(degrees)``,
+            ``gimbal_heading(degrees)``, ``gimbal_pitch(degrees)`` (positive below the horizon).
+            Either stamp is truncated to `TelemetryNoise.stamp_resolution_s`. None for a dropout.
         state : FlightState
             The true state at the sample time (what the meta measures, before noise).
         """
@@ -251,6 +325,23 @@ class TelemetryStream:
         pitch = min(max(st.pitch_deg + err[3] + white[3], 0.0), 90.0)
         err[2] += white[2]
         ve, vn, vu = st.vel_east_mps + err[5], st.vel_north_mps + err[6], st.vel_up_mps + err[7]
+        stamp = truncate_stamp(self.t0_unix_s + ts + self.offset_s(t_s), self.noise.stamp_resolution_s)
+        compass, gimbal = _wrap360(st.aircraft_heading_deg + err[2]), _wrap360(st.heading_deg + err[2])
+        speed, xspeed, yspeed, zspeed = round(math.hypot(ve, vn), 3), round(vn, 3), round(ve, 3), round(-vu, 3)
+        if self.noise.meta_layout == "flight_log":
+            return {
+                "datetime(utc)": format_log_time(stamp),
+                "latitude": round(lat, digits),
+                "longitude": round(lon, digits),
+                "height_above_takeoff(meter)": round(height, 3),
+                "speed(m/s)": speed,
+                "xspeed(m/s)": xspeed,
+                "yspeed(m/s)": yspeed,
+                "zspeed(m/s)": zspeed,
+                "compass_heading(degrees)": compass,
+                "gimbal_heading(degrees)": gimbal,
+                "gimbal_pitch(degrees)": round(pitch, 3),
+            }, st
         meta = {
             "gps_latitude": round(abs(lat), digits),
             "gps_latitude_ref": "N" if lat >= 0 else "S",
@@ -258,12 +349,12 @@ class TelemetryStream:
             "gps_longitude_ref": "E" if lon >= 0 else "W",
             "altitude": round(height, 3),
             "gimbal_pitch": round(pitch, 3),
-            "compass_heading": _wrap360(st.aircraft_heading_deg + err[2]),
-            "gimbal_heading": _wrap360(st.heading_deg + err[2]),
-            "speed": round(math.hypot(ve, vn), 3),
-            "xspeed": round(vn, 3),
-            "yspeed": round(ve, 3),
-            "zspeed": round(-vu, 3),
-            "date_time": format_time(self.t0_unix_s + ts + self.offset_s(t_s)),
+            "compass_heading": compass,
+            "gimbal_heading": gimbal,
+            "speed": speed,
+            "xspeed": xspeed,
+            "yspeed": yspeed,
+            "zspeed": zspeed,
+            "date_time": format_time(stamp),
         }
         return meta, st

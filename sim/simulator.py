@@ -26,7 +26,7 @@ from sim.detector_emulator import (
 )
 from sim.flight import Flight
 from sim.groundtruth import project_objects
-from sim.noise import TelemetryNoise, TelemetryStream, format_time
+from sim.noise import TelemetryNoise, TelemetryStream, format_frame_time
 from sim.scenarios import GAP_BETWEEN_FLIGHTS_S, START_UNIX_S, Scenario, get_scenario
 from sim.world import CATEGORY_IDS, World
 
@@ -98,9 +98,10 @@ class FrameSample:
     frame_index : int
         0-based within the video.
     t : float
-        UNIX seconds of the frame.
+        UNIX seconds of the frame (UTC, whatever the frame clock writes).
     date_time : str
-        `t` as ISO 8601 UTC with milliseconds.
+        The frame clock: `t` as ISO 8601 UTC with milliseconds, or with the noise's
+        `frame_clock_utc_offset_s` as naive local time with microseconds (`sim.noise.format_frame_time`).
     true_pose : shared.geo.Pose
     meta : dict or None
         SeaDronesSee meta from the NOISY telemetry (see `sim.noise.TelemetryStream.meta`); None = dropout.
@@ -297,8 +298,10 @@ class Simulation:
                     missing_counts[v.id] += meta is None
                     image_id += 1
                     t_unix = v.t0 + t_rel
+                    # only the written frame clock is local time; t and the true poses stay UTC
+                    frame_clock = format_frame_time(t_unix, self.noise.frame_clock_utc_offset_s)
                     yield FrameSample(image_id=image_id, video_id=v.id, uav=v.uav, frame_index=f, t=t_unix,
-                                      date_time=format_time(t_unix), true_pose=pose, meta=meta, objects=objects,
+                                      date_time=frame_clock, true_pose=pose, meta=meta, objects=objects,
                                       candidates=cands, blurred=blurred)
             for v in videos:
                 facts["videos"].append({

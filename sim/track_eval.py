@@ -1,8 +1,9 @@
 """Tracking evaluation on simulated data: our GPS tracker beside a pixel-space tracker (norfair).
 
 Scores with TrackEval's HOTA, CLEAR (MOTA, IDSW, Frag) and Identity (IDF1) metrics on per-sequence
-arrays built here, and counts long-term re-identifications: objects that leave the view and come
-back with their old id. `run_track_eval` writes report.json and report.md like `sim.evaluate`.
+arrays built here, counts long-term re-identifications: objects that leave the view and come
+back with their old id, and measures the ground error of our tracker's reported positions
+(`sim.position_error`). `run_track_eval` writes report.json and report.md like `sim.evaluate`.
 """
 
 from __future__ import annotations
@@ -32,6 +33,7 @@ from agent.size_filter import SizeFilter
 from agent.tracking import GpsTracker, TrackerConfig
 from agent.tracking_io import frame_time_s
 from shared.geo import Camera
+from sim.position_error import format_metres, frame_position_errors, mean_known, summarise_position_errors
 
 log = logging.getLogger(__name__)
 
@@ -117,11 +119,14 @@ class PixelTracker:
 
 @dataclass
 class SequenceTracks:
-    """One tracker's output on one video: per frame index, ids (K,), boxes_xyxy (K, 4), scores (K,)."""
+    """One tracker's output on one video: per frame index, ids (K,), boxes_xyxy (K, 4), scores (K,);
+    latlon: per frame index, the reported ground positions (K, 2) lat, lon in degrees (our GPS tracker
+    only; empty for a tracker without ground positions)."""
 
     frames: dict[int, tuple[np.ndarray, np.ndarray, np.ndarray]] = field(default_factory=dict)
     seconds: float = 0.0
     reidentified: int = 0
+    latlon: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 @dataclass(frozen=True, slots=True)
@@ -188,6 +193,8 @@ def run_tracker_on_frames(frames: list[tuple[Frame, FrameResult, float]], varian
                 np.array([tr.id for tr in tracks], dtype=np.int64),
                 np.array([tr.box_xyxy for tr in tracks], dtype=np.float64).reshape(-1, 4),
                 np.array([tr.score for tr in tracks], dtype=np.float64))
+            seq.latlon[frame.image.frame_index] = np.array([(tr.lat, tr.lon) for tr in tracks],
+                                                           dtype=np.float64).reshape(-1, 2)
         seq.reidentified = tracker.n_reidentified
     else:
         raise ValueError(f"unknown tracker kind {variant.kind!r}; valid: gps, pixel")
@@ -206,12 +213,15 @@ class SequenceTruth:
     frames: per frame index, track ids (K,) and boxes_xyxy (K, 4) of the visible objects;
     ignore: per frame index, (track ids (M,), boxes_xyxy (M, 4)) of objects in view but hidden
     (behind trees: a detector may still see them; like MOTChallenge's distractors, tracker boxes on
-    them count neither as true nor as false positives); fps: frame rate.
+    them count neither as true nor as false positives); fps: frame rate; latlon: per frame index, the
+    visible objects' true positions (K, 2) lat, lon in degrees, rows as in `frames` (NaN where the
+    annotation has none; empty when not known).
     """
 
     frames: dict[int, tuple[np.ndarray, np.ndarray]]
     fps: float
     ignore: dict[int, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    latlon: dict[int, np.ndarray] = field(default_factory=dict)
 
 
 def _xywh_to_xyxy(boxes: list[list[float]]) -> np.ndarray:
@@ -221,18 +231,20 @@ def _xywh_to_xyxy(boxes: list[list[float]]) -> np.ndarray:
 
 def sequence_truth(dataset: Dataset, video_id: int, fps: float = 30.0,
                    hidden: list[dict[str, Any]] | None = None) -> SequenceTruth:
-    """Per-frame ground truth of a video from the COCO annotations (``track_id``, ``bbox``).
+    """Per-frame ground truth of a video from the COCO annotations (``track_id``, ``bbox``, and the true
+    ``lat``, ``lon`` of simulated datasets).
 
     hidden: truth.json's ``occluded_boxes`` ({image_id, track_id, bbox}), the ignore regions.
     """
     images = {im.id: im.frame_index for im in dataset.videos[video_id]}
-    per_frame: dict[int, list[tuple[int, list[float]]]] = {f: [] for f in images.values()}
+    per_frame: dict[int, list[tuple[int, list[float], tuple[float, float]]]] = {f: [] for f in images.values()}
     for a in dataset.coco.get("annotations", []):
         f = images.get(a["image_id"])
         if f is not None and not a.get("iscrowd", 0):
-            per_frame[f].append((int(a["track_id"]), a["bbox"]))
-    frames = {f: (np.array([i for i, _ in items], dtype=np.int64), _xywh_to_xyxy([b for _, b in items]))
+            per_frame[f].append((int(a["track_id"]), a["bbox"], (_coordinate(a, "lat"), _coordinate(a, "lon"))))
+    frames = {f: (np.array([i for i, _, _ in items], dtype=np.int64), _xywh_to_xyxy([b for _, b, _ in items]))
               for f, items in per_frame.items()}
+    latlon = {f: np.array([p for _, _, p in items], dtype=np.float64).reshape(-1, 2) for f, items in per_frame.items()}
     hidden_frame: dict[int, list[tuple[int, list[float]]]] = {}
     for o in hidden or []:
         f = images.get(o.get("image_id"))
@@ -240,13 +252,18 @@ def sequence_truth(dataset: Dataset, video_id: int, fps: float = 30.0,
             hidden_frame.setdefault(f, []).append((int(o["track_id"]), o["bbox"]))
     ignore = {f: (np.array([i for i, _ in items], dtype=np.int64), _xywh_to_xyxy([b for _, b in items]))
               for f, items in hidden_frame.items()}
-    return SequenceTruth(frames, fps, ignore)
+    return SequenceTruth(frames, fps, ignore, latlon)
+
+
+def _coordinate(annotation: dict[str, Any], key: str) -> float:
+    value = annotation.get(key)
+    return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
 
 
 def drop_ignored(truth: SequenceTruth, tracks: SequenceTracks) -> SequenceTracks:
     """Remove tracker boxes that match a hidden object rather than a visible one (TrackEval's
     MOTChallenge preprocessing for distractors: Hungarian on IoU >= MATCH_IOU over all objects)."""
-    out = SequenceTracks(dict(tracks.frames), tracks.seconds, tracks.reidentified)
+    out = SequenceTracks(dict(tracks.frames), tracks.seconds, tracks.reidentified, dict(tracks.latlon))
     for f, (_, i_boxes) in truth.ignore.items():
         if f not in tracks.frames or not len(i_boxes):
             continue
@@ -261,7 +278,21 @@ def drop_ignored(truth: SequenceTruth, tracks: SequenceTracks) -> SequenceTracks
         keep = np.ones(len(t_ids), dtype=bool)
         keep[drop] = False
         out.frames[f] = (t_ids[keep], t_boxes[keep], t_scores[keep])
+        if f in tracks.latlon:
+            out.latlon[f] = tracks.latlon[f][keep]
     return out
+
+
+def position_errors(truth: SequenceTruth, tracks: SequenceTracks) -> np.ndarray:
+    """(P,) metres between the reported and the true ground position of every (frame, track) matched to a
+    ground-truth box (`sim.position_error.frame_position_errors`); empty without ground positions."""
+    out = [np.zeros(0)]
+    for f, t_latlon in tracks.latlon.items():
+        if f not in truth.frames or f not in truth.latlon or f not in tracks.frames:
+            continue
+        out.append(frame_position_errors(truth.frames[f][1], truth.latlon[f], tracks.frames[f][1], t_latlon,
+                                         min_iou=MATCH_IOU))
+    return np.concatenate(out)
 
 
 def trackeval_data(truth: SequenceTruth, tracks: SequenceTracks) -> dict[str, Any]:
@@ -392,7 +423,7 @@ def evaluate_tracking(data_dir: Path, variants: Iterable[TrackingVariant], *, fp
     camera = Camera.from_file(data_dir / "camera.json")
     variants = list(variants)
     by_variant: dict[str, dict[str, Any]] = {v.name: {"seqs": [], "reid": [], "seconds": 0.0, "frames": 0,
-                                                       "reidentified": 0} for v in variants}
+                                                       "reidentified": 0, "pos_err": []} for v in variants}
     pipelines: dict[PipelineConfig, list[TrackingVariant]] = {}
     for v in variants:
         pipelines.setdefault(v.pipeline, []).append(v)
@@ -410,13 +441,18 @@ def evaluate_tracking(data_dir: Path, variants: Iterable[TrackingVariant], *, fp
                 acc["seconds"] += seq.seconds
                 acc["frames"] += len(frames)
                 acc["reidentified"] += seq.reidentified
+                acc["pos_err"].append(position_errors(truth, seq))
+    kinds = {v.name: v.kind for v in variants}
     out: dict[str, dict[str, Any]] = {}
     for name, acc in by_variant.items():
         m = mot_metrics(acc["seqs"])
         reid = {k: sum(r[k] for r in acc["reid"]) for k in ("events", "scored", "kept")}
+        # ground error of the reported positions, pooled over the videos; a pixel tracker has none (None)
+        pos = (summarise_position_errors(np.concatenate(acc["pos_err"])) if kinds[name] == "gps"
+               else {"pos_err_m": None, "pos_err_p90_m": None, "pos_err_n": None})
         out[name] = {**m, "reid_events": reid["events"], "reid_scored": reid["scored"], "reid_kept": reid["kept"],
                      "tracker_ms_per_frame": 1000 * acc["seconds"] / max(acc["frames"], 1),
-                     "reidentified": acc["reidentified"]}
+                     "reidentified": acc["reidentified"], **pos}
     return out
 
 
@@ -457,7 +493,9 @@ def run_track_eval(scenarios: list[str], seeds: list[int], frames: int | None = 
 
 
 def summarise_tracking(rows: list[dict[str, Any]], baseline: str) -> list[dict[str, Any]]:
-    """Mean over seeds per (scenario, variant); re-ID rate pooled over seeds; IDs change vs baseline."""
+    """Mean over seeds per (scenario, variant); re-ID rate pooled over seeds; IDs change vs baseline; ground
+    error of the reported positions (`pos_err_m`, `pos_err_p90_m`): mean over seeds of each seed's figure,
+    None for a tracker without ground positions."""
     groups: dict[tuple[str, str], list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault((r["scenario"], r["variant"]), []).append(r)
@@ -471,6 +509,8 @@ def summarise_tracking(rows: list[dict[str, Any]], baseline: str) -> list[dict[s
             s[k] = sum(r[k] for r in rs)
         s["reid_rate"] = 100 * s["reid_kept"] / s["reid_scored"] if s["reid_scored"] else float("nan")
         s["tracker_ms_per_frame"] = statistics.fmean(r["tracker_ms_per_frame"] for r in rs)
+        for k in ("pos_err_m", "pos_err_p90_m"):
+            s[k] = mean_known([r.get(k) for r in rs])
         base = groups.get((scenario, baseline))
         if base:
             b_ids = statistics.fmean(r["IDs"] for r in base)
@@ -485,9 +525,12 @@ def markdown_tracking_report(report: dict[str, Any]) -> str:
         "# uavmm eval: multi-object tracking (simulated data)", "",
         f"Seeds {report['seeds']}; frames per video: {report['frames'] or 'scenario default'}; mean over seeds "
         "(HOTA +- sd). TrackEval 1.3.0 HOTA / CLEAR / Identity at IoU 0.5. Re-ID: objects that left the view "
-        "(1-30 s) and were tracked before and after, kept = same id (pooled over seeds).", "",
-        "| scenario | tracker | HOTA | DetA | AssA | MOTA | IDF1 | IDs | dIDs | Frag | re-ID kept | ms/frame |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        "(1-30 s) and were tracked before and after, kept = same id (pooled over seeds). Pos err: metres between "
+        "a reported track's ground position and the truth of the object its box matches (IoU >= 0.5), median "
+        "and 90th percentile (ours only: norfair reports no ground positions).", "",
+        "| scenario | tracker | HOTA | DetA | AssA | MOTA | IDF1 | IDs | dIDs | Frag | re-ID kept | ms/frame | "
+        "pos err m | pos err p90 m |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for s in report["summary"]:
         d_ids = s.get("IDs_change_pct")
@@ -495,5 +538,6 @@ def markdown_tracking_report(report: dict[str, Any]) -> str:
         lines.append(
             f"| {s['scenario']} | {s['variant']} | {s['HOTA']:.1f} +- {s['HOTA_sd']:.1f} | {s['DetA']:.1f} | "
             f"{s['AssA']:.1f} | {s['MOTA']:.1f} | {s['IDF1']:.1f} | {s['IDs']:.1f} | {d_ids_text} | {s['Frag']:.1f} | "
-            f"{s['reid_kept']}/{s['reid_scored']} ({s['reid_rate']:.0f} %) | {s['tracker_ms_per_frame']:.2f} |")
+            f"{s['reid_kept']}/{s['reid_scored']} ({s['reid_rate']:.0f} %) | {s['tracker_ms_per_frame']:.2f} | "
+            f"{format_metres(s.get('pos_err_m'))} | {format_metres(s.get('pos_err_p90_m'))} |")
     return "\n".join(lines) + "\n"

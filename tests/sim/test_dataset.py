@@ -5,7 +5,9 @@ from __future__ import annotations
 import contextlib
 import io
 import json
+import math
 import os
+import re
 from datetime import datetime
 from pathlib import Path
 
@@ -14,7 +16,10 @@ from pycocotools.coco import COCO
 
 import sim.dataset as dataset_module
 from shared.geo import Camera, Pose, latlon_to_pixel
+from shared.telemetry import parse_datetime
 from sim.dataset import DATASET_FILES, write_dataset
+from sim.domains import DOMAINS
+from sim.noise import CLOCK_FIELDS
 from tests.sim.conftest import SMALL_FRAMES, load
 
 META_FIELDS = {"gps_latitude", "gps_latitude_ref", "gps_longitude", "gps_longitude_ref", "altitude", "gimbal_pitch",
@@ -55,6 +60,51 @@ def test_images_json_layout(sea_dir: Path) -> None:
         assert a["category_id"] == 2 and a["iscrowd"] == 0 and len(a["bbox"]) == 4
         assert a["area"] == pytest.approx(a["bbox"][2] * a["bbox"][3], abs=0.01)
         assert isinstance(a["track_id"], int)
+
+
+def test_default_noise_writes_the_old_layout_and_clocks(sea_dir: Path) -> None:
+    """The clock fields are off by default: SeaDronesSee meta keys, UTC stamps with milliseconds, and
+    truth.json without the clock fields (so datasets written before them stay byte-identical)."""
+    coco = load(sea_dir, "images.json")
+    for img in coco["images"]:
+        assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z", img["date_time"])
+        if img["meta"] is not None:
+            assert set(img["meta"]) == META_FIELDS
+            assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{3}Z", img["meta"]["date_time"])
+    assert len({img["meta"]["date_time"][-5:] for img in coco["images"] if img["meta"]}) > 10  # not cut to seconds
+    truth = load(sea_dir, "truth.json")
+    for noise in (truth["noise"], truth["scenario"]["noise_base"]):
+        assert not set(CLOCK_FIELDS) & set(noise) and "gps_bias_m" in noise
+
+
+def test_clock_twins_simulate_the_same_data_on_different_clocks(tmp_path: Path) -> None:
+    """sea-sds-clocks and its twin: same candidates, true poses and telemetry values; only the clocks
+    and the meta's names differ (frames 2 h apart in local time, log stamps cut to whole seconds)."""
+    for name in ("sea-sds-clocks", "sea-sds-clocks-agree"):
+        write_dataset(DOMAINS[name].scenario(), tmp_path / name, seed=3, frames=45, progress=False)
+    local, agree = tmp_path / "sea-sds-clocks", tmp_path / "sea-sds-clocks-agree"
+    assert (local / "pre_nms.json").read_bytes() == (agree / "pre_nms.json").read_bytes()
+    t_local, t_agree = load(local, "truth.json"), load(agree, "truth.json")
+    assert t_local["poses"] == t_agree["poses"] and t_local["videos"][0]["telemetry_bias"] == \
+        t_agree["videos"][0]["telemetry_bias"]
+    assert t_local["noise"]["frame_clock_utc_offset_s"] == 7200.0 and "meta_layout" not in t_agree["noise"]
+    c_local, c_agree = load(local, "images.json"), load(agree, "images.json")
+    assert c_local["annotations"] == c_agree["annotations"]
+    poses = {p["image_id"]: p for p in t_local["poses"]}
+    n_meta = 0
+    for a, b in zip(c_local["images"], c_agree["images"], strict=True):
+        assert parse_datetime(a["date_time"]) - parse_datetime(b["date_time"]) == pytest.approx(7200.0, abs=6e-4)
+        assert parse_datetime(b["date_time"]) == pytest.approx(poses[a["id"]]["t"], abs=1e-3)  # truth in UTC
+        assert (a["meta"] is None) == (b["meta"] is None)
+        if a["meta"] is None:
+            continue
+        n_meta += 1
+        ma, mb = a["meta"], b["meta"]
+        assert ma["latitude"] == mb["gps_latitude"] and ma["longitude"] == mb["gps_longitude"]
+        assert ma["gimbal_heading(degrees)"] == mb["gimbal_heading"]
+        assert ma["height_above_takeoff(meter)"] == mb["altitude"]
+        assert parse_datetime(ma["datetime(utc)"]) == math.floor(parse_datetime(mb["date_time"]) + 1e-6)
+    assert n_meta >= 80
 
 
 def test_pycocotools_loads_ground_truth_and_candidates(sea_dir: Path) -> None:

@@ -13,7 +13,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from shared.geo import latlon_to_local
+from agent.dataset import Dataset, VideoTelemetry, iter_video_frames
+from shared.geo import Camera, latlon_to_local
+from sim.dataset import write_dataset
 from sim.domain_eval import run_domain_eval
 from sim.domains import DOMAINS, HELDOUT_DOMAINS, TUNING_DOMAINS, Domain, domain_table, get_domain, resolve_domains
 from sim.flight import KeyframeFlight
@@ -37,6 +39,48 @@ def test_every_domain_builds_and_the_split_is_disjoint() -> None:
         get_domain("nope")
     with pytest.raises(ValueError, match="camera"):
         dataclasses.replace(DOMAINS[TUNING_DOMAINS[0]], camera="8k")
+
+
+def test_the_clock_domains_are_held_out_twins_that_differ_in_their_clocks_alone() -> None:
+    local, agree = DOMAINS["sea-sds-clocks"], DOMAINS["sea-sds-clocks-agree"]
+    assert local.split == agree.split == "heldout" and local.motion == agree.motion == "gentle"
+    assert "reference twin" in agree.description
+    assert dataclasses.replace(agree, name=local.name, description=local.description, noise=local.noise) == local
+    a, b = local.scenario().noise, agree.scenario().noise
+    assert (a.meta_layout, a.stamp_resolution_s, a.frame_clock_utc_offset_s) == ("flight_log", 1.0, 7200.0)
+    assert (b.meta_layout, b.stamp_resolution_s, b.frame_clock_utc_offset_s) == ("seadronessee", 0.0, 0.0)
+    assert dataclasses.replace(a, meta_layout=b.meta_layout, stamp_resolution_s=0.0, frame_clock_utc_offset_s=0.0) == b
+    assert a.telemetry_hz == 10.0 and 0.0 <= a.time_offset_s <= 0.1
+    assert local.fps == 30.0 and local.camera == "4k"
+    # the camera pans like a pilot: 5-15 deg/s at its peak, not the sweeps' 40-100
+    rates = []
+    for k, spec in enumerate(local.flights):
+        flight = spec.build(np.random.default_rng(k), local.clip_s)
+        rates += [abs(flight.state(t).heading_rate_deg_s) for t in np.arange(0.0, local.clip_s, 0.1)]
+    assert 4.0 < max(rates) <= 15.5
+
+
+def test_the_agent_reads_the_sds_clocks_domain_onto_the_frame_clock(tmp_path: Path) -> None:
+    """Every frame with meta gets a pose; the clock stage finds the +2 h zone (frame - stamp) and the
+    whole-second stamps; the frames' times are local (UTC + 2 h)."""
+    out = tmp_path / "sds"
+    write_dataset(DOMAINS["sea-sds-clocks"].scenario(), out, seed=1, frames=90, progress=False)
+    coco = json.loads((out / "images.json").read_text())
+    dataset = Dataset.from_dict(coco)
+    camera = Camera.from_file(out / "camera.json")
+    truth_t = {p["image_id"]: p["t"] for p in json.loads((out / "truth.json").read_text())["poses"]}
+    assert len(dataset.videos) == 2
+    for video_id in dataset.videos:
+        report, problems = VideoTelemetry(), []
+        frames = list(iter_video_frames(dataset, camera, video_id, fps=30.0, problems=problems, report=report))
+        assert len(frames) == 90
+        assert all(f.pose is not None for f in frames if f.image.meta is not None)
+        assert all(p.reason == "no meta" for p in problems)
+        assert sum(f.pose is not None for f in frames) >= 85
+        assert report.clock.zone_offset_s == 7200.0 and report.clock.whole_seconds and report.clock.stamps_used
+        assert 0.0 < report.clock.residual_s < 1.2  # latency and the whole-second cut, left to the next stage
+        assert report.clock.samples > 20  # 10 Hz samples recognised under the shared whole-second stamps
+        assert all(f.t - truth_t[f.image.id] == pytest.approx(7200.0, abs=1e-5) for f in frames)
 
 
 def _metas(noise: TelemetryNoise, frames: int, fps: float = 30.0) -> list[dict]:
@@ -88,6 +132,24 @@ def test_domain_eval_reports_tuning_and_heldout_apart(tmp_path: Path) -> None:
     md = (tmp_path / "report.md").read_text()
     assert "| heldout |" in md and "paper rule" in md
     assert json.loads((tmp_path / "report.json").read_text())["domains"] == [d.name for d in tiny]
+
+
+def test_domain_eval_tracking_reports_the_position_error_of_ours_beside_hota(tmp_path: Path) -> None:
+    tiny = [dataclasses.replace(DOMAINS["sea-sds-clocks"], clip_s=2.0)]
+    report = run_domain_eval(tiny, [0], noise_scales=(1.0,), tasks=("tracking",), out_dir=tmp_path)
+    rows = {r["variant"]: r for r in report["tracking_rows"]}
+    assert rows["norfair (pixel IoU)"]["pos_err_m"] is None and rows["norfair (pixel IoU)"]["pos_err_n"] is None
+    ours = rows["GPS tracker + memory map"]
+    assert ours["pos_err_n"] > 50 and 0.0 < ours["pos_err_m"] <= ours["pos_err_p90_m"] < 15.0
+    (s,) = report["tracking"]
+    assert s["pos_err_m_ours"] == pytest.approx(ours["pos_err_m"]) and s["pos_err_m_norfair"] is None
+    assert {"HOTA_ours", "HOTA_norfair", "IDs_ours", "IDs_norfair", "pos_err_p90_m_ours"} <= set(s)
+    md = (tmp_path / "report.md").read_text()
+    assert "| IDs norfair | IDs ours | pos err ours m | pos err p90 ours m |" in md
+    line = next(x for x in md.splitlines() if x.startswith("| heldout | sea-sds-clocks |"))
+    assert line.endswith(f"| {ours['pos_err_m']:.2f} | {ours['pos_err_p90_m']:.2f} |")
+    saved = json.loads((tmp_path / "report.json").read_text())
+    assert saved["tracking"][0]["pos_err_m_ours"] == pytest.approx(ours["pos_err_m"])
 
 
 def test_cli_lists_domains_and_refuses_unknown_ones() -> None:

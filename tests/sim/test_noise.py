@@ -2,15 +2,28 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import re
 from datetime import datetime
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from shared.geo import latlon_to_local
+from shared.telemetry import from_seadronessee_meta, parse_datetime
 from sim.flight import KeyframeFlight, OrbitFlight
-from sim.noise import TelemetryNoise, TelemetryStream, format_time
+from sim.noise import (
+    CLOCK_FIELDS,
+    TelemetryNoise,
+    TelemetryStream,
+    format_frame_time,
+    format_log_time,
+    format_time,
+    truncate_stamp,
+)
 from sim.simulator import Simulation
 
 LAT0, LON0, T0 = 48.53, 9.06, 1685613600.0
@@ -173,3 +186,108 @@ def test_some_sea_frames_have_no_meta() -> None:
         n += 1
         missing += fs.meta is None
     assert 0.003 < missing / n < 0.025  # 1 % configured
+
+
+# ---------------------------------------------------------------- SeaDronesSee-style clocks and layout
+
+FLIGHT_LOG_FIELDS = {"datetime(utc)", "latitude", "longitude", "height_above_takeoff(meter)", "speed(m/s)",
+                     "xspeed(m/s)", "yspeed(m/s)", "zspeed(m/s)", "compass_heading(degrees)",
+                     "gimbal_heading(degrees)", "gimbal_pitch(degrees)"}
+SDS_CLOCKS = {"meta_layout": "flight_log", "stamp_resolution_s": 1.0, "frame_clock_utc_offset_s": 7200.0}
+
+
+def _stream_metas(noise: TelemetryNoise, frames: int, seed: int = 4) -> list[dict]:
+    flight = OrbitFlight(0.0, 0.0, 30.0, 40.0, 50.0, 4.0, 0.0)
+    stream = TelemetryStream(noise, flight, np.random.default_rng(seed), LAT0, LON0, T0 + 0.37)
+    return [stream.meta(f / FPS)[0] for f in range(frames)]
+
+
+def test_flight_log_layout_has_the_log_names_and_whole_second_utc_stamps() -> None:
+    agree = _stream_metas(TelemetryNoise(), 90)
+    logged = _stream_metas(TelemetryNoise(**SDS_CLOCKS), 90)
+    for old, new in zip(agree, logged, strict=True):
+        assert set(new) == FLIGHT_LOG_FIELDS
+        assert re.fullmatch(r"\d{4}-\d\d-\d\d \d\d:\d\d:\d\d", new["datetime(utc)"])
+        # the same sample, its stamp cut down to the whole second (naive text read as UTC)
+        t_ms = parse_datetime(old["date_time"])
+        assert parse_datetime(new["datetime(utc)"]) == math.floor(t_ms + 1e-6)
+        assert new["latitude"] == old["gps_latitude"] and new["longitude"] == old["gps_longitude"]
+        assert new["height_above_takeoff(meter)"] == old["altitude"]
+        assert new["gimbal_pitch(degrees)"] == old["gimbal_pitch"] > 0  # positive below the horizon
+        for name in ("compass_heading", "gimbal_heading"):
+            assert new[f"{name}(degrees)"] == old[name]
+        for name in ("speed", "xspeed", "yspeed", "zspeed"):
+            assert new[f"{name}(m/s)"] == old[name]
+        # the project's reader takes both layouts to the same record, bar the stamp
+        a, b = from_seadronessee_meta(old), from_seadronessee_meta(new)
+        assert a is not None and b is not None
+        assert (b.lat, b.lon, b.height_m, b.pitch_deg, b.heading_deg, b.vel_en_mps) == \
+            (a.lat, a.lon, a.height_m, a.pitch_deg, a.heading_deg, a.vel_en_mps)
+        assert 0.0 <= a.t - b.t < 1.0
+    # 10 Hz sample and hold under whole-second stamps: many samples share one stamp
+    assert len({m["datetime(utc)"] for m in logged}) <= 4
+    assert len({m["gimbal_heading(degrees)"] for m in logged}) >= 25
+
+
+def test_flight_log_layout_writes_signed_coordinates_south_and_west() -> None:
+    flight = OrbitFlight(0.0, 0.0, 50.0, 40.0, 40.0, 5.0, 0.0)
+    stream = TelemetryStream(TelemetryNoise(meta_layout="flight_log"), flight, np.random.default_rng(2),
+                             -33.9, -70.6, T0)
+    meta, _ = stream.meta(1.0)
+    assert meta["latitude"] < 0 and meta["longitude"] < 0
+    # without a stamp resolution the log's time keeps its milliseconds
+    assert parse_datetime(meta["datetime(utc)"]) == pytest.approx(T0 + 1.0, abs=0.2)
+
+
+@settings(max_examples=200, deadline=None)
+@given(t=st.floats(1.0e9, 2.0e9), resolution=st.sampled_from([0.001, 0.1, 0.5, 1.0, 2.0]))
+def test_truncate_stamp_cuts_down_to_a_multiple_of_the_resolution(t: float, resolution: float) -> None:
+    cut = truncate_stamp(t, resolution)
+    assert -5e-4 <= t - cut < resolution + 5e-4  # on the millisecond grid
+    assert round(cut * 1000) % round(resolution * 1000) == 0
+    assert truncate_stamp(t, 0.0) == t
+
+
+@settings(max_examples=200, deadline=None)
+@given(t=st.floats(1.0e9, 2.0e9), offset=st.sampled_from([-18000.0, -3600.0, 3600.0, 7200.0, 19800.0]))
+def test_frame_clock_is_naive_local_time_with_microseconds(t: float, offset: float) -> None:
+    text = format_frame_time(t, offset)
+    assert re.fullmatch(r"\d{4}-\d\d-\d\dT\d\d:\d\d:\d\d\.\d{6}", text)  # no zone: local time
+    assert parse_datetime(text) == pytest.approx(t + offset, abs=1e-6)
+    assert parse_datetime(text, utc_offset_s=offset) == pytest.approx(t, abs=1e-6)
+    assert format_frame_time(t, 0.0) == format_time(t)  # agreeing clocks: as before
+
+
+def test_frame_and_log_time_examples() -> None:
+    assert format_frame_time(T0 + 1.0 / 30.0, 7200.0) == "2023-06-01T12:00:00.033333"
+    assert format_log_time(T0 + 1.0) == "2023-06-01 10:00:01"
+    assert format_log_time(T0 + 1.25) == "2023-06-01 10:00:01.250"
+
+
+def test_clock_fields_change_no_value_and_draw_no_random_numbers() -> None:
+    plain = _stream_metas(TelemetryNoise(), 120, seed=9)
+    ms = _stream_metas(TelemetryNoise(stamp_resolution_s=1.0), 120, seed=9)
+    for a, b in zip(plain, ms, strict=True):
+        assert {k: v for k, v in a.items() if k != "date_time"} == {k: v for k, v in b.items() if k != "date_time"}
+        assert b["date_time"].endswith(".000Z")
+    assert _stream_metas(TelemetryNoise(frame_clock_utc_offset_s=7200.0), 120, seed=9) == plain
+
+
+@pytest.mark.parametrize(("field", "value"), [
+    ("meta_layout", "airdata"), ("meta_layout", 1), ("stamp_resolution_s", -1.0), ("stamp_resolution_s", 1e-4),
+    ("stamp_resolution_s", math.nan), ("frame_clock_utc_offset_s", math.inf),
+    ("frame_clock_utc_offset_s", 15 * 3600.0), ("frame_clock_utc_offset_s", "7200"),
+])
+def test_clock_fields_are_validated(field: str, value: object) -> None:
+    with pytest.raises(ValueError, match=field):
+        TelemetryNoise(**{field: value})
+
+
+def test_clock_fields_allow_western_zones_and_survive_scaling() -> None:
+    noise = TelemetryNoise(meta_layout="flight_log", stamp_resolution_s=1.0, frame_clock_utc_offset_s=-18000.0)
+    for k in (0.0, 2.0):
+        scaled = noise.scaled(k)
+        assert {f: getattr(scaled, f) for f in CLOCK_FIELDS} == {f: getattr(noise, f) for f in CLOCK_FIELDS}
+    assert noise.scaled(2.0).gps_bias_m == 3.0
+    defaults = {f.name: f.default for f in dataclasses.fields(TelemetryNoise) if f.name in CLOCK_FIELDS}
+    assert defaults == {"stamp_resolution_s": 0.0, "meta_layout": "seadronessee", "frame_clock_utc_offset_s": 0.0}

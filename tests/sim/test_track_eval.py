@@ -7,6 +7,7 @@ import json
 import numpy as np
 import pytest
 
+from shared.geo import local_to_latlon
 from sim.track_eval import (
     PixelBaselineConfig,
     PixelTracker,
@@ -14,9 +15,12 @@ from sim.track_eval import (
     SequenceTruth,
     default_tracking_variants,
     drop_ignored,
+    markdown_tracking_report,
     mot_metrics,
+    position_errors,
     reid_events,
     run_track_eval,
+    summarise_tracking,
     trackeval_data,
 )
 
@@ -98,6 +102,46 @@ def test_boxes_on_hidden_objects_are_dropped_not_counted_as_false_positives():
     assert mot_metrics([trackeval_data(truth, kept)])["FP"] == 10  # only the box on nothing
 
 
+def test_position_errors_follow_the_matched_boxes_and_survive_dropping_hidden_ones():
+    truth = truth_of({1: list(range(10)), 2: list(range(5, 10))}, 10)
+    # object i at (10 i m east, 0); the track on object 1 is reported 2 m north of it, on object 2 4 m north
+    true_ll = {i: local_to_latlon(10.0 * i, 0.0, 47.6, 9.3) for i in (1, 2)}
+    truth.latlon = {f: np.array([true_ll[int(i)] for i in ids], dtype=np.float64).reshape(-1, 2)
+                    for f, (ids, _) in truth.frames.items()}
+    truth.ignore = {f: (np.array([9]), np.array([box(900.0)])) for f in range(10)}
+    seq = SequenceTracks()
+    for f, (ids, boxes) in truth.frames.items():
+        rev = slice(None, None, -1)  # reported in another order than the truth
+        seq.frames[f] = (np.append(ids[rev] + 10, 99), np.vstack([boxes[rev], [box(900.0)]]), np.ones(len(ids) + 1))
+        seq.latlon[f] = np.array([local_to_latlon(10.0 * i, 2.0 * i, 47.6, 9.3) for i in ids[rev]]
+                                 + [local_to_latlon(90.0, 0.0, 47.6, 9.3)], dtype=np.float64).reshape(-1, 2)
+    kept = drop_ignored(truth, seq)
+    assert all(len(kept.latlon[f]) == len(kept.frames[f][0]) == len(truth.frames[f][0]) for f in kept.frames)
+    errors = np.sort(position_errors(truth, kept))
+    np.testing.assert_allclose(errors, [2.0] * 10 + [4.0] * 5, atol=1e-3)
+    # a tracker without ground positions (norfair) and a truth without them measure nothing
+    assert position_errors(truth, tracks_of(truth, lambda i, f: i)).shape == (0,)
+    assert position_errors(truth_of({1: list(range(3))}, 3), kept).shape == (0,)
+
+
+def test_the_tracking_report_shows_the_position_error_of_ours_and_blanks_for_norfair():
+    base = {"HOTA": 50.0, "DetA": 50.0, "AssA": 50.0, "MOTA": 40.0, "IDF1": 60.0, "IDs": 2, "Frag": 1, "FP": 3,
+            "FN": 4, "reid_events": 0, "reid_scored": 0, "reid_kept": 0, "tracker_ms_per_frame": 1.0}
+    rows = [{"scenario": "sea", "seed": s, "variant": "norfair", **base, "pos_err_m": None, "pos_err_p90_m": None}
+            for s in (0, 1)]
+    rows += [{"scenario": "sea", "seed": 0, "variant": "ours", **base, "pos_err_m": 1.0, "pos_err_p90_m": 3.0},
+             {"scenario": "sea", "seed": 1, "variant": "ours", **base, "pos_err_m": None, "pos_err_p90_m": None},
+             {"scenario": "sea", "seed": 2, "variant": "ours", **base, "pos_err_m": 2.0, "pos_err_p90_m": 5.0}]
+    summary = {s["variant"]: s for s in summarise_tracking(rows, baseline="norfair")}
+    assert summary["ours"]["pos_err_m"] == pytest.approx(1.5) and summary["ours"]["pos_err_p90_m"] == pytest.approx(4.0)
+    assert summary["norfair"]["pos_err_m"] is None
+    md = markdown_tracking_report({"seeds": [0, 1, 2], "frames": None, "summary": list(summary.values())})
+    assert "pos err m | pos err p90 m |" in md
+    ours = next(line for line in md.splitlines() if line.startswith("| sea | ours |"))
+    norfair = next(line for line in md.splitlines() if line.startswith("| sea | norfair |"))
+    assert ours.endswith("| 1.50 | 4.00 |") and norfair.endswith("|  |  |")
+
+
 def test_norfair_baseline_runs_with_numpy_2_and_reports_matched_tracks():
     tracker = PixelTracker(PixelBaselineConfig(det_score=0.4, init_frames=3), fps=30.0)
     out = []
@@ -117,4 +161,7 @@ def test_run_track_eval_writes_reports(tmp_path):
         assert 0 <= row["HOTA"] <= 100 and row["IDs"] >= 0 and row["reid_kept"] <= row["reid_scored"]
     assert json.loads((tmp_path / "report.json").read_text())["scenarios"] == ["reid"]
     md = (tmp_path / "report.md").read_text()
-    assert "| reid | norfair (pixel IoU) |" in md and "HOTA" in md
+    assert "| reid | norfair (pixel IoU) |" in md and "HOTA" in md and "pos err m" in md
+    pos = {row["variant"]: row["pos_err_m"] for row in report["rows"]}
+    assert pos["norfair (pixel IoU)"] is None
+    assert all(0.0 <= v < 10.0 for name, v in pos.items() if name.startswith("GPS tracker"))
