@@ -128,8 +128,8 @@ class DetectionPipeline:
             if band is None:
                 continue
             sel = c == cid
-            check.observe(name, self.size_filter.accept_class(name, diag[sel], slant[sel], depression[sel],
-                                                              self._focal_px))
+            check.observe(name, self.size_filter.z_class(name, diag[sel], slant[sel], depression[sel],
+                                                         self._focal_px))
 
     @property
     def _focal_px(self) -> float:

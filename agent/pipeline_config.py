@@ -51,9 +51,10 @@ class PipelineConfig:
         +6.6 / +6.6)).
     use_memory: False gives the single-frame baseline (same filter and NMS, no boosting).
     use_size_filter: apply the distance-size filter, per class only where its prior agrees with the data:
-        size_check_min_score, size_check_min_boxes, size_check_max_rejected (agent.size_filter_check: the
-        confident boxes that stand for real objects, how many a class needs, the share of them the prior may
-        reject; the built-in priors rejected a fifth of the real swimmers of SeaDronesSee).
+        size_check_min_score, size_check_min_boxes, size_check_quantile, size_check_max_z
+        (agent.size_filter_check: the confident boxes that stand for real objects, how many a class needs,
+        and how far into the prior's band their central part may reach; the built-in priors would have
+        removed a fifth of the real swimmers of SeaDronesSee).
     anchor: where on a box its ground point is: "center" (the paper), "bottom" (feet of an upright
         object) or "auto" (from the bottom at grazing views to the centre at nadir).
     joint_mode: how a joint map from the fusion server combines with the local one for boosting:
@@ -196,7 +197,8 @@ class PipelineConfig:
     joint_carry_velocity_gain: float = 0.1
     size_check_min_score: float = 0.5
     size_check_min_boxes: int = 15
-    size_check_max_rejected: float = 0.02
+    size_check_quantile: float = 0.1
+    size_check_max_z: float = 2.0
     calibrate_scores: bool = True
     calibration_max_floor: float = 0.05
     calibration_tau_s: float = 30.0
@@ -287,7 +289,7 @@ class PipelineConfig:
     def size_check_settings(self) -> SizeCheckSettings:
         """The size filter's check of its priors against the data (agent.size_filter_check)."""
         return SizeCheckSettings(min_score=self.size_check_min_score, min_boxes=self.size_check_min_boxes,
-                                 max_rejected=self.size_check_max_rejected)
+                                 quantile=self.size_check_quantile, max_z=self.size_check_max_z)
 
     @property
     def range_limit_m(self) -> float:

@@ -171,6 +171,22 @@ class SizeFilter:
         inside = np.abs(log_size - mean) <= self.k * std
         return inside | ~(np.isfinite(rng) & np.isfinite(dep))
 
+    def z_class(self, name: str, diag_px: ArrayLike, slant_range_m: ArrayLike, depression_deg: ArrayLike,
+                focal_px: float) -> NDArray[np.float64]:
+        """Where boxes of one class lie in its band: (log size - mean) / std at their depression, (N,) float64
+        (|z| <= k is accepted); NaN for boxes without range or depression. ValueError for a class without
+        a band."""
+        band = self.bands.get(name)
+        if band is None:
+            raise ValueError(f"size filter has no band for class {name!r}")
+        diag = np.asarray(diag_px, dtype=np.float64)
+        rng = np.asarray(slant_range_m, dtype=np.float64)
+        dep = np.asarray(depression_deg, dtype=np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            log_size = np.log(diag * rng / focal_px)
+        mean, std = band.mean_std(dep)
+        return (log_size - mean) / std
+
     # ---------------------------------------------------------------- persistence
     def to_dict(self) -> dict[str, Any]:
         return {

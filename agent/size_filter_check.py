@@ -3,11 +3,15 @@
 A size prior (built in, or fitted on other flights) says which metric sizes a class can have at each
 viewing angle. On a camera, a height reference or a detector it was not made for it can be wrong by a
 factor: on real SeaDronesSee flights the built-in swimmer prior would have removed a fifth of the true
-swimmers. The detector's confident boxes (score >= `min_score`) are mostly real objects: per class, the
-filter acts only once at least `min_boxes` of them were seen and the prior would have rejected at most
-`max_rejected` of them; otherwise it stands down for that class and says why. Files are checked on the
-whole video before its first frame (`prime`); a live feed is checked as it goes (the class stays unfiltered
-until its evidence is in).
+swimmers. The detector's confident boxes (score >= `min_score`) are mostly real objects: per class, where
+they lie in the prior's band (z = (log size - mean) / std) is collected, and the filter acts only once at
+least `min_boxes` of them were seen and their central part, from the `quantile` to the 1 - `quantile`
+quantile of z, lies within +-`max_z`. A correct prior puts that central 80 % within +-1.28; a prior that is
+wrong by a factor shifts the bulk of the data towards its band's edge (real swimmers: a tenth beyond
++2.1 to +4.5 std). The share beyond the band's edge (|z| > k) is not the test: confident false positives of
+implausible size, which the filter is for, put 1-9 % of the simulator's dense pre-NMS candidates there.
+Files are checked on the whole video before its first frame (`prime`); a live feed is checked as it goes
+(the class stays unfiltered until its evidence is in).
 """
 
 from __future__ import annotations
@@ -22,60 +26,88 @@ from agent.stage_report import StageReport
 
 __all__ = ["SizeCheckSettings", "SizeFilterCheck"]
 
+#: z is collected in a histogram over +-_Z_RANGE (bounded memory on long flights), bins of _Z_BIN std.
+_Z_RANGE = 10.0
+_Z_BIN = 0.05
+
 
 @dataclass(frozen=True, slots=True)
 class SizeCheckSettings:
     """min_score: boxes at least this confident stand for real objects; min_boxes: confident boxes of a
-    class needed before its prior may act; max_rejected: the largest fraction of them the prior may reject
-    (a correct prior at k = 3 rejects well under 1 %: 0.27 % of a normal distribution; 2 % leaves room for the
-    confident false positives it should reject)."""
+    class needed before its prior may act; quantile, max_z: the prior agrees with the data when the
+    confident boxes from the quantile to the 1 - quantile quantile of z lie within +-max_z (std of the
+    prior's band)."""
 
     min_score: float = 0.5
     min_boxes: int = 15
-    max_rejected: float = 0.02
+    quantile: float = 0.1
+    max_z: float = 2.0
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.min_score <= 1.0):
             raise ValueError(f"size check min_score must be in [0, 1], got {self.min_score!r}")
         if isinstance(self.min_boxes, bool) or not isinstance(self.min_boxes, int) or self.min_boxes < 1:
             raise ValueError(f"size check min_boxes must be an integer >= 1, got {self.min_boxes!r}")
-        if not (0.0 <= self.max_rejected < 1.0):
-            raise ValueError(f"size check max_rejected must be in [0, 1), got {self.max_rejected!r}")
+        if not (0.0 <= self.quantile < 0.5):
+            raise ValueError(f"size check quantile must be in [0, 0.5), got {self.quantile!r}")
+        if not (isinstance(self.max_z, (int, float)) and 0.0 < self.max_z < _Z_RANGE):
+            raise ValueError(f"size check max_z must be in (0, {_Z_RANGE:g}), got {self.max_z!r}")
 
 
 class SizeFilterCheck:
-    """One video's check of a size filter's priors: the confident boxes seen per class and how many the
-    prior rejects; `active` is the filter restricted to the classes whose prior the data support."""
+    """One video's check of a size filter's priors: where the confident boxes of each class lie in its band;
+    `active` is the filter restricted to the classes whose prior the data support."""
 
     def __init__(self, size_filter: SizeFilter, settings: SizeCheckSettings | None = None) -> None:
         self.size_filter = size_filter
         self.settings = settings or SizeCheckSettings()
-        self._seen: dict[str, int] = {}
-        self._rejected: dict[str, int] = {}
+        self._hist: dict[str, NDArray[np.int64]] = {}
         self._frozen = False
         self._active = SizeFilter({}, size_filter.k)
         self._active_names: frozenset[str] = frozenset()
-
-    def observe(self, class_name: str, accepted: NDArray[np.bool_]) -> None:
-        """Count a class's confident boxes and which the prior accepts ((N,) bool); ignored once frozen."""
-        if self._frozen or class_name not in self.size_filter.bands:
-            return
-        accepted = np.asarray(accepted, dtype=bool).reshape(-1)
-        self._seen[class_name] = self._seen.get(class_name, 0) + len(accepted)
-        self._rejected[class_name] = self._rejected.get(class_name, 0) + int((~accepted).sum())
+        self._edges = np.round(np.arange(-_Z_RANGE, _Z_RANGE + _Z_BIN / 2, _Z_BIN), 9)
 
     @property
     def frozen(self) -> bool:
         """Decided for good (`freeze`)."""
         return self._frozen
 
+    def observe(self, class_name: str, z: NDArray) -> None:
+        """Count where a class's confident boxes lie in its band ((N,) z; NaN ignored); ignored once frozen."""
+        if self._frozen or class_name not in self.size_filter.bands:
+            return
+        z = np.asarray(z, dtype=np.float64).reshape(-1)
+        z = np.clip(z[np.isfinite(z)], -_Z_RANGE, _Z_RANGE)
+        hist = self._hist.setdefault(class_name, np.zeros(len(self._edges) + 1, dtype=np.int64))
+        np.add.at(hist, np.searchsorted(self._edges, z), 1)
+
     def freeze(self) -> None:
         """Decide on what was seen (a file's whole video) and observe no more."""
         self._frozen = True
 
+    def seen(self, name: str) -> int:
+        """Confident boxes of a class seen so far."""
+        hist = self._hist.get(name)
+        return 0 if hist is None else int(hist.sum())
+
+    def central_range(self, name: str) -> tuple[float, float] | None:
+        """(quantile, 1 - quantile) of the class's z, to the histogram's bin; None before any box was seen."""
+        hist = self._hist.get(name)
+        if hist is None or not hist.sum():
+            return None
+        cum = np.cumsum(hist) / hist.sum()
+        q = self.settings.quantile
+        lo = int(np.searchsorted(cum, q, side="left"))
+        hi = int(np.searchsorted(cum, 1.0 - q, side="left"))
+        edges = np.concatenate([[-_Z_RANGE], self._edges])  # bin i holds z in (edges[i], edges[i + 1]]
+        return float(edges[lo]), float(edges[min(hi + 1, len(edges) - 1)])
+
     def _passes(self, name: str) -> bool:
-        seen = self._seen.get(name, 0)
-        return seen >= self.settings.min_boxes and self._rejected.get(name, 0) <= self.settings.max_rejected * seen
+        if self.seen(name) < self.settings.min_boxes:
+            return False
+        central = self.central_range(name)
+        assert central is not None
+        return -self.settings.max_z <= central[0] and central[1] <= self.settings.max_z
 
     @property
     def active(self) -> SizeFilter:
@@ -87,11 +119,6 @@ class SizeFilterCheck:
                                       self.size_filter.k)
         return self._active
 
-    def share_rejected(self, name: str) -> float | None:
-        """The share of a class's confident boxes the prior rejects, None before any was seen."""
-        seen = self._seen.get(name, 0)
-        return self._rejected.get(name, 0) / seen if seen else None
-
     def reports(self, classes: list[str] | None = None) -> list[StageReport]:
         """One decision per class with a prior (only `classes` when given, e.g. those the video holds)."""
         out = []
@@ -99,12 +126,12 @@ class SizeFilterCheck:
         for name in self.size_filter.bands:
             if classes is not None and name not in classes:
                 continue
-            seen = self._seen.get(name, 0)
-            if seen < s.min_boxes:
+            if self.seen(name) < s.min_boxes:
                 why = f"{name}: too few confident boxes to check the prior (< {s.min_boxes})"
             elif self._passes(name):
                 why = f"{name}: the confident boxes agree with the prior"
             else:
-                why = f"{name}: the confident boxes contradict the prior (> {100 * s.max_rejected:g} % rejected)"
+                why = (f"{name}: the confident boxes contradict the prior (their central "
+                       f"{100 - 200 * s.quantile:g} % beyond +-{s.max_z:g} std)")
             out.append(StageReport("size filter", self._passes(name), why))
         return out

@@ -451,3 +451,22 @@ def test_compiled_add_and_values_at_equal_the_numpy_implementation(seed, stamp, 
         maps[0].add("person", gx, gy, amp)
         _add_numpy(maps[1], "person", gx, gy, amp)
         np.testing.assert_array_equal(maps[0]._maps.get("person"), maps[1]._maps.get("person"))
+
+
+@settings(max_examples=40, deadline=None)
+@given(shift=st.floats(-4.0, 4.0), spread=st.floats(0.2, 1.5), fp_share=st.floats(0.0, 0.1))
+def test_property_the_size_check_follows_the_bulk_of_the_confident_boxes_not_their_tail(shift, spread, fp_share):
+    # confident boxes at z ~ N(shift, spread) in the prior's band, plus implausible confident false positives
+    from agent.size_filter import SizeFilter
+    from agent.size_filter_check import SizeCheckSettings, SizeFilterCheck
+
+    rng = np.random.default_rng(7)
+    z = rng.normal(shift, spread, 2000)
+    z[: int(fp_share * len(z))] = 8.0  # the filter's own business: far outside the band
+    check = SizeFilterCheck(SizeFilter.builtin(), SizeCheckSettings())
+    check.observe("person", z)
+    lo, hi = np.percentile(z, [10, 90])
+    agrees = -2.0 <= lo and hi <= 2.0
+    if min(abs(lo + 2.0), abs(hi - 2.0)) > 0.1:  # away from the bin edge
+        assert ("person" in check.active.bands) == agrees
+    assert "swimmer" not in check.active.bands  # nothing seen of it: not trusted
