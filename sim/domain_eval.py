@@ -59,7 +59,33 @@ def ensure_domain_dataset(domain: Domain, seed: int, noise_scale: float, full: b
     if not (out / "images.json").exists():
         write_dataset(domain.scenario(), out, seed=seed, frames=domain.frames(full), noise_scale=noise_scale,
                       progress=False)
+        if domain.final_score is not None:
+            final_output(out / "pre_nms.json", domain.final_score)
     return out
+
+
+def final_output(candidates_path: Path, min_score: float, *, iou: float = 0.5, max_per_image: int = 100) -> int:
+    """Replace a candidates file by the detector's final output: per image, class-wise NMS at `iou` and
+    scores >= min_score (at most max_per_image, highest first), as detectors ship their results. Returns the
+    entries kept; the file is rewritten in place."""
+    import numpy as np
+
+    from agent.boxes import nms
+
+    entries = json.loads(candidates_path.read_text())
+    by_image: dict[int, list[dict[str, Any]]] = {}
+    for e in entries:
+        by_image.setdefault(int(e["image_id"]), []).append(e)
+    kept: list[dict[str, Any]] = []
+    for image_id in sorted(by_image):
+        group = by_image[image_id]
+        xywh = np.array([e["bbox"] for e in group], dtype=np.float64).reshape(-1, 4)
+        boxes = np.column_stack([xywh[:, :2], xywh[:, :2] + xywh[:, 2:]])
+        scores = np.array([e["score"] for e in group], dtype=np.float64)
+        keep = nms(boxes, scores, np.array([e["category_id"] for e in group]), iou, 0.0, max_per_image)
+        kept.extend(group[i] for i in keep.tolist() if scores[i] >= min_score)
+    candidates_path.write_text(json.dumps(kept))
+    return len(kept)
 
 
 def run_domain_eval(domains: list[Domain], seeds: list[int], *, noise_scales: tuple[float, ...] = (1.0, 2.0),

@@ -61,6 +61,9 @@ class Domain:
         EmulatorParams fields replaced on the base scenario's emulator.
     world : dict
         WorldParams fields replaced on the base scenario's world.
+    final_score : float or None
+        The detector's final output instead of its pre-NMS candidates (what most users have: per-class NMS at
+        IoU 0.5, scores >= final_score; `final_output`); None: the candidates.
     """
 
     name: str
@@ -75,6 +78,7 @@ class Domain:
     noise: dict[str, Any] = field(default_factory=dict)
     emulator: dict[str, Any] = field(default_factory=dict)
     world: dict[str, Any] = field(default_factory=dict)
+    final_score: float | None = None
 
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
@@ -85,6 +89,8 @@ class Domain:
             raise ValueError(f"Domain {self.name!r}: unknown camera {self.camera!r}; valid: {', '.join(CAMERAS)}")
         if not (math.isfinite(self.fps) and self.fps > 0 and math.isfinite(self.clip_s) and self.clip_s > 0):
             raise ValueError(f"Domain {self.name!r}: fps and clip_s must be > 0")
+        if self.final_score is not None and not (0.0 <= self.final_score < 1.0):
+            raise ValueError(f"Domain {self.name!r}: final_score must be in [0, 1), got {self.final_score!r}")
         self.scenario()  # every field name and value is checked by the dataclasses it builds
 
     def frames(self, full: bool = False) -> int:
@@ -103,14 +109,22 @@ class Domain:
                                    default_frames=self.frames(), fps=self.fps, camera_preset=preset,
                                    image_size=(width, height))
 
+    def changes(self) -> dict[str, Any]:
+        """What differs from the base scenario (noise, emulator and world fields; the final output)."""
+        extra = {} if self.final_score is None else {"final_output": f"NMS 0.5, scores >= {self.final_score:g}"}
+        return {**self.noise, **self.emulator, **self.world, **extra}
+
     @property
     def tag(self) -> str:
         """Short hash of the definition: dataset caches keyed by it regenerate when a domain changes."""
-        return hashlib.sha1(repr(self).encode()).hexdigest()[:8]
+        text = repr(self)
+        if self.final_score is None:  # the field came later: domains without it keep their tags and caches
+            text = text.replace(", final_score=None", "")
+        return hashlib.sha1(text.encode()).hexdigest()[:8]
 
     def summary(self) -> str:
         """One line: split, motion, fps, clip, camera and what differs from the base scenario."""
-        changes = ", ".join(f"{k}={v}" for k, v in {**self.noise, **self.emulator, **self.world}.items())
+        changes = ", ".join(f"{k}={v}" for k, v in self.changes().items())
         return (f"{self.split:7s} {self.motion:6s} {self.base:5s} {self.fps:g} fps {self.clip_s:g} s "
                 f"{self.camera}: {changes}")
 
@@ -221,6 +235,16 @@ _DOMAIN_LIST = (
            "stamped in UTC with milliseconds, frames in UTC): the same world, flights, detections and telemetry "
            "values per seed, for comparisons only", "heldout", "gentle", "sea", _PANNING_SEA,
            noise=dict(_SDS_TELEMETRY)),
+    # Added with issue 31: a detector's final output (post-NMS, scores >= 0.25) every 0.5 s, as SeaDronesSee's
+    # results are (every 15th video frame): boosting can only re-rank it. Held out: nothing was chosen on them.
+    Domain("sea-final-2fps", "sea, gentle flights, the detector's final output (NMS, scores >= 0.25) at 2 fps",
+           "heldout", "gentle", "sea", _GENTLE_SEA, fps=2.0, clip_s=40.0, final_score=0.25),
+    Domain("grass-final-2fps", "grass, gentle flights, the detector's final output (NMS, scores >= 0.25) at 2 fps, "
+           "over-confident detector", "heldout", "gentle", "grass", _GENTLE_GRASS, fps=2.0, clip_s=40.0,
+           emulator=_OVERCONFIDENT, final_score=0.25),
+    Domain("sea-sds-final", "sea, panning flights, SeaDronesSee v2 clocks and the detector's final output (NMS, "
+           "scores >= 0.25) at 2 fps: the layout of the real SeaDronesSee files", "heldout", "gentle", "sea",
+           _PANNING_SEA, fps=2.0, clip_s=40.0, noise={**_SDS_TELEMETRY, **_SDS_CLOCKS}, final_score=0.25),
 )
 
 #: All domains by name.
@@ -254,7 +278,7 @@ def domain_table() -> str:
     """Markdown table of the domains (the `uavmm eval --list-domains` output and docs/simulator.md)."""
     lines = ["| domain | split | flights | base | fps | clip | camera | changes |", "|---|---|---|---|---|---|---|---|"]
     for d in _DOMAIN_LIST:
-        changes = ", ".join(f"{k}={v}" for k, v in {**d.noise, **d.emulator, **d.world}.items())
+        changes = ", ".join(f"{k}={v}" for k, v in d.changes().items())
         lines.append(f"| {d.name} | {d.split} | {d.motion} | {d.base} | {d.fps:g} | {d.clip_s:g} s | {d.camera} | "
                      f"{changes} |")
     return "\n".join(lines)

@@ -90,9 +90,12 @@ class PixelTracker:
         norfair = _import_baseline("norfair", "the pixel-tracker baseline (norfair)")
 
         self.config = config
+        # at low frame rates (2 fps) max_age_s is fewer frames than init_frames: norfair needs its delay below
+        # the counter's maximum, so the age is floored to init_frames
+        hits = max(1, round(config.max_age_s * fps), config.init_frames)
         self._tracker = norfair.Tracker(distance_function="iou", distance_threshold=config.iou_distance,
-                                hit_counter_max=max(1, round(config.max_age_s * fps)),
-                                initialization_delay=max(0, config.init_frames - 1))
+                                hit_counter_max=hits, initialization_delay=min(max(0, config.init_frames - 1),
+                                                                               hits - 1))
 
     def update(self, boxes_xyxy: np.ndarray, scores: np.ndarray,
                class_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -160,3 +160,26 @@ def test_cli_lists_domains_and_refuses_unknown_ones() -> None:
                           capture_output=True, text=True, timeout=120)
     assert proc.returncode == 2 and "unknown domain 'nope'" in proc.stderr
     assert isinstance(DOMAINS[TUNING_DOMAINS[0]], Domain)
+
+
+def test_final_output_domains_give_the_detectors_post_nms_thresholded_results(tmp_path: Path) -> None:
+    from agent.boxes import box_iou
+    from sim.domain_eval import ensure_domain_dataset
+
+    domain = get_domain("sea-sds-final")
+    assert domain.split == "heldout" and domain.fps == 2.0 and domain.final_score == 0.25
+    assert DOMAINS["sea-jitter"].tag == "fbcdf83b"  # domains without the field keep their cached datasets
+    data = ensure_domain_dataset(domain, 0, 1.0, False, tmp_path)
+    entries = json.loads((data / "pre_nms.json").read_text())
+    assert entries and min(e["score"] for e in entries) >= 0.25
+    by_key: dict[tuple[int, int], list[list[float]]] = {}
+    for e in entries:
+        x, y, w, h = e["bbox"]
+        by_key.setdefault((e["image_id"], e["category_id"]), []).append([x, y, x + w, y + h])
+    for boxes in by_key.values():  # NMS at 0.5: no two kept boxes of a class overlap that much
+        b = np.array(boxes)
+        iou = box_iou(b, b)
+        np.fill_diagonal(iou, 0.0)
+        assert iou.max(initial=0.0) <= 0.5 + 1e-6
+    with pytest.raises(ValueError, match="final_score"):
+        dataclasses.replace(domain, final_score=1.5)
