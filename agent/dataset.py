@@ -44,6 +44,42 @@ def read_json(path: str | Path, what: str) -> Any:
         raise ValueError(f"{what} file {path} is not valid JSON: {exc}") from None
 
 
+def dataset_files(path: str | Path, detections: str | Path | None = None,
+                  camera: str | Path | None = None) -> tuple[Path, Path, str | Path]:
+    """(images, candidates, camera spec) of a dataset as users have it: `path` is the images JSON, or a
+    folder holding it (``images.json``, else the one ``instances*.json``) with the candidates
+    (``pre_nms.json``, else the one ``detections*.json``) and ``camera.json`` (a camera preset's name or file
+    may be given instead). ValueError naming what is missing or ambiguous."""
+    path = Path(path)
+    folder = path if path.is_dir() else path.parent
+    if path.is_dir():
+        found = [folder / "images.json"]
+        if not found[0].is_file():
+            found = sorted(folder.glob("instances*.json"))
+        if len(found) != 1:
+            raise ValueError(f"{folder}: expected images.json or one instances*.json, found "
+                             f"{', '.join(p.name for p in found) or 'none'}")
+        images = found[0]
+    elif path.is_file():
+        images = path
+    else:
+        raise ValueError(f"dataset {path} does not exist")
+    if detections is None:
+        found = [folder / "pre_nms.json"]
+        if not found[0].is_file():
+            found = sorted(folder.glob("detections*.json"))
+        if len(found) != 1:
+            raise ValueError(f"{folder}: expected pre_nms.json or one detections*.json (the detector's results), "
+                             f"found {', '.join(p.name for p in found) or 'none'}")
+        detections = found[0]
+    if camera is None:
+        if not (folder / "camera.json").is_file():
+            raise ValueError(f"{folder}: no camera.json: give the camera (a CAMERA.json or a preset such as "
+                             "dji-mavic2-pro; SeaDronesSee meta has no focal length)")
+        camera = folder / "camera.json"
+    return images, Path(detections), camera
+
+
 @dataclass(frozen=True, slots=True)
 class ImageRecord:
     id: int

@@ -132,7 +132,8 @@ def _empty_candidates() -> tuple[NDArray[np.float32], NDArray[np.float32], NDArr
 # ---------------------------------------------------------------------------------------------
 
 class DatasetSource:
-    """One video of a dataset directory: ``images.json`` + ``pre_nms.json`` + ``camera.json``.
+    """One video of a dataset directory: ``images.json`` + ``pre_nms.json`` + ``camera.json`` (as `uavmm sim`
+    writes it), or the one ``instances*.json`` + ``detections*.json`` of a real file and a camera.
 
     Parameters
     ----------
@@ -140,6 +141,8 @@ class DatasetSource:
         The directory (`uavmm sim --out` writes this layout). Missing files raise ValueError naming them.
     video_id : int, optional
         Which video to play (default: the first); ValueError listing the known ids otherwise.
+    camera : path or str, optional
+        A camera file or preset instead of the directory's camera.json.
 
     Frame times are the images' own ``date_time`` when it parses (else the telemetry's, else the
     frame index / 30 fps); the pose time is the telemetry's, as in `uavmm track`. Candidates' descriptors
@@ -147,20 +150,18 @@ class DatasetSource:
     default the directory) are read when they exist and `use_images` (a note is logged once otherwise).
     """
 
-    def __init__(self, directory: str | Path, *, video_id: int | None = None, image_dir: str | Path | None = None,
+    def __init__(self, directory: str | Path, *, video_id: int | None = None, camera: str | Path | None = None,
+                 image_dir: str | Path | None = None,
                  use_images: bool = True) -> None:
-        from agent.dataset import Candidates, Dataset
+        from agent.dataset import Candidates, Dataset, dataset_files
 
         self.directory = Path(directory)
         if not self.directory.is_dir():
             raise ValueError(f"dataset directory {self.directory} does not exist")
-        missing = [name for name in DATASET_FILES if not (self.directory / name).is_file()]
-        if missing:
-            raise ValueError(f"dataset directory {self.directory} lacks {', '.join(missing)} "
-                             f"(expected {', '.join(DATASET_FILES)})")
-        self.dataset = Dataset.load(self.directory / "images.json")
-        self.candidates = Candidates.load(self.directory / "pre_nms.json", self.dataset)
-        self.camera = Camera.from_file(self.directory / "camera.json")
+        images, candidates, camera_spec = dataset_files(self.directory, camera=camera)
+        self.dataset = Dataset.load(images)
+        self.candidates = Candidates.load(candidates, self.dataset)
+        self.camera = Camera.from_spec(camera_spec)
         if not self.dataset.videos:
             raise ValueError(f"{self.directory / 'images.json'} has no images")
         if video_id is None:

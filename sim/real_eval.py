@@ -17,7 +17,7 @@ from typing import Any
 
 from agent.boost import results_to_coco, run_pipeline
 from agent.coco_metrics import per_class_metrics
-from agent.dataset import Candidates, Dataset, read_json
+from agent.dataset import Candidates, Dataset, dataset_files, read_json
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.stage_report import stage_lines
@@ -31,35 +31,8 @@ DETECTOR, MEMORY_OFF, OURS, PAPER = "detector", "memory off", "ours", "paper rul
 
 def real_files(path: str | Path, detections: str | Path | None,
                camera: str | Path | None) -> tuple[Path, Path, str | Path]:
-    """(images, detections, camera spec) of `uavmm eval --real PATH`: PATH is the images JSON, or a folder
-    holding it (``images.json`` or the one ``instances*.json``) with the detections (``detections*.json``,
-    else ``pre_nms.json``) and possibly ``camera.json``. ValueError naming what is missing."""
-    path = Path(path)
-    folder = path if path.is_dir() else path.parent
-    if path.is_dir():
-        found = [folder / "images.json"]
-        if not found[0].is_file():
-            found = sorted(folder.glob("instances*.json"))
-        if len(found) != 1:
-            raise ValueError(f"{folder}: expected images.json or one instances*.json, found "
-                             f"{', '.join(p.name for p in found) or 'none'}")
-        images = found[0]
-    elif path.is_file():
-        images = path
-    else:
-        raise ValueError(f"--real {path} does not exist")
-    if detections is None:
-        found = sorted(folder.glob("detections*.json")) or [p for p in [folder / "pre_nms.json"] if p.is_file()]
-        if len(found) != 1:
-            raise ValueError(f"{folder}: pass --detections RESULTS.json (found "
-                             f"{', '.join(p.name for p in found) or 'no detections*.json or pre_nms.json'})")
-        detections = found[0]
-    if camera is None:
-        if not (folder / "camera.json").is_file():
-            raise ValueError(f"{folder}: no camera.json: pass --camera CAMERA.json or a preset "
-                             "(SeaDronesSee meta has no focal length; its Mavic videos: dji-mavic2-pro)")
-        camera = folder / "camera.json"
-    return images, Path(detections), camera
+    """(images, detections, camera spec) of `uavmm eval --real PATH` (`agent.dataset.dataset_files`)."""
+    return dataset_files(path, detections, camera)
 
 
 def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_spec: str | Path, *,

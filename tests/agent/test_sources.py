@@ -57,8 +57,21 @@ def test_dataset_source_errors(coop_dir, tmp_path):
     partial = tmp_path / "partial"
     partial.mkdir()
     (partial / "images.json").write_text((coop_dir / "images.json").read_text())
-    with pytest.raises(ValueError, match="lacks pre_nms.json, camera.json"):
+    with pytest.raises(ValueError, match="expected pre_nms.json or one detections"):
         DatasetSource(partial)
+    (partial / "pre_nms.json").write_text((coop_dir / "pre_nms.json").read_text())
+    with pytest.raises(ValueError, match="no camera.json"):
+        DatasetSource(partial)
+    # a real file as users have it: instances*.json, detections*.json and a camera preset
+    real = tmp_path / "real"
+    real.mkdir()
+    (real / "instances_val.json").write_text((coop_dir / "images.json").read_text())
+    (real / "detections_val.json").write_text((coop_dir / "pre_nms.json").read_text())
+    source = DatasetSource(real, camera="dji-mavic2-pro")
+    assert source.camera.preset == "dji-mavic2-pro" and len(list(source.frames())) > 0
+    (real / "detections_other.json").write_text("[]")
+    with pytest.raises(ValueError, match="detections_other.json, detections_val.json"):
+        DatasetSource(real, camera="dji-mavic2-pro")
     with pytest.raises(ValueError, match=r"unknown video id 9; known: \[1, 2\]"):
         DatasetSource(coop_dir, video_id=9)
 
