@@ -43,8 +43,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                           "live MAVLink stream udp:HOST:PORT (docs/agent.md)")
     src.add_argument("--model", type=Path, help="--video: ONNX YOLO model with raw (pre-NMS) output")
     src.add_argument("--camera", type=Path,
-                     help="--video: camera JSON (width, height, fx, fy, cx, cy) or a preset name (e.g. dji-mavic2-pro); "
-                          "--dataset: instead of its camera.json")
+                     help="--video: camera JSON (width, height, fx, fy, cx, cy) or a preset name (e.g. "
+                          "dji-mavic2-pro); --dataset: instead of its camera.json")
     src.add_argument("--class-names", type=Path, default=None, help="--video: class names file (model's default)")
     src.add_argument("--conf-threshold", type=float, default=0.01, help="--video: lowest candidate score (0.01)")
     src.add_argument("--telemetry-offset-s", type=float, default=None,
