@@ -51,10 +51,10 @@ class PipelineConfig:
         +6.6 / +6.6)).
     use_memory: False gives the single-frame baseline (same filter and NMS, no boosting).
     use_size_filter: apply the distance-size filter, per class only where its prior agrees with the data:
-        size_check_min_score, size_check_min_boxes, size_check_quantile, size_check_max_z
+        size_check_min_score, size_check_min_boxes, size_check_max_shift, size_check_recentre
         (agent.size_filter_check: the confident boxes that stand for real objects, how many a class needs,
-        and how far into the prior's band their central part may reach; the built-in priors would have
-        removed a fifth of the real swimmers of SeaDronesSee).
+        how far (std) their median may lie from the prior's mean, and whether the band is centred on it;
+        the built-in priors would have removed a fifth of the real swimmers of SeaDronesSee).
     anchor: where on a box its ground point is: "center" (the paper), "bottom" (feet of an upright
         object) or "auto" (from the bottom at grazing views to the centre at nadir).
     joint_mode: how a joint map from the fusion server combines with the local one for boosting:
@@ -197,8 +197,8 @@ class PipelineConfig:
     joint_carry_velocity_gain: float = 0.1
     size_check_min_score: float = 0.5
     size_check_min_boxes: int = 15
-    size_check_quantile: float = 0.1
-    size_check_max_z: float = 2.0
+    size_check_max_shift: float = 3.0
+    size_check_recentre: bool = True
     calibrate_scores: bool = True
     calibration_max_floor: float = 0.05
     calibration_tau_s: float = 30.0
@@ -289,7 +289,7 @@ class PipelineConfig:
     def size_check_settings(self) -> SizeCheckSettings:
         """The size filter's check of its priors against the data (agent.size_filter_check)."""
         return SizeCheckSettings(min_score=self.size_check_min_score, min_boxes=self.size_check_min_boxes,
-                                 quantile=self.size_check_quantile, max_z=self.size_check_max_z)
+                                 max_shift=self.size_check_max_shift, recentre=self.size_check_recentre)
 
     @property
     def range_limit_m(self) -> float:

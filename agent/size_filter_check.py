@@ -1,21 +1,24 @@
-"""The size filter checks its priors against the data before it removes anything.
+"""The size filter checks its priors against the data, and centres them on it, before it removes anything.
 
 A size prior (built in, or fitted on other flights) says which metric sizes a class can have at each
-viewing angle. On a camera, a height reference or a detector it was not made for it can be wrong by a
-factor: on real SeaDronesSee flights the built-in swimmer prior would have removed a fifth of the true
-swimmers. The detector's confident boxes (score >= `min_score`) are mostly real objects: per class, where
-they lie in the prior's band (z = (log size - mean) / std) is collected, and the filter acts only once at
-least `min_boxes` of them were seen and their central part, from the `quantile` to the 1 - `quantile`
-quantile of z, lies within +-`max_z`. A correct prior puts that central 80 % within +-1.28; a prior that is
-wrong by a factor shifts the bulk of the data towards its band's edge (real swimmers: a tenth beyond
-+2.1 to +4.5 std). The share beyond the band's edge (|z| > k) is not the test: confident false positives of
-implausible size, which the filter is for, put 1-9 % of the simulator's dense pre-NMS candidates there.
+viewing angle. On a camera, a height reference, an annotation style or a detector it was not made for it
+can be off by a factor: on real SeaDronesSee flights the built-in swimmer prior (0.5 x 0.5 x 0.3 m) would
+have removed a fifth of the true swimmers, whose confident boxes sit 1.2 to 3.5 of its standard deviations
+above its mean. The detector's confident boxes (score >= `min_score`) are mostly real objects: per class,
+where they lie in the prior's band (z = (log size - mean) / std) is collected, and once at least
+`min_boxes` were seen the band is moved by their median z (rounded to `step`: the data's typical size
+becomes the band's centre, its width stays) when that lies within +-`max_shift`; further off the prior is
+not for these data and the class stays unfiltered. A median, not a share of rejected boxes: confident false
+positives of implausible size, which the filter is for, put 1-9 % of the simulator's dense pre-NMS
+candidates beyond the band's edge and in a video with few objects make up most of its confident boxes, but
+they do not move the median far (-0.3 std there), while a scale error moves all real objects together.
 Files are checked on the whole video before its first frame (`prime`); a live feed is checked as it goes
 (the class stays unfiltered until its evidence is in).
 """
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -34,24 +37,26 @@ _Z_BIN = 0.05
 @dataclass(frozen=True, slots=True)
 class SizeCheckSettings:
     """min_score: boxes at least this confident stand for real objects; min_boxes: confident boxes of a
-    class needed before its prior may act; quantile, max_z: the prior agrees with the data when the
-    confident boxes from the quantile to the 1 - quantile quantile of z lie within +-max_z (std of the
-    prior's band)."""
+    class needed before its prior may act; max_shift: the prior is moved by the confident boxes' median z
+    (in std of its band) when that is within +-max_shift, else the class stays unfiltered; step: the
+    shift is rounded to multiples of this (a live feed's band changes only when the median moves that
+    far); recentre: False keeps the prior where it is (the check alone)."""
 
     min_score: float = 0.5
     min_boxes: int = 15
-    quantile: float = 0.1
-    max_z: float = 2.0
+    max_shift: float = 3.0
+    step: float = 0.25
+    recentre: bool = True
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.min_score <= 1.0):
             raise ValueError(f"size check min_score must be in [0, 1], got {self.min_score!r}")
         if isinstance(self.min_boxes, bool) or not isinstance(self.min_boxes, int) or self.min_boxes < 1:
             raise ValueError(f"size check min_boxes must be an integer >= 1, got {self.min_boxes!r}")
-        if not (0.0 <= self.quantile < 0.5):
-            raise ValueError(f"size check quantile must be in [0, 0.5), got {self.quantile!r}")
-        if not (isinstance(self.max_z, (int, float)) and 0.0 < self.max_z < _Z_RANGE):
-            raise ValueError(f"size check max_z must be in (0, {_Z_RANGE:g}), got {self.max_z!r}")
+        if not (isinstance(self.max_shift, (int, float)) and 0.0 <= self.max_shift < _Z_RANGE):
+            raise ValueError(f"size check max_shift must be in [0, {_Z_RANGE:g}), got {self.max_shift!r}")
+        if not (isinstance(self.step, (int, float)) and 0.0 < self.step <= 1.0):
+            raise ValueError(f"size check step must be in (0, 1], got {self.step!r}")
 
 
 class SizeFilterCheck:
@@ -64,7 +69,7 @@ class SizeFilterCheck:
         self._hist: dict[str, NDArray[np.int64]] = {}
         self._frozen = False
         self._active = SizeFilter({}, size_filter.k)
-        self._active_names: frozenset[str] = frozenset()
+        self._active_names: frozenset[tuple[str, float]] = frozenset()
         self._edges = np.round(np.arange(-_Z_RANGE, _Z_RANGE + _Z_BIN / 2, _Z_BIN), 9)
 
     @property
@@ -90,33 +95,40 @@ class SizeFilterCheck:
         hist = self._hist.get(name)
         return 0 if hist is None else int(hist.sum())
 
-    def central_range(self, name: str) -> tuple[float, float] | None:
-        """(quantile, 1 - quantile) of the class's z, to the histogram's bin; None before any box was seen."""
+    def median_z(self, name: str) -> float | None:
+        """The median z of the class's confident boxes (to the histogram's bin), None before any was seen."""
         hist = self._hist.get(name)
         if hist is None or not hist.sum():
             return None
         cum = np.cumsum(hist) / hist.sum()
-        q = self.settings.quantile
-        lo = int(np.searchsorted(cum, q, side="left"))
-        hi = int(np.searchsorted(cum, 1.0 - q, side="left"))
-        edges = np.concatenate([[-_Z_RANGE], self._edges])  # bin i holds z in (edges[i], edges[i + 1]]
-        return float(edges[lo]), float(edges[min(hi + 1, len(edges) - 1)])
+        i = int(np.searchsorted(cum, 0.5, side="left"))
+        lower = -_Z_RANGE if i == 0 else float(self._edges[i - 1])
+        upper = float(self._edges[min(i, len(self._edges) - 1)])
+        return 0.5 * (lower + upper)
 
-    def _passes(self, name: str) -> bool:
-        if self.seen(name) < self.settings.min_boxes:
-            return False
-        central = self.central_range(name)
-        assert central is not None
-        return -self.settings.max_z <= central[0] and central[1] <= self.settings.max_z
+    def shift(self, name: str) -> float | None:
+        """The band's shift for a class (std, rounded to `step`; 0 without recentring), None when the class
+        stays unfiltered (too few confident boxes, or their median beyond max_shift)."""
+        s = self.settings
+        median = self.median_z(name)
+        if self.seen(name) < s.min_boxes or median is None or abs(median) > s.max_shift:
+            return None
+        return round(median / s.step) * s.step if s.recentre else 0.0
 
     @property
     def active(self) -> SizeFilter:
-        """The size filter with the bands of the classes whose check passed (the others pass unfiltered)."""
-        names = frozenset(name for name in self.size_filter.bands if self._passes(name))
-        if names != self._active_names:  # a new object only when the decision changes (it keys cached tables)
-            self._active_names = names
-            self._active = SizeFilter({n: b for n, b in self.size_filter.bands.items() if n in names},
-                                      self.size_filter.k)
+        """The size filter as applied: the bands of the classes whose check passed, each moved by its shift
+        (the others pass unfiltered)."""
+        shifts = {name: shift for name in self.size_filter.bands if (shift := self.shift(name)) is not None}
+        key = frozenset(shifts.items())
+        if key != self._active_names:  # a new object only when the decision changes (it keys cached tables)
+            self._active_names = key
+            bands = {}
+            for name, shift in shifts.items():
+                band = self.size_filter.bands[name]
+                bands[name] = band if not shift else dataclasses.replace(
+                    band, mean_log_m=tuple(m + shift * sd for m, sd in zip(band.mean_log_m, band.std_log, strict=True)))
+            self._active = SizeFilter(bands, self.size_filter.k)
         return self._active
 
     def reports(self, classes: list[str] | None = None) -> list[StageReport]:
@@ -126,12 +138,16 @@ class SizeFilterCheck:
         for name in self.size_filter.bands:
             if classes is not None and name not in classes:
                 continue
+            shift = self.shift(name)
+            median = self.median_z(name)
             if self.seen(name) < s.min_boxes:
                 why = f"{name}: too few confident boxes to check the prior (< {s.min_boxes})"
-            elif self._passes(name):
-                why = f"{name}: the confident boxes agree with the prior"
+            elif shift is None:
+                why = f"{name}: the confident boxes lie beyond +-{s.max_shift:g} std of the prior: not for these data"
+            elif shift:
+                way = "up" if shift > 0 else "down"
+                why = f"{name}: prior centred on the confident boxes ({way} by {abs(shift):g} std)"
             else:
-                why = (f"{name}: the confident boxes contradict the prior (their central "
-                       f"{100 - 200 * s.quantile:g} % beyond +-{s.max_z:g} std)")
-            out.append(StageReport("size filter", self._passes(name), why))
+                why = f"{name}: the confident boxes agree with the prior (median {median:+.2f} std)"
+            out.append(StageReport("size filter", shift is not None, why))
         return out
