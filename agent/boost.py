@@ -14,16 +14,16 @@ import time
 from pathlib import Path
 from typing import Any
 
-from agent.clock_offset import ClockOffset, ClockOffsetSettings
+from agent.clock_offset import ClockOffset
 from agent.dataset import Candidates, Dataset, PoseProblem, VideoTelemetry, count_reasons, read_json
-from agent.file_frames import prepared_frames
+from agent.file_frames import prepared_frames, telemetry_reports
 from agent.frame_result import FrameResult
 from agent.memory_map import MemoryMapConfig
 from agent.params_file import is_params, split_params
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
-from agent.stage_report import StageReport, StageSummary
+from agent.stage_report import StageSummary
 from shared.geo import Camera
 
 log = logging.getLogger(__name__)
@@ -162,33 +162,6 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
     stats["seconds"] = round(time.perf_counter() - t0, 3)
     stats["pipeline_ms_per_frame"] = round(1000 * pipeline_time / max(stats["frames"], 1), 3)
     return stats
-
-
-def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings | None) -> list[StageReport]:
-    """The decisions of one video's telemetry stages (agent.telemetry_clock, agent.telemetry_dequantize,
-    agent.clock_offset) as stage reports."""
-    clock = info.clock
-    out = []
-    if clock.frames:
-        if clock.zone_offset_s:
-            out.append(StageReport("time zone", True, f"{clock.zone_offset_s / 3600:+g} h removed from the stamps"))
-        else:
-            out.append(StageReport("time zone", False, clock.reason or "stamps and frames on one clock"))
-        if info.at_frame_time:
-            whole = ", stamps at whole seconds" if clock.whole_seconds else ""
-            held = ", sample and hold" if clock.held_frames else ""
-            out.append(StageReport("telemetry at frame time", clock.samples >= 2,
-                                   f"interpolated between the telemetry's samples{whole}{held}"
-                                   if clock.samples >= 2 else "one telemetry sample"))
-        out.append(StageReport("dequantize", bool(info.quanta),
-                               ", ".join(f"{k} {v:g}" for k, v in info.quanta.items()) or "no quantised coordinate"))
-    if offset_settings is not None and clock.frames:
-        need = offset_settings.min_windows
-        acted = info.offset_windows >= need
-        out.append(StageReport("clock offset", acted,
-                               f"measured on {info.offset_windows} turning windows" if acted else
-                               f"{info.offset_windows} of {need} turning windows needed: telemetry as stamped"))
-    return out
 
 
 def results_to_coco(image_id: int, result: FrameResult) -> list[dict[str, Any]]:

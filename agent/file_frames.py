@@ -7,13 +7,14 @@ look ahead and runs the same stages online.
 
 from __future__ import annotations
 
-from agent.clock_offset import ClockOffset, video_frames
+from agent.clock_offset import ClockOffset, ClockOffsetSettings, video_frames
 from agent.dataset import Candidates, Dataset, Frame, PoseProblem, VideoTelemetry
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
+from agent.stage_report import StageReport
 from shared.geo import Camera
 
-__all__ = ["prepared_frames"]
+__all__ = ["prepared_frames", "telemetry_reports"]
 
 
 def prepared_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Candidates, config: PipelineConfig,
@@ -29,3 +30,30 @@ def prepared_frames(dataset: Dataset, camera: Camera, video_id: int, candidates:
     if pipe is not None:
         pipe.prime((frame.pose, frame.camera, *candidates.get(frame.image.id)) for frame, _ in frames)
     return frames
+
+
+def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings | None) -> list[StageReport]:
+    """The decisions of one video's telemetry stages (agent.telemetry_clock, agent.telemetry_dequantize,
+    agent.clock_offset) as stage reports."""
+    clock = info.clock
+    out = []
+    if clock.frames:
+        if clock.zone_offset_s:
+            out.append(StageReport("time zone", True, f"{clock.zone_offset_s / 3600:+g} h removed from the stamps"))
+        else:
+            out.append(StageReport("time zone", False, clock.reason or "stamps and frames on one clock"))
+        if info.at_frame_time:
+            whole = ", stamps at whole seconds" if clock.whole_seconds else ""
+            held = ", sample and hold" if clock.held_frames else ""
+            out.append(StageReport("telemetry at frame time", clock.samples >= 2,
+                                   f"interpolated between the telemetry's samples{whole}{held}"
+                                   if clock.samples >= 2 else "one telemetry sample"))
+        out.append(StageReport("dequantize", bool(info.quanta),
+                               ", ".join(f"{k} {v:g}" for k, v in info.quanta.items()) or "no quantised coordinate"))
+    if offset_settings is not None and clock.frames:
+        need = offset_settings.min_windows
+        acted = info.offset_windows >= need
+        out.append(StageReport("clock offset", acted,
+                               f"measured on {info.offset_windows} turning windows" if acted else
+                               f"{info.offset_windows} of {need} turning windows needed: telemetry as stamped"))
+    return out

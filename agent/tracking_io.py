@@ -22,12 +22,22 @@ from typing import Any
 
 import numpy as np
 
-from agent.dataset import Candidates, Dataset, Frame, read_image, read_json
-from agent.file_frames import prepared_frames
+from agent.dataset import (
+    Candidates,
+    Dataset,
+    Frame,
+    PoseProblem,
+    VideoTelemetry,
+    count_reasons,
+    read_image,
+    read_json,
+)
+from agent.file_frames import prepared_frames, telemetry_reports
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
+from agent.stage_report import StageSummary
 from agent.tracking import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
 from shared.geo import Camera
@@ -161,7 +171,10 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
     counts = {"frames": 0, "frames_without_pose": 0, "detections": 0, "pipeline_s": 0.0, "tracker_s": 0.0,
               "images_read": 0, "images_missing": 0, "appearance_s": 0.0}
     t_prev = -math.inf
-    for frame, offset in prepared_frames(dataset, camera, video_id, candidates, pipeline_config, pipe):
+    problems: list[PoseProblem] = []
+    telemetry = VideoTelemetry()
+    for frame, offset in prepared_frames(dataset, camera, video_id, candidates, pipeline_config, pipe,
+                                         problems=problems, report=telemetry):
         if clock_offsets is not None and pipeline_config.estimate_clock_offset:
             clock_offsets.append((frame.image.id, frame.image.video_id, frame.image.frame_index,
                                   round(offset.offset_s, 4) if offset is not None else math.nan,
@@ -206,6 +219,10 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         for k, v in counts.items():
             stats[k] = stats.get(k, 0) + v
         stats["reidentified"] = stats.get("reidentified", 0) + tracker.n_reidentified
+        stats.setdefault("problems", []).extend(problems)
+        stages = stats.setdefault("stage_summary", StageSummary())
+        for report in [*telemetry_reports(telemetry, pipeline_config.clock_offset_settings()), *pipe.stage_reports()]:
+            stages.add(report)
     return rows
 
 
@@ -411,6 +428,8 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
         summary["clock_offset_median_s"] = round(statistics.median(applied), 3)
         summary["clock_offset_frames_measured"] = sum(row[4] for row in offsets)
     frames = max(stats.get("frames", 0), 1)
+    summary["frames_without_pose_by_reason"] = count_reasons(stats.get("problems", []))
+    summary["stages"] = stats["stage_summary"].as_dict() if "stage_summary" in stats else {}
     summary.update({
         "frames": stats.get("frames", 0), "frames_without_pose": stats.get("frames_without_pose", 0),
         "reidentified": stats.get("reidentified", 0),

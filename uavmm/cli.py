@@ -227,10 +227,15 @@ def _run_boost(args: argparse.Namespace) -> int:
 def print_run_summary(head: str, stats: dict) -> None:
     """A run's summary: the counters on one line, then the frames without pose by reason and what each
     adaptive stage did (agent.stage_report), one line each."""
-    from agent.stage_report import stage_lines
-
     nested = ("stages", "frames_without_pose_by_reason")
     print(f"{head}: " + ", ".join(f"{k}={v}" for k, v in stats.items() if k not in nested))
+    print_pose_and_stages(stats)
+
+
+def print_pose_and_stages(stats: dict) -> None:
+    """The frames without pose by reason and one line per adaptive stage, from a run's summary."""
+    from agent.stage_report import stage_lines
+
     reasons = stats.get("frames_without_pose_by_reason") or {}
     if reasons:
         print(f"frames without pose: {sum(reasons.values())} (" + ", ".join(f"{k} {v}" for k, v in reasons.items())

@@ -10,7 +10,13 @@ import argparse
 import dataclasses
 from pathlib import Path
 
-from uavmm.cli import CliError, _add_clock_offset_flags, _add_pipeline_options, _pipeline_from_args
+from uavmm.cli import (
+    CliError,
+    _add_clock_offset_flags,
+    _add_pipeline_options,
+    _pipeline_from_args,
+    print_pose_and_stages,
+)
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -99,4 +105,5 @@ def run(args: argparse.Namespace) -> int:
             "pipeline_ms_per_frame", "tracker_ms_per_frame",
             "images_read", "images_missing", "appearance_ms_per_image", "seconds")
     print(", ".join(f"{k}={summary[k]}" for k in keys))
+    print_pose_and_stages(summary)
     return 0
