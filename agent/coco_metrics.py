@@ -54,6 +54,23 @@ def _gt_dataset(gt: dict[str, Any]) -> dict[str, Any]:
     return {"images": gt["images"], "annotations": annotations, "categories": gt.get("categories", [])}
 
 
+def _evaluated(gt: dict[str, Any], res: list[dict[str, Any]], ids: list[int]) -> Any:
+    """A pycocotools COCOeval of `res` against `gt` on images `ids`, evaluated and accumulated (quietly)."""
+    from pycocotools.coco import COCO
+    from pycocotools.cocoeval import COCOeval
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        coco_gt = COCO()
+        coco_gt.dataset = _gt_dataset(gt)
+        coco_gt.createIndex()
+        coco_dt = coco_gt.loadRes(res)
+        ev = COCOeval(coco_gt, coco_dt, "bbox")
+        ev.params.imgIds = ids
+        ev.evaluate()
+        ev.accumulate()
+    return ev
+
+
 def coco_detection_metrics(images_json: str | Path | dict[str, Any],
                            results: str | Path | Sequence[dict[str, Any]], *,
                            image_ids: Iterable[int] | None = None) -> dict[str, float]:
@@ -75,8 +92,6 @@ def coco_detection_metrics(images_json: str | Path | dict[str, Any],
         at most 100 detections per image), all areas, as FRACTIONS in [0, 1] (pycocotools' scale; multiply
         by 100 for the paper's tables). With no results, or no ground truth, every value is 0.
     """
-    from pycocotools.coco import COCO
-    from pycocotools.cocoeval import COCOeval
 
     gt = load_images(images_json)
     res = [dict(r) for r in load_results(results)]  # loadRes writes into the dicts
@@ -86,15 +101,8 @@ def coco_detection_metrics(images_json: str | Path | dict[str, Any],
         res = [r for r in res if int(r["image_id"]) in id_set]
     if not res or not ids:
         return {"AP50": 0.0, "AP": 0.0, "AR100": 0.0}
+    ev = _evaluated(gt, res, ids)
     with contextlib.redirect_stdout(io.StringIO()):
-        coco_gt = COCO()
-        coco_gt.dataset = _gt_dataset(gt)
-        coco_gt.createIndex()
-        coco_dt = coco_gt.loadRes(res)
-        ev = COCOeval(coco_gt, coco_dt, "bbox")
-        ev.params.imgIds = ids
-        ev.evaluate()
-        ev.accumulate()
         ev.summarize()
     stats = [max(float(s), 0.0) for s in ev.stats]  # -1 (no ground truth) -> 0
     return {"AP50": stats[1], "AP": stats[0], "AR100": stats[8]}
@@ -110,8 +118,6 @@ def per_class_metrics(images_json: str | Path | dict[str, Any],
     gives them ("all" is COCO's mean over those categories, the figure `coco_detection_metrics` reports).
     """
     import numpy as np
-    from pycocotools.coco import COCO
-    from pycocotools.cocoeval import COCOeval
 
     gt = load_images(images_json)
     res = [dict(r) for r in load_results(results)]
@@ -129,15 +135,7 @@ def per_class_metrics(images_json: str | Path | dict[str, Any],
         for cid, n in sorted(counts.items()):
             out[names.get(cid, str(cid))] = {"AP50": 0.0, "AR100": 0.0, "gt": float(n)}
         return out
-    with contextlib.redirect_stdout(io.StringIO()):
-        coco_gt = COCO()
-        coco_gt.dataset = _gt_dataset(gt)
-        coco_gt.createIndex()
-        coco_dt = coco_gt.loadRes(res)
-        ev = COCOeval(coco_gt, coco_dt, "bbox")
-        ev.params.imgIds = ids
-        ev.evaluate()
-        ev.accumulate()
+    ev = _evaluated(gt, res, ids)
     precision = ev.eval["precision"]  # (T, R, K, A, M): IoU thresholds, recall points, classes, areas, max dets
     recall = ev.eval["recall"]  # (T, K, A, M)
     t50 = int(np.argmin(np.abs(ev.params.iouThrs - 0.5)))

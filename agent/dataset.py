@@ -44,6 +44,17 @@ def read_json(path: str | Path, what: str) -> Any:
         raise ValueError(f"{what} file {path} is not valid JSON: {exc}") from None
 
 
+def _one_file(folder: Path, name: str, pattern: str, what: str) -> Path:
+    """folder/name, else the one file matching pattern; ValueError naming what was found otherwise."""
+    found = [folder / name]
+    if not found[0].is_file():
+        found = sorted(folder.glob(pattern))
+    if len(found) != 1:
+        raise ValueError(f"{folder}: expected {name} or one {pattern}{what}, found "
+                         f"{', '.join(p.name for p in found) or 'none'}")
+    return found[0]
+
+
 def dataset_files(path: str | Path, detections: str | Path | None = None,
                   camera: str | Path | None = None) -> tuple[Path, Path, str | Path]:
     """(images, candidates, camera spec) of a dataset as users have it: `path` is the images JSON, or a
@@ -53,25 +64,13 @@ def dataset_files(path: str | Path, detections: str | Path | None = None,
     path = Path(path)
     folder = path if path.is_dir() else path.parent
     if path.is_dir():
-        found = [folder / "images.json"]
-        if not found[0].is_file():
-            found = sorted(folder.glob("instances*.json"))
-        if len(found) != 1:
-            raise ValueError(f"{folder}: expected images.json or one instances*.json, found "
-                             f"{', '.join(p.name for p in found) or 'none'}")
-        images = found[0]
+        images = _one_file(folder, "images.json", "instances*.json", "")
     elif path.is_file():
         images = path
     else:
         raise ValueError(f"dataset {path} does not exist")
     if detections is None:
-        found = [folder / "pre_nms.json"]
-        if not found[0].is_file():
-            found = sorted(folder.glob("detections*.json"))
-        if len(found) != 1:
-            raise ValueError(f"{folder}: expected pre_nms.json or one detections*.json (the detector's results), "
-                             f"found {', '.join(p.name for p in found) or 'none'}")
-        detections = found[0]
+        detections = _one_file(folder, "pre_nms.json", "detections*.json", " (the detector's results)")
     if camera is None:
         if not (folder / "camera.json").is_file():
             raise ValueError(f"{folder}: no camera.json: give the camera (a CAMERA.json or a preset such as "
@@ -474,18 +473,6 @@ def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto") -> tuple
     if tel.height_m is None or tel.height_m <= 0:
         return None, PoseProblem(image.id, "no height", f"height above ground {tel.height_m!r} is not > 0 m")
     return tel, None
-
-
-def frame_pose(image: ImageRecord) -> tuple[Pose | None, float | None, str | None]:
-    """Pose and time from an image's own meta: (pose, t, problem). Problem names why pose is None (None too
-    when the frame has no meta)."""
-    tel, problem = frame_telemetry(image)
-    if tel is None:
-        return None, None, None if problem is None or problem.reason == "no meta" else problem.detail
-    try:
-        return tel.to_pose(), tel.t, None
-    except ValueError as exc:
-        return None, None, str(exc)
 
 
 def _frame_clock(image: ImageRecord) -> float | None:
