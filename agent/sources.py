@@ -34,9 +34,12 @@ __all__ = [
     "DatasetSource",
     "FrameSource",
     "SourceFrame",
+    "KLV_IN_VIDEO",
     "VideoSource",
     "load_video_telemetry",
     "pose_from_meta",
+    "resolve_video_telemetry",
+    "video_telemetry",
 ]
 
 #: Files a dataset directory must hold (the layout `uavmm sim --out` writes).
@@ -215,20 +218,52 @@ class DatasetSource:
 # Video file + telemetry + ONNX model
 # ---------------------------------------------------------------------------------------------
 
+#: ``--telemetry klv``: the MISB ST 0601 KLV metadata inside the ``--video`` file (an MPEG transport stream).
+KLV_IN_VIDEO = "klv"
+
+
+def resolve_video_telemetry(telemetry: str | Path, video: str | Path) -> str | Path:
+    """The telemetry file: `video` itself for the word ``klv`` (ValueError unless it is a ``.ts``, ``.m2ts`` or
+    ``.mts`` file), else `telemetry` unchanged."""
+    from shared.telemetry import KLV_FILE_SUFFIXES
+
+    if str(telemetry).lower() != KLV_IN_VIDEO:
+        return telemetry
+    suffixes = [s for s in KLV_FILE_SUFFIXES if s != ".klv"]
+    if Path(video).suffix.lower() not in suffixes:
+        raise ValueError(f"--telemetry klv reads the KLV metadata of an MPEG transport stream ({', '.join(suffixes)})"
+                         f", not {video}: give the KLV or telemetry file with --telemetry FILE")
+    return video
+
+
 def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
                          height_offset_m: float | None = None) -> list[Telemetry]:
-    """Telemetry records of a video, checked for what georeferencing needs.
+    """Telemetry records of a video, checked for what georeferencing needs (`video_telemetry`'s records)."""
+    return video_telemetry(path, height_m=height_m, height_offset_m=height_offset_m)[0]
+
+
+def video_telemetry(path: str | Path, *, height_m: float | None = None,
+                    height_offset_m: float | None = None) -> tuple[list[Telemetry], float | None]:
+    """Telemetry records of a video, checked for what georeferencing needs, and the telemetry time of video time 0.
 
     Parameters
     ----------
     path : path
-        ``.srt`` (DJI), ``.csv`` or SeaDronesSee ``.json`` (`shared.telemetry.read_telemetry`). For SRT the
-        skipped blocks and the GPS resolution (decimals, step in metres) are logged.
+        ``.srt`` (DJI), ``.csv``, SeaDronesSee ``.json``, MAVLink ``.tlog``, PX4 ``.ulg``, MISB ST 0601 KLV in an
+        MPEG-TS video (``.ts``, ``.m2ts``, ``.mts``) or raw ``.klv`` (`shared.telemetry.read_telemetry`). For SRT the
+        skipped blocks and the GPS resolution (decimals, step in metres) are logged, for KLV the skipped packets.
     height_m : float, optional
         Height above the ground in metres for records without one (`Telemetry.to_pose`); must be > 0.
     height_offset_m : float, optional
         Metres added to every height the file gives, e.g. minus the ground elevation for altitude above sea
-        level (DJI ``abs_alt``); only for ``.srt`` and ``.csv``.
+        level (DJI ``abs_alt``, the KLV sensor altitude); not for SeaDronesSee ``.json``.
+
+    Returns
+    -------
+    records : list of Telemetry
+    video_start_t : float or None
+        The telemetry time of the video's first frame when the file tells it (KLV in a transport stream: from
+        the PTS of the samples and the video), else None.
 
     Raises
     ------
@@ -237,7 +272,7 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
         given for SeaDronesSee JSON (whose altitude is already above the water), or records have no height
         and ``height_m`` is not given (the line says to pass ``--height-m`` or ``--height-offset-m``).
     """
-    from shared.telemetry import read_srt_report, read_telemetry
+    from shared.telemetry import KLV_FILE_SUFFIXES, read_klv_report, read_srt_report, read_telemetry
 
     suffix = Path(path).suffix.lower()
     if height_m is not None and not (math.isfinite(height_m) and height_m > 0.0):
@@ -246,7 +281,7 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
     if kw and suffix == ".json":
         raise ValueError(f"--height-offset-m applies to .srt and .csv telemetry, not {path} (SeaDronesSee altitude "
                          "is already height above the water)")
-    above_sea_level_only = 0
+    above_sea_level_only, sea_level_name, video_start_t = 0, "abs_alt", None
     if suffix == ".srt":
         report = read_srt_report(path, **kw)
         records = report.records
@@ -254,6 +289,10 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
         log.info("telemetry %s: %d records from %d blocks (%d skipped); GPS with %s decimals, steps of %.2g m",
                  path, len(records), report.blocks, len(report.skipped), report.gps_decimals,
                  report.gps_step_m or float("nan"))
+    elif suffix in KLV_FILE_SUFFIXES:
+        klv = read_klv_report(path, **kw)  # logs what it skipped
+        records, video_start_t = klv.records, klv.video_start_t
+        above_sea_level_only, sea_level_name = klv.heights_above_sea_level_only, "KLV sensor altitude, no frame centre"
     else:
         records = read_telemetry(path, **kw)
     if not records:
@@ -262,9 +301,9 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
     if missing and height_m is None:
         if above_sea_level_only:
             raise ValueError(
-                f"telemetry file {path} gives only altitude above sea level (abs_alt) in {above_sea_level_only} of "
-                f"{len(records)} records: pass --height-offset-m=-(ground elevation in metres), or a fixed "
-                "--height-m METRES above the ground")
+                f"telemetry file {path} gives only altitude above sea level ({sea_level_name}) in "
+                f"{above_sea_level_only} of {len(records)} records: pass --height-offset-m=-(ground elevation in "
+                "metres), or a fixed --height-m METRES above the ground")
         raise ValueError(f"telemetry file {path} has no height above ground in {missing} of {len(records)} records: "
                          "pass --height-m METRES (the flight's height above the ground)")
     if missing:
@@ -272,7 +311,7 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
                  height_m)
     elif height_m is not None:
         log.warning("telemetry %s: every record has a height: --height-m %g is not used", path, height_m)
-    return records
+    return records, video_start_t
 
 
 class VideoSource:
@@ -283,15 +322,17 @@ class VideoSource:
     video : path
         Anything ``cv2.VideoCapture`` opens (a file; a stream URL works too but has no telemetry sync).
     telemetry : path or str
-        ``.srt`` (DJI), ``.csv``, SeaDronesSee ``.json``, MAVLink ``.tlog``, PX4 ``.ulg``
-        (`shared.telemetry.read_telemetry`), or a live MAVLink stream ``udp:HOST:PORT``.
+        ``.srt`` (DJI), ``.csv``, SeaDronesSee ``.json``, MAVLink ``.tlog``, PX4 ``.ulg``, KLV (``.ts``, ``.m2ts``,
+        ``.mts``, ``.klv``; `shared.telemetry.read_telemetry`), the word ``klv`` for the KLV metadata inside
+        `video` (an MPEG transport stream), or a live MAVLink stream ``udp:HOST:PORT``.
     model : path
         ONNX YOLO model with raw (pre-NMS) output (`agent.detector.OnnxYoloDetector`).
     camera : path
         Camera JSON; rescaled when the video's frame size differs.
     telemetry_offset_s : float, optional
-        Telemetry time of video time 0, seconds (default: where the log starts recording, AirData's isVideo,
-        else the first telemetry record's time).
+        Telemetry time of video time 0, seconds (default: what the telemetry says: KLV in a transport stream
+        by its PTS, a log that marks the recording (AirData's isVideo) where it starts; else the first record's
+        time).
     class_names : path or list, optional
         Overrides the model's class names.
     conf_threshold : float
@@ -326,6 +367,7 @@ class VideoSource:
         from agent.slicing import SlicedDetector
 
         live = is_live_telemetry(telemetry)  # udp:HOST:PORT: MAVLink from the flight controller
+        telemetry = resolve_video_telemetry(telemetry, video)
         files = [("video", video), ("model", model)] + ([] if live else [("telemetry", telemetry)])
         for what, path in files:
             if not Path(path).is_file():
@@ -333,8 +375,10 @@ class VideoSource:
         self.video_path = Path(video)
         #: The live MAVLink stream (None for a telemetry file).
         self.feed: MavlinkUdpFeed | None = None
-        self.records: list[Telemetry] = [] if live else load_video_telemetry(telemetry, height_m=height_m,
-                                                                             height_offset_m=height_offset_m)
+        self.records: list[Telemetry] = []
+        video_start_t: float | None = None
+        if not live:
+            self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         capture = cv2.VideoCapture(str(self.video_path))
@@ -371,8 +415,13 @@ class VideoSource:
             log.info("telemetry %s: live MAVLink, first record at t=%.3f", telemetry, self.records[0].t)
         self.records.sort(key=lambda r: r.t)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
-        self.telemetry_offset_s = self._default_offset(telemetry) if telemetry_offset_s is None \
-            else float(telemetry_offset_s)
+        if telemetry_offset_s is not None:
+            self.telemetry_offset_s = float(telemetry_offset_s)
+        elif video_start_t is not None:  # KLV in a transport stream: its PTS put the records on the video's clock
+            self.telemetry_offset_s = video_start_t
+            log.info("telemetry %s: video time 0 is telemetry time %.3f (from the KLV PTS)", telemetry, video_start_t)
+        else:
+            self.telemetry_offset_s = self._default_offset(telemetry)
         self.max_gap_s = float(max_gap_s)
         self.pitch_deg = pitch_deg
         self.heading_deg = heading_deg

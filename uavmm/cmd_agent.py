@@ -39,8 +39,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--noise-scale", type=float, default=1.0, help="--sim: telemetry noise multiplier (1)")
     src.add_argument("--video-id", type=int, default=None, help="--dataset: which video (default: the first)")
     src.add_argument("--telemetry", type=Path,
-                     help="--video: telemetry file (.srt, .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg) or a "
-                          "live MAVLink stream udp:HOST:PORT (docs/agent.md)")
+                     help="--video: telemetry file (.srt, .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg, MISB "
+                          "ST 0601 KLV in .ts/.m2ts/.mts or raw .klv), 'klv' for the KLV inside the --video "
+                          "transport stream, or a live MAVLink stream udp:HOST:PORT (docs/agent.md)")
     src.add_argument("--model", type=Path, help="--video: ONNX YOLO model with raw (pre-NMS) output")
     src.add_argument("--camera", type=Path,
                      help="--video: camera JSON (width, height, fx, fy, cx, cy) or a preset name (e.g. "
@@ -48,8 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--class-names", type=Path, default=None, help="--video: class names file (model's default)")
     src.add_argument("--conf-threshold", type=float, default=0.01, help="--video: lowest candidate score (0.01)")
     src.add_argument("--telemetry-offset-s", type=float, default=None,
-                     help="--video: telemetry time of video time 0 (default: where the log starts recording, "
-                          "AirData's isVideo, else the first record's)")
+                     help="--video: telemetry time of video time 0 (default: from the PTS for KLV in a transport "
+                          "stream, else where the log starts recording, AirData's isVideo, else the first record's)")
     src.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     src.add_argument("--heading-deg", type=float, default=None,
                      help="--video: fixed gimbal heading if telemetry lacks it")

@@ -27,7 +27,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("video", type=Path, help="video file (anything OpenCV opens)")
     p.add_argument("--telemetry", required=True,
-                   help="telemetry: .srt (DJI), .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg, or a live "
+                   help="telemetry: .srt (DJI), .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg, MISB ST 0601 KLV "
+                        "(.ts/.m2ts/.mts video or raw .klv; the word 'klv' = the KLV inside VIDEO), or a live "
                         "MAVLink stream udp:HOST:PORT / udpin:HOST:PORT (docs/agent.md, Telemetry)")
     p.add_argument("--model", type=Path, required=True, help="ONNX YOLO model with raw (pre-NMS) output")
     p.add_argument("--camera", type=Path, required=True,
@@ -55,7 +56,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     tel = p.add_argument_group("telemetry")
     tel.add_argument("--telemetry-offset-s", type=float, default=None,
                      help="telemetry time of the video's first frame, seconds on the telemetry's clock "
-                          "(default: where the log starts recording, AirData's isVideo, else the first record's)")
+                          "(default: KLV in a transport stream tells it by its PTS; else where the log starts "
+                          "recording, AirData's isVideo; else the first record's)")
     tel.add_argument("--telemetry-timeout-s", type=float, default=10.0,
                      help="udp:HOST:PORT: seconds to wait for the first MAVLink position (10)")
     tel.add_argument("--pitch-deg", type=float, default=None, help="fixed gimbal pitch if telemetry lacks it")

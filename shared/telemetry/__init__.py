@@ -3,12 +3,15 @@
 Also interpolates telemetry to video frame times and writes SeaDronesSee meta; angles follow DESIGN.md 2.
 One module per concept: `record` (the record, DJI pitch), `dates`, `srt` (with `srt_blocks` and
 `srt_clock`), `csv_table`, `seadronessee`, `mavlink` (MAVLink messages and `.tlog`), `ulog` (PX4 `.ulg`),
-`readers` (by extension) and `interpolation`; the public names are re-exported here.
+`klv` (MISB ST 0601 KLV in MPEG-TS or raw, with `mpegts`, `klv_packets` and `klv_sample`), `readers` (by
+extension) and `interpolation`; the public names are re-exported here.
 """
 
 from shared.telemetry.csv_table import CSV_COLUMNS, parse_csv, read_csv
 from shared.telemetry.dates import parse_datetime
 from shared.telemetry.interpolation import interpolate
+from shared.telemetry.klv import KLV_FILE_SUFFIXES, KlvReport, parse_klv_report, read_klv, read_klv_report
+from shared.telemetry.klv_sample import KlvSample, camera_angles_deg
 from shared.telemetry.mavlink import MavlinkAssembler, MavlinkByteParser, MavlinkSample, parse_tlog, read_tlog
 from shared.telemetry.readers import read_telemetry
 from shared.telemetry.record import (
@@ -30,6 +33,9 @@ from shared.telemetry.ulog import read_ulog
 
 __all__ = [
     "CSV_COLUMNS",
+    "KLV_FILE_SUFFIXES",
+    "KlvReport",
+    "KlvSample",
     "MavlinkAssembler",
     "MavlinkByteParser",
     "MavlinkSample",
@@ -38,9 +44,11 @@ __all__ = [
     "SEADRONESSEE_META_FIELDS",
     "SrtReport",
     "Telemetry",
+    "camera_angles_deg",
     "from_seadronessee_meta",
     "interpolate",
     "parse_csv",
+    "parse_klv_report",
     "parse_datetime",
     "parse_seadronessee_coco",
     "parse_srt",
@@ -48,6 +56,8 @@ __all__ = [
     "parse_tlog",
     "pitch_from_dji",
     "read_csv",
+    "read_klv",
+    "read_klv_report",
     "read_seadronessee_json",
     "read_srt",
     "read_srt_report",

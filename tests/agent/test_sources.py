@@ -174,6 +174,30 @@ def test_dataset_source_gives_the_telemetry_stamp_as_pose_time(coop_dir):
     assert np.all(ages >= -1e-6) and np.all(ages < 0.2) and (ages > 0.01).sum() >= len(frames) // 3
 
 
+def test_video_source_takes_the_klv_inside_a_transport_stream(tmp_path):
+    pytest.importorskip("av")
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    t0 = 1_717_236_000.0
+    klv = [packet(t0 + 0.1 * i, {**FULL_FIELDS, "sensor_lat": 48.53 + 1e-5 * i}) for i in range(12)]
+    video = write_ts_with_pyav(tmp_path / "flight.ts", klv, fps=10, size=(320, 180), klv_delay_frames=2)
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    source = VideoSource(video, "klv", _write_model(tmp_path / "model.onnx"), camera, max_gap_s=0.15)
+    # sample i is shown with frame i + 2: the video starts 0.2 s before the first sample, by the PTS
+    assert source.telemetry_offset_s == pytest.approx(t0 - 0.2, abs=1e-3)
+    frames = list(source.frames())
+    assert len(frames) == 12
+    assert [f.pose is not None for f in frames] == [False] + [True] * 11  # 0.2 s before the first sample: none
+    pose = frames[5].pose
+    assert pose.lat == pytest.approx(48.53 + 3e-5, abs=1e-7)
+    assert (pose.pitch_deg, pose.heading_deg, pose.height_m) == pytest.approx((45.0, 10.0, 40.0), abs=0.31)
+    avi = _write_video(tmp_path / "plain.avi", 2)
+    with pytest.raises(ValueError, match=r"--telemetry klv reads the KLV metadata of an MPEG transport stream "
+                                         r"\(\.ts, \.m2ts, \.mts\), not .*plain\.avi"):
+        VideoSource(avi, "klv", tmp_path / "model.onnx", camera)
+
+
 # ---- telemetry without a height: --height-m / --height-offset-m ------------------------------------
 # Mavic 2 Pro firmware that logs the position and no altitude (issue 21), gimbal angles from the flags.
 _SRT_NO_HEIGHT = "".join(
