@@ -169,7 +169,8 @@ class DetectionPipeline:
         cfg = self.config
         src: NDArray[np.int64] | None = None  # rows of the input still in play (None: all), for the embeddings
         if embeddings is not None:
-            embeddings = np.asarray(embeddings, dtype=np.float32).reshape(n, -1)
+            embeddings = np.asarray(embeddings, dtype=np.float32)
+            embeddings = embeddings.reshape(n, embeddings.shape[-1] if embeddings.ndim == 2 and n == 0 else -1)
         raw = conf
         correction: GroundCorrection | None = None
         n_filtered = 0

@@ -113,7 +113,9 @@ def with_image_descriptors(result: FrameResult, image_bgr: NDArray[np.uint8] | N
 
 def unit_rows(emb: NDArray, n: int) -> FloatArray | None:
     """(n, D) descriptors scaled to unit length; rows that are not finite or zero become NaN (None when D = 0)."""
-    e = np.asarray(emb, dtype=np.float64).reshape(n, -1)
+    e = np.asarray(emb, dtype=np.float64)
+    # (0, D) stays (0, D): reshape(0, -1) cannot infer D (frames whose every box was removed)
+    e = e.reshape(n, e.shape[-1] if e.ndim == 2 and n == 0 else -1)
     if not e.shape[1]:
         return None
     norm = np.linalg.norm(e, axis=1, keepdims=True)

@@ -249,3 +249,12 @@ def test_the_live_agent_describes_detections_of_its_video_source(tmp_path):
     assert result.embeddings is not None and len(result) >= 1
     red = result.embeddings[0].reshape(8, 4).sum(axis=1)  # hue bins: red is at both ends of the circle
     assert red[0] + red[-1] > 0.9 * red.sum()
+
+
+def test_no_descriptor_rows_are_no_rows_not_an_error():
+    # regression: a frame whose every box was removed handed the tracker a (0, D) array; reshape(0, -1) failed
+    from agent.tracking.appearance import unit_rows
+
+    out = unit_rows(np.zeros((0, 16), np.float32), 0)
+    assert out is not None and out.shape == (0, 16)
+    assert unit_rows(np.zeros((0, 0)), 0) is None
