@@ -167,7 +167,10 @@ def size_filter_table(data_dir: Path, config: PipelineConfig | None = None,
     counts = {"candidates": 0, "removed": 0, "removed_true_positives": 0, "removed_false_positives": 0}
     for video_id in dataset.videos:
         pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
-        for frame in iter_video_frames(dataset, camera, video_id):
+        frames = list(iter_video_frames(dataset, camera, video_id))
+        # the filter as the pipeline applies it: its prior checked on (and centred on) the video's confident boxes
+        pipe.prime((frame.pose, frame.camera, *candidates.get(frame.image.id)) for frame in frames)
+        for frame in frames:
             boxes, _, cids = candidates.get(frame.image.id)
             counts["candidates"] += len(cids)
             if frame.pose is None or not len(cids):
