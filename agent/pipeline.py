@@ -33,6 +33,7 @@ from shared.geo import (
     pixel_to_local,
     prime_vertical_radius_m,
 )
+from shared.terrain import Terrain, pixel_to_terrain
 from shared.tiles import TileGrid
 
 log = logging.getLogger(__name__)
@@ -114,13 +115,11 @@ class DetectionPipeline:
         if not len(sure):
             return
         b, c = boxes[sure], cids[sure]
-        east, north, valid = pixel_to_local(box_anchor_points(b, self.config.anchor, pose.pitch_deg), self.camera,
-                                            pose, max_range_m=self.config.range_limit_m)
+        east, north, up, valid = self.ground_points(b, pose)
         if not valid.any():
             return
         b, c, east, north = b[valid], c[valid], east[valid], north[valid]
-        slant = np.sqrt(east**2 + north**2 + pose.height_m**2)
-        depression = np.degrees(np.arcsin(pose.height_m / slant))
+        slant, depression = _slant_and_depression(east, north, None if up is None else up[valid], pose)
         diag = np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
         for cid in distinct_ids(c).tolist():
             name = self.class_names[cid]
@@ -131,6 +130,38 @@ class DetectionPipeline:
             check.observe(name, self.size_filter.z_class(name, diag[sel], slant[sel], depression[sel],
                                                          self._focal_px))
 
+    def terrain_for(self, pose: Pose) -> Terrain | None:
+        """The terrain this video's boxes are georeferenced on (None: flat ground). A configured terrain without
+        a take-off elevation takes the DEM's height under the video's first pose (the first one seen since
+        `reset`): telemetry heights are above take-off, and a video starts over the take-off's ground unless
+        --takeoff-elevation-m says otherwise. Off the DEM there, heights count from the ground below the UAV."""
+        terrain = self.config.terrain
+        if terrain is None or terrain.takeoff_elevation_m is not None:
+            return terrain
+        cached = self.__dict__.get("_video_terrain")
+        if cached is None or cached[0] is not terrain:
+            elevation = float(terrain.height_at(pose.lat, pose.lon))
+            if math.isfinite(elevation):
+                log.info("terrain: take-off elevation %.1f m (the DEM under the video's first pose)", elevation)
+                resolved = terrain.with_takeoff_elevation(elevation)
+            else:
+                log.warning("terrain: the video's first pose (%.6f, %.6f) is off the DEM: heights are taken above "
+                            "the DEM under the UAV, frame by frame", pose.lat, pose.lon)
+                resolved = terrain
+            cached = self.__dict__["_video_terrain"] = (terrain, resolved)
+        return cached[1]
+
+    def ground_points(self, boxes_xyxy: NDArray, pose: Pose) -> tuple[NDArray, NDArray, NDArray | None, NDArray]:
+        """Ground points of the boxes' anchors in the pose's local frame: east, north (N,) metres, up (N,) metres
+        above the pose's height reference (None on flat ground: 0) and valid (N,) bool; NaN where not valid
+        (no ground, or beyond the range limit)."""
+        uv = box_anchor_points(boxes_xyxy, self.config.anchor, pose.pitch_deg)
+        terrain = self.terrain_for(pose)
+        if terrain is None:
+            east, north, valid = pixel_to_local(uv, self.camera, pose, max_range_m=self.config.range_limit_m)
+            return east, north, None, valid
+        return pixel_to_terrain(uv, self.camera, pose, terrain, max_range_m=self.config.range_limit_m)
+
     @property
     def _focal_px(self) -> float:
         # from the current camera: callers swap cameras when a video's resolution differs
@@ -140,6 +171,7 @@ class DetectionPipeline:
         """Forget the memory, the telemetry correction and what the adaptive stages judged (start of another
         video)."""
         self.memory.reset()
+        self.__dict__.pop("_video_terrain", None)
         self.__dict__.pop("_corrector", None)
         self.__dict__.pop("_score_calibration", None)
         self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
@@ -180,13 +212,13 @@ class DetectionPipeline:
         else:
             if cfg.use_size_filter and not self._size_check.frozen:
                 self._observe_sizes(boxes, conf, cids, pose)
-            # one compiled pass, unless the lens distortion needs OpenCV's undistortion (or class ids are sparse)
-            if self.camera.dist is None and self._band_tables() is not None:
+            # one compiled pass over flat ground, unless the lens distortion needs OpenCV's undistortion (or class
+            # ids are sparse); over a terrain the rays are marched (shared.terrain)
+            if cfg.terrain is None and self.camera.dist is None and self._band_tables() is not None:
                 lat, lon, valid, ok = self._georeference_and_filter(boxes, cids, present, pose)
             else:
-                east, north, valid = pixel_to_local(box_anchor_points(boxes, cfg.anchor, pose.pitch_deg),
-                                                    self.camera, pose, max_range_m=cfg.range_limit_m)
-                ok = self.plausible(boxes, cids, east, north, pose) if cfg.use_size_filter else None
+                east, north, up, valid = self.ground_points(boxes, pose)
+                ok = self.plausible(boxes, cids, east, north, pose, up_m=up) if cfg.use_size_filter else None
                 lat, lon = local_to_latlon(east, north, pose.lat, pose.lon)  # NaN where not valid
             if ok is not None:
                 n_filtered = int(n - np.count_nonzero(ok))
@@ -254,7 +286,7 @@ class DetectionPipeline:
             carry.reset()
         return add_joint_detections(result, pose, t, config=self.config, joint=self.joint, memory=self.memory,
                                     camera=self.camera, class_names=self.class_names,
-                                    size_filter=self.active_size_filter,
+                                    size_filter=self.active_size_filter, terrain=self.terrain_for(pose),
                                     registration=registration, carry=carry if self.config.joint_carry_s > 0 else None)
 
     def _georeference_and_filter(self, boxes: NDArray[np.float32], cids: NDArray[np.int64], present: list[int],
@@ -326,13 +358,13 @@ class DetectionPipeline:
         return result
 
     def plausible(self, boxes_xyxy: NDArray, class_ids: NDArray, east_m: NDArray, north_m: NDArray,
-                  pose: Pose) -> NDArray[np.bool_]:
+                  pose: Pose, *, up_m: NDArray | None = None) -> NDArray[np.bool_]:
         """The size filter's decision per box, (N,) bool; boxes without a ground point pass.
 
-        east_m, north_m: (N,) ground point of each box's anchor (pixel_to_local), NaN where none.
+        east_m, north_m: (N,) ground point of each box's anchor (pixel_to_local), NaN where none; up_m: (N,)
+        its height above the pose's reference on a terrain (ground_points), None on flat ground.
         """
-        slant = np.sqrt(east_m**2 + north_m**2 + pose.height_m**2)
-        depression = np.degrees(np.arcsin(pose.height_m / slant))
+        slant, depression = _slant_and_depression(east_m, north_m, up_m, pose)
         diag = np.hypot(boxes_xyxy[:, 2] - boxes_xyxy[:, 0], boxes_xyxy[:, 3] - boxes_xyxy[:, 1])
         ok = np.ones(len(diag), dtype=bool)
         active = self.active_size_filter
@@ -447,3 +479,15 @@ class DetectionPipeline:
             boosted[rows] = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
             self.memory.add(name, gxs, gys, gain * c)
         return boosted, lat, lon, correction
+
+
+def _slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,
+                          pose: Pose) -> tuple[NDArray, NDArray]:
+    """Camera-to-ground-point distance (m) and depression below the horizontal (deg) of ground points in the
+    pose's local frame (up_m None: on the flat ground, up = 0)."""
+    if up_m is None:
+        slant = np.sqrt(east_m**2 + north_m**2 + pose.height_m**2)
+        return slant, np.degrees(np.arcsin(pose.height_m / slant))
+    drop = pose.height_m - up_m
+    slant = np.sqrt(east_m**2 + north_m**2 + drop**2)
+    return slant, np.degrees(np.arcsin(drop / slant))
