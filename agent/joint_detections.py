@@ -550,4 +550,6 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
         raw_scores=np.concatenate([result.raw_scores, np.zeros(m, np.float32)])[keep], class_ids=cids[keep],
         lat=np.concatenate([result.lat, found.lat])[keep], lon=np.concatenate([result.lon, found.lon])[keep],
         embeddings=None if emb is None else emb[keep],
-        from_joint=np.concatenate([flags, np.ones(m, dtype=bool)])[keep])
+        from_joint=np.concatenate([flags, np.ones(m, dtype=bool)])[keep],
+        view_height_m=None if result.view_height_m is None else np.concatenate([result.view_height_m,
+                                                                               np.full(m, np.nan)])[keep])

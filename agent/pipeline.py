@@ -33,7 +33,7 @@ from shared.geo import (
     pixel_to_local,
     prime_vertical_radius_m,
 )
-from shared.terrain import Terrain, pixel_to_terrain
+from shared.terrain import Terrain, effective_height_m, pixel_to_terrain
 from shared.tiles import TileGrid
 
 log = logging.getLogger(__name__)
@@ -106,8 +106,9 @@ class DetectionPipeline:
             calibration.check.freeze()
 
     def _observe_sizes(self, boxes: NDArray[np.float32], conf: NDArray[np.float32], cids: NDArray[np.int64],
-                       pose: Pose) -> None:
-        """Show the size filter's check the frame's confident boxes and what the full prior says of them."""
+                       pose: Pose, ground: tuple[NDArray, NDArray, NDArray | None, NDArray] | None = None) -> None:
+        """Show the size filter's check the frame's confident boxes and what the full prior says of them.
+        ground: the boxes' ground_points when already known (over a terrain: marched once per frame)."""
         check = self._size_check
         if check.frozen:
             return
@@ -115,7 +116,11 @@ class DetectionPipeline:
         if not len(sure):
             return
         b, c = boxes[sure], cids[sure]
-        east, north, up, valid = self.ground_points(b, pose)
+        if ground is None:
+            east, north, up, valid = self.ground_points(b, pose)
+        else:
+            east, north, valid = ground[0][sure], ground[1][sure], ground[3][sure]
+            up = None if ground[2] is None else ground[2][sure]
         if not valid.any():
             return
         b, c, east, north = b[valid], c[valid], east[valid], north[valid]
@@ -206,20 +211,27 @@ class DetectionPipeline:
         correction: GroundCorrection | None = None
         n_filtered = 0
         n_geo = 0
+        view_h: NDArray[np.float64] | None = None  # over a terrain: effective_height_m of the ground points
         if pose is None or not n:
             lat = np.full(n, np.nan)
             lon = np.full(n, np.nan)
         else:
-            if cfg.use_size_filter and not self._size_check.frozen:
-                self._observe_sizes(boxes, conf, cids, pose)
+            observe = cfg.use_size_filter and not self._size_check.frozen
             # one compiled pass over flat ground, unless the lens distortion needs OpenCV's undistortion (or class
             # ids are sparse); over a terrain the rays are marched (shared.terrain)
             if cfg.terrain is None and self.camera.dist is None and self._band_tables() is not None:
+                if observe:
+                    self._observe_sizes(boxes, conf, cids, pose)
                 lat, lon, valid, ok = self._georeference_and_filter(boxes, cids, present, pose)
             else:
                 east, north, up, valid = self.ground_points(boxes, pose)
+                if observe:
+                    self._observe_sizes(boxes, conf, cids, pose, (east, north, up, valid))
                 ok = self.plausible(boxes, cids, east, north, pose, up_m=up) if cfg.use_size_filter else None
                 lat, lon = local_to_latlon(east, north, pose.lat, pose.lon)  # NaN where not valid
+                terrain = self.terrain_for(pose)
+                if up is not None and terrain is not None:
+                    view_h = effective_height_m(east, north, up, pose, terrain)
             if ok is not None:
                 n_filtered = int(n - np.count_nonzero(ok))
                 if n_filtered:
@@ -227,6 +239,7 @@ class DetectionPipeline:
                     src = np.flatnonzero(ok)
                     boxes = np.take(boxes, src, axis=0)
                     raw, cids, lat, lon, valid = raw[src], cids[src], lat[src], lon[src], valid[src]
+                    view_h = None if view_h is None else view_h[src]
             n_geo = int(np.count_nonzero(valid))
         calibration = self._calibration()
         # the detector's scores at the reference temperature (per box: after the filter, on fewer boxes)
@@ -241,7 +254,7 @@ class DetectionPipeline:
         result = FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
                              n, n_filtered, n_geo,
                              None if embeddings is None else embeddings[keep if src is None else src[keep]],
-                             correction=correction)
+                             correction=correction, view_height_m=None if view_h is None else view_h[keep])
         if (self.joint is not None and cfg.use_memory and cfg.joint_detections and cfg.joint_mode != "local"
                 and pose is not None):
             if correction is not None and (correction.east_m or correction.north_m):

@@ -14,19 +14,19 @@ from numpy.typing import ArrayLike, NDArray
 
 from shared.geo import Camera, Pose, meridian_radius_m, pixel_rays_enu, prime_vertical_radius_m
 
-__all__ = ["BLOCK_CELLS", "ElevationGrid", "Terrain", "pixel_to_terrain"]
+__all__ = ["BLOCK_CELLS", "ElevationGrid", "Terrain", "effective_height_m", "pixel_to_terrain"]
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 IntArray = NDArray[np.int64]
 
 #: Edge of the coarse blocks (grid cells) whose height extremes let rays skip the air above the terrain.
-BLOCK_CELLS = 8
+BLOCK_CELLS = 4
 #: Steps (one grid cell each) of the first march block; later blocks take FOLLOW_STEPS.
 FIRST_STEPS = 2
-FOLLOW_STEPS = 16
-#: Rays marched together (their working arrays, ~50 of them of CHUNK_RAYS x 3 x steps floats, stay in cache).
-CHUNK_RAYS = 512
+FOLLOW_STEPS = 8
+#: Rays marched together (their working arrays, ~50 of CHUNK_RAYS x 3 x steps floats, stay in the caches).
+CHUNK_RAYS = 1024
 
 
 def _finite(name: str, value: object) -> float:
@@ -239,6 +239,23 @@ class Terrain:
         e = np.asarray(east_m, dtype=np.float64)
         n = np.asarray(north_m, dtype=np.float64)
         return self.grid.at_grid(c0 + ce * e, r0 + rn * n) - self.base_elevation_m(pose)
+
+    def gradient(self, east_m: ArrayLike, north_m: ArrayLike, pose: Pose) -> tuple[FloatArray, FloatArray]:
+        """(N,) slopes d up / d east and d up / d north (metres per metre) of the bilinear surface at local points
+        of the pose's frame; NaN off the DEM."""
+        c0, ce, r0, rn = self._affine(pose)
+        rows, cols = self.grid.shape
+        c = c0 + ce * np.asarray(east_m, dtype=np.float64)
+        r = r0 + rn * np.asarray(north_m, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            inside = (c >= 0) & (c <= cols - 1) & (r >= 0) & (r <= rows - 1)
+        i = np.clip(np.floor(np.where(inside, c, 0.0)), 0, cols - 2).astype(np.int64)
+        j = np.clip(np.floor(np.where(inside, r, 0.0)), 0, rows - 2).astype(np.int64)
+        z00, z10, z01, z11 = _corners(self.grid.heights_m, i, j)
+        d = z00 - z10 - z01 + z11
+        d_col = z10 - z00 + d * (r - j)
+        d_row = z01 - z00 + d * (c - i)
+        return np.where(inside, d_col * ce, np.nan), np.where(inside, d_row * rn, np.nan)
 
     def intersect_rays(self, rays_enu: ArrayLike, pose: Pose, max_range_m: float | None = None
                        ) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
@@ -469,3 +486,22 @@ def pixel_to_terrain(uv: ArrayLike, camera: Camera, pose: Pose, terrain: Terrain
     reference the pose's height is measured from, see Terrain) and valid (N,) bool; NaN where not valid.
     """
     return terrain.intersect_rays(pixel_rays_enu(uv, camera, pose), pose, max_range_m)
+
+
+def effective_height_m(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose: Pose,
+                       terrain: Terrain) -> FloatArray:
+    """(N,) the camera height above flat ground that gives the same along-ray sensitivity at each terrain point:
+    slant range times the sine of the angle between the line of sight and the surface there, i.e. the camera's
+    distance from the terrain's tangent plane at the point.
+
+    A ray's ground point moves by slant / sin(that angle) per radian of pitch or pixel error; the flat model's
+    slant^2 / h is that with h = slant sin(depression). Error models written for flat ground (the tracker's
+    measurement covariance and pose-correction Jacobian) stay right on a terrain with h replaced by this:
+    smaller where the ray grazes a slope facing away, larger on one facing the camera. NaN where not known.
+    """
+    e = np.asarray(east_m, dtype=np.float64)
+    n = np.asarray(north_m, dtype=np.float64)
+    drop = pose.height_m - np.asarray(up_m, dtype=np.float64)
+    gx, gy = terrain.gradient(e, n, pose)
+    # slant * |unit line of sight . unit surface normal|, the normal along (-gx, -gy, 1)
+    return np.asarray(np.abs(gx * e + gy * n + drop) / np.sqrt(1.0 + gx * gx + gy * gy), dtype=np.float64)

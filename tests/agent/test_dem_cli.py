@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 
 import numpy as np
 import pytest
@@ -115,3 +116,30 @@ def test_the_pipeline_takes_the_takeoff_elevation_from_the_first_pose_of_each_vi
     assert pipe.terrain_for(later).takeoff_elevation_m == pytest.approx(TAKEOFF_M + 4.0)
     with pytest.raises(ValueError, match="terrain"):
         PipelineConfig(terrain="dem.tif")  # type: ignore[arg-type]
+
+
+def test_the_pipeline_hands_the_tracker_each_points_effective_height():
+    """Over a terrain FrameResult.view_height_m carries shared.terrain.effective_height_m of the kept boxes'
+    ground points; the tracker's error models take it per point (flat ground: the pose's height)."""
+    from agent.tracking.association import frame_detections
+    from agent.tracking.config import TrackerConfig
+    from agent.tracking.model import ground_measurement_cov
+
+    pose = Pose(lat=LAT, lon=LON, height_m=25.0, pitch_deg=50.0, heading_deg=0.0)
+    boxes = np.array([[940.0, 500.0, 964.0, 560.0], [300.0, 800.0, 324.0, 860.0]], dtype=np.float32)
+    args = (boxes, np.array([0.9, 0.8], np.float32), np.ones(2, np.int64), pose, 0.0)
+    flat = DetectionPipeline(CAM, {1: "person"}, PipelineConfig()).process(*args)
+    assert flat.view_height_m is None
+    sloped = DetectionPipeline(CAM, {1: "person"}, PipelineConfig(terrain=Terrain(slope_grid(), TAKEOFF_M)))
+    result = sloped.process(*args)
+    assert result.view_height_m is not None and len(result.view_height_m) == len(result)
+    # the camera's distance from the terrain's tangent plane: for this 20 % slope 25 m below it, 25 / sqrt(1.04)
+    np.testing.assert_allclose(result.view_height_m, 25.0 / math.sqrt(1.04))
+    dets = frame_detections(result, TrackerConfig())
+    np.testing.assert_array_equal(dets.view_h, result.view_height_m)
+    kw = {"position_sigma_m": 0.5, "heading_sigma_deg": 1.0, "pitch_sigma_deg": 1.0, "height_sigma_m": 1.0,
+          "pixel_sigma_px": 2.0}
+    e, n = np.array([5.0, -20.0]), np.array([30.0, 40.0])
+    per_point = ground_measurement_cov(e, n, np.array([10.0, 40.0]), 1400.0, **kw)
+    for k, h in enumerate((10.0, 40.0)):
+        np.testing.assert_allclose(per_point[k], ground_measurement_cov(e[k:k + 1], n[k:k + 1], h, 1400.0, **kw)[0])

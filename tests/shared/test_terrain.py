@@ -274,3 +274,27 @@ def test_a_uav_outside_the_dem_sees_what_its_rays_meet_over_it():
     e, n, valid = pixel_to_local(np.array([[CAM.cx, CAM.cy]]), CAM, pose, terrain=terrain)
     assert valid[0] and e[0] == pytest.approx(40.0 / math.tan(math.radians(30.0)))
     assert not Terrain(grid).intersect_rays(np.array([[1.0, 0.0, -1.0]]) / math.sqrt(2), pose)[3][0]  # no reference
+
+
+def test_effective_height_is_the_pose_height_on_flat_ground_and_shrinks_on_a_slope_facing_away():
+    from shared.terrain import effective_height_m
+
+    axis = np.arange(-HALF_M, HALF_M + 1, dtype=float)
+    east, north = np.meshgrid(axis, axis[::-1])
+    pose = pose_at(0.0, 0.0, height_m=30.0, pitch_deg=35.0, heading_deg=0.0)  # looking north
+    uv = np.array([[CAM.cx, CAM.cy], [CAM.cx + 300.0, CAM.cy + 200.0]])
+    flat = Terrain(local_grid(np.full_like(east, 50.0)), 50.0)
+    e, n, up, valid = pixel_to_terrain(uv, CAM, pose, flat)
+    np.testing.assert_allclose(effective_height_m(e, n, up, pose, flat), 30.0)
+    away = Terrain(local_grid(50.0 - 0.3 * north), 50.0)  # falls 0.3 m per metre northward, away from the camera
+    e, n, up, valid = pixel_to_terrain(uv, CAM, pose, away)
+    h = effective_height_m(e, n, up, pose, away)
+    slant = np.sqrt(e**2 + n**2 + (30.0 - up) ** 2)
+    ray = np.column_stack([e, n, up - 30.0]) / slant[:, None]
+    normal = np.array([0.0, 0.3, 1.0]) / math.hypot(0.3, 1.0)
+    np.testing.assert_allclose(h, slant * np.abs(ray @ normal), rtol=1e-9)  # slant x sin(ray, surface)
+    assert (h < 30.0).all()
+    east_slope = Terrain(local_grid(50.0 + 0.2 * east), 50.0)
+    gx, gy = east_slope.gradient(np.array([3.3, -40.0]), np.array([7.1, 12.0]), pose)
+    np.testing.assert_allclose(gx, 0.2, atol=1e-9)
+    np.testing.assert_allclose(gy, 0.0, atol=1e-9)
