@@ -11,6 +11,11 @@ from shared.terrain import ElevationGrid
 rasterio = pytest.importorskip("rasterio")
 
 
+def origin(west, north, dx, dy):
+    """GDAL's transform of a north-up raster (rasterio.transform.from_origin, without its deprecated `*`)."""
+    return rasterio.Affine.translation(west, north) @ rasterio.Affine.scale(dx, -dy)
+
+
 def write_geotiff(path, heights, transform, crs, nodata=None):
     with rasterio.open(path, "w", driver="GTiff", height=heights.shape[0], width=heights.shape[1], count=1,
                        dtype="float32", crs=crs, transform=transform, nodata=nodata) as ds:
@@ -21,7 +26,7 @@ def test_a_geographic_geotiff_is_read_at_its_pixel_centres_with_nodata_as_nan(tm
     heights = np.arange(12, dtype=float).reshape(3, 4) * 10.0
     heights[2, 3] = -9999.0
     path = tmp_path / "dem.tif"
-    write_geotiff(path, heights, rasterio.transform.from_origin(9.0, 47.003, 0.001, 0.001), "EPSG:4326",
+    write_geotiff(path, heights, origin(9.0, 47.003, 0.001, 0.001), "EPSG:4326",
                   nodata=-9999.0)
     grid = read_dem(path)
     assert grid.shape == (3, 4)
@@ -42,7 +47,7 @@ def test_a_projected_geotiff_is_resampled_to_lat_lon(tmp_path):
     xx, yy = np.meshgrid(xs, ys)
     plane = 400.0 + 0.1 * (xx - x0[0]) + 0.05 * (yy - y0[0])
     path = tmp_path / "utm.tif"
-    write_geotiff(path, plane, rasterio.transform.from_origin(x0[0], y0[0], 2.0, 2.0), "EPSG:32632")
+    write_geotiff(path, plane, origin(x0[0], y0[0], 2.0, 2.0), "EPSG:32632")
     grid = read_dem(path)
     lats = np.array([47.670, 47.672, 47.668])
     lons = np.array([9.265, 9.270, 9.268])
