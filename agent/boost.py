@@ -38,7 +38,7 @@ def config_from_dict(d: dict[str, Any], base: PipelineConfig | None = None) -> P
     if not isinstance(d, dict):
         raise ValueError(f"config must be a JSON object, got {type(d).__name__}")
     mem_fields = {f.name for f in dataclasses.fields(MemoryMapConfig)}
-    pipe_fields = {f.name for f in dataclasses.fields(PipelineConfig)} - {"memory"}
+    pipe_fields = {f.name for f in dataclasses.fields(PipelineConfig)} - {"memory", "terrain"}  # terrain: --dem
     mem_kw: dict[str, Any] = {}
     pipe_kw: dict[str, Any] = {}
     for key, value in d.items():

@@ -25,7 +25,9 @@ class FrameResult:
     from_joint (K,) bool: True for detections the joint map added or promoted (agent.joint_detections),
     or None when the frame had no joint detections step (no joint layer); correction: the telemetry
     correction applied to the frame's ground points (agent.telemetry_correction.GroundCorrection), None
-    when none ran (no pose, no memory map, or switched off).
+    when none ran (no pose, no memory map, or switched off); view_height_m (K,) over a terrain: the flat-ground
+    height with the same along-ray error at each ground point (shared.terrain.effective_height_m; NaN: none),
+    for error models written for flat ground; None over flat ground (the pose's height).
     """
 
     boxes_xyxy: NDArray[np.float32]
@@ -40,6 +42,7 @@ class FrameResult:
     embeddings: NDArray[np.float32] | None = None
     from_joint: NDArray[np.bool_] | None = None
     correction: GroundCorrection | None = None
+    view_height_m: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return len(self.scores)

@@ -21,7 +21,16 @@ from agent.frame_result import FrameResult
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import NOMINAL_DIMENSIONS_M, SizeFilter
-from shared.geo import Camera, Pose, footprint_local, latlon_to_local, latlon_to_pixel, local_to_latlon, pixel_to_local
+from shared.geo import (
+    Camera,
+    GroundSurface,
+    Pose,
+    footprint_local,
+    latlon_to_local,
+    latlon_to_pixel,
+    local_to_latlon,
+    pixel_to_local,
+)
 from shared.tiles import TileGrid
 
 __all__ = ["UPRIGHT_DIMENSIONS_M", "JointCarry", "JointDetections", "JointRegistration", "add_joint_detections",
@@ -363,8 +372,10 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
                           class_names: dict[int, str], size_filter: SizeFilter, config: PipelineConfig,
                           kept_scores: NDArray, kept_class_ids: NDArray, kept_lat: NDArray, kept_lon: NDArray,
                           kept_boxes: NDArray | None = None, registration: JointRegistration | None = None,
-                          carry: JointCarry | None = None) -> JointDetections:
+                          carry: JointCarry | None = None, terrain: GroundSurface | None = None) -> JointDetections:
     """Peaks of the other UAVs' evidence in this view that this frame's detections do not explain.
+
+    terrain: the ground the peaks lie on when they are projected into the image (None: flat ground).
 
     Settings from `config` (PipelineConfig): range_m = range_limit_m, anchor_frac from anchor, and
     joint_min_value, joint_gate_m, joint_cover_uavs, joint_prior_score, the boost settings (the log-odds
@@ -422,7 +433,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
         mine = np.flatnonzero((kept_cids == cid) & np.isfinite(k_east))
         mine_uv = None if kept_boxes is None else anchor_points(
             np.asarray(kept_boxes, np.float64)[mine].reshape(-1, 4), anchor_frac)
-        uv, valid = latlon_to_pixel(*local_to_latlon(east, north, pose.lat, pose.lon), camera, pose)
+        uv, valid = latlon_to_pixel(*local_to_latlon(east, north, pose.lat, pose.lon), camera, pose, terrain=terrain)
         if registration is not None:
             if mine_uv is not None:
                 is_sure = kept_scores[mine] >= cfg.joint_register_score
@@ -432,7 +443,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
             dx, dy = registration.offset()
             if dx or dy:
                 uv = uv - focal_px * np.array([dx, dy])
-                east, north, on_ground = pixel_to_local(uv, camera, pose)
+                east, north, on_ground = pixel_to_local(uv, camera, pose, terrain=terrain)
                 valid &= on_ground
         plat, plon = local_to_latlon(east, north, pose.lat, pose.lon)
         with np.errstate(invalid="ignore"):
@@ -499,7 +510,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
 def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: PipelineConfig, joint: JointLayer,
                          memory: MemoryMap, camera: Camera, class_names: dict[int, str], size_filter: SizeFilter,
                          registration: JointRegistration | None = None,
-                         carry: JointCarry | None = None) -> FrameResult:
+                         carry: JointCarry | None = None, terrain: GroundSurface | None = None) -> FrameResult:
     """`result` (a frame's kept detections) with the joint map's detections merged in.
 
     Uses the pipeline's parts (`agent.pipeline.DetectionPipeline`): the joint layer, this UAV's own
@@ -518,7 +529,7 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
         joint=joint, memory=memory, camera=camera, pose=pose, t=t, class_names=class_names,
         size_filter=size_filter, config=cfg, kept_scores=result.scores, kept_class_ids=result.class_ids,
         kept_lat=result.lat, kept_lon=result.lon, kept_boxes=result.boxes_xyxy, registration=registration,
-        carry=carry)
+        carry=carry, terrain=terrain)
     k = len(result)
     flags = np.zeros(k, dtype=bool)
     if len(found) == 0:
@@ -539,4 +550,6 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
         raw_scores=np.concatenate([result.raw_scores, np.zeros(m, np.float32)])[keep], class_ids=cids[keep],
         lat=np.concatenate([result.lat, found.lat])[keep], lon=np.concatenate([result.lon, found.lon])[keep],
         embeddings=None if emb is None else emb[keep],
-        from_joint=np.concatenate([flags, np.ones(m, dtype=bool)])[keep])
+        from_joint=np.concatenate([flags, np.ones(m, dtype=bool)])[keep],
+        view_height_m=None if result.view_height_m is None else np.concatenate([result.view_height_m,
+                                                                               np.full(m, np.nan)])[keep])

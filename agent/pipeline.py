@@ -33,6 +33,7 @@ from shared.geo import (
     pixel_to_local,
     prime_vertical_radius_m,
 )
+from shared.terrain import Terrain, effective_height_m, pixel_to_terrain
 from shared.tiles import TileGrid
 
 log = logging.getLogger(__name__)
@@ -105,8 +106,9 @@ class DetectionPipeline:
             calibration.check.freeze()
 
     def _observe_sizes(self, boxes: NDArray[np.float32], conf: NDArray[np.float32], cids: NDArray[np.int64],
-                       pose: Pose) -> None:
-        """Show the size filter's check the frame's confident boxes and what the full prior says of them."""
+                       pose: Pose, ground: tuple[NDArray, NDArray, NDArray | None, NDArray] | None = None) -> None:
+        """Show the size filter's check the frame's confident boxes and what the full prior says of them.
+        ground: the boxes' ground_points when already known (over a terrain: marched once per frame)."""
         check = self._size_check
         if check.frozen:
             return
@@ -114,13 +116,15 @@ class DetectionPipeline:
         if not len(sure):
             return
         b, c = boxes[sure], cids[sure]
-        east, north, valid = pixel_to_local(box_anchor_points(b, self.config.anchor, pose.pitch_deg), self.camera,
-                                            pose, max_range_m=self.config.range_limit_m)
+        if ground is None:
+            east, north, up, valid = self.ground_points(b, pose)
+        else:
+            east, north, valid = ground[0][sure], ground[1][sure], ground[3][sure]
+            up = None if ground[2] is None else ground[2][sure]
         if not valid.any():
             return
         b, c, east, north = b[valid], c[valid], east[valid], north[valid]
-        slant = np.sqrt(east**2 + north**2 + pose.height_m**2)
-        depression = np.degrees(np.arcsin(pose.height_m / slant))
+        slant, depression = _slant_and_depression(east, north, None if up is None else up[valid], pose)
         diag = np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
         for cid in distinct_ids(c).tolist():
             name = self.class_names[cid]
@@ -131,6 +135,38 @@ class DetectionPipeline:
             check.observe(name, self.size_filter.z_class(name, diag[sel], slant[sel], depression[sel],
                                                          self._focal_px))
 
+    def terrain_for(self, pose: Pose) -> Terrain | None:
+        """The terrain this video's boxes are georeferenced on (None: flat ground). A configured terrain without
+        a take-off elevation takes the DEM's height under the video's first pose (the first one seen since
+        `reset`): telemetry heights are above take-off, and a video starts over the take-off's ground unless
+        --takeoff-elevation-m says otherwise. Off the DEM there, heights count from the ground below the UAV."""
+        terrain = self.config.terrain
+        if terrain is None or terrain.takeoff_elevation_m is not None:
+            return terrain
+        cached = self.__dict__.get("_video_terrain")
+        if cached is None or cached[0] is not terrain:
+            elevation = float(terrain.height_at(pose.lat, pose.lon))
+            if math.isfinite(elevation):
+                log.info("terrain: take-off elevation %.1f m (the DEM under the video's first pose)", elevation)
+                resolved = terrain.with_takeoff_elevation(elevation)
+            else:
+                log.warning("terrain: the video's first pose (%.6f, %.6f) is off the DEM: heights are taken above "
+                            "the DEM under the UAV, frame by frame", pose.lat, pose.lon)
+                resolved = terrain
+            cached = self.__dict__["_video_terrain"] = (terrain, resolved)
+        return cached[1]
+
+    def ground_points(self, boxes_xyxy: NDArray, pose: Pose) -> tuple[NDArray, NDArray, NDArray | None, NDArray]:
+        """Ground points of the boxes' anchors in the pose's local frame: east, north (N,) metres, up (N,) metres
+        above the pose's height reference (None on flat ground: 0) and valid (N,) bool; NaN where not valid
+        (no ground, or beyond the range limit)."""
+        uv = box_anchor_points(boxes_xyxy, self.config.anchor, pose.pitch_deg)
+        terrain = self.terrain_for(pose)
+        if terrain is None:
+            east, north, valid = pixel_to_local(uv, self.camera, pose, max_range_m=self.config.range_limit_m)
+            return east, north, None, valid
+        return pixel_to_terrain(uv, self.camera, pose, terrain, max_range_m=self.config.range_limit_m)
+
     @property
     def _focal_px(self) -> float:
         # from the current camera: callers swap cameras when a video's resolution differs
@@ -140,6 +176,7 @@ class DetectionPipeline:
         """Forget the memory, the telemetry correction and what the adaptive stages judged (start of another
         video)."""
         self.memory.reset()
+        self.__dict__.pop("_video_terrain", None)
         self.__dict__.pop("_corrector", None)
         self.__dict__.pop("_score_calibration", None)
         self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
@@ -175,20 +212,27 @@ class DetectionPipeline:
         correction: GroundCorrection | None = None
         n_filtered = 0
         n_geo = 0
+        view_h: NDArray[np.float64] | None = None  # over a terrain: effective_height_m of the ground points
         if pose is None or not n:
             lat = np.full(n, np.nan)
             lon = np.full(n, np.nan)
         else:
-            if cfg.use_size_filter and not self._size_check.frozen:
-                self._observe_sizes(boxes, conf, cids, pose)
-            # one compiled pass, unless the lens distortion needs OpenCV's undistortion (or class ids are sparse)
-            if self.camera.dist is None and self._band_tables() is not None:
+            observe = cfg.use_size_filter and not self._size_check.frozen
+            # one compiled pass over flat ground, unless the lens distortion needs OpenCV's undistortion (or class
+            # ids are sparse); over a terrain the rays are marched (shared.terrain)
+            if cfg.terrain is None and self.camera.dist is None and self._band_tables() is not None:
+                if observe:
+                    self._observe_sizes(boxes, conf, cids, pose)
                 lat, lon, valid, ok = self._georeference_and_filter(boxes, cids, present, pose)
             else:
-                east, north, valid = pixel_to_local(box_anchor_points(boxes, cfg.anchor, pose.pitch_deg),
-                                                    self.camera, pose, max_range_m=cfg.range_limit_m)
-                ok = self.plausible(boxes, cids, east, north, pose) if cfg.use_size_filter else None
+                east, north, up, valid = self.ground_points(boxes, pose)
+                if observe:
+                    self._observe_sizes(boxes, conf, cids, pose, (east, north, up, valid))
+                ok = self.plausible(boxes, cids, east, north, pose, up_m=up) if cfg.use_size_filter else None
                 lat, lon = local_to_latlon(east, north, pose.lat, pose.lon)  # NaN where not valid
+                terrain = self.terrain_for(pose)
+                if up is not None and terrain is not None:
+                    view_h = effective_height_m(east, north, up, pose, terrain)
             if ok is not None:
                 n_filtered = int(n - np.count_nonzero(ok))
                 if n_filtered:
@@ -196,6 +240,7 @@ class DetectionPipeline:
                     src = np.flatnonzero(ok)
                     boxes = np.take(boxes, src, axis=0)
                     raw, cids, lat, lon, valid = raw[src], cids[src], lat[src], lon[src], valid[src]
+                    view_h = None if view_h is None else view_h[src]
             n_geo = int(np.count_nonzero(valid))
         calibration = self._calibration()
         # the detector's scores at the reference temperature (per box: after the filter, on fewer boxes)
@@ -210,7 +255,7 @@ class DetectionPipeline:
         result = FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
                              n, n_filtered, n_geo,
                              None if embeddings is None else embeddings[keep if src is None else src[keep]],
-                             correction=correction)
+                             correction=correction, view_height_m=None if view_h is None else view_h[keep])
         if (self.joint is not None and cfg.use_memory and cfg.joint_detections and cfg.joint_mode != "local"
                 and pose is not None):
             if correction is not None and (correction.east_m or correction.north_m):
@@ -255,7 +300,7 @@ class DetectionPipeline:
             carry.reset()
         return add_joint_detections(result, pose, t, config=self.config, joint=self.joint, memory=self.memory,
                                     camera=self.camera, class_names=self.class_names,
-                                    size_filter=self.active_size_filter,
+                                    size_filter=self.active_size_filter, terrain=self.terrain_for(pose),
                                     registration=registration, carry=carry if self.config.joint_carry_s > 0 else None)
 
     def _georeference_and_filter(self, boxes: NDArray[np.float32], cids: NDArray[np.int64], present: list[int],
@@ -327,13 +372,13 @@ class DetectionPipeline:
         return result
 
     def plausible(self, boxes_xyxy: NDArray, class_ids: NDArray, east_m: NDArray, north_m: NDArray,
-                  pose: Pose) -> NDArray[np.bool_]:
+                  pose: Pose, *, up_m: NDArray | None = None) -> NDArray[np.bool_]:
         """The size filter's decision per box, (N,) bool; boxes without a ground point pass.
 
-        east_m, north_m: (N,) ground point of each box's anchor (pixel_to_local), NaN where none.
+        east_m, north_m: (N,) ground point of each box's anchor (pixel_to_local), NaN where none; up_m: (N,)
+        its height above the pose's reference on a terrain (ground_points), None on flat ground.
         """
-        slant = np.sqrt(east_m**2 + north_m**2 + pose.height_m**2)
-        depression = np.degrees(np.arcsin(pose.height_m / slant))
+        slant, depression = _slant_and_depression(east_m, north_m, up_m, pose)
         diag = np.hypot(boxes_xyxy[:, 2] - boxes_xyxy[:, 0], boxes_xyxy[:, 3] - boxes_xyxy[:, 1])
         ok = np.ones(len(diag), dtype=bool)
         active = self.active_size_filter
@@ -448,3 +493,15 @@ class DetectionPipeline:
             boosted[rows] = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
             self.memory.add(name, gxs, gys, gain * c)
         return boosted, lat, lon, correction
+
+
+def _slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,
+                          pose: Pose) -> tuple[NDArray, NDArray]:
+    """Camera-to-ground-point distance (m) and depression below the horizontal (deg) of ground points in the
+    pose's local frame (up_m None: on the flat ground, up = 0)."""
+    if up_m is None:
+        slant = np.sqrt(east_m**2 + north_m**2 + pose.height_m**2)
+        return slant, np.degrees(np.arcsin(pose.height_m / slant))
+    drop = pose.height_m - up_m
+    slant = np.sqrt(east_m**2 + north_m**2 + drop**2)
+    return slant, np.degrees(np.arcsin(drop / slant))

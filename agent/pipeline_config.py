@@ -13,6 +13,7 @@ from agent.memory_map import MemoryMapConfig
 from agent.score_calibration import CalibrationSettings
 from agent.size_filter_check import SizeCheckSettings
 from agent.telemetry_correction import CorrectionSettings
+from shared.terrain import Terrain
 
 __all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig"]
 
@@ -111,6 +112,12 @@ class PipelineConfig:
         whole or half metres) continuous again before anything else (agent.telemetry_dequantize: linear
         through the midpoints of the steps, inside the rounding interval); detected per video from the
         values themselves, a no-op on other telemetry. The live agent does not.
+
+    terrain: the DEM boxes are georeferenced on (`uavmm ... --dem FILE`, agent.dem; shared.terrain.Terrain: ray
+        and terrain intersected instead of ray and flat ground, and the size filter's range and depression taken
+        to the terrain point); None (the default) is flat ground at the UAV's height reference. A terrain
+        without takeoff_elevation_m gets, per video, the DEM's height under the video's first pose
+        (DetectionPipeline.terrain_for). Not a setting of config files: it comes from --dem.
 
     telemetry_at_frame_time: the frame drivers of files give each frame the telemetry interpolated at its own
         time between the telemetry's samples, put on the frame clock first (agent.telemetry_clock: a time-zone
@@ -217,8 +224,12 @@ class PipelineConfig:
     clock_offset_two_pass: bool = True
     dequantize_telemetry: bool = True
     telemetry_at_frame_time: bool = True
+    terrain: Terrain | None = None
 
     def __post_init__(self) -> None:
+        if self.terrain is not None and not isinstance(self.terrain, Terrain):
+            raise ValueError(f"terrain must be a shared.terrain.Terrain (from --dem FILE), got "
+                             f"{type(self.terrain).__name__}")
         self.correction_settings()  # validates the correction_* fields
         self.clock_offset_settings()  # and the clock_offset_* ones
         self.calibration_settings()  # and the calibration_* ones

@@ -16,6 +16,7 @@ from typing import Any
 # name -> module in this package; loaded on use so `uavmm bench --list` stays fast.
 BENCHMARK_MODULES: dict[str, str] = {
     "geo": "benchmarks.bench_geo",
+    "terrain": "benchmarks.bench_terrain",
     "memory_map": "benchmarks.bench_memory_map",
     "sim": "benchmarks.bench_sim",
     "fusion": "benchmarks.bench_fusion",

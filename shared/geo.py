@@ -1,6 +1,7 @@
-"""Pixel <-> ground geometry for a gimballed pinhole camera over flat ground.
+"""Pixel <-> ground geometry for a gimballed pinhole camera over flat ground, or over a terrain.
 
-Camera and pose value objects, vectorised projections, horizon, footprint and ground homography.
+Pose value object, vectorised projections, horizon, footprint and ground homography; the camera's
+intrinsics live in `shared.camera` (re-exported here).
 
 Frames and conventions (DESIGN.md 2):
 - Local ground frame: east, north, up in metres, origin on the ground below the UAV.
@@ -15,20 +16,26 @@ Frames and conventions (DESIGN.md 2):
 A ray is valid (meets the ground) when its depression below the horizontal exceeds the dip of
 the true horizon, acos(R / (R + h)), so flat-ground results stop where the curved earth's
 horizon is; far pixels just below it are still noisy, which callers limit with max_range_m.
+
+`terrain=` (a `GroundSurface`, e.g. `shared.terrain.Terrain`) replaces the flat plane by a surface whose
+height `up` varies in the local frame (docs/geometry.md, Terrain); without it the flat results are exactly
+those of the flat model.
 """
 
 from __future__ import annotations
 
-import json
 import math
-from dataclasses import dataclass, field, replace
-from pathlib import Path
-from typing import Any
+from dataclasses import dataclass, field
+from typing import Protocol
 
 import cv2
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import brentq
+
+from shared.camera import CAMERA_PRESETS as CAMERA_PRESETS  # re-exported: the names callers import from here
+from shared.camera import Camera as Camera
+from shared.camera import _check_finite, _check_range
 
 # WGS84 ellipsoid
 WGS84_A_M = 6378137.0
@@ -40,213 +47,9 @@ FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
 
 
-def _check_finite(name: str, value: float) -> None:
-    if not isinstance(value, (int, float, np.floating, np.integer)) or isinstance(value, bool):
-        raise ValueError(f"{name} must be a number, got {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{name} must be finite, got {value!r}")
-
-
-def _check_range(name: str, value: float, lo: float, hi: float) -> None:
-    _check_finite(name, value)
-    if not lo <= value <= hi:
-        raise ValueError(f"{name}={value!r} is outside the allowed range [{lo}, {hi}]")
-
-
 # ---------------------------------------------------------------------------------------------
 # Value objects
 # ---------------------------------------------------------------------------------------------
-
-# Published sensor and lens figures of DJI cameras. The 4K/UHD video modes of these cameras read
-# the full sensor width (no crop), so fx = focal_mm / sensor_width_mm * image_width_px. These are
-# nominal values: calibrate (cv2.calibrateCamera) for best accuracy.
-CAMERA_PRESETS: dict[str, dict[str, float]] = {
-    # Mavic 2 Pro, Hasselblad L1D-20c: 1" CMOS 13.2 x 8.8 mm, 10.26 mm (28 mm equivalent)
-    "dji-mavic2-pro": {"sensor_width_mm": 13.2, "focal_mm": 10.26},
-    # Phantom 4 Pro / V2: 1" CMOS 13.2 x 8.8 mm, 8.8 mm (24 mm equivalent)
-    "dji-phantom4-pro": {"sensor_width_mm": 13.2, "focal_mm": 8.8},
-    # Air 2S: 1" CMOS 13.2 x 8.8 mm, 8.38 mm (22 mm equivalent)
-    "dji-air2s": {"sensor_width_mm": 13.2, "focal_mm": 8.38},
-    # Mavic 3 (Hasselblad): 4/3 CMOS 17.3 x 13.0 mm, 12.29 mm (24 mm equivalent)
-    "dji-mavic3": {"sensor_width_mm": 17.3, "focal_mm": 12.29},
-    # Mavic Pro: 1/2.3" CMOS 6.17 x 4.55 mm, 4.73 mm (26 mm equivalent)
-    "dji-mavic-pro": {"sensor_width_mm": 6.17, "focal_mm": 4.73},
-    # Matrice 30 wide camera: 1/2" CMOS 6.4 x 4.8 mm, 4.5 mm (24 mm equivalent)
-    "dji-m30-wide": {"sensor_width_mm": 6.4, "focal_mm": 4.5},
-    # Mavic 3 Pro medium tele: 1/1.3" CMOS 9.6 x 7.2 mm, 18.7 mm (70 mm equivalent)
-    "dji-mavic3pro-tele": {"sensor_width_mm": 9.6, "focal_mm": 18.7},
-}
-
-
-@dataclass(frozen=True, slots=True)
-class Camera:
-    """Pinhole camera intrinsics in pixels, with optional OpenCV distortion coefficients.
-
-    dist: None or a tuple of 4, 5, 8, 12 or 14 OpenCV coefficients (k1, k2, p1, p2[, k3, ...]).
-    preset: the CAMERA_PRESETS name the camera was made from (None for a camera file's measured intrinsics).
-    A preset knows the lens and the sensor width, not a frame size, so `fitted_to` makes it at any frame size
-    (any aspect ratio, no warning). Not compared: equal intrinsics are the same camera.
-    """
-
-    width: int
-    height: int
-    fx: float
-    fy: float
-    cx: float
-    cy: float
-    dist: tuple[float, ...] | None = None
-    preset: str | None = field(default=None, compare=False)
-
-    def __post_init__(self) -> None:
-        for name in ("width", "height"):
-            value = getattr(self, name)
-            if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value <= 0:
-                raise ValueError(f"Camera.{name} must be a positive integer, got {value!r}")
-        for name in ("fx", "fy"):
-            value = getattr(self, name)
-            _check_finite(f"Camera.{name}", value)
-            if value <= 0:
-                raise ValueError(f"Camera.{name} must be > 0 pixels, got {value!r}")
-        _check_finite("Camera.cx", self.cx)
-        _check_finite("Camera.cy", self.cy)
-        if self.dist is not None:
-            dist = tuple(float(d) for d in self.dist)
-            if len(dist) not in (4, 5, 8, 12, 14):
-                raise ValueError(f"Camera.dist must have 4, 5, 8, 12 or 14 coefficients, got {len(dist)}")
-            if not all(math.isfinite(d) for d in dist):
-                raise ValueError(f"Camera.dist must be finite, got {dist!r}")
-            object.__setattr__(self, "dist", dist if any(d != 0.0 for d in dist) else None)
-
-    @property
-    def K(self) -> FloatArray:  # noqa: N802 - the standard name of the intrinsic matrix
-        """(3, 3) float64 intrinsic matrix."""
-        return np.array([[self.fx, 0.0, self.cx], [0.0, self.fy, self.cy], [0.0, 0.0, 1.0]])
-
-    @property
-    def dist_array(self) -> FloatArray | None:
-        """Distortion coefficients as a float64 array, or None."""
-        return None if self.dist is None else np.asarray(self.dist, dtype=np.float64)
-
-    @property
-    def hfov_deg(self) -> float:
-        """Horizontal field of view in degrees (of the undistorted pinhole model)."""
-        return math.degrees(2.0 * math.atan2(self.width / 2.0, self.fx))
-
-    @classmethod
-    def from_preset(cls, name: str, width: int = 3840, height: int = 2160) -> Camera:
-        """A camera from a named preset (CAMERA_PRESETS) at the given image size.
-
-        Square pixels, principal point at the image centre, no distortion.
-        """
-        try:
-            preset = CAMERA_PRESETS[name]
-        except KeyError:
-            valid = ", ".join(sorted(CAMERA_PRESETS))
-            raise ValueError(f"unknown camera preset {name!r}; valid presets: {valid}") from None
-        f_px = preset["focal_mm"] / preset["sensor_width_mm"] * width
-        return cls(width=width, height=height, fx=f_px, fy=f_px, cx=width / 2.0, cy=height / 2.0, preset=name)
-
-    @classmethod
-    def from_dict(cls, d: dict[str, Any]) -> Camera:
-        """A camera from a mapping: {width, height, fx, fy, cx, cy[, dist]} or {preset[, width, height]}.
-
-        `cx`/`cy` default to the image centre, `fy` to `fx`.
-        """
-        if not isinstance(d, dict):
-            raise ValueError(f"camera must be a JSON object, got {type(d).__name__}")
-        if "preset" in d:
-            both = [k for k in ("fx", "fy", "cx", "cy", "dist", "distortion") if k in d]
-            if both:  # which one was meant? the preset would win silently over measured intrinsics
-                raise ValueError(f"camera gives both a preset ({d['preset']!r}) and intrinsics ({', '.join(both)}): "
-                                 "keep one")
-            return cls.from_preset(str(d["preset"]), int(d.get("width", 3840)), int(d.get("height", 2160)))
-        missing = [k for k in ("width", "height", "fx") if k not in d]
-        if missing:
-            raise ValueError(f"camera is missing field(s) {', '.join(missing)}")
-        dist = d.get("dist", d.get("distortion"))
-        try:
-            return cls(
-                width=_as_int("width", d["width"]),
-                height=_as_int("height", d["height"]),
-                fx=float(d["fx"]),
-                fy=float(d.get("fy", d["fx"])),
-                cx=float(d.get("cx", d["width"] / 2.0)),
-                cy=float(d.get("cy", d["height"] / 2.0)),
-                dist=None if dist is None else tuple(float(x) for x in np.ravel(dist)),
-            )
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"bad camera: {exc}") from None
-
-    @classmethod
-    def from_file(cls, path: str | Path) -> Camera:
-        """Read a camera JSON file (see from_dict). Errors name the file."""
-        path = Path(path)
-        try:
-            d = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise ValueError(f"camera file {path} does not exist") from None
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"camera file {path} is not valid JSON: {exc}") from None
-        try:
-            return cls.from_dict(d)
-        except ValueError as exc:
-            raise ValueError(f"camera file {path}: {exc}") from None
-
-    @classmethod
-    def from_spec(cls, spec: str | Path, width: int = 3840, height: int = 2160) -> Camera:
-        """A camera from a camera file's path or a preset's name (CAMERA_PRESETS, at width x height).
-
-        A path that exists is read as a file; otherwise a preset name is looked up. ValueError naming
-        both possibilities when it is neither.
-        """
-        path = Path(spec)
-        if path.exists() or str(spec).endswith(".json"):
-            return cls.from_file(path)
-        if str(spec) in CAMERA_PRESETS:
-            return cls.from_preset(str(spec), width, height)
-        valid = ", ".join(sorted(CAMERA_PRESETS))
-        raise ValueError(f"camera {spec}: no such file, and not a camera preset (presets: {valid})")
-
-    def fitted_to(self, width: int, height: int, *, source: str = "the frames") -> Camera:
-        """This camera for frames of width x height: itself, or scaled when only the resolution differs.
-
-        Raises ValueError when the aspect ratio differs by more than 1 %: scaling would stretch the
-        intrinsics, so the camera file does not belong to these frames (a different camera or a crop).
-        A preset's camera (`preset` set) is made again at the frames' size, whatever their aspect ratio:
-        the preset's video and photo modes read the whole sensor width.
-        """
-        if (width, height) == (self.width, self.height):
-            return self
-        if self.preset is not None:
-            return Camera.from_preset(self.preset, width, height)
-        ratio = (width / height) / (self.width / self.height)
-        if abs(ratio - 1.0) > 0.01:
-            raise ValueError(f"the camera is {self.width}x{self.height} but {source} are {width}x{height} (another "
-                             "aspect ratio): give the camera file of the camera that recorded them")
-        return self.scaled(width, height)
-
-    def to_dict(self) -> dict[str, Any]:
-        """The JSON form read by from_dict."""
-        d: dict[str, Any] = {
-            "width": self.width, "height": self.height,
-            "fx": self.fx, "fy": self.fy, "cx": self.cx, "cy": self.cy,
-        }
-        if self.dist is not None:
-            d["dist"] = list(self.dist)
-        return d
-
-    def scaled(self, width: int, height: int) -> Camera:
-        """The same camera at another resolution (e.g. a downscaled video)."""
-        sx, sy = width / self.width, height / self.height
-        return replace(self, width=width, height=height, fx=self.fx * sx, fy=self.fy * sy,
-                       cx=self.cx * sx, cy=self.cy * sy)
-
-
-def _as_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or float(value) != int(float(value)):
-        raise ValueError(f"{name} must be an integer, got {value!r}")
-    return int(float(value))
-
 
 @dataclass(frozen=True, slots=True)
 class Pose:
@@ -291,6 +94,23 @@ def _camera_to_world(pitch_deg: float, heading_deg: float, roll_deg: float) -> F
     right = math.cos(r) * right0 + math.sin(r) * down0
     down = math.cos(r) * down0 - math.sin(r) * right0
     return np.column_stack([right, down, forward])
+
+
+class GroundSurface(Protocol):
+    """Ground that is not the flat plane below the UAV (`shared.terrain.Terrain` is one).
+
+    Heights are `up` metres in the pose's local frame: 0 is the plane the flat model uses, the one
+    pose.height_m is measured from; the camera is at up = pose.height_m.
+    """
+
+    def intersect_rays(self, rays_enu: FloatArray, pose: Pose, max_range_m: float | None = None
+                       ) -> tuple[FloatArray, FloatArray, FloatArray, BoolArray]:
+        """(N, 3) unit rays from the camera -> east, north, up of the first hit, valid (N,); NaN where none."""
+        ...
+
+    def up_m(self, east_m: FloatArray, north_m: FloatArray, pose: Pose) -> FloatArray:
+        """(N,) surface height at local points, metres; NaN where unknown."""
+        ...
 
 
 # ---------------------------------------------------------------------------------------------
@@ -389,16 +209,21 @@ def _min_depression_sin(pose: Pose) -> float:
 
 
 def pixel_to_local(
-    uv: ArrayLike, camera: Camera, pose: Pose, *, max_range_m: float | None = None
+    uv: ArrayLike, camera: Camera, pose: Pose, *, max_range_m: float | None = None,
+    terrain: GroundSurface | None = None,
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
     """Project pixels to the ground plane in local metres around the point below the UAV.
 
     uv: (N, 2) float pixel coordinates (u right, v down).
     max_range_m: optional horizontal distance beyond which points are marked invalid.
+    terrain: intersect the rays with this surface instead (the first hit; its height: terrain.up_m).
     Returns east_m, north_m (N,) float64 and valid (N,) bool; NaN where invalid (the ray is at or
-    above the horizon, or farther than max_range_m).
+    above the horizon, or farther than max_range_m; with a terrain: no hit on it within range).
     """
     rays = pixel_rays_enu(uv, camera, pose)
+    if terrain is not None:
+        east, north, _, valid = terrain.intersect_rays(rays, pose, max_range_m)
+        return east, north, valid
     valid = rays[:, 2] < -_min_depression_sin(pose)
     with np.errstate(divide="ignore", invalid="ignore"):
         t = np.where(valid, -pose.height_m / rays[:, 2], np.nan)
@@ -412,38 +237,43 @@ def pixel_to_local(
 
 
 def pixel_to_latlon(
-    uv: ArrayLike, camera: Camera, pose: Pose, *, max_range_m: float | None = None
+    uv: ArrayLike, camera: Camera, pose: Pose, *, max_range_m: float | None = None,
+    terrain: GroundSurface | None = None,
 ) -> tuple[FloatArray, FloatArray, BoolArray]:
-    """Project pixels to the ground plane.
+    """Project pixels to the ground plane (or to `terrain`'s surface, see pixel_to_local).
 
     uv: (N, 2) float pixel coordinates (u right, v down); lens distortion is removed first.
     Returns lat, lon in degrees, shape (N,), and valid (N,) bool: False where the ray does not
     meet the ground (at or above the horizon) or lies beyond max_range_m; lat/lon are NaN there.
     """
-    east, north, valid = pixel_to_local(uv, camera, pose, max_range_m=max_range_m)
+    east, north, valid = pixel_to_local(uv, camera, pose, max_range_m=max_range_m, terrain=terrain)
     lat, lon = local_to_latlon(east, north, pose.lat, pose.lon)
     return lat, lon, valid
 
 
 def local_to_pixel(
-    east_m: ArrayLike, north_m: ArrayLike, camera: Camera, pose: Pose
+    east_m: ArrayLike, north_m: ArrayLike, camera: Camera, pose: Pose, *, terrain: GroundSurface | None = None
 ) -> tuple[FloatArray, BoolArray]:
-    """Project ground points (local metres, up = 0) into the image.
+    """Project ground points (local metres, up = 0; with a terrain, up = terrain.up_m there) into the image.
 
     Returns uv (N, 2) float64 pixels and valid (N,) bool: False (uv NaN) for points behind the
-    camera or beyond the horizon. Valid points may still fall outside the image bounds: compare
+    camera or beyond the horizon (with a terrain: behind the camera or off the terrain; points hidden
+    behind a hill are not tested). Valid points may still fall outside the image bounds: compare
     with camera.width/height where that matters.
     """
     e = np.atleast_1d(np.asarray(east_m, dtype=np.float64))
     n = np.atleast_1d(np.asarray(north_m, dtype=np.float64))
     if e.shape != n.shape or e.ndim != 1:
         raise ValueError(f"east_m and north_m must be (N,) arrays of one shape, got {e.shape} and {n.shape}")
-    rel = np.column_stack([e, n, np.full(len(e), -pose.height_m)])
+    up = None if terrain is None else terrain.up_m(e, n, pose)
+    rel = np.column_stack([e, n, np.full(len(e), -pose.height_m) if up is None else up - pose.height_m])
     cam = rel @ pose.R_world_from_cam  # rows: camera-frame coordinates
     dist = np.linalg.norm(rel, axis=1)
     with np.errstate(divide="ignore", invalid="ignore"):
-        depression_sin = pose.height_m / dist
-        valid = (cam[:, 2] > 1e-9 * dist) & (depression_sin > _min_depression_sin(pose))
+        if up is None:
+            valid = (cam[:, 2] > 1e-9 * dist) & (pose.height_m / dist > _min_depression_sin(pose))
+        else:  # a hillside above the camera is ground too
+            valid = (cam[:, 2] > 1e-9 * dist) & np.isfinite(up)
         valid &= np.isfinite(e) & np.isfinite(n)
         xy = np.where(valid[:, None], cam[:, :2] / cam[:, 2:3], np.nan)
     uv = np.full((len(e), 2), np.nan)
@@ -453,15 +283,16 @@ def local_to_pixel(
 
 
 def latlon_to_pixel(
-    lat: ArrayLike, lon: ArrayLike, camera: Camera, pose: Pose
+    lat: ArrayLike, lon: ArrayLike, camera: Camera, pose: Pose, *, terrain: GroundSurface | None = None
 ) -> tuple[FloatArray, BoolArray]:
     """Project ground points given in lat/lon degrees into the image (inverse of pixel_to_latlon).
 
-    lat, lon: (N,) degrees. Returns uv (N, 2) float64 pixels and valid (N,) bool: False (uv NaN)
-    for points behind the camera or beyond the horizon. Valid points may lie outside the image.
+    lat, lon: (N,) degrees; with a terrain, the points lie on its surface (local_to_pixel). Returns uv
+    (N, 2) float64 pixels and valid (N,) bool: False (uv NaN) for points behind the camera or beyond
+    the horizon. Valid points may lie outside the image.
     """
     east, north = latlon_to_local(lat, lon, pose.lat, pose.lon)
-    return local_to_pixel(np.atleast_1d(east), np.atleast_1d(north), camera, pose)
+    return local_to_pixel(np.atleast_1d(east), np.atleast_1d(north), camera, pose, terrain=terrain)
 
 
 def pixel_ground_distance_m(uv: ArrayLike, camera: Camera, pose: Pose) -> FloatArray:
@@ -473,19 +304,24 @@ def pixel_ground_distance_m(uv: ArrayLike, camera: Camera, pose: Pose) -> FloatA
     return np.hypot(east, north)
 
 
-def pixel_slant_range_m(uv: ArrayLike, camera: Camera, pose: Pose) -> FloatArray:
+def pixel_slant_range_m(uv: ArrayLike, camera: Camera, pose: Pose, *,
+                        terrain: GroundSurface | None = None) -> FloatArray:
     """Camera-to-ground distance (metres) along each pixel's ray; NaN where there is no ground."""
+    if terrain is not None:
+        east, north, up, _ = terrain.intersect_rays(pixel_rays_enu(uv, camera, pose), pose)
+        return np.sqrt(east * east + north * north + (pose.height_m - up) ** 2)
     east, north, _ = pixel_to_local(uv, camera, pose)
     return np.sqrt(east * east + north * north + pose.height_m * pose.height_m)
 
 
-def metres_per_pixel(uv: ArrayLike, camera: Camera, pose: Pose) -> FloatArray:
+def metres_per_pixel(uv: ArrayLike, camera: Camera, pose: Pose, *,
+                     terrain: GroundSurface | None = None) -> FloatArray:
     """Approximate ground sampling distance at each pixel: slant range / focal length, metres.
 
     This is the metric size of one pixel on a surface facing the camera (the form the size
     filter uses, independent of the camera's resolution). (N,) float64, NaN without ground.
     """
-    return pixel_slant_range_m(uv, camera, pose) / math.sqrt(camera.fx * camera.fy)
+    return pixel_slant_range_m(uv, camera, pose, terrain=terrain) / math.sqrt(camera.fx * camera.fy)
 
 
 # ---------------------------------------------------------------------------------------------

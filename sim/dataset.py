@@ -2,8 +2,9 @@
 
 Files: ``images.json`` (COCO ground truth with per-image SeaDronesSee ``meta`` from the noisy telemetry and
 the true ``lat``/``lon`` of every annotation), ``camera.json``, ``pre_nms.json`` (all detector candidates)
-and ``truth.json`` (true poses, scenario settings, realised telemetry biases, occlusion facts). Files are
-written to a temporary folder first and moved in only when everything succeeded.
+and ``truth.json`` (true poses, scenario settings, realised telemetry biases, occlusion facts), and over a
+terrain ``dem.npz`` (the terrain, `agent.dem`; truth.json's ``terrain`` gives the take-off's elevation). Files
+are written to a temporary folder first and moved in only when everything succeeded.
 """
 
 from __future__ import annotations
@@ -21,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from agent.dem import write_npz
 from sim.noise import CLOCK_FIELDS, TelemetryNoise, format_time
 from sim.scenarios import START_UNIX_S, Scenario
 from sim.simulator import FrameSample, Simulation
@@ -28,6 +30,8 @@ from sim.simulator import FrameSample, Simulation
 logger = logging.getLogger(__name__)
 
 DATASET_FILES = ("images.json", "camera.json", "pre_nms.json", "truth.json")
+#: The terrain's DEM (agent.dem's .npz), written beside the dataset when the scenario has a terrain.
+TERRAIN_DEM_FILE = "dem.npz"
 
 
 class _Progress:
@@ -194,12 +198,20 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
             "occlusion": facts["occlusion"], "occluded_boxes": occluded_boxes,
             "trees": facts["trees"], "clutter": facts["clutter"], "poses": poses,
         }
+        files = list(DATASET_FILES)
+        if sim.terrain is not None:  # the DEM beside the dataset, for `--dem`; flat worlds write nothing more
+            truth["scenario"]["terrain"] = _spec_dict(sim.terrain.spec)
+            truth["terrain"] = facts["terrain"]
+            write_npz(tmp / TERRAIN_DEM_FILE, sim.terrain.grid)
+            files.append(TERRAIN_DEM_FILE)
         (tmp / "images.json").write_text(json.dumps(coco))
         (tmp / "camera.json").write_text(json.dumps(sim.camera.to_dict(), indent=2))
         (tmp / "pre_nms.json").write_text("[" + ",\n".join(cand_lines) + "]\n")
         (tmp / "truth.json").write_text(json.dumps(truth))
-        for name in DATASET_FILES:
+        for name in files:
             os.replace(tmp / name, out / name)
+        if sim.terrain is None and (out / TERRAIN_DEM_FILE).exists():  # a terrain dataset's, written here before
+            os.remove(out / TERRAIN_DEM_FILE)
     except BaseException:
         bar.close()
         shutil.rmtree(tmp, ignore_errors=True)

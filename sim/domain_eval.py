@@ -6,7 +6,8 @@ the domain's definition), then scored like `sim.evaluate` (pycocotools AP50) for
 single-frame baseline, our memory map, and the paper's literal rule (sum stamping, c + p, r 6 m,
 per-frame forgetting and gain); tracking (TrackEval HOTA, IDs) compares our GPS tracker with norfair
 on the same detections at noise x1, beside the ground error of our tracker's reported positions
-(`pos_err_m`, `pos_err_p90_m`; `sim.position_error`).
+(`pos_err_m`, `pos_err_p90_m`; `sim.position_error`). Terrain domains add our variants with the dataset's DEM
+and the same flights over flat ground (`sim.terrain_eval`).
 """
 
 from __future__ import annotations
@@ -24,6 +25,7 @@ from agent.pipeline_config import PipelineConfig
 from sim.domains import Domain
 from sim.evaluate import Variant, evaluate_detection
 from sim.position_error import format_metres, mean_known
+from sim.terrain_eval import DEM_SUFFIX, TWIN, markdown_terrain, summarise_terrain, terrain_acceptance, terrain_of
 
 BASELINE, OURS, PAPER = "baseline", "memory map", "paper rule"
 NORFAIR, GPS = "norfair (pixel IoU)", "GPS tracker + memory map"
@@ -108,24 +110,42 @@ def run_domain_eval(domains: list[Domain], seeds: list[int], *, noise_scales: tu
         data_dir = ensure_domain_dataset(domain, seed, noise, full, cache)
         base = {"domain": domain.name, "split": domain.split, "motion": domain.motion, "seed": seed,
                 "noise_scale": noise}
+        # a terrain domain: our variants again on its DEM, and (noise x1) on the same flights over flat ground
+        terrain = terrain_of(data_dir) if domain.terrain is not None else None
+        twin_dir = (ensure_domain_dataset(domain.flat_twin(), seed, noise, full, cache)
+                    if terrain is not None and noise == 1.0 else None)
         if "detection" in tasks:
-            for name, m in evaluate_detection(data_dir, domain_detection_variants()).items():
+            variants = domain_detection_variants()
+            if terrain is not None:
+                variants += [Variant(v.name + DEM_SUFFIX, dataclasses.replace(v.config, terrain=terrain))
+                             for v in variants if v.name in (BASELINE, OURS)]
+            for name, m in evaluate_detection(data_dir, variants).items():
                 det_rows.append({**base, "variant": name, **m})
+            if twin_dir is not None:
+                for name, m in evaluate_detection(twin_dir, variants[:2]).items():
+                    det_rows.append({**base, "variant": TWIN + name, **m})
         if run_trk:
             from sim.track_eval import TrackingVariant, evaluate_tracking
 
             base_cfg = PipelineConfig()
             # norfair on the single-frame detections of the telemetry as stamped (it does not use poses)
-            variants = [TrackingVariant(NORFAIR, dataclasses.replace(base_cfg, use_memory=False,
-                                                                     estimate_clock_offset=False), kind="pixel"),
-                        TrackingVariant(GPS, base_cfg, kind="gps")]
-            for name, m in evaluate_tracking(data_dir, variants, fps=domain.fps).items():
+            trk_variants = [TrackingVariant(NORFAIR, dataclasses.replace(base_cfg, use_memory=False,
+                                                                         estimate_clock_offset=False), kind="pixel"),
+                            TrackingVariant(GPS, base_cfg, kind="gps")]
+            if terrain is not None:
+                trk_variants.append(TrackingVariant(GPS + DEM_SUFFIX, dataclasses.replace(base_cfg, terrain=terrain),
+                                                    kind="gps"))
+            for name, m in evaluate_tracking(data_dir, trk_variants, fps=domain.fps).items():
                 trk_rows.append({**base, "variant": name, **m})
+            if twin_dir is not None:
+                for name, m in evaluate_tracking(twin_dir, trk_variants[1:2], fps=domain.fps).items():
+                    trk_rows.append({**base, "variant": TWIN + name, **m})
+    terrain_summary = summarise_terrain(det_rows, trk_rows, OURS, BASELINE, GPS)
     report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scales": list(noise_scales),
               "full": full, "detection_rows": det_rows, "tracking_rows": trk_rows,
               "detection": summarise_detection(det_rows), "tracking": summarise_tracking(trk_rows),
-              "seconds": round(time.perf_counter() - t0, 1)}
-    report["acceptance"] = acceptance(report)
+              "terrain": terrain_summary, "seconds": round(time.perf_counter() - t0, 1)}
+    report["acceptance"] = acceptance(report) + terrain_acceptance(terrain_summary)
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(markdown_domain_report(report))
     return report
@@ -246,10 +266,12 @@ def markdown_domain_report(report: dict[str, Any]) -> str:
                              f"{format_metres(s.get('pos_err_m_ours'))} | "
                              f"{format_metres(s.get('pos_err_p90_m_ours'))} |")
         lines.append("")
+    lines += markdown_terrain(report.get("terrain", []))
     if report.get("acceptance"):
         lines += ["## Acceptance (held-out domains)", "", "| criterion | value | bar | holds |", "|---|---|---|---|"]
         for a in report["acceptance"]:
-            value = f"{a['value']:.0f}" if "IDs" in a["criterion"] else f"{a['value']:+.1f}"
+            value = (f"{a['value']:.0f}" if "IDs" in a["criterion"] else
+                     f"{a['value']:+.2f}" if a["criterion"].endswith(", m") else f"{a['value']:+.1f}")
             lines.append(f"| {a['criterion']} | {value} | {a['bar']} | {'yes' if a['ok'] else 'NO'} |")
     lines.append(f"\n{report['seconds']} s")
     return "\n".join(lines) + "\n"

@@ -24,6 +24,7 @@ from sim.detector_emulator import EmulatorParams
 from sim.flight import HoverSweepsSpec, LawnmowerSpec, LineSpec, OrbitSpec
 from sim.noise import TelemetryNoise
 from sim.scenarios import Scenario, get_scenario
+from sim.terrain import TerrainSpec
 from sim.world import WorldParams
 
 SPLITS = ("tune", "heldout")
@@ -64,6 +65,9 @@ class Domain:
     final_score : float or None
         The detector's final output instead of its pre-NMS candidates (what most users have: per-class NMS at
         IoU 0.5, scores >= final_score; `final_output`); None: the candidates.
+    terrain : TerrainSpec or None
+        The ground's relief (`sim.terrain`); the dataset gets dem.npz and the evaluation runs our variants with
+        and without it (flat earth vs --dem) and on the same flights over flat ground (`flat_twin`).
     """
 
     name: str
@@ -79,6 +83,7 @@ class Domain:
     emulator: dict[str, Any] = field(default_factory=dict)
     world: dict[str, Any] = field(default_factory=dict)
     final_score: float | None = None
+    terrain: TerrainSpec | None = None
 
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
@@ -107,19 +112,29 @@ class Domain:
         return dataclasses.replace(base, name=self.name, description=self.description, world=world,
                                    flights=self.flights, simultaneous=False, noise=noise, emulator=emulator,
                                    default_frames=self.frames(), fps=self.fps, camera_preset=preset,
-                                   image_size=(width, height))
+                                   image_size=(width, height), terrain=self.terrain)
+
+    def flat_twin(self) -> Domain:
+        """The same domain over flat ground: the same worlds, flights, telemetry and detector per seed (the
+        terrain draws from a generator of its own), named <name>-flat."""
+        return dataclasses.replace(self, name=f"{self.name}-flat", description=f"{self.description} (flat twin)",
+                                   terrain=None)
 
     def changes(self) -> dict[str, Any]:
         """What differs from the base scenario (noise, emulator and world fields; the final output)."""
-        extra = {} if self.final_score is None else {"final_output": f"NMS 0.5, scores >= {self.final_score:g}"}
+        extra: dict[str, Any] = {} if self.final_score is None else {
+            "final_output": f"NMS 0.5, scores >= {self.final_score:g}"}
+        if self.terrain is not None:
+            extra["terrain"] = f"{self.terrain.kind} {self.terrain.relief_m:g} m"
         return {**self.noise, **self.emulator, **self.world, **extra}
 
     @property
     def tag(self) -> str:
         """Short hash of the definition: dataset caches keyed by it regenerate when a domain changes."""
         text = repr(self)
-        if self.final_score is None:  # the field came later: domains without it keep their tags and caches
-            text = text.replace(", final_score=None", "")
+        for later in ("final_score", "terrain"):  # fields that came later: domains without them keep their tags
+            if getattr(self, later) is None:
+                text = text.replace(f", {later}=None", "")
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
     def summary(self) -> str:
@@ -245,6 +260,17 @@ _DOMAIN_LIST = (
     Domain("sea-sds-final", "sea, panning flights, SeaDronesSee v2 clocks and the detector's final output (NMS, "
            "scores >= 0.25) at 2 fps: the layout of the real SeaDronesSee files", "heldout", "gentle", "sea",
            _PANNING_SEA, fps=2.0, clip_s=40.0, noise={**_SDS_TELEMETRY, **_SDS_CLOCKS}, final_score=0.25),
+    # Added with the terrain (issue 33): the grass world on hills, a slope and a river bank, heights above the
+    # take-off at the scene's centre; evaluated over flat earth and with the DEM, and against the same flights over
+    # flat ground (Domain.flat_twin). Held out: nothing was chosen on them.
+    Domain("grass-hills", "grass, gentle flights over hills and hollows (12 m from the lowest to the highest, "
+           "slopes to ~15 deg), per-frame jitter", "heldout", "gentle", "grass", _GENTLE_GRASS,
+           noise={**_JITTER, "telemetry_hz": 30.0},
+           terrain=TerrainSpec("hills", relief_m=12.0)),
+    Domain("grass-slope", "grass, gentle flights over a 10 % slope, oblique line flights and orbits", "heldout",
+           "gentle", "grass", _GENTLE_GRASS, terrain=TerrainSpec("slope", relief_m=10.0)),
+    Domain("grass-step", "grass, heading sweeps over a 5 m river bank (a step 3 m wide) near the centre",
+           "heldout", "sweeps", "grass", _SWEEPS, terrain=TerrainSpec("step", relief_m=5.0)),
 )
 
 #: All domains by name.

@@ -1,7 +1,8 @@
 """Ground-truth image boxes: project each object's 3-D box with the TRUE pose and decide its visibility.
 
 All projections go through `shared.geo` (`latlon_to_local`, `local_to_pixel`); a corner at height z above
-the ground is projected as a ground point seen from a camera z metres lower (an exact translation).
+the ground is projected as a ground point seen from a camera z metres lower (an exact translation). Over a
+terrain (`shared.terrain`) the objects stand on its surface and may hide behind it (`terrain_hidden`).
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from shared.geo import Camera, Pose, latlon_to_local, local_to_pixel
+from shared.terrain import Terrain
 
 #: An object is in view when at least this fraction of its box area lies inside the image.
 MIN_INSIDE_FRACTION = 0.5
@@ -56,7 +58,7 @@ def box_corners_local(east_m: np.ndarray, north_m: np.ndarray, yaw_deg: np.ndarr
 
 
 def project_objects(lat: np.ndarray, lon: np.ndarray, yaw_deg: np.ndarray, box_m: tuple[float, float, float],
-                    camera: Camera, pose: Pose) -> ProjectedBoxes:
+                    camera: Camera, pose: Pose, *, terrain: Terrain | None = None) -> ProjectedBoxes:
     """Project N objects' 3-D boxes into the image of `camera` at `pose`.
 
     Parameters
@@ -69,6 +71,8 @@ def project_objects(lat: np.ndarray, lon: np.ndarray, yaw_deg: np.ndarray, box_m
         Box size in metres (height above the ground).
     camera, pose : shared.geo.Camera, shared.geo.Pose
         The TRUE pose.
+    terrain : shared.terrain.Terrain, optional
+        The ground the objects stand on (each footprint corner on its surface); None: flat.
 
     Returns
     -------
@@ -78,15 +82,16 @@ def project_objects(lat: np.ndarray, lon: np.ndarray, yaw_deg: np.ndarray, box_m
     east, north = latlon_to_local(lat, lon, pose.lat, pose.lon)
     east, north = np.atleast_1d(east), np.atleast_1d(north)
     ce, cn = box_corners_local(east, north, np.asarray(yaw_deg, dtype=np.float64), box_m[0], box_m[1])
-    uv_bot, ok_bot = local_to_pixel(ce.ravel(), cn.ravel(), camera, pose)
+    uv_bot, ok_bot = local_to_pixel(ce.ravel(), cn.ravel(), camera, pose, terrain=terrain)
     top_height = pose.height_m - box_m[2]
     if top_height > 0.0:
-        uv_top, ok_top = local_to_pixel(ce.ravel(), cn.ravel(), camera, replace(pose, height_m=top_height))
+        uv_top, ok_top = local_to_pixel(ce.ravel(), cn.ravel(), camera, replace(pose, height_m=top_height),
+                                        terrain=terrain)
     else:  # the camera is below the box tops: nothing is reliably projectable
         uv_top, ok_top = np.full_like(uv_bot, np.nan), np.zeros_like(ok_bot)
     uv = np.concatenate([uv_bot.reshape(n, 4, 2), uv_top.reshape(n, 4, 2)], axis=1)
     valid = np.concatenate([ok_bot.reshape(n, 4), ok_top.reshape(n, 4)], axis=1).all(axis=1)
-    ground_uv, ok_ground = local_to_pixel(east, north, camera, pose)
+    ground_uv, ok_ground = local_to_pixel(east, north, camera, pose, terrain=terrain)
     valid &= ok_ground
     with np.errstate(invalid="ignore"):
         boxes = np.column_stack([uv[:, :, 0].min(axis=1), uv[:, :, 1].min(axis=1),
@@ -99,6 +104,19 @@ def project_objects(lat: np.ndarray, lon: np.ndarray, yaw_deg: np.ndarray, box_m
         ch = clipped[:, 3] - clipped[:, 1]
         in_view = valid & (cw >= MIN_SIZE_PX) & (ch >= MIN_SIZE_PX) & (cw * ch >= MIN_INSIDE_FRACTION * area)
     return ProjectedBoxes(boxes, clipped, ground_uv, valid, in_view)
+
+
+def terrain_hidden(lat: np.ndarray, lon: np.ndarray, centre_height_m: float, pose: Pose,
+                   terrain: Terrain) -> np.ndarray:
+    """(N,) bool: the line of sight from the camera to each object's centre (centre_height_m above the ground
+    at lat, lon degrees) meets the terrain before it (a hill in between). Objects off the DEM count as hidden."""
+    east, north = (np.atleast_1d(a) for a in latlon_to_local(lat, lon, pose.lat, pose.lon))
+    rel = np.column_stack([east, north, terrain.up_m(east, north, pose) + centre_height_m - pose.height_m])
+    dist = np.linalg.norm(rel, axis=1)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        e, n, up, valid = terrain.intersect_rays(rel / dist[:, None], pose)
+        hit = np.sqrt(e * e + n * n + (up - pose.height_m) ** 2)
+        return ~np.isfinite(dist) | (valid & (hit < dist - 0.05))
 
 
 def clip_boxes(boxes_xyxy: np.ndarray, width: int, height: int) -> np.ndarray:

@@ -4,7 +4,8 @@
 when the name is unknown. Scenarios: ``sea`` (swimmers, SeaDronesSee-like), ``sea-hard`` (the same at the
 anomaly paper's per-frame difficulty: higher, rougher, hazier), ``grass`` (people walking,
 POG-like), ``coop`` (two UAVs over one scene, a tree line hides several people from the far one), ``reid``
-(objects leave and re-enter the view), ``trio`` (three UAVs over one meadow for `uavmm demo`).
+(objects leave and re-enter the view), ``trio`` (three UAVs over one meadow for `uavmm demo`), ``hills`` (the
+meadow on hills, with its DEM).
 """
 
 from __future__ import annotations
@@ -16,6 +17,7 @@ from sim.detector_emulator import EmulatorParams
 from sim.flight import ClimbSpec, FlightSpec, HoverSweepsSpec, LawnmowerSpec, LineSpec, OrbitSpec
 from sim.noise import TelemetryNoise
 from sim.sea_state import SeaState
+from sim.terrain import TerrainSpec
 from sim.world import Tree, WorldParams
 
 #: UNIX time of the first frame of every scenario: 2023-06-01T10:00:00Z.
@@ -51,6 +53,9 @@ class Scenario:
     sea_state : SeaState or None
         How rough and murky the renderer draws the sea (`sim.sea_state`); None = the calm sea (and
         nothing written to truth.json, so existing datasets stay byte-identical).
+    terrain : TerrainSpec or None
+        The ground's relief (`sim.terrain`: hills, a slope, a step), drawn per seed; the dataset gets dem.npz.
+        None = flat ground (nothing written to truth.json).
     """
 
     name: str
@@ -65,6 +70,7 @@ class Scenario:
     camera_preset: str = "dji-mavic2-pro"
     image_size: tuple[int, int] = (3840, 2160)
     sea_state: SeaState | None = None
+    terrain: TerrainSpec | None = None
 
     def __post_init__(self) -> None:
         if not self.flights:
@@ -219,8 +225,23 @@ _TRIO = Scenario(
     emulator=EmulatorParams(logit_at_32px=1.7, fp_confusing_frac=0.12),
 )
 
+# Hills: the grass meadow on hills and hollows up to ~12 m (sim.terrain), for trying `--dem`: the dataset gets
+# dem.npz, and truth.json's terrain.takeoff_elevation_m is the --takeoff-elevation-m of its flights.
+_HILLS = Scenario(
+    name="hills",
+    description="People walking on a hilly meadow (hills and hollows up to ~12 m, the DEM written as dem.npz): "
+                "orbit and an oblique line flight at 25-60 m, pitch 30-45 deg; heights above the take-off.",
+    world=_GRASS.world,
+    flights=(
+        OrbitSpec(radius_m=(40.0, 70.0), height_m=(25.0, 60.0)),
+        LineSpec(bearing_deg=(0.0, 360.0), distance_m=(40.0, 55.0), height_m=(25.0, 40.0), pitch_deg=(30.0, 45.0)),
+    ),
+    emulator=_GRASS.emulator,
+    terrain=TerrainSpec("hills", relief_m=12.0),
+)
+
 #: All scenarios by name.
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (_SEA, _SEA_HARD, _GRASS, _COOP, _REID, _TRIO)}
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (_SEA, _SEA_HARD, _GRASS, _COOP, _REID, _TRIO, _HILLS)}
 
 
 def get_scenario(name: str) -> Scenario:

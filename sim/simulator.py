@@ -25,9 +25,10 @@ from sim.detector_emulator import (
     object_appearance,
 )
 from sim.flight import Flight
-from sim.groundtruth import project_objects
+from sim.groundtruth import project_objects, terrain_hidden
 from sim.noise import TelemetryNoise, TelemetryStream, format_frame_time
 from sim.scenarios import GAP_BETWEEN_FLIGHTS_S, START_UNIX_S, Scenario, get_scenario
+from sim.terrain import SimTerrain
 from sim.world import CATEGORY_IDS, World
 
 logger = logging.getLogger(__name__)
@@ -36,7 +37,9 @@ logger = logging.getLogger(__name__)
 CATEGORIES: list[dict[str, Any]] = [{"id": i, "name": n, "supercategory": n} for n, i in CATEGORY_IDS.items()]
 
 # roles of the generators derived from the seed
-_ROLE_WORLD, _ROLE_FLIGHT, _ROLE_TELEMETRY, _ROLE_DETECTOR, _ROLE_APPEARANCE = 0, 1, 2, 3, 4
+_ROLE_WORLD, _ROLE_FLIGHT, _ROLE_TELEMETRY, _ROLE_DETECTOR, _ROLE_APPEARANCE, _ROLE_TERRAIN = 0, 1, 2, 3, 4, 5
+#: Least height of the camera above the terrain below it (metres): flights lower than this are refused.
+MIN_CLEARANCE_M = 3.0
 
 
 @dataclass(frozen=True, slots=True)
@@ -160,6 +163,9 @@ class Simulation:
         COCO categories ``[{id: 1, name: "person"}, {id: 2, name: "swimmer"}]``.
     noise : TelemetryNoise
         The scaled noise in use.
+    terrain : sim.terrain.SimTerrain or None
+        The scenario's terrain for this seed (one for every group: they fly over one place), None = flat.
+        The true poses' heights count from the take-off at the world's origin (its elevation on the DEM).
     """
 
     def __init__(self, scenario: Scenario | str, seed: int = 0, frames: int | None = None,
@@ -193,6 +199,9 @@ class Simulation:
                                              uav=spec.uav, group=g, kind=spec.kind, t0=t0))
         self._objects_per_world = sc.world.n_objects + len(sc.world.fixed_objects)
         self._facts: dict[str, Any] | None = None
+        self.terrain: SimTerrain | None = (None if sc.terrain is None else
+                                           sc.terrain.build(_rng(self.seed, _ROLE_TERRAIN), sc.world.origin_lat,
+                                                            sc.world.origin_lon))
 
     @property
     def n_frames_total(self) -> int:
@@ -245,6 +254,10 @@ class Simulation:
             occ_counts = {v.id: np.zeros((n_obj, 3), dtype=np.int64) for v in videos}  # in_view, occluded, visible
             facts["trees"].extend({"group": g, "east_m": t.east_m, "north_m": t.north_m, "radius_m": t.radius_m,
                                    "height_m": t.height_m} for t in world.trees)
+            relief = self.terrain
+            ground = relief.terrain if relief is not None else None
+            tree_ground = None if relief is None else relief.up_world_m([t.east_m for t in world.trees],
+                                                                        [t.north_m for t in world.trees])
             clat, clon = world.clutter_latlon()
             facts["clutter"].extend({"group": g, "lat": float(a), "lon": float(b)}
                                     for a, b in zip(clat, clon, strict=True))
@@ -267,8 +280,20 @@ class Simulation:
                     meta, _ = streams[v.id].meta(t_rel)
                     pose = Pose(float(plat), float(plon), st.height_m, st.pitch_deg, st.heading_deg,
                                 streams[v.id].camera_roll_deg())
-                    proj = project_objects(all_lat, all_lon, all_yaw, world.box_m, cam, pose)
-                    occluded = world.occluded(st.east_m, st.north_m, st.height_m, all_e, all_n, world.box_m[2] / 2.0)
+                    proj = project_objects(all_lat, all_lon, all_yaw, world.box_m, cam, pose, terrain=ground)
+                    if relief is None or ground is None:
+                        occluded = world.occluded(st.east_m, st.north_m, st.height_m, all_e, all_n,
+                                                  world.box_m[2] / 2.0)
+                    else:
+                        clearance = st.height_m - float(relief.up_world_m(st.east_m, st.north_m))
+                        if not clearance >= MIN_CLEARANCE_M:
+                            raise ValueError(f"scenario {sc.name!r} seed {self.seed}: {v.name} flies "
+                                             f"{clearance:.1f} m above the terrain at {t_rel:.2f} s (at least "
+                                             f"{MIN_CLEARANCE_M:g} m): lower the terrain's relief_m")
+                        occluded = world.occluded(st.east_m, st.north_m, st.height_m, all_e, all_n,
+                                                  world.box_m[2] / 2.0, ground_m=relief.up_world_m(all_e, all_n),
+                                                  tree_ground_m=tree_ground)
+                        occluded |= terrain_hidden(all_lat, all_lon, world.box_m[2] / 2.0, pose, ground)
                     in_view = proj.in_view
                     obj_view, obj_occ = in_view[:n_obj], occluded[:n_obj]
                     visible = obj_view & ~obj_occ
@@ -310,6 +335,8 @@ class Simulation:
                     "blurred_frames": int(blurred_counts[v.id]), "frames_without_meta": int(missing_counts[v.id]),
                 })
             facts["occlusion"].extend(_occlusion_facts(videos, occ_counts, world.track_ids))
+        if self.terrain is not None:
+            facts["terrain"] = self.terrain.facts()
         self._facts = facts
         logger.debug("simulation %s seed %d: %d frames", sc.name, self.seed, image_id)
 
@@ -318,7 +345,8 @@ class Simulation:
 
         Keys: ``videos`` (realised telemetry biases, blurred and meta-less frame counts per video),
         ``occlusion`` (objects that one UAV of a group sees only behind a tree while another sees them),
-        ``trees``, ``clutter``. Raises RuntimeError before a complete pass.
+        ``trees``, ``clutter`` (and ``terrain``, `SimTerrain.facts`, over a terrain). Raises RuntimeError before
+        a complete pass.
         """
         if self._facts is None:
             raise RuntimeError("Simulation.facts() needs a complete pass over frames() first")

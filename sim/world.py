@@ -1,11 +1,12 @@
-"""The simulated ground truth world: flat ground at a real lat/lon with moving objects, trees and clutter.
+"""The simulated ground truth world: ground at a real lat/lon with moving objects, trees and clutter.
 
 People walk (POG-like), swimmers drift in a common current (SeaDronesSee-like); trees are vertical cylinders
 that occlude lines of sight; clutter objects are fixed rocks/buoys that look like the class to a detector.
 
 Positions are kept in local east/north metres around the world origin (`WorldParams.origin_lat/lon`) and
 converted with `shared.geo.local_to_latlon`. The world advances in fixed steps (`World.step`), driven by its
-own seeded generator, so a run is reproducible for a seed.
+own seeded generator, so a run is reproducible for a seed. The ground is flat unless the scenario gives a
+terrain (`sim.terrain`), which objects and trees then stand on (`occluded`'s ground_m, tree_ground_m).
 """
 
 from __future__ import annotations
@@ -220,7 +221,8 @@ class World:
                                self.params.origin_lat, self.params.origin_lon)
 
     def occluded(self, cam_east_m: float, cam_north_m: float, cam_height_m: float,
-                 east_m: np.ndarray, north_m: np.ndarray, centre_height_m: float) -> np.ndarray:
+                 east_m: np.ndarray, north_m: np.ndarray, centre_height_m: float, *,
+                 ground_m: np.ndarray | None = None, tree_ground_m: np.ndarray | None = None) -> np.ndarray:
         """Whether the line of sight from the camera to each point passes through a tree.
 
         Parameters
@@ -231,6 +233,9 @@ class World:
             Target ground positions (world-local metres).
         centre_height_m : float
             Height of the target point above the ground (the object's centre), m.
+        ground_m, tree_ground_m : (N,) and (T,) float, optional
+            Over a terrain: the ground's height under each target and under each tree (`trees` order), m in
+            the frame of cam_height_m; None: flat ground at 0.
 
         Returns
         -------
@@ -259,7 +264,11 @@ class World:
             s0 = np.clip((-qb - sq) / (2.0 * qa), 0.0, 1.0)
             s1 = np.clip((-qb + sq) / (2.0 * qa), 0.0, 1.0)
         # Height along the segment decreases with s; inside the cylinder over [s0, s1] the lowest point is at s1.
-        z_at_s1 = cam_height_m + s1 * (centre_height_m - cam_height_m)
+        if ground_m is None:
+            z_at_s1 = cam_height_m + s1 * (centre_height_m - cam_height_m)
+        else:  # over a terrain: the target and the trees stand on their own ground
+            z_at_s1 = cam_height_m + s1 * (ground_m[:, None] + centre_height_m - cam_height_m)
+            th = th + (np.zeros(len(self.trees)) if tree_ground_m is None else tree_ground_m)[None, :]
         hit = (disc > 0.0) & (qa > 0.0) & (s1 > s0) & (z_at_s1 <= th)
         out = hit.any(axis=1)
         return out

@@ -42,7 +42,8 @@ def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetecti
         lon=np.asarray(result.lon, dtype=np.float64).reshape(-1),
         used=duplicate_mask(boxes, scores, class_ids, config.duplicate_iou, config.duplicate_ioa),
         z=np.full((n, 2), np.nan), R=np.zeros((n, 2, 2)), geo=np.zeros(n, dtype=bool),
-        emb=unit_rows(result.embeddings, n) if config.use_appearance and result.embeddings is not None else None)
+        emb=unit_rows(result.embeddings, n) if config.use_appearance and result.embeddings is not None else None,
+        view_h=None if result.view_height_m is None else np.asarray(result.view_height_m, np.float64).reshape(-1))
 
 
 def duplicate_mask(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,

@@ -18,7 +18,7 @@ FloatArray = NDArray[np.float64]
 
 
 def ground_measurement_cov(
-    rel_east_m: FloatArray, rel_north_m: FloatArray, height_m: float, focal_px: float, *,
+    rel_east_m: FloatArray, rel_north_m: FloatArray, height_m: float | FloatArray, focal_px: float, *,
     position_sigma_m: float, heading_sigma_deg: float, pitch_sigma_deg: float, height_sigma_m: float,
     pixel_sigma_px: float, max_sigma_m: float = math.inf,
 ) -> FloatArray:
@@ -28,8 +28,8 @@ def ground_measurement_cov(
     ----------
     rel_east_m, rel_north_m : (N,) float
         Ground points relative to the point below the UAV, metres.
-    height_m : float
-        UAV height above the ground, metres (> 0).
+    height_m : float or (N,) float
+        UAV height above the ground, metres (> 0); per point over a terrain (shared.terrain.effective_height_m).
     focal_px : float
         Focal length, pixels.
     position_sigma_m : float

@@ -115,13 +115,13 @@ def anchored_offset(track_boxes: NDArray, track_cls: NDArray, track_xy: NDArray,
     return (float(off[0]), float(off[1])), n_in
 
 
-def correction_jacobian(rel_xy: NDArray, height_m: float) -> NDArray[np.float64]:
+def correction_jacobian(rel_xy: NDArray, height_m: float | NDArray) -> NDArray[np.float64]:
     """How ground points move with a small pose correction: (N, 2) east/north metres relative to the point
     below the UAV -> (N, 2, 4), the derivative of each point by (east m, north m, heading rad, pitch rad).
 
     A position error moves every point alike; a heading error turns the points about the UAV (clockwise:
     range * d_theta sideways); a pitch error (more depression) pulls them in along the ray by
-    slant^2 / h * d_beta (flat ground).
+    slant^2 / h * d_beta (flat ground; height_m per point: the effective heights over a terrain).
     """
     rel = np.asarray(rel_xy, dtype=np.float64).reshape(-1, 2)
     e, n = rel[:, 0], rel[:, 1]
@@ -135,7 +135,7 @@ def correction_jacobian(rel_xy: NDArray, height_m: float) -> NDArray[np.float64]
     return J
 
 
-def fit_pose_correction(rel_xy: NDArray, residual: NDArray, S: NDArray, height_m: float, prior_sd: NDArray,
+def fit_pose_correction(rel_xy: NDArray, residual: NDArray, S: NDArray, height_m: float | NDArray, prior_sd: NDArray,
                         gate_chi2: float, min_pairs: int, *,
                         robust_scale: bool = False) -> tuple[NDArray, NDArray, NDArray[np.bool_], float] | None:
     """The pose correction (east m, north m, heading rad, pitch rad) that moves detections onto their tracks.

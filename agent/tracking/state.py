@@ -74,7 +74,9 @@ class FrameDetections:
     boxes (N, 4) pixels; scores (N,) boosted, raw (N,) the detector's; entry (N,): the score births and
     re-identifications are judged by; score_cost (N,) -score_weight * ln(raw); cls (N,); lat, lon (N,)
     degrees; used (N,): taken (or set aside) in this frame; z (N, 2) local ground points, metres, with
-    covariances R (N, 2, 2); geo (N,): has a ground point; emb (N, D) unit descriptors or None.
+    covariances R (N, 2, 2); geo (N,): has a ground point; emb (N, D) unit descriptors or None; view_h (N,)
+    over a terrain: the flat-ground height with each ground point's along-ray error (FrameResult.view_height_m;
+    NaN: the pose's), None over flat ground.
     """
 
     boxes: FloatArray
@@ -90,6 +92,7 @@ class FrameDetections:
     R: FloatArray
     geo: NDArray[np.bool_]
     emb: FloatArray | None = None  # (n, D) unit appearance descriptors, NaN rows: none
+    view_h: FloatArray | None = None  # (n,) over a terrain: the flat-ground height of each point's error model
 
 
 @dataclass

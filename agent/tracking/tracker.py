@@ -326,11 +326,14 @@ class GpsTracker:
             pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
             focal = math.sqrt(camera.fx * camera.fy)
             rel = np.column_stack([rel_e, rel_n])
+            # the error models' height: the pose's over flat ground, each point's effective one over a terrain
+            h: float | FloatArray = pose.height_m if dets.view_h is None else np.maximum(
+                np.where(np.isfinite(dets.view_h[geo]), dets.view_h[geo], pose.height_m), 1.0)
             self.last_correction_carried = False
             if cfg.image_register:
-                anchored = self._apply_image_registration(dets, t, geo, rel, pose, focal, heading_sd, pitch_sd)
+                anchored = self._apply_image_registration(dets, t, geo, rel, h, focal, heading_sd, pitch_sd)
                 if anchored is None and cfg.carry_correction and np.any(self._pending):
-                    carried = self._carry_correction(dets, geo, rel, pose)
+                    carried = self._carry_correction(dets, geo, rel, h)
                 if anchored is not None or carried:
                     self._uav_en = (uav_e, uav_n)
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
@@ -347,7 +350,7 @@ class GpsTracker:
                         self.last_offset_en = offset
             if anchored is None:
                 dets.R[geo] = ground_measurement_cov(
-                    rel_e, rel_n, pose.height_m, focal, position_sigma_m=cfg.position_sigma_m,
+                    rel_e, rel_n, h, focal, position_sigma_m=cfg.position_sigma_m,
                     heading_sigma_deg=heading_sd, pitch_sigma_deg=pitch_sd, height_sigma_m=cfg.height_sigma_m,
                     pixel_sigma_px=cfg.pixel_sigma_px, max_sigma_m=cfg.max_measurement_sigma_m)
 
@@ -395,7 +398,7 @@ class GpsTracker:
             self._follow_telemetry(dt, carried=carried)
 
     def _apply_image_registration(self, dets: FrameDetections, t: float, geo: NDArray[np.bool_], rel: FloatArray,
-                                  pose: Pose, focal_px: float, heading_sd_deg: float,
+                                  h: float | FloatArray, focal_px: float, heading_sd_deg: float,
                                   pitch_sd_deg: float) -> tuple[float, float, float, float] | None:
         """Register the frame in the image (`_register_in_image`) and, when that worked, move its ground points
         by the correction and give them what is left of the telemetry's error: the correction's own
@@ -403,23 +406,23 @@ class GpsTracker:
         (smoothed over registered_scale_s), and registered_error_scale of the unregistered model's
         telemetry part. Returns the correction (east m, north m, heading deg, pitch deg) or None."""
         cfg = self.config
-        fit = self._register_in_image(dets, t, geo, rel, pose, focal_px, heading_sd_deg, pitch_sd_deg)
+        fit = self._register_in_image(dets, t, geo, rel, h, focal_px, heading_sd_deg, pitch_sd_deg)
         if fit is None:
             return None
         correction, cov, scale = fit
-        J = correction_jacobian(rel, pose.height_m)
+        J = correction_jacobian(rel, h)
         dets.z[geo] += J @ correction
         a = 1.0 if self._scale_t is None else 1.0 - math.exp(-max(t - self._scale_t, 0.0)
                                                            / max(cfg.registered_scale_s, 1e-6))
         self._log_scale += a * (math.log(scale) - self._log_scale)
         self._scale_t = t
         floor = cfg.registered_floor_m ** 2 * np.eye(2)
-        dets.R[geo] = math.exp(self._log_scale) * (self._pixel_cov(rel, pose, focal_px) + floor) \
+        dets.R[geo] = math.exp(self._log_scale) * (self._pixel_cov(rel, h, focal_px) + floor) \
             + J @ cov @ J.transpose(0, 2, 1)
         if cfg.registered_error_scale > 0:
             k = cfg.registered_error_scale
             dets.R[geo] += ground_measurement_cov(
-                rel[:, 0], rel[:, 1], pose.height_m, focal_px, position_sigma_m=k * cfg.position_sigma_m,
+                rel[:, 0], rel[:, 1], h, focal_px, position_sigma_m=k * cfg.position_sigma_m,
                 heading_sigma_deg=k * heading_sd_deg, pitch_sigma_deg=k * pitch_sd_deg,
                 height_sigma_m=k * cfg.height_sigma_m, pixel_sigma_px=0.0, max_sigma_m=cfg.max_measurement_sigma_m)
         self._correction = correction
@@ -429,15 +432,16 @@ class GpsTracker:
         log.debug("t=%.3f registered in the image: east %.2f north %.2f m, heading %.2f pitch %.2f deg", t, *out)
         return out
 
-    def _pixel_cov(self, rel: FloatArray, pose: Pose, focal_px: float) -> FloatArray:
-        """(N, 2, 2) ground error of points (N, 2) relative to the UAV from the pixel error alone."""
+    def _pixel_cov(self, rel: FloatArray, h: float | FloatArray, focal_px: float) -> FloatArray:
+        """(N, 2, 2) ground error of points (N, 2) relative to the UAV from the pixel error alone; h: the height
+        of the error model (scalar or per point)."""
         cfg = self.config
-        return ground_measurement_cov(rel[:, 0], rel[:, 1], pose.height_m, focal_px, position_sigma_m=0.0,
+        return ground_measurement_cov(rel[:, 0], rel[:, 1], h, focal_px, position_sigma_m=0.0,
                                       heading_sigma_deg=0.0, pitch_sigma_deg=0.0, height_sigma_m=0.0,
                                       pixel_sigma_px=cfg.pixel_sigma_px, max_sigma_m=cfg.max_measurement_sigma_m)
 
     def _register_in_image(self, dets: FrameDetections, t: float, geo: NDArray[np.bool_], rel: FloatArray,
-                           pose: Pose, focal_px: float, heading_sd_deg: float,
+                           h: float | FloatArray, focal_px: float, heading_sd_deg: float,
                            pitch_sd_deg: float) -> tuple[FloatArray, FloatArray, float] | None:
         """The frame's pose correction (east m, north m, heading rad, pitch rad) and its covariance, from its
         confident detections and the confirmed tracks they overlap in the image (TrackerConfig.image_register);
@@ -465,16 +469,18 @@ class GpsTracker:
             return None
         ti, di = ti[pt], strong[pd]
         rel_pairs = rel[row_of[di]]
-        S = act["P"][ti, :2, :2] + self._pixel_cov(rel_pairs, pose, focal_px) \
+        h_pairs = h if np.isscalar(h) else np.asarray(h)[row_of[di]]
+        S = act["P"][ti, :2, :2] + self._pixel_cov(rel_pairs, h_pairs, focal_px) \
             + cfg.registered_floor_m ** 2 * np.eye(2)
         prior = np.array([cfg.register_position_sd_m, cfg.register_position_sd_m,
                           math.radians(cfg.register_angle_scale * heading_sd_deg),
                           math.radians(cfg.register_angle_scale * pitch_sd_deg)])
-        fit = fit_pose_correction(rel_pairs, act["x"][ti, :2] - dets.z[di], S, pose.height_m, prior,
+        fit = fit_pose_correction(rel_pairs, act["x"][ti, :2] - dets.z[di], S, h_pairs, prior,
                                   cfg.gate_chi2, need, robust_scale=cfg.registered_scale_s > 0)
         return None if fit is None else (fit[0], fit[1], fit[3])
 
-    def _carry_correction(self, dets: FrameDetections, geo: NDArray[np.bool_], rel: FloatArray, pose: Pose) -> bool:
+    def _carry_correction(self, dets: FrameDetections, geo: NDArray[np.bool_], rel: FloatArray,
+                          h: float | FloatArray) -> bool:
         """A frame the image could not register: move its ground points by what the tracks have not yet followed
         of the last registered correction (`_pending`; TrackerConfig.carry_correction). The tracks sit that far
         from the telemetry's frame, whatever this frame's telemetry says, so the raw points would miss them by
@@ -483,7 +489,7 @@ class GpsTracker:
         last. Returns True when applied."""
         if abs(self._heading_lp_rate_deg_s) > self.config.register_max_turn_deg_s:
             return False  # a turning gimbal: the correction's angle part was the telemetry's lag, not lasting
-        dets.z[geo] += correction_jacobian(rel, pose.height_m) @ self._pending
+        dets.z[geo] += correction_jacobian(rel, h) @ self._pending
         out = (float(self._pending[0]), float(self._pending[1]), math.degrees(self._pending[2]),
                math.degrees(self._pending[3]))
         self.last_correction = out

@@ -163,6 +163,9 @@ class SimulatedDataset:
             raise ValueError(f"{self.directory / 'images.json'} is not COCO (no 'images' list)")
         if not isinstance(truth, dict) or not isinstance(truth.get("poses"), list) or "scenario" not in truth:
             raise ValueError(f"{self.directory / 'truth.json'} is not a simulator truth file (no 'poses'/'scenario')")
+        if "terrain" in truth:  # the renderer draws flat ground: its frames would not show the annotated boxes
+            raise ValueError(f"{self.directory} was simulated over a terrain ({truth['terrain'].get('kind')}); the "
+                             "renderer draws flat ground only (the dataset itself needs no frames)")
         try:
             self._parse(coco, truth)
         except (KeyError, TypeError, IndexError) as exc:

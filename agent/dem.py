@@ -1,0 +1,150 @@
+"""DEM files into `shared.terrain` (the `--dem FILE` of the commands that georeference): GeoTIFF and any raster
+GDAL opens (through rasterio, the `dem` extra), SRTM .hgt tiles and our .npz (pure numpy).
+
+`read_dem(path)` dispatches by extension; `load_terrain(path, takeoff_elevation_m)` makes the Terrain.
+Errors are ValueErrors naming the file.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+from pathlib import Path
+
+import numpy as np
+
+from shared.terrain import ElevationGrid, Terrain
+
+__all__ = ["DEM_SUFFIXES", "NPZ_FORMAT", "load_terrain", "read_dem", "read_hgt", "read_npz", "read_raster",
+           "write_npz"]
+
+#: Extensions read without rasterio; anything else goes to rasterio (GeoTIFF .tif/.tiff, .vrt, .img, ...).
+DEM_SUFFIXES = (".hgt", ".npz")
+NPZ_FORMAT = "uavmm-dem"
+#: SRTM's void value.
+HGT_VOID = -32768
+log = logging.getLogger(__name__)
+_HGT_NAME = re.compile(r"^([NS])(\d{2})([EW])(\d{3})$", re.IGNORECASE)
+_RASTERIO_MISSING = ("reading {path} needs rasterio (GeoTIFF and the other GDAL rasters): "
+                     "pip install 'uav-memory-maps[dem]' (or give an SRTM .hgt or a .npz DEM)")
+
+
+def read_dem(path: str | Path) -> ElevationGrid:
+    """The DEM in `path`: .hgt (SRTM), .npz (write_npz), else a raster through rasterio (GeoTIFF, ...)."""
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"DEM file {path} does not exist")
+    suffix = path.suffix.lower()
+    if suffix == ".hgt":
+        return read_hgt(path)
+    if suffix == ".npz":
+        return read_npz(path)
+    return read_raster(path)
+
+
+def load_terrain(path: str | Path, takeoff_elevation_m: float | None = None) -> Terrain:
+    """Terrain of the DEM in `path` with the take-off's elevation (None: decided later, see
+    `shared.terrain.Terrain`); logs the grid it read (INFO)."""
+    grid = read_dem(path)
+    log.info("DEM %s: %s", path, grid)
+    return Terrain(grid, takeoff_elevation_m)
+
+
+def read_hgt(path: str | Path) -> ElevationGrid:
+    """An SRTM tile: big-endian int16, 1201 x 1201 (3 arc-seconds) or 3601 x 3601 (1 arc-second) samples, named
+    after its south-west corner (N47E009.hgt: 47..48 N, 9..10 E); row 0 is the northern edge, samples on the
+    whole-degree lines. Voids (-32768) become NaN."""
+    path = Path(path)
+    match = _HGT_NAME.match(path.name.split(".")[0])
+    if match is None:
+        raise ValueError(f"SRTM file {path}: the name must give the tile's south-west corner like N47E009.hgt")
+    ns, lat, ew, lon = match.groups()
+    south = int(lat) * (1 if ns.upper() == "N" else -1)
+    west = int(lon) * (1 if ew.upper() == "E" else -1)
+    raw = np.fromfile(path, dtype=">i2")
+    side = math.isqrt(len(raw))
+    if side * side != len(raw) or side not in (1201, 3601):
+        raise ValueError(f"SRTM file {path}: {len(raw)} samples, not 1201 x 1201 or 3601 x 3601")
+    heights = raw.reshape(side, side).astype(np.float64)
+    heights[raw.reshape(side, side) == HGT_VOID] = np.nan
+    step = 1.0 / (side - 1)
+    try:
+        return ElevationGrid(heights, lat0_deg=south + 1.0, lon0_deg=float(west), lat_step_deg=-step,
+                             lon_step_deg=step)
+    except ValueError as exc:
+        raise ValueError(f"SRTM file {path}: {exc}") from None
+
+
+def write_npz(path: str | Path, grid: ElevationGrid) -> None:
+    """The grid as .npz: heights_m (float32 when that keeps every height to the millimetre, else float64),
+    lat0_deg, lon0_deg, lat_step_deg, lon_step_deg and format "uavmm-dem", version 1."""
+    heights = grid.heights_m
+    small = heights.astype(np.float32)
+    exact = np.allclose(small, heights, atol=5e-4, equal_nan=True)
+    np.savez_compressed(Path(path), heights_m=small if exact else heights, lat0_deg=grid.lat0_deg,
+                        lon0_deg=grid.lon0_deg, lat_step_deg=grid.lat_step_deg, lon_step_deg=grid.lon_step_deg,
+                        format=NPZ_FORMAT, version=1)
+
+
+def read_npz(path: str | Path) -> ElevationGrid:
+    """A DEM written by write_npz."""
+    path = Path(path)
+    try:
+        with np.load(path, allow_pickle=False) as data:
+            if str(data.get("format", "")) != NPZ_FORMAT:
+                raise ValueError(f"not a {NPZ_FORMAT} file (no format field)")
+            fields = {k: data[k] for k in ("heights_m", "lat0_deg", "lon0_deg", "lat_step_deg", "lon_step_deg")}
+    except KeyError as exc:
+        raise ValueError(f"DEM file {path}: missing field {exc}") from None
+    except (OSError, ValueError) as exc:
+        raise ValueError(f"DEM file {path}: {exc}") from None
+    try:
+        return ElevationGrid(np.asarray(fields["heights_m"], dtype=np.float64),
+                             **{k: float(v) for k, v in fields.items() if k != "heights_m"})
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"DEM file {path}: {exc}") from None
+
+
+def read_raster(path: str | Path, band: int = 1) -> ElevationGrid:
+    """One band of a raster GDAL opens (GeoTIFF, VRT, ...), in metres. A geographic, north-up raster is taken
+    as it is; any other CRS (UTM, national grids) or a rotated one is resampled (bilinear) onto a lat/lon grid
+    of about the same resolution, since the terrain is looked up by lat/lon. nodata and masked samples
+    become NaN; a band's scale and offset are applied."""
+    path = Path(path)
+    try:
+        import rasterio
+        from rasterio.warp import Resampling, calculate_default_transform, reproject
+    except ImportError:
+        raise ValueError(_RASTERIO_MISSING.format(path=path)) from None
+    try:
+        with rasterio.open(path) as ds:
+            if ds.crs is None:
+                raise ValueError("the raster has no coordinate reference system")
+            if not 1 <= band <= ds.count:
+                raise ValueError(f"band {band} does not exist (the raster has {ds.count})")
+            data = ds.read(band, masked=True).astype(np.float64)
+            heights = np.ma.filled(data, np.nan) * ds.scales[band - 1] + ds.offsets[band - 1]
+            transform, crs = ds.transform, ds.crs
+            if not crs.is_geographic or transform.b != 0 or transform.d != 0:
+                dst_crs = "EPSG:4326"
+                dst_transform, width, height = calculate_default_transform(crs, dst_crs, ds.width, ds.height,
+                                                                           *ds.bounds)
+                out = np.full((height, width), np.nan)
+                reproject(heights, out, src_transform=transform, src_crs=crs, src_nodata=np.nan,
+                          dst_transform=dst_transform, dst_crs=dst_crs, dst_nodata=np.nan,
+                          resampling=Resampling.bilinear)
+                heights, transform = out, dst_transform
+    except rasterio.errors.RasterioError as exc:
+        raise ValueError(f"DEM file {path}: {exc}") from None
+    except ValueError as exc:
+        raise ValueError(f"DEM file {path}: {exc}") from None
+    if transform.a < 0:  # columns east to west: flip them
+        heights = heights[:, ::-1]
+        transform = transform @ rasterio.Affine.translation(heights.shape[1], 0) @ rasterio.Affine.scale(-1, 1)
+    try:
+        # sample points at the pixels' centres (GDAL's transform gives the corners)
+        return ElevationGrid(heights, lat0_deg=transform.f + transform.e / 2, lon0_deg=transform.c + transform.a / 2,
+                             lat_step_deg=transform.e, lon_step_deg=transform.a)
+    except ValueError as exc:
+        raise ValueError(f"DEM file {path}: {exc}") from None

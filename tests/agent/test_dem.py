@@ -1,0 +1,113 @@
+"""DEM files (agent.dem): GeoTIFF through rasterio (geographic and projected), SRTM .hgt tiles, our .npz."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from agent.dem import HGT_VOID, load_terrain, read_dem, read_hgt, read_npz, write_npz
+from shared.terrain import ElevationGrid
+
+rasterio = pytest.importorskip("rasterio")
+
+
+def origin(west, north, dx, dy):
+    """GDAL's transform of a north-up raster (rasterio.transform.from_origin, without its deprecated `*`)."""
+    return rasterio.Affine.translation(west, north) @ rasterio.Affine.scale(dx, -dy)
+
+
+def write_geotiff(path, heights, transform, crs, nodata=None):
+    with rasterio.open(path, "w", driver="GTiff", height=heights.shape[0], width=heights.shape[1], count=1,
+                       dtype="float32", crs=crs, transform=transform, nodata=nodata) as ds:
+        ds.write(heights.astype(np.float32), 1)
+
+
+def test_a_geographic_geotiff_is_read_at_its_pixel_centres_with_nodata_as_nan(tmp_path):
+    heights = np.arange(12, dtype=float).reshape(3, 4) * 10.0
+    heights[2, 3] = -9999.0
+    path = tmp_path / "dem.tif"
+    write_geotiff(path, heights, origin(9.0, 47.003, 0.001, 0.001), "EPSG:4326",
+                  nodata=-9999.0)
+    grid = read_dem(path)
+    assert grid.shape == (3, 4)
+    assert grid.height_at(47.0025, 9.0005) == pytest.approx(0.0)  # centre of the north-west pixel
+    assert grid.height_at(47.0015, 9.0025) == pytest.approx(60.0)  # row 1, column 2
+    assert grid.height_at(47.0020, 9.0010) == pytest.approx(np.mean([0.0, 10.0, 40.0, 50.0]))  # between four
+    assert np.isnan(grid.height_at(47.0005, 9.0035))  # the nodata pixel
+    assert np.isnan(grid.height_at(47.0028, 9.0005))  # north of the first row of centres
+
+
+def test_a_projected_geotiff_is_resampled_to_lat_lon(tmp_path):
+    from rasterio.warp import transform as warp
+
+    # UTM 32N around (47.67 N, 9.27 E), 2 m pixels, a plane rising 0.1 m per metre east and 0.05 north
+    x0, y0 = warp("EPSG:4326", "EPSG:32632", [9.26], [47.675])
+    xs = x0[0] + 2.0 * (np.arange(400) + 0.5)
+    ys = y0[0] - 2.0 * (np.arange(400) + 0.5)
+    xx, yy = np.meshgrid(xs, ys)
+    plane = 400.0 + 0.1 * (xx - x0[0]) + 0.05 * (yy - y0[0])
+    path = tmp_path / "utm.tif"
+    write_geotiff(path, plane, origin(x0[0], y0[0], 2.0, 2.0), "EPSG:32632")
+    grid = read_dem(path)
+    lats = np.array([47.670, 47.672, 47.668])
+    lons = np.array([9.265, 9.270, 9.268])
+    ux, uy = warp("EPSG:4326", "EPSG:32632", lons.tolist(), lats.tolist())
+    expected = 400.0 + 0.1 * (np.array(ux) - x0[0]) + 0.05 * (np.array(uy) - y0[0])
+    np.testing.assert_allclose(grid.height_at(lats, lons), expected, atol=0.05)
+
+
+def test_srtm_tiles_by_name_with_voids(tmp_path):
+    side = 1201
+    tile = np.zeros((side, side), dtype=">i2")
+    tile[0, 0] = 500  # north-west corner: 48 N, 9 E
+    tile[side - 1, side - 1] = 300  # south-east corner: 47 N, 10 E
+    tile[600, 600] = HGT_VOID
+    path = tmp_path / "N47E009.hgt"
+    tile.tofile(path)
+    grid = read_hgt(path)
+    assert grid.height_at(48.0, 9.0) == pytest.approx(500.0)
+    assert grid.height_at(47.0, 10.0) == pytest.approx(300.0)
+    assert np.isnan(grid.height_at(47.5, 9.5))
+    assert grid.bounds() == pytest.approx((47.0, 48.0, 9.0, 10.0))
+    south_west = tmp_path / "s12w077.hgt"
+    np.zeros((side, side), dtype=">i2").tofile(south_west)
+    assert read_dem(south_west).bounds() == pytest.approx((-12.0, -11.0, -77.0, -76.0))
+
+
+@pytest.mark.parametrize(("name", "size", "match"), [
+    ("N47E009.hgt", 1000, "1201 x 1201"),
+    ("tile.hgt", 1201 * 1201, "N47E009"),
+])
+def test_bad_srtm_files_are_refused_naming_the_file(tmp_path, name, size, match):
+    path = tmp_path / name
+    np.zeros(size, dtype=">i2").tofile(path)
+    with pytest.raises(ValueError, match=match) as info:
+        read_dem(path)
+    assert name in str(info.value)
+
+
+def test_npz_round_trip_and_bad_files(tmp_path):
+    grid = ElevationGrid(np.array([[1.25, 2.5], [np.nan, 4.0]]), lat0_deg=47.001, lon0_deg=9.0,
+                         lat_step_deg=-0.001, lon_step_deg=0.001)
+    path = tmp_path / "dem.npz"
+    write_npz(path, grid)
+    back = read_npz(path)
+    np.testing.assert_array_equal(back.heights_m, grid.heights_m)
+    assert (back.lat0_deg, back.lon0_deg, back.lat_step_deg, back.lon_step_deg) == (47.001, 9.0, -0.001, 0.001)
+    np.savez(tmp_path / "other.npz", heights=np.zeros((2, 2)))
+    with pytest.raises(ValueError, match="other.npz"):
+        read_dem(tmp_path / "other.npz")
+    with pytest.raises(ValueError, match="does not exist"):
+        read_dem(tmp_path / "missing.tif")
+    (tmp_path / "junk.tif").write_text("not a raster")
+    with pytest.raises(ValueError, match="junk.tif"):
+        read_dem(tmp_path / "junk.tif")
+
+
+def test_load_terrain_carries_the_takeoff_elevation(tmp_path):
+    path = tmp_path / "dem.npz"
+    write_npz(path, ElevationGrid(np.full((2, 2), 100.0), lat0_deg=47.001, lon0_deg=9.0, lat_step_deg=-0.001,
+                                  lon_step_deg=0.001))
+    terrain = load_terrain(path, 95.0)
+    assert terrain.takeoff_elevation_m == 95.0 and terrain.grid.shape == (2, 2)
+    assert load_terrain(path).takeoff_elevation_m is None
