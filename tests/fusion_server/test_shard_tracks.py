@@ -24,7 +24,7 @@ from fusion_server.shard_tracks import (
 )
 from shared.keys import KeySpace
 from shared.messages import MESSAGE_ERROR_REASONS, MessageError
-from tests.netutil import free_port
+from tests.netutil import free_port, wait_until
 
 KEYS = KeySpace()
 
@@ -125,6 +125,8 @@ def sessions():
     other.insert_json5("connect/endpoints", json.dumps([f"tcp/127.0.0.1:{port}"]))
     other.insert_json5("scouting/multicast/enabled", "false")
     with zenoh.open(conf) as shard_side, zenoh.open(other) as gateway_side:
+        # connected before the first query (under load the link came up after it and the query went unanswered)
+        wait_until(lambda: list(gateway_side.info.peers_zid()), 10.0, "the two sessions to connect")
         yield shard_side, gateway_side
 
 
