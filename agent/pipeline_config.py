@@ -52,9 +52,9 @@ class PipelineConfig:
         +6.6 / +6.6)).
     use_memory: False gives the single-frame baseline (same filter and NMS, no boosting).
     use_size_filter: apply the distance-size filter, per class only where its prior agrees with the data:
-        size_check_min_score, size_check_min_boxes, size_check_max_shift, size_check_recentre
+        size_check_min_score, size_check_min_boxes, size_check_max_shift, size_check_widen
         (agent.size_filter_check: the confident boxes that stand for real objects, how many a class needs,
-        how far (std) their median may lie from the prior's mean, and whether the band is centred on it;
+        how far (std) their median may lie from the prior's mean, and whether the band is widened to it;
         the built-in priors would have removed a fifth of the real swimmers of SeaDronesSee).
     anchor: where on a box its ground point is: "center" (the paper), "bottom" (feet of an upright
         object) or "auto" (from the bottom at grazing views to the centre at nadir).
@@ -205,7 +205,7 @@ class PipelineConfig:
     size_check_min_score: float = 0.5
     size_check_min_boxes: int = 15
     size_check_max_shift: float = 3.0
-    size_check_recentre: bool = True
+    size_check_widen: bool = True
     calibrate_scores: bool = True
     calibration_max_floor: float = 0.05
     calibration_tau_s: float = 30.0
@@ -300,7 +300,7 @@ class PipelineConfig:
     def size_check_settings(self) -> SizeCheckSettings:
         """The size filter's check of its priors against the data (agent.size_filter_check)."""
         return SizeCheckSettings(min_score=self.size_check_min_score, min_boxes=self.size_check_min_boxes,
-                                 max_shift=self.size_check_max_shift, recentre=self.size_check_recentre)
+                                 max_shift=self.size_check_max_shift, widen=self.size_check_widen)
 
     @property
     def range_limit_m(self) -> float:

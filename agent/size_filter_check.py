@@ -1,4 +1,4 @@
-"""The size filter checks its priors against the data, and centres them on it, before it removes anything.
+"""The size filter checks its priors against the data, and widens them to it, before it removes anything.
 
 A size prior (built in, or fitted on other flights) says which metric sizes a class can have at each
 viewing angle. On a camera, a height reference, an annotation style or a detector it was not made for it
@@ -6,14 +6,15 @@ can be off by a factor: on real SeaDronesSee flights the built-in swimmer prior 
 have removed a fifth of the true swimmers, whose confident boxes sit 1.2 to 3.5 of its standard deviations
 above its mean. The detector's confident boxes (score >= `min_score`) are mostly real objects: per class,
 where they lie in the prior's band (z = (log size - mean) / std) is collected, and once at least
-`min_boxes` were seen the band is moved by their median z (rounded to `step`: the data's typical size
-becomes the band's centre, its width stays) when that lies within +-`max_shift`; further off the prior is
-not for these data and the class stays unfiltered. A median, not a share of rejected boxes: confident false
-positives of implausible size, which the filter is for, put 1-9 % of the simulator's dense pre-NMS
-candidates beyond the band's edge and in a video with few objects make up most of its confident boxes, but
-they do not move the median far (-0.3 std there), while a scale error moves all real objects together.
-Files are checked on the whole video before its first frame (`prime`); a live feed is checked as it goes
-(the class stays unfiltered until its evidence is in).
+`min_boxes` were seen the band is widened on the side of their median z by that much (rounded to `step`)
+when it lies within +-`max_shift`: the data can only loosen a prior, never make it stricter than it is
+(centring it instead cut the small, partly hidden people of the simulator's `coop` scenario: -0.8 AP50).
+Further off, the prior is not for these data and the class stays unfiltered. A median, not a share of
+rejected boxes: confident false positives of implausible size, which the filter is for, put 1-9 % of the
+simulator's dense pre-NMS candidates beyond the band's edge and in a video with few objects make up most of
+its confident boxes, but they do not move the median far (-0.3 std there), while a scale error moves all
+real objects together. Files are checked on the whole video before its first frame (`prime`); a live feed
+is checked as it goes (the class stays unfiltered until its evidence is in).
 """
 
 from __future__ import annotations
@@ -24,10 +25,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.size_filter import SizeFilter
+from agent.size_filter import SizeBand, SizeFilter
 from agent.stage_report import StageReport
 
-__all__ = ["SizeCheckSettings", "SizeFilterCheck"]
+__all__ = ["SizeCheckSettings", "SizeFilterCheck", "widened"]
 
 #: z is collected in a histogram over +-_Z_RANGE (bounded memory on long flights), bins of _Z_BIN std.
 _Z_RANGE = 10.0
@@ -37,16 +38,16 @@ _Z_BIN = 0.05
 @dataclass(frozen=True, slots=True)
 class SizeCheckSettings:
     """min_score: boxes at least this confident stand for real objects; min_boxes: confident boxes of a
-    class needed before its prior may act; max_shift: the prior is moved by the confident boxes' median z
+    class needed before its prior may act; max_shift: the band is widened to the confident boxes' median z
     (in std of its band) when that is within +-max_shift, else the class stays unfiltered; step: the
     shift is rounded to multiples of this (a live feed's band changes only when the median moves that
-    far); recentre: False keeps the prior where it is (the check alone)."""
+    far); widen: False keeps the prior as it is (the check alone)."""
 
     min_score: float = 0.5
     min_boxes: int = 15
     max_shift: float = 3.0
     step: float = 0.25
-    recentre: bool = True
+    widen: bool = True
 
     def __post_init__(self) -> None:
         if not (0.0 <= self.min_score <= 1.0):
@@ -113,22 +114,19 @@ class SizeFilterCheck:
         median = self.median_z(name)
         if self.seen(name) < s.min_boxes or median is None or abs(median) > s.max_shift:
             return None
-        return round(median / s.step) * s.step if s.recentre else 0.0
+        return round(median / s.step) * s.step if s.widen else 0.0
 
     @property
     def active(self) -> SizeFilter:
-        """The size filter as applied: the bands of the classes whose check passed, each moved by its shift
-        (the others pass unfiltered)."""
+        """The size filter as applied: the bands of the classes whose check passed, each widened on the side
+        of its shift s by |s| std (`widened`; the others pass unfiltered)."""
         shifts = {name: shift for name in self.size_filter.bands if (shift := self.shift(name)) is not None}
         key = frozenset(shifts.items())
         if key != self._active_names:  # a new object only when the decision changes (it keys cached tables)
             self._active_names = key
-            bands = {}
-            for name, shift in shifts.items():
-                band = self.size_filter.bands[name]
-                bands[name] = band if not shift else dataclasses.replace(
-                    band, mean_log_m=tuple(m + shift * sd for m, sd in zip(band.mean_log_m, band.std_log, strict=True)))
-            self._active = SizeFilter(bands, self.size_filter.k)
+            k = self.size_filter.k
+            bands = {name: widened(self.size_filter.bands[name], shift, k) for name, shift in shifts.items()}
+            self._active = SizeFilter(bands, k)
         return self._active
 
     def reports(self, classes: list[str] | None = None) -> list[StageReport]:
@@ -145,9 +143,19 @@ class SizeFilterCheck:
             elif shift is None:
                 why = f"{name}: the confident boxes lie beyond +-{s.max_shift:g} std of the prior: not for these data"
             elif shift:
-                way = "up" if shift > 0 else "down"
-                why = f"{name}: prior centred on the confident boxes ({way} by {abs(shift):g} std)"
+                way = "larger" if shift > 0 else "smaller"
+                why = f"{name}: prior widened to the confident boxes ({way} sizes, {abs(shift):g} std)"
             else:
                 why = f"{name}: the confident boxes agree with the prior (median {median:+.2f} std)"
             out.append(StageReport("size filter", shift is not None, why))
         return out
+
+
+def widened(band: SizeBand, shift: float, k: float) -> SizeBand:
+    """The band [mean - k std, mean + k std] reaching |shift| std further on the side of shift's sign and
+    unchanged on the other: mean + shift / 2 std, std x (1 + |shift| / (2 k)). The band itself when shift is 0."""
+    if not shift:
+        return band
+    means = tuple(m + 0.5 * shift * sd for m, sd in zip(band.mean_log_m, band.std_log, strict=True))
+    stds = tuple(sd * (1.0 + abs(shift) / (2.0 * k)) for sd in band.std_log)
+    return dataclasses.replace(band, mean_log_m=means, std_log=stds)

@@ -260,7 +260,7 @@ def test_pipeline_uses_numpy_path_for_distorted_cameras_with_the_same_result():
     for cam in (camera, distorted):
         # random box sizes: trust the priors without checking them, so that the filter is exercised
         pipe = DetectionPipeline(cam, {1: "person", 2: "swimmer"},
-                                 PipelineConfig(size_check_max_shift=9.5, size_check_recentre=False,
+                                 PipelineConfig(size_check_max_shift=9.5, size_check_widen=False,
                                                 size_check_min_boxes=1))
         for k in range(3):
             res = pipe.process(boxes, scores, cids, pose, k / 30.0)
