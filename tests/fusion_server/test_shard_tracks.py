@@ -149,6 +149,11 @@ def test_two_shards_answer_the_gateway_from_their_workers_and_bad_queries_get_er
         queryable.start()
         declared.append(shard_side.declare_queryable(queryable.key, queryable.on_query))
     try:
+        # both queryables known on the gateway's side before the client asks (the declarations travel
+        # after the link is up; under load the first query went out before them and nobody answered)
+        wait_until(lambda: sum(r.ok is not None for r in gateway_side.get(
+            KEYS.shard_tracks("*", 2), payload=encode_request(TrackQuery()), timeout=2.0)) == 2,
+            20.0, "both shards' queryables to reach the gateway")
         client = ShardTracks(KEYS, 2, cache_s=60.0)
         assert client.live() is None  # no session yet: nobody asked
         client.session = gateway_side
