@@ -14,10 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+from shared.geo import Pose
 from shared.terrain import ElevationGrid, Terrain
 
 __all__ = ["DEM_SUFFIXES", "NPZ_FORMAT", "load_terrain", "read_dem", "read_hgt", "read_npz", "read_raster",
-           "write_npz"]
+           "takeoff_terrain", "write_npz"]
 
 #: Extensions read without rasterio; anything else goes to rasterio (GeoTIFF .tif/.tiff, .vrt, .img, ...).
 DEM_SUFFIXES = (".hgt", ".npz")
@@ -49,6 +50,22 @@ def load_terrain(path: str | Path, takeoff_elevation_m: float | None = None) -> 
     grid = read_dem(path)
     log.info("DEM %s: %s", path, grid)
     return Terrain(grid, takeoff_elevation_m)
+
+
+def takeoff_terrain(terrain: Terrain, pose: Pose) -> Terrain:
+    """The terrain a video is georeferenced on, given its first pose: a terrain without a take-off elevation takes
+    the DEM's height under that pose (telemetry heights are above take-off, and a video starts over the take-off's
+    ground unless --takeoff-elevation-m says otherwise); one with it, or a pose off the DEM, is returned as it is
+    (off the DEM, heights count from the ground below the UAV, frame by frame; logged)."""
+    if terrain.takeoff_elevation_m is not None:
+        return terrain
+    elevation = float(terrain.height_at(pose.lat, pose.lon))
+    if math.isfinite(elevation):
+        log.info("terrain: take-off elevation %.1f m (the DEM under the video's first pose)", elevation)
+        return terrain.with_takeoff_elevation(elevation)
+    log.warning("terrain: the video's first pose (%.6f, %.6f) is off the DEM: heights are taken above the DEM under "
+                "the UAV, frame by frame", pose.lat, pose.lon)
+    return terrain
 
 
 def read_hgt(path: str | Path) -> ElevationGrid:

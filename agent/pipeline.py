@@ -15,6 +15,7 @@ from numpy.typing import NDArray
 
 from agent._kernels import georeference_and_filter, small_distinct
 from agent.boxes import anchor_fraction, box_anchor_points, nms
+from agent.dem import takeoff_terrain
 from agent.frame_result import FrameResult
 from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
@@ -145,15 +146,7 @@ class DetectionPipeline:
             return terrain
         cached = self.__dict__.get("_video_terrain")
         if cached is None or cached[0] is not terrain:
-            elevation = float(terrain.height_at(pose.lat, pose.lon))
-            if math.isfinite(elevation):
-                log.info("terrain: take-off elevation %.1f m (the DEM under the video's first pose)", elevation)
-                resolved = terrain.with_takeoff_elevation(elevation)
-            else:
-                log.warning("terrain: the video's first pose (%.6f, %.6f) is off the DEM: heights are taken above "
-                            "the DEM under the UAV, frame by frame", pose.lat, pose.lon)
-                resolved = terrain
-            cached = self.__dict__["_video_terrain"] = (terrain, resolved)
+            cached = self.__dict__["_video_terrain"] = (terrain, takeoff_terrain(terrain, pose))
         return cached[1]
 
     def ground_points(self, boxes_xyxy: NDArray, pose: Pose) -> tuple[NDArray, NDArray, NDArray | None, NDArray]:

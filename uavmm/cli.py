@@ -134,14 +134,7 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
                    help="fitted size-filter file (uavmm fit-size-filter); default: built-in priors")
     g.add_argument("--size-filter-k", type=float, default=None, help="band half-width in std (3)")
     g.add_argument("--no-size-filter", action="store_true", help="do not filter boxes by size")
-    t = p.add_argument_group("terrain (docs/geometry.md, Terrain)")
-    t.add_argument("--dem", type=Path, default=None, metavar="FILE",
-                   help="georeference on this elevation model instead of flat ground: GeoTIFF or any raster GDAL "
-                        "opens (needs the dem extra: rasterio), SRTM .hgt, or .npz (uavmm sim writes dem.npz)")
-    t.add_argument("--takeoff-elevation-m", type=float, default=None, metavar="METRES",
-                   help="--dem: elevation of the take-off point on the DEM's datum, the height the telemetry's "
-                        "heights count from (0: heights above the datum, e.g. abs_alt above sea level; default: "
-                        "the DEM's height under each video's first pose)")
+    add_terrain_options(p)
     if joint_mode:
         g.add_argument("--joint-mode", choices=["max", "local", "joint", "mean"], default=None,
                        help="how the joint map combines with the local one for boosting (max; local = ignore it)")
@@ -154,6 +147,31 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
         g.add_argument("--joint-carry-s", type=float, default=None,
                        help="seconds this UAV's last sighting of an object the others see stands in for it "
                             "(0.5; 0 = off)")
+
+
+def add_terrain_options(p: argparse.ArgumentParser) -> None:
+    """--dem FILE and --takeoff-elevation-m METRES (read by `terrain_from_args`): every command that puts pixels on
+    the ground (boost, track, agent, detect, anomaly) takes the same two."""
+    t = p.add_argument_group("terrain (docs/geometry.md, Terrain)")
+    t.add_argument("--dem", type=Path, default=None, metavar="FILE",
+                   help="georeference on this elevation model instead of flat ground: GeoTIFF or any raster GDAL "
+                        "opens (needs the dem extra: rasterio), SRTM .hgt, or .npz (uavmm sim writes dem.npz)")
+    t.add_argument("--takeoff-elevation-m", type=float, default=None, metavar="METRES",
+                   help="--dem: elevation of the take-off point on the DEM's datum, the height the telemetry's "
+                        "heights count from (0: heights above the datum, e.g. abs_alt above sea level; default: "
+                        "the DEM's height under each video's first pose)")
+
+
+def terrain_from_args(args: argparse.Namespace):
+    """The Terrain --dem and --takeoff-elevation-m describe (`agent.dem.load_terrain`), or None without --dem;
+    CliError for --takeoff-elevation-m alone, ValueError naming the file for a DEM that cannot be read."""
+    if args.dem is not None:
+        from agent.dem import load_terrain
+
+        return load_terrain(args.dem, args.takeoff_elevation_m)
+    if args.takeoff_elevation_m is not None:
+        raise CliError("--takeoff-elevation-m needs --dem FILE")
+    return None
 
 
 def _add_clock_offset_flags(g: argparse._ArgumentGroup, *, fallback: str | None = None) -> None:
@@ -191,12 +209,9 @@ def _pipeline_from_args(args: argparse.Namespace, *, use_memory: bool):
     size_filter = SizeFilter.load(args.size_filter) if args.size_filter else (tuned_filter or SizeFilter.builtin())
     if args.size_filter_k is not None:
         size_filter = dataclasses.replace(size_filter, k=args.size_filter_k)
-    if args.dem is not None:
-        from agent.dem import load_terrain
-
-        cfg = dataclasses.replace(cfg, terrain=load_terrain(args.dem, args.takeoff_elevation_m))
-    elif args.takeoff_elevation_m is not None:
-        raise CliError("--takeoff-elevation-m needs --dem FILE")
+    terrain = terrain_from_args(args)
+    if terrain is not None:
+        cfg = dataclasses.replace(cfg, terrain=terrain)
     return cfg, size_filter
 
 

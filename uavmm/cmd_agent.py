@@ -89,20 +89,20 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--anomaly", metavar="METHOD", default=None,
                    help="also run anomaly detection on the frames' pixels (autoencoder, diff, mean, median, mog2) "
                         "and publish its ground layer as tiles of class 'anomaly' (--video, or --dataset with "
-                        "image files; docs/anomaly.md)")
+                        "image files; on the --dem terrain when given; docs/anomaly.md)")
     p.set_defaults(handler=_run_agent)
 
 
-def anomaly_from_args(args: argparse.Namespace):
+def anomaly_from_args(args: argparse.Namespace, terrain=None):
     """The anomaly detector --anomaly asks for, or None; ValueError for an unknown method or a source without
-    pixels."""
+    pixels. terrain: the pipeline's (--dem), whose surface the anomaly layer maps the heat onto as well."""
     if args.anomaly is None:
         return None
     if args.sim is not None:
         raise ValueError("--anomaly needs the frames' pixels: use --video or --dataset with rendered images")
     from agent.anomaly import AnomalyConfig, AnomalyDetector
 
-    return AnomalyDetector(AnomalyConfig(method=args.anomaly))
+    return AnomalyDetector(AnomalyConfig(method=args.anomaly, terrain=terrain))
 
 
 def source_from_args(args: argparse.Namespace):
@@ -183,7 +183,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     if problem is not None:
         raise ValueError(problem)
     pipeline_config, size_filter = pipeline_from_args(args)
-    anomaly = anomaly_from_args(args)
+    anomaly = anomaly_from_args(args, pipeline_config.terrain)
     source = source_from_args(args)
     stop = stop_on_signals(log)
 

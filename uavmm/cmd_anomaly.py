@@ -11,6 +11,8 @@ import sys
 import time
 from pathlib import Path
 
+from uavmm.cli import add_terrain_options, terrain_from_args
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     """Add the `anomaly` and `anomaly-train` subcommands."""
@@ -22,7 +24,8 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "mean/median filter residual, MOG2) mapped below the horizon onto the ground grid, averaged "
                     "there with forgetting, read back into each frame; regions of interest are its connected "
                     "components above a threshold. Writes a COCO result list (category 'anomaly'). --no-memory "
-                    "gives the per-frame baseline. See docs/anomaly.md.",
+                    "gives the per-frame baseline; --dem maps the heat onto the terrain instead of flat ground. See "
+                    "docs/anomaly.md.",
     )
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--frames", type=Path, help="IMAGES.json (image files relative to its folder)")
@@ -40,6 +43,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-range-m", type=float, default=None, help="ground range mapped, m (120)")
     p.add_argument("--height-m", type=float, default=None, help="height above ground for telemetry without one")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
+    add_terrain_options(p)
     p.set_defaults(handler=run_anomaly)
 
     t = sub.add_parser(
@@ -67,7 +71,7 @@ def _config(args: argparse.Namespace):
     method = make_method(args.method, **options)  # unknown names: one line listing the valid ones
     map_kw = {k: v for k, v in (("half_life_s", args.half_life_s), ("max_range_m", args.max_range_m)) if v is not None}
     cfg = AnomalyConfig(method=args.method, use_memory=not args.no_memory,
-                        map=dataclasses.replace(AnomalyMapConfig(), **map_kw))
+                        map=dataclasses.replace(AnomalyMapConfig(), **map_kw), terrain=terrain_from_args(args))
     if args.threshold is not None:
         cfg = dataclasses.replace(cfg, roi_threshold=args.threshold)
     return cfg, method
@@ -113,7 +117,7 @@ def run_anomaly(args: argparse.Namespace) -> int:
     tmp.write_text(json.dumps(results))
     os.replace(tmp, args.out)
     seconds = time.perf_counter() - started
-    mode = "per-frame" if args.no_memory else "memory map"
+    mode = ("per-frame" if args.no_memory else "memory map") + (f", terrain {args.dem.name}" if args.dem else "")
     print(f"wrote {len(results)} regions of interest for {n} frames to {args.out} ({args.method}, {mode}; "
           f"{without_pose} frames without telemetry; {n / max(seconds, 1e-9):.1f} frames/s)")
     return 0

@@ -22,7 +22,9 @@ from agent.anomaly.ground import AnomalyMap, AnomalyMapConfig, cut_row
 from agent.anomaly.methods import DEFAULT_Z_MAX, AnomalyMethod, normalise_robust
 from agent.anomaly.registration import GroundRegistration
 from agent.anomaly.registry import DEFAULT_METHOD, make_method
+from agent.dem import takeoff_terrain
 from shared.geo import Camera, Pose, image_to_ground_homography, latlon_to_local
+from shared.terrain import Terrain
 from shared.tiles import TileGrid
 
 #: Robust z-score scale of the layer's boost (`AnomalyConfig.layer_z_max`, the "sum" rule), chosen on the tuning
@@ -68,6 +70,10 @@ class AnomalyConfig:
         LAYER_Z_MAX since 26 Nov 2026 (the method's z_max, 8, before).
     register: place the frames on the ground with `GroundRegistration` (telemetry made consistent by image
         alignment) instead of the telemetry alone.
+    terrain: the ground's DEM (`--dem`): heat is mapped onto its surface, cells it hides are not seen, and the cut
+        row is the first image row that shows a mapped cell (`agent.anomaly.terrain_view`); None: flat ground.
+        Without a take-off elevation, each video takes the DEM's height under its first pose
+        (`agent.dem.takeoff_terrain`, as the detection pipeline does).
     """
 
     method: str = DEFAULT_METHOD
@@ -82,6 +88,7 @@ class AnomalyConfig:
     normalise_layer: bool = True
     layer_z_max: float = LAYER_Z_MAX
     register: bool = True
+    terrain: Terrain | None = None
 
     def __post_init__(self) -> None:
         if self.combine not in COMBINE_RULES:
@@ -97,6 +104,9 @@ class AnomalyConfig:
         if self.memory_weight is not None and not (math.isfinite(self.memory_weight) and self.memory_weight >= 0):
             raise ValueError(f"AnomalyConfig.memory_weight must be None or a finite number >= 0, "
                              f"got {self.memory_weight!r}")
+        if self.terrain is not None and not isinstance(self.terrain, Terrain):
+            raise ValueError(f"AnomalyConfig.terrain must be a shared.terrain.Terrain or None, "
+                             f"got {type(self.terrain).__name__}")
 
 
 @dataclass(frozen=True, slots=True)
@@ -203,14 +213,25 @@ class AnomalyDetector:
         self.map = AnomalyMap(self.config.map, grid)
         self.registration = GroundRegistration() if self.config.register else None
         self._ref: tuple[float, float] | None = None
+        self._terrain: Terrain | None = None
 
     def reset(self) -> None:
-        """A new video: forget the previous frames and the layer."""
+        """A new video: forget the previous frames and the layer (and the take-off elevation taken from the DEM)."""
         self.method.reset()
         self.map.reset()
         if self.registration is not None:
             self.registration.reset()
         self._ref = None
+        self._terrain = None
+
+    def terrain_for(self, pose: Pose) -> Terrain | None:
+        """The terrain of this video (None: flat ground): the configured one, its take-off elevation taken from the
+        DEM under the video's first pose when it has none (`agent.dem.takeoff_terrain`)."""
+        if self.config.terrain is None:
+            return None
+        if self._terrain is None:
+            self._terrain = takeoff_terrain(self.config.terrain, pose)
+        return self._terrain
 
     def image_to_world(self, camera: Camera, pose: Pose) -> NDArray[np.float64]:
         """(3, 3) homography from full-resolution pixels to metres east/north of the sequence's first pose."""
@@ -242,15 +263,21 @@ class AnomalyDetector:
         cfg = self.config
         row = 0
         layer = None
+        terrain = None
         if pose is not None:
             row = cut_row(camera, pose, cfg.map.max_range_m, cfg.map.horizon_margin_deg)
-        first = min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))  # the cut in heat rows
+            terrain = self.terrain_for(pose)
         if pose is not None and cfg.use_memory:
             g = None
-            if self.registration is not None:
+            if self.registration is not None:  # on flat homographies over a terrain too (registration.py says why)
                 g = self.registration.to_pose_local(self.registration.update(image, camera, pose, row, t), pose)
-            self.map.update(heat, camera, pose, t, g)
-            scores = layer = self.map.image_scores(camera, pose, heat.shape, g)
+            self.map.update(heat, camera, pose, t, g, terrain)
+            scores = layer = self.map.image_scores(camera, pose, heat.shape, g, terrain)
+        if terrain is not None:  # the first row that shows a mapped cell of the terrain
+            assert pose is not None
+            row = self.map.terrain_cut_row(camera, pose, terrain, g if cfg.use_memory else None)
+        first = min(heat.shape[0], int(math.ceil(row * heat.shape[0] / camera.height)))  # the cut in heat rows
+        if layer is not None:
             if cfg.memory_weight is None:
                 pass  # the layer alone
             elif cfg.combine == "min":

@@ -10,6 +10,9 @@ The layer keeps two decaying sums per cell on a `agent.memory_map.MemoryMap` win
 recentring and forgetting as the detection maps): heat x observation time and observation time. Their
 ratio is the cell's heat averaged over the recent frames that saw it; cells seen for less than
 ``prior_s`` are pulled towards 0, so one noisy glimpse does not count as much as a steady sighting.
+With a terrain (`--dem`) the cells are lifted onto the DEM and projected one by one, the cells the terrain hides
+are left out (`agent.anomaly.terrain_view`), each takes the mean of the heat over its own footprint box, and the
+layer is read back by spreading each cell's value over that box (`footprint_means`, `spread_footprints`).
 """
 
 from __future__ import annotations
@@ -21,8 +24,10 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.anomaly.terrain_view import TerrainCells, TerrainView, terrain_cut_row, terrain_view
 from agent.memory_map import MemoryMap, MemoryMapConfig
 from shared.geo import Camera, Pose, ground_to_image_homography, latlon_to_local, pixel_ground_distance_m
+from shared.terrain import Terrain
 from shared.tiles import CellWindow, TileGrid
 
 #: Class name of the layer on the wire (tiles ``uav/{uav}/tiles/anomaly/...``) and in COCO results.
@@ -169,6 +174,94 @@ def cell_mean(band: NDArray[np.float32], cell_to_band: NDArray[np.float64], rows
     return out
 
 
+def _box_edges(centre: NDArray[np.float64], size: NDArray[np.float64], limit: int, *, outward: bool = False
+               ) -> tuple[NDArray[np.int64], NDArray[np.int64]]:
+    """Pixel edges [lo, hi) of boxes of the given sizes (at least one pixel; NaN: one) about real-valued centres
+    (pixel i spans [i, i + 1)), rounded to the nearest edges (outward: to the edges that hold the whole box),
+    clipped to [0, limit], never empty."""
+    hi = np.fmax(size, 1.0)
+    hi *= 0.5
+    lo = centre - hi
+    hi += centre
+    if outward:
+        np.floor(lo, out=lo)
+        np.ceil(hi, out=hi)
+    else:
+        np.rint(lo, out=lo)
+        np.rint(hi, out=hi)
+    first = np.minimum(np.maximum(lo, 0.0, out=lo), limit - 1.0, out=lo).astype(np.int64)
+    last = np.minimum(np.maximum(hi, 1.0, out=hi), float(limit), out=hi).astype(np.int64)
+    return first, np.maximum(last, first + 1, out=last)
+
+
+def footprint_means(image: NDArray[np.float32], u: NDArray[np.float64], v: NDArray[np.float64],
+                    kx: NDArray[np.float64], ky: NDArray[np.float64]) -> NDArray[np.float32]:
+    """(N,) float32 mean of image (h, w) float32 over the box of kx x ky pixels about each point (u, v) (pixel i
+    spans [i, i + 1); float64 (N,) arrays), the terrain path's `cell_mean`: a summed-area table for boxes of two
+    pixels or more, bilinear sampling (edges replicated) where the box is smaller (the flat path's odd box 1).
+    NaN sizes count as small."""
+    out = np.empty(len(u), np.float32)
+    small = ~((kx >= 2.0) | (ky >= 2.0))
+    if small.any():
+        n = int(small.sum())
+        rows = -(-n // 1024)  # OpenCV's maps are images of fewer than 32767 columns
+        mx = np.zeros(rows * 1024, np.float32)
+        my = np.zeros(rows * 1024, np.float32)
+        mx[:n], my[:n] = u[small] - 0.5, v[small] - 0.5
+        sampled = cv2.remap(image, mx.reshape(rows, 1024), my.reshape(rows, 1024), cv2.INTER_LINEAR,
+                            borderMode=cv2.BORDER_REPLICATE)
+        out[small] = sampled.reshape(-1)[:n]
+    big = ~small
+    if big.any():
+        h, w = image.shape
+        sat = np.asarray(cv2.integral(image, sdepth=cv2.CV_64F)).ravel()  # (h + 1, w + 1): image[:y, :x].sum()
+        x0, x1 = _box_edges(u[big], kx[big], w)
+        y0, y1 = _box_edges(v[big], ky[big], h)
+        area = (x1 - x0) * (y1 - y0)
+        y0 *= w + 1
+        y1 *= w + 1
+        total = sat.take(y1 + x1) - sat.take(y0 + x1) - sat.take(y1 + x0) + sat.take(y0 + x0)
+        out[big] = total / area
+    return out
+
+
+def spread_footprints(shape: tuple[int, int], u: NDArray[np.float64], v: NDArray[np.float64],
+                      kx: NDArray[np.float64], ky: NDArray[np.float64], values: NDArray[np.float32]
+                      ) -> NDArray[np.float32]:
+    """The read-back counterpart of `footprint_means`: an (h, w) float32 image where each pixel holds the mean of
+    the values whose boxes (kx x ky pixels, at least one, about (u, v), rounded outward so that neighbouring cells'
+    boxes leave no pixel between them) cover it, 0 where none does.
+
+    The boxes are painted by their four corners into a difference image and integrated (a summed-area table),
+    so the cost does not grow with their size."""
+    h, w = shape
+    x0, x1 = _box_edges(u, kx, w, outward=True)
+    y0, y1 = _box_edges(v, ky, h, outward=True)
+    stride = w + 1
+    y0 *= stride
+    y1 *= stride
+    n = len(u)
+    idx = np.empty(4 * n, np.int64)
+    weights = np.empty(4 * n)
+    for k, (row, col, sign) in enumerate(((y0, x0, 1.0), (y0, x1, -1.0), (y1, x0, -1.0), (y1, x1, 1.0))):
+        np.add(row, col, out=idx[k * n:(k + 1) * n])
+        weights[k * n:(k + 1) * n] = sign
+    size = (h + 1) * stride
+
+    def integrate(corner_weights: NDArray[np.float64]) -> NDArray[np.float64]:
+        corners = np.bincount(idx, corner_weights, size).reshape(h + 1, stride)
+        sat = np.asarray(cv2.integral(corners, sdepth=cv2.CV_64F), dtype=np.float64)
+        return sat[1:h + 1, 1:w + 1]  # the inclusive 2-D cumulative sum
+
+    count = integrate(weights)
+    weights *= np.tile(values.astype(np.float64), 4)
+    total = integrate(weights)
+    # counts are whole numbers (exact); where no box covers a pixel its total is 0 but for rounding
+    np.maximum(count, 1.0, out=count)
+    out = (total / count).astype(np.float32)
+    return np.maximum(out, 0.0, out=out)
+
+
 class AnomalyMap:
     """The anomaly layer: `update` with each frame's heatmap, `image_scores` to read it back into a frame,
     `tiles` to publish it.
@@ -186,6 +279,8 @@ class AnomalyMap:
         self._sums = _SumLayers(MemoryMapConfig(window_m=self.config.window_m, half_life_s=self.config.half_life_s,
                                                 max_step_s=self.config.max_step_s), self.grid)
         self._t_prev: float | None = None
+        self._terrain_cells: TerrainCells | None = None
+        self._view: tuple[tuple[object, ...], TerrainView | None] | None = None  # (key, the last view)
 
     def reset(self) -> None:
         """Forget everything (a new video)."""
@@ -244,18 +339,62 @@ class AnomalyMap:
             return None
         return row, c2i, cells, (c0, r0, c1, r1)
 
+    def terrain_view(self, camera: Camera, pose: Pose, terrain: Terrain,
+                     ground_to_image: NDArray[np.float64] | None = None) -> TerrainView | None:
+        """The window cells the frame sees on the terrain and their pixels (`agent.anomaly.terrain_view`), None when
+        it sees none; the last one is kept, so an update and the read-back of the same frame compute it once."""
+        key = (camera, pose, terrain.grid, terrain.takeoff_elevation_m, self._sums.origin, self.size_cells,
+               None if ground_to_image is None else ground_to_image.tobytes())
+        if self._view is not None and self._view[0] == key:
+            return self._view[1]
+        cfg = self.config
+        view = terrain_view(camera, pose, terrain, self._cells_of(terrain), self._cell_to_local(pose),
+                            self.size_cells, self._step_m(pose, terrain), cfg.max_range_m, cfg.horizon_margin_deg,
+                            ground_to_image)
+        self._view = (key, view)
+        return view
+
+    def _cells_of(self, terrain: Terrain) -> TerrainCells:
+        if self._terrain_cells is None or self._terrain_cells.grid is not terrain.grid:
+            self._terrain_cells = TerrainCells(terrain.grid)
+        return self._terrain_cells
+
+    def terrain_cut_row(self, camera: Camera, pose: Pose, terrain: Terrain,
+                        ground_to_image: NDArray[np.float64] | None = None) -> int:
+        """First full-resolution row that shows a cell the layer maps on the terrain (`TerrainView.cut_row`; the
+        camera's height when none): of this frame's view once the layer's window is placed, else on a lattice
+        about the UAV (`agent.anomaly.terrain_view.terrain_cut_row`: the per-frame baseline has no window)."""
+        if self.size_cells == 0:
+            cfg = self.config
+            return terrain_cut_row(camera, pose, terrain, self._cells_of(terrain), self._step_m(pose, terrain),
+                                   cfg.max_range_m, cfg.horizon_margin_deg)
+        view = self.terrain_view(camera, pose, terrain, ground_to_image)
+        return camera.height if view is None else view.cut_row
+
+    def _step_m(self, pose: Pose, terrain: Terrain) -> float:
+        """The terrain path's lattice step: a grid cell, or the DEM's spacing where that is finer."""
+        return min(float(self.grid.cell_size_m(pose.lat)), *terrain.grid.cell_size_m())
+
     def update(self, heat: NDArray[np.float32], camera: Camera, pose: Pose, t: float,
-               ground_to_image: NDArray[np.float64] | None = None) -> bool:
+               ground_to_image: NDArray[np.float64] | None = None, terrain: Terrain | None = None) -> bool:
         """Add one frame's heatmap (h, w) float32 in [0, 1] (any scale of the camera's frame) seen at time t
         (seconds) with the camera pose. Returns False when no pixel of the frame maps to the ground.
 
         ground_to_image: the frame's (3, 3) homography from metres east/north of the pose's position to
-        full-resolution pixels when known better than the pose's own (`agent.anomaly.registration`)."""
+        full-resolution pixels when known better than the pose's own (`agent.anomaly.registration`).
+        terrain: map the heat onto this terrain's surface (`terrain_view`: cells hidden by the terrain are not
+        seen); None: flat ground (one homography)."""
         cfg = self.config
         dt = 0.0 if self._t_prev is None else min(max(t - self._t_prev, 0.0), cfg.max_step_s)
         self._t_prev = t if self._t_prev is None else max(self._t_prev, t)
         self._sums.advance(t, pose.lat, pose.lon)
         amount = dt if dt > 0 else 1.0 / 30.0  # the first frame counts as one frame at 30 fps
+        if terrain is not None:
+            view = self.terrain_view(camera, pose, terrain, ground_to_image)
+            if view is None:
+                return False
+            self._add_terrain_heat(heat, camera, view, amount)
+            return True
         foot = self._footprint(camera, pose, ground_to_image)
         if foot is None:
             return False
@@ -291,6 +430,29 @@ class AnomalyMap:
         self._sums.add_block(_SEEN, seen, r0, c0)
         return True
 
+    def _add_terrain_heat(self, heat: NDArray[np.float32], camera: Camera, view: TerrainView, amount: float) -> None:
+        """The terrain path of `update`: each seen cell takes the mean heat of its footprint box about its pixel."""
+        hh, hw = heat.shape
+        first = min(hh - 1, int(view.cut_row * hh / camera.height))
+        band = heat[first:]
+        # as on flat ground: a heatmap finer than _MAX_PX_PER_CELL at its finest cell is resampled first
+        px_per_cell = hw / camera.width * view.max_step_px
+        if px_per_cell > _MAX_PX_PER_CELL:
+            k = _RESAMPLE_PX_PER_CELL / px_per_cell
+            band = np.asarray(cv2.resize(band, (max(1, int(round(band.shape[1] * k))),
+                                                max(1, int(round(band.shape[0] * k)))),
+                                         interpolation=cv2.INTER_LINEAR), dtype=np.float32)
+        sx, sy = band.shape[1] / camera.width, band.shape[0] / ((hh - first) * camera.height / hh)
+        y0 = first * camera.height / hh  # full-resolution row of the band's top edge
+        means = footprint_means(np.ascontiguousarray(band), view.uv[:, 0] * sx, (view.uv[:, 1] - y0) * sy,
+                                view.footprint[:, 0] * sx, view.footprint[:, 1] * sy)
+        c0, r0, _, _ = view.block
+        seen = view.valid.astype(np.float32) * np.float32(amount)
+        warmed = np.zeros(view.valid.shape, np.float32)
+        warmed[view.valid] = means * np.float32(amount)
+        self._sums.add_block(_HEAT, warmed, r0, c0)
+        self._sums.add_block(_SEEN, seen, r0, c0)
+
     # ------------------------------------------------------------------ read
     def layer(self, block: tuple[int, int, int, int] | None = None) -> NDArray[np.float32] | None:
         """The averaged heat, float32 in [0, 1]: the whole window (size, size), north-west cell first, or the
@@ -308,9 +470,13 @@ class AnomalyMap:
         return out
 
     def image_scores(self, camera: Camera, pose: Pose, shape: tuple[int, int],
-                     ground_to_image: NDArray[np.float64] | None = None) -> NDArray[np.float32]:
+                     ground_to_image: NDArray[np.float64] | None = None, terrain: Terrain | None = None
+                     ) -> NDArray[np.float32]:
         """The layer seen from a frame: (h, w) float32 at an image scale of the camera (shape = (h, w)),
-        0 above the cut row (horizon, range) and where the window holds nothing (ground_to_image as in update)."""
+        0 above the cut row (horizon, range) and where the window holds nothing (ground_to_image and terrain as in
+        update; with a terrain each seen cell's value is spread over its footprint box, `spread_footprints`)."""
+        if terrain is not None:
+            return self._terrain_scores(camera, pose, shape, ground_to_image, terrain)
         out = np.zeros(shape, dtype=np.float32)
         foot = self._footprint(camera, pose, ground_to_image)
         if foot is None:
@@ -330,6 +496,19 @@ class AnomalyMap:
         out[first:] = cv2.warpPerspective(block, img_to_block, (w, h - first),
                                           flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                           borderMode=cv2.BORDER_CONSTANT)
+        return out
+
+    def _terrain_scores(self, camera: Camera, pose: Pose, shape: tuple[int, int],
+                        ground_to_image: NDArray[np.float64] | None, terrain: Terrain) -> NDArray[np.float32]:
+        view = self.terrain_view(camera, pose, terrain, ground_to_image)
+        block = None if view is None else self.layer(view.block)
+        if view is None or block is None:
+            return np.zeros(shape, dtype=np.float32)
+        h, w = shape
+        sx, sy = w / camera.width, h / camera.height
+        out = spread_footprints(shape, view.uv[:, 0] * sx, view.uv[:, 1] * sy, view.footprint[:, 0] * sx,
+                                view.footprint[:, 1] * sy, block[view.valid])
+        out[:int(math.ceil(view.cut_row * h / camera.height))] = 0.0
         return out
 
     @property

@@ -12,6 +12,17 @@ prediction (an alpha-beta filter). While the view sweeps the ground fast the tel
 good as its timing (a 10 Hz sample held for three frames, a latency): the pull is weighted down by the share
 of the telemetry's error that its timing adds at that speed. Without a usable image alignment it falls back to
 the telemetry.
+
+Over a terrain (`--dem`) the registration stays on flat homographies, and the ground layer uses only its
+difference to the telemetry's own homography, as a correction in the image applied to the cells projected on
+the terrain (`agent.anomaly.terrain_view`). Both are homographies to well under a pixel: between consecutive
+frames the UAV moves a few decimetres, so the relief's parallax is small, and the telemetry's errors are mostly
+of attitude, which move every point of the image by one homography whatever its height. Measured on the `hills`
+DEM (12 m of relief; 1080p, in pixels of the 640-wide working scale): the image motion between consecutive
+frames departs from the best homography by 0.04-0.08 px RMS (at most 0.16-0.39 px; 0.13-0.24 px RMS over three
+frames) at 8-15 m/s and 12-30 m above the take-off, and the telemetry's errors (GPS 0.3 m, heading 0.5 deg,
+pitch 0.3 deg) as an image homography leave 0.013 px RMS (median over 20 poses; at most 0.31 px at a point),
+against ECC's own alignment noise on its 320-pixel level. The drift estimate is then that of the ground, ~0.
 """
 
 from __future__ import annotations
