@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from agent.dem import write_npz
+from sim.detector_emulator import EmulatorParams
 from sim.noise import CLOCK_FIELDS, TelemetryNoise, format_time
 from sim.scenarios import START_UNIX_S, Scenario
 from sim.simulator import FrameSample, Simulation
@@ -62,6 +63,16 @@ class _Progress:
 def _spec_dict(obj: Any) -> dict[str, Any]:
     d = dataclasses.asdict(obj)
     d["type"] = type(obj).__name__
+    return d
+
+
+def _emulator_dict(emulator: EmulatorParams) -> dict[str, Any]:
+    """The emulator as truth.json writes it: the weakly seen objects' fields only when some are, so the datasets
+    of scenarios without them stay byte-identical."""
+    d = _spec_dict(emulator)
+    if emulator.weak_fraction == 0.0:
+        d.pop("weak_fraction")
+        d.pop("weak_logit_drop")
     return d
 
 
@@ -187,9 +198,10 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
             "scenario": {
                 "name": sc.name, "description": sc.description, "fps": sc.fps, "simultaneous": sc.simultaneous,
                 "camera_preset": sc.camera_preset, "world": _spec_dict(sc.world),
-                "flights": [_spec_dict(f) for f in sc.flights], "emulator": _spec_dict(sc.emulator),
+                "flights": [_spec_dict(f) for f in sc.flights], "emulator": _emulator_dict(sc.emulator),
                 "noise_base": _noise_dict(sc.noise),
                 **({"sea_state": sc.sea_state.to_dict()} if sc.sea_state is not None else {}),
+                **({"uav_settings": [dataclasses.asdict(u) for u in sc.uav_settings]} if sc.uav_settings else {}),
             },
             "seed": sim.seed, "frames_per_video": sim.frames_per_video, "noise_scale": sim.noise_scale,
             "noise": _noise_dict(sim.noise),

@@ -23,6 +23,9 @@ Objects (visible targets).
   swimmer) scoring best * U(``duplicate_score_range``) [(0.1, 0.5)]: it survives NMS as a false positive.
 Occluded objects (behind a tree; not annotated): the same cluster with the logit lowered by
 ``occluded_logit_drop`` [4.0] (foliage lets a weak signal through).
+Weakly seen objects: a share ``weak_fraction`` [0] of the objects (drawn per UAV by the simulator: glare on the
+water, a shadow, thin foliage this UAV looks through) score with the logit lowered by ``weak_logit_drop`` [3.0]
+in every frame this detector sees them.
 Clutter (persistent false positives at fixed world spots: rocks, buoys): detected in a frame with
 probability ``clutter_detect_prob`` [0.6], logit lowered by ``clutter_logit_drop`` [2.5].
 Background false positives: Poisson(``fp_per_frame`` [20]) spots, uniform in the image below the horizon
@@ -117,6 +120,8 @@ class EmulatorParams:
     appearance_min_score: float = 0.25
     score_logit_scale: float = 1.0
     score_logit_shift: float = 0.0
+    weak_fraction: float = 0.0
+    weak_logit_drop: float = 3.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -130,7 +135,7 @@ class EmulatorParams:
         if not 1 <= lo <= hi:
             raise ValueError(f"EmulatorParams.cluster_boxes={self.cluster_boxes!r} must satisfy 1 <= low <= high")
         for name in ("miss_rate", "small_miss_rate", "duplicate_box_rate", "clutter_detect_prob",
-                     "fp_implausible_frac", "blur_random_rate", "fp_confusing_frac"):
+                     "fp_implausible_frac", "blur_random_rate", "fp_confusing_frac", "weak_fraction"):
             if not 0.0 <= getattr(self, name) <= 1.0:
                 raise ValueError(f"EmulatorParams.{name}={getattr(self, name)!r} must be a probability")
         if self.difficulty_corr_s <= 0 or self.fp_per_frame < 0:
@@ -213,8 +218,15 @@ class DetectorEmulator:
 
     def __init__(self, params: EmulatorParams, camera: Camera, rng: np.random.Generator, n_keys: int,
                  box_m: tuple[float, float, float], fp_category_id: int, *,
-                 appearance: np.ndarray | None = None, appearance_rng: np.random.Generator | None = None) -> None:
+                 appearance: np.ndarray | None = None, appearance_rng: np.random.Generator | None = None,
+                 weak: np.ndarray | None = None) -> None:
         self.params, self.camera, self._rng = params, camera, rng
+        if weak is not None:
+            weak = np.asarray(weak, dtype=bool)
+            if weak.shape != (n_keys,):
+                raise ValueError(f"weak must be a ({n_keys},) mask of the weakly seen targets, got {weak.shape}")
+        #: (n_keys,) bool: the targets this detector sees weakly (logit - weak_logit_drop), None = none
+        self.weak = weak
         self._difficulty = np.zeros(n_keys)
         self._last_t = np.full(n_keys, -np.inf)
         self.box_m = box_m
@@ -357,6 +369,8 @@ class DetectorEmulator:
         logit = logit + rng.normal(0.0, p.frame_noise_std, m)
         logit = logit - np.where(kinds == KIND_OCCLUDED, p.occluded_logit_drop, 0.0)
         logit = logit - np.where(kinds == KIND_CLUTTER, p.clutter_logit_drop, 0.0)
+        if self.weak is not None:
+            logit = logit - np.where(self.weak[keys] & (kinds != KIND_CLUTTER), p.weak_logit_drop, 0.0)
         miss_p = np.where(size_px < p.small_px, p.small_miss_rate, p.miss_rate)
         miss_p = np.where(kinds == KIND_CLUTTER, 1.0 - p.clutter_detect_prob, miss_p)
         present = rng.uniform(size=m) >= miss_p

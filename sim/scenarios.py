@@ -10,7 +10,9 @@ meadow on hills, with its DEM).
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
+from typing import Any
 
 from shared.geo import CAMERA_PRESETS, Camera
 from sim.detector_emulator import EmulatorParams
@@ -24,6 +26,35 @@ from sim.world import Tree, WorldParams
 START_UNIX_S = 1685613600.0
 #: Pause between consecutive flights of one scenario (seconds).
 GAP_BETWEEN_FLIGHTS_S = 60.0
+
+
+@dataclass(frozen=True, slots=True)
+class UavSetting:
+    """What differs for one UAV of a scenario (the cooperative domains' per-UAV conditions, `sim.coop_domains`).
+
+    uav: the flight's UAV id. noise: `TelemetryNoise` fields replaced on the scenario's noise for this UAV (its
+    own GPS, heading and height bias levels, its telemetry lag; before the run's noise scale). emulator:
+    `EmulatorParams` fields replaced on the scenario's emulator for this UAV's detector (more or less confident,
+    a share of the objects seen weakly as through glare: ``weak_fraction``, ``weak_logit_drop``). frame_step:
+    this UAV keeps every frame_step-th frame of the scenario's clock (15 fps at 30 with 2).
+    """
+
+    uav: str
+    noise: dict[str, Any] = field(default_factory=dict)
+    emulator: dict[str, Any] = field(default_factory=dict)
+    frame_step: int = 1
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.uav, str) or not self.uav:
+            raise ValueError(f"UavSetting: uav must be a non-empty string, got {self.uav!r}")
+        if isinstance(self.frame_step, bool) or not isinstance(self.frame_step, int) or self.frame_step < 1:
+            raise ValueError(f"UavSetting {self.uav!r}: frame_step must be an integer >= 1, got {self.frame_step!r}")
+        for name, cls in (("noise", TelemetryNoise), ("emulator", EmulatorParams)):
+            unknown = sorted(set(getattr(self, name)) - {f.name for f in dataclasses.fields(cls)})
+            if unknown:
+                raise ValueError(f"UavSetting {self.uav!r}: unknown {name} field(s) {', '.join(unknown)}")
+        dataclasses.replace(TelemetryNoise(), **self.noise)  # the values are checked by the classes themselves
+        dataclasses.replace(EmulatorParams(), **self.emulator)
 
 
 @dataclass(frozen=True, slots=True)
@@ -56,6 +87,9 @@ class Scenario:
     terrain : TerrainSpec or None
         The ground's relief (`sim.terrain`: hills, a slope, a step), drawn per seed; the dataset gets dem.npz.
         None = flat ground (nothing written to truth.json).
+    uav_settings : tuple of UavSetting
+        Per-UAV telemetry, detector and frame rate (`noise_for`, `emulator_for`, `frame_step_for`); () = every
+        UAV as the scenario (nothing written to truth.json).
     """
 
     name: str
@@ -71,6 +105,7 @@ class Scenario:
     image_size: tuple[int, int] = (3840, 2160)
     sea_state: SeaState | None = None
     terrain: TerrainSpec | None = None
+    uav_settings: tuple[UavSetting, ...] = ()
 
     def __post_init__(self) -> None:
         if not self.flights:
@@ -82,6 +117,28 @@ class Scenario:
         uavs = [f.uav for f in self.flights]
         if self.simultaneous and len(set(uavs)) != len(uavs):
             raise ValueError(f"Scenario {self.name!r}: simultaneous flights need distinct UAV ids, got {uavs}")
+        named = [u.uav for u in self.uav_settings]
+        if len(set(named)) != len(named) or not set(named) <= set(uavs):
+            raise ValueError(f"Scenario {self.name!r}: uav_settings name UAVs {named}; each at most once and "
+                             f"one of the flights' {sorted(set(uavs))}")
+
+    def _setting(self, uav: str) -> UavSetting | None:
+        return next((u for u in self.uav_settings if u.uav == uav), None)
+
+    def noise_for(self, uav: str) -> TelemetryNoise:
+        """The telemetry noise of `uav` at scale 1 (the scenario's, with its UavSetting's fields)."""
+        setting = self._setting(uav)
+        return self.noise if setting is None else dataclasses.replace(self.noise, **setting.noise)
+
+    def emulator_for(self, uav: str) -> EmulatorParams:
+        """The detector emulator of `uav` (the scenario's, with its UavSetting's fields)."""
+        setting = self._setting(uav)
+        return self.emulator if setting is None else dataclasses.replace(self.emulator, **setting.emulator)
+
+    def frame_step_for(self, uav: str) -> int:
+        """`uav` keeps every frame_step-th frame of the scenario's clock (1 unless its UavSetting says)."""
+        setting = self._setting(uav)
+        return 1 if setting is None else setting.frame_step
 
     @property
     def n_videos(self) -> int:

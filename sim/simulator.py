@@ -22,6 +22,7 @@ from sim.detector_emulator import (
     KIND_OCCLUDED,
     Candidates,
     DetectorEmulator,
+    EmulatorParams,
     object_appearance,
 )
 from sim.flight import Flight
@@ -37,7 +38,7 @@ logger = logging.getLogger(__name__)
 CATEGORIES: list[dict[str, Any]] = [{"id": i, "name": n, "supercategory": n} for n, i in CATEGORY_IDS.items()]
 
 # roles of the generators derived from the seed
-_ROLE_WORLD, _ROLE_FLIGHT, _ROLE_TELEMETRY, _ROLE_DETECTOR, _ROLE_APPEARANCE, _ROLE_TERRAIN = 0, 1, 2, 3, 4, 5
+_ROLE_WORLD, _ROLE_FLIGHT, _ROLE_TELEMETRY, _ROLE_DETECTOR, _ROLE_APPEARANCE, _ROLE_TERRAIN, _ROLE_WEAK = range(7)
 #: Least height of the camera above the terrain below it (metres): flights lower than this are refused.
 MIN_CLEARANCE_M = 3.0
 
@@ -162,7 +163,7 @@ class Simulation:
     categories : list of dict
         COCO categories ``[{id: 1, name: "person"}, {id: 2, name: "swimmer"}]``.
     noise : TelemetryNoise
-        The scaled noise in use.
+        The scaled noise in use (a UAV with a `UavSetting` of its own: `noise_for`).
     terrain : sim.terrain.SimTerrain or None
         The scenario's terrain for this seed (one for every group: they fly over one place), None = flat.
         The true poses' heights count from the take-off at the world's origin (its elevation on the DEM).
@@ -203,10 +204,19 @@ class Simulation:
                                            sc.terrain.build(_rng(self.seed, _ROLE_TERRAIN), sc.world.origin_lat,
                                                             sc.world.origin_lon))
 
+    def noise_for(self, uav: str) -> TelemetryNoise:
+        """The scaled telemetry noise of `uav` (`Scenario.noise_for` times the noise scale)."""
+        return self.scenario.noise_for(uav).scaled(self.noise_scale)
+
+    def frames_of(self, video: VideoInfo) -> int:
+        """Frames of one video: every frame_step-th of the scenario's clock (`Scenario.frame_step_for`)."""
+        step = self.scenario.frame_step_for(video.uav)
+        return (self.frames_per_video + step - 1) // step
+
     @property
     def n_frames_total(self) -> int:
         """Frames over all videos."""
-        return self.frames_per_video * len(self.videos)
+        return sum(self.frames_of(v) for v in self.videos)
 
     # ------------------------------------------------------------------ building blocks
 
@@ -218,6 +228,17 @@ class Simulation:
         spec = self.scenario.flights[video.id - 1]
         return spec.build(_rng(self.seed, video.group, _ROLE_FLIGHT, video.id),
                           self.frames_per_video / self.scenario.fps)
+
+    def _weak(self, params: EmulatorParams, n_obj: int, n_clu: int, g: int, video_id: int) -> np.ndarray | None:
+        """Which objects the video's detector sees weakly: a share params.weak_fraction of them (at least one when
+        the share is > 0), drawn from a generator of their own; None when the share is 0."""
+        if params.weak_fraction <= 0.0 or n_obj == 0:
+            return None
+        rng = _rng(self.seed, g, _ROLE_WEAK, video_id)
+        k = max(1, round(params.weak_fraction * n_obj))
+        weak = np.zeros(n_obj + n_clu, dtype=bool)
+        weak[rng.choice(n_obj, size=min(k, n_obj), replace=False)] = True
+        return weak
 
     def flights(self) -> dict[int, Flight]:
         """The true trajectory of every video, by video id (flight time 0 = frame 0)."""
@@ -238,17 +259,21 @@ class Simulation:
             world = self._world(g)
             videos = [self.videos[i] for i in members]
             flights = {v.id: self._flight(v) for v in videos}
-            streams = {v.id: TelemetryStream(self.noise, flights[v.id], _rng(self.seed, g, _ROLE_TELEMETRY, v.id),
-                                             wp.origin_lat, wp.origin_lon, v.t0) for v in videos}
+            streams = {v.id: TelemetryStream(self.noise_for(v.uav), flights[v.id],
+                                             _rng(self.seed, g, _ROLE_TELEMETRY, v.id), wp.origin_lat, wp.origin_lon,
+                                             v.t0) for v in videos}
             n_obj, n_clu = world.n, len(world.clutter_east_m)
             # Appearance: one vector per object of the world (all UAVs see the same people), noise per UAV;
             # generators of their own, so boxes and scores do not depend on it.
             looks = (object_appearance(n_obj + n_clu, sc.emulator, _rng(self.seed, g, _ROLE_APPEARANCE))
                      if sc.emulator.appearance_dim > 0 else None)
-            emulators = {v.id: DetectorEmulator(sc.emulator, cam, _rng(self.seed, g, _ROLE_DETECTOR, v.id),
-                                                n_obj + n_clu, world.box_m, world.category_id, appearance=looks,
-                                                appearance_rng=_rng(self.seed, g, _ROLE_APPEARANCE, v.id))
+            emulators = {v.id: DetectorEmulator(sc.emulator_for(v.uav), cam,
+                                                _rng(self.seed, g, _ROLE_DETECTOR, v.id), n_obj + n_clu, world.box_m,
+                                                world.category_id, appearance=looks,
+                                                appearance_rng=_rng(self.seed, g, _ROLE_APPEARANCE, v.id),
+                                                weak=self._weak(sc.emulator_for(v.uav), n_obj, n_clu, g, v.id))
                          for v in videos}
+            steps = {v.id: sc.frame_step_for(v.uav) for v in videos}
             keys_all = np.arange(n_obj + n_clu)
             kinds_clutter = np.full(n_clu, KIND_CLUTTER)
             occ_counts = {v.id: np.zeros((n_obj, 3), dtype=np.int64) for v in videos}  # in_view, occluded, visible
@@ -275,6 +300,8 @@ class Simulation:
                 all_e = np.concatenate([world.east_m, world.clutter_east_m])
                 all_n = np.concatenate([world.north_m, world.clutter_north_m])
                 for v in videos:
+                    if f % steps[v.id]:
+                        continue  # this UAV films at a lower rate
                     st = flights[v.id].state(t_rel)
                     plat, plon = local_to_latlon(st.east_m, st.north_m, wp.origin_lat, wp.origin_lon)
                     meta, _ = streams[v.id].meta(t_rel)
@@ -324,15 +351,17 @@ class Simulation:
                     image_id += 1
                     t_unix = v.t0 + t_rel
                     # only the written frame clock is local time; t and the true poses stay UTC
-                    frame_clock = format_frame_time(t_unix, self.noise.frame_clock_utc_offset_s)
-                    yield FrameSample(image_id=image_id, video_id=v.id, uav=v.uav, frame_index=f, t=t_unix,
-                                      date_time=frame_clock, true_pose=pose, meta=meta, objects=objects,
+                    frame_clock = format_frame_time(t_unix, streams[v.id].noise.frame_clock_utc_offset_s)
+                    yield FrameSample(image_id=image_id, video_id=v.id, uav=v.uav, frame_index=f // steps[v.id],
+                                      t=t_unix, date_time=frame_clock, true_pose=pose, meta=meta, objects=objects,
                                       candidates=cands, blurred=blurred)
             for v in videos:
                 facts["videos"].append({
                     "video_id": v.id, "name": v.name, "uav": v.uav, "kind": v.kind, "group": g,
                     "telemetry_bias": streams[v.id].bias, "telemetry_phase_s": streams[v.id].phase_s,
                     "blurred_frames": int(blurred_counts[v.id]), "frames_without_meta": int(missing_counts[v.id]),
+                    **({} if emulators[v.id].weak is None else {"weak_track_ids": [
+                        int(k) for k in world.track_ids[emulators[v.id].weak[:n_obj]]]}),
                 })
             facts["occlusion"].extend(_occlusion_facts(videos, occ_counts, world.track_ids))
         if self.terrain is not None:

@@ -320,8 +320,10 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--domains", default=None,
                    help="comma-separated evaluation domains (sim.domains) or the groups all, tune, heldout: "
                         "detection and tracking per domain, held-out domains reported apart (seeds default 0,1,2; "
-                        "tasks detection,tracking)")
-    p.add_argument("--list-domains", action="store_true", help="print the domains as a table and exit")
+                        "tasks detection,tracking). With --tasks coop: the cooperative domains (sim.coop_domains; "
+                        "the same groups), per UAV the detector, its own map and the joint map (first noise scale)")
+    p.add_argument("--list-domains", action="store_true",
+                   help="print the domains (with --tasks coop: the cooperative ones) as a table and exit")
     p.add_argument("--full", action="store_true", help="with --domains: 5x longer clips")
     real = p.add_argument_group("real data (docs/memory-map.md, Real data)")
     real.add_argument("--real", type=Path, default=None, metavar="IMAGES.json|DIR",
@@ -422,6 +424,11 @@ def _run_domain_eval(args: argparse.Namespace) -> int:
     from sim.domains import domain_table, resolve_domains
     from sim.evaluate import stderr_progress
 
+    tasks = tuple(_csv_list(args.tasks or "detection,tracking", str, "--tasks"))
+    if "coop" in tasks:
+        if tasks != ("coop",):
+            raise CliError(f"--tasks: with --domains coop runs alone (the cooperative domains); got {', '.join(tasks)}")
+        return _run_coop_domain_eval(args)
     if args.list_domains:
         print(domain_table())
         return 0
@@ -432,7 +439,6 @@ def _run_domain_eval(args: argparse.Namespace) -> int:
     seeds = _csv_list(args.seeds, int, "--seeds")
     if any(s < 0 for s in seeds):
         raise CliError("--seeds must be >= 0")
-    tasks = tuple(_csv_list(args.tasks or "detection,tracking", str, "--tasks"))
     unknown = sorted(set(tasks) - {"detection", "tracking"})
     if unknown:
         raise CliError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
@@ -440,6 +446,33 @@ def _run_domain_eval(args: argparse.Namespace) -> int:
     out = args.out if args.out != Path("out/eval") else Path("out/eval-domains")
     report = run_domain_eval(domains, seeds, noise_scales=noise, tasks=tasks, full=args.full, out_dir=out,
                              progress=stderr_progress)
+    print((out / "report.md").read_text())
+    print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
+    return 0
+
+
+def _run_coop_domain_eval(args: argparse.Namespace) -> int:
+    from sim.coop_domain_eval import run_coop_domain_eval
+    from sim.coop_domains import coop_domain_table, resolve_coop_domains
+    from sim.evaluate import stderr_progress
+
+    if args.list_domains:
+        print(coop_domain_table())
+        return 0
+    if args.full:
+        raise CliError("--full: the cooperative domains have one clip length")
+    try:
+        domains = resolve_coop_domains(_csv_list(args.domains, str, "--domains"))
+    except ValueError as exc:
+        raise CliError(f"--domains: {exc}") from None
+    seeds = _csv_list(args.seeds, int, "--seeds")
+    if any(s < 0 for s in seeds):
+        raise CliError("--seeds must be >= 0")
+    noise = _csv_list(args.noise_scales, float, "--noise-scales")
+    if any(not (n >= 0) for n in noise):
+        raise CliError("--noise-scales must be >= 0")
+    out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
+    report = run_coop_domain_eval(domains, seeds, noise_scale=noise[0], out_dir=out, progress=stderr_progress)
     print((out / "report.md").read_text())
     print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0
