@@ -2,7 +2,7 @@
 
 Each domain and seed is simulated once (cached by the domain's tag) and run by `sim.coop_eval.evaluate_coop`:
 the single-frame detector (memory off), the UAV's own memory map, and the joint map the fusion server would
-send it (boosting and joint detections, the agent's defaults), all on the wire's data path. AP50 counts the
+send it (boosting and joint detections, the agent's defaults; no tracking), all on the wire's data path. AP50 counts the
 objects a UAV has in view, hidden ones included (does it report everything in its view?). Tuning and held-out
 domains are reported apart; the acceptance rows are issue 30's: on every held-out domain the weaker UAV's joint
 map gains >= JOINT_GAIN_BAR AP50 over its own map, and no other UAV loses more than STRONG_LOSS_BAR.
@@ -19,7 +19,9 @@ from typing import Any
 
 from sim.coop_domains import CoopDomain
 
-DETECTOR, OWN, JOINT_BOOST, JOINT = "baseline", "own memory map", "joint map boosting", "joint map + joint detections"
+DETECTOR, OWN, JOINT = "baseline", "own memory map", "joint map + joint detections"
+#: The variants run per domain (the joint map's boosting alone is left to `uavmm eval --tasks coop`).
+VARIANTS = (DETECTOR, OWN, JOINT)
 #: Issue 30's bars: the weaker UAV's joint map over its own map (AP50 points), the others' least change.
 JOINT_GAIN_BAR, STRONG_LOSS_BAR = 5.0, -0.5
 _METRICS = ("AP50", "AP50_hidden_ignored", "hidden_detected")
@@ -44,7 +46,7 @@ def summarise(rows: list[dict[str, Any]], domains: list[CoopDomain]) -> list[dic
         for uav in dict.fromkeys(r["uav"] for r in rows if r["domain"] == d.name):
             row: dict[str, Any] = {"domain": d.name, "split": d.split, "uav": uav, "weaker": uav == d.weaker,
                                    "seeds": len({r["seed"] for r in rows if r["domain"] == d.name})}
-            for variant in (DETECTOR, OWN, JOINT_BOOST, JOINT):
+            for variant in VARIANTS:
                 rs = [r for r in rows if r["domain"] == d.name and r["uav"] == uav and r["variant"] == variant]
                 for m in _METRICS:
                     values = [r[m] for r in rs if r[m] == r[m]]
@@ -80,12 +82,11 @@ def markdown(report: dict[str, Any]) -> str:
         if not rows:
             continue
         lines += [f"## {'Tuning' if split == 'tune' else 'Held-out'} domains", "",
-                  "| domain | uav | detector | own map | joint boosting | joint | joint - own | "
-                  "hidden det. own / joint |",
-                  "|---|---|---|---|---|---|---|---|"]
+                  "| domain | uav | detector | own map | joint | joint - own | hidden det. own / joint |",
+                  "|---|---|---|---|---|---|---|"]
         for s in rows:
             lines.append(f"| {s['domain']} | {s['uav']}{' (w)' if s['weaker'] else ''} | {s[f'AP50|{DETECTOR}']:.1f} | "
-                         f"{s[f'AP50|{OWN}']:.1f} | {s[f'AP50|{JOINT_BOOST}']:.1f} | {s[f'AP50|{JOINT}']:.1f} | "
+                         f"{s[f'AP50|{OWN}']:.1f} | {s[f'AP50|{JOINT}']:.1f} | "
                          f"{s['gain']:+.1f} | {_pct(s[f'hidden_detected|{OWN}'])} / "
                          f"{_pct(s[f'hidden_detected|{JOINT}'])} |")
         lines.append("")
@@ -117,7 +118,8 @@ def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_s
         if progress:
             progress(f"[{i + 1}/{len(jobs)}] coop domain {domain.name} seed={seed}")
         data_dir = ensure_coop_domain_dataset(domain, seed, noise_scale, out_dir / "data")
-        rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r} for r in evaluate_coop(data_dir)]
+        rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r}
+                 for r in evaluate_coop(data_dir, variants=VARIANTS, track=False)]
     summary = summarise(rows, domains)
     report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scale": noise_scale, "rows": rows,
               "summary": summary, "acceptance": acceptance(summary), "seconds": round(time.perf_counter() - t0, 1)}

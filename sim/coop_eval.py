@@ -190,12 +190,15 @@ def _hidden_hit_rate(by_image: dict[int, list[list[float]]], hidden: list[dict])
     return hit / len(hidden) if hidden else float("nan")
 
 
-def evaluate_coop(data_dir: Path) -> list[dict[str, Any]]:
-    """Per UAV: baseline, own memory map, joint map boosting only, joint map + joint detections.
+def evaluate_coop(data_dir: Path, *, variants: tuple[str, ...] | None = None, track: bool = True
+                  ) -> list[dict[str, Any]]:
+    """Per UAV: baseline, own memory map, joint map boosting only, joint map + joint detections (or the
+    `variants` of these named).
 
     Metrics: AP50 with the hidden objects as ground truth (does the UAV report everything in its view?),
     AP50 with them as ignore regions, AP50 without them (a detection of one is a false positive), and
-    the share of hidden-object boxes detected.
+    the share of hidden-object boxes detected; with `track`, the share the GPS tracker's confirmed tracks hold
+    (NaN without).
     """
     from sim.metrics import coco_detection_metrics
 
@@ -203,16 +206,22 @@ def evaluate_coop(data_dir: Path) -> list[dict[str, Any]]:
     gt_hidden, hidden = _hidden_ground_truth(data_dir, dataset)
     gt_ignored, _ = _hidden_ground_truth(data_dir, dataset, ignore=True)
     base = PipelineConfig()
-    variants = {
+    configs = {
         "baseline": (dataclasses.replace(base, use_memory=False), False),
         "own memory map": (base, False),
         "joint map boosting": (dataclasses.replace(base, joint_detections=False), True),
         "joint map + joint detections": (base, True),
     }
+    if variants is not None:
+        unknown = sorted(set(variants) - set(_ORDER))
+        if unknown:
+            raise ValueError(f"evaluate_coop: unknown variant(s) {', '.join(unknown)}; valid: {', '.join(_ORDER)}")
     runs, tracked = {}, {}
-    for name, (config, share) in variants.items():
+    for name, (config, share) in configs.items():
+        if variants is not None and name not in variants:
+            continue
         tracked[name] = {}
-        runs[name] = run_coop(data_dir, config, share=share, track_boxes=tracked[name])
+        runs[name] = run_coop(data_dir, config, share=share, track_boxes=tracked[name] if track else None)
     rows = []
     videos = {v["id"]: v.get("uav", str(v["id"])) for v in dataset.coco.get("videos", [])}
     for vid, uav in videos.items():
@@ -227,7 +236,8 @@ def evaluate_coop(data_dir: Path) -> list[dict[str, Any]]:
                 "AP50_hidden_ignored": 100 * coco_detection_metrics(gt_ignored, res, image_ids=image_ids)["AP50"],
                 "AP50_hidden_as_fp": 100 * coco_detection_metrics(dataset.coco, res, image_ids=image_ids)["AP50"],
                 "hidden_detected": 100 * _hidden_detected(res, hidden_v) if hidden_v else float("nan"),
-                "hidden_tracked": 100 * _hidden_hit_rate(tracked[name], hidden_v) if hidden_v else float("nan"),
+                "hidden_tracked": (100 * _hidden_hit_rate(tracked[name], hidden_v) if hidden_v and track
+                                   else float("nan")),
             })
     return rows
 
