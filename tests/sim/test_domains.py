@@ -26,7 +26,11 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_every_domain_builds_and_the_split_is_disjoint() -> None:
     assert TUNING_DOMAINS and HELDOUT_DOMAINS and not set(TUNING_DOMAINS) & set(HELDOUT_DOMAINS)
-    assert {d.motion for d in DOMAINS.values() if d.split == "heldout"} == {"gentle", "sweeps"}
+    assert {d.motion for d in DOMAINS.values() if d.split == "heldout"} == {"gentle", "sweeps", "jumps"}
+    # view-jump (re-ID) domains on both sides of the split, with and without appearance descriptors
+    for split in ("tune", "heldout"):
+        jumps = [d for d in DOMAINS.values() if d.split == split and d.motion == "jumps"]
+        assert {d.descriptors for d in jumps} == {True, False} and len({d.fps for d in jumps}) >= 2
     assert {d.fps for d in DOMAINS.values()} >= {24.0, 30.0, 60.0}
     assert {d.camera for d in DOMAINS.values()} >= {"4k", "1080p-wide", "4k-tele"}
     for d in DOMAINS.values():
