@@ -136,6 +136,10 @@ class GpsTracker:
         self._uav_en = (0.0, 0.0)
         self._height_m = 1.0
         self._level: float | None = None  # running mean of the frames' top raw scores (report_level_ref)
+        self._recent_poses: deque[tuple[float, float, float]] = deque()  # (t, heading, pitch) of the last frames
+        self._t_jump: float | None = None  # time of the last frame whose pose turned at a view jump's rate
+        #: Frames so far inside a view jump (TrackerConfig.jump_rate_deg_s): associated in the image only.
+        self.frames_in_jump = 0
 
     # ----------------------------------------------------------------------------- views
     @property
@@ -269,19 +273,46 @@ class GpsTracker:
             self._update_rates(pose, pose_t, t)
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
-            undo = None
-            if not self.config.use_pipeline_correction and result.correction is not None:
-                undo = (float(result.correction.east_m), float(result.correction.north_m))
-            self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt, undo_en=undo,
-                                  latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s)
-            merge_duplicates(state, t)
-            decay_unseen_quality(state, pose, camera)
+            if self._in_view_jump(pose, t):
+                # The pose cannot be trusted to place this frame's boxes (`_in_view_jump`): they keep the tracks
+                # they overlap in the image; nothing is born, revived or moved on the ground.
+                self.frames_in_jump += 1
+                associate_iou(state, dets, t, dets.scores >= self.config.match_score, self.config.jump_iou)
+            else:
+                undo = None
+                if not self.config.use_pipeline_correction and result.correction is not None:
+                    undo = (float(result.correction.east_m), float(result.correction.north_m))
+                self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt,
+                                      undo_en=undo, latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s)
+                merge_duplicates(state, t)
+                decay_unseen_quality(state, pose, camera)
 
         reid.settle_probation(state)
         retire(state, t, camera)
         act = state.active
         act.cols["shown"] |= act["confirmed"] & act["matched"] & (act["quality"] >= self.report_threshold)
         return self._outputs()
+
+    def _in_view_jump(self, pose: Pose, t: float) -> bool:
+        """The camera is in a view jump: the pose turned faster than `TrackerConfig.jump_rate_deg_s` (heading or
+        pitch, the change over the last `jump_window_s` divided by at least that window, so per-frame jitter and
+        sample-and-hold steps do not count as a turn) in this frame or less than `jump_settle_s` ago. A gimbal
+        that jumps 60 deg between two frames shows in the telemetry smeared over several frames (a 10 Hz log
+        interpolated to the frames, a latency left over): for those frames the pose is tens of degrees off, and
+        the boxes of the new view, placed on the ground with the old heading, took the old view's tracks (and
+        their lost ids) where they landed."""
+        cfg = self.config
+        if cfg.jump_rate_deg_s <= 0:
+            return False
+        recent = self._recent_poses
+        recent.append((t, pose.heading_deg, pose.pitch_deg))
+        while len(recent) > 2 and recent[1][0] <= t - cfg.jump_window_s:
+            recent.popleft()  # keep one pose at least jump_window_s old as the reference
+        t_ref, heading_ref, pitch_ref = recent[0]
+        turn = max(abs((pose.heading_deg - heading_ref + 180.0) % 360.0 - 180.0), abs(pose.pitch_deg - pitch_ref))
+        if turn / max(t - t_ref, cfg.jump_window_s) > cfg.jump_rate_deg_s:
+            self._t_jump = t
+        return self._t_jump is not None and t - self._t_jump <= cfg.jump_settle_s
 
     def _observe_level(self, raw: NDArray) -> None:
         """Follow the detector's score level: the mean of the frame's report_level_top_k highest raw scores
