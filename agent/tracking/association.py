@@ -240,10 +240,8 @@ def associate_image(state: TrackState, dets: FrameDetections, det_mask: NDArray[
     mark_hit(state, tr, dets, dr, t)
 
 
-def associate_iou(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_],
-                  min_iou: float | None = None) -> None:
-    """Match detections (det_mask) to tracks by IoU with each track's last box (at least min_iou, default
-    `TrackerConfig.iou_threshold`); the ground state only coasts."""
+def associate_iou(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_]) -> None:
+    """Match detections (det_mask) to tracks by IoU with each track's last box; the ground state only coasts."""
     act = state.active
     det_mask = det_mask & ~dets.used & (dets.scores >= state.config.low_score)
     track_mask = ~act["matched"]
@@ -252,8 +250,7 @@ def associate_iou(state: TrackState, dets: FrameDetections, t: float, det_mask: 
     ti = np.flatnonzero(track_mask)
     di = np.flatnonzero(det_mask)
     iou = box_iou(act["box"][ti], dets.boxes[di])
-    threshold = state.config.iou_threshold if min_iou is None else min_iou
-    allowed = (iou >= threshold) & (act["cls"][ti][:, None] == dets.cls[di][None, :])
+    allowed = (iou >= state.config.iou_threshold) & (act["cls"][ti][:, None] == dets.cls[di][None, :])
     r, c = gated_assignment(-iou, allowed)
     if len(r):
         mark_hit(state, ti[r], dets, di[c], t)

@@ -188,12 +188,13 @@ class TrackerConfig:
     jump_rate_deg_s, jump_window_s : float
         A frame whose pose turns faster than this (heading or pitch, deg/s: the change over the last
         jump_window_s seconds divided by at least that window, so jitter does not count) is in a
-        view jump, and so is every frame for jump_settle_s seconds after the last such frame: its boxes
-        only keep the tracks whose last box they overlap by jump_iou in the image; nothing is associated,
-        born or revived on the ground (0: off). A gimbal that jumps between two frames shows in the
-        telemetry smeared over several frames, tens of degrees off the image.
-    jump_settle_s, jump_iou : float
-        See jump_rate_deg_s (seconds; IoU in (0, 1]).
+        view jump, and so is every frame for jump_settle_s seconds after the last such frame: its boxes are
+        not used (the tracks coast; nothing is matched, born or revived; 0: off). A gimbal that jumps between
+        two frames shows in the telemetry smeared over several frames, tens of degrees off the image; matching
+        such frames in the image alone (IoU >= 0.5 with the tracks' last boxes) measured the same on the tuning
+        domains and gives an old track to a new object that happens to sit where it sat in the image.
+    jump_settle_s : float
+        See jump_rate_deg_s, seconds.
 
     Appearance (optional: used when the detections carry descriptors, `FrameResult.embeddings`)
     ----------
@@ -362,7 +363,6 @@ class TrackerConfig:
     jump_rate_deg_s: float = 150.0
     jump_window_s: float = 0.05
     jump_settle_s: float = 0.1
-    jump_iou: float = 0.5
     use_appearance: bool = True
     appearance_ema: float = 0.9
     reid_appearance_weight: float = 10.0
@@ -405,7 +405,7 @@ class TrackerConfig:
                     "position_sigma_m", "max_measurement_sigma_m", "merge_chi2", "merge_max_m", "reid_gate_chi2",
                     "reanchor_m"}
         unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate",
-                "image_register_iou", "jump_iou"}
+                "image_register_iou"}
         if self.image_first_iou and not 0.0 < self.image_first_iou <= 1.0:
             raise ValueError(f"TrackerConfig.image_first_iou={self.image_first_iou!r} must be 0 (off) or in (0, 1]")
         for f in fields(self):

@@ -138,7 +138,7 @@ class GpsTracker:
         self._level: float | None = None  # running mean of the frames' top raw scores (report_level_ref)
         self._recent_poses: deque[tuple[float, float, float]] = deque()  # (t, heading, pitch) of the last frames
         self._t_jump: float | None = None  # time of the last frame whose pose turned at a view jump's rate
-        #: Frames so far inside a view jump (TrackerConfig.jump_rate_deg_s): associated in the image only.
+        #: Frames so far inside a view jump (TrackerConfig.jump_rate_deg_s), whose boxes were not used.
         self.frames_in_jump = 0
 
     # ----------------------------------------------------------------------------- views
@@ -274,10 +274,9 @@ class GpsTracker:
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
             if self._in_view_jump(pose, t):
-                # The pose cannot be trusted to place this frame's boxes (`_in_view_jump`): they keep the tracks
-                # they overlap in the image; nothing is born, revived or moved on the ground.
+                # The pose cannot place this frame's boxes (`_in_view_jump`), and the image cannot tell whether it
+                # still shows the old view: the tracks coast; nothing is matched, born or revived.
                 self.frames_in_jump += 1
-                associate_iou(state, dets, t, dets.scores >= self.config.match_score, self.config.jump_iou)
             else:
                 undo = None
                 if not self.config.use_pipeline_correction and result.correction is not None:
