@@ -183,6 +183,13 @@ class TrackerConfig:
         track. It takes the old id on probation, like a revival; a track whose id was reported only
         for a lost track its detection looks more like than like the track itself (0: off).
 
+    reid_offset_min_inliers, reid_offset_max_m, reid_offset_inlier_m : int, float, float
+        A view that comes back brings its objects back together, and the telemetry's error has changed since
+        they left: before matching them, the returning points are shifted by the common offset (at most
+        reid_offset_max_m metres) that lays the most of them within reid_offset_inlier_m of a lost track's
+        prediction, when that is at least reid_offset_min_inliers and two more than no shift
+        (`agent.tracking.reid.return_offset`; 0: off).
+
     View jumps
     ----------
     jump_rate_deg_s, jump_window_s : float
@@ -360,6 +367,9 @@ class TrackerConfig:
     reid_delay_s: float = 0.0
     reid_min_evidence: float = 0.0
     reid_unreported_s: float = 3.0
+    reid_offset_min_inliers: int = 3
+    reid_offset_max_m: float = 10.0
+    reid_offset_inlier_m: float = 1.5
     jump_rate_deg_s: float = 150.0
     jump_window_s: float = 0.05
     jump_settle_s: float = 0.1
