@@ -209,9 +209,8 @@ _JUMPS_HIGH = HoverSweepsSpec(distance_m=(45.0, 60.0), height_m=(30.0, 50.0), pi
                               sweep_deg=(60.0, 60.0), sweep_rate_deg_s=(200.0, 350.0), dwell_s=(2.5, 3.5))
 _JUMPS = (_JUMPS_LOW, _JUMPS_HIGH)
 #: Instant jumps: the heading changes by 60 deg between two frames (a turn of at most 0.04 s), every 3 s.
-_JUMPS_INSTANT = (dataclasses.replace(_JUMPS_LOW, sweep_rate_deg_s=(4000.0, 5000.0), min_turn_s=0.03, dwell_s=(3.0, 3.0)),
-                  dataclasses.replace(_JUMPS_HIGH, sweep_rate_deg_s=(4000.0, 5000.0), min_turn_s=0.03,
-                                      dwell_s=(3.0, 3.0)))
+_INSTANT: dict[str, Any] = {"sweep_rate_deg_s": (4000.0, 5000.0), "min_turn_s": 0.03, "dwell_s": (3.0, 3.0)}
+_JUMPS_INSTANT = (dataclasses.replace(_JUMPS_LOW, **_INSTANT), dataclasses.replace(_JUMPS_HIGH, **_INSTANT))
 #: Wider and slower: 90 deg jumps, 4-5 s dwells (objects away for 4-5 s), and narrower and quicker: 45 deg, 2 s.
 _JUMPS_90 = (dataclasses.replace(_JUMPS_HIGH, sweep_deg=(90.0, 90.0), dwell_s=(4.0, 5.0), min_turn_s=0.1),)
 _JUMPS_45 = (dataclasses.replace(_JUMPS_LOW, sweep_deg=(45.0, 45.0), dwell_s=(1.8, 2.2), min_turn_s=0.1),)

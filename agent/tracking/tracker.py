@@ -28,6 +28,7 @@ from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicat
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
 from agent.tracking.registration import correction_jacobian, fit_pose_correction, image_pairs, track_offset
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
+from agent.tracking.view_jump import ViewJumpGuard
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon
 
 __all__ = ["GpsTracker", "TrackOutput"]
@@ -136,10 +137,7 @@ class GpsTracker:
         self._uav_en = (0.0, 0.0)
         self._height_m = 1.0
         self._level: float | None = None  # running mean of the frames' top raw scores (report_level_ref)
-        self._recent_poses: deque[tuple[float, float, float]] = deque()  # (t, heading, pitch) of the last frames
-        self._t_jump: float | None = None  # time of the last frame whose pose turned at a view jump's rate
-        #: Frames so far inside a view jump (TrackerConfig.jump_rate_deg_s), whose boxes were not used.
-        self.frames_in_jump = 0
+        self._jump = ViewJumpGuard()
 
     # ----------------------------------------------------------------------------- views
     @property
@@ -162,6 +160,11 @@ class GpsTracker:
     def evidence_at(self) -> EvidenceFn | None:
         """The memory-map evidence lookup re-identification asks, or None."""
         return self._state.evidence_at
+
+    @property
+    def frames_in_jump(self) -> int:
+        """Frames so far inside a view jump (`TrackerConfig.jump_rate_deg_s`), whose boxes were not used."""
+        return self._jump.frames
 
     @property
     def n_reidentified(self) -> int:
@@ -273,11 +276,9 @@ class GpsTracker:
             self._update_rates(pose, pose_t, t)
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
-            if self._in_view_jump(pose, t):
-                # The pose cannot place this frame's boxes (`_in_view_jump`), and the image cannot tell whether it
-                # still shows the old view: the tracks coast; nothing is matched, born or revived.
-                self.frames_in_jump += 1
-            else:
+            # In a view jump the pose cannot place the frame's boxes (agent.tracking.view_jump), and the image
+            # cannot tell whether it still shows the old view: the tracks coast; nothing is matched, born or revived.
+            if not self._jump.in_jump(pose.heading_deg, pose.pitch_deg, t, self.config):
                 undo = None
                 if not self.config.use_pipeline_correction and result.correction is not None:
                     undo = (float(result.correction.east_m), float(result.correction.north_m))
@@ -291,27 +292,6 @@ class GpsTracker:
         act = state.active
         act.cols["shown"] |= act["confirmed"] & act["matched"] & (act["quality"] >= self.report_threshold)
         return self._outputs()
-
-    def _in_view_jump(self, pose: Pose, t: float) -> bool:
-        """The camera is in a view jump: the pose turned faster than `TrackerConfig.jump_rate_deg_s` (heading or
-        pitch, the change over the last `jump_window_s` divided by at least that window, so per-frame jitter and
-        sample-and-hold steps do not count as a turn) in this frame or less than `jump_settle_s` ago. A gimbal
-        that jumps 60 deg between two frames shows in the telemetry smeared over several frames (a 10 Hz log
-        interpolated to the frames, a latency left over): for those frames the pose is tens of degrees off, and
-        the boxes of the new view, placed on the ground with the old heading, took the old view's tracks (and
-        their lost ids) where they landed."""
-        cfg = self.config
-        if cfg.jump_rate_deg_s <= 0:
-            return False
-        recent = self._recent_poses
-        recent.append((t, pose.heading_deg, pose.pitch_deg))
-        while len(recent) > 2 and recent[1][0] <= t - cfg.jump_window_s:
-            recent.popleft()  # keep one pose at least jump_window_s old as the reference
-        t_ref, heading_ref, pitch_ref = recent[0]
-        turn = max(abs((pose.heading_deg - heading_ref + 180.0) % 360.0 - 180.0), abs(pose.pitch_deg - pitch_ref))
-        if turn / max(t - t_ref, cfg.jump_window_s) > cfg.jump_rate_deg_s:
-            self._t_jump = t
-        return self._t_jump is not None and t - self._t_jump <= cfg.jump_settle_s
 
     def _observe_level(self, raw: NDArray) -> None:
         """Follow the detector's score level: the mean of the frame's report_level_top_k highest raw scores

@@ -178,8 +178,8 @@ def _swimmers_back_with_a_gps_step(config: TrackerConfig) -> tuple[GpsTracker, l
     east (every returning point 3.5 m west of where it was). Returns each swimmer's reported ids."""
     tracker = GpsTracker(config, {1: "swimmer"})
     home, away = pose_at(0.0), pose_at(180.0)
-    stepped = Pose(lat=float(local_to_latlon(3.5, 0.0, LAT0, LON0)[0]), lon=float(local_to_latlon(3.5, 0.0, LAT0, LON0)[1]),
-                   height_m=30.0, pitch_deg=40.0, heading_deg=0.0)
+    lat, lon = local_to_latlon(3.5, 0.0, LAT0, LON0)
+    stepped = Pose(lat=float(lat), lon=float(lon), height_m=30.0, pitch_deg=40.0, heading_deg=0.0)
     ids: list[set[int]] = [set() for _ in SWIMMERS]
     k = 0
     for camera_pose, told, n in ((home, home, 60), (away, away, 90), (home, stepped, 60)):
