@@ -276,8 +276,7 @@ class GpsTracker:
             self._update_rates(pose, pose_t, t)
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
-            # In a view jump the pose cannot place the frame's boxes (agent.tracking.view_jump), and the image
-            # cannot tell whether it still shows the old view: the tracks coast; nothing is matched, born or revived.
+            # in a view jump (agent.tracking.view_jump) the tracks coast: nothing is matched, born or revived
             if not self._jump.in_jump(pose.heading_deg, pose.pitch_deg, t, self.config):
                 undo = None
                 if not self.config.use_pipeline_correction and result.correction is not None:
