@@ -22,6 +22,7 @@ from typing import Any
 
 from agent.memory_map import MemoryMapConfig
 from agent.pipeline_config import PipelineConfig
+from agent.tracking import TrackerConfig
 from sim.domains import Domain
 from sim.evaluate import Variant, evaluate_detection
 from sim.position_error import format_metres, mean_known
@@ -29,6 +30,10 @@ from sim.terrain_eval import DEM_SUFFIX, TWIN, markdown_terrain, summarise_terra
 
 BASELINE, OURS, PAPER = "baseline", "memory map", "paper rule"
 NORFAIR, GPS = "norfair (pixel IoU)", "GPS tracker + memory map"
+#: Ours without the appearance cue, beside GPS on the view-jump domains whose detections carry descriptors.
+GPS_MOTION = "GPS tracker + memory map, motion only"
+#: Bars of the view-jump (re-ID) domains: IDF1 at least this, and over norfair's by IDF1 / HOTA margins.
+JUMPS_MIN_IDF1, JUMPS_IDF1_MARGIN, JUMPS_HOTA_MARGIN = 60.0, 25.0, 15.0
 #: The paper's constants: forgetting phi = 0.9 and scale s per frame (s = 0.02: 0.6 per second at 30 fps).
 PAPER_FORGET_PER_FRAME = 0.9
 PAPER_GAIN_PER_FRAME = 0.02
@@ -132,6 +137,10 @@ def run_domain_eval(domains: list[Domain], seeds: list[int], *, noise_scales: tu
             trk_variants = [TrackingVariant(NORFAIR, dataclasses.replace(base_cfg, use_memory=False,
                                                                          estimate_clock_offset=False), kind="pixel"),
                             TrackingVariant(GPS, base_cfg, kind="gps")]
+            if domain.motion == "jumps" and domain.descriptors:
+                # the same detections without their descriptors: what ours keeps on data that has none
+                trk_variants.append(TrackingVariant(GPS_MOTION, base_cfg, kind="gps",
+                                                    tracker=TrackerConfig(use_appearance=False)))
             if terrain is not None:
                 trk_variants.append(TrackingVariant(GPS + DEM_SUFFIX, dataclasses.replace(base_cfg, terrain=terrain),
                                                     kind="gps"))
@@ -174,7 +183,9 @@ def summarise_detection(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def summarise_tracking(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     """Per domain: mean HOTA, MOTA, IDF1 and summed IDs over seeds of norfair and ours, and the ground error
     of the reported positions (`pos_err_m` median, `pos_err_p90_m`; metres, mean over seeds of each seed's
-    figure; None for norfair, which reports no ground positions, and where nothing matched)."""
+    figure; None for norfair, which reports no ground positions, and where nothing matched); re-ID events
+    kept / scored (summed over seeds) of each; where the motion-only variant ran (view-jump domains with
+    descriptors), its figures as `*_motion`."""
     groups: dict[str, list[dict[str, Any]]] = {}
     for r in rows:
         groups.setdefault(r["domain"], []).append(r)
@@ -182,8 +193,12 @@ def summarise_tracking(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
     for domain, rs in groups.items():
         row: dict[str, Any] = {"domain": domain, "split": rs[0]["split"], "motion": rs[0]["motion"],
                                "seeds": len({r["seed"] for r in rs})}
-        for v, key in ((NORFAIR, "norfair"), (GPS, "ours")):
+        for v, key in ((NORFAIR, "norfair"), (GPS, "ours"), (GPS_MOTION, "motion")):
             vr = [r for r in rs if r["variant"] == v]
+            if not vr and key == "motion":
+                continue
+            for k in ("reid_kept", "reid_scored"):
+                row[f"{k}_{key}"] = sum(r.get(k, 0) for r in vr)
             for m in ("HOTA", "MOTA", "IDF1"):
                 row[f"{m}_{key}"] = _mean([r[m] for r in vr])
             row[f"IDs_{key}"] = sum(r["IDs"] for r in vr)
@@ -213,7 +228,9 @@ def acceptance(report: dict[str, Any]) -> list[dict[str, Any]]:
     for s in report["tracking"]:
         if s["split"] != "heldout":
             continue
-        if s["motion"] == "gentle":
+        if s["motion"] == "jumps":
+            out += jumps_acceptance(s)
+        elif s["motion"] == "gentle":
             out.append({"criterion": f"{s['domain']}: HOTA ours - norfair", "value": s["HOTA_ours"] - s["HOTA_norfair"],
                         "bar": ">= -1", "ok": s["HOTA_ours"] - s["HOTA_norfair"] >= -1})
             out.append({"criterion": f"{s['domain']}: IDs ours (norfair: bar)", "value": s["IDs_ours"],
@@ -224,6 +241,42 @@ def acceptance(report: dict[str, Any]) -> list[dict[str, Any]]:
             out.append({"criterion": f"{s['domain']}: IDs ours (norfair: bar)", "value": s["IDs_ours"],
                         "bar": f"<= {0.8 * s['IDs_norfair']:g}", "ok": s["IDs_ours"] <= 0.8 * s["IDs_norfair"]})
     return out
+
+
+def jumps_acceptance(s: dict[str, Any]) -> list[dict[str, Any]]:
+    """The re-ID bars of a view-jump domain's tracking summary `s`: IDF1 ours >= JUMPS_MIN_IDF1 and >= norfair
+    + JUMPS_IDF1_MARGIN, HOTA ours >= norfair + JUMPS_HOTA_MARGIN."""
+    d_idf1, d_hota = s["IDF1_ours"] - s["IDF1_norfair"], s["HOTA_ours"] - s["HOTA_norfair"]
+    return [{"criterion": f"{s['domain']}: IDF1 ours", "value": s["IDF1_ours"], "bar": f">= {JUMPS_MIN_IDF1:g}",
+             "ok": s["IDF1_ours"] >= JUMPS_MIN_IDF1},
+            {"criterion": f"{s['domain']}: IDF1 ours - norfair", "value": d_idf1, "bar": f">= +{JUMPS_IDF1_MARGIN:g}",
+             "ok": d_idf1 >= JUMPS_IDF1_MARGIN},
+            {"criterion": f"{s['domain']}: HOTA ours - norfair", "value": d_hota, "bar": f">= +{JUMPS_HOTA_MARGIN:g}",
+             "ok": d_hota >= JUMPS_HOTA_MARGIN}]
+
+
+def _markdown_jumps(summary: list[dict[str, Any]]) -> list[str]:
+    """The view-jump domains: HOTA / IDF1 / IDs and re-ID kept of norfair, ours and ours on motion alone."""
+    rows = [s for s in summary if s["motion"] == "jumps"]
+    if not rows:
+        return []
+    lines = ["## Re-ID with view jumps: HOTA / IDF1 / IDs (sum) and returns that kept their id", "",
+             "Motion only: ours without the appearance cue on the same detections (where they carry descriptors; "
+             "on the other domains ours has none to use).", "",
+             "| split | domain | norfair | ours | ours, motion only | re-ID kept ours | re-ID kept motion only |",
+             "|---|---|---|---|---|---|---|"]
+
+    def cell(s: dict[str, Any], key: str) -> str:
+        return f"{s[f'HOTA_{key}']:.1f} / {s[f'IDF1_{key}']:.1f} / {s[f'IDs_{key}']}" if f"HOTA_{key}" in s else "-"
+
+    def kept(s: dict[str, Any], key: str) -> str:
+        return f"{s[f'reid_kept_{key}']}/{s[f'reid_scored_{key}']}" if f"reid_kept_{key}" in s else "-"
+
+    for split in ("tune", "heldout"):
+        for s in (s for s in rows if s["split"] == split):
+            lines.append(f"| {split} | {s['domain']} | {cell(s, 'norfair')} | {cell(s, 'ours')} | "
+                         f"{cell(s, 'motion')} | {kept(s, 'ours')} | {kept(s, 'motion')} |")
+    return [*lines, ""]
 
 
 def markdown_domain_report(report: dict[str, Any]) -> str:
@@ -266,11 +319,13 @@ def markdown_domain_report(report: dict[str, Any]) -> str:
                              f"{format_metres(s.get('pos_err_m_ours'))} | "
                              f"{format_metres(s.get('pos_err_p90_m_ours'))} |")
         lines.append("")
+        lines += _markdown_jumps(report["tracking"])
     lines += markdown_terrain(report.get("terrain", []))
     if report.get("acceptance"):
         lines += ["## Acceptance (held-out domains)", "", "| criterion | value | bar | holds |", "|---|---|---|---|"]
         for a in report["acceptance"]:
             value = (f"{a['value']:.0f}" if "IDs" in a["criterion"] else
+                     f"{a['value']:.1f}" if a["criterion"].endswith("IDF1 ours") else
                      f"{a['value']:+.2f}" if a["criterion"].endswith(", m") else f"{a['value']:+.1f}")
             lines.append(f"| {a['criterion']} | {value} | {a['bar']} | {'yes' if a['ok'] else 'NO'} |")
     lines.append(f"\n{report['seconds']} s")

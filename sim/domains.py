@@ -5,11 +5,13 @@ A `Domain` takes a base scenario (`sim.scenarios`) and changes what a new user's
 telemetry's defects (white per-frame jitter, GPS rounded to 4-6 decimals, altitude steps, constant or
 drifting time offsets), the frame rate (24/30/60 fps), the clip length, the detector's regime (over- or
 under-confident scores, more or less persistent clutter at fixed ground spots, more part boxes) and the
-camera (the base 4K Mavic 2 Pro, a 1080p wide camera, a 4K 70 mm tele). Each domain flies either gentle
-flights (orbit, lawnmower, line) or heading sweeps and jumps (hover with fast sweeps), so tracking can be
-judged per kind. `DOMAINS` lists them; `TUNING_DOMAINS` and `HELDOUT_DOMAINS` are the split: every
-default and design choice of the memory map, the telemetry correction and the tracker is chosen on the
-tuning domains (and the base scenarios); the held-out ones are only reported.
+camera (the base 4K Mavic 2 Pro, a 1080p wide camera, a 4K 70 mm tele). Each domain flies gentle flights
+(orbit, lawnmower, line), heading sweeps (hover with fast sweeps) or view jumps (a hover whose heading jumps
+60 deg away and back every ~3 s, so objects leave the view and return: long-term re-ID), so tracking can be
+judged per kind. Real detectors' outputs carry no appearance descriptor: `descriptors=False` drops the
+emulator's `embedding` field (the same boxes and scores). `DOMAINS` lists them; `TUNING_DOMAINS` and
+`HELDOUT_DOMAINS` are the split: every default and design choice of the memory map, the telemetry correction
+and the tracker is chosen on the tuning domains (and the base scenarios); the held-out ones are only reported.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ from sim.terrain import TerrainSpec
 from sim.world import WorldParams
 
 SPLITS = ("tune", "heldout")
-MOTIONS = ("gentle", "sweeps")
+MOTIONS = ("gentle", "sweeps", "jumps")
 #: Cameras of the domains: name -> (shared.geo preset, width, height).
 CAMERAS: dict[str, tuple[str, int, int]] = {
     "4k": ("dji-mavic2-pro", 3840, 2160),
@@ -47,7 +49,8 @@ class Domain:
     split : str
         "tune" or "heldout".
     motion : str
-        "gentle" or "sweeps" (heading sweeps and jumps): which tracking bar applies.
+        "gentle", "sweeps" (heading sweeps) or "jumps" (60 deg view jumps away and back, re-ID): which
+        tracking bars apply.
     base : str
         Base scenario (its world, class and emulator defaults).
     flights : tuple of flight specs
@@ -68,6 +71,9 @@ class Domain:
     terrain : TerrainSpec or None
         The ground's relief (`sim.terrain`); the dataset gets dem.npz and the evaluation runs our variants with
         and without it (flat earth vs --dem) and on the same flights over flat ground (`flat_twin`).
+    descriptors : bool
+        The candidates carry the emulator's appearance descriptors (`embedding` in pre_nms.json); False: none,
+        as a real detector's output (EmulatorParams.appearance_dim 0; boxes and scores are the same).
     """
 
     name: str
@@ -84,6 +90,7 @@ class Domain:
     world: dict[str, Any] = field(default_factory=dict)
     final_score: float | None = None
     terrain: TerrainSpec | None = None
+    descriptors: bool = True
 
     def __post_init__(self) -> None:
         if self.split not in SPLITS:
@@ -108,6 +115,8 @@ class Domain:
         preset, width, height = CAMERAS[self.camera]
         noise: TelemetryNoise = dataclasses.replace(base.noise, **self.noise)
         emulator: EmulatorParams = dataclasses.replace(base.emulator, **self.emulator)
+        if not self.descriptors:
+            emulator = dataclasses.replace(emulator, appearance_dim=0)
         world: WorldParams = dataclasses.replace(base.world, **self.world)
         return dataclasses.replace(base, name=self.name, description=self.description, world=world,
                                    flights=self.flights, simultaneous=False, noise=noise, emulator=emulator,
@@ -126,6 +135,8 @@ class Domain:
             "final_output": f"NMS 0.5, scores >= {self.final_score:g}"}
         if self.terrain is not None:
             extra["terrain"] = f"{self.terrain.kind} {self.terrain.relief_m:g} m"
+        if not self.descriptors:
+            extra["descriptors"] = "none"
         return {**self.noise, **self.emulator, **self.world, **extra}
 
     @property
@@ -135,6 +146,9 @@ class Domain:
         for later in ("final_score", "terrain"):  # fields that came later: domains without them keep their tags
             if getattr(self, later) is None:
                 text = text.replace(f", {later}=None", "")
+        if self.descriptors:
+            text = text.replace(", descriptors=True", "")
+        text = text.replace(", min_turn_s=0.2)", ")")  # HoverSweepsSpec's later field at its default
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
     def summary(self) -> str:
@@ -186,6 +200,22 @@ _TELE_SWEEPS = (HoverSweepsSpec(distance_m=(60.0, 80.0), height_m=(30.0, 50.0), 
                                 sweep_deg=(20.0, 50.0), sweep_rate_deg_s=(30.0, 60.0), dwell_s=(1.5, 3.0)),
                 HoverSweepsSpec(distance_m=(50.0, 70.0), height_m=(30.0, 45.0), pitch_deg=(30.0, 40.0),
                                 sweep_deg=(30.0, 60.0), sweep_rate_deg_s=(40.0, 80.0), dwell_s=(2.0, 3.0)))
+#: View jumps (long-term re-ID): a hover whose heading jumps 60 deg to one side at 200-400 deg/s (0.25-0.45 s),
+#: dwells ~3 s, jumps back, dwells, jumps to the other side, ...: what the view showed leaves it and returns
+#: every ~3-7 s. Low and steep-ish, and higher and steeper.
+_JUMPS_LOW = HoverSweepsSpec(distance_m=(40.0, 55.0), height_m=(20.0, 35.0), pitch_deg=(25.0, 40.0),
+                             sweep_deg=(60.0, 60.0), sweep_rate_deg_s=(250.0, 400.0), dwell_s=(2.5, 3.5))
+_JUMPS_HIGH = HoverSweepsSpec(distance_m=(45.0, 60.0), height_m=(30.0, 50.0), pitch_deg=(30.0, 45.0),
+                              sweep_deg=(60.0, 60.0), sweep_rate_deg_s=(200.0, 350.0), dwell_s=(2.5, 3.5))
+_JUMPS = (_JUMPS_LOW, _JUMPS_HIGH)
+#: Instant jumps: the heading changes by 60 deg between two frames (a turn of at most 0.04 s), every 3 s.
+_INSTANT: dict[str, Any] = {"sweep_rate_deg_s": (4000.0, 5000.0), "min_turn_s": 0.03, "dwell_s": (3.0, 3.0)}
+_JUMPS_INSTANT = (dataclasses.replace(_JUMPS_LOW, **_INSTANT), dataclasses.replace(_JUMPS_HIGH, **_INSTANT))
+#: Wider and slower: 90 deg jumps, 4-5 s dwells (objects away for 4-5 s), and narrower and quicker: 45 deg, 2 s.
+_JUMPS_90 = (dataclasses.replace(_JUMPS_HIGH, sweep_deg=(90.0, 90.0), dwell_s=(4.0, 5.0), min_turn_s=0.1),)
+_JUMPS_45 = (dataclasses.replace(_JUMPS_LOW, sweep_deg=(45.0, 45.0), dwell_s=(1.8, 2.2), min_turn_s=0.1),)
+#: Larger telemetry biases per flight than the base scenarios' (GPS 1.5 m, heading 2 deg, pitch 0.5 deg).
+_BIASED: dict[str, Any] = {"gps_bias_m": 3.0, "heading_bias_deg": 4.0, "pitch_bias_deg": 1.0}
 
 _DOMAIN_LIST = (
     # ---------------------------------------------------------------- tuning domains
@@ -222,6 +252,23 @@ _DOMAIN_LIST = (
            camera="4k-tele", fps=24.0, noise={**_DRIFT, "white_heading_deg": 0.4, "white_pitch_deg": 0.3,
                                               "telemetry_hz": 24.0},
            emulator=_MORE_CLUTTER_EMU, world={"n_clutter": 8}),
+    # Added with the re-ID round (view jumps): objects leave the view for ~3 s during a 60 deg heading jump and
+    # return; most without appearance descriptors, as real detectors' outputs come.
+    Domain("grass-jumps", "people walking, a hover whose heading jumps 60 deg between two frames every 3 s (away "
+           "and back), no appearance descriptors", "tune", "jumps", "reid", _JUMPS_INSTANT, clip_s=24.0,
+           descriptors=False),
+    Domain("sea-jumps-24", "swimmers, 60 deg view jumps every ~3 s at 24 fps, 5-decimal GPS, 3 deg heading bias, no "
+           "appearance descriptors", "tune", "jumps", "sea", _JUMPS, fps=24.0, clip_s=24.0,
+           noise={**_GPS5, "heading_bias_deg": 3.0}, descriptors=False),
+    Domain("grass-jumps-biased", "people walking, 60 deg view jumps, larger telemetry biases (GPS 3 m, heading 4 deg, "
+           "pitch 1 deg), 0.1 s offset, no appearance descriptors", "tune", "jumps", "grass", _JUMPS, clip_s=24.0,
+           noise={**_BIASED, "time_offset_s": 0.1}, descriptors=False),
+    Domain("grass-jumps-90-dense", "16 people walking, 90 deg view jumps every 4-5 s (away for 4-5 s), 0.2 s offset, "
+           "no appearance descriptors", "tune", "jumps", "reid", _JUMPS_90, clip_s=30.0,
+           noise={"time_offset_s": 0.2}, world={"n_objects": 16}, descriptors=False),
+    Domain("grass-jumps-desc-wide", "people walking, 60 deg view jumps at 25 fps with a 1080p wide camera, per-frame "
+           "jitter, with appearance descriptors", "tune", "jumps", "reid", (_JUMPS_LOW,), fps=25.0, clip_s=24.0,
+           camera="1080p-wide", noise={**_JITTER, "telemetry_hz": 25.0}),
     # ---------------------------------------------------------------- held-out domains
     Domain("grass-tele-clutter", "grass, gentle flights with a 4K tele camera, per-frame jitter, 5-decimal "
            "GPS, over-confident detector, persistent clutter at fixed ground spots, 1 % frames without meta",
@@ -271,6 +318,20 @@ _DOMAIN_LIST = (
            "gentle", "grass", _GENTLE_GRASS, terrain=TerrainSpec("slope", relief_m=10.0)),
     Domain("grass-step", "grass, heading sweeps over a 5 m river bank (a step 3 m wide) near the centre",
            "heldout", "sweeps", "grass", _SWEEPS, terrain=TerrainSpec("step", relief_m=5.0)),
+    # Added with the re-ID round (view jumps). Held out: nothing was chosen on them.
+    Domain("grass-jumps-jitter", "people walking, instant 60 deg view jumps every 3 s at 24 fps, higher and steeper "
+           "hovers, per-frame jitter, 5-decimal GPS, no appearance descriptors", "heldout", "jumps", "grass",
+           (_JUMPS_INSTANT[1],), fps=24.0, clip_s=30.0, noise={**_JITTER, **_GPS5, "telemetry_hz": 24.0},
+           descriptors=False),
+    Domain("sea-jumps-biased", "swimmers, 60 deg view jumps at 25 fps, larger telemetry biases, over-confident "
+           "detector, no appearance descriptors", "heldout", "jumps", "sea", _JUMPS, fps=25.0, clip_s=24.0,
+           noise=_BIASED, emulator=_OVERCONFIDENT, descriptors=False),
+    Domain("grass-jumps-45-lag", "people walking, 45 deg view jumps every 2 s, 0.25 s offset, 10 Hz telemetry, no "
+           "appearance descriptors", "heldout", "jumps", "reid", _JUMPS_45, clip_s=24.0,
+           noise={"time_offset_s": 0.25, "telemetry_hz": 10.0}, descriptors=False),
+    Domain("sea-jumps-desc", "swimmers, 60 deg view jumps at 30 fps, 0.15 s offset, 3 deg heading bias, with "
+           "appearance descriptors", "heldout", "jumps", "sea", _JUMPS, clip_s=24.0,
+           noise={"time_offset_s": 0.15, "heading_bias_deg": 3.0}),
 )
 
 #: All domains by name.

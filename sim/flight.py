@@ -173,7 +173,8 @@ class HoverSweepsSpec:
 
     The UAV hovers `distance_m` from the origin at `bearing_deg`; the base heading looks at the origin.
     It dwells, turns by +-`sweep_deg` with a peak rate of `sweep_rate_deg_s`, dwells, turns back, and so
-    on, alternating sides, so objects leave and re-enter the view.
+    on, alternating sides, so objects leave and re-enter the view. A turn lasts at least `min_turn_s`
+    (0.2 s; a small value with a high rate makes the view jump within a frame or two).
     """
 
     uav: str = "uav1"
@@ -185,9 +186,12 @@ class HoverSweepsSpec:
     sweep_rate_deg_s: tuple[float, float] = (60.0, 100.0)
     dwell_s: tuple[float, float] = (2.0, 5.0)
     kind: str = "hover"
+    min_turn_s: float = 0.2
 
     def __post_init__(self) -> None:
         _check_ranges("HoverSweepsSpec", self.height_m, self.pitch_deg)
+        if not (math.isfinite(self.min_turn_s) and self.min_turn_s > 0):
+            raise ValueError(f"HoverSweepsSpec.min_turn_s={self.min_turn_s!r} must be > 0 s")
 
     def build(self, rng: np.random.Generator, duration_s: float) -> Flight:
         """A keyframe flight covering at least duration_s seconds."""
@@ -211,7 +215,7 @@ class HoverSweepsSpec:
             at_base = not at_base
             delta = abs(target - heads[-1])
             # Cosine easing: peak rate = pi/2 * delta / T.
-            t += max(0.2, math.pi / 2.0 * delta / _u(rng, self.sweep_rate_deg_s))
+            t += max(self.min_turn_s, math.pi / 2.0 * delta / _u(rng, self.sweep_rate_deg_s))
             times.append(t)
             heads.append(target)
         k = len(times)

@@ -183,6 +183,26 @@ class TrackerConfig:
         track. It takes the old id on probation, like a revival; a track whose id was reported only
         for a lost track its detection looks more like than like the track itself (0: off).
 
+    reid_offset_min_inliers, reid_offset_max_m, reid_offset_inlier_m : int, float, float
+        A view that comes back brings its objects back together, and the telemetry's error has changed since
+        they left: before matching them, the returning points are shifted by the common offset (at most
+        reid_offset_max_m metres) that lays the most of them within reid_offset_inlier_m of a lost track's
+        prediction, when that is at least reid_offset_min_inliers and two more than no shift
+        (`agent.tracking.reid.return_offset`; 0: off).
+
+    View jumps
+    ----------
+    jump_rate_deg_s, jump_window_s : float
+        A frame whose pose turns faster than this (heading or pitch, deg/s: the change over the last
+        jump_window_s seconds divided by at least that window, so jitter does not count) is in a
+        view jump, and so is every frame for jump_settle_s seconds after the last such frame: its boxes are
+        not used (the tracks coast; nothing is matched, born or revived; 0: off). A gimbal that jumps between
+        two frames shows in the telemetry smeared over several frames, tens of degrees off the image; matching
+        such frames in the image alone (IoU >= 0.5 with the tracks' last boxes) measured the same on the tuning
+        domains and gives an old track to a new object that happens to sit where it sat in the image.
+    jump_settle_s : float
+        See jump_rate_deg_s, seconds.
+
     Appearance (optional: used when the detections carry descriptors, `FrameResult.embeddings`)
     ----------
     use_appearance : bool
@@ -347,6 +367,12 @@ class TrackerConfig:
     reid_delay_s: float = 0.0
     reid_min_evidence: float = 0.0
     reid_unreported_s: float = 3.0
+    reid_offset_min_inliers: int = 3
+    reid_offset_max_m: float = 10.0
+    reid_offset_inlier_m: float = 1.5
+    jump_rate_deg_s: float = 150.0
+    jump_window_s: float = 0.05
+    jump_settle_s: float = 0.1
     use_appearance: bool = True
     appearance_ema: float = 0.9
     reid_appearance_weight: float = 10.0

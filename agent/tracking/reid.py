@@ -11,13 +11,63 @@ from numpy.typing import NDArray
 
 from agent.tracking.appearance import blend_descriptors, cosine_distance, descriptor_distance
 from agent.tracking.assignment import gated_assignment
-from agent.tracking.model import FloatArray, mahalanobis2_and_logdet
+from agent.tracking.model import FloatArray, mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
 from shared.geo import local_to_latlon
 
-__all__ = ["evidence_ok", "reidentify", "resolve_pending", "settle_probation", "unreported"]
+__all__ = ["evidence_ok", "predict_lost", "reidentify", "resolve_pending", "return_offset", "settle_probation",
+           "unreported"]
 
 log = logging.getLogger(__name__)
+
+
+def predict_lost(state: TrackState, t: float) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """Where the lost tracks are at time t on the ground: positions (L, 2) (each moved on by its class's damped
+    velocity, `ClassMotion.persistence_s`, the speed capped), covariances (L, 2, 2) (grown by
+    `reid_spread_mps` per second lost) and times lost (L,) seconds."""
+    lost = state.lost
+    lost_for = np.maximum(t - lost["t_hit"], 0.0)
+    speed_cap, spread, tau = state.motion.reid_arrays(lost["cls"])
+    vel = lost["vel"]
+    speed = np.hypot(vel[:, 0], vel[:, 1])
+    vel = vel * np.minimum(1.0, speed_cap / np.maximum(speed, 1e-9))[:, None]
+    pred = lost["pos"] + vel * (tau * (1.0 - np.exp(-lost_for / tau)))[:, None]
+    cov = lost["Ppos"] + ((spread * lost_for) ** 2)[:, None, None] * np.eye(2)
+    return pred, cov, lost_for
+
+
+def return_offset(pred: FloatArray, pred_cls: NDArray[np.int64], z: FloatArray, cls: NDArray[np.int64], *,
+                  max_offset_m: float, inlier_m: float, min_inliers: int) -> FloatArray | None:
+    """The common shift (2,) metres that lays returning ground points z (K, 2) of classes cls (K,) onto the
+    lost tracks' predictions pred (L, 2) of classes pred_cls (L,), or None.
+
+    A view that comes back brings its objects back together, and the telemetry's error has changed since they
+    left (another GPS and heading error, a registration the tracks followed in the meantime): every returning
+    point then sits metres from its prediction in the same direction, and neighbours swap ids. Each pair of a
+    point and a prediction within max_offset_m proposes a shift; the shift that lays the most points within
+    inlier_m of a prediction wins (counted one to one at most: min of points and predictions near), if it lays
+    at least min_inliers and two more than no shift; it is refined to the median of its inliers' differences.
+    """
+    if min_inliers <= 0 or len(pred) < min_inliers or len(z) < min_inliers:
+        return None
+    same = pred_cls[:, None] == cls[None, :]
+    diff = pred[:, None, :] - z[None, :, :]  # (L, K, 2): the shift that lays point k onto prediction l
+    li, ki = np.nonzero(same & (np.hypot(diff[..., 0], diff[..., 1]) <= max_offset_m))
+    if len(li) < min_inliers:
+        return None
+    step = max(1, len(li) // 400)  # a bounded number of proposals in crowded frames
+    shifts = np.vstack([np.zeros((1, 2)), diff[li[::step], ki[::step]]])  # (M, 2), no shift first
+    resid = diff[None] - shifts[:, None, None, :]
+    near = (np.hypot(resid[..., 0], resid[..., 1]) <= inlier_m) & same[None]  # (M, L, K)
+    count = np.minimum(near.any(axis=1).sum(axis=1), near.any(axis=2).sum(axis=1))
+    best = int(np.argmax(count))  # ties: the first, so no shift when it does as well
+    if count[best] < min_inliers or count[best] < count[0] + 2:
+        return None
+    d = np.hypot(resid[best, ..., 0], resid[best, ..., 1])
+    d = np.where(near[best], d, np.inf)
+    l_best = np.argmin(d, axis=0)  # each point's nearest prediction under the winning shift
+    k_in = np.flatnonzero(np.isfinite(d[l_best, np.arange(len(z))]))
+    return np.median(diff[l_best[k_in], k_in], axis=0)
 
 
 def _lost_match(state: TrackState, z: FloatArray, R: FloatArray, cls: NDArray[np.int64], t: float,
@@ -27,13 +77,8 @@ def _lost_match(state: TrackState, z: FloatArray, R: FloatArray, cls: NDArray[np
     tracks' times lost (L,)."""
     cfg = state.config
     lost = state.lost
-    lost_for = np.maximum(t - lost["t_hit"], 0.0)
-    speed_cap, spread, tau = state.motion.reid_arrays(lost["cls"])
-    vel = lost["vel"]
-    speed = np.hypot(vel[:, 0], vel[:, 1])
-    vel = vel * np.minimum(1.0, speed_cap / np.maximum(speed, 1e-9))[:, None]
-    pred = lost["pos"] + vel * (tau * (1.0 - np.exp(-lost_for / tau)))[:, None]
-    cov = lost["Ppos"] + ((spread * lost_for) ** 2)[:, None, None] * np.eye(2)
+    speed_cap, _, _ = state.motion.reid_arrays(lost["cls"])
+    pred, cov, lost_for = predict_lost(state, t)
     S = cov[:, None] + R[None, :]
     diff = z[None, :, :] - pred[:, None, :]
     d2, logdet = mahalanobis2_and_logdet(diff, S)
@@ -126,7 +171,19 @@ def reidentify(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bo
     di = np.flatnonzero(det_mask)
     young = np.zeros(0, np.int64) if young is None else young
     cand = np.concatenate([di, state.active["det_row"][young]])
-    cost, allowed, lost_for = _lost_match(state, dets.z[cand], dets.R[cand], dets.cls[cand], t,
+    z = dets.z[cand]
+    pred, pred_cov, _ = predict_lost(state, t)
+    # a shift is measurable only against predictions sharper than its inlier radius (a swimmer lost for
+    # seconds, not a walker who may have turned anywhere within metres)
+    sharp = ~lost["claimed"] & (sigma_max(pred_cov) <= cfg.reid_offset_inlier_m)
+    shift = return_offset(pred[sharp], lost["cls"][sharp], z, dets.cls[cand],
+                          max_offset_m=cfg.reid_offset_max_m, inlier_m=cfg.reid_offset_inlier_m,
+                          min_inliers=cfg.reid_offset_min_inliers)
+    if shift is not None:
+        log.debug("returning points shifted by %s m onto the lost tracks", np.round(shift, 2).tolist())
+        z = z + shift
+        state.n_return_shifts += 1
+    cost, allowed, lost_for = _lost_match(state, z, dets.R[cand], dets.cls[cand], t,
                                           None if dets.emb is None else dets.emb[cand])
     shown = state.active["shown"][young]
     if shown.any():

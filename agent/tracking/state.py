@@ -101,7 +101,8 @@ class TrackState:
 
     active: tracks being followed (ACTIVE_FIELDS); lost: the re-ID memory (LOST_FIELDS); next_id: id
     of the next new track; origin: (lat, lon) of the local east/north frame, None before the first pose;
-    heading_now: gimbal heading of the last frame with a pose, degrees (image cue); n_reidentified:
+    heading_now: gimbal heading of the last frame with a pose, degrees (image cue); n_return_shifts: frames whose
+    returning points were shifted onto the lost tracks (reid.return_offset); n_reidentified:
     re-identifications so far; image_steady: the frame's image registration paired its boxes with the
     tracks' expected ones (the image gate applies).
     """
@@ -115,6 +116,7 @@ class TrackState:
     origin: tuple[float, float] | None = None
     heading_now: float = 0.0
     n_reidentified: int = 0
+    n_return_shifts: int = 0
     #: this frame's image agreed with the tracks' expected boxes (the image registration found it)
     image_steady: bool = False
 

@@ -28,6 +28,7 @@ from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicat
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
 from agent.tracking.registration import correction_jacobian, fit_pose_correction, image_pairs, track_offset
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
+from agent.tracking.view_jump import ViewJumpGuard
 from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon
 
 __all__ = ["GpsTracker", "TrackOutput"]
@@ -136,6 +137,7 @@ class GpsTracker:
         self._uav_en = (0.0, 0.0)
         self._height_m = 1.0
         self._level: float | None = None  # running mean of the frames' top raw scores (report_level_ref)
+        self._jump = ViewJumpGuard()
 
     # ----------------------------------------------------------------------------- views
     @property
@@ -158,6 +160,11 @@ class GpsTracker:
     def evidence_at(self) -> EvidenceFn | None:
         """The memory-map evidence lookup re-identification asks, or None."""
         return self._state.evidence_at
+
+    @property
+    def frames_in_jump(self) -> int:
+        """Frames so far inside a view jump (`TrackerConfig.jump_rate_deg_s`), whose boxes were not used."""
+        return self._jump.frames
 
     @property
     def n_reidentified(self) -> int:
@@ -269,13 +276,15 @@ class GpsTracker:
             self._update_rates(pose, pose_t, t)
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
             self._maybe_reanchor(pose)
-            undo = None
-            if not self.config.use_pipeline_correction and result.correction is not None:
-                undo = (float(result.correction.east_m), float(result.correction.north_m))
-            self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt, undo_en=undo,
-                                  latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s)
-            merge_duplicates(state, t)
-            decay_unseen_quality(state, pose, camera)
+            # in a view jump (agent.tracking.view_jump) the tracks coast: nothing is matched, born or revived
+            if not self._jump.in_jump(pose.heading_deg, pose.pitch_deg, t, self.config):
+                undo = None
+                if not self.config.use_pipeline_correction and result.correction is not None:
+                    undo = (float(result.correction.east_m), float(result.correction.north_m))
+                self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt,
+                                      undo_en=undo, latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s)
+                merge_duplicates(state, t)
+                decay_unseen_quality(state, pose, camera)
 
         reid.settle_probation(state)
         retire(state, t, camera)

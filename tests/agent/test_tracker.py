@@ -426,8 +426,9 @@ def _return_after_a_partial_box(config: TrackerConfig) -> tuple[GpsTracker, list
     born), the next ones red again."""
     tracker = GpsTracker(config, CLASSES)
     pose, away = pose_at(), pose_at(heading_deg=180.0)
-    outs = run(tracker, [(_looking(RED, pose), pose)] * 60 + [(empty_result(), away)] * 90
-               + [(_looking(BLUE, pose), pose)] + [(_looking(RED, pose), pose)] * 20)
+    # the view is back 5 frames before the person (past the view-jump guard, TrackerConfig.jump_settle_s)
+    outs = run(tracker, [(_looking(RED, pose), pose)] * 60 + [(empty_result(), away)] * 85
+               + [(empty_result(), pose)] * 5 + [(_looking(BLUE, pose), pose)] + [(_looking(RED, pose), pose)] * 20)
     return tracker, outs
 
 

@@ -26,7 +26,11 @@ REPO = Path(__file__).resolve().parents[2]
 
 def test_every_domain_builds_and_the_split_is_disjoint() -> None:
     assert TUNING_DOMAINS and HELDOUT_DOMAINS and not set(TUNING_DOMAINS) & set(HELDOUT_DOMAINS)
-    assert {d.motion for d in DOMAINS.values() if d.split == "heldout"} == {"gentle", "sweeps"}
+    assert {d.motion for d in DOMAINS.values() if d.split == "heldout"} == {"gentle", "sweeps", "jumps"}
+    # view-jump (re-ID) domains on both sides of the split, with and without appearance descriptors
+    for split in ("tune", "heldout"):
+        jumps = [d for d in DOMAINS.values() if d.split == split and d.motion == "jumps"]
+        assert {d.descriptors for d in jumps} == {True, False} and len({d.fps for d in jumps}) >= 2
     assert {d.fps for d in DOMAINS.values()} >= {24.0, 30.0, 60.0}
     assert {d.camera for d in DOMAINS.values()} >= {"4k", "1080p-wide", "4k-tele"}
     for d in DOMAINS.values():
@@ -183,3 +187,43 @@ def test_final_output_domains_give_the_detectors_post_nms_thresholded_results(tm
         assert iou.max(initial=0.0) <= 0.5 + 1e-6
     with pytest.raises(ValueError, match="final_score"):
         dataclasses.replace(domain, final_score=1.5)
+
+
+def test_view_jump_domains_report_norfair_ours_and_ours_on_motion_alone_with_the_reid_bars(tmp_path: Path) -> None:
+    from sim.domain_eval import GPS_MOTION, JUMPS_HOTA_MARGIN, JUMPS_IDF1_MARGIN, JUMPS_MIN_IDF1, jumps_acceptance
+
+    tiny = [dataclasses.replace(DOMAINS["sea-jumps-desc"], clip_s=4.0)]
+    assert tiny[0].split == "heldout" and tiny[0].motion == "jumps" and tiny[0].descriptors
+    report = run_domain_eval(tiny, [0], noise_scales=(1.0,), tasks=("tracking",), out_dir=tmp_path)
+    variants = {r["variant"] for r in report["tracking_rows"]}
+    assert variants == {"norfair (pixel IoU)", "GPS tracker + memory map", GPS_MOTION}
+    (s,) = report["tracking"]
+    assert {"HOTA_motion", "IDF1_motion", "IDs_motion", "reid_kept_ours", "reid_scored_ours"} <= set(s)
+    assert 0 <= s["reid_kept_ours"] <= s["reid_scored_ours"]
+    rows = [a for a in report["acceptance"] if a["criterion"].startswith("sea-jumps-desc:")]
+    bars = [f">= {JUMPS_MIN_IDF1:g}", f">= +{JUMPS_IDF1_MARGIN:g}", f">= +{JUMPS_HOTA_MARGIN:g}"]
+    assert [a["bar"] for a in rows] == bars
+    assert rows[0]["ok"] == (s["IDF1_ours"] >= 60.0)
+    assert rows[1]["value"] == pytest.approx(s["IDF1_ours"] - s["IDF1_norfair"])
+    md = (tmp_path / "report.md").read_text()
+    assert "## Re-ID with view jumps" in md
+    assert any(line.startswith("| heldout | sea-jumps-desc |") and line.count("/") >= 8 for line in md.splitlines())
+    # the bars themselves: a domain just past them holds, one just short fails each in turn
+    past = {"domain": "d", "IDF1_ours": 61.0, "IDF1_norfair": 35.0, "HOTA_ours": 40.0, "HOTA_norfair": 24.0}
+    assert all(a["ok"] for a in jumps_acceptance(past))
+    assert [a["ok"] for a in jumps_acceptance({**past, "IDF1_ours": 59.9, "IDF1_norfair": 20.0})] == [False, True, True]
+    assert [a["ok"] for a in jumps_acceptance({**past, "IDF1_norfair": 36.5})] == [True, False, True]
+    assert [a["ok"] for a in jumps_acceptance({**past, "HOTA_norfair": 25.5})] == [True, True, False]
+
+
+def test_a_domain_without_descriptors_writes_the_same_boxes_without_embeddings(tmp_path: Path) -> None:
+    with_desc = dataclasses.replace(DOMAINS["grass-jumps-desc-wide"], clip_s=0.5)
+    without = dataclasses.replace(with_desc, descriptors=False)
+    assert with_desc.tag != without.tag
+    assert without.changes()["descriptors"] == "none" and "descriptors" not in with_desc.changes()
+    a, b = tmp_path / "a", tmp_path / "b"
+    write_dataset(with_desc.scenario(), a, seed=0, frames=with_desc.frames(), progress=False)
+    write_dataset(without.scenario(), b, seed=0, frames=without.frames(), progress=False)
+    pa, pb = json.loads((a / "pre_nms.json").read_text()), json.loads((b / "pre_nms.json").read_text())
+    assert any("embedding" in c for c in pa) and not any("embedding" in c for c in pb)
+    assert len(pa) > 0 and [c["bbox"] for c in pa] == [c["bbox"] for c in pb]
