@@ -135,6 +135,7 @@ class Domain:
         for later in ("final_score", "terrain"):  # fields that came later: domains without them keep their tags
             if getattr(self, later) is None:
                 text = text.replace(f", {later}=None", "")
+        text = text.replace(", aspect_deg=None", "")  # TerrainSpec's later field: the terrain domains keep theirs
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
     def summary(self) -> str:
