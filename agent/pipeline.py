@@ -419,7 +419,7 @@ class DetectionPipeline:
                     patches[sel] = self.memory.patches(self.class_names[cid], sx[sel], sy[sel], radius)
             near = None
             if s.local_m > 0:  # around the current correction first (cells; y grows southward)
-                east, north = est.current_en
+                east, north = est.expected_en
                 near = (east / cell_m, -north / cell_m, s.local_m / cell_m)
             dx, dy, support = register_offset(patches, c[strong], near=near, near_support=s.min_support)
             if support < s.min_support:

@@ -91,7 +91,10 @@ class PipelineConfig:
         (CorrectionSettings: the detector score that registers, the largest offset searched around the
         last correction, the boxes and mean evidence a measurement needs, the smoothing time constant,
         how long a correction is held without measurements, and the radius around the current correction
-        searched first).
+        searched first). correction_anchor_s: the time over which the correction is anchored to the
+        telemetry (CorrectionSettings.anchor_s: the applied corrections averaged over it are taken off each
+        measurement, so the map stays where the telemetry puts the objects on average instead of drifting
+        with the correction's own errors; 0: not anchored).
 
     estimate_clock_offset: the frame drivers of files (`uavmm boost`, `uavmm track`, `uavmm tune`, the
         evaluations) estimate the video/telemetry clock offset online from the confident detections and
@@ -218,6 +221,7 @@ class PipelineConfig:
     correction_smoothing_s: float = 0.0
     correction_hold_s: float = 2.0
     correction_local_m: float = 0.0
+    correction_anchor_s: float = 0.0
     estimate_clock_offset: bool = True
     clock_offset_fallback_s: float = 0.0
     clock_offset_search_s: float = 1.0
@@ -279,7 +283,7 @@ class PipelineConfig:
         return CorrectionSettings(min_score=self.correction_min_score, search_m=self.correction_search_m,
                                   min_points=self.correction_min_points, min_support=self.correction_min_support,
                                   smoothing_s=self.correction_smoothing_s, hold_s=self.correction_hold_s,
-                                  local_m=self.correction_local_m)
+                                  local_m=self.correction_local_m, anchor_s=self.correction_anchor_s)
 
     @property
     def joint_scale(self) -> float:

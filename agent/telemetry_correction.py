@@ -42,6 +42,16 @@ class CorrectionSettings:
         correction jumped by it for single frames. 0 (default): the whole window every frame; 2 m halved
         the tracker's id switches on sea-tele-gps4 when it tracked on corrected points, and cost 0.2 AP50
         on the tuning domains (docs/memory-map.md).
+    anchor_s: the correction is anchored to the telemetry over this time (seconds; 0: not anchored). The map
+        holds the earlier frames' points moved by their corrections, so a measurement is the correction this
+        frame needs plus what the map already carries, and a constant added to every correction is invisible
+        to the measurements: unanchored, each frame's measurement error (a fraction of a cell) and the evidence
+        walkers leave behind them add up, and on noise-free telemetry the map walked 1-3 m away from the truth
+        within 10 s (`coop-slope`, docs/fusion.md). Anchored, the applied corrections averaged over anchor_s
+        are taken off each measurement: what the correction keeps for longer than that is the telemetry's
+        own (a bias no registration can see), and the map stays where the telemetry puts the objects on
+        average. Faster errors (jitter, a GPS step) are corrected as before. Meant for anchor_s at or above
+        the map's memory (its half-life / ln 2); below it the correction rings.
     """
 
     min_score: float = 0.5
@@ -52,9 +62,10 @@ class CorrectionSettings:
     hold_s: float = 2.0
     max_points: int = 16
     local_m: float = 0.0
+    anchor_s: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("min_score", "search_m", "min_support", "smoothing_s", "hold_s", "local_m"):
+        for name in ("min_score", "search_m", "min_support", "smoothing_s", "hold_s", "local_m", "anchor_s"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) or value < 0:
                 raise ValueError(f"correction {name} must be a finite number >= 0, got {value!r}")
@@ -119,7 +130,8 @@ def register_offset(patches: NDArray[np.float32], weights: NDArray, *,
 
 
 class GroundOffsetEstimator:
-    """Per-video state of the correction: the smoothed offset and when it was last measured."""
+    """Per-video state of the correction: the smoothed offset, when it was last measured and (anchored) the
+    applied corrections averaged over the anchor time."""
 
     def __init__(self, settings: CorrectionSettings | None = None) -> None:
         self.settings = settings or CorrectionSettings()
@@ -130,6 +142,7 @@ class GroundOffsetEstimator:
         self._east = self._north = 0.0
         self._t: float | None = None
         self._t_measured: float | None = None
+        self._carried: tuple[float, float] | None = None  # anchored: the applied corrections, averaged
         #: frames per outcome: "measured", "at the search bound", "low support", "too few boxes"
         self.outcomes: dict[str, int] = {}
 
@@ -151,21 +164,41 @@ class GroundOffsetEstimator:
         """The correction (east, north) metres as last applied."""
         return self._east, self._north
 
+    @property
+    def expected_en(self) -> tuple[float, float]:
+        """The measurement (east, north metres) a frame like the last one would give: its correction plus,
+        anchored, the averaged corrections taken off the measurements."""
+        carried = self._carried or (0.0, 0.0)
+        return self._east + carried[0], self._north + carried[1]
+
     def update(self, t: float, measurement_en: tuple[float, float] | None, points: int = 0,
                support: float = 0.0) -> GroundCorrection:
         """Advance to time t with this frame's measured offset (east, north metres) or None; returns the
-        correction to apply (smoothed, held, or decaying to 0 without measurements)."""
+        correction to apply (smoothed, held, or decaying to 0 without measurements). Anchored
+        (`CorrectionSettings.anchor_s` > 0) the applied corrections averaged over anchor_s are first taken off
+        the measurement, and the correction applied now joins that average."""
         s = self.settings
         dt = 0.0 if self._t is None else max(0.0, t - self._t)
         self._t = t if self._t is None else max(self._t, t)
+        if measurement_en is not None and self._carried is not None:
+            measurement_en = (measurement_en[0] - self._carried[0], measurement_en[1] - self._carried[1])
         if measurement_en is not None:
             a = 1.0 if s.smoothing_s <= 0 or self._t_measured is None else 1.0 - math.exp(-dt / s.smoothing_s)
             self._east += a * (measurement_en[0] - self._east)
             self._north += a * (measurement_en[1] - self._north)
             self._t_measured = self._t
-            return GroundCorrection(self._east, self._north, True, points, support)
-        if self._t_measured is not None and self._t - self._t_measured > s.hold_s:
-            k = math.exp(-dt / max(s.hold_s, 1e-3))
-            self._east *= k
-            self._north *= k
-        return GroundCorrection(self._east, self._north, False, points, 0.0)
+            out = GroundCorrection(self._east, self._north, True, points, support)
+        else:
+            if self._t_measured is not None and self._t - self._t_measured > s.hold_s:
+                k = math.exp(-dt / max(s.hold_s, 1e-3))
+                self._east *= k
+                self._north *= k
+            out = GroundCorrection(self._east, self._north, False, points, 0.0)
+        if s.anchor_s > 0:
+            if self._carried is None:
+                self._carried = (self._east, self._north)
+            else:
+                k = 1.0 - math.exp(-dt / s.anchor_s)
+                self._carried = (self._carried[0] + k * (self._east - self._carried[0]),
+                                 self._carried[1] + k * (self._north - self._carried[1]))
+        return out

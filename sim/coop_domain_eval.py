@@ -118,8 +118,8 @@ def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_s
         if progress:
             progress(f"[{i + 1}/{len(jobs)}] coop domain {domain.name} seed={seed}")
         data_dir = ensure_coop_domain_dataset(domain, seed, noise_scale, out_dir / "data")
-        rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r}
-                 for r in evaluate_coop(data_dir, variants=VARIANTS, track=False)]
+        per_uav, _ = evaluate_coop(data_dir, variants=VARIANTS, track=False)
+        rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r} for r in per_uav]
     summary = summarise(rows, domains)
     report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scale": noise_scale, "rows": rows,
               "summary": summary, "acceptance": acceptance(summary), "seconds": round(time.perf_counter() - t0, 1)}

@@ -34,10 +34,23 @@ from fusion_server.joint_map import JointMap
 from fusion_server.rules import get_fusion_rule
 from shared.geo import Camera
 from shared.tilecodec import decode_tile
+from sim.coop_peaks import PEAK_BAR_M, PeakSampler, standing_objects
+from sim.position_error import summarise_position_errors
+from sim.terrain_eval import DEM_SUFFIX, terrain_of
+from sim.track_eval import (
+    SequenceTracks,
+    drop_ignored,
+    mot_metrics,
+    position_errors,
+    sequence_truth,
+    trackeval_data,
+)
 
 PUBLISH_PERIOD_S = 0.2  # the agent's default 5 Hz
 SCORE_THRESHOLD = 0.25  # "reported to the user": the operating threshold of sim.evaluate
 JOINT_TTL_S = 2.0  # the fusion server's default --ttl-s
+BOTH = "both"  # the peak rows of the objects any UAV sees
+TRACK_FPS = 30.0  # the simulator's frame rate (HOTA's per-frame truth)
 TILE_MIN_VALUE = 0.05  # the agent's default tile_min_value
 
 
@@ -86,13 +99,20 @@ class CoopFusion:
 
 
 def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str = "mean",
-             coverage: str = "footprint", track_boxes: dict[int, list[list[float]]] | None = None
-             ) -> dict[int, list[dict]]:
+             coverage: str = "footprint", track_boxes: dict[int, list[list[float]]] | None = None,
+             dem: bool = False, on_publish: Callable[[float, JointMap, list[int]], None] | None = None,
+             tracks_out: dict[int, SequenceTracks] | None = None) -> dict[int, list[dict]]:
     """Run both UAVs of a simultaneous dataset; returns COCO results per video id.
 
     share: give each UAV the joint map (fusion `rule` with `coverage`, see `CoopFusion`).
     track_boxes: when given, each UAV also runs the GPS tracker (defaults) and this dict receives, per
     image id, the boxes [x, y, w, h] of the confirmed tracks matched in that frame.
+    tracks_out: when given, each UAV also runs the GPS tracker and this dict receives per video id the tracks
+    it reports (`GpsTracker.report`: MOT rows and their ground positions) for `sim.track_eval`'s metrics.
+    dem: georeference on the dataset's DEM (dem.npz) with each UAV's take-off elevation from truth.json
+    (`sim.terrain_eval.terrain_of`), as `--dem FILE --takeoff-elevation-m` does; else over flat earth.
+    on_publish: with share, called after each publish cycle with its time, the fusion server's joint map and
+    the image ids of the frames just processed (e.g. `sim.coop_peaks.PeakSampler`).
     """
     dataset = Dataset.load(data_dir / "images.json")
     candidates = Candidates.load(data_dir / "pre_nms.json", dataset)
@@ -100,13 +120,17 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
     uav_of = {v["id"]: v.get("uav", str(v["id"])) for v in dataset.coco.get("videos", [])}
     for vid in dataset.videos:
         uav_of.setdefault(vid, str(vid))
+    configs = {vid: dataclasses.replace(config, terrain=terrain_of(data_dir, vid)) if dem else config
+               for vid in dataset.videos}
     joints = {vid: JointLayer(ttl_s=JOINT_TTL_S) for vid in dataset.videos}
-    pipes = {vid: DetectionPipeline(camera, dataset.categories, config, joint=joints[vid] if share else None)
+    pipes = {vid: DetectionPipeline(camera, dataset.categories, configs[vid], joint=joints[vid] if share else None)
              for vid in dataset.videos}
     fusion = CoopFusion([uav_of[v] for v in pipes], list(dict.fromkeys(dataset.categories.values())),
                         {uav_of[v]: p for v, p in pipes.items()}, rule=rule, coverage=coverage) if share else None
     trackers = {vid: GpsTracker(None, dataset.categories, evidence_at=memory_evidence(pipes[vid]))
-                for vid in dataset.videos} if track_boxes is not None else {}
+                for vid in dataset.videos} if track_boxes is not None or tracks_out is not None else {}
+    if tracks_out is not None:
+        tracks_out.update({vid: SequenceTracks() for vid in dataset.videos})
     # live agents: each frame keeps the telemetry sample it carries (no look-ahead to later samples)
     iters = {vid: iter_video_frames(dataset, camera, vid, at_frame_time=False) for vid in dataset.videos}
     results: dict[int, list[dict]] = {vid: [] for vid in dataset.videos}
@@ -126,10 +150,13 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
             pipes[vid].camera = frame.camera
             res = pipes[vid].process(*candidates.get(frame.image.id), frame.pose, frame.t)
             results[vid].extend(results_to_coco(frame.image.id, res))
-            if track_boxes is not None:
+            if trackers:
                 tracks = trackers[vid].update(res, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t)
-                track_boxes[frame.image.id] = [[b[0], b[1], b[2] - b[0], b[3] - b[1]] for b in
-                                               (tr.box_xyxy for tr in tracks if tr.confirmed and tr.matched)]
+                if track_boxes is not None:
+                    track_boxes[frame.image.id] = [[b[0], b[1], b[2] - b[0], b[3] - b[1]] for b in
+                                                   (tr.box_xyxy for tr in tracks if tr.confirmed and tr.matched)]
+                if tracks_out is not None:
+                    _record_tracks(tracks_out[vid], frame.image.frame_index, trackers[vid].report(tracks))
             if frame.pose is not None:
                 poses[uav_of[vid]] = (frame.pose, frame.camera)
         t = max(f.t for f in step.values())
@@ -143,8 +170,18 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                 for uav, footprint in fusion.footprints.items():
                     if uav != uav_of[vid]:
                         joint.put_footprint(uav, footprint, t)
+            if on_publish is not None:
+                on_publish(t, fusion.joint, [f.image.id for f in step.values()])
             next_publish = t + PUBLISH_PERIOD_S
     return results
+
+
+def _record_tracks(seq: SequenceTracks, frame_index: int, reported: list) -> None:
+    """One frame's reported tracks as `sim.track_eval.run_tracker_on_frames` keeps them."""
+    seq.frames[frame_index] = (np.array([tr.id for tr in reported], dtype=np.int64),
+                               np.array([tr.box_xyxy for tr in reported], dtype=np.float64).reshape(-1, 4),
+                               np.array([tr.score for tr in reported], dtype=np.float64))
+    seq.latlon[frame_index] = np.array([(tr.lat, tr.lon) for tr in reported], dtype=np.float64).reshape(-1, 2)
 
 
 def _hidden_ground_truth(data_dir: Path, dataset: Dataset, *, ignore: bool = False) -> tuple[dict[str, Any], list]:
@@ -190,46 +227,78 @@ def _hidden_hit_rate(by_image: dict[int, list[list[float]]], hidden: list[dict])
     return hit / len(hidden) if hidden else float("nan")
 
 
-def evaluate_coop(data_dir: Path, *, variants: tuple[str, ...] | None = None, track: bool = True
-                  ) -> list[dict[str, Any]]:
-    """Per UAV: baseline, own memory map, joint map boosting only, joint map + joint detections (or the
-    `variants` of these named).
+def _variants(terrain: bool, base: PipelineConfig) -> list[tuple[str, PipelineConfig, bool, bool]]:
+    """(name, config, share, dem) of each run: the four variants over flat earth, and with the DEM over a terrain;
+    base: the memory map's settings (the defaults, or `--config`)."""
+    flat = [
+        ("baseline", dataclasses.replace(base, use_memory=False), False),
+        ("own memory map", base, False),
+        ("joint map boosting", dataclasses.replace(base, joint_detections=False), True),
+        ("joint map + joint detections", base, True),
+    ]
+    out = [(name, config, share, False) for name, config, share in flat]
+    if terrain:
+        out += [(name + DEM_SUFFIX, config, share, True) for name, config, share in flat]
+    return out
+
+
+def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, variants: tuple[str, ...] | None = None,
+                  track: bool = True) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """Per UAV: baseline, own memory map, joint map boosting only, joint map + joint detections (over a terrain
+    each also with the DEM, `+ DEM`); and the joint map's peaks against the truth for the variants that share.
 
     Metrics: AP50 with the hidden objects as ground truth (does the UAV report everything in its view?),
     AP50 with them as ignore regions, AP50 without them (a detection of one is a false positive), and
-    the share of hidden-object boxes detected; with `track`, the share the GPS tracker's confirmed tracks hold
-    (NaN without).
+    the share of hidden-object boxes detected. Peaks (`sim.coop_peaks`): the joint map's object candidates as
+    the REST API's /v1/objects finds them, once a second, matched to the objects standing in view.
+    config: the variants' settings (default PipelineConfig()). variants: run only these of the names (the DEM
+    variants follow their flat names); track: run the GPS tracker (hidden tracked, HOTA, IDs and track position
+    error; NaN without).
+    Returns (rows per UAV and variant, rows per sharing variant with the peak figures).
     """
     from sim.metrics import coco_detection_metrics
 
     dataset = Dataset.load(data_dir / "images.json")
     gt_hidden, hidden = _hidden_ground_truth(data_dir, dataset)
     gt_ignored, _ = _hidden_ground_truth(data_dir, dataset, ignore=True)
-    base = PipelineConfig()
-    configs = {
-        "baseline": (dataclasses.replace(base, use_memory=False), False),
-        "own memory map": (base, False),
-        "joint map boosting": (dataclasses.replace(base, joint_detections=False), True),
-        "joint map + joint detections": (base, True),
-    }
+    standing = standing_objects(data_dir, dataset.coco["annotations"], dataset.categories)
+    seen: dict[int, set[int]] = defaultdict(set)
+    for a in dataset.coco["annotations"]:  # what some UAV sees: an object hidden from all has no evidence
+        seen[a["image_id"]].add(a["track_id"])
+    videos = {v["id"]: v.get("uav", str(v["id"])) for v in dataset.coco.get("videos", [])}
+    uav_of_image = {im.id: videos.get(vid, str(vid)) for vid, images in dataset.videos.items() for im in images}
     if variants is not None:
         unknown = sorted(set(variants) - set(_ORDER))
         if unknown:
             raise ValueError(f"evaluate_coop: unknown variant(s) {', '.join(unknown)}; valid: {', '.join(_ORDER)}")
-    runs, tracked = {}, {}
-    for name, (config, share) in configs.items():
-        if variants is not None and name not in variants:
+    runs, tracked, sequences, peak_rows = {}, {}, {}, []
+    for name, variant, share, dem in _variants((data_dir / "dem.npz").exists(), config or PipelineConfig()):
+        if variants is not None and name.removesuffix(DEM_SUFFIX) not in variants:
             continue
-        tracked[name] = {}
-        runs[name] = run_coop(data_dir, config, share=share, track_boxes=tracked[name] if track else None)
+        tracked[name], sequences[name] = {}, {}
+        # the joint map is the same with and without joint detections (they add boxes, not evidence):
+        # its peaks are measured with the default variant
+        sampler = PeakSampler(standing, seen, uav_of_image) if share and variant.joint_detections else None
+        runs[name] = run_coop(data_dir, variant, share=share, track_boxes=tracked[name] if track else None, dem=dem,
+                              on_publish=sampler, tracks_out=sequences[name] if track else None)
+        if sampler is not None:  # the objects any UAV sees, and those each sees
+            for uav in (BOTH, *sorted(set(uav_of_image.values()))):
+                peak_rows.append({"variant": name, "uav": uav, "standing_objects": len(standing),
+                                  **sampler.summary(None if uav == BOTH else uav)})
     rows = []
-    videos = {v["id"]: v.get("uav", str(v["id"])) for v in dataset.coco.get("videos", [])}
     for vid, uav in videos.items():
         image_ids = [im.id for im in dataset.videos[vid]]
         id_set = set(image_ids)
         hidden_v = [h for h in hidden if h["image_id"] in id_set]
+        # hidden objects: distractors, as in tracking
+        truth = sequence_truth(dataset, vid, TRACK_FPS, hidden_v) if track else None
         for name, per_video in runs.items():
             res = per_video[vid]
+            mot = pos = None
+            if truth is not None:
+                seq = drop_ignored(truth, sequences[name][vid])
+                mot = mot_metrics([trackeval_data(truth, seq)])
+                pos = summarise_position_errors(position_errors(truth, seq))
             rows.append({
                 "uav": uav, "variant": name, "hidden_boxes": len(hidden_v),
                 "AP50": 100 * coco_detection_metrics(gt_hidden, res, image_ids=image_ids)["AP50"],
@@ -238,55 +307,114 @@ def evaluate_coop(data_dir: Path, *, variants: tuple[str, ...] | None = None, tr
                 "hidden_detected": 100 * _hidden_detected(res, hidden_v) if hidden_v else float("nan"),
                 "hidden_tracked": (100 * _hidden_hit_rate(tracked[name], hidden_v) if hidden_v and track
                                    else float("nan")),
+                "HOTA": mot["HOTA"] if mot else float("nan"), "IDs": mot["IDs"] if mot else 0,
+                "pos_err_m": float("nan") if pos is None or pos["pos_err_m"] is None else pos["pos_err_m"],
             })
-    return rows
+    return rows, peak_rows
 
 
 def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path = Path("out/eval/coop"),
-                  progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Evaluate `coop` over seeds; writes report.json and report.md to out_dir."""
+                  progress: Callable[[str], None] | None = None, scenarios: tuple[str, ...] = ("coop",),
+                  noise_scales: tuple[float, ...] = (1.0,), config: PipelineConfig | None = None) -> dict[str, Any]:
+    """Evaluate simultaneous scenarios (`coop`; `coop-slope`, over a terrain, also with the DEM) over seeds and
+    telemetry noise scales; writes report.json and report.md to out_dir. config: the variants' settings
+    (`uavmm eval --tasks coop --config PARAMS.json`; default PipelineConfig())."""
+    from sim.coop_report import coop_markdown
     from sim.evaluate import ensure_dataset
 
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    rows = []
-    for i, seed in enumerate(seeds):
+    rows, peak_rows = [], []
+    jobs = [(sc, noise, seed) for sc in scenarios for noise in noise_scales for seed in seeds]
+    for i, (scenario, noise, seed) in enumerate(jobs):
         if progress:
-            progress(f"[{i + 1}/{len(seeds)}] coop seed={seed}")
-        data_dir = ensure_dataset("coop", seed, frames, 1.0, out_dir / "data")
-        rows += [{"seed": seed, **r} for r in evaluate_coop(data_dir)]
-    summary = []
-    keys = sorted({(r["uav"], r["variant"]) for r in rows}, key=lambda k: (k[0], list(_ORDER).index(k[1])))
-    for uav, variant in keys:
-        rs = [r for r in rows if r["uav"] == uav and r["variant"] == variant]
-        summary.append({"uav": uav, "variant": variant, **{
-            m: statistics.fmean(r[m] for r in rs if r[m] == r[m]) if any(r[m] == r[m] for r in rs) else float("nan")
-            for m in _METRICS}})
-    report = {"seeds": seeds, "frames": frames, "rows": rows, "summary": summary,
+            progress(f"[{i + 1}/{len(jobs)}] {scenario} seed={seed} noise x{noise:g}")
+        data_dir = ensure_dataset(scenario, seed, frames, noise, out_dir / "data")
+        det, peaks = evaluate_coop(data_dir, config)
+        tag = {"scenario": scenario, "noise_scale": noise, "seed": seed}
+        rows += [{**tag, **r} for r in det]
+        peak_rows += [{**tag, **r} for r in peaks]
+    summary = _mean_rows(rows, ("scenario", "noise_scale", "uav", "variant"), _METRICS)
+    peak_summary = _mean_rows(peak_rows, ("scenario", "noise_scale", "variant", "uav"), _PEAK_METRICS)
+    report = {"scenarios": list(scenarios), "seeds": seeds, "noise_scales": list(noise_scales), "frames": frames,
+              "config_overrides": _overrides(config),
+              "rows": rows, "summary": summary, "peak_rows": peak_rows, "peak_summary": peak_summary,
+              "acceptance": slope_acceptance(summary, peak_summary),
               "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    lines = ["# uavmm eval: cooperative detection (scenario coop, two UAVs)", "",
-             f"Seeds {seeds}, mean. A tree line hides resting people (and passing walkers) from the far, "
-             "oblique uav1 for the whole flight; uav2, closer, sees them. "
-             "AP50 by pycocotools on each UAV's frames with the hidden people's boxes as ground truth "
-             "(does the UAV report everything in its view?); 'hidden ignored': their boxes are COCO crowd "
-             "(ignore) regions; 'hidden as FP': left out, so detecting them counts as a false positive; "
-             f"'hidden detected' = share of their boxes found with score >= {SCORE_THRESHOLD}; 'hidden "
-             "tracked' = share matched (IoU >= 0.5) by the box of a confirmed GPS-tracker track matched in "
-             "that frame. "
-             "Joint map: the fusion server's JointMap (mean rule; a UAV covers the cells of its camera "
-             "footprints of the last 2 s) over both UAVs' tiles as the agent encodes them, at 5 Hz; "
-             "'joint detections': the peaks of the other UAV's evidence in view that no detection explains "
-             "promote a weak real candidate or carry this UAV's last sighting of the object "
-             "(agent.joint_detections).", "",
-             "| uav | variant | AP50 | AP50 hidden ignored | AP50 hidden as FP | hidden detected % | "
-             "hidden tracked % |", "|---|---|---|---|---|---|---|"]
-    for s in summary:
-        lines.append(f"| {s['uav']} | {s['variant']} | {s['AP50']:.1f} | {s['AP50_hidden_ignored']:.1f} | "
-                     f"{s['AP50_hidden_as_fp']:.1f} | {s['hidden_detected']:.1f} | {s['hidden_tracked']:.1f} |")
-    (out_dir / "report.md").write_text("\n".join(lines) + "\n")
+    (out_dir / "report.md").write_text(coop_markdown(report))
     return report
 
 
+def _overrides(config: PipelineConfig | None) -> dict[str, Any]:
+    """The settings of config that differ from the defaults (JSON values; repr where a value is not one)."""
+    if config is None:
+        return {}
+    default = PipelineConfig()
+    out = {}
+    for f in dataclasses.fields(config):
+        value = getattr(config, f.name)
+        if value != getattr(default, f.name):
+            out[f.name] = value if isinstance(value, (bool, int, float, str, type(None))) else repr(value)
+    return out
+
+
+def _mean_rows(rows: list[dict[str, Any]], keys: tuple[str, ...], metrics: tuple[str, ...]) -> list[dict[str, Any]]:
+    """Per distinct value of keys (in the order rows first have them, variants in _ORDER), the mean over seeds
+    of each metric, NaNs left out (NaN when all are)."""
+    groups: dict[tuple, list[dict[str, Any]]] = {}
+    for r in rows:
+        groups.setdefault(tuple(r[k] for k in keys), []).append(r)
+    first: dict[tuple[str, Any], int] = {}  # each key's values in the order the rows first have them
+    for r in rows:
+        for k in keys:
+            first.setdefault((k, r[k]), len(first))
+    order = sorted(groups, key=lambda g: tuple(_variant_rank(v) if k == "variant" else first[(k, v)]
+                                               for k, v in zip(keys, g, strict=True)))
+    out = []
+    for group in order:
+        rs = groups[group]
+        out.append({**dict(zip(keys, group, strict=True)), **{
+            m: statistics.fmean(r[m] for r in rs if r[m] == r[m]) if any(r[m] == r[m] for r in rs) else float("nan")
+            for m in metrics}})
+    return out
+
+
+def _variant_rank(name: str) -> int:
+    dem = name.endswith(DEM_SUFFIX)
+    base = name[:-len(DEM_SUFFIX)] if dem else name
+    return _ORDER.index(base) + (len(_ORDER) if dem else 0) if base in _ORDER else 2 * len(_ORDER)
+
+
+def slope_acceptance(summary: list[dict[str, Any]], peak_summary: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The bars of two UAVs over a terrain, per scenario and noise scale with DEM rows: the joint map's median
+    peak error with the DEM <= PEAK_BAR_M (joint map + joint detections; over the objects each UAV sees), and
+    each UAV's AP50 and HOTA with the DEM not below flat earth (every variant that has a DEM twin).
+    [{criterion, value, bar, ok}]."""
+    out: list[dict[str, Any]] = []
+    joint = "joint map + joint detections"
+    for p in peak_summary:
+        if p["variant"] == joint + DEM_SUFFIX and p.get("uav", BOTH) != BOTH and p["peak_err_m"] == p["peak_err_m"]:
+            out.append({"criterion": f"{p['scenario']} x{p['noise_scale']:g} {p['uav']}: joint-map peak error "
+                                     "with DEM, median m",
+                        "value": p["peak_err_m"], "bar": f"<= {PEAK_BAR_M:g}", "ok": p["peak_err_m"] <= PEAK_BAR_M})
+    by = {(s["scenario"], s["noise_scale"], s["uav"], s["variant"]): s for s in summary}
+    for (scenario, noise, uav, variant), s in by.items():
+        if not variant.endswith(DEM_SUFFIX):
+            continue
+        flat = by.get((scenario, noise, uav, variant[:-len(DEM_SUFFIX)]))
+        if flat is None:
+            continue
+        for metric in ("AP50", "HOTA"):
+            gain = s.get(metric, float("nan")) - flat.get(metric, float("nan"))
+            if gain == gain:
+                out.append({"criterion": f"{scenario} x{noise:g} {uav} {variant[:-len(DEM_SUFFIX)]}: {metric} with "
+                                         "DEM - flat", "value": gain, "bar": ">= 0", "ok": gain >= 0})
+    return out
+
+
 _ORDER = ("baseline", "own memory map", "joint map boosting", "joint map + joint detections")
-_METRICS = ("AP50", "AP50_hidden_ignored", "AP50_hidden_as_fp", "hidden_detected", "hidden_tracked")
+_METRICS = ("AP50", "AP50_hidden_ignored", "AP50_hidden_as_fp", "hidden_detected", "hidden_tracked", "HOTA", "IDs",
+            "pos_err_m")
+_PEAK_METRICS = ("peak_err_m", "peak_err_p90_m", "objects_with_peak", "objects_within_bar", "extra_peaks",
+                 "standing_objects")

@@ -202,6 +202,7 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
                 "noise_base": _noise_dict(sc.noise),
                 **({"sea_state": sc.sea_state.to_dict()} if sc.sea_state is not None else {}),
                 **({"uav_settings": [dataclasses.asdict(u) for u in sc.uav_settings]} if sc.uav_settings else {}),
+                **({"takeoff": sc.takeoff} if sc.takeoff != "origin" else {}),
             },
             "seed": sim.seed, "frames_per_video": sim.frames_per_video, "noise_scale": sim.noise_scale,
             "noise": _noise_dict(sim.noise),

@@ -149,6 +149,7 @@ class Domain:
         if self.descriptors:
             text = text.replace(", descriptors=True", "")
         text = text.replace(", min_turn_s=0.2)", ")")  # HoverSweepsSpec's later field at its default
+        text = text.replace(", aspect_deg=None", "")  # TerrainSpec's later field: the terrain domains keep theirs
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
     def summary(self) -> str:

@@ -5,7 +5,8 @@ when the name is unknown. Scenarios: ``sea`` (swimmers, SeaDronesSee-like), ``se
 anomaly paper's per-frame difficulty: higher, rougher, hazier), ``grass`` (people walking,
 POG-like), ``coop`` (two UAVs over one scene, a tree line hides several people from the far one), ``reid``
 (objects leave and re-enter the view), ``trio`` (three UAVs over one meadow for `uavmm demo`), ``hills`` (the
-meadow on hills, with its DEM).
+meadow on hills, with its DEM), ``coop-slope`` (two UAVs on opposite sides of a slope, each launched from its
+own side, with the DEM).
 """
 
 from __future__ import annotations
@@ -26,6 +27,9 @@ from sim.world import Tree, WorldParams
 START_UNIX_S = 1685613600.0
 #: Pause between consecutive flights of one scenario (seconds).
 GAP_BETWEEN_FLIGHTS_S = 60.0
+#: Where a scenario's UAVs take off (their heights count from there): all at the world's origin, or each on the
+#: ground under its flight's first position (only a terrain makes the two differ).
+TAKEOFF_SITES = ("origin", "start")
 
 
 @dataclass(frozen=True, slots=True)
@@ -90,6 +94,11 @@ class Scenario:
     uav_settings : tuple of UavSetting
         Per-UAV telemetry, detector and frame rate (`noise_for`, `emulator_for`, `frame_step_for`); () = every
         UAV as the scenario (nothing written to truth.json).
+    takeoff : str
+        Where the UAVs take off, one of `TAKEOFF_SITES`: "origin" (all at the scene's centre, the default) or
+        "start" (each under its flight's first position, as operators launching from their own side of a
+        slope); over a terrain each video's heights count from its take-off's elevation (truth.json's
+        videos[i].takeoff_elevation_m).
     """
 
     name: str
@@ -106,8 +115,12 @@ class Scenario:
     sea_state: SeaState | None = None
     terrain: TerrainSpec | None = None
     uav_settings: tuple[UavSetting, ...] = ()
+    takeoff: str = "origin"
 
     def __post_init__(self) -> None:
+        if self.takeoff not in TAKEOFF_SITES:
+            raise ValueError(f"Scenario {self.name!r}: takeoff={self.takeoff!r} is not one of "
+                             f"{', '.join(TAKEOFF_SITES)}")
         if not self.flights:
             raise ValueError(f"Scenario {self.name!r} has no flights")
         if self.camera_preset not in CAMERA_PRESETS:
@@ -297,8 +310,43 @@ _HILLS = Scenario(
     terrain=TerrainSpec("hills", relief_m=12.0),
 )
 
+# Coop-slope: two UAVs on opposite sides of a meadow slope (rising 10 m per 100 m to the north), each launched
+# from its own side: uav1 hovers ~55 m south at the foot (its take-off ~5.5 m below the scene's centre) looking
+# up the slope at 30-35 deg with gentle heading sweeps; uav2 flies east-west ~55 m north near the top (take-off
+# ~5.5 m above the centre) looking down it at 36-42 deg. Ten people stand still on the slope across both views
+# (heights -2.5 .. +2 m about the centre), three more walk. Over flat earth each UAV projects them onto the plane
+# of its own take-off: uav1 from below puts them metres up the slope, uav2 from above a few metres up the slope
+# too but by other amounts, so the joint map splits each person; with the DEM (dem.npz, truth.json's per-video
+# take-off elevations) both put them where they stand (`uavmm eval --tasks coop --scenarios coop-slope`).
+_COOP_SLOPE_PEOPLE = ((-12.0, -18.0, True), (-3.0, -14.0, True), (9.0, -11.0, True), (-9.0, -4.0, True),
+                      (3.0, -2.0, True), (13.0, 3.0, True), (-14.0, 8.0, True), (-2.0, 11.0, True),
+                      (8.0, 15.0, True), (1.0, 20.0, True))
+_COOP_SLOPE = Scenario(
+    name="coop-slope",
+    description="Two UAVs on opposite sides of a meadow slope (10 m per 100 m, the DEM written as dem.npz), each "
+                "launched from its own side: uav1 ~55 m below hovering at 35-42 m looking up at 30-35 deg, uav2 "
+                "~55 m above flying east-west at 35-42 m looking down at 36-42 deg; ten people standing on the "
+                "slope, three walking. Heights above each UAV's own take-off.",
+    world=WorldParams(origin_lat=48.5348, origin_lon=9.0610, cls="person", n_objects=3, spawn_radius_m=18.0,
+                      boundary_radius_m=22.0, n_trees=0, n_clutter=2, clutter_radius_m=22.0,
+                      fixed_objects=_COOP_SLOPE_PEOPLE),
+    flights=(
+        HoverSweepsSpec(uav="uav1", bearing_deg=(180.0, 180.0), distance_m=(52.0, 58.0), height_m=(35.0, 42.0),
+                        pitch_deg=(30.0, 35.0), sweep_deg=(5.0, 12.0), sweep_rate_deg_s=(8.0, 15.0),
+                        dwell_s=(3.0, 6.0)),
+        LineSpec(uav="uav2", bearing_deg=(0.0, 0.0), distance_m=(52.0, 58.0), half_length_m=(10.0, 20.0),
+                 height_m=(35.0, 42.0), pitch_deg=(36.0, 42.0), speed_mps=(1.5, 2.5)),
+    ),
+    simultaneous=True,
+    default_frames=900,
+    emulator=_GRASS.emulator,
+    terrain=TerrainSpec("slope", relief_m=10.0, aspect_deg=0.0),
+    takeoff="start",
+)
+
 #: All scenarios by name.
-SCENARIOS: dict[str, Scenario] = {s.name: s for s in (_SEA, _SEA_HARD, _GRASS, _COOP, _REID, _TRIO, _HILLS)}
+SCENARIOS: dict[str, Scenario] = {s.name: s for s in (_SEA, _SEA_HARD, _GRASS, _COOP, _REID, _TRIO, _HILLS,
+                                                      _COOP_SLOPE)}
 
 
 def get_scenario(name: str) -> Scenario:

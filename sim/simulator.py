@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from shared.geo import Camera, Pose, local_to_latlon
+from shared.terrain import Terrain
 from sim.detector_emulator import (
     KIND_CLUTTER,
     KIND_OBJECT,
@@ -203,6 +204,13 @@ class Simulation:
         self.terrain: SimTerrain | None = (None if sc.terrain is None else
                                            sc.terrain.build(_rng(self.seed, _ROLE_TERRAIN), sc.world.origin_lat,
                                                             sc.world.origin_lon))
+        #: per video id, the take-off's height above the origin's on the terrain (0 over flat ground, or when
+        #: every UAV takes off at the origin); the video's true and reported heights count from its take-off
+        self.takeoff_up_m: dict[int, float] = dict.fromkeys((v.id for v in self.videos), 0.0)
+        if self.terrain is not None and sc.takeoff == "start":
+            for v in self.videos:
+                start = self._flight(v).state(0.0)
+                self.takeoff_up_m[v.id] = float(self.terrain.up_world_m(start.east_m, start.north_m))
 
     def noise_for(self, uav: str) -> TelemetryNoise:
         """The scaled telemetry noise of `uav` (`Scenario.noise_for` times the noise scale)."""
@@ -280,7 +288,9 @@ class Simulation:
             facts["trees"].extend({"group": g, "east_m": t.east_m, "north_m": t.north_m, "radius_m": t.radius_m,
                                    "height_m": t.height_m} for t in world.trees)
             relief = self.terrain
-            ground = relief.terrain if relief is not None else None
+            # each UAV's heights count from its own take-off: the terrain it projects with says where that is
+            grounds = {v.id: None if relief is None else
+                       Terrain(relief.grid, relief.takeoff_elevation_m + self.takeoff_up_m[v.id]) for v in videos}
             tree_ground = None if relief is None else relief.up_world_m([t.east_m for t in world.trees],
                                                                         [t.north_m for t in world.trees])
             clat, clon = world.clutter_latlon()
@@ -307,17 +317,19 @@ class Simulation:
                     meta, _ = streams[v.id].meta(t_rel)
                     pose = Pose(float(plat), float(plon), st.height_m, st.pitch_deg, st.heading_deg,
                                 streams[v.id].camera_roll_deg())
+                    ground = grounds[v.id]
                     proj = project_objects(all_lat, all_lon, all_yaw, world.box_m, cam, pose, terrain=ground)
                     if relief is None or ground is None:
                         occluded = world.occluded(st.east_m, st.north_m, st.height_m, all_e, all_n,
                                                   world.box_m[2] / 2.0)
                     else:
-                        clearance = st.height_m - float(relief.up_world_m(st.east_m, st.north_m))
+                        up_m = st.height_m + self.takeoff_up_m[v.id]  # above the origin's take-off
+                        clearance = up_m - float(relief.up_world_m(st.east_m, st.north_m))
                         if not clearance >= MIN_CLEARANCE_M:
                             raise ValueError(f"scenario {sc.name!r} seed {self.seed}: {v.name} flies "
                                              f"{clearance:.1f} m above the terrain at {t_rel:.2f} s (at least "
                                              f"{MIN_CLEARANCE_M:g} m): lower the terrain's relief_m")
-                        occluded = world.occluded(st.east_m, st.north_m, st.height_m, all_e, all_n,
+                        occluded = world.occluded(st.east_m, st.north_m, up_m, all_e, all_n,
                                                   world.box_m[2] / 2.0, ground_m=relief.up_world_m(all_e, all_n),
                                                   tree_ground_m=tree_ground)
                         occluded |= terrain_hidden(all_lat, all_lon, world.box_m[2] / 2.0, pose, ground)
@@ -362,6 +374,8 @@ class Simulation:
                     "blurred_frames": int(blurred_counts[v.id]), "frames_without_meta": int(missing_counts[v.id]),
                     **({} if emulators[v.id].weak is None else {"weak_track_ids": [
                         int(k) for k in world.track_ids[emulators[v.id].weak[:n_obj]]]}),
+                    **({"takeoff_elevation_m": round(relief.takeoff_elevation_m + self.takeoff_up_m[v.id], 4)}
+                       if relief is not None and sc.takeoff != "origin" else {}),
                 })
             facts["occlusion"].extend(_occlusion_facts(videos, occ_counts, world.track_ids))
         if self.terrain is not None:
@@ -372,7 +386,8 @@ class Simulation:
     def facts(self) -> dict[str, Any]:
         """Facts gathered during the last complete `frames()` pass.
 
-        Keys: ``videos`` (realised telemetry biases, blurred and meta-less frame counts per video),
+        Keys: ``videos`` (realised telemetry biases, blurred and meta-less frame counts per video; over a terrain
+        with the scenario's takeoff "start", each video's ``takeoff_elevation_m`` on the DEM),
         ``occlusion`` (objects that one UAV of a group sees only behind a tree while another sees them),
         ``trees``, ``clutter`` (and ``terrain``, `SimTerrain.facts`, over a terrain). Raises RuntimeError before
         a complete pass.

@@ -45,6 +45,10 @@ class TerrainSpec:
         hills: their centres lie within this radius; step: its line passes within a tenth of it.
     step_width_m : float
         step: the width over which the bank rises (metres, 10-90 %).
+    aspect_deg : float or None
+        slope, step: the bearing the ground rises towards (degrees clockwise from north); None (the default)
+        draws it per seed. A scenario that places its UAVs by the slope (`coop-slope`: one below, one above)
+        fixes it.
     """
 
     kind: str
@@ -56,6 +60,7 @@ class TerrainSpec:
     hill_sigma_m: tuple[float, float] = (15.0, 35.0)
     spread_m: float = 50.0
     step_width_m: float = 3.0
+    aspect_deg: float | None = None
 
     def __post_init__(self) -> None:
         if self.kind not in TERRAIN_KINDS:
@@ -66,6 +71,9 @@ class TerrainSpec:
                 raise ValueError(f"TerrainSpec.{name}={value!r} must be a finite number > 0 (>= 0 for relief)")
         if self.extent_m / self.cell_m > 4000:
             raise ValueError(f"TerrainSpec: {self.extent_m} m at {self.cell_m} m is over 4,000 cells across")
+        if self.aspect_deg is not None and not (isinstance(self.aspect_deg, (int, float))
+                                                and math.isfinite(self.aspect_deg)):
+            raise ValueError(f"TerrainSpec.aspect_deg={self.aspect_deg!r} must be a finite bearing in degrees or None")
         lo, hi = self.hill_sigma_m
         if not 0 < lo <= hi:
             raise ValueError(f"TerrainSpec.hill_sigma_m={self.hill_sigma_m!r} must be 0 < low <= high")
@@ -83,10 +91,10 @@ class TerrainSpec:
 
     def _relief(self, rng: np.random.Generator, east: NDArray, north: NDArray) -> NDArray:
         if self.kind == "slope":
-            aspect = rng.uniform(0.0, 2.0 * math.pi)
+            aspect = self._aspect_rad(rng)
             return self.relief_m / 100.0 * (east * math.sin(aspect) + north * math.cos(aspect))
         if self.kind == "step":
-            aspect = rng.uniform(0.0, 2.0 * math.pi)
+            aspect = self._aspect_rad(rng)
             offset = rng.uniform(-0.1, 0.1) * self.spread_m
             across = east * math.sin(aspect) + north * math.cos(aspect) - offset
             # tanh(1.1) = 0.8: the bank rises 10..90 % over step_width_m
@@ -100,6 +108,12 @@ class TerrainSpec:
             z += height * np.exp(-((east - r * math.sin(a)) ** 2 + (north - r * math.cos(a)) ** 2) / (2 * sigma**2))
         span = float(np.ptp(z))  # overlapping hills add up: the relief is the whole terrain's
         return z * (self.relief_m / span) if span > 0 else z
+
+    def _aspect_rad(self, rng: np.random.Generator) -> float:
+        """The bearing the ground rises towards, radians: drawn (always, so a fixed aspect leaves the other draws
+        where they were) and replaced by aspect_deg when that is set."""
+        drawn = rng.uniform(0.0, 2.0 * math.pi)
+        return drawn if self.aspect_deg is None else math.radians(self.aspect_deg)
 
 
 @dataclass(frozen=True, slots=True, eq=False)

@@ -29,10 +29,18 @@ TWIN = "flat twin: "
 POS_ERR_BAR_M = 0.3
 
 
-def terrain_of(data_dir: Path) -> Terrain:
-    """The dataset's DEM with the take-off's elevation from its truth.json (what the operator knows)."""
+def terrain_of(data_dir: Path, video_id: int | None = None) -> Terrain:
+    """The dataset's DEM with the take-off's elevation from its truth.json (what the operator knows).
+
+    video_id: the video whose take-off counts, where the UAVs take off apart (a scenario's takeoff "start":
+    truth.json's videos[i].takeoff_elevation_m); otherwise, and by default, the scene's (terrain's) take-off.
+    """
     truth = json.loads((data_dir / "truth.json").read_text())
-    return load_terrain(data_dir / truth["terrain"]["dem"], float(truth["terrain"]["takeoff_elevation_m"]))
+    elevation = float(truth["terrain"]["takeoff_elevation_m"])
+    for video in truth.get("videos", []):
+        if video_id is not None and video.get("id") == video_id and "takeoff_elevation_m" in video:
+            elevation = float(video["takeoff_elevation_m"])
+    return load_terrain(data_dir / truth["terrain"]["dem"], elevation)
 
 
 def _mean(values: list[float]) -> float:

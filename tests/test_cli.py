@@ -109,3 +109,24 @@ def test_a_missing_output_folder_is_named_before_any_work(argv, tmp_path, capsys
     err = capsys.readouterr().err.strip().splitlines()
     assert err == [f"uavmm {argv[0]}: error: output directory {tmp_path / 'no' / 'such'} does not exist "
                    f"(for {tmp_path / 'no' / 'such' / argv[-1].rsplit('/', 1)[1]})"]
+
+
+def test_eval_coop_takes_the_scenarios_whose_uavs_fly_at_once(tmp_path, capsys):
+    import json
+
+    from uavmm.cli import main
+
+    assert main(["eval", "--tasks", "coop", "--scenarios", "grass,sea", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err
+    assert "none of --scenarios flies its UAVs at once" in err and "coop-slope" in err
+    # a real (short) run: grass flies one UAV at a time and is left out; coop's noise defaults to x1
+    (tmp_path / "anchored.json").write_text(json.dumps({"correction_anchor_s": 7.5}))
+    assert main(["eval", "--config", str(tmp_path / "anchored.json"), "--out", str(tmp_path)]) == 2
+    assert "--config goes with --real or --tasks coop" in capsys.readouterr().err
+    assert main(["eval", "--tasks", "coop", "--scenarios", "grass,coop-slope", "--seeds", "0", "--frames", "20",
+                 "--config", str(tmp_path / "anchored.json"), "--out", str(tmp_path)]) == 0
+    report = json.loads((tmp_path / "coop" / "report.json").read_text())
+    assert report["scenarios"] == ["coop-slope"] and report["noise_scales"] == [1.0]
+    assert report["config_overrides"] == {"correction_anchor_s": 7.5}  # --config reaches every variant
+    assert {s["variant"] for s in report["summary"]} >= {"own memory map", "own memory map + DEM"}
+    assert "## Terrain: flat earth vs --dem" in capsys.readouterr().out

@@ -308,10 +308,12 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
                     "baseline and the memory map, score with pycocotools (AP50, AR@100), and write "
                     "report.json and report.md to --out. Progress goes to stderr.",
     )
-    p.add_argument("--scenarios", default="sea,grass", help="comma-separated scenarios (sea,grass)")
+    p.add_argument("--scenarios", default=None,
+                   help="comma-separated scenarios (sea,grass; --tasks coop: the ones whose UAVs fly at once, "
+                        "default coop, e.g. coop-slope)")
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (0,1,2)")
     p.add_argument("--frames", type=int, default=None, help="frames per video (scenario default)")
-    p.add_argument("--noise-scales", default="1,2", help="telemetry noise multipliers (1,2)")
+    p.add_argument("--noise-scales", default=None, help="telemetry noise multipliers (1,2; --tasks coop: 1)")
     p.add_argument("--ablations", action="store_true", help="also sweep half-life, radius, gain, filter")
     p.add_argument("--tasks", default=None,
                    help="comma-separated: detection (AP50/AR), tracking (HOTA/MOTA/IDs/Frag vs norfair), "
@@ -335,7 +337,8 @@ def _add_eval(sub: argparse._SubParsersAction) -> None:
     real.add_argument("--camera", default=None, metavar="CAMERA.json|PRESET",
                       help="with --real: the camera (default: the folder's camera.json)")
     real.add_argument("--config", dest="pipeline_config", type=Path, default=None, metavar="PARAMS.json",
-                      help="with --real: our variant's settings (a pipeline config or `uavmm tune` parameters)")
+                      help="with --real: our variant's settings (a pipeline config or `uavmm tune` parameters); "
+                           "with --tasks coop: every variant's (e.g. a correction_anchor_s)")
     real.add_argument("--size-filter", type=Path, default=None, metavar="FILTER.json",
                       help="with --real: a fitted size filter (uavmm fit-size-filter) for our variant and memory off")
     p.add_argument("--out", type=Path, default=Path("out/eval"), help="report directory (out/eval)")
@@ -371,16 +374,18 @@ def _csv_list(text: str, kind: type, flag: str) -> list:
 
 def _run_eval(args: argparse.Namespace) -> int:
     from sim.evaluate import run_eval, stderr_progress
-    from sim.scenarios import get_scenario
+    from sim.scenarios import SCENARIOS, get_scenario
 
     if args.real is not None:
         return _run_real_eval(args)
-    if any(v is not None for v in (args.detections, args.camera, args.pipeline_config, args.size_filter)):
-        raise CliError("--detections, --camera, --config and --size-filter go with --real")
+    if any(v is not None for v in (args.detections, args.camera, args.size_filter)):
+        raise CliError("--detections, --camera and --size-filter go with --real")
+    if args.pipeline_config is not None and "coop" not in (args.tasks or "").split(","):
+        raise CliError("--config goes with --real or --tasks coop")
     if args.list_domains or args.domains is not None:
         return _run_domain_eval(args)
 
-    scenarios = _csv_list(args.scenarios, str, "--scenarios")
+    scenarios = _csv_list(args.scenarios or "sea,grass", str, "--scenarios")
     for name in scenarios:
         get_scenario(name)  # unknown names fail before any work
     seeds = _csv_list(args.seeds, int, "--seeds")
@@ -388,11 +393,17 @@ def _run_eval(args: argparse.Namespace) -> int:
         raise CliError("--seeds must be >= 0")
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be >= 1, got {args.frames}")
-    noise = tuple(_csv_list(args.noise_scales, float, "--noise-scales"))
+    noise = tuple(_csv_list(args.noise_scales or "1,2", float, "--noise-scales"))
     tasks = _csv_list(args.tasks or "detection", str, "--tasks")
     unknown = sorted(set(tasks) - {"detection", "tracking", "coop", "anomaly"})
     if unknown:
         raise CliError(f"--tasks: unknown task(s) {', '.join(unknown)}; valid: detection, tracking, coop, anomaly")
+    coop_scenarios = ["coop"]
+    if "coop" in tasks and args.scenarios is not None:  # the named scenarios whose UAVs fly at once
+        coop_scenarios = [name for name in scenarios if get_scenario(name).simultaneous]
+        if not coop_scenarios:
+            raise CliError("--tasks coop: none of --scenarios flies its UAVs at once; valid: "
+                           + ", ".join(sorted(n for n, sc in SCENARIOS.items() if sc.simultaneous)))
     if "detection" in tasks:
         report = run_eval(scenarios, seeds, frames=args.frames, noise_scales=noise, ablations=args.ablations,
                           out_dir=args.out, progress=stderr_progress)
@@ -408,7 +419,14 @@ def _run_eval(args: argparse.Namespace) -> int:
         from sim.coop_eval import run_coop_eval
 
         out = args.out / "coop"
-        run_coop_eval(seeds, frames=args.frames, out_dir=out, progress=stderr_progress)
+        coop_config = None
+        if args.pipeline_config is not None:
+            from agent.boost import load_params
+
+            coop_config, _ = load_params(args.pipeline_config)
+        run_coop_eval(seeds, frames=args.frames, out_dir=out, progress=stderr_progress,
+                      scenarios=tuple(coop_scenarios), noise_scales=noise if args.noise_scales is not None else (1.0,),
+                      config=coop_config)
         print((out / "report.md").read_text())
     if "anomaly" in tasks:  # rendered frames; docs/anomaly.md
         from sim.anomaly_eval import run_anomaly_eval
@@ -442,7 +460,7 @@ def _run_domain_eval(args: argparse.Namespace) -> int:
     unknown = sorted(set(tasks) - {"detection", "tracking"})
     if unknown:
         raise CliError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
-    noise = tuple(_csv_list(args.noise_scales, float, "--noise-scales"))
+    noise = tuple(_csv_list(args.noise_scales or "1,2", float, "--noise-scales"))
     out = args.out if args.out != Path("out/eval") else Path("out/eval-domains")
     report = run_domain_eval(domains, seeds, noise_scales=noise, tasks=tasks, full=args.full, out_dir=out,
                              progress=stderr_progress)

@@ -112,7 +112,38 @@ def test_register_offset_keeps_to_the_current_correction_over_an_alias() -> None
     assert (dx, dy) == pytest.approx((-8.0, 4.0), abs=0.3)
 
 
+@pytest.mark.parametrize(("anchor_s", "drifts"), [(0.0, True), (3.0, False)])
+def test_an_anchored_correction_does_not_walk_away_with_the_walkers(anchor_s: float, drifts: bool) -> None:
+    """Regression (coop-slope): exact telemetry, six people standing and two walking east. The map trails the
+    walkers, so every frame measures a small offset westwards; measured against a map that holds the earlier
+    corrections, an unanchored correction adds them up (2.5 m in 10 s). Anchored to the telemetry it stays
+    within a few decimetres and the standing people's points stay on them."""
+    cfg = dataclasses.replace(PipelineConfig(), use_size_filter=False, correction_anchor_s=anchor_s)
+    pipe = DetectionPipeline(CAM, {1: "person"}, cfg)
+    rng = np.random.default_rng(0)
+    walkers = np.array([[-12.0, 33.0], [-6.0, 47.0]])
+    for frame in range(300):
+        t = frame / 30
+        points = np.vstack([OBJECTS, walkers + [1.4 * t, 0.0]])
+        lat, lon = local_to_latlon(points[:, 0], points[:, 1], LAT0, LON0)
+        uv, valid = latlon_to_pixel(lat, lon, CAM, _pose())
+        assert valid.all()
+        uv = uv + rng.normal(0.0, 1.0, uv.shape)
+        boxes = np.column_stack([uv[:, 0] - 10, uv[:, 1] - 10, uv[:, 0] + 10, uv[:, 1] + 10]).astype(np.float32)
+        result = pipe.process(boxes, rng.uniform(0.7, 0.95, len(boxes)), np.ones(len(boxes), np.int64), _pose(), t)
+    assert result.correction is not None and result.correction.measured
+    offset = float(np.hypot(result.correction.east_m, result.correction.north_m))
+    e, n = latlon_to_local(result.lat, result.lon, LAT0, LON0)  # the kept boxes, highest score first
+    error = float(np.median(np.hypot(e[None, :] - OBJECTS[:, :1], n[None, :] - OBJECTS[:, 1:]).min(axis=1)))
+    if drifts:
+        assert offset > 1.5 and error > 1.5
+    else:
+        assert offset < 0.5 and error < 0.5
+
+
 def test_settings_reject_bad_values() -> None:
+    with pytest.raises(ValueError, match="anchor_s"):
+        PipelineConfig(correction_anchor_s=-1.0)
     with pytest.raises(ValueError, match="search_m"):
         CorrectionSettings(search_m=-1.0)
     with pytest.raises(ValueError, match="local_m"):

@@ -70,7 +70,7 @@ def test_agent_process_plays_a_dataset_and_writes_tracks_with_global_ids(server,
 
 
 @pytest.mark.parametrize(("args", "message"), [
-    (["--sim", "nosuch"], "unknown scenario 'nosuch'; valid scenarios: coop, grass, hills, reid, sea"),
+    (["--sim", "nosuch"], "unknown scenario 'nosuch'; valid scenarios: coop, coop-slope, grass, hills, reid, sea"),
     (["--dataset", "/nonexistent/dir"], "dataset directory /nonexistent/dir does not exist"),
     (["--video", "v.mp4"], "--video needs --telemetry, --model, --camera"),
     (["--sim", "coop", "--uav-index", "5"], "uav_index must be in 0..1"),

@@ -6,7 +6,7 @@ import pytest
 
 from agent.pipeline import DetectionPipeline
 from shared.geo import Camera, Pose
-from sim.coop_eval import CoopFusion, run_coop_eval
+from sim.coop_eval import CoopFusion, run_coop_eval, slope_acceptance
 
 LAT, LON = 48.0, 9.0
 
@@ -31,7 +31,7 @@ def test_coop_fusion_a_uav_not_seeing_a_cell_does_not_dilute_it(coverage, expect
 
 
 def test_coop_eval_reports_every_uav_and_finds_hidden_people(tmp_path):
-    report = run_coop_eval([0], frames=90, out_dir=tmp_path)
+    report = run_coop_eval([0], frames=120, out_dir=tmp_path)
     by = {(s["uav"], s["variant"]): s for s in report["summary"]}
     assert {u for u, _ in by} == {"uav1", "uav2"}
     hidden = by[("uav1", "joint map boosting")]["hidden_detected"]
@@ -42,4 +42,35 @@ def test_coop_eval_reports_every_uav_and_finds_hidden_people(tmp_path):
     assert by[("uav1", "joint map + joint detections")]["hidden_detected"] > hidden + 2.0
     for metric in ("AP50", "AP50_hidden_ignored", "AP50_hidden_as_fp"):
         assert by[("uav1", "joint map boosting")][metric] > by[("uav1", "baseline")][metric]
-    assert (tmp_path / "report.md").read_text().count("| uav1 |") == 4
+    assert (tmp_path / "report.md").read_text().count("| coop | x1 | uav1 |") == 4
+    # the tracker on each variant's detections: TrackEval's HOTA and the tracks' ground error
+    for uav in ("uav1", "uav2"):
+        assert 20.0 < by[(uav, "own memory map")]["HOTA"] <= 100.0
+        assert 0.0 <= by[(uav, "own memory map")]["pos_err_m"] < 5.0
+    # the joint map's peaks against the people resting behind the tree line (uav2 sees them)
+    peak_rows = {p["uav"]: p for p in report["peak_summary"]}
+    assert set(peak_rows) == {"both", "uav1", "uav2"}
+    peaks = peak_rows["both"]
+    assert peaks["variant"] == "joint map + joint detections" and peaks["standing_objects"] >= 3
+    assert 0.0 <= peaks["peak_err_m"] <= peaks["peak_err_p90_m"] < 5.0 and peaks["objects_with_peak"] > 50.0
+    assert "## Joint-map peaks against the truth" in (tmp_path / "report.md").read_text()
+    assert not report["acceptance"]  # the bars are those of a terrain: flat coop has no DEM rows
+
+
+def test_the_slope_bars_compare_the_dem_with_flat_earth_per_uav():
+    summary = [{"scenario": "coop-slope", "noise_scale": 0.0, "uav": "uav1", "variant": v, "AP50": ap, "HOTA": hota}
+               for v, ap, hota in (("own memory map", 80.0, 60.0), ("own memory map + DEM", 79.5, 61.0),
+                                   ("joint map + joint detections", 82.0, 62.0),
+                                   ("joint map + joint detections + DEM", 83.0, 61.5))]
+    peaks = [{"scenario": "coop-slope", "noise_scale": 0.0, "variant": "joint map + joint detections" + s,
+              "uav": uav, "peak_err_m": m} for s, uav, m in (("", "uav1", 3.5), (" + DEM", "uav1", 0.3),
+                                                           (" + DEM", "uav2", 1.4), (" + DEM", "both", 0.9))]
+    bars = {a["criterion"]: a for a in slope_acceptance(summary, peaks)}
+    assert bars["coop-slope x0 uav1: joint-map peak error with DEM, median m"]["ok"]
+    assert not bars["coop-slope x0 uav2: joint-map peak error with DEM, median m"]["ok"]
+    own = bars["coop-slope x0 uav1 own memory map: AP50 with DEM - flat"]
+    assert own["value"] == pytest.approx(-0.5) and not own["ok"]
+    assert bars["coop-slope x0 uav1 own memory map: HOTA with DEM - flat"]["ok"]
+    assert bars["coop-slope x0 uav1 joint map + joint detections: AP50 with DEM - flat"]["ok"]
+    assert not bars["coop-slope x0 uav1 joint map + joint detections: HOTA with DEM - flat"]["ok"]
+    assert len(bars) == 6  # the 'both' row is reported, the bars are each UAV's

@@ -194,7 +194,7 @@ def test_progress_bar_stays_silent_without_a_terminal(tmp_path: Path, capsys: py
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
-    ({"scenario": "mars"}, "unknown scenario 'mars'; valid scenarios: coop, grass, hills, reid, sea"),
+    ({"scenario": "mars"}, "unknown scenario 'mars'; valid scenarios: coop, coop-slope, grass, hills, reid, sea"),
     ({"scenario": "sea", "seed": -3}, "seed must be a non-negative integer"),
     ({"scenario": "sea", "seed": "1"}, "seed must be a non-negative integer"),
     ({"scenario": "sea", "frames": 0}, "frames must be an integer >= 1"),

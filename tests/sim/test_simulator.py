@@ -92,7 +92,7 @@ def test_invariants_hold_for_any_seed(seed: int, scenario: str) -> None:
 
 
 @pytest.mark.parametrize(("kwargs", "match"), [
-    ({"scenario": "nope"}, "unknown scenario 'nope'; valid scenarios: coop, grass, hills, reid, sea"),
+    ({"scenario": "nope"}, "unknown scenario 'nope'; valid scenarios: coop, coop-slope, grass, hills, reid, sea"),
     ({"scenario": "sea", "seed": -1}, "seed must be a non-negative integer"),
     ({"scenario": "sea", "seed": 1.5}, "seed must be a non-negative integer"),
     ({"scenario": "sea", "seed": True}, "seed must be a non-negative integer"),
