@@ -13,6 +13,8 @@ import sys
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
+from uavmm.csv_args import csv_list
+
 log = logging.getLogger("uavmm")
 
 Handler = Callable[[argparse.Namespace], int]
@@ -364,12 +366,9 @@ def _run_real_eval(args: argparse.Namespace) -> int:
 
 def _csv_list(text: str, kind: type, flag: str) -> list:
     try:
-        values = [kind(x) for x in text.split(",") if x.strip()]
-    except ValueError:
-        raise CliError(f"{flag}: expected a comma-separated list of {kind.__name__}, got {text!r}") from None
-    if not values:
-        raise CliError(f"{flag}: empty list")
-    return values
+        return csv_list(text, kind, flag)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
 
 
 def _run_eval(args: argparse.Namespace) -> int:
@@ -383,7 +382,9 @@ def _run_eval(args: argparse.Namespace) -> int:
     if args.pipeline_config is not None and "coop" not in (args.tasks or "").split(","):
         raise CliError("--config goes with --real or --tasks coop")
     if args.list_domains or args.domains is not None:
-        return _run_domain_eval(args)
+        from uavmm.eval_domains import run_domain_eval_command
+
+        return run_domain_eval_command(args)
 
     scenarios = _csv_list(args.scenarios or "sea,grass", str, "--scenarios")
     for name in scenarios:
@@ -434,65 +435,6 @@ def _run_eval(args: argparse.Namespace) -> int:
         out = args.out / "anomaly"
         run_anomaly_eval(scenarios, seeds, frames=args.frames, out_dir=out, progress=stderr_progress)
         print((out / "report.md").read_text())
-    return 0
-
-
-def _run_domain_eval(args: argparse.Namespace) -> int:
-    from sim.domain_eval import run_domain_eval
-    from sim.domains import domain_table, resolve_domains
-    from sim.evaluate import stderr_progress
-
-    tasks = tuple(_csv_list(args.tasks or "detection,tracking", str, "--tasks"))
-    if "coop" in tasks:
-        if tasks != ("coop",):
-            raise CliError(f"--tasks: with --domains coop runs alone (the cooperative domains); got {', '.join(tasks)}")
-        return _run_coop_domain_eval(args)
-    if args.list_domains:
-        print(domain_table())
-        return 0
-    try:
-        domains = resolve_domains(_csv_list(args.domains, str, "--domains"))
-    except ValueError as exc:
-        raise CliError(f"--domains: {exc}") from None
-    seeds = _csv_list(args.seeds, int, "--seeds")
-    if any(s < 0 for s in seeds):
-        raise CliError("--seeds must be >= 0")
-    unknown = sorted(set(tasks) - {"detection", "tracking"})
-    if unknown:
-        raise CliError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
-    noise = tuple(_csv_list(args.noise_scales or "1,2", float, "--noise-scales"))
-    out = args.out if args.out != Path("out/eval") else Path("out/eval-domains")
-    report = run_domain_eval(domains, seeds, noise_scales=noise, tasks=tasks, full=args.full, out_dir=out,
-                             progress=stderr_progress)
-    print((out / "report.md").read_text())
-    print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
-    return 0
-
-
-def _run_coop_domain_eval(args: argparse.Namespace) -> int:
-    from sim.coop_domain_eval import run_coop_domain_eval
-    from sim.coop_domains import coop_domain_table, resolve_coop_domains
-    from sim.evaluate import stderr_progress
-
-    if args.list_domains:
-        print(coop_domain_table())
-        return 0
-    if args.full:
-        raise CliError("--full: the cooperative domains have one clip length")
-    try:
-        domains = resolve_coop_domains(_csv_list(args.domains, str, "--domains"))
-    except ValueError as exc:
-        raise CliError(f"--domains: {exc}") from None
-    seeds = _csv_list(args.seeds, int, "--seeds")
-    if any(s < 0 for s in seeds):
-        raise CliError("--seeds must be >= 0")
-    noise = _csv_list(args.noise_scales, float, "--noise-scales")
-    if any(not (n >= 0) for n in noise):
-        raise CliError("--noise-scales must be >= 0")
-    out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
-    report = run_coop_domain_eval(domains, seeds, noise_scale=noise[0], out_dir=out, progress=stderr_progress)
-    print((out / "report.md").read_text())
-    print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0
 
 

@@ -138,7 +138,7 @@ def test_demo_refuses_a_scenario_whose_uavs_fly_one_after_another():
                             capture_output=True, text=True, timeout=60)
     assert result.returncode == 2
     assert "scenario 'grass' flies its UAVs one after another" in result.stderr
-    assert "coop, trio" in result.stderr and "Traceback" not in result.stderr
+    assert "coop, coop-slope, trio" in result.stderr and "Traceback" not in result.stderr
 
 
 def test_flying_uavs_and_options_validate_their_input():

@@ -1,0 +1,74 @@
+"""`uavmm eval --domains ...`: the evaluation domains (`sim.domains`) and, with `--tasks coop`, the cooperative
+domains (`sim.coop_domains`); the parser is `uavmm.cli`'s eval command. Bad values raise ValueError, which
+`uavmm.cli.main` prints as the command's error (exit 2)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from uavmm.csv_args import csv_list
+
+__all__ = ["run_domain_eval_command"]
+
+
+def run_domain_eval_command(args: argparse.Namespace) -> int:
+    """`uavmm eval --domains ...` (and `--list-domains`): issue 15's domains, or with `--tasks coop` the
+    cooperative ones."""
+    from sim.domain_eval import run_domain_eval
+    from sim.domains import domain_table, resolve_domains
+    from sim.evaluate import stderr_progress
+
+    tasks = tuple(csv_list(args.tasks or "detection,tracking", str, "--tasks"))
+    if "coop" in tasks:
+        if tasks != ("coop",):
+            raise ValueError(f"--tasks: with --domains coop runs alone (the cooperative domains); "
+                             f"got {', '.join(tasks)}")
+        return _run_coop_domain_eval(args)
+    if args.list_domains:
+        print(domain_table())
+        return 0
+    try:
+        domains = resolve_domains(csv_list(args.domains, str, "--domains"))
+    except ValueError as exc:
+        raise ValueError(f"--domains: {exc}") from None
+    seeds = csv_list(args.seeds, int, "--seeds")
+    if any(s < 0 for s in seeds):
+        raise ValueError("--seeds must be >= 0")
+    unknown = sorted(set(tasks) - {"detection", "tracking"})
+    if unknown:
+        raise ValueError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
+    noise = tuple(csv_list(args.noise_scales or "1,2", float, "--noise-scales"))
+    out = args.out if args.out != Path("out/eval") else Path("out/eval-domains")
+    report = run_domain_eval(domains, seeds, noise_scales=noise, tasks=tasks, full=args.full, out_dir=out,
+                             progress=stderr_progress)
+    print((out / "report.md").read_text())
+    print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
+    return 0
+
+
+def _run_coop_domain_eval(args: argparse.Namespace) -> int:
+    from sim.coop_domain_eval import run_coop_domain_eval
+    from sim.coop_domains import coop_domain_table, resolve_coop_domains
+    from sim.evaluate import stderr_progress
+
+    if args.list_domains:
+        print(coop_domain_table())
+        return 0
+    if args.full:
+        raise ValueError("--full: the cooperative domains have one clip length")
+    try:
+        domains = resolve_coop_domains(csv_list(args.domains, str, "--domains"))
+    except ValueError as exc:
+        raise ValueError(f"--domains: {exc}") from None
+    seeds = csv_list(args.seeds, int, "--seeds")
+    if any(s < 0 for s in seeds):
+        raise ValueError("--seeds must be >= 0")
+    noise = csv_list(args.noise_scales, float, "--noise-scales")
+    if any(not (n >= 0) for n in noise):
+        raise ValueError("--noise-scales must be >= 0")
+    out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
+    report = run_coop_domain_eval(domains, seeds, noise_scale=noise[0], out_dir=out, progress=stderr_progress)
+    print((out / "report.md").read_text())
+    print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
+    return 0
