@@ -113,7 +113,7 @@ _DOMAIN_LIST: tuple[CoopDomain, ...] = (
     CoopDomain(
         name="coop-glare", split="tune", base="coop",
         description="An open meadow; uav1 (south, 25-30 m, 28-34 deg) sees half of the people weakly (glare, "
-                    "shade); uav2 ~25 m east of it, higher and steeper, sees everyone.",
+                    "shade); uav2 ~25 m east of it, higher and steeper, sees them well.",
         flights=(HoverSweepsSpec(uav="uav1", bearing_deg=(180.0, 180.0), distance_m=(50.0, 55.0),
                                  height_m=(25.0, 30.0), pitch_deg=(28.0, 34.0), sweep_deg=(8.0, 15.0),
                                  sweep_rate_deg_s=(8.0, 15.0), dwell_s=(3.0, 6.0)),
@@ -140,8 +140,8 @@ _DOMAIN_LIST: tuple[CoopDomain, ...] = (
     CoopDomain(
         name="coop-glare-east", split="heldout", base="coop",
         description="An open meadow; uav1 (south, 25-30 m, 25-30 deg) sees half of the people weakly, uav2 25 m "
-                    "east of it, higher (42-48 m) and steeper (52-58 deg), sees everyone; GPS, heading and height "
-                    "biases differ.",
+                    "east of it, higher (42-48 m) and steeper (52-58 deg), sees the two thirds in its footprint "
+                    "well; GPS, heading and height biases differ.",
         flights=(HoverSweepsSpec(uav="uav1", bearing_deg=(180.0, 180.0), distance_m=(48.0, 52.0),
                                  height_m=(25.0, 30.0), pitch_deg=(25.0, 30.0), sweep_deg=(5.0, 10.0),
                                  sweep_rate_deg_s=(5.0, 10.0), dwell_s=(3.0, 6.0)),
