@@ -17,10 +17,9 @@ import math
 from dataclasses import dataclass, field
 from typing import Any
 
+from sim.domains import SPLITS, resolve_named
 from sim.flight import HoverSweepsSpec, LineSpec, OrbitSpec
 from sim.scenarios import Scenario, UavSetting, get_scenario
-
-SPLITS = ("tune", "heldout")
 
 
 @dataclass(frozen=True, slots=True)
@@ -211,14 +210,8 @@ def get_coop_domain(name: str) -> CoopDomain:
 
 def resolve_coop_domains(names: list[str]) -> list[CoopDomain]:
     """Coop domains named in `names` (the groups "all", "tune", "heldout" expand), in order, without repeats."""
-    out: list[CoopDomain] = []
-    for name in names:
-        group = {"all": tuple(COOP_DOMAINS), "tune": TUNING_COOP_DOMAINS, "heldout": HELDOUT_COOP_DOMAINS}.get(name)
-        for n in group if group is not None else (name,):
-            d = get_coop_domain(n)
-            if d not in out:
-                out.append(d)
-    return out
+    return resolve_named(names, {"all": tuple(COOP_DOMAINS), "tune": TUNING_COOP_DOMAINS,
+                                 "heldout": HELDOUT_COOP_DOMAINS}, get_coop_domain)
 
 
 def coop_domain_table() -> str:

@@ -19,8 +19,9 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, TypeVar
 
 from sim.detector_emulator import EmulatorParams
 from sim.flight import HoverSweepsSpec, LawnmowerSpec, LineSpec, OrbitSpec
@@ -29,6 +30,7 @@ from sim.scenarios import Scenario, get_scenario
 from sim.terrain import TerrainSpec
 from sim.world import WorldParams
 
+T = TypeVar("T")
 SPLITS = ("tune", "heldout")
 MOTIONS = ("gentle", "sweeps", "jumps")
 #: Cameras of the domains: name -> (shared.geo preset, width, height).
@@ -350,16 +352,21 @@ def get_domain(name: str) -> Domain:
                          "(or the groups all, tune, heldout)") from None
 
 
-def resolve_domains(names: list[str]) -> list[Domain]:
-    """Domains named in `names` (the groups "all", "tune", "heldout" expand), in order, without repeats."""
-    out: list[Domain] = []
+def resolve_named(names: list[str], groups: dict[str, tuple[str, ...]], get: Callable[[str], T]) -> list[T]:
+    """What `get` returns for each of `names`, a group's members in its place, in order, without repeats."""
+    out: list[T] = []
     for name in names:
-        group = {"all": tuple(DOMAINS), "tune": TUNING_DOMAINS, "heldout": HELDOUT_DOMAINS}.get(name)
-        for n in group if group is not None else (name,):
-            d = get_domain(n)
+        for n in groups.get(name, (name,)):
+            d = get(n)
             if d not in out:
                 out.append(d)
     return out
+
+
+def resolve_domains(names: list[str]) -> list[Domain]:
+    """Domains named in `names` (the groups "all", "tune", "heldout" expand), in order, without repeats."""
+    return resolve_named(names, {"all": tuple(DOMAINS), "tune": TUNING_DOMAINS, "heldout": HELDOUT_DOMAINS},
+                         get_domain)
 
 
 def domain_table() -> str:

@@ -275,11 +275,12 @@ class Simulation:
             # generators of their own, so boxes and scores do not depend on it.
             looks = (object_appearance(n_obj + n_clu, sc.emulator, _rng(self.seed, g, _ROLE_APPEARANCE))
                      if sc.emulator.appearance_dim > 0 else None)
-            emulators = {v.id: DetectorEmulator(sc.emulator_for(v.uav), cam,
+            params = {v.id: sc.emulator_for(v.uav) for v in videos}
+            emulators = {v.id: DetectorEmulator(params[v.id], cam,
                                                 _rng(self.seed, g, _ROLE_DETECTOR, v.id), n_obj + n_clu, world.box_m,
                                                 world.category_id, appearance=looks,
                                                 appearance_rng=_rng(self.seed, g, _ROLE_APPEARANCE, v.id),
-                                                weak=self._weak(sc.emulator_for(v.uav), n_obj, n_clu, g, v.id))
+                                                weak=self._weak(params[v.id], n_obj, n_clu, g, v.id))
                          for v in videos}
             steps = {v.id: sc.frame_step_for(v.uav) for v in videos}
             keys_all = np.arange(n_obj + n_clu)

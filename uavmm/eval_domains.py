@@ -32,9 +32,7 @@ def run_domain_eval_command(args: argparse.Namespace) -> int:
         domains = resolve_domains(csv_list(args.domains, str, "--domains"))
     except ValueError as exc:
         raise ValueError(f"--domains: {exc}") from None
-    seeds = csv_list(args.seeds, int, "--seeds")
-    if any(s < 0 for s in seeds):
-        raise ValueError("--seeds must be >= 0")
+    seeds = _seeds(args.seeds)
     unknown = sorted(set(tasks) - {"detection", "tracking"})
     if unknown:
         raise ValueError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
@@ -61,9 +59,7 @@ def _run_coop_domain_eval(args: argparse.Namespace) -> int:
         domains = resolve_coop_domains(csv_list(args.domains, str, "--domains"))
     except ValueError as exc:
         raise ValueError(f"--domains: {exc}") from None
-    seeds = csv_list(args.seeds, int, "--seeds")
-    if any(s < 0 for s in seeds):
-        raise ValueError("--seeds must be >= 0")
+    seeds = _seeds(args.seeds)
     noise = csv_list(args.noise_scales, float, "--noise-scales")
     if any(not (n >= 0) for n in noise):
         raise ValueError("--noise-scales must be >= 0")
@@ -72,3 +68,10 @@ def _run_coop_domain_eval(args: argparse.Namespace) -> int:
     print((out / "report.md").read_text())
     print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0
+
+
+def _seeds(text: str) -> list[int]:
+    seeds = csv_list(text, int, "--seeds")
+    if any(s < 0 for s in seeds):
+        raise ValueError("--seeds must be >= 0")
+    return seeds

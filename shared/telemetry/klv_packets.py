@@ -180,36 +180,29 @@ class KlvDecoder:
                 keep = 0 if final else min(size - pos, len(key) - 1)  # a key may straddle the chunks
                 self.bytes_seen += size - keep
                 return size - keep
+            problem: str | None = None
             try:
                 length, value_start = read_ber_length(data, start + len(key))
+                end = value_start + length
+                if length > MAX_PACKET_BYTES:
+                    problem = "malformed"
+                elif end > size:
+                    problem = "truncated"
             except TruncatedKlv:
-                if not final:
-                    self.bytes_seen += start
-                    return start
-                self.packets += 1
-                self.truncated += 1
-                pos = start + len(key)
-                continue
+                problem = "truncated"
             except ValueError:
-                self.packets += 1
-                self.malformed += 1
-                pos = start + len(key)
-                continue
-            end = value_start + length
-            if length > MAX_PACKET_BYTES:
-                self.packets += 1
-                self.malformed += 1
-                pos = start + len(key)
-                continue
-            if end > size:
-                if not final:
-                    self.bytes_seen += start
-                    return start
-                self.packets += 1
-                self.truncated += 1
-                pos = start + len(key)
-                continue
+                problem = "malformed"
+            if problem == "truncated" and not final:
+                self.bytes_seen += start  # the rest may come with the next call
+                return start
             self.packets += 1
+            if problem is not None:
+                if problem == "truncated":
+                    self.truncated += 1
+                else:
+                    self.malformed += 1
+                pos = start + len(key)
+                continue
             if self._packet(data, start, value_start, end, pts):
                 self.bytes_decoded += end - start
                 pos = end
