@@ -12,6 +12,7 @@ from agent.dataset import Candidates, Dataset, Frame, PoseProblem, VideoTelemetr
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.stage_report import StageReport
+from agent.view_cuts import ViewCutReport, place_view_cuts
 from shared.geo import Camera
 
 __all__ = ["prepared_frames", "telemetry_reports"]
@@ -21,12 +22,18 @@ def prepared_frames(dataset: Dataset, camera: Camera, video_id: int, candidates:
                     pipe: DetectionPipeline | None = None, *, problems: list[PoseProblem] | None = None,
                     report: VideoTelemetry | None = None) -> list[tuple[Frame, ClockOffset | None]]:
     """The video's frames as `agent.clock_offset.video_frames` gives them with the config's telemetry settings
-    (time zone, interpolation at frame time, dequantisation, clock offset), and `pipe` primed on them
+    (time zone, interpolation at frame time, dequantisation, clock offset), view jumps that sparse telemetry
+    smears put where the detections jump (`agent.view_cuts`, with config.view_cuts), and `pipe` primed on them
     (`DetectionPipeline.prime`: the size filter's check and the score calibration's input check decide on
     the whole video). problems and report: as `video_frames` fills them."""
+    info = report if report is not None else VideoTelemetry()
     frames = video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings(), problems=problems,
                           dequantize=config.dequantize_telemetry, at_frame_time=config.telemetry_at_frame_time,
-                          report=report)
+                          report=info)
+    if config.view_cuts:
+        cuts = ViewCutReport()
+        frames = place_view_cuts(frames, lambda f: candidates.get(f.image.id), report=cuts)
+        info.view_cuts = (cuts.intervals, cuts.cuts)
     if pipe is not None:
         pipe.prime((frame.pose, frame.camera, *candidates.get(frame.image.id)) for frame, _ in frames)
     return frames
@@ -56,4 +63,7 @@ def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings
         out.append(StageReport("clock offset", acted,
                                f"measured on {info.offset_windows} turning windows" if acted else
                                f"{info.offset_windows} of {need} turning windows needed: telemetry as stamped"))
+    if info.view_cuts is not None and clock.frames:
+        intervals, cuts = info.view_cuts
+        out.append(ViewCutReport(intervals, cuts).stage_report())
     return out

@@ -127,6 +127,11 @@ class PipelineConfig:
         offset removed, sample-and-hold repeats recognised); False: each frame keeps the sample it carries, as
         the paper's rule does.
 
+    view_cuts: the frame drivers of files put a view jump hidden between two telemetry samples (a log at 1 Hz
+        interpolated at the frames' times shows a 60 deg jump as a second-long turn) at the frame where the
+        confident detections stop continuing the previous frame's, stepping heading and pitch there
+        (agent.view_cuts); an interval without a clear cut keeps its interpolated poses. The live agent does not.
+
     calibrate_scores: with use_memory, scale the detector's logits to the reference temperature from the
         spread of each frame's strongest detections, estimated online (agent.score_calibration), before
         boosting, stamping and the tracker (FrameResult.raw_scores are then the calibrated scores);
@@ -228,6 +233,7 @@ class PipelineConfig:
     clock_offset_two_pass: bool = True
     dequantize_telemetry: bool = True
     telemetry_at_frame_time: bool = True
+    view_cuts: bool = True
     terrain: Terrain | None = None
 
     def __post_init__(self) -> None:

@@ -272,6 +272,11 @@ _DOMAIN_LIST = (
     Domain("grass-jumps-desc-wide", "people walking, 60 deg view jumps at 25 fps with a 1080p wide camera, per-frame "
            "jitter, with appearance descriptors", "tune", "jumps", "reid", (_JUMPS_LOW,), fps=25.0, clip_s=24.0,
            camera="1080p-wide", noise={**_JITTER, "telemetry_hz": 25.0}),
+    # Added with the view-cut round: the telemetry is a flight log at 1 Hz with whole-second stamps, so a jump
+    # between two frames shows in the interpolated poses as a second-long turn (agent.view_cuts).
+    Domain("grass-jumps-1hz", "people walking, a heading that jumps 60 deg between two frames every 3 s, logged at "
+           "1 Hz with whole-second stamps, no appearance descriptors", "tune", "jumps", "reid", _JUMPS_INSTANT,
+           clip_s=24.0, noise={"telemetry_hz": 1.0, "stamp_resolution_s": 1.0}, descriptors=False),
     # ---------------------------------------------------------------- held-out domains
     Domain("grass-tele-clutter", "grass, gentle flights with a 4K tele camera, per-frame jitter, 5-decimal "
            "GPS, over-confident detector, persistent clutter at fixed ground spots, 1 % frames without meta",
@@ -332,6 +337,10 @@ _DOMAIN_LIST = (
     Domain("grass-jumps-45-lag", "people walking, 45 deg view jumps every 2 s, 0.25 s offset, 10 Hz telemetry, no "
            "appearance descriptors", "heldout", "jumps", "reid", _JUMPS_45, clip_s=24.0,
            noise={"time_offset_s": 0.25, "telemetry_hz": 10.0}, descriptors=False),
+    Domain("sea-jumps-log", "swimmers, 60 deg view jumps (0.25-0.45 s turns) at 25 fps, the telemetry a 1 Hz flight "
+           "log in UTC with whole-second stamps and the frames in local time, 5-decimal GPS, no appearance "
+           "descriptors", "heldout", "jumps", "sea", _JUMPS, fps=25.0, clip_s=24.0,
+           noise={**_SDS_CLOCKS, **_GPS5, "telemetry_hz": 1.0}, descriptors=False),
     Domain("sea-jumps-desc", "swimmers, 60 deg view jumps at 30 fps, 0.15 s offset, 3 deg heading bias, with "
            "appearance descriptors", "heldout", "jumps", "sea", _JUMPS, clip_s=24.0,
            noise={"time_offset_s": 0.15, "heading_bias_deg": 3.0}),

@@ -1,0 +1,172 @@
+"""View cuts hidden between sparse telemetry samples (agent.view_cuts): a 60 deg gimbal jump logged at 1 Hz and
+interpolated at the frames' times is put back at the frame where the detections jump; smooth sweeps, detector
+dropouts and sparse boxes are left alone. Real camera geometry (shared.geo), no mocks."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agent.dataset import Frame, ImageRecord
+from agent.telemetry_clock import TelemetryTrack
+from agent.view_cuts import ViewCutReport, ViewCutSettings, continuity, place_view_cuts
+from shared.geo import Camera, Pose, local_to_pixel
+
+CAM = Camera(width=1920, height=1080, fx=1500.0, fy=1500.0, cx=960.0, cy=540.0)
+FPS = 30.0
+HEIGHT_M, PITCH_DEG = 30.0, 35.0
+
+
+def _field(seed: int = 0, n: int = 120) -> tuple[np.ndarray, np.ndarray]:
+    """Static ground points all around the UAV, 30-70 m away."""
+    rng = np.random.default_rng(seed)
+    ang = rng.uniform(0.0, 360.0, n)
+    dist = rng.uniform(30.0, 70.0, n)
+    return dist * np.sin(np.radians(ang)), dist * np.cos(np.radians(ang))
+
+
+def _clip(true_heading, seconds: float = 4.0, telemetry_hz: float = 1.0, dropout: int | None = None):
+    """Frames at FPS whose poses interpolate a telemetry track sampled at telemetry_hz from the true heading, and
+    the detections (24 x 60 px boxes) of the static field seen with the true heading. dropout: a frame that has
+    no detections."""
+    east, north = _field()
+    stamps = np.arange(0.0, seconds + 1e-9, 1.0 / telemetry_hz)
+    values = np.array([[0.0, 0.0, HEIGHT_M, true_heading(t), PITCH_DEG] for t in stamps])
+    values[:, 3] = np.degrees(np.unwrap(np.radians(values[:, 3])))
+    track = TelemetryTrack(stamps, values)
+    frames, dets = [], {}
+    for i in range(int(seconds * FPS)):
+        t = i / FPS
+        _, _, h, heading, pitch = track.at(t)[0]
+        told = Pose(0.0, 0.0, h, pitch, heading)
+        seen_from = Pose(0.0, 0.0, HEIGHT_M, PITCH_DEG, true_heading(t) % 360.0)
+        uv, ok = local_to_pixel(east, north, CAM, seen_from)
+        ok &= (uv[:, 0] > 15) & (uv[:, 0] < CAM.width - 15) & (uv[:, 1] > 60) & (uv[:, 1] < CAM.height)
+        uv = uv[ok] if i != dropout else np.zeros((0, 2))
+        boxes = np.column_stack([uv[:, 0] - 12, uv[:, 1] - 60, uv[:, 0] + 12, uv[:, 1]]).astype(np.float32)
+        dets[i] = (boxes, np.full(len(boxes), 0.9, np.float32), np.zeros(len(boxes), np.int64))
+        frames.append(Frame(ImageRecord(i, CAM.width, CAM.height, 1, i, None, None), told, t, CAM, t,
+                            pose_retimed=True, track=track))
+    return [(f, None) for f in frames], dets
+
+
+def _jump_at(t_jump: float, step: float = 60.0):
+    return lambda t: 10.0 + (step if t >= t_jump else 0.0)
+
+
+def _headings(frames) -> np.ndarray:
+    return np.array([f.pose.heading_deg for f, _ in frames])
+
+
+def test_a_jump_between_one_hertz_samples_is_put_at_the_frame_where_the_detections_jump() -> None:
+    frames, dets = _clip(_jump_at(1.4))
+    report = ViewCutReport()
+    out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    cut = int(math.ceil(1.4 * FPS))
+    h = _headings(out)
+    assert (report.intervals, report.cuts) == (1, 1)
+    assert np.allclose(h[:cut], 10.0) and np.allclose(h[cut:], 70.0)
+    # before: the interpolated headings were up to 36 deg off inside the second that hides the jump
+    assert np.abs(_headings(frames) - np.where(np.arange(len(h)) < cut, 10.0, 70.0)).max() > 30.0
+    assert report.stage_report().acted
+
+
+def test_pitch_steps_with_the_heading_and_positions_stay() -> None:
+    frames, dets = _clip(_jump_at(2.5))
+    track = frames[0][0].track
+    values = track.values.copy()
+    values[3:, 4] = 50.0  # the gimbal also tilted down in the jump
+    values[:, 2] = np.linspace(30.0, 34.0, len(values))
+    tilted = TelemetryTrack(track.t, values)
+    frames = [(Frame(f.image, Pose(0.0, 0.0, float(tilted.at(f.t)[0, 2]), float(tilted.at(f.t)[0, 4]),
+                                   float(tilted.at(f.t)[0, 3])), f.t, CAM, f.t, True, tilted), o) for f, o in frames]
+    out = place_view_cuts(frames, lambda f: dets[f.image.id])
+    cut = int(math.ceil(2.5 * FPS))
+    pitch = np.array([f.pose.pitch_deg for f, _ in out])
+    assert np.allclose(pitch[60:cut], PITCH_DEG) and np.allclose(pitch[cut:90], 50.0)
+    assert [f.pose.height_m for f, _ in out] == [f.pose.height_m for f, _ in frames]
+
+
+def test_a_smooth_sweep_keeps_its_interpolated_poses() -> None:
+    # 60 deg/s for one second: each frame's boxes shift together by ~2 deg, nothing to cut
+    frames, dets = _clip(lambda t: 10.0 + 60.0 * min(max(t - 1.0, 0.0), 1.0))
+    report = ViewCutReport()
+    out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    assert report.intervals == 1 and report.cuts == 0
+    assert np.array_equal(_headings(out), _headings(frames))
+    assert not report.stage_report().acted
+
+
+def test_a_detector_dropout_is_not_a_cut() -> None:
+    # the heading turns smoothly over the interval and one frame in it has no boxes at all
+    frames, dets = _clip(lambda t: 10.0 + 40.0 * min(max(t - 1.0, 0.0), 1.0), dropout=45)
+    report = ViewCutReport()
+    out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    assert report.cuts == 0 and np.array_equal(_headings(out), _headings(frames))
+
+
+def test_dense_telemetry_and_too_few_boxes_leave_the_frames_alone() -> None:
+    frames, dets = _clip(_jump_at(1.4), telemetry_hz=30.0)  # every frame has its own sample: nothing hidden
+    report = ViewCutReport()
+    assert place_view_cuts(frames, lambda f: dets[f.image.id], report=report) == frames
+    assert report.intervals == 0 and "no telemetry interval" in report.stage_report().why
+    frames, dets = _clip(_jump_at(1.4))
+    empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
+    report = ViewCutReport()
+    assert place_view_cuts(frames, lambda f: empty, report=report) == frames
+    assert (report.intervals, report.cuts) == (1, 0)
+
+
+def test_frames_without_pose_or_track_pass_through() -> None:
+    frames, dets = _clip(_jump_at(1.4))
+    bare = [(Frame(f.image, None, f.t, CAM), o) for f, o in frames]
+    assert place_view_cuts(bare, lambda f: dets[f.image.id]) == bare
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.integers(3, 25), st.floats(-400.0, 400.0), st.floats(-400.0, 400.0), st.integers(0, 10_000))
+def test_continuity_of_a_shifted_copy_is_one_and_of_nothing_zero(n: int, dx: float, dy: float, seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    a = np.column_stack([rng.uniform(0, 1920, n), rng.uniform(0, 1080, n), rng.uniform(20, 80, n)])
+    b = a.copy()
+    b[:, :2] += (dx, dy)
+    assert continuity(a, b) == 1.0
+    assert continuity(a, np.zeros((0, 3))) == 0.0
+    assert math.isnan(continuity(np.zeros((0, 3)), b))
+    assert 0.0 <= continuity(a, b[: max(1, n // 2)]) <= 1.0
+
+
+def test_continuity_of_an_unrelated_view_is_low() -> None:
+    rng = np.random.default_rng(1)
+    a = np.column_stack([rng.uniform(0, 1920, 12), rng.uniform(0, 1080, 12), np.full(12, 40.0)])
+    b = np.column_stack([rng.uniform(0, 1920, 12), rng.uniform(0, 1080, 12), np.full(12, 40.0)])
+    assert continuity(a, b) <= 0.25
+
+
+@pytest.mark.parametrize("field", ["min_turn_deg", "match_frac", "max_continuity"])
+def test_bad_settings_are_named(field: str) -> None:
+    with pytest.raises(ValueError, match=field):
+        ViewCutSettings(**{field: -1.0})
+    with pytest.raises(ValueError, match="max_boxes"):
+        ViewCutSettings(max_boxes=0)
+
+
+def test_a_jump_just_after_the_sample_that_already_shows_it_is_cut_at_the_image() -> None:
+    # whole-second stamps: the sample stamped 2.0 s was taken after the jump at 2.1 s; the image jumps at 2.1 s
+    frames, dets = _clip(_jump_at(2.1))
+    track = frames[0][0].track
+    values = track.values.copy()
+    values[2, 3] = 70.0  # the sample stamped 2.0 s already shows the new heading
+    early = TelemetryTrack(track.t, values)
+    frames = [(Frame(f.image, Pose(0.0, 0.0, HEIGHT_M, PITCH_DEG, float(early.at(f.t)[0, 3])), f.t, CAM, f.t, True,
+                     early), o) for f, o in frames]
+    report = ViewCutReport()
+    out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    h = _headings(out)
+    cut = int(math.ceil(2.1 * FPS))
+    assert report.cuts == 1
+    assert np.allclose(h[45:cut], 10.0) and np.allclose(h[cut:75], 70.0)
