@@ -4,13 +4,18 @@ A log at 1 Hz (or one whose samples are held for a second, as flight logs' whole
 60 deg view jump into a smooth 60 deg/s turn when the poses are interpolated at the frames' times: for up to a
 second every frame has a heading tens of degrees off, its boxes land on the ground far from the objects, and
 the tracker's view-jump guard (`agent.tracking.view_jump`, a rate threshold) never fires. The frames themselves
-show when the view jumped: the detections stop continuing the previous frame's. Here, in every telemetry
-interval whose heading or pitch changes by at least `ViewCutSettings.min_turn_deg`, the frame where the
-confident detections stop continuing (no common image shift carries the previous frame's boxes onto them, nor
-onto the next frame's) is the cut: the frames before it get the interval's first sample's heading and pitch,
-the frames from it the last sample's. An interval without a clear cut (a smooth sweep, whose boxes shift
-together from frame to frame; too few boxes to tell) keeps its interpolated poses, and the stage says so.
-Positions and heights stay interpolated. File drivers only: a live feed cannot look ahead to the next sample.
+show when the view jumped: the detections stop continuing the previous frame's.
+
+Here every telemetry interval of at least `ViewCutSettings.min_interval_s` whose heading or pitch changes by at
+least `min_turn_deg` is searched, half an interval beyond both samples (truncated stamps, lags), for the cut: a
+frame whose confident boxes and those of the last frame before it with boxes (blur empties the frames of a
+jump) do not continue each other (`continuity`: no common image shift carries one set onto the other), nor do
+the next frame's with boxes (else it was a dropout), beside a steady view on at least one side (a view of false
+positives alone continues nothing anywhere, so it cannot place a cut). Of such frames, the one beside the
+steadiest view. Frames before the cut get the interval's first sample's heading and pitch, the frames from it
+the last sample's. An interval without a cut (a smooth sweep, whose boxes shift together from frame to frame;
+too few boxes to tell) keeps its interpolated poses, and the stage report says so. Positions and heights stay
+interpolated. File drivers only: a live feed cannot look ahead to the next sample.
 """
 
 from __future__ import annotations
@@ -30,6 +35,10 @@ from agent.stage_report import StageReport
 __all__ = ["ViewCutSettings", "ViewCutReport", "continuity", "place_view_cuts"]
 
 _MATCH_FRAC = 0.5
+#: frames looked ahead for the next one with boxes after a candidate cut
+_LOOKAHEAD = 5
+#: frame pairs on each side of a candidate cut that show whether the view there is steady
+_SIDE = 4
 Detections = Callable[[Frame], tuple[NDArray, NDArray, NDArray]]
 
 
@@ -96,11 +105,18 @@ def _centres(boxes: NDArray, scores: NDArray, class_ids: NDArray, settings: View
 
 
 def continuity(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float:
-    """Share of frame a's boxes (rows: centre x, y, diagonal) that frame b's continue under the best common
-    image shift (each shift that sends one box of a onto one of b is tried); 0 when b has none, NaN when a has
-    none."""
-    if not len(a):
-        return math.nan
+    """How much two frames' boxes (rows: centre x, y, diagonal) continue each other, in [0, 1].
+
+    One way: the share of a's boxes that b's continue under the best common image shift (each shift sending one
+    box of a onto one of b is tried), that one box not counted, since some shift always matches one box, by
+    chance in an unrelated view: (matched - 1) / (len(a) - 1). Both ways, the lesser (a few boxes in a dense
+    unrelated view find partners by chance one way, not the other); a frame with fewer than two boxes is left
+    out. 0 when one frame has boxes and the other none, NaN when neither has two."""
+    ways = [_one_way(x, y, match_frac) for x, y in ((a, b), (b, a)) if len(x) >= 2]
+    return min(ways) if ways else math.nan
+
+
+def _one_way(a: NDArray, b: NDArray, match_frac: float) -> float:
     if not len(b):
         return 0.0
     shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)  # (na * nb, 2)
@@ -108,7 +124,7 @@ def continuity(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float
     dist = np.hypot(*(moved - b[None, None, :, :2]).transpose(3, 0, 1, 2))  # (S, na, nb)
     radius = match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])  # (na, nb)
     matched = (dist <= radius[None]).any(axis=2).sum(axis=1)  # (S,)
-    return float(matched.max() / len(a))
+    return float((matched.max() - 1) / (len(a) - 1))
 
 
 def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: Detections,
@@ -149,22 +165,18 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
         if not hidden:
             continue  # every frame has a sample of its own side of the jump
         report.intervals += 1
-        # frame pairs (k - 1, k) for k in the interval, and the frame after it: the cut may fall on either end
-        ks = [k for k in range(int(inside[0]), min(int(inside[-1]) + 2, len(frames))) if k >= 1]
-        conts = {k: continuity(centres(k - 1), centres(k), settings.match_frac) for k in ks
-                 if len(centres(k - 1)) >= settings.min_boxes}
+        # each frame k of the interval (and the one after it: the cut may fall on either end) against the last
+        # frame before it with two boxes or more (blur empties the frames of a jump)
+        conts: dict[int, tuple[int, float]] = {}
+        for k in range(max(int(inside[0]), 1), min(int(inside[-1]) + 2, len(frames))):
+            prev = next((j for j in range(k - 1, max(k - 2 - _LOOKAHEAD, -1), -1) if len(centres(j)) >= 2), None)
+            if prev is not None and max(len(centres(prev)), len(centres(k))) >= settings.min_boxes:
+                conts[k] = (prev, continuity(centres(prev), centres(k), settings.match_frac))
         if not conts:
             continue
-        cut = min(conts, key=lambda k: conts[k])
-        c = conts[cut]
-        if c > settings.max_continuity:
+        cut = _find_cut(conts, centres, len(frames), settings)
+        if cut is None:
             continue
-        if cut + 1 < len(frames) and len(centres(cut + 1)):
-            if continuity(centres(cut - 1), centres(cut + 1), settings.match_frac) > settings.max_continuity:
-                continue  # the next frame continues the one before the "cut": a dropout, not a jump
-        others = [v for k, v in conts.items() if k != cut and math.isfinite(v)]
-        if others and float(np.median(others)) < c + settings.cut_margin:
-            continue  # nothing continues in this interval (sparse, jittery boxes): no clear cut
         report.cuts += 1
         before, after = values[i], values[i + 1]
         for k in inside.tolist():
@@ -175,3 +187,38 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
             pose = replace(frame.pose, heading_deg=float(v[3] % 360.0), pitch_deg=float(min(max(v[4], 0.0), 90.0)))
             out[k] = (replace(frame, pose=pose), off)
     return out
+
+
+def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDArray], n_frames: int,
+              settings: ViewCutSettings) -> int | None:
+    """The frame of an interval where the view jumped, or None.
+
+    conts: each candidate frame's previous frame with boxes and its continuity with it. A candidate continues at
+    most max_continuity of that frame, nor does the next frame with boxes (within _LOOKAHEAD frames; otherwise it
+    is a dropout), and one side of it is a steady view: the mean continuity of the _SIDE frame pairs just before
+    it, or of those just after it (pairs with a frame of fewer than two boxes, as blur leaves, do not count), is
+    at least cut_margin above the candidate's (a view of false positives alone continues nothing, anywhere). Of the
+    candidates that qualify, the one with the steadiest side."""
+
+    def pair(j: int) -> float:
+        if not 1 <= j < n_frames or min(len(centres(j - 1)), len(centres(j))) < 2:
+            return math.nan
+        return continuity(centres(j - 1), centres(j), settings.match_frac)
+
+    def steady(js: range) -> float:
+        values = [v for v in (pair(j) for j in js) if math.isfinite(v)]
+        return float(np.mean(values)) if values else math.nan
+
+    best, best_side = None, -math.inf
+    for cut, (prev, c) in conts.items():
+        if not c <= settings.max_continuity:
+            continue
+        after = next((j for j in range(cut + 1, min(cut + 1 + _LOOKAHEAD, n_frames)) if len(centres(j))), None)
+        if after is not None and continuity(centres(prev), centres(after), settings.match_frac) \
+                > settings.max_continuity:
+            continue  # the view goes on after it: a dropout, not a jump
+        side = np.nanmax([steady(range(prev - _SIDE + 1, prev + 1)), steady(range(cut + 1, cut + 1 + _SIDE)),
+                          -math.inf])
+        if side >= c + settings.cut_margin and side > best_side:
+            best, best_side = cut, float(side)
+    return best

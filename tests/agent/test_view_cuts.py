@@ -136,8 +136,11 @@ def test_continuity_of_a_shifted_copy_is_one_and_of_nothing_zero(n: int, dx: flo
     b[:, :2] += (dx, dy)
     assert continuity(a, b) == 1.0
     assert continuity(a, np.zeros((0, 3))) == 0.0
-    assert math.isnan(continuity(np.zeros((0, 3)), b))
+    assert continuity(np.zeros((0, 3)), b) == 0.0 and math.isnan(continuity(a[:1], b[:1]))
     assert 0.0 <= continuity(a, b[: max(1, n // 2)]) <= 1.0
+    # a few boxes against a dense unrelated view: some shift matches two of them, none matches many of the view's
+    dense = np.column_stack([rng.uniform(0, 1920, 40), rng.uniform(0, 1080, 40), np.full(40, 60.0)])
+    assert continuity(a[:3], dense) <= 0.25
 
 
 def test_continuity_of_an_unrelated_view_is_low() -> None:
@@ -170,3 +173,22 @@ def test_a_jump_just_after_the_sample_that_already_shows_it_is_cut_at_the_image(
     cut = int(math.ceil(2.1 * FPS))
     assert report.cuts == 1
     assert np.allclose(h[45:cut], 10.0) and np.allclose(h[cut:75], 70.0)
+
+
+def test_a_view_of_false_positives_alone_is_not_cut_before_the_jump_back() -> None:
+    # away (heading 70) the confident boxes are a few false positives in new places every frame; at 2.4 s the view
+    # jumps back to the field (heading 10): the cut is there, not at a chance gap among the false positives
+    frames, dets = _clip(lambda t: 70.0 if t < 2.4 else 10.0)
+    rng = np.random.default_rng(3)
+    for f, _ in frames:
+        if f.t < 2.4:
+            k = int(rng.integers(3, 6))
+            xy = np.column_stack([rng.uniform(50, CAM.width - 50, k), rng.uniform(100, CAM.height - 10, k)])
+            boxes = np.column_stack([xy[:, 0] - 12, xy[:, 1] - 60, xy[:, 0] + 12, xy[:, 1]]).astype(np.float32)
+            dets[f.image.id] = (boxes, np.full(k, 0.6, np.float32), np.zeros(k, np.int64))
+    report = ViewCutReport()
+    out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    h = _headings(out)
+    cut = int(math.ceil(2.4 * FPS))
+    assert report.cuts == 1
+    assert np.allclose(h[31:cut], 70.0) and np.allclose(h[cut:89], 10.0)
