@@ -445,9 +445,9 @@ class VideoTelemetry:
     at_frame_time: bool = False
     #: informative windows the clock-offset estimate found (agent.clock_offset; 0 when it did not run)
     offset_windows: int = 0
-    #: view cuts (agent.view_cuts): telemetry intervals turning sharply enough to hide one, and the cuts placed;
-    #: None when the stage did not run
-    view_cuts: tuple[int, int] | None = None
+    #: view cuts (agent.view_cuts): telemetry intervals turning sharply enough to hide one, the cuts placed and the
+    #: intervals with too few frames to judge; None when the stage did not run
+    view_cuts: tuple[int, int, int] | None = None
 
 
 def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto") -> tuple[Telemetry | None, PoseProblem | None]:

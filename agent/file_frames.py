@@ -33,7 +33,7 @@ def prepared_frames(dataset: Dataset, camera: Camera, video_id: int, candidates:
     if config.view_cuts:
         cuts = ViewCutReport()
         frames = place_view_cuts(frames, lambda f: candidates.get(f.image.id), report=cuts)
-        info.view_cuts = (cuts.intervals, cuts.cuts)
+        info.view_cuts = (cuts.intervals, cuts.cuts, cuts.too_few_frames)
     if pipe is not None:
         pipe.prime((frame.pose, frame.camera, *candidates.get(frame.image.id)) for frame, _ in frames)
     return frames
@@ -64,6 +64,5 @@ def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings
                                f"measured on {info.offset_windows} turning windows" if acted else
                                f"{info.offset_windows} of {need} turning windows needed: telemetry as stamped"))
     if info.view_cuts is not None and clock.frames:
-        intervals, cuts = info.view_cuts
-        out.append(ViewCutReport(intervals, cuts).stage_report())
+        out.append(ViewCutReport(*info.view_cuts).stage_report())
     return out

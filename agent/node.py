@@ -97,6 +97,12 @@ class AgentSettings:
         whole fleet's (agent.joint_window); False subscribes to every joint tile.
     speed : float
         Playback speed against the source's clock (1 = real time); 0 = as fast as possible.
+    replay_sync_s : float
+        Recordings replayed together line up on their own clocks: when another UAV's state messages show its
+        source clock ahead of this agent's by more than REPLAY_SYNC_MIN_LEAD_S and at most this many seconds
+        (it started earlier), this agent takes up its clock, processing the frames it is behind on without
+        waiting, so both UAVs' evidence of one moment meets in the joint map (0: off). Started 4 s apart
+        without it, the weaker UAV of `coop-glare` lost most of its joint map's gain (docs/agent.md).
     duration_s : float or None
         Stop after this many wall seconds.
     loop : bool
@@ -131,6 +137,7 @@ class AgentSettings:
     joint_ttl_s: float = 3.0
     joint_window: bool = True
     speed: float = 1.0
+    replay_sync_s: float = 30.0
     duration_s: float | None = None
     loop: bool = False
     gid_gate_m: float = 10.0
@@ -149,6 +156,9 @@ class AgentSettings:
         TileGrid(self.grid_z, self.grid_n)
         for name in ("publish_hz", "refresh_s", "joint_ttl_s", "gid_gate_m", "gid_window_s", "query_timeout_s"):
             _positive(name, getattr(self, name))
+        if not (isinstance(self.replay_sync_s, int | float) and math.isfinite(self.replay_sync_s)
+                and self.replay_sync_s >= 0):
+            raise ValueError(f"AgentSettings.replay_sync_s must be >= 0 (0 = off), got {self.replay_sync_s!r}")
         if not (isinstance(self.speed, int | float) and math.isfinite(self.speed) and self.speed >= 0):
             raise ValueError(f"AgentSettings.speed must be >= 0 (0 = as fast as possible), got {self.speed!r}")
         if not (isinstance(self.tile_min_value, int | float) and 0 <= self.tile_min_value < 1):
@@ -235,6 +245,11 @@ def run_first_track_id(wall_ns: int | None = None) -> int:
 #: How long (wall seconds) another UAV covers the cells of a footprint it sent: the fusion server's
 #: default --ttl-s, after which the server stops counting it in a cell's mean.
 COVER_TTL_S = 2.0
+#: Replay sync (AgentSettings.replay_sync_s): another UAV's source clock counts when its state message is at most
+#: this old (wall seconds), and is taken up when it leads this agent's by more than REPLAY_SYNC_MIN_LEAD_S (two
+#: publish cycles and a frame: a UAV in step reads up to ~0.4 s behind or ahead from its last state).
+REPLAY_SYNC_MAX_AGE_S = 2.0
+REPLAY_SYNC_MIN_LEAD_S = 0.5
 
 
 class AgentNode:
@@ -282,7 +297,8 @@ class AgentNode:
         self.on_ready = on_ready
         self.counts: dict[str, Any] = {"frames": 0, "frames_without_pose": 0, "frame_errors": 0, "detections": 0,
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,
-                                       "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0}
+                                       "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0,
+                                       "replay_sync_s": 0.0}
         self._rows: list[tuple[int, float, TrackOutput]] = []
         self._detections: list[dict[str, Any]] = []  # COCO results for settings.detections_out
         self._last_pose: tuple[float, Pose, Camera] | None = None
@@ -304,6 +320,19 @@ class AgentNode:
             if wall >= 1.0:
                 return max((t - self._clock0[0]) / wall, 1e-3)
         return self.settings.speed if self.settings.speed > 0 else 1.0
+
+    def _sync_replay(self, now: float) -> None:
+        """Take up the source clock of another UAV that is ahead of this agent's (AgentSettings.replay_sync_s)."""
+        assert self._clock0 is not None
+        s = self.settings
+        t0, w0 = self._clock0
+        mine = t0 + (now - w0) * s.speed
+        lead = max((t + age * s.speed - mine for uav, t, age in self.link.partner_clocks(REPLAY_SYNC_MAX_AGE_S)
+                    if uav != s.uav_id), default=0.0)
+        if REPLAY_SYNC_MIN_LEAD_S < lead <= s.replay_sync_s:
+            self._clock0 = (t0, w0 - lead / s.speed)
+            self.counts["replay_sync_s"] += lead
+            log.info("agent %s: another UAV's clock is %.2f s ahead: catching up", s.uav_id, lead)
 
     def _frames(self) -> Iterator[SourceFrame]:
         offset = 0.0
@@ -362,6 +391,8 @@ class AgentNode:
             if self._clock0 is None:
                 self._clock0 = (frame.t, now)
             elif s.speed > 0:
+                if s.replay_sync_s > 0:
+                    self._sync_replay(now)
                 due = self._clock0[1] + (frame.t - self._clock0[0]) / s.speed
                 wait = due - now
                 if deadline is not None:
@@ -486,6 +517,7 @@ class AgentNode:
         return {
             **self.counts,
             "behind_s_max": round(self.counts["behind_s_max"], 3),
+            "replay_sync_s": round(self.counts["replay_sync_s"], 3),
             "elapsed_s": round(elapsed, 3),
             "tiles_changed": self.tiles.n_changed,
             "tiles_refreshed": self.tiles.n_refreshed,

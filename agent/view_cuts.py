@@ -53,7 +53,9 @@ class ViewCutSettings:
     reach: the frames searched extend this many interval lengths beyond both samples (stamps truncated to whole
     seconds, a telemetry lag). min_interval_s: shorter intervals are left as they are: a jump smeared over
     0.1 s (a 10 Hz log) turns faster than the tracker's view-jump guard's rate, which holds those frames back;
-    stepping them too cost 0.3-0.6 HOTA on the 10 Hz tuning jump domains (seeds 0-2)."""
+    stepping them too cost 0.3-0.6 HOTA on the 10 Hz tuning jump domains (seeds 0-2). min_frames: an interval
+    needs this many frames between its samples: at 2 fps a smooth turn of 24 deg moves the boxes as far from one
+    frame to the next as a cut does (the real dev file has one)."""
 
     min_turn_deg: float = 20.0
     min_score: float = 0.3
@@ -64,6 +66,7 @@ class ViewCutSettings:
     min_boxes: int = 3
     reach: float = 0.5
     min_interval_s: float = 0.25
+    min_frames: int = 4
 
     def __post_init__(self) -> None:
         for name in ("min_turn_deg", "min_score", "match_frac", "max_continuity", "cut_margin", "reach",
@@ -71,24 +74,28 @@ class ViewCutSettings:
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"ViewCutSettings.{name}={value!r} must be a finite number >= 0")
-        if self.max_boxes < 1 or self.min_boxes < 1:
-            raise ValueError("ViewCutSettings.max_boxes and min_boxes must be >= 1")
+        if self.max_boxes < 1 or self.min_boxes < 1 or self.min_frames < 1:
+            raise ValueError("ViewCutSettings.max_boxes, min_boxes and min_frames must be >= 1")
 
 
 @dataclass(slots=True)
 class ViewCutReport:
     """What the stage found in one video: intervals turning at least min_turn_deg between two telemetry samples
-    with frames inside, and the cuts placed in them."""
+    with frames inside, the cuts placed in them, and the intervals with too few frames to judge."""
 
     intervals: int = 0
     cuts: int = 0
+    too_few_frames: int = 0
 
     def stage_report(self) -> StageReport:
         if not self.intervals:
             return StageReport("view cuts", False, "no telemetry interval turns enough to hide a view jump")
-        text = f"{self.cuts} of {self.intervals} sharply turning telemetry intervals cut where the detections jump"
-        return StageReport("view cuts", self.cuts > 0,
-                           text if self.cuts else f"no cut in {self.intervals} turning intervals: poses interpolated")
+        sparse = f", {self.too_few_frames} with too few frames to judge" if self.too_few_frames else ""
+        if self.cuts:
+            return StageReport("view cuts", True, f"{self.cuts} of {self.intervals} sharply turning telemetry "
+                                                  f"intervals cut where the detections jump{sparse}")
+        return StageReport("view cuts", False, f"no cut in {self.intervals} turning intervals{sparse}: poses "
+                                               "interpolated")
 
 
 def _centres(boxes: NDArray, scores: NDArray, class_ids: NDArray, settings: ViewCutSettings) -> NDArray:
@@ -160,10 +167,14 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
         # clock-offset estimate left can put the jump's frames just outside the interval
         ext = settings.reach * (t1 - t0)
         with np.errstate(invalid="ignore"):
-            hidden = bool(np.any((tau > t0) & (tau < t1)))
+            hidden = int(np.count_nonzero((tau > t0) & (tau < t1)))
             inside = np.flatnonzero((tau > t0 - ext) & (tau < t1 + ext))
         if not hidden:
             continue  # every frame has a sample of its own side of the jump
+        if hidden < settings.min_frames:
+            report.intervals += 1
+            report.too_few_frames += 1
+            continue  # too few frames between the samples to tell a cut from a turn
         report.intervals += 1
         # each frame k of the interval (and the one after it: the cut may fall on either end) against the last
         # frame before it with two boxes or more (blur empties the frames of a jump)

@@ -161,6 +161,7 @@ class AgentLink:
         # other UAVs' latest footprints: uav -> (footprint, monotonic receive time), and the new ones
         self._footprints: dict[str, tuple[tuple[tuple[float, float], ...], float]] = {}
         self._footprints_pending: set[str] = set()
+        self._clocks: dict[str, tuple[float, float]] = {}  # uav -> (source time of its latest state, received)
         self._counts: Counter[str] = Counter()
         self._bytes: Counter[str] = Counter()
         self._rejects: Counter[str] = Counter()
@@ -506,6 +507,7 @@ class AgentLink:
         with self._lock:
             self._counts["states"] += 1
             self._bytes["states"] += len(payload)
+            self._clocks[uav] = (msg.t, time.monotonic())
             if len(msg.footprint) >= 3:
                 self._footprints[uav] = (msg.footprint, time.monotonic())
                 self._footprints_pending.add(uav)
@@ -546,6 +548,14 @@ class AgentLink:
                 for uav in [u for u, v in self._footprints.items() if now - v[1] > max_age_s]:
                     del self._footprints[uav]
         return out
+
+    def partner_clocks(self, max_age_s: float) -> list[tuple[str, float, float]]:
+        """The other UAVs' source clocks from their latest state messages: (uav, t, age in wall seconds), those
+        at most max_age_s old."""
+        now = time.monotonic()
+        with self._lock:
+            return [(uav, t, now - received) for uav, (t, received) in self._clocks.items()
+                    if now - received <= max_age_s]
 
     def joint_tracks(self) -> tuple[JointTracksMessage, float] | None:
         """The latest global tracks and their age in seconds, or None before any arrived.

@@ -78,6 +78,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     net.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
     run = p.add_argument_group("run")
     run.add_argument("--speed", type=float, default=1.0, help="playback speed, 1 = real time, 0 = as fast as possible")
+    run.add_argument("--replay-sync-s", type=float, default=30.0, metavar="S",
+                     help="a replay takes up another UAV's source clock when it leads by at most S seconds (it "
+                          "started earlier), so recordings of one flight line up in the joint map; 0: off")
     run.add_argument("--duration", type=float, default=None, metavar="S", help="stop after S seconds")
     run.add_argument("--loop", action="store_true", help="start the source again when it ends")
     run.add_argument("--tracks-out", type=Path, default=None, help="write the tracks (with global ids) as GeoJSON")
@@ -135,7 +138,8 @@ def settings_from_args(args: argparse.Namespace):
         uav_id=args.uav_id, zenoh=zenoh_options, prefix=args.prefix, publish_hz=args.publish_hz,
         refresh_s=args.refresh_s, tile_min_value=args.tile_min_value,
         tile_budget_bytes_per_s=args.tile_budget if args.tile_budget > 0 else None, joint_ttl_s=args.joint_ttl_s,
-        speed=args.speed, duration_s=args.duration, loop=args.loop, gid_gate_m=args.gid_gate_m,
+        speed=args.speed, replay_sync_s=args.replay_sync_s, duration_s=args.duration, loop=args.loop,
+        gid_gate_m=args.gid_gate_m,
         grid_z=args.grid_z, grid_n=args.grid_n, tracks_out=args.tracks_out, detections_out=args.detections_out,
     )
 

@@ -192,3 +192,13 @@ def test_a_view_of_false_positives_alone_is_not_cut_before_the_jump_back() -> No
     cut = int(math.ceil(2.4 * FPS))
     assert report.cuts == 1
     assert np.allclose(h[31:cut], 70.0) and np.allclose(h[cut:89], 10.0)
+
+
+def test_two_frames_a_second_cannot_tell_a_cut_from_a_turn() -> None:
+    # 2 fps against 1 Hz telemetry (the real SeaDronesSee dev file's rates): a jump is left interpolated, and said so
+    frames, dets = _clip(_jump_at(1.4))
+    sparse = [(f, o) for f, o in frames if f.image.id % 15 == 0]
+    report = ViewCutReport()
+    assert place_view_cuts(sparse, lambda f: dets[f.image.id], report=report) == sparse
+    assert (report.intervals, report.cuts, report.too_few_frames) == (1, 0, 1)
+    assert "too few frames" in report.stage_report().why and not report.stage_report().acted
