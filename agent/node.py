@@ -100,7 +100,7 @@ class AgentSettings:
     replay_sync_s : float
         Recordings replayed together line up on their own clocks: when another UAV's state messages show its
         source clock ahead of this agent's by more than REPLAY_SYNC_MIN_LEAD_S and at most this many seconds
-        (it started earlier), this agent takes up its clock, processing the frames it is behind on without
+        (it started earlier), running at this agent's speed (REPLAY_SYNC_RATE_TOL), this agent takes up its clock, processing the frames it is behind on without
         waiting, so both UAVs' evidence of one moment meets in the joint map (0: off). Started 4 s apart
         without it, the weaker UAV of `coop-glare` lost most of its joint map's gain (docs/agent.md).
     duration_s : float or None
@@ -250,6 +250,9 @@ COVER_TTL_S = 2.0
 #: publish cycles and a frame: a UAV in step reads up to ~0.4 s behind or ahead from its last state).
 REPLAY_SYNC_MAX_AGE_S = 2.0
 REPLAY_SYNC_MIN_LEAD_S = 0.5
+#: ... and only a clock whose rate (over the last second or more of its states) is within this share of this
+#: agent's speed.
+REPLAY_SYNC_RATE_TOL = 0.2
 
 
 class AgentNode:
@@ -327,8 +330,10 @@ class AgentNode:
         s = self.settings
         t0, w0 = self._clock0
         mine = t0 + (now - w0) * s.speed
-        lead = max((t + age * s.speed - mine for uav, t, age in self.link.partner_clocks(REPLAY_SYNC_MAX_AGE_S)
-                    if uav != s.uav_id), default=0.0)
+        # only clocks that run at this agent's speed: a replay played faster would drag it along
+        lead = max((t + age * s.speed - mine for uav, t, age, rate in self.link.partner_clocks(REPLAY_SYNC_MAX_AGE_S)
+                    if uav != s.uav_id and rate is not None and abs(rate - s.speed) <= REPLAY_SYNC_RATE_TOL * s.speed),
+                   default=0.0)
         if REPLAY_SYNC_MIN_LEAD_S < lead <= s.replay_sync_s:
             self._clock0 = (t0, w0 - lead / s.speed)
             self.counts["replay_sync_s"] += lead

@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import Counter, OrderedDict
+from collections import Counter, OrderedDict, deque
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -60,6 +60,8 @@ MAX_CLOCK_SKEW_S = 30.0
 #: one's arrival (a late query reply); later it replaces it, so one forged tile with a huge seq
 #: cannot block the server's real ones.
 _REORDER_WINDOW_S = 1.0
+#: Other UAVs' state messages kept for their clocks' rate (AgentLink.partner_clocks): at least this long (s).
+CLOCK_HISTORY_S = 1.5
 
 
 def encode_tracks_with_gid(msg: TracksMessage, gids: dict[int, int]) -> bytes:
@@ -161,7 +163,8 @@ class AgentLink:
         # other UAVs' latest footprints: uav -> (footprint, monotonic receive time), and the new ones
         self._footprints: dict[str, tuple[tuple[tuple[float, float], ...], float]] = {}
         self._footprints_pending: set[str] = set()
-        self._clocks: dict[str, tuple[float, float]] = {}  # uav -> (source time of its latest state, received)
+        # uav -> (source time, monotonic receive time) of its states over the last CLOCK_HISTORY_S
+        self._clocks: dict[str, deque[tuple[float, float]]] = {}
         self._counts: Counter[str] = Counter()
         self._bytes: Counter[str] = Counter()
         self._rejects: Counter[str] = Counter()
@@ -507,7 +510,11 @@ class AgentLink:
         with self._lock:
             self._counts["states"] += 1
             self._bytes["states"] += len(payload)
-            self._clocks[uav] = (msg.t, time.monotonic())
+            now = time.monotonic()
+            history = self._clocks.setdefault(uav, deque())
+            history.append((msg.t, now))
+            while len(history) > 2 and now - history[1][1] >= CLOCK_HISTORY_S:
+                history.popleft()
             if len(msg.footprint) >= 3:
                 self._footprints[uav] = (msg.footprint, time.monotonic())
                 self._footprints_pending.add(uav)
@@ -549,13 +556,21 @@ class AgentLink:
                     del self._footprints[uav]
         return out
 
-    def partner_clocks(self, max_age_s: float) -> list[tuple[str, float, float]]:
-        """The other UAVs' source clocks from their latest state messages: (uav, t, age in wall seconds), those
-        at most max_age_s old."""
+    def partner_clocks(self, max_age_s: float) -> list[tuple[str, float, float, float | None]]:
+        """The other UAVs' source clocks from their state messages: (uav, t of the latest, its age in wall seconds,
+        the clock's rate in source seconds per wall second over the last second or more, None before a second
+        of states), for those whose latest is at most max_age_s old."""
         now = time.monotonic()
+        out = []
         with self._lock:
-            return [(uav, t, now - received) for uav, (t, received) in self._clocks.items()
-                    if now - received <= max_age_s]
+            for uav, history in self._clocks.items():
+                t, received = history[-1]
+                if now - received > max_age_s:
+                    continue
+                t0, w0 = history[0]
+                rate = (t - t0) / (received - w0) if received - w0 >= 1.0 else None
+                out.append((uav, t, now - received, rate))
+        return out
 
     def joint_tracks(self) -> tuple[JointTracksMessage, float] | None:
         """The latest global tracks and their age in seconds, or None before any arrived.
