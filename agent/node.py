@@ -100,9 +100,10 @@ class AgentSettings:
     replay_sync_s : float
         Recordings replayed together line up on their own clocks: when another UAV's state messages show its
         source clock ahead of this agent's by more than REPLAY_SYNC_MIN_LEAD_S and at most this many seconds
-        (it started earlier), running at this agent's speed (REPLAY_SYNC_RATE_TOL), this agent takes up its clock, processing the frames it is behind on without
-        waiting, so both UAVs' evidence of one moment meets in the joint map (0: off). Started 4 s apart
-        without it, the weaker UAV of `coop-glare` lost most of its joint map's gain (docs/agent.md).
+        (it started earlier), running at this agent's speed (REPLAY_SYNC_RATE_TOL), this agent takes up its
+        clock, processing the frames it is behind on without waiting, so both UAVs' evidence of one moment meets
+        in the joint map (0: off). Started 2 s apart without it, the weaker UAV of `coop-glare` lost most of its
+        joint map's gain (docs/agent.md).
     duration_s : float or None
         Stop after this many wall seconds.
     loop : bool
