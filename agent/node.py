@@ -332,7 +332,8 @@ class AgentNode:
         t0, w0 = self._clock0
         mine = t0 + (now - w0) * s.speed
         # only clocks that run at this agent's speed: a replay played faster would drag it along
-        lead = max((t + age * s.speed - mine for uav, t, age, rate in self.link.partner_clocks(REPLAY_SYNC_MAX_AGE_S)
+        clocks = self.link.partner_clocks.read(REPLAY_SYNC_MAX_AGE_S)
+        lead = max((t + age * s.speed - mine for uav, t, age, rate in clocks
                     if uav != s.uav_id and rate is not None and abs(rate - s.speed) <= REPLAY_SYNC_RATE_TOL * s.speed),
                    default=0.0)
         if REPLAY_SYNC_MIN_LEAD_S < lead <= s.replay_sync_s:

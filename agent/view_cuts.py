@@ -32,7 +32,7 @@ from agent.clock_offset import ClockOffset
 from agent.dataset import Frame
 from agent.stage_report import StageReport
 
-__all__ = ["ViewCutSettings", "ViewCutReport", "continuity", "place_view_cuts"]
+__all__ = ["ViewCutSettings", "ViewCutReport", "continuity", "pan", "place_view_cuts"]
 
 _MATCH_FRAC = 0.5
 #: frames looked ahead for the next one with boxes after a candidate cut
@@ -55,7 +55,9 @@ class ViewCutSettings:
     0.1 s (a 10 Hz log) turns faster than the tracker's view-jump guard's rate, which holds those frames back;
     stepping them too cost 0.3-0.6 HOTA on the 10 Hz tuning jump domains (seeds 0-2). min_frames: an interval
     needs this many frames between its samples: at 2 fps a smooth turn of 24 deg moves the boxes as far from one
-    frame to the next as a cut does (the real dev file has one)."""
+    frame to the next as a cut does (the real dev file has one). still_frac: the view beside a cut must pan at
+    most this share of what a smooth turn through the interval would show per frame (sweeps logged at 1 Hz have
+    boxes that continue, shifted, and blur that empties frames like a jump's)."""
 
     min_turn_deg: float = 20.0
     min_score: float = 0.3
@@ -67,10 +69,11 @@ class ViewCutSettings:
     reach: float = 0.5
     min_interval_s: float = 0.25
     min_frames: int = 4
+    still_frac: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("min_turn_deg", "min_score", "match_frac", "max_continuity", "cut_margin", "reach",
-                     "min_interval_s"):
+                     "min_interval_s", "still_frac"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"ViewCutSettings.{name}={value!r} must be a finite number >= 0")
@@ -134,6 +137,20 @@ def _one_way(a: NDArray, b: NDArray, match_frac: float) -> float:
     return float((matched.max() - 1) / (len(a) - 1))
 
 
+def pan(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float:
+    """Length (pixels) of the common image shift that carries most of frame a's boxes onto frame b's (the shortest
+    of equals); NaN when either frame has fewer than two boxes. A still camera gives a few pixels, a pan its rate."""
+    if len(a) < 2 or len(b) < 2:
+        return math.nan
+    shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)
+    moved = a[None, :, None, :2] + shifts[:, None, None, :]
+    dist = np.hypot(*(moved - b[None, None, :, :2]).transpose(3, 0, 1, 2))
+    radius = match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])
+    matched = (dist <= radius[None]).any(axis=2).sum(axis=1)
+    best = np.flatnonzero(matched == matched.max())
+    return float(np.hypot(shifts[best, 0], shifts[best, 1]).min())
+
+
 def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: Detections,
                     settings: ViewCutSettings | None = None,
                     report: ViewCutReport | None = None) -> list[tuple[Frame, ClockOffset | None]]:
@@ -185,7 +202,13 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
                 conts[k] = (prev, continuity(centres(prev), centres(k), settings.match_frac))
         if not conts:
             continue
-        cut = _find_cut(conts, centres, len(frames), settings)
+        # the image pan per frame a smooth turn through the interval would show: a cut needs a still view beside it
+        camera = frames[int(inside[0])][0].camera
+        pitch = math.radians(min(max(float(values[i, 4]), 0.0), 90.0))
+        turn = max(abs(float(values[i + 1, 3] - values[i, 3])) * math.cos(pitch),
+                   abs(float(values[i + 1, 4] - values[i, 4])))
+        still_px = settings.still_frac * math.sqrt(camera.fx * camera.fy) * math.radians(turn) / hidden
+        cut = _find_cut(conts, centres, len(frames), settings, still_px)
         if cut is None:
             continue
         report.cuts += 1
@@ -201,15 +224,17 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
 
 
 def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDArray], n_frames: int,
-              settings: ViewCutSettings) -> int | None:
+              settings: ViewCutSettings, still_px: float = math.inf) -> int | None:
     """The frame of an interval where the view jumped, or None.
 
     conts: each candidate frame's previous frame with boxes and its continuity with it. A candidate continues at
-    most max_continuity of that frame, nor does the next frame with boxes (within _LOOKAHEAD frames; otherwise it
-    is a dropout), and one side of it is a steady view: the mean continuity of the _SIDE frame pairs just before
+    most max_continuity of that frame; the new view shows within _LOOKAHEAD frames (blur through a whole sweep
+    empties many more) and the frame with boxes after it does not continue the earlier frame either (else it is
+    a dropout), and one side of it is a steady view: the mean continuity of the _SIDE frame pairs just before
     it, or of those just after it (pairs with a frame of fewer than two boxes, as blur leaves, do not count), is
-    at least cut_margin above the candidate's (a view of false positives alone continues nothing, anywhere). Of the
-    candidates that qualify, the one with the steadiest side."""
+    at least cut_margin above the candidate's (a view of false positives alone continues nothing, anywhere), and
+    still: its median pan (`pan`) at most still_px (a smooth sweep's frames continue each other too, shifted). Of
+    the candidates that qualify, the one with the steadiest side."""
 
     def pair(j: int) -> float:
         if not 1 <= j < n_frames or min(len(centres(j - 1)), len(centres(j))) < 2:
@@ -218,15 +243,23 @@ def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDAr
 
     def steady(js: range) -> float:
         values = [v for v in (pair(j) for j in js) if math.isfinite(v)]
-        return float(np.mean(values)) if values else math.nan
+        if not values:
+            return math.nan
+        pans = [v for v in (pan(centres(j - 1), centres(j), settings.match_frac) for j in js if 1 <= j < n_frames)
+                if math.isfinite(v)]
+        if pans and float(np.median(pans)) > still_px:
+            return math.nan  # the view pans through the interval: a turn, not a still view beside a cut
+        return float(np.mean(values))
 
     best, best_side = None, -math.inf
     for cut, (prev, c) in conts.items():
         if not c <= settings.max_continuity:
             continue
         after = next((j for j in range(cut + 1, min(cut + 1 + _LOOKAHEAD, n_frames)) if len(centres(j))), None)
-        if after is not None and continuity(centres(prev), centres(after), settings.match_frac) \
-                > settings.max_continuity:
+        if after is None:
+            if not len(centres(cut)):
+                continue  # no view after it for a while: blur through a sweep, not a jump's few frames
+        elif continuity(centres(prev), centres(after), settings.match_frac) > settings.max_continuity:
             continue  # the view goes on after it: a dropout, not a jump
         side = np.nanmax([steady(range(prev - _SIDE + 1, prev + 1)), steady(range(cut + 1, cut + 1 + _SIDE)),
                           -math.inf])

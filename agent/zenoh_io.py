@@ -11,7 +11,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
-from collections import Counter, OrderedDict, deque
+from collections import Counter, OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, TypeVar
@@ -22,6 +22,7 @@ import zenoh
 from numpy.typing import NDArray
 
 from agent.joint_window import JointWindowSubscriptions
+from agent.partner_clocks import PartnerClocks
 from agent.shard_routing import ShardRouting
 from shared.keys import JOINT_UAV, KeySpace, track_region
 from shared.messages import (
@@ -60,8 +61,6 @@ MAX_CLOCK_SKEW_S = 30.0
 #: one's arrival (a late query reply); later it replaces it, so one forged tile with a huge seq
 #: cannot block the server's real ones.
 _REORDER_WINDOW_S = 1.0
-#: Other UAVs' state messages kept for their clocks' rate (AgentLink.partner_clocks): at least this long (s).
-CLOCK_HISTORY_S = 1.5
 
 
 def encode_tracks_with_gid(msg: TracksMessage, gids: dict[int, int]) -> bytes:
@@ -163,8 +162,7 @@ class AgentLink:
         # other UAVs' latest footprints: uav -> (footprint, monotonic receive time), and the new ones
         self._footprints: dict[str, tuple[tuple[tuple[float, float], ...], float]] = {}
         self._footprints_pending: set[str] = set()
-        # uav -> (source time, monotonic receive time) of its states over the last CLOCK_HISTORY_S
-        self._clocks: dict[str, deque[tuple[float, float]]] = {}
+        self.partner_clocks = PartnerClocks()  # the other UAVs' source clocks (AgentSettings.replay_sync_s)
         self._counts: Counter[str] = Counter()
         self._bytes: Counter[str] = Counter()
         self._rejects: Counter[str] = Counter()
@@ -507,14 +505,10 @@ class AgentLink:
         if msg.uav != uav:
             self._reject("uav_mismatch", key, f"uav {msg.uav!r} on the state key of {uav!r}")
             return
+        self.partner_clocks.observe(uav, msg.t)
         with self._lock:
             self._counts["states"] += 1
             self._bytes["states"] += len(payload)
-            now = time.monotonic()
-            history = self._clocks.setdefault(uav, deque())
-            history.append((msg.t, now))
-            while len(history) > 2 and now - history[1][1] >= CLOCK_HISTORY_S:
-                history.popleft()
             if len(msg.footprint) >= 3:
                 self._footprints[uav] = (msg.footprint, time.monotonic())
                 self._footprints_pending.add(uav)
@@ -554,22 +548,6 @@ class AgentLink:
             if max_age_s is not None:
                 for uav in [u for u, v in self._footprints.items() if now - v[1] > max_age_s]:
                     del self._footprints[uav]
-        return out
-
-    def partner_clocks(self, max_age_s: float) -> list[tuple[str, float, float, float | None]]:
-        """The other UAVs' source clocks from their state messages: (uav, t of the latest, its age in wall seconds,
-        the clock's rate in source seconds per wall second over the last second or more, None before a second
-        of states), for those whose latest is at most max_age_s old."""
-        now = time.monotonic()
-        out = []
-        with self._lock:
-            for uav, history in self._clocks.items():
-                t, received = history[-1]
-                if now - received > max_age_s:
-                    continue
-                t0, w0 = history[0]
-                rate = (t - t0) / (received - w0) if received - w0 >= 1.0 else None
-                out.append((uav, t, now - received, rate))
         return out
 
     def joint_tracks(self) -> tuple[JointTracksMessage, float] | None:

@@ -202,3 +202,17 @@ def test_two_frames_a_second_cannot_tell_a_cut_from_a_turn() -> None:
     assert place_view_cuts(sparse, lambda f: dets[f.image.id], report=report) == sparse
     assert (report.intervals, report.cuts, report.too_few_frames) == (1, 0, 1)
     assert "too few frames" in report.stage_report().why and not report.stage_report().acted
+
+
+def test_a_sweep_that_blur_empties_is_not_a_cut() -> None:
+    # still at 10 deg, a 0.6 s sweep to 50 deg whose frames blur leaves without boxes, still again: the old and the
+    # new view are apart by many empty frames, not a jump's few
+    frames, dets = _clip(lambda t: 10.0 + 40.0 * min(max((t - 1.2) / 0.6, 0.0), 1.0))
+    empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
+    for f, _ in frames:
+        if 1.2 < f.t < 1.8:
+            dets[f.image.id] = empty
+    report = ViewCutReport()
+    out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    assert report.intervals == 1 and report.cuts == 0
+    assert np.array_equal(_headings(out), _headings(frames))
