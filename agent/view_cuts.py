@@ -126,14 +126,20 @@ def continuity(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float
     return min(ways) if ways else math.nan
 
 
-def _one_way(a: NDArray, b: NDArray, match_frac: float) -> float:
-    if not len(b):
-        return 0.0
+def _shift_matches(a: NDArray, b: NDArray, match_frac: float) -> tuple[NDArray, NDArray]:
+    """Each common shift that sends one box of a onto one of b, (S, 2) pixels, and how many of a's boxes it carries
+    onto one of b's, (S,)."""
     shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)  # (na * nb, 2)
     moved = a[None, :, None, :2] + shifts[:, None, None, :]  # (S, na, 1, 2)
     dist = np.hypot(*(moved - b[None, None, :, :2]).transpose(3, 0, 1, 2))  # (S, na, nb)
     radius = match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])  # (na, nb)
-    matched = (dist <= radius[None]).any(axis=2).sum(axis=1)  # (S,)
+    return shifts, (dist <= radius[None]).any(axis=2).sum(axis=1)
+
+
+def _one_way(a: NDArray, b: NDArray, match_frac: float) -> float:
+    if not len(b):
+        return 0.0
+    _, matched = _shift_matches(a, b, match_frac)
     return float((matched.max() - 1) / (len(a) - 1))
 
 
@@ -142,11 +148,7 @@ def pan(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float:
     of equals); NaN when either frame has fewer than two boxes. A still camera gives a few pixels, a pan its rate."""
     if len(a) < 2 or len(b) < 2:
         return math.nan
-    shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)
-    moved = a[None, :, None, :2] + shifts[:, None, None, :]
-    dist = np.hypot(*(moved - b[None, None, :, :2]).transpose(3, 0, 1, 2))
-    radius = match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])
-    matched = (dist <= radius[None]).any(axis=2).sum(axis=1)
+    shifts, matched = _shift_matches(a, b, match_frac)
     best = np.flatnonzero(matched == matched.max())
     return float(np.hypot(shifts[best, 0], shifts[best, 1]).min())
 
@@ -205,9 +207,9 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
         # the image pan per frame a smooth turn through the interval would show: a cut needs a still view beside it
         camera = frames[int(inside[0])][0].camera
         pitch = math.radians(min(max(float(values[i, 4]), 0.0), 90.0))
-        turn = max(abs(float(values[i + 1, 3] - values[i, 3])) * math.cos(pitch),
-                   abs(float(values[i + 1, 4] - values[i, 4])))
-        still_px = settings.still_frac * math.sqrt(camera.fx * camera.fy) * math.radians(turn) / hidden
+        turn_deg = max(abs(float(values[i + 1, 3] - values[i, 3])) * math.cos(pitch),
+                       abs(float(values[i + 1, 4] - values[i, 4])))
+        still_px = settings.still_frac * math.sqrt(camera.fx * camera.fy) * math.radians(turn_deg) / hidden
         cut = _find_cut(conts, centres, len(frames), settings, still_px)
         if cut is None:
             continue
