@@ -67,6 +67,12 @@ def _positive(name: str, value: object) -> None:
         raise ValueError(f"AgentSettings.{name} must be a finite number > 0, got {value!r}")
 
 
+def _non_negative(name: str, value: object, zero: str) -> None:
+    """zero: what 0 means for the setting."""
+    if not (isinstance(value, int | float) and math.isfinite(value) and value >= 0):
+        raise ValueError(f"AgentSettings.{name} must be >= 0 (0 = {zero}), got {value!r}")
+
+
 @dataclass(frozen=True, slots=True)
 class AgentSettings:
     """Everything `uavmm agent` can be told besides the source and the pipeline; validated at creation.
@@ -157,11 +163,8 @@ class AgentSettings:
         TileGrid(self.grid_z, self.grid_n)
         for name in ("publish_hz", "refresh_s", "joint_ttl_s", "gid_gate_m", "gid_window_s", "query_timeout_s"):
             _positive(name, getattr(self, name))
-        if not (isinstance(self.replay_sync_s, int | float) and math.isfinite(self.replay_sync_s)
-                and self.replay_sync_s >= 0):
-            raise ValueError(f"AgentSettings.replay_sync_s must be >= 0 (0 = off), got {self.replay_sync_s!r}")
-        if not (isinstance(self.speed, int | float) and math.isfinite(self.speed) and self.speed >= 0):
-            raise ValueError(f"AgentSettings.speed must be >= 0 (0 = as fast as possible), got {self.speed!r}")
+        _non_negative("replay_sync_s", self.replay_sync_s, "off")
+        _non_negative("speed", self.speed, "as fast as possible")
         if not (isinstance(self.tile_min_value, int | float) and 0 <= self.tile_min_value < 1):
             raise ValueError(f"AgentSettings.tile_min_value must be in [0, 1), got {self.tile_min_value!r}")
         if self.duration_s is not None:
@@ -331,11 +334,11 @@ class AgentNode:
         s = self.settings
         t0, w0 = self._clock0
         mine = t0 + (now - w0) * s.speed
-        # only clocks that run at this agent's speed: a replay played faster would drag it along
+        # only clocks that run at this agent's speed: a replay played faster would drag it along (the link keeps
+        # no clock of this UAV's own states)
         clocks = self.link.partner_clocks.read(REPLAY_SYNC_MAX_AGE_S)
-        lead = max((t + age * s.speed - mine for uav, t, age, rate in clocks
-                    if uav != s.uav_id and rate is not None and abs(rate - s.speed) <= REPLAY_SYNC_RATE_TOL * s.speed),
-                   default=0.0)
+        lead = max((t + age * s.speed - mine for _, t, age, rate in clocks
+                    if rate is not None and abs(rate - s.speed) <= REPLAY_SYNC_RATE_TOL * s.speed), default=0.0)
         if REPLAY_SYNC_MIN_LEAD_S < lead <= s.replay_sync_s:
             self._clock0 = (t0, w0 - lead / s.speed)
             self.counts["replay_sync_s"] += lead

@@ -47,9 +47,10 @@ class ViewCutSettings:
     """min_turn_deg: a telemetry interval whose heading or pitch changes this much may hide a cut.
     min_score: the detector score of the boxes that show continuity (NMS'd, at most max_boxes per frame).
     match_frac: two boxes continue each other when their centres lie within this fraction of their mean
-    diagonal after the common shift. max_continuity: a cut is a frame of which at most this share of the
-    previous frame's boxes continue (and of the next frame's, when there is one), where the interval's other
-    frame pairs continue better than cut_margin above it. min_boxes: the previous frame needs this many boxes.
+    diagonal after the common shift. max_continuity: a cut is a frame that continues at most this much of the
+    last frame before it with boxes (`continuity`), nor does the next frame with boxes, beside a view whose
+    frame pairs continue at least cut_margin more (`_find_cut`). min_boxes: one of the two frames compared needs
+    this many boxes.
     reach: the frames searched extend this many interval lengths beyond both samples (stamps truncated to whole
     seconds, a telemetry lag). min_interval_s: shorter intervals are left as they are: a jump smeared over
     0.1 s (a 10 Hz log) turns faster than the tracker's view-jump guard's rate, which holds those frames back;
@@ -122,8 +123,31 @@ def continuity(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float
     chance in an unrelated view: (matched - 1) / (len(a) - 1). Both ways, the lesser (a few boxes in a dense
     unrelated view find partners by chance one way, not the other); a frame with fewer than two boxes is left
     out. 0 when one frame has boxes and the other none, NaN when neither has two."""
-    ways = [_one_way(x, y, match_frac) for x, y in ((a, b), (b, a)) if len(x) >= 2]
-    return min(ways) if ways else math.nan
+    return _compare(a, b, match_frac)[0]
+
+
+def pan(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float:
+    """Length (pixels) of the common image shift that carries most of frame a's boxes onto frame b's (the shortest
+    of equals); NaN when either frame has fewer than two boxes. A still camera gives a few pixels, a pan its rate."""
+    return _compare(a, b, match_frac)[1]
+
+
+def _compare(a: NDArray, b: NDArray, match_frac: float) -> tuple[float, float]:
+    """(`continuity`, `pan`) of two frames' boxes, the forward shift search shared by both."""
+    ways: list[float] = []
+    pan_px = math.nan
+    if len(a) >= 2:
+        if len(b):
+            shifts, matched = _shift_matches(a, b, match_frac)
+            ways.append(float((matched.max() - 1) / (len(a) - 1)))
+            if len(b) >= 2:
+                best = np.flatnonzero(matched == matched.max())
+                pan_px = float(np.hypot(shifts[best, 0], shifts[best, 1]).min())
+        else:
+            ways.append(0.0)
+    if len(b) >= 2:
+        ways.append(float((_shift_matches(b, a, match_frac)[1].max() - 1) / (len(b) - 1)) if len(a) else 0.0)
+    return (min(ways) if ways else math.nan), pan_px
 
 
 def _shift_matches(a: NDArray, b: NDArray, match_frac: float) -> tuple[NDArray, NDArray]:
@@ -134,23 +158,6 @@ def _shift_matches(a: NDArray, b: NDArray, match_frac: float) -> tuple[NDArray, 
     dist = np.hypot(*(moved - b[None, None, :, :2]).transpose(3, 0, 1, 2))  # (S, na, nb)
     radius = match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])  # (na, nb)
     return shifts, (dist <= radius[None]).any(axis=2).sum(axis=1)
-
-
-def _one_way(a: NDArray, b: NDArray, match_frac: float) -> float:
-    if not len(b):
-        return 0.0
-    _, matched = _shift_matches(a, b, match_frac)
-    return float((matched.max() - 1) / (len(a) - 1))
-
-
-def pan(a: NDArray, b: NDArray, match_frac: float = _MATCH_FRAC) -> float:
-    """Length (pixels) of the common image shift that carries most of frame a's boxes onto frame b's (the shortest
-    of equals); NaN when either frame has fewer than two boxes. A still camera gives a few pixels, a pan its rate."""
-    if len(a) < 2 or len(b) < 2:
-        return math.nan
-    shifts, matched = _shift_matches(a, b, match_frac)
-    best = np.flatnonzero(matched == matched.max())
-    return float(np.hypot(shifts[best, 0], shifts[best, 1]).min())
 
 
 def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: Detections,
@@ -174,11 +181,18 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
                     for f, off in frames])
     out = list(frames)
     cache: dict[int, NDArray] = {}
+    compared: dict[tuple[int, int], tuple[float, float]] = {}
 
     def centres(k: int) -> NDArray:
         if k not in cache:
             cache[k] = _centres(*detections(frames[k][0]), settings)
         return cache[k]
+
+    def compare(j: int, k: int) -> tuple[float, float]:
+        """(continuity, pan) of frames j and k, each pair searched once (candidate windows overlap)."""
+        if (j, k) not in compared:
+            compared[(j, k)] = _compare(centres(j), centres(k), settings.match_frac)
+        return compared[(j, k)]
 
     for i in sharp:
         t0, t1 = track.t[i], track.t[i + 1]
@@ -190,18 +204,17 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
             inside = np.flatnonzero((tau > t0 - ext) & (tau < t1 + ext))
         if not hidden:
             continue  # every frame has a sample of its own side of the jump
+        report.intervals += 1
         if hidden < settings.min_frames:
-            report.intervals += 1
             report.too_few_frames += 1
             continue  # too few frames between the samples to tell a cut from a turn
-        report.intervals += 1
         # each frame k of the interval (and the one after it: the cut may fall on either end) against the last
         # frame before it with two boxes or more (blur empties the frames of a jump)
         conts: dict[int, tuple[int, float]] = {}
         for k in range(max(int(inside[0]), 1), min(int(inside[-1]) + 2, len(frames))):
             prev = next((j for j in range(k - 1, max(k - 2 - _LOOKAHEAD, -1), -1) if len(centres(j)) >= 2), None)
             if prev is not None and max(len(centres(prev)), len(centres(k))) >= settings.min_boxes:
-                conts[k] = (prev, continuity(centres(prev), centres(k), settings.match_frac))
+                conts[k] = (prev, compare(prev, k)[0])
         if not conts:
             continue
         # the image pan per frame a smooth turn through the interval would show: a cut needs a still view beside it
@@ -210,7 +223,7 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
         turn_deg = max(abs(float(values[i + 1, 3] - values[i, 3])) * math.cos(pitch),
                        abs(float(values[i + 1, 4] - values[i, 4])))
         still_px = settings.still_frac * math.sqrt(camera.fx * camera.fy) * math.radians(turn_deg) / hidden
-        cut = _find_cut(conts, centres, len(frames), settings, still_px)
+        cut = _find_cut(conts, centres, compare, len(frames), settings, still_px)
         if cut is None:
             continue
         report.cuts += 1
@@ -225,11 +238,13 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
     return out
 
 
-def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDArray], n_frames: int,
-              settings: ViewCutSettings, still_px: float = math.inf) -> int | None:
+def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDArray],
+              compare: Callable[[int, int], tuple[float, float]], n_frames: int, settings: ViewCutSettings,
+              still_px: float) -> int | None:
     """The frame of an interval where the view jumped, or None.
 
-    conts: each candidate frame's previous frame with boxes and its continuity with it. A candidate continues at
+    conts: each candidate frame's previous frame with boxes and its continuity with it; compare(j, k): frames j and
+    k's (continuity, pan). A candidate continues at
     most max_continuity of that frame; the new view shows within _LOOKAHEAD frames (blur through a whole sweep
     empties many more) and the frame with boxes after it does not continue the earlier frame either (else it is
     a dropout), and one side of it is a steady view: the mean continuity of the _SIDE frame pairs just before
@@ -238,20 +253,15 @@ def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDAr
     still: its median pan (`pan`) at most still_px (a smooth sweep's frames continue each other too, shifted). Of
     the candidates that qualify, the one with the steadiest side."""
 
-    def pair(j: int) -> float:
-        if not 1 <= j < n_frames or min(len(centres(j - 1)), len(centres(j))) < 2:
-            return math.nan
-        return continuity(centres(j - 1), centres(j), settings.match_frac)
-
     def steady(js: range) -> float:
-        values = [v for v in (pair(j) for j in js) if math.isfinite(v)]
-        if not values:
+        # pairs of frames with two boxes or more each: their continuity and pan
+        pairs = [compare(j - 1, j) for j in js
+                 if 1 <= j < n_frames and min(len(centres(j - 1)), len(centres(j))) >= 2]
+        if not pairs:
             return math.nan
-        pans = [v for v in (pan(centres(j - 1), centres(j), settings.match_frac) for j in js if 1 <= j < n_frames)
-                if math.isfinite(v)]
-        if pans and float(np.median(pans)) > still_px:
+        if float(np.median([p for _, p in pairs])) > still_px:
             return math.nan  # the view pans through the interval: a turn, not a still view beside a cut
-        return float(np.mean(values))
+        return float(np.mean([c for c, _ in pairs]))
 
     best, best_side = None, -math.inf
     for cut, (prev, c) in conts.items():
@@ -261,7 +271,7 @@ def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDAr
         if after is None:
             if not len(centres(cut)):
                 continue  # no view after it for a while: blur through a sweep, not a jump's few frames
-        elif continuity(centres(prev), centres(after), settings.match_frac) > settings.max_continuity:
+        elif compare(prev, after)[0] > settings.max_continuity:
             continue  # the view goes on after it: a dropout, not a jump
         side = np.nanmax([steady(range(prev - _SIDE + 1, prev + 1)), steady(range(cut + 1, cut + 1 + _SIDE)),
                           -math.inf])
