@@ -112,16 +112,17 @@ def joint_score(evidence: NDArray, prior_score: float, boost_mode: str, boost_we
 
 def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, pose: Pose, t: float,
                 range_m: float, min_value: float, cover_uavs: int,
-                smoothing_m: float) -> tuple[NDArray, NDArray, NDArray]:
+                smoothing_m: float, terrain: GroundSurface | None = None) -> tuple[NDArray, NDArray, NDArray]:
     """Peaks of the other UAVs' evidence of one class inside the footprint's bounding box.
 
     Returns global cells (gx, gy float64, cell centres) and others' evidence (float32) of the local
     maxima (3 x 3) of `others_evidence` (with the other UAVs' coverage when the joint layer has their
     footprints, cover_uavs otherwise) with evidence >= min_value, strongest first. The evidence is
     smoothed by a Gaussian of smoothing_m (m, standard deviation) before looking for the maxima.
+    terrain: the footprint is cast onto it (a view over falling ground reaches farther than over flat).
     """
     grid: TileGrid = joint.grid
-    poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8)
+    poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8, terrain=terrain)
     lat, lon = local_to_latlon(poly[:, 0], poly[:, 1], pose.lat, pose.lon)
     gx, gy = grid.latlon_to_cell_index(lat, lon)
     gx0, gy0 = int(gx.min()) - 1, int(gy.min()) - 1
@@ -423,7 +424,7 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
     boxes, scores, cids, lats, lons = [], [], [], [], []
     for cid, cls in class_names.items():
         pgx, pgy, evidence = _view_peaks(joint, memory, cls, camera, pose, t, range_m, min_value, cover_uavs,
-                                         cfg.joint_peak_smoothing_m)
+                                         cfg.joint_peak_smoothing_m, terrain)
         if len(evidence) == 0:
             continue
         plat, plon = joint.grid.cell_to_latlon(pgx, pgy)

@@ -35,7 +35,7 @@ from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink, encode_tracks_with_gid
-from shared.geo import Camera, Pose, footprint_latlon
+from shared.geo import Camera, GroundSurface, Pose, footprint_latlon
 from shared.keys import DEFAULT_PREFIX, KeySpace, validate_uav_id
 from shared.messages import (
     CameraInfo,
@@ -194,13 +194,15 @@ class AgentSettings:
 # ---------------------------------------------------------------------------------------------
 
 def state_message(uav: str, t: float, pose: Pose, camera: Camera, *, range_m: float,
-                  footprint_points: int = 32) -> StateMessage:
+                  footprint_points: int = 32, terrain: GroundSurface | None = None) -> StateMessage:
     """The state message of a UAV at time t (seconds) with its camera pose.
 
     The footprint is the image border cast on the ground up to ``range_m`` (the pipeline's
     georeferencing range), ``footprint_points`` vertices ``(lat, lon)``; heading is sent in [0, 360).
+    terrain: the pipeline's terrain (`--dem`): the border is cast onto it (shared.geo.footprint_latlon).
     """
-    polygon = footprint_latlon(camera, pose, max_range_m=range_m, samples_per_edge=footprint_points // 4)
+    polygon = footprint_latlon(camera, pose, max_range_m=range_m, samples_per_edge=footprint_points // 4,
+                               terrain=terrain)
     return StateMessage(
         uav=uav, t=t, lat=pose.lat, lon=pose.lon, height_m=pose.height_m, pitch_deg=pose.pitch_deg,
         heading_deg=pose.heading_deg % 360.0,
@@ -509,7 +511,7 @@ class AgentNode:
         if self._last_pose is not None:
             t_pose, pose, camera = self._last_pose
             state = state_message(s.uav_id, t_pose, pose, camera, range_m=self.pipeline.config.range_limit_m,
-                                  footprint_points=s.footprint_points)
+                                  footprint_points=s.footprint_points, terrain=self.pipeline.terrain_for(pose))
             messages.append(("state", self.link.state_key(), encode_state(state)))
         names = self.pipeline.class_names
         msg = tracks_message(s.uav_id, t, self._tracks, names)

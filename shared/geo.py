@@ -384,13 +384,18 @@ def image_border(camera: Camera, samples_per_edge: int = 32) -> FloatArray:
 
 
 def footprint_local(
-    camera: Camera, pose: Pose, *, max_range_m: float = 500.0, samples_per_edge: int = 32
+    camera: Camera, pose: Pose, *, max_range_m: float = 500.0, samples_per_edge: int = 32,
+    terrain: GroundSurface | None = None,
 ) -> FloatArray:
     """Ground footprint of the frame as a polygon in local east/north metres, (M, 2).
 
     The image border is cast onto the ground; rays that pass the horizon or land farther than
     max_range_m are cut to the point at max_range_m along their azimuth, so the polygon is the
     visible ground within that range.
+    terrain: cast the border onto this surface instead (the first hit of each border ray); a border ray
+    that meets no terrain within range (it passes every height in reach, or leaves the DEM first) keeps
+    the flat footprint's point. The polygon is the outline: ground the terrain hides inside it is not cut
+    out. Without a terrain the result is bit-identical to the flat footprint.
     """
     if max_range_m <= 0:
         raise ValueError(f"max_range_m must be > 0, got {max_range_m!r}")
@@ -401,14 +406,20 @@ def footprint_local(
         t = np.where(rays[:, 2] < -s, -pose.height_m / rays[:, 2], np.inf)
         reach = np.minimum(t * horiz, max_range_m)
         scale = np.where(horiz > 1e-12, reach / horiz, 0.0)
-    return np.column_stack([rays[:, 0] * scale, rays[:, 1] * scale])
+    polygon = np.column_stack([rays[:, 0] * scale, rays[:, 1] * scale])
+    if terrain is not None:
+        east, north, _, hit = terrain.intersect_rays(rays, pose, max_range_m)
+        polygon[hit, 0] = east[hit]
+        polygon[hit, 1] = north[hit]
+    return polygon
 
 
 def footprint_latlon(
-    camera: Camera, pose: Pose, *, max_range_m: float = 500.0, samples_per_edge: int = 32
+    camera: Camera, pose: Pose, *, max_range_m: float = 500.0, samples_per_edge: int = 32,
+    terrain: GroundSurface | None = None,
 ) -> FloatArray:
     """Ground footprint polygon as (M, 2) [lat, lon] degrees (see footprint_local)."""
-    en = footprint_local(camera, pose, max_range_m=max_range_m, samples_per_edge=samples_per_edge)
+    en = footprint_local(camera, pose, max_range_m=max_range_m, samples_per_edge=samples_per_edge, terrain=terrain)
     lat, lon = local_to_latlon(en[:, 0], en[:, 1], pose.lat, pose.lon)
     return np.column_stack([lat, lon])
 

@@ -86,7 +86,8 @@ class CoopFusion:
                 self.joint.put(uav, (cls, message.z, x, y), values, message.t, message.seq)
             if uav in poses:
                 pose, camera = poses[uav]
-                state = state_message(uav, t, pose, camera, range_m=pipe.config.range_limit_m)
+                state = state_message(uav, t, pose, camera, range_m=pipe.config.range_limit_m,
+                                      terrain=pipe.terrain_for(pose))
                 self.joint.put_footprint(uav, state.footprint)
                 self.footprints[uav] = state.footprint
         updates, _ = self.joint.step()

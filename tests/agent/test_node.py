@@ -138,6 +138,20 @@ def test_state_message_has_the_footprint_and_camera():
     assert 0 <= state_message("u", 0.0, Pose(LAT, LON, 30.0, 60.0, -20.0), CAMERA, range_m=100).heading_deg < 360
 
 
+def test_state_message_footprint_follows_the_terrain():
+    """Over a DEM (`--dem`) the footprint is cast onto the terrain: ground rising ahead ends it sooner."""
+    from shared.terrain import ElevationGrid, Terrain
+    axis = np.arange(-200.0, 201.0, 2.0)
+    _, north = np.meshgrid(axis, axis[::-1])
+    grid = ElevationGrid.from_local(300.0 + 0.3 * north, LAT, LON, west_m=-200.0, north_m=200.0, cell_m=2.0)
+    pose = Pose(lat=LAT, lon=LON, height_m=30.0, pitch_deg=40.0, heading_deg=0.0)
+    flat = state_message("uav1", 1.0, pose, CAMERA, range_m=150.0)
+    hilly = state_message("uav1", 1.0, pose, CAMERA, range_m=150.0, terrain=Terrain(grid, 300.0))
+    far_flat = max(p[0] for p in flat.footprint)
+    far_hilly = max(p[0] for p in hilly.footprint)
+    assert far_hilly < far_flat - 10.0 / 111_000  # the far edge is more than 10 m nearer
+
+
 def track(track_id: int, lat: float, lon: float, *, cls: int = 1, score: float = 1.4, confirmed: bool = True):
     return TrackOutput(track_id, cls, (0.0, 0.0, 1.0, 1.0), lat, lon, (0.5, -0.5), score, confirmed, True)
 

@@ -15,6 +15,9 @@ from scipy.ndimage import gaussian_filter
 from shared.geo import (
     Camera,
     Pose,
+    footprint_latlon,
+    footprint_local,
+    image_border,
     latlon_to_local,
     latlon_to_pixel,
     local_to_latlon,
@@ -300,3 +303,44 @@ def test_effective_height_is_the_pose_height_on_flat_ground_and_shrinks_on_a_slo
     gx, gy = east_slope.gradient(np.array([3.3, -40.0]), np.array([7.1, 12.0]), pose)
     np.testing.assert_allclose(gx, 0.2, atol=1e-9)
     np.testing.assert_allclose(gy, 0.0, atol=1e-9)
+
+
+# ----------------------------------------------------------------------------- footprint
+
+def test_the_footprint_on_a_flat_dem_is_the_flat_footprint():
+    grid = local_grid(np.full((2 * HALF_M + 1, 2 * HALF_M + 1), 512.0))
+    pose = pose_at(5.0, -7.0, height_m=40.0, pitch_deg=35.0, heading_deg=200.0, roll_deg=3.0)
+    flat = footprint_local(CAM, pose, max_range_m=120.0, samples_per_edge=16)
+    on_dem = footprint_local(CAM, pose, max_range_m=120.0, samples_per_edge=16, terrain=Terrain(grid, 512.0))
+    np.testing.assert_allclose(on_dem, flat, atol=1e-6)
+    assert np.array_equal(footprint_latlon(CAM, pose, max_range_m=120.0),
+                          footprint_latlon(CAM, pose, max_range_m=120.0, terrain=None))
+
+
+def test_the_footprint_on_rising_ground_is_nearer_and_lies_on_the_border_rays():
+    axis = np.arange(-HALF_M, HALF_M + 1, dtype=float)
+    _, north = np.meshgrid(axis, axis[::-1])
+    heights = 100.0 + 0.2 * north  # rises 20 m per 100 m to the north
+    terrain = Terrain(local_grid(heights), 100.0)
+    pose = pose_at(0.0, 0.0, height_m=40.0, pitch_deg=45.0, heading_deg=0.0)
+    flat = footprint_local(CAM, pose, max_range_m=140.0, samples_per_edge=8)
+    hilly = footprint_local(CAM, pose, max_range_m=140.0, samples_per_edge=8, terrain=terrain)
+    # the far (top) edge meets the rising ground before the flat plane
+    top = slice(0, 8)
+    assert (hilly[top, 1] < flat[top, 1] - 5.0).all()
+    # every vertex is where its border pixel's ray meets the terrain
+    uv, ok = local_to_pixel(hilly[:, 0], hilly[:, 1], CAM, pose, terrain=terrain)
+    assert ok.all()
+    border = image_border(CAM, 8)
+    np.testing.assert_allclose(uv, border, atol=1e-6)
+
+
+def test_footprint_rays_that_miss_the_terrain_keep_the_flat_point():
+    grid = local_grid(random_dem(3, 10.0, 5.0, 0.1))
+    pose = pose_at(0.0, 0.0, height_m=30.0, pitch_deg=10.0, heading_deg=90.0)
+    flat = footprint_local(CAM, pose, max_range_m=400.0, samples_per_edge=8)
+    hilly = footprint_local(CAM, pose, max_range_m=400.0, samples_per_edge=8, terrain=Terrain(grid))
+    _, _, hit = pixel_to_local(image_border(CAM, 8), CAM, pose, max_range_m=400.0, terrain=Terrain(grid))
+    assert hit.any() and not hit.all()  # the top edge passes the DEM's edge, the bottom meets the terrain
+    np.testing.assert_array_equal(hilly[~hit], flat[~hit])
+    assert np.isfinite(hilly).all()
