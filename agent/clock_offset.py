@@ -25,7 +25,7 @@ from numpy.typing import NDArray
 
 from agent.boxes import nms
 from agent.dataset import Candidates, Dataset, Frame, PoseProblem, VideoTelemetry, iter_video_frames
-from shared.geo import Camera, Pose, latlon_to_local, pixel_to_local
+from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, pixel_to_local
 
 __all__ = ["ClockOffset", "ClockOffsetEstimator", "ClockOffsetSettings", "HeadingTrack", "retime_frames",
            "video_frames"]
@@ -328,9 +328,10 @@ def _parabolic_argmin(grid: NDArray, values: NDArray) -> float:
 
 
 def frame_points(frame: Frame, boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray,
-                 settings: ClockOffsetSettings) -> NDArray:
+                 settings: ClockOffsetSettings, terrain: GroundSurface | None = None) -> NDArray:
     """Ground points (N, 2) east/north metres relative to the point below the UAV, raw telemetry, of the
-    frame's confident candidates (NMS'd, bottom-centre anchors, at most max_points); (0, 2) without pose."""
+    frame's confident candidates (NMS'd, bottom-centre anchors, at most max_points); (0, 2) without pose.
+    terrain: the rays meet it instead of flat ground (`--dem`)."""
     if frame.pose is None or not len(scores):
         return np.zeros((0, 2))
     keep = np.flatnonzero(np.asarray(scores) >= settings.min_score)
@@ -341,13 +342,15 @@ def frame_points(frame: Frame, boxes_xyxy: NDArray, scores: NDArray, class_ids: 
     idx = keep[kept]
     b = np.asarray(boxes_xyxy, dtype=np.float64)[idx]
     uv = np.stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 3]], axis=1)
-    e, n, valid = pixel_to_local(uv, frame.camera, frame.pose)
+    e, n, valid = pixel_to_local(uv, frame.camera, frame.pose, terrain=terrain)
     return np.stack([e[valid], n[valid]], axis=1)
 
 
 def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArray, NDArray, NDArray]],
                   settings: ClockOffsetSettings | None = None, *,
-                  windows_out: list[int] | None = None) -> list[tuple[Frame, ClockOffset | None]]:
+                  windows_out: list[int] | None = None,
+                  terrain_for: Callable[[Pose], GroundSurface | None] | None = None
+                  ) -> list[tuple[Frame, ClockOffset | None]]:
     """The video's frames with poses re-timed by the online clock-offset estimate.
 
     frames: one video's frames in time order; candidates(frame) -> (boxes_xyxy (K, 4), scores (K,),
@@ -357,7 +360,8 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
     interpolated at t + offset (with the video's telemetry track, agent.telemetry_clock: the whole pose)
     and pose_t = t. Frames without pose are returned unchanged with None. windows_out: the number of
     informative windows found is appended (the estimate's evidence; below min_windows it stood down and
-    every frame keeps fallback_s).
+    every frame keeps fallback_s). terrain_for(pose): the terrain the detections' ground points lie on
+    (DetectionPipeline.terrain_for with `--dem`); None: flat ground.
     """
     settings = settings or ClockOffsetSettings()
     track = HeadingTrack.from_frames(frames)
@@ -372,7 +376,8 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
             origin = (fr.pose.lat, fr.pose.lon)
         online.append(est.offset_at(fr.t))
         uav = np.array([float(v) for v in latlon_to_local(fr.pose.lat, fr.pose.lon, *origin)])
-        est.add(fr.t, frame_points(fr, *candidates(fr), settings), uav, fr.pose.heading_deg)
+        terrain = None if terrain_for is None else terrain_for(fr.pose)
+        est.add(fr.t, frame_points(fr, *candidates(fr), settings, terrain), uav, fr.pose.heading_deg)
     offsets = online
     if windows_out is not None:
         windows_out.append(len(est.windows))
@@ -405,13 +410,14 @@ def retime_frames(frames: list[Frame], candidates: Callable[[Frame], tuple[NDArr
 
 def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Candidates,
                  settings: ClockOffsetSettings | None, *, problems: list[PoseProblem] | None = None,
-                 dequantize: bool = False, at_frame_time: bool = True,
-                 report: VideoTelemetry | None = None) -> list[tuple[Frame, ClockOffset | None]]:
+                 dequantize: bool = False, at_frame_time: bool = True, report: VideoTelemetry | None = None,
+                 terrain_for: Callable[[Pose], GroundSurface | None] | None = None
+                 ) -> list[tuple[Frame, ClockOffset | None]]:
     """One video's frames (`iter_video_frames`: telemetry on the frame clock, unusable meta appended to
     problems, quantised GPS and altitude made continuous when dequantize, poses at the frames' times unless
     not at_frame_time), re-timed by the clock-offset estimate when settings are given (`retime_frames`; its
     detections: the candidates), else as they are, with None. report: filled as `iter_video_frames` does,
-    with the clock offset's informative windows."""
+    with the clock offset's informative windows. terrain_for: as `retime_frames` takes it."""
     info = report if report is not None else VideoTelemetry()
     frames = list(iter_video_frames(dataset, camera, video_id, problems=problems, dequantize=dequantize,
                                     at_frame_time=at_frame_time, report=info))
@@ -421,6 +427,7 @@ def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Ca
     if settings is None:
         return [(f, None) for f in frames]
     windows: list[int] = []
-    out = retime_frames(frames, lambda f: candidates.get(f.image.id), settings, windows_out=windows)
+    out = retime_frames(frames, lambda f: candidates.get(f.image.id), settings, windows_out=windows,
+                        terrain_for=terrain_for)
     info.offset_windows = windows[0] if windows else 0
     return out

@@ -27,9 +27,11 @@ def prepared_frames(dataset: Dataset, camera: Camera, video_id: int, candidates:
     (`DetectionPipeline.prime`: the size filter's check and the score calibration's input check decide on
     the whole video). problems and report: as `video_frames` fills them."""
     info = report if report is not None else VideoTelemetry()
+    # over a --dem terrain the clock-offset estimate puts the detections on it, as the pipeline does
+    terrain_for = pipe.terrain_for if pipe is not None and config.terrain is not None else None
     frames = video_frames(dataset, camera, video_id, candidates, config.clock_offset_settings(), problems=problems,
                           dequantize=config.dequantize_telemetry, at_frame_time=config.telemetry_at_frame_time,
-                          report=info)
+                          report=info, terrain_for=terrain_for)
     if config.view_cuts:
         cuts = ViewCutReport()
         frames = place_view_cuts(frames, lambda f: candidates.get(f.image.id), report=cuts)

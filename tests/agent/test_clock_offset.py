@@ -11,6 +11,7 @@ import pytest
 from agent.clock_offset import ClockOffsetSettings, HeadingTrack, retime_frames
 from agent.dataset import Frame, ImageRecord
 from shared.geo import Camera, Pose, local_to_pixel
+from shared.terrain import ElevationGrid, Terrain
 
 FPS = 30.0
 TELEMETRY_HZ = 10.0
@@ -97,3 +98,35 @@ def test_retimed_poses_carry_the_heading_at_frame_time_plus_the_offset() -> None
 def test_bad_settings_name_the_field(field: str, value: object) -> None:
     with pytest.raises(ValueError, match=field):
         ClockOffsetSettings(**{field: value})  # type: ignore[arg-type]
+
+
+def _hill_clip(offset_s: float) -> tuple[list[Frame], dict[int, tuple], Terrain]:
+    """_clip's sweeps over ground that rises 12 m per 100 m towards the north-east, the objects standing on it."""
+    axis = np.arange(-150.0, 151.0, 1.0)
+    east_g, north_g = np.meshgrid(axis, axis[::-1])
+    heights = 200.0 + 0.12 * (east_g + north_g) / math.sqrt(2.0)
+    terrain = Terrain(ElevationGrid.from_local(heights, 0.0, 0.0, west_m=-150.0, north_m=150.0, cell_m=1.0), 200.0)
+    frames, _ = _clip(True, offset_s)
+    rng = np.random.default_rng(0)
+    ang = rng.uniform(-20.0, 75.0, 40)
+    rng_m = rng.uniform(40.0, 70.0, 40)
+    east, north = rng_m * np.sin(np.radians(ang)), rng_m * np.cos(np.radians(ang))
+    dets = {}
+    for i, frame in enumerate(frames):
+        true_pose = Pose(0.0, 0.0, HEIGHT_M, PITCH_DEG, _heading(frame.t, True) % 360.0)
+        uv, valid = local_to_pixel(east, north, CAMERA, true_pose, terrain=terrain)
+        inside = valid & (uv[:, 0] > 20) & (uv[:, 0] < CAMERA.width - 20) & (uv[:, 1] > 20) & (uv[:, 1] < CAMERA.height)
+        uv = uv[inside]
+        boxes = np.column_stack([uv[:, 0] - 8, uv[:, 1] - 24, uv[:, 0] + 8, uv[:, 1]]).astype(np.float32)
+        dets[i] = (boxes, np.full(len(boxes), 0.9, np.float32), np.zeros(len(boxes), np.int64))
+    return frames, dets, terrain
+
+
+def test_over_a_terrain_the_offset_is_recovered_with_the_detections_on_it() -> None:
+    frames, dets, terrain = _hill_clip(0.3)
+    out = retime_frames(frames, lambda f: dets[f.image.id], ClockOffsetSettings(), terrain_for=lambda _: terrain)
+    offsets = [o for _, o in out if o is not None]
+    assert sum(o.measured for o in offsets) > 0
+    assert offsets[-1].offset_s == pytest.approx(0.3, abs=0.05)
+    flat = [o for _, o in retime_frames(frames, lambda f: dets[f.image.id], ClockOffsetSettings()) if o is not None]
+    assert abs(offsets[-1].offset_s - 0.3) <= abs(flat[-1].offset_s - 0.3) + 0.01
