@@ -283,6 +283,15 @@ class DetectionPipeline:
             cached = self.__dict__["_score_calibration"] = (cfg, ScoreCalibration(cfg.calibration_settings()))
         return cached[1]
 
+    def joint_registration_offset_px(self) -> tuple[float, float] | None:
+        """The joint registration's current image offset of the other UAVs' evidence from this UAV's detections,
+        (x, y) pixels (agent.joint_detections.JointRegistration); None before the first frame with joint detections."""
+        registration = self.__dict__.get("_joint_registration")
+        if registration is None:
+            return None
+        ox, oy = registration.offset()
+        return ox * self._focal_px, oy * self._focal_px
+
     def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float) -> FrameResult:
         """The frame's detections plus the joint map's (agent.joint_detections)."""
         assert self.joint is not None

@@ -35,7 +35,8 @@ from agent.stage_report import StageReport
 __all__ = ["ViewCutSettings", "ViewCutReport", "continuity", "pan", "place_view_cuts"]
 
 _MATCH_FRAC = 0.5
-#: frames looked ahead for the next one with boxes after a candidate cut
+#: frames (at least; ViewCutSettings.max_gap_s) looked back for the old view's last frame with boxes and ahead for
+#: the new view's next one
 _LOOKAHEAD = 5
 #: frame pairs on each side of a candidate cut that show whether the view there is steady
 _SIDE = 4
@@ -58,7 +59,10 @@ class ViewCutSettings:
     needs this many frames between its samples: at 2 fps a smooth turn of 24 deg moves the boxes as far from one
     frame to the next as a cut does (the real dev file has one). still_frac: the view beside a cut must pan at
     most this share of what a smooth turn through the interval would show per frame (sweeps logged at 1 Hz have
-    boxes that continue, shifted, and blur that empties frames like a jump's)."""
+    boxes that continue, shifted, and blur that empties frames like a jump's). max_gap_s: the old view's last
+    frame with boxes and the new view's first may lie this far apart (at least _LOOKAHEAD frames): a gimbal turn
+    of 0.1-0.45 s blurs 3-13 frames at 30 fps empty; longer empty stretches are blur through a sweep, whose
+    views beside it a cut would misplace (1.0 s placed false cuts in a 1 Hz sweep domain)."""
 
     min_turn_deg: float = 20.0
     min_score: float = 0.3
@@ -71,10 +75,11 @@ class ViewCutSettings:
     min_interval_s: float = 0.25
     min_frames: int = 4
     still_frac: float = 0.5
+    max_gap_s: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("min_turn_deg", "min_score", "match_frac", "max_continuity", "cut_margin", "reach",
-                     "min_interval_s", "still_frac"):
+                     "min_interval_s", "still_frac", "max_gap_s"):
             value = getattr(self, name)
             if not (math.isfinite(value) and value >= 0):
                 raise ValueError(f"ViewCutSettings.{name}={value!r} must be a finite number >= 0")
@@ -211,8 +216,11 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
         # each frame k of the interval (and the one after it: the cut may fall on either end) against the last
         # frame before it with two boxes or more (blur empties the frames of a jump)
         conts: dict[int, tuple[int, float]] = {}
+        # frames a jump's blur may empty between the old view and the new one: _LOOKAHEAD, or max_gap_s at the
+        # interval's frame rate
+        gap = max(_LOOKAHEAD, math.ceil(settings.max_gap_s * hidden / (t1 - t0)))
         for k in range(max(int(inside[0]), 1), min(int(inside[-1]) + 2, len(frames))):
-            prev = next((j for j in range(k - 1, max(k - 2 - _LOOKAHEAD, -1), -1) if len(centres(j)) >= 2), None)
+            prev = next((j for j in range(k - 1, max(k - 2 - gap, -1), -1) if len(centres(j)) >= 2), None)
             if prev is not None and max(len(centres(prev)), len(centres(k))) >= settings.min_boxes:
                 conts[k] = (prev, compare(prev, k)[0])
         if not conts:
@@ -223,7 +231,7 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
         turn_deg = max(abs(float(values[i + 1, 3] - values[i, 3])) * math.cos(pitch),
                        abs(float(values[i + 1, 4] - values[i, 4])))
         still_px = settings.still_frac * math.sqrt(camera.fx * camera.fy) * math.radians(turn_deg) / hidden
-        cut = _find_cut(conts, centres, compare, len(frames), settings, still_px)
+        cut = _find_cut(conts, centres, compare, len(frames), settings, still_px, gap)
         if cut is None:
             continue
         report.cuts += 1
@@ -240,18 +248,19 @@ def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: 
 
 def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDArray],
               compare: Callable[[int, int], tuple[float, float]], n_frames: int, settings: ViewCutSettings,
-              still_px: float) -> int | None:
+              still_px: float, gap: int = _LOOKAHEAD) -> int | None:
     """The frame of an interval where the view jumped, or None.
 
-    conts: each candidate frame's previous frame with boxes and its continuity with it; compare(j, k): frames j and
-    k's (continuity, pan). A candidate continues at
-    most max_continuity of that frame; the new view shows within _LOOKAHEAD frames (blur through a whole sweep
-    empties many more) and the frame with boxes after it does not continue the earlier frame either (else it is
-    a dropout), and one side of it is a steady view: the mean continuity of the _SIDE frame pairs just before
-    it, or of those just after it (pairs with a frame of fewer than two boxes, as blur leaves, do not count), is
-    at least cut_margin above the candidate's (a view of false positives alone continues nothing, anywhere), and
-    still: its median pan (`pan`) at most still_px (a smooth sweep's frames continue each other too, shifted). Of
-    the candidates that qualify, the one with the steadiest side."""
+    conts: each candidate frame's previous frame with boxes and its continuity with it; compare(j, k): frames j
+    and k's (continuity, pan); gap: how many frames a jump's blur may empty (the previous frame with boxes was
+    looked for that far back). A candidate continues at most max_continuity of that frame; the new view shows
+    within gap frames of that frame (blur through a whole sweep empties many more); the frame with boxes after
+    the candidate does not continue the earlier frame either (else it is a dropout); and one side of it is a
+    steady view: the mean continuity of the _SIDE frame pairs just before it, or of those just after it (pairs
+    with a frame of fewer than two boxes, as blur leaves, do not count), is at least cut_margin above the
+    candidate's (a view of false positives alone continues nothing, anywhere), and still: its median pan (`pan`)
+    at most still_px (a smooth sweep's frames continue each other too, shifted). Of the candidates that qualify,
+    the one with the steadiest side."""
 
     def steady(js: range) -> float:
         # pairs of frames with two boxes or more each: their continuity and pan
@@ -267,12 +276,14 @@ def _find_cut(conts: dict[int, tuple[int, float]], centres: Callable[[int], NDAr
     for cut, (prev, c) in conts.items():
         if not c <= settings.max_continuity:
             continue
-        after = next((j for j in range(cut + 1, min(cut + 1 + _LOOKAHEAD, n_frames)) if len(centres(j))), None)
+        after = next((j for j in range(cut + 1, min(cut + 1 + gap, n_frames)) if len(centres(j))), None)
         if after is None:
             if not len(centres(cut)):
                 continue  # no view after it for a while: blur through a sweep, not a jump's few frames
         elif compare(prev, after)[0] > settings.max_continuity:
             continue  # the view goes on after it: a dropout, not a jump
+        elif not len(centres(cut)) and after - prev > gap + 1:
+            continue  # the old view's last boxes and the new view's first further apart than a jump's blur
         side = np.nanmax([steady(range(prev - _SIDE + 1, prev + 1)), steady(range(cut + 1, cut + 1 + _SIDE)),
                           -math.inf])
         if side >= c + settings.cut_margin and side > best_side:

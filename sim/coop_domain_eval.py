@@ -24,7 +24,7 @@ DETECTOR, OWN, JOINT = "baseline", "own memory map", "joint map + joint detectio
 VARIANTS = (DETECTOR, OWN, JOINT)
 #: Issue 30's bars: the weaker UAV's joint map over its own map (AP50 points), the others' least change.
 JOINT_GAIN_BAR, STRONG_LOSS_BAR = 5.0, -0.5
-_METRICS = ("AP50", "AP50_hidden_ignored", "hidden_detected")
+_METRICS = ("AP50", "AP50_hidden_ignored", "hidden_detected", "registration_offset_px", "registration_left_px")
 
 
 def ensure_coop_domain_dataset(domain: CoopDomain, seed: int, noise_scale: float, cache_dir: Path) -> Path:
@@ -49,7 +49,7 @@ def summarise(rows: list[dict[str, Any]], domains: list[CoopDomain]) -> list[dic
             for variant in VARIANTS:
                 rs = [r for r in rows if r["domain"] == d.name and r["uav"] == uav and r["variant"] == variant]
                 for m in _METRICS:
-                    values = [r[m] for r in rs if r[m] == r[m]]
+                    values = [r[m] for r in rs if m in r and r[m] == r[m]]
                     row[f"{m}|{variant}"] = statistics.fmean(values) if values else float("nan")
             row["gain"] = row[f"AP50|{JOINT}"] - row[f"AP50|{OWN}"]
             out.append(row)
@@ -76,19 +76,23 @@ def markdown(report: dict[str, Any]) -> str:
              "each UAV's frames with every object in its view as ground truth (hidden ones too); 'hidden det.' = "
              "share of the boxes of objects hidden from that UAV found with score >= 0.25. Own map: the UAV's "
              "memory map alone; joint: the joint map boosting and the joint detections (the agent's defaults), "
-             "fused as the fusion server does at 5 Hz. (w) marks the weaker UAV.", ""]
+             "fused as the fusion server does at 5 Hz. (w) marks the weaker UAV. Registration: the median offset "
+             "of the other UAVs' evidence in this UAV's image that the telemetry errors make (from the truth), "
+             "and what the joint registration leaves of it (sim.coop_registration).", ""]
     for split in ("tune", "heldout"):
         rows = [s for s in report["summary"] if s["split"] == split]
         if not rows:
             continue
         lines += [f"## {'Tuning' if split == 'tune' else 'Held-out'} domains", "",
-                  "| domain | uav | detector | own map | joint | joint - own | hidden det. own / joint |",
-                  "|---|---|---|---|---|---|---|"]
+                  "| domain | uav | detector | own map | joint | joint - own | hidden det. own / joint | "
+                  "registration offset -> left |",
+                  "|---|---|---|---|---|---|---|---|"]
         for s in rows:
             lines.append(f"| {s['domain']} | {s['uav']}{' (w)' if s['weaker'] else ''} | {s[f'AP50|{DETECTOR}']:.1f} | "
                          f"{s[f'AP50|{OWN}']:.1f} | {s[f'AP50|{JOINT}']:.1f} | "
                          f"{s['gain']:+.1f} | {_pct(s[f'hidden_detected|{OWN}'])} / "
-                         f"{_pct(s[f'hidden_detected|{JOINT}'])} |")
+                         f"{_pct(s[f'hidden_detected|{JOINT}'])} | {_px(s.get(f'registration_offset_px|{JOINT}'))} -> "
+                         f"{_px(s.get(f'registration_left_px|{JOINT}'))} |")
         lines.append("")
     if report["acceptance"]:
         lines += ["## Acceptance (held-out domains)", "", "| criterion | value | bar | ok |", "|---|---|---|---|"]
@@ -96,6 +100,10 @@ def markdown(report: dict[str, Any]) -> str:
                   for a in report["acceptance"]]
         lines.append("")
     return "\n".join(lines)
+
+
+def _px(value: float | None) -> str:
+    return "-" if value is None or value != value else f"{value:.0f} px"
 
 
 def _pct(value: float) -> str:

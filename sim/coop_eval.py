@@ -35,6 +35,7 @@ from fusion_server.rules import get_fusion_rule
 from shared.geo import Camera
 from shared.tilecodec import decode_tile
 from sim.coop_peaks import PEAK_BAR_M, PeakSampler, standing_objects
+from sim.coop_registration import RegistrationRecord, registration_errors
 from sim.position_error import summarise_position_errors
 from sim.terrain_eval import DEM_SUFFIX, terrain_of
 from sim.track_eval import (
@@ -102,7 +103,8 @@ class CoopFusion:
 def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str = "mean",
              coverage: str = "footprint", track_boxes: dict[int, list[list[float]]] | None = None,
              dem: bool = False, on_publish: Callable[[float, JointMap, list[int]], None] | None = None,
-             tracks_out: dict[int, SequenceTracks] | None = None) -> dict[int, list[dict]]:
+             tracks_out: dict[int, SequenceTracks] | None = None,
+             registration_out: dict[int, list[RegistrationRecord]] | None = None) -> dict[int, list[dict]]:
     """Run both UAVs of a simultaneous dataset; returns COCO results per video id.
 
     share: give each UAV the joint map (fusion `rule` with `coverage`, see `CoopFusion`).
@@ -114,6 +116,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
     (`sim.terrain_eval.terrain_of`), as `--dem FILE --takeoff-elevation-m` does; else over flat earth.
     on_publish: with share, called after each publish cycle with its time, the fusion server's joint map and
     the image ids of the frames just processed (e.g. `sim.coop_peaks.PeakSampler`).
+    registration_out: with share, receives per video id each frame's joint registration estimate and telemetry
+    correction (`sim.coop_registration.registration_errors` compares them with the truth).
     """
     dataset = Dataset.load(data_dir / "images.json")
     candidates = Candidates.load(data_dir / "pre_nms.json", dataset)
@@ -151,6 +155,12 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
             pipes[vid].camera = frame.camera
             res = pipes[vid].process(*candidates.get(frame.image.id), frame.pose, frame.t)
             results[vid].extend(results_to_coco(frame.image.id, res))
+            if registration_out is not None and frame.pose is not None:
+                offset = pipes[vid].joint_registration_offset_px()
+                if offset is not None:
+                    c = res.correction
+                    registration_out.setdefault(vid, []).append(
+                        (frame.t, *offset, c.east_m if c is not None else 0.0, c.north_m if c is not None else 0.0))
             if trackers:
                 tracks = trackers[vid].update(res, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t)
                 if track_boxes is not None:
@@ -251,7 +261,10 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
     Metrics: AP50 with the hidden objects as ground truth (does the UAV report everything in its view?),
     AP50 with them as ignore regions, AP50 without them (a detection of one is a false positive), and
     the share of hidden-object boxes detected. Peaks (`sim.coop_peaks`): the joint map's object candidates as
-    the REST API's /v1/objects finds them, once a second, matched to the objects standing in view.
+    the REST API's /v1/objects finds them, once a second, matched to the objects standing in view. The joint
+    registration against the truth (`sim.coop_registration`, variants with joint detections over flat ground):
+    registration_offset_px, the others' evidence's median offset in this UAV's image, and registration_left_px,
+    what the registration leaves of it.
     config: the variants' settings (default PipelineConfig()). variants: run only these of the names (the DEM
     variants follow their flat names); track: run the GPS tracker (hidden tracked, HOTA, IDs and track position
     error; NaN without).
@@ -273,15 +286,22 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
         if unknown:
             raise ValueError(f"evaluate_coop: unknown variant(s) {', '.join(unknown)}; valid: {', '.join(_ORDER)}")
     runs, tracked, sequences, peak_rows = {}, {}, {}, []
-    for name, variant, share, dem in _variants((data_dir / "dem.npz").exists(), config or PipelineConfig()):
+    registration: dict[str, dict[str, dict[str, float]]] = {}
+    terrain = (data_dir / "dem.npz").exists()
+    for name, variant, share, dem in _variants(terrain, config or PipelineConfig()):
         if variants is not None and name.removesuffix(DEM_SUFFIX) not in variants:
             continue
         tracked[name], sequences[name] = {}, {}
         # the joint map is the same with and without joint detections (they add boxes, not evidence):
         # its peaks are measured with the default variant
         sampler = PeakSampler(standing, seen, uav_of_image) if share and variant.joint_detections else None
+        # the registration's truth is computed over flat ground (sim.coop_registration): not over a terrain
+        records: dict[int, list[RegistrationRecord]] | None = {} if sampler is not None and not terrain else None
         runs[name] = run_coop(data_dir, variant, share=share, track_boxes=tracked[name] if track else None, dem=dem,
-                              on_publish=sampler, tracks_out=sequences[name] if track else None)
+                              on_publish=sampler, tracks_out=sequences[name] if track else None,
+                              registration_out=records)
+        if records is not None:
+            registration[name] = registration_errors(data_dir, records)
         if sampler is not None:  # the objects any UAV sees, and those each sees
             for uav in (BOTH, *sorted(set(uav_of_image.values()))):
                 peak_rows.append({"variant": name, "uav": uav, "standing_objects": len(standing),
@@ -310,6 +330,9 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
                                    else float("nan")),
                 "HOTA": mot["HOTA"] if mot else float("nan"), "IDs": mot["IDs"] if mot else 0,
                 "pos_err_m": float("nan") if pos is None or pos["pos_err_m"] is None else pos["pos_err_m"],
+                # the joint registration against the truth (sim.coop_registration), variants with joint detections
+                "registration_offset_px": registration.get(name, {}).get(uav, {}).get("offset_px", float("nan")),
+                "registration_left_px": registration.get(name, {}).get(uav, {}).get("left_px", float("nan")),
             })
     return rows, peak_rows
 

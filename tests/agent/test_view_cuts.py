@@ -150,7 +150,7 @@ def test_continuity_of_an_unrelated_view_is_low() -> None:
     assert continuity(a, b) <= 0.25
 
 
-@pytest.mark.parametrize("field", ["min_turn_deg", "match_frac", "max_continuity"])
+@pytest.mark.parametrize("field", ["min_turn_deg", "match_frac", "max_continuity", "max_gap_s"])
 def test_bad_settings_are_named(field: str) -> None:
     with pytest.raises(ValueError, match=field):
         ViewCutSettings(**{field: -1.0})
@@ -216,3 +216,23 @@ def test_a_sweep_that_blur_empties_is_not_a_cut() -> None:
     out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
     assert report.intervals == 1 and report.cuts == 0
     assert np.array_equal(_headings(out), _headings(frames))
+
+
+def test_a_turn_that_blur_empties_for_a_few_tenths_is_cut_after_it() -> None:
+    # still at 10 deg, a 0.4 s gimbal turn to 70 deg whose 12 frames blur leaves without boxes, still again (the
+    # turns of grass-jumps-biased): the new view is 13 frames after the old one's last, more than 5 frames, within
+    # max_gap_s
+    frames, dets = _clip(lambda t: 10.0 + 60.0 * min(max((t - 1.3) / 0.4, 0.0), 1.0))
+    empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
+    for f, _ in frames:
+        if 1.3 < f.t < 1.7:
+            dets[f.image.id] = empty
+    report = ViewCutReport()
+    out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    assert (report.intervals, report.cuts) == (1, 1)
+    h, t = _headings(out), np.array([f.t for f, _ in out])
+    assert np.allclose(h[t <= 1.3], 10.0) and np.allclose(h[t >= 1.7], 70.0)
+    # with the new view required within 5 frames, as before, the interval kept its interpolated poses
+    report = ViewCutReport()
+    kept = place_view_cuts(frames, lambda f: dets[f.image.id], ViewCutSettings(max_gap_s=0.0), report=report)
+    assert report.cuts == 0 and np.array_equal(_headings(kept), _headings(frames))

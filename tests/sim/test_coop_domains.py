@@ -173,7 +173,12 @@ def test_a_small_domain_runs_end_to_end_from_the_cli(tmp_path, capsys):
     report = run_coop_domain_eval([small], [0], out_dir=tmp_path / "eval")
     assert {s["uav"] for s in report["summary"]} == {"uav1", "uav2"}
     assert all(0.0 <= s[f"AP50|{JOINT}"] <= 100.0 for s in report["summary"])
-    assert (tmp_path / "eval" / "report.md").read_text().startswith("# uavmm eval --tasks coop --domains")
+    # the joint registration against the truth, for the joint map's variant only
+    assert all(s[f"registration_offset_px|{JOINT}"] > 0 and s[f"registration_left_px|{JOINT}"] >= 0
+               for s in report["summary"])
+    assert all(math.isnan(s[f"registration_offset_px|{OWN}"]) for s in report["summary"])
+    text = (tmp_path / "eval" / "report.md").read_text()
+    assert text.startswith("# uavmm eval --tasks coop --domains") and " px -> " in text
     assert report["acceptance"] == []  # a tuning domain: no held-out rows
     assert main(["eval", "--tasks", "coop", "--domains", "coop-nowhere", "--out", str(tmp_path / "x")]) == 2
     assert "unknown coop domain" in capsys.readouterr().err
