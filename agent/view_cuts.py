@@ -26,6 +26,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
+from scipy.spatial import cKDTree
 
 from agent.boxes import nms
 from agent.clock_offset import ClockOffset
@@ -157,12 +158,25 @@ def _compare(a: NDArray, b: NDArray, match_frac: float) -> tuple[float, float]:
 
 def _shift_matches(a: NDArray, b: NDArray, match_frac: float) -> tuple[NDArray, NDArray]:
     """Each common shift that sends one box of a onto one of b, (S, 2) pixels, and how many of a's boxes it carries
-    onto one of b's, (S,)."""
-    shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)  # (na * nb, 2)
-    moved = a[None, :, None, :2] + shifts[:, None, None, :]  # (S, na, 1, 2)
-    dist = np.hypot(*(moved - b[None, None, :, :2]).transpose(3, 0, 1, 2))  # (S, na, nb)
-    radius = match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])  # (na, nb)
-    return shifts, (dist <= radius[None]).any(axis=2).sum(axis=1)
+    onto one of b's, (S,).
+
+    Box i of a lands on box j of b under shift s when |(b_j - a_i) - s| <= match_frac * mean diagonal: so the
+    shifts near each candidate are found among the S differences themselves with a k-d tree, O(S log S) plus the
+    pairs found, instead of moving every box by every shift (O(S * na * nb): 2.6 million distances at 40 boxes a
+    frame, 20 ms a pair)."""
+    na, nb = len(a), len(b)
+    shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)  # (na * nb, 2), row i * nb + j
+    radius = (match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])).reshape(-1)
+    owner = np.repeat(np.arange(na), nb)  # the box of a each difference moves
+    if not len(shifts):
+        return shifts, np.zeros(0, dtype=np.int64)
+    tree = cKDTree(shifts)
+    near = tree.sparse_distance_matrix(tree, float(radius.max()), output_type="coo_matrix")
+    rows, cols = near.row, near.col
+    keep = np.hypot(*(shifts[rows] - shifts[cols]).T) <= radius[cols]
+    # the self pairs (distance 0) may be left out of the sparse matrix: every shift carries its own box
+    pairs = np.unique(np.concatenate([rows[keep] * na + owner[cols[keep]], np.arange(len(shifts)) * na + owner]))
+    return shifts, np.bincount(pairs // na, minlength=len(shifts))
 
 
 def place_view_cuts(frames: list[tuple[Frame, ClockOffset | None]], detections: Detections,

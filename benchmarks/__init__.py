@@ -24,6 +24,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "hostile": "benchmarks.bench_hostile",
     "render": "benchmarks.bench_render",
     "anomaly": "benchmarks.bench_anomaly",
+    "view_cuts": "benchmarks.bench_view_cuts",
 }
 
 

@@ -236,3 +236,30 @@ def test_a_turn_that_blur_empties_for_a_few_tenths_is_cut_after_it() -> None:
     report = ViewCutReport()
     kept = place_view_cuts(frames, lambda f: dets[f.image.id], ViewCutSettings(max_gap_s=0.0), report=report)
     assert report.cuts == 0 and np.array_equal(_headings(kept), _headings(frames))
+
+
+def _brute_shift_matches(a: np.ndarray, b: np.ndarray, match_frac: float) -> tuple[np.ndarray, np.ndarray]:
+    """Every box of a moved by every candidate shift, against every box of b (the first implementation)."""
+    shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)
+    moved = a[None, :, None, :2] + shifts[:, None, None, :]
+    dist = np.hypot(*(moved - b[None, None, :, :2]).transpose(3, 0, 1, 2))
+    radius = match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])
+    return shifts, (dist <= radius[None]).any(axis=2).sum(axis=1)
+
+
+@settings(max_examples=60, deadline=None)
+@given(na=st.integers(1, 25), nb=st.integers(1, 25), seed=st.integers(0, 2**31 - 1),
+       spread=st.floats(50.0, 2000.0), match_frac=st.floats(0.1, 1.0))
+def test_the_shift_search_counts_what_moving_every_box_counts(na, nb, seed, spread, match_frac) -> None:
+    from agent.view_cuts import _shift_matches
+
+    rng = np.random.default_rng(seed)
+    a = np.column_stack([rng.uniform(0, spread, (na, 2)), rng.uniform(20, 80, na)])
+    # b: a shifted copy of part of a, jittered, plus unrelated boxes (crowds give many near shifts)
+    part = a[rng.random(na) < 0.6] + np.array([rng.uniform(-300, 300), rng.uniform(-200, 200), 0.0])
+    part[:, :2] += rng.normal(0.0, 5.0, (len(part), 2))
+    b = np.vstack([part, np.column_stack([rng.uniform(0, spread, (nb, 2)), rng.uniform(20, 80, nb)])])
+    shifts, matched = _shift_matches(a, b, match_frac)
+    ref_shifts, ref_matched = _brute_shift_matches(a, b, match_frac)
+    np.testing.assert_array_equal(shifts, ref_shifts)
+    np.testing.assert_array_equal(matched, ref_matched)
