@@ -9,7 +9,7 @@ from pathlib import Path
 
 from uavmm.csv_args import csv_list
 
-__all__ = ["run_domain_eval_command"]
+__all__ = ["coop_noise_scale", "run_domain_eval_command"]
 
 
 def run_domain_eval_command(args: argparse.Namespace) -> int:
@@ -60,14 +60,22 @@ def _run_coop_domain_eval(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise ValueError(f"--domains: {exc}") from None
     seeds = _seeds(args.seeds)
-    noise = csv_list(args.noise_scales, float, "--noise-scales")
-    if any(not (n >= 0) for n in noise):
-        raise ValueError("--noise-scales must be >= 0")
+    noise = coop_noise_scale(args.noise_scales)
     out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
-    report = run_coop_domain_eval(domains, seeds, noise_scale=noise[0], out_dir=out, progress=stderr_progress)
+    report = run_coop_domain_eval(domains, seeds, noise_scale=noise, out_dir=out, progress=stderr_progress)
     print((out / "report.md").read_text())
     print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0
+
+
+def coop_noise_scale(text: str | None) -> float:
+    """The one telemetry noise multiplier of `--tasks coop --domains` (`--noise-scales`, default 1)."""
+    noise = csv_list(text or "1", float, "--noise-scales")
+    if len(noise) != 1:
+        raise ValueError(f"--noise-scales: the cooperative domains run at one noise scale, got {text}")
+    if not noise[0] >= 0:
+        raise ValueError("--noise-scales must be >= 0")
+    return noise[0]
 
 
 def _seeds(text: str) -> list[int]:

@@ -24,6 +24,7 @@ from sim.dataset import write_dataset
 from sim.scenarios import UavSetting, get_scenario
 from sim.simulator import Simulation
 from uavmm.cli import main
+from uavmm.eval_domains import coop_noise_scale
 
 
 def _coop(**settings) -> object:
@@ -184,8 +185,20 @@ def test_a_small_domain_runs_end_to_end_from_the_cli(tmp_path, capsys):
     assert "unknown coop domain" in capsys.readouterr().err
     assert main(["eval", "--tasks", "coop,tracking", "--domains", "tune", "--out", str(tmp_path / "x")]) == 2
     assert "coop runs alone" in capsys.readouterr().err
+    assert main(["eval", "--tasks", "coop", "--domains", "tune", "--noise-scales", "1,2", "--out",
+                 str(tmp_path / "x")]) == 2
+    assert "one noise scale" in capsys.readouterr().err
     assert main(["eval", "--tasks", "coop", "--list-domains"]) == 0
     assert "| coop-glare-east | heldout |" in capsys.readouterr().out
+
+
+def test_the_coop_noise_scale_defaults_to_one():
+    # `uavmm eval --tasks coop --domains all` without --noise-scales crashed on None before 28 Nov 2026
+    assert coop_noise_scale(None) == 1.0 and coop_noise_scale("0.5") == 0.5
+    with pytest.raises(ValueError, match="one noise scale"):
+        coop_noise_scale("1,2")
+    with pytest.raises(ValueError, match=">= 0"):
+        coop_noise_scale("-1")
 
 
 def test_coop_domain_is_a_dataclass_of_its_own():
