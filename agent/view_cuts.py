@@ -171,7 +171,8 @@ def _shift_matches(a: NDArray, b: NDArray, match_frac: float) -> tuple[NDArray, 
     if not len(shifts):
         return shifts, np.zeros(0, dtype=np.int64)
     tree = cKDTree(shifts)
-    near = tree.sparse_distance_matrix(tree, float(radius.max()), output_type="coo_matrix")
+    # a hair beyond the largest radius (the tree compares squared distances): the exact test below decides
+    near = tree.sparse_distance_matrix(tree, float(radius.max()) * (1.0 + 1e-9) + 1e-12, output_type="coo_matrix")
     rows, cols = near.row, near.col
     keep = np.hypot(*(shifts[rows] - shifts[cols]).T) <= radius[cols]
     # the self pairs (distance 0) may be left out of the sparse matrix: every shift carries its own box

@@ -11,6 +11,11 @@ evidence; with several other UAVs, their mean (the registration estimates the of
 
 `registration_errors` gives per UAV the median length of the true offset (what no registration leaves) and of
 the registration's estimate minus it (what the registration leaves), in pixels.
+
+A model, not a replay: the other UAV's map holds evidence laid down under its corrections over the last seconds,
+and the model takes its latest one. The figure is sensitive to that (on a 3 s `coop-glare` clip, taking the
+other UAV's correction as zero moves what is left from 42 / 50 px to 32 / 100 px). Camera roll is not in
+truth.json: domains that roll the camera would need it. Flat ground only (datasets with a DEM are refused).
 """
 
 from __future__ import annotations
@@ -45,6 +50,9 @@ def registration_errors(data_dir: Path, records: dict[int, list[RegistrationReco
     records: per video id, each frame's registration estimate and telemetry correction (`sim.coop_eval.run_coop`'s
     registration_out). Frames without a true or noisy pose, or whose reference ray meets no ground, are skipped.
     """
+    if (data_dir / "dem.npz").exists():
+        raise ValueError(f"registration_errors: {data_dir} is over a terrain (dem.npz); the truth model here puts the "
+                         "reference pixel's ground point on flat ground")
     dataset = Dataset.load(data_dir / "images.json")
     camera = Camera.from_file(data_dir / "camera.json")
     truth = json.loads((data_dir / "truth.json").read_text())

@@ -73,8 +73,8 @@ def coop_noise_scale(text: str | None) -> float:
     noise = csv_list(text or "1", float, "--noise-scales")
     if len(noise) != 1:
         raise ValueError(f"--noise-scales: the cooperative domains run at one noise scale, got {text}")
-    if not noise[0] >= 0:
-        raise ValueError("--noise-scales must be >= 0")
+    if not (noise[0] >= 0 and noise[0] != float("inf")):
+        raise ValueError("--noise-scales must be a finite number >= 0")
     return noise[0]
 
 

@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from agent.clock_offset import ClockOffsetSettings, HeadingTrack, retime_frames
+from agent.clock_offset import ClockOffsetSettings, HeadingTrack, frame_points, retime_frames
 from agent.dataset import Frame, ImageRecord
 from shared.geo import Camera, Pose, local_to_pixel
 from shared.terrain import ElevationGrid, Terrain
@@ -120,6 +120,24 @@ def _hill_clip(offset_s: float) -> tuple[list[Frame], dict[int, tuple], Terrain]
         boxes = np.column_stack([uv[:, 0] - 8, uv[:, 1] - 24, uv[:, 0] + 8, uv[:, 1]]).astype(np.float32)
         dets[i] = (boxes, np.full(len(boxes), 0.9, np.float32), np.zeros(len(boxes), np.int64))
     return frames, dets, terrain
+
+
+def test_over_a_terrain_the_detections_are_put_on_it() -> None:
+    # the points the estimate compares lie where the objects stand on the slope, not where flat ground puts them
+    frames, dets, terrain = _hill_clip(0.0)
+    frame = frames[0]
+    frame = Frame(frame.image, Pose(0.0, 0.0, HEIGHT_M, PITCH_DEG, _heading(frame.t, True) % 360.0), frame.t,
+                  frame.camera, frame.pose_t)
+    settings = ClockOffsetSettings()
+    on_slope = frame_points(frame, *dets[0], settings, terrain)
+    flat = frame_points(frame, *dets[0], settings)
+    assert len(on_slope) == len(flat) >= 5
+    rng = np.random.default_rng(0)  # the objects of _hill_clip
+    ang, rng_m = rng.uniform(-20.0, 75.0, 40), rng.uniform(40.0, 70.0, 40)
+    objects = np.column_stack([rng_m * np.sin(np.radians(ang)), rng_m * np.cos(np.radians(ang))])
+    nearest = np.min(np.hypot(*(on_slope[:, None, :] - objects[None, :, :]).transpose(2, 0, 1)), axis=1)
+    assert nearest.max() < 0.5
+    assert np.hypot(*(flat - on_slope).T).max() > 3.0  # flat earth: metres beyond them up the slope
 
 
 def test_over_a_terrain_the_offset_is_recovered_with_the_detections_on_it() -> None:

@@ -219,9 +219,9 @@ def test_a_sweep_that_blur_empties_is_not_a_cut() -> None:
 
 
 def test_a_turn_that_blur_empties_for_a_few_tenths_is_cut_after_it() -> None:
-    # still at 10 deg, a 0.4 s gimbal turn to 70 deg whose 12 frames blur leaves without boxes, still again (the
-    # turns of grass-jumps-biased): the new view is 13 frames after the old one's last, more than 5 frames, within
-    # max_gap_s
+    # still at 10 deg, a 0.4 s gimbal turn to 70 deg whose 11 frames blur leaves without boxes, still again (the
+    # turns of grass-jumps-biased): the new view's first boxes are 12 frames after the old one's last, more than
+    # 5 frames, within max_gap_s
     frames, dets = _clip(lambda t: 10.0 + 60.0 * min(max((t - 1.3) / 0.4, 0.0), 1.0))
     empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
     for f, _ in frames:
@@ -232,7 +232,7 @@ def test_a_turn_that_blur_empties_for_a_few_tenths_is_cut_after_it() -> None:
     assert (report.intervals, report.cuts) == (1, 1)
     h, t = _headings(out), np.array([f.t for f, _ in out])
     assert np.allclose(h[t <= 1.3], 10.0) and np.allclose(h[t >= 1.7], 70.0)
-    # with the new view required within 5 frames, as before, the interval kept its interpolated poses
+    # with max_gap_s 0 (the span at most 6 frames) the interval keeps its interpolated poses
     report = ViewCutReport()
     kept = place_view_cuts(frames, lambda f: dets[f.image.id], ViewCutSettings(max_gap_s=0.0), report=report)
     assert report.cuts == 0 and np.array_equal(_headings(kept), _headings(frames))
@@ -263,3 +263,30 @@ def test_the_shift_search_counts_what_moving_every_box_counts(na, nb, seed, spre
     ref_shifts, ref_matched = _brute_shift_matches(a, b, match_frac)
     np.testing.assert_array_equal(shifts, ref_shifts)
     np.testing.assert_array_equal(matched, ref_matched)
+
+
+@pytest.mark.parametrize(("empty", "cut"), [(15, True), (16, False)])
+def test_the_gap_a_jump_may_blur_empty_ends_at_max_gap_s(empty: int, cut: bool) -> None:
+    # 30 fps, a 1 Hz log: 29 frames between two samples, so max_gap_s 0.5 allows ceil(0.5 * 29) = 15 frames without
+    # boxes between the old view's last boxes and the new view's first (a span of 16 frames, 0.53 s)
+    first = 40  # the first frame without boxes; the view jumps at the last one
+    frames, dets = _clip(_jump_at((first + empty - 1) / FPS))
+    none = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
+    for k in range(first, first + empty):
+        dets[k] = none
+    report = ViewCutReport()
+    place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
+    assert report.intervals == 1 and report.cuts == int(cut)
+
+
+@settings(max_examples=60, deadline=None)
+@given(na=st.integers(1, 12), nb=st.integers(1, 12), seed=st.integers(0, 2**31 - 1), diag=st.sampled_from([0, 2, 4]),
+       match_frac=st.sampled_from([0.0, 0.5, 1.0]))
+def test_the_shift_search_agrees_on_integer_grids_with_ties_and_duplicates(na, nb, seed, diag, match_frac) -> None:
+    # centres on a 2 px grid and diagonals of 0-4 px: duplicate boxes, shifts landing exactly on a radius, zero radii
+    from agent.view_cuts import _shift_matches
+
+    rng = np.random.default_rng(seed)
+    a = np.column_stack([2.0 * rng.integers(0, 6, (na, 2)), np.full(na, float(diag))])
+    b = np.column_stack([2.0 * rng.integers(0, 6, (nb, 2)), np.full(nb, float(diag))])
+    np.testing.assert_array_equal(_shift_matches(a, b, match_frac)[1], _brute_shift_matches(a, b, match_frac)[1])

@@ -53,3 +53,9 @@ def test_nothing_is_recorded_without_a_joint_map(datasets):
     assert records == {}
     errors = registration_errors(datasets[1.0], {1: []})
     assert errors["uav1"]["frames"] == 0 and math.isnan(errors["uav1"]["offset_px"])
+
+
+def test_a_dataset_over_a_terrain_is_refused_naming_it(tmp_path):
+    (tmp_path / "dem.npz").write_bytes(b"")
+    with pytest.raises(ValueError, match="terrain"):
+        registration_errors(tmp_path, {})
