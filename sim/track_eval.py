@@ -32,7 +32,7 @@ from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.tracking import GpsTracker, TrackerConfig
 from agent.tracking_io import frame_time_s
-from shared.geo import Camera
+from shared.geo import Camera, GroundSurface
 from sim.position_error import format_metres, frame_position_errors, mean_known, summarise_position_errors
 
 log = logging.getLogger(__name__)
@@ -160,9 +160,10 @@ def default_tracking_variants() -> list[TrackingVariant]:
 
 def pipeline_frames(dataset: Dataset, candidates: Candidates, camera: Camera, video_id: int,
                     config: PipelineConfig, size_filter: SizeFilter | None = None
-                    ) -> list[tuple[Frame, FrameResult, float]]:
-    """The pipeline's result for every frame of a video, with the frame time the tracker uses (s):
-    computed once, then given to every tracker variant."""
+                    ) -> list[tuple[Frame, FrameResult, float, GroundSurface | None]]:
+    """The pipeline's result for every frame of a video, with the frame time the tracker uses (s) and the terrain
+    the frame's boxes were put on (`--dem`; None: flat ground): computed once, then given to every tracker
+    variant."""
     pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
     out = []
     t_prev = -np.inf
@@ -172,26 +173,27 @@ def pipeline_frames(dataset: Dataset, candidates: Candidates, camera: Camera, vi
         boxes, scores, cids = candidates.get(frame.image.id)
         result = pipe.process(boxes, scores, cids, frame.pose, frame.t, candidates.get_embeddings(frame.image.id))
         t_prev = max(frame_time_s(frame), t_prev)
-        out.append((frame, result, t_prev))
+        out.append((frame, result, t_prev, None if frame.pose is None else pipe.terrain_for(frame.pose)))
     return out
 
 
-def run_tracker_on_frames(frames: list[tuple[Frame, FrameResult, float]], variant: TrackingVariant,
+def run_tracker_on_frames(frames: list[tuple[Frame, FrameResult, float, GroundSurface | None]],
+                          variant: TrackingVariant,
                           class_names: dict[int, str], fps: float) -> SequenceTracks:
     """Run one variant's tracker over pipeline results already computed for a video."""
     seq = SequenceTracks()
     t0 = time.perf_counter()
     if variant.kind == "pixel":
         pix = PixelTracker(variant.pixel, fps)
-        for frame, result, _ in frames:
+        for frame, result, _, _ in frames:
             ids, boxes, scores = pix.update(result.boxes_xyxy.astype(np.float64), result.scores.astype(np.float64),
                                             result.class_ids)
             seq.frames[frame.image.frame_index] = (ids, boxes, scores)
     elif variant.kind == "gps":
         tracker = GpsTracker(variant.tracker, class_names)
-        for frame, result, t in frames:
+        for frame, result, t, terrain in frames:
             tracks = tracker.report(tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t,
-                                                   pose_retimed=frame.pose_retimed))
+                                                   pose_retimed=frame.pose_retimed, terrain=terrain))
             seq.frames[frame.image.frame_index] = (
                 np.array([tr.id for tr in tracks], dtype=np.int64),
                 np.array([tr.box_xyxy for tr in tracks], dtype=np.float64).reshape(-1, 4),

@@ -16,7 +16,7 @@ from agent.tracking.assignment import near_pairs
 from agent.tracking.association import expected_boxes
 from agent.tracking.model import mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
-from shared.geo import Camera, Pose, latlon_to_local, local_to_pixel
+from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_pixel
 
 __all__ = ["at_image_border", "birth", "decay_unseen_quality", "merge_duplicates", "retire"]
 
@@ -94,15 +94,16 @@ def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_],
     dets.used[b] = True
 
 
-def decay_unseen_quality(state: TrackState, pose: Pose, camera: Camera) -> None:
+def decay_unseen_quality(state: TrackState, pose: Pose, camera: Camera, terrain: GroundSurface | None = None) -> None:
     """A track in view without a detection counts as a zero in its quality: persistent clutter
-    that the detector reports in part of the frames, or weakly, falls below report_quality."""
+    that the detector reports in part of the frames, or weakly, falls below report_quality. terrain: the
+    ground the tracks stand on (`--dem`; in view where their terrain point projects into the frame)."""
     act = state.active
     miss = np.flatnonzero(~act["matched"])
     if not len(miss) or state.origin is None:
         return
     uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
-    uv, ok = local_to_pixel(act["x"][miss, 0] - uav_e, act["x"][miss, 1] - uav_n, camera, pose)
+    uv, ok = local_to_pixel(act["x"][miss, 0] - uav_e, act["x"][miss, 1] - uav_n, camera, pose, terrain=terrain)
     mu, mv = state.config.unseen_margin * camera.width, state.config.unseen_margin * camera.height
     inside = ok & (uv[:, 0] >= mu) & (uv[:, 0] <= camera.width - mu) & (uv[:, 1] >= mv) \
         & (uv[:, 1] <= camera.height - mv)

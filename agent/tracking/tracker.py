@@ -29,7 +29,7 @@ from agent.tracking.model import FloatArray, MotionModels, ground_measurement_co
 from agent.tracking.registration import correction_jacobian, fit_pose_correction, image_pairs, track_offset
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
 from agent.tracking.view_jump import ViewJumpGuard
-from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon
+from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_latlon
 
 __all__ = ["GpsTracker", "TrackOutput"]
 
@@ -216,7 +216,8 @@ class GpsTracker:
 
     # ----------------------------------------------------------------------------- update
     def update(self, result: FrameResult, pose: Pose | None, t: float, camera: Camera, *,
-               pose_t: float | None = None, pose_retimed: bool = False) -> list[TrackOutput]:
+               pose_t: float | None = None, pose_retimed: bool = False,
+               terrain: GroundSurface | None = None) -> list[TrackOutput]:
         """Advance to time t and associate one frame's detections.
 
         Parameters
@@ -240,6 +241,9 @@ class GpsTracker:
             offset stands for the telemetry's latency): no turn compensation. Extrapolating it once more by
             telemetry_latency_s turned the frame's points by a turn rate differentiated from per-frame
             heading jitter (25 deg/s 1-sigma at 0.6 deg and 30 Hz) and counted the latency twice.
+        terrain : GroundSurface, optional
+            The ground the frame's detections were put on (`--dem`: DetectionPipeline.terrain_for(pose)); the
+            test whether a track without a detection is in view projects its terrain point. None: flat ground.
 
         Returns
         -------
@@ -284,7 +288,7 @@ class GpsTracker:
                 self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt,
                                       undo_en=undo, latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s)
                 merge_duplicates(state, t)
-                decay_unseen_quality(state, pose, camera)
+                decay_unseen_quality(state, pose, camera, terrain)
 
         reid.settle_probation(state)
         retire(state, t, camera)

@@ -704,3 +704,33 @@ def test_report_level_ignores_a_nan_score() -> None:
     blurred = observe([0.0, 4.0], [25.0, 25.0], pose, raw=0.2)
     outs = run(tracker, [(good, pose)] * 20 + [(bad, pose)] + [(blurred, pose)] * 30)
     assert tracker.report_threshold < 0.15 and len(tracker.report(outs[-1])) == 2
+
+
+def test_over_a_terrain_the_in_view_test_projects_the_tracks_terrain_point():
+    # a rock on an 18 m plateau 15 m ahead, reported in half of the frames at 0.5: on the terrain it is in view
+    # (38.7 deg down, the frame spans 20-60 deg at 40 deg pitch), so the frames that miss it lower its quality and
+    # it is not reported; flat earth would put it 63 deg down, out of view, and keep reporting it
+    from shared.terrain import ElevationGrid, Terrain
+
+    axis = np.arange(-60.0, 61.0, 1.0)
+    east, north = np.meshgrid(axis, axis[::-1])
+    heights = np.where((np.abs(east) <= 10.0) & (np.abs(north - 15.0) <= 8.0), 118.0, 100.0)
+    terrain = Terrain(ElevationGrid.from_local(heights, LAT0, LON0, west_m=-60.0, north_m=60.0, cell_m=1.0), 100.0)
+    pose = pose_at()
+    uv, ok = local_to_pixel(np.array([0.0]), np.array([15.0]), CAM, pose, terrain=terrain)
+    assert ok[0] and 0 < uv[0, 1] < CAM.height
+    assert not local_to_pixel(np.array([0.0]), np.array([15.0]), CAM, pose)[1][0] or \
+        local_to_pixel(np.array([0.0]), np.array([15.0]), CAM, pose)[0][0, 1] > CAM.height
+    lat, lon = local_to_latlon(0.0, 15.0, LAT0, LON0)
+    seen = FrameResult(np.array([[uv[0, 0] - 10, uv[0, 1] - 50, uv[0, 0] + 10, uv[0, 1]]], np.float32),
+                       np.array([0.5], np.float32), np.array([0.5], np.float32), np.ones(1, np.int64),
+                       np.atleast_1d(lat), np.atleast_1d(lon), 1, 0, 1)
+    reported = {}
+    for label, ground in (("terrain", terrain), ("flat", None)):
+        tracker = GpsTracker(TrackerConfig(), CLASSES)
+        out = []
+        for k in range(90):
+            out = tracker.update(seen if k % 2 else empty_result(), pose, 1.7e9 + k / FPS, CAM, terrain=ground)
+        assert any(tr.confirmed for tr in out)
+        reported[label] = len(tracker.report(out))
+    assert reported == {"terrain": 0, "flat": 1}
