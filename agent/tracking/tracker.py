@@ -215,16 +215,14 @@ class GpsTracker:
         return cfg.report_quality * min(1.0, self._level / cfg.report_level_ref)
 
     # ----------------------------------------------------------------------------- update
-    def update(self, result: FrameResult, pose: Pose | None, t: float, camera: Camera, *,
-               pose_t: float | None = None, pose_retimed: bool = False,
-               terrain: GroundSurface | None = None) -> list[TrackOutput]:
+    def update(self, result: FrameResult, pose: Pose | None, t: float, camera: Camera, *, pose_t: float | None = None,
+               pose_retimed: bool = False, terrain: GroundSurface | None = None) -> list[TrackOutput]:
         """Advance to time t and associate one frame's detections.
 
         Parameters
         ----------
         result : FrameResult
-            The pipeline's detections of the frame (boxes, boosted scores, classes, lat/lon, NaN
-            where not georeferenced).
+            The pipeline's detections of the frame (boxes, boosted scores, classes, lat/lon, NaN where not).
         pose : Pose or None
             The frame's camera pose; None without metadata: tracks coast and detections are matched
             by image IoU with each track's last box (no ground positions, no new tracks).
@@ -233,17 +231,15 @@ class GpsTracker:
         camera : Camera
             The camera (its focal length scales the pixel error on the ground).
         pose_t : float, optional
-            Time the pose was measured (the telemetry's stamp), seconds; default t. While the gimbal
-            turns, detections are rotated about the UAV by turn rate * (t - pose_t +
-            `telemetry_latency_s`): the heading the frame was really taken at.
+            Time the pose was measured (the telemetry's stamp), seconds; default t. While the gimbal turns,
+            detections are rotated about the UAV by turn rate * (t - pose_t + `telemetry_latency_s`).
         pose_retimed : bool
             The pose was already interpolated at the frame's time (agent.clock_offset.retime_frames, whose
             offset stands for the telemetry's latency): no turn compensation. Extrapolating it once more by
             telemetry_latency_s turned the frame's points by a turn rate differentiated from per-frame
             heading jitter (25 deg/s 1-sigma at 0.6 deg and 30 Hz) and counted the latency twice.
         terrain : GroundSurface, optional
-            The ground the frame's detections were put on (`--dem`: DetectionPipeline.terrain_for(pose)); the
-            test whether a track without a detection is in view projects its terrain point. None: flat ground.
+            The detections' ground (`--dem`: DetectionPipeline.terrain_for); the in-view test of tracks uses it.
 
         Returns
         -------
