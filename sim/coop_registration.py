@@ -30,7 +30,7 @@ import numpy as np
 from agent.dataset import Dataset, iter_video_frames
 from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon, pixel_to_latlon
 
-__all__ = ["REF_PIXEL", "RegistrationRecord", "registration_errors"]
+__all__ = ["REF_PIXEL", "RegistrationRecord", "registration_errors", "true_offsets"]
 
 #: the reference pixel as fractions of the image's width and height (below the horizon at every pitch we fly)
 REF_PIXEL = (0.5, 0.65)
@@ -50,13 +50,34 @@ def registration_errors(data_dir: Path, records: dict[int, list[RegistrationReco
     records: per video id, each frame's registration estimate and telemetry correction (`sim.coop_eval.run_coop`'s
     registration_out). Frames without a true or noisy pose, or whose reference ray meets no ground, are skipped.
     """
+    truth = true_offsets(data_dir, records)
+    uav_of = _uav_names(data_dir)
+    out: dict[str, dict[str, float]] = {}
+    for vid, recs in records.items():
+        offsets, left = [], []
+        for (_, ox, oy, _, _), true in zip(recs, truth[vid], strict=True):
+            if true is None:
+                continue
+            offsets.append(float(np.hypot(*true)))
+            left.append(float(np.hypot(ox - true[0], oy - true[1])))
+        out[uav_of.get(vid, str(vid))] = {
+            "frames": len(offsets),
+            "offset_px": statistics.median(offsets) if offsets else math.nan,
+            "left_px": statistics.median(left) if left else math.nan}
+    return out
+
+
+def true_offsets(data_dir: Path, records: dict[int, list[RegistrationRecord]]
+                 ) -> dict[int, list[tuple[float, float] | None]]:
+    """Per video id and record (frame): the true image offset (x, y pixels) of the other UAVs' evidence from this
+    UAV's view (see the module docstring), None where it cannot be computed (no true or noisy pose, the
+    reference ray meets no ground, no other UAV sees the point)."""
     if (data_dir / "dem.npz").exists():
         raise ValueError(f"registration_errors: {data_dir} is over a terrain (dem.npz); the truth model here puts the "
                          "reference pixel's ground point on flat ground")
     dataset = Dataset.load(data_dir / "images.json")
     camera = Camera.from_file(data_dir / "camera.json")
     truth = json.loads((data_dir / "truth.json").read_text())
-    uav_of = {v["id"]: v.get("uav", str(v["id"])) for v in dataset.coco.get("videos", [])}
     true: dict[int, dict[float, Pose]] = {}
     for p in truth.get("poses", []):
         true.setdefault(p["video_id"], {})[round(p["t"], 4)] = Pose(p["lat"], p["lon"], p["height_m"],
@@ -66,49 +87,55 @@ def registration_errors(data_dir: Path, records: dict[int, list[RegistrationReco
               if f.pose is not None}
         for vid in dataset.videos}
     corrections = {vid: {round(r[0], 4): (r[3], r[4]) for r in recs} for vid, recs in records.items()}
-    out: dict[str, dict[str, float]] = {}
+    out: dict[int, list[tuple[float, float] | None]] = {}
     for vid, recs in records.items():
-        offsets, left = [], []
-        for t, ox, oy, ce, cn in recs:
-            own = _nearest(noisy.get(vid, {}), t, _SAME_FRAME_S)
-            own_true = _nearest(true.get(vid, {}), t, _SAME_FRAME_S)
-            if own is None or own_true is None:
-                continue
-            pose, cam = own
-            ref = np.array([[cam.width * REF_PIXEL[0], cam.height * REF_PIXEL[1]]])
-            lat, lon, ok = pixel_to_latlon(ref, cam, own_true)
-            if not ok[0]:
-                continue
-            seen = []
-            for other in records:
-                if other == vid:
-                    continue
-                tb = _nearest(true.get(other, {}), t)
-                nb = _nearest(noisy.get(other, {}), t)
-                if tb is None or nb is None:
-                    continue
-                uv_b, ok_b = latlon_to_pixel(lat, lon, nb[1], tb)
-                if not ok_b[0]:
-                    continue
-                lat_g, lon_g, ok_g = pixel_to_latlon(uv_b, nb[1], nb[0])
-                if not ok_g[0]:
-                    continue
-                cb = _nearest(corrections.get(other, {}), t) or (0.0, 0.0)
-                east, north = latlon_to_local(lat_g, lon_g, pose.lat, pose.lon)
-                lat_c, lon_c = local_to_latlon(east + cb[0] - ce, north + cb[1] - cn, pose.lat, pose.lon)
-                uv, ok_a = latlon_to_pixel(lat_c, lon_c, cam, pose)
-                if ok_a[0]:
-                    seen.append(uv[0] - ref[0])
-            if not seen:
-                continue
-            offset = np.mean(seen, axis=0)
-            offsets.append(float(np.hypot(*offset)))
-            left.append(float(np.hypot(ox - offset[0], oy - offset[1])))
-        out[uav_of.get(vid, str(vid))] = {
-            "frames": len(offsets),
-            "offset_px": statistics.median(offsets) if offsets else math.nan,
-            "left_px": statistics.median(left) if left else math.nan}
+        out[vid] = [_true_offset(vid, rec, records, true, noisy, corrections) for rec in recs]
     return out
+
+
+def _true_offset(vid: int, rec: RegistrationRecord, records: dict[int, list[RegistrationRecord]],
+                 true: dict[int, dict[float, Pose]], noisy: dict[int, dict[float, tuple[Pose, Camera]]],
+                 corrections: dict[int, dict[float, tuple[float, float]]]) -> tuple[float, float] | None:
+    """One frame's true offset (see true_offsets)."""
+    t, _, _, ce, cn = rec
+    own = _nearest(noisy.get(vid, {}), t, _SAME_FRAME_S)
+    own_true = _nearest(true.get(vid, {}), t, _SAME_FRAME_S)
+    if own is None or own_true is None:
+        return None
+    pose, cam = own
+    ref = np.array([[cam.width * REF_PIXEL[0], cam.height * REF_PIXEL[1]]])
+    lat, lon, ok = pixel_to_latlon(ref, cam, own_true)
+    if not ok[0]:
+        return None
+    seen = []
+    for other in records:
+        if other == vid:
+            continue
+        tb = _nearest(true.get(other, {}), t)
+        nb = _nearest(noisy.get(other, {}), t)
+        if tb is None or nb is None:
+            continue
+        uv_b, ok_b = latlon_to_pixel(lat, lon, nb[1], tb)
+        if not ok_b[0]:
+            continue
+        lat_g, lon_g, ok_g = pixel_to_latlon(uv_b, nb[1], nb[0])
+        if not ok_g[0]:
+            continue
+        cb = _nearest(corrections.get(other, {}), t) or (0.0, 0.0)
+        east, north = latlon_to_local(lat_g, lon_g, pose.lat, pose.lon)
+        lat_c, lon_c = local_to_latlon(east + cb[0] - ce, north + cb[1] - cn, pose.lat, pose.lon)
+        uv, ok_a = latlon_to_pixel(lat_c, lon_c, cam, pose)
+        if ok_a[0]:
+            seen.append(uv[0] - ref[0])
+    if not seen:
+        return None
+    offset = np.mean(seen, axis=0)
+    return float(offset[0]), float(offset[1])
+
+
+def _uav_names(data_dir: Path) -> dict[int, str]:
+    videos = json.loads((data_dir / "images.json").read_text()).get("videos", [])
+    return {v["id"]: v.get("uav", str(v["id"])) for v in videos}
 
 
 def _nearest(table: dict, t: float, tolerance_s: float = _MAX_DT_S):

@@ -13,7 +13,7 @@ from agent.pipeline_config import PipelineConfig
 from sim.coop_domain_eval import ensure_coop_domain_dataset
 from sim.coop_domains import get_coop_domain
 from sim.coop_eval import run_coop
-from sim.coop_registration import registration_errors
+from sim.coop_registration import registration_errors, true_offsets
 
 SHORT = dataclasses.replace(get_coop_domain("coop-glare"), clip_s=3.0)
 
@@ -45,6 +45,15 @@ def test_the_registration_removes_most_of_the_offset_telemetry_biases_make(datas
     for uav in errors.values():
         assert uav["offset_px"] > 100.0  # GPS 1-2 m and heading 0.5-1.5 deg biases: ~150 px at ~50 m
         assert uav["left_px"] < 0.5 * uav["offset_px"]
+
+
+def test_true_offsets_come_per_record(datasets):
+    records: dict = {}
+    run_coop(datasets[1.0], PipelineConfig(), share=True, registration_out=records)
+    truth = true_offsets(datasets[1.0], records)
+    assert {vid: len(v) for vid, v in truth.items()} == {vid: len(v) for vid, v in records.items()}
+    lengths = [math.hypot(*o) for v in truth.values() for o in v if o is not None]
+    assert len(lengths) >= 150 and min(lengths) > 20.0  # biased telemetry: every frame has an offset
 
 
 def test_nothing_is_recorded_without_a_joint_map(datasets):
