@@ -110,23 +110,29 @@ def joint_score(evidence: NDArray, prior_score: float, boost_mode: str, boost_we
     return boost_scores(np.full(e.shape, prior_score), e, boost_mode, boost_weight, logodds_scale).astype(np.float32)
 
 
-def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, camera: Camera, pose: Pose, t: float,
-                range_m: float, min_value: float, cover_uavs: int,
-                smoothing_m: float, terrain: GroundSurface | None = None) -> tuple[NDArray, NDArray, NDArray]:
-    """Peaks of the other UAVs' evidence of one class inside the footprint's bounding box.
+def _footprint_cells(grid: TileGrid, camera: Camera, pose: Pose, range_m: float,
+                     terrain: GroundSurface | None) -> tuple[int, int, int, int]:
+    """(gx0, gy0, width, height) global cells of the view's footprint's bounding box, a cell of margin around.
+    terrain: the footprint is cast onto it (a view over falling ground reaches farther than over flat)."""
+    poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8, terrain=terrain)
+    lat, lon = local_to_latlon(poly[:, 0], poly[:, 1], pose.lat, pose.lon)
+    gx, gy = grid.latlon_to_cell_index(lat, lon)
+    gx0, gy0 = int(gx.min()) - 1, int(gy.min()) - 1
+    return gx0, gy0, int(gx.max()) - gx0 + 2, int(gy.max()) - gy0 + 2
+
+
+def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, window: tuple[int, int, int, int], pose: Pose,
+                t: float, min_value: float, cover_uavs: int, smoothing_m: float) -> tuple[NDArray, NDArray, NDArray]:
+    """Peaks of the other UAVs' evidence of one class inside the footprint's bounding box (`_footprint_cells`).
 
     Returns global cells (gx, gy float64, cell centres) and others' evidence (float32) of the local
     maxima (3 x 3) of `others_evidence` (with the other UAVs' coverage when the joint layer has their
     footprints, cover_uavs otherwise) with evidence >= min_value, strongest first. The evidence is
     smoothed by a Gaussian of smoothing_m (m, standard deviation) before looking for the maxima.
-    terrain: the footprint is cast onto it (a view over falling ground reaches farther than over flat).
     """
     grid: TileGrid = joint.grid
-    poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8, terrain=terrain)
-    lat, lon = local_to_latlon(poly[:, 0], poly[:, 1], pose.lat, pose.lon)
-    gx, gy = grid.latlon_to_cell_index(lat, lon)
-    gx0, gy0 = int(gx.min()) - 1, int(gy.min()) - 1
-    values = joint.window(cls, gx0, gy0, int(gx.max()) - gx0 + 2, int(gy.max()) - gy0 + 2, t)
+    gx0, gy0, width, height = window
+    values = joint.window(cls, gx0, gy0, width, height, t)
     # others' evidence <= cover_uavs / (cover_uavs - 1) * joint: cells below that bound cannot pass
     floor = min_value * (1.0 - 1.0 / cover_uavs) if cover_uavs > 1 else min_value
     empty = np.zeros(0)
@@ -422,9 +428,10 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
     k_east, k_north = np.atleast_1d(k_east), np.atleast_1d(k_north)
     promoted: dict[int, float] = {}
     boxes, scores, cids, lats, lons = [], [], [], [], []
+    window = _footprint_cells(joint.grid, camera, pose, range_m, terrain)  # once a frame: every class's window
     for cid, cls in class_names.items():
-        pgx, pgy, evidence = _view_peaks(joint, memory, cls, camera, pose, t, range_m, min_value, cover_uavs,
-                                         cfg.joint_peak_smoothing_m, terrain)
+        pgx, pgy, evidence = _view_peaks(joint, memory, cls, window, pose, t, min_value, cover_uavs,
+                                         cfg.joint_peak_smoothing_m)
         if len(evidence) == 0:
             continue
         plat, plon = joint.grid.cell_to_latlon(pgx, pgy)

@@ -443,7 +443,7 @@ class AgentNode:
         if frame.image is not None:  # appearance of the kept boxes for re-ID (docs/agent.md)
             result = with_image_descriptors(result, frame.image)
         tracks = self.tracker.update(result, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
-                                     terrain=None if frame.pose is None else self.pipeline.terrain_for(frame.pose))
+                                     terrain=self.pipeline.terrain_for(frame.pose))
         if self.anomaly is not None and frame.image is not None:
             self.anomaly.process(frame.image, frame.pose, frame.t, frame.camera)
             self.counts["anomaly_frames"] = self.counts.get("anomaly_frames", 0) + 1

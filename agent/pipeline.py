@@ -136,13 +136,16 @@ class DetectionPipeline:
             check.observe(name, self.size_filter.z_class(name, diag[sel], slant[sel], depression[sel],
                                                          self._focal_px))
 
-    def terrain_for(self, pose: Pose) -> Terrain | None:
-        """The terrain this video's boxes are georeferenced on (None: flat ground). A configured terrain without
-        a take-off elevation takes the DEM's height under the video's first pose (the first one seen since
-        `reset`): telemetry heights are above take-off, and a video starts over the take-off's ground unless
-        --takeoff-elevation-m says otherwise. Off the DEM there, heights count from the ground below the UAV."""
+    def terrain_for(self, pose: Pose | None) -> Terrain | None:
+        """The terrain this video's boxes are georeferenced on (None: flat ground, or a frame without pose). A
+        configured terrain without a take-off elevation takes the DEM's height under the video's first pose (the
+        first one seen since `reset`): telemetry heights are above take-off, and a video starts over the take-off's
+        ground unless --takeoff-elevation-m says otherwise. Off the DEM there, heights count from the ground below
+        the UAV."""
         terrain = self.config.terrain
-        if terrain is None or terrain.takeoff_elevation_m is not None:
+        if terrain is None or pose is None:
+            return None
+        if terrain.takeoff_elevation_m is not None:
             return terrain
         cached = self.__dict__.get("_video_terrain")
         if cached is None or cached[0] is not terrain:

@@ -202,7 +202,7 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         t_prev = t
         tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t,
                                 pose_retimed=frame.pose_retimed,
-                                terrain=None if frame.pose is None else pipe.terrain_for(frame.pose))
+                                terrain=pipe.terrain_for(frame.pose))
         counts["tracker_s"] += time.perf_counter() - t1
         if registrations is not None:
             c = tracker.last_correction

@@ -167,9 +167,9 @@ def _shift_matches(a: NDArray, b: NDArray, match_frac: float) -> tuple[NDArray, 
     na, nb = len(a), len(b)
     shifts = (b[None, :, :2] - a[:, None, :2]).reshape(-1, 2)  # (na * nb, 2), row i * nb + j
     radius = (match_frac * 0.5 * (a[:, 2][:, None] + b[:, 2][None, :])).reshape(-1)
-    owner = np.repeat(np.arange(na), nb)  # the box of a each difference moves
     if not len(shifts):
         return shifts, np.zeros(0, dtype=np.int64)
+    owner = np.repeat(np.arange(na), nb)  # the box of a each difference moves
     tree = cKDTree(shifts)
     # a hair beyond the largest radius (the tree compares squared distances): the exact test below decides
     near = tree.sparse_distance_matrix(tree, float(radius.max()) * (1.0 + 1e-9) + 1e-12, output_type="coo_matrix")

@@ -162,9 +162,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                     registration_out.setdefault(vid, []).append(
                         (frame.t, *offset, c.east_m if c is not None else 0.0, c.north_m if c is not None else 0.0))
             if trackers:
-                terrain = None if frame.pose is None else pipes[vid].terrain_for(frame.pose)
                 tracks = trackers[vid].update(res, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
-                                              terrain=terrain)
+                                              terrain=pipes[vid].terrain_for(frame.pose))
                 if track_boxes is not None:
                     track_boxes[frame.image.id] = [[b[0], b[1], b[2] - b[0], b[3] - b[1]] for b in
                                                    (tr.box_xyxy for tr in tracks if tr.confirmed and tr.matched)]

@@ -50,16 +50,17 @@ def registration_errors(data_dir: Path, records: dict[int, list[RegistrationReco
     records: per video id, each frame's registration estimate and telemetry correction (`sim.coop_eval.run_coop`'s
     registration_out). Frames without a true or noisy pose, or whose reference ray meets no ground, are skipped.
     """
-    truth = true_offsets(data_dir, records)
-    uav_of = _uav_names(data_dir)
+    dataset, true, noisy = _load(data_dir)
+    truth = _true_offsets(records, true, noisy)
+    uav_of = {v["id"]: v.get("uav", str(v["id"])) for v in dataset.coco.get("videos", [])}
     out: dict[str, dict[str, float]] = {}
     for vid, recs in records.items():
         offsets, left = [], []
-        for (_, ox, oy, _, _), true in zip(recs, truth[vid], strict=True):
-            if true is None:
+        for (_, ox, oy, _, _), offset in zip(recs, truth[vid], strict=True):
+            if offset is None:
                 continue
-            offsets.append(float(np.hypot(*true)))
-            left.append(float(np.hypot(ox - true[0], oy - true[1])))
+            offsets.append(float(np.hypot(*offset)))
+            left.append(float(np.hypot(ox - offset[0], oy - offset[1])))
         out[uav_of.get(vid, str(vid))] = {
             "frames": len(offsets),
             "offset_px": statistics.median(offsets) if offsets else math.nan,
@@ -72,6 +73,12 @@ def true_offsets(data_dir: Path, records: dict[int, list[RegistrationRecord]]
     """Per video id and record (frame): the true image offset (x, y pixels) of the other UAVs' evidence from this
     UAV's view (see the module docstring), None where it cannot be computed (no true or noisy pose, the
     reference ray meets no ground, no other UAV sees the point)."""
+    return _true_offsets(records, *_load(data_dir)[1:])
+
+
+def _load(data_dir: Path) -> tuple[Dataset, dict[int, dict[float, Pose]], dict[int, dict[float, tuple[Pose, Camera]]]]:
+    """The dataset and, per video id and frame time, its true poses (truth.json) and the noisy ones with cameras
+    (what the pipeline is given, `iter_video_frames` as run_coop reads them)."""
     if (data_dir / "dem.npz").exists():
         raise ValueError(f"registration_errors: {data_dir} is over a terrain (dem.npz); the truth model here puts the "
                          "reference pixel's ground point on flat ground")
@@ -86,11 +93,14 @@ def true_offsets(data_dir: Path, records: dict[int, list[RegistrationRecord]]
         vid: {round(f.t, 4): (f.pose, f.camera) for f in iter_video_frames(dataset, camera, vid, at_frame_time=False)
               if f.pose is not None}
         for vid in dataset.videos}
+    return dataset, true, noisy
+
+
+def _true_offsets(records: dict[int, list[RegistrationRecord]], true: dict[int, dict[float, Pose]],
+                  noisy: dict[int, dict[float, tuple[Pose, Camera]]]) -> dict[int, list[tuple[float, float] | None]]:
     corrections = {vid: {round(r[0], 4): (r[3], r[4]) for r in recs} for vid, recs in records.items()}
-    out: dict[int, list[tuple[float, float] | None]] = {}
-    for vid, recs in records.items():
-        out[vid] = [_true_offset(vid, rec, records, true, noisy, corrections) for rec in recs]
-    return out
+    return {vid: [_true_offset(vid, rec, records, true, noisy, corrections) for rec in recs]
+            for vid, recs in records.items()}
 
 
 def _true_offset(vid: int, rec: RegistrationRecord, records: dict[int, list[RegistrationRecord]],
@@ -131,11 +141,6 @@ def _true_offset(vid: int, rec: RegistrationRecord, records: dict[int, list[Regi
         return None
     offset = np.mean(seen, axis=0)
     return float(offset[0]), float(offset[1])
-
-
-def _uav_names(data_dir: Path) -> dict[int, str]:
-    videos = json.loads((data_dir / "images.json").read_text()).get("videos", [])
-    return {v["id"]: v.get("uav", str(v["id"])) for v in videos}
 
 
 def _nearest(table: dict, t: float, tolerance_s: float = _MAX_DT_S):

@@ -173,7 +173,7 @@ def pipeline_frames(dataset: Dataset, candidates: Candidates, camera: Camera, vi
         boxes, scores, cids = candidates.get(frame.image.id)
         result = pipe.process(boxes, scores, cids, frame.pose, frame.t, candidates.get_embeddings(frame.image.id))
         t_prev = max(frame_time_s(frame), t_prev)
-        out.append((frame, result, t_prev, None if frame.pose is None else pipe.terrain_for(frame.pose)))
+        out.append((frame, result, t_prev, pipe.terrain_for(frame.pose)))
     return out
 
 

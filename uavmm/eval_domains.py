@@ -5,6 +5,7 @@ domains (`sim.coop_domains`); the parser is `uavmm.cli`'s eval command. Bad valu
 from __future__ import annotations
 
 import argparse
+import math
 from pathlib import Path
 
 from uavmm.csv_args import csv_list
@@ -73,7 +74,7 @@ def coop_noise_scale(text: str | None) -> float:
     noise = csv_list(text or "1", float, "--noise-scales")
     if len(noise) != 1:
         raise ValueError(f"--noise-scales: the cooperative domains run at one noise scale, got {text}")
-    if not (noise[0] >= 0 and noise[0] != float("inf")):
+    if not (math.isfinite(noise[0]) and noise[0] >= 0):
         raise ValueError("--noise-scales must be a finite number >= 0")
     return noise[0]
 

@@ -137,7 +137,7 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             t = max(frame.t, t_prev)
             t_prev = t
             tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t,
-                                    terrain=None if frame.pose is None else pipe.terrain_for(frame.pose))
+                                    terrain=pipe.terrain_for(frame.pose))
             reported = tracker.report(tracks)
             t3 = time.perf_counter()
             seconds["pipeline"] += t2 - t1
