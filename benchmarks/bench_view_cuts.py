@@ -5,12 +5,16 @@ A 30 s clip at 30 fps of a hovering camera (30 m, 35 deg pitch, a 4K frame) over
 whose gimbal jumps 60 deg every 3 s; the telemetry is sampled at 1 Hz and interpolated at the frames' times, as
 a flight log gives it. Cases: the view cuts over the whole clip (every jump searched and cut), the same clip
 hovering without jumps (no interval turns: nothing searched), and the baseline, DetectionPipeline.process over
-the clip's frames (georeference, size filter, boost, map update, NMS), measured in the same run.
+the clip's frames (georeference, size filter, boost, map update, NMS), measured in the same run. Memory: the
+peak of what each allocates over the clip (tracemalloc, numpy's buffers included), the clip's frames and
+detections already in memory.
 """
 
 from __future__ import annotations
 
 import math
+import tracemalloc
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -58,6 +62,17 @@ def _clip(seconds: float, jumps: bool) -> tuple[list[tuple[Frame, None]], dict[i
     return frames, dets
 
 
+def _peak_mib(fn: Callable[[], object]) -> float:
+    """The peak of the memory fn allocates (tracemalloc), MiB."""
+    tracemalloc.start()
+    try:
+        fn()
+        peak = tracemalloc.get_traced_memory()[1]
+    finally:
+        tracemalloc.stop()
+    return peak / 2**20
+
+
 def run(quick: bool = False) -> list[dict[str, Any]]:
     seconds = 9.0 if quick else 30.0
     repeat = 3 if quick else 5
@@ -80,6 +95,11 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
                       min_time_s=0.0) / n
     rows.append({"case": f"view cuts, 1 Hz log, {report.cuts} of {report.intervals} jumps cut", "value": t * 1e3,
                  "unit": "ms/frame", "baseline_name": "pipeline", "ratio": t / base})
+    base_mib = _peak_mib(pipeline)
+    rows.append({"case": "pipeline over the clip, peak allocated", "value": base_mib, "unit": "MiB"})
+    cuts_mib = _peak_mib(lambda: place_view_cuts(frames, lambda f: dets[f.image.id]))
+    rows.append({"case": "view cuts over the clip, peak allocated", "value": cuts_mib, "unit": "MiB",
+                 "baseline_name": "pipeline", "ratio": cuts_mib / base_mib})
     still, still_dets = _clip(seconds, jumps=False)
     t = median_time_s(lambda: place_view_cuts(still, lambda f: still_dets[f.image.id]), repeat=repeat,
                       min_time_s=0.0) / n

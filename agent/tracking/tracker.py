@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.frame_result import FrameResult
-from agent.tracking import reid
+from agent.tracking import registration, reid
 from agent.tracking.association import (
     associate_ground,
     associate_image,
@@ -135,7 +135,7 @@ class GpsTracker:
         self._log_scale = 0.0  # log of the smoothed residual scale of registered frames
         self._scale_t: float | None = None
         self._uav_en = (0.0, 0.0)
-        self._height_m = 1.0
+        self._ground: tuple[Pose, GroundSurface | None] | None = None  # the last registered frame's pose, terrain
         self._level: float | None = None  # running mean of the frames' top raw scores (report_level_ref)
         self._jump = ViewJumpGuard()
 
@@ -281,8 +281,9 @@ class GpsTracker:
                 undo = None
                 if not self.config.use_pipeline_correction and result.correction is not None:
                     undo = (float(result.correction.east_m), float(result.correction.north_m))
-                self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt,
-                                      undo_en=undo, latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s)
+                self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt, undo_en=undo,
+                                      latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s,
+                                      terrain=terrain)
                 merge_duplicates(state, t)
                 decay_unseen_quality(state, pose, camera, terrain)
 
@@ -305,7 +306,7 @@ class GpsTracker:
     # ----------------------------------------------------------------------------- stages
     def _frame_with_pose(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera,
                          staleness_s: float, dt: float, undo_en: tuple[float, float] | None = None,
-                         latency_s: float = 0.0) -> None:
+                         latency_s: float = 0.0, terrain: GroundSurface | None = None) -> None:
         cfg = self.config
         state = self._state
         assert state.origin is not None
@@ -403,7 +404,7 @@ class GpsTracker:
         if cfg.reid_delay_s > 0:
             reid.resolve_pending(state, t)
         if anchored is not None or carried:
-            self._height_m = pose.height_m
+            self._ground = (pose, terrain)
             self._follow_telemetry(dt, carried=carried)
 
     def _apply_image_registration(self, dets: FrameDetections, t: float, geo: NDArray[np.bool_], rel: FloatArray,
@@ -514,17 +515,15 @@ class GpsTracker:
         gain = 1.0 if tau <= 0 else 1.0 - math.exp(-max(dt, 0.0) / tau)
         base = self._pending if carried else self._correction
         self._pending = (1.0 - gain) * base
-        if gain <= 0:
+        if gain <= 0 or self._ground is None:
             return
         state = self._state
         uav = np.asarray(self._uav_en)
         p = gain * base
-        if len(state.active):
-            x = state.active.cols["x"]
-            x[:, :2] -= correction_jacobian(x[:, :2] - uav, self._height_m) @ p
-        if len(state.lost):
-            pos = state.lost.cols["pos"]
-            pos -= correction_jacobian(pos - uav, self._height_m) @ p
+        # the heights of the flat model: the pose's, or each track's effective one over a terrain (--dem)
+        for pts in (state.active.cols["x"][:, :2], state.lost.cols["pos"]):
+            if len(pts):
+                pts -= correction_jacobian(pts - uav, registration.point_heights(pts - uav, *self._ground)) @ p
 
     def _smoothed_heading(self, heading_deg: float, dt: float) -> float:
         """Low-pass gimbal heading (TrackerConfig.heading_smoothing_s), degrees in [0, 360)."""

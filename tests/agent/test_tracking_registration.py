@@ -14,8 +14,11 @@ from agent.tracking.registration import (
     correction_jacobian,
     fit_pose_correction,
     image_pairs,
+    point_heights,
     track_offset,
 )
+from shared.geo import Pose
+from shared.terrain import ElevationGrid, Terrain
 
 TRACKS = np.array([[0.0, 0.0], [12.0, 3.0], [-9.0, 14.0], [20.0, -11.0], [-15.0, -8.0]])
 
@@ -262,3 +265,20 @@ def test_sparse_image_pairs_equal_the_dense_mutual_best_overlaps(m: int, n: int,
     want = _dense_image_pairs(tb, tc, db, dc, iou_min) if m and n else (np.zeros(0), np.zeros(0))
     np.testing.assert_array_equal(got[0], want[0])
     np.testing.assert_array_equal(got[1], want[1])
+
+
+def test_point_heights_are_the_poses_over_flat_ground_and_the_distance_to_the_slope_over_a_terrain() -> None:
+    """The flat error model's height for the tracks' share of a pose correction: over a plane rising 1 in 5 to the
+    east it is the camera's distance from the plane (40 / sqrt(1.04) m) at every point on it, the pose's off the
+    DEM and without one."""
+    pose = Pose(lat=47.67, lon=9.27, height_m=40.0, pitch_deg=35.0, heading_deg=0.0)
+    rel = np.array([[0.0, 30.0], [-20.0, 60.0], [45.0, -10.0], [500.0, 0.0]])
+    assert point_heights(rel, pose, None) == 40.0
+    east = np.arange(-150.0, 151.0)
+    grid = ElevationGrid.from_local(np.tile(100.0 + 0.2 * east, (301, 1)), 47.67, 9.27, west_m=-150.0,
+                                    north_m=150.0, cell_m=1.0)
+    h = np.asarray(point_heights(rel, pose, Terrain(grid, 100.0)))
+    assert h[:3] == pytest.approx(40.0 / np.sqrt(1.04), rel=1e-6)
+    assert h[3] == 40.0
+    flat = ElevationGrid.from_local(np.full((301, 301), 100.0), 47.67, 9.27, west_m=-150.0, north_m=150.0, cell_m=1.0)
+    assert np.asarray(point_heights(rel, pose, Terrain(flat, 100.0))) == pytest.approx(40.0)
