@@ -16,9 +16,9 @@ from agent.tracking.assignment import near_pairs
 from agent.tracking.association import expected_boxes
 from agent.tracking.model import mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
-from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_pixel
+from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_latlon, local_to_pixel
 
-__all__ = ["at_image_border", "birth", "decay_unseen_quality", "merge_duplicates", "retire"]
+__all__ = ["at_image_border", "birth", "decay_unseen_quality", "merge_duplicates", "reanchor", "retire"]
 
 log = logging.getLogger(__name__)
 
@@ -188,3 +188,22 @@ def retire(state: TrackState, t: float, camera: Camera | None = None) -> None:
             act.keep(~drop)
     if len(state.lost):
         state.lost.keep(t - state.lost["t_hit"] <= cfg.reid_horizon_s)
+
+
+def reanchor(state: TrackState, pose: Pose) -> None:
+    """Put the local frame's origin at the UAV when it has flown more than `reanchor_m` from it (the first pose
+    sets it), the tracks and the re-ID memory moved along."""
+    if state.origin is None:
+        state.origin = (pose.lat, pose.lon)
+        return
+    e, n = latlon_to_local(pose.lat, pose.lon, *state.origin)
+    if math.hypot(float(e), float(n)) <= state.config.reanchor_m:
+        return
+    old, new = state.origin, (pose.lat, pose.lon)
+    for table, key in ((state.active, "x"), (state.lost, "pos")):
+        if len(table):
+            pos = table.cols[key]
+            lat, lon = local_to_latlon(pos[:, 0], pos[:, 1], *old)
+            pos[:, 0], pos[:, 1] = latlon_to_local(lat, lon, *new)
+    state.origin = new
+    log.debug("re-anchored the local frame at %.6f, %.6f", *new)

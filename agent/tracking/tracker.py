@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -24,7 +24,7 @@ from agent.tracking.association import (
     ground_duplicates,
 )
 from agent.tracking.config import TrackerConfig
-from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, retire
+from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, reanchor, retire
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
 from agent.tracking.registration import correction_jacobian, fit_pose_correction, image_pairs, track_offset
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
@@ -163,8 +163,8 @@ class GpsTracker:
 
     @property
     def frames_in_jump(self) -> int:
-        """Frames so far inside a view jump (`TrackerConfig.jump_rate_deg_s`), whose boxes were not used."""
-        return self._jump.frames
+        """Frames so far inside a view jump (`TrackerConfig.jump_rate_deg_s`) whose boxes were not used."""
+        return self._jump.frames - self._jump.agreed
 
     @property
     def n_reidentified(self) -> int:
@@ -275,15 +275,18 @@ class GpsTracker:
             pose_t = t if pose_t is None or not math.isfinite(pose_t) else pose_t
             self._update_rates(pose, pose_t, t)
             state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
-            self._maybe_reanchor(pose)
-            # in a view jump (agent.tracking.view_jump) the tracks coast: nothing is matched, born or revived
-            if not self._jump.in_jump(pose.heading_deg, pose.pitch_deg, t, self.config):
-                undo = None
-                if not self.config.use_pipeline_correction and result.correction is not None:
-                    undo = (float(result.correction.east_m), float(result.correction.north_m))
-                self._frame_with_pose(dets, pose, t, camera, staleness_s=max(t - pose_t, 0.0), dt=dt, undo_en=undo,
-                                      latency_s=0.0 if pose_retimed else self.config.telemetry_latency_s,
-                                      terrain=terrain)
+            reanchor(state, pose)
+            # The telemetry's heading is older than the frame (by t - pose_t, plus telemetry_latency_s unless the
+            # pose was retimed): the frame's points are turned about the UAV by the heading change since.
+            lag_s = max(t - pose_t, 0.0) + (0.0 if pose_retimed else self.config.telemetry_latency_s)
+            cap = self.config.max_heading_correction_deg
+            turn_deg = max(-cap, min(cap, self._heading_rate_deg_s * lag_s))
+            # in a view jump the pose does not place (agent.tracking.view_jump) the tracks coast: no match, birth, re-ID
+            if (not self._jump.in_jump(pose.heading_deg, pose.pitch_deg, t, self.config) or self._jump.agrees(
+                    state, dets, replace(pose, heading_deg=(pose.heading_deg + turn_deg) % 360.0), t, camera, terrain)):
+                undo = None if self.config.use_pipeline_correction or result.correction is None else (
+                    float(result.correction.east_m), float(result.correction.north_m))
+                self._frame_with_pose(dets, pose, t, camera, turn_deg=turn_deg, dt=dt, undo_en=undo, terrain=terrain)
                 merge_duplicates(state, t)
                 decay_unseen_quality(state, pose, camera, terrain)
 
@@ -305,8 +308,8 @@ class GpsTracker:
 
     # ----------------------------------------------------------------------------- stages
     def _frame_with_pose(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera,
-                         staleness_s: float, dt: float, undo_en: tuple[float, float] | None = None,
-                         latency_s: float = 0.0, terrain: GroundSurface | None = None) -> None:
+                         turn_deg: float, dt: float, undo_en: tuple[float, float] | None = None,
+                         terrain: GroundSurface | None = None) -> None:
         cfg = self.config
         state = self._state
         assert state.origin is not None
@@ -320,10 +323,8 @@ class GpsTracker:
                 e, n = e - undo_en[0], n - undo_en[1]
             uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
             rel_e, rel_n = e - uav_e, n - uav_n
-            # The telemetry's heading is older than the frame: turn the ground points about the UAV
-            # by the heading change since (a flat-ground projection rotates with the heading).
-            delta_deg = self._heading_rate_deg_s * (staleness_s + latency_s)
-            delta = math.radians(max(-cfg.max_heading_correction_deg, min(cfg.max_heading_correction_deg, delta_deg)))
+            # turn the ground points about the UAV by turn_deg (a flat-ground projection rotates with the heading)
+            delta = math.radians(turn_deg)
             if delta:
                 c, s = math.cos(delta), math.sin(delta)
                 rel_e, rel_n = rel_e * c + rel_n * s, -rel_e * s + rel_n * c
@@ -559,23 +560,6 @@ class GpsTracker:
         elif t - self._t_frame_ref > max(0.25, 2.0 * self._pose_interval_s):
             # No new telemetry for a while: the gimbal holds still.
             self._heading_rate_deg_s = self._pitch_rate_deg_s = 0.0
-
-    def _maybe_reanchor(self, pose: Pose) -> None:
-        state = self._state
-        if state.origin is None:
-            state.origin = (pose.lat, pose.lon)
-            return
-        e, n = latlon_to_local(pose.lat, pose.lon, *state.origin)
-        if math.hypot(float(e), float(n)) <= self.config.reanchor_m:
-            return
-        old, new = state.origin, (pose.lat, pose.lon)
-        for table, key in ((state.active, "x"), (state.lost, "pos")):
-            if len(table):
-                pos = table.cols[key]
-                lat, lon = local_to_latlon(pos[:, 0], pos[:, 1], *old)
-                pos[:, 0], pos[:, 1] = latlon_to_local(lat, lon, *new)
-        state.origin = new
-        log.debug("re-anchored the local frame at %.6f, %.6f", *new)
 
     def _outputs(self) -> list[TrackOutput]:
         act = self._state.active

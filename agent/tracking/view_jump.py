@@ -1,12 +1,17 @@
 """View jumps: frames whose pose cannot place their boxes because the gimbal jumped and the telemetry shows the
-jump smeared over several frames (`TrackerConfig.jump_rate_deg_s`); the tracker does not use them.
+jump smeared over several frames (`TrackerConfig.jump_rate_deg_s`); the tracker does not use them, unless the
+pose places the tracks on the frame's boxes after all (`TrackerConfig.jump_agree_min`).
 """
 
 from __future__ import annotations
 
 from collections import deque
 
+import numpy as np
+
 from agent.tracking.config import TrackerConfig
+from agent.tracking.state import FrameDetections, TrackState
+from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_pixel
 
 __all__ = ["ViewJumpGuard"]
 
@@ -25,8 +30,9 @@ class ViewJumpGuard:
     def __init__(self) -> None:
         self._recent: deque[tuple[float, float, float]] = deque()  # (t, heading, pitch) of the last frames
         self._t_jump: float | None = None  # time of the last frame whose pose turned at a jump's rate
-        #: Frames judged in a jump so far.
+        #: Frames judged in a jump so far, and those of them used after all (`agrees`).
         self.frames = 0
+        self.agreed = 0
 
     def in_jump(self, heading_deg: float, pitch_deg: float, t: float, config: TrackerConfig) -> bool:
         """Record the frame's pose (degrees) at time t (seconds, non-decreasing) and say whether the frame is in
@@ -44,3 +50,37 @@ class ViewJumpGuard:
         jump = self._t_jump is not None and t - self._t_jump <= config.jump_settle_s
         self.frames += jump
         return jump
+
+    def agrees(self, state: TrackState, dets: FrameDetections, pose: Pose, t: float, camera: Camera,
+               terrain: GroundSurface | None = None) -> bool:
+        """Whether a frame in a jump places its view after all (`TrackerConfig.jump_agree_min`): the tracks its
+        pose projects into the image (over `terrain` when given) lie on enough of its boxes scoring >= match_score
+        (not image duplicates). A pose tens of degrees off puts the tracks hundreds of pixels from their
+        objects; a pose the log follows through a turn puts them on them. The re-ID memory's tracks are moved on
+        with their last velocity (on the tuning jump domains that agreed more often, and scored better, than the
+        re-ID's damped prediction: HOTA +0.65 against +0.20 over the guard alone)."""
+        cfg = state.config
+        act = state.active
+        if cfg.jump_agree_min <= 0 or state.origin is None:
+            return False
+        fresh = np.flatnonzero(t - act["t_hit"] <= cfg.jump_agree_age_s)
+        lost = state.lost
+        back = np.flatnonzero(t - lost["t_hit"] <= cfg.jump_agree_lost_s)
+        away = (t - lost["t_hit"][back])[:, None]
+        pts = np.vstack([act["x"][fresh, :2], lost["pos"][back] + lost["vel"][back] * away])  # moved on linearly
+        det = np.flatnonzero(~dets.used & (dets.scores >= cfg.match_score))
+        if min(len(pts), len(det)) < cfg.jump_agree_min:
+            return False
+        uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
+        uv, ok = local_to_pixel(pts[:, 0] - uav_e, pts[:, 1] - uav_n, camera, pose, terrain=terrain)
+        uv = uv[ok & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)]
+        if len(uv) < cfg.jump_agree_min:
+            return False
+        b = dets.boxes[det]
+        m = 0.5 * np.maximum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
+        on = ((uv[None, :, 0] >= (b[:, 0] - m)[:, None]) & (uv[None, :, 0] <= (b[:, 2] + m)[:, None])
+              & (uv[None, :, 1] >= (b[:, 1] - m)[:, None]) & (uv[None, :, 1] <= (b[:, 3] + m)[:, None]))
+        hits = min(int(on.any(axis=1).sum()), int(on.any(axis=0).sum()))  # boxes with a track, tracks on a box
+        agree = hits >= max(cfg.jump_agree_min, cfg.jump_agree_frac * min(len(uv), len(det)))
+        self.agreed += agree
+        return agree

@@ -143,6 +143,85 @@ def test_jump_settings_are_checked():
         TrackerConfig(jump_rate_deg_s=-1.0)
     with pytest.raises(ValueError, match="jump_settle_s"):
         TrackerConfig(jump_settle_s=math.nan)
+    with pytest.raises(ValueError, match="jump_agree_min"):
+        TrackerConfig(jump_agree_min=1.5)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="jump_agree_frac"):
+        TrackerConfig(jump_agree_frac=1.5)
+    with pytest.raises(ValueError, match="jump_agree_lost_s"):
+        TrackerConfig(jump_agree_lost_s=-1.0)
+
+
+#: People around the UAV at irregular bearings (so no turn maps the crowd onto itself) and ranges: 4-7 of them in
+#: the 65 deg view at any heading.
+CIRCLE = [rotate((0.0, 22.0 + (7 * i) % 9), deg) for i, deg in enumerate(
+    (-57, -44, -36, -21, -12, 3, 11, 24, 38, 45, 59, 66, 81, 93, 101, 117, 128, 142, 155, 171))]
+
+
+def turn_flight(config: TrackerConfig, told_lag_frames: int = 0):
+    """1 s looking north, a 90 deg turn in 9 frames (300 deg/s, faster than the guard's rate), 1 s there, the same
+    turn back, 1 s. The telemetry gives the heading told_lag_frames frames late, on the frames' clock (retimed: no
+    latency assumed). Returns the tracker and, per
+    frame, (turning, the set of reported ids, each reported track's distance to the nearest person)."""
+    tracker = GpsTracker(config, CLASSES)
+    heads = [0.0] * 30 + [10.0 * k for k in range(1, 10)] + [90.0] * 30 + [90.0 - 10.0 * k for k in range(1, 10)] \
+        + [0.0] * 30
+    out = []
+    for k, heading in enumerate(heads):
+        told = heads[max(k - told_lag_frames, 0)]
+        tracks = tracker.report(tracker.update(seen(CIRCLE, pose_at(heading), pose_at(told)), pose_at(told),
+                                               T0 + k / FPS, CAM, pose_retimed=True))
+        off = [min(math.hypot(float(e) - p[0], float(n) - p[1]) for p in CIRCLE)
+               for e, n in (latlon_to_local(tr.lat, tr.lon, LAT0, LON0) for tr in tracks)]
+        out.append((heading != told or 30 <= k < 40 or 69 <= k < 79, {tr.id for tr in tracks}, off))
+    return tracker, out
+
+
+def test_a_turn_the_telemetry_follows_is_tracked_through_and_the_returning_view_keeps_its_ids():
+    """A 300 deg/s turn logged as it happens: the pose puts the tracks (and, coming back, the re-ID memory's) on
+    the frame's boxes, so the turn's frames are used; the people seen first get their ids back, and every
+    reported track is near a person.
+    With the stand-down off (jump_agree_min 0, the default) the guard drops those frames and the tracks go
+    unreported."""
+    tracker, out = turn_flight(TrackerConfig(jump_agree_min=3))
+    assert tracker.frames_in_jump <= 4  # at most the turns' first frames, before three boxes are on tracks
+    reported_in_turns = sum(len(ids) for turning, ids, _ in out if turning)
+    assert reported_in_turns >= 50
+    assert max(d for *_, off in out for d in off) < 2.5  # a track coasting out of view drifts, none is put astray
+    before, after = out[20][1], out[-1][1]
+    assert before and before == after  # the people seen first are back under their ids
+    guarded, out_off = turn_flight(TrackerConfig())
+    assert guarded.frames_in_jump >= 18
+    assert sum(len(ids) for turning, ids, _ in out_off if turning) < reported_in_turns
+
+
+def _smeared_crowd_flight(config: TrackerConfig) -> tuple[GpsTracker, list[list[tuple[int, float, float]]]]:
+    """The crowd, the image jumping 60 deg away between two frames and back 3 s later, the 10 Hz log smearing each
+    jump over five frames (SMEAR, on the frames' clock). Returns the tracker and each frame's reported (id, lat,
+    lon)."""
+    tracker = GpsTracker(config, CLASSES)
+    heads = [0.0] * 60 + [60.0] * 90 + [0.0] * 60
+    out = []
+    for k, heading in enumerate(heads):
+        told = heading
+        for j in (60, 150):
+            if -2 <= k - j <= 2:
+                told = _told(heads[j - 1], heads[j], k - j)
+        tracks = tracker.report(tracker.update(seen(CIRCLE, pose_at(heading), pose_at(told)), pose_at(told),
+                                               T0 + k / FPS, CAM, pose_retimed=True))
+        out.append(sorted((tr.id, tr.lat, tr.lon) for tr in tracks))
+    return tracker, out
+
+
+def test_a_jump_the_telemetry_smears_over_a_crowd_stays_guarded():
+    """Over the smeared frames the pose puts the tracks hundreds of pixels from the boxes: the stand-down does not
+    act there (the same reports as with it off), only in the settle frames after, whose pose is right again."""
+    tracker, out = _smeared_crowd_flight(TrackerConfig(jump_agree_min=3))
+    guarded, out_off = _smeared_crowd_flight(TrackerConfig())
+    assert out[:63] == out_off[:63]  # up to the end of the first smear (the runs part in its settle frames)
+    assert guarded.frames_in_jump >= 2 * (len(SMEAR) - 1)  # the smear's frames turning faster than the guard's rate
+    assert 0 < guarded.frames_in_jump - tracker.frames_in_jump <= 2 * 4  # used: settle frames (0.1 s) only
+    kept = [len({i for i, *_ in o[40]} & {i for i, *_ in o[-1]}) for o in (out, out_off)]
+    assert kept[0] >= kept[1] >= len(out[40]) - 1  # the home view's people back under their ids, as with it off
 
 
 # ------------------------------------------------------------------------------ a group returning shifted
