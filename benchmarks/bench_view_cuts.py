@@ -63,13 +63,19 @@ def _clip(seconds: float, jumps: bool) -> tuple[list[tuple[Frame, None]], dict[i
 
 
 def _peak_mib(fn: Callable[[], object]) -> float:
-    """The peak of the memory fn allocates (tracemalloc), MiB."""
-    tracemalloc.start()
+    """The peak of the memory fn allocates above what is traced already (tracemalloc), MiB. An outer
+    tracemalloc session is left running (its peak is reset)."""
+    outer = tracemalloc.is_tracing()
+    if not outer:
+        tracemalloc.start()
+    tracemalloc.reset_peak()
+    before = tracemalloc.get_traced_memory()[0]
     try:
         fn()
-        peak = tracemalloc.get_traced_memory()[1]
+        peak = tracemalloc.get_traced_memory()[1] - before
     finally:
-        tracemalloc.stop()
+        if not outer:
+            tracemalloc.stop()
     return peak / 2**20
 
 

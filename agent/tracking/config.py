@@ -212,7 +212,7 @@ class TrackerConfig:
         included; a jump the telemetry smears (tens of degrees off: no box where a track projects) stays guarded,
         and so does a frame with fewer boxes or tracks than jump_agree_min (no evidence). jump_agree_min 0 (the
         default): off; 3 with the other defaults is the measured setting (docs/tracking.md, step 5b: +0.65 HOTA
-        on the tuning jump domains, +0.18 held out, where it gained 2.7 on the slow turns of a 10 Hz log and lost
+        on the tuning jump domains, +0.17 held out, where it gained 2.7 on the slow turns of a 10 Hz log and lost
         0.5-1.4 on two others).
 
     Appearance (optional: used when the detections carry descriptors, `FrameResult.embeddings`)

@@ -65,7 +65,7 @@ class ViewJumpGuard:
             return False
         fresh = np.flatnonzero(t - act["t_hit"] <= cfg.jump_agree_age_s)
         lost = state.lost
-        back = np.flatnonzero(t - lost["t_hit"] <= cfg.jump_agree_lost_s)
+        back = np.flatnonzero(~lost["claimed"] & (t - lost["t_hit"] <= cfg.jump_agree_lost_s))  # not on probation
         away = (t - lost["t_hit"][back])[:, None]
         pts = np.vstack([act["x"][fresh, :2], lost["pos"][back] + lost["vel"][back] * away])  # moved on linearly
         det = np.flatnonzero(~dets.used & (dets.scores >= cfg.match_score))

@@ -159,9 +159,9 @@ CIRCLE = [rotate((0.0, 22.0 + (7 * i) % 9), deg) for i, deg in enumerate(
 
 def turn_flight(config: TrackerConfig, told_lag_frames: int = 0):
     """1 s looking north, a 90 deg turn in 9 frames (300 deg/s, faster than the guard's rate), 1 s there, the same
-    turn back, 1 s. The telemetry gives the heading told_lag_frames frames late, on the frames' clock (retimed: no
-    latency assumed). Returns the tracker and, per
-    frame, (turning, the set of reported ids, each reported track's distance to the nearest person)."""
+    turn back, 1 s. The telemetry gives the heading told_lag_frames frames late: on the frames' clock (retimed)
+    when 0, else stamped that late (pose_t). Returns the tracker and, per frame, (turning, the set of reported
+    ids, each reported track's distance to the nearest person)."""
     tracker = GpsTracker(config, CLASSES)
     heads = [0.0] * 30 + [10.0 * k for k in range(1, 10)] + [90.0] * 30 + [90.0 - 10.0 * k for k in range(1, 10)] \
         + [0.0] * 30
@@ -169,7 +169,8 @@ def turn_flight(config: TrackerConfig, told_lag_frames: int = 0):
     for k, heading in enumerate(heads):
         told = heads[max(k - told_lag_frames, 0)]
         tracks = tracker.report(tracker.update(seen(CIRCLE, pose_at(heading), pose_at(told)), pose_at(told),
-                                               T0 + k / FPS, CAM, pose_retimed=True))
+                                               T0 + k / FPS, CAM, pose_t=T0 + (k - told_lag_frames) / FPS,
+                                               pose_retimed=told_lag_frames == 0))
         off = [min(math.hypot(float(e) - p[0], float(n) - p[1]) for p in CIRCLE)
                for e, n in (latlon_to_local(tr.lat, tr.lon, LAT0, LON0) for tr in tracks)]
         out.append((heading != told or 30 <= k < 40 or 69 <= k < 79, {tr.id for tr in tracks}, off))
@@ -192,6 +193,24 @@ def test_a_turn_the_telemetry_follows_is_tracked_through_and_the_returning_view_
     guarded, out_off = turn_flight(TrackerConfig())
     assert guarded.frames_in_jump >= 18
     assert sum(len(ids) for turning, ids, _ in out_off if turning) < reported_in_turns
+
+
+def test_the_tracks_are_projected_with_the_pose_turned_by_the_telemetrys_age():
+    """A 200 deg/s spin over 0.6 s, logged as it happens but stamped a frame late (pose_t): the tracker turns the
+    frame's points by the turn rate times that age (6.7 deg), and the stand-down projects the tracks with the
+    pose turned alike, so the spin's frames are used. Projected with the pose as logged (~350 px behind) they
+    would not be. (After the spin the rate is held for 0.25 s, as for a sample-and-hold log, and those frames
+    stay guarded.)"""
+    tracker = GpsTracker(TrackerConfig(jump_agree_min=3, telemetry_latency_s=0.0), CLASSES)
+    heads = [0.0] * 30 + [200.0 / FPS * k for k in range(1, 19)] + [120.0] * 30
+    used_in_spin = 0
+    for k, heading in enumerate(heads):
+        told = heads[max(k - 1, 0)]
+        before = tracker.frames_in_jump
+        tracker.update(seen(CIRCLE, pose_at(heading), pose_at(told)), pose_at(told), T0 + k / FPS, CAM,
+                       pose_t=T0 + (k - 1) / FPS)
+        used_in_spin += 32 <= k < 48 and tracker.frames_in_jump == before
+    assert used_in_spin >= 12  # 16 of 16; 2 with the pose as logged, 0 turned the other way
 
 
 def _smeared_crowd_flight(config: TrackerConfig) -> tuple[GpsTracker, list[list[tuple[int, float, float]]]]:

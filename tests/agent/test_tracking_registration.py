@@ -282,3 +282,31 @@ def test_point_heights_are_the_poses_over_flat_ground_and_the_distance_to_the_sl
     assert h[3] == 40.0
     flat = ElevationGrid.from_local(np.full((301, 301), 100.0), 47.67, 9.27, west_m=-150.0, north_m=150.0, cell_m=1.0)
     assert np.asarray(point_heights(rel, pose, Terrain(flat, 100.0))) == pytest.approx(40.0)
+
+
+def test_the_tracks_follow_a_pose_correction_with_their_height_on_the_terrain() -> None:
+    """GpsTracker's tracks and re-ID memory follow a pose correction (here at once: track_follow_s 0) by its
+    Jacobian at each point's effective height on the DEM (a plane rising 4 in 5: 40 / sqrt(1.64) m), as the
+    detections are corrected, not at the pose's 40 m."""
+    from agent.tracking import GpsTracker, TrackerConfig
+
+    pose = Pose(lat=47.67, lon=9.27, height_m=40.0, pitch_deg=35.0, heading_deg=0.0)
+    east = np.arange(-150.0, 151.0)
+    grid = ElevationGrid.from_local(np.tile(100.0 + 0.8 * east, (301, 1)), 47.67, 9.27, west_m=-150.0,
+                                    north_m=150.0, cell_m=1.0)
+    rel = np.array([[0.0, 30.0], [-20.0, 60.0], [45.0, -10.0]])
+    p = np.array([0.3, -0.2, np.radians(0.5), np.radians(1.0)])
+    tracker = GpsTracker(TrackerConfig(track_follow_s=0.0), {1: "person"})
+    state = tracker._state
+    state.origin = (pose.lat, pose.lon)
+    for table, key in ((state.active, "x"), (state.lost, "pos")):
+        table.cols = {k: np.zeros((3, *shape), dtype) for k, (shape, dtype) in table.fields.items()}
+        table.cols[key][:, :2] = rel
+    tracker._uav_en, tracker._correction = (0.0, 0.0), p.copy()
+    tracker._ground = (pose, Terrain(grid, 100.0))
+    tracker._follow_telemetry(0.1)
+    expected = rel - correction_jacobian(rel, 40.0 / np.sqrt(1.64)) @ p
+    assert state.active["x"][:, :2] == pytest.approx(expected, abs=1e-9)
+    assert state.lost["pos"] == pytest.approx(expected, abs=1e-9)
+    flat = rel - correction_jacobian(rel, 40.0) @ p
+    assert np.abs(flat - expected).max() > 0.1  # the pose's height would put them elsewhere
