@@ -18,7 +18,7 @@ from agent.tracking.model import mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
 from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_latlon, local_to_pixel
 
-__all__ = ["at_image_border", "birth", "decay_unseen_quality", "merge_duplicates", "reanchor", "retire"]
+__all__ = ["at_image_border", "birth", "decay_unseen_quality", "in_image", "merge_duplicates", "reanchor", "retire"]
 
 log = logging.getLogger(__name__)
 
@@ -102,12 +102,21 @@ def decay_unseen_quality(state: TrackState, pose: Pose, camera: Camera, terrain:
     miss = np.flatnonzero(~act["matched"])
     if not len(miss) or state.origin is None:
         return
-    uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
-    uv, ok = local_to_pixel(act["x"][miss, 0] - uav_e, act["x"][miss, 1] - uav_n, camera, pose, terrain=terrain)
-    mu, mv = state.config.unseen_margin * camera.width, state.config.unseen_margin * camera.height
-    inside = ok & (uv[:, 0] >= mu) & (uv[:, 0] <= camera.width - mu) & (uv[:, 1] >= mv) \
-        & (uv[:, 1] <= camera.height - mv)
+    _, inside = in_image(state, act["x"][miss, :2], pose, camera, terrain, state.config.unseen_margin)
     act.cols["quality"][miss[inside]] *= 1.0 - state.config.quality_rate
+
+
+def in_image(state: TrackState, en: NDArray, pose: Pose, camera: Camera, terrain: GroundSurface | None = None,
+             margin: float = 0.0) -> tuple[NDArray[np.float64], NDArray[np.bool_]]:
+    """Pixels (N, 2) of ground points en (N, 2), metres in the tracker's local frame, seen from pose (on `terrain`
+    when given), and whether each lies in the image at least margin (a share of its width and height) from its
+    border. Needs the local frame's origin (state.origin)."""
+    assert state.origin is not None
+    uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
+    uv, ok = local_to_pixel(en[:, 0] - uav_e, en[:, 1] - uav_n, camera, pose, terrain=terrain)
+    mu, mv = margin * camera.width, margin * camera.height
+    return uv, ok & (uv[:, 0] >= mu) & (uv[:, 0] <= camera.width - mu) & (uv[:, 1] >= mv) \
+        & (uv[:, 1] <= camera.height - mv)
 
 
 def merge_duplicates(state: TrackState, t: float) -> None:

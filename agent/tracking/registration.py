@@ -16,8 +16,8 @@ from agent.tracking.assignment import near_pairs
 from shared.geo import GroundSurface, Pose
 from shared.terrain import effective_height_m
 
-__all__ = ["anchored_offset", "correction_jacobian", "fit_pose_correction", "image_pairs", "point_heights",
-           "track_offset"]
+__all__ = ["anchored_offset", "correction_jacobian", "fit_pose_correction", "image_pairs", "model_heights",
+           "point_heights", "track_offset"]
 
 
 def track_offset(det_xy: NDArray, track_xy: NDArray, gate_m: float, min_pairs: int,
@@ -138,17 +138,23 @@ def correction_jacobian(rel_xy: NDArray, height_m: float | NDArray) -> NDArray[n
     return J
 
 
+def model_heights(effective_m: NDArray, height_m: float) -> NDArray[np.float64]:
+    """The flat error models' height per point from effective heights over a terrain (NaN: unknown): the pose's
+    height_m where unknown, at least 1 m."""
+    return np.maximum(np.where(np.isfinite(effective_m), effective_m, height_m), 1.0)
+
+
 def point_heights(rel_xy: NDArray, pose: Pose, terrain: GroundSurface | None) -> float | NDArray[np.float64]:
     """The height of the flat error models (correction_jacobian, the measurement covariance) for ground points
     (N, 2) metres relative to the point below the UAV at pose: the pose's over flat ground; over a terrain with
     slopes (`gradient`, as shared.terrain.Terrain has) each point's effective height
-    (shared.terrain.effective_height_m, at least 1 m), the pose's where the DEM does not reach."""
+    (shared.terrain.effective_height_m; `model_heights`), the pose's where the DEM does not reach."""
     if terrain is None or not hasattr(terrain, "gradient"):
         return pose.height_m
     rel = np.asarray(rel_xy, dtype=np.float64).reshape(-1, 2)
     up = terrain.up_m(rel[:, 0], rel[:, 1], pose)
-    h = effective_height_m(rel[:, 0], rel[:, 1], up, pose, terrain)  # type: ignore[arg-type]
-    return np.maximum(np.where(np.isfinite(h), h, pose.height_m), 1.0)
+    return model_heights(effective_height_m(rel[:, 0], rel[:, 1], up, pose, terrain),  # type: ignore[arg-type]
+                         pose.height_m)
 
 
 def fit_pose_correction(rel_xy: NDArray, residual: NDArray, S: NDArray, height_m: float | NDArray, prior_sd: NDArray,

@@ -338,8 +338,8 @@ class GpsTracker:
             focal = math.sqrt(camera.fx * camera.fy)
             rel = np.column_stack([rel_e, rel_n])
             # the error models' height: the pose's over flat ground, each point's effective one over a terrain
-            h: float | FloatArray = pose.height_m if dets.view_h is None else np.maximum(
-                np.where(np.isfinite(dets.view_h[geo]), dets.view_h[geo], pose.height_m), 1.0)
+            h: float | FloatArray = pose.height_m if dets.view_h is None else registration.model_heights(
+                dets.view_h[geo], pose.height_m)
             self.last_correction_carried = False
             if cfg.image_register:
                 anchored = self._apply_image_registration(dets, t, geo, rel, h, focal, heading_sd, pitch_sd)

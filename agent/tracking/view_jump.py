@@ -10,8 +10,9 @@ from collections import deque
 import numpy as np
 
 from agent.tracking.config import TrackerConfig
+from agent.tracking.lifecycle import in_image
 from agent.tracking.state import FrameDetections, TrackState
-from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_pixel
+from shared.geo import Camera, GroundSurface, Pose
 
 __all__ = ["ViewJumpGuard"]
 
@@ -71,9 +72,8 @@ class ViewJumpGuard:
         det = np.flatnonzero(~dets.used & (dets.scores >= cfg.match_score))
         if min(len(pts), len(det)) < cfg.jump_agree_min:
             return False
-        uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
-        uv, ok = local_to_pixel(pts[:, 0] - uav_e, pts[:, 1] - uav_n, camera, pose, terrain=terrain)
-        uv = uv[ok & (uv[:, 0] >= 0) & (uv[:, 0] < camera.width) & (uv[:, 1] >= 0) & (uv[:, 1] < camera.height)]
+        uv, inside = in_image(state, pts, pose, camera, terrain)
+        uv = uv[inside]
         if len(uv) < cfg.jump_agree_min:
             return False
         b = dets.boxes[det]

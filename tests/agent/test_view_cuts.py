@@ -204,14 +204,20 @@ def test_two_frames_a_second_cannot_tell_a_cut_from_a_turn() -> None:
     assert "too few frames" in report.stage_report().why and not report.stage_report().acted
 
 
+def _blurred(heading, start_s: float, end_s: float):
+    """The clip of a heading (a function of t), its frames strictly between start_s and end_s blurred to no boxes."""
+    frames, dets = _clip(heading)
+    empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
+    for f, _ in frames:
+        if start_s < f.t < end_s:
+            dets[f.image.id] = empty
+    return frames, dets
+
+
 def test_a_sweep_that_blur_empties_is_not_a_cut() -> None:
     # still at 10 deg, a 0.6 s sweep to 50 deg whose frames blur leaves without boxes, still again: the old and the
     # new view are apart by many empty frames, not a jump's few
-    frames, dets = _clip(lambda t: 10.0 + 40.0 * min(max((t - 1.2) / 0.6, 0.0), 1.0))
-    empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
-    for f, _ in frames:
-        if 1.2 < f.t < 1.8:
-            dets[f.image.id] = empty
+    frames, dets = _blurred(lambda t: 10.0 + 40.0 * min(max((t - 1.2) / 0.6, 0.0), 1.0), 1.2, 1.8)
     report = ViewCutReport()
     out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
     assert report.intervals == 1 and report.cuts == 0
@@ -222,11 +228,7 @@ def test_a_turn_that_blur_empties_for_a_few_tenths_is_cut_after_it() -> None:
     # still at 10 deg, a 0.4 s gimbal turn to 70 deg whose 11 frames blur leaves without boxes, still again (the
     # turns of grass-jumps-biased): the new view's first boxes are 12 frames after the old one's last, more than
     # 5 frames, within max_gap_s
-    frames, dets = _clip(lambda t: 10.0 + 60.0 * min(max((t - 1.3) / 0.4, 0.0), 1.0))
-    empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
-    for f, _ in frames:
-        if 1.3 < f.t < 1.7:
-            dets[f.image.id] = empty
+    frames, dets = _blurred(lambda t: 10.0 + 60.0 * min(max((t - 1.3) / 0.4, 0.0), 1.0), 1.3, 1.7)
     report = ViewCutReport()
     out = place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
     assert (report.intervals, report.cuts) == (1, 1)
