@@ -389,6 +389,8 @@ class TrackerConfig:
     jump_agree_frac: float = 0.5
     jump_agree_age_s: float = 0.5
     jump_agree_lost_s: float = 6.0
+    jump_motion_min: int = 0
+    jump_motion_tol: float = 0.5
     use_appearance: bool = True
     appearance_ema: float = 0.9
     reid_appearance_weight: float = 10.0
@@ -429,7 +431,7 @@ class TrackerConfig:
     def __post_init__(self) -> None:
         positive = {"confirm_window_s", "tentative_coast_s", "max_coast_s", "gate_chi2", "max_gate_m",
                     "position_sigma_m", "max_measurement_sigma_m", "merge_chi2", "merge_max_m", "reid_gate_chi2",
-                    "reanchor_m"}
+                    "reanchor_m", "jump_motion_tol"}
         unit = {"duplicate_iou", "duplicate_ioa", "birth_suppress_iou", "iou_threshold", "quality_rate",
                 "image_register_iou"}
         if self.image_first_iou and not 0.0 < self.image_first_iou <= 1.0:
@@ -460,8 +462,10 @@ class TrackerConfig:
                              f"got {self.exit_margin_px!r}")
         if self.image_overlap not in IMAGE_OVERLAPS:
             raise ValueError(f"TrackerConfig.image_overlap must be one of {IMAGE_OVERLAPS}, got {self.image_overlap!r}")
-        if isinstance(self.jump_agree_min, bool) or not isinstance(self.jump_agree_min, int):
-            raise ValueError(f"TrackerConfig.jump_agree_min={self.jump_agree_min!r} must be an integer >= 0")
+        for name in ("jump_agree_min", "jump_motion_min"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int):
+                raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 0")
         if self.jump_agree_frac > 1.0:
             raise ValueError(f"TrackerConfig.jump_agree_frac={self.jump_agree_frac!r} must be in [0, 1]")
         for name in ("register_min_pairs", "image_register_min_pairs", "report_level_top_k"):

@@ -164,7 +164,7 @@ class GpsTracker:
     @property
     def frames_in_jump(self) -> int:
         """Frames so far inside a view jump (`TrackerConfig.jump_rate_deg_s`) whose boxes were not used."""
-        return self._jump.frames - self._jump.agreed
+        return self._jump.frames - self._jump.followed - self._jump.agreed
 
     @property
     def n_reidentified(self) -> int:
@@ -282,8 +282,8 @@ class GpsTracker:
             cap = self.config.max_heading_correction_deg
             turn_deg = max(-cap, min(cap, self._heading_rate_deg_s * lag_s))
             # in a view jump the pose does not place (agent.tracking.view_jump) the tracks coast: no match, birth, re-ID
-            if (not self._jump.in_jump(pose.heading_deg, pose.pitch_deg, t, self.config) or self._jump.agrees(
-                    state, dets, replace(pose, heading_deg=(pose.heading_deg + turn_deg) % 360.0), t, camera, terrain)):
+            if self._jump.usable(state, dets, pose, replace(pose, heading_deg=(pose.heading_deg + turn_deg) % 360.0),
+                                 t, camera, terrain):
                 undo = None if self.config.use_pipeline_correction or result.correction is None else (
                     float(result.correction.east_m), float(result.correction.north_m))
                 self._frame_with_pose(dets, pose, t, camera, turn_deg=turn_deg, dt=dt, undo_en=undo, terrain=terrain)

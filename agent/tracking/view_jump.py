@@ -1,6 +1,7 @@
 """View jumps: frames whose pose cannot place their boxes because the gimbal jumped and the telemetry shows the
 jump smeared over several frames (`TrackerConfig.jump_rate_deg_s`); the tracker does not use them, unless the
-pose places the tracks on the frame's boxes after all (`TrackerConfig.jump_agree_min`).
+pose places the tracks on the frame's boxes after all (`TrackerConfig.jump_agree_min`) or the image moved since
+the last frame as the pose did (`TrackerConfig.jump_motion_min`).
 """
 
 from __future__ import annotations
@@ -8,11 +9,12 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
+from numpy.typing import NDArray
 
 from agent.tracking.config import TrackerConfig
 from agent.tracking.lifecycle import in_image
 from agent.tracking.state import FrameDetections, TrackState
-from shared.geo import Camera, GroundSurface, Pose
+from shared.geo import Camera, GroundSurface, Pose, latlon_to_pixel, pixel_to_latlon
 
 __all__ = ["ViewJumpGuard"]
 
@@ -31,9 +33,27 @@ class ViewJumpGuard:
     def __init__(self) -> None:
         self._recent: deque[tuple[float, float, float]] = deque()  # (t, heading, pitch) of the last frames
         self._t_jump: float | None = None  # time of the last frame whose pose turned at a jump's rate
-        #: Frames judged in a jump so far, and those of them used after all (`agrees`).
+        #: The last frame with confident boxes (`follows`): time, box centres and diagonals (N, 3), pose, terrain.
+        self._last: tuple[float, NDArray, Pose, GroundSurface | None] | None = None
+        #: Frames judged in a jump so far, and those of them used after all (`follows`, `agrees`).
         self.frames = 0
+        self.followed = 0
         self.agreed = 0
+
+    def usable(self, state: TrackState, dets: FrameDetections, pose: Pose, turned: Pose, t: float, camera: Camera,
+               terrain: GroundSurface | None = None) -> bool:
+        """Whether the tracker may use the frame's boxes: it is not in a view jump (`in_jump`), or its pose places
+        its view after all: the image moved since the last frame with boxes as the pose did (`follows`), or the
+        pose turned by the telemetry's age (turned) puts the tracks on its boxes (`agrees`)."""
+        cfg = state.config
+        ok = (not self.in_jump(pose.heading_deg, pose.pitch_deg, t, cfg)
+              or self.follows(dets, pose, t, camera, cfg, terrain)
+              or self.agrees(state, dets, turned, t, camera, terrain))
+        if cfg.jump_motion_min > 0:
+            centres = _centres(dets, cfg.match_score)
+            if len(centres) >= 2:
+                self._last = (t, centres, pose, terrain)
+        return ok
 
     def in_jump(self, heading_deg: float, pitch_deg: float, t: float, config: TrackerConfig) -> bool:
         """Record the frame's pose (degrees) at time t (seconds, non-decreasing) and say whether the frame is in
@@ -51,6 +71,39 @@ class ViewJumpGuard:
         jump = self._t_jump is not None and t - self._t_jump <= config.jump_settle_s
         self.frames += jump
         return jump
+
+    def follows(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera, config: TrackerConfig,
+                terrain: GroundSurface | None = None) -> bool:
+        """Whether a frame in a jump moved in the image as its pose did (`TrackerConfig.jump_motion_min`): the
+        confident boxes of the last frame with boxes (at most jump_agree_age_s before), put on the ground with
+        that frame's pose and projected with this one's, fall (centre within jump_motion_tol of the two boxes' mean
+        diagonal) on at least jump_motion_min of this frame's confident boxes and jump_agree_frac of the fewer, and
+        on no fewer than the boxes where they were (an image standing still) do. The test is differential: a
+        pose that lags the view by a steady delay passes through a turn the log follows, and the frames that
+        settle after a jump pass as soon as the pose and the image both hold still. A jump the telemetry smears
+        fails: the image steady while the pose turns, or the image jumping while the pose barely moves."""
+        last = self._last
+        if config.jump_motion_min <= 0 or last is None or t - last[0] > config.jump_agree_age_s:
+            return False
+        now = _centres(dets, config.match_score)
+        if len(now) < config.jump_motion_min:
+            return False
+        _, before, pose_before, terrain_before = last
+        lat, lon, ok = pixel_to_latlon(before[:, :2], camera, pose_before, terrain=terrain_before)
+        if ok.sum() < config.jump_motion_min:
+            return False
+        uv, seen = latlon_to_pixel(lat[ok], lon[ok], camera, pose, terrain=terrain)
+        moved, before = np.column_stack([uv, before[ok, 2]])[seen], before[ok][seen]
+        inside = (moved[:, 0] >= 0) & (moved[:, 0] <= camera.width) & (moved[:, 1] >= 0) \
+            & (moved[:, 1] <= camera.height)
+        moved, before = moved[inside], before[inside]
+        if len(moved) < config.jump_motion_min:
+            return False
+        on = _on(moved, now, config.jump_motion_tol)
+        follow = (on >= config.jump_motion_min and on >= config.jump_agree_frac * min(len(moved), len(now))
+                  and on >= _on(before, now, config.jump_motion_tol))
+        self.followed += follow
+        return follow
 
     def agrees(self, state: TrackState, dets: FrameDetections, pose: Pose, t: float, camera: Camera,
                terrain: GroundSurface | None = None) -> bool:
@@ -84,3 +137,18 @@ class ViewJumpGuard:
         agree = hits >= max(cfg.jump_agree_min, cfg.jump_agree_frac * min(len(uv), len(det)))
         self.agreed += agree
         return agree
+
+
+def _centres(dets: FrameDetections, min_score: float) -> NDArray:
+    """(N, 3) centre x, y and diagonal (pixels) of the frame's boxes scoring >= min_score (not image duplicates)."""
+    b = dets.boxes[~dets.used & (dets.scores >= min_score)].astype(np.float64)
+    return np.column_stack([(b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2,
+                            np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])])
+
+
+def _on(a: NDArray, b: NDArray, tol: float) -> int:
+    """How many of two frames' boxes (rows: centre x, y, diagonal) lie on one of the other's, centres within tol
+    of the two boxes' mean diagonal, counted the way fewer are (a box of a crowd may find several)."""
+    near = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) \
+        <= tol * 0.5 * (a[:, None, 2] + b[None, :, 2])
+    return min(int(near.any(axis=1).sum()), int(near.any(axis=0).sum()))

@@ -149,6 +149,10 @@ def test_jump_settings_are_checked():
         TrackerConfig(jump_agree_frac=1.5)
     with pytest.raises(ValueError, match="jump_agree_lost_s"):
         TrackerConfig(jump_agree_lost_s=-1.0)
+    with pytest.raises(ValueError, match="jump_motion_min"):
+        TrackerConfig(jump_motion_min=-1)
+    with pytest.raises(ValueError, match="jump_motion_tol"):
+        TrackerConfig(jump_motion_tol=0.0)
 
 
 #: People around the UAV at irregular bearings (so no turn maps the crowd onto itself) and ranges: 4-7 of them in
@@ -177,13 +181,18 @@ def turn_flight(config: TrackerConfig, told_lag_frames: int = 0):
     return tracker, out
 
 
-def test_a_turn_the_telemetry_follows_is_tracked_through_and_the_returning_view_keeps_its_ids():
-    """A 300 deg/s turn logged as it happens: the pose puts the tracks (and, coming back, the re-ID memory's) on
-    the frame's boxes, so the turn's frames are used; the people seen first get their ids back, and every
-    reported track is near a person.
-    With the stand-down off (jump_agree_min 0, the default) the guard drops those frames and the tracks go
-    unreported."""
-    tracker, out = turn_flight(TrackerConfig(jump_agree_min=3))
+#: The guard's stand-downs: the image moving as the pose does (jump_motion_min), the pose putting the tracks on the
+#: boxes (jump_agree_min), either.
+STAND_DOWNS = [{"jump_motion_min": 3}, {"jump_agree_min": 3}, {"jump_motion_min": 3, "jump_agree_min": 3}]
+
+
+@pytest.mark.parametrize("stand_down", STAND_DOWNS)
+def test_a_turn_the_telemetry_follows_is_tracked_through_and_the_returning_view_keeps_its_ids(stand_down):
+    """A 300 deg/s turn logged as it happens: the boxes move from frame to frame as the pose does, and the pose
+    puts the tracks (and, coming back, the re-ID memory's) on the frame's boxes, so the turn's frames are used;
+    the people seen first get their ids back, and every reported track is near a person.
+    With the stand-downs off (the default) the guard drops those frames and the tracks go unreported."""
+    tracker, out = turn_flight(TrackerConfig(**stand_down))
     assert tracker.frames_in_jump <= 4  # at most the turns' first frames, before three boxes are on tracks
     reported_in_turns = sum(len(ids) for turning, ids, _ in out if turning)
     assert reported_in_turns >= 50
@@ -213,6 +222,23 @@ def test_the_tracks_are_projected_with_the_pose_turned_by_the_telemetrys_age():
     assert used_in_spin >= 12  # 16 of 16; 2 with the pose as logged, 0 turned the other way
 
 
+def test_the_motion_check_passes_a_spin_whose_log_lags_by_an_unknown_delay():
+    """The same spin logged a frame late with no stamp to tell (pose_t is the frame's time): the image moves from
+    frame to frame as the pose does, a frame later, so the motion check (differential) uses the spin's frames;
+    the guard alone drops them all."""
+    used = {}
+    for name, config in (("motion", TrackerConfig(jump_motion_min=3)), ("guard", TrackerConfig())):
+        tracker = GpsTracker(config, CLASSES)
+        heads = [0.0] * 30 + [200.0 / FPS * k for k in range(1, 19)] + [120.0] * 30
+        used[name] = 0
+        for k, heading in enumerate(heads):
+            told = heads[max(k - 1, 0)]
+            before = tracker.frames_in_jump
+            tracker.update(seen(CIRCLE, pose_at(heading), pose_at(told)), pose_at(told), T0 + k / FPS, CAM)
+            used[name] += 32 <= k < 48 and tracker.frames_in_jump == before
+    assert used["motion"] >= 14 and used["guard"] == 0
+
+
 def _smeared_crowd_flight(config: TrackerConfig) -> tuple[GpsTracker, list[list[tuple[int, float, float]]]]:
     """The crowd, the image jumping 60 deg away between two frames and back 3 s later, the 10 Hz log smearing each
     jump over five frames (SMEAR, on the frames' clock). Returns the tracker and each frame's reported (id, lat,
@@ -231,10 +257,12 @@ def _smeared_crowd_flight(config: TrackerConfig) -> tuple[GpsTracker, list[list[
     return tracker, out
 
 
-def test_a_jump_the_telemetry_smears_over_a_crowd_stays_guarded():
-    """Over the smeared frames the pose puts the tracks hundreds of pixels from the boxes: the stand-down does not
-    act there (the same reports as with it off), only in the settle frames after, whose pose is right again."""
-    tracker, out = _smeared_crowd_flight(TrackerConfig(jump_agree_min=3))
+@pytest.mark.parametrize("stand_down", STAND_DOWNS)
+def test_a_jump_the_telemetry_smears_over_a_crowd_stays_guarded(stand_down):
+    """Over the smeared frames the pose puts the tracks hundreds of pixels from the boxes, and it turns while the
+    image stands still (or the image jumps while the pose moves a few degrees): the stand-downs do not act there
+    (the same reports as with them off), only in the settle frames after, whose pose is right again."""
+    tracker, out = _smeared_crowd_flight(TrackerConfig(**stand_down))
     guarded, out_off = _smeared_crowd_flight(TrackerConfig())
     assert out[:63] == out_off[:63]  # up to the end of the first smear (the runs part in its settle frames)
     assert guarded.frames_in_jump >= 2 * (len(SMEAR) - 1)  # the smear's frames turning faster than the guard's rate
