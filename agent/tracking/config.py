@@ -214,6 +214,14 @@ class TrackerConfig:
         default): off; 3 with the other defaults is the measured setting (docs/tracking.md, step 5b: +0.65 HOTA
         on the tuning jump domains, +0.17 held out, where it gained 2.7 on the slow turns of a 10 Hz log and lost
         0.5-1.4 on two others).
+    jump_motion_min, jump_motion_tol : int, float
+        A frame in a view jump is used after all when the image moved as its pose did (`ViewJumpGuard.follows`):
+        the confident boxes of the last frame with boxes (at most jump_agree_age_s before), put on the ground with
+        that frame's pose and projected with this one's, lie (centres within jump_motion_tol of the two boxes' mean
+        diagonal) on at least jump_motion_min of its confident boxes and jump_agree_frac of the fewer, and on no
+        fewer than the boxes where they were do. Differential, so a log lagging by a steady delay passes through a
+        turn it follows. With jump_agree_min too, either check may use a frame. jump_motion_min 0 (the default):
+        off (docs/tracking.md, step 5b).
 
     Appearance (optional: used when the detections carry descriptors, `FrameResult.embeddings`)
     ----------
