@@ -222,7 +222,8 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         stats["reidentified"] = stats.get("reidentified", 0) + tracker.n_reidentified
         stats.setdefault("problems", []).extend(problems)
         stages = stats.setdefault("stage_summary", StageSummary())
-        for report in [*telemetry_reports(telemetry, pipeline_config.clock_offset_settings()), *pipe.stage_reports()]:
+        for report in [*telemetry_reports(telemetry, pipeline_config.clock_offset_settings()), *pipe.stage_reports(),
+                       *tracker.stage_reports()]:
             stages.add(report)
     return rows
 

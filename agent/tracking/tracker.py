@@ -13,6 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.frame_result import FrameResult
+from agent.stage_report import StageReport
 from agent.tracking import registration, reid
 from agent.tracking.association import (
     associate_ground,
@@ -165,6 +166,10 @@ class GpsTracker:
     def frames_in_jump(self) -> int:
         """Frames so far inside a view jump (`TrackerConfig.jump_rate_deg_s`) whose boxes were not used."""
         return self._jump.frames - self._jump.followed - self._jump.agreed
+
+    def stage_reports(self) -> list[StageReport]:
+        """What the tracker's adaptive parts did in this video (agent.stage_report): the view-jump guard."""
+        return [self._jump.report(self.config)]
 
     @property
     def n_reidentified(self) -> int:

@@ -11,6 +11,7 @@ from collections import deque
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.stage_report import StageReport
 from agent.tracking.config import TrackerConfig
 from agent.tracking.lifecycle import in_image
 from agent.tracking.state import FrameDetections, TrackState
@@ -54,6 +55,20 @@ class ViewJumpGuard:
             if len(centres) >= 2:
                 self._last = (t, centres, pose, terrain)
         return ok
+
+    def report(self, config: TrackerConfig) -> StageReport:
+        """What the guard did so far (agent.stage_report): the frames in view jumps it held back and those a
+        stand-down used after all; stood down when the telemetry showed no jump (or the guard is off)."""
+        if config.jump_rate_deg_s <= 0:
+            return StageReport("view-jump guard", False, "off (jump_rate_deg_s 0)")
+        if not self.frames:
+            return StageReport("view-jump guard", False, "no view jump in the telemetry")
+        used = self.followed + self.agreed
+        why = f"{self.frames - used} frames in view jumps held back"
+        if config.jump_motion_min > 0 or config.jump_agree_min > 0:
+            why += (f", {used} used after all ({self.followed} moving as the pose did, {self.agreed} with the"
+                    " tracks on their boxes)")
+        return StageReport("view-jump guard", True, why)
 
     def in_jump(self, heading_deg: float, pitch_deg: float, t: float, config: TrackerConfig) -> bool:
         """Record the frame's pose (degrees) at time t (seconds, non-decreasing) and say whether the frame is in

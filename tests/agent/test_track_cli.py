@@ -59,6 +59,12 @@ def test_mot_file_has_one_row_per_reported_track_and_frame(data, tmp_path, capsy
     assert set(np.unique(arr[:, 1]).astype(int)) == {tid for _, tid in seen}
 
 
+def test_the_summary_says_what_the_view_jump_guard_did(data, tmp_path, capsys):
+    assert track(data, tmp_path / "tracks.txt") == 0
+    # the reid flights turn gently: the guard stands down in both videos, and says why
+    assert "view-jump guard: acted 0, stood down 2 - no view jump in the telemetry (2)" in capsys.readouterr().out
+
+
 def test_several_videos_give_one_file_per_video_beside_the_out_file(data, tmp_path):
     out = tmp_path / "tracks.txt"
     assert track(data, out) == 0

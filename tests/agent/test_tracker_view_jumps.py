@@ -5,6 +5,7 @@ Real camera geometry (shared.geo), no mocks."""
 from __future__ import annotations
 
 import math
+import re
 
 import numpy as np
 import pytest
@@ -19,6 +20,10 @@ LAT0, LON0 = 48.53, 9.06
 FPS = 30.0
 CLASSES = {1: "person"}
 T0 = 1.7e9
+
+#: The guard's stand-downs: the image moving as the pose does (jump_motion_min), the pose putting the tracks on the
+#: boxes (jump_agree_min), either.
+STAND_DOWNS = [{"jump_motion_min": 3}, {"jump_agree_min": 3}, {"jump_motion_min": 3, "jump_agree_min": 3}]
 
 
 def pose_at(heading_deg: float) -> Pose:
@@ -96,6 +101,26 @@ def test_an_object_that_left_the_view_and_returns_after_a_jump_keeps_its_id_and_
     assert len(away) == 1
     assert tracker.n_reidentified == 1
     assert tracker.frames_in_jump >= 2 * len(SMEAR)  # both jumps were recognised in the telemetry
+
+
+@pytest.mark.parametrize("stand_down", [{}, *STAND_DOWNS])
+def test_the_guard_reports_the_frames_it_held_back_and_those_used_after_all(stand_down):
+    tracker, _ = turn_flight(TrackerConfig(**stand_down))
+    report = tracker.stage_reports()[0]
+    assert report.stage == "view-jump guard" and report.acted
+    held = tracker.frames_in_jump
+    assert report.why.startswith(f"{held} frames in view jumps held back")
+    if stand_down:
+        used = re.search(r", (\d+) used after all \((\d+) moving as the pose did, (\d+) with the tracks", report.why)
+        assert used is not None and int(used[1]) == int(used[2]) + int(used[3]) >= 14  # the followed turns' frames
+        assert int(used[2]) > 0 if "jump_motion_min" in stand_down else int(used[2]) == 0
+    else:
+        assert "used after all" not in report.why and held >= 18
+    quiet = GpsTracker(TrackerConfig(), CLASSES)
+    quiet.update(seen(CIRCLE, pose_at(0.0), pose_at(0.0)), pose_at(0.0), T0, CAM)
+    assert quiet.stage_reports()[0].why == "no view jump in the telemetry" and not quiet.stage_reports()[0].acted
+    off = GpsTracker(TrackerConfig(jump_rate_deg_s=0.0), CLASSES)
+    assert off.stage_reports()[0].why == "off (jump_rate_deg_s 0)"
 
 
 def test_without_the_jump_guard_the_returning_object_loses_its_id():
@@ -179,11 +204,6 @@ def turn_flight(config: TrackerConfig, told_lag_frames: int = 0):
                for e, n in (latlon_to_local(tr.lat, tr.lon, LAT0, LON0) for tr in tracks)]
         out.append((heading != told or 30 <= k < 40 or 69 <= k < 79, {tr.id for tr in tracks}, off))
     return tracker, out
-
-
-#: The guard's stand-downs: the image moving as the pose does (jump_motion_min), the pose putting the tracks on the
-#: boxes (jump_agree_min), either.
-STAND_DOWNS = [{"jump_motion_min": 3}, {"jump_agree_min": 3}, {"jump_motion_min": 3, "jump_agree_min": 3}]
 
 
 @pytest.mark.parametrize("stand_down", STAND_DOWNS)
