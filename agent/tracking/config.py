@@ -216,10 +216,10 @@ class TrackerConfig:
         0.5-1.4 on two others).
     jump_motion_min, jump_motion_tol : int, float
         A frame in a view jump is used after all when the image moved as its pose did (`ViewJumpGuard.follows`):
-        the confident boxes of the last frame with boxes (at most jump_agree_age_s before), put on the ground with
-        that frame's pose and projected with this one's, lie (centres within jump_motion_tol of the two boxes' mean
-        diagonal) on at least jump_motion_min of its confident boxes and jump_agree_frac of the fewer, and on no
-        fewer than the boxes where they were do. Differential, so a log lagging by a steady delay passes through a
+        the confident boxes of the last frame with that many (at most jump_agree_age_s before), put on the ground
+        with that frame's pose and projected with this one's, lie (centres within jump_motion_tol of the two boxes'
+        mean diagonal) on at least jump_motion_min of its confident boxes and jump_agree_frac of the fewer, and on
+        no fewer than the boxes where they were do. Differential, so a log lagging by a steady delay passes through a
         turn it follows. With jump_agree_min too, either check may use a frame. jump_motion_min 0 (the default):
         off (docs/tracking.md, step 5b).
 

@@ -34,7 +34,8 @@ class ViewJumpGuard:
     def __init__(self) -> None:
         self._recent: deque[tuple[float, float, float]] = deque()  # (t, heading, pitch) of the last frames
         self._t_jump: float | None = None  # time of the last frame whose pose turned at a jump's rate
-        #: The last frame with confident boxes (`follows`): time, box centres and diagonals (N, 3), pose, terrain.
+        #: The last frame with jump_motion_min confident boxes (`follows`): time, box centres and diagonals (N, 3),
+        #: pose, terrain.
         self._last: tuple[float, NDArray, Pose, GroundSurface | None] | None = None
         #: Frames judged in a jump so far, and those of them used after all (`follows`, `agrees`).
         self.frames = 0
@@ -50,9 +51,9 @@ class ViewJumpGuard:
         ok = (not self.in_jump(pose.heading_deg, pose.pitch_deg, t, cfg)
               or self.follows(dets, pose, t, camera, cfg, terrain)
               or self.agrees(state, dets, turned, t, camera, terrain))
-        if cfg.jump_motion_min > 0:
+        if cfg.jump_motion_min > 0 and cfg.jump_rate_deg_s > 0:
             centres = _centres(dets, cfg.match_score)
-            if len(centres) >= 2:
+            if len(centres) >= cfg.jump_motion_min:  # a frame with fewer would leave the next one nothing to check
                 self._last = (t, centres, pose, terrain)
         return ok
 
@@ -90,15 +91,16 @@ class ViewJumpGuard:
     def follows(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera, config: TrackerConfig,
                 terrain: GroundSurface | None = None) -> bool:
         """Whether a frame in a jump moved in the image as its pose did (`TrackerConfig.jump_motion_min`): the
-        confident boxes of the last frame with boxes (at most jump_agree_age_s before), put on the ground with
-        that frame's pose and projected with this one's, fall (centre within jump_motion_tol of the two boxes' mean
-        diagonal) on at least jump_motion_min of this frame's confident boxes and jump_agree_frac of the fewer, and
-        on no fewer than the boxes where they were (an image standing still) do. The test is differential: a
+        confident boxes of the last frame with at least jump_motion_min of them (at most jump_agree_age_s before),
+        put on the ground with that frame's pose and projected with this one's, fall (centre within
+        jump_motion_tol of the two boxes' mean diagonal) on at least jump_motion_min of this frame's confident
+        boxes and jump_agree_frac of the fewer, and on no fewer than the boxes where they were (an image standing
+        still) do. The test is differential: a
         pose that lags the view by a steady delay passes through a turn the log follows, and the frames that
         settle after a jump pass as soon as the pose and the image both hold still. A jump the telemetry smears
         fails: the image steady while the pose turns, or the image jumping while the pose barely moves."""
         last = self._last
-        if config.jump_motion_min <= 0 or last is None or t - last[0] > config.jump_agree_age_s:
+        if config.jump_motion_min <= 0 or last is None or not 0.0 <= t - last[0] <= config.jump_agree_age_s:
             return False
         now = _centres(dets, config.match_score)
         if len(now) < config.jump_motion_min:

@@ -174,8 +174,9 @@ def test_jump_settings_are_checked():
         TrackerConfig(jump_agree_frac=1.5)
     with pytest.raises(ValueError, match="jump_agree_lost_s"):
         TrackerConfig(jump_agree_lost_s=-1.0)
-    with pytest.raises(ValueError, match="jump_motion_min"):
-        TrackerConfig(jump_motion_min=-1)
+    for bad in (-1, 1.5, True):
+        with pytest.raises(ValueError, match="jump_motion_min"):
+            TrackerConfig(jump_motion_min=bad)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="jump_motion_tol"):
         TrackerConfig(jump_motion_tol=0.0)
 
@@ -257,6 +258,28 @@ def test_the_motion_check_passes_a_spin_whose_log_lags_by_an_unknown_delay():
             tracker.update(seen(CIRCLE, pose_at(heading), pose_at(told)), pose_at(told), T0 + k / FPS, CAM)
             used[name] += 32 <= k < 48 and tracker.frames_in_jump == before
     assert used["motion"] >= 14 and used["guard"] == 0
+
+
+def _first(result: FrameResult, k: int) -> FrameResult:
+    """The frame's first k detections (the others missed, as in a blurred frame)."""
+    return FrameResult(result.boxes_xyxy[:k], result.scores[:k], result.raw_scores[:k], result.class_ids[:k],
+                       result.lat[:k], result.lon[:k], k, 0, k)
+
+
+def test_a_frame_with_too_few_boxes_leaves_the_motion_check_its_reference():
+    """In the spin, every other frame sees only two of its people (fewer than jump_motion_min): the frame after
+    it is compared with the last frame that had enough boxes, and is used."""
+    tracker = GpsTracker(TrackerConfig(jump_motion_min=3), CLASSES)
+    heads = [0.0] * 30 + [200.0 / FPS * k for k in range(1, 19)] + [120.0] * 30
+    used_after_sparse = sparse = 0
+    for k, heading in enumerate(heads):
+        result = seen(CIRCLE, pose_at(heading), pose_at(heading))
+        thin = 32 <= k < 48 and k % 2 == 0
+        before = tracker.frames_in_jump
+        tracker.update(_first(result, 2) if thin else result, pose_at(heading), T0 + k / FPS, CAM)
+        sparse += thin
+        used_after_sparse += 32 <= k < 48 and k % 2 == 1 and tracker.frames_in_jump == before
+    assert sparse == 8 and used_after_sparse >= 7  # the thin frames themselves are held back
 
 
 def _smeared_crowd_flight(config: TrackerConfig) -> tuple[GpsTracker, list[list[tuple[int, float, float]]]]:
