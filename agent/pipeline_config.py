@@ -143,7 +143,7 @@ class PipelineConfig:
     Tuning of the joint detections (agent.joint_detections; measured on the simulator's `coop`):
     joint_peak_smoothing_m: standard deviation (m) of the Gaussian that smooths the others' evidence
         before looking for its maxima (maps clip at 1: a steadily seen object is a plateau). 0.25 since 28 Nov
-        2026, chosen on the coop tuning domains (the weaker UAV's joint AP50 +0.80 over 1.0, seeds 0-2; 0.1-0.5
+        2026, chosen on the coop tuning domains (the weaker UAV's joint AP50 +0.80 over 1.0, seeds 0-2; 0.1-1.5
         measured) and held out once (+0.46 on average, `coop-glare-east` +0.74, `coop-sea-glare` -0.70):
         why is not measured: a 1 m kernel can merge two neighbours' plateaus into one peak.
     joint_peak_gate_across_rad, joint_peak_gate_down_rad: angular gate around a peak's (registered) pixel,
