@@ -40,6 +40,8 @@ __all__ = ["UPRIGHT_DIMENSIONS_M", "JointCarry", "JointDetections", "JointRegist
 #: box (its size comes from the size filter's band). The dimensions behind agent.size_filter's priors.
 UPRIGHT_DIMENSIONS_M: dict[str, tuple[float, float, float]] = {
     cls: (w, d, h) for cls, (w, d, h, _) in NOMINAL_DIMENSIONS_M.items()}
+#: Gaussian standard deviation (m) that orders tied maxima of a plateau, its middle first.
+_TIE_SMOOTHING_M = 1.0
 _KERNEL = np.ones((3, 3), np.uint8)
 #: The settings' defaults (the tuning constants of this module are PipelineConfig.joint_* fields).
 _DEFAULTS = PipelineConfig()
@@ -144,12 +146,16 @@ def _view_peaks(joint: JointLayer, memory: MemoryMap, cls: str, window: tuple[in
     others[rows, cols] = others_evidence(values[rows, cols],
                                          memory.values_at(cls, cols + gx0 + 0.5, rows + gy0 + 0.5), cover_uavs,
                                          None if cover is None else cover[rows, cols])
-    # maps clip at 1, so a steadily seen object is a plateau; smoothing leaves one maximum at its middle
-    sigma = smoothing_m / float(grid.cell_size_m(pose.lat))
-    smooth = cv2.GaussianBlur(others, (0, 0), sigma)
+    # Maps clip at 1, so a steadily seen object (or a group, or a walker's trail) is a plateau. Smoothed by
+    # smoothing_m (0.25 m) its inner cells stay tied maxima, so that the caller's suppression keeps one peak per
+    # joint_gate_m of a wide plateau; ties are ordered by the evidence smoothed over _TIE_SMOOTHING_M, so the
+    # first peak kept is the plateau's middle (not the first cell in row order).
+    cell_m = float(grid.cell_size_m(pose.lat))
+    smooth = cv2.GaussianBlur(others, (0, 0), smoothing_m / cell_m)
     rows, cols = np.nonzero((smooth >= cv2.dilate(smooth, _KERNEL)) & (others >= min_value))
     evidence = others[rows, cols]
-    order = np.argsort(-evidence, kind="stable")
+    middle = cv2.GaussianBlur(others, (0, 0), _TIE_SMOOTHING_M / cell_m)[rows, cols]
+    order = np.lexsort((-middle, -evidence))
     return cols[order] + gx0 + 0.5, rows[order] + gy0 + 0.5, evidence[order]
 
 
