@@ -15,7 +15,7 @@ from agent.memory_map import JointLayer
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import BUILTIN_PRIORS
-from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon
+from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon, pixel_to_latlon
 
 CAM = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
 POSE = Pose(lat=48.53, lon=9.05, height_m=30.0, pitch_deg=40.0, heading_deg=0.0)
@@ -26,7 +26,8 @@ SYNTH = dataclasses.replace(PipelineConfig(), joint_synth_factor=0.25)
 
 
 def joint_with_blob(east_m: float, north_m: float, peak: float = 0.6) -> tuple[JointLayer, float, float]:
-    """A joint layer with one Gaussian blob (sigma 1.5 cells) centred on the cell at east/north of POSE.
+    """A joint layer with one Gaussian blob (sigma 1.5 cells) centred on the cell at east/north of POSE, clipped at
+    1 as the maps are (a peak above 1 makes a plateau).
 
     Returns the layer and the lat/lon of the blob's centre cell.
     """
@@ -41,7 +42,7 @@ def joint_with_blob(east_m: float, north_m: float, peak: float = 0.6) -> tuple[J
         for dx in range(-8, 9):
             x, y = gx + dx, gy + dy
             tile = tiles.setdefault((x // n, y // n), np.zeros((n, n), np.float32))
-            tile[y % n, x % n] = peak * math.exp(-(dx * dx + dy * dy) / (2 * 1.5**2))
+            tile[y % n, x % n] = min(1.0, peak * math.exp(-(dx * dx + dy * dy) / (2 * 1.5**2)))
     for (tx, ty), values in tiles.items():
         joint.update("person", tx, ty, values, T)
     clat, clon = grid.cell_to_latlon(gx + 0.5, gy + 0.5)
@@ -79,6 +80,20 @@ def test_a_peak_in_view_with_no_detection_becomes_one_box_at_its_pixel_with_the_
     expected = joint_score(np.array([1.0]), cfg.joint_prior_score, cfg.boost_mode, cfg.boost_weight,
                            cfg.logodds_scale)[0] * cfg.joint_synth_factor
     assert result.scores[0] == pytest.approx(expected, rel=0.05)
+
+
+@pytest.mark.parametrize("peak", [50.0, 200.0])
+def test_a_plateau_gives_one_box_at_its_middle(peak):
+    """A steadily seen object is a plateau of the clipped map (a blob 50 and 200 times over the clip): its inner
+    cells tie as maxima under the 0.25 m peak kernel, and the peak kept is the middle one, not the first in row
+    order (0.4 and 0.8 m off)."""
+    joint, lat, lon = joint_with_blob(2.0, 40.0, peak=peak)
+    result = run(DetectionPipeline(CAM, CLASSES, SYNTH, joint=joint))
+    assert len(result) == 1
+    anchor = box_anchor_points(result.boxes_xyxy.astype(np.float64), "auto", POSE.pitch_deg)
+    (a_lat,), (a_lon,), _ = pixel_to_latlon(anchor, CAM, POSE)
+    east, north = latlon_to_local(a_lat, a_lon, lat, lon)
+    assert math.hypot(float(east), float(north)) < 0.3  # within a cell (0.4 m) of the blob's centre
 
 
 @pytest.mark.parametrize("east_m, north_m", [(0.0, -20.0), (60.0, 40.0), (0.0, 400.0)],
