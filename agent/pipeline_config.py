@@ -143,9 +143,10 @@ class PipelineConfig:
     Tuning of the joint detections (agent.joint_detections; measured on the simulator's `coop`):
     joint_peak_smoothing_m: standard deviation (m) of the Gaussian that smooths the others' evidence
         before looking for its maxima (maps clip at 1: a steadily seen object is a plateau). 0.25 since 28 Nov
-        2026, chosen on the coop tuning domains (the weaker UAV's joint AP50 +0.80 over 1.0, seeds 0-2; 0.1-1.5
-        measured) and held out once (+0.46 on average, `coop-glare-east` +0.74, `coop-sea-glare` -0.70):
-        why is not measured: a 1 m kernel can merge two neighbours' plateaus into one peak.
+        2026, chosen on the coop tuning domains (the weaker UAV's joint AP50 +0.78 over 1.0, seeds 0-2; 0.1-1.5
+        measured) and held out (+0.42 on average, `coop-glare-east` +0.76, `coop-sea-glare` -0.67). A plateau's
+        inner cells then tie as maxima: the 3 m suppression keeps one peak per 3 m of a wide one (a group, a
+        walker's trail), the middle first (docs/simulator.md, "Second measurement").
     joint_peak_gate_across_rad, joint_peak_gate_down_rad: angular gate around a peak's (registered) pixel,
         half-axes across and down the image in focal lengths (radians): a kept box whose anchor lies inside
         this ellipse is near the peak, as is one within joint_gate_m on the ground. What is left of the
