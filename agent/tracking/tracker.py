@@ -7,7 +7,7 @@ from __future__ import annotations
 import logging
 import math
 from collections import deque
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
@@ -287,8 +287,7 @@ class GpsTracker:
             cap = self.config.max_heading_correction_deg
             turn_deg = max(-cap, min(cap, self._heading_rate_deg_s * lag_s))
             # in a view jump the pose does not place (agent.tracking.view_jump) the tracks coast: no match, birth, re-ID
-            if self._jump.usable(state, dets, pose, replace(pose, heading_deg=(pose.heading_deg + turn_deg) % 360.0),
-                                 t, camera, terrain):
+            if self._jump.usable(state, dets, pose, turn_deg, t, camera, terrain):
                 undo = None if self.config.use_pipeline_correction or result.correction is None else (
                     float(result.correction.east_m), float(result.correction.north_m))
                 self._frame_with_pose(dets, pose, t, camera, turn_deg=turn_deg, dt=dt, undo_en=undo, terrain=terrain)

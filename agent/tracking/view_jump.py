@@ -7,6 +7,7 @@ the last frame as the pose did (`TrackerConfig.jump_motion_min`).
 from __future__ import annotations
 
 from collections import deque
+from dataclasses import replace
 
 import numpy as np
 from numpy.typing import NDArray
@@ -42,19 +43,23 @@ class ViewJumpGuard:
         self.followed = 0
         self.agreed = 0
 
-    def usable(self, state: TrackState, dets: FrameDetections, pose: Pose, turned: Pose, t: float, camera: Camera,
-               terrain: GroundSurface | None = None) -> bool:
+    def usable(self, state: TrackState, dets: FrameDetections, pose: Pose, turn_deg: float, t: float,
+               camera: Camera, terrain: GroundSurface | None = None) -> bool:
         """Whether the tracker may use the frame's boxes: it is not in a view jump (`in_jump`), or its pose places
         its view after all: the image moved since the last frame with boxes as the pose did (`follows`), or the
-        pose turned by the telemetry's age (turned) puts the tracks on its boxes (`agrees`)."""
+        pose turned by the telemetry's age (turn_deg, as the frame's points are) puts the tracks on its boxes
+        (`agrees`)."""
         cfg = state.config
-        ok = (not self.in_jump(pose.heading_deg, pose.pitch_deg, t, cfg)
-              or self.follows(dets, pose, t, camera, cfg, terrain)
-              or self.agrees(state, dets, turned, t, camera, terrain))
-        if cfg.jump_motion_min > 0 and cfg.jump_rate_deg_s > 0:
-            centres = _centres(dets, cfg.match_score)
-            if len(centres) >= cfg.jump_motion_min:  # a frame with fewer would leave the next one nothing to check
-                self._last = (t, centres, pose, terrain)
+        motion = cfg.jump_motion_min > 0 and cfg.jump_rate_deg_s > 0
+        centres = _centres(dets, cfg.match_score) if motion else None
+        ok = not self.in_jump(pose.heading_deg, pose.pitch_deg, t, cfg)
+        if not ok and centres is not None:
+            ok = self.follows(centres, pose, t, camera, cfg, terrain)
+        if not ok and cfg.jump_agree_min > 0:
+            ok = self.agrees(state, dets, replace(pose, heading_deg=(pose.heading_deg + turn_deg) % 360.0), t, camera,
+                             terrain)
+        if centres is not None and len(centres) >= cfg.jump_motion_min:
+            self._last = (t, centres, pose, terrain)  # a frame with fewer would leave the next one nothing to check
         return ok
 
     def report(self, config: TrackerConfig) -> StageReport:
@@ -88,21 +93,20 @@ class ViewJumpGuard:
         self.frames += jump
         return jump
 
-    def follows(self, dets: FrameDetections, pose: Pose, t: float, camera: Camera, config: TrackerConfig,
+    def follows(self, now: NDArray, pose: Pose, t: float, camera: Camera, config: TrackerConfig,
                 terrain: GroundSurface | None = None) -> bool:
-        """Whether a frame in a jump moved in the image as its pose did (`TrackerConfig.jump_motion_min`): the
-        confident boxes of the last frame with at least jump_motion_min of them (at most jump_agree_age_s before),
-        put on the ground with that frame's pose and projected with this one's, fall (centre within
-        jump_motion_tol of the two boxes' mean diagonal) on at least jump_motion_min of this frame's confident
-        boxes and jump_agree_frac of the fewer, and on no fewer than the boxes where they were (an image standing
-        still) do. The test is differential: a
-        pose that lags the view by a steady delay passes through a turn the log follows, and the frames that
-        settle after a jump pass as soon as the pose and the image both hold still. A jump the telemetry smears
-        fails: the image steady while the pose turns, or the image jumping while the pose barely moves."""
+        """Whether a frame in a jump, its confident boxes now (`_centres`), moved in the image as its pose did
+        (`TrackerConfig.jump_motion_min`): the confident boxes of the last frame with at least jump_motion_min of
+        them (at most jump_agree_age_s before), put on the ground with that frame's pose and projected with this
+        one's, fall (centre within jump_motion_tol of the two boxes' mean diagonal) on at least jump_motion_min of
+        this frame's and jump_agree_frac of the fewer, and on no fewer than the boxes where they were (an image
+        standing still) do. The test is differential: a pose that lags the view by a steady delay passes through
+        a turn the log follows, and the frames that settle after a jump pass as soon as the pose and the image
+        both hold still. A jump the telemetry smears fails: the image steady while the pose turns, or the image
+        jumping while the pose barely moves."""
         last = self._last
         if config.jump_motion_min <= 0 or last is None or not 0.0 <= t - last[0] <= config.jump_agree_age_s:
             return False
-        now = _centres(dets, config.match_score)
         if len(now) < config.jump_motion_min:
             return False
         _, before, pose_before, terrain_before = last
@@ -139,7 +143,7 @@ class ViewJumpGuard:
         back = np.flatnonzero(~lost["claimed"] & (t - lost["t_hit"] <= cfg.jump_agree_lost_s))  # not on probation
         away = (t - lost["t_hit"][back])[:, None]
         pts = np.vstack([act["x"][fresh, :2], lost["pos"][back] + lost["vel"][back] * away])  # moved on linearly
-        det = np.flatnonzero(~dets.used & (dets.scores >= cfg.match_score))
+        det = _confident(dets, cfg.match_score)
         if min(len(pts), len(det)) < cfg.jump_agree_min:
             return False
         uv, inside = in_image(state, pts, pose, camera, terrain)
@@ -150,22 +154,31 @@ class ViewJumpGuard:
         m = 0.5 * np.maximum(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
         on = ((uv[None, :, 0] >= (b[:, 0] - m)[:, None]) & (uv[None, :, 0] <= (b[:, 2] + m)[:, None])
               & (uv[None, :, 1] >= (b[:, 1] - m)[:, None]) & (uv[None, :, 1] <= (b[:, 3] + m)[:, None]))
-        hits = min(int(on.any(axis=1).sum()), int(on.any(axis=0).sum()))  # boxes with a track, tracks on a box
-        agree = hits >= max(cfg.jump_agree_min, cfg.jump_agree_frac * min(len(uv), len(det)))
+        agree = _mutual(on) >= max(cfg.jump_agree_min, cfg.jump_agree_frac * min(len(uv), len(det)))
         self.agreed += agree
         return agree
 
 
+def _confident(dets: FrameDetections, min_score: float) -> NDArray[np.intp]:
+    """Rows of the frame's boxes scoring >= min_score that are not image duplicates set aside."""
+    return np.flatnonzero(~dets.used & (dets.scores >= min_score))
+
+
+def _mutual(on: NDArray[np.bool_]) -> int:
+    """How many pairs an (A, B) "lies on" matrix supports, counted the way fewer are: the rows on some column or
+    the columns on some row, whichever is less (a box of a crowd may find several)."""
+    return min(int(on.any(axis=1).sum()), int(on.any(axis=0).sum()))
+
+
 def _centres(dets: FrameDetections, min_score: float) -> NDArray:
-    """(N, 3) centre x, y and diagonal (pixels) of the frame's boxes scoring >= min_score (not image duplicates)."""
-    b = dets.boxes[~dets.used & (dets.scores >= min_score)].astype(np.float64)
+    """(N, 3) centre x, y and diagonal (pixels) of the frame's confident boxes (`_confident`)."""
+    b = dets.boxes[_confident(dets, min_score)].astype(np.float64)
     return np.column_stack([(b[:, 0] + b[:, 2]) / 2, (b[:, 1] + b[:, 3]) / 2,
                             np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])])
 
 
 def _on(a: NDArray, b: NDArray, tol: float) -> int:
     """How many of two frames' boxes (rows: centre x, y, diagonal) lie on one of the other's, centres within tol
-    of the two boxes' mean diagonal, counted the way fewer are (a box of a crowd may find several)."""
-    near = np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1]) \
-        <= tol * 0.5 * (a[:, None, 2] + b[None, :, 2])
-    return min(int(near.any(axis=1).sum()), int(near.any(axis=0).sum()))
+    of the two boxes' mean diagonal (`_mutual`)."""
+    return _mutual(np.hypot(a[:, None, 0] - b[None, :, 0], a[:, None, 1] - b[None, :, 1])
+                   <= tol * 0.5 * (a[:, None, 2] + b[None, :, 2]))
