@@ -11,7 +11,8 @@ from numpy.typing import NDArray
 
 from agent._kernels import nms_ranked, rank_keys
 
-__all__ = ["ANCHORS", "anchor_fraction", "anchor_points", "box_anchor_points", "box_iou", "nms", "paired_iou"]
+__all__ = ["ANCHORS", "anchor_fraction", "anchor_points", "box_anchor_points", "box_iou", "nms", "outranked_overlaps",
+           "paired_iou"]
 
 #: Where on a box its ground point is (`PipelineConfig.anchor`).
 ANCHORS = ("auto", "center", "bottom")
@@ -50,6 +51,31 @@ def box_iou(a_xyxy: NDArray, b_xyxy: NDArray) -> NDArray[np.float64]:
     union = area_a[:, None] + area_b[None, :] - inter
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
+
+
+def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, rows: NDArray[np.int64], lo: float, hi: float, *,
+                       chunk: int = 256) -> NDArray[np.bool_]:
+    """Which of the boxes `rows` overlap a box of higher rank by an IoU in [lo, hi): (len(rows),) bool.
+
+    boxes_xyxy (N, 4) and rank (N,) are one class's boxes and the scores that order them; a box is compared
+    with every other box of the N (ties in rank do not outrank). Worked in chunks of rows, so memory stays at
+    chunk x N.
+    """
+    boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
+    rank = np.asarray(rank, dtype=np.float64)
+    rows = np.asarray(rows, dtype=np.int64)
+    out = np.zeros(len(rows), dtype=bool)
+    if len(boxes) < 2 or not len(rows):
+        return out
+    for start in range(0, len(rows), chunk):
+        r = rows[start:start + chunk]
+        above = rank[None, :] > rank[r][:, None]
+        cols = np.flatnonzero(above.any(axis=0))  # only boxes that outrank one of the chunk can matter
+        if not len(cols):
+            continue
+        iou = box_iou(boxes[r], boxes[cols])
+        out[start:start + chunk] = ((iou >= lo) & (iou < hi) & above[:, cols]).any(axis=1)
+    return out
 
 def paired_iou(a_xyxy: NDArray, b_xyxy: NDArray, *, generalised: bool = False) -> NDArray[np.float64]:
     """(K, 4) x (K, 4) xyxy boxes -> (K,) IoU of a[k] with b[k] (0 for empty unions); generalised: the

@@ -14,7 +14,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent._kernels import georeference_and_filter, small_distinct
-from agent.boxes import anchor_fraction, box_anchor_points, nms
+from agent.boxes import anchor_fraction, box_anchor_points, nms, outranked_overlaps
 from agent.dem import takeoff_terrain
 from agent.frame_result import FrameResult
 from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
@@ -243,8 +243,8 @@ class DetectionPipeline:
         conf = raw if calibration is None else calibration.apply(raw)
         boosted = conf.copy()
         if pose is not None and n and cfg.use_memory:
-            boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, present, valid, lat, lon,
-                                                                   pose, t)
+            boosted, lat, lon, correction = self._boost_and_update(boxes, conf, boosted, cids, present, valid, lat,
+                                                                   lon, pose, t)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         if calibration is not None:
             calibration.observe(t, raw[keep])
@@ -449,7 +449,8 @@ class DetectionPipeline:
                       corr.east_m, corr.north_m, corr.measured, corr.points, corr.support)
         return corr
 
-    def _boost_and_update(self, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose, t: float):
+    def _boost_and_update(self, boxes, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose,
+                          t: float):
         """Boost with the map from before this frame, then stamp; the frame's ground points moved by the
         telemetry correction first. present: the frame's class ids, ascending (cids holds no others).
         Returns boosted, lat, lon (corrected) and the correction (or None)."""
@@ -495,9 +496,34 @@ class DetectionPipeline:
                 else:
                     p = 0.5 * (p + pj)
             c = conf[rows]
-            boosted[rows] = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
+            b = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
+            if cfg.fragment_iou > 0:
+                b = self._unboost_fragments(boxes, conf, cids, cid, rows, b)
+            boosted[rows] = b
             self.memory.add(name, gxs, gys, gain * c)
         return boosted, lat, lon, correction
+
+    def _unboost_fragments(self, boxes: NDArray, conf: NDArray, cids: NDArray, cid: int, rows: NDArray[np.int64],
+                           b: NDArray) -> NDArray:
+        """Boosted scores b of boxes rows (class cid; raw scores conf[rows]) with the boost taken back from the
+        boxes that a higher-ranked box of the class overlaps by an IoU in [fragment_iou, nms_iou)
+        (PipelineConfig.fragment_iou).
+
+        The rank is the boosted score (the map's evidence picks the box on its object); boxes of the class
+        without a ground point rank by their raw score."""
+        cfg = self.config
+        c = conf[rows]
+        moved = np.flatnonzero(b > c)  # only a boosted box can lose something
+        same = np.flatnonzero(cids == cid)  # rows is a subset of it, both ascending
+        if not len(moved) or len(same) < 2:
+            return b
+        pos = np.searchsorted(same, rows)
+        rank = conf[same].astype(np.float64)
+        rank[pos] = b
+        hit = outranked_overlaps(boxes[same], rank, pos[moved], cfg.fragment_iou, cfg.nms_iou)
+        out = b.copy()
+        out[moved[hit]] = c[moved[hit]]
+        return out
 
 
 def _slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,

@@ -40,15 +40,16 @@ PAPER_GAIN_PER_FRAME = 0.02
 
 
 def paper_rule_config() -> PipelineConfig:
-    """The paper's rule as printed: every pre-NMS box adds s * c * Gaussian (r 6 m), phi per frame, c + p,
-    on the telemetry each frame carries (no interpolation at frame time, clock-offset estimate, dequantised
-    GPS, score calibration or telemetry correction: those are ours; the telemetry's time zone is removed,
-    without which no stamp means anything). The distance-size filter is the paper's too."""
+    """The paper's rule as printed: every pre-NMS box adds s * c * Gaussian (r 6 m), phi per frame, c + p for
+    every box (no fragment_iou), on the telemetry each frame carries (no interpolation at frame time,
+    clock-offset estimate, dequantised GPS, score calibration or telemetry correction: those are ours; the
+    telemetry's time zone is removed, without which no stamp means anything). The distance-size filter is the
+    paper's too."""
     memory = MemoryMapConfig(radius_m=6.0, stamp="sum", forget_per_frame=PAPER_FORGET_PER_FRAME,
                              gain_per_frame=PAPER_GAIN_PER_FRAME)
     return PipelineConfig(memory=memory, boost_mode="add", boost_weight=1.0, estimate_clock_offset=False,
                           dequantize_telemetry=False, telemetry_at_frame_time=False, calibrate_scores=False,
-                          correct_telemetry=False)
+                          correct_telemetry=False, fragment_iou=0.0)
 
 
 def domain_detection_variants() -> list[Variant]:

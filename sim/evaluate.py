@@ -53,12 +53,13 @@ def ablation_variants() -> list[Variant]:
     paper_memory = dataclasses.replace(mem, radius_m=6.0, stamp="sum", gain_per_s=0.6)
     out = [
         Variant("paper rule (c + p, every box adds, r 6 m)",
-                dataclasses.replace(base, boost_mode="add", memory=paper_memory)),
+                dataclasses.replace(base, boost_mode="add", memory=paper_memory, fragment_iou=0.0)),
         Variant("baseline, no size filter", dataclasses.replace(base, use_memory=False, use_size_filter=False)),
         Variant("memory map, no size filter", dataclasses.replace(base, use_size_filter=False)),
         Variant("memory map, anchor=center", dataclasses.replace(base, anchor="center")),
         Variant("memory map, stamp=sum", dataclasses.replace(base, memory=dataclasses.replace(mem, stamp="sum"))),
         Variant("memory map, boost_mode=add", dataclasses.replace(base, boost_mode="add")),
+        Variant("memory map, every box boosted (fragment_iou=0)", dataclasses.replace(base, fragment_iou=0.0)),
     ]
     for half_life in (0.25, 0.5, 2.0, 4.0):
         out.append(Variant(f"half_life_s={half_life}",
