@@ -17,6 +17,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from agent.pipeline_config import PipelineConfig
 from sim.coop_domains import CoopDomain
 
 DETECTOR, OWN, JOINT = "baseline", "own memory map", "joint map + joint detections"
@@ -112,9 +113,12 @@ def _pct(value: float) -> str:
 
 def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_scale: float = 1.0,
                          out_dir: Path = Path("out/eval-coop-domains"),
-                         progress: Callable[[str], None] | None = None) -> dict[str, Any]:
-    """Evaluate the coop domains over seeds; writes report.json and report.md to out_dir and returns the report."""
-    from sim.coop_eval import evaluate_coop
+                         progress: Callable[[str], None] | None = None,
+                         config: PipelineConfig | None = None) -> dict[str, Any]:
+    """Evaluate the coop domains over seeds; writes report.json and report.md to out_dir and returns the report.
+    config: every variant's settings (`--config PARAMS.json`; default PipelineConfig()), its differences from
+    the defaults in the report (config_overrides)."""
+    from sim.coop_eval import config_overrides, evaluate_coop
 
     if not domains or not seeds:
         raise ValueError("run_coop_domain_eval needs at least one domain and one seed")
@@ -126,10 +130,11 @@ def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_s
         if progress:
             progress(f"[{i + 1}/{len(jobs)}] coop domain {domain.name} seed={seed}")
         data_dir = ensure_coop_domain_dataset(domain, seed, noise_scale, out_dir / "data")
-        per_uav, _ = evaluate_coop(data_dir, variants=VARIANTS, track=False)
+        per_uav, _ = evaluate_coop(data_dir, config, variants=VARIANTS, track=False)
         rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r} for r in per_uav]
     summary = summarise(rows, domains)
-    report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scale": noise_scale, "rows": rows,
+    report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scale": noise_scale,
+              "config_overrides": config_overrides(config), "rows": rows,
               "summary": summary, "acceptance": acceptance(summary), "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(markdown(report))

@@ -362,7 +362,7 @@ def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path 
     summary = _mean_rows(rows, ("scenario", "noise_scale", "uav", "variant"), _METRICS)
     peak_summary = _mean_rows(peak_rows, ("scenario", "noise_scale", "variant", "uav"), _PEAK_METRICS)
     report = {"scenarios": list(scenarios), "seeds": seeds, "noise_scales": list(noise_scales), "frames": frames,
-              "config_overrides": _overrides(config),
+              "config_overrides": config_overrides(config),
               "rows": rows, "summary": summary, "peak_rows": peak_rows, "peak_summary": peak_summary,
               "acceptance": slope_acceptance(summary, peak_summary),
               "seconds": round(time.perf_counter() - t0, 1)}
@@ -371,7 +371,7 @@ def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path 
     return report
 
 
-def _overrides(config: PipelineConfig | None) -> dict[str, Any]:
+def config_overrides(config: PipelineConfig | None) -> dict[str, Any]:
     """The settings of config that differ from the defaults (JSON values; repr where a value is not one)."""
     if config is None:
         return {}

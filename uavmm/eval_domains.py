@@ -63,7 +63,13 @@ def _run_coop_domain_eval(args: argparse.Namespace) -> int:
     seeds = _seeds(args.seeds)
     noise = coop_noise_scale(args.noise_scales)
     out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
-    report = run_coop_domain_eval(domains, seeds, noise_scale=noise, out_dir=out, progress=stderr_progress)
+    config = None
+    if args.pipeline_config is not None:  # every variant's settings (until 28 Nov 2026 ignored here)
+        from agent.boost import load_params
+
+        config, _ = load_params(args.pipeline_config)
+    report = run_coop_domain_eval(domains, seeds, noise_scale=noise, out_dir=out, progress=stderr_progress,
+                                  config=config)
     print((out / "report.md").read_text())
     print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0

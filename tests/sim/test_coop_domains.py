@@ -10,6 +10,7 @@ import math
 import numpy as np
 import pytest
 
+from agent.pipeline_config import PipelineConfig
 from sim.coop_domain_eval import JOINT, OWN, acceptance, markdown, run_coop_domain_eval, summarise
 from sim.coop_domains import (
     COOP_DOMAINS,
@@ -190,6 +191,17 @@ def test_a_small_domain_runs_end_to_end_from_the_cli(tmp_path, capsys):
     assert "one noise scale" in capsys.readouterr().err
     assert main(["eval", "--tasks", "coop", "--list-domains"]) == 0
     assert "| coop-glare-east | heldout |" in capsys.readouterr().out
+    # --config reaches the domains' runs (it was ignored there until 28 Nov 2026); a bad one is named first
+    bad = tmp_path / "bad.json"
+    bad.write_text('{"fragment_iou": 0.7}')
+    assert main(["eval", "--tasks", "coop", "--domains", "tune", "--config", str(bad), "--out",
+                 str(tmp_path / "x")]) == 2
+    assert "fragment_iou" in capsys.readouterr().err
+    paper_boost = run_coop_domain_eval([small], [0], out_dir=tmp_path / "eval0",
+                                       config=PipelineConfig(fragment_iou=0.0))
+    assert paper_boost["config_overrides"] == {"fragment_iou": 0.0} and report["config_overrides"] == {}
+    own = {s["uav"]: s[f"AP50|{OWN}"] for s in report["summary"]}
+    assert {s["uav"]: s[f"AP50|{OWN}"] for s in paper_boost["summary"]} != own
 
 
 def test_the_coop_noise_scale_defaults_to_one():
