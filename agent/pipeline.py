@@ -243,9 +243,11 @@ class DetectionPipeline:
         conf = raw if calibration is None else calibration.apply(raw)
         boosted = conf.copy()
         if pose is not None and n and cfg.use_memory:
-            boosted, lat, lon, correction = self._boost_and_update(boxes, conf, boosted, cids, present, valid, lat,
-                                                                   lon, pose, t)
+            boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, present, valid, lat, lon,
+                                                                   pose, t)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
+        if pose is not None and cfg.use_memory and cfg.fragment_iou > 0 and len(keep) > 1:
+            keep = self._unboost_fragments(boxes, conf, boosted, cids, keep)
         if calibration is not None:
             calibration.observe(t, raw[keep])
         result = FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
@@ -449,8 +451,7 @@ class DetectionPipeline:
                       corr.east_m, corr.north_m, corr.measured, corr.points, corr.support)
         return corr
 
-    def _boost_and_update(self, boxes, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose,
-                          t: float):
+    def _boost_and_update(self, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose, t: float):
         """Boost with the map from before this frame, then stamp; the frame's ground points moved by the
         telemetry correction first. present: the frame's class ids, ascending (cids holds no others).
         Returns boosted, lat, lon (corrected) and the correction (or None)."""
@@ -496,34 +497,36 @@ class DetectionPipeline:
                 else:
                     p = 0.5 * (p + pj)
             c = conf[rows]
-            b = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
-            if cfg.fragment_iou > 0:
-                b = self._unboost_fragments(boxes, conf, cids, cid, rows, b)
-            boosted[rows] = b
+            boosted[rows] = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
             self.memory.add(name, gxs, gys, gain * c)
         return boosted, lat, lon, correction
 
-    def _unboost_fragments(self, boxes: NDArray, conf: NDArray, cids: NDArray, cid: int, rows: NDArray[np.int64],
-                           b: NDArray) -> NDArray:
-        """Boosted scores b of boxes rows (class cid; raw scores conf[rows]) with the boost taken back from the
-        boxes that a higher-ranked box of the class overlaps by an IoU in [fragment_iou, nms_iou)
-        (PipelineConfig.fragment_iou).
+    def _unboost_fragments(self, boxes: NDArray, conf: NDArray, boosted: NDArray, cids: NDArray,
+                           keep: NDArray[np.int64]) -> NDArray[np.int64]:
+        """The boxes NMS kept (keep, highest boosted score first), with the boost taken back (boosted, in place:
+        the detector's calibrated score conf again) from every kept box that a kept box of its class with a
+        higher boosted score overlaps by an IoU of at least fragment_iou (PipelineConfig.fragment_iou; kept
+        boxes overlap by at most nms_iou); reordered by score, those at or below score_threshold dropped.
 
-        The rank is the boosted score (the map's evidence picks the box on its object); boxes of the class
-        without a ground point rank by their raw score."""
+        Done on the kept boxes (at most max_detections), not on the candidates: ~100 boxes a frame whatever the
+        detector emits."""
         cfg = self.config
-        c = conf[rows]
-        moved = np.flatnonzero(b > c)  # only a boosted box can lose something
-        same = np.flatnonzero(cids == cid)  # rows is a subset of it, both ascending
-        if not len(moved) or len(same) < 2:
-            return b
-        pos = np.searchsorted(same, rows)
-        rank = conf[same].astype(np.float64)
-        rank[pos] = b
-        hit = outranked_overlaps(boxes[same], rank, pos[moved], cfg.fragment_iou, cfg.nms_iou)
-        out = b.copy()
-        out[moved[hit]] = c[moved[hit]]
-        return out
+        k_cids = cids[keep]
+        lifted = boosted[keep] > conf[keep]  # only a boosted box can lose something
+        hit = np.zeros(len(keep), dtype=bool)
+        for cid in np.unique(k_cids[lifted]):
+            sel = np.flatnonzero(k_cids == cid)  # positions in keep, ascending
+            if len(sel) < 2:
+                continue
+            rows = np.flatnonzero(lifted[sel])
+            hit[sel[rows]] = outranked_overlaps(boxes[keep[sel]], boosted[keep[sel]], rows, cfg.fragment_iou, np.inf)
+        if not hit.any():
+            return keep
+        back = keep[hit]
+        boosted[back] = conf[back]
+        order = np.argsort(-boosted[keep], kind="stable")  # ties keep NMS's order
+        keep = keep[order]
+        return keep[boosted[keep].astype(np.float32) > np.float32(cfg.score_threshold)]
 
 
 def _slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,

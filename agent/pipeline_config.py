@@ -5,6 +5,7 @@ part (boosting with it and the detections it adds).
 from __future__ import annotations
 
 import math
+import numbers
 from dataclasses import dataclass, field
 
 from agent.boxes import ANCHORS
@@ -62,11 +63,12 @@ class PipelineConfig:
         "max" (default), "local" (ignore it), "joint" (only it where fresh), "mean".
     max_range_m: boxes whose ground point is farther from the UAV are not georeferenced (default:
         half the memory window).
-    fragment_iou: a box that overlaps a box of its class ranked above it (by the score the map would give it)
-        by an IoU of at least fragment_iou but below nms_iou, so that NMS keeps both, is not boosted: the
-        map's evidence at its cell is that box's object's, of which it is a part or a displaced copy, and
-        boosting it makes a false positive next to every object the map remembers (0: off, every box is
-        boosted, as in the paper). (measured: docs/memory-map.md)
+    fragment_iou: of the boxes NMS keeps, one that a kept box of its class with a higher boosted score overlaps
+        by an IoU of at least fragment_iou (kept boxes overlap by at most nms_iou) keeps the detector's score,
+        not the boosted one: the map's evidence at its cell is that box's object's, of which it is a part or a
+        displaced copy, and boosting it makes a false positive next to every object the map remembers (0: off,
+        every box is boosted, as in the paper; at or above nms_iou it never acts). Measured in
+        docs/memory-map.md, "Fragments".
     nms_iou: IoU threshold of class-wise NMS; score_threshold: minimum output score;
     max_detections: per frame, highest scores first (COCO evaluates 100).
     joint_detections: with a joint layer, use_memory and joint_mode other than "local", add detections for the
@@ -262,10 +264,9 @@ class PipelineConfig:
             raise ValueError(f"joint_mode must be one of {', '.join(JOINT_MODES)}, got {self.joint_mode!r}")
         if not (0.0 < self.nms_iou <= 1.0):
             raise ValueError(f"nms_iou must be in (0, 1], got {self.nms_iou!r}")
-        if not (isinstance(self.fragment_iou, (int, float)) and math.isfinite(self.fragment_iou)
-                and (self.fragment_iou == 0 or 0.0 < self.fragment_iou < self.nms_iou)):
-            raise ValueError(f"fragment_iou must be 0 (off) or in (0, nms_iou={self.nms_iou!r}), got "
-                             f"{self.fragment_iou!r}")
+        if isinstance(self.fragment_iou, bool) or not isinstance(self.fragment_iou, numbers.Real) \
+                or not (0.0 <= self.fragment_iou < 1.0):
+            raise ValueError(f"fragment_iou must be a number in [0, 1) (0: off), got {self.fragment_iou!r}")
         if not math.isfinite(self.boost_weight) or self.boost_weight < 0:
             raise ValueError(f"boost_weight must be >= 0, got {self.boost_weight!r}")
         if self.max_detections < 1:

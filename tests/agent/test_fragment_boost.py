@@ -122,9 +122,51 @@ def test_classes_do_not_outrank_each_other():
     assert score_of(res, 0.35) > 0.35  # a swimmer under a person's box is its own object
 
 
-@pytest.mark.parametrize("value", [-0.1, 0.5, 0.7, float("nan"), float("inf")])
+def test_mixed_classes_keep_their_own_ranks():
+    """Kept boxes of two classes interleaved: each class's parts lose their boost to their own class's boxes
+    only, as the pairwise definition says."""
+    person = box_at(0.0, 30.0, size_px=80.0)
+    person_part = person.copy()
+    person_part[1] = person[1] + 0.55 * (person[3] - person[1])
+    swimmer = box_at(6.0, 30.0, size_px=80.0)
+    swimmer_copy = box_at(6.0, 30.0, size_px=80.0, dx=30.0)
+    boxes = np.stack([person_part, swimmer, person, swimmer_copy])
+    scores = [0.35, 0.62, 0.6, 0.41]
+    cids = np.array([1, 2, 1, 2])
+    on = DetectionPipeline(CAM, CLASSES, PipelineConfig(fragment_iou=0.1))
+    off = DetectionPipeline(CAM, CLASSES, PipelineConfig(fragment_iou=0.0))
+    for k in range(12):
+        r_on = on.process(boxes, np.array(scores, np.float32), cids, POSE, k / 30)
+        r_off = off.process(boxes, np.array(scores, np.float32), cids, POSE, k / 30)
+    # the pairwise definition on the boxes the paper's rule keeps and their boosted scores
+    ref = np.zeros(len(r_off.scores), dtype=bool)
+    for c in (1, 2):
+        sel = np.flatnonzero((r_off.class_ids == c) & (r_off.scores > r_off.raw_scores))
+        same = np.flatnonzero(r_off.class_ids == c)
+        iou = box_iou(r_off.boxes_xyxy[sel], r_off.boxes_xyxy[same])
+        ref[sel] = ((iou >= 0.1) & (r_off.scores[same][None, :] > r_off.scores[sel][:, None])).any(axis=1)
+    assert ref.sum() == 2  # the person's part and the swimmer's copy
+    for raw, boosted, lost in zip(r_off.raw_scores, r_off.scores, ref, strict=True):
+        assert score_of(r_on, float(raw)) == pytest.approx(float(raw) if lost else float(boosted))
+
+
+def test_output_stays_sorted_and_within_the_score_threshold():
+    whole = box_at(0.0, 30.0)
+    part = whole.copy()
+    part[1] = whole[1] + 0.55 * (whole[3] - whole[1])
+    cfg = PipelineConfig(fragment_iou=0.1, score_threshold=0.1)
+    res = run(cfg, np.stack([whole, part, box_at(3.0, 30.0)]), [0.6, 0.05, 0.3])
+    assert list(res.scores) == sorted(res.scores, reverse=True)
+    assert 0.05 not in np.round(res.raw_scores, 3)  # the part fell back to 0.05, under the threshold: dropped
+
+
+@pytest.mark.parametrize("value", [-0.1, 1.0, float("nan"), float("inf"), True, "0.1"])
 def test_bad_fragment_iou_is_named(value):
     with pytest.raises(ValueError, match="fragment_iou"):
         PipelineConfig(fragment_iou=value)
-    with pytest.raises(ValueError, match="fragment_iou"):
-        dataclasses.replace(PipelineConfig(nms_iou=0.3), fragment_iou=0.3)
+
+
+def test_a_low_nms_threshold_is_not_refused_for_the_default_fragment_iou():
+    # the rule acts between fragment_iou and nms_iou; at or above nms_iou there is nothing to act on
+    assert PipelineConfig(nms_iou=0.1).fragment_iou == 0.1
+    assert dataclasses.replace(PipelineConfig(), fragment_iou=np.float32(0.2)).fragment_iou == pytest.approx(0.2)
