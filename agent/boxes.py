@@ -52,7 +52,6 @@ def box_iou(a_xyxy: NDArray, b_xyxy: NDArray) -> NDArray[np.float64]:
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
-
 def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, rows: NDArray[np.int64], lo: float, hi: float, *,
                        chunk: int = 256) -> NDArray[np.bool_]:
     """Which of the boxes `rows` overlap a box of higher rank by an IoU in [lo, hi): (len(rows),) bool.
@@ -76,6 +75,7 @@ def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, rows: NDArray[np.int6
         iou = box_iou(boxes[r], boxes[cols])
         out[start:start + chunk] = ((iou >= lo) & (iou < hi) & above[:, cols]).any(axis=1)
     return out
+
 
 def paired_iou(a_xyxy: NDArray, b_xyxy: NDArray, *, generalised: bool = False) -> NDArray[np.float64]:
     """(K, 4) x (K, 4) xyxy boxes -> (K,) IoU of a[k] with b[k] (0 for empty unions); generalised: the
