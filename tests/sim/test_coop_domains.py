@@ -193,7 +193,7 @@ def test_a_small_domain_runs_end_to_end_from_the_cli(tmp_path, capsys):
     assert "| coop-glare-east | heldout |" in capsys.readouterr().out
     # --config reaches the domains' runs (it was ignored there until 28 Nov 2026); a bad one is named first
     bad = tmp_path / "bad.json"
-    bad.write_text('{"fragment_iou": 0.7}')
+    bad.write_text('{"fragment_iou": 1.5}')
     assert main(["eval", "--tasks", "coop", "--domains", "tune", "--config", str(bad), "--out",
                  str(tmp_path / "x")]) == 2
     assert "fragment_iou" in capsys.readouterr().err
