@@ -52,29 +52,17 @@ def box_iou(a_xyxy: NDArray, b_xyxy: NDArray) -> NDArray[np.float64]:
     return np.where(union > 0, inter / np.where(union > 0, union, 1.0), 0.0)
 
 
-def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, rows: NDArray[np.int64], lo: float, hi: float, *,
-                       chunk: int = 256) -> NDArray[np.bool_]:
-    """Which of the boxes `rows` overlap a box of higher rank by an IoU in [lo, hi): (len(rows),) bool.
-
-    boxes_xyxy (N, 4) and rank (N,) are one class's boxes and the scores that order them; a box is compared
-    with every other box of the N (ties in rank do not outrank). Worked in chunks of rows, so memory stays at
-    chunk x N.
-    """
+def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, min_iou: float,
+                       class_ids: NDArray | None = None) -> NDArray[np.bool_]:
+    """(N,) bool: which boxes a box of higher rank (and of the same class, when class_ids is given) overlaps by
+    an IoU of at least min_iou; ties in rank do not outrank. An N x N matrix: meant for the few hundred boxes a
+    frame keeps, not for a detector's candidates."""
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
     rank = np.asarray(rank, dtype=np.float64)
-    rows = np.asarray(rows, dtype=np.int64)
-    out = np.zeros(len(rows), dtype=bool)
-    if len(boxes) < 2 or not len(rows):
-        return out
-    for start in range(0, len(rows), chunk):
-        r = rows[start:start + chunk]
-        above = rank[None, :] > rank[r][:, None]
-        cols = np.flatnonzero(above.any(axis=0))  # only boxes that outrank one of the chunk can matter
-        if not len(cols):
-            continue
-        iou = box_iou(boxes[r], boxes[cols])
-        out[start:start + chunk] = ((iou >= lo) & (iou < hi) & above[:, cols]).any(axis=1)
-    return out
+    above = rank[None, :] > rank[:, None]
+    if class_ids is not None:
+        above &= class_ids[None, :] == class_ids[:, None]
+    return ((box_iou(boxes, boxes) >= min_iou) & above).any(axis=1)
 
 
 def paired_iou(a_xyxy: NDArray, b_xyxy: NDArray, *, generalised: bool = False) -> NDArray[np.float64]:

@@ -246,7 +246,7 @@ class DetectionPipeline:
             boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, present, valid, lat, lon,
                                                                    pose, t)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
-        if pose is not None and cfg.use_memory and cfg.fragment_iou > 0 and len(keep) > 1:
+        if cfg.fragment_iou > 0 and len(keep) > 1:
             keep = self._unboost_fragments(boxes, conf, boosted, cids, keep)
         if calibration is not None:
             calibration.observe(t, raw[keep])
@@ -511,15 +511,9 @@ class DetectionPipeline:
         Done on the kept boxes (at most max_detections), not on the candidates: ~100 boxes a frame whatever the
         detector emits."""
         cfg = self.config
-        k_cids = cids[keep]
-        lifted = boosted[keep] > conf[keep]  # only a boosted box can lose something
-        hit = np.zeros(len(keep), dtype=bool)
-        for cid in np.unique(k_cids[lifted]):
-            sel = np.flatnonzero(k_cids == cid)  # positions in keep, ascending
-            if len(sel) < 2:
-                continue
-            rows = np.flatnonzero(lifted[sel])
-            hit[sel[rows]] = outranked_overlaps(boxes[keep[sel]], boosted[keep[sel]], rows, cfg.fragment_iou, np.inf)
+        score = boosted[keep]
+        # only a boosted box can lose something
+        hit = (score > conf[keep]) & outranked_overlaps(boxes[keep], score, cfg.fragment_iou, cids[keep])
         if not hit.any():
             return keep
         back = keep[hit]

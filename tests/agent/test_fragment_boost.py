@@ -41,11 +41,11 @@ def scenes(draw):
 
 
 @settings(max_examples=150, deadline=None)
-@given(scenes(), st.sampled_from([0.05, 0.1, 0.3]), st.sampled_from([0.5, 0.7]), st.sampled_from([1, 7, 256]))
-def test_outranked_overlaps_equals_the_pairwise_definition(scene, lo, hi, chunk):
+@given(scenes(), st.sampled_from([0.05, 0.1, 0.3]))
+def test_outranked_overlaps_equals_the_pairwise_definition(scene, lo):
     boxes, rank, rows = scene
-    got = outranked_overlaps(boxes, rank, rows, lo, hi, chunk=chunk)
-    np.testing.assert_array_equal(got, reference(boxes.astype(np.float64), rank, rows, lo, hi))
+    got = outranked_overlaps(boxes, rank, lo)[rows]
+    np.testing.assert_array_equal(got, reference(boxes.astype(np.float64), rank, rows, lo, np.inf))
 
 
 def box_at(east: float, north: float, size_px: float = 40.0, dx: float = 0.0) -> np.ndarray:
