@@ -18,6 +18,7 @@ from pathlib import Path
 from typing import Any
 
 from agent.pipeline_config import PipelineConfig
+from agent.size_filter import SizeFilter
 from sim.coop_domains import CoopDomain
 
 DETECTOR, OWN, JOINT = "baseline", "own memory map", "joint map + joint detections"
@@ -114,10 +115,12 @@ def _pct(value: float) -> str:
 def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_scale: float = 1.0,
                          out_dir: Path = Path("out/eval-coop-domains"),
                          progress: Callable[[str], None] | None = None,
-                         config: PipelineConfig | None = None) -> dict[str, Any]:
+                         config: PipelineConfig | None = None,
+                         size_filter: SizeFilter | None = None) -> dict[str, Any]:
     """Evaluate the coop domains over seeds; writes report.json and report.md to out_dir and returns the report.
     config: every variant's settings (`--config PARAMS.json`; default PipelineConfig()), its differences from
-    the defaults in the report (config_overrides)."""
+    the defaults in the report (config_overrides); size_filter: the fitted size filter such a parameters file
+    carries (None: the built-in priors), in the report too."""
     from sim.coop_eval import config_overrides, evaluate_coop
 
     if not domains or not seeds:
@@ -130,11 +133,12 @@ def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_s
         if progress:
             progress(f"[{i + 1}/{len(jobs)}] coop domain {domain.name} seed={seed}")
         data_dir = ensure_coop_domain_dataset(domain, seed, noise_scale, out_dir / "data")
-        per_uav, _ = evaluate_coop(data_dir, config, variants=VARIANTS, track=False)
+        per_uav, _ = evaluate_coop(data_dir, config, variants=VARIANTS, track=False, size_filter=size_filter)
         rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r} for r in per_uav]
     summary = summarise(rows, domains)
     report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scale": noise_scale,
-              "config_overrides": config_overrides(config), "rows": rows,
+              "config_overrides": config_overrides(config),
+              "size_filter": None if size_filter is None else size_filter.to_dict(), "rows": rows,
               "summary": summary, "acceptance": acceptance(summary), "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(markdown(report))

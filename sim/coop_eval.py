@@ -27,6 +27,7 @@ from agent.memory_map import JointLayer
 from agent.node import state_message
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
+from agent.size_filter import SizeFilter
 from agent.tile_updates import TileChangeTracker
 from agent.tracking import GpsTracker
 from agent.tracking_io import memory_evidence
@@ -104,7 +105,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
              coverage: str = "footprint", track_boxes: dict[int, list[list[float]]] | None = None,
              dem: bool = False, on_publish: Callable[[float, JointMap, list[int]], None] | None = None,
              tracks_out: dict[int, SequenceTracks] | None = None,
-             registration_out: dict[int, list[RegistrationRecord]] | None = None) -> dict[int, list[dict]]:
+             registration_out: dict[int, list[RegistrationRecord]] | None = None,
+             size_filter: SizeFilter | None = None) -> dict[int, list[dict]]:
     """Run both UAVs of a simultaneous dataset; returns COCO results per video id.
 
     share: give each UAV the joint map (fusion `rule` with `coverage`, see `CoopFusion`).
@@ -118,6 +120,7 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
     the image ids of the frames just processed (e.g. `sim.coop_peaks.PeakSampler`).
     registration_out: with share, receives per video id each frame's joint registration estimate and telemetry
     correction (`sim.coop_registration.registration_errors` compares them with the truth).
+    size_filter: every UAV's fitted size filter (a `uavmm tune` parameters file's; None: the built-in priors).
     """
     dataset = Dataset.load(data_dir / "images.json")
     candidates = Candidates.load(data_dir / "pre_nms.json", dataset)
@@ -128,7 +131,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
     configs = {vid: dataclasses.replace(config, terrain=terrain_of(data_dir, vid)) if dem else config
                for vid in dataset.videos}
     joints = {vid: JointLayer(ttl_s=JOINT_TTL_S) for vid in dataset.videos}
-    pipes = {vid: DetectionPipeline(camera, dataset.categories, configs[vid], joint=joints[vid] if share else None)
+    pipes = {vid: DetectionPipeline(camera, dataset.categories, configs[vid], size_filter=size_filter,
+                                    joint=joints[vid] if share else None)
              for vid in dataset.videos}
     fusion = CoopFusion([uav_of[v] for v in pipes], list(dict.fromkeys(dataset.categories.values())),
                         {uav_of[v]: p for v, p in pipes.items()}, rule=rule, coverage=coverage) if share else None
@@ -255,7 +259,8 @@ def _variants(terrain: bool, base: PipelineConfig) -> list[tuple[str, PipelineCo
 
 
 def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, variants: tuple[str, ...] | None = None,
-                  track: bool = True) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+                  track: bool = True, size_filter: SizeFilter | None = None,
+                  ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Per UAV: baseline, own memory map, joint map boosting only, joint map + joint detections (over a terrain
     each also with the DEM, `+ DEM`); and the joint map's peaks against the truth for the variants that share.
 
@@ -268,7 +273,7 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
     what the registration leaves of it.
     config: the variants' settings (default PipelineConfig()). variants: run only these of the names (the DEM
     variants follow their flat names); track: run the GPS tracker (hidden tracked, HOTA, IDs and track position
-    error; NaN without).
+    error; NaN without); size_filter: a fitted size filter for every variant (None: the built-in priors).
     Returns (rows per UAV and variant, rows per sharing variant with the peak figures).
     """
     from sim.metrics import coco_detection_metrics
@@ -300,7 +305,7 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
         records: dict[int, list[RegistrationRecord]] | None = {} if sampler is not None and not terrain else None
         runs[name] = run_coop(data_dir, variant, share=share, track_boxes=tracked[name] if track else None, dem=dem,
                               on_publish=sampler, tracks_out=sequences[name] if track else None,
-                              registration_out=records)
+                              registration_out=records, size_filter=size_filter)
         if records is not None:
             registration[name] = registration_errors(data_dir, records)
         if sampler is not None:  # the objects any UAV sees, and those each sees
@@ -340,10 +345,12 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
 
 def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path = Path("out/eval/coop"),
                   progress: Callable[[str], None] | None = None, scenarios: tuple[str, ...] = ("coop",),
-                  noise_scales: tuple[float, ...] = (1.0,), config: PipelineConfig | None = None) -> dict[str, Any]:
+                  noise_scales: tuple[float, ...] = (1.0,), config: PipelineConfig | None = None,
+                  size_filter: SizeFilter | None = None) -> dict[str, Any]:
     """Evaluate simultaneous scenarios (`coop`; `coop-slope`, over a terrain, also with the DEM) over seeds and
     telemetry noise scales; writes report.json and report.md to out_dir. config: the variants' settings
-    (`uavmm eval --tasks coop --config PARAMS.json`; default PipelineConfig())."""
+    (`uavmm eval --tasks coop --config PARAMS.json`; default PipelineConfig()); size_filter: the fitted size
+    filter such a parameters file carries (None: the built-in priors), recorded in the report."""
     from sim.coop_report import coop_markdown
     from sim.evaluate import ensure_dataset
 
@@ -355,7 +362,7 @@ def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path 
         if progress:
             progress(f"[{i + 1}/{len(jobs)}] {scenario} seed={seed} noise x{noise:g}")
         data_dir = ensure_dataset(scenario, seed, frames, noise, out_dir / "data")
-        det, peaks = evaluate_coop(data_dir, config)
+        det, peaks = evaluate_coop(data_dir, config, size_filter=size_filter)
         tag = {"scenario": scenario, "noise_scale": noise, "seed": seed}
         rows += [{**tag, **r} for r in det]
         peak_rows += [{**tag, **r} for r in peaks]
@@ -363,6 +370,7 @@ def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path 
     peak_summary = _mean_rows(peak_rows, ("scenario", "noise_scale", "variant", "uav"), _PEAK_METRICS)
     report = {"scenarios": list(scenarios), "seeds": seeds, "noise_scales": list(noise_scales), "frames": frames,
               "config_overrides": config_overrides(config),
+              "size_filter": None if size_filter is None else size_filter.to_dict(),
               "rows": rows, "summary": summary, "peak_rows": peak_rows, "peak_summary": peak_summary,
               "acceptance": slope_acceptance(summary, peak_summary),
               "seconds": round(time.perf_counter() - t0, 1)}

@@ -418,16 +418,13 @@ def _run_eval(args: argparse.Namespace) -> int:
         print((out / "report.md").read_text())
     if "coop" in tasks:
         from sim.coop_eval import run_coop_eval
+        from uavmm.eval_domains import coop_params
 
         out = args.out / "coop"
-        coop_config = None
-        if args.pipeline_config is not None:
-            from agent.boost import load_params
-
-            coop_config, _ = load_params(args.pipeline_config)
+        coop_config, coop_filter = coop_params(args.pipeline_config)
         run_coop_eval(seeds, frames=args.frames, out_dir=out, progress=stderr_progress,
                       scenarios=tuple(coop_scenarios), noise_scales=noise if args.noise_scales is not None else (1.0,),
-                      config=coop_config)
+                      config=coop_config, size_filter=coop_filter)
         print((out / "report.md").read_text())
     if "anomaly" in tasks:  # rendered frames; docs/anomaly.md
         from sim.anomaly_eval import run_anomaly_eval

@@ -7,10 +7,26 @@ from __future__ import annotations
 import argparse
 import math
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 from uavmm.csv_args import csv_list
 
-__all__ = ["coop_noise_scale", "run_domain_eval_command"]
+if TYPE_CHECKING:
+    from agent.pipeline_config import PipelineConfig
+    from agent.size_filter import SizeFilter
+
+__all__ = ["coop_noise_scale", "coop_params", "run_domain_eval_command"]
+
+
+def coop_params(path: Path | None) -> tuple[PipelineConfig | None, SizeFilter | None]:
+    """`--config` of `uavmm eval --tasks coop` (scenarios or domains): (its pipeline settings, the fitted size
+    filter a `uavmm tune` parameters file carries); (None, None) without one. Until 28 Nov 2026 the size
+    filter was dropped here (and the whole file ignored with --domains)."""
+    if path is None:
+        return None, None
+    from agent.boost import load_params
+
+    return load_params(path)
 
 
 def run_domain_eval_command(args: argparse.Namespace) -> int:
@@ -63,13 +79,9 @@ def _run_coop_domain_eval(args: argparse.Namespace) -> int:
     seeds = _seeds(args.seeds)
     noise = coop_noise_scale(args.noise_scales)
     out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
-    config = None
-    if args.pipeline_config is not None:  # every variant's settings (until 28 Nov 2026 ignored here)
-        from agent.boost import load_params
-
-        config, _ = load_params(args.pipeline_config)
+    config, size_filter = coop_params(args.pipeline_config)  # every variant's settings
     report = run_coop_domain_eval(domains, seeds, noise_scale=noise, out_dir=out, progress=stderr_progress,
-                                  config=config)
+                                  config=config, size_filter=size_filter)
     print((out / "report.md").read_text())
     print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0

@@ -10,7 +10,9 @@ import math
 import numpy as np
 import pytest
 
+from agent.params_file import make_params
 from agent.pipeline_config import PipelineConfig
+from agent.size_filter import SizeBand, SizeFilter
 from sim.coop_domain_eval import JOINT, OWN, acceptance, markdown, run_coop_domain_eval, summarise
 from sim.coop_domains import (
     COOP_DOMAINS,
@@ -25,7 +27,7 @@ from sim.dataset import write_dataset
 from sim.scenarios import UavSetting, get_scenario
 from sim.simulator import Simulation
 from uavmm.cli import main
-from uavmm.eval_domains import coop_noise_scale
+from uavmm.eval_domains import coop_noise_scale, coop_params
 
 
 def _coop(**settings) -> object:
@@ -202,6 +204,21 @@ def test_a_small_domain_runs_end_to_end_from_the_cli(tmp_path, capsys):
     assert paper_boost["config_overrides"] == {"fragment_iou": 0.0} and report["config_overrides"] == {}
     own = {s["uav"]: s[f"AP50|{OWN}"] for s in report["summary"]}
     assert {s["uav"]: s[f"AP50|{OWN}"] for s in paper_boost["summary"]} != own
+    # and a `uavmm tune` parameters file's fitted size filter with it (dropped until 28 Nov 2026): here one that
+    # takes every object for 100 m across (the size check widens it to the confident boxes, SizeFilterCheck, but
+    # the filter still changes what the single-frame detector keeps)
+    builtin = SizeFilter.builtin()
+    absurd = SizeFilter({name: SizeBand(b.depression_deg, tuple(math.log(100.0) for _ in b.mean_log_m),
+                                        tuple(0.05 for _ in b.std_log)) for name, b in builtin.bands.items()})
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps(make_params({"fragment_iou": 0.0}, absurd, {"by": "test"})))
+    config, size_filter = coop_params(params)
+    assert config == PipelineConfig(fragment_iou=0.0) and size_filter == absurd
+    assert coop_params(None) == (None, None)
+    fitted = run_coop_domain_eval([small], [0], out_dir=tmp_path / "eval1", config=config, size_filter=size_filter)
+    assert fitted["size_filter"] == absurd.to_dict() and report["size_filter"] is None
+    priors = {s["uav"]: s["AP50|baseline"] for s in paper_boost["summary"]}
+    assert all(s["AP50|baseline"] != pytest.approx(priors[s["uav"]], abs=0.05) for s in fitted["summary"])
 
 
 def test_the_coop_noise_scale_defaults_to_one():
