@@ -188,7 +188,9 @@ class GpsTracker:
 
     @property
     def lost_tracks(self) -> list[TrackOutput]:
-        """Tracks in the re-ID memory: last filtered position and velocity, time lost so far."""
+        """Tracks in the re-ID memory: the position each entered it with (its coasted prediction then, not its last
+        measured one; moved with the telemetry corrections since), its velocity and the time since its last hit
+        (time_since_update_s)."""
         lost = self._state.lost
         if not len(lost) or self._state.origin is None:
             return []
