@@ -17,6 +17,7 @@ from agent._kernels import georeference_and_filter, small_distinct
 from agent.boxes import anchor_fraction, box_anchor_points, nms, outranked_overlaps
 from agent.dem import takeoff_terrain
 from agent.frame_result import FrameResult
+from agent.joint_boost import registered_joint_evidence
 from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
@@ -244,7 +245,7 @@ class DetectionPipeline:
         boosted = conf.copy()
         if pose is not None and n and cfg.use_memory:
             boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, present, valid, lat, lon,
-                                                                   pose, t)
+                                                                   pose, t, boxes)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         if cfg.fragment_iou > 0 and len(keep) > 1:
             keep = self._unboost_fragments(boxes, conf, boosted, cids, keep)
@@ -451,10 +452,12 @@ class DetectionPipeline:
                       corr.east_m, corr.north_m, corr.measured, corr.points, corr.support)
         return corr
 
-    def _boost_and_update(self, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose, t: float):
+    def _boost_and_update(self, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose, t: float,
+                          boxes: NDArray):
         """Boost with the map from before this frame, then stamp; the frame's ground points moved by the
-        telemetry correction first. present: the frame's class ids, ascending (cids holds no others).
-        Returns boosted, lat, lon (corrected) and the correction (or None)."""
+        telemetry correction first. present: the frame's class ids, ascending (cids holds no others); boxes: the
+        candidates (for the joint registration, _registered_cells). Returns boosted, lat, lon (corrected) and the
+        correction (or None)."""
         cfg = self.config
         first = self.memory.t is None
         dt = self.memory.advance(t, pose.lat, pose.lon)
@@ -475,6 +478,7 @@ class DetectionPipeline:
             lat = lat + (float(lat0) - pose.lat)
             lon = lon + (float(lon0) - pose.lon)
         vcids = cids if everywhere else cids[idx]
+        spots = self._registered_cells(boxes, idx, pose, correction)
         # The update uses the detector's confidence, not the boosted one (paper IV).
         gain = cfg.memory.gain_per_s * step_s if cfg.memory.gain_per_frame is None else cfg.memory.gain_per_frame
         for cid in present:
@@ -488,8 +492,18 @@ class DetectionPipeline:
                     continue
                 gxs, gys = gx[sel], gy[sel]
             p = self.memory.values_at(name, gxs, gys)
+            absent = None
             if self.joint is not None and cfg.joint_mode != "local":
                 pj = self.joint.values_at(name, gxs, gys, t)
+                if spots is not None:  # the partners' evidence where the joint registration puts it
+                    sx, sy = spots[0][rows], spots[1][rows]
+                    ok = np.isfinite(sx)
+                    if ok.any():
+                        pj[ok], on = registered_joint_evidence(
+                            self.joint, self.memory, name, p[ok], sx[ok], sy[ok], t, cover_uavs=cfg.joint_cover_uavs,
+                            absent_value=cfg.joint_absent_value)
+                        absent = np.zeros(len(rows), bool)
+                        absent[ok] = on
                 if cfg.joint_mode == "max":
                     p = np.maximum(p, pj)
                 elif cfg.joint_mode == "joint":
@@ -497,9 +511,38 @@ class DetectionPipeline:
                 else:
                     p = 0.5 * (p + pj)
             c = conf[rows]
-            boosted[rows] = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
+            b = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
+            if absent is not None and cfg.joint_absent_logit > 0 and cfg.boost_mode == "logodds" and absent.any():
+                # a partner covers the spot and sees nothing there: its evidence against, in log-odds
+                bb = np.clip(b[absent], 1e-6, 1 - 1e-6)
+                b[absent] = 1.0 / (1.0 + np.exp(cfg.joint_absent_logit - np.log(bb / (1 - bb))))
+            boosted[rows] = b
             self.memory.add(name, gxs, gys, gain * c)
         return boosted, lat, lon, correction
+
+    def _registered_cells(self, boxes: NDArray, idx: NDArray[np.int64], pose: Pose,
+                          correction: GroundCorrection | None) -> tuple[NDArray, NDArray] | None:
+        """Global cells (gx, gy), (N,) each with NaN where none, of where the joint registration puts the partners'
+        evidence of the candidates idx (agent.joint_boost): each anchor moved by the registration's image offset,
+        put on the ground and moved by the telemetry correction as the candidates' own points are. None without
+        a joint layer, joint detections (the registration is theirs), joint_register_boost, or an offset yet."""
+        cfg = self.config
+        registration = self.__dict__.get("_joint_registration")
+        if self.joint is None or registration is None or not cfg.joint_register_boost or not len(idx):
+            return None
+        dx, dy = registration.offset()
+        if not (dx or dy):
+            return None
+        f = np.float32(self._focal_px)
+        east, north, _, ok = self.ground_points(boxes[idx] + f * np.array([dx, dy, dx, dy], np.float32), pose)
+        if correction is not None:
+            east, north = east + correction.east_m, north + correction.north_m
+        gx = np.full(len(boxes), np.nan)
+        gy = np.full(len(boxes), np.nan)
+        if ok.any():
+            sla, slo = local_to_latlon(east[ok], north[ok], pose.lat, pose.lon)
+            gx[idx[ok]], gy[idx[ok]] = self.grid.latlon_to_cell(sla, slo)
+        return gx, gy
 
     def _unboost_fragments(self, boxes: NDArray, conf: NDArray, boosted: NDArray, cids: NDArray,
                            keep: NDArray[np.int64]) -> NDArray[np.int64]:

@@ -38,6 +38,8 @@ _JOINT_TUNING_RANGES = (
     ("joint_carry_match_iou", 0.0, 1.0, False),
     ("joint_carry_blend", 0.0, 1.0, False),
     ("joint_carry_velocity_gain", 0.0, 1.0, False),
+    ("joint_absent_value", 0.0, 1.0, False),
+    ("joint_absent_logit", 0.0, math.inf, False),
 )
 
 
@@ -222,6 +224,9 @@ class PipelineConfig:
     joint_carry_match_iou: float = 0.3
     joint_carry_blend: float = 0.5
     joint_carry_velocity_gain: float = 0.1
+    joint_register_boost: bool = True
+    joint_absent_value: float = 0.05
+    joint_absent_logit: float = 2.0
     size_check_min_score: float = 0.5
     size_check_min_boxes: int = 15
     size_check_max_shift: float = 3.0
@@ -295,6 +300,8 @@ class PipelineConfig:
                 allowed = (f"in {'(' if low_open else '['}{low:g}, {high:g}]" if math.isfinite(high)
                            else f"{'>' if low_open else '>='} {low:g}")
                 raise ValueError(f"{name} must be a number {allowed}, got {value!r}")
+        if not isinstance(self.joint_register_boost, bool):
+            raise ValueError(f"joint_register_boost must be true or false, got {self.joint_register_boost!r}")
         for name in ("joint_register_min_pairs", "joint_register_candidates", "joint_carry_min_sightings"):
             if not isinstance(getattr(self, name), int):
                 raise ValueError(f"{name} must be an integer, got {getattr(self, name)!r}")
