@@ -11,9 +11,9 @@ The joint registration (agent.joint_detections.JointRegistration) measures that 
 the joint map's peaks and this UAV's confident detections. Here each candidate's partner evidence is read
 where it lies: at the ground point of the candidate's anchor moved by the registered offset. There the
 others' share of the joint mean (`others_evidence`) stands beside this UAV's own evidence at the candidate,
-averaged over the UAVs covering the spot. Where a partner covers the registered spot and holds (next to)
-nothing there, the candidate is something that UAV does not see: `absent` marks it (the pipeline lowers its
-log-odds by PipelineConfig.joint_absent_logit).
+averaged over the UAVs covering the spot. Where a partner's footprint covers the registered spot and it
+holds (next to) nothing there, the candidate is something that UAV does not see: `absent` marks it (the
+pipeline lowers its log-odds by PipelineConfig.joint_absent_logit).
 """
 
 from __future__ import annotations
@@ -36,8 +36,8 @@ def registered_joint_evidence(joint: JointLayer, memory: MemoryMap, cls: str, ow
     global cells (finite) of the candidates' registered spots. Returns (evidence (N,) float32: (own + k o) /
     (1 + k), with o the others' mean evidence at the registered spot (`others_evidence` of the joint layer and
     this UAV's memory there) and k the other UAVs whose fresh footprints cover it (JointLayer.others_cover;
-    without footprints, cover_uavs - 1 are assumed), and absent (N,) bool: a partner covers the spot and
-    o < absent_value).
+    without footprints, cover_uavs - 1 are assumed), and absent (N,) bool: a partner's fresh footprint covers
+    the spot and o < absent_value; never without footprints).
     """
     gx = np.asarray(gx, dtype=np.float64)
     gy = np.asarray(gy, dtype=np.float64)
@@ -54,4 +54,6 @@ def registered_joint_evidence(joint: JointLayer, memory: MemoryMap, cls: str, ow
     others = others_evidence(at_spot, own_there, cover_uavs, covering)
     k = np.full(len(gx), np.float32(max(cover_uavs - 1, 0))) if covering is None else covering
     evidence = ((own + k * others) / (1.0 + k)).astype(np.float32)
-    return evidence, (k > 0) & (others < np.float32(absent_value))
+    if covering is None:  # no partner's footprint known: nothing tells where a partner looks
+        return evidence, np.zeros(len(gx), bool)
+    return evidence, (covering > 0) & (others < np.float32(absent_value))

@@ -92,6 +92,16 @@ class PipelineConfig:
         joint_carry_s: for this long after this UAV last saw an object the others' evidence points at (a
         promoted or confident box), a frame with no box for it reports the last one moved on by its image
         velocity (agent.joint_detections.JointCarry; 0 = off), scored the peak's times joint_carry_factor.
+    joint_register_boost: once the joint detections' registration has an offset (JointRegistration), each
+        candidate is boosted with the others' evidence read where the registration puts it (its anchor moved by
+        the offset) beside this UAV's own evidence at the candidate, averaged over the UAVs covering the spot,
+        instead of the joint map read at the candidate (agent.joint_boost; the two UAVs' maps lie metres apart,
+        4.6 m on `coop-glare` seed 0). joint_absent_value, joint_absent_logit: where a partner's footprint
+        covers the registered spot and the others' evidence there is below joint_absent_value, the candidate's
+        log-odds are lowered by joint_absent_logit (boost_mode "logodds" only; 0 = never). Off by default: chosen
+        on the coop tuning domains (the weaker UAV's joint AP50 +0.38, the others +0.31), it held out at +0.12 /
+        +0.05 with `coop-high-low` -0.4 / -0.2 and fewer hidden objects found by the stronger UAVs, where the
+        registration leaves most (docs/simulator.md, "Fourth measurement"; 28 Nov 2026).
 
     correct_telemetry: before boosting and stamping, register the frame's confident boxes to the memory
         map and move all its ground points by the common offset found (agent.telemetry_correction; needs
@@ -224,7 +234,7 @@ class PipelineConfig:
     joint_carry_match_iou: float = 0.3
     joint_carry_blend: float = 0.5
     joint_carry_velocity_gain: float = 0.1
-    joint_register_boost: bool = True
+    joint_register_boost: bool = False
     joint_absent_value: float = 0.05
     joint_absent_logit: float = 2.0
     size_check_min_score: float = 0.5
