@@ -1,7 +1,7 @@
 """Boosting with the other UAVs' evidence where the joint registration puts it (issue 30, part 2).
 
 Each UAV's map sits where its own telemetry puts the objects, so the same person lies metres apart in two
-UAVs' maps. On `coop-glare` (seed 0, the weaker UAV's detections scoring >= 0.5) the partner's own map holds
+UAVs' maps. On `coop-glare` (seed 0, the weaker UAV's candidates scoring >= 0.5) the partner's own map holds
 0.13 on average at this UAV's cell of a detection and 0.85 within 3 m of it: the maps are 4.6 m apart there
 (the best common shift, 1.9 m west and 4.3 m south, against 1.7 and 4.0 m from the joint registration). Read
 at this UAV's boxes, the joint map (the mean over the UAVs covering a cell) then holds this UAV's own

@@ -170,12 +170,14 @@ class DetectionPipeline:
         return math.sqrt(self.camera.fx * self.camera.fy)
 
     def reset(self) -> None:
-        """Forget the memory, the telemetry correction and what the adaptive stages judged (start of another
-        video)."""
+        """Forget the memory, the telemetry correction, the joint registration and carried sightings and what the
+        adaptive stages judged (start of another video)."""
         self.memory.reset()
         self.__dict__.pop("_video_terrain", None)
         self.__dict__.pop("_corrector", None)
         self.__dict__.pop("_score_calibration", None)
+        self.__dict__.pop("_joint_registration", None)  # the previous video's offset and sightings
+        self.__dict__.pop("_joint_carry", None)
         self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
         self._classes_seen = set()
 

@@ -98,7 +98,9 @@ class PipelineConfig:
         instead of the joint map read at the candidate (agent.joint_boost; the two UAVs' maps lie metres apart,
         4.6 m on `coop-glare` seed 0). joint_absent_value, joint_absent_logit: where a partner's footprint
         covers the registered spot and the others' evidence there is below joint_absent_value, the candidate's
-        log-odds are lowered by joint_absent_logit (boost_mode "logodds" only; 0 = never). Off by default: chosen
+        log-odds are lowered by joint_absent_logit (boost_mode "logodds" only; 0 = never). It needs the joint
+        detections (the registration is theirs: with joint_detections off, or joint_mode "local", it does
+        nothing). Off by default: chosen
         on the coop tuning domains (the weaker UAV's joint AP50 +0.38, the others +0.31), it held out at +0.12 /
         +0.05 with `coop-high-low` -0.4 / -0.2 and fewer hidden objects found by the stronger UAVs, where the
         registration leaves most (docs/simulator.md, "Fourth measurement"; 28 Nov 2026).

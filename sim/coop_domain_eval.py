@@ -20,6 +20,7 @@ from typing import Any
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from sim.coop_domains import CoopDomain
+from sim.coop_report import settings_line
 
 DETECTOR, OWN, JOINT = "baseline", "own memory map", "joint map + joint detections"
 #: The variants run per domain (the joint map's boosting alone is left to `uavmm eval --tasks coop`).
@@ -77,10 +78,10 @@ def markdown(report: dict[str, Any]) -> str:
              f"Seeds {report['seeds']}, noise x{report['noise_scale']:g}, mean over seeds. AP50 (pycocotools) on "
              "each UAV's frames with every object in its view as ground truth (hidden ones too); 'hidden det.' = "
              "share of the boxes of objects hidden from that UAV found with score >= 0.25. Own map: the UAV's "
-             "memory map alone; joint: the joint map boosting and the joint detections (the agent's defaults), "
+             "memory map alone; joint: the joint map boosting and the joint detections, "
              "fused as the fusion server does at 5 Hz. (w) marks the weaker UAV. Registration: the median offset "
              "of the other UAVs' evidence in this UAV's image that the telemetry errors make (from the truth), "
-             "and what the joint registration leaves of it (sim.coop_registration).", ""]
+             "and what the joint registration leaves of it (sim.coop_registration).", "", settings_line(report), ""]
     for split in ("tune", "heldout"):
         rows = [s for s in report["summary"] if s["split"] == split]
         if not rows:

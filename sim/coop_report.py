@@ -11,7 +11,7 @@ from sim.coop_peaks import MATCH_GATE_M, PEAK_BAR_M, PEAK_MIN_SCORE
 from sim.position_error import format_metres
 from sim.terrain_eval import DEM_SUFFIX
 
-__all__ = ["coop_markdown"]
+__all__ = ["coop_markdown", "settings_line"]
 
 _SCENES = {
     "coop": "A tree line hides resting people (and passing walkers) from the far, oblique uav1 for the whole "
@@ -27,13 +27,21 @@ def _pct(value: float) -> str:
     return "" if value != value else f"{value:.1f}"
 
 
+def settings_line(report: dict[str, Any]) -> str:
+    """The report.md line naming what --config changed (config_overrides, a fitted size filter)."""
+    changed = [f"{k} = {v}" for k, v in (report.get("config_overrides") or {}).items()]
+    if report.get("size_filter"):
+        changed.append("a fitted size filter")
+    return "Settings: " + (", ".join(changed) + " (--config), the rest the defaults." if changed
+                           else "all the defaults.")
+
+
 def coop_markdown(report: dict[str, Any]) -> str:
     """report.md of a `run_coop_eval` report dict (its summary, peak_summary and acceptance)."""
     lines = [f"# uavmm eval: cooperative detection ({', '.join(report['scenarios'])}, two UAVs)", "",
              f"Seeds {report['seeds']}, telemetry noise x{', x'.join(f'{n:g}' for n in report['noise_scales'])}, "
              "mean over seeds. " + " ".join(_SCENES.get(s, "") for s in report["scenarios"]), "",
-             "Settings: " + (", ".join(f"{k} = {v}" for k, v in report["config_overrides"].items()) + " (--config), "
-                             "the rest" if report.get("config_overrides") else "all") + " the defaults.", "",
+             settings_line(report), "",
              "AP50 by pycocotools on each UAV's frames with the hidden people's boxes as ground truth "
              "(does the UAV report everything in its view?); 'hidden ignored': their boxes are COCO crowd "
              "(ignore) regions; 'hidden as FP': left out, so detecting them counts as a false positive; "

@@ -117,7 +117,8 @@ def test_the_registered_evidence_stays_between_zero_and_one(own, peak, cover_uav
     evidence, absent = registered_joint_evidence(joint, memory, "person", np.array(own, np.float32), gx, gy, T,
                                                  cover_uavs=cover_uavs, absent_value=0.05)
     assert evidence.dtype == np.float32 and ((evidence >= 0) & (evidence <= 1)).all()
-    # one partner or none assumed: the own evidence counts for at least half of the mean, and never less
+    # without footprints cover_uavs - 1 partners are assumed: the own evidence counts for 1 / cover_uavs of the
+    # mean at least, and nothing is marked absent (nothing tells where a partner looks)
     assert (evidence >= np.array(own, np.float32) / max(cover_uavs, 1) - 1e-6).all() and not absent.any()
 
 
@@ -167,3 +168,9 @@ def test_a_box_where_the_partner_looks_and_sees_nothing_loses_log_odds():
 def test_bad_settings_are_refused_by_name(field, value):
     with pytest.raises(ValueError, match=field):
         dataclasses.replace(PipelineConfig(), **{field: value})
+
+
+def test_another_video_starts_without_the_previous_ones_registration():
+    pipe, _ = registered_pipeline(dataclasses.replace(BASE, joint_register_boost=True))
+    pipe.reset()
+    assert pipe.joint_registration_offset_px() is None

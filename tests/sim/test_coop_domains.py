@@ -202,6 +202,8 @@ def test_a_small_domain_runs_end_to_end_from_the_cli(tmp_path, capsys):
     paper_boost = run_coop_domain_eval([small], [0], out_dir=tmp_path / "eval0",
                                        config=PipelineConfig(fragment_iou=0.0))
     assert paper_boost["config_overrides"] == {"fragment_iou": 0.0} and report["config_overrides"] == {}
+    assert paper_boost["size_filter"] is None  # a plain config carries no fitted filter
+    assert "Settings: fragment_iou = 0.0 (--config)" in (tmp_path / "eval0" / "report.md").read_text()
     own = {s["uav"]: s[f"AP50|{OWN}"] for s in report["summary"]}
     assert {s["uav"]: s[f"AP50|{OWN}"] for s in paper_boost["summary"]} != own
     # and a `uavmm tune` parameters file's fitted size filter with it (dropped until 28 Nov 2026): here one that

@@ -2,11 +2,17 @@
 
 from __future__ import annotations
 
+import dataclasses
+import json
+
 import pytest
 
+from agent.params_file import make_params
 from agent.pipeline import DetectionPipeline
+from agent.size_filter import SizeFilter
 from shared.geo import Camera, Pose
 from sim.coop_eval import CoopFusion, run_coop_eval, slope_acceptance
+from uavmm.cli import main
 
 LAT, LON = 48.0, 9.0
 
@@ -74,3 +80,28 @@ def test_the_slope_bars_compare_the_dem_with_flat_earth_per_uav():
     assert bars["coop-slope x0 uav1 joint map + joint detections: AP50 with DEM - flat"]["ok"]
     assert not bars["coop-slope x0 uav1 joint map + joint detections: HOTA with DEM - flat"]["ok"]
     assert len(bars) == 6  # the 'both' row is reported, the bars are each UAV's
+
+
+def test_the_cli_passes_a_tune_files_size_filter_and_names_the_settings(tmp_path):
+    # `uavmm eval --tasks coop --config PARAMS.json`: the fitted size filter a `uavmm tune` file carries reaches
+    # the runs (it was dropped until 28 Nov 2026) and the report says so; a plain config records none
+    fitted = dataclasses.replace(SizeFilter.builtin(), k=2.0)
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps(make_params({"fragment_iou": 0.0}, fitted, {"by": "test"})))
+    plain = tmp_path / "plain.json"
+    plain.write_text('{"fragment_iou": 0.0}')
+    reports = {}
+    for name, path in (("params", params), ("plain", plain)):
+        out = tmp_path / name
+        assert main(["eval", "--tasks", "coop", "--seeds", "0", "--frames", "30", "--config", str(path),
+                     "--out", str(out)]) == 0
+        reports[name] = (json.loads((out / "coop" / "report.json").read_text()),
+                         (out / "coop" / "report.md").read_text())
+    report, text = reports["params"]
+    assert report["size_filter"] == fitted.to_dict() and report["config_overrides"] == {"fragment_iou": 0.0}
+    assert "Settings: fragment_iou = 0.0, a fitted size filter (--config), the rest the defaults." in text
+    report, text = reports["plain"]
+    assert report["size_filter"] is None and "Settings: fragment_iou = 0.0 (--config)" in text
+    # the filter changes what the single-frame detector keeps (k 2 against the priors' 3)
+    base = {s["uav"]: s["AP50"] for s in reports["params"][0]["summary"] if s["variant"] == "baseline"}
+    assert base != {s["uav"]: s["AP50"] for s in reports["plain"][0]["summary"] if s["variant"] == "baseline"}
