@@ -77,6 +77,10 @@ class DetectionPipeline:
         self.joint = joint
         self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
         self._classes_seen: set[str] = set()  # classes with candidates in this video, for the reports
+        cfg = self.config
+        if joint is not None and cfg.joint_register_boost and (not cfg.joint_detections or cfg.joint_mode == "local"):
+            log.warning("joint_register_boost does nothing here: it needs the joint detections' registration "
+                        "(joint_detections %s, joint_mode %s)", cfg.joint_detections, cfg.joint_mode)
 
     @property
     def active_size_filter(self) -> SizeFilter:

@@ -100,7 +100,7 @@ class PipelineConfig:
         covers the registered spot and the others' evidence there is below joint_absent_value, the candidate's
         log-odds are lowered by joint_absent_logit (boost_mode "logodds" only; 0 = never). It needs the joint
         detections (the registration is theirs: with joint_detections off, or joint_mode "local", it does
-        nothing). Off by default: chosen
+        nothing, and a pipeline with a joint layer says so in a warning). Off by default: chosen
         on the coop tuning domains (the weaker UAV's joint AP50 +0.38, the others +0.31), it held out at +0.12 /
         +0.05 with `coop-high-low` -0.4 / -0.2 and fewer hidden objects found by the stronger UAVs, where the
         registration leaves most (docs/simulator.md, "Fourth measurement"; 28 Nov 2026).

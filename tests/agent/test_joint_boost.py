@@ -174,3 +174,16 @@ def test_another_video_starts_without_the_previous_ones_registration():
     pipe, _ = registered_pipeline(dataclasses.replace(BASE, joint_register_boost=True))
     pipe.reset()
     assert pipe.joint_registration_offset_px() is None
+
+
+@pytest.mark.parametrize("change", [{"joint_detections": False}, {"joint_mode": "local"}])
+def test_the_option_says_when_it_cannot_act(change, caplog):
+    cfg = dataclasses.replace(BASE, joint_register_boost=True, **change)
+    with caplog.at_level("WARNING", logger="agent.pipeline"):
+        DetectionPipeline(CAM, CLASSES, cfg, joint=JointLayer(ttl_s=5.0))
+    assert "joint_register_boost does nothing here" in caplog.text
+    caplog.clear()
+    with caplog.at_level("WARNING", logger="agent.pipeline"):
+        DetectionPipeline(CAM, CLASSES, dataclasses.replace(BASE, joint_register_boost=True), joint=JointLayer())
+        DetectionPipeline(CAM, CLASSES, cfg)  # no joint layer: nothing to say
+    assert "joint_register_boost" not in caplog.text
