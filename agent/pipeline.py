@@ -520,8 +520,7 @@ class DetectionPipeline:
             b = boost_scores(c, p, cfg.boost_mode, cfg.boost_weight, cfg.logodds_scale)
             if absent is not None and cfg.joint_absent_logit > 0 and cfg.boost_mode == "logodds" and absent.any():
                 # a partner covers the spot and sees nothing there: its evidence against, in log-odds
-                bb = np.clip(b[absent], 1e-6, 1 - 1e-6)
-                b[absent] = 1.0 / (1.0 + np.exp(cfg.joint_absent_logit - np.log(bb / (1 - bb))))
+                b[absent] = boost_scores(b[absent], np.float32(-1.0), "logodds", cfg.joint_absent_logit, 1.0)
             boosted[rows] = b
             self.memory.add(name, gxs, gys, gain * c)
         return boosted, lat, lon, correction

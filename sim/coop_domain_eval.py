@@ -122,7 +122,7 @@ def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_s
     config: every variant's settings (`--config PARAMS.json`; default PipelineConfig()), its differences from
     the defaults in the report (config_overrides); size_filter: the fitted size filter such a parameters file
     carries (None: the built-in priors), in the report too."""
-    from sim.coop_eval import config_overrides, evaluate_coop
+    from sim.coop_eval import evaluate_coop, settings_record
 
     if not domains or not seeds:
         raise ValueError("run_coop_domain_eval needs at least one domain and one seed")
@@ -138,8 +138,7 @@ def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_s
         rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r} for r in per_uav]
     summary = summarise(rows, domains)
     report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scale": noise_scale,
-              "config_overrides": config_overrides(config),
-              "size_filter": None if size_filter is None else size_filter.to_dict(), "rows": rows,
+              **settings_record(config, size_filter), "rows": rows,
               "summary": summary, "acceptance": acceptance(summary), "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(markdown(report))

@@ -369,14 +369,19 @@ def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path 
     summary = _mean_rows(rows, ("scenario", "noise_scale", "uav", "variant"), _METRICS)
     peak_summary = _mean_rows(peak_rows, ("scenario", "noise_scale", "variant", "uav"), _PEAK_METRICS)
     report = {"scenarios": list(scenarios), "seeds": seeds, "noise_scales": list(noise_scales), "frames": frames,
-              "config_overrides": config_overrides(config),
-              "size_filter": None if size_filter is None else size_filter.to_dict(),
+              **settings_record(config, size_filter),
               "rows": rows, "summary": summary, "peak_rows": peak_rows, "peak_summary": peak_summary,
               "acceptance": slope_acceptance(summary, peak_summary),
               "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(coop_markdown(report))
     return report
+
+
+def settings_record(config: PipelineConfig | None, size_filter: SizeFilter | None) -> dict[str, Any]:
+    """A report's record of what --config changed: config_overrides and the fitted size filter (or None)."""
+    return {"config_overrides": config_overrides(config),
+            "size_filter": None if size_filter is None else size_filter.to_dict()}
 
 
 def config_overrides(config: PipelineConfig | None) -> dict[str, Any]:
