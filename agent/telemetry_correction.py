@@ -42,7 +42,8 @@ class CorrectionSettings:
         correction jumped by it for single frames. 0 (default): the whole window every frame; 2 m halved
         the tracker's id switches on sea-tele-gps4 when it tracked on corrected points, and cost 0.2 AP50
         on the tuning domains (docs/memory-map.md).
-    anchor_s: the correction is anchored to the telemetry over this time (seconds; 0: not anchored). The map
+    anchor_s: the correction is anchored to the telemetry over this time (seconds; 0: not anchored; 10 s by
+        default, chosen 29 Nov 2026, docs/memory-map.md). The map
         holds the earlier frames' points moved by their corrections, so a measurement is the correction this
         frame needs plus what the map already carries, and a constant added to every correction is invisible
         to the measurements: unanchored, each frame's measurement error (a fraction of a cell) and the evidence
@@ -62,7 +63,7 @@ class CorrectionSettings:
     hold_s: float = 2.0
     max_points: int = 16
     local_m: float = 0.0
-    anchor_s: float = 0.0
+    anchor_s: float = 10.0
 
     def __post_init__(self) -> None:
         for name in ("min_score", "search_m", "min_support", "smoothing_s", "hold_s", "local_m", "anchor_s"):

@@ -112,13 +112,15 @@ def test_register_offset_keeps_to_the_current_correction_over_an_alias() -> None
     assert (dx, dy) == pytest.approx((-8.0, 4.0), abs=0.3)
 
 
-@pytest.mark.parametrize(("anchor_s", "drifts"), [(0.0, True), (3.0, False)])
-def test_an_anchored_correction_does_not_walk_away_with_the_walkers(anchor_s: float, drifts: bool) -> None:
+@pytest.mark.parametrize(("anchor_s", "drifts"), [(0.0, True), (3.0, False), (None, False)])
+def test_an_anchored_correction_does_not_walk_away_with_the_walkers(anchor_s: float | None, drifts: bool) -> None:
     """Regression (coop-slope): exact telemetry, six people standing and two walking east. The map trails the
     walkers, so every frame measures a small offset westwards; measured against a map that holds the earlier
     corrections, an unanchored correction adds them up (2.5 m in 10 s). Anchored to the telemetry it stays
-    within a few decimetres and the standing people's points stay on them."""
-    cfg = dataclasses.replace(PipelineConfig(), use_size_filter=False, correction_anchor_s=anchor_s)
+    within a few decimetres and the standing people's points stay on them. None: the default (anchored)."""
+    cfg = dataclasses.replace(PipelineConfig(), use_size_filter=False)
+    if anchor_s is not None:
+        cfg = dataclasses.replace(cfg, correction_anchor_s=anchor_s)
     pipe = DetectionPipeline(CAM, {1: "person"}, cfg)
     rng = np.random.default_rng(0)
     walkers = np.array([[-12.0, 33.0], [-6.0, 47.0]])
