@@ -116,8 +116,8 @@ class PipelineConfig:
         telemetry (CorrectionSettings.anchor_s: the applied corrections averaged over it are taken off each
         measurement, so the map stays where the telemetry puts the objects on average instead of drifting
         with the correction's own errors; 0: not anchored). 10 s by default (29 Nov 2026): unanchored, the
-        maps walked away from exact telemetry (the joint map's peaks on `coop-slope` a median 1.32 m off
-        after 15 s, 0.50 m anchored at 10 s) while AP50 moved by at most 0.3 on average on every grid
+        maps walked away from exact telemetry (the joint map's peaks on `coop-slope` a median 1.28 m off
+        after 15 s, 0.50 m anchored at 10 s) while the mean AP50 of each domain grid moved by at most 0.3
         (docs/memory-map.md, "Anchoring").
 
     estimate_clock_offset: the frame drivers of files (`uavmm boost`, `uavmm track`, `uavmm tune`, the

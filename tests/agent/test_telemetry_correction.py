@@ -152,3 +152,27 @@ def test_settings_reject_bad_values() -> None:
         PipelineConfig(correction_local_m=float("nan"))
     with pytest.raises(ValueError, match="min_points"):
         PipelineConfig(correction_min_points=0)
+
+
+def test_a_lasting_gps_step_is_corrected_at_first_and_handed_back_to_the_telemetry() -> None:
+    """With the default anchor (10 s), a GPS step that lasts is corrected at once and given back to the telemetry
+    over about the anchor time: the map then follows the telemetry to where it puts the objects."""
+    cfg = dataclasses.replace(PipelineConfig(), use_size_filter=False)
+    assert cfg.correction_anchor_s > 0
+    pipe = DetectionPipeline(CAM, {1: "person"}, cfg)
+    rng = np.random.default_rng(1)
+    step = (4.0, -3.0)
+    corrections = {}
+    for frame in range(30 * 60):
+        t = frame / 30
+        pose = _pose() if t < 2.0 else _pose(*step)
+        result = pipe.process(*_frame_boxes(rng), pose, t)
+        if frame in (2 * 30 + 3, 60 * 30 - 1):
+            assert result.correction is not None
+            corrections[frame // 30] = (result.correction.east_m, result.correction.north_m)
+    assert corrections[2] == pytest.approx((-step[0], -step[1]), abs=0.3)  # just after the step: undone
+    assert np.hypot(*corrections[59]) < 0.5  # a minute later: the telemetry's own
+    strong = result.raw_scores >= 0.5
+    e, n = latlon_to_local(result.lat[strong], result.lon[strong], LAT0, LON0)
+    d = np.hypot(e[:, None] - (OBJECTS[None, :, 0] + step[0]), n[:, None] - (OBJECTS[None, :, 1] + step[1])).min(axis=1)
+    assert np.median(d) < 0.5  # the points where the stepped telemetry puts the objects
