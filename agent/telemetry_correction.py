@@ -43,17 +43,17 @@ class CorrectionSettings:
         the tracker's id switches on sea-tele-gps4 when it tracked on corrected points, and cost 0.2 AP50
         on the tuning domains (docs/memory-map.md).
     anchor_s: the correction is anchored to the telemetry over this time (seconds; 0: not anchored; 10 s by
-        default, chosen 29 Nov 2026, docs/memory-map.md). The map
-        holds the earlier frames' points moved by their corrections, so a measurement is the correction this
-        frame needs plus what the map already carries, and a constant added to every correction is invisible
-        to the measurements: unanchored, each frame's measurement error (a fraction of a cell) and the evidence
-        walkers leave behind them add up, and on noise-free telemetry the map walked 1-3 m away from the truth
-        within 10 s (`coop-slope`, docs/geometry.md, Two UAVs on opposite sides of a slope). Anchored, the applied corrections averaged over anchor_s
-        are taken off each measurement: what the correction keeps for longer than that is the telemetry's
-        own (a bias no registration can see), and the map stays where the telemetry puts the objects on
-        average. Faster errors (jitter) are corrected as before; a lasting step is corrected at first and handed
-        back to the telemetry over roughly anchor_s. Meant for anchor_s at or above
-        the map's memory (its half-life / ln 2); below it the correction rings.
+        default, chosen 29 Nov 2026, docs/memory-map.md). The map holds the earlier frames' points moved by
+        their corrections, so a measurement is the correction this frame needs plus what the map already
+        carries, and a constant added to every correction is invisible to the measurements: unanchored, each
+        frame's measurement error (a fraction of a cell) and the evidence walkers leave behind them add up, and
+        on noise-free telemetry the map walked 1-3 m away from the truth within 10 s (`coop-slope`,
+        docs/geometry.md, Two UAVs on opposite sides of a slope). Anchored, the applied corrections averaged
+        over anchor_s are taken off each measurement: what the correction keeps for longer than that is the
+        telemetry's own (a bias no registration can see), and the map stays where the telemetry puts the
+        objects on average. Faster errors (jitter) are corrected as before; a lasting step is corrected at
+        first and handed back to the telemetry over roughly anchor_s. Meant for anchor_s at or above the map's
+        memory (its half-life / ln 2); below it the correction rings.
     """
 
     min_score: float = 0.5
