@@ -21,6 +21,8 @@ __all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig"]
 JOINT_MODES = ("max", "local", "joint", "mean")
 BOOST_MODES = ("add", "logodds")
 #: Allowed values of the joint detections' tuning settings: (field, low, high, low excluded).
+_CORRECTION = CorrectionSettings()
+
 _JOINT_TUNING_RANGES = (
     ("joint_peak_smoothing_m", 0.0, math.inf, True),
     ("joint_peak_gate_across_rad", 0.0, math.inf, False),
@@ -251,14 +253,15 @@ class PipelineConfig:
     calibration_tau_s: float = 30.0
     calibration_ref_sd: float = 1.35
     correct_telemetry: bool = True
-    correction_min_score: float = 0.5
-    correction_search_m: float = 8.0
-    correction_min_points: int = 2
-    correction_min_support: float = 0.3
-    correction_smoothing_s: float = 0.0
-    correction_hold_s: float = 2.0
-    correction_local_m: float = 0.0
-    correction_anchor_s: float = 10.0
+    # the correction's defaults are CorrectionSettings' (one place to change them)
+    correction_min_score: float = _CORRECTION.min_score
+    correction_search_m: float = _CORRECTION.search_m
+    correction_min_points: int = _CORRECTION.min_points
+    correction_min_support: float = _CORRECTION.min_support
+    correction_smoothing_s: float = _CORRECTION.smoothing_s
+    correction_hold_s: float = _CORRECTION.hold_s
+    correction_local_m: float = _CORRECTION.local_m
+    correction_anchor_s: float = _CORRECTION.anchor_s
     estimate_clock_offset: bool = True
     clock_offset_fallback_s: float = 0.0
     clock_offset_search_s: float = 1.0
