@@ -11,7 +11,7 @@ import pytest
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.telemetry_correction import CorrectionSettings, GroundOffsetEstimator, register_offset
-from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon
+from shared.geo import Camera, Pose, latlon_to_local, latlon_to_pixel, local_to_latlon, local_to_pixel
 
 CAM = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
 LAT0, LON0 = 48.53, 9.06
@@ -176,3 +176,51 @@ def test_a_lasting_gps_step_is_corrected_at_first_and_handed_back_to_the_telemet
     e, n = latlon_to_local(result.lat[strong], result.lon[strong], LAT0, LON0)
     d = np.hypot(e[:, None] - (OBJECTS[None, :, 0] + step[0]), n[:, None] - (OBJECTS[None, :, 1] + step[1])).min(axis=1)
     assert np.median(d) < 0.5  # the points where the stepped telemetry puts the objects
+
+
+def test_over_a_terrain_the_correction_moves_the_uav_and_marches_the_rays_again() -> None:
+    """A GPS step over a bank: the correction found on the level ground is applied by moving the UAV and
+    marching the rays again, so a person on the bank lands where it stands; moving its ground point by the
+    correction instead would leave it metres off (the step moves a ray's hit on a bank by more than itself)."""
+    from shared.terrain import ElevationGrid, Terrain
+
+    north = np.arange(120.0, -21.0, -1.0)  # rows from 120 m north down to 20 m south
+    bank = 6.0 / (1.0 + np.exp(-(north - 50.0) / 0.8))  # level up to ~46 m north, a 6 m bank by ~54 m
+    grid = ElevationGrid.from_local(np.tile(bank[:, None], (1, 101)), LAT0, LON0, west_m=-50.0, north_m=120.0,
+                                    cell_m=1.0)
+    terrain = Terrain(grid, 0.0)  # heights above take-off; the take-off is on the level ground at 0 m
+    level = np.vstack([OBJECTS[OBJECTS[:, 1] < 45.0], [[-22.0, 31.0], [7.0, 35.0], [-3.0, 15.0]]])
+    people = np.vstack([level, [[2.0, 50.0], [-6.0, 51.0]]])  # and two on the bank's face
+    up = terrain.up_m(people[:, 0], people[:, 1], _pose())
+    assert (up[-2:] > 2.0).all() and (up[:-2] < 0.1).all()
+    uv_true, ok = local_to_pixel(people[:, 0], people[:, 1], CAM, _pose(), terrain=terrain)
+    assert ok.all()
+
+    def boxes(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        uv = uv_true + rng.normal(0.0, 0.5, uv_true.shape)  # the anchor is the box's bottom centre
+        b = np.column_stack([uv[:, 0] - 8, uv[:, 1] - 30, uv[:, 0] + 8, uv[:, 1]])
+        return b.astype(np.float32), rng.uniform(0.7, 0.95, len(b)), np.ones(len(b), dtype=np.int64)
+
+    cfg = dataclasses.replace(PipelineConfig(), use_size_filter=False, anchor="bottom", terrain=terrain)
+    pipe = DetectionPipeline(CAM, {1: "person"}, cfg)
+    rng = np.random.default_rng(1)
+    t = 0.0
+    for _ in range(30):  # one second with true telemetry: the map learns where they are
+        pipe.process(*boxes(rng), _pose(), t)
+        t += 1 / 30
+    step = (0.0, 4.0)  # the GPS jumps 4 m north, along the view
+    for _ in range(3):
+        b, s, c = boxes(rng)
+        result = pipe.process(b, s, c, _pose(*step), t)
+        t += 1 / 30
+    assert result.correction is not None and result.correction.measured
+    assert result.correction.north_m == pytest.approx(-step[1], abs=0.6)  # the bank's raw points pull a little
+    e, n = latlon_to_local(result.lat, result.lon, LAT0, LON0)
+    dist = np.hypot(e[:, None] - people[None, :, 0], n[:, None] - people[None, :, 1])
+    d, who = dist.min(axis=1), dist.argmin(axis=1)
+    assert sorted(who.tolist()) == list(range(len(people)))  # every person kept once
+    assert d.max() < 0.6 and d[who >= len(level)].max() < 0.3  # those on the bank too
+    # what moving the raw ground points by the same correction gives on the bank: metres off
+    er, nr, _, _ = pipe.ground_points(b, _pose(*step))
+    shifted = np.column_stack([er + result.correction.east_m, nr + step[1] + result.correction.north_m])[-2:]
+    assert np.hypot(*(shifted - people[-2:]).T).min() > 1.5
