@@ -461,9 +461,10 @@ class DetectionPipeline:
     def _boost_and_update(self, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose, t: float,
                           boxes: NDArray):
         """Boost with the map from before this frame, then stamp; the frame's ground points moved by the
-        telemetry correction first (over a terrain: marched again from the pose moved by it). present: the frame's
-        class ids, ascending (cids holds no others); boxes: the candidates (for the joint registration,
-        _registered_cells). Returns boosted, lat, lon (corrected) and the correction (or None)."""
+        telemetry correction first (over a terrain the map's cells are marched again from the pose moved by it; the
+        returned points stay moved, which the tracker undoes). present: the frame's class ids, ascending (cids holds
+        no others); boxes: the candidates (for the joint registration, _registered_cells). Returns boosted, lat, lon
+        (corrected) and the correction (or None)."""
         cfg = self.config
         first = self.memory.t is None
         dt = self.memory.advance(t, pose.lat, pose.lon)
@@ -483,11 +484,11 @@ class DetectionPipeline:
             lat0, lon0 = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
             lat = lat + (float(lat0) - pose.lat)
             lon = lon + (float(lon0) - pose.lon)
-            if self.terrain_for(pose) is not None:  # a terrain: the rays marched again from the UAV moved as much
+            if self.terrain_for(pose) is not None:  # the map's cells: the rays marched again from the UAV moved as much
                 e2, n2, _, v2 = self.ground_points(boxes, dataclasses.replace(pose, lat=float(lat0), lon=float(lon0)))
                 lat2, lon2 = local_to_latlon(e2, n2, float(lat0), float(lon0))
-                lat, lon = np.where(v2 & valid, lat2, lat), np.where(v2 & valid, lon2, lon)
-                gx, gy = self.grid.latlon_to_cell(*((lat, lon) if everywhere else (lat[idx], lon[idx])))
+                la, lo = np.where(v2 & valid, lat2, lat), np.where(v2 & valid, lon2, lon)
+                gx, gy = self.grid.latlon_to_cell(*((la, lo) if everywhere else (la[idx], lo[idx])))
         vcids = cids if everywhere else cids[idx]
         spots = self._registered_cells(boxes, idx, pose, correction)
         # The update uses the detector's confidence, not the boosted one (paper IV).
