@@ -524,8 +524,11 @@ def find_joint_detections(*, joint: JointLayer, memory: MemoryMap, camera: Camer
 def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: PipelineConfig, joint: JointLayer,
                          memory: MemoryMap, camera: Camera, class_names: dict[int, str], size_filter: SizeFilter,
                          registration: JointRegistration | None = None,
-                         carry: JointCarry | None = None, terrain: GroundSurface | None = None) -> FrameResult:
-    """`result` (a frame's kept detections) with the joint map's detections merged in.
+                         carry: JointCarry | None = None, terrain: GroundSurface | None = None,
+                         on_map: tuple[NDArray, NDArray] | None = None) -> FrameResult:
+    """`result` (a frame's kept detections) with the joint map's detections merged in. on_map: the kept
+    detections' ground points (lat, lon) in the maps' frame where they differ from result.lat/lon (over a terrain
+    the pipeline stamps points marched from the pose moved by its correction; result.lat/lon are moved by it).
 
     Uses the pipeline's parts (`agent.pipeline.DetectionPipeline`): the joint layer, this UAV's own
     memory, the camera, class names, size filter and PipelineConfig (joint_* settings, boost settings,
@@ -542,7 +545,8 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
     found = find_joint_detections(
         joint=joint, memory=memory, camera=camera, pose=pose, t=t, class_names=class_names,
         size_filter=size_filter, config=cfg, kept_scores=result.scores, kept_class_ids=result.class_ids,
-        kept_lat=result.lat, kept_lon=result.lon, kept_boxes=result.boxes_xyxy, registration=registration,
+        kept_lat=result.lat if on_map is None else on_map[0], kept_lon=result.lon if on_map is None else on_map[1],
+        kept_boxes=result.boxes_xyxy, registration=registration,
         carry=carry, terrain=terrain)
     k = len(result)
     flags = np.zeros(k, dtype=bool)

@@ -249,9 +249,10 @@ class DetectionPipeline:
         # the detector's scores at the reference temperature (per box: after the filter, on fewer boxes)
         conf = raw if calibration is None else calibration.apply(raw)
         boosted = conf.copy()
+        on_map = None  # over a terrain with a correction: the points in the maps' frame (_boost_and_update)
         if pose is not None and n and cfg.use_memory:
-            boosted, lat, lon, correction = self._boost_and_update(conf, boosted, cids, present, valid, lat, lon,
-                                                                   pose, t, boxes)
+            boosted, lat, lon, correction, on_map = self._boost_and_update(conf, boosted, cids, present, valid, lat,
+                                                                           lon, pose, t, boxes)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         if cfg.fragment_iou > 0 and len(keep) > 1:
             keep = self._unboost_fragments(boxes, conf, boosted, cids, keep)
@@ -267,7 +268,8 @@ class DetectionPipeline:
                 # the maps hold corrected ground points: project them with the pose moved the same way
                 lat_c, lon_c = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
                 pose = dataclasses.replace(pose, lat=float(lat_c), lon=float(lon_c))
-            result = self._with_joint_detections(result, pose, t)
+            result = self._with_joint_detections(result, pose, t, None if on_map is None else
+                                                 (on_map[0][keep], on_map[1][keep]))
         return result
 
     def stage_reports(self) -> list[StageReport]:
@@ -304,8 +306,10 @@ class DetectionPipeline:
         ox, oy = registration.offset()
         return ox * self._focal_px, oy * self._focal_px
 
-    def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float) -> FrameResult:
-        """The frame's detections plus the joint map's (agent.joint_detections)."""
+    def _with_joint_detections(self, result: FrameResult, pose: Pose, t: float,
+                               on_map: tuple[NDArray, NDArray] | None = None) -> FrameResult:
+        """The frame's detections plus the joint map's (agent.joint_detections); on_map: their points in the
+        maps' frame where it is not result.lat/lon (over a terrain with a correction)."""
         assert self.joint is not None
         registration = self.__dict__.setdefault("_joint_registration", JointRegistration.from_config(self.config))
         carry = self.__dict__.setdefault("_joint_carry", JointCarry.from_config(self.config))
@@ -315,7 +319,8 @@ class DetectionPipeline:
         return add_joint_detections(result, pose, t, config=self.config, joint=self.joint, memory=self.memory,
                                     camera=self.camera, class_names=self.class_names,
                                     size_filter=self.active_size_filter, terrain=self.terrain_for(pose),
-                                    registration=registration, carry=carry if self.config.joint_carry_s > 0 else None)
+                                    registration=registration, carry=carry if self.config.joint_carry_s > 0 else None,
+                                    on_map=on_map)
 
     def _georeference_and_filter(self, boxes: NDArray[np.float32], cids: NDArray[np.int64], present: list[int],
                                  pose: Pose, *, exact_only: bool = False
@@ -464,15 +469,16 @@ class DetectionPipeline:
         telemetry correction first (over a terrain the map's cells are marched again from the pose moved by it; the
         returned points stay moved, which the tracker undoes). present: the frame's class ids, ascending (cids holds
         no others); boxes: the candidates (for the joint registration, _registered_cells). Returns boosted, lat, lon
-        (corrected) and the correction (or None)."""
+        (corrected), the correction (or None) and the marched points (lat, lon) the map used, or None."""
         cfg = self.config
         first = self.memory.t is None
+        on_map = None
         dt = self.memory.advance(t, pose.lat, pose.lon)
         # Observation time this update stands for: the frame interval, capped after gaps.
         step_s = min(FIRST_FRAME_INTERVAL_S if first else dt, cfg.memory.max_step_s)
         if not valid.any():
             return boosted, lat, lon, self._correct(conf, cids, np.zeros(0, np.int64), np.zeros(0), np.zeros(0),
-                                                    pose, t)
+                                                    pose, t), None
         idx = np.flatnonzero(valid)
         everywhere = len(idx) == len(valid)  # every box has a ground point (the usual case): no gathers
         gx, gy = self.grid.latlon_to_cell(lat, lon) if everywhere else self.grid.latlon_to_cell(lat[idx], lon[idx])
@@ -484,11 +490,14 @@ class DetectionPipeline:
             lat0, lon0 = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
             lat = lat + (float(lat0) - pose.lat)
             lon = lon + (float(lon0) - pose.lon)
-            if self.terrain_for(pose) is not None:  # the map's cells: the rays marched again from the UAV moved as much
-                e2, n2, _, v2 = self.ground_points(boxes, dataclasses.replace(pose, lat=float(lat0), lon=float(lon0)))
-                lat2, lon2 = local_to_latlon(e2, n2, float(lat0), float(lon0))
-                la, lo = np.where(v2 & valid, lat2, lat), np.where(v2 & valid, lon2, lon)
-                gx, gy = self.grid.latlon_to_cell(*((la, lo) if everywhere else (la[idx], lo[idx])))
+            if self.terrain_for(pose) is not None:  # the map's cells: rays marched again from the UAV moved as much
+                rows = slice(None) if everywhere else idx
+                moved = dataclasses.replace(pose, lat=float(lat0), lon=float(lon0))
+                e2, n2, _, v2 = self.ground_points(boxes[rows], moved)
+                lat2, lon2 = local_to_latlon(e2, n2, moved.lat, moved.lon)
+                on_map = lat.copy(), lon.copy()
+                on_map[0][rows], on_map[1][rows] = np.where(v2, lat2, lat[rows]), np.where(v2, lon2, lon[rows])
+                gx, gy = self.grid.latlon_to_cell(on_map[0][rows], on_map[1][rows])
         vcids = cids if everywhere else cids[idx]
         spots = self._registered_cells(boxes, idx, pose, correction)
         # The update uses the detector's confidence, not the boosted one (paper IV).
@@ -529,7 +538,7 @@ class DetectionPipeline:
                 b[absent] = boost_scores(b[absent], np.float32(-1.0), "logodds", cfg.joint_absent_logit, 1.0)
             boosted[rows] = b
             self.memory.add(name, gxs, gys, gain * c)
-        return boosted, lat, lon, correction
+        return boosted, lat, lon, correction, on_map
 
     def _registered_cells(self, boxes: NDArray, idx: NDArray[np.int64], pose: Pose,
                           correction: GroundCorrection | None) -> tuple[NDArray, NDArray] | None:

@@ -181,8 +181,9 @@ def test_a_lasting_gps_step_is_corrected_at_first_and_handed_back_to_the_telemet
 def test_over_a_terrain_the_correction_moves_the_uav_and_marches_the_rays_again() -> None:
     """A GPS step over a bank: the correction found on the level ground is applied to the memory map by moving the
     UAV and marching the rays again, so the people on the bank keep reading and stamping the evidence where they
-    stand; moving their ground points by the correction instead would put them metres off, on no evidence. The
-    returned points stay the telemetry's own moved by the correction (the tracker takes them back)."""
+    stand; moving their ground points by the correction instead would put them 1.2-2.2 m off, where the map holds
+    far less (the bank faces the camera: 4 m of the UAV move their hits by less). The returned points stay the
+    telemetry's own moved by the correction (the tracker takes them back)."""
     from shared.terrain import ElevationGrid, Terrain
 
     north = np.arange(120.0, -21.0, -1.0)  # rows from 120 m north down to 20 m south
@@ -210,13 +211,13 @@ def test_over_a_terrain_the_correction_moves_the_uav_and_marches_the_rays_again(
         result = pipe.process(*boxes(rng), _pose(), t)
         t += 1 / 30
     before = result.scores.min()
-    step = (0.0, 4.0)  # the GPS jumps 4 m north, along the view
-    for _ in range(5):
+    step = (0.0, 4.0)  # the GPS jumps 4 m north, towards the bank (which faces the camera)
+    for _ in range(15):  # half a second: the map's evidence is then mostly this stretch's stamps
         b, s, c = boxes(rng)
         result = pipe.process(b, s, c, _pose(*step), t)
         t += 1 / 30
         assert result.correction is not None and result.correction.measured
-    assert result.correction.north_m == pytest.approx(-step[1], abs=0.6)  # the bank's raw points pull a little
+    assert -step[1] - 0.6 < result.correction.north_m < -step[1] + 1.0  # the bank's raw points pull it short
     # every person, those on the bank too, still reads its evidence: boosted as before the step
     assert len(result) == len(people) and result.scores.min() >= before - 0.02
 
@@ -229,8 +230,9 @@ def test_over_a_terrain_the_correction_moves_the_uav_and_marches_the_rays_again(
     # the telemetry's own points moved by the correction: metres off on the bank, where the map has nothing
     er, nr, _, _ = pipe.ground_points(b, _pose(*step))
     e_s, n_s = er[-2:] + result.correction.east_m, nr[-2:] + step[1] + result.correction.north_m
-    assert np.hypot(e_s - people[-2:, 0], n_s - people[-2:, 1]).min() > 1.5
-    assert (evidence(e_s, n_s) < 0.7 * evidence(people[-2:, 0], people[-2:, 1])).all()
+    assert np.hypot(e_s - people[-2:, 0], n_s - people[-2:, 1]).min() > 1.2
+    ratio = evidence(e_s, n_s) / evidence(people[-2:, 0], people[-2:, 1])  # about 1 on the previous code
+    assert ratio.max() < 0.8 and ratio.mean() < 0.7
     # the returned points are those (the tracker undoes the correction to get the telemetry's own back)
     e, n = latlon_to_local(result.lat, result.lon, LAT0, LON0)
     assert np.hypot(e[:, None] - e_s[None], n[:, None] - n_s[None]).min(axis=0).max() < 1e-3
