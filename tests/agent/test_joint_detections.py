@@ -394,3 +394,24 @@ def test_joint_detections_score_on_the_boost_scale_unless_set():
     assert PipelineConfig(joint_logodds_scale=4.0).joint_scale == 4.0
     with pytest.raises(ValueError, match="joint_logodds_scale"):
         PipelineConfig(joint_logodds_scale=0.0)
+
+
+def test_kept_points_in_the_maps_frame_are_the_ones_matched_and_remembered():
+    """Over a terrain the pipeline's returned points are moved by its correction, while the maps hold points marched
+    again from the moved UAV (the pipeline passes those as on_map): the joint detections gate and remember a kept
+    box at its point in the maps' frame, not at its returned one."""
+    joint, lat, lon = joint_with_blob(2.0, 40.0)
+    pipe = DetectionPipeline(CAM, CLASSES, joint=joint)
+    kept = run(pipe, _box_at(lat, lon), [0.95])
+    assert len(kept) == 1 and kept.from_joint is not None and not kept.from_joint.any()
+    far_lat, far_lon = local_to_latlon(np.array([9.0]), np.array([40.0]), POSE.lat, POSE.lon)  # 7 m east
+    moved = dataclasses.replace(kept, lat=far_lat, lon=far_lon, from_joint=None)
+    parts = dict(config=pipe.config, joint=joint, memory=pipe.memory, camera=CAM, class_names=CLASSES,
+                 size_filter=pipe.active_size_filter)
+    for on_map, where in ((None, (far_lat, far_lon)), ((kept.lat, kept.lon), (kept.lat, kept.lon))):
+        carry = jd.JointCarry.from_config(pipe.config)
+        result = jd.add_joint_detections(moved, POSE, T, carry=carry, on_map=on_map, **parts)
+        assert len(result) == 1 and result.lat[0] == far_lat[0]  # the returned point is left as it was
+        (anchor,) = carry.anchors  # the kept box explains the peak (in the image) and is remembered ...
+        east, north = latlon_to_local(*where, *carry.origin)
+        assert (anchor.east, anchor.north) == pytest.approx((east[0], north[0]), abs=0.01)  # ... at this point
