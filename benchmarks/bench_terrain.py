@@ -9,6 +9,7 @@ are marched again from the moved UAV). The baseline of each is the flat-ground f
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any
 
 import numpy as np
@@ -80,8 +81,7 @@ def _with_correction(camera: Camera, pose: Pose, terrain: Terrain, boxes: np.nda
     """Seconds per frame of the pipeline on the DEM after a 3 m GPS step, once the correction has measured it (the
     same boxes every frame: the map knows where they are; "applied"), and with the correction switched off ("off")."""
     lat, lon = local_to_latlon(3.0, 0.0, pose.lat, pose.lon)
-    stepped = Pose(lat=float(lat), lon=float(lon), height_m=pose.height_m, pitch_deg=pose.pitch_deg,
-                   heading_deg=pose.heading_deg)
+    stepped = dataclasses.replace(pose, lat=float(lat), lon=float(lon))
     out = {}
     for name, correct in (("off", False), ("applied", True)):
         pipe = DetectionPipeline(camera, {1: "person"}, PipelineConfig(terrain=terrain, correct_telemetry=correct))
