@@ -5,7 +5,6 @@ Arrays in, arrays out: the same code serves `uavmm boost`, the tracker and the l
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import math
 from collections.abc import Iterable
@@ -266,8 +265,7 @@ class DetectionPipeline:
                 and pose is not None):
             if correction is not None and (correction.east_m or correction.north_m):
                 # the maps hold corrected ground points: project them with the pose moved the same way
-                lat_c, lon_c = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
-                pose = dataclasses.replace(pose, lat=float(lat_c), lon=float(lon_c))
+                pose = correction.moved(pose)
             result = self._with_joint_detections(result, pose, t, None if on_map is None else
                                                  (on_map[0][keep], on_map[1][keep]))
         return result
@@ -487,12 +485,11 @@ class DetectionPipeline:
             cell_m = self.memory.cell_m
             gx = gx + correction.east_m / cell_m
             gy = gy - correction.north_m / cell_m
-            lat0, lon0 = local_to_latlon(correction.east_m, correction.north_m, pose.lat, pose.lon)
-            lat = lat + (float(lat0) - pose.lat)
-            lon = lon + (float(lon0) - pose.lon)
+            moved = correction.moved(pose)
+            lat = lat + (moved.lat - pose.lat)
+            lon = lon + (moved.lon - pose.lon)
             if self.terrain_for(pose) is not None:  # the map's cells: rays marched again from the UAV moved as much
                 rows = slice(None) if everywhere else idx
-                moved = dataclasses.replace(pose, lat=float(lat0), lon=float(lon0))
                 e2, n2, _, v2 = self.ground_points(boxes[rows], moved)
                 lat2, lon2 = local_to_latlon(e2, n2, moved.lat, moved.lon)
                 on_map = lat.copy(), lon.copy()

@@ -10,6 +10,7 @@ evidence is the frame's correction. Arrays in, arrays out: the map is read, neve
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -17,6 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.stage_report import StageReport
+from shared.geo import Pose, local_to_latlon
 
 __all__ = ["CorrectionSettings", "GroundCorrection", "GroundOffsetEstimator", "register_offset"]
 
@@ -91,6 +93,12 @@ class GroundCorrection:
     measured: bool = False
     points: int = 0
     support: float = 0.0
+
+    def moved(self, pose: Pose) -> Pose:
+        """The pose with the UAV moved by this correction: over flat ground the same as moving every ground point
+        by it; over a terrain the rays are marched again from it (agent.pipeline)."""
+        lat, lon = local_to_latlon(self.east_m, self.north_m, pose.lat, pose.lon)
+        return dataclasses.replace(pose, lat=float(lat), lon=float(lon))
 
 
 def register_offset(patches: NDArray[np.float32], weights: NDArray, *,
