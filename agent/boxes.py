@@ -12,7 +12,7 @@ from numpy.typing import NDArray
 from agent._kernels import nms_ranked, rank_keys
 
 __all__ = ["ANCHORS", "anchor_fraction", "anchor_points", "box_anchor_points", "box_iou", "nms", "outranked_overlaps",
-           "paired_iou"]
+           "paired_iou", "unboost_fragments"]
 
 #: Where on a box its ground point is (`PipelineConfig.anchor`).
 ANCHORS = ("auto", "center", "bottom")
@@ -63,6 +63,27 @@ def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, min_iou: float,
     if class_ids is not None:
         above &= class_ids[None, :] == class_ids[:, None]
     return ((box_iou(boxes, boxes) >= min_iou) & above).any(axis=1)
+
+
+def unboost_fragments(boxes: NDArray, conf: NDArray, boosted: NDArray, class_ids: NDArray, keep: NDArray[np.int64],
+                      fragment_iou: float, score_threshold: float) -> NDArray[np.int64]:
+    """The boxes NMS kept (keep, highest boosted score first), with the boost taken back (boosted, in place:
+    the detector's calibrated score conf again) from every kept box that a kept box of its class with a
+    higher boosted score overlaps by an IoU of at least fragment_iou (PipelineConfig.fragment_iou; kept
+    boxes overlap by at most nms_iou); reordered by score, those at or below score_threshold dropped.
+
+    Done on the kept boxes (at most max_detections), not on the candidates: ~100 boxes a frame whatever the
+    detector emits."""
+    score = boosted[keep]
+    # only a boosted box can lose something
+    hit = (score > conf[keep]) & outranked_overlaps(boxes[keep], score, fragment_iou, class_ids[keep])
+    if not hit.any():
+        return keep
+    back = keep[hit]
+    boosted[back] = conf[back]
+    order = np.argsort(-boosted[keep], kind="stable")  # ties keep NMS's order
+    keep = keep[order]
+    return keep[boosted[keep].astype(np.float32) > np.float32(score_threshold)]
 
 
 def paired_iou(a_xyxy: NDArray, b_xyxy: NDArray, *, generalised: bool = False) -> NDArray[np.float64]:

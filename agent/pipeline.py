@@ -13,7 +13,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent._kernels import georeference_and_filter, small_distinct
-from agent.boxes import anchor_fraction, box_anchor_points, nms, outranked_overlaps
+from agent.boxes import anchor_fraction, box_anchor_points, nms, unboost_fragments
 from agent.dem import takeoff_terrain
 from agent.frame_result import FrameResult
 from agent.joint_boost import registered_joint_evidence
@@ -254,7 +254,7 @@ class DetectionPipeline:
                                                                            lon, pose, t, boxes)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         if cfg.fragment_iou > 0 and len(keep) > 1:
-            keep = self._unboost_fragments(boxes, conf, boosted, cids, keep)
+            keep = unboost_fragments(boxes, conf, boosted, cids, keep, cfg.fragment_iou, cfg.score_threshold)
         if calibration is not None:
             calibration.observe(t, raw[keep])
         result = FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
@@ -541,8 +541,9 @@ class DetectionPipeline:
                           correction: GroundCorrection | None) -> tuple[NDArray, NDArray] | None:
         """Global cells (gx, gy), (N,) each with NaN where none, of where the joint registration puts the partners'
         evidence of the candidates idx (agent.joint_boost): each anchor moved by the registration's image offset,
-        put on the ground and moved by the telemetry correction as the candidates' own points are. None without
-        a joint layer, joint detections (the registration is theirs), joint_register_boost, or an offset yet."""
+        put on the ground and corrected as the candidates' own cells are (moved by the telemetry correction; over a
+        terrain marched from the UAV it moves). None without a joint layer, joint detections (the registration is
+        theirs), joint_register_boost, or an offset yet."""
         cfg = self.config
         registration = self.__dict__.get("_joint_registration")
         if self.joint is None or registration is None or not cfg.joint_register_boost or not len(idx):
@@ -551,36 +552,18 @@ class DetectionPipeline:
         if not (dx or dy):
             return None
         f = np.float32(self._focal_px)
-        east, north, _, ok = self.ground_points(boxes[idx] + f * np.array([dx, dy, dx, dy], np.float32), pose)
-        if correction is not None:
+        march = correction is not None and bool(correction.east_m or correction.north_m) and \
+            self.terrain_for(pose) is not None
+        origin = correction.moved(pose) if march else pose  # type: ignore[union-attr]
+        east, north, _, ok = self.ground_points(boxes[idx] + f * np.array([dx, dy, dx, dy], np.float32), origin)
+        if correction is not None and not march:
             east, north = east + correction.east_m, north + correction.north_m
         gx = np.full(len(boxes), np.nan)
         gy = np.full(len(boxes), np.nan)
         if ok.any():
-            sla, slo = local_to_latlon(east[ok], north[ok], pose.lat, pose.lon)
+            sla, slo = local_to_latlon(east[ok], north[ok], origin.lat, origin.lon)
             gx[idx[ok]], gy[idx[ok]] = self.grid.latlon_to_cell(sla, slo)
         return gx, gy
-
-    def _unboost_fragments(self, boxes: NDArray, conf: NDArray, boosted: NDArray, cids: NDArray,
-                           keep: NDArray[np.int64]) -> NDArray[np.int64]:
-        """The boxes NMS kept (keep, highest boosted score first), with the boost taken back (boosted, in place:
-        the detector's calibrated score conf again) from every kept box that a kept box of its class with a
-        higher boosted score overlaps by an IoU of at least fragment_iou (PipelineConfig.fragment_iou; kept
-        boxes overlap by at most nms_iou); reordered by score, those at or below score_threshold dropped.
-
-        Done on the kept boxes (at most max_detections), not on the candidates: ~100 boxes a frame whatever the
-        detector emits."""
-        cfg = self.config
-        score = boosted[keep]
-        # only a boosted box can lose something
-        hit = (score > conf[keep]) & outranked_overlaps(boxes[keep], score, cfg.fragment_iou, cids[keep])
-        if not hit.any():
-            return keep
-        back = keep[hit]
-        boosted[back] = conf[back]
-        order = np.argsort(-boosted[keep], kind="stable")  # ties keep NMS's order
-        keep = keep[order]
-        return keep[boosted[keep].astype(np.float32) > np.float32(cfg.score_threshold)]
 
 
 def _slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,

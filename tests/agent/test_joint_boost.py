@@ -187,3 +187,45 @@ def test_the_option_says_when_it_cannot_act(change, caplog):
         DetectionPipeline(CAM, CLASSES, dataclasses.replace(BASE, joint_register_boost=True), joint=JointLayer())
         DetectionPipeline(CAM, CLASSES, cfg)  # no joint layer: nothing to say
     assert "joint_register_boost" not in caplog.text
+
+
+def test_over_a_terrain_the_registered_spots_are_marched_from_the_uav_the_correction_moves():
+    """With a DEM and a telemetry correction, the registered spots come from the rays marched again from the UAV
+    moved by the correction, as the candidates' own cells do (agent.pipeline._boost_and_update); on a slope that
+    faces the camera that is metres from the raw hits moved by the correction (the previous code's spots)."""
+    from agent.telemetry_correction import GroundCorrection
+    from shared.terrain import ElevationGrid, Terrain
+
+    north = np.arange(120.0, -21.0, -1.0)
+    slope = np.clip(north - 20.0, 0.0, None) * 0.3  # level to 20 m north, then rising 0.3 m per metre
+    grid = ElevationGrid.from_local(np.tile(slope[:, None], (1, 121)), POSE.lat, POSE.lon, west_m=-60.0,
+                                    north_m=120.0, cell_m=1.0)
+    terrain = Terrain(grid, 0.0)
+    pipe, _ = registered_pipeline(dataclasses.replace(BASE, joint_register_boost=True, terrain=terrain))
+    offset = pipe.joint_registration_offset_px()
+    assert offset is not None
+    boxes = boxes_at(PEOPLE)
+    idx = np.arange(len(boxes))
+    shifted = boxes + np.array([offset[0], offset[1], offset[0], offset[1]], np.float32)
+    correction = GroundCorrection(east_m=1.0, north_m=-4.0, measured=True)
+    spots = pipe._registered_cells(boxes, idx, POSE, correction)
+    assert spots is not None
+    moved = correction.moved(POSE)
+    east, north_m, _, ok = pipe.ground_points(shifted, moved)
+    assert ok.all()
+    want = pipe.grid.latlon_to_cell(*local_to_latlon(east, north_m, moved.lat, moved.lon))
+    np.testing.assert_allclose(np.column_stack(spots), np.column_stack(want), atol=1e-6)
+    # the raw hits moved by the correction lie well off on this slope (4 m of the UAV move a hit by ~2.5 m)
+    er, nr, _, _ = pipe.ground_points(shifted, POSE)
+    old = pipe.grid.latlon_to_cell(*local_to_latlon(er + 1.0, nr - 4.0, POSE.lat, POSE.lon))
+    assert (np.hypot(old[0] - want[0], old[1] - want[1]) * pipe.memory.cell_m).min() > 1.0
+    # without a terrain (flat ground) the spots are the raw points moved by the correction, as before
+    flat, _ = registered_pipeline(dataclasses.replace(BASE, joint_register_boost=True))
+    fo = flat.joint_registration_offset_px()
+    assert fo is not None
+    fshift = boxes + np.array([fo[0], fo[1], fo[0], fo[1]], np.float32)
+    fe, fn, _, _ = flat.ground_points(fshift, POSE)
+    fspots = flat._registered_cells(boxes, idx, POSE, correction)
+    assert fspots is not None
+    np.testing.assert_allclose(np.column_stack(fspots), np.column_stack(
+        flat.grid.latlon_to_cell(*local_to_latlon(fe + 1.0, fn - 4.0, POSE.lat, POSE.lon))), atol=1e-9)
