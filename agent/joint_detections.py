@@ -16,7 +16,7 @@ import cv2
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.boxes import anchor_fraction, anchor_points, box_iou, nms
+from agent.boxes import anchor_fraction, anchor_points, box_iou, nms, outranked_overlaps
 from agent.frame_result import FrameResult
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
@@ -537,7 +537,10 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
     Promoted boxes get the joint score; synthesised ones have raw score 0 (no detector candidate) and
     NaN embeddings. A class-wise NMS over the union (kept boxes do not suppress each other again) drops
     weak real boxes a joint box covers, and keeps the output highest score first and at most
-    max_detections. from_joint (K,) bool marks the joint ones (all False when the joint map added nothing).
+    max_detections. The fragment rule (PipelineConfig.fragment_iou) applies to the joint boxes: one that a
+    higher-scoring box of its class overlaps by that IoU loses what the joint map gave it (a promoted box its
+    promotion, a carried one its place). from_joint (K,) bool marks the joint ones (all False when the joint map
+    added nothing).
     """
     cfg = config
     if carry is not None:
@@ -562,6 +565,15 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
     boxes = np.concatenate([result.boxes_xyxy, found.boxes_xyxy])
     all_scores = np.concatenate([scores, found.scores]).astype(np.float32)
     cids = np.concatenate([result.class_ids, found.class_ids])
+    if cfg.fragment_iou > 0 and len(boxes) > 1:
+        # the fragment rule holds for the joint map's scores too: a promoted or carried box that a higher-scoring
+        # box of its class overlaps by fragment_iou is a piece of that object, not another one: a promoted box
+        # keeps its own score, a carried one goes (score 0: NMS drops it)
+        fragment = np.concatenate([flags, np.ones(m, dtype=bool)]) & outranked_overlaps(
+            boxes, all_scores, cfg.fragment_iou, cids)
+        if fragment.any():
+            all_scores = np.where(fragment, np.concatenate([result.scores, np.zeros(m, np.float32)]), all_scores)
+            flags &= ~fragment[:k]
     keep = nms(boxes, all_scores, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
     return replace(
         result, boxes_xyxy=boxes[keep], scores=all_scores[keep],

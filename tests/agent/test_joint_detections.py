@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import agent.joint_detections as jd
-from agent.boxes import box_anchor_points
+from agent.boxes import box_anchor_points, box_iou
 from agent.joint_detections import JointRegistration, joint_score, others_evidence
 from agent.memory_map import JointLayer
 from agent.pipeline import DetectionPipeline
@@ -31,22 +31,33 @@ def joint_with_blob(east_m: float, north_m: float, peak: float = 0.6) -> tuple[J
 
     Returns the layer and the lat/lon of the blob's centre cell.
     """
+    joint, ((lat, lon),) = joint_with_blobs([(east_m, north_m, peak)])
+    return joint, lat, lon
+
+
+def joint_with_blobs(blobs: list[tuple[float, float, float]]) -> tuple[JointLayer, list[tuple[float, float]]]:
+    """A joint layer with Gaussian blobs (east_m, north_m, peak) as `joint_with_blob` makes one (the larger value
+    where they meet); returns it and each blob's centre cell's lat/lon."""
     joint = JointLayer(ttl_s=3.0)
     grid = joint.grid
-    lat, lon = local_to_latlon(np.array([east_m]), np.array([north_m]), POSE.lat, POSE.lon)
-    gx, gy = grid.latlon_to_cell_index(lat, lon)
-    gx, gy = int(gx[0]), int(gy[0])
     n = grid.n
     tiles: dict[tuple[int, int], np.ndarray] = {}
-    for dy in range(-8, 9):
-        for dx in range(-8, 9):
-            x, y = gx + dx, gy + dy
-            tile = tiles.setdefault((x // n, y // n), np.zeros((n, n), np.float32))
-            tile[y % n, x % n] = min(1.0, peak * math.exp(-(dx * dx + dy * dy) / (2 * 1.5**2)))
+    centres = []
+    for east_m, north_m, peak in blobs:
+        lat, lon = local_to_latlon(np.array([east_m]), np.array([north_m]), POSE.lat, POSE.lon)
+        gx, gy = grid.latlon_to_cell_index(lat, lon)
+        gx, gy = int(gx[0]), int(gy[0])
+        for dy in range(-8, 9):
+            for dx in range(-8, 9):
+                x, y = gx + dx, gy + dy
+                tile = tiles.setdefault((x // n, y // n), np.zeros((n, n), np.float32))
+                value = min(1.0, peak * math.exp(-(dx * dx + dy * dy) / (2 * 1.5**2)))
+                tile[y % n, x % n] = max(tile[y % n, x % n], value)
+        clat, clon = grid.cell_to_latlon(gx + 0.5, gy + 0.5)
+        centres.append((float(clat), float(clon)))
     for (tx, ty), values in tiles.items():
         joint.update("person", tx, ty, values, T)
-    clat, clon = grid.cell_to_latlon(gx + 0.5, gy + 0.5)
-    return joint, float(clat), float(clon)
+    return joint, centres
 
 
 def run(pipe: DetectionPipeline, boxes=None, scores=None, pose: Pose | None = POSE):
@@ -415,3 +426,27 @@ def test_kept_points_in_the_maps_frame_are_the_ones_matched_and_remembered():
         (anchor,) = carry.anchors  # the kept box explains the peak (in the image) and is remembered ...
         east, north = latlon_to_local(*where, *carry.origin)
         assert (anchor.east, anchor.north) == pytest.approx((east[0], north[0]), abs=0.01)  # ... at this point
+
+
+def test_a_fragment_of_a_promoted_box_is_not_promoted_by_a_second_peak():
+    """Two peaks 4.5 m apart along the view (a partner's double of one person, or two people), the farther one
+    weaker; a weak box at the nearer one and a weaker box overlapping it (IoU ~0.2) whose anchor sits on the
+    farther one. The nearer peak promotes the first box; the second is a fragment of it (fragment_iou 0.1), so the
+    farther peak does not promote it: it keeps its own score. With the fragment rule off both are promoted."""
+    joint, ((lat_a, lon_a), (lat_b, lon_b)) = joint_with_blobs([(2.0, 40.0, 0.6), (2.0, 44.5, 0.4)])
+    near, far = _box_at(lat_a, lon_a, h=100.0)[0], _box_at(lat_b, lon_b, h=60.0)[0]
+    iou = float(box_iou(np.array([near]), np.array([far]))[0, 0])
+    assert 0.1 < iou < 0.5  # a fragment by the rule, and NMS keeps both
+    scores = {}
+    for frag in (0.1, 0.0):
+        pipe = DetectionPipeline(CAM, CLASSES, dataclasses.replace(PipelineConfig(), fragment_iou=frag), joint=joint)
+        result = run(pipe, [near, far], [0.3, 0.2])
+        assert len(result) == 2 and result.from_joint is not None
+        by_box = {tuple(np.round(b, 1)): (float(s), bool(j))
+                  for b, s, j in zip(result.boxes_xyxy, result.scores, result.from_joint, strict=True)}
+        scores[frag] = (by_box[tuple(np.round(np.float32(near), 1))], by_box[tuple(np.round(np.float32(far), 1))])
+    (near_s, near_j), (far_s, far_j) = scores[0.1]
+    assert near_j and near_s > 0.99  # promoted by the nearer peak
+    assert not far_j and far_s < 0.5  # the fragment keeps its own (unboosted) score
+    (near_s0, near_j0), (far_s0, far_j0) = scores[0.0]
+    assert near_j0 and far_j0 and far_s0 > 0.98  # without the rule the farther peak promotes the fragment
