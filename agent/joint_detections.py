@@ -539,8 +539,8 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
     weak real boxes a joint box covers, and keeps the output highest score first and at most
     max_detections. The fragment rule (PipelineConfig.fragment_iou) applies to the joint boxes: one that a
     higher-scoring box of its class overlaps by that IoU loses what the joint map gave it (a promoted box its
-    promotion, a carried one its place). from_joint (K,) bool marks the joint ones (all False when the joint map
-    added nothing).
+    promotion, a carried or synthesised one its place). from_joint (K,) bool marks the joint ones (all False
+    when the joint map added nothing).
     """
     cfg = config
     if carry is not None:
@@ -566,13 +566,15 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
     all_scores = np.concatenate([scores, found.scores]).astype(np.float32)
     cids = np.concatenate([result.class_ids, found.class_ids])
     if cfg.fragment_iou > 0 and len(boxes) > 1:
-        # the fragment rule holds for the joint map's scores too: a promoted or carried box that a higher-scoring
-        # box of its class overlaps by fragment_iou is a piece of that object, not another one: a promoted box
-        # keeps its own score, a carried one goes (score 0: NMS drops it)
+        # the fragment rule holds for the joint map's scores too: a promoted, carried or synthesised box that a
+        # higher-scoring box of its class overlaps by fragment_iou is a piece of that object, not another one: a
+        # promoted box keeps its own score, an added one goes (score 0: NMS drops it). One pass, as the rule on
+        # the kept boxes; a promoted box is remembered by the carry before this (find_joint_detections)
         fragment = np.concatenate([flags, np.ones(m, dtype=bool)]) & outranked_overlaps(
             boxes, all_scores, cfg.fragment_iou, cids)
         if fragment.any():
-            all_scores = np.where(fragment, np.concatenate([result.scores, np.zeros(m, np.float32)]), all_scores)
+            own = np.concatenate([result.scores, np.zeros(m, np.float32)]).astype(np.float32)
+            all_scores[fragment] = own[fragment]  # in place: the scores stay float32
             flags &= ~fragment[:k]
     keep = nms(boxes, all_scores, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
     return replace(

@@ -551,18 +551,20 @@ class DetectionPipeline:
         dx, dy = registration.offset()
         if not (dx or dy):
             return None
-        f = np.float32(self._focal_px)
-        march = correction is not None and bool(correction.east_m or correction.north_m) and \
-            self.terrain_for(pose) is not None
-        origin = correction.moved(pose) if march else pose  # type: ignore[union-attr]
-        east, north, _, ok = self.ground_points(boxes[idx] + f * np.array([dx, dy, dx, dy], np.float32), origin)
-        if correction is not None and not march:
+        shifted = boxes[idx] + np.float32(self._focal_px) * np.array([dx, dy, dx, dy], np.float32)
+        east, north, _, ok = self.ground_points(shifted, pose)
+        if correction is not None:
             east, north = east + correction.east_m, north + correction.north_m
+        sla, slo = local_to_latlon(east, north, pose.lat, pose.lon)  # NaN where no hit
+        if correction is not None and (correction.east_m or correction.north_m) and self.terrain_for(pose) is not None:
+            moved = correction.moved(pose)  # over a terrain: marched from the moved UAV where it hits (as the cells)
+            e2, n2, _, v2 = self.ground_points(shifted, moved)
+            lat2, lon2 = local_to_latlon(e2, n2, moved.lat, moved.lon)
+            sla, slo, ok = np.where(v2, lat2, sla), np.where(v2, lon2, slo), ok | v2
         gx = np.full(len(boxes), np.nan)
         gy = np.full(len(boxes), np.nan)
         if ok.any():
-            sla, slo = local_to_latlon(east[ok], north[ok], origin.lat, origin.lon)
-            gx[idx[ok]], gy[idx[ok]] = self.grid.latlon_to_cell(sla, slo)
+            gx[idx[ok]], gy[idx[ok]] = self.grid.latlon_to_cell(sla[ok], slo[ok])
         return gx, gy
 
 

@@ -431,8 +431,9 @@ def test_kept_points_in_the_maps_frame_are_the_ones_matched_and_remembered():
 def test_a_fragment_of_a_promoted_box_is_not_promoted_by_a_second_peak():
     """Two peaks 4.5 m apart along the view (a partner's double of one person, or two people), the farther one
     weaker; a weak box at the nearer one and a weaker box overlapping it (IoU ~0.2) whose anchor sits on the
-    farther one. The nearer peak promotes the first box; the second is a fragment of it (fragment_iou 0.1), so the
-    farther peak does not promote it: it keeps its own score. With the fragment rule off both are promoted."""
+    farther one. The nearer peak promotes the first box; the farther one promotes the second, which is a fragment
+    of the first (fragment_iou 0.1), so the promotion is taken back: it keeps its own score. With the fragment
+    rule off both are promoted."""
     joint, ((lat_a, lon_a), (lat_b, lon_b)) = joint_with_blobs([(2.0, 40.0, 0.6), (2.0, 44.5, 0.4)])
     near, far = _box_at(lat_a, lon_a, h=100.0)[0], _box_at(lat_b, lon_b, h=60.0)[0]
     iou = float(box_iou(np.array([near]), np.array([far]))[0, 0])
@@ -450,3 +451,26 @@ def test_a_fragment_of_a_promoted_box_is_not_promoted_by_a_second_peak():
     assert not far_j and far_s < 0.5  # the fragment keeps its own (unboosted) score
     (near_s0, near_j0), (far_s0, far_j0) = scores[0.0]
     assert near_j0 and far_j0 and far_s0 > 0.98  # without the rule the farther peak promotes the fragment
+
+
+def test_a_carried_box_that_a_stronger_box_overlaps_is_dropped():
+    """The carried sighting of `test_a_peak_keeps_the_box_where_this_uav_last_saw_it`, in a frame whose only box
+    is a confident one around it (IoU ~0.15: a fragment by the rule, not on the sighting's spot, its ground point
+    beyond the peak's gate): the carried box is a piece of that box's object and goes; with the rule off it
+    stays."""
+    joint, lat, lon = joint_with_blob(2.0, 40.0)
+    hidden = np.asarray(_box_at(lat, lon)[0]) + [25.0, 0.0, 25.0, 0.0]
+    big = hidden + [-20.0, 0.0, 20.0, 70.0]  # 60 x 130 px holding the hidden box, its foot 70 px lower (nearer)
+    iou = float(box_iou(hidden[None], big[None])[0, 0])
+    assert 0.1 < iou < SYNTH.joint_carry_match_iou
+    kept = {}
+    for frag in (0.1, 0.0):
+        pipe = DetectionPipeline(CAM, CLASSES, dataclasses.replace(SYNTH, fragment_iou=frag), joint=joint)
+        for k in range(SYNTH.joint_carry_min_sightings):
+            _frame(pipe, hidden, [0.02], T + k / 30)
+        result = _frame(pipe, big, [0.95], T + SYNTH.joint_carry_min_sightings / 30)
+        assert result.from_joint is not None and len(result.from_joint) == len(result)
+        kept[frag] = [(np.asarray(b), bool(j)) for b, j in zip(result.boxes_xyxy, result.from_joint, strict=True)]
+        assert any(np.allclose(b, big, atol=0.01) and not j for b, j in kept[frag])  # the confident box, as is
+    assert len(kept[0.1]) == 1
+    assert len(kept[0.0]) == 2 and any(np.allclose(b, hidden, atol=0.01) and j for b, j in kept[0.0])
