@@ -53,16 +53,24 @@ def box_iou(a_xyxy: NDArray, b_xyxy: NDArray) -> NDArray[np.float64]:
 
 
 def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, min_iou: float,
-                       class_ids: NDArray | None = None) -> NDArray[np.bool_]:
+                       class_ids: NDArray | None = None, rows: NDArray | None = None) -> NDArray[np.bool_]:
     """(N,) bool: which boxes a box of higher rank (and of the same class, when class_ids is given) overlaps by
-    an IoU of at least min_iou; ties in rank do not outrank. An N x N matrix: meant for the few hundred boxes a
-    frame keeps, not for a detector's candidates."""
+    an IoU of at least min_iou; ties in rank do not outrank. rows: test only these indices (the others False).
+    An R x N matrix (R = len(rows), N without): meant for the few hundred boxes a frame keeps, not for a
+    detector's candidates."""
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
     rank = np.asarray(rank, dtype=np.float64)
-    above = rank[None, :] > rank[:, None]
+    sel = np.arange(len(boxes)) if rows is None else np.asarray(rows, dtype=np.int64)
+    above = rank[None, :] > rank[sel, None]
     if class_ids is not None:
-        above &= class_ids[None, :] == class_ids[:, None]
-    return ((box_iou(boxes, boxes) >= min_iou) & above).any(axis=1)
+        class_ids = np.asarray(class_ids)
+        above &= class_ids[None, :] == class_ids[sel, None]
+    hit = ((box_iou(boxes[sel], boxes) >= min_iou) & above).any(axis=1)
+    if rows is None:
+        return hit
+    out = np.zeros(len(boxes), dtype=bool)
+    out[sel] = hit
+    return out
 
 
 def unboost_fragments(boxes: NDArray, conf: NDArray, boosted: NDArray, class_ids: NDArray, keep: NDArray[np.int64],

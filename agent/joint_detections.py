@@ -570,8 +570,8 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
         # higher-scoring box of its class overlaps by fragment_iou is a piece of that object, not another one: a
         # promoted box keeps its own score, an added one goes (score 0: NMS drops it). One pass, as the rule on
         # the kept boxes; a promoted box is remembered by the carry before this (find_joint_detections)
-        fragment = np.concatenate([flags, np.ones(m, dtype=bool)]) & outranked_overlaps(
-            boxes, all_scores, cfg.fragment_iou, cids)
+        fragment = outranked_overlaps(boxes, all_scores, cfg.fragment_iou, cids,  # the joint rows only
+                                      rows=np.flatnonzero(np.concatenate([flags, np.ones(m, dtype=bool)])))
         if fragment.any():
             own = np.concatenate([result.scores, np.zeros(m, np.float32)]).astype(np.float32)
             all_scores[fragment] = own[fragment]  # in place: the scores stay float32

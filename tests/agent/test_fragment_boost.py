@@ -46,6 +46,10 @@ def test_outranked_overlaps_equals_the_pairwise_definition(scene, lo):
     boxes, rank, rows = scene
     got = outranked_overlaps(boxes, rank, lo)[rows]
     np.testing.assert_array_equal(got, reference(boxes.astype(np.float64), rank, rows, lo, np.inf))
+    # only some rows tested (the joint boxes' rule): the same answers there, False elsewhere
+    only = outranked_overlaps(boxes, rank, lo, rows=rows)
+    np.testing.assert_array_equal(only[rows], got)
+    assert not np.delete(only, rows).any()
 
 
 def box_at(east: float, north: float, size_px: float = 40.0, dx: float = 0.0) -> np.ndarray:
