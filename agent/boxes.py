@@ -60,7 +60,7 @@ def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, min_iou: float,
     detector's candidates."""
     boxes = np.asarray(boxes_xyxy, dtype=np.float64).reshape(-1, 4)
     rank = np.asarray(rank, dtype=np.float64)
-    sel = np.arange(len(boxes)) if rows is None else np.asarray(rows, dtype=np.int64)
+    sel = slice(None) if rows is None else np.asarray(rows, dtype=np.int64)  # a slice: views, no copies
     above = rank[None, :] > rank[sel, None]
     if class_ids is not None:
         class_ids = np.asarray(class_ids)

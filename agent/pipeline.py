@@ -490,11 +490,12 @@ class DetectionPipeline:
             lon = lon + (moved.lon - pose.lon)
             if self.terrain_for(pose) is not None:  # the map's cells: rays marched again from the UAV moved as much
                 rows = slice(None) if everywhere else idx
-                e2, n2, _, v2 = self.ground_points(boxes[rows], moved)
-                lat2, lon2 = local_to_latlon(e2, n2, moved.lat, moved.lon)
-                on_map = lat.copy(), lon.copy()
-                on_map[0][rows], on_map[1][rows] = np.where(v2, lat2, lat[rows]), np.where(v2, lon2, lon[rows])
-                gx, gy = self.grid.latlon_to_cell(on_map[0][rows], on_map[1][rows])
+                mlat, mlon, _ = self._marched_where_hit(boxes[rows], moved, lat[rows], lon[rows])
+                on_map = mlat, mlon
+                if not everywhere:  # the boxes without a ground point keep their NaN
+                    on_map = lat.copy(), lon.copy()
+                    on_map[0][idx], on_map[1][idx] = mlat, mlon
+                gx, gy = self.grid.latlon_to_cell(mlat, mlon)
         vcids = cids if everywhere else cids[idx]
         spots = self._registered_cells(boxes, idx, pose, correction)
         # The update uses the detector's confidence, not the boosted one (paper IV).
@@ -542,8 +543,8 @@ class DetectionPipeline:
         """Global cells (gx, gy), (N,) each with NaN where none, of where the joint registration puts the partners'
         evidence of the candidates idx (agent.joint_boost): each anchor moved by the registration's image offset,
         put on the ground and corrected as the candidates' own cells are (moved by the telemetry correction; over a
-        terrain marched from the UAV it moves). None without a joint layer, joint detections (the registration is
-        theirs), joint_register_boost, or an offset yet."""
+        terrain marched from the UAV it moves, where that hits). None without a joint layer, joint
+        detections (the registration is theirs), joint_register_boost, or an offset yet."""
         cfg = self.config
         registration = self.__dict__.get("_joint_registration")
         if self.joint is None or registration is None or not cfg.joint_register_boost or not len(idx):
@@ -557,15 +558,21 @@ class DetectionPipeline:
             east, north = east + correction.east_m, north + correction.north_m
         sla, slo = local_to_latlon(east, north, pose.lat, pose.lon)  # NaN where no hit
         if correction is not None and (correction.east_m or correction.north_m) and self.terrain_for(pose) is not None:
-            moved = correction.moved(pose)  # over a terrain: marched from the moved UAV where it hits (as the cells)
-            e2, n2, _, v2 = self.ground_points(shifted, moved)
-            lat2, lon2 = local_to_latlon(e2, n2, moved.lat, moved.lon)
-            sla, slo, ok = np.where(v2, lat2, sla), np.where(v2, lon2, slo), ok | v2
+            sla, slo, hit = self._marched_where_hit(shifted, correction.moved(pose), sla, slo)
+            ok = ok | hit
         gx = np.full(len(boxes), np.nan)
         gy = np.full(len(boxes), np.nan)
         if ok.any():
             gx[idx[ok]], gy[idx[ok]] = self.grid.latlon_to_cell(sla[ok], slo[ok])
         return gx, gy
+
+    def _marched_where_hit(self, boxes: NDArray, moved: Pose, lat: NDArray, lon: NDArray
+                           ) -> tuple[NDArray, NDArray, NDArray[np.bool_]]:
+        """The boxes' ground points (lat, lon) marched from `moved` (over a terrain: the pose moved by the telemetry
+        correction) where the rays hit, lat / lon as given elsewhere; and where they hit."""
+        east, north, _, hit = self.ground_points(boxes, moved)
+        mlat, mlon = local_to_latlon(east, north, moved.lat, moved.lon)
+        return np.where(hit, mlat, lat), np.where(hit, mlon, lon), hit
 
 
 def _slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,
