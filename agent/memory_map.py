@@ -20,6 +20,10 @@ from shared.tiles import TileGrid, fill_cell_polygons
 
 FloatArray = NDArray[np.float64]
 STAMP_MODES = ("sum", "max")
+#: How a stamp's radius follows the terrain (MemoryMapConfig.terrain_stamp).
+TERRAIN_STAMP_MODES = ("shrink", "follow", "off")
+#: The stamp radius's range over a terrain, as factors of radius_m.
+TERRAIN_STAMP_LIMITS = (0.5, 2.0)
 #: Lazy decay folds into the stored maps once the pending factor drops below this (every ~20 s at
 #: a 1 s half-life); stored values then reach at most 1 / _MIN_SCALE, far inside float32's range.
 _MIN_SCALE = 1e-6
@@ -46,6 +50,10 @@ class MemoryMapConfig:
     stamp: "sum" (the paper: every pre-NMS box adds its Gaussian, so a detector that emits 30 boxes
         per object adds 30x the evidence) or "max" (per cell and frame the strongest box counts once:
         the evidence no longer depends on how many candidates a detector emits per object).
+    terrain_stamp: over a terrain (--dem), how a box's stamp radius and sigma follow the ground: "shrink" (default)
+        scales them by the terrain's footprint of the box's pixel against flat ground's (shared.terrain.
+        footprint_scale) where that is smaller (a slope facing the camera), down to half; "follow" also where it is
+        larger, up to twice; "off" keeps radius_m everywhere. Flat ground is unchanged in every mode.
     forget_per_frame, gain_per_frame: the paper's literal per-frame constants (phi and s), kept as a
         baseline: when set, the map decays by forget_per_frame at every frame (whatever time passed) and
         each box adds gain_per_frame * confidence, so the evidence depends on the frame rate (None: the
@@ -62,6 +70,7 @@ class MemoryMapConfig:
     stamp: str = "max"
     forget_per_frame: float | None = None
     gain_per_frame: float | None = None
+    terrain_stamp: str = "shrink"
 
     def __post_init__(self) -> None:
         if self.forget_per_frame is not None and not (0.0 < self.forget_per_frame <= 1.0):
@@ -70,6 +79,9 @@ class MemoryMapConfig:
             raise ValueError(f"MemoryMapConfig.gain_per_frame must be > 0, got {self.gain_per_frame!r}")
         if self.stamp not in STAMP_MODES:
             raise ValueError(f"MemoryMapConfig.stamp must be one of {', '.join(STAMP_MODES)}, got {self.stamp!r}")
+        if self.terrain_stamp not in TERRAIN_STAMP_MODES:
+            raise ValueError(f"MemoryMapConfig.terrain_stamp must be one of {', '.join(TERRAIN_STAMP_MODES)}, "
+                             f"got {self.terrain_stamp!r}")
         for name in ("window_m", "radius_m", "gain_per_s", "half_life_s", "max_step_s"):
             value = getattr(self, name)
             if not (isinstance(value, (int, float)) and math.isfinite(value) and value > 0):
@@ -82,6 +94,15 @@ class MemoryMapConfig:
     @property
     def sigma(self) -> float:
         return self.radius_m / 2.0 if self.sigma_m is None else self.sigma_m
+
+    def stamp_scales(self, footprint: ArrayLike) -> NDArray[np.float64] | None:
+        """Per-box factors of the stamp radius from shared.terrain.footprint_scale (NaN: 1) by terrain_stamp; None
+        when "off"."""
+        if self.terrain_stamp == "off":
+            return None
+        lo, hi = TERRAIN_STAMP_LIMITS
+        f = np.asarray(footprint, dtype=np.float64)
+        return np.where(np.isfinite(f), np.clip(f, lo, 1.0 if self.terrain_stamp == "shrink" else hi), 1.0)
 
     def phi(self, dt_s: float) -> float:
         """Forgetting factor for an elapsed time dt_s (seconds)."""
@@ -122,7 +143,7 @@ class MemoryMap:
         self._size = 0  # window edge in cells
         self._cell_m = 0.0
         self._t: float | None = None
-        self._kernel: tuple[int, NDArray[np.float32]] | None = None
+        self._kernels: dict[tuple[float, float, float, int], NDArray[np.float32]] = {}
         # Lazy decay: the maps store evidence / _scale and advance() only shrinks _scale, instead of
         # multiplying every cell of every class each frame; the maps are renormalised when _scale
         # falls below _MIN_SCALE (float32 keeps its relative precision at any magnitude) or when a
@@ -259,25 +280,47 @@ class MemoryMap:
             return np.zeros((len(gx_arr), 2 * r + 1, 2 * r + 1), dtype=np.float32)
         return map_patches(m, gx_arr, gy_arr, self._gx0, self._gy0, float(self.grid.world_cells), r, self._scale)
 
-    def _kernel_for(self) -> tuple[int, NDArray[np.float32]]:
-        radius = max(1, int(round(self.config.radius_m / self._cell_m)))
-        if self._kernel is None or self._kernel[0] != radius:
-            sigma_cells = self.config.sigma / self._cell_m
-            self._kernel = (radius, gaussian_kernel_1d(radius, sigma_cells))
-        return self._kernel
+    def _kernel_for(self, radius: int | None = None) -> tuple[int, NDArray[np.float32]]:
+        """(radius cells, kernel) of the configured stamp, or of a terrain-scaled one of `radius` cells (sigma in
+        proportion), cached."""
+        base = max(1, int(round(self.config.radius_m / self._cell_m)))
+        radius = base if radius is None else radius
+        key = (self.config.radius_m, self.config.sigma, self._cell_m, radius)
+        kernel = self._kernels.get(key)
+        if kernel is None:
+            kernel = self._kernels[key] = gaussian_kernel_1d(radius, self.config.sigma / self._cell_m * radius / base)
+        return radius, kernel
 
-    def add(self, cls: str, gx: ArrayLike, gy: ArrayLike, amplitudes: ArrayLike) -> int:
+    def add(self, cls: str, gx: ArrayLike, gy: ArrayLike, amplitudes: ArrayLike,
+            radius_scale: ArrayLike | None = None) -> int:
         """Stamp a truncated Gaussian of peak `amplitude` at each global cell, then clip at 1.
 
         gx, gy, amplitudes: (N,). Points outside the window are ignored. All stamps are written as
         an impulse image over their bounding region and spread with one separable filter
-        (cv2.sepFilter2D), which costs the same for 10 or 10,000 boxes. Returns the number stamped.
+        (cv2.sepFilter2D), which costs the same for 10 or 10,000 boxes. radius_scale: (N,) factors of
+        the stamp radius and sigma per box (MemoryMapConfig.stamp_scales; None: 1), rounded to whole
+        cells: one filter per distinct radius. Returns the number stamped.
         """
         if self._size == 0:
             raise RuntimeError("MemoryMap.add before advance(): the window is not placed yet")
         gx_arr, gy_arr, amp = _broadcast(np.asarray(gx, dtype=np.float64), np.asarray(gy, dtype=np.float64),
                                          np.asarray(amplitudes, dtype=np.float32))
-        radius, kernel = self._kernel_for()
+        if radius_scale is not None:
+            scale = np.broadcast_to(np.asarray(radius_scale, dtype=np.float64), gx_arr.shape)
+            if not np.all(np.isfinite(scale) & (scale > 0)):
+                raise ValueError("MemoryMap.add: radius_scale must be finite and > 0")
+            cells = np.maximum(1, np.round(self.config.radius_m * scale / self._cell_m)).astype(np.int64)
+            groups = np.unique(cells)
+            if len(groups) > 1 or (len(groups) and groups[0] != self._kernel_for()[0]):
+                stamped = 0
+                for r in groups.tolist():
+                    sel = cells == r
+                    stamped += self._stamp(cls, gx_arr[sel], gy_arr[sel], amp[sel], *self._kernel_for(r))
+                return stamped
+        return self._stamp(cls, gx_arr, gy_arr, amp, *self._kernel_for())
+
+    def _stamp(self, cls: str, gx_arr: NDArray, gy_arr: NDArray, amp: NDArray, radius: int,
+               kernel: NDArray[np.float32]) -> int:
         # the impulses in stored units (max stamping commutes with the scaling), from agent._kernels
         impulses, r0, c0, stamped = stamp_impulses(
             _points(gx_arr), _points(gy_arr), np.ascontiguousarray(amp).reshape(-1), self._gx0, self._gy0,

@@ -34,7 +34,7 @@ from shared.geo import (
     pixel_to_local,
     prime_vertical_radius_m,
 )
-from shared.terrain import Terrain, effective_height_m, pixel_to_terrain
+from shared.terrain import Terrain, effective_height_m, footprint_scale, pixel_to_terrain
 from shared.tiles import TileGrid
 
 log = logging.getLogger(__name__)
@@ -215,6 +215,7 @@ class DetectionPipeline:
         n_filtered = 0
         n_geo = 0
         view_h: NDArray[np.float64] | None = None  # over a terrain: effective_height_m of the ground points
+        stamp: NDArray[np.float64] | None = None  # over a terrain: the boxes' stamp radius factors (memory map)
         if pose is None or not n:
             lat = np.full(n, np.nan)
             lon = np.full(n, np.nan)
@@ -235,6 +236,8 @@ class DetectionPipeline:
                 terrain = self.terrain_for(pose)
                 if up is not None and terrain is not None:
                     view_h = effective_height_m(east, north, up, pose, terrain)
+                    if cfg.use_memory:
+                        stamp = cfg.memory.stamp_scales(footprint_scale(east, north, up, pose, terrain))
             if ok is not None:
                 n_filtered = int(n - np.count_nonzero(ok))
                 if n_filtered:
@@ -243,6 +246,7 @@ class DetectionPipeline:
                     boxes = np.take(boxes, src, axis=0)
                     raw, cids, lat, lon, valid = raw[src], cids[src], lat[src], lon[src], valid[src]
                     view_h = None if view_h is None else view_h[src]
+                    stamp = None if stamp is None else stamp[src]
             n_geo = int(np.count_nonzero(valid))
         calibration = self._calibration()
         # the detector's scores at the reference temperature (per box: after the filter, on fewer boxes)
@@ -251,7 +255,7 @@ class DetectionPipeline:
         on_map = None  # over a terrain with a correction: the points in the maps' frame (_boost_and_update)
         if pose is not None and n and cfg.use_memory:
             boosted, lat, lon, correction, on_map = self._boost_and_update(conf, boosted, cids, present, valid, lat,
-                                                                           lon, pose, t, boxes)
+                                                                           lon, pose, t, boxes, stamp)
         keep = nms(boxes, boosted, cids, cfg.nms_iou, cfg.score_threshold, cfg.max_detections)
         if cfg.fragment_iou > 0 and len(keep) > 1:
             keep = unboost_fragments(boxes, conf, boosted, cids, keep, cfg.fragment_iou, cfg.score_threshold)
@@ -462,11 +466,12 @@ class DetectionPipeline:
         return corr
 
     def _boost_and_update(self, conf, boosted, cids, present: list[int], valid, lat, lon, pose: Pose, t: float,
-                          boxes: NDArray):
+                          boxes: NDArray, stamp: NDArray | None = None):
         """Boost with the map from before this frame, then stamp; the frame's ground points moved by the
         telemetry correction first (over a terrain the map's cells are marched again from the pose moved by it; the
         returned points stay moved, which the tracker undoes). present: the frame's class ids, ascending (cids holds
-        no others); boxes: the candidates (for the joint registration, _registered_cells). Returns boosted, lat, lon
+        no others); boxes: the candidates (for the joint registration, _registered_cells); stamp: their stamp radius
+        factors over a terrain (MemoryMapConfig.stamp_scales) or None. Returns boosted, lat, lon
         (corrected), the correction (or None) and the marched points (lat, lon) the map used, or None."""
         cfg = self.config
         first = self.memory.t is None
@@ -535,7 +540,7 @@ class DetectionPipeline:
                 # a partner covers the spot and sees nothing there: its evidence against, in log-odds
                 b[absent] = boost_scores(b[absent], np.float32(-1.0), "logodds", cfg.joint_absent_logit, 1.0)
             boosted[rows] = b
-            self.memory.add(name, gxs, gys, gain * c)
+            self.memory.add(name, gxs, gys, gain * c, None if stamp is None else stamp[rows])
         return boosted, lat, lon, correction, on_map
 
     def _registered_cells(self, boxes: NDArray, idx: NDArray[np.int64], pose: Pose,

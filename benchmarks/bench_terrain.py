@@ -59,8 +59,11 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
             rows.append({"case": f"anchors -> ground, {name}, {n} boxes", "value": t * 1e3, "unit": "ms/frame",
                          "baseline_name": "flat", "ratio": t / flat})
         times = {}
-        for name, terrain in (("flat", None), ("hills DEM 1 m", hills.terrain)):
-            pipe = DetectionPipeline(camera, {1: "person"}, PipelineConfig(terrain=terrain))
+        for name, terrain, stamp in (("flat", None, "shrink"), ("hills DEM 1 m", hills.terrain, "shrink"),
+                                     ("fixed stamp", hills.terrain, "off")):
+            config = PipelineConfig(terrain=terrain)
+            config = dataclasses.replace(config, memory=dataclasses.replace(config.memory, terrain_stamp=stamp))
+            pipe = DetectionPipeline(camera, {1: "person"}, config)
             clock = iter(np.arange(0.0, 1e6, 1.0 / 30.0))
             times[name] = median_time_s(lambda pipe=pipe, clock=clock, b=boxes, s=scores, c=cids:
                                         pipe.process(b, s, c, pose, float(next(clock))), repeat=repeat)
@@ -68,6 +71,10 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
                      "unit": "ms/frame"})
         rows.append({"case": f"pipeline frame, hills DEM 1 m, {n} boxes", "value": times["hills DEM 1 m"] * 1e3,
                      "unit": "ms/frame", "baseline_name": "flat", "ratio": times["hills DEM 1 m"] / times["flat"]})
+        # the stamp radius following the terrain's footprint (MemoryMapConfig.terrain_stamp) against a fixed one
+        rows.append({"case": f"pipeline frame, hills DEM 1 m, stamp by footprint, {n} boxes",
+                     "value": times["hills DEM 1 m"] * 1e3, "unit": "ms/frame", "baseline_name": "fixed stamp",
+                     "ratio": times["hills DEM 1 m"] / times["fixed stamp"]})
         # with a telemetry correction applied: over the DEM the map's cells are marched again from the moved UAV
         moved = _with_correction(camera, pose, hills.terrain, boxes, scores, cids, repeat)
         rows.append({"case": f"pipeline frame, hills DEM 1 m, correction applied, {n} boxes",

@@ -14,7 +14,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from shared.geo import Camera, Pose, meridian_radius_m, pixel_rays_enu, prime_vertical_radius_m
 
-__all__ = ["BLOCK_CELLS", "ElevationGrid", "Terrain", "effective_height_m", "pixel_to_terrain"]
+__all__ = ["BLOCK_CELLS", "ElevationGrid", "Terrain", "effective_height_m", "footprint_scale", "pixel_to_terrain"]
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -505,3 +505,27 @@ def effective_height_m(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, p
     gx, gy = terrain.gradient(e, n, pose)
     # slant * |unit line of sight . unit surface normal|, the normal along (-gx, -gy, 1)
     return np.asarray(np.abs(gx * e + gy * n + drop) / np.sqrt(1.0 + gx * gx + gy * gy), dtype=np.float64)
+
+
+def footprint_scale(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose: Pose,
+                    terrain: Terrain) -> FloatArray:
+    """(N,) how much larger the map's footprint of a pixel is at each terrain point than at the same ray's point on
+    flat ground at the pose's reference, as a length: the square root of the ratio of the horizontal areas that one
+    small cone of rays covers there. Below 1 where the terrain turns toward the camera (a slope facing it: a pixel
+    covers less ground, and its errors move the point less), above 1 where it turns away, 1 on flat ground. NaN
+    where not defined (no point, or not below the camera).
+
+    A cone of solid angle w at slant range R covers R^2 w / cos(incidence) of the surface, R^3 w / (D sqrt(1 + |g|^2))
+    of the horizontal map, with D the camera's distance from the tangent plane (effective_height_m) and g the
+    terrain's gradient; on flat ground the same rays meet the reference at R h / (h - up), covering R_f^3 w / h.
+    """
+    e = np.asarray(east_m, dtype=np.float64)
+    n = np.asarray(north_m, dtype=np.float64)
+    drop = pose.height_m - np.asarray(up_m, dtype=np.float64)
+    gx, gy = terrain.gradient(e, n, pose)
+    tilt = np.sqrt(1.0 + gx * gx + gy * gy)
+    plane = np.abs(gx * e + gy * n + drop) / tilt  # effective_height_m
+    h = float(pose.height_m)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        area = drop**3 / (h * h * plane * tilt)
+        return np.asarray(np.where((drop > 0) & (h > 0) & (plane > 0), np.sqrt(area), np.nan), dtype=np.float64)
