@@ -51,9 +51,10 @@ class MemoryMapConfig:
         per object adds 30x the evidence) or "max" (per cell and frame the strongest box counts once:
         the evidence no longer depends on how many candidates a detector emits per object).
     terrain_stamp: over a terrain (--dem), how a box's stamp radius and sigma follow the ground: "shrink" (default)
-        scales them by the terrain's footprint of the box's pixel against flat ground's (shared.terrain.
-        footprint_scale) where that is smaller (a slope facing the camera), down to half; "follow" also where it is
-        larger, up to twice; "off" keeps radius_m everywhere. Flat ground is unchanged in every mode.
+        scales them by the terrain's footprint of the box's pixel against level ground's at the UAV's ground level
+        (shared.terrain.footprint_scale) where that is smaller (a slope facing the camera, a rise ahead), down to
+        half; "follow" also where it is larger, up to twice; "off" keeps radius_m everywhere. A flat DEM is
+        unchanged in every mode.
     forget_per_frame, gain_per_frame: the paper's literal per-frame constants (phi and s), kept as a
         baseline: when set, the map decays by forget_per_frame at every frame (whatever time passed) and
         each box adds gain_per_frame * confidence, so the evidence depends on the frame rate (None: the
@@ -143,7 +144,9 @@ class MemoryMap:
         self._size = 0  # window edge in cells
         self._cell_m = 0.0
         self._t: float | None = None
-        self._kernels: dict[tuple[float, float, float, int], NDArray[np.float32]] = {}
+        self._kernel: tuple[int, NDArray[np.float32]] | None = None
+        self._kernel_sigma = 0.0
+        self._scaled_kernels: dict[int, NDArray[np.float32]] = {}
         # Lazy decay: the maps store evidence / _scale and advance() only shrinks _scale, instead of
         # multiplying every cell of every class each frame; the maps are renormalised when _scale
         # falls below _MIN_SCALE (float32 keeps its relative precision at any magnitude) or when a
@@ -281,14 +284,19 @@ class MemoryMap:
         return map_patches(m, gx_arr, gy_arr, self._gx0, self._gy0, float(self.grid.world_cells), r, self._scale)
 
     def _kernel_for(self, radius: int | None = None) -> tuple[int, NDArray[np.float32]]:
-        """(radius cells, kernel) of the configured stamp, or of a terrain-scaled one of `radius` cells (sigma in
-        proportion), cached."""
+        """(radius cells, kernel) of the configured stamp (built when its radius in cells changes), or of a
+        terrain-scaled one of `radius` cells with sigma in proportion (cached until the configured one changes)."""
         base = max(1, int(round(self.config.radius_m / self._cell_m)))
-        radius = base if radius is None else radius
-        key = (self.config.radius_m, self.config.sigma, self._cell_m, radius)
-        kernel = self._kernels.get(key)
+        if self._kernel is None or self._kernel[0] != base:
+            sigma_cells = self.config.sigma / self._cell_m
+            self._kernel = (base, gaussian_kernel_1d(base, sigma_cells))
+            self._kernel_sigma = sigma_cells  # what the scaled ones scale
+            self._scaled_kernels = {}
+        if radius is None or radius == base:
+            return self._kernel
+        kernel = self._scaled_kernels.get(radius)
         if kernel is None:
-            kernel = self._kernels[key] = gaussian_kernel_1d(radius, self.config.sigma / self._cell_m * radius / base)
+            kernel = self._scaled_kernels[radius] = gaussian_kernel_1d(radius, self._kernel_sigma * radius / base)
         return radius, kernel
 
     def add(self, cls: str, gx: ArrayLike, gy: ArrayLike, amplitudes: ArrayLike,
@@ -298,26 +306,43 @@ class MemoryMap:
         gx, gy, amplitudes: (N,). Points outside the window are ignored. All stamps are written as
         an impulse image over their bounding region and spread with one separable filter
         (cv2.sepFilter2D), which costs the same for 10 or 10,000 boxes. radius_scale: (N,) factors of
-        the stamp radius and sigma per box (MemoryMapConfig.stamp_scales; None: 1), rounded to whole
-        cells: one filter per distinct radius. Returns the number stamped.
+        the stamp radius and sigma per box in TERRAIN_STAMP_LIMITS (MemoryMapConfig.stamp_scales; None:
+        1), rounded to whole cells: one filter per distinct radius; with stamp "max" the strongest box of
+        a cell counts once, with its radius. Returns the number stamped.
         """
         if self._size == 0:
             raise RuntimeError("MemoryMap.add before advance(): the window is not placed yet")
         gx_arr, gy_arr, amp = _broadcast(np.asarray(gx, dtype=np.float64), np.asarray(gy, dtype=np.float64),
                                          np.asarray(amplitudes, dtype=np.float32))
         if radius_scale is not None:
+            lo, hi = TERRAIN_STAMP_LIMITS
             scale = np.broadcast_to(np.asarray(radius_scale, dtype=np.float64), gx_arr.shape)
-            if not np.all(np.isfinite(scale) & (scale > 0)):
-                raise ValueError("MemoryMap.add: radius_scale must be finite and > 0")
+            if not np.all((scale >= lo) & (scale <= hi)):
+                raise ValueError(f"MemoryMap.add: radius_scale must lie in [{lo:g}, {hi:g}] (finite)")
             cells = np.maximum(1, np.round(self.config.radius_m * scale / self._cell_m)).astype(np.int64)
             groups = np.unique(cells)
             if len(groups) > 1 or (len(groups) and groups[0] != self._kernel_for()[0]):
-                stamped = 0
-                for r in groups.tolist():
-                    sel = cells == r
-                    stamped += self._stamp(cls, gx_arr[sel], gy_arr[sel], amp[sel], *self._kernel_for(r))
-                return stamped
+                return self._add_by_radius(cls, gx_arr, gy_arr, amp, cells)
         return self._stamp(cls, gx_arr, gy_arr, amp, *self._kernel_for())
+
+    def _add_by_radius(self, cls: str, gx: NDArray, gy: NDArray, amp: NDArray, cells: NDArray[np.int64]) -> int:
+        """add() with a radius (cells) per point: one filter per radius; with stamp "max" only the strongest point
+        of each window cell (as one filter would take it), so that a cell counts once across radii too."""
+        dropped = 0
+        if self.config.stamp == "max":
+            with np.errstate(invalid="ignore"):  # NaN points: outside
+                row, col, inside = self.local_indices(gx, gy)
+            ok = np.flatnonzero(inside & np.isfinite(amp) & (amp > 0))
+            order = ok[np.argsort(-amp[ok], kind="stable")]
+            _, first = np.unique(row[order] * self._size + col[order], return_index=True)
+            keep = np.sort(order[first])
+            dropped = len(ok) - len(keep)
+            gx, gy, amp, cells = gx[keep], gy[keep], amp[keep], cells[keep]
+        stamped = dropped
+        for r in np.unique(cells).tolist():
+            sel = cells == r
+            stamped += self._stamp(cls, gx[sel], gy[sel], amp[sel], *self._kernel_for(r))
+        return stamped
 
     def _stamp(self, cls: str, gx_arr: NDArray, gy_arr: NDArray, amp: NDArray, radius: int,
                kernel: NDArray[np.float32]) -> int:

@@ -236,7 +236,7 @@ class DetectionPipeline:
                 terrain = self.terrain_for(pose)
                 if up is not None and terrain is not None:
                     view_h = effective_height_m(east, north, up, pose, terrain)
-                    if cfg.use_memory:
+                    if cfg.use_memory and cfg.memory.terrain_stamp != "off":
                         stamp = cfg.memory.stamp_scales(footprint_scale(east, north, up, pose, terrain))
             if ok is not None:
                 n_filtered = int(n - np.count_nonzero(ok))

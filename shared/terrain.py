@@ -509,23 +509,25 @@ def effective_height_m(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, p
 
 def footprint_scale(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose: Pose,
                     terrain: Terrain) -> FloatArray:
-    """(N,) how much larger the map's footprint of a pixel is at each terrain point than at the same ray's point on
-    flat ground at the pose's reference, as a length: the square root of the ratio of the horizontal areas that one
-    small cone of rays covers there. Below 1 where the terrain turns toward the camera (a slope facing it: a pixel
-    covers less ground, and its errors move the point less), above 1 where it turns away, 1 on flat ground. NaN
-    where not defined (no point, or not below the camera).
+    """(N,) how much larger the map's footprint of a pixel is at each terrain point than the same ray's on level
+    ground at the height of the ground below the UAV (the flat world of a UAV at its true height above the ground),
+    as a length: the square root of the ratio of the horizontal areas that one small cone of rays covers there.
+    Below 1 where the terrain turns toward the camera (a slope facing it, a rise ahead: a pixel covers less ground,
+    and its errors move the point less), above 1 where it turns away or falls, 1 on a flat DEM at any height.
+    Where the DEM has no height below the UAV, level ground through the point is the reference (the slope alone).
+    NaN where not defined (no point, or not below the camera).
 
-    A cone of solid angle w at slant range R covers R^2 w / cos(incidence) of the surface, R^3 w / (D sqrt(1 + |g|^2))
-    of the horizontal map, with D the camera's distance from the tangent plane (effective_height_m) and g the
-    terrain's gradient; on flat ground the same rays meet the reference at R h / (h - up), covering R_f^3 w / h.
+    A cone of solid angle w along the unit ray d at slant range R covers R^2 w / |n.d| of a surface with unit normal
+    n, n_z of it on the horizontal map: R^3 w / |g_e east + g_n north + drop| with the gradient g and drop the
+    camera's height above the point. On level ground a height h below the camera the same rays meet it at
+    R_f = R h / drop and cover R_f^3 w / h, so the ratio is drop^3 / (h^2 |g_e east + g_n north + drop|).
     """
     e = np.asarray(east_m, dtype=np.float64)
     n = np.asarray(north_m, dtype=np.float64)
     drop = pose.height_m - np.asarray(up_m, dtype=np.float64)
     gx, gy = terrain.gradient(e, n, pose)
-    tilt = np.sqrt(1.0 + gx * gx + gy * gy)
-    plane = np.abs(gx * e + gy * n + drop) / tilt  # effective_height_m
-    h = float(pose.height_m)
+    below = pose.height_m - float(terrain.up_m(np.zeros(1), np.zeros(1), pose)[0])  # above the ground below the UAV
     with np.errstate(invalid="ignore", divide="ignore"):
-        area = drop**3 / (h * h * plane * tilt)
-        return np.asarray(np.where((drop > 0) & (h > 0) & (plane > 0), np.sqrt(area), np.nan), dtype=np.float64)
+        level = below if math.isfinite(below) and below > 0 else drop
+        ratio = drop**3 / (level * level * np.abs(gx * e + gy * n + drop))
+        return np.asarray(np.where((drop > 0) & (ratio > 0), np.sqrt(ratio), np.nan), dtype=np.float64)

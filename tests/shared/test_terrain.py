@@ -305,37 +305,42 @@ def test_effective_height_is_the_pose_height_on_flat_ground_and_shrinks_on_a_slo
     np.testing.assert_allclose(gy, 0.0, atol=1e-9)
 
 
-def _parallelogram_area(e: np.ndarray, n: np.ndarray) -> float:
-    """Area of the ground parallelogram spanned by points 1 and 2 around point 0."""
-    return abs((e[1] - e[0]) * (n[2] - n[0]) - (e[2] - e[0]) * (n[1] - n[0]))
+def _area(points: np.ndarray) -> float:
+    """Area spanned by the central differences (rows 1 - 2 and 3 - 4) of (5, 2) ground points."""
+    du, dv = points[1] - points[2], points[3] - points[4]
+    return abs(du[0] * dv[1] - du[1] * dv[0])
 
 
 @settings(max_examples=40, deadline=None)
 @given(gx=st.floats(-0.3, 0.3), gy=st.floats(-0.3, 0.3), offset=st.floats(-10.0, 10.0),
        height=st.floats(15.0, 120.0), pitch=st.floats(30.0, 90.0), heading=st.floats(0.0, 360.0),
        u=st.floats(200, 3640), v=st.floats(200, 1960))
-def test_footprint_scale_is_the_ground_area_of_a_pixel_against_flat_grounds(gx, gy, offset, height, pitch, heading,
-                                                                             u, v):
+def test_footprint_scale_is_the_ground_area_of_a_pixel_against_level_grounds(gx, gy, offset, height, pitch,
+                                                                             heading, u, v):
     """On a tilted plane (exact under bilinear interpolation) the scale is the square root of the ratio of the
-    horizontal areas that a pixel's neighbourhood covers on the terrain and on flat ground at the reference, measured
-    by finite differences of the two projections."""
+    horizontal areas that a pixel's neighbourhood covers on the terrain and on level ground at the height of the
+    ground below the UAV, by central differences of the two projections (the level one: each ray cut analytically
+    at that height)."""
     from shared.terrain import footprint_scale
 
     axis = np.arange(-HALF_M, HALF_M + 1, dtype=float)
     east, north = np.meshgrid(axis, axis[::-1])
     terrain = Terrain(local_grid(300.0 + gx * east + gy * north), 300.0 + offset)
     pose = pose_at(0.0, 0.0, height_m=height, pitch_deg=pitch, heading_deg=heading)
-    uv = np.array([[u, v], [u + 0.5, v], [u, v + 0.5]])
+    step = 0.05
+    uv = np.array([[u, v], [u + step, v], [u - step, v], [u, v + step], [u, v - step]])
     e, n, up, valid = pixel_to_terrain(uv, CAM, pose, terrain, max_range_m=140.0)
-    fe, fn, fvalid = pixel_to_local(uv, CAM, pose, max_range_m=1e6)
-    if not (valid.all() and fvalid.all()) or offset + height <= 1.0:
+    below = height + offset  # the plane lies offset metres below the take-off under the UAV
+    if not valid.all() or height - up[0] <= 1.0 or below <= 1.0:
         return
+    rays = pixel_rays_enu(uv, CAM, pose)
+    level = rays[:, :2] * (below / -rays[:, 2])[:, None]  # every ray down to the ground below the UAV
     scale = footprint_scale(e[:1], n[:1], up[:1], pose, terrain)[0]
-    expected = math.sqrt(_parallelogram_area(e, n) / _parallelogram_area(fe, fn))
-    assert scale == pytest.approx(expected, rel=2e-3)
+    expected = math.sqrt(_area(np.column_stack([e, n])) / _area(level))
+    assert scale == pytest.approx(expected, rel=1e-4)
 
 
-def test_footprint_scale_is_one_on_flat_ground_below_one_facing_the_camera_and_above_facing_away():
+def test_footprint_scale_is_one_on_level_ground_below_one_facing_the_camera_and_above_facing_away():
     from shared.terrain import footprint_scale
 
     axis = np.arange(-HALF_M, HALF_M + 1, dtype=float)
@@ -351,6 +356,19 @@ def test_footprint_scale_is_one_on_flat_ground_below_one_facing_the_camera_and_a
         scales[name] = footprint_scale(e, n, up, pose, terrain)
     np.testing.assert_allclose(scales["flat"], 1.0, rtol=1e-12)
     assert (scales["facing"] < 0.9).all() and (scales["away"] > 1.1).all()
+    # a rise ahead of the UAV: nearer than level ground below it, so smaller; the same plateau level with the UAV's
+    # ground: 1
+    step_up = Terrain(local_grid(np.where(north > 20.0, 55.0, 50.0)), 50.0)
+    e, n, up, valid = pixel_to_terrain(uv, CAM, pose, step_up)
+    assert valid.all() and (up > 4.9).all()
+    np.testing.assert_allclose(footprint_scale(e, n, up, pose, step_up), 25.0 / 30.0, rtol=1e-9)
+    # level ground at any height, also heights above sea level (a take-off elevation of 0 on the DEM's datum)
+    for reference, level_m in ((0.0, 50.0), (50.0, 62.0), (50.0, 41.0)):
+        terrain = Terrain(local_grid(np.full_like(east, level_m)), reference)
+        at = pose_at(0.0, 0.0, height_m=30.0 + level_m - reference, pitch_deg=35.0, heading_deg=0.0)
+        e, n, up, valid = pixel_to_terrain(uv, CAM, at, terrain)
+        assert valid.all()
+        np.testing.assert_allclose(footprint_scale(e, n, up, at, terrain), 1.0, rtol=1e-12)
     # no point, or a point not below the camera (a hillside above it): not defined
     terrain = Terrain(local_grid(np.full_like(east, 50.0)), 50.0)
     out = footprint_scale(np.array([np.nan, 10.0]), np.array([np.nan, 10.0]), np.array([np.nan, 31.0]), pose,
