@@ -308,13 +308,14 @@ class MemoryMap:
         (cv2.sepFilter2D), which costs the same for 10 or 10,000 boxes. radius_scale: (N,) factors of
         the stamp radius and sigma per box in TERRAIN_STAMP_LIMITS (MemoryMapConfig.stamp_scales; None:
         1), rounded to whole cells: one filter per distinct radius; with stamp "max" the strongest box of
-        a cell counts once, with its radius. Returns the number stamped.
+        a cell counts once, with its radius (ties: the first). Returns the number stamped.
         """
         if self._size == 0:
             raise RuntimeError("MemoryMap.add before advance(): the window is not placed yet")
         gx_arr, gy_arr, amp = _broadcast(np.asarray(gx, dtype=np.float64), np.asarray(gy, dtype=np.float64),
                                          np.asarray(amplitudes, dtype=np.float32))
         if radius_scale is not None:
+            gx_arr, gy_arr, amp = gx_arr.reshape(-1), gy_arr.reshape(-1), amp.reshape(-1)
             lo, hi = TERRAIN_STAMP_LIMITS
             scale = np.broadcast_to(np.asarray(radius_scale, dtype=np.float64), gx_arr.shape)
             if not np.all((scale >= lo) & (scale <= hi)):

@@ -514,7 +514,8 @@ def footprint_scale(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose
     as a length: the square root of the ratio of the horizontal areas that one small cone of rays covers there.
     Below 1 where the terrain turns toward the camera (a slope facing it, a rise ahead: a pixel covers less ground,
     and its errors move the point less), above 1 where it turns away or falls, 1 on a flat DEM at any height.
-    Where the DEM has no height below the UAV, level ground through the point is the reference (the slope alone).
+    Where the DEM has no height below the UAV, or the UAV is not above it, level ground through the point is the
+    reference (the slope alone).
     NaN where not defined (no point, or not below the camera).
 
     A cone of solid angle w along the unit ray d at slant range R covers R^2 w / |n.d| of a surface with unit normal
@@ -530,4 +531,5 @@ def footprint_scale(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose
     with np.errstate(invalid="ignore", divide="ignore"):
         level = below if math.isfinite(below) and below > 0 else drop
         ratio = drop**3 / (level * level * np.abs(gx * e + gy * n + drop))
-        return np.asarray(np.where((drop > 0) & (ratio > 0), np.sqrt(ratio), np.nan), dtype=np.float64)
+        defined = (drop > 0) & (ratio > 0) & np.isfinite(ratio)  # a grazing ray (|g.en + drop| = 0): not
+        return np.asarray(np.where(defined, np.sqrt(ratio), np.nan), dtype=np.float64)

@@ -362,6 +362,13 @@ def test_footprint_scale_is_one_on_level_ground_below_one_facing_the_camera_and_
     e, n, up, valid = pixel_to_terrain(uv, CAM, pose, step_up)
     assert valid.all() and (up > 4.9).all()
     np.testing.assert_allclose(footprint_scale(e, n, up, pose, step_up), 25.0 / 30.0, rtol=1e-9)
+    # a UAV outside the DEM (a take-off elevation given): the slope alone, drop / |g.en + drop|
+    rising = Terrain(local_grid(50.0 + 0.2 * north), 50.0)
+    outside = pose_at(0.0, -HALF_M - 20.0, height_m=60.0, pitch_deg=35.0, heading_deg=0.0)
+    e, n, up, valid = pixel_to_terrain(uv, CAM, outside, rising)
+    assert valid.all()
+    drop = 60.0 - up
+    np.testing.assert_allclose(footprint_scale(e, n, up, outside, rising), np.sqrt(drop / (0.2 * n + drop)), rtol=1e-6)
     # level ground at any height, also heights above sea level (a take-off elevation of 0 on the DEM's datum)
     for reference, level_m in ((0.0, 50.0), (50.0, 62.0), (50.0, 41.0)):
         terrain = Terrain(local_grid(np.full_like(east, level_m)), reference)
