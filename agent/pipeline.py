@@ -235,9 +235,10 @@ class DetectionPipeline:
                 lat, lon = local_to_latlon(east, north, pose.lat, pose.lon)  # NaN where not valid
                 terrain = self.terrain_for(pose)
                 if up is not None and terrain is not None:
-                    view_h = effective_height_m(east, north, up, pose, terrain)
+                    grad = terrain.gradient(east, north, pose)  # one bilinear lookup for both
+                    view_h = effective_height_m(east, north, up, pose, terrain, grad)
                     if cfg.use_memory and cfg.memory.terrain_stamp != "off":
-                        stamp = cfg.memory.stamp_scales(footprint_scale(east, north, up, pose, terrain))
+                        stamp = cfg.memory.stamp_scales(footprint_scale(east, north, up, pose, terrain, grad))
             if ok is not None:
                 n_filtered = int(n - np.count_nonzero(ok))
                 if n_filtered:

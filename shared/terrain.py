@@ -488,8 +488,19 @@ def pixel_to_terrain(uv: ArrayLike, camera: Camera, pose: Pose, terrain: Terrain
     return terrain.intersect_rays(pixel_rays_enu(uv, camera, pose), pose, max_range_m)
 
 
+def _view_terms(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose: Pose, terrain: Terrain,
+                gradient: tuple[FloatArray, FloatArray] | None) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """drop (the camera's height above each point), |g_e east + g_n north + drop| (the camera's distance from the
+    tangent plane times sqrt(1 + |g|^2)) and sqrt(1 + |g|^2), with the gradient g given or from the terrain."""
+    e = np.asarray(east_m, dtype=np.float64)
+    n = np.asarray(north_m, dtype=np.float64)
+    drop = pose.height_m - np.asarray(up_m, dtype=np.float64)
+    gx, gy = terrain.gradient(e, n, pose) if gradient is None else gradient
+    return drop, np.abs(gx * e + gy * n + drop), np.sqrt(1.0 + gx * gx + gy * gy)
+
+
 def effective_height_m(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose: Pose,
-                       terrain: Terrain) -> FloatArray:
+                       terrain: Terrain, gradient: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
     """(N,) the camera height above flat ground that gives the same along-ray sensitivity at each terrain point:
     slant range times the sine of the angle between the line of sight and the surface there, i.e. the camera's
     distance from the terrain's tangent plane at the point.
@@ -498,17 +509,15 @@ def effective_height_m(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, p
     slant^2 / h is that with h = slant sin(depression). Error models written for flat ground (the tracker's
     measurement covariance and pose-correction Jacobian) stay right on a terrain with h replaced by this:
     smaller where the ray grazes a slope facing away, larger on one facing the camera. NaN where not known.
+    gradient: the terrain's (g_e, g_n) at the points when already known (Terrain.gradient).
     """
-    e = np.asarray(east_m, dtype=np.float64)
-    n = np.asarray(north_m, dtype=np.float64)
-    drop = pose.height_m - np.asarray(up_m, dtype=np.float64)
-    gx, gy = terrain.gradient(e, n, pose)
     # slant * |unit line of sight . unit surface normal|, the normal along (-gx, -gy, 1)
-    return np.asarray(np.abs(gx * e + gy * n + drop) / np.sqrt(1.0 + gx * gx + gy * gy), dtype=np.float64)
+    _, plane, tilt = _view_terms(east_m, north_m, up_m, pose, terrain, gradient)
+    return np.asarray(plane / tilt, dtype=np.float64)
 
 
 def footprint_scale(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose: Pose,
-                    terrain: Terrain) -> FloatArray:
+                    terrain: Terrain, gradient: tuple[FloatArray, FloatArray] | None = None) -> FloatArray:
     """(N,) how much larger the map's footprint of a pixel is at each terrain point than the same ray's on level
     ground at the height of the ground below the UAV (the flat world of a UAV at its true height above the ground),
     as a length: the square root of the ratio of the horizontal areas that one small cone of rays covers there.
@@ -522,14 +531,12 @@ def footprint_scale(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose
     n, n_z of it on the horizontal map: R^3 w / |g_e east + g_n north + drop| with the gradient g and drop the
     camera's height above the point. On level ground a height h below the camera the same rays meet it at
     R_f = R h / drop and cover R_f^3 w / h, so the ratio is drop^3 / (h^2 |g_e east + g_n north + drop|).
+    gradient: the terrain's (g_e, g_n) at the points when already known (Terrain.gradient).
     """
-    e = np.asarray(east_m, dtype=np.float64)
-    n = np.asarray(north_m, dtype=np.float64)
-    drop = pose.height_m - np.asarray(up_m, dtype=np.float64)
-    gx, gy = terrain.gradient(e, n, pose)
+    drop, plane, _ = _view_terms(east_m, north_m, up_m, pose, terrain, gradient)
     below = pose.height_m - float(terrain.up_m(np.zeros(1), np.zeros(1), pose)[0])  # above the ground below the UAV
     with np.errstate(invalid="ignore", divide="ignore"):
         level = below if math.isfinite(below) and below > 0 else drop
-        ratio = drop**3 / (level * level * np.abs(gx * e + gy * n + drop))
+        ratio = drop**3 / (level * level * plane)
         defined = (drop > 0) & (ratio > 0) & np.isfinite(ratio)  # a grazing ray (|g.en + drop| = 0): not
         return np.asarray(np.where(defined, np.sqrt(ratio), np.nan), dtype=np.float64)
