@@ -27,7 +27,9 @@ class FrameResult:
     correction applied to the frame's ground points (agent.telemetry_correction.GroundCorrection), None
     when none ran (no pose, no memory map, or switched off); view_height_m (K,) over a terrain: the flat-ground
     height with the same along-ray error at each ground point (shared.terrain.effective_height_m; NaN: none),
-    for error models written for flat ground; None over flat ground (the pose's height).
+    for error models written for flat ground; None over flat ground (the pose's height). alt_latlon (K, 2) over a
+    terrain: a second ground point (lat, lon) where the box's ray passes an edge of the terrain near its anchor
+    (PipelineConfig.edge_probe; NaN rows: none), None without.
     """
 
     boxes_xyxy: NDArray[np.float32]
@@ -43,6 +45,7 @@ class FrameResult:
     from_joint: NDArray[np.bool_] | None = None
     correction: GroundCorrection | None = None
     view_height_m: NDArray[np.float64] | None = None
+    alt_latlon: NDArray[np.float64] | None = None
 
     def __len__(self) -> int:
         return len(self.scores)

@@ -584,4 +584,6 @@ def add_joint_detections(result: FrameResult, pose: Pose, t: float, *, config: P
         embeddings=None if emb is None else emb[keep],
         from_joint=np.concatenate([flags, np.ones(m, dtype=bool)])[keep],
         view_height_m=None if result.view_height_m is None else np.concatenate([result.view_height_m,
-                                                                               np.full(m, np.nan)])[keep])
+                                                                               np.full(m, np.nan)])[keep],
+        alt_latlon=None if result.alt_latlon is None else np.concatenate([result.alt_latlon,
+                                                                         np.full((m, 2), np.nan)])[keep])

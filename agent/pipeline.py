@@ -21,7 +21,7 @@ from agent.joint_detections import JointCarry, JointRegistration, add_joint_dete
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
 from agent.score_calibration import ScoreCalibration
-from agent.size_filter import SizeFilter, _warn_unfiltered
+from agent.size_filter import SizeFilter, _warn_unfiltered, slant_and_depression
 from agent.size_filter_check import SizeFilterCheck
 from agent.stage_report import StageReport
 from agent.telemetry_correction import GroundCorrection, GroundOffsetEstimator, register_offset
@@ -29,12 +29,13 @@ from shared.geo import (
     Camera,
     Pose,
     horizon_dip_deg,
+    latlon_to_local,
     local_to_latlon,
     meridian_radius_m,
     pixel_to_local,
     prime_vertical_radius_m,
 )
-from shared.terrain import Terrain, effective_height_m, footprint_scale, pixel_to_terrain
+from shared.terrain import Terrain, edge_alternatives, effective_height_m, footprint_scale, pixel_to_terrain
 from shared.tiles import TileGrid
 
 log = logging.getLogger(__name__)
@@ -129,7 +130,7 @@ class DetectionPipeline:
         if not valid.any():
             return
         b, c, east, north = b[valid], c[valid], east[valid], north[valid]
-        slant, depression = _slant_and_depression(east, north, None if up is None else up[valid], pose)
+        slant, depression = slant_and_depression(east, north, None if up is None else up[valid], pose)
         diag = np.hypot(b[:, 2] - b[:, 0], b[:, 3] - b[:, 1])
         for cid in distinct_ids(c).tolist():
             name = self.class_names[cid]
@@ -265,7 +266,9 @@ class DetectionPipeline:
         result = FrameResult(boxes[keep], boosted[keep], conf[keep], cids[keep], lat[keep], lon[keep],
                              n, n_filtered, n_geo,
                              None if embeddings is None else embeddings[keep if src is None else src[keep]],
-                             correction=correction, view_height_m=None if view_h is None else view_h[keep])
+                             correction=correction, view_height_m=None if view_h is None else view_h[keep],
+                             alt_latlon=None if view_h is None or not cfg.edge_probe else self._alternatives(
+                                 boxes[keep], lat[keep], lon[keep], pose, correction))
         if (self.joint is not None and cfg.use_memory and cfg.joint_detections and cfg.joint_mode != "local"
                 and pose is not None):
             if correction is not None and (correction.east_m or correction.north_m):
@@ -400,7 +403,7 @@ class DetectionPipeline:
         east_m, north_m: (N,) ground point of each box's anchor (pixel_to_local), NaN where none; up_m: (N,)
         its height above the pose's reference on a terrain (ground_points), None on flat ground.
         """
-        slant, depression = _slant_and_depression(east_m, north_m, up_m, pose)
+        slant, depression = slant_and_depression(east_m, north_m, up_m, pose)
         diag = np.hypot(boxes_xyxy[:, 2] - boxes_xyxy[:, 0], boxes_xyxy[:, 3] - boxes_xyxy[:, 1])
         ok = np.ones(len(diag), dtype=bool)
         active = self.active_size_filter
@@ -544,6 +547,19 @@ class DetectionPipeline:
             self.memory.add(name, gxs, gys, gain * c, None if stamp is None else stamp[rows])
         return boosted, lat, lon, correction, on_map
 
+    def _alternatives(self, boxes: NDArray, lat: NDArray, lon: NDArray, pose: Pose,
+                      correction: GroundCorrection | None) -> NDArray[np.float64]:
+        """(K, 2) lat, lon of each box's second ground point where its anchor's ray passes an edge of the terrain
+        within edge_probe of its height (shared.terrain.edge_alternatives), moved as the boxes' own points are by
+        the telemetry correction; NaN rows where none."""
+        moved = pose if correction is None else correction.moved(pose)
+        shift = np.array([moved.lat - pose.lat, moved.lon - pose.lon])
+        east, north = latlon_to_local(lat - shift[0], lon - shift[1], pose.lat, pose.lon)
+        ae, an = edge_alternatives(box_anchor_points(boxes, self.config.anchor, pose.pitch_deg),
+                                   self.config.edge_probe * (boxes[:, 3] - boxes[:, 1]), self.camera, pose,
+                                   self.terrain_for(pose), east, north, max_range_m=self.config.range_limit_m)
+        return np.column_stack(local_to_latlon(ae, an, pose.lat, pose.lon)) + shift
+
     def _registered_cells(self, boxes: NDArray, idx: NDArray[np.int64], pose: Pose,
                           correction: GroundCorrection | None) -> tuple[NDArray, NDArray] | None:
         """Global cells (gx, gy), (N,) each with NaN where none, of where the joint registration puts the partners'
@@ -580,14 +596,3 @@ class DetectionPipeline:
         mlat, mlon = local_to_latlon(east, north, moved.lat, moved.lon)
         return np.where(hit, mlat, lat), np.where(hit, mlon, lon), hit
 
-
-def _slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,
-                          pose: Pose) -> tuple[NDArray, NDArray]:
-    """Camera-to-ground-point distance (m) and depression below the horizontal (deg) of ground points in the
-    pose's local frame (up_m None: on the flat ground, up = 0)."""
-    if up_m is None:
-        slant = np.sqrt(east_m**2 + north_m**2 + pose.height_m**2)
-        return slant, np.degrees(np.arcsin(pose.height_m / slant))
-    drop = pose.height_m - up_m
-    slant = np.sqrt(east_m**2 + north_m**2 + drop**2)
-    return slant, np.degrees(np.arcsin(drop / slant))

@@ -147,6 +147,10 @@ class PipelineConfig:
         to the terrain point); None (the default) is flat ground at the UAV's height reference. A terrain
         without takeoff_elevation_m gets, per video, the DEM's height under the video's first pose
         (DetectionPipeline.terrain_for). Not a setting of config files: it comes from --dem.
+    edge_probe: over a terrain, the anchors of the kept boxes are probed this fraction of their box's height above
+        and below; where one probe's ray passes an edge of the terrain (a bank's lip, a crest) that the other does
+        not, its ground point is the box's alternative (FrameResult.alt_latlon, shared.terrain.edge_alternatives),
+        which the tracker may match instead (0: off).
 
     telemetry_at_frame_time: the frame drivers of files give each frame the telemetry interpolated at its own
         time between the telemetry's samples, put on the frame clock first (agent.telemetry_clock: a time-zone
@@ -270,6 +274,7 @@ class PipelineConfig:
     telemetry_at_frame_time: bool = True
     view_cuts: bool = True
     terrain: Terrain | None = None
+    edge_probe: float = 0.3
 
     def __post_init__(self) -> None:
         if self.terrain is not None and not isinstance(self.terrain, Terrain):
@@ -285,6 +290,9 @@ class PipelineConfig:
             raise ValueError(f"boost_mode must be one of {', '.join(BOOST_MODES)}, got {self.boost_mode!r}")
         if self.joint_mode not in JOINT_MODES:
             raise ValueError(f"joint_mode must be one of {', '.join(JOINT_MODES)}, got {self.joint_mode!r}")
+        if not (math.isfinite(self.edge_probe) and 0.0 <= self.edge_probe <= 1.0):
+            raise ValueError(f"edge_probe must be in [0, 1] (a fraction of the box's height; 0: off), got "
+                             f"{self.edge_probe!r}")
         if not (0.0 < self.nms_iou <= 1.0):
             raise ValueError(f"nms_iou must be in (0, 1], got {self.nms_iou!r}")
         if isinstance(self.fragment_iou, bool) or not isinstance(self.fragment_iou, numbers.Real) \

@@ -16,6 +16,8 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from shared.geo import Pose
+
 log = logging.getLogger(__name__)
 
 FORMAT = "uavmm-size-filter"
@@ -279,3 +281,15 @@ def _weighted_quantile(values: NDArray, weights: NDArray, q: float) -> float:
     v, w = values[order], weights[order]
     cw = np.cumsum(w)
     return float(np.interp(q * cw[-1], cw, v))
+
+
+def slant_and_depression(east_m: NDArray, north_m: NDArray, up_m: NDArray | None,
+                         pose: Pose) -> tuple[NDArray, NDArray]:
+    """Camera-to-ground-point distance (m) and depression below the horizontal (deg) of ground points in the
+    pose's local frame (up_m None: on the flat ground, up = 0)."""
+    if up_m is None:
+        slant = np.sqrt(east_m**2 + north_m**2 + pose.height_m**2)
+        return slant, np.degrees(np.arcsin(pose.height_m / slant))
+    drop = pose.height_m - up_m
+    slant = np.sqrt(east_m**2 + north_m**2 + drop**2)
+    return slant, np.degrees(np.arcsin(drop / slant))

@@ -14,7 +14,8 @@ from numpy.typing import ArrayLike, NDArray
 
 from shared.geo import Camera, Pose, meridian_radius_m, pixel_rays_enu, prime_vertical_radius_m
 
-__all__ = ["BLOCK_CELLS", "ElevationGrid", "Terrain", "effective_height_m", "footprint_scale", "pixel_to_terrain"]
+__all__ = ["BLOCK_CELLS", "ElevationGrid", "Terrain", "edge_alternatives", "effective_height_m", "footprint_scale",
+           "pixel_to_terrain"]
 
 FloatArray = NDArray[np.float64]
 BoolArray = NDArray[np.bool_]
@@ -540,3 +541,34 @@ def footprint_scale(east_m: ArrayLike, north_m: ArrayLike, up_m: ArrayLike, pose
         ratio = drop**3 / (level * level * plane)
         defined = (drop > 0) & (ratio > 0) & np.isfinite(ratio)  # a grazing ray (|g.en + drop| = 0): not
         return np.asarray(np.where(defined, np.sqrt(ratio), np.nan), dtype=np.float64)
+
+
+def edge_alternatives(uv: ArrayLike, probe_px: ArrayLike, camera: Camera, pose: Pose, terrain: Terrain,
+                      east_m: ArrayLike, north_m: ArrayLike, *, max_range_m: float | None = None, ratio: float = 3.0,
+                      min_jump_m: float = 2.0) -> tuple[FloatArray, FloatArray]:
+    """Second ground points of pixels whose ray passes an edge of the terrain (a bank's lip, a crest) within
+    probe_px of them: east, north (N,) metres in the pose's local frame, NaN where there is none.
+
+    uv (N, 2) pixels with their first terrain points east_m, north_m (pixel_to_terrain); probe_px (N,) or scalar
+    pixels. The pixels probe_px above and below are marched too: on ground the ray meets smoothly both move the
+    point about as far (their ratio is near 1 short of grazing angles); where one probe lands beyond an edge and
+    the other does not, its jump is more than `ratio` times the other's and at least min_jump_m, and its point is
+    the alternative (the same object a few pixels away lands there: a box's edge is that uncertain). A probe
+    without a terrain point gives none.
+    """
+    pts = np.asarray(uv, dtype=np.float64).reshape(-1, 2)
+    n = len(pts)
+    step = np.broadcast_to(np.asarray(probe_px, dtype=np.float64), (n,))
+    probes = np.concatenate([pts - np.column_stack([np.zeros(n), step]), pts + np.column_stack([np.zeros(n), step])])
+    pe, pn, _, ok = pixel_to_terrain(probes, camera, pose, terrain, max_range_m=max_range_m)
+    e = np.asarray(east_m, dtype=np.float64).reshape(-1)
+    nn = np.asarray(north_m, dtype=np.float64).reshape(-1)
+    jump = np.hypot(pe - np.tile(e, 2), pn - np.tile(nn, 2)).reshape(2, n)
+    both = ok.reshape(2, n).all(axis=0) & np.isfinite(e) & np.isfinite(nn)
+    side = np.argmax(np.where(both, jump, 0.0), axis=0)  # 0: the probe above, 1: below
+    big = np.take_along_axis(jump, side[None], axis=0)[0]
+    small = np.take_along_axis(jump, 1 - side[None], axis=0)[0]
+    with np.errstate(invalid="ignore"):
+        edge = both & (big >= min_jump_m) & (big > ratio * small)
+    rows = side * n + np.arange(n)
+    return np.where(edge, pe[rows], np.nan), np.where(edge, pn[rows], np.nan)

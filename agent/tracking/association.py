@@ -18,7 +18,7 @@ from agent.tracking.model import FloatArray, kalman_update, mahalanobis2_and_log
 from agent.tracking.state import FrameDetections, TrackState
 
 __all__ = ["associate_ground", "associate_image", "associate_iou", "duplicate_mask", "expected_boxes", "fresh_in_image",
-           "frame_detections", "ground_duplicates", "image_cost", "mark_hit"]
+           "frame_detections", "ground_duplicates", "image_cost", "mark_hit", "resolve_alternatives"]
 
 
 def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetections:
@@ -43,7 +43,8 @@ def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetecti
         used=duplicate_mask(boxes, scores, class_ids, config.duplicate_iou, config.duplicate_ioa),
         z=np.full((n, 2), np.nan), R=np.zeros((n, 2, 2)), geo=np.zeros(n, dtype=bool),
         emb=unit_rows(result.embeddings, n) if config.use_appearance and result.embeddings is not None else None,
-        view_h=None if result.view_height_m is None else np.asarray(result.view_height_m, np.float64).reshape(-1))
+        view_h=None if result.view_height_m is None else np.asarray(result.view_height_m, np.float64).reshape(-1),
+        alt_latlon=None if result.alt_latlon is None else np.asarray(result.alt_latlon, np.float64).reshape(n, 2))
 
 
 def duplicate_mask(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,
@@ -107,6 +108,28 @@ def ground_duplicates(z: FloatArray, R: FloatArray, raw: FloatArray, class_ids: 
     d2, _ = mahalanobis2_and_logdet(z[i] - z[j], R[i] + R[j])
     out[i[d2 <= chi2]] = True
     return out
+
+
+def resolve_alternatives(state: TrackState, dets: FrameDetections, max_m: float) -> NDArray[np.bool_]:
+    """Detections with a second ground point past a terrain edge (dets.alt) take it as their point where it lies
+    nearer an active track of their class than the first one does (within max_m metres; swapped in place, the
+    first point becoming the alternative), so that every stage sees the side the tracker follows. A box at a
+    bank's lip lands on either level from frame to frame. Returns (N,) bool: the swapped rows."""
+    swap = np.zeros(len(dets.z), dtype=bool)
+    act = state.active
+    if dets.alt is None or not len(act):
+        return swap
+    di = np.flatnonzero(np.isfinite(dets.alt[:, 0]) & dets.geo)
+    if not len(di):
+        return swap
+    best = np.full((2, len(di)), np.inf)  # nearest track of the class: first point, alternative
+    for k, points in enumerate((dets.z[di], dets.z[di] + dets.alt[di])):
+        ti, dj = near_pairs(act["x"][:, :2], np.full(len(act), max_m), points, np.zeros(len(di)))
+        same = act["cls"][ti] == dets.cls[di[dj]]
+        np.minimum.at(best[k], dj[same], np.hypot(*(points[dj[same]] - act["x"][ti[same], :2]).T))
+    swap[di[best[1] < best[0]]] = True
+    dets.z[swap], dets.alt[swap] = dets.z[swap] + dets.alt[swap], -dets.alt[swap]
+    return swap
 
 
 def associate_ground(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_], t: float,

@@ -76,7 +76,9 @@ class FrameDetections:
     degrees; used (N,): taken (or set aside) in this frame; z (N, 2) local ground points, metres, with
     covariances R (N, 2, 2); geo (N,): has a ground point; emb (N, D) unit descriptors or None; view_h (N,)
     over a terrain: the flat-ground height with each ground point's along-ray error (FrameResult.view_height_m;
-    NaN: the pose's), None over flat ground.
+    NaN: the pose's), None over flat ground; alt_latlon (N, 2) a second ground point where the box's ray passes an
+    edge of the terrain (FrameResult.alt_latlon) and alt (N, 2) the step from z to it, metres (NaN rows: none),
+    None without.
     """
 
     boxes: FloatArray
@@ -93,6 +95,8 @@ class FrameDetections:
     geo: NDArray[np.bool_]
     emb: FloatArray | None = None  # (n, D) unit appearance descriptors, NaN rows: none
     view_h: FloatArray | None = None  # (n,) over a terrain: the flat-ground height of each point's error model
+    alt_latlon: FloatArray | None = None  # (n, 2) a second ground point (lat, lon) past a terrain edge
+    alt: FloatArray | None = None  # (n, 2) z's step to it, metres (set with z)
 
 
 @dataclass

@@ -23,6 +23,7 @@ from agent.tracking.association import (
     frame_detections,
     fresh_in_image,
     ground_duplicates,
+    resolve_alternatives,
 )
 from agent.tracking.config import TrackerConfig
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, reanchor, retire
@@ -324,7 +325,11 @@ class GpsTracker:
         anchored: tuple[float, float, float, float] | None = None
         carried = False
         if geo.any():
-            e, n = latlon_to_local(dets.lat[geo], dets.lon[geo], *state.origin)
+            k = int(geo.sum())  # the alternatives past a terrain edge (NaN: none) go along as k more rows
+            lat, lon = dets.lat[geo], dets.lon[geo]
+            if dets.alt_latlon is not None:
+                lat, lon = np.r_[lat, dets.alt_latlon[geo, 0]], np.r_[lon, dets.alt_latlon[geo, 1]]
+            e, n = latlon_to_local(lat, lon, *state.origin)
             if undo_en is not None:  # back to the telemetry's own ground points (use_pipeline_correction off)
                 e, n = e - undo_en[0], n - undo_en[1]
             uav_e, uav_n = (float(v) for v in latlon_to_local(pose.lat, pose.lon, *state.origin))
@@ -334,7 +339,13 @@ class GpsTracker:
             if delta:
                 c, s = math.cos(delta), math.sin(delta)
                 rel_e, rel_n = rel_e * c + rel_n * s, -rel_e * s + rel_n * c
+            if len(rel_e) > k:
+                dets.alt = np.full((len(geo), 2), np.nan)
+                dets.alt[geo] = np.column_stack([rel_e[k:] - rel_e[:k], rel_n[k:] - rel_n[:k]])
+                rel_e, rel_n = rel_e[:k], rel_n[:k]
             dets.z[geo, 0], dets.z[geo, 1] = rel_e + uav_e, rel_n + uav_n
+            if dets.alt is not None and resolve_alternatives(state, dets, cfg.max_gate_m).any():
+                rel_e, rel_n = dets.z[geo, 0] - uav_e, dets.z[geo, 1] - uav_n
             self.last_offset_en = None
             self.last_correction = None
             state.image_steady = False

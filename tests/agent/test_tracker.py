@@ -734,3 +734,29 @@ def test_over_a_terrain_the_in_view_test_projects_the_tracks_terrain_point():
         assert any(tr.confirmed for tr in out)
         reported[label] = len(tracker.report(out))
     assert reported == {"terrain": 0, "flat": 1}
+
+
+def test_a_person_at_a_banks_lip_keeps_one_id_when_the_alternative_ground_point_is_given():
+    # the box's ray meets the upper level at the lip in some frames and passes over it to the lower level 9 m
+    # farther in others (FrameResult.alt_latlon: the other side); four people stand still elsewhere (their points
+    # steady: no telemetry error explains the jump). Without the alternative two tracks take turns
+    pose = pose_at()
+    rng = np.random.default_rng(3)
+    near, far = local_to_latlon(0.0, 40.0, LAT0, LON0), local_to_latlon(0.0, 49.0, LAT0, LON0)
+    base = observe([0.0, -15.0, 12.0, 20.0, -8.0], [40.0, 30.0, 35.0, 25.0, 22.0], pose)
+    assert len(base) == 5
+    frames = []
+    for k in range(90):
+        here, other = (far, near) if rng.uniform() < 0.4 and k > 2 else (near, far)
+        alt = np.full((5, 2), np.nan)
+        alt[0] = other
+        frames.append(dataclasses.replace(base, lat=np.r_[here[0], base.lat[1:]], lon=np.r_[here[1], base.lon[1:]],
+                                          alt_latlon=alt))
+    ids = {}
+    for label, use_alt in (("alternative", True), ("without", False)):
+        tracker = GpsTracker(TrackerConfig(), CLASSES)
+        outs = run(tracker, [(f if use_alt else dataclasses.replace(f, alt_latlon=None), pose) for f in frames])
+        ids[label] = set().union(*(ids_near(o, 0.0, 40.0, 4.0) | ids_near(o, 0.0, 49.0, 4.0) for o in outs))
+        if use_alt:  # the one track stays with the side it started on
+            assert ids_near(outs[-1], 0.0, 40.0, 1.0) == ids[label]
+    assert len(ids["alternative"]) == 1 and len(ids["without"]) >= 2
