@@ -29,7 +29,7 @@ class FrameResult:
     height with the same along-ray error at each ground point (shared.terrain.effective_height_m; NaN: none),
     for error models written for flat ground; None over flat ground (the pose's height). alt_latlon (K, 2) over a
     terrain: a second ground point (lat, lon) where the box's ray passes an edge of the terrain near its anchor
-    (PipelineConfig.edge_probe; NaN rows: none), None without.
+    (PipelineConfig.edge_probe; NaN rows: none); None without a terrain or pose, or with edge_probe 0.
     """
 
     boxes_xyxy: NDArray[np.float32]

@@ -290,7 +290,8 @@ class PipelineConfig:
             raise ValueError(f"boost_mode must be one of {', '.join(BOOST_MODES)}, got {self.boost_mode!r}")
         if self.joint_mode not in JOINT_MODES:
             raise ValueError(f"joint_mode must be one of {', '.join(JOINT_MODES)}, got {self.joint_mode!r}")
-        if not (math.isfinite(self.edge_probe) and 0.0 <= self.edge_probe <= 1.0):
+        if isinstance(self.edge_probe, bool) or not isinstance(self.edge_probe, numbers.Real) \
+                or not (math.isfinite(self.edge_probe) and 0.0 <= self.edge_probe <= 1.0):
             raise ValueError(f"edge_probe must be in [0, 1] (a fraction of the box's height; 0: off), got "
                              f"{self.edge_probe!r}")
         if not (0.0 < self.nms_iou <= 1.0):

@@ -11,12 +11,13 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from shared.geo import Pose
+if TYPE_CHECKING:
+    from shared.geo import Pose
 
 log = logging.getLogger(__name__)
 

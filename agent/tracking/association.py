@@ -15,7 +15,7 @@ from agent.tracking.appearance import blend_descriptors, descriptor_distance, un
 from agent.tracking.assignment import gated_assignment, near_pairs, sparse_assignment
 from agent.tracking.config import TrackerConfig
 from agent.tracking.model import FloatArray, kalman_update, mahalanobis2_and_logdet, sigma_max
-from agent.tracking.state import FrameDetections, TrackState
+from agent.tracking.state import FrameDetections, Table, TrackState
 
 __all__ = ["associate_ground", "associate_image", "associate_iou", "duplicate_mask", "expected_boxes", "fresh_in_image",
            "frame_detections", "ground_duplicates", "image_cost", "mark_hit", "resolve_alternatives"]
@@ -32,9 +32,11 @@ def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetecti
     raw = np.asarray(result.raw_scores, dtype=np.float64).reshape(-1)
     class_ids = np.asarray(result.class_ids, dtype=np.int64).reshape(-1)
     n = len(scores)
-    if not (len(boxes) == len(raw) == len(class_ids) == n):
+    alt = None if result.alt_latlon is None else np.asarray(result.alt_latlon, dtype=np.float64)
+    if not (len(boxes) == len(raw) == len(class_ids) == n) or (alt is not None and alt.shape != (n, 2)):
         raise ValueError(f"FrameResult arrays differ in length: boxes {len(boxes)}, scores {n}, "
-                         f"raw_scores {len(raw)}, class_ids {len(class_ids)}")
+                         f"raw_scores {len(raw)}, class_ids {len(class_ids)}"
+                         + ("" if alt is None else f", alt_latlon {alt.shape} (want ({n}, 2))"))
     return FrameDetections(
         boxes=boxes, scores=scores, raw=raw, entry=raw if config.birth_on_raw else scores,
         score_cost=-config.score_weight * np.log(np.clip(raw, 1e-3, None)), cls=class_ids,
@@ -44,7 +46,7 @@ def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetecti
         z=np.full((n, 2), np.nan), R=np.zeros((n, 2, 2)), geo=np.zeros(n, dtype=bool),
         emb=unit_rows(result.embeddings, n) if config.use_appearance and result.embeddings is not None else None,
         view_h=None if result.view_height_m is None else np.asarray(result.view_height_m, np.float64).reshape(-1),
-        alt_latlon=None if result.alt_latlon is None else np.asarray(result.alt_latlon, np.float64).reshape(n, 2))
+        alt_latlon=alt)
 
 
 def duplicate_mask(boxes_xyxy: NDArray, scores: NDArray, class_ids: NDArray, iou: float,
@@ -112,24 +114,47 @@ def ground_duplicates(z: FloatArray, R: FloatArray, raw: FloatArray, class_ids: 
 
 def resolve_alternatives(state: TrackState, dets: FrameDetections, max_m: float) -> NDArray[np.bool_]:
     """Detections with a second ground point past a terrain edge (dets.alt) take it as their point where it lies
-    nearer an active track of their class than the first one does (within max_m metres; swapped in place, the
-    first point becoming the alternative), so that every stage sees the side the tracker follows. A box at a
-    bank's lip lands on either level from frame to frame. Returns (N,) bool: the swapped rows."""
+    nearer an active track of their class than the first one does (within max_m metres) and no detection whose box
+    does not overlap this one has its first point nearer that track (another object's track, with its own
+    detection, is no magnet; a duplicate box of the same object is no blocker). Swapped in place, the first point
+    becoming the alternative, so that every stage sees the side the tracker follows: a box at a bank's lip lands on
+    either level from frame to frame. The error model keeps the first point's effective height (dets.view_h).
+    Returns (N,) bool: the swapped rows."""
     swap = np.zeros(len(dets.z), dtype=bool)
     act = state.active
     if dets.alt is None or not len(act):
         return swap
-    di = np.flatnonzero(np.isfinite(dets.alt[:, 0]) & dets.geo)
+    geo = np.flatnonzero(dets.geo)
+    di = geo[np.isfinite(dets.alt[geo, 0])]
     if not len(di):
         return swap
-    best = np.full((2, len(di)), np.inf)  # nearest track of the class: first point, alternative
-    for k, points in enumerate((dets.z[di], dets.z[di] + dets.alt[di])):
-        ti, dj = near_pairs(act["x"][:, :2], np.full(len(act), max_m), points, np.zeros(len(di)))
-        same = act["cls"][ti] == dets.cls[di[dj]]
-        np.minimum.at(best[k], dj[same], np.hypot(*(points[dj[same]] - act["x"][ti[same], :2]).T))
-    swap[di[best[1] < best[0]]] = True
+    first = _nearest_tracks(act, dets.z[di], dets.cls[di], max_m)[0]
+    alt_d, alt_track = _nearest_tracks(act, dets.z[di] + dets.alt[di], dets.cls[di], max_m)
+    for k in np.flatnonzero((alt_track >= 0) & (alt_d < first)):
+        j, t = di[k], alt_track[k]
+        # a detection of another object (no overlap in the image) nearer the track: the track is that object's
+        near = geo[(dets.cls[geo] == dets.cls[j]) & (np.hypot(*(dets.z[geo] - act["x"][t, :2]).T) < alt_d[k])]
+        near = near[near != j]
+        swap[j] = not len(near) or bool((box_iou(dets.boxes[j][None], dets.boxes[near])[0] > 0).all())
     dets.z[swap], dets.alt[swap] = dets.z[swap] + dets.alt[swap], -dets.alt[swap]
     return swap
+
+
+def _nearest_tracks(act: Table, points: FloatArray, cls: NDArray, max_m: float
+                    ) -> tuple[FloatArray, NDArray[np.int64]]:
+    """Within max_m metres and of the points' class: each point's distance to its nearest active track (inf: none)
+    and that track's row (-1: none)."""
+    ti, pj = near_pairs(act["x"][:, :2], np.full(len(act), max_m), points, np.zeros(len(points)))
+    same = act["cls"][ti] == cls[pj]
+    ti, pj = ti[same], pj[same]
+    d = np.hypot(points[pj, 0] - act["x"][ti, 0], points[pj, 1] - act["x"][ti, 1])
+    per_point = np.full(len(points), np.inf)
+    np.minimum.at(per_point, pj, d)
+    track = np.full(len(points), -1, dtype=np.int64)
+    order = np.lexsort((d, pj))  # by point, nearest first
+    first = order[np.r_[True, pj[order][1:] != pj[order][:-1]]] if len(order) else order
+    track[pj[first]] = ti[first]
+    return per_point, track
 
 
 def associate_ground(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_], t: float,

@@ -68,7 +68,7 @@ def test_without_a_terrain_or_with_the_probe_off_there_are_none_and_a_flat_dem_h
     assert flat.alt_latlon is not None and np.isnan(flat.alt_latlon).all()
 
 
-@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), float("inf")])
+@pytest.mark.parametrize("bad", [-0.1, 1.5, float("nan"), float("inf"), True, "0.3", None])
 def test_a_bad_edge_probe_is_named(bad):
     with pytest.raises(ValueError, match="edge_probe"):
         PipelineConfig(edge_probe=bad)

@@ -760,3 +760,22 @@ def test_a_person_at_a_banks_lip_keeps_one_id_when_the_alternative_ground_point_
         if use_alt:  # the one track stays with the side it started on
             assert ids_near(outs[-1], 0.0, 40.0, 1.0) == ids[label]
     assert len(ids["alternative"]) == 1 and len(ids["without"]) >= 2
+
+
+@pytest.mark.parametrize("other_north_m", [52.0, 55.0, 60.0])
+def test_another_persons_track_beyond_the_lip_does_not_pull_a_newcomer_across(other_north_m):
+    # one person followed alone beyond the bank; then a second appears at its lip, its point at 40 m in every frame
+    # and its alternative 9 m farther, 3-11 m from the first person's track (which has its own detection): the
+    # newcomer's track is born and stays at the lip
+    pose = pose_at()
+    far = local_to_latlon(0.0, 49.0, LAT0, LON0)
+    both = observe([0.0, 0.0], [40.0, other_north_m], pose)
+    assert len(both) == 2
+    alt = np.full((2, 2), np.nan)
+    alt[int(np.argmin(np.abs(both.lat - local_to_latlon(0.0, 40.0, LAT0, LON0)[0])))] = far
+    frames = [(observe([0.0], [other_north_m], pose), pose)] * 30 + [(dataclasses.replace(both, alt_latlon=alt),
+                                                                     pose)] * 60
+    outs = run(GpsTracker(TrackerConfig(), CLASSES), frames)
+    at_lip, other = ids_near(outs[-1], 0.0, 40.0, 1.0), ids_near(outs[-1], 0.0, other_north_m, 1.0)
+    assert len(at_lip) == 1 and len(other) == 1 and at_lip != other
+    assert not ids_near(outs[-1], 0.0, 49.0, 2.0)
