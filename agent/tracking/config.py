@@ -161,6 +161,11 @@ class TrackerConfig:
     merge_keep_idle : bool
         A frame where neither of two such tracks took a detection (the detector missed the object) keeps
         the time they have been found taking turns instead of starting it again.
+    merge_velocity_chi2 : float
+        Two such tracks whose velocities differ by more than this squared Mahalanobis distance (their
+        velocity covariances) move apart: two objects passing each other, not one followed twice (two
+        tracks on one object share its detections, and a young duplicate's velocity is still uncertain).
+        0: off (position alone, as before 29 Nov 2026).
 
     Re-identification
     -----------------
@@ -384,6 +389,7 @@ class TrackerConfig:
     merge_max_m: float = 10.0
     merge_after_s: float = 0.5
     merge_keep_idle: bool = True
+    merge_velocity_chi2: float = 9.21
     reid_horizon_s: float = 30.0
     reid_gate_chi2: float = 9.21
     reid_delay_s: float = 0.0

@@ -147,6 +147,11 @@ def merge_duplicates(state: TrackState, t: float) -> None:
             S = act["P"][i, :2, :2] + act["P"][j, :2, :2] + 0.5 * (act["R_last"][i] + act["R_last"][j])
             d2, _ = mahalanobis2_and_logdet(diff, S)
             close = d2 <= cfg.merge_chi2
+            if cfg.merge_velocity_chi2 > 0 and close.any():
+                # two objects passing each other (walkers crossing) move apart: their velocities differ
+                dv2, _ = mahalanobis2_and_logdet(act["x"][i, 2:] - act["x"][j, 2:],
+                                                 act["P"][i, 2:, 2:] + act["P"][j, 2:, 2:])
+                close &= dv2 <= cfg.merge_velocity_chi2
             i, j = i[close], j[close]
             # the track with fewer hits (ties: the newer id) is the duplicate
             j_weaker = (act["hits"][j] < act["hits"][i]) | ((act["hits"][j] == act["hits"][i])
