@@ -4,12 +4,14 @@ named."""
 
 from __future__ import annotations
 
+import dataclasses
+
 import numpy as np
 import pytest
 
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
-from shared.geo import Camera, Pose, latlon_to_local, local_to_pixel
+from shared.geo import Camera, Pose, latlon_to_local, local_to_latlon, local_to_pixel
 from shared.terrain import ElevationGrid, Terrain
 
 LAT, LON = 48.0, 9.0
@@ -73,3 +75,34 @@ def test_a_bad_edge_probe_is_named(bad):
     with pytest.raises(ValueError, match="edge_probe"):
         PipelineConfig(edge_probe=bad)
 
+
+
+def test_the_alternatives_move_with_the_telemetry_correction_as_the_boxes_points_do():
+    # five people on the upper level and one at the lip, seen for a second; then the GPS steps 3 m east: the
+    # correction measures the step and moves every box's point back, and each alternative by the same amount
+    v = lip_v()
+    people_v = [v + 3.0, v + 150.0, v + 250.0, v + 350.0, v + 420.0]
+    us = [CAM.cx, CAM.cx - 300.0, CAM.cx + 250.0, CAM.cx - 120.0, CAM.cx + 400.0]
+    boxes = np.array([[u - 8, b - 40.0, u + 8, b] for u, b in zip(us, people_v, strict=True)], np.float32)
+    scores = np.full(len(boxes), 0.9, np.float32)
+    cids = np.ones(len(boxes), np.int64)
+    lat, lon = local_to_latlon(3.0, 0.0, LAT, LON)
+    stepped = dataclasses.replace(POSE, lat=float(lat), lon=float(lon))
+    out = {}
+    for correct in (True, False):
+        pipe = DetectionPipeline(CAM, CLASSES, PipelineConfig(use_size_filter=False, correct_telemetry=correct,
+                                                              anchor="bottom", terrain=BANK))
+        for k in range(30):
+            pipe.process(boxes, scores, cids, POSE, k / 30.0)
+        out[correct] = pipe.process(boxes, scores, cids, stepped, 1.0)
+    moved, raw = out[True], out[False]
+    assert moved.correction is not None and moved.correction.measured
+    assert abs(moved.correction.east_m + 3.0) < 1.0  # the step, measured back
+    # the rows in the same order (the boosted scores, and with them the order, differ)
+    order = [int(np.flatnonzero((raw.boxes_xyxy == b).all(axis=1))[0]) for b in moved.boxes_xyxy]
+    raw_ll, raw_alt = np.column_stack([raw.lat, raw.lon])[order], raw.alt_latlon[order]
+    lip = np.flatnonzero(np.isfinite(raw_alt[:, 0]))
+    assert len(lip) == 1 and np.isfinite(moved.alt_latlon[lip, 0]).all()
+    shift = np.column_stack([moved.lat, moved.lon]) - raw_ll
+    assert np.abs(shift[:, 1]).max() > 1e-5  # the points did move (3 m east ~ 4e-5 deg)
+    np.testing.assert_allclose(moved.alt_latlon[lip] - raw_alt[lip], shift[lip], atol=1e-12)
