@@ -829,3 +829,24 @@ def test_a_duplicate_track_on_one_person_is_still_merged():
         assert {tr.id for tr in outs[40] if tr.confirmed} == {1, 2}
         kept[label] = {tr.id for tr in outs[-1] if tr.confirmed}
     assert kept == {"default": {1}, "no merging": {1, 2}}
+
+
+def test_a_duplicate_track_on_a_walker_is_merged_too():
+    # the velocity check's premise: a young duplicate's velocity is uncertain. A walker at 1.2 m/s with a second box
+    # 1 m beside it for 10 frames (a second track born, standing still at first), then the two tracks taking turns on
+    # its one box: the duplicate's velocity is still far less certain than the gap to the walker's, so it is merged
+    pose = pose_at()
+    frames = []
+    for k in range(100):
+        e = -6.0 + 1.2 * k / FPS
+        if 30 <= k < 40:
+            frames.append((observe([e, e], [25.0, 26.0], pose), pose))
+        else:
+            frames.append((observe([e], [25.0 + (k % 2 if k >= 40 else 0)], pose), pose))
+    kept = {}
+    for label, config in (("default", TrackerConfig()), ("no merging", TrackerConfig(merge_max_m=0.01))):
+        outs = run(GpsTracker(config, CLASSES), frames)
+        assert {tr.id for tr in outs[40] if tr.confirmed} == {1, 2}
+        kept[label] = {tr.id for tr in outs[-1] if tr.confirmed}
+    assert kept == {"default": {1}, "no merging": {1, 2}}
+
