@@ -815,6 +815,17 @@ def test_a_walker_passing_a_standing_person_keeps_both_ids():
     assert stand1 != stand0 or walk1 != walk0
 
 
+def _confirmed_at_the_end_with_and_without_merging(frames) -> dict[str, set[int]]:
+    """The confirmed ids after the frames, with the default tracker and with merging off (merge_max_m tiny); both
+    runs must have two confirmed tracks after the 40th frame (a duplicate was born)."""
+    kept = {}
+    for label, config in (("default", TrackerConfig()), ("no merging", TrackerConfig(merge_max_m=0.01))):
+        outs = run(GpsTracker(config, CLASSES), frames)
+        assert {tr.id for tr in outs[40] if tr.confirmed} == {1, 2}
+        kept[label] = {tr.id for tr in outs[-1] if tr.confirmed}
+    return kept
+
+
 def test_a_duplicate_track_on_one_person_is_still_merged():
     # a second track born on one standing person (a second box 1 m beside it for 10 frames), then the two tracks
     # taking turns on its one box, which jumps between the two places: both still, so the newer track is merged
@@ -823,12 +834,7 @@ def test_a_duplicate_track_on_one_person_is_still_merged():
     turns = [(observe([1.0 * (k % 2)], [25.0], pose), pose) for k in range(60)]
     frames = [(observe([0.0], [25.0], pose), pose)] * 30 + [(observe([0.0, 1.0], [25.0, 25.0], pose), pose)] * 10
     frames += turns
-    kept = {}
-    for label, config in (("default", TrackerConfig()), ("no merging", TrackerConfig(merge_max_m=0.01))):
-        outs = run(GpsTracker(config, CLASSES), frames)
-        assert {tr.id for tr in outs[40] if tr.confirmed} == {1, 2}
-        kept[label] = {tr.id for tr in outs[-1] if tr.confirmed}
-    assert kept == {"default": {1}, "no merging": {1, 2}}
+    assert _confirmed_at_the_end_with_and_without_merging(frames) == {"default": {1}, "no merging": {1, 2}}
 
 
 def test_a_duplicate_track_on_a_walker_is_merged_too():
@@ -843,10 +849,4 @@ def test_a_duplicate_track_on_a_walker_is_merged_too():
             frames.append((observe([e, e], [25.0, 26.0], pose), pose))
         else:
             frames.append((observe([e], [25.0 + (k % 2 if k >= 40 else 0)], pose), pose))
-    kept = {}
-    for label, config in (("default", TrackerConfig()), ("no merging", TrackerConfig(merge_max_m=0.01))):
-        outs = run(GpsTracker(config, CLASSES), frames)
-        assert {tr.id for tr in outs[40] if tr.confirmed} == {1, 2}
-        kept[label] = {tr.id for tr in outs[-1] if tr.confirmed}
-    assert kept == {"default": {1}, "no merging": {1, 2}}
-
+    assert _confirmed_at_the_end_with_and_without_merging(frames) == {"default": {1}, "no merging": {1, 2}}
