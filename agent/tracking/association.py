@@ -114,10 +114,11 @@ def ground_duplicates(z: FloatArray, R: FloatArray, raw: FloatArray, class_ids: 
 
 def resolve_alternatives(state: TrackState, dets: FrameDetections, max_m: float) -> NDArray[np.bool_]:
     """Detections with a second ground point past a terrain edge (dets.alt) take it as their point where it lies
-    nearer an active track of their class than the first one does (within max_m metres) and no detection whose box
-    does not overlap this one has its first point nearer that track (another object's track, with its own
-    detection, is no magnet; a duplicate box of the same object is no blocker). Swapped in place, the first point
-    becoming the alternative, so that every stage sees the side the tracker follows: a box at a bank's lip lands on
+    nearer an active track of their class than the first one does (within max_m metres), within that track's gate
+    (gate_chi2 under its covariance and its last measurement's) and no detection whose box does not overlap this
+    one has its first point nearer that track (another object's track is no magnet, whether its own detection is
+    there or missed; a duplicate box of the same object is no blocker). Swapped in place (dets.alt then steps back
+    to the first point), so that every stage sees the side the tracker follows: a box at a bank's lip lands on
     either level from frame to frame. The error model keeps the first point's effective height (dets.view_h).
     Returns (N,) bool: the swapped rows."""
     swap = np.zeros(len(dets.z), dtype=bool)
@@ -130,7 +131,13 @@ def resolve_alternatives(state: TrackState, dets: FrameDetections, max_m: float)
         return swap
     first = _nearest_tracks(act, dets.z[di], dets.cls[di], max_m)[0]
     alt_d, alt_track = _nearest_tracks(act, dets.z[di] + dets.alt[di], dets.cls[di], max_m)
-    for k in np.flatnonzero((alt_track >= 0) & (alt_d < first)):
+    cand = np.flatnonzero((alt_track >= 0) & (alt_d < first))
+    if len(cand):  # within the nearer track's gate (its covariance and its last measurement's): no far magnet
+        t = alt_track[cand]
+        d2, _ = mahalanobis2_and_logdet(dets.z[di[cand]] + dets.alt[di[cand]] - act["x"][t, :2],
+                                        act["P"][t, :2, :2] + act["R_last"][t])
+        cand = cand[d2 <= state.config.gate_chi2]
+    for k in cand:
         j, t = di[k], alt_track[k]
         # a detection of another object (no overlap in the image) nearer the track: the track is that object's
         near = geo[(dets.cls[geo] == dets.cls[j]) & (np.hypot(*(dets.z[geo] - act["x"][t, :2]).T) < alt_d[k])]
@@ -149,11 +156,10 @@ def _nearest_tracks(act: Table, points: FloatArray, cls: NDArray, max_m: float
     ti, pj = ti[same], pj[same]
     d = np.hypot(points[pj, 0] - act["x"][ti, 0], points[pj, 1] - act["x"][ti, 1])
     per_point = np.full(len(points), np.inf)
-    np.minimum.at(per_point, pj, d)
     track = np.full(len(points), -1, dtype=np.int64)
     order = np.lexsort((d, pj))  # by point, nearest first
     first = order[np.r_[True, pj[order][1:] != pj[order][:-1]]] if len(order) else order
-    track[pj[first]] = ti[first]
+    per_point[pj[first]], track[pj[first]] = d[first], ti[first]
     return per_point, track
 
 

@@ -163,7 +163,7 @@ class TrackerConfig:
         the time they have been found taking turns instead of starting it again.
     merge_velocity_chi2 : float
         Two such tracks whose velocities differ by more than this squared Mahalanobis distance (their
-        velocity covariances) move apart: two objects passing each other, not one followed twice (two
+        velocity covariances) are not merged: two objects passing each other, not one followed twice (two
         tracks on one object share its detections, and a young duplicate's velocity is still uncertain).
         0: off (position alone, as before 29 Nov 2026).
 

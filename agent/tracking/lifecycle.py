@@ -121,7 +121,8 @@ def in_image(state: TrackState, en: NDArray, pose: Pose, camera: Camera, terrain
 
 def merge_duplicates(state: TrackState, t: float) -> None:
     """Two confirmed tracks on one object (they share its detections, taking turns): after
-    `merge_after_s` of being within `merge_chi2` of a track with more hits, a track is dropped."""
+    `merge_after_s` of being within `merge_chi2` of a track with more hits, its velocity within
+    `merge_velocity_chi2` of that track's, a track is dropped."""
     cfg = state.config
     act = state.active
     conf = np.flatnonzero(act["confirmed"])

@@ -96,7 +96,7 @@ class FrameDetections:
     emb: FloatArray | None = None  # (n, D) unit appearance descriptors, NaN rows: none
     view_h: FloatArray | None = None  # (n,) over a terrain: the flat-ground height of each point's error model
     alt_latlon: FloatArray | None = None  # (n, 2) a second ground point (lat, lon) past a terrain edge
-    alt: FloatArray | None = None  # (n, 2) z's step to it, metres (set with z)
+    alt: FloatArray | None = None  # (n, 2) z's step to the other point, metres (set with z; swapped with it)
 
 
 @dataclass

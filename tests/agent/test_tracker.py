@@ -762,19 +762,25 @@ def test_a_person_at_a_banks_lip_keeps_one_id_when_the_alternative_ground_point_
     assert len(ids["alternative"]) == 1 and len(ids["without"]) >= 2
 
 
-@pytest.mark.parametrize("other_north_m", [52.0, 55.0, 60.0])
-def test_another_persons_track_beyond_the_lip_does_not_pull_a_newcomer_across(other_north_m):
+@pytest.mark.parametrize("missed_first", [False, True], ids=["seen", "missed in the newcomer's first frame"])
+@pytest.mark.parametrize("other_north_m", [52.0, 55.0, 58.0, 60.0])
+def test_another_persons_track_beyond_the_lip_does_not_pull_a_newcomer_across(other_north_m, missed_first):
     # one person followed alone beyond the bank; then a second appears at its lip, its point at 40 m in every frame
-    # and its alternative 9 m farther, 3-11 m from the first person's track (which has its own detection): the
-    # newcomer's track is born and stays at the lip
+    # and its alternative 9 m farther, 1-11 m from the first person's track (whose own detection is there, or missed
+    # in the newcomer's first frame): the newcomer's track is born and stays at the lip
     pose = pose_at()
-    far = local_to_latlon(0.0, 49.0, LAT0, LON0)
+    far, near = local_to_latlon(0.0, 49.0, LAT0, LON0), local_to_latlon(0.0, 40.0, LAT0, LON0)
     both = observe([0.0, 0.0], [40.0, other_north_m], pose)
     assert len(both) == 2
     alt = np.full((2, 2), np.nan)
-    alt[int(np.argmin(np.abs(both.lat - local_to_latlon(0.0, 40.0, LAT0, LON0)[0])))] = far
-    frames = [(observe([0.0], [other_north_m], pose), pose)] * 30 + [(dataclasses.replace(both, alt_latlon=alt),
-                                                                     pose)] * 60
+    at = int(np.argmin(np.abs(both.lat - near[0])))
+    alt[at] = far
+    with_alt = dataclasses.replace(both, alt_latlon=alt)
+    first = with_alt
+    if missed_first:
+        one = observe([0.0], [40.0], pose)
+        first = dataclasses.replace(one, alt_latlon=np.array([[far[0], far[1]]]))
+    frames = [(observe([0.0], [other_north_m], pose), pose)] * 30 + [(first, pose)] + [(with_alt, pose)] * 60
     outs = run(GpsTracker(TrackerConfig(), CLASSES), frames)
     at_lip, other = ids_near(outs[-1], 0.0, 40.0, 1.0), ids_near(outs[-1], 0.0, other_north_m, 1.0)
     assert len(at_lip) == 1 and len(other) == 1 and at_lip != other
@@ -850,3 +856,6 @@ def test_a_duplicate_track_on_a_walker_is_merged_too():
         else:
             frames.append((observe([e], [25.0 + (k % 2 if k >= 40 else 0)], pose), pose))
     assert _confirmed_at_the_end_with_and_without_merging(frames) == {"default": {1}, "no merging": {1, 2}}
+    # the velocity check ran on the pair and let it merge: with a near-zero threshold the duplicate stays
+    outs = run(GpsTracker(TrackerConfig(merge_velocity_chi2=1e-6), CLASSES), frames)
+    assert {tr.id for tr in outs[-1] if tr.confirmed} == {1, 2}
