@@ -129,8 +129,9 @@ def resolve_alternatives(state: TrackState, dets: FrameDetections, max_m: float)
     di = geo[np.isfinite(dets.alt[geo, 0])]
     if not len(di):
         return swap
-    first = _nearest_tracks(act, dets.z[di], dets.cls[di], max_m)[0]
+    first, first_track = _nearest_tracks(act, dets.z[di], dets.cls[di], max_m)
     alt_d, alt_track = _nearest_tracks(act, dets.z[di] + dets.alt[di], dets.cls[di], max_m)
+    _note_edge_twins(state, dets.z[di], dets.z[di] + dets.alt[di], first_track, alt_track)
     cand = np.flatnonzero((alt_track >= 0) & (alt_d < first))
     if len(cand):  # within the nearer track's gate (its covariance and its last measurement's): no far magnet
         t = alt_track[cand]
@@ -145,6 +146,24 @@ def resolve_alternatives(state: TrackState, dets: FrameDetections, max_m: float)
         swap[j] = not len(near) or bool((box_iou(dets.boxes[j][None], dets.boxes[near])[0] > 0).all())
     dets.z[swap], dets.alt[swap] = dets.z[swap] + dets.alt[swap], -dets.alt[swap]
     return swap
+
+
+def _note_edge_twins(state: TrackState, first: FloatArray, alt: FloatArray, first_track: NDArray[np.int64],
+                     alt_track: NDArray[np.int64]) -> None:
+    """The pairs of track ids with a detection whose first point lies in one track's gate and whose alternative in
+    the other's (state.edge_twins_now, this frame's; lifecycle.merge_duplicates counts them): one box explains both
+    tracks, one person on two sides of an edge."""
+    act = state.active
+    both = np.flatnonzero((first_track >= 0) & (alt_track >= 0) & (first_track != alt_track))
+    if not len(both):
+        return
+    a, b = first_track[both], alt_track[both]
+    gate = state.config.gate_chi2
+    da, _ = mahalanobis2_and_logdet(first[both] - act["x"][a, :2], act["P"][a, :2, :2] + act["R_last"][a])
+    db, _ = mahalanobis2_and_logdet(alt[both] - act["x"][b, :2], act["P"][b, :2, :2] + act["R_last"][b])
+    inside = (da <= gate) & (db <= gate)
+    for ia, ib in zip(act["id"][a[inside]].tolist(), act["id"][b[inside]].tolist(), strict=True):
+        state.edge_twins_now.add((min(ia, ib), max(ia, ib)))
 
 
 def _nearest_tracks(act: Table, points: FloatArray, cls: NDArray, max_m: float

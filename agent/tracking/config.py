@@ -166,6 +166,11 @@ class TrackerConfig:
         velocity covariances) are not merged: two objects passing each other, not one followed twice (two
         tracks on one object share its detections, and a young duplicate's velocity is still uncertain).
         0: off (position alone, as before 29 Nov 2026).
+    merge_edge_twins : int
+        Two confirmed tracks of a class are one object, whatever their distance, once detections in this many
+        frames had their first ground point in one's gate and their alternative past a terrain edge
+        (FrameResult.alt_latlon) in the other's, and in none of those frames both tracks took a detection (two
+        objects); the one with fewer hits is dropped (0: off).
 
     Re-identification
     -----------------
@@ -390,6 +395,7 @@ class TrackerConfig:
     merge_after_s: float = 0.5
     merge_keep_idle: bool = True
     merge_velocity_chi2: float = 9.21
+    merge_edge_twins: int = 3
     reid_horizon_s: float = 30.0
     reid_gate_chi2: float = 9.21
     reid_delay_s: float = 0.0
@@ -458,7 +464,7 @@ class TrackerConfig:
                           "image_register", "image_register_min_pairs", "image_velocity", "image_register_alone",
                           "report_level_top_k", "exit_expected",
                           "carry_correction", "use_pipeline_correction",
-                          "merge_keep_idle",
+                          "merge_keep_idle", "merge_edge_twins",
                           "class_motion", "default_motion",
                           "pair_max_cost", "exit_margin_px", "image_overlap"):
                 continue
@@ -476,6 +482,10 @@ class TrackerConfig:
         if not isinstance(self.exit_margin_px, (int, float)) or not math.isfinite(self.exit_margin_px):
             raise ValueError(f"TrackerConfig.exit_margin_px must be a finite number (< 0: off), "
                              f"got {self.exit_margin_px!r}")
+        if isinstance(self.merge_edge_twins, bool) or not isinstance(self.merge_edge_twins, int) \
+                or self.merge_edge_twins < 0:
+            raise ValueError(f"TrackerConfig.merge_edge_twins must be an int >= 0 (0: off), "
+                             f"got {self.merge_edge_twins!r}")
         if self.image_overlap not in IMAGE_OVERLAPS:
             raise ValueError(f"TrackerConfig.image_overlap must be one of {IMAGE_OVERLAPS}, got {self.image_overlap!r}")
         for name in ("jump_agree_min", "jump_motion_min"):

@@ -123,6 +123,8 @@ def merge_duplicates(state: TrackState, t: float) -> None:
     """Two confirmed tracks on one object (they share its detections, taking turns): after
     `merge_after_s` of being within `merge_chi2` of a track with more hits, its velocity within
     `merge_velocity_chi2` of that track's, a track is dropped."""
+    if state.config.merge_edge_twins > 0 and (state.edge_twins or state.edge_twins_now):
+        _merge_edge_twins(state)
     cfg = state.config
     act = state.active
     conf = np.flatnonzero(act["confirmed"])
@@ -167,6 +169,34 @@ def merge_duplicates(state: TrackState, t: float) -> None:
     if merged.any():
         log.debug("merged duplicate track(s) %s", act["id"][merged].tolist())
         act.keep(~merged)
+
+
+def _merge_edge_twins(state: TrackState) -> None:
+    """Two confirmed tracks of a class that detections placed one on each side of a terrain edge in merge_edge_twins
+    frames (TrackState.edge_twins), never both taking a detection in such a frame, follow one object: in the next
+    such frame the one with fewer hits (the newer on ties) is dropped. A frame where both took one marks two objects
+    for good. Pairs of tracks no longer active are forgotten."""
+    act = state.active
+    row = {int(i): k for k, i in enumerate(act["id"].tolist())}
+    for key in [k for k in state.edge_twins if k[0] not in row or k[1] not in row]:
+        del state.edge_twins[key]
+    drop = np.zeros(len(act), dtype=bool)
+    for ia, ib in sorted(state.edge_twins_now):
+        a, b = row.get(ia), row.get(ib)
+        if a is None or b is None or drop[a] or drop[b] or state.edge_twins.get((ia, ib), 0) < 0:
+            continue
+        if act["matched"][a] and act["matched"][b]:
+            state.edge_twins[(ia, ib)] = -1
+            continue
+        n = state.edge_twins[(ia, ib)] = state.edge_twins.get((ia, ib), 0) + 1
+        if n >= state.config.merge_edge_twins and act["confirmed"][a] and act["confirmed"][b] \
+                and act["cls"][a] == act["cls"][b]:
+            drop[b if (act["hits"][b], -ib) < (act["hits"][a], -ia) else a] = True
+            del state.edge_twins[(ia, ib)]
+    state.edge_twins_now.clear()
+    if drop.any():
+        log.debug("merged edge twin track(s) %s", act["id"][drop].tolist())
+        act.keep(~drop)
 
 
 def retire(state: TrackState, t: float, camera: Camera | None = None) -> None:

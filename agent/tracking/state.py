@@ -123,6 +123,10 @@ class TrackState:
     n_return_shifts: int = 0
     #: this frame's image agreed with the tracks' expected boxes (the image registration found it)
     image_steady: bool = False
+    #: (id, id) -> frames with a detection whose two ground points past a terrain edge fell in the two tracks' gates
+    #: while not both took a detection (-1: both did once, two objects); this frame's pairs in edge_twins_now
+    edge_twins: dict[tuple[int, int], int] = field(default_factory=dict)
+    edge_twins_now: set[tuple[int, int]] = field(default_factory=set)
 
     def ensure_descriptor_columns(self, dim: int) -> None:
         """Descriptor columns ("emb", (dim,)) in the track tables, added at the first descriptor."""

@@ -859,3 +859,54 @@ def test_a_duplicate_track_on_a_walker_is_merged_too():
     # the velocity check ran on the pair and let it merge: with a near-zero threshold the duplicate stays
     outs = run(GpsTracker(TrackerConfig(merge_velocity_chi2=1e-6), CLASSES), frames)
     assert {tr.id for tr in outs[-1] if tr.confirmed} == {1, 2}
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2, 3])
+def test_two_tracks_of_one_person_at_a_lip_are_merged_by_the_boxes_that_place_them_on_both_sides(seed):
+    # as above, but one frame in ten carries no alternative (its probe did not reach the lip): a second track is born
+    # on the far side, and both are fed in turn, 9 m apart (the position test of a merge fails). The boxes whose two
+    # points fall in the two tracks' gates say they are one person: merged (merge_edge_twins), not without
+    pose = pose_at()
+    rng = np.random.default_rng(seed)
+    near, far = local_to_latlon(0.0, 40.0, LAT0, LON0), local_to_latlon(0.0, 49.0, LAT0, LON0)
+    base = observe([0.0, -15.0, 12.0, 20.0, -8.0], [40.0, 30.0, 35.0, 25.0, 22.0], pose)
+    frames = []
+    for k in range(150):
+        here, other = (far, near) if rng.uniform() < 0.4 and k > 2 else (near, far)
+        alt = np.full((5, 2), np.nan)
+        if rng.uniform() >= 0.1:
+            alt[0] = other
+        frames.append((dataclasses.replace(base, lat=np.r_[here[0], base.lat[1:]], lon=np.r_[here[1], base.lon[1:]],
+                                           alt_latlon=alt), pose))
+    ids = {}
+    for label, config in (("twins", TrackerConfig()), ("without", TrackerConfig(merge_edge_twins=0))):
+        outs = run(GpsTracker(config, CLASSES), frames)
+        ids[label] = {tr.id for tr in outs[-1] if tr.confirmed} - set().union(
+            *(ids_near(outs[-1], e, n, 2.0) for e, n in ((-15.0, 30.0), (12.0, 35.0), (20.0, 25.0), (-8.0, 22.0))))
+    assert len(ids["twins"]) == 1 and len(ids["without"]) == 2
+
+
+def test_a_person_standing_where_the_lips_alternative_lands_is_not_merged_with_the_one_at_the_lip():
+    # one person at the lip (its alternative 9 m farther) and another standing exactly there, detected in every frame
+    # but one in eight: the lip person's boxes fall in both tracks' gates, but two detections in one frame are two
+    # people, and that is remembered when the second is missed
+    pose = pose_at()
+    far = local_to_latlon(0.0, 49.0, LAT0, LON0)
+    both = observe([0.0, 0.0], [40.0, 49.0], pose)
+    assert len(both) == 2
+    lip = int(np.argmin(np.abs(both.lat - local_to_latlon(0.0, 40.0, LAT0, LON0)[0])))
+    alt = np.full((2, 2), np.nan)
+    alt[lip] = far
+    frame = dataclasses.replace(both, alt_latlon=alt)
+    alone = observe([0.0], [40.0], pose)
+    alone = dataclasses.replace(alone, alt_latlon=np.array([[far[0], far[1]]]))
+    outs = run(GpsTracker(TrackerConfig(), CLASSES), [(alone if k % 8 == 7 else frame, pose) for k in range(121)])
+    at_lip, beyond = ids_near(outs[-1], 0.0, 40.0, 1.0), ids_near(outs[-1], 0.0, 49.0, 1.0)
+    assert len(at_lip) == 1 and len(beyond) == 1 and at_lip != beyond
+
+
+@pytest.mark.parametrize("bad", [{"merge_edge_twins": -1}, {"merge_edge_twins": 2.5}, {"merge_edge_twins": True},
+                                 {"merge_velocity_chi2": -1.0}, {"merge_velocity_chi2": float("nan")}])
+def test_merge_settings_are_checked(bad) -> None:
+    with pytest.raises(ValueError, match=next(iter(bad))):
+        TrackerConfig(**bad)
