@@ -129,15 +129,12 @@ def resolve_alternatives(state: TrackState, dets: FrameDetections, max_m: float)
     di = geo[np.isfinite(dets.alt[geo, 0])]
     if not len(di):
         return swap
+    alt_pts = dets.z[di] + dets.alt[di]
     first, first_track = _nearest_tracks(act, dets.z[di], dets.cls[di], max_m)
-    alt_d, alt_track = _nearest_tracks(act, dets.z[di] + dets.alt[di], dets.cls[di], max_m)
-    _note_edge_twins(state, dets.z[di], dets.z[di] + dets.alt[di], first_track, alt_track)
+    alt_d, alt_track = _nearest_tracks(act, alt_pts, dets.cls[di], max_m)
+    _note_edge_twins(state, dets.z[di], alt_pts, first_track, alt_track)
     cand = np.flatnonzero((alt_track >= 0) & (alt_d < first))
-    if len(cand):  # within the nearer track's gate (its covariance and its last measurement's): no far magnet
-        t = alt_track[cand]
-        d2, _ = mahalanobis2_and_logdet(dets.z[di[cand]] + dets.alt[di[cand]] - act["x"][t, :2],
-                                        act["P"][t, :2, :2] + act["R_last"][t])
-        cand = cand[d2 <= state.config.gate_chi2]
+    cand = cand[_in_track_gate(state, alt_pts[cand], alt_track[cand])]  # no far magnet
     for k in cand:
         j, t = di[k], alt_track[k]
         # a detection of another object (no overlap in the image) nearer the track: the track is that object's
@@ -158,12 +155,19 @@ def _note_edge_twins(state: TrackState, first: FloatArray, alt: FloatArray, firs
     if not len(both):
         return
     a, b = first_track[both], alt_track[both]
-    gate = state.config.gate_chi2
-    da, _ = mahalanobis2_and_logdet(first[both] - act["x"][a, :2], act["P"][a, :2, :2] + act["R_last"][a])
-    db, _ = mahalanobis2_and_logdet(alt[both] - act["x"][b, :2], act["P"][b, :2, :2] + act["R_last"][b])
-    inside = (da <= gate) & (db <= gate)
+    inside = _in_track_gate(state, first[both], a) & _in_track_gate(state, alt[both], b)
     for ia, ib in zip(act["id"][a[inside]].tolist(), act["id"][b[inside]].tolist(), strict=True):
         state.edge_twins_now.add((min(ia, ib), max(ia, ib)))
+
+
+def _in_track_gate(state: TrackState, points: FloatArray, rows: NDArray[np.int64]) -> NDArray[np.bool_]:
+    """(K,) bool: points[k] lies within active track rows[k]'s gate (gate_chi2 under the track's covariance and its
+    last measurement's, as a detection of it would be judged)."""
+    act = state.active
+    if not len(rows):
+        return np.zeros(0, dtype=bool)
+    d2, _ = mahalanobis2_and_logdet(points - act["x"][rows, :2], act["P"][rows, :2, :2] + act["R_last"][rows])
+    return d2 <= state.config.gate_chi2
 
 
 def _nearest_tracks(act: Table, points: FloatArray, cls: NDArray, max_m: float

@@ -15,7 +15,7 @@ from agent.boxes import box_iou
 from agent.tracking.assignment import near_pairs
 from agent.tracking.association import expected_boxes
 from agent.tracking.model import mahalanobis2_and_logdet, sigma_max
-from agent.tracking.state import FrameDetections, TrackState
+from agent.tracking.state import FrameDetections, Table, TrackState
 from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_latlon, local_to_pixel
 
 __all__ = ["at_image_border", "birth", "decay_unseen_quality", "in_image", "merge_duplicates", "reanchor", "retire"]
@@ -156,10 +156,7 @@ def merge_duplicates(state: TrackState, t: float) -> None:
                                                  act["P"][i, 2:, 2:] + act["P"][j, 2:, 2:])
                 close &= dv2 <= cfg.merge_velocity_chi2
             i, j = i[close], j[close]
-            # the track with fewer hits (ties: the newer id) is the duplicate
-            j_weaker = (act["hits"][j] < act["hits"][i]) | ((act["hits"][j] == act["hits"][i])
-                                                             & (act["id"][j] > act["id"][i]))
-            shadowed[np.where(j_weaker, j, i)] = True
+            shadowed[_weaker(act, i, j)] = True
             if cfg.merge_keep_idle and len(i_idle):
                 idle[i_idle] = idle[j_idle] = True
     t_shadow = act.cols["t_shadow"]
@@ -169,6 +166,13 @@ def merge_duplicates(state: TrackState, t: float) -> None:
     if merged.any():
         log.debug("merged duplicate track(s) %s", act["id"][merged].tolist())
         act.keep(~merged)
+
+
+def _weaker(act: Table, i: NDArray[np.int64], j: NDArray[np.int64]) -> NDArray[np.int64]:
+    """Of each pair of active rows (i[k], j[k]) on one object, the duplicate to drop: the track with fewer hits
+    (ties: the newer id)."""
+    j_weaker = (act["hits"][j] < act["hits"][i]) | ((act["hits"][j] == act["hits"][i]) & (act["id"][j] > act["id"][i]))
+    return np.where(j_weaker, j, i)
 
 
 def _merge_edge_twins(state: TrackState) -> None:
@@ -191,7 +195,7 @@ def _merge_edge_twins(state: TrackState) -> None:
         n = state.edge_twins[(ia, ib)] = state.edge_twins.get((ia, ib), 0) + 1
         if n >= state.config.merge_edge_twins and act["confirmed"][a] and act["confirmed"][b] \
                 and act["cls"][a] == act["cls"][b]:
-            drop[b if (act["hits"][b], -ib) < (act["hits"][a], -ia) else a] = True
+            drop[_weaker(act, np.array([a]), np.array([b]))] = True
             del state.edge_twins[(ia, ib)]
     state.edge_twins_now.clear()
     if drop.any():
