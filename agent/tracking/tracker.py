@@ -26,6 +26,7 @@ from agent.tracking.association import (
     resolve_alternatives,
 )
 from agent.tracking.config import TrackerConfig
+from agent.tracking.gimbal_rates import GimbalRates
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, reanchor, retire
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
 from agent.tracking.registration import correction_jacobian, fit_pose_correction, image_pairs, track_offset
@@ -114,15 +115,7 @@ class GpsTracker:
         self._state = TrackState(config=config, motion=MotionModels(config, self.class_names),
                                  evidence_at=evidence_at, next_id=first_id)
         self._t: float | None = None
-        # Turn-rate estimate from pose changes (telemetry often arrives at a lower rate than frames).
-        self._pose_ref: Pose | None = None
-        self._t_pose_ref = 0.0
-        self._t_frame_ref = 0.0
-        self._pose_interval_s = 0.0
-        self._heading_rate_deg_s = 0.0
-        self._pitch_rate_deg_s = 0.0
-        self._heading_lp: float | None = None
-        self._heading_lp_rate_deg_s = 0.0  # turn rate of the low-pass heading (quiet under per-frame jitter)
+        self._rates = GimbalRates()  # turn rates from pose changes (telemetry often slower than the frames)
         #: The common offset (east, north) metres the last frame's ground points were moved by to meet the
         #: predicted tracks (TrackerConfig.register_tracks), None when none was applied.
         self.last_offset_en: tuple[float, float] | None = None
@@ -281,14 +274,14 @@ class GpsTracker:
             associate_iou(state, dets, t, np.ones(len(dets.scores), dtype=bool))
         else:
             pose_t = t if pose_t is None or not math.isfinite(pose_t) else pose_t
-            self._update_rates(pose, pose_t, t)
-            state.heading_now = self._smoothed_heading(pose.heading_deg, dt)
+            self._rates.update(pose, pose_t, t)
+            state.heading_now = self._rates.smoothed_heading(pose.heading_deg, dt, self.config.heading_smoothing_s)
             reanchor(state, pose)
             # The telemetry's heading is older than the frame (by t - pose_t, plus telemetry_latency_s unless the
             # pose was retimed): the frame's points are turned about the UAV by the heading change since.
             lag_s = max(t - pose_t, 0.0) + (0.0 if pose_retimed else self.config.telemetry_latency_s)
             cap = self.config.max_heading_correction_deg
-            turn_deg = max(-cap, min(cap, self._heading_rate_deg_s * lag_s))
+            turn_deg = max(-cap, min(cap, self._rates.heading_deg_s * lag_s))
             # in a view jump the pose does not place (agent.tracking.view_jump) the tracks coast: no match, birth, re-ID
             if self._jump.usable(state, dets, pose, turn_deg, t, camera, terrain):
                 undo = None if self.config.use_pipeline_correction or result.correction is None else (
@@ -349,9 +342,9 @@ class GpsTracker:
             self.last_offset_en = None
             self.last_correction = None
             state.image_steady = False
-            rate = abs(self._heading_rate_deg_s)
+            rate = abs(self._rates.heading_deg_s)
             heading_sd = math.hypot(cfg.heading_sigma_deg, rate * cfg.timing_sigma_s)
-            pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._pitch_rate_deg_s) * cfg.timing_sigma_s)
+            pitch_sd = math.hypot(cfg.pitch_sigma_deg, abs(self._rates.pitch_deg_s) * cfg.timing_sigma_s)
             focal = math.sqrt(camera.fx * camera.fy)
             rel = np.column_stack([rel_e, rel_n])
             # the error models' height: the pose's over flat ground, each point's effective one over a terrain
@@ -366,7 +359,7 @@ class GpsTracker:
                     self._uav_en = (uav_e, uav_n)
             # a turning gimbal rotates the ground points about the UAV (not a common shift): not then
             if anchored is None and cfg.register_tracks \
-                    and abs(self._heading_lp_rate_deg_s) <= cfg.register_max_turn_deg_s:
+                    and abs(self._rates.lp_heading_deg_s) <= cfg.register_max_turn_deg_s:
                 act = state.active
                 confirmed = act["confirmed"] & (t - act["t_hit"] <= cfg.max_coast_s)
                 strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
@@ -515,7 +508,7 @@ class GpsTracker:
         it (a 4-decimal GPS error of 7 m stays 7 m between two GPS steps). Not while the gimbal turns faster than
         register_max_turn_deg_s (low-pass rate): then the angle part was the telemetry's lag, which does not
         last. Returns True when applied."""
-        if abs(self._heading_lp_rate_deg_s) > self.config.register_max_turn_deg_s:
+        if abs(self._rates.lp_heading_deg_s) > self.config.register_max_turn_deg_s:
             return False  # a turning gimbal: the correction's angle part was the telemetry's lag, not lasting
         dets.z[geo] += correction_jacobian(rel, h) @ self._pending
         out = (float(self._pending[0]), float(self._pending[1]), math.degrees(self._pending[2]),
@@ -542,41 +535,6 @@ class GpsTracker:
         for pts in (state.active.cols["x"][:, :2], state.lost.cols["pos"]):
             if len(pts):
                 pts -= correction_jacobian(pts - uav, registration.point_heights(pts - uav, *self._ground)) @ p
-
-    def _smoothed_heading(self, heading_deg: float, dt: float) -> float:
-        """Low-pass gimbal heading (TrackerConfig.heading_smoothing_s), degrees in [0, 360)."""
-        tau = self.config.heading_smoothing_s
-        prev = self._heading_lp
-        if prev is None or tau <= 0:
-            self._heading_lp = heading_deg
-        else:
-            a = 1.0 - math.exp(-max(dt, 0.0) / tau)
-            step = a * ((heading_deg - prev + 180.0) % 360.0 - 180.0)
-            self._heading_lp = (prev + step) % 360.0
-            if dt > 0:
-                self._heading_lp_rate_deg_s = step / dt
-        return self._heading_lp
-
-    def _update_rates(self, pose: Pose, pose_t: float, t: float) -> None:
-        """Signed gimbal turn rates (deg/s) from successive distinct poses (telemetry is often
-        sample-and-hold at a lower rate than the frames)."""
-        ref = self._pose_ref
-        if ref is None:
-            self._pose_ref, self._t_pose_ref, self._t_frame_ref = pose, pose_t, t
-            return
-        changed = pose.heading_deg != ref.heading_deg or pose.pitch_deg != ref.pitch_deg
-        if changed:
-            interval = pose_t - self._t_pose_ref
-            if interval <= 1e-3:  # no usable pose clock: the frames' one
-                interval = max(t - self._t_frame_ref, 1e-3)
-            d_heading = (pose.heading_deg - ref.heading_deg + 180.0) % 360.0 - 180.0
-            self._heading_rate_deg_s = d_heading / interval
-            self._pitch_rate_deg_s = (pose.pitch_deg - ref.pitch_deg) / interval
-            self._pose_interval_s = interval
-            self._pose_ref, self._t_pose_ref, self._t_frame_ref = pose, pose_t, t
-        elif t - self._t_frame_ref > max(0.25, 2.0 * self._pose_interval_s):
-            # No new telemetry for a while: the gimbal holds still.
-            self._heading_rate_deg_s = self._pitch_rate_deg_s = 0.0
 
     def _outputs(self) -> list[TrackOutput]:
         act = self._state.active
