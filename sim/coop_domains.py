@@ -135,6 +135,22 @@ _DOMAIN_LIST: tuple[CoopDomain, ...] = (
               UavSetting("uav2", noise=_bias(1.0, 0.5, time_offset_s=0.2),
                          emulator={"score_logit_scale": 1.4, "score_logit_shift": 0.6}, frame_step=2)),
         weaker="uav1", world={"spawn_radius_m": 25.0}),
+    CoopDomain(
+        name="coop-trio-meadow", split="tune", base="coop",
+        description="Three UAVs over an open meadow: uav1 (south-west, 25-30 m, 28-34 deg) sees 40 % of the people "
+                    "weakly, uav2 hovers east, higher and steeper, uav3 flies a line to the north-west; three "
+                    "different GPS, heading and height biases.",
+        flights=(HoverSweepsSpec(uav="uav1", bearing_deg=(200.0, 210.0), distance_m=(45.0, 50.0),
+                                 height_m=(25.0, 30.0), pitch_deg=(28.0, 34.0), sweep_deg=(8.0, 15.0),
+                                 sweep_rate_deg_s=(8.0, 15.0), dwell_s=(3.0, 6.0)),
+                 HoverSweepsSpec(uav="uav2", bearing_deg=(95.0, 105.0), distance_m=(50.0, 55.0),
+                                 height_m=(40.0, 45.0), pitch_deg=(45.0, 50.0), sweep_deg=(8.0, 15.0),
+                                 sweep_rate_deg_s=(8.0, 15.0), dwell_s=(3.0, 6.0)),
+                 LineSpec(uav="uav3", bearing_deg=(320.0, 330.0), distance_m=(50.0, 55.0), half_length_m=(5.0, 10.0),
+                          height_m=(35.0, 40.0), pitch_deg=(38.0, 44.0), speed_mps=(1.0, 2.0))),
+        uavs=(UavSetting("uav1", noise=_bias(1.5, 1.0), emulator={"weak_fraction": 0.4, "weak_logit_drop": 3.0}),
+              UavSetting("uav2", noise=_bias(2.0, 0.5, 0.5)), UavSetting("uav3", noise=_bias(1.0, 1.5, 1.5))),
+        weaker="uav1", world=_OPEN_MEADOW),
     # ------------------------------------------------------------------ held out
     CoopDomain(
         name="coop-glare-east", split="heldout", base="coop",
