@@ -236,14 +236,17 @@ def resolve_video_telemetry(telemetry: str | Path, video: str | Path) -> str | P
     return video
 
 
-def load_video_telemetry(path: str | Path, *, height_m: float | None = None,
-                         height_offset_m: float | None = None) -> list[Telemetry]:
+def load_video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
+                         pitch_deg: float | None = None, heading_deg: float | None = None,
+                         need_angles: bool = False) -> list[Telemetry]:
     """Telemetry records of a video, checked for what georeferencing needs (`video_telemetry`'s records)."""
-    return video_telemetry(path, height_m=height_m, height_offset_m=height_offset_m)[0]
+    return video_telemetry(path, height_m=height_m, height_offset_m=height_offset_m, pitch_deg=pitch_deg,
+                           heading_deg=heading_deg, need_angles=need_angles)[0]
 
 
-def video_telemetry(path: str | Path, *, height_m: float | None = None,
-                    height_offset_m: float | None = None) -> tuple[list[Telemetry], float | None]:
+def video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
+                    pitch_deg: float | None = None, heading_deg: float | None = None,
+                    need_angles: bool = False) -> tuple[list[Telemetry], float | None]:
     """Telemetry records of a video, checked for what georeferencing needs, and the telemetry time of video time 0.
 
     Parameters
@@ -257,6 +260,10 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None,
     height_offset_m : float, optional
         Metres added to every height the file gives, e.g. minus the ground elevation for altitude above sea
         level (DJI ``abs_alt``, the KLV sensor altitude); not for SeaDronesSee ``.json``.
+    pitch_deg, heading_deg : float, optional
+        The gimbal angles (`--pitch-deg`, `--heading-deg`) for records without them: a file with none in any
+        record needs them when ``need_angles`` (the video source: else ValueError; other callers also work without
+        a pose); given beside a file that logs them in every record, they are not used (a warning says so).
 
     Returns
     -------
@@ -270,7 +277,8 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None,
     ValueError
         One line naming the file: when the reader rejects it, it holds no records, ``height_offset_m`` is
         given for SeaDronesSee JSON (whose altitude is already above the water), or records have no height
-        and ``height_m`` is not given (the line says to pass ``--height-m`` or ``--height-offset-m``).
+        and ``height_m`` is not given (the line says to pass ``--height-m`` or ``--height-offset-m``), or no
+        record has a gimbal pitch (heading) and ``pitch_deg`` (``heading_deg``) is not given.
     """
     from shared.telemetry import KLV_FILE_SUFFIXES, read_klv_report, read_srt_report, read_telemetry
 
@@ -311,6 +319,19 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None,
                  height_m)
     elif height_m is not None:
         log.warning("telemetry %s: every record has a height: --height-m %g is not used", path, height_m)
+    for field, flag, value, what in (("pitch_deg", "--pitch-deg", pitch_deg, "the camera's depression below the "
+                                      "horizon, 90 = straight down"),
+                                     ("heading_deg", "--heading-deg", heading_deg, "the camera's compass heading")):
+        missing = sum(getattr(r, field) is None for r in records)
+        name = "pitch" if field == "pitch_deg" else "heading"
+        if missing == len(records) and value is None and need_angles:
+            raise ValueError(f"telemetry file {path} has no gimbal {name} in any of its {len(records)} records: "
+                             f"pass {flag} DEG ({what})")
+        if not missing and value is not None:
+            log.warning("telemetry %s: every record has a gimbal %s: %s %g is not used", path, name, flag, value)
+        elif missing and value is not None:
+            log.info("telemetry %s: %d of %d records have no gimbal %s: using %s %g", path, missing, len(records),
+                     name, flag, value)
     return records, video_start_t
 
 
@@ -378,7 +399,9 @@ class VideoSource:
         self.records: list[Telemetry] = []
         video_start_t: float | None = None
         if not live:
-            self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m)
+            self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
+                                                          pitch_deg=pitch_deg, heading_deg=heading_deg,
+                                                          need_angles=True)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         capture = cv2.VideoCapture(str(self.video_path))
@@ -444,11 +467,16 @@ class VideoSource:
     def _pose(self, tel: Telemetry | None) -> Pose | None:
         if tel is None:
             return None
-        try:
-            return tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m)
+        try:  # --pitch-deg / --heading-deg fill what a record lacks, never replace what it logs
+            return tel.to_pose(self.pitch_deg if tel.pitch_deg is None else None,
+                               self.heading_deg if tel.heading_deg is None else None, height_m=self.height_m)
         except ValueError as exc:
             self.problems += 1
-            log.debug("no pose at t=%.3f: %s", tel.t, exc)
+            if self.problems == 1:
+                log.warning("telemetry of %s: no pose at t=%.3f: %s (further frames without a pose are counted in the "
+                            "summary)", self.name, tel.t, exc)
+            else:
+                log.debug("no pose at t=%.3f: %s", tel.t, exc)
             return None
 
     def poses_at(self, times: NDArray[np.float64]) -> list[tuple[Pose | None, float | None]]:

@@ -4,6 +4,7 @@ missing files and unknown names (the simulated source: tests/sim/test_source.py)
 from __future__ import annotations
 
 import json
+import logging
 from pathlib import Path
 
 import numpy as np
@@ -152,7 +153,7 @@ def test_video_source_errors_name_the_missing_file(tmp_path):
     video = _write_video(tmp_path / "v.avi", 2)
     model = _write_model(tmp_path / "m.onnx")
     tel = tmp_path / "t.csv"
-    tel.write_text("time_s,lat,lon,height_m\n0,48,9,30\n")
+    tel.write_text("time_s,lat,lon,height_m,pitch_deg,heading_deg\n0,48,9,30,60,0\n")
     cam = tmp_path / "c.json"
     cam.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
     with pytest.raises(ValueError, match="telemetry file .*nope.srt does not exist"):
@@ -269,3 +270,66 @@ def test_agent_command_without_height_fails_with_one_clear_line(tmp_path, capsys
     lines = [line for line in err.splitlines() if "error" in line]
     assert lines == [f"uavmm agent: error: telemetry file {telemetry} has no height above ground in 10 of 10 "
                      "records: pass --height-m METRES (the flight's height above the ground)"]
+
+
+def _srt_air2s(frames: int, *, gb_pitch: bool = True, gb_yaw: bool = True) -> str:
+    """DJI Air 2S-style SRT blocks (rel_alt / abs_alt), with or without the gimbal's pitch and yaw."""
+    blocks = []
+    for i in range(frames):
+        gimbal = (f" [gb_yaw: {173.3 + 0.1 * i:.1f}" if gb_yaw else "") + (" gb_pitch: -38.0" if gb_pitch else "") \
+            + (" gb_roll: 0.0]" if gb_yaw or gb_pitch else "")
+        blocks.append(f"{i + 1}\n00:00:{i // 10:02d},{i % 10 * 100:03d} --> 00:00:{(i + 1) // 10:02d},"
+                      f"{(i + 1) % 10 * 100:03d}\n<font size=\"28\">FrameCnt: {i + 1}, DiffTime: 100ms\n"
+                      f"2023-06-01 10:00:00.{i * 100:03d}\n[iso: 100] [latitude: {48.53 + 1e-5 * i:.6f}] "
+                      f"[longitude: 9.060000] [rel_alt: 27.500 abs_alt: 412.500]{gimbal} </font>\n\n")
+    return "".join(blocks)
+
+
+def _video_source(tmp_path, srt_text: str, **kw) -> VideoSource:
+    video = _write_video(tmp_path / "flight.avi", 8)
+    telemetry = tmp_path / "DJI_0001.SRT"
+    telemetry.write_text(srt_text)
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    return VideoSource(video, telemetry, _write_model(tmp_path / "model.onnx"), camera, **kw)
+
+
+def test_video_source_without_gimbal_angles_asks_for_them_in_one_line(tmp_path):
+    # an SRT whose drone does not log the gimbal (older firmware): position and height alone place no pixel
+    with pytest.raises(ValueError, match=r"DJI_0001.SRT has no gimbal pitch in any of its 10 records: pass "
+                                         r"--pitch-deg DEG"):
+        _video_source(tmp_path, _srt_air2s(10, gb_pitch=False, gb_yaw=False))
+    with pytest.raises(ValueError, match=r"has no gimbal heading in any of its 10 records: pass --heading-deg DEG"):
+        _video_source(tmp_path, _srt_air2s(10, gb_pitch=False, gb_yaw=False), pitch_deg=38.0)
+    frames = list(_video_source(tmp_path, _srt_air2s(10, gb_pitch=False, gb_yaw=False), pitch_deg=38.0,
+                                heading_deg=173.0).frames())
+    assert all(f.pose is not None for f in frames)
+    assert {(f.pose.pitch_deg, f.pose.heading_deg) for f in frames} == {(38.0, 173.0)}
+
+
+def test_gimbal_flags_fill_what_the_telemetry_lacks_and_never_replace_it(tmp_path, caplog):
+    # gb_yaw logged, gb_pitch not: --pitch-deg supplies the pitch, the logged heading stays (the flags' help:
+    # "fixed gimbal pitch if telemetry lacks it")
+    frames = list(_video_source(tmp_path, _srt_air2s(10, gb_pitch=False), pitch_deg=38.0,
+                                heading_deg=90.0).frames())
+    assert all(f.pose is not None for f in frames)
+    assert frames[3].pose.pitch_deg == 38.0
+    assert frames[3].pose.heading_deg == pytest.approx(173.6, abs=0.01)
+    with caplog.at_level(logging.WARNING, logger="agent.sources"):
+        frames = list(_video_source(tmp_path, _srt_air2s(10), pitch_deg=60.0).frames())
+    assert frames[3].pose.pitch_deg == pytest.approx(38.0)  # the file's -38 (DJI: negative down)
+    assert any("every record has a gimbal pitch: --pitch-deg 60 is not used" in r.getMessage() for r in caplog.records)
+
+
+def test_frames_without_a_pose_are_named_once_at_warning_level(tmp_path, caplog):
+    # half the records lack the pitch (a gimbal that reported late): those frames have no pose, and the first is
+    # named with its reason
+    text = _srt_air2s(10)
+    blocks = text.split("\n\n")
+    text = "\n\n".join(b.replace(" gb_pitch: -38.0", "") if i < 5 else b for i, b in enumerate(blocks))
+    with caplog.at_level(logging.WARNING, logger="agent.sources"):
+        source = _video_source(tmp_path, text, max_gap_s=0.05)
+        frames = list(source.frames())
+    assert sum(f.pose is None for f in frames) >= 4 and source.problems >= 4
+    named = [r.getMessage() for r in caplog.records if "no pose at" in r.getMessage()]
+    assert len(named) == 1 and "telemetry has no gimbal pitch: pass --pitch-deg" in named[0]
