@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import io
+import logging
 import math
 import re
 from collections.abc import Mapping
@@ -15,6 +16,8 @@ from shared.telemetry.dates import DATETIME_RE, parse_datetime
 from shared.telemetry.interpolation import spread_repeated_stamps
 from shared.telemetry.record import Telemetry, pitch_or_none
 from shared.telemetry.text import NUM_RE, read_text
+
+log = logging.getLogger(__name__)
 
 _TIME_UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "second": 1.0, "seconds": 1.0,
                "ms": 1e-3, "millisecond": 1e-3, "milliseconds": 1e-3}  # fmt: skip
@@ -41,6 +44,14 @@ CSV_COLUMNS: dict[str, tuple[tuple[str, ...], Mapping[str, float]]] = {
     "recording": (("isvideo", "is_video", "recording"), {"": 1.0}),
 }
 _DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
+#: Columns that name the drone a row belongs to (a log of several drones): one drone per file is read.
+_DRONE_COLUMNS = ("uav", "uav_id", "drone", "drone_id", "vehicle", "vehicle_id", "aircraft", "aircraft_serial",
+                  "serial", "sysid", "system_id")
+#: A unitless time column whose values exceed this is in milliseconds since 1970 (in seconds: the year 5138).
+_EPOCH_MS_MIN = 1e11
+#: A unitless time column whose median step between distinct stamps is at least this is in milliseconds (a drone
+#: log in seconds samples at 1 Hz or faster; in milliseconds 10 Hz is a step of 100).
+_MS_STEP_MIN = 10.0
 _HEADER_RE = re.compile(r"(?P<name>.*?)\s*(?:\((?P<paren>[^()]*)\)|\[(?P<bracket>[^\[\]]*)\])?")
 
 
@@ -181,9 +192,8 @@ def parse_csv(
     columns = _csv_columns(header, header_line, source)
     if len(rows) == 1:
         raise ValueError(f"{source}: no data rows after the header")
-    for line, row in rows[1:]:
-        if len(row) != len(header):
-            raise ValueError(f"{source}:{line}: {len(row)} cells, the header has {len(header)}")
+    _one_drone(header, rows[1:], source)
+    rows = [rows[0], *_usable_rows(rows[1:], header, columns, source, utc_offset_s)]
 
     def floats(fld: str) -> list[float | None] | None:
         column = columns.get(fld)
@@ -258,21 +268,109 @@ def _csv_times(
                 if value is None:
                     raise ValueError(f"{source}:{line}: column {time_column.name!r} is empty")
                 numeric.append(value)
+            numeric = _seconds(numeric, time_column, source)
         else:
-            return dates(time_column)
+            return _spread_whole_seconds(dates(time_column))
     date_column = columns.get("datetime")
     if date_column is None:
         assert numeric is not None
-        return numeric
+        return _spread_whole_seconds(numeric)
     anchors = dates(date_column)
     if numeric is None:
         # a log stamped at whole seconds (AirData's datetime(utc) without its time(millisecond)): the rows of
         # one second are spread over it in their order
-        whole = all(a == round(a) for a in anchors)
-        if whole and len(set(anchors)) < len(anchors):
-            return [float(v) for v in spread_repeated_stamps(anchors, True)]
-        return anchors
+        return _spread_whole_seconds(anchors)
     return [anchors[0] + (value - numeric[0]) for value in numeric]
+
+
+def _spread_whole_seconds(stamps: list[float]) -> list[float]:
+    """Stamps at whole seconds that repeat (a log stamped at whole seconds without a finer time column): the rows
+    of one second are spread over it in their order (`spread_repeated_stamps`); other stamps are kept."""
+    if all(a == round(a) for a in stamps) and len(set(stamps)) < len(stamps):
+        return [float(v) for v in spread_repeated_stamps(stamps, True)]
+    return stamps
+
+
+def _seconds(values: list[float], column: _CsvColumn, source: str) -> list[float]:
+    """A time column's numbers in seconds. A column that names its unit (``time_s``, ``time(millisecond)``) is
+    taken at its word; a unitless ``time``, ``t`` or ``timestamp`` holding milliseconds (since 1970: values beyond
+    1e11; since the start: a median step of at least 10 between distinct stamps, where a drone log in seconds
+    steps by 1 or less) is read as milliseconds, with a warning naming the column."""
+    unitless = column.alias != "time_s" and column.scale == 1.0 and "(" not in column.name and "[" not in column.name
+    if not unitless or not values:
+        return values
+    distinct = sorted(set(values))
+    steps = [b - a for a, b in zip(distinct, distinct[1:], strict=False)]
+    median_step = sorted(steps)[len(steps) // 2] if steps else 0.0
+    if sorted(abs(v) for v in values)[len(values) // 2] > _EPOCH_MS_MIN:
+        why = "milliseconds since 1970"
+    elif median_step >= _MS_STEP_MIN:
+        why = f"milliseconds (its stamps step by {median_step:g})"
+    else:
+        return values
+    log.warning("%s: time column %r read as %s; name it time_s or time(ms) to say its unit", source, column.name,
+                why)
+    return [v * 1e-3 for v in values]
+
+
+def _one_drone(header: list[str], rows: list[tuple[int, list[str]]], source: str) -> None:
+    """ValueError when a column naming the drone (`_DRONE_COLUMNS`) holds more than one: a video's telemetry is one
+    drone's, and rows of two drones interleaved would be read as one zig-zagging flight."""
+    for index, cell in enumerate(header):
+        if cell.strip().lower() not in _DRONE_COLUMNS:
+            continue
+        drones = sorted({row[index].strip() for _, row in rows if index < len(row) and row[index].strip()})
+        if len(drones) > 1:
+            shown = ", ".join(repr(d) for d in drones[:5]) + (", ..." if len(drones) > 5 else "")
+            raise ValueError(f"{source}: column {cell.strip()!r} names {len(drones)} drones ({shown}): keep the rows "
+                             "of the drone that filmed the video (one drone per telemetry file)")
+
+
+def _usable_rows(rows: list[tuple[int, list[str]]], header: list[str], columns: dict[str, _CsvColumn], source: str,
+                 utc_offset_s: float) -> list[tuple[int, list[str]]]:
+    """The data rows a record can be made of. A row cut short (a logger killed mid-line), with a bad or empty
+    required cell, an unreadable time or an out-of-range value is skipped, as is a row without a GPS fix
+    (latitude and longitude both 0, as loggers write before the fix); one warning counts them and names the first.
+    ValueError (the first problem) when no row is left, or when half the rows or more are bad (not counting the
+    no-fix ones): then the file, not a row, is wrong."""
+    kept: list[tuple[int, list[str]]] = []
+    bad: list[str] = []
+    no_fix = 0
+    for line, row in rows:
+        if len(row) != len(header):
+            bad.append(f"{source}:{line}: {len(row)} cells, the header has {len(header)}")
+            continue
+        try:
+            position = []
+            for fld in ("lat", "lon", "height"):
+                column = columns[fld]
+                value = _csv_float(row[column.index], line, column, source)
+                if value is None:
+                    raise ValueError(f"{source}:{line}: column {column.name!r} is empty")
+                position.append(value)
+            for fld, limit in (("lat", 90.0), ("lon", 180.0)):
+                value = position[0 if fld == "lat" else 1]
+                if abs(value) > limit:
+                    raise ValueError(f"{source}:{line}: column {columns[fld].name!r}: {value:g} is outside "
+                                     f"+-{limit:g} deg")
+            for fld in ("heading", "roll", "speed", "vel_north", "vel_east", "recording"):
+                if fld in columns:
+                    _csv_float(row[columns[fld].index], line, columns[fld], source)
+            _csv_times([(line, row)], columns, source, utc_offset_s)
+        except ValueError as err:
+            bad.append(str(err))
+            continue
+        if position[0] == 0.0 and position[1] == 0.0:
+            no_fix += 1
+            continue
+        kept.append((line, row))
+    if not kept or len(bad) * 2 >= len(rows):
+        raise ValueError(bad[0] if bad else f"{source}: no row has a GPS fix (every position is 0, 0)")
+    if bad or no_fix:
+        parts = ([f"{len(bad)} unreadable"] if bad else []) + ([f"{no_fix} without a GPS fix (0, 0)"] if no_fix else [])
+        log.warning("%s: %d of %d rows skipped (%s)%s", source, len(bad) + no_fix, len(rows), ", ".join(parts),
+                    f"; first: {bad[0]}" if bad else "")
+    return kept
 
 
 def _csv_pitch(

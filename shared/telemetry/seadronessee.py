@@ -259,10 +259,9 @@ def _from_flight_log(meta: Mapping[str, Any], frame: int | None, utc_offset_s: f
     if speed is not None and speed < 0.0:
         raise MetaProblem("bad speed", f"SeaDronesSee meta field {fields['speed'][0]!r}={speed!r} is negative")
     north, east = number("vel_north", "speed", required=False), number("vel_east", "speed", required=False)
-    if "datetime" in fields:
-        key = fields["datetime"][0]
-        utc = "utc" in key.lower()
-        t = _time(meta[key], key, 0.0 if utc else utc_offset_s)
+    key = fields["datetime"][0] if "datetime" in fields else None
+    if key is not None and meta[key] not in (None, ""):  # a null time is a missing one: the frame's own stands in
+        t = _time(meta[key], key, 0.0 if "utc" in key.lower() else utc_offset_s)
     elif t_default is not None:
         t = t_default
     else:

@@ -929,7 +929,7 @@ def test_csv_iso_timestamps_are_epoch_seconds():
         ("time,lat,lon,height\n0,1,2,30\n1,1,abc,30\n", r"data\.csv:3: column 'lon': 'abc' is not a number"),
         ("time,lat,lon,height\n0,1,2,30\n\n1,1,2\n", r"data\.csv:4: 3 cells"),
         ("time,lat,lon,height\n0,,2,30\n", r"data\.csv:2: column 'lat' is empty"),
-        ("time,lat,lon,height\n0,95,2,30\n", r"data\.csv:2: Telemetry\.lat"),
+        ("time,lat,lon,height\n0,95,2,30\n", r"data\.csv:2: column 'lat': 95 is outside \+-90 deg"),
         ("time,lat,lon,height,frame\n0,1,2,30,1.5\n", r"data\.csv:2: column 'frame'"),
         ("time(fortnight),lat,lon,height\n0,1,2,30\n", r"column 'time\(fortnight\)': unknown unit"),
         ("time,lat,Lat,lon,height\n0,1,1,2,30\n", r"same field"),
@@ -1139,8 +1139,11 @@ telemetry_records = st.builds(
 
 
 @settings(max_examples=80, deadline=None)
-@given(st.lists(telemetry_records, min_size=1, max_size=10))
+@given(st.lists(telemetry_records.filter(lambda r: (r.lat, r.lon) != (0.0, 0.0)), min_size=1, max_size=10,
+                unique_by=lambda r: r.t))
 def test_property_csv_round_trip_is_exact(records):
+    # distinct stamps (repeated whole-second stamps are spread over their second) and a GPS fix (0, 0 is a
+    # logger's "no fix": test_csv_rows_without_a_fix_or_cut_short_are_skipped_and_counted)
     header = "time_s,latitude,longitude,height_m,pitch_deg,heading_deg,roll_deg,speed_mps,frame"
 
     def cell(value):
@@ -1406,3 +1409,72 @@ def test_csv_camera_tilted_up_gives_no_pitch_for_that_row():
     text = "time,lat,lon,height_m,gb_pitch,heading\n0,47.0,9.0,30,-45,10\n1,47.0,9.0,30,15,10\n"
     records = parse_csv(text)
     assert records[0].pitch_deg == pytest.approx(45.0) and records[1].pitch_deg is None
+
+
+# ---------------------------------------------------------------------------------------------
+# CSV quirks of real logs (a helper's probe, 29 Nov 2026): units the header does not say, whole-second stamps,
+# rows before the GPS fix, a logger killed mid-line, two drones in one file
+# ---------------------------------------------------------------------------------------------
+
+_ROW = "48.53,9.06,30,45,{h}"
+
+
+def _csv(times: list[str], header: str = "time", heading_step: float = 1.0) -> str:
+    return f"{header},lat,lon,height_m,pitch_deg,heading_deg\n" + "".join(
+        f"{t}," + _ROW.format(h=100 + heading_step * i) + "\n" for i, t in enumerate(times))
+
+
+def test_a_unitless_time_column_in_milliseconds_is_read_as_milliseconds(caplog):
+    # relative milliseconds (a 30 Hz log: steps of 33-34) and milliseconds since 1970
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
+        relative = parse_csv(_csv(["0", "33", "67", "100", "133"]))
+    assert [r.t for r in relative] == pytest.approx([0.0, 0.033, 0.067, 0.1, 0.133])
+    assert any("'time' read as milliseconds" in r.getMessage() for r in caplog.records)
+    epoch = parse_csv(_csv(["1685613600000", "1685613600100", "1685613600200"], header="timestamp"))
+    assert [r.t for r in epoch] == pytest.approx([1685613600.0, 1685613600.1, 1685613600.2])
+    # beside a date column the milliseconds space the rows from the first date
+    text = "datetime,timestamp,lat,lon,height_m\n" + "".join(
+        f"2023-06-01 10:00:00,{1685613600000 + 100 * i},48.53,9.06,30\n" for i in range(3))
+    assert [r.t for r in parse_csv(text)] == pytest.approx([utc(2023, 6, 1, 10, 0, 0) + 0.1 * i for i in range(3)])
+    # seconds stay seconds: a 10 Hz log, a 1 Hz one, and a column that names its unit
+    assert [r.t for r in parse_csv(_csv(["0", "0.1", "0.2"]))] == pytest.approx([0.0, 0.1, 0.2])
+    assert [r.t for r in parse_csv(_csv(["100", "101", "102"]))] == pytest.approx([100.0, 101.0, 102.0])
+    assert [r.t for r in parse_csv(_csv(["0", "20", "40"], header="time_s"))] == pytest.approx([0.0, 20.0, 40.0])
+
+
+@pytest.mark.parametrize("stamps", [
+    ["2023-06-01 10:00:00"] * 3 + ["2023-06-01 10:00:01"] * 3,  # ISO date-times in the time column
+    ["1685613600"] * 3 + ["1685613601"] * 3,  # integer epoch seconds
+])
+def test_whole_second_stamps_in_the_time_column_are_spread_over_their_second(stamps):
+    records = parse_csv(_csv(stamps))
+    t = np.array([r.t for r in records]) - records[0].t
+    assert t == pytest.approx([0.0, 1 / 3, 2 / 3, 1.0, 4 / 3, 5 / 3])
+    # so every sample keeps its own pose at the frames: none is dropped as a duplicate stamp
+    frames = interpolate(records, records[0].t + np.array([0.0, 0.34, 0.67, 1.34]))
+    assert [f.heading_deg for f in frames] == pytest.approx([100.0, 101.02, 102.01, 104.02], abs=0.05)
+
+
+def test_csv_rows_without_a_fix_or_cut_short_are_skipped_and_counted(caplog):
+    text = ("time_s,lat,lon,height_m,pitch_deg,heading_deg\n"
+            "0,0.0,0.0,0,45,100\n0.1,0,0,0,45,100\n"  # before the GPS fix (AirData writes 0, 0)
+            + "".join(f"{0.2 + 0.1 * i:.1f},48.53,9.06,30,45,100\n" for i in range(8))
+            + "1.0,48.53,9.0")  # the logger killed mid-line
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
+        records = parse_csv(text, source="f.csv")
+    assert len(records) == 8 and all(r.lat == 48.53 for r in records)
+    message = " ".join(r.getMessage() for r in caplog.records)
+    assert "3 of 11 rows skipped (1 unreadable, 2 without a GPS fix (0, 0)); first: f.csv:12: 3 cells" in message
+    # a file of bad rows is the file's fault: the first problem is named
+    with pytest.raises(ValueError, match=r"f\.csv:3: column 'lat': 'x' is not a number"):
+        parse_csv("time_s,lat,lon,height_m\n0,48,9,30\n1,x,9,30\n2,y,9,30\n", source="f.csv")
+    with pytest.raises(ValueError, match=r"no row has a GPS fix"):
+        parse_csv("time_s,lat,lon,height_m\n0,0,0,30\n1,0,0,30\n", source="f.csv")
+
+
+def test_a_csv_of_two_drones_is_refused_by_name():
+    text = "time_s,uav_id,lat,lon,height_m\n0,alpha,48.53,9.06,30\n0,bravo,48.60,9.10,50\n0.1,alpha,48.53,9.06,30\n"
+    with pytest.raises(ValueError, match=r"f\.csv: column 'uav_id' names 2 drones \('alpha', 'bravo'\)"):
+        parse_csv(text, source="f.csv")
+    # one drone named in every row is fine
+    assert len(parse_csv(text.replace("bravo", "alpha").replace("0,alpha,48.60", "0.05,alpha,48.60"))) == 3

@@ -67,6 +67,16 @@ def test_a_flight_log_meta_without_a_time_takes_the_frames_clock():
     assert from_seadronessee_meta(meta, t_default=123.5).t == 123.5
 
 
+@pytest.mark.parametrize("empty", [None, ""])
+def test_a_flight_log_meta_with_a_null_time_takes_the_frames_clock_too(empty):
+    # a null datetime(utc) (a log row written before the clock was set) is a missing time, not a bad one
+    meta = {**REAL_META, "datetime(utc)": empty}
+    with pytest.raises(MetaProblem) as err:
+        from_seadronessee_meta(meta)
+    assert err.value.reason == "no time"
+    assert from_seadronessee_meta(meta, t_default=123.5).t == 123.5
+
+
 @pytest.mark.parametrize("drop, reason", [
     ("latitude", "no position"), ("height_above_takeoff(meter)", "no height"),
 ])
