@@ -91,6 +91,25 @@ def _runs(blocks: Sequence[BlockTimes]) -> tuple[list[list[int]], list[float], l
     return runs, values, reasons
 
 
+def _refine_whole_second_dates(run: list[int], blocks: Sequence[BlockTimes], values: list[float]) -> None:
+    """Date lines with whole seconds only (the oldest firmware) under finer subtitle timing: the blocks of one
+    second share a date, and as stamps they would be one sample. Within a run of such dates every block has the
+    time its subtitle timing gives, placed on the dates: the offset c with floor(c + timing) equal to each date
+    (the middle of the offsets all dates allow; the median when truncation does not explain them, e.g. rounded
+    dates). `values` (the blocks' dates) is changed in place."""
+    dates = [values[i] for i in run]
+    starts = [blocks[i].start_s for i in run]
+    if blocks[run[0]].source() != "date" or len(run) < 2 or len(set(dates)) == len(dates) \
+            or any(d != math.floor(d) for d in dates) or any(st is None for st in starts):
+        return
+    gaps = [d - st for d, st in zip(dates, starts, strict=True) if st is not None]
+    lo, hi = max(gaps), min(gaps) + 1.0
+    c = 0.5 * (lo + hi) if lo < hi else sorted(gaps)[len(gaps) // 2] + 0.5
+    for i, st in zip(run, starts, strict=True):
+        assert st is not None
+        values[i] = c + st
+
+
 def _name(source: str | None) -> str:
     return {"date": "date-time", "timing": "subtitle timing", "counter": "frame counter"}.get(source or "", "clock")
 
@@ -115,9 +134,11 @@ def monotonic_times(blocks: Sequence[BlockTimes]) -> tuple[list[float], list[str
     -------
     times : list of float
         Within a run of blocks on one consistent clock, the block's own value (so a file whose dates are
-        consistent gets exactly its dates, one without dates its subtitle times). Where the clock source
-        changes or disagrees, the next run is joined on: a run of dates that lies ahead keeps its dates
-        (absolute time matters for fusing several UAVs); any other run is shifted to continue one step
+        consistent gets exactly its dates, one without dates its subtitle times; dates at whole seconds that
+        repeat under finer subtitle timing get the timing, placed on the dates: `_refine_whole_second_dates`).
+        Where the clock source changes or disagrees, the next run is joined on: a run of dates that lies
+        ahead keeps its dates (absolute time matters for fusing several UAVs); any other run is shifted to
+        continue one step
         after the previous block (the step from the subtitle timing or frame counter across the seam,
         else the file's typical step). Runs before the first dated run are shifted to end one step
         before it, so a file with any date gets an epoch clock throughout.
@@ -129,6 +150,8 @@ def monotonic_times(blocks: Sequence[BlockTimes]) -> tuple[list[float], list[str
     if any(block.source() is None for block in blocks):
         raise ValueError("monotonic_times: every block needs a date-time, subtitle timing or frame counter")
     runs, values, reasons = _runs(blocks)
+    for run in runs:
+        _refine_whole_second_dates(run, blocks, values)
     typical = _typical_step(runs, values)
     offsets = [0.0] * len(runs)
     notes: list[str] = []

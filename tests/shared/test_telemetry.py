@@ -1478,3 +1478,26 @@ def test_a_csv_of_two_drones_is_refused_by_name():
         parse_csv(text, source="f.csv")
     # one drone named in every row is fine
     assert len(parse_csv(text.replace("bravo", "alpha").replace("0,alpha,48.60", "0.05,alpha,48.60"))) == 3
+
+
+def test_whole_second_srt_dates_under_finer_subtitle_timing_keep_the_timing():
+    # Phantom 4 era: a block per frame (33 ms subtitle timing) but date lines at whole seconds; as stamps the
+    # blocks of one second were one sample and every frame of that second took the first block's height
+    blocks = []
+    for i in range(45):
+        start, end = round(i * 1000 / 30), round((i + 1) * 1000 / 30)
+        second = (i * 1000 // 30 + 400) // 1000  # the recording began 0.4 s into 10:00:00
+        blocks.append(f"{i + 1}\n00:00:{start // 1000:02d},{start % 1000:03d} --> 00:00:{end // 1000:02d},"
+                      f"{end % 1000:03d}\nHOME(9.0592,48.5326) 2023.06.01 10:00:{second:02d}\n"
+                      f"GPS(9.0582,48.5316,16) BAROMETER:{27.0 + 0.02 * i:.2f}M\nISO:100 Shutter:1000 EV:0 "
+                      "Fnum:F2.8 \n")
+    records = parse_srt("\n".join(blocks))
+    t = np.array([r.t for r in records])
+    assert np.all(np.diff(t) > 0)
+    assert np.diff(t) == pytest.approx(1 / 30, abs=1e-3)
+    # each block's time lies in the second its date line names (dates truncated to the second)
+    seconds = np.array([(i * 1000 // 30 + 400) // 1000 for i in range(45)])
+    assert np.all(np.floor(t - utc(2023, 6, 1, 10, 0, 0)) == seconds)
+    # so the frames between blocks get their own heights, not the second's first
+    heights = [r.height_m for r in interpolate(records, t[[5, 20, 40]])]
+    assert heights == pytest.approx([27.1, 27.4, 27.8], abs=1e-6)
