@@ -44,6 +44,8 @@ CSV_COLUMNS: dict[str, tuple[tuple[str, ...], Mapping[str, float]]] = {
     "recording": (("isvideo", "is_video", "recording"), {"": 1.0}),
 }
 _DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
+#: A bare `pitch` column below this depression in every row is likely the airframe's pitch (a warning says so).
+_AIRFRAME_PITCH_DEG = 10.0
 #: Columns that name the drone a row belongs to (a log of several drones): one drone per file is read.
 _DRONE_COLUMNS = ("uav", "uav_id", "drone", "drone_id", "vehicle", "vehicle_id", "aircraft", "aircraft_serial",
                   "serial", "sysid", "system_id")
@@ -213,6 +215,11 @@ def parse_csv(
     lat, lon, height = required("lat"), required("lon"), required("height")
     times = _csv_times(rows[1:], columns, source, utc_offset_s)
     pitch = _csv_pitch(rows[1:], columns, floats("pitch"), source)
+    if "pitch" in columns and columns["pitch"].alias == "pitch" and rows[1:] \
+            and all(p is not None and p < _AIRFRAME_PITCH_DEG for p in pitch):
+        log.warning("%s: column %r puts the camera within %g deg of the horizon in every row: if it is the "
+                    "airframe's pitch (not the gimbal's), remove it and pass --pitch-deg", source,
+                    columns["pitch"].name, _AIRFRAME_PITCH_DEG)
     heading, roll, speed = floats("heading"), floats("roll"), floats("speed")
     north, east = floats("vel_north"), floats("vel_east")
     recording = floats("recording")

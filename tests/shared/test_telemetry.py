@@ -1501,3 +1501,18 @@ def test_whole_second_srt_dates_under_finer_subtitle_timing_keep_the_timing():
     # so the frames between blocks get their own heights, not the second's first
     heights = [r.height_m for r in interpolate(records, t[[5, 20, 40]])]
     assert heights == pytest.approx([27.1, 27.4, 27.8], abs=1e-6)
+
+
+def test_a_bare_pitch_column_near_the_horizon_is_flagged_as_maybe_the_airframes(caplog):
+    # AirData's pitch(degrees) is the airframe's (a few degrees); read as the camera's it looks at the horizon
+    text = ("time_s,latitude,longitude,height_m,pitch(degrees),yaw(degrees)\n"
+            "0,48.5,9.05,30,-3.1,120\n1,48.5,9.05,30,-2.0,121\n")
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
+        records = parse_csv(text, source="air.csv")
+    assert [r.pitch_deg for r in records] == pytest.approx([3.1, 2.0])
+    assert any("air.csv: column 'pitch(degrees)' puts the camera within 10 deg of the horizon" in r.getMessage()
+               for r in caplog.records)
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
+        parse_csv(text.replace("-3.1", "-45").replace("-2.0", "-44"), source="air.csv")  # a gimbal's pitch
+    assert not caplog.records
