@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import math
@@ -13,6 +14,7 @@ import numpy as np
 
 from shared.telemetry.csv_table import match_column
 from shared.telemetry.dates import format_datetime, parse_datetime
+from shared.telemetry.interpolation import spread_repeated_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch
 from shared.telemetry.text import read_text
 
@@ -409,13 +411,16 @@ def parse_seadronessee_coco(
     Returns
     -------
     list of Telemetry
-        One per image with non-null meta, ``frame`` = ``frame_index``. Images with null meta are skipped.
+        One per image with usable meta, ``frame`` = ``source.frame_no`` (SeaDronesSee Object Detection v2) or
+        ``frame_index``; the video is ``source.video`` or ``video_id``. Images with null meta are skipped, those
+        with unusable meta or no frame index too, counted in one warning. Stamps at whole seconds that repeat
+        (flight-log meta) are spread over their second in frame order.
 
     Raises
     ------
     ValueError
-        Naming the source and image id on malformed images or meta, when several videos are present and
-        ``video_id`` is not given, or when no image has meta.
+        Naming the source and image id when no image has usable meta (the first problem), and when several
+        videos are present and ``video_id`` is not given.
     """
     images = coco.get("images") if isinstance(coco, Mapping) else None
     if not isinstance(images, list):
@@ -423,20 +428,27 @@ def parse_seadronessee_coco(
     for image in images:
         if not isinstance(image, Mapping):
             raise ValueError(f"{source}: images must be objects, got {image!r:.80}")
-    videos = sorted({repr(image.get("video_id")) for image in images})
+    def video_of(image: Mapping[str, Any]) -> Any:
+        src = image.get("source")  # SeaDronesSee Object Detection v2: source.video (and source.frame_no)
+        return src["video"] if isinstance(src, Mapping) and src.get("video") is not None else image.get("video_id")
+
+    videos = sorted({repr(video_of(image)) for image in images})
     if video_id is None and len(videos) > 1:
         raise ValueError(f"{source}: holds {len(videos)} videos ({', '.join(videos[:10])}): pass video_id")
-    chosen = [image for image in images if video_id is None or image.get("video_id") == video_id]
+    chosen = [image for image in images if video_id is None or video_of(image) == video_id]
     records: list[tuple[int, Telemetry]] = []
-    skipped = 0
+    skipped, problems = 0, []
     for image in chosen:
-        frame = image.get("frame_index")
+        src = image.get("source")
+        frame = src.get("frame_no", image.get("frame_index")) if isinstance(src, Mapping) else image.get("frame_index")
         if isinstance(frame, bool) or not isinstance(frame, int) or frame < 0:
-            raise ValueError(f"{source}: image id {image.get('id')!r}: frame_index={frame!r} is not an index")
+            problems.append(f"image id {image.get('id')!r}: frame index {frame!r} is not an index")
+            continue
         try:
             tel = from_seadronessee_meta(image.get("meta"), frame=frame, utc_offset_s=utc_offset_s)
-        except ValueError as err:
-            raise ValueError(f"{source}: image id {image.get('id')!r}: {err}") from None
+        except ValueError as err:  # one frame's meta: that frame has no telemetry, the others keep theirs
+            problems.append(f"image id {image.get('id')!r}: {err}")
+            continue
         if tel is None:
             skipped += 1
             continue
@@ -444,9 +456,19 @@ def parse_seadronessee_coco(
     if skipped:
         logger.info("%s: %d image(s) without meta carry no telemetry", source, skipped)
     if not records:
-        raise ValueError(f"{source}: no image with meta" + ("" if video_id is None else f" in video {video_id!r}"))
+        raise ValueError(f"{source}: " + (problems[0] if problems else "no image with meta"
+                                          + ("" if video_id is None else f" in video {video_id!r}")))
+    if problems:
+        logger.warning("%s: %d image(s) with unusable meta carry no telemetry; first: %s", source, len(problems),
+                       problems[0])
     records.sort(key=lambda item: item[0])
-    return [tel for _, tel in records]
+    out = [tel for _, tel in records]
+    stamps = [tel.t for tel in out]
+    if all(t == round(t) for t in stamps) and len(set(stamps)) < len(stamps):
+        # flight-log meta at whole seconds (v2's datetime(utc)): the frames of one second spread over it in order
+        out = [dataclasses.replace(tel, t=float(t)) for tel, t in zip(out, spread_repeated_stamps(stamps, True),
+                                                                      strict=True)]
+    return out
 
 
 def read_seadronessee_json(path: str | Path, **kw: Any) -> list[Telemetry]:

@@ -198,3 +198,37 @@ def test_an_airdata_log_says_where_its_video_starts():
         from shared.telemetry import Telemetry
 
         Telemetry(t=0.0, lat=0.0, lon=0.0, height_m=1.0, pitch_deg=None, heading_deg=None, recording="yes")
+
+
+def _v2_image(i: int, frame_no: int, second: int, **meta_changes) -> dict:
+    """An image of SeaDronesSee Object Detection v2: source.video / source.frame_no, flight-log meta at whole
+    seconds (two images a second: every 15th frame at 30 fps)."""
+    meta = {**REAL_META, "datetime(utc)": f"2020-08-25 12:19:{second:02d}", "latitude": 47.67209 + 1e-5 * i,
+            **meta_changes}
+    return {"id": 100 + i, "file_name": f"{i}.png", "source": {"drone": "mavic", "video": "DJI_0032.MP4",
+                                                               "frame_no": frame_no}, "meta": meta}
+
+
+def test_a_v2_coco_file_gives_one_video_s_telemetry_by_its_source_fields(caplog):
+    import logging
+
+    from shared.telemetry.seadronessee import parse_seadronessee_coco
+
+    images = [_v2_image(i, 15 * i, 22 + i // 2) for i in range(8)]
+    images[3]["meta"]["latitude"] = "north"  # one unusable meta: that frame has no telemetry, the others keep theirs
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry.seadronessee"):
+        records = parse_seadronessee_coco({"images": images}, source="v2.json")
+    assert [r.frame for r in records] == [0, 15, 30, 60, 75, 90, 105]
+    # whole-second stamps, two images a second: spread over their second in frame order
+    t = [r.t - records[0].t for r in records]
+    assert t == pytest.approx([0.0, 0.5, 1.0, 2.0, 2.5, 3.0, 3.5])
+    assert any("v2.json: 1 image(s) with unusable meta carry no telemetry; first: image id 103" in r.getMessage()
+               for r in caplog.records)
+    # several videos: one must be chosen, by its name
+    other = [{**_v2_image(9, 0, 30), "source": {"drone": "mavic", "video": "DJI_0033.MP4", "frame_no": 0}}]
+    with pytest.raises(ValueError, match=r"v2\.json: holds 2 videos \('DJI_0032\.MP4', 'DJI_0033\.MP4'\)"):
+        parse_seadronessee_coco({"images": images + other}, source="v2.json")
+    assert len(parse_seadronessee_coco({"images": images + other}, video_id="DJI_0033.MP4")) == 1
+    # nothing usable: the first problem is named
+    with pytest.raises(ValueError, match=r"v2\.json: image id 103: "):
+        parse_seadronessee_coco({"images": [images[3]]}, source="v2.json")
