@@ -108,7 +108,11 @@ def _csv_columns(header: list[str], header_line: int, source: str) -> dict[str, 
     for required in ("lat", "lon", "height"):
         if required not in found:
             names = ", ".join(CSV_COLUMNS[required][0])
-            raise ValueError(f"{source}: missing required column {required!r} (accepted names: {names})")
+            separator = next((sep for sep in (";", "\t", "|") if any(sep in cell for cell in header)), None)
+            hint = "" if separator is None else (f"; the header holds {separator!r}: the file is separated by "
+                                                 f"{'tabs' if separator == chr(9) else repr(separator)}, not commas "
+                                                 "(save it comma-separated, with '.' as the decimal mark)")
+            raise ValueError(f"{source}: missing required column {required!r} (accepted names: {names}){hint}")
     if "time" not in found and "datetime" not in found:
         names = ", ".join(CSV_COLUMNS["time"][0] + CSV_COLUMNS["datetime"][0])
         raise ValueError(f"{source}: missing required column 'time' (accepted names: {names})")

@@ -1516,3 +1516,10 @@ def test_a_bare_pitch_column_near_the_horizon_is_flagged_as_maybe_the_airframes(
     with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
         parse_csv(text.replace("-3.1", "-45").replace("-2.0", "-44"), source="air.csv")  # a gimbal's pitch
     assert not caplog.records
+
+
+@pytest.mark.parametrize("sep, said", [(";", "';'"), ("\t", "tabs")])
+def test_a_csv_separated_otherwise_is_named_in_the_error(sep, said):
+    text = sep.join(["time_s", "lat", "lon", "height_m"]) + "\n" + sep.join(["0", "48,53", "9,06", "30"]) + "\n"
+    with pytest.raises(ValueError, match=rf"f\.csv: missing required column 'lat' .*separated by {said}, not commas"):
+        parse_csv(text, source="f.csv")
