@@ -4,17 +4,21 @@ Endpoints: ``/healthz``, ``/v1/uavs``, ``/v1/map``, ``/v1/tiles/{cls}/{z}/{x}/{y
 ``/v1/objects``, ``/v1/tracks``, ``/metrics``, ``/`` (the live map page, its script and style under
 ``/static/``) and the extensions ``/v1/joint/tiles``, ``/v1/tiles/{cls}.json`` (TileJSON) and
 ``/v1/history`` (the tracks over a time window, for the page's time slider).
-Bad parameters get a 400 (or FastAPI's 422 for wrong types) with a message saying what is wrong.
+Bad parameters get a 400 (or FastAPI's 422 for wrong types) with a message saying what is wrong; an
+optional query parameter given empty (``?bbox=``) takes its default. A well-formed class without data
+gets an empty answer (200), never a 404.
 ``/docs`` and ``/redoc`` are served with local assets (no CDN); CORS only for ``--cors-origin`` origins.
 """
 
 from __future__ import annotations
 
 import hashlib
+import json
 import math
 import time
 from importlib import resources
 from typing import TYPE_CHECKING, Any, Literal, Protocol
+from urllib.parse import quote
 
 import numpy as np
 from fastapi import FastAPI, HTTPException, Query, Request
@@ -28,6 +32,7 @@ from fusion_server import schemas
 from fusion_server.geo_formats import GEOJSON_MEDIA_TYPE, GeoJSONResponse, tilejson, track_lines_geojson, uavs_geojson
 from fusion_server.http_auth import BearerAuth
 from fusion_server.peaks import find_peaks, peaks_geojson
+from fusion_server.query_params import EmptyMeansDefaultRoute
 from fusion_server.render import (
     AGGREGATIONS,
     COLORMAPS,
@@ -118,14 +123,51 @@ def _bbox(text: str | None) -> BBox | None:
         raise HTTPException(status_code=400, detail=f"bad bbox: {exc}") from None
 
 
-def _check_cls(server: FusionView, cls: str, *, must_exist: bool = True) -> str:
+#: Header on a /v1/map or /v1/objects answer for a class without data: the classes that have data.
+CLASSES_HEADER = "X-Classes-With-Data"
+_CLASSES_HEADER_MAX_CHARS = 4096
+
+
+def _check_cls(cls: str) -> str:
+    """``cls`` if it is a well-formed class name (with data or not), else a 400 saying why."""
     problem = name_problem(cls)
     if problem is not None:
         raise HTTPException(status_code=400, detail=f"bad cls: {problem}")
-    if must_exist and cls not in server.classes():
-        known = ", ".join(sorted(server.classes())) or "none yet"
-        raise HTTPException(status_code=404, detail=f"unknown class {cls!r}; classes with data: {known}")
     return cls
+
+
+def _classes_header(server: FusionView, cls: str) -> dict[str, str]:
+    """For a class without data: ``{CLASSES_HEADER: "person,car"}``, the classes with data, sorted,
+    each percent-encoded (names may hold commas or non-Latin-1 characters), as many as fit in 4096
+    characters; empty (no header) when ``cls`` has data. The answer itself is the empty one (200)."""
+    classes = server.classes()
+    if cls in classes:
+        return {}
+    names: list[str] = []
+    length = 0
+    for name in sorted(classes):
+        encoded = quote(name, safe="")
+        length += len(encoded) + 1
+        if length > _CLASSES_HEADER_MAX_CHARS:
+            break
+        names.append(encoded)
+    return {CLASSES_HEADER: ",".join(names)}
+
+
+def _json_text(content: Any) -> str:
+    """JSON as FastAPI's JSONResponse writes it (compact, UTF-8, no NaN)."""
+    return json.dumps(content, ensure_ascii=False, allow_nan=False, indent=None, separators=(",", ":"))
+
+
+#: The JSON text of each map value: a uint8 cell v is written as round(v / 255, 4).
+_VALUE_TEXT = np.array([_json_text(float(v)) for v in np.round(np.arange(256, dtype=np.float64) / 255.0, 4)],
+                       dtype=object)
+
+
+def _dense_values_json(values: np.ndarray) -> str:
+    """(H, W) uint8 -> the JSON text of its rows of round(v / 255, 4) floats, exactly as json.dumps
+    writes the float lists, without building H x W Python floats (a 1 km window has ~6 million cells)."""
+    return "[" + ",".join("[" + ",".join(row) + "]" for row in _VALUE_TEXT[values]) + "]"
 
 
 def _ref(name: str) -> dict[str, str]:
@@ -202,13 +244,14 @@ def create_app(server: FusionView) -> FastAPI:
         description="Joint memory map, global tracks and UAV status of a uav-memory-maps fusion server.",
         docs_url=None, redoc_url=None,  # served below with local assets
     )
+    app.router.route_class = EmptyMeansDefaultRoute  # ?bbox=&min_score= means "not given"
     grid = server.settings.grid
     if server.settings.http_tokens:  # every path but the page shell, /healthz and the schema needs a token
         app.add_middleware(BearerAuth, tokens=server.settings.http_tokens, on_denied=server.count_http_denied)
     if server.settings.cors_origins:  # outermost: preflights and 401s carry the CORS headers too
         app.add_middleware(CORSMiddleware, allow_origins=list(server.settings.cors_origins),
                            allow_methods=["GET", "HEAD", "OPTIONS"], allow_headers=["Authorization"],
-                           expose_headers=["ETag"], max_age=600)
+                           expose_headers=["ETag", CLASSES_HEADER], max_age=600)
     _add_docs(app)
     _with_models(app, schemas.UavCollection)
 
@@ -262,8 +305,8 @@ def create_app(server: FusionView) -> FastAPI:
         cls: str = Query(..., description="class name, e.g. person"),
         bbox: str = Query(..., description=_BBOX_HELP),
         encoding: Literal["dense", "sparse"] = Query("dense", description="dense rows or sparse non-zero cells"),
-    ) -> dict[str, Any]:
-        _check_cls(server, cls)
+    ) -> Response:
+        _check_cls(cls)
         box = _bbox(bbox)
         assert box is not None
         window = window_for_bbox(grid, box)
@@ -272,7 +315,8 @@ def create_app(server: FusionView) -> FastAPI:
             raise HTTPException(
                 status_code=400,
                 detail=f"bbox covers {window.width} x {window.height} = {cells} cells, at most "
-                f"{server.settings.map_max_cells} allowed: use a smaller bbox (or the PNG tiles)",
+                f"{server.settings.map_max_cells} allowed (the server's --map-max-cells): use a smaller bbox "
+                "(or the PNG tiles)",
             )
         n = grid.n
         tiles = server.joint.tiles_in_range(
@@ -295,13 +339,16 @@ def create_app(server: FusionView) -> FastAPI:
             "t": max((t.t for t in tiles), default=None),
             "encoding": encoding,
         }
-        scaled = np.round(values.astype(np.float64) / 255.0, 4)
+        headers = _classes_header(server, cls)  # a class without data: all-zero values, t null
+        # the JSON is written here, not by FastAPI's encoder, which took 4 s for a 1 km dense window
         if encoding == "dense":
-            body["values"] = scaled.tolist()
+            text = _json_text(body)[:-1] + ',"values":' + _dense_values_json(values) + "}"
         else:
             rows, cols = np.nonzero(values)
-            body["cells"] = {"row": rows.tolist(), "col": cols.tolist(), "value": scaled[rows, cols].tolist()}
-        return body
+            scaled = np.round(values[rows, cols].astype(np.float64) / 255.0, 4)
+            body["cells"] = {"row": rows.tolist(), "col": cols.tolist(), "value": scaled.tolist()}
+            text = _json_text(body)
+        return Response(text.encode("utf-8"), media_type="application/json", headers=headers)
 
     @app.get(
         "/v1/tiles/{cls}/{z}/{x}/{y}.png",
@@ -319,7 +366,7 @@ def create_app(server: FusionView) -> FastAPI:
         cmap: str = Query("inferno", description=f"colormap: {', '.join(COLORMAPS)}"),
     ) -> Response:
         # a well-formed class without data yet gets a transparent tile, so map viewers show no errors
-        _check_cls(server, cls, must_exist=False)
+        _check_cls(cls)
         try:
             png = tile_bytes(server.joint.tiles_in_range, grid, cls, z, x, y, agg=agg, cmap=cmap)
         except ValueError as exc:
@@ -334,7 +381,7 @@ def create_app(server: FusionView) -> FastAPI:
     @app.get("/v1/tiles/{cls}.json", summary="TileJSON 3.0.0 of a class's heatmap tiles (extension)",
              response_model=None, responses={200: {"model": schemas.TileJson}})
     def tile_json(request: Request, cls: str) -> dict[str, Any]:
-        _check_cls(server, cls, must_exist=False)
+        _check_cls(cls)
         tiles = server.joint.tiles(cls)
         bounds = None
         if tiles:
@@ -350,6 +397,7 @@ def create_app(server: FusionView) -> FastAPI:
              responses={200: {"model": schemas.ObjectCollection,
                               "description": "format=geojson: GeoJSON; kml: KML; kmz: zipped KML"}})
     def objects(
+        response: Response,
         cls: str | None = Query(None, description="class name (default: all classes)"),
         bbox: str | None = Query(None, description=_BBOX_HELP + " (default: everywhere)"),
         min_score: float = Query(0.5, ge=0.0, le=1.0, description="lowest peak value in [0, 1]"),
@@ -357,7 +405,10 @@ def create_app(server: FusionView) -> FastAPI:
         format: Literal["geojson", "kml", "kmz"] = Query("geojson", description="geojson, kml or kmz (zipped KML)"),
     ) -> Any:
         box = _bbox(bbox)
-        classes = [_check_cls(server, cls)] if cls is not None else sorted(server.classes())
+        # a class without data has no peaks: an empty FeatureCollection (200)
+        classes = [_check_cls(cls)] if cls is not None else sorted(server.classes())
+        headers = _classes_header(server, cls) if cls is not None else {}
+        response.headers.update(headers)
         peaks = []
         for name in classes:
             if box is not None:
@@ -373,7 +424,9 @@ def create_app(server: FusionView) -> FastAPI:
             peaks.extend(find_peaks(tiles, grid, min_score, bbox=box, limit=limit))
         peaks.sort(key=lambda p: -p.score)
         if format in ("kml", "kmz"):
-            return _kml("uavmm fused objects", {"objects": peaks_geojson(peaks[:limit])}, format)
+            answer = _kml("uavmm fused objects", {"objects": peaks_geojson(peaks[:limit])}, format)
+            answer.headers.update(headers)
+            return answer
         return peaks_geojson(peaks[:limit])
 
     @app.get("/v1/tracks", summary="Global tracks as GeoJSON Points with history", response_class=GeoJSONResponse,
@@ -419,7 +472,7 @@ def create_app(server: FusionView) -> FastAPI:
         if since is not None and until is not None and since > until:
             raise HTTPException(status_code=400, detail=f"since ({since}) is after until ({until})")
         if cls is not None:
-            _check_cls(server, cls, must_exist=False)
+            _check_cls(cls)
         window = history_window(server.history_tracks(cls=cls, since=since), since, until)
         if not rows:
             for feature in window["features"]:
@@ -430,7 +483,7 @@ def create_app(server: FusionView) -> FastAPI:
              responses={200: {"model": list[schemas.JointTileInfo]}})
     def joint_tiles(cls: str | None = Query(None, description="class name (default: all)")) -> list[dict[str, Any]]:
         if cls is not None:
-            _check_cls(server, cls, must_exist=False)
+            _check_cls(cls)
         return [
             {"cls": t.cls, "z": t.z, "x": t.x, "y": t.y, "t": t.t, "seq": t.seq, "uavs": list(t.uavs),
              "max": round(float(t.values.max()) / 255.0, 4)}

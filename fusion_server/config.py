@@ -73,7 +73,9 @@ class FusionSettings:
     restore_keep_s: float = 300.0
     uav_keep_s: float = 3600.0
     db_recover: bool = False
-    map_max_cells: int = 512 * 512
+    #: most cells of one /v1/map window (--map-max-cells): 2**23 holds 1 km x 1 km at z 18, n 256 up to
+    #: ~54 deg latitude (0.4 m cells at 48 deg N: 2,503 x 2,503); a dense answer is ~4 bytes a cell
+    map_max_cells: int = 2**23
     persist_interval_s: float = 0.5
     max_clock_skew_s: float = 30.0
     uav_max_msgs_per_s: float = 500.0

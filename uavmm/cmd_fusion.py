@@ -15,7 +15,8 @@ from pathlib import Path
 from uavmm._signals import stop_on_signals
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
 
-__all__ = ["DEFAULT_LISTEN", "add_zenoh_arguments", "register", "settings_from_args", "shard_from_args"]
+__all__ = ["DEFAULT_LISTEN", "DEFAULT_MAP_MAX_CELLS", "add_map_max_cells_argument", "add_zenoh_arguments",
+           "register", "settings_from_args", "shard_from_args"]
 
 log = logging.getLogger("uavmm.fusion")
 
@@ -97,6 +98,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="per-UAV payload rate limit, bytes/s (4 MiB; bursts of 2 s)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
+    add_map_max_cells_argument(p)
     p.add_argument("--shard", default=None, metavar="K/N",
                    help="run as shard K of N (from 0): fuse and track only the regions hashed to K; a "
                         "`uavmm gateway` serves the whole map (docs/deploy.md, 'Sharding')")
@@ -104,6 +106,17 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="zoom of the shard regions (14: 16 x 16 grid tiles, 2.4 km x cos(lat)); all shards "
                         "and the gateway must agree")
     p.set_defaults(handler=_run_fusion)
+
+
+#: FusionSettings.map_max_cells (kept here too: the CLI does not import the server to build its parser)
+DEFAULT_MAP_MAX_CELLS = 2**23
+
+
+def add_map_max_cells_argument(p: argparse.ArgumentParser) -> None:
+    """``--map-max-cells N``: the largest /v1/map window (fusion server and gateway)."""
+    p.add_argument("--map-max-cells", type=int, default=DEFAULT_MAP_MAX_CELLS, metavar="N",
+                   help="most cells of one /v1/map window; larger bboxes get a 400 (default 8388608 = 2^23: "
+                        "1 km x 1 km at the default grid up to ~54 deg latitude; a dense answer is ~4 bytes a cell)")
 
 
 def shard_from_args(args: argparse.Namespace):
@@ -174,7 +187,7 @@ def settings_from_args(args: argparse.Namespace):
         db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
         http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
         cot_url=args.cot_url, cot_objects_min_score=None if args.no_cot_objects else args.cot_objects_min_score,
-        basemap=args.basemap, basemap_attribution=args.basemap_attribution,
+        basemap=args.basemap, basemap_attribution=args.basemap_attribution, map_max_cells=args.map_max_cells,
     )
 
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from uavmm._signals import stop_on_signals
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
-from uavmm.cmd_fusion import _http_address, _rest_access_line, http_tokens_from_args
+from uavmm.cmd_fusion import _http_address, _rest_access_line, add_map_max_cells_argument, http_tokens_from_args
 
 __all__ = ["register", "settings_from_args"]
 
@@ -46,6 +46,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--prefix", default="uavmm/v1", help="key prefix (default uavmm/v1)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
+    add_map_max_cells_argument(p)
     p.set_defaults(handler=_run_gateway, no_http=False)
 
 
@@ -67,6 +68,7 @@ def settings_from_args(args: argparse.Namespace):
         zenoh=zenoh_options_from_args(args), http_host=host, http_port=port, db_path=None, prefix=args.prefix,
         grid_z=args.grid_z, grid_n=args.grid_n, shard_index=0, shard_count=args.shards, region_zoom=zoom,
         http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
+        map_max_cells=args.map_max_cells,
     )
 
 

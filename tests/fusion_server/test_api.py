@@ -142,9 +142,11 @@ def test_health_metrics_openapi_and_index(server, http):
         ("/v1/map", {"cls": "person", "bbox": "10,50,9,51"}, 400),
         ("/v1/map", {"cls": "person"}, 422),
         ("/v1/map", {"cls": "bad/cls", "bbox": "9,47,9.1,47.1"}, 400),
-        ("/v1/map", {"cls": "unicorn", "bbox": "9,47,9.001,47.001"}, 404),
         ("/v1/objects", {"min_score": 2}, 422),
-        ("/v1/objects", {"cls": "unicorn"}, 404),
+        ("/v1/objects", {"min_score": "abc"}, 422),  # empty means the default, malformed stays an error
+        ("/v1/objects", {"bbox": "x"}, 400),
+        ("/v1/objects", {"cls": "bad/cls"}, 400),
+        ("/v1/history", {"since": "yesterday"}, 422),
         ("/v1/tiles/person/18/1/1.png", {"cmap": "nope"}, 400),
         ("/v1/tiles/person/30/1/1.png", {}, 400),
         ("/v1/tiles/person/3/9/1.png", {}, 400),
@@ -164,6 +166,119 @@ def test_map_size_is_capped(server, http, agent_factory):
     wait_until(lambda: server.joint.get(KEY) is not None)
     response = http.get("/v1/map", params={"cls": "person", "bbox": "9.2,47.6,9.4,47.7"})
     assert response.status_code == 400 and "cells" in response.json()["detail"]
+    assert "--map-max-cells" in response.json()["detail"]
+
+
+def test_map_max_cells_admits_a_window_at_the_cap_and_names_the_flag_one_column_over(server_factory, http_of):
+    server = server_factory(map_max_cells=256 * 256)
+    http = http_of(server)
+    at_cap = http.get("/v1/map", params={"cls": "person", "bbox": tile_bbox(1e-7)})
+    assert at_cap.status_code == 200, at_cap.text
+    assert at_cap.json()["width"] * at_cap.json()["height"] == 256 * 256
+    west, south, east, north = GRID.tile_bounds(TILE_X, TILE_Y)
+    half_cell_deg = 0.5 * 360.0 / GRID.world_cells
+    over = http.get("/v1/map", params={"cls": "person",
+                                       "bbox": f"{west + 1e-7},{south + 1e-7},{east + half_cell_deg},{north - 1e-7}"})
+    assert over.status_code == 400
+    assert over.json()["detail"] == ("bbox covers 257 x 256 = 65792 cells, at most 65536 allowed (the server's "
+                                     "--map-max-cells): use a smaller bbox (or the PNG tiles)")
+
+
+def test_default_map_cap_serves_a_1_km_window_near_48_deg_north(server, http, agent_factory):
+    """The old cap (262,144 cells, ~200 m) refused a flight area; 2**23 holds 1 km x 1 km (~2,500 x 2,500 cells)."""
+    agent_factory("uav-a").tile(blob(70, 90, value=0.9))
+    wait_until(lambda: server.joint.get(KEY) is not None)
+    dlat = 500.0 / 111_320.0  # half a km around the tile's place, 47.67 N
+    dlon = 500.0 / (111_320.0 * np.cos(np.radians(LAT)))
+    bbox = f"{LON - dlon},{LAT - dlat},{LON + dlon},{LAT + dlat}"
+    body = http.get("/v1/map", params={"cls": "person", "bbox": bbox, "encoding": "sparse"})
+    assert body.status_code == 200, body.text
+    window = body.json()
+    assert window["width"] * window["height"] > 512 * 512
+    assert 2400 <= window["width"] <= 2600 and 2400 <= window["height"] <= 2600
+    peak = int(np.argmax(window["cells"]["value"]))
+    assert window["cells"]["value"][peak] == pytest.approx(0.9, abs=0.01)
+    gx = window["gx0"] + window["cells"]["col"][peak]
+    gy = window["gy0"] + window["cells"]["row"][peak]
+    assert (gx, gy) == (TILE_X * 256 + 90, TILE_Y * 256 + 70)
+
+
+def test_dense_and_sparse_map_values_are_the_joint_cells_over_255_rounded_to_4_places(server, http, agent_factory):
+    ramp = np.tile(np.linspace(0.0, 1.0, 256, dtype=np.float32), (256, 1))  # every quantised level
+    agent_factory("uav-a").tile(ramp)
+    tile = wait_until(lambda: server.joint.get(KEY))
+    expected = np.round(tile.values.astype(np.float64) / 255.0, 4)
+    assert len(np.unique(tile.values)) > 200
+    dense = http.get("/v1/map", params={"cls": "person", "bbox": tile_bbox(1e-7)})
+    assert dense.headers["content-type"] == "application/json"
+    assert np.array_equal(np.array(dense.json()["values"]), expected)
+    sparse = http.get("/v1/map", params={"cls": "person", "bbox": tile_bbox(1e-7), "encoding": "sparse"}).json()
+    rows, cols = np.nonzero(tile.values)
+    assert sparse["cells"]["row"] == rows.tolist() and sparse["cells"]["col"] == cols.tolist()
+    assert sparse["cells"]["value"] == expected[rows, cols].tolist()
+
+
+def test_empty_optional_parameters_take_their_defaults(server, http, agent_factory):
+    """DESIGN.md 7 writes /v1/objects?cls=&bbox=&min_score=: a client filling the template sends empty values."""
+    a = agent_factory("uav-a")
+    a.state()
+    a.tile(blob(70, 90, value=0.9) + blob(200, 30, value=0.3))
+    a.tracks([(1, "person", LAT, LON)])
+    wait_until(lambda: server.joint.get(KEY) is not None and len(server.tracker) == 1)
+    for empty, given in [
+        ("/v1/objects?cls=person&bbox=&min_score=", "/v1/objects?cls=person"),
+        ("/v1/objects?cls=&bbox=&min_score=&limit=&format=", "/v1/objects"),
+        (f"/v1/map?cls=person&bbox={tile_bbox(1e-7)}&encoding=", f"/v1/map?cls=person&bbox={tile_bbox(1e-7)}"),
+        (f"/v1/tiles/person/18/{TILE_X}/{TILE_Y}.png?agg=&cmap=", f"/v1/tiles/person/18/{TILE_X}/{TILE_Y}.png"),
+        ("/v1/tracks?include_ended=&history=&geometry=&format=", "/v1/tracks"),
+        ("/v1/history?since=&until=&cls=&rows=", "/v1/history"),
+        ("/v1/joint/tiles?cls=", "/v1/joint/tiles"),
+        ("/v1/uavs?format=&footprints", "/v1/uavs"),  # a bare name is empty too
+    ]:
+        answer, reference = http.get(empty), http.get(given)
+        assert answer.status_code == 200, (empty, answer.text)
+        assert answer.headers["content-type"] == reference.headers["content-type"], empty
+        if empty.startswith("/v1/uavs"):  # rates and last_seen move between the two requests
+            assert [r["id"] for r in answer.json()] == [r["id"] for r in reference.json()] == ["uav-a"]
+        elif "json" in answer.headers["content-type"]:
+            assert answer.json() == reference.json(), empty
+        else:
+            assert answer.content == reference.content, empty
+    features = http.get("/v1/objects?cls=person&bbox=&min_score=").json()["features"]
+    assert [f["properties"]["score"] for f in features] == [pytest.approx(0.9, abs=0.01)]  # min_score 0.5
+
+
+@pytest.mark.parametrize(("params", "named"), [
+    ({"cls": "", "bbox": "9,47,9.001,47.001"}, "cls"),
+    ({"cls": "person", "bbox": ""}, "bbox"),
+])
+def test_an_empty_required_parameter_is_a_400_naming_it(server, http, params, named):
+    response = http.get("/v1/map", params=params)
+    assert response.status_code == 400, response.text
+    assert response.json()["detail"].startswith(f"bad {named}:")
+
+
+def test_objects_and_map_of_a_class_without_data_are_empty_answers(server, http, agent_factory):
+    """A checker that starts the server and asks at once gets 200 and the normal shape, not a 404."""
+    before = http.get("/v1/objects", params={"cls": "person"})
+    assert before.status_code == 200 and before.headers["content-type"] == "application/geo+json"
+    assert before.json() == {"type": "FeatureCollection", "features": []}
+    assert before.headers["x-classes-with-data"] == ""
+    window = http.get("/v1/map", params={"cls": "person", "bbox": tile_bbox(1e-7)})
+    assert window.status_code == 200 and window.headers["x-classes-with-data"] == ""
+    body = window.json()
+    assert (body["cls"], body["width"], body["height"], body["t"]) == ("person", 256, 256, None)
+    assert not np.any(np.array(body["values"]))
+
+    agent_factory("uav-a").tile(blob(70, 90, value=0.9))
+    wait_until(lambda: server.joint.get(KEY) is not None)
+    car = http.get("/v1/objects", params={"cls": "car", "format": "kml"})
+    assert car.status_code == 200 and car.headers["x-classes-with-data"] == "person"
+    sparse = http.get("/v1/map", params={"cls": "car", "bbox": tile_bbox(1e-7), "encoding": "sparse"})
+    assert sparse.status_code == 200 and sparse.headers["x-classes-with-data"] == "person"
+    assert sparse.json()["cells"] == {"row": [], "col": [], "value": []}
+    person = http.get("/v1/objects", params={"cls": "person"})
+    assert len(person.json()["features"]) == 1 and "x-classes-with-data" not in person.headers
 
 
 def test_png_of_a_class_without_data_is_a_transparent_tile(server, http):

@@ -149,3 +149,37 @@ def test_cli_reports_bad_values_as_exit_code_2(capsys):
 
     assert main(["fusion", "--fusion-rule", "median", "--no-db"]) == 2
     assert "fusion_rule must be one of mean, max, noisy-or" in capsys.readouterr().err
+
+
+def test_map_max_cells_flag_reaches_the_settings_of_fusion_and_gateway():
+    from uavmm.cmd_gateway import settings_from_args as gateway_settings_from_args
+
+    assert parse().map_max_cells == FusionSettings().map_max_cells == 2**23
+    assert parse("--map-max-cells", "65536").map_max_cells == 65536
+    gateway = gateway_settings_from_args(build_parser().parse_args(
+        ["gateway", "--shards", "2", "--connect", "tcp/127.0.0.1:7447", "--map-max-cells", "20000000"]))
+    assert gateway.map_max_cells == 20_000_000
+    with pytest.raises(ValueError, match="map_max_cells must be an int >= 1, got 0"):
+        parse("--map-max-cells", "0")
+
+
+def test_map_max_cells_flag_caps_the_served_map_window():
+    """`uavmm fusion --map-max-cells N` through to HTTP: N cells get 200, one column more the 400 naming the flag."""
+    import httpx
+
+    from fusion_server.server import FusionServer
+    from tests.fusion_server.fake_agent import GRID, TILE_X, TILE_Y
+    from tests.netutil import free_port
+
+    settings = parse("--map-max-cells", str(256 * 256), "--http", "127.0.0.1:0", "--no-db",
+                     "--listen", f"tcp/127.0.0.1:{free_port()}", "--no-multicast-scouting")
+    west, south, east, north = GRID.tile_bounds(TILE_X, TILE_Y)
+    one_tile = f"{west + 1e-7},{south + 1e-7},{east - 1e-7},{north - 1e-7}"
+    one_more_column = f"{west + 1e-7},{south + 1e-7},{east + 180.0 / GRID.world_cells},{north - 1e-7}"
+    with FusionServer(settings) as server:
+        server.start()
+        with httpx.Client(base_url=server.url.rstrip("/"), timeout=10.0) as http:
+            assert http.get("/v1/map", params={"cls": "person", "bbox": one_tile}).status_code == 200
+            over = http.get("/v1/map", params={"cls": "person", "bbox": one_more_column})
+    assert over.status_code == 400 and "65792 cells, at most 65536 allowed (the server's --map-max-cells)" in \
+        over.json()["detail"]

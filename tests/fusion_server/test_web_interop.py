@@ -41,6 +41,10 @@ def test_cors_for_the_listed_origins_with_tokens(server_factory):
         assert "authorization" in preflight.headers["access-control-allow-headers"].lower()
         ok = http.get("/v1/objects", headers={"Origin": ORIGIN, "Authorization": f"Bearer {token}"})
         assert ok.status_code == 200 and ok.headers["access-control-allow-origin"] == ORIGIN
+        # a page may read which classes have data when it asked for one without
+        car = http.get("/v1/objects?cls=car", headers={"Origin": ORIGIN, "Authorization": f"Bearer {token}"})
+        assert car.headers["x-classes-with-data"] == ""
+        assert "x-classes-with-data" in car.headers["access-control-expose-headers"].lower()
         refused = http.get("/v1/objects", headers={"Origin": ORIGIN})
         # the page can read why it was refused
         assert refused.status_code == 401 and refused.headers["access-control-allow-origin"] == ORIGIN
