@@ -1,6 +1,7 @@
 """Fit the distance-size filter from a COCO dataset with meta (`uavmm fit-size-filter`).
 
-Ground-truth boxes are georeferenced with their frame's pose; each gives (depression, log metric size).
+Ground-truth boxes are georeferenced with their frame's pose; each gives (depression, log metric size). Over a
+terrain (`--dem`) the range and depression are the camera's to the ray's first hit on the DEM, as in the pipeline.
 """
 
 from __future__ import annotations
@@ -14,22 +15,39 @@ import numpy as np
 
 from agent.boxes import box_anchor_points
 from agent.dataset import Dataset, iter_video_frames
-from agent.size_filter import SizeFilter, fit_band
-from shared.geo import Camera, pixel_to_local
+from agent.dem import takeoff_terrain
+from agent.size_filter import SizeFilter, fit_band, slant_and_depression
+from shared.geo import Camera, Pose, pixel_to_local
+from shared.terrain import Terrain, pixel_to_terrain
 
 
-def box_geometry(boxes_xyxy: np.ndarray, camera: Camera, pose, anchor: str = "auto") -> tuple[np.ndarray, ...]:
-    """(N, 4) boxes -> slant range (m), depression (deg), diagonal (px), each (N,); NaN without ground."""
-    east, north, _ = pixel_to_local(box_anchor_points(boxes_xyxy, anchor, pose.pitch_deg), camera, pose)
-    slant = np.sqrt(east**2 + north**2 + pose.height_m**2)
-    depression = np.degrees(np.arcsin(pose.height_m / slant))
+def box_geometry(boxes_xyxy: np.ndarray, camera: Camera, pose: Pose, anchor: str = "auto", *,
+                 terrain: Terrain | None = None) -> tuple[np.ndarray, ...]:
+    """(N, 4) boxes -> slant range (m), depression (deg), diagonal (px), each (N,); NaN without ground.
+
+    terrain: the anchors' rays meet it (their first hit, no range limit) instead of flat ground, and range and
+    depression are to that point (`agent.size_filter.slant_and_depression`, as the pipeline's size filter takes
+    them); a terrain without a take-off elevation counts heights from the DEM below the UAV (see
+    `shared.terrain.Terrain`; `fit_from_dataset` gives each video its first pose's, as the pipeline does)."""
+    uv = box_anchor_points(boxes_xyxy, anchor, pose.pitch_deg)
+    if terrain is None:
+        east, north, _ = pixel_to_local(uv, camera, pose)
+        up = None
+    else:
+        east, north, up, _ = pixel_to_terrain(uv, camera, pose, terrain)
+    slant, depression = slant_and_depression(east, north, up, pose)
     diag = np.hypot(boxes_xyxy[:, 2] - boxes_xyxy[:, 0], boxes_xyxy[:, 3] - boxes_xyxy[:, 1])
     return slant, depression, diag
 
 
 def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: float = 3.0,
-                     anchor: str = "auto", min_samples: int = 20) -> tuple[SizeFilter, dict[str, dict[str, Any]]]:
-    """Fit a SizeFilter from the dataset's annotations; returns it and a per-class report."""
+                     anchor: str = "auto", min_samples: int = 20,
+                     terrain: Terrain | None = None) -> tuple[SizeFilter, dict[str, dict[str, Any]]]:
+    """Fit a SizeFilter from the dataset's annotations; returns it and a per-class report.
+
+    terrain: georeference the boxes on this DEM (`--dem`) instead of flat ground; without a take-off elevation
+    each video takes the DEM's height under its first pose (`agent.dem.takeoff_terrain`, as the pipeline does).
+    """
     dataset = Dataset.load(images_path)
     camera = Camera.from_spec(camera_path)
     anns = dataset.coco.get("annotations")
@@ -42,13 +60,18 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
         by_image[a["image_id"]].append(a)
     samples: dict[str, tuple[list[float], list[float]]] = defaultdict(lambda: ([], []))
     for video_id in dataset.videos:
+        video_terrain: Terrain | None = None
         for frame in iter_video_frames(dataset, camera, video_id):
-            if frame.pose is None or frame.image.id not in by_image:
+            if frame.pose is None:
+                continue
+            if terrain is not None and video_terrain is None:
+                video_terrain = takeoff_terrain(terrain, frame.pose)
+            if frame.image.id not in by_image:
                 continue
             image_anns = by_image[frame.image.id]
             xywh = np.array([a["bbox"] for a in image_anns], dtype=np.float64)
             xyxy = np.column_stack([xywh[:, :2], xywh[:, :2] + xywh[:, 2:]])
-            slant, dep, diag = box_geometry(xyxy, frame.camera, frame.pose, anchor)
+            slant, dep, diag = box_geometry(xyxy, frame.camera, frame.pose, anchor, terrain=video_terrain)
             f = math.sqrt(frame.camera.fx * frame.camera.fy)
             log_size = np.log(np.maximum(diag, 1e-6) * slant / f)
             for a, d, y in zip(image_anns, dep, log_size, strict=True):

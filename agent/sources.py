@@ -39,6 +39,7 @@ __all__ = [
     "load_video_telemetry",
     "pose_from_meta",
     "resolve_video_telemetry",
+    "video_start_time",
     "video_telemetry",
 ]
 
@@ -335,6 +336,31 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     return records, video_start_t
 
 
+def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemetry_offset_s: float | None = None,
+                     video_start_t: float | None = None) -> float:
+    """Telemetry time (s) of video time 0 (`--telemetry-offset-s`, the same for every command reading a video).
+
+    records: the video's telemetry sorted by time (not empty). telemetry_offset_s: the user's value, used as given.
+    video_start_t: what the file tells (`video_telemetry`: KLV in a transport stream, by its PTS). Without either:
+    where the log says the camera started recording (AirData's isVideo; the first such start when it marks
+    several, with a warning), else the first record's time. telemetry: the name used in the log lines.
+    """
+    if telemetry_offset_s is not None:
+        return float(telemetry_offset_s)
+    if video_start_t is not None:  # KLV in a transport stream: its PTS put the records on the video's clock
+        log.info("telemetry %s: video time 0 is telemetry time %.3f (from the KLV PTS)", telemetry, video_start_t)
+        return video_start_t
+    start, starts = recording_start(records)
+    if start is None:
+        return records[0].t
+    if starts > 1:
+        log.warning("telemetry %s marks %d recordings: the video is taken to be the first (t=%.3f); pass "
+                    "--telemetry-offset-s for another", telemetry, starts, start)
+    else:
+        log.info("telemetry %s: the video starts where the log starts recording (t=%.3f)", telemetry, start)
+    return start
+
+
 class VideoSource:
     """A video file read with OpenCV, its telemetry interpolated to the frame times, an ONNX detector.
 
@@ -438,31 +464,13 @@ class VideoSource:
             log.info("telemetry %s: live MAVLink, first record at t=%.3f", telemetry, self.records[0].t)
         self.records.sort(key=lambda r: r.t)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
-        if telemetry_offset_s is not None:
-            self.telemetry_offset_s = float(telemetry_offset_s)
-        elif video_start_t is not None:  # KLV in a transport stream: its PTS put the records on the video's clock
-            self.telemetry_offset_s = video_start_t
-            log.info("telemetry %s: video time 0 is telemetry time %.3f (from the KLV PTS)", telemetry, video_start_t)
-        else:
-            self.telemetry_offset_s = self._default_offset(telemetry)
+        self.telemetry_offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,
+                                                   video_start_t=video_start_t)
         self.max_gap_s = float(max_gap_s)
         self.pitch_deg = pitch_deg
         self.heading_deg = heading_deg
         self.name = f"video:{self.video_path.name}"
         self.problems = 0
-
-    def _default_offset(self, telemetry: str | Path) -> float:
-        """Telemetry time of video time 0: where the log says the camera started recording (AirData's
-        isVideo), else the first record's time."""
-        start, starts = recording_start(self.records)
-        if start is None:
-            return self.records[0].t
-        if starts > 1:
-            log.warning("telemetry %s marks %d recordings: the video is taken to be the first (t=%.3f); pass "
-                        "--telemetry-offset-s for another", telemetry, starts, start)
-        else:
-            log.info("telemetry %s: the video starts where the log starts recording (t=%.3f)", telemetry, start)
-        return start
 
     def _pose(self, tel: Telemetry | None) -> Pose | None:
         if tel is None:

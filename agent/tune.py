@@ -139,7 +139,8 @@ def tune(images_path: str | Path, candidates_path: str | Path, camera_path: str 
          progress: Callable[[str], None] | None = None) -> TuneResult:
     """Fit the size filter and search the memory-map settings on an annotated dataset.
 
-    base: the starting config (default: the built-in defaults; `--config` of the command). holdout: with
+    base: the starting config (default: the built-in defaults; `--config` of the command); its terrain (`--dem`)
+    is the ground of every run, the size filter's fit and the held-out check included. holdout: with
     two or more videos, also tune on the even-positioned videos and score the odd ones (reported as
     ``holdout``; the returned config is always tuned on every video). ValueError for a dataset without
     annotations or without any usable meta, naming the file.
@@ -156,7 +157,7 @@ def tune(images_path: str | Path, candidates_path: str | Path, camera_path: str 
     filter_report: dict[str, Any] = {"used": "built-in priors"}
     if fit_size_filter and base.use_size_filter:
         try:
-            fitted, per_class = fit_from_dataset(images_path, camera_path, anchor=base.anchor)
+            fitted, per_class = fit_from_dataset(images_path, camera_path, anchor=base.anchor, terrain=base.terrain)
         except ValueError as exc:
             filter_report["fit"] = f"not fitted: {exc}"
         else:

@@ -153,7 +153,7 @@ def _add_pipeline_options(p: argparse.ArgumentParser, *, config_flag: str = "--c
 
 def add_terrain_options(p: argparse.ArgumentParser) -> None:
     """--dem FILE and --takeoff-elevation-m METRES (read by `terrain_from_args`): every command that puts pixels on
-    the ground (boost, track, agent, detect, anomaly) takes the same two."""
+    the ground (boost, track, agent, detect, anomaly, tune, fit-size-filter) takes the same two."""
     t = p.add_argument_group("terrain (docs/geometry.md, Terrain)")
     t.add_argument("--dem", type=Path, default=None, metavar="FILE",
                    help="georeference on this elevation model instead of flat ground: GeoTIFF or any raster GDAL "
@@ -279,21 +279,24 @@ def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
         "fit-size-filter", help="fit the distance-size filter from a dataset with meta",
         description="Fit per class the metric box diameter (pixels x range / focal length) as a function "
-                    "of the viewing depression from ground-truth boxes, and save it for --size-filter.",
+                    "of the viewing depression from ground-truth boxes (range and depression to where each box's "
+                    "ground point's ray meets the --dem terrain, when given), and save it for --size-filter.",
     )
     p.add_argument("--frames", type=Path, required=True, help="IMAGES.json with annotations and meta")
     p.add_argument("--camera", type=Path, required=True, help="CAMERA.json")
     p.add_argument("--out", type=Path, required=True, help="size-filter JSON to write")
     p.add_argument("--k", type=float, default=3.0, help="band half-width in standard deviations (3)")
     p.add_argument("--anchor", choices=["auto", "center", "bottom"], default="auto")
+    add_terrain_options(p)
     p.set_defaults(handler=_run_fit_size_filter)
 
 
 def _run_fit_size_filter(args: argparse.Namespace) -> int:
     from agent.size_filter_fit import fit_from_dataset
 
+    terrain = terrain_from_args(args)
     require_out_parent(args.out)
-    sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor)
+    sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor, terrain=terrain)
     sf.save(args.out)
     for name, row in report.items():
         print(f"{name}: " + ", ".join(f"{k}={v}" for k, v in row.items()))

@@ -30,7 +30,14 @@ def register(sub: argparse._SubParsersAction) -> None:
     src = p.add_mutually_exclusive_group(required=True)
     src.add_argument("--frames", type=Path, help="IMAGES.json (image files relative to its folder)")
     src.add_argument("--video", type=Path, help="video file (with --telemetry)")
-    p.add_argument("--telemetry", type=Path, help="telemetry of --video: DJI .srt, .csv or SeaDronesSee .json")
+    p.add_argument("--telemetry", type=Path,
+                   help="telemetry of --video: .srt (DJI), .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg, MISB "
+                        "ST 0601 KLV (.ts/.m2ts/.mts video or raw .klv; the word 'klv' = the KLV inside the --video "
+                        "transport stream)")
+    p.add_argument("--telemetry-offset-s", type=float, default=None,
+                   help="--video: telemetry time of the video's first frame, seconds on the telemetry's clock "
+                        "(default: KLV in a transport stream tells it by its PTS; else where the log starts "
+                        "recording, AirData's isVideo; else the first record's)")
     p.add_argument("--camera", required=True, help="CAMERA.json (or a camera preset's name)")
     p.add_argument("--out", type=Path, required=True, help="ROIS.json to write (COCO result list)")
     p.add_argument("--method", default=DEFAULT_METHOD,
@@ -87,12 +94,15 @@ def run_anomaly(args: argparse.Namespace) -> int:
         raise ValueError("--video needs --telemetry FILE")
     if args.frames is not None and args.telemetry is not None:
         raise ValueError("--telemetry goes with --video (--frames carries its telemetry in images.json meta)")
+    if args.frames is not None and args.telemetry_offset_s is not None:
+        raise ValueError("--telemetry-offset-s goes with --video (--frames carries its times in images.json meta)")
     if not args.out.parent.is_dir():
         raise ValueError(f"output directory {args.out.parent} does not exist (for {args.out})")
     cfg, method = _config(args)
     camera = Camera.from_spec(args.camera)
     frames = (dataset_frames(args.frames, camera) if args.frames is not None
-              else iter(VideoFrames(args.video, args.telemetry, camera, height_m=args.height_m)))
+              else iter(VideoFrames(args.video, args.telemetry, camera, height_m=args.height_m,
+                                    telemetry_offset_s=args.telemetry_offset_s)))
     detector = AnomalyDetector(cfg, method)
     results = []
     video = None

@@ -7,11 +7,12 @@ read the result.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from pathlib import Path
 
-from uavmm.cli import CliError
+from uavmm.cli import CliError, add_terrain_options, terrain_from_args
 
 __all__ = ["register"]
 
@@ -24,7 +25,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                     "as the built-in priors), then search the memory map's evidence per second, forgetting "
                     "half-life, Gaussian radius and boost weight for the best AP50 (pycocotools), starting from "
                     "the defaults. With two or more videos the report also tunes on half of them and scores the "
-                    "other half. Writes PARAMS.json for boost, track and agent (--config).",
+                    "other half. Writes PARAMS.json for boost, track and agent (--config). With --dem every run (the "
+                    "size filter's fit, the search, the held-out check) georeferences on the terrain; PARAMS.json "
+                    "does not keep the DEM: give --dem to boost, track and agent too.",
     )
     p.add_argument("--frames", type=Path, required=True, help="IMAGES.json with annotations and meta")
     p.add_argument("--candidates", type=Path, required=True, help="PRE_NMS.json (COCO result list)")
@@ -37,6 +40,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--min-gain", type=float, default=0.2,
                    help="AP50 points a step must gain to move away from the defaults (0.2)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
+    add_terrain_options(p)
     p.set_defaults(handler=_run_tune)
 
 
@@ -49,6 +53,9 @@ def _run_tune(args: argparse.Namespace) -> int:
     if not (args.min_gain >= 0):
         raise CliError(f"--min-gain must be >= 0, got {args.min_gain}")
     base, _ = load_params(args.start_config)
+    terrain = terrain_from_args(args)
+    if terrain is not None:  # every run's ground (fit, search, held-out check); not a setting PARAMS.json keeps
+        base = dataclasses.replace(base, terrain=terrain)
 
     def progress(line: str) -> None:
         sys.stderr.write(f"uavmm tune: {line}\n")

@@ -50,8 +50,12 @@ def dataset_frames(images_json: str | Path, camera: Camera) -> Iterator[AnomalyI
 
 
 class VideoFrames:
-    """A video file (OpenCV) with its telemetry (``.srt``, ``.csv``, SeaDronesSee ``.json``) interpolated to the
-    frame times; frame i is at the first record's time + i / fps (or ``telemetry_offset_s`` + i / fps).
+    """A video file (OpenCV) with its telemetry interpolated to the frame times: any file `agent.sources.
+    video_telemetry` reads (``.srt``, ``.csv``, SeaDronesSee ``.json``, ``.tlog``, ``.ulg``, KLV in ``.ts`` /
+    ``.m2ts`` / ``.mts`` or raw ``.klv``), or the word ``klv`` for the KLV inside the video (a transport stream).
+    Frame i is at ``telemetry_offset_s`` + i / fps; without it at the telemetry time of video time 0 the file
+    tells (KLV in a transport stream, by its PTS), else where the log starts recording (AirData's isVideo), else
+    the first record's time (`agent.sources.video_start_time`, as the video source of agent and detect).
 
     Checked at construction, each a one-line ValueError: the video opens and has frames, the camera's aspect
     matches the frames, and the telemetry covers the video's duration (within ``max_gap_s``).
@@ -62,8 +66,9 @@ class VideoFrames:
                  height_m: float | None = None) -> None:
         import cv2
 
-        from agent.sources import load_video_telemetry
+        from agent.sources import resolve_video_telemetry, video_start_time, video_telemetry
 
+        telemetry = resolve_video_telemetry(telemetry, video)
         for what, p in (("video", video), ("telemetry", telemetry)):
             if not Path(p).is_file():
                 raise ValueError(f"{what} file {p} does not exist")
@@ -77,9 +82,11 @@ class VideoFrames:
             raise ValueError(f"video file {self.path} cannot be read by OpenCV (not a video, or no frames)")
         self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
         self.camera = camera.fitted_to(first.shape[1], first.shape[0], source=f"the frames of {self.path}")
-        self.records = sorted(load_video_telemetry(telemetry, height_m=height_m), key=lambda r: r.t)
+        records, video_start_t = video_telemetry(telemetry, height_m=height_m)
+        self.records = sorted(records, key=lambda r: r.t)
         self.height_m = height_m
-        self.offset_s = self.records[0].t if telemetry_offset_s is None else float(telemetry_offset_s)
+        self.offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,
+                                         video_start_t=video_start_t)
         self.max_gap_s = float(max_gap_s)
         duration = max(count - 1, 0) / self.fps
         t0, t1 = self.records[0].t, self.records[-1].t

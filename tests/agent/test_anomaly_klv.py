@@ -1,0 +1,82 @@
+"""`uavmm anomaly --video FLIGHT.ts --telemetry klv`: the MISB ST 0601 KLV inside a transport stream (written by
+FFmpeg's muxer through PyAV), its PTS giving the telemetry time of video time 0, and --telemetry-offset-s."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import pytest
+
+from agent.anomaly.frames import VideoFrames
+from shared.geo import Camera
+from uavmm.cli import main
+
+T0 = 1_717_236_000.0
+FRAMES = 12
+
+
+@pytest.fixture(scope="module")
+def flight(tmp_path_factory: pytest.TempPathFactory):
+    """A 10 fps MPEG-TS of 12 frames whose KLV sample i (sensor latitude 48.53 + 1e-5 i, 10 Hz) is shown with
+    frame i + 2: the video starts 0.2 s before the first sample, by the PTS. Returns (video, camera file)."""
+    pytest.importorskip("av")
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    d = tmp_path_factory.mktemp("anomaly-klv")
+    klv = [packet(T0 + 0.1 * i, {**FULL_FIELDS, "sensor_lat": 48.53 + 1e-5 * i}) for i in range(FRAMES)]
+    video = write_ts_with_pyav(d / "flight.ts", klv, fps=10, size=(320, 180), klv_delay_frames=2)
+    camera = d / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    return video, camera
+
+
+def test_video_frames_take_video_time_zero_from_the_klv_pts(flight):
+    video, camera = flight
+    cam = Camera.from_spec(camera)
+    for telemetry in ("klv", "KLV", video):  # the word, or the transport stream named as the telemetry file
+        source = VideoFrames(video, telemetry, cam)
+        assert source.offset_s == pytest.approx(T0 - 0.2, abs=1e-3)
+        frames = list(source)
+        assert len(frames) == FRAMES and all(f.pose is not None for f in frames)
+        assert frames[5].pose.lat == pytest.approx(48.53 + 3e-5, abs=1e-7)  # frame 5 shows sample 3
+        assert frames[5].t == pytest.approx(T0 + 0.3, abs=1e-3)
+        pose = frames[5].pose
+        assert (pose.pitch_deg, pose.heading_deg, pose.height_m) == pytest.approx((45.0, 10.0, 40.0), abs=0.31)
+    given = list(VideoFrames(video, "klv", cam, telemetry_offset_s=T0))
+    assert given[5].pose.lat == pytest.approx(48.53 + 5e-5, abs=1e-7)  # --telemetry-offset-s overrides the PTS
+
+
+def test_anomaly_reads_the_klv_inside_the_video(flight, tmp_path, capsys, caplog):
+    video, camera = flight
+    out = tmp_path / "rois.json"
+    caplog.set_level(logging.INFO, logger="agent.sources")
+    assert main(["anomaly", "--video", str(video), "--telemetry", "klv", "--camera", str(camera), "--out", str(out),
+                 "--method", "mean", "--quiet"]) == 0
+    assert f"video time 0 is telemetry time {T0 - 0.2:.3f} (from the KLV PTS)" in caplog.text
+    assert f"for {FRAMES} frames" in capsys.readouterr().out
+    assert {r["image_id"] for r in json.loads(out.read_text())} <= set(range(FRAMES))
+
+
+def _error(capsys, args) -> str:
+    assert main(["anomaly", *args, "--method", "mean", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err
+    return err
+
+
+def test_anomaly_klv_and_offset_errors_are_one_line(flight, tmp_path, capsys):
+    video, camera = flight
+    files = ["--camera", str(camera), "--out", str(tmp_path / "rois.json")]
+    # an offset the telemetry does not cover: --telemetry-offset-s reaches the reader
+    err = _error(capsys, ["--video", str(video), "--telemetry", "klv", "--telemetry-offset-s", str(T0 + 60), *files])
+    assert "covers" in err and "flight.ts" in err
+    avi = tmp_path / "clip.avi"
+    avi.write_bytes(b"not a video")
+    err = _error(capsys, ["--video", str(avi), "--telemetry", "klv", *files])
+    assert "--telemetry klv reads the KLV metadata of an MPEG transport stream (.ts, .m2ts, .mts), not" in err
+    images = tmp_path / "images.json"
+    images.write_text(json.dumps({"images": [], "categories": []}))
+    err = _error(capsys, ["--frames", str(images), "--telemetry-offset-s", "3", *files])
+    assert "--telemetry-offset-s goes with --video" in err
+    assert not (tmp_path / "rois.json").exists()
