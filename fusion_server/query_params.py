@@ -29,15 +29,16 @@ def _optional_query_names(dependant: Dependant) -> frozenset[str]:
 def drop_empty(query_string: bytes, names: frozenset[str]) -> bytes:
     """``query_string`` without the pairs whose name is in ``names`` and whose value is empty.
 
-    ``a=`` and a bare ``a`` are empty; every other pair is kept byte for byte, in order (so a repeated
-    parameter keeps its non-empty values). Names are compared percent-decoded, as Starlette reads them.
+    ``a=`` is empty; every other pair is kept byte for byte, in order (so a repeated parameter keeps its
+    non-empty values, and a bare ``a``, which a client may mean as a true flag, still reaches the validation).
+    Names are compared percent-decoded, as Starlette reads them.
     """
     if not query_string or not names:
         return query_string
     kept = []
     for pair in query_string.split(b"&"):
-        name, _, value = pair.partition(b"=")
-        if not value and unquote_plus(name.decode("latin-1")) in names:
+        name, equals, value = pair.partition(b"=")
+        if equals and not value and unquote_plus(name.decode("latin-1")) in names:
             continue
         kept.append(pair)
     return b"&".join(kept)

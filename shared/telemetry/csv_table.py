@@ -14,7 +14,7 @@ from typing import Any
 
 from shared.telemetry.dates import DATETIME_RE, parse_datetime
 from shared.telemetry.interpolation import spread_repeated_stamps
-from shared.telemetry.record import Telemetry, pitch_or_none
+from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch, pitch_or_none
 from shared.telemetry.text import NUM_RE, read_text
 
 log = logging.getLogger(__name__)
@@ -52,8 +52,10 @@ _DRONE_COLUMNS = ("uav", "uav_id", "drone", "drone_id", "vehicle", "vehicle_id",
 #: A unitless time column whose values exceed this is in milliseconds since 1970 (in seconds: the year 5138).
 _EPOCH_MS_MIN = 1e11
 #: A unitless time column whose median step between distinct stamps is at least this is in milliseconds (a drone
-#: log in seconds samples at 1 Hz or faster; in milliseconds 10 Hz is a step of 100).
-_MS_STEP_MIN = 10.0
+#: log in seconds samples every few seconds at most; in milliseconds 50 Hz is a step of 20, 10 Hz of 100), unless
+#: its values are epoch seconds (`_EPOCH_S_MIN` .. `_EPOCH_MS_MIN`).
+_MS_STEP_MIN = 20.0
+_EPOCH_S_MIN = 1e8
 _HEADER_RE = re.compile(r"(?P<name>.*?)\s*(?:\((?P<paren>[^()]*)\)|\[(?P<bracket>[^\[\]]*)\])?")
 
 
@@ -171,16 +173,22 @@ def parse_csv(
     height_offset_m : float
         Metres added to every height (e.g. minus the ground elevation for an above-sea-level column).
 
+    Rows that cannot be a record (cut short, a bad or empty required cell, an out-of-range value) are skipped
+    and counted in one warning with rows without a GPS fix (latitude and longitude 0: kept, `interpolate` gives
+    them no pose); half the rows bad or more fails the file. A unitless time column in milliseconds is read as
+    such (`_seconds`); whole-second stamps that repeat are spread over their second.
+
     Returns
     -------
     list of Telemetry
-        One per non-blank data row, in file order.
+        One per usable data row, in file order.
 
     Raises
     ------
     ValueError
-        Naming the missing column; or ``source:line: column 'name': ...`` for a bad cell, a row with the
-        wrong number of cells, or an out-of-range value.
+        Naming the missing column, a column naming two drones, or, when half the rows or more are bad, the first
+        bad one: ``source:line: column 'name': ...`` for a bad cell, a row with the wrong number of cells, or an
+        out-of-range value.
     """
     if not isinstance(text, str):
         raise TypeError(f"parse_csv needs str, got {type(text).__name__}")
@@ -199,37 +207,47 @@ def parse_csv(
     if len(rows) == 1:
         raise ValueError(f"{source}: no data rows after the header")
     _one_drone(header, rows[1:], source)
-    rows = [rows[0], *_usable_rows(rows[1:], header, columns, source, utc_offset_s)]
+    kept = _usable_rows(rows[1:], header, columns, source, utc_offset_s, height_offset_m)
+    records = _records(kept, columns, source, utc_offset_s, height_offset_m)
+    column = columns.get("pitch")
+    raw = [] if column is None or column.alias != "pitch" else [
+        v for v in (_csv_float(row[column.index], line, column, source) for line, row in kept) if v is not None]
+    if raw and all(abs(v) < _AIRFRAME_PITCH_DEG for v in raw):
+        assert column is not None
+        log.warning("%s: column %r stays within %g deg of the horizon in every row: if it is the airframe's pitch "
+                    "(not the gimbal's), remove it and pass --pitch-deg", source, column.name, _AIRFRAME_PITCH_DEG)
+    return records
+
+
+def _records(rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float,
+             height_offset_m: float, *, quiet: bool = False) -> list[Telemetry]:
+    """The records of data rows (all of them, or one at a time for `_usable_rows`' check; quiet: no warnings).
+    ValueError ``source:line: ...`` on the first row that cannot be one."""
 
     def floats(fld: str) -> list[float | None] | None:
         column = columns.get(fld)
         if column is None:
             return None
-        return [_csv_float(row[column.index], line, column, source) for line, row in rows[1:]]
+        return [_csv_float(row[column.index], line, column, source) for line, row in rows]
 
     def required(fld: str) -> list[float]:
         column, values = columns[fld], floats(fld)
         out: list[float] = []
-        for (line, _), value in zip(rows[1:], values or [], strict=True):
+        for (line, _), value in zip(rows, values or [], strict=True):
             if value is None:
                 raise ValueError(f"{source}:{line}: column {column.name!r} is empty")
             out.append(value)
         return out
 
     lat, lon, height = required("lat"), required("lon"), required("height")
-    times = _csv_times(rows[1:], columns, source, utc_offset_s)
-    pitch = _csv_pitch(rows[1:], columns, floats("pitch"), source)
-    if "pitch" in columns and columns["pitch"].alias == "pitch" and rows[1:] \
-            and all(p is not None and p < _AIRFRAME_PITCH_DEG for p in pitch):
-        log.warning("%s: column %r puts the camera within %g deg of the horizon in every row: if it is the "
-                    "airframe's pitch (not the gimbal's), remove it and pass --pitch-deg", source,
-                    columns["pitch"].name, _AIRFRAME_PITCH_DEG)
+    times = _csv_times(rows, columns, source, utc_offset_s, quiet=quiet)
+    pitch = _csv_pitch(rows, columns, floats("pitch"), source, quiet)
     heading, roll, speed = floats("heading"), floats("roll"), floats("speed")
     north, east = floats("vel_north"), floats("vel_east")
     recording = floats("recording")
-    frames = _csv_frames(rows[1:], columns.get("frame"), source)
+    frames = _csv_frames(rows, columns.get("frame"), source)
     records = []
-    for i, (line, _) in enumerate(rows[1:]):
+    for i, (line, _) in enumerate(rows):
         ve = None if east is None else east[i]
         vn = None if north is None else north[i]
         try:
@@ -254,7 +272,8 @@ def parse_csv(
 
 
 def _csv_times(
-    rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float
+    rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float, *,
+    quiet: bool = False
 ) -> list[float]:
     def dates(column: _CsvColumn) -> list[float]:
         out = []
@@ -279,7 +298,7 @@ def _csv_times(
                 if value is None:
                     raise ValueError(f"{source}:{line}: column {time_column.name!r} is empty")
                 numeric.append(value)
-            numeric = _seconds(numeric, time_column, source)
+            numeric = _seconds(numeric, time_column, source, warn=not quiet)
         else:
             return _spread_whole_seconds(dates(time_column))
     date_column = columns.get("datetime")
@@ -302,25 +321,28 @@ def _spread_whole_seconds(stamps: list[float]) -> list[float]:
     return stamps
 
 
-def _seconds(values: list[float], column: _CsvColumn, source: str) -> list[float]:
+def _seconds(values: list[float], column: _CsvColumn, source: str, *, warn: bool = True) -> list[float]:
     """A time column's numbers in seconds. A column that names its unit (``time_s``, ``time(millisecond)``) is
     taken at its word; a unitless ``time``, ``t`` or ``timestamp`` holding milliseconds (since 1970: values beyond
     1e11; since the start: a median step of at least 10 between distinct stamps, where a drone log in seconds
-    steps by 1 or less) is read as milliseconds, with a warning naming the column."""
+    steps by a few seconds at most: a median step of at least 20, below epoch-second values) is read as
+    milliseconds, with a warning naming the column (`warn` False: silently, for the per-row checks)."""
     unitless = column.alias != "time_s" and column.scale == 1.0 and "(" not in column.name and "[" not in column.name
     if not unitless or not values:
         return values
     distinct = sorted(set(values))
     steps = [b - a for a, b in zip(distinct, distinct[1:], strict=False)]
     median_step = sorted(steps)[len(steps) // 2] if steps else 0.0
-    if sorted(abs(v) for v in values)[len(values) // 2] > _EPOCH_MS_MIN:
+    middle = sorted(abs(v) for v in values)[len(values) // 2]
+    if middle > _EPOCH_MS_MIN:
         why = "milliseconds since 1970"
-    elif median_step >= _MS_STEP_MIN:
+    elif median_step >= _MS_STEP_MIN and middle < _EPOCH_S_MIN:
         why = f"milliseconds (its stamps step by {median_step:g})"
     else:
         return values
-    log.warning("%s: time column %r read as %s; name it time_s or time(ms) to say its unit", source, column.name,
-                why)
+    if warn:
+        log.warning("%s: time column %r read as %s; name it time_s or time(ms) to say its unit", source,
+                    column.name, why)
     return [v * 1e-3 for v in values]
 
 
@@ -338,49 +360,34 @@ def _one_drone(header: list[str], rows: list[tuple[int, list[str]]], source: str
 
 
 def _usable_rows(rows: list[tuple[int, list[str]]], header: list[str], columns: dict[str, _CsvColumn], source: str,
-                 utc_offset_s: float) -> list[tuple[int, list[str]]]:
-    """The data rows a record can be made of. A row cut short (a logger killed mid-line), with a bad or empty
-    required cell, an unreadable time or an out-of-range value is skipped, as is a row without a GPS fix
-    (latitude and longitude both 0, as loggers write before the fix); one warning counts them and names the first.
-    ValueError (the first problem) when no row is left, or when half the rows or more are bad (not counting the
-    no-fix ones): then the file, not a row, is wrong."""
+                 utc_offset_s: float, height_offset_m: float) -> list[tuple[int, list[str]]]:
+    """The data rows a record can be made of. A row cut short (a logger killed mid-line) or one that cannot be a
+    record by itself (a bad or empty required cell, an unreadable time, an out-of-range value) is skipped; one
+    warning counts them and names the first. ValueError (the first problem) when half the rows or more are bad:
+    then the file, not a row, is wrong. Rows without a GPS fix (latitude and longitude both 0, as loggers write
+    before the fix) are kept and counted in the warning: they keep the log's clock (its first time, the start of
+    recording), and `interpolate` gives their times no pose."""
     kept: list[tuple[int, list[str]]] = []
     bad: list[str] = []
-    no_fix = 0
     for line, row in rows:
         if len(row) != len(header):
             bad.append(f"{source}:{line}: {len(row)} cells, the header has {len(header)}")
             continue
         try:
-            position = []
-            for fld in ("lat", "lon", "height"):
-                column = columns[fld]
-                value = _csv_float(row[column.index], line, column, source)
-                if value is None:
-                    raise ValueError(f"{source}:{line}: column {column.name!r} is empty")
-                position.append(value)
-            for fld, limit in (("lat", 90.0), ("lon", 180.0)):
-                value = position[0 if fld == "lat" else 1]
-                if abs(value) > limit:
-                    raise ValueError(f"{source}:{line}: column {columns[fld].name!r}: {value:g} is outside "
-                                     f"+-{limit:g} deg")
-            for fld in ("heading", "roll", "speed", "vel_north", "vel_east", "recording"):
-                if fld in columns:
-                    _csv_float(row[columns[fld].index], line, columns[fld], source)
-            _csv_times([(line, row)], columns, source, utc_offset_s)
+            _records([(line, row)], columns, source, utc_offset_s, height_offset_m, quiet=True)
         except ValueError as err:
             bad.append(str(err))
             continue
-        if position[0] == 0.0 and position[1] == 0.0:
-            no_fix += 1
-            continue
         kept.append((line, row))
     if not kept or len(bad) * 2 >= len(rows):
-        raise ValueError(bad[0] if bad else f"{source}: no row has a GPS fix (every position is 0, 0)")
+        raise ValueError(bad[0])
+    no_fix = sum(_csv_float(row[columns["lat"].index], line, columns["lat"], source) == 0.0
+                 and _csv_float(row[columns["lon"].index], line, columns["lon"], source) == 0.0 for line, row in kept)
     if bad or no_fix:
-        parts = ([f"{len(bad)} unreadable"] if bad else []) + ([f"{no_fix} without a GPS fix (0, 0)"] if no_fix else [])
-        log.warning("%s: %d of %d rows skipped (%s)%s", source, len(bad) + no_fix, len(rows), ", ".join(parts),
-                    f"; first: {bad[0]}" if bad else "")
+        parts = ([f"{len(bad)} unreadable rows skipped"] if bad else []) \
+            + ([f"{no_fix} without a GPS fix (0, 0) give no pose"] if no_fix else [])
+        log.warning("%s: %d of %d rows: %s%s", source, len(bad) + no_fix, len(rows), ", ".join(parts),
+                    f"; first skipped: {bad[0]}" if bad else "")
     return kept
 
 
@@ -389,6 +396,7 @@ def _csv_pitch(
     columns: dict[str, _CsvColumn],
     raw: list[float | None] | None,
     source: str,
+    quiet: bool = False,
 ) -> list[float | None]:
     if raw is None:
         return [None] * len(rows)
@@ -402,7 +410,14 @@ def _csv_pitch(
         if not math.isfinite(value):
             raise ValueError(f"{source}:{line}: column {column.name!r}: pitch {value!r} is not finite")
         depression = -value if dji else value
-        out.append(pitch_or_none(depression, f"{source}:{line}: column {column.name!r}: pitch {value:g}"))
+        what = f"{source}:{line}: column {column.name!r}: pitch {value:g}"
+        if quiet:  # the per-row check: the whole file's pass says it once
+            try:
+                out.append(clamp_pitch(depression, PITCH_TOLERANCE_DEG, what))
+            except ValueError:
+                out.append(None)
+        else:
+            out.append(pitch_or_none(depression, what))
     return out
 
 

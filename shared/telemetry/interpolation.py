@@ -45,7 +45,8 @@ def interpolate(
         ``t`` = the query time. lat, height, pitch and speeds are linear; lon, heading and roll follow
         the shortest arc (359 -> 1 passes 0, +179 -> -179 lon crosses the antimeridian). An optional
         field (height included) is None where a bracketing record lacks it. ``frame`` is kept only where a query time
-        equals a record's ``t``.
+        equals a record's ``t``. Records at latitude and longitude 0 (a logger's "no GPS fix") are left out, as if
+        the log had a gap there; with only such records every time gets None.
 
     Raises
     ------
@@ -66,6 +67,11 @@ def interpolate(
         raise ValueError(f"interpolate: records must be sorted by t (record {first} goes back in time)")
     t_rec, keep = np.unique(t_rec, return_index=True)
     recs = [recs[i] for i in keep]
+    fixed = np.array([not (r.lat == 0.0 and r.lon == 0.0) for r in recs])
+    if not fixed.all():  # a logger's "no GPS fix" (0, 0): no sample of the position, so no pose from it
+        if not fixed.any():
+            return [None] * len(query)
+        t_rec, recs = t_rec[fixed], [r for r, f in zip(recs, fixed, strict=True) if f]
 
     def interp(values: np.ndarray) -> np.ndarray:
         return np.interp(np.clip(query, t_rec[0], t_rec[-1]), t_rec, values)

@@ -413,14 +413,15 @@ def parse_seadronessee_coco(
     list of Telemetry
         One per image with usable meta, ``frame`` = ``source.frame_no`` (SeaDronesSee Object Detection v2) or
         ``frame_index``; the video is ``source.video`` or ``video_id``. Images with null meta are skipped, those
-        with unusable meta or no frame index too, counted in one warning. Stamps at whole seconds that repeat
+        with unusable meta or no frame index too, counted in one warning (half of the images with meta or more
+        unusable fails the file, naming the first). Stamps at whole seconds that repeat
         (flight-log meta) are spread over their second in frame order.
 
     Raises
     ------
     ValueError
-        Naming the source and image id when no image has usable meta (the first problem), and when several
-        videos are present and ``video_id`` is not given.
+        Naming the source and image id when no image, or not half of those with meta, has usable meta (the first
+        problem), and when several videos are present and ``video_id`` is not given.
     """
     images = coco.get("images") if isinstance(coco, Mapping) else None
     if not isinstance(images, list):
@@ -440,7 +441,8 @@ def parse_seadronessee_coco(
     skipped, problems = 0, []
     for image in chosen:
         src = image.get("source")
-        frame = src.get("frame_no", image.get("frame_index")) if isinstance(src, Mapping) else image.get("frame_index")
+        frame = src.get("frame_no") if isinstance(src, Mapping) else None
+        frame = image.get("frame_index") if frame is None else frame
         if isinstance(frame, bool) or not isinstance(frame, int) or frame < 0:
             problems.append(f"image id {image.get('id')!r}: frame index {frame!r} is not an index")
             continue
@@ -455,7 +457,7 @@ def parse_seadronessee_coco(
         records.append((frame, tel))
     if skipped:
         logger.info("%s: %d image(s) without meta carry no telemetry", source, skipped)
-    if not records:
+    if not records or len(problems) * 2 >= len(records) + len(problems):  # half unusable: the file is wrong
         raise ValueError(f"{source}: " + (problems[0] if problems else "no image with meta"
                                           + ("" if video_id is None else f" in video {video_id!r}")))
     if problems:

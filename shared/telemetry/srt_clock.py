@@ -100,8 +100,9 @@ def _refine_whole_second_dates(run: list[int], blocks: Sequence[BlockTimes], val
     dates = [values[i] for i in run]
     starts = [blocks[i].start_s for i in run]
     if blocks[run[0]].source() != "date" or len(run) < 2 or len(set(dates)) == len(dates) \
-            or any(d != math.floor(d) for d in dates) or any(st is None for st in starts):
-        return
+            or any(d != math.floor(d) for d in dates) or any(st is None for st in starts) \
+            or any(b < a for a, b in zip(starts, starts[1:], strict=False)):  # type: ignore[operator]
+        return  # (a timing that steps back inside the run would make the times go back: the dates stay)
     gaps = [d - st for d, st in zip(dates, starts, strict=True) if st is not None]
     lo, hi = max(gaps), min(gaps) + 1.0
     c = 0.5 * (lo + hi) if lo < hi else sorted(gaps)[len(gaps) // 2] + 0.5

@@ -11,7 +11,7 @@ OPTIONAL = frozenset({"bbox", "min_score", "cls name"})
 
 @pytest.mark.parametrize(("query", "kept"), [
     (b"cls=person&bbox=&min_score=", b"cls=person"),
-    (b"bbox&min_score=0.3", b"min_score=0.3"),  # a bare name is empty
+    (b"bbox&min_score=0.3", b"bbox&min_score=0.3"),  # a bare name is kept: a client may mean it as a true flag
     (b"cls=&bbox=", b"cls="),  # cls is not optional here: left for the endpoint to refuse
     (b"cls+name=&x=1", b"x=1"),  # names compare percent-decoded, as Starlette reads them
     (b"cls%20name=&bbox=1%2C2%2C3%2C4", b"bbox=1%2C2%2C3%2C4"),  # kept pairs keep their bytes

@@ -929,7 +929,7 @@ def test_csv_iso_timestamps_are_epoch_seconds():
         ("time,lat,lon,height\n0,1,2,30\n1,1,abc,30\n", r"data\.csv:3: column 'lon': 'abc' is not a number"),
         ("time,lat,lon,height\n0,1,2,30\n\n1,1,2\n", r"data\.csv:4: 3 cells"),
         ("time,lat,lon,height\n0,,2,30\n", r"data\.csv:2: column 'lat' is empty"),
-        ("time,lat,lon,height\n0,95,2,30\n", r"data\.csv:2: column 'lat': 95 is outside \+-90 deg"),
+        ("time,lat,lon,height\n0,95,2,30\n", r"data\.csv:2: Telemetry\.lat"),
         ("time,lat,lon,height,frame\n0,1,2,30,1.5\n", r"data\.csv:2: column 'frame'"),
         ("time(fortnight),lat,lon,height\n0,1,2,30\n", r"column 'time\(fortnight\)': unknown unit"),
         ("time,lat,Lat,lon,height\n0,1,1,2,30\n", r"same field"),
@@ -1455,21 +1455,64 @@ def test_whole_second_stamps_in_the_time_column_are_spread_over_their_second(sta
     assert [f.heading_deg for f in frames] == pytest.approx([100.0, 101.02, 102.01, 104.02], abs=0.05)
 
 
-def test_csv_rows_without_a_fix_or_cut_short_are_skipped_and_counted(caplog):
-    text = ("time_s,lat,lon,height_m,pitch_deg,heading_deg\n"
-            "0,0.0,0.0,0,45,100\n0.1,0,0,0,45,100\n"  # before the GPS fix (AirData writes 0, 0)
-            + "".join(f"{0.2 + 0.1 * i:.1f},48.53,9.06,30,45,100\n" for i in range(8))
-            + "1.0,48.53,9.0")  # the logger killed mid-line
+def test_csv_rows_without_a_fix_or_cut_short_are_counted_and_the_clock_kept(caplog):
+    text = ("time_s,lat,lon,height_m,pitch_deg,heading_deg,isVideo\n"
+            "0,0.0,0.0,0,45,100,1\n0.1,0,0,0,45,100,1\n"  # recording before the GPS fix (AirData writes 0, 0)
+            + "".join(f"{0.2 + 0.1 * i:.1f},48.53,9.06,30,45,100,1\n" for i in range(8))
+            + "1.0,48.53,-200,30,45,100,1\n"  # a value out of range
+            + "1.1,48.53,9.0")  # the logger killed mid-line
     with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
         records = parse_csv(text, source="f.csv")
-    assert len(records) == 8 and all(r.lat == 48.53 for r in records)
+    # the rows before the fix stay: the log's clock (its first time, where recording starts) is the video's
+    assert len(records) == 10 and records[0].t == 0.0 and records[0].recording
     message = " ".join(r.getMessage() for r in caplog.records)
-    assert "3 of 11 rows skipped (1 unreadable, 2 without a GPS fix (0, 0)); first: f.csv:12: 3 cells" in message
+    assert ("f.csv: 4 of 12 rows: 2 unreadable rows skipped, 2 without a GPS fix (0, 0) give no pose; first "
+            "skipped: f.csv:12: Telemetry.lon") in message
+    # the frames of those rows get no pose; the first fix's holds up to the extrapolation limit
+    poses = interpolate(records, [0.0, 0.05, 0.15, 0.25], extrapolate_s=0.06)
+    assert [p is None for p in poses] == [True, True, False, False]
+    assert poses[2].lat == 48.53
     # a file of bad rows is the file's fault: the first problem is named
     with pytest.raises(ValueError, match=r"f\.csv:3: column 'lat': 'x' is not a number"):
         parse_csv("time_s,lat,lon,height_m\n0,48,9,30\n1,x,9,30\n2,y,9,30\n", source="f.csv")
-    with pytest.raises(ValueError, match=r"no row has a GPS fix"):
-        parse_csv("time_s,lat,lon,height_m\n0,0,0,30\n1,0,0,30\n", source="f.csv")
+    # and nothing but "no fix" gives no pose anywhere
+    only = parse_csv("time_s,lat,lon,height_m\n0,0,0,30\n1,0,0,30\n", source="f.csv")
+    assert interpolate(only, [0.0, 0.5]) == [None, None]
+
+
+@pytest.mark.parametrize("row", ["2.0,48.53,9.06,30,abc,100", "2.0,48.53,9.06,30,45,100,7", "2.0,48.53,9.06,-,45,100"])
+def test_one_bad_row_of_any_column_is_skipped_alike(row):
+    # a bad pitch cell, a row with a cell too many, a bad height: each costs its row, not the file
+    text = "time_s,lat,lon,height_m,pitch_deg,heading_deg\n" + "".join(
+        f"{0.1 * i:.1f},48.53,9.06,30,45,100\n" for i in range(6)) + row + "\n"
+    assert len(parse_csv(text)) == 6
+
+
+def test_a_pitch_past_nadir_keeps_its_row_without_a_pitch_and_says_so_once(caplog):
+    text = "time_s,lat,lon,height_m,pitch_deg,heading_deg\n" + "".join(
+        f"{0.1 * i:.1f},48.53,9.06,30,{95 if i == 3 else 45},100\n" for i in range(6))
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry.record"):
+        records = parse_csv(text)
+    assert [r.pitch_deg for r in records] == [45.0, 45.0, 45.0, None, 45.0, 45.0]
+    assert sum("no pose for this sample" in r.getMessage() for r in caplog.records) == 1
+
+
+@pytest.mark.parametrize("times, seconds", [
+    (["0", "10", "20", "30"], True),  # a sparse log at 0.1 Hz, in seconds
+    (["1700000000", "1700000015", "1700000030"], True),  # epoch seconds every 15 s
+    (["0", "20", "40", "60"], False),  # 50 Hz in milliseconds
+])
+def test_the_millisecond_guess_leaves_sparse_seconds_alone(times, seconds):
+    records = parse_csv(_csv(times))
+    scale = 1.0 if seconds else 1e-3
+    assert [r.t for r in records] == pytest.approx([float(t) * scale for t in times])
+
+
+def test_the_millisecond_warning_is_said_once(caplog):
+    text = "timestamp,lat,lon,height_m\n" + "".join(f"{1685613600000 + 100 * i},48.5,9.0,30\n" for i in range(50))
+    with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
+        parse_csv(text, source="x.csv")
+    assert sum("read as milliseconds" in r.getMessage() for r in caplog.records) == 1
 
 
 def test_a_csv_of_two_drones_is_refused_by_name():
@@ -1504,18 +1547,19 @@ def test_whole_second_srt_dates_under_finer_subtitle_timing_keep_the_timing():
 
 
 def test_a_bare_pitch_column_near_the_horizon_is_flagged_as_maybe_the_airframes(caplog):
-    # AirData's pitch(degrees) is the airframe's (a few degrees); read as the camera's it looks at the horizon
+    # AirData's pitch(degrees) is the airframe's (a few degrees, either sign); read as the camera's it looks at the
+    # horizon (and nose-up rows, above the horizon, have no pitch at all)
     text = ("time_s,latitude,longitude,height_m,pitch(degrees),yaw(degrees)\n"
-            "0,48.5,9.05,30,-3.1,120\n1,48.5,9.05,30,-2.0,121\n")
+            "0,48.5,9.05,30,-3.1,120\n1,48.5,9.05,30,-2.0,121\n2,48.5,9.05,30,4.0,121\n")
     with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
         records = parse_csv(text, source="air.csv")
-    assert [r.pitch_deg for r in records] == pytest.approx([3.1, 2.0])
-    assert any("air.csv: column 'pitch(degrees)' puts the camera within 10 deg of the horizon" in r.getMessage()
+    assert [r.pitch_deg for r in records] == pytest.approx([3.1, 2.0, None])
+    assert any("air.csv: column 'pitch(degrees)' stays within 10 deg of the horizon" in r.getMessage()
                for r in caplog.records)
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="shared.telemetry.csv_table"):
-        parse_csv(text.replace("-3.1", "-45").replace("-2.0", "-44"), source="air.csv")  # a gimbal's pitch
-    assert not caplog.records
+        parse_csv(text.replace("-3.1", "-45").replace("-2.0", "-44").replace(",4.0,", ",-46,"), source="air.csv")
+    assert not caplog.records  # a gimbal's pitch
 
 
 @pytest.mark.parametrize("sep, said", [(";", "';'"), ("\t", "tabs")])
@@ -1523,3 +1567,14 @@ def test_a_csv_separated_otherwise_is_named_in_the_error(sep, said):
     text = sep.join(["time_s", "lat", "lon", "height_m"]) + "\n" + sep.join(["0", "48,53", "9,06", "30"]) + "\n"
     with pytest.raises(ValueError, match=rf"f\.csv: missing required column 'lat' .*separated by {said}, not commas"):
         parse_csv(text, source="f.csv")
+
+
+def test_whole_second_dates_keep_going_forward_when_the_timing_steps_back():
+    from shared.telemetry.srt_clock import BlockTimes, monotonic_times
+
+    # one second's blocks whose subtitle timing steps back once (a re-encoded file): the dates are kept as they are
+    starts = [0.0, 0.033, 0.067, 0.050, 0.100]
+    blocks = [BlockTimes(line=1 + 5 * i, epoch_s=1000.0, start_s=s, counter=None, diff_time_s=None)
+              for i, s in enumerate(starts)]
+    times, _ = monotonic_times(blocks)
+    assert all(b >= a for a, b in pairwise(times))

@@ -232,3 +232,17 @@ def test_a_v2_coco_file_gives_one_video_s_telemetry_by_its_source_fields(caplog)
     # nothing usable: the first problem is named
     with pytest.raises(ValueError, match=r"v2\.json: image id 103: "):
         parse_seadronessee_coco({"images": [images[3]]}, source="v2.json")
+
+
+def test_a_coco_file_of_mostly_unusable_meta_is_refused_and_a_null_frame_no_falls_back():
+    from shared.telemetry.seadronessee import parse_seadronessee_coco
+
+    images = [_v2_image(i, 15 * i, 22 + i // 2) for i in range(4)]
+    for image in images[:2]:
+        image["meta"]["latitude"] = "north"
+    with pytest.raises(ValueError, match=r"v2\.json: image id 100: "):  # half unusable: the file, not a frame
+        parse_seadronessee_coco({"images": images}, source="v2.json")
+    images = [_v2_image(i, 15 * i, 22) for i in range(2)]
+    images[1]["source"]["frame_no"] = None
+    images[1]["frame_index"] = 7
+    assert [r.frame for r in parse_seadronessee_coco({"images": images})] == [0, 7]
