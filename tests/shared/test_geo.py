@@ -54,7 +54,9 @@ def independent_project(east, north, camera: Camera, pose: Pose) -> np.ndarray:
     r_wc = independent_rotation(pose.pitch_deg, pose.heading_deg, pose.roll_deg)
     r_cw = r_wc.T
     c = np.array([0.0, 0.0, pose.height_m])
-    rvec, _ = cv2.Rodrigues(r_cw)
+    # the rotation vector from scipy: cv2.Rodrigues (matrix -> vector) loses ~2e-5 near a half turn (a nadir
+    # camera heading south, roll 1 deg: 179.9995 deg), 0.02 px at a 4K corner; vector -> matrix is well conditioned
+    rvec = Rotation.from_matrix(r_cw).as_rotvec()
     tvec = -r_cw @ c
     pts = np.column_stack([east, north, np.zeros(len(east))]).reshape(-1, 1, 3)
     dist = np.zeros(5) if camera.dist is None else np.asarray(camera.dist)
