@@ -49,6 +49,12 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--half-life-s", type=float, default=None, help="forgetting half-life of the layer, s (0.75)")
     p.add_argument("--max-range-m", type=float, default=None, help="ground range mapped, m (120)")
     p.add_argument("--height-m", type=float, default=None, help="height above ground for telemetry without one")
+    p.add_argument("--height-offset-m", type=float, default=None, metavar="METRES",
+                   help="--video: metres added to every height the telemetry gives (e.g. minus the ground "
+                        "elevation for DJI abs_alt or a KLV sensor altitude above sea level)")
+    p.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
+    p.add_argument("--heading-deg", type=float, default=None,
+                   help="--video: fixed gimbal heading if telemetry lacks it")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_terrain_options(p)
     p.set_defaults(handler=run_anomaly)
@@ -94,6 +100,10 @@ def run_anomaly(args: argparse.Namespace) -> int:
         raise ValueError("--video needs --telemetry FILE")
     if args.frames is not None and args.telemetry is not None:
         raise ValueError("--telemetry goes with --video (--frames carries its telemetry in images.json meta)")
+    for flag in ("height_offset_m", "pitch_deg", "heading_deg"):
+        if args.frames is not None and getattr(args, flag) is not None:
+            raise ValueError(f"--{flag.replace('_', '-')} goes with --video (--frames carries its telemetry in "
+                             "images.json meta)")
     if args.frames is not None and args.telemetry_offset_s is not None:
         raise ValueError("--telemetry-offset-s goes with --video (--frames carries its times in images.json meta)")
     if not args.out.parent.is_dir():
@@ -102,7 +112,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
     camera = Camera.from_spec(args.camera)
     frames = (dataset_frames(args.frames, camera) if args.frames is not None
               else iter(VideoFrames(args.video, args.telemetry, camera, height_m=args.height_m,
-                                    telemetry_offset_s=args.telemetry_offset_s)))
+                                    telemetry_offset_s=args.telemetry_offset_s, height_offset_m=args.height_offset_m,
+                                    pitch_deg=args.pitch_deg, heading_deg=args.heading_deg)))
     detector = AnomalyDetector(cfg, method)
     results = []
     video = None

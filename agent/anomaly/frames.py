@@ -4,6 +4,7 @@ its pose, time and camera; no detector involved. Bad input raises ValueError wit
 
 from __future__ import annotations
 
+import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -14,6 +15,8 @@ from numpy.typing import NDArray
 
 from shared.geo import Camera, Pose
 from shared.telemetry import interpolate
+
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -63,7 +66,8 @@ class VideoFrames:
 
     def __init__(self, video: str | Path, telemetry: str | Path, camera: Camera, *,
                  telemetry_offset_s: float | None = None, max_gap_s: float = 1.0,
-                 height_m: float | None = None) -> None:
+                 height_m: float | None = None, height_offset_m: float | None = None,
+                 pitch_deg: float | None = None, heading_deg: float | None = None) -> None:
         import cv2
 
         from agent.sources import resolve_video_telemetry, video_start_time, video_telemetry
@@ -82,7 +86,16 @@ class VideoFrames:
             raise ValueError(f"video file {self.path} cannot be read by OpenCV (not a video, or no frames)")
         self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
         self.camera = camera.fitted_to(first.shape[1], first.shape[0], source=f"the frames of {self.path}")
-        records, video_start_t = video_telemetry(telemetry, height_m=height_m)
+        # without gimbal angles (and no --pitch-deg / --heading-deg) the frames have no pose: the per-frame
+        # heatmap still runs, so the file is not refused (need_angles off), but the user is told why
+        records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
+                                                 pitch_deg=pitch_deg, heading_deg=heading_deg)
+        for field, flag in (("pitch_deg", "--pitch-deg"), ("heading_deg", "--heading-deg")):
+            if all(getattr(r, field) is None for r in records) and (pitch_deg if field == "pitch_deg"
+                                                                      else heading_deg) is None:
+                log.warning("telemetry %s has no gimbal %s in any record: no frame has a pose (no ground layer); "
+                            "pass %s", telemetry, field.removesuffix("_deg"), flag)
+        self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
         self.height_m = height_m
         self.offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,
@@ -110,7 +123,10 @@ class VideoFrames:
                 pose = None
                 if tel is not None:
                     try:
-                        pose = tel.to_pose(height_m=self.height_m)
+                        # --pitch-deg / --heading-deg fill what a record lacks, never replace it (as agent, detect)
+                        pose = tel.to_pose(self.pitch_deg if tel.pitch_deg is None else None,
+                                           self.heading_deg if tel.heading_deg is None else None,
+                                           height_m=self.height_m)
                     except ValueError:
                         pose = None
                 yield AnomalyInput(index, 0, image, t, pose, self.camera)

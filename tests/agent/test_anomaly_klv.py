@@ -80,3 +80,33 @@ def test_anomaly_klv_and_offset_errors_are_one_line(flight, tmp_path, capsys):
     err = _error(capsys, ["--frames", str(images), "--telemetry-offset-s", "3", *files])
     assert "--telemetry-offset-s goes with --video" in err
     assert not (tmp_path / "rois.json").exists()
+
+
+def test_video_without_gimbal_angles_warns_and_takes_them_from_the_flags(tmp_path, caplog, capsys):
+    # an SRT whose drone logs no gimbal (older DJI firmware): the per-frame heatmap still runs, but no frame has a
+    # pose until --pitch-deg / --heading-deg give the angles, which fill what records lack (as agent and detect)
+    from tests.agent.test_sources import _srt_air2s, _write_video
+
+    video = _write_video(tmp_path / "flight.avi", 8)
+    srt = tmp_path / "DJI_0001.SRT"
+    srt.write_text(_srt_air2s(10, gb_pitch=False, gb_yaw=False))
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    cam = Camera.from_spec(camera)
+    with caplog.at_level(logging.WARNING, logger="agent.anomaly.frames"):
+        frames = list(VideoFrames(video, srt, cam))
+    assert all(f.pose is None for f in frames)
+    assert "has no gimbal pitch in any record: no frame has a pose (no ground layer); pass --pitch-deg" in caplog.text
+    frames = list(VideoFrames(video, srt, cam, pitch_deg=60.0, heading_deg=173.0))
+    assert all(f.pose is not None for f in frames)
+    assert (frames[3].pose.pitch_deg, frames[3].pose.heading_deg) == (60.0, 173.0)
+    # a logged heading is kept: the flag fills only the missing pitch
+    srt.write_text(_srt_air2s(10, gb_pitch=False))
+    frames = list(VideoFrames(video, srt, cam, pitch_deg=60.0, heading_deg=90.0))
+    assert frames[3].pose.heading_deg == pytest.approx(173.6, abs=0.01)
+    out = tmp_path / "rois.json"
+    assert main(["anomaly", "--video", str(video), "--telemetry", str(srt), "--camera", str(camera), "--out", str(out),
+                 "--method", "mean", "--quiet", "--pitch-deg", "60"]) == 0
+    err = _error(capsys, ["--frames", str(tmp_path / "images.json"), "--pitch-deg", "60", "--camera", str(camera),
+                          "--out", str(out)])
+    assert "--pitch-deg goes with --video" in err
