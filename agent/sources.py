@@ -271,7 +271,8 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     records : list of Telemetry
     video_start_t : float or None
         The telemetry time of the video's first frame when the file tells it (KLV in a transport stream: from
-        the PTS of the samples and the video), else None.
+        the PTS of the samples and the video; DJI SRT: from the first usable block's subtitle timing,
+        `SrtReport.video_start_t`), else None.
 
     Raises
     ------
@@ -293,7 +294,7 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     above_sea_level_only, sea_level_name, video_start_t = 0, "abs_alt", None
     if suffix == ".srt":
         report = read_srt_report(path, **kw)
-        records = report.records
+        records, video_start_t = report.records, report.video_start_t
         above_sea_level_only = report.heights_above_sea_level_only
         log.info("telemetry %s: %d records from %d blocks (%d skipped); GPS with %s decimals, steps of %.2g m",
                  path, len(records), report.blocks, len(report.skipped), report.gps_decimals,
@@ -341,14 +342,16 @@ def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemet
     """Telemetry time (s) of video time 0 (`--telemetry-offset-s`, the same for every command reading a video).
 
     records: the video's telemetry sorted by time (not empty). telemetry_offset_s: the user's value, used as given.
-    video_start_t: what the file tells (`video_telemetry`: KLV in a transport stream, by its PTS). Without either:
+    video_start_t: what the file tells (`video_telemetry`: KLV in a transport stream by its PTS, an SRT by its
+    subtitle timing). Without either:
     where the log says the camera started recording (AirData's isVideo; the first such start when it marks
     several, with a warning), else the first record's time. telemetry: the name used in the log lines.
     """
     if telemetry_offset_s is not None:
         return float(telemetry_offset_s)
-    if video_start_t is not None:  # KLV in a transport stream: its PTS put the records on the video's clock
-        log.info("telemetry %s: video time 0 is telemetry time %.3f (from the KLV PTS)", telemetry, video_start_t)
+    if video_start_t is not None:  # the file's own video clock: KLV's PTS, an SRT's subtitle timing
+        clock = "the SRT's subtitle timing" if Path(str(telemetry)).suffix.lower() == ".srt" else "the KLV PTS"
+        log.info("telemetry %s: video time 0 is telemetry time %.3f (from %s)", telemetry, video_start_t, clock)
         return video_start_t
     start, starts = recording_start(records)
     if start is None:

@@ -52,6 +52,11 @@ class SrtReport:
         Decimals -> number of records written with that resolution (several in concatenated files).
     clock_notes : tuple of str
         Where the date-time lines, subtitle timing and frame counters disagreed and how the clock was joined.
+    video_start_t : float or None
+        The records' time of video time 0, from the first usable block's subtitle timing (a subtitle's start is
+        its place in the video): its time minus its start. So blocks skipped at the start (no GPS fix yet, as
+        when recording begins before the lock) do not move the video's clock. None when that block has no
+        timing line.
     """
 
     source: str
@@ -63,6 +68,7 @@ class SrtReport:
     gps_decimals: int | None = None
     gps_decimals_seen: dict[int, int] = field(default_factory=dict)
     clock_notes: tuple[str, ...] = ()
+    video_start_t: float | None = None
 
     @property
     def gps_step_m(self) -> float | None:
@@ -288,6 +294,7 @@ def parse_srt_report(
         gps_decimals=min(decimals_seen),
         gps_decimals_seen=dict(sorted(decimals_seen.items())),
         clock_notes=tuple(clock_notes),
+        video_start_t=None if times_in[0].start_s is None else times_out[0] - times_in[0].start_s,
     )
     _log_report(report)
     return report

@@ -333,3 +333,24 @@ def test_frames_without_a_pose_are_named_once_at_warning_level(tmp_path, caplog)
     assert sum(f.pose is None for f in frames) >= 4 and source.problems >= 4
     named = [r.getMessage() for r in caplog.records if "no pose at" in r.getMessage()]
     assert len(named) == 1 and "telemetry has no gimbal pitch: pass --pitch-deg" in named[0]
+
+
+def test_srt_blocks_without_a_fix_at_the_start_do_not_move_the_video_clock(tmp_path, caplog):
+    # recording began before the GPS lock: the first three blocks are at 0, 0 and are skipped; the subtitle timing
+    # of the first usable block still says where it sits in the video (0.3 s), so frame 5 shows block 5
+    text = _srt_air2s(10)
+    for i in range(3):
+        text = text.replace(f"[latitude: {48.53 + 1e-5 * i:.6f}] [longitude: 9.060000]",
+                            "[latitude: 0.000000] [longitude: 0.000000]", 1)
+    with caplog.at_level(logging.INFO, logger="agent.sources"):
+        source = _video_source(tmp_path, text)
+    assert source.telemetry_offset_s == pytest.approx(utc_s("2023-06-01T10:00:00"), abs=1e-3)
+    assert "(from the SRT's subtitle timing)" in caplog.text
+    frames = list(source.frames())
+    assert frames[5].pose is not None and frames[5].pose.lat == pytest.approx(48.53 + 5e-5, abs=1e-7)
+
+
+def utc_s(text: str) -> float:
+    from datetime import datetime, timezone
+
+    return datetime.fromisoformat(text).replace(tzinfo=timezone.utc).timestamp()
