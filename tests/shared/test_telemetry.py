@@ -1578,3 +1578,27 @@ def test_whole_second_dates_keep_going_forward_when_the_timing_steps_back():
               for i, s in enumerate(starts)]
     times, _ = monotonic_times(blocks)
     assert all(b >= a for a, b in pairwise(times))
+
+
+@settings(max_examples=150, deadline=None)
+@given(rows=st.lists(st.tuples(st.integers(0, 3), st.booleans(), st.floats(0.0, 359.0)), min_size=2, max_size=30),
+       start=st.integers(1_600_000_000, 1_800_000_000))
+def test_property_csv_whole_second_stamps_and_no_fix_rows(rows, start):
+    # a log stamped at whole seconds (0-3 s steps, repeats), some rows before the GPS fix (0, 0)
+    stamps, t = [], start
+    for step, _, _ in rows:
+        t += step
+        stamps.append(t)
+    assume(any(not no_fix for _, no_fix, _ in rows))
+    text = "time,lat,lon,height_m,pitch_deg,heading_deg\n" + "".join(
+        f"{s},{0 if no_fix else 48.5},{0 if no_fix else 9.05},30,45,{h}\n"
+        for s, (_, no_fix, h) in zip(stamps, rows, strict=True))
+    records = parse_csv(text)
+    assert len(records) == len(rows)  # nothing is dropped: no-fix rows keep the log's clock
+    times = [r.t for r in records]
+    assert all(b > a for a, b in pairwise(times))  # repeated stamps are spread, none is dropped as a duplicate
+    # each record stays within the second its stamp names
+    assert all(s <= r < s + 1.0 for s, r in zip(stamps, times, strict=True))
+    # interpolation never takes a (0, 0) sample for a position
+    poses = interpolate(records, np.array(times), extrapolate_s=0.5)
+    assert all(p is None or (p.lat, p.lon) == (48.5, 9.05) for p in poses)
