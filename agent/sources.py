@@ -263,8 +263,9 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         level (DJI ``abs_alt``, the KLV sensor altitude); not for SeaDronesSee ``.json``.
     pitch_deg, heading_deg : float, optional
         The gimbal angles (`--pitch-deg`, `--heading-deg`) for records without them: a file with none in any
-        record needs them when ``need_angles`` (the video source: else ValueError; other callers also work without
-        a pose); given beside a file that logs them in every record, they are not used (a warning says so).
+        record needs them when ``need_angles`` (the video source: else ValueError; other callers, which also work
+        without a pose, get a warning); given beside a file that logs them in every record, they are not used (a
+        warning says so).
 
     Returns
     -------
@@ -326,9 +327,12 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
                                      ("heading_deg", "--heading-deg", heading_deg, "the camera's compass heading")):
         missing = sum(getattr(r, field) is None for r in records)
         name = "pitch" if field == "pitch_deg" else "heading"
-        if missing == len(records) and value is None and need_angles:
-            raise ValueError(f"telemetry file {path} has no gimbal {name} in any of its {len(records)} records: "
-                             f"pass {flag} DEG ({what})")
+        if missing == len(records) and value is None:
+            if need_angles:
+                raise ValueError(f"telemetry file {path} has no gimbal {name} in any of its {len(records)} records: "
+                                 f"pass {flag} DEG ({what})")
+            log.warning("telemetry %s has no gimbal %s in any record: no frame has a pose (no ground layer); pass %s",
+                        path, name, flag)
         if not missing and value is not None:
             log.warning("telemetry %s: every record has a gimbal %s: %s %g is not used", path, name, flag, value)
         elif missing and value is not None:
@@ -479,8 +483,7 @@ class VideoSource:
         if tel is None:
             return None
         try:  # --pitch-deg / --heading-deg fill what a record lacks, never replace what it logs
-            return tel.to_pose(self.pitch_deg if tel.pitch_deg is None else None,
-                               self.heading_deg if tel.heading_deg is None else None, height_m=self.height_m)
+            return tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
         except ValueError as exc:
             self.problems += 1
             if self.problems == 1:

@@ -4,7 +4,6 @@ its pose, time and camera; no detector involved. Bad input raises ValueError wit
 
 from __future__ import annotations
 
-import logging
 import math
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -15,8 +14,6 @@ from numpy.typing import NDArray
 
 from shared.geo import Camera, Pose
 from shared.telemetry import interpolate
-
-log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -87,14 +84,9 @@ class VideoFrames:
         self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
         self.camera = camera.fitted_to(first.shape[1], first.shape[0], source=f"the frames of {self.path}")
         # without gimbal angles (and no --pitch-deg / --heading-deg) the frames have no pose: the per-frame
-        # heatmap still runs, so the file is not refused (need_angles off), but the user is told why
+        # heatmap still runs, so the file is not refused (need_angles off: a warning says why)
         records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                  pitch_deg=pitch_deg, heading_deg=heading_deg)
-        for field, flag in (("pitch_deg", "--pitch-deg"), ("heading_deg", "--heading-deg")):
-            if all(getattr(r, field) is None for r in records) and (pitch_deg if field == "pitch_deg"
-                                                                      else heading_deg) is None:
-                log.warning("telemetry %s has no gimbal %s in any record: no frame has a pose (no ground layer); "
-                            "pass %s", telemetry, field.removesuffix("_deg"), flag)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
         self.height_m = height_m
@@ -124,9 +116,7 @@ class VideoFrames:
                 if tel is not None:
                     try:
                         # --pitch-deg / --heading-deg fill what a record lacks, never replace it (as agent, detect)
-                        pose = tel.to_pose(self.pitch_deg if tel.pitch_deg is None else None,
-                                           self.heading_deg if tel.heading_deg is None else None,
-                                           height_m=self.height_m)
+                        pose = tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
                     except ValueError:
                         pose = None
                 yield AnomalyInput(index, 0, image, t, pose, self.camera)

@@ -13,8 +13,8 @@ from pathlib import Path
 from typing import Any
 
 from shared.telemetry.dates import DATETIME_RE, parse_datetime
-from shared.telemetry.interpolation import spread_repeated_stamps
-from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch, pitch_or_none
+from shared.telemetry.interpolation import spread_whole_second_stamps
+from shared.telemetry.record import Telemetry, pitch_or_none
 from shared.telemetry.text import NUM_RE, read_text
 
 log = logging.getLogger(__name__)
@@ -208,15 +208,7 @@ def parse_csv(
         raise ValueError(f"{source}: no data rows after the header")
     _one_drone(header, rows[1:], source)
     kept = _usable_rows(rows[1:], header, columns, source, utc_offset_s, height_offset_m)
-    records = _records(kept, columns, source, utc_offset_s, height_offset_m)
-    column = columns.get("pitch")
-    raw = [] if column is None or column.alias != "pitch" else [
-        v for v in (_csv_float(row[column.index], line, column, source) for line, row in kept) if v is not None]
-    if raw and all(abs(v) < _AIRFRAME_PITCH_DEG for v in raw):
-        assert column is not None
-        log.warning("%s: column %r stays within %g deg of the horizon in every row: if it is the airframe's pitch "
-                    "(not the gimbal's), remove it and pass --pitch-deg", source, column.name, _AIRFRAME_PITCH_DEG)
-    return records
+    return _records(kept, columns, source, utc_offset_s, height_offset_m)
 
 
 def _records(rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float,
@@ -300,33 +292,25 @@ def _csv_times(
                 numeric.append(value)
             numeric = _seconds(numeric, time_column, source, warn=not quiet)
         else:
-            return _spread_whole_seconds(dates(time_column))
+            return spread_whole_second_stamps(dates(time_column))
     date_column = columns.get("datetime")
     if date_column is None:
         assert numeric is not None
-        return _spread_whole_seconds(numeric)
+        return spread_whole_second_stamps(numeric)
     anchors = dates(date_column)
     if numeric is None:
         # a log stamped at whole seconds (AirData's datetime(utc) without its time(millisecond)): the rows of
         # one second are spread over it in their order
-        return _spread_whole_seconds(anchors)
+        return spread_whole_second_stamps(anchors)
     return [anchors[0] + (value - numeric[0]) for value in numeric]
-
-
-def _spread_whole_seconds(stamps: list[float]) -> list[float]:
-    """Stamps at whole seconds that repeat (a log stamped at whole seconds without a finer time column): the rows
-    of one second are spread over it in their order (`spread_repeated_stamps`); other stamps are kept."""
-    if all(a == round(a) for a in stamps) and len(set(stamps)) < len(stamps):
-        return [float(v) for v in spread_repeated_stamps(stamps, True)]
-    return stamps
 
 
 def _seconds(values: list[float], column: _CsvColumn, source: str, *, warn: bool = True) -> list[float]:
     """A time column's numbers in seconds. A column that names its unit (``time_s``, ``time(millisecond)``) is
     taken at its word; a unitless ``time``, ``t`` or ``timestamp`` holding milliseconds (since 1970: values beyond
-    1e11; since the start: a median step of at least 10 between distinct stamps, where a drone log in seconds
-    steps by a few seconds at most: a median step of at least 20, below epoch-second values) is read as
-    milliseconds, with a warning naming the column (`warn` False: silently, for the per-row checks)."""
+    1e11; since the start: a median step of at least 20 between distinct stamps, where a drone log in seconds
+    steps by a few seconds at most, for values below epoch seconds) is read as milliseconds, with a warning
+    naming the column (`warn` False: silently, for the per-row checks)."""
     unitless = column.alias != "time_s" and column.scale == 1.0 and "(" not in column.name and "[" not in column.name
     if not unitless or not values:
         return values
@@ -369,20 +353,20 @@ def _usable_rows(rows: list[tuple[int, list[str]]], header: list[str], columns: 
     recording), and `interpolate` gives their times no pose."""
     kept: list[tuple[int, list[str]]] = []
     bad: list[str] = []
+    no_fix = 0
     for line, row in rows:
         if len(row) != len(header):
             bad.append(f"{source}:{line}: {len(row)} cells, the header has {len(header)}")
             continue
         try:
-            _records([(line, row)], columns, source, utc_offset_s, height_offset_m, quiet=True)
+            (record,) = _records([(line, row)], columns, source, utc_offset_s, height_offset_m, quiet=True)
         except ValueError as err:
             bad.append(str(err))
             continue
         kept.append((line, row))
+        no_fix += record.lat == 0.0 and record.lon == 0.0
     if not kept or len(bad) * 2 >= len(rows):
         raise ValueError(bad[0])
-    no_fix = sum(_csv_float(row[columns["lat"].index], line, columns["lat"], source) == 0.0
-                 and _csv_float(row[columns["lon"].index], line, columns["lon"], source) == 0.0 for line, row in kept)
     if bad or no_fix:
         parts = ([f"{len(bad)} unreadable rows skipped"] if bad else []) \
             + ([f"{no_fix} without a GPS fix (0, 0) give no pose"] if no_fix else [])
@@ -410,14 +394,13 @@ def _csv_pitch(
         if not math.isfinite(value):
             raise ValueError(f"{source}:{line}: column {column.name!r}: pitch {value!r} is not finite")
         depression = -value if dji else value
-        what = f"{source}:{line}: column {column.name!r}: pitch {value:g}"
-        if quiet:  # the per-row check: the whole file's pass says it once
-            try:
-                out.append(clamp_pitch(depression, PITCH_TOLERANCE_DEG, what))
-            except ValueError:
-                out.append(None)
-        else:
-            out.append(pitch_or_none(depression, what))
+        # quiet: the per-row check; the whole file's pass says it once
+        out.append(pitch_or_none(depression, f"{source}:{line}: column {column.name!r}: pitch {value:g}",
+                                 warn=not quiet))
+    given = [v for v in raw if v is not None]
+    if not quiet and column.alias == "pitch" and given and all(abs(v) < _AIRFRAME_PITCH_DEG for v in given):
+        log.warning("%s: column %r stays within %g deg of the horizon in every row: if it is the airframe's pitch "
+                    "(not the gimbal's), remove it and pass --pitch-deg", source, column.name, _AIRFRAME_PITCH_DEG)
     return out
 
 

@@ -114,6 +114,14 @@ def interpolate(
     return out
 
 
+def spread_whole_second_stamps(stamps: list[float]) -> list[float]:
+    """Stamps at whole seconds that repeat (a log stamped at whole seconds without a finer clock): the samples of
+    one second are spread over it in their order (`spread_repeated_stamps`); any other list is returned as it is."""
+    if all(a == round(a) for a in stamps) and len(set(stamps)) < len(stamps):
+        return [float(v) for v in spread_repeated_stamps(stamps, True)]
+    return stamps
+
+
 def spread_repeated_stamps(stamps: ArrayLike, whole_seconds: bool) -> np.ndarray:
     """Sample times from stamps that repeat: consecutive samples under one stamp (a 10 Hz log stamped at whole
     seconds) are spread evenly up to the next stamp (a whole-second stamp: over its second at most; the last

@@ -131,14 +131,16 @@ class Telemetry:
             put(self, "recording", bool(self.recording))
 
     def to_pose(
-        self, pitch_deg: float | None = None, heading_deg: float | None = None, *, height_m: float | None = None
+        self, pitch_deg: float | None = None, heading_deg: float | None = None, *, height_m: float | None = None,
+        replace: bool = True,
     ) -> Pose:
         """Camera pose for `shared.geo`, with optional gimbal angles that override or supply missing ones.
 
         Parameters
         ----------
         pitch_deg, heading_deg : float, optional
-            Depression 0..90 and heading in degrees; when given they replace the telemetry's values.
+            Depression 0..90 and heading in degrees; when given they replace the telemetry's values, or with
+            ``replace=False`` only supply the ones it lacks (the commands' `--pitch-deg` / `--heading-deg`).
         height_m : float, optional
             Height above the ground used when the telemetry has none (it never replaces a logged height).
 
@@ -154,6 +156,9 @@ class Telemetry:
         """
         from shared.geo import Pose  # geo imports OpenCV; telemetry parsing does not need it
 
+        if not replace:
+            pitch_deg = pitch_deg if self.pitch_deg is None else None
+            heading_deg = heading_deg if self.heading_deg is None else None
         pitch = self.pitch_deg if pitch_deg is None else pitch_deg
         if pitch is None:
             raise ValueError("telemetry has no gimbal pitch: pass --pitch-deg or use a source with gimbal angles")
@@ -211,8 +216,8 @@ def clamp_pitch(depression_deg: float, tolerance_deg: float, what: str) -> float
     )
 
 
-def pitch_or_none(depression_deg: float, what: str) -> float | None:
-    """A record's pitch, or None (with a warning) when the camera looks up or past nadir.
+def pitch_or_none(depression_deg: float, what: str, *, warn: bool = True) -> float | None:
+    """A record's pitch, or None (with a warning unless `warn` is False) when the camera looks up or past nadir.
 
     A pilot tilting the gimbal above the horizon for a moment is normal flying: those samples
     have no ground view (no pose), the rest of the flight stays usable.
@@ -220,7 +225,8 @@ def pitch_or_none(depression_deg: float, what: str) -> float | None:
     try:
         return clamp_pitch(depression_deg, PITCH_TOLERANCE_DEG, what)
     except ValueError as err:
-        logger.warning("%s: no pose for this sample", err)
+        if warn:
+            logger.warning("%s: no pose for this sample", err)
         return None
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from shared.telemetry.csv_table import match_column
 from shared.telemetry.dates import format_datetime, parse_datetime
-from shared.telemetry.interpolation import spread_repeated_stamps
+from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch
 from shared.telemetry.text import read_text
 
@@ -464,13 +464,9 @@ def parse_seadronessee_coco(
         logger.warning("%s: %d image(s) with unusable meta carry no telemetry; first: %s", source, len(problems),
                        problems[0])
     records.sort(key=lambda item: item[0])
-    out = [tel for _, tel in records]
-    stamps = [tel.t for tel in out]
-    if all(t == round(t) for t in stamps) and len(set(stamps)) < len(stamps):
-        # flight-log meta at whole seconds (v2's datetime(utc)): the frames of one second spread over it in order
-        out = [dataclasses.replace(tel, t=float(t)) for tel, t in zip(out, spread_repeated_stamps(stamps, True),
-                                                                      strict=True)]
-    return out
+    # flight-log meta at whole seconds (v2's datetime(utc)): the frames of one second spread over it in order
+    spread = spread_whole_second_stamps([tel.t for _, tel in records])
+    return [tel if tel.t == t else dataclasses.replace(tel, t=t) for (_, tel), t in zip(records, spread, strict=True)]
 
 
 def read_seadronessee_json(path: str | Path, **kw: Any) -> list[Telemetry]:
