@@ -110,6 +110,21 @@ class Dataset:
     def load(cls, path: str | Path) -> Dataset:
         return cls.from_dict(read_json(path, "images"), source=str(path))
 
+    def resolve_video(self, video: int | str) -> int:
+        """The id of a video given by its id (an int, or a string of digits) or its name (`video_names`: the
+        COCO ``videos`` list, SeaDronesSee v2's ``source.video``); an id wins over a name spelled the same.
+        Raises ValueError naming the known ids and names."""
+        text = str(video).strip()
+        if text.lstrip("-").isdigit() and int(text) in self.videos:
+            return int(text)
+        ids = [vid for vid, name in self.video_names.items() if name == text and vid in self.videos]
+        if ids:
+            return ids[0]
+        names = [self.video_names[v] for v in self.videos if v in self.video_names]
+        shown = ", ".join(repr(n) for n in names[:12]) + (f" and {len(names) - 12} more" if len(names) > 12 else "")
+        raise ValueError(f"unknown video {text!r}; known ids: {sorted(self.videos)}"
+                         + (f"; names: {shown}" if names else ""))
+
     @classmethod
     def from_dict(cls, coco: Any, *, source: str = "<images>") -> Dataset:
         if not isinstance(coco, dict) or not isinstance(coco.get("images"), list):

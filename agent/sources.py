@@ -143,8 +143,9 @@ class DatasetSource:
     ----------
     directory : path
         The directory (`uavmm sim --out` writes this layout). Missing files raise ValueError naming them.
-    video_id : int, optional
-        Which video to play (default: the first); ValueError listing the known ids otherwise.
+    video_id : int or str, optional
+        Which video to play, by id or name (`Dataset.resolve_video`; default: the first); ValueError listing the
+        known ids and names otherwise.
     camera : path or str, optional
         A camera file or preset instead of the directory's camera.json.
 
@@ -154,7 +155,7 @@ class DatasetSource:
     default the directory) are read when they exist and `use_images` (a note is logged once otherwise).
     """
 
-    def __init__(self, directory: str | Path, *, video_id: int | None = None, camera: str | Path | None = None,
+    def __init__(self, directory: str | Path, *, video_id: int | str | None = None, camera: str | Path | None = None,
                  image_dir: str | Path | None = None,
                  use_images: bool = True) -> None:
         from agent.dataset import Candidates, Dataset, dataset_files
@@ -168,11 +169,7 @@ class DatasetSource:
         self.camera = Camera.from_spec(camera_spec)
         if not self.dataset.videos:
             raise ValueError(f"{self.directory / 'images.json'} has no images")
-        if video_id is None:
-            video_id = next(iter(self.dataset.videos))
-        if video_id not in self.dataset.videos:
-            raise ValueError(f"unknown video id {video_id}; known: {sorted(self.dataset.videos)}")
-        self.video_id = video_id
+        self.video_id = next(iter(self.dataset.videos)) if video_id is None else self.dataset.resolve_video(video_id)
         self.class_names = dict(self.dataset.categories)
         self.name = f"dataset:{self.directory.name}:video{video_id}"
         self.problems: list[PoseProblem] = []

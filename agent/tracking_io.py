@@ -367,7 +367,7 @@ REGISTRATION_COLUMNS = ("image_id", "video_id", "frame_index", "east_m", "north_
 
 def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path, out: str | Path,
                   pipeline_config: PipelineConfig, tracker_config: TrackerConfig | None = None,
-                  size_filter: SizeFilter | None = None, *, video_id: int | None = None,
+                  size_filter: SizeFilter | None = None, *, video_id: int | str | None = None,
                   geojson_path: str | Path | None = None, image_dir: str | Path | None = None,
                   use_images: bool = True, clock_offsets_path: str | Path | None = None,
                   registrations_path: str | Path | None = None) -> dict[str, Any]:
@@ -383,9 +383,7 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     per video), ``geojson``, timing and counters.
     """
     dataset = Dataset.load(images_path)
-    if video_id is not None and video_id not in dataset.videos:
-        raise ValueError(f"unknown video_id {video_id}; known: {sorted(dataset.videos)}")
-    video_ids = [video_id] if video_id is not None else list(dataset.videos)
+    video_ids = [dataset.resolve_video(video_id)] if video_id is not None else list(dataset.videos)
     if not video_ids:
         raise ValueError(f"{images_path}: no images, nothing to track")
     paths = mot_output_paths(out, dataset, video_ids)

@@ -37,7 +37,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--uav-index", type=int, default=0, help="--sim: which of the scenario's UAVs to fly (0)")
     src.add_argument("--frames", type=int, default=None, help="--sim: frames of the flight (scenario default)")
     src.add_argument("--noise-scale", type=float, default=1.0, help="--sim: telemetry noise multiplier (1)")
-    src.add_argument("--video-id", type=int, default=None, help="--dataset: which video (default: the first)")
+    src.add_argument("--video-id", default=None, metavar="ID|NAME",
+                     help="--dataset: which video, by id or name (a SeaDronesSee v2 source.video; default: the first)")
     src.add_argument("--telemetry", type=Path,
                      help="--video: telemetry file (.srt, .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg, MISB "
                           "ST 0601 KLV in .ts/.m2ts/.mts or raw .klv), 'klv' for the KLV inside the --video "

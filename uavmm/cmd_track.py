@@ -36,7 +36,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--camera", type=Path, required=True, help="CAMERA.json (width, height, fx, fy, cx, cy)")
     # a str, not a Path: a trailing slash (a directory to create) must survive
     p.add_argument("--out", type=str, required=True, help="TRACKS.txt, or a directory (see above)")
-    p.add_argument("--video-id", type=int, default=None, help="track only this video (default: all)")
+    p.add_argument("--video-id", default=None, metavar="ID|NAME",
+                   help="track only this video, by id or name (a SeaDronesSee v2 source.video; default: all)")
     p.add_argument("--geojson", type=Path, default=None,
                    help="also write the tracks as GeoJSON (a LineString per track and video, with times)")
     p.add_argument("--image-dir", type=Path, default=None,
@@ -71,8 +72,6 @@ def run(args: argparse.Namespace) -> int:
     """Handler of `uavmm track`: validate, run, print a summary; returns the exit code."""
     from agent.tracking_io import load_tracker_config, track_dataset
 
-    if args.video_id is not None and args.video_id < 0:
-        raise CliError(f"--video-id must be >= 0, got {args.video_id}")
     pipeline_config, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
     if args.clock_offset is not None:  # else the configuration's (on by default)
         pipeline_config = dataclasses.replace(pipeline_config, estimate_clock_offset=args.clock_offset)

@@ -55,6 +55,23 @@ def test_two_drones_with_one_video_name_are_two_videos():
     assert len(ds.videos) == 2 and sorted(ds.video_names.values()) == ["matrice_DJI_0001.MP4", "mavic_DJI_0001.MP4"]
 
 
+def test_a_video_is_found_by_its_id_or_its_name():
+    images = [_flight_log_image(k, "DJI_0001.MP4", k, k, drone="mavic") for k in range(3)]
+    images += [_flight_log_image(10 + k, "DJI_0001.MP4", k, k, drone="matrice") for k in range(3)]
+    images += [_flight_log_image(20 + k, "7", k, k) for k in range(3)]  # a video named like an id
+    ds = Dataset.from_dict(_coco(images))
+    ids = {name: vid for vid, name in ds.video_names.items()}
+    assert ds.resolve_video("mavic_DJI_0001.MP4") == ids["mavic_DJI_0001.MP4"]
+    assert ds.resolve_video(" matrice_DJI_0001.MP4 ") == ids["matrice_DJI_0001.MP4"]
+    for vid in ds.videos:
+        assert ds.resolve_video(vid) == ds.resolve_video(str(vid)) == vid
+    assert ds.resolve_video("7") == (7 if 7 in ds.videos else ids["7"])  # an id wins over a name
+    with pytest.raises(ValueError, match=r"unknown video 'DJI_0001.MP4'; known ids: \[.*names: .*'mavic_DJI_0001.MP4'"):
+        ds.resolve_video("DJI_0001.MP4")  # two drones' videos share the file name: the drone tells them apart
+    with pytest.raises(ValueError, match="unknown video '99'"):
+        ds.resolve_video(99)
+
+
 def test_images_without_any_video_are_split_where_their_clock_jumps():
     images = []
     for k in range(6):

@@ -73,8 +73,12 @@ def test_dataset_source_errors(coop_dir, tmp_path):
     (real / "detections_other.json").write_text("[]")
     with pytest.raises(ValueError, match="detections_other.json, detections_val.json"):
         DatasetSource(real, camera="dji-mavic2-pro")
-    with pytest.raises(ValueError, match=r"unknown video id 9; known: \[1, 2\]"):
+    with pytest.raises(ValueError, match=r"unknown video '9'; known ids: \[1, 2\]; names: "):
         DatasetSource(coop_dir, video_id=9)
+    # by name, as `uavmm agent --video-id NAME` gives it
+    names = {v["id"]: v["name"] for v in json.loads((coop_dir / "images.json").read_text())["videos"]}
+    assert DatasetSource(coop_dir, video_id=names[2]).video_id == 2
+    assert DatasetSource(coop_dir, video_id="2").video_id == 2
 
 
 def test_pose_from_meta_reports_unusable_meta_instead_of_raising():

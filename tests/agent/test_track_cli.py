@@ -97,11 +97,21 @@ def test_geojson_has_a_linestring_per_track_with_times(data, tmp_path):
             assert abs(lat - 48.53) < 0.01 and abs(lon - 9.06) < 0.01
 
 
-def test_unknown_video_id_is_a_clear_error(data, tmp_path, capsys):
-    assert track(data, tmp_path / "t.txt", "--video-id", "7") == 2
+@pytest.mark.parametrize("spec", ["7", "-1", "no-such-video"])
+def test_unknown_video_id_is_a_clear_error(data, tmp_path, capsys, spec):
+    assert track(data, tmp_path / "t.txt", "--video-id", spec) == 2
     err = capsys.readouterr().err
-    assert "unknown video_id 7" in err and "[1, 2]" in err
+    names = video_names(data)
+    assert f"unknown video {spec!r}" in err and "[1, 2]" in err and repr(names[1]) in err and repr(names[2]) in err
     assert not (tmp_path / "t.txt").exists()
+
+
+def test_a_video_is_chosen_by_its_name_as_by_its_id(data, tmp_path, capsys):
+    by_id, by_name = tmp_path / "id.txt", tmp_path / "name.txt"
+    assert track(data, by_id, "--video-id", "2") == 0
+    assert track(data, by_name, "--video-id", video_names(data)[2]) == 0
+    assert "video 2:" in capsys.readouterr().out
+    assert by_name.read_text() == by_id.read_text() and by_id.read_text()
 
 
 def test_missing_output_directory_is_a_clear_error_before_any_work(data, tmp_path, capsys):
