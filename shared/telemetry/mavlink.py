@@ -48,19 +48,36 @@ _YAW_IN_EARTH_FRAME = 64
 _UNKNOWN_HDG = 65535
 
 
+#: Within this (the horizontal length of the unit optical axis: ~0.06 deg of the vertical) a camera looks straight
+#: down or up: its yaw and roll turn about one axis (gimbal lock) and cannot be told apart.
+_VERTICAL = 1e-3
+
+
 def quaternion_to_euler_deg(q: tuple[float, float, float, float]) -> tuple[float, float, float]:
     """(w, x, y, z) -> (roll, pitch, yaw) in degrees, aerospace order (yaw about z down, then pitch, roll).
 
-    The quaternion need not be normalised; a zero quaternion raises ValueError.
+    The quaternion need not be normalised; a zero quaternion raises ValueError. Pitch comes from the optical axis
+    (exact at any angle); a camera looking straight down or up (within ~0.06 deg, as a nadir mapping gimbal or one
+    at its end stop does, its float32 quaternion rounded) has no roll told apart from its yaw: the turn about the
+    vertical is the yaw (the heading the top of the image points to when looking down), roll 0.
     """
     w, x, y, z = (float(v) for v in q)
     norm = math.sqrt(w * w + x * x + y * y + z * z)
     if not norm > 0 or not math.isfinite(norm):
         raise ValueError(f"gimbal quaternion {q!r} is not a rotation")
     w, x, y, z = w / norm, x / norm, y / norm, z / norm
-    roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
-    pitch = math.asin(max(-1.0, min(1.0, 2 * (w * y - z * x))))
-    yaw = math.atan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z))
+    # the body axes in north-east-down: forward (the optical axis) and down (the image's bottom, roll 0)
+    fn, fe, fd = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)
+    dn, de, dd = 2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)
+    level = math.hypot(fn, fe)
+    pitch = math.atan2(-fd, level)
+    if level > _VERTICAL:
+        yaw = math.atan2(fe, fn)
+        roll = math.atan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y))
+    else:  # looking down, the top of the image (-down) points along the heading; looking up, the bottom does
+        sign = 1.0 if fd > 0 else -1.0
+        yaw = math.atan2(-sign * de, -sign * dn)
+        roll = 0.0
     return math.degrees(roll), math.degrees(pitch), math.degrees(yaw)
 
 

@@ -104,6 +104,21 @@ def test_quaternion_to_euler_inverts_euler_to_quaternion(roll, pitch, yaw):
     assert math.cos(math.radians(got[0] - roll)) == pytest.approx(1.0, abs=1e-9)
 
 
+@settings(max_examples=300, deadline=None)
+@given(pitch=st.one_of(st.sampled_from([-90.0, 90.0, -89.99, 89.99, -89.9]), st.floats(-90, 90)),
+       yaw=st.floats(-179.9, 179.9), float32=st.booleans())
+def test_a_camera_looking_straight_down_keeps_its_heading(pitch, yaw, float32):
+    """A nadir gimbal (mapping, or at its end stop) sends a quaternion at gimbal lock, rounded to float32 on the
+    wire: its heading is the turn about the vertical (it came out 0, or the vehicle's yaw), its roll 0."""
+    q = euler_to_quaternion(0.0, pitch, yaw)
+    if float32:
+        q = [float(np.float32(v)) for v in q]
+    roll, got_pitch, got_yaw = quaternion_to_euler_deg(tuple(q))
+    assert got_pitch == pytest.approx(pitch, abs=0.01)
+    assert math.cos(math.radians(got_yaw - yaw)) == pytest.approx(1.0, abs=2e-6)  # within ~0.1 deg
+    assert abs(roll) < 0.1
+
+
 # ---- PX4 ULog -------------------------------------------------------------------------------------------------
 
 def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True):
