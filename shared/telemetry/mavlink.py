@@ -68,7 +68,7 @@ def quaternion_to_euler_deg(q: tuple[float, float, float, float]) -> tuple[float
     w, x, y, z = w / norm, x / norm, y / norm, z / norm
     # the body axes in north-east-down: forward (the optical axis) and down (the image's bottom, roll 0)
     fn, fe, fd = 1 - 2 * (y * y + z * z), 2 * (x * y + w * z), 2 * (x * z - w * y)
-    dn, de, dd = 2 * (x * z + w * y), 2 * (y * z - w * x), 1 - 2 * (x * x + y * y)
+    dn, de = 2 * (x * z + w * y), 2 * (y * z - w * x)
     level = math.hypot(fn, fe)
     pitch = math.atan2(-fd, level)
     if level > _VERTICAL:
