@@ -26,6 +26,7 @@ if TYPE_CHECKING:
     from agent.dataset import PoseProblem
     from agent.detector import Detections
     from agent.slicing import SliceGrid
+    from agent.video_decode import VideoReader
 
 log = logging.getLogger(__name__)
 
@@ -45,8 +46,6 @@ __all__ = [
 
 #: Files a dataset directory must hold (the layout `uavmm sim --out` writes).
 DATASET_FILES = ("images.json", "pre_nms.json", "camera.json")
-#: Frames whose poses are interpolated at once by the video source.
-_POSE_BATCH = 256
 
 
 @dataclass(frozen=True, slots=True, eq=False)
@@ -338,6 +337,25 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     return records, video_start_t
 
 
+def _check_span(video: Path, telemetry: Path, reader: VideoReader, start_s: float, end_s: float,
+                max_gap_s: float) -> None:
+    """Warn when the telemetry and the video plainly do not belong together: the video runs on past the telemetry
+    (its last frames get no pose), or, for a DJI SRT (written per video, as long as it), the SRT runs on far past
+    the video (a clip cut from a longer recording given the recording's SRT: every frame takes the pose of the
+    recording's first seconds). start_s, end_s: the telemetry's first and last record in video time (s)."""
+    if reader.frame_count is None:
+        return
+    duration = reader.frame_count / reader.fps
+    if duration > end_s + max_gap_s:
+        log.warning("telemetry %s ends %.1f s into the video but %s lasts %.1f s: its last %.1f s get no pose",
+                    telemetry.name, end_s, video.name, duration, duration - max(end_s, 0.0))
+    elif telemetry.suffix.lower() == ".srt" and end_s - duration > max(2.0, 0.1 * duration):
+        log.warning("the SRT %s runs %.1f s but %s lasts %.1f s: a clip cut from a longer recording? Its frames are "
+                    "put on the SRT's first %.1f s; give the SRT written with this clip, or --telemetry-offset-s (the "
+                    "SRT's time of the clip's first frame)", telemetry.name, end_s - start_s, video.name, duration,
+                    duration)
+
+
 def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemetry_offset_s: float | None = None,
                      video_start_t: float | None = None) -> float:
     """Telemetry time (s) of video time 0 (`--telemetry-offset-s`, the same for every command reading a video).
@@ -389,7 +407,8 @@ class VideoSource:
     conf_threshold : float
         Lowest candidate confidence kept from the detector.
     max_gap_s : float
-        Frames farther than this from any telemetry record get no pose.
+        Frames farther than this from any telemetry record get no pose (before the first, after the last, and
+        inside a gap of the log, e.g. a radio dropout).
     pitch_deg, heading_deg : float, optional
         Fixed gimbal angles for telemetry without them.
     height_m, height_offset_m : float, optional
@@ -411,11 +430,10 @@ class VideoSource:
                  height_m: float | None = None, height_offset_m: float | None = None,
                  providers: Sequence[str] = ("CPUExecutionProvider",), slices: SliceGrid | None = None,
                  slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0) -> None:
-        import cv2
-
         from agent.detector import OnnxYoloDetector
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
         from agent.slicing import SlicedDetector
+        from agent.video_decode import VideoReader
 
         live = is_live_telemetry(telemetry)  # udp:HOST:PORT: MAVLink from the flight controller
         telemetry = resolve_video_telemetry(telemetry, video)
@@ -434,17 +452,11 @@ class VideoSource:
                                                           need_angles=True)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
-        capture = cv2.VideoCapture(str(self.video_path))
-        if not capture.isOpened():
-            raise ValueError(f"video file {self.video_path} cannot be opened by OpenCV")
-        width = int(capture.get(cv2.CAP_PROP_FRAME_WIDTH))
-        height = int(capture.get(cv2.CAP_PROP_FRAME_HEIGHT))
-        fps = float(capture.get(cv2.CAP_PROP_FPS))
-        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT))
-        capture.release()
+        self.reader = VideoReader(self.video_path)
+        width, height = self.reader.width, self.reader.height
         #: Frames the container announces (None when it does not say, e.g. a stream).
-        self.frame_count: int | None = count if count > 0 else None
-        self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
+        self.frame_count: int | None = self.reader.frame_count
+        self.fps = self.reader.fps
         same_size = (width, height) in ((0, 0), (self.camera_file.width, self.camera_file.height))
         self.camera = self.camera_file if same_size else self.camera_file.fitted_to(width, height,
                                                                                       source=f"the frames of {video}")
@@ -475,6 +487,9 @@ class VideoSource:
         self.heading_deg = heading_deg
         self.name = f"video:{self.video_path.name}"
         self.problems = 0
+        if not live and self.records:
+            _check_span(self.video_path, Path(telemetry), self.reader, self._record_t[0] - self.telemetry_offset_s,
+                        self._record_t[-1] - self.telemetry_offset_s, self.max_gap_s)
 
     def _pose(self, tel: Telemetry | None) -> Pose | None:
         if tel is None:
@@ -506,39 +521,25 @@ class VideoSource:
         if not records:
             return [(None, None)] * len(times)
         out: list[tuple[Pose | None, float | None]] = []
-        for t, tel in zip(times, interpolate(records, times, extrapolate_s=self.max_gap_s), strict=True):
+        for t, tel in zip(times, interpolate(records, times, extrapolate_s=self.max_gap_s, max_gap_s=self.max_gap_s),
+                          strict=True):
             pose = self._pose(tel)
             out.append((pose, float(t) if pose is not None else None))
         return out
 
     def frames(self) -> Iterator[SourceFrame]:
-        """Decode and detect every frame of the video; frame i is at telemetry time offset + i / fps."""
-        import cv2
-
-        capture = cv2.VideoCapture(str(self.video_path))
-        if not capture.isOpened():
-            raise ValueError(f"video file {self.video_path} cannot be opened by OpenCV")
-        try:
-            index = 0
-            poses: list[tuple[Pose | None, float | None]] = []
-            while True:
-                ok, image = capture.read()
-                if not ok:
-                    break
-                batch = 1 if self.feed is not None else _POSE_BATCH  # live: each frame as its telemetry comes
-                if index % batch == 0:
-                    times = self.telemetry_offset_s + (index + np.arange(batch)) / self.fps
-                    poses = self.poses_at(times)
-                pose, pose_t = poses[index % batch]
-                if (image.shape[1], image.shape[0]) != (self.camera.width, self.camera.height):
-                    self.camera = self.camera_file.fitted_to(image.shape[1], image.shape[0],
-                                                             source="the video's frames")
-                dets = self.detector(image)
-                yield SourceFrame(index, self.telemetry_offset_s + index / self.fps, pose, pose_t, dets.boxes_xyxy,
-                                  dets.scores, dets.class_ids.astype(np.int64), self.camera, image=image)
-                index += 1
-        finally:
-            capture.release()
+        """Decode and detect every frame of the video; a frame is at telemetry time offset + its time in the video
+        (its container time, `agent.video_decode.VideoReader`: a variable frame rate, dropped frames and a stream
+        begun mid-GOP keep each frame's own time). Its index is its number in the video."""
+        for frame in self.reader.frames():
+            t = self.telemetry_offset_s + frame.t
+            pose, pose_t = self.poses_at(np.array([t]))[0]
+            image = frame.image
+            if (image.shape[1], image.shape[0]) != (self.camera.width, self.camera.height):
+                self.camera = self.camera_file.fitted_to(image.shape[1], image.shape[0], source="the video's frames")
+            dets = self.detector(image)
+            yield SourceFrame(frame.index, t, pose, pose_t, dets.boxes_xyxy, dets.scores,
+                              dets.class_ids.astype(np.int64), self.camera, image=image)
 
     def close(self) -> None:
         """Drop the model session and stop a live telemetry stream."""

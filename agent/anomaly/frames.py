@@ -4,7 +4,6 @@ its pose, time and camera; no detector involved. Bad input raises ValueError wit
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -53,9 +52,10 @@ class VideoFrames:
     """A video file (OpenCV) with its telemetry interpolated to the frame times: any file `agent.sources.
     video_telemetry` reads (``.srt``, ``.csv``, SeaDronesSee ``.json``, ``.tlog``, ``.ulg``, KLV in ``.ts`` /
     ``.m2ts`` / ``.mts`` or raw ``.klv``), or the word ``klv`` for the KLV inside the video (a transport stream).
-    Frame i is at ``telemetry_offset_s`` + i / fps; without it at the telemetry time of video time 0 the file
-    tells (KLV in a transport stream, by its PTS), else where the log starts recording (AirData's isVideo), else
-    the first record's time (`agent.sources.video_start_time`, as the video source of agent and detect).
+    A frame is at ``telemetry_offset_s`` + its time in the video (its container time: a variable frame rate or
+    dropped frames keep each frame's own, `agent.video_decode`); without it at the telemetry time of video time 0
+    the file tells (KLV in a transport stream, by its PTS), else where the log starts recording (AirData's
+    isVideo), else the first record's time (`agent.sources.video_start_time`, as the video source of agent and detect).
 
     Checked at construction, each a one-line ValueError: the video opens and has frames, the camera's aspect
     matches the frames, and the telemetry covers the video's duration (within ``max_gap_s``).
@@ -65,23 +65,23 @@ class VideoFrames:
                  telemetry_offset_s: float | None = None, max_gap_s: float = 1.0,
                  height_m: float | None = None, height_offset_m: float | None = None,
                  pitch_deg: float | None = None, heading_deg: float | None = None) -> None:
-        import cv2
-
         from agent.sources import resolve_video_telemetry, video_start_time, video_telemetry
+        from agent.video_decode import VideoReader
 
         telemetry = resolve_video_telemetry(telemetry, video)
         for what, p in (("video", video), ("telemetry", telemetry)):
             if not Path(p).is_file():
                 raise ValueError(f"{what} file {p} does not exist")
         self.path = Path(video)
-        capture = cv2.VideoCapture(str(self.path))
-        ok, first = capture.read() if capture.isOpened() else (False, None)
-        fps = float(capture.get(cv2.CAP_PROP_FPS)) if capture.isOpened() else 0.0
-        count = int(capture.get(cv2.CAP_PROP_FRAME_COUNT)) if capture.isOpened() else 0
-        capture.release()
-        if not ok or first is None:
+        try:
+            self.reader = VideoReader(self.path)
+            first = self.reader.first_image()
+        except ValueError:
+            first = None
+        if first is None:
             raise ValueError(f"video file {self.path} cannot be read by OpenCV (not a video, or no frames)")
-        self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
+        self.fps = self.reader.fps
+        count = self.reader.frame_count or 0
         self.camera = camera.fitted_to(first.shape[1], first.shape[0], source=f"the frames of {self.path}")
         # without gimbal angles (and no --pitch-deg / --heading-deg) the frames have no pose: the per-frame
         # heatmap still runs, so the file is not refused (need_angles off: a warning says why)
@@ -101,25 +101,16 @@ class VideoFrames:
                              f"{duration:.1f} s: give the telemetry file recorded with it")
 
     def __iter__(self) -> Iterator[AnomalyInput]:
-        import cv2
-
-        capture = cv2.VideoCapture(str(self.path))
-        try:
-            index = 0
-            while True:
-                ok, image = capture.read()
-                if not ok:
-                    break
-                t = self.offset_s + index / self.fps
-                tel = interpolate(self.records, np.array([t]), extrapolate_s=self.max_gap_s)[0]
-                pose = None
-                if tel is not None:
-                    try:
-                        # --pitch-deg / --heading-deg fill what a record lacks, never replace it (as agent, detect)
-                        pose = tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
-                    except ValueError:
-                        pose = None
-                yield AnomalyInput(index, 0, image, t, pose, self.camera)
-                index += 1
-        finally:
-            capture.release()
+        """The frames with their poses; a frame is at offset_s + its time in the video (its container time,
+        `agent.video_decode.VideoReader`), its id its number in the video."""
+        for frame in self.reader.frames():
+            t = self.offset_s + frame.t
+            tel = interpolate(self.records, np.array([t]), extrapolate_s=self.max_gap_s, max_gap_s=self.max_gap_s)[0]
+            pose = None
+            if tel is not None:
+                try:
+                    # --pitch-deg / --heading-deg fill what a record lacks, never replace it (as agent, detect)
+                    pose = tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
+                except ValueError:
+                    pose = None
+            yield AnomalyInput(frame.index, 0, frame.image, t, pose, self.camera)

@@ -25,7 +25,7 @@ def _unwrap_deg(deg: np.ndarray) -> np.ndarray:
 
 
 def interpolate(
-    records: Sequence[Telemetry], times: ArrayLike, *, extrapolate_s: float = 0.0
+    records: Sequence[Telemetry], times: ArrayLike, *, extrapolate_s: float = 0.0, max_gap_s: float | None = None
 ) -> list[Telemetry | None]:
     """Interpolate telemetry to query times (e.g. video frame times).
 
@@ -38,6 +38,10 @@ def interpolate(
     extrapolate_s : float
         Times up to this far before the first / after the last record get that record's values
         (held, not extrapolated); further out they get None.
+    max_gap_s : float, optional
+        Times inside the records' span farther than this from both records around them (a gap in the log: a
+        radio dropout, a logger paused) get None instead of a pose drawn straight across the gap; None: every
+        time inside the span is interpolated.
 
     Returns
     -------
@@ -61,6 +65,8 @@ def interpolate(
         raise ValueError("interpolate: query times must be finite")
     if not (math.isfinite(extrapolate_s) and extrapolate_s >= 0.0):
         raise ValueError(f"extrapolate_s={extrapolate_s!r} must be finite and >= 0")
+    if max_gap_s is not None and not (math.isfinite(max_gap_s) and max_gap_s >= 0.0):
+        raise ValueError(f"max_gap_s={max_gap_s!r} must be finite and >= 0")
     t_rec = np.array([r.t for r in recs], dtype=float)
     if (np.diff(t_rec) < 0).any():
         first = int(np.flatnonzero(np.diff(t_rec) < 0)[0]) + 1
@@ -86,6 +92,11 @@ def interpolate(
     vel_e = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[0] for r in recs))
     vel_n = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[1] for r in recs))
     inside = (query >= t_rec[0] - extrapolate_s) & (query <= t_rec[-1] + extrapolate_s)
+    if max_gap_s is not None and len(t_rec) > 1:
+        after = np.clip(np.searchsorted(t_rec, query, side="left"), 1, len(t_rec) - 1)
+        nearest = np.minimum(np.abs(query - t_rec[after - 1]), np.abs(t_rec[after] - query))
+        within = (query < t_rec[0]) | (query > t_rec[-1]) | (nearest <= max_gap_s + 1e-9)  # stamps in float
+        inside &= within
     hit = np.clip(np.searchsorted(t_rec, query), 0, len(t_rec) - 1)
     exact = t_rec[hit] == query
 

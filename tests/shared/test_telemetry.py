@@ -1006,6 +1006,28 @@ def test_interpolation_is_linear_and_none_outside_unless_tolerated():
     assert held[1].height_m == 34.0
 
 
+@settings(max_examples=200, deadline=None)
+@given(steps=st.lists(st.floats(0.05, 12.0), min_size=1, max_size=12), max_gap=st.floats(0.0, 3.0),
+       queries=st.lists(st.floats(-5.0, 80.0), min_size=1, max_size=20))
+def test_interpolation_leaves_frames_in_a_gap_of_the_log_without_a_pose(steps, max_gap, queries):
+    """A radio dropout or a paused logger: a time farther than max_gap_s from both records around it gets None
+    (a pose drawn straight across the gap is a guess); nearer, or without max_gap_s, the interpolation as before."""
+    times = np.concatenate([[0.0], np.cumsum(steps)])
+    records = [rec(float(t), lat=47.0 + 1e-5 * float(t)) for t in times]
+    plain = interpolate(records, queries, extrapolate_s=max_gap)
+    gapped = interpolate(records, queries, extrapolate_s=max_gap, max_gap_s=max_gap)
+    for q, a, b in zip(queries, plain, gapped, strict=True):
+        nearest = float(np.min(np.abs(times - q)))
+        if nearest <= max_gap + 1e-9:  # float stamps: the tolerance interpolate allows
+            assert a is not None and b is not None and b.lat == a.lat
+        elif times[0] < q < times[-1]:
+            assert a is not None and b is None
+        else:
+            assert a is None and b is None
+    with pytest.raises(ValueError, match="max_gap_s"):
+        interpolate(records, queries, max_gap_s=-1.0)
+
+
 def test_interpolation_missing_optional_field_gives_none():
     records = [rec(0.0, pitch=None), rec(1.0, pitch=30.0), rec(2.0, pitch=40.0)]
     out = interpolate(records, [0.5, 1.5])
