@@ -14,7 +14,7 @@ from itertools import pairwise
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import HealthCheck, assume, example, given, settings
 from hypothesis import strategies as st
 
 from shared.telemetry import (
@@ -1009,6 +1009,7 @@ def test_interpolation_is_linear_and_none_outside_unless_tolerated():
 @settings(max_examples=200, deadline=None)
 @given(steps=st.lists(st.floats(0.05, 12.0), min_size=1, max_size=12), max_gap=st.floats(0.0, 3.0),
        queries=st.lists(st.floats(-5.0, 80.0), min_size=1, max_size=20))
+@example(steps=[1.0], max_gap=0.0, queries=[-3.9e-93])  # a hair before the first record, nothing held
 def test_interpolation_leaves_frames_in_a_gap_of_the_log_without_a_pose(steps, max_gap, queries):
     """A radio dropout or a paused logger: a time farther than max_gap_s from both records around it gets None
     (a pose drawn straight across the gap is a guess); nearer, or without max_gap_s, the interpolation as before."""
@@ -1018,12 +1019,12 @@ def test_interpolation_leaves_frames_in_a_gap_of_the_log_without_a_pose(steps, m
     gapped = interpolate(records, queries, extrapolate_s=max_gap, max_gap_s=max_gap)
     for q, a, b in zip(queries, plain, gapped, strict=True):
         nearest = float(np.min(np.abs(times - q)))
-        if nearest <= max_gap + 1e-9:  # float stamps: the tolerance interpolate allows
-            assert a is not None and b is not None and b.lat == a.lat
-        elif times[0] < q < times[-1]:
-            assert a is not None and b is None
-        else:
+        if not times[0] - max_gap <= q <= times[-1] + max_gap:  # beyond the ends: held up to max_gap only
             assert a is None and b is None
+        elif nearest <= max_gap + 1e-9:  # float stamps: the tolerance interpolate allows inside the span
+            assert a is not None and b is not None and b.lat == a.lat
+        else:  # inside the span, in a gap
+            assert a is not None and b is None
     with pytest.raises(ValueError, match="max_gap_s"):
         interpolate(records, queries, max_gap_s=-1.0)
 
