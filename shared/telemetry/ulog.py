@@ -6,8 +6,9 @@ Topics used, all on the log's microsecond boot clock and interpolated to the tim
   as the height, ``vx, vy`` (north, east m/s); without it the records have no height (``--height-m``);
 - ``vehicle_attitude``: quaternion ``q[0..3]`` (w, x, y, z): the vehicle's yaw;
 - ``gimbal_device_attitude_status``: quaternion and ``device_flags`` (yaw in the earth or the vehicle frame, as
-  in MAVLink's GIMBAL_DEVICE_ATTITUDE_STATUS); without it the camera is taken as fixed, facing forward (heading
-  = the vehicle's yaw, pitch from ``--pitch-deg``);
+  in MAVLink's GIMBAL_DEVICE_ATTITUDE_STATUS; each sample's own, as the pilot may switch follow and lock in
+  flight); without it the camera is taken as fixed, facing forward (heading = the vehicle's yaw, pitch from
+  ``--pitch-deg``);
 - ``vehicle_gps_position``: ``time_utc_usec`` anchors the boot clock to UNIX time (else times are seconds since
   boot).
 """
@@ -44,14 +45,57 @@ def _interp(t: NDArray, t_src: NDArray, values: NDArray) -> NDArray:
     return np.interp(t, t_src, values)
 
 
+def _interp_finite(t: NDArray, t_src: NDArray, values: NDArray) -> NDArray:
+    """`values` (M,) at times `t_src` (M,) interpolated to `t` (N,) over their finite entries; all NaN without any."""
+    ok = np.isfinite(values)
+    return np.interp(t, t_src[ok], values[ok]) if ok.any() else np.full(len(t), np.nan)
+
+
+def _unwrapped_deg(yaw_deg: NDArray) -> NDArray:
+    """Angles (degrees) with their 360-degree jumps removed over the finite entries, for interpolation."""
+    out = np.array(yaw_deg, dtype=np.float64)
+    ok = np.isfinite(out)
+    out[ok] = np.degrees(np.unwrap(np.radians(out[ok])))
+    return out
+
+
 def _yaws_deg(data: dict[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
     """(roll, pitch, yaw) in degrees per sample of a topic with q[0..3]; yaw unwrapped for interpolation."""
     q = np.column_stack([data[f"q[{i}]"] for i in range(4)]).astype(np.float64)
     euler = np.array([quaternion_to_euler_deg(tuple(row)) if np.any(row) else (np.nan,) * 3 for row in q])
-    yaw = euler[:, 2].copy()
-    ok = np.isfinite(yaw)
-    yaw[ok] = np.degrees(np.unwrap(np.radians(yaw[ok])))
-    return euler[:, 0], euler[:, 1], yaw
+    return euler[:, 0], euler[:, 1], _unwrapped_deg(euler[:, 2])
+
+
+def _yaw_in_earth_frame(device_flags: NDArray) -> NDArray:
+    """(M,) bool per gimbal sample: its yaw is in the earth frame (else relative to the vehicle), as MAVLink's
+    GIMBAL_DEVICE_FLAGS say: YAW_IN_EARTH_FRAME, else YAW_IN_VEHICLE_FRAME, else YAW_LOCK (older gimbals)."""
+    flags = np.asarray(device_flags).astype(np.int64)
+    earth = (flags & _YAW_IN_EARTH_FRAME) != 0
+    vehicle = (flags & _YAW_IN_VEHICLE_FRAME) != 0
+    return earth | (~vehicle & ((flags & _YAW_LOCK) != 0))
+
+
+def _camera_heading_deg(t: NDArray, t_gimbal: NDArray, yaw_gimbal: NDArray, earth_gimbal: NDArray,
+                        t_vehicle: NDArray, yaw_vehicle: NDArray) -> NDArray:
+    """The camera heading (degrees, not wrapped; NaN where unknown) at times `t` (N,).
+
+    t_gimbal, yaw_gimbal, earth_gimbal: (M,) gimbal samples, their yaw in the earth frame where earth_gimbal, else
+    relative to the vehicle; t_vehicle, yaw_vehicle: (K,) the vehicle's yaw (K may be 0). Each time takes the frame
+    of the gimbal sample in effect (the latest at or before it, the first before any): the pilot may switch the
+    gimbal between follow (vehicle frame) and lock (earth frame) mid-flight. The samples are brought into that frame
+    with the vehicle's yaw at their own time before interpolating, so no interpolation mixes the two frames.
+    """
+    def vehicle_yaw_at(times: NDArray) -> NDArray:
+        return _interp_finite(times, t_vehicle, yaw_vehicle) if len(t_vehicle) else np.full(len(times), np.nan)
+
+    vehicle_at_gimbal = vehicle_yaw_at(t_gimbal)
+    in_earth = _unwrapped_deg(np.where(earth_gimbal, yaw_gimbal, yaw_gimbal + vehicle_at_gimbal))
+    relative = _unwrapped_deg(np.where(earth_gimbal, yaw_gimbal - vehicle_at_gimbal, yaw_gimbal))
+    earth = earth_gimbal[np.clip(np.searchsorted(t_gimbal, t, side="right") - 1, 0, None)]
+    heading = np.full(len(t), np.nan)
+    heading[earth] = _interp_finite(t[earth], t_gimbal, in_earth)
+    heading[~earth] = vehicle_yaw_at(t[~earth]) + _interp_finite(t[~earth], t_gimbal, relative)
+    return heading
 
 
 def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemetry]:
@@ -83,13 +127,11 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
         if "vx" in local and "vy" in local:
             vel_n = _interp(t_us, t_local, local["vx"].astype(np.float64))
             vel_e = _interp(t_us, t_local, local["vy"].astype(np.float64))
-    vehicle_yaw = np.full(n, np.nan)
+    t_vehicle, yaw_vehicle = np.zeros(0), np.zeros(0)
     attitude = _topic(ulog, "vehicle_attitude")
     if attitude is not None:
-        _, _, yaw = _yaws_deg(attitude)
-        ok = np.isfinite(yaw)
-        if ok.any():
-            vehicle_yaw = _interp(t_us, attitude["timestamp"][ok].astype(np.float64), yaw[ok])
+        t_vehicle, yaw_vehicle = attitude["timestamp"].astype(np.float64), _yaws_deg(attitude)[2]
+    vehicle_yaw = _interp_finite(t_us, t_vehicle, yaw_vehicle)
     pitch = np.full(n, np.nan)
     roll = np.zeros(n)
     heading = vehicle_yaw.copy()  # a fixed camera looks where the vehicle heads
@@ -101,11 +143,8 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
             t_g = gimbal["timestamp"][ok].astype(np.float64)
             pitch = _interp(t_us, t_g, g_pitch[ok])
             roll = _interp(t_us, t_g, g_roll[ok])
-            flags = int(gimbal["device_flags"][ok][-1]) if "device_flags" in gimbal else _YAW_LOCK
-            earth = bool(flags & _YAW_IN_EARTH_FRAME) or (
-                not flags & _YAW_IN_VEHICLE_FRAME and bool(flags & _YAW_LOCK))
-            g_heading = _interp(t_us, t_g, g_yaw[ok])
-            heading = g_heading if earth else vehicle_yaw + g_heading
+            flags = gimbal["device_flags"][ok] if "device_flags" in gimbal else np.full(len(t_g), _YAW_LOCK)
+            heading = _camera_heading_deg(t_us, t_g, g_yaw[ok], _yaw_in_earth_frame(flags), t_vehicle, yaw_vehicle)
     offset_s = 0.0
     gps = _topic(ulog, "vehicle_gps_position")
     if gps is not None and "time_utc_usec" in gps:

@@ -198,3 +198,55 @@ def test_ulog_errors_name_the_file(tmp_path):
     empty.write_bytes(ulog_bytes({"vehicle_attitude": ([("uint64_t", "timestamp"), ("float", "q[0]")], [(1, 1.0)])}))
     with pytest.raises(ValueError, match="empty.ulg: no vehicle_global_position"):
         read_telemetry(empty)
+
+
+def _ulog_gimbal_switching(tmp_path, flags: list[int], vehicle_yaw: list[float], camera_heading: list[float]):
+    """A .ulg whose gimbal reports, per sample, `device_flags` and its yaw in the frame those flags name."""
+    pytest.importorskip("pyulog")
+    times = [20_000_000 + 200_000 * i for i in range(len(flags))]
+    gimbal_rows = []
+    for t, f, v, c in zip(times, flags, vehicle_yaw, camera_heading, strict=True):
+        earth = f & 64 or (not f & 32 and f & 16)
+        gimbal_rows.append((t, *euler_to_quaternion(0, -60.0, c if earth else c - v), f))
+    topics = {
+        "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon")],
+                                    [(t, 48.53 + 1e-5 * i, 9.06) for i, t in enumerate(times)]),
+        "vehicle_attitude": ([("uint64_t", "timestamp")] + [("float", f"q[{i}]") for i in range(4)],
+                             [(t, *euler_to_quaternion(0, 0, v)) for t, v in zip(times, vehicle_yaw, strict=True)]),
+        "gimbal_device_attitude_status": (
+            [("uint64_t", "timestamp")] + [("float", f"q[{i}]") for i in range(4)] + [("uint32_t", "device_flags")],
+            gimbal_rows),
+    }
+    path = tmp_path / "switching.ulg"
+    path.write_bytes(ulog_bytes(topics))
+    return path
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_ulog_gimbal_flags_count_per_sample_when_the_pilot_switches_follow_and_lock(tmp_path_factory, data):
+    """Follow (yaw in the vehicle frame) and lock (earth frame) switched mid-flight: each sample's own flags say
+    how to read its yaw (the last sample's flags were used for the whole log: headings off by the vehicle's yaw)."""
+    n = data.draw(st.integers(2, 12))
+    flags = data.draw(st.lists(st.sampled_from([16 | 64, 64, 32, 16 | 32, 16, 0]), min_size=n, max_size=n))
+    vehicle_yaw = data.draw(st.lists(st.floats(-179, 179), min_size=n, max_size=n))
+    camera = data.draw(st.lists(st.floats(-179, 179), min_size=n, max_size=n))
+    records = read_telemetry(_ulog_gimbal_switching(tmp_path_factory.mktemp("ulg"), flags, vehicle_yaw, camera))
+    for got, want in zip(records, camera, strict=True):
+        assert math.cos(math.radians(got.heading_deg - want)) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_ulog_gimbal_switch_between_samples_keeps_the_heading(tmp_path):
+    """Positions between a follow sample and a lock sample: the yaws are brought into one frame before
+    interpolating (the camera holds 30 deg, the vehicle heads 100 deg; positions 0.1 s after each gimbal sample)."""
+    path = _ulog_gimbal_switching(tmp_path, [32] * 5 + [16 | 64] * 5, [100.0] * 10, [30.0] * 10)
+    from pyulog import ULog
+
+    ulog = ULog(str(path))
+    buffer = io.BytesIO()
+    for dataset in ulog.data_list:
+        if dataset.name == "vehicle_global_position":
+            dataset.data["timestamp"] = dataset.data["timestamp"] + 100_000
+    ulog.write_ulog(buffer)
+    (tmp_path / "shifted.ulg").write_bytes(buffer.getvalue())
+    assert [round(r.heading_deg, 3) for r in read_telemetry(tmp_path / "shifted.ulg")] == [30.0] * 10
