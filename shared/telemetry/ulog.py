@@ -2,8 +2,13 @@
 
 Topics used, all on the log's microsecond boot clock and interpolated to the times of the positions:
 - ``vehicle_global_position``: lat, lon (one record per sample);
-- ``vehicle_local_position``: ``-z`` (metres above the local origin, where the EKF started: the take-off point)
-  as the height, ``vx, vy`` (north, east m/s); without it the records have no height (``--height-m``);
+- ``vehicle_local_position``: ``z`` (metres down from the local origin, where the EKF started) and ``vx, vy``
+  (north, east m/s); without it the records have no height (``--height-m``);
+- ``home_position``: ``z`` of home (the take-off point, set at arming) in the same local frame: the height is
+  ``-(z - home z)``, above the take-off point, with the latest home before each position (home may be reset; the
+  first one before it is set). Without ``home_position`` the height is ``-z``, above the EKF origin (where PX4
+  started its estimate: off the take-off point when PX4 was powered on elsewhere or the baro drifted on the
+  ground), and a warning says so;
 - ``vehicle_attitude``: quaternion ``q[0..3]`` (w, x, y, z): the vehicle's yaw;
 - ``gimbal_device_attitude_status``: quaternion and ``device_flags`` (yaw in the earth or the vehicle frame, as
   in MAVLink's GIMBAL_DEVICE_ATTITUDE_STATUS; each sample's own, as the pilot may switch follow and lock in
@@ -15,6 +20,7 @@ Topics used, all on the log's microsecond boot clock and interpolated to the tim
 
 from __future__ import annotations
 
+import logging
 import math
 from pathlib import Path
 from typing import Any
@@ -27,9 +33,11 @@ from shared.telemetry.record import Telemetry, pitch_or_none
 
 __all__ = ["ULOG_EXTRA_HINT", "read_ulog"]
 
+log = logging.getLogger(__name__)
+
 ULOG_EXTRA_HINT = "PX4 .ulg logs need pyulog: pip install 'uav-memory-maps[ulog]'"
 _TOPICS = ["vehicle_global_position", "vehicle_local_position", "vehicle_attitude",
-           "gimbal_device_attitude_status", "vehicle_gps_position"]
+           "gimbal_device_attitude_status", "vehicle_gps_position", "home_position"]
 _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
 
 
@@ -57,6 +65,24 @@ def _unwrapped_deg(yaw_deg: NDArray) -> NDArray:
     ok = np.isfinite(out)
     out[ok] = np.degrees(np.unwrap(np.radians(out[ok])))
     return out
+
+
+def _home_z_at(home: dict[str, NDArray] | None, t: NDArray) -> NDArray | None:
+    """Home's local z (metres, down) in effect at times `t` (N,): the latest home set at or before each time, the
+    first one before any (home is set at arming and may be reset). None without a valid home (no topic, or no
+    sample with a finite z and, where logged, ``valid_lpos``)."""
+    if home is None or "z" not in home:
+        return None
+    z = home["z"].astype(np.float64)
+    ok = np.isfinite(z)
+    if "valid_lpos" in home:
+        ok &= home["valid_lpos"].astype(bool)
+    if not ok.any():
+        return None
+    t_home, z = home["timestamp"][ok].astype(np.float64), z[ok]
+    order = np.argsort(t_home, kind="stable")
+    t_home, z = t_home[order], z[order]
+    return z[np.clip(np.searchsorted(t_home, t, side="right") - 1, 0, None)]
 
 
 def _yaws_deg(data: dict[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
@@ -124,6 +150,13 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
     if local is not None:
         t_local = local["timestamp"].astype(np.float64)
         height = -_interp(t_us, t_local, local["z"].astype(np.float64))
+        home_z = _home_z_at(_topic(ulog, "home_position"), t_us)
+        if home_z is None:
+            log.warning("%s: no home_position in the log: heights are above the EKF origin (where PX4 started its "
+                        "estimate), which is the take-off point only if PX4 was powered on there; correct with "
+                        "--height-offset-m", path)
+        else:
+            height += home_z
         if "vx" in local and "vy" in local:
             vel_n = _interp(t_us, t_local, local["vx"].astype(np.float64))
             vel_e = _interp(t_us, t_local, local["vy"].astype(np.float64))

@@ -250,3 +250,59 @@ def test_ulog_gimbal_switch_between_samples_keeps_the_heading(tmp_path):
     ulog.write_ulog(buffer)
     (tmp_path / "shifted.ulg").write_bytes(buffer.getvalue())
     assert [round(r.heading_deg, 3) for r in read_telemetry(tmp_path / "shifted.ulg")] == [30.0] * 10
+
+
+_HOME = [("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"), ("float", "alt"), ("float", "x"),
+         ("float", "y"), ("float", "z"), ("uint8_t", "valid_lpos")]
+
+
+def _ulog_heights(tmp_path, local_z: list[float], homes: list[tuple[int, float, int]] | None):
+    """A .ulg with positions every 0.2 s (local z logged at the same times) and `homes` as (time us, z, valid)."""
+    pytest.importorskip("pyulog")
+    times = [20_000_000 + 200_000 * i for i in range(len(local_z))]
+    topics = {
+        "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon")],
+                                    [(t, 48.53 + 1e-5 * i, 9.06) for i, t in enumerate(times)]),
+        "vehicle_local_position": ([("uint64_t", "timestamp"), ("float", "z")],
+                                   [(t, z) for t, z in zip(times, local_z, strict=True)]),
+    }
+    if homes is not None:
+        topics["home_position"] = (_HOME, [(t, 48.53, 9.06, 412.0, 0.0, 0.0, z, valid) for t, z, valid in homes])
+    path = tmp_path / "heights.ulg"
+    path.write_bytes(ulog_bytes(topics))
+    return path, times
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_ulog_height_is_above_the_home_in_effect_not_the_ekf_origin(tmp_path_factory, data):
+    """PX4 powered on away from the launch spot (or the baro drifted on the ground): the EKF origin is not the
+    take-off point, home_position.z says where home is in the same frame (the reader gave -z: 52 m for 40 m).
+    Home may be reset in flight: the latest before each position counts, the first one before it is set."""
+    n = data.draw(st.integers(2, 10))
+    above_home = data.draw(st.lists(st.floats(0, 120, width=32), min_size=n, max_size=n))
+    home_times = sorted(data.draw(st.lists(st.integers(19_000_000, 20_000_000 + 200_000 * n), min_size=1,
+                                           max_size=3, unique=True)))
+    home_z = data.draw(st.lists(st.floats(-30, 30, width=32), min_size=len(home_times), max_size=len(home_times)))
+    times = [20_000_000 + 200_000 * i for i in range(n)]
+    in_effect = [home_z[max(0, sum(h <= t for h in home_times) - 1)] for t in times]
+    local_z = [z - h for z, h in zip(in_effect, above_home, strict=True)]
+    path, _ = _ulog_heights(tmp_path_factory.mktemp("ulg"), local_z,
+                            [(t, z, 1) for t, z in zip(home_times, home_z, strict=True)])
+    assert [r.height_m for r in read_telemetry(path)] == pytest.approx(above_home, abs=1e-4)
+
+
+def test_ulog_height_ignores_a_home_without_a_valid_local_position(tmp_path, caplog):
+    path, _ = _ulog_heights(tmp_path, [-52.0, -52.0], [(19_000_000, 99.0, 0), (19_000_001, -12.0, 1)])
+    assert [r.height_m for r in read_telemetry(path)] == pytest.approx([40.0, 40.0])
+    path, _ = _ulog_heights(tmp_path, [-52.0, -52.0], [(19_000_000, 99.0, 0)])
+    with caplog.at_level("WARNING"):
+        assert [r.height_m for r in read_telemetry(path)] == pytest.approx([52.0, 52.0])
+    assert "no home_position" in caplog.text and "EKF origin" in caplog.text
+
+
+def test_ulog_without_home_position_gives_the_height_above_the_ekf_origin_and_says_so(tmp_path, caplog):
+    path, _ = _ulog_heights(tmp_path, [-52.0, -53.0], None)
+    with caplog.at_level("WARNING"):
+        assert [r.height_m for r in read_telemetry(path)] == pytest.approx([52.0, 53.0])
+    assert "heights.ulg: no home_position" in caplog.text
