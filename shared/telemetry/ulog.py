@@ -14,8 +14,8 @@ Topics used, all on the log's microsecond boot clock and interpolated to the tim
   in MAVLink's GIMBAL_DEVICE_ATTITUDE_STATUS; each sample's own, as the pilot may switch follow and lock in
   flight); without it the camera is taken as fixed, facing forward (heading = the vehicle's yaw, pitch from
   ``--pitch-deg``);
-- ``vehicle_gps_position``: ``time_utc_usec`` anchors the boot clock to UNIX time (else times are seconds since
-  boot).
+- ``vehicle_gps_position`` or ``sensor_gps`` (the first instance with UTC time): ``time_utc_usec`` anchors the
+  boot clock to UNIX time; without it times are seconds since boot, and a warning says so.
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ log = logging.getLogger(__name__)
 
 ULOG_EXTRA_HINT = "PX4 .ulg logs need pyulog: pip install 'uav-memory-maps[ulog]'"
 _TOPICS = ["vehicle_global_position", "vehicle_local_position", "vehicle_attitude",
-           "gimbal_device_attitude_status", "vehicle_gps_position", "home_position"]
+           "gimbal_device_attitude_status", "vehicle_gps_position", "sensor_gps", "home_position"]
 _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
 
 
@@ -46,6 +46,23 @@ def _topic(ulog: Any, name: str) -> dict[str, NDArray] | None:
     for dataset in ulog.data_list:
         if dataset.name == name and dataset.multi_id == 0 and len(dataset.data["timestamp"]):
             return dataset.data
+    return None
+
+
+def _utc_offset_s(ulog: Any) -> float | None:
+    """UNIX time minus boot time in seconds, from the first GPS topic and instance with UTC time (the median over
+    its samples with ``time_utc_usec`` > 0), or None when none has: a receiver without time output, or before its
+    fix, logs 0. ``vehicle_gps_position`` instances come first (PX4 <= 1.12 logs one per receiver), then
+    ``sensor_gps`` (the receivers of newer PX4)."""
+    for name in ("vehicle_gps_position", "sensor_gps"):
+        for dataset in sorted((d for d in ulog.data_list if d.name == name), key=lambda d: d.multi_id):
+            gps = dataset.data
+            if "time_utc_usec" not in gps:
+                continue
+            utc = gps["time_utc_usec"].astype(np.float64)
+            valid = utc > 0
+            if valid.any():
+                return float(np.median(utc[valid] - gps["timestamp"][valid].astype(np.float64))) / 1e6
     return None
 
 
@@ -178,13 +195,12 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
             roll = _interp(t_us, t_g, g_roll[ok])
             flags = gimbal["device_flags"][ok] if "device_flags" in gimbal else np.full(len(t_g), _YAW_LOCK)
             heading = _camera_heading_deg(t_us, t_g, g_yaw[ok], _yaw_in_earth_frame(flags), t_vehicle, yaw_vehicle)
-    offset_s = 0.0
-    gps = _topic(ulog, "vehicle_gps_position")
-    if gps is not None and "time_utc_usec" in gps:
-        utc = gps["time_utc_usec"].astype(np.float64)
-        valid = utc > 0
-        if valid.any():
-            offset_s = float(np.median(utc[valid] - gps["timestamp"][valid].astype(np.float64))) / 1e6
+    offset_s = _utc_offset_s(ulog)
+    if offset_s is None:
+        log.warning("%s: no GPS UTC time in the log (time_utc_usec of vehicle_gps_position or sensor_gps, any "
+                    "instance): the records are on the boot clock (seconds since boot), so a "
+                    "--telemetry-offset-s in UNIX time will not match them", path)
+        offset_s = 0.0
     records: list[Telemetry] = []
     for i in range(n):
         lat, lon = float(position["lat"][i]), float(position["lon"][i])

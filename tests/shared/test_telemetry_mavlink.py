@@ -121,12 +121,13 @@ def test_a_camera_looking_straight_down_keeps_its_heading(pitch, yaw, float32):
 
 # ---- PX4 ULog -------------------------------------------------------------------------------------------------
 
-def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True):
+def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True, gps_receivers=()):
+    """The flight of `_flight` as a .ulg; gps_receivers: (topic, multi_id, has UTC) of more GPS instances."""
     pytest.importorskip("pyulog")
     boot0 = 20_000_000
     flight = _flight()
     times = [boot0 + int(round((f.t - T0) * 1e6)) for f in flight]
-    topics = {
+    topics: dict = {
         "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
                                      ("float", "alt")],
                                     [(t, f.lat, f.lon, 400.0 + f.height_m)
@@ -147,6 +148,9 @@ def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = Tr
     if gps:
         topics["vehicle_gps_position"] = ([("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec")],
                                           [(t, int(round(T0 * 1e6)) + t - boot0) for t in times])
+    for name, multi_id, has_utc in gps_receivers:
+        topics[(name, multi_id)] = ([("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec")],
+                                    [(t, int(round(T0 * 1e6)) + t - boot0 if has_utc else 0) for t in times])
     path = tmp_path / "flight.ulg"
     path.write_bytes(ulog_bytes(topics))
     return path, flight
@@ -306,3 +310,23 @@ def test_ulog_without_home_position_gives_the_height_above_the_ekf_origin_and_sa
     with caplog.at_level("WARNING"):
         assert [r.height_m for r in read_telemetry(path)] == pytest.approx([52.0, 53.0])
     assert "heights.ulg: no home_position" in caplog.text
+
+
+@pytest.mark.parametrize("receivers", [
+    [("vehicle_gps_position", 0, False), ("vehicle_gps_position", 1, True)],  # receiver 0 without time output
+    [("vehicle_gps_position", 1, True)],  # only instance 1 logged
+    [("vehicle_gps_position", 0, False), ("sensor_gps", 1, True)],  # newer PX4: the receivers in sensor_gps
+])
+def test_ulog_takes_utc_from_any_gps_instance_that_has_it(tmp_path, receivers):
+    """Only vehicle_gps_position instance 0 was read: with its time_utc_usec 0 the records fell back to seconds
+    since boot without a word, and a UNIX --telemetry-offset-s left every frame without a pose."""
+    path, flight = _ulog_flight(tmp_path, gps=False, gps_receivers=receivers)
+    assert [r.t for r in read_telemetry(path)] == pytest.approx([f.t for f in flight], abs=1e-5)
+
+
+def test_ulog_without_gps_utc_warns_that_the_records_are_on_the_boot_clock(tmp_path, caplog):
+    path, _ = _ulog_flight(tmp_path, gps=False)
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(path)
+    assert records[0].t == pytest.approx(BOOT_MS0 / 1000, abs=1e-6)
+    assert "flight.ulg: no GPS UTC time" in caplog.text and "seconds since boot" in caplog.text
