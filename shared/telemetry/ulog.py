@@ -16,10 +16,15 @@ Topics used, all on the log's microsecond boot clock and interpolated to the tim
   ``--pitch-deg``);
 - ``vehicle_gps_position`` or ``sensor_gps`` (the first instance with UTC time): ``time_utc_usec`` anchors the
   boot clock to UNIX time; without it times are seconds since boot, and a warning says so.
+
+A damaged log is read as far as pyulog gets, with a warning (`_warn_if_damaged`); pyulog's own messages go to the
+log, not stdout.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import logging
 import math
 from pathlib import Path
@@ -47,6 +52,41 @@ def _topic(ulog: Any, name: str) -> dict[str, NDArray] | None:
         if dataset.name == name and dataset.multi_id == 0 and len(dataset.data["timestamp"]):
             return dataset.data
     return None
+
+
+#: Positions ending more than this before the log's last message (µs) are reported: the log lost its end.
+_EARLY_END_US = 2_000_000
+
+
+class _ReadWatch(io.BufferedReader):
+    """The file pyulog reads. pyulog stops at the first read that comes back short: at the end of the file that
+    read finds 0 bytes, in a log cut mid-message or at a message length it cannot trust (corrupt data without a
+    sync marker after it) it finds the rest of the file, which it then drops. ``unread_bytes`` counts those."""
+
+    unread_bytes = 0
+
+    def read(self, size: int | None = -1, /) -> bytes:
+        data = super().read(size)
+        if size is not None and 0 <= size and len(data) < size:
+            self.unread_bytes = len(data)
+        return data
+
+
+def _warn_if_damaged(path: str | Path, ulog: Any, unread_bytes: int, last_position_us: float) -> None:
+    """Warnings for a log pyulog could not read whole: it skipped corrupt data (``file_corruption``: pyulog
+    resyncs at the next sync marker, the messages in between are lost), it stopped before the end of the file
+    (`_ReadWatch`), or the positions end well before the log's last message of the topics read."""
+    if ulog.file_corruption:
+        log.warning("%s: pyulog found corrupt data and skipped it (to the next sync marker): the records in the "
+                    "damaged stretch are missing", path)
+    if unread_bytes:
+        log.warning("%s: pyulog stopped reading %d bytes before the end of the file (the log was cut while "
+                    "writing, or holds corrupt data pyulog cannot resync past): the records end at %.1f s after "
+                    "boot", path, unread_bytes, last_position_us / 1e6)
+    if ulog.last_timestamp - last_position_us > _EARLY_END_US:
+        log.warning("%s: the positions (vehicle_global_position) end at %.1f s after boot, %.1f s before the log's "
+                    "last message: no records after that", path, last_position_us / 1e6,
+                    (ulog.last_timestamp - last_position_us) / 1e6)
 
 
 def _utc_offset_s(ulog: Any) -> float | None:
@@ -151,14 +191,19 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
         from pyulog import ULog
     except ImportError:
         raise ImportError(ULOG_EXTRA_HINT) from None
+    said = io.StringIO()
     try:
-        ulog = ULog(str(path), _TOPICS)
+        with _ReadWatch(io.FileIO(path, "rb")) as handle, contextlib.redirect_stdout(said):
+            ulog = ULog(handle, _TOPICS)  # pyulog prints its warnings: logged below, stdout is the CLI's
     except Exception as exc:  # pyulog raises its own and struct/IO errors for damaged files
         raise ValueError(f"{path}: not a readable ULog file ({exc})") from None
+    for line in dict.fromkeys(said.getvalue().splitlines()):
+        log.warning("%s: pyulog: %s", path, line)
     position = _topic(ulog, "vehicle_global_position")
     if position is None:
         raise ValueError(f"{path}: no vehicle_global_position in the ULog (was the position logged?)")
     t_us = position["timestamp"].astype(np.float64)
+    _warn_if_damaged(path, ulog, handle.unread_bytes, float(t_us[-1]))
     n = len(t_us)
     height = np.full(n, np.nan)
     vel_e = np.full(n, np.nan)

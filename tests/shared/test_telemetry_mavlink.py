@@ -121,11 +121,13 @@ def test_a_camera_looking_straight_down_keeps_its_heading(pitch, yaw, float32):
 
 # ---- PX4 ULog -------------------------------------------------------------------------------------------------
 
-def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True, gps_receivers=()):
-    """The flight of `_flight` as a .ulg; gps_receivers: (topic, multi_id, has UTC) of more GPS instances."""
+def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True, gps_receivers=(), n: int = 12,
+                 sync_every: int = 0):
+    """The flight of `_flight` as a .ulg; gps_receivers: (topic, multi_id, has UTC) of more GPS instances;
+    sync_every: a sync message before every sync_every-th data message (0: none)."""
     pytest.importorskip("pyulog")
     boot0 = 20_000_000
-    flight = _flight()
+    flight = _flight(n)
     times = [boot0 + int(round((f.t - T0) * 1e6)) for f in flight]
     topics: dict = {
         "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
@@ -152,7 +154,7 @@ def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = Tr
         topics[(name, multi_id)] = ([("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec")],
                                     [(t, int(round(T0 * 1e6)) + t - boot0 if has_utc else 0) for t in times])
     path = tmp_path / "flight.ulg"
-    path.write_bytes(ulog_bytes(topics))
+    path.write_bytes(ulog_bytes(topics, sync_every=sync_every))
     return path, flight
 
 
@@ -330,3 +332,78 @@ def test_ulog_without_gps_utc_warns_that_the_records_are_on_the_boot_clock(tmp_p
         records = read_telemetry(path)
     assert records[0].t == pytest.approx(BOOT_MS0 / 1000, abs=1e-6)
     assert "flight.ulg: no GPS UTC time" in caplog.text and "seconds since boot" in caplog.text
+
+
+def _damaged(path, at: float, garbage: bytes = bytes(range(7, 40))):
+    """The log with `garbage` (a corrupt SD sector) inserted at the fraction `at` of its length."""
+    data = path.read_bytes()
+    cut = int(len(data) * at)
+    damaged = path.with_name("damaged.ulg")
+    damaged.write_bytes(data[:cut] + garbage + data[cut:])
+    return damaged
+
+
+def test_ulog_with_garbage_mid_file_and_no_sync_marker_warns_that_the_records_stop_early(tmp_path, caplog):
+    """pyulog trusts the garbage's message length, drops the rest of the file and reports no corruption: the
+    reader gave 13 of 30 records without a word. It cannot resync without a sync marker; the reader says so."""
+    path, flight = _ulog_flight(tmp_path, n=30)
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(_damaged(path, 0.5))
+    assert len(records) < len(flight)
+    assert "damaged.ulg: pyulog stopped reading" in caplog.text
+    assert f"the records end at {records[-1].t - T0 + BOOT_MS0 / 1000:.1f} s after boot" in caplog.text
+
+
+def test_ulog_with_sync_markers_recovers_past_garbage_and_warns(tmp_path, caplog):
+    """PX4's sync messages let pyulog skip corrupt data: the records after it are read, and the skip is reported."""
+    path, flight = _ulog_flight(tmp_path, n=40, sync_every=5)
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(_damaged(path, 0.5))
+    assert len(records) >= len(flight) - 3 and records[-1].t == pytest.approx(flight[-1].t, abs=1e-5)
+    assert "damaged.ulg: pyulog found corrupt data" in caplog.text
+
+
+def test_ulog_cut_mid_message_keeps_the_records_before_and_says_so(tmp_path, caplog):
+    path, flight = _ulog_flight(tmp_path)
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(path.read_bytes()[:-7])
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(cut)
+    assert len(records) == len(flight)
+    assert "cut.ulg: pyulog stopped reading" in caplog.text
+
+
+def test_ulog_positions_ending_long_before_the_log_are_reported(tmp_path, caplog):
+    path, flight = _ulog_flight(tmp_path)
+    from pyulog import ULog
+
+    ulog = ULog(str(path))
+    position = next(d for d in ulog.data_list if d.name == "vehicle_global_position")
+    position.data = {k: v[:4] for k, v in position.data.items()}  # GPS lost after 0.3 s; the attitude runs to 6.1 s
+    for dataset in ulog.data_list:
+        if dataset.name == "vehicle_attitude":
+            dataset.data["timestamp"][-1] += 5_000_000
+    buffer = io.BytesIO()
+    ulog.write_ulog(buffer)
+    (tmp_path / "early.ulg").write_bytes(buffer.getvalue())
+    with caplog.at_level("WARNING"):
+        assert len(read_telemetry(tmp_path / "early.ulg")) == 4
+    assert "the positions (vehicle_global_position) end at 20.3 s after boot, 5.8 s before" in caplog.text
+
+
+def test_a_clean_ulog_reads_without_damage_warnings(tmp_path, caplog):
+    path, _ = _ulog_flight(tmp_path, sync_every=3)
+    with caplog.at_level("WARNING"):
+        read_telemetry(path)
+    assert "pyulog" not in caplog.text and "positions (vehicle_global_position) end" not in caplog.text
+
+
+def test_ulog_pyulogs_own_warnings_go_to_the_log_not_stdout(tmp_path, caplog, capsys):
+    """pyulog prints what it finds to stdout, where a CLI writes its results: the reader logs it instead."""
+    path, flight = _ulog_flight(tmp_path)
+    unknown_id = struct.pack("<HBH", 5, ord("D"), 99) + b"abc"  # a data message of a topic never subscribed
+    with caplog.at_level("WARNING"):
+        assert len(read_telemetry(_damaged(path, 1.0, unknown_id))) == len(flight)  # at a message boundary
+    assert capsys.readouterr().out == ""
+    assert "damaged.ulg: pyulog: Warning: no subscription found for message id 99" in caplog.text
+    assert "damaged.ulg: pyulog found corrupt data" in caplog.text
