@@ -115,28 +115,36 @@ def replay_udp(packets: Sequence[tuple[float, bytes]], port: int, *, wait_bound_
 # read (ULog.write_ulog) but offers no public way to build one from scratch ------------------------------------
 
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
+SYNC_MAGIC = bytes([0x2F, 0x73, 0x13, 0x20, 0x25, 0x0C, 0xBB, 0x12])
 _TYPES = {"uint64_t": "Q", "double": "d", "float": "f", "uint32_t": "I", "uint8_t": "B", "int32_t": "i"}
 
 
-def ulog_bytes(topics: dict[str, tuple[list[tuple[str, str]], list[tuple]]], start_us: int = 0) -> bytes:
+def ulog_bytes(topics: dict[str | tuple[str, int], tuple[list[tuple[str, str]], list[tuple]]], start_us: int = 0,
+               *, sync_every: int = 0) -> bytes:
     """A ULog file: {topic: ([(type, field name), ...], rows)}; the first field must be ``uint64_t timestamp``.
 
+    A topic is a name (instance 0) or (name, multi_id) for another instance of it (each instance gives its fields).
     Array fields are given element by element (``("float", "q[0]")``, ...), which ULog parsers read the same way.
+    sync_every > 0 writes a sync message ('S', the magic a reader resyncs at after corrupt data) before every
+    sync_every-th data message.
     """
     out = bytearray(_ULOG_MAGIC + bytes([1]) + struct.pack("<Q", start_us))
 
     def message(kind: str, payload: bytes) -> None:
         out.extend(struct.pack("<HB", len(payload), ord(kind)) + payload)
 
+    named = [((key, 0) if isinstance(key, str) else key, spec) for key, spec in topics.items()]
     message("B", bytes(16) + struct.pack("<3Q", 0, 0, 0))  # flag bits: no compat/incompat flags, no appended data
-    for name, (fields, _rows) in topics.items():
+    for name, fields in dict((name, fields) for (name, _), (fields, _rows) in named).items():
         message("F", f"{name}:{''.join(f'{t} {f};' for t, f in fields)}".encode())
     items = []
-    for msg_id, (name, (fields, rows)) in enumerate(topics.items()):
-        message("A", struct.pack("<BH", 0, msg_id) + name.encode())
+    for msg_id, ((name, multi_id), (fields, rows)) in enumerate(named):
+        message("A", struct.pack("<BH", multi_id, msg_id) + name.encode())
         fmt = "<" + "".join(_TYPES[t] for t, _ in fields)
         for row in rows:
             items.append((row[0], struct.pack("<H", msg_id) + struct.pack(fmt, *row)))
-    for _t, payload in sorted(items, key=lambda item: item[0]):
+    for i, (_t, payload) in enumerate(sorted(items, key=lambda item: item[0])):
+        if sync_every and i % sync_every == 0:
+            message("S", SYNC_MAGIC)
         message("D", payload)
     return bytes(out)

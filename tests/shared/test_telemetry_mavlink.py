@@ -121,12 +121,15 @@ def test_a_camera_looking_straight_down_keeps_its_heading(pitch, yaw, float32):
 
 # ---- PX4 ULog -------------------------------------------------------------------------------------------------
 
-def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True):
+def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = True, gps_receivers=(), n: int = 12,
+                 sync_every: int = 0):
+    """The flight of `_flight` as a .ulg; gps_receivers: (topic, multi_id, has UTC) of more GPS instances;
+    sync_every: a sync message before every sync_every-th data message (0: none)."""
     pytest.importorskip("pyulog")
     boot0 = 20_000_000
-    flight = _flight()
+    flight = _flight(n)
     times = [boot0 + int(round((f.t - T0) * 1e6)) for f in flight]
-    topics = {
+    topics: dict = {
         "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"),
                                      ("float", "alt")],
                                     [(t, f.lat, f.lon, 400.0 + f.height_m)
@@ -147,8 +150,11 @@ def _ulog_flight(tmp_path, *, gimbal_flags: int | None = 16 | 64, gps: bool = Tr
     if gps:
         topics["vehicle_gps_position"] = ([("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec")],
                                           [(t, int(round(T0 * 1e6)) + t - boot0) for t in times])
+    for name, multi_id, has_utc in gps_receivers:
+        topics[(name, multi_id)] = ([("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec")],
+                                    [(t, int(round(T0 * 1e6)) + t - boot0 if has_utc else 0) for t in times])
     path = tmp_path / "flight.ulg"
-    path.write_bytes(ulog_bytes(topics))
+    path.write_bytes(ulog_bytes(topics, sync_every=sync_every))
     return path, flight
 
 
@@ -198,3 +204,206 @@ def test_ulog_errors_name_the_file(tmp_path):
     empty.write_bytes(ulog_bytes({"vehicle_attitude": ([("uint64_t", "timestamp"), ("float", "q[0]")], [(1, 1.0)])}))
     with pytest.raises(ValueError, match="empty.ulg: no vehicle_global_position"):
         read_telemetry(empty)
+
+
+def _ulog_gimbal_switching(tmp_path, flags: list[int], vehicle_yaw: list[float], camera_heading: list[float]):
+    """A .ulg whose gimbal reports, per sample, `device_flags` and its yaw in the frame those flags name."""
+    pytest.importorskip("pyulog")
+    times = [20_000_000 + 200_000 * i for i in range(len(flags))]
+    gimbal_rows = []
+    for t, f, v, c in zip(times, flags, vehicle_yaw, camera_heading, strict=True):
+        earth = f & 64 or (not f & 32 and f & 16)
+        gimbal_rows.append((t, *euler_to_quaternion(0, -60.0, c if earth else c - v), f))
+    topics = {
+        "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon")],
+                                    [(t, 48.53 + 1e-5 * i, 9.06) for i, t in enumerate(times)]),
+        "vehicle_attitude": ([("uint64_t", "timestamp")] + [("float", f"q[{i}]") for i in range(4)],
+                             [(t, *euler_to_quaternion(0, 0, v)) for t, v in zip(times, vehicle_yaw, strict=True)]),
+        "gimbal_device_attitude_status": (
+            [("uint64_t", "timestamp")] + [("float", f"q[{i}]") for i in range(4)] + [("uint32_t", "device_flags")],
+            gimbal_rows),
+    }
+    path = tmp_path / "switching.ulg"
+    path.write_bytes(ulog_bytes(topics))
+    return path
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_ulog_gimbal_flags_count_per_sample_when_the_pilot_switches_follow_and_lock(tmp_path_factory, data):
+    """Follow (yaw in the vehicle frame) and lock (earth frame) switched mid-flight: each sample's own flags say
+    how to read its yaw (the last sample's flags were used for the whole log: headings off by the vehicle's yaw)."""
+    n = data.draw(st.integers(2, 12))
+    flags = data.draw(st.lists(st.sampled_from([16 | 64, 64, 32, 16 | 32, 16, 0]), min_size=n, max_size=n))
+    vehicle_yaw = data.draw(st.lists(st.floats(-179, 179), min_size=n, max_size=n))
+    camera = data.draw(st.lists(st.floats(-179, 179), min_size=n, max_size=n))
+    records = read_telemetry(_ulog_gimbal_switching(tmp_path_factory.mktemp("ulg"), flags, vehicle_yaw, camera))
+    for got, want in zip(records, camera, strict=True):
+        assert math.cos(math.radians(got.heading_deg - want)) == pytest.approx(1.0, abs=1e-6)
+
+
+def test_ulog_gimbal_switch_between_samples_keeps_the_heading(tmp_path):
+    """Positions between a follow sample and a lock sample: the yaws are brought into one frame before
+    interpolating (the camera holds 30 deg, the vehicle heads 100 deg; positions 0.1 s after each gimbal sample)."""
+    path = _ulog_gimbal_switching(tmp_path, [32] * 5 + [16 | 64] * 5, [100.0] * 10, [30.0] * 10)
+    from pyulog import ULog
+
+    ulog = ULog(str(path))
+    buffer = io.BytesIO()
+    for dataset in ulog.data_list:
+        if dataset.name == "vehicle_global_position":
+            dataset.data["timestamp"] = dataset.data["timestamp"] + 100_000
+    ulog.write_ulog(buffer)
+    (tmp_path / "shifted.ulg").write_bytes(buffer.getvalue())
+    assert [round(r.heading_deg, 3) for r in read_telemetry(tmp_path / "shifted.ulg")] == [30.0] * 10
+
+
+_HOME = [("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon"), ("float", "alt"), ("float", "x"),
+         ("float", "y"), ("float", "z"), ("uint8_t", "valid_lpos")]
+
+
+def _ulog_heights(tmp_path, local_z: list[float], homes: list[tuple[int, float, int]] | None):
+    """A .ulg with positions every 0.2 s (local z logged at the same times) and `homes` as (time us, z, valid)."""
+    pytest.importorskip("pyulog")
+    times = [20_000_000 + 200_000 * i for i in range(len(local_z))]
+    topics = {
+        "vehicle_global_position": ([("uint64_t", "timestamp"), ("double", "lat"), ("double", "lon")],
+                                    [(t, 48.53 + 1e-5 * i, 9.06) for i, t in enumerate(times)]),
+        "vehicle_local_position": ([("uint64_t", "timestamp"), ("float", "z")],
+                                   [(t, z) for t, z in zip(times, local_z, strict=True)]),
+    }
+    if homes is not None:
+        topics["home_position"] = (_HOME, [(t, 48.53, 9.06, 412.0, 0.0, 0.0, z, valid) for t, z, valid in homes])
+    path = tmp_path / "heights.ulg"
+    path.write_bytes(ulog_bytes(topics))
+    return path, times
+
+
+@settings(max_examples=60, deadline=None)
+@given(data=st.data())
+def test_ulog_height_is_above_the_home_in_effect_not_the_ekf_origin(tmp_path_factory, data):
+    """PX4 powered on away from the launch spot (or the baro drifted on the ground): the EKF origin is not the
+    take-off point, home_position.z says where home is in the same frame (the reader gave -z: 52 m for 40 m).
+    Home may be reset in flight: the latest before each position counts, the first one before it is set."""
+    n = data.draw(st.integers(2, 10))
+    above_home = data.draw(st.lists(st.floats(0, 120, width=32), min_size=n, max_size=n))
+    home_times = sorted(data.draw(st.lists(st.integers(19_000_000, 20_000_000 + 200_000 * n), min_size=1,
+                                           max_size=3, unique=True)))
+    home_z = data.draw(st.lists(st.floats(-30, 30, width=32), min_size=len(home_times), max_size=len(home_times)))
+    times = [20_000_000 + 200_000 * i for i in range(n)]
+    in_effect = [home_z[max(0, sum(h <= t for h in home_times) - 1)] for t in times]
+    local_z = [z - h for z, h in zip(in_effect, above_home, strict=True)]
+    path, _ = _ulog_heights(tmp_path_factory.mktemp("ulg"), local_z,
+                            [(t, z, 1) for t, z in zip(home_times, home_z, strict=True)])
+    assert [r.height_m for r in read_telemetry(path)] == pytest.approx(above_home, abs=1e-4)
+
+
+def test_ulog_height_ignores_a_home_without_a_valid_local_position(tmp_path, caplog):
+    path, _ = _ulog_heights(tmp_path, [-52.0, -52.0], [(19_000_000, 99.0, 0), (19_000_001, -12.0, 1)])
+    assert [r.height_m for r in read_telemetry(path)] == pytest.approx([40.0, 40.0])
+    path, _ = _ulog_heights(tmp_path, [-52.0, -52.0], [(19_000_000, 99.0, 0)])
+    with caplog.at_level("WARNING"):
+        assert [r.height_m for r in read_telemetry(path)] == pytest.approx([52.0, 52.0])
+    assert "no home_position" in caplog.text and "EKF origin" in caplog.text
+
+
+def test_ulog_without_home_position_gives_the_height_above_the_ekf_origin_and_says_so(tmp_path, caplog):
+    path, _ = _ulog_heights(tmp_path, [-52.0, -53.0], None)
+    with caplog.at_level("WARNING"):
+        assert [r.height_m for r in read_telemetry(path)] == pytest.approx([52.0, 53.0])
+    assert "heights.ulg: no home_position" in caplog.text
+
+
+@pytest.mark.parametrize("receivers", [
+    [("vehicle_gps_position", 0, False), ("vehicle_gps_position", 1, True)],  # receiver 0 without time output
+    [("vehicle_gps_position", 1, True)],  # only instance 1 logged
+    [("vehicle_gps_position", 0, False), ("sensor_gps", 1, True)],  # newer PX4: the receivers in sensor_gps
+])
+def test_ulog_takes_utc_from_any_gps_instance_that_has_it(tmp_path, receivers):
+    """Only vehicle_gps_position instance 0 was read: with its time_utc_usec 0 the records fell back to seconds
+    since boot without a word, and a UNIX --telemetry-offset-s left every frame without a pose."""
+    path, flight = _ulog_flight(tmp_path, gps=False, gps_receivers=receivers)
+    assert [r.t for r in read_telemetry(path)] == pytest.approx([f.t for f in flight], abs=1e-5)
+
+
+def test_ulog_without_gps_utc_warns_that_the_records_are_on_the_boot_clock(tmp_path, caplog):
+    path, _ = _ulog_flight(tmp_path, gps=False)
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(path)
+    assert records[0].t == pytest.approx(BOOT_MS0 / 1000, abs=1e-6)
+    assert "flight.ulg: no GPS UTC time" in caplog.text and "seconds since boot" in caplog.text
+
+
+def _damaged(path, at: float, garbage: bytes = bytes(range(7, 40))):
+    """The log with `garbage` (a corrupt SD sector) inserted at the fraction `at` of its length."""
+    data = path.read_bytes()
+    cut = int(len(data) * at)
+    damaged = path.with_name("damaged.ulg")
+    damaged.write_bytes(data[:cut] + garbage + data[cut:])
+    return damaged
+
+
+def test_ulog_with_garbage_mid_file_and_no_sync_marker_warns_that_the_records_stop_early(tmp_path, caplog):
+    """pyulog trusts the garbage's message length, drops the rest of the file and reports no corruption: the
+    reader gave 13 of 30 records without a word. It cannot resync without a sync marker; the reader says so."""
+    path, flight = _ulog_flight(tmp_path, n=30)
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(_damaged(path, 0.5))
+    assert len(records) < len(flight)
+    assert "damaged.ulg: pyulog stopped reading" in caplog.text
+    assert f"the records end at {records[-1].t - T0 + BOOT_MS0 / 1000:.1f} s after boot" in caplog.text
+
+
+def test_ulog_with_sync_markers_recovers_past_garbage_and_warns(tmp_path, caplog):
+    """PX4's sync messages let pyulog skip corrupt data: the records after it are read, and the skip is reported."""
+    path, flight = _ulog_flight(tmp_path, n=40, sync_every=5)
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(_damaged(path, 0.5))
+    assert len(records) >= len(flight) - 3 and records[-1].t == pytest.approx(flight[-1].t, abs=1e-5)
+    assert "damaged.ulg: pyulog found corrupt data" in caplog.text
+
+
+def test_ulog_cut_mid_message_keeps_the_records_before_and_says_so(tmp_path, caplog):
+    path, flight = _ulog_flight(tmp_path)
+    cut = tmp_path / "cut.ulg"
+    cut.write_bytes(path.read_bytes()[:-7])
+    with caplog.at_level("WARNING"):
+        records = read_telemetry(cut)
+    assert len(records) == len(flight)
+    assert "cut.ulg: pyulog stopped reading" in caplog.text
+
+
+def test_ulog_positions_ending_long_before_the_log_are_reported(tmp_path, caplog):
+    path, flight = _ulog_flight(tmp_path)
+    from pyulog import ULog
+
+    ulog = ULog(str(path))
+    position = next(d for d in ulog.data_list if d.name == "vehicle_global_position")
+    position.data = {k: v[:4] for k, v in position.data.items()}  # GPS lost after 0.3 s; the attitude runs to 6.1 s
+    for dataset in ulog.data_list:
+        if dataset.name == "vehicle_attitude":
+            dataset.data["timestamp"][-1] += 5_000_000
+    buffer = io.BytesIO()
+    ulog.write_ulog(buffer)
+    (tmp_path / "early.ulg").write_bytes(buffer.getvalue())
+    with caplog.at_level("WARNING"):
+        assert len(read_telemetry(tmp_path / "early.ulg")) == 4
+    assert "the positions (vehicle_global_position) end at 20.3 s after boot, 5.8 s before" in caplog.text
+
+
+def test_a_clean_ulog_reads_without_damage_warnings(tmp_path, caplog):
+    path, _ = _ulog_flight(tmp_path, sync_every=3)
+    with caplog.at_level("WARNING"):
+        read_telemetry(path)
+    assert "pyulog" not in caplog.text and "positions (vehicle_global_position) end" not in caplog.text
+
+
+def test_ulog_pyulogs_own_warnings_go_to_the_log_not_stdout(tmp_path, caplog, capsys):
+    """pyulog prints what it finds to stdout, where a CLI writes its results: the reader logs it instead."""
+    path, flight = _ulog_flight(tmp_path)
+    unknown_id = struct.pack("<HBH", 5, ord("D"), 99) + b"abc"  # a data message of a topic never subscribed
+    with caplog.at_level("WARNING"):
+        assert len(read_telemetry(_damaged(path, 1.0, unknown_id))) == len(flight)  # at a message boundary
+    assert capsys.readouterr().out == ""
+    assert "damaged.ulg: pyulog: Warning: no subscription found for message id 99" in caplog.text
+    assert "damaged.ulg: pyulog found corrupt data" in caplog.text
