@@ -5,9 +5,10 @@ forwarding its stream) sends, decode in a thread, and hand `Telemetry` records t
 does; point the autopilot's telemetry or ``mavlink-routerd`` / MAVProxy ``--out`` at it. The decoding of the
 messages is `shared.telemetry.mavlink` (no sockets there).
 
-Clock: the records are on the autopilot's boot clock, anchored to UNIX time by the first ``SYSTEM_TIME`` that
-carries one (waited for up to ``anchor_wait_s`` at start), else by this machine's clock at the first message.
-The anchor is fixed at start, so the records' times never jump.
+Clock: the records are on the autopilot's boot clock, anchored to UNIX time by the vehicle's own ``SYSTEM_TIME``
+(waited for up to ``anchor_wait_s`` at start; a ground station's is ignored), else by this machine's clock at the
+first message. The anchor is fixed at start, so the records' times never jump: when the vehicle's UNIX clock jumps
+later (set from the ground station, then from GPS) a warning gives the step, and the records keep the start's clock.
 """
 
 from __future__ import annotations
@@ -68,6 +69,7 @@ class MavlinkUdpFeed:
         host, port = parse_udp_endpoint(spec)
         self._parser = MavlinkByteParser()
         self._assembler = MavlinkAssembler(system_id)
+        self._system_id_given = system_id is not None
         self.height_offset_m = float(height_offset_m)
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
@@ -82,6 +84,8 @@ class MavlinkUdpFeed:
         self._first_rx: tuple[float, float] | None = None  # (wall time, boot s) of the first sample
         self._last_rx = 0.0
         self._anchor: float | None = None
+        self._warned_jumps = self._warned_gimbals = 0  # clock jumps, ignored gimbals already warned about
+        self._warned_systems = 1  # systems with positions: the vehicle alone needs no warning
         self.datagrams = 0
         self._closed = threading.Event()
         self._thread = threading.Thread(target=self._receive, name=f"mavlink {spec}", daemon=True)
@@ -99,7 +103,8 @@ class MavlinkUdpFeed:
             self.datagrams += 1
             now = time.time()
             for msg in self._parser.feed(data):
-                sample = self._assembler.add(msg.get_type(), msg.to_dict(), msg.get_srcSystem())
+                sample = self._assembler.add(msg.get_type(), msg.to_dict(), msg.get_srcSystem(),
+                                             msg.get_srcComponent())
                 with self._cond:
                     self._last_rx = time.monotonic()
                     if sample is not None:
@@ -110,6 +115,29 @@ class MavlinkUdpFeed:
                         if self._first_rx is None:
                             self._first_rx = (now, sample.boot_s)
                     self._cond.notify_all()
+                    self._warn_news()
+
+    def _warn_news(self) -> None:
+        """Warn once about each new thing the stream shows: a jump of the vehicle's UNIX clock after the anchor was
+        fixed, a gimbal ignored, another system sending positions (called with the lock held)."""
+        a = self._assembler
+        jumps, gimbals, systems = a.clock_jumps, a.gimbals_ignored, a.position_counts
+        if self._anchor is not None and len(jumps) > self._warned_jumps:
+            for boot_s, step_s in jumps[self._warned_jumps:]:
+                log.warning("MAVLink on %s: the vehicle's UNIX clock (SYSTEM_TIME) jumped by %+.3f s at boot %.1f s "
+                            "(set from GPS, or a reboot?); the records keep the clock fixed at start: a "
+                            "--telemetry-offset-s read from the new clock is %+.3f s off", self.spec, step_s, boot_s,
+                            step_s)
+            self._warned_jumps = len(jumps)
+        if len(gimbals) > self._warned_gimbals:
+            log.warning("MAVLink on %s: several gimbals: using %s (the first seen), ignoring %s", self.spec,
+                        a.gimbal_used, ", ".join(gimbals))
+            self._warned_gimbals = len(gimbals)
+        if len(systems) > self._warned_systems:
+            log.warning("MAVLink on %s: positions from %d systems (%s): using system %s%s", self.spec, len(systems),
+                        ", ".join(str(sysid) for sysid in systems), a.system_id,
+                        "" if self._system_id_given else ", the first to send one (system_id chooses another)")
+            self._warned_systems = len(systems)
 
     # ---- records -------------------------------------------------------------------------------
     def start(self, timeout_s: float = 10.0, anchor_wait_s: float = 1.5) -> list[Telemetry]:
@@ -126,7 +154,8 @@ class MavlinkUdpFeed:
             while self._assembler.unix_offset_s is None and time.monotonic() < anchor_deadline:
                 self._cond.wait(anchor_deadline - time.monotonic())
             if self._assembler.unix_offset_s is not None:
-                self._anchor = self._assembler.unix_offset_s
+                self._anchor = self._assembler.unix_offset_s  # after the clock's jumps so far
+                self._warned_jumps = len(self._assembler.clock_jumps)
             else:
                 assert self._first_rx is not None
                 wall, boot = self._first_rx

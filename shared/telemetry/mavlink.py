@@ -3,31 +3,38 @@
 No sockets here (the live UDP link is `agent.mavlink_feed`); the bytes are decoded by pymavlink's generated
 parser (optional extra ``mavlink``), imported when first needed.
 
-Messages used (one record per ``GLOBAL_POSITION_INT`` of the vehicle, with the latest attitude and gimbal):
+Messages used (one record per ``GLOBAL_POSITION_INT`` of the vehicle, with its attitude and the latest gimbal):
 - ``GLOBAL_POSITION_INT``: lat, lon (1e-7 deg), ``relative_alt`` (mm above home: the height above the ground
   when the ground is level with the take-off point), vx, vy (cm/s north, east), ``time_boot_ms``;
-- ``ATTITUDE``: the vehicle's yaw (rad): the heading of a gimbal whose yaw is in the vehicle frame, and of a
-  fixed forward camera when no gimbal message comes;
+- ``ATTITUDE``: the vehicle's yaw (rad), interpolated to the position's ``time_boot_ms`` where two bracket it:
+  the heading of a gimbal whose yaw is in the vehicle frame, and of a fixed forward camera when no gimbal message
+  comes;
 - ``GIMBAL_DEVICE_ATTITUDE_STATUS``: quaternion; pitch and roll relative to the horizon, yaw in the earth frame
   or the vehicle frame as the flags say (``YAW_IN_EARTH_FRAME`` / ``YAW_IN_VEHICLE_FRAME``, else ``YAW_LOCK``
   = earth frame, as MAVLink specifies);
 - ``MOUNT_ORIENTATION`` (ArduPilot: pitch, roll, yaw relative to the vehicle, ``yaw_absolute``) and the older
   ``MOUNT_STATUS`` (centidegrees; yaw relative to the vehicle);
-- ``SYSTEM_TIME``: UNIX time of the boot clock, so records are stamped in UNIX seconds.
+- ``SYSTEM_TIME`` of the vehicle's autopilot: UNIX time of the boot clock, so records are stamped in UNIX seconds
+  (`shared.telemetry.mavlink_clock`: the clock's jumps, reboots).
 
 Pitch becomes our depression (MAVLink: negative down, -90 = nadir); heading is wrapped to [0, 360).
 """
 
 from __future__ import annotations
 
+import logging
 import math
 import statistics
 import struct
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
+from shared.telemetry.mavlink_clock import UnixClock, boot_segments, interpolate_yaw_deg, yaw_between_deg
 from shared.telemetry.record import Telemetry, pitch_or_none
 
 __all__ = [
@@ -38,6 +45,8 @@ __all__ = [
     "parse_tlog",
     "read_tlog",
 ]
+
+log = logging.getLogger(__name__)
 
 #: What to install when pymavlink is missing.
 MAVLINK_EXTRA_HINT = "MAVLink telemetry needs pymavlink: pip install 'uav-memory-maps[mavlink]'"
@@ -86,7 +95,9 @@ class MavlinkSample:
     """One position of the vehicle with the camera's angles, on the flight controller's boot clock.
 
     boot_s: seconds since the autopilot booted; pitch_deg: depression 0..90 or None (no gimbal message, or the
-    camera looking up); heading_deg: camera heading or None; vel_en: (east, north) m/s.
+    camera looking up); heading_deg: camera heading or None; vel_en: (east, north) m/s; yaw_rel_deg: the camera's
+    yaw relative to the vehicle when the heading is the vehicle's yaw plus it (0 for a fixed camera, a gimbal's
+    vehicle-frame yaw), None when the heading is in the earth frame or unknown.
     """
 
     boot_s: float
@@ -97,6 +108,7 @@ class MavlinkSample:
     heading_deg: float | None
     roll_deg: float
     vel_en: tuple[float, float]
+    yaw_rel_deg: float | None = None
 
     def to_telemetry(self, clock_offset_s: float = 0.0, height_offset_m: float = 0.0) -> Telemetry:
         """The record at time ``boot_s + clock_offset_s`` with ``height_offset_m`` added to the height."""
@@ -117,45 +129,115 @@ class _Gimbal:
 class MavlinkAssembler:
     """Turns a stream of decoded MAVLink messages into `MavlinkSample`s.
 
-    Call `add(type, fields, src_system)` per message (``fields`` as pymavlink's ``to_dict()``); it returns a
-    sample for each ``GLOBAL_POSITION_INT`` of the vehicle, else None. The vehicle is ``system_id``, or the
-    first system that sends a position; messages of other systems are ignored (a GCS, another drone).
-    ``unix_offset_s`` is the UNIX time of boot once a ``SYSTEM_TIME`` with a UNIX time has come (else None).
+    Call `add(type, fields, src_system, src_component)` per message (``fields`` as pymavlink's ``to_dict()``); it
+    returns a sample for each ``GLOBAL_POSITION_INT`` of the vehicle, else None. The vehicle is ``system_id``, or the
+    first system that sends a position; messages of other systems are ignored (a GCS, another drone), and its
+    autopilot is the component that sends the positions (``ATTITUDE`` and ``SYSTEM_TIME`` of its other components,
+    e.g. a companion computer's, are ignored too). ``position_counts`` counts every system's positions.
+
+    ``unix_offset_s`` is the UNIX time of boot once the vehicle's autopilot has sent a ``SYSTEM_TIME`` with a UNIX
+    time (else None): the one after its clock's last jump (``clock_jumps``). ``SYSTEM_TIME`` of every system is kept
+    until the vehicle is known, so a ground station's (its own UNIX time and uptime) never sets it.
+
+    Of several gimbals (``GIMBAL_DEVICE_ATTITUDE_STATUS`` of several ``gimbal_device_id``, or of several components
+    when the id is 0) the first seen is used (``gimbal_used``); ``gimbals_ignored`` counts the others' messages.
+    ``keep_attitudes`` keeps every ``ATTITUDE`` as (boot s, yaw deg) in ``attitudes`` (a log read as a whole).
     """
 
-    def __init__(self, system_id: int | None = None) -> None:
+    def __init__(self, system_id: int | None = None, *, keep_attitudes: bool = False) -> None:
         self.system_id = system_id
+        self.component_id: int | None = None
         self.vehicle_yaw_deg: float | None = None
         self.gimbal: _Gimbal | None = None
-        self.unix_offset_s: float | None = None
+        self.gimbal_used: str | None = None
+        self.gimbals_ignored: dict[str, int] = {}
+        self.position_counts: dict[int, int] = {}
         self.counts: dict[str, int] = {}
+        self.attitudes: list[tuple[float, float]] | None = [] if keep_attitudes else None
+        self._attitude_prev: tuple[float, float] | None = None  # (boot s, yaw deg) of the two latest ATTITUDEs
+        self._attitude_last: tuple[float, float] | None = None
+        self._clocks: dict[tuple[int | None, int | None], UnixClock] = {}
+        self._src: tuple[int | None, int | None] = (None, None)
 
-    def add(self, msg_type: str, fields: Mapping[str, Any], src_system: int | None = None) -> MavlinkSample | None:
+    @property
+    def clock(self) -> UnixClock | None:
+        """The vehicle autopilot's UNIX clock (None before it is known or before its first ``SYSTEM_TIME``)."""
+        if self.system_id is None:
+            return None
+        clock = self._clocks.get((self.system_id, self.component_id)) or self._clocks.get((self.system_id, None))
+        if clock is None and self.component_id is None:  # positions given without a component id
+            clock = next((c for (sysid, _), c in self._clocks.items() if sysid == self.system_id), None)
+        return clock
+
+    @property
+    def unix_offset_s(self) -> float | None:
+        """UNIX time of the vehicle's boot (after its clock's last jump), or None without its ``SYSTEM_TIME``."""
+        clock = self.clock
+        return None if clock is None else clock.offset_s
+
+    @property
+    def clock_jumps(self) -> list[tuple[float, float]]:
+        """(boot s, step s) per jump of the vehicle's UNIX clock so far."""
+        clock = self.clock
+        return [] if clock is None else list(clock.jumps)
+
+    def add(self, msg_type: str, fields: Mapping[str, Any], src_system: int | None = None,
+            src_component: int | None = None) -> MavlinkSample | None:
         """Take one message; a sample when it was the vehicle's position."""
-        if msg_type == "GLOBAL_POSITION_INT" and self.system_id is None and src_system is not None:
-            self.system_id = src_system
+        if msg_type == "SYSTEM_TIME":  # kept per system until the vehicle is known
+            self._system_time((src_system, src_component), fields)
+            return None
+        if msg_type == "GLOBAL_POSITION_INT" and src_system is not None:
+            self.position_counts[src_system] = self.position_counts.get(src_system, 0) + 1
+            if self.system_id is None:
+                self.system_id = src_system
+            if src_system == self.system_id and self.component_id is None:
+                self.component_id = src_component
         if self.system_id is not None and src_system is not None and src_system != self.system_id:
+            return None
+        if (msg_type == "ATTITUDE" and None not in (self.component_id, src_component)
+                and src_component != self.component_id):
             return None
         handler = _HANDLERS.get(msg_type)
         if handler is None:
             return None
         self.counts[msg_type] = self.counts.get(msg_type, 0) + 1
+        self._src = (src_system, src_component)
         return handler(self, fields)
 
     # ---- handlers --------------------------------------------------------------------------------
-    def _system_time(self, f: Mapping[str, Any]) -> None:
+    def _system_time(self, src: tuple[int | None, int | None], f: Mapping[str, Any]) -> None:
         unix_us, boot_ms = int(f["time_unix_usec"]), int(f["time_boot_ms"])
-        if unix_us > 0 and self.unix_offset_s is None:
-            self.unix_offset_s = unix_us / 1e6 - boot_ms / 1e3
-        return None
+        if unix_us > 0:
+            self._clocks.setdefault(src, UnixClock()).add(boot_ms / 1e3, unix_us / 1e6 - boot_ms / 1e3)
 
     def _attitude(self, f: Mapping[str, Any]) -> None:
         yaw = float(f["yaw"])
         if math.isfinite(yaw):
             self.vehicle_yaw_deg = math.degrees(yaw)
+            if "time_boot_ms" in f:
+                sample = (f["time_boot_ms"] / 1e3, self.vehicle_yaw_deg)
+                self._attitude_prev, self._attitude_last = self._attitude_last, sample
+                if self.attitudes is not None:
+                    self.attitudes.append(sample)
         return None
 
+    def _yaw_at(self, boot_s: float) -> float | None:
+        """The vehicle's yaw at `boot_s`: interpolated between the two latest ``ATTITUDE`` where they bracket it,
+        else the latest (held)."""
+        prev, last = self._attitude_prev, self._attitude_last
+        if prev is not None and last is not None and prev[0] <= boot_s <= last[0]:
+            return yaw_between_deg(*prev, *last, boot_s)
+        return self.vehicle_yaw_deg
+
     def _gimbal_device(self, f: Mapping[str, Any]) -> None:
+        device_id = int(f.get("gimbal_device_id", 0))  # 1..6: the autopilot speaks for it; 0: the sender is it
+        key = f"gimbal_device_id {device_id}" if device_id else f"gimbal component {self._src[1]}"
+        if self.gimbal_used is None:
+            self.gimbal_used = key
+        elif key != self.gimbal_used:
+            self.gimbals_ignored[key] = self.gimbals_ignored.get(key, 0) + 1
+            return None
         try:
             roll, pitch, yaw = quaternion_to_euler_deg(tuple(f["q"]))  # type: ignore[arg-type]
         except ValueError:
@@ -185,21 +267,24 @@ class MavlinkAssembler:
         lat, lon = f["lat"] / 1e7, f["lon"] / 1e7
         if (lat, lon) == (0.0, 0.0):  # no GPS fix yet
             return None
-        vehicle_yaw = self.vehicle_yaw_deg
+        boot_s = f["time_boot_ms"] / 1e3
+        vehicle_yaw = self._yaw_at(boot_s)
         if vehicle_yaw is None and int(f.get("hdg", _UNKNOWN_HDG)) != _UNKNOWN_HDG:
             vehicle_yaw = f["hdg"] / 100.0
         gimbal = self.gimbal
         pitch: float | None
+        yaw_rel: float | None
         if gimbal is None:  # a fixed camera: it looks where the vehicle heads; its tilt comes from --pitch-deg
-            pitch, roll, heading = None, 0.0, vehicle_yaw
+            pitch, roll, heading, yaw_rel = None, 0.0, vehicle_yaw, 0.0
         else:
             pitch = pitch_or_none(-gimbal.pitch_deg, f"MAVLink gimbal pitch {gimbal.pitch_deg:g} deg")
             roll = gimbal.roll_deg
+            yaw_rel = None if gimbal.earth_frame else gimbal.yaw_deg
             heading = gimbal.yaw_deg if gimbal.earth_frame else (
                 None if vehicle_yaw is None else vehicle_yaw + gimbal.yaw_deg)
-        return MavlinkSample(boot_s=f["time_boot_ms"] / 1e3, lat=lat, lon=lon, height_m=f["relative_alt"] / 1e3,
+        return MavlinkSample(boot_s=boot_s, lat=lat, lon=lon, height_m=f["relative_alt"] / 1e3,
                              pitch_deg=pitch, heading_deg=None if heading is None else heading % 360.0,
-                             roll_deg=roll, vel_en=(f["vy"] / 100.0, f["vx"] / 100.0))
+                             roll_deg=roll, vel_en=(f["vy"] / 100.0, f["vx"] / 100.0), yaw_rel_deg=yaw_rel)
 
 
 _HANDLERS = {
@@ -208,7 +293,6 @@ _HANDLERS = {
     "GIMBAL_DEVICE_ATTITUDE_STATUS": MavlinkAssembler._gimbal_device,
     "MOUNT_ORIENTATION": MavlinkAssembler._mount_orientation,
     "MOUNT_STATUS": MavlinkAssembler._mount_status,
-    "SYSTEM_TIME": MavlinkAssembler._system_time,
 }
 
 
@@ -253,17 +337,87 @@ def _packet_size(data: bytes, at: int) -> int | None:
 def parse_tlog(data: bytes, *, source: str = "<tlog>", height_offset_m: float = 0.0,
                system_id: int | None = None) -> list[Telemetry]:
     """Records of a ``.tlog`` (what QGroundControl and MAVProxy write: per packet a big-endian uint64 UNIX time
-    in microseconds, then the MAVLink packet).
+    in microseconds, then the MAVLink packet), sorted by time.
 
-    Times: the autopilot's boot clock anchored to UNIX by its first ``SYSTEM_TIME`` with a UNIX time, else by the
-    log's own receive times (the median over the positions: a ground station's clock). ``height_offset_m`` is
-    added to every height (e.g. the take-off point's height above the ground under the flight).
+    The vehicle: ``system_id``, else the system with the most ``GLOBAL_POSITION_INT`` (a warning names every system
+    that sent positions, with its count, when there are several; ties go to the first to send one). Of several
+    gimbals the first seen is used (a warning names the others).
 
-    Raises ValueError naming `source` when no position of a vehicle is in the log.
+    Times: per boot of the autopilot (a reboot restarts ``time_boot_ms``; a warning names it) its boot clock,
+    anchored to UNIX by its own ``SYSTEM_TIME`` (the clock after its last jump: a warning gives the jumps), else by
+    the log's receive times (the median over the positions: a ground station's clock). ``height_offset_m`` is added
+    to every height (e.g. the take-off point's height above the ground under the flight).
+
+    Raises ValueError naming `source` when no position of a vehicle (of ``system_id``) is in the log.
     """
+    messages = _tlog_messages(data)
+    vehicle, autopilot = _choose_vehicle(messages, system_id, source)
+    messages = [m for m in messages if m.system == vehicle]
+    boots = np.array([m.fields["time_boot_ms"] / 1e3 if m.type in _BOOT_CLOCKED and m.component in (autopilot, None)
+                      else math.nan for m in messages])
+    stamps = np.array([m.stamp_s for m in messages])
+    segment_of = boot_segments(stamps, boots)
+    starts = [0, *(np.flatnonzero(np.diff(segment_of)) + 1).tolist(), len(messages)]
+    if len(starts) > 2:
+        _warn_reboots(source, stamps, boots, starts)
+    records: list[Telemetry] = []
+    jumps: list[tuple[float, float]] = []
+    gimbal_used: str | None = None
+    gimbals_ignored: dict[str, int] = {}
+    for a, b in zip(starts[:-1], starts[1:], strict=True):
+        assembler = MavlinkAssembler(vehicle, keep_attitudes=True)
+        assembler.gimbal_used = gimbal_used  # one gimbal for the whole log
+        samples = [(m.stamp_s, s) for m in messages[a:b]
+                   if (s := assembler.add(m.type, m.fields, m.system, m.component)) is not None]
+        gimbal_used = assembler.gimbal_used
+        for key, count in assembler.gimbals_ignored.items():
+            gimbals_ignored[key] = gimbals_ignored.get(key, 0) + count
+        if not samples:
+            continue
+        samples = _with_attitude_yaw(samples, assembler.attitudes or [])
+        offset = assembler.unix_offset_s
+        if offset is None:
+            offset = statistics.median(stamp - s.boot_s for stamp, s in samples)
+        jumps.extend(assembler.clock_jumps)
+        by_boot: dict[float, Telemetry] = {}
+        for _, s in samples:  # one record per boot time (a position repeated by a router counts once)
+            by_boot.setdefault(s.boot_s, s.to_telemetry(offset, height_offset_m))
+        records.extend(by_boot.values())
+    if not records:
+        raise ValueError(f"{source}: no vehicle position (GLOBAL_POSITION_INT) in the MAVLink log")
+    if jumps:
+        log.warning("%s: the vehicle's UNIX clock (SYSTEM_TIME) jumped %s (first set from the ground station, then "
+                    "from GPS?): times use its clock after the last jump", source,
+                    ", ".join(f"by {step:+.3f} s at boot {boot:.1f} s" for boot, step in jumps))
+    if gimbals_ignored:
+        log.warning("%s: several gimbals: using %s (the first seen), ignoring %s", source, gimbal_used,
+                    ", ".join(f"{key} ({count} messages)" for key, count in gimbals_ignored.items()))
+    return sorted(records, key=lambda r: r.t)
+
+
+def read_tlog(path: str | Path, **kw: Any) -> list[Telemetry]:
+    """`parse_tlog` of a file."""
+    return parse_tlog(Path(path).read_bytes(), source=str(path), **kw)
+
+
+@dataclass(frozen=True, slots=True)
+class _Message:
+    stamp_s: float  # the log's receive time, UNIX seconds
+    type: str
+    fields: dict[str, Any]
+    system: int
+    component: int
+
+
+#: Messages stamped with the autopilot's boot clock (a gimbal device's ``time_boot_ms`` is its own clock).
+_BOOT_CLOCKED = frozenset({"GLOBAL_POSITION_INT", "ATTITUDE", "SYSTEM_TIME"})
+_USED = frozenset(_HANDLERS) | {"SYSTEM_TIME"}
+
+
+def _tlog_messages(data: bytes) -> list[_Message]:
+    """The messages of a ``.tlog`` that the assembler uses, in log order; noise and broken packets skipped."""
     parser = MavlinkByteParser()
-    assembler = MavlinkAssembler(system_id)
-    samples: list[tuple[float, MavlinkSample]] = []
+    out: list[_Message] = []
     pos = 0
     while pos + 8 < len(data):
         size = _packet_size(data, pos + 8)
@@ -274,22 +428,67 @@ def parse_tlog(data: bytes, *, source: str = "<tlog>", height_offset_m: float = 
         if msg is None:
             pos += 1
             continue
-        (stamp_us,) = struct.unpack(">Q", data[pos:pos + 8])
-        sample = assembler.add(msg.get_type(), msg.to_dict(), msg.get_srcSystem())
-        if sample is not None:
-            samples.append((stamp_us / 1e6, sample))
+        if msg.get_type() in _USED:
+            (stamp_us,) = struct.unpack(">Q", data[pos:pos + 8])
+            out.append(_Message(stamp_us / 1e6, msg.get_type(), msg.to_dict(), msg.get_srcSystem(),
+                                msg.get_srcComponent()))
         pos += 8 + size
-    if not samples:
+    return out
+
+
+def _choose_vehicle(messages: list[_Message], system_id: int | None, source: str) -> tuple[int, int]:
+    """(system id, autopilot component id) of the vehicle: `system_id`, else the system with the most positions."""
+    counts: dict[int, int] = {}
+    components: dict[int, int] = {}
+    for m in messages:
+        if m.type == "GLOBAL_POSITION_INT":
+            counts[m.system] = counts.get(m.system, 0) + 1
+            components.setdefault(m.system, m.component)
+    named = ", ".join(f"system {sysid} ({n} positions)" for sysid, n in counts.items())
+    if system_id is not None:
+        if system_id not in counts:
+            raise ValueError(f"{source}: no vehicle position (GLOBAL_POSITION_INT) of system {system_id} in the "
+                             f"MAVLink log ({named or 'no system sent one'})")
+        return system_id, components[system_id]
+    if not counts:
         raise ValueError(f"{source}: no vehicle position (GLOBAL_POSITION_INT) in the MAVLink log")
-    offset = assembler.unix_offset_s
-    if offset is None:
-        offset = statistics.median(stamp - s.boot_s for stamp, s in samples)
-    records: dict[float, Telemetry] = {}
-    for _, s in samples:  # one record per boot time (a position repeated by a router counts once)
-        records.setdefault(s.boot_s, s.to_telemetry(offset, height_offset_m))
-    return [records[k] for k in sorted(records)]
+    chosen = max(counts, key=lambda sysid: counts[sysid])  # the first of equal counts: the first to send one
+    if len(counts) > 1:
+        log.warning("%s: positions (GLOBAL_POSITION_INT) of %d vehicles: %s; reading system %d (the most positions; "
+                    "read_tlog's system_id chooses another)", source, len(counts), named, chosen)
+    return chosen, components[chosen]
 
 
-def read_tlog(path: str | Path, **kw: Any) -> list[Telemetry]:
-    """`parse_tlog` of a file."""
-    return parse_tlog(Path(path).read_bytes(), source=str(path), **kw)
+def _warn_reboots(source: str, stamps: np.ndarray, boots: np.ndarray, starts: list[int]) -> None:
+    """One warning naming each reboot: the log time and the boot time before and after."""
+    parts = []
+    for a, b, c in zip(starts[:-2], starts[1:-1], starts[2:], strict=True):
+        before, after = np.nanmax(boots[a:b]), boots[b:c][np.isfinite(boots[b:c])][0]
+        parts.append(f"at {_utc(stamps[b])} (time_boot_ms {before:.1f} s -> {after:.1f} s)")
+    log.warning("%s: the autopilot rebooted %d time(s) %s: each boot is read on its own clock (its own SYSTEM_TIME, "
+                "else the log's receive times)", source, len(parts), ", ".join(parts))
+
+
+def _utc(stamp_s: float) -> str:
+    try:
+        return datetime.fromtimestamp(stamp_s, timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
+    except (OverflowError, OSError, ValueError):
+        return f"log time {stamp_s:.3f} s"
+
+
+def _with_attitude_yaw(samples: list[tuple[float, MavlinkSample]],
+                       attitudes: list[tuple[float, float]]) -> list[tuple[float, MavlinkSample]]:
+    """Samples whose heading follows the vehicle's yaw get the yaw interpolated to their boot time where two
+    ``ATTITUDE`` bracket it (messages come at their own rates); others keep theirs (the latest attitude, held)."""
+    if not attitudes:
+        return samples
+    t_att, yaw_att = np.array(attitudes, dtype=float).T
+    rel = np.array([math.nan if s.yaw_rel_deg is None else s.yaw_rel_deg for _, s in samples])
+    heading = (interpolate_yaw_deg(t_att, yaw_att, [s.boot_s for _, s in samples]) + rel) % 360.0
+    held = np.array([math.nan if s.heading_deg is None else s.heading_deg for _, s in samples])
+    moved = np.isfinite(heading) & ~(np.abs((heading - held + 180.0) % 360.0 - 180.0) < 1e-9)  # NaN held: moved
+    out = list(samples)
+    for i in np.flatnonzero(moved):  # only those that change: most logs stream ATTITUDE with each position
+        stamp, s = samples[i]
+        out[i] = (stamp, replace(s, heading_deg=float(heading[i])))
+    return out

@@ -26,7 +26,8 @@ def euler_to_quaternion(roll_deg: float, pitch_deg: float, yaw_deg: float) -> li
 
 
 def flight_packets(records: Sequence[Telemetry], *, gimbal: str = "device-earth", system_time: bool = True,
-                   vehicle_yaw_offset_deg: float = -20.0, system_id: int = 1) -> list[tuple[float, bytes]]:
+                   vehicle_yaw_offset_deg: float = -20.0, system_id: int = 1, boot_ms0: int = BOOT_MS0,
+                   gimbal_component: int = 154) -> list[tuple[float, bytes]]:
     """(UNIX receive time, packet) per message of a flight whose camera follows `records`.
 
     gimbal: "device-earth" (GIMBAL_DEVICE_ATTITUDE_STATUS, yaw in the earth frame), "device-vehicle" (yaw in the
@@ -34,16 +35,17 @@ def flight_packets(records: Sequence[Telemetry], *, gimbal: str = "device-earth"
     "mount-orientation-relative" (yaw_absolute NaN: only the yaw relative to the vehicle), "mount-status" (ArduPilot
     MOUNT_STATUS, centidegrees, yaw relative to the vehicle), "none"
     (a fixed camera: the vehicle's yaw is the camera heading). The vehicle heads `vehicle_yaw_offset_deg` off the
-    camera (0 for "none").
+    camera (0 for "none"). The autopilot (component 1) has been up `boot_ms0` ms at the first record; a
+    "device-*" gimbal is component `gimbal_component`.
     """
     from pymavlink.dialects.v20 import ardupilotmega
 
     mav = ardupilotmega.MAVLink(None, srcSystem=system_id, srcComponent=1)
-    gimbal_mav = ardupilotmega.MAVLink(None, srcSystem=system_id, srcComponent=154)
+    gimbal_mav = ardupilotmega.MAVLink(None, srcSystem=system_id, srcComponent=gimbal_component)
     t0 = records[0].t
     out: list[tuple[float, bytes]] = []
     for rec in records:
-        boot_ms = BOOT_MS0 + int(round((rec.t - t0) * 1000))
+        boot_ms = boot_ms0 + int(round((rec.t - t0) * 1000))
         heading = rec.heading_deg or 0.0
         yaw_vehicle = heading - (vehicle_yaw_offset_deg if gimbal != "none" else 0.0)
         msgs = []  # (message, the link that packs it: the autopilot's or the gimbal's component)

@@ -9,7 +9,7 @@ import struct
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from shared.telemetry import Telemetry, read_telemetry
@@ -117,6 +117,145 @@ def test_a_camera_looking_straight_down_keeps_its_heading(pitch, yaw, float32):
     assert got_pitch == pytest.approx(pitch, abs=0.01)
     assert math.cos(math.radians(got_yaw - yaw)) == pytest.approx(1.0, abs=2e-6)  # within ~0.1 deg
     assert abs(roll) < 0.1
+
+
+# ---- the vehicle's clock, reboots, several vehicles and gimbals, attitude at the position's time --------------
+
+def _mav(sysid: int = 1, compid: int = 1):
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    return ardupilotmega.MAVLink(None, srcSystem=sysid, srcComponent=compid)
+
+
+def _type(packet: bytes) -> str:
+    return _mav().decode(bytearray(packet)).get_type()
+
+
+def _tlog(packets) -> bytes:
+    return b"".join(struct.pack(">Q", int(round(t * 1e6))) + p for t, p in packets)
+
+
+def _moved(records: list[Telemetry], **change) -> list[Telemetry]:
+    """The records with fields shifted: t=+300.0 adds 300 s to every t."""
+    return [Telemetry(**{name: getattr(r, name) + change.get(name, 0) if name in change else getattr(r, name)
+                         for name in ("t", "lat", "lon", "height_m", "pitch_deg", "heading_deg", "roll_deg",
+                                      "vel_en_mps")}) for r in records]
+
+
+@settings(max_examples=25, deadline=None)
+@given(sender=st.sampled_from([(255, 190), (254, 1), (1, 240)]), uptime_ms=st.integers(0, 10**7),
+       clock_error_s=st.floats(-3600, 3600), vehicle_system_time=st.booleans())
+def test_a_ground_stations_system_time_never_sets_the_vehicles_clock(sender, uptime_ms, clock_error_s,
+                                                                     vehicle_system_time):
+    """A GCS (or a companion computer on the vehicle's system id) logs its own SYSTEM_TIME, its UNIX time and its
+    own uptime, before the vehicle's streams start: every record came out off by the difference of the uptimes."""
+    flight = _flight()
+    gcs = _mav(*sender).system_time_encode(int((T0 - 3.0 + clock_error_s) * 1e6), uptime_ms).pack(_mav(*sender))
+    records = parse_tlog(_tlog([(T0 - 3.0, gcs), *flight_packets(flight, system_time=vehicle_system_time)]))
+    lag = 0.0 if vehicle_system_time else 0.02  # without the vehicle's SYSTEM_TIME: the log's receive times
+    assert [r.t for r in records] == pytest.approx([f.t + lag for f in flight], abs=2e-3)
+
+
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(steps=st.lists(st.floats(-600, 600).filter(lambda s: abs(s) > 1.5), min_size=1, max_size=2),
+       at=st.integers(1, 10))
+def test_the_clock_after_its_last_jump_times_the_log_and_one_warning_gives_the_jumps(caplog, steps, at):
+    """PX4 / ArduPilot set their UNIX clock from the ground station's, then from GPS: the clock steps by `steps[j]`
+    at record `at + j`. The first SYSTEM_TIME's offset was used for the whole log, silently."""
+    flight = _flight()
+    packets, k = [], 0
+    for t, p in flight_packets(flight):
+        if _type(p) == "SYSTEM_TIME":
+            error_s = -sum(step for j, step in enumerate(steps) if at + j > k)  # 0 after the last step
+            p = _mav().system_time_encode(int(round((flight[k].t + error_s) * 1e6)), BOOT_MS0 + 100 * k).pack(_mav())
+            k += 1
+        packets.append((t, p))
+    caplog.clear()
+    with caplog.at_level("WARNING"):
+        records = parse_tlog(_tlog(packets))
+    _same(records, flight)
+    jumped = [r.getMessage() for r in caplog.records if "jumped" in r.getMessage()]
+    assert len(jumped) == 1 and all(f"by {step:+.3f} s" in jumped[0] for step in steps)
+
+
+@pytest.mark.parametrize("second_boot_ms", [BOOT_MS0 - 3_000, BOOT_MS0 - 5_037])  # on the first's 100 ms grid or not
+@pytest.mark.parametrize("second_system_time", [True, False])
+def test_a_reboot_mid_log_gives_each_boot_its_own_clock(caplog, second_boot_ms, second_system_time):
+    """A battery swap between two flights of one ground-station session restarts time_boot_ms: the two flights came
+    out interleaved, or the second's positions were dropped as repeats of the first's boot times."""
+    first, second = _flight(), _moved(_flight(), t=300.0, lon=0.0135)
+    packets = flight_packets(first) + flight_packets(second, boot_ms0=second_boot_ms, system_time=second_system_time)
+    with caplog.at_level("WARNING"):
+        records = parse_tlog(_tlog(packets))
+    _same(records, first + (second if second_system_time else _moved(second, t=0.02)))  # else: receive times
+    assert sum("rebooted 1 time" in r.getMessage() for r in caplog.records) == 1
+
+
+@pytest.mark.parametrize("by", ["gimbal_device_id", "component"])
+def test_of_two_gimbals_the_first_is_used_and_the_other_named(caplog, by):
+    """An autopilot with two mounts (a mapping camera and a forward one) sends both gimbals' attitude, by device id
+    (MAVLink 2 since 2022) or as two components (id 0, older senders): pitch and heading flipped between them."""
+    flight = _flight()
+    other_q = euler_to_quaternion(0.0, -10.0, 123.0)
+    packets, n = [], 0
+    for t, p in flight_packets(flight, gimbal="device-earth"):
+        if _type(p) != "GIMBAL_DEVICE_ATTITUDE_STATUS":
+            packets.append((t, p))
+            continue
+        if by == "gimbal_device_id":  # the autopilot speaks for both gimbals
+            q = list(_mav().decode(bytearray(p)).q)
+            pair = [_mav().gimbal_device_attitude_status_encode(0, 0, 0, 16 | 64, q, 0, 0, 0, 0, 0, 0, 1).pack(_mav()),
+                    _mav().gimbal_device_attitude_status_encode(0, 0, 0, 16 | 64, other_q, 0, 0, 0, 0, 0, 0, 2)
+                    .pack(_mav())]
+        else:  # two gimbal devices of their own
+            pair = [p, _mav(1, 155).gimbal_device_attitude_status_encode(0, 0, 0, 16 | 64, other_q, 0, 0, 0, 0)
+                    .pack(_mav(1, 155))]
+        packets.extend((t, q) for q in (pair if n % 2 == 0 else pair[::-1]))  # the camera's gimbal first, then by turns
+        n += 1
+    with caplog.at_level("WARNING"):
+        records = parse_tlog(_tlog(packets))
+    _same(records, flight)
+    warned = [r.getMessage() for r in caplog.records if "gimbals" in r.getMessage()]
+    ignored = "gimbal_device_id 2" if by == "gimbal_device_id" else "gimbal component 155"
+    assert len(warned) == 1 and f"ignoring {ignored} ({len(flight)} messages)" in warned[0]
+
+
+def test_of_several_vehicles_the_one_with_the_most_positions_is_read_and_all_named(caplog):
+    """QGroundControl logs every vehicle on its links: the first to send a position was read, silently."""
+    flight, other = _flight(), _moved(_flight(6), t=-1.0, lat=0.02)  # the other drone's stream started first
+    packets = sorted(flight_packets(flight) + flight_packets(other, system_id=2), key=lambda tp: tp[0])
+    with caplog.at_level("WARNING"):
+        _same(parse_tlog(_tlog(packets)), flight)
+    warned = [r.getMessage() for r in caplog.records if "vehicles" in r.getMessage()]
+    assert len(warned) == 1
+    assert "system 1 (12 positions)" in warned[0] and "system 2 (6 positions)" in warned[0]
+    assert "reading system 1" in warned[0]
+    _same(parse_tlog(_tlog(packets), system_id=2), other)
+    with pytest.raises(ValueError, match=r"of system 9 .*system 2 \(6 positions\), system 1 \(12 positions\)"):
+        parse_tlog(_tlog(packets), system_id=9)
+
+
+@settings(max_examples=40, deadline=None)
+@given(yaw0=st.floats(0, 360), rate_dps=st.floats(-120, 120), every=st.integers(2, 5),
+       gimbal=st.sampled_from(["none", "device-vehicle", "mount-status"]))
+def test_the_vehicle_yaw_is_interpolated_to_each_positions_time(yaw0, rate_dps, every, gimbal):
+    """ATTITUDE streams slower than GLOBAL_POSITION_INT (Mission Planner over a radio: 2 Hz and 5 Hz): each position
+    took the latest ATTITUDE, up to rate x interval off. Bracketed positions now get the yaw at their time (on the
+    circle: the flight turns through north); after the last ATTITUDE it is held."""
+    flight = [Telemetry(t=T0 + 0.1 * i, lat=48.53, lon=9.06, height_m=30.0, pitch_deg=45.0,
+                        heading_deg=(yaw0 + rate_dps * 0.1 * i) % 360, vel_en_mps=(0.0, 0.0)) for i in range(12)]
+    packets, k = [], 0
+    for t, p in flight_packets(flight, gimbal=gimbal):
+        if _type(p) == "ATTITUDE":
+            k += 1
+            if (k - 1) % every:
+                continue
+        packets.append((t, p))
+    records = parse_tlog(_tlog(packets))
+    last = (len(flight) - 1) // every * every  # the last record with an ATTITUDE
+    want = [f.heading_deg for f in flight[:last + 1]] + [flight[last].heading_deg] * (len(flight) - 1 - last)
+    for got, expected in zip(records, want, strict=True):
+        assert math.cos(math.radians(got.heading_deg - expected)) == pytest.approx(1.0, abs=1e-6)
 
 
 # ---- PX4 ULog -------------------------------------------------------------------------------------------------

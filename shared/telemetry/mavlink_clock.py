@@ -1,0 +1,98 @@
+"""The autopilot's boot clock in MAVLink telemetry: its UNIX offset from ``SYSTEM_TIME`` (and that clock's jumps),
+reboots in a ``.tlog``, and the vehicle's yaw interpolated to a position's boot time.
+
+Pure: numbers in, numbers out (the messages are decoded in `shared.telemetry.mavlink`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+__all__ = ["CLOCK_JUMP_S", "REBOOT_S", "UnixClock", "boot_segments", "interpolate_yaw_deg", "yaw_between_deg"]
+
+#: Consecutive ``SYSTEM_TIME`` offsets (UNIX - boot) further apart than this are a step of the vehicle's UNIX clock
+#: (set from the ground station's clock, then from GPS), not jitter: both stamps are taken at one tick on board.
+CLOCK_JUMP_S = 1.0
+#: A boot time this far behind the latest of the boot while the log's receive time goes on is a new boot; messages
+#: of one boot come out of order by far less.
+REBOOT_S = 3.0
+
+
+@dataclass(slots=True)
+class UnixClock:
+    """The UNIX time of one boot clock's zero, from a system's ``SYSTEM_TIME`` messages.
+
+    offset_s: UNIX - boot seconds of the first message after the last jump (None before any message with a UNIX
+    time); jumps: (boot s, step s) per step of the UNIX clock by more than `CLOCK_JUMP_S`, in arrival order.
+    """
+
+    offset_s: float | None = None
+    jumps: list[tuple[float, float]] = field(default_factory=list)
+    _last_s: float | None = None
+
+    def add(self, boot_s: float, offset_s: float) -> None:
+        """Take one ``SYSTEM_TIME``: its boot time and UNIX - boot offset, seconds."""
+        if self._last_s is not None and abs(offset_s - self._last_s) > CLOCK_JUMP_S:
+            self.jumps.append((boot_s, offset_s - self._last_s))
+            self.offset_s = offset_s
+        elif self.offset_s is None:
+            self.offset_s = offset_s
+        self._last_s = offset_s
+
+
+def boot_segments(stamp_s: ArrayLike, boot_s: ArrayLike) -> NDArray[np.int64]:
+    """Which boot each message of a log belongs to: (N,) receive times and (N,) boot times (NaN: the message has
+    none) -> (N,) int segment index 0, 1, ... in log order.
+
+    A new boot starts where the boot time falls more than `REBOOT_S` behind the latest of the current boot while the
+    receive time is not behind the receive time of that latest one (a reboot; a router's late repeat is neither).
+    """
+    stamps = np.asarray(stamp_s, dtype=float)
+    boots = np.asarray(boot_s, dtype=float)
+    out = np.zeros(len(stamps), dtype=np.int64)
+    segment, top_boot, top_stamp = 0, -math.inf, -math.inf
+    for i in np.flatnonzero(np.isfinite(boots)):  # a Python loop: one comparison per message, ~10^5 in a log
+        boot, stamp = boots[i], stamps[i]
+        if boot < top_boot - REBOOT_S and stamp >= top_stamp:
+            segment += 1
+            out[i:] = segment
+            top_boot, top_stamp = boot, stamp
+        elif boot > top_boot:
+            top_boot, top_stamp = boot, stamp
+    return out
+
+
+def yaw_between_deg(t0_s: float, yaw0_deg: float, t1_s: float, yaw1_deg: float, t_s: float) -> float:
+    """The yaw at `t_s` between two samples (t0 <= t <= t1; t0 == t1 gives yaw1), on the shorter arc, in
+    [0, 360): `interpolate_yaw_deg` for one time, without numpy's per-call cost (one per live message)."""
+    frac = (t_s - t0_s) / (t1_s - t0_s) if t1_s > t0_s else 1.0
+    yaw = (yaw0_deg + frac * ((yaw1_deg - yaw0_deg + 180.0) % 360.0 - 180.0)) % 360.0
+    return 0.0 if yaw >= 360.0 else yaw  # -1e-20 % 360 rounds to 360
+
+
+def interpolate_yaw_deg(t_s: ArrayLike, yaw_deg: ArrayLike, query_s: ArrayLike) -> NDArray[np.float64]:
+    """The yaw at (M,) query times from (N,) attitude samples (times in any order), degrees in [0, 360).
+
+    Linear on the circle (350 -> 10 passes 0) between the samples that bracket a query; a query at a sample's time
+    takes it. NaN where no sample is at or after the query, or none at or before it (nothing to interpolate).
+    """
+    t = np.asarray(t_s, dtype=float)
+    yaw = np.asarray(yaw_deg, dtype=float)
+    query = np.atleast_1d(np.asarray(query_s, dtype=float))
+    if len(t) == 0:
+        return np.full(len(query), np.nan)
+    order = np.argsort(t, kind="stable")
+    t, yaw = t[order], yaw[order]
+    j = np.searchsorted(t, query, side="right") - 1  # the last sample at or before each query
+    lo, hi = np.clip(j, 0, len(t) - 1), np.clip(j + 1, 0, len(t) - 1)
+    t0, t1 = t[lo], t[hi]
+    valid = (j >= 0) & ((j + 1 < len(t)) | (t0 == query))
+    span = t1 - t0
+    frac = np.divide(query - t0, span, out=np.zeros_like(query), where=span > 0)
+    step = (yaw[hi] - yaw[lo] + 180.0) % 360.0 - 180.0
+    out = (yaw[lo] + frac * step) % 360.0
+    return np.where(valid, np.where(out >= 360.0, 0.0, out), np.nan)  # -1e-20 % 360 rounds to 360
