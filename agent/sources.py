@@ -14,7 +14,7 @@ import math
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
@@ -243,7 +243,7 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None, hei
 
 def video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
                     pitch_deg: float | None = None, heading_deg: float | None = None,
-                    need_angles: bool = False) -> tuple[list[Telemetry], float | None]:
+                    need_angles: bool = False, system_id: int | None = None) -> tuple[list[Telemetry], float | None]:
     """Telemetry records of a video, checked for what georeferencing needs, and the telemetry time of video time 0.
 
     Parameters
@@ -262,6 +262,9 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         record needs them when ``need_angles`` (the video source: else ValueError; other callers, which also work
         without a pose, get a warning); given beside a file that logs them in every record, they are not used (a
         warning says so).
+    system_id : int, optional
+        The MAVLink system id of the vehicle in a ``.tlog`` that holds several (`--mavlink-system-id`; default: the
+        one with the most positions, a warning names the others); ValueError for another kind of file.
 
     Returns
     -------
@@ -284,7 +287,11 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     suffix = Path(path).suffix.lower()
     if height_m is not None and not (math.isfinite(height_m) and height_m > 0.0):
         raise ValueError(f"--height-m {height_m!r} must be a height above the ground > 0 m")
-    kw = {} if height_offset_m is None else {"height_offset_m": float(height_offset_m)}
+    kw: dict[str, Any] = {} if height_offset_m is None else {"height_offset_m": float(height_offset_m)}
+    if system_id is not None:
+        if suffix != ".tlog":
+            raise ValueError(f"--mavlink-system-id applies to a MAVLink .tlog or a udp:HOST:PORT stream, not {path}")
+        kw["system_id"] = int(system_id)
     if kw and suffix == ".json":
         raise ValueError(f"--height-offset-m applies to .srt and .csv telemetry, not {path} (SeaDronesSee altitude "
                          "is already height above the water)")
@@ -429,7 +436,8 @@ class VideoSource:
                  max_gap_s: float = 1.0, pitch_deg: float | None = None, heading_deg: float | None = None,
                  height_m: float | None = None, height_offset_m: float | None = None,
                  providers: Sequence[str] = ("CPUExecutionProvider",), slices: SliceGrid | None = None,
-                 slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0) -> None:
+                 slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0,
+                 system_id: int | None = None) -> None:
         from agent.detector import OnnxYoloDetector
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
         from agent.slicing import SlicedDetector
@@ -449,7 +457,7 @@ class VideoSource:
         if not live:
             self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                           pitch_deg=pitch_deg, heading_deg=heading_deg,
-                                                          need_angles=True)
+                                                          need_angles=True, system_id=system_id)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         self.reader = VideoReader(self.video_path)
@@ -471,7 +479,7 @@ class VideoSource:
         if slices is not None:
             self.detector = SlicedDetector(self.detector, slices, full_frame=slice_full_frame)
         if live:  # last: nothing after this may fail with the port bound
-            self.feed = MavlinkUdpFeed(str(telemetry), height_offset_m=height_offset_m or 0.0)
+            self.feed = MavlinkUdpFeed(str(telemetry), system_id=system_id, height_offset_m=height_offset_m or 0.0)
             try:
                 self.records = self.feed.start(telemetry_timeout_s)
             except BaseException:

@@ -52,6 +52,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--telemetry-offset-s", type=float, default=None,
                      help="--video: telemetry time of video time 0 (default: from the PTS for KLV in a transport "
                           "stream, else where the log starts recording, AirData's isVideo, else the first record's)")
+    src.add_argument("--mavlink-system-id", type=int, default=None, metavar="N",
+                     help="--video: " + "MAVLink telemetry (.tlog, udp:HOST:PORT): the vehicle's system id "
+                          "when the log or link carries several (default: a .tlog's vehicle with the most positions, a "
+                          "live link's first; a warning names the others)")
     src.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     src.add_argument("--heading-deg", type=float, default=None,
                      help="--video: fixed gimbal heading if telemetry lacks it")
@@ -127,7 +131,8 @@ def source_from_args(args: argparse.Namespace):
     return VideoSource(args.video, args.telemetry, args.model, args.camera,
                        telemetry_offset_s=args.telemetry_offset_s, class_names=args.class_names,
                        conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
-                       height_m=args.height_m, height_offset_m=args.height_offset_m)
+                       height_m=args.height_m, height_offset_m=args.height_offset_m,
+                       system_id=args.mavlink_system_id)
 
 
 def settings_from_args(args: argparse.Namespace):

@@ -52,6 +52,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--height-offset-m", type=float, default=None, metavar="METRES",
                    help="--video: metres added to every height the telemetry gives (e.g. minus the ground "
                         "elevation for DJI abs_alt or a KLV sensor altitude above sea level)")
+    p.add_argument("--mavlink-system-id", type=int, default=None, metavar="N",
+                   help="--video with a MAVLink .tlog: the vehicle's system id when the log carries several (default: "
+                        "the one with the most positions; a warning names the others)")
     p.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     p.add_argument("--heading-deg", type=float, default=None,
                    help="--video: fixed gimbal heading if telemetry lacks it")
@@ -100,7 +103,7 @@ def run_anomaly(args: argparse.Namespace) -> int:
         raise ValueError("--video needs --telemetry FILE")
     if args.frames is not None and args.telemetry is not None:
         raise ValueError("--telemetry goes with --video (--frames carries its telemetry in images.json meta)")
-    for flag in ("height_offset_m", "pitch_deg", "heading_deg"):
+    for flag in ("height_offset_m", "pitch_deg", "heading_deg", "mavlink_system_id"):
         if args.frames is not None and getattr(args, flag) is not None:
             raise ValueError(f"--{flag.replace('_', '-')} goes with --video (--frames carries its telemetry in "
                              "images.json meta)")
@@ -113,7 +116,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
     frames = (dataset_frames(args.frames, camera) if args.frames is not None
               else iter(VideoFrames(args.video, args.telemetry, camera, height_m=args.height_m,
                                     telemetry_offset_s=args.telemetry_offset_s, height_offset_m=args.height_offset_m,
-                                    pitch_deg=args.pitch_deg, heading_deg=args.heading_deg)))
+                                    pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
+                                    system_id=args.mavlink_system_id)))
     detector = AnomalyDetector(cfg, method)
     results = []
     video = None

@@ -110,3 +110,9 @@ def test_video_without_gimbal_angles_warns_and_takes_them_from_the_flags(tmp_pat
     err = _error(capsys, ["--frames", str(tmp_path / "images.json"), "--pitch-deg", "60", "--camera", str(camera),
                           "--out", str(out)])
     assert "--pitch-deg goes with --video" in err
+    err = _error(capsys, ["--frames", str(tmp_path / "images.json"), "--mavlink-system-id", "2", "--camera",
+                          str(camera), "--out", str(out)])
+    assert "--mavlink-system-id goes with --video" in err
+    err = _error(capsys, ["--video", str(video), "--telemetry", str(srt), "--mavlink-system-id", "2", "--camera",
+                          str(camera), "--out", str(out)])
+    assert "--mavlink-system-id applies to a MAVLink .tlog" in err

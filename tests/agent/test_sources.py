@@ -137,6 +137,36 @@ def test_video_source_detects_and_interpolates_telemetry(tmp_path):
     assert (x1 + x2) / 2 == pytest.approx(160, abs=1) and (y1 + y2) / 2 == pytest.approx(90, abs=1)
 
 
+def test_video_source_reads_the_vehicle_given_of_a_tlog_with_several(tmp_path, caplog):
+    """QGroundControl logs every vehicle on its links in one .tlog: by default the one with the most positions
+    is read (a warning names them all), --mavlink-system-id reads another; on other telemetry it is refused."""
+    pytest.importorskip("pymavlink")
+    from shared.telemetry import Telemetry
+    from tests.shared.mavlink_writer import flight_packets, write_tlog
+
+    t0 = 1_700_000_000.0
+    ours = [Telemetry(t=t0 + 0.2 * i, lat=48.53 + 1e-5 * i, lon=9.06, height_m=30.0, pitch_deg=60.0,
+                      heading_deg=10.0) for i in range(30)]
+    other = [Telemetry(t=t0 + 0.2 * i, lat=48.55, lon=9.08 + 1e-5 * i, height_m=50.0, pitch_deg=45.0,
+                       heading_deg=200.0) for i in range(20)]
+    tlog = write_tlog(tmp_path / "qgc.tlog", sorted(flight_packets(ours) + flight_packets(other, system_id=2),
+                                                    key=lambda tp: tp[0]))
+    video = _write_video(tmp_path / "flight.avi", 12)
+    model, camera = _write_model(tmp_path / "model.onnx"), "dji-mavic2-pro"
+    with caplog.at_level(logging.WARNING):
+        first = next(VideoSource(video, tlog, model, camera).frames())
+    assert first.pose is not None and first.pose.lat == pytest.approx(48.53, abs=1e-6)
+    assert "system 1 (30 positions)" in caplog.text and "system 2 (20 positions)" in caplog.text
+    chosen = next(VideoSource(video, tlog, model, camera, system_id=2).frames())
+    assert chosen.pose is not None and chosen.pose.lat == pytest.approx(48.55, abs=1e-6)
+    assert chosen.pose.heading_deg == pytest.approx(200.0, abs=0.1)
+    srt = tmp_path / "f.srt"
+    srt.write_text("1\n00:00:00,000 --> 00:00:00,033\n2023-06-01 10:00:00.000\n[latitude: 48.53] "
+                   "[longitude: 9.06] [rel_alt: 30.0 abs_alt: 400.0] [gb_yaw: 0.0 gb_pitch: -60.0 gb_roll: 0.0]\n")
+    with pytest.raises(ValueError, match="--mavlink-system-id applies to a MAVLink .tlog"):
+        VideoSource(video, srt, model, camera, system_id=2)
+
+
 def test_video_source_makes_a_preset_at_the_videos_size_without_a_warning(tmp_path, caplog):
     video = _write_video(tmp_path / "flight.avi", 2, size=(320, 240))  # 4:3 frames, a preset made at their size
     telemetry = tmp_path / "flight.csv"

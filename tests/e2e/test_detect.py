@@ -145,6 +145,7 @@ def test_detect_sliced_finds_the_model_box_in_each_tile(flight, tmp_path):
     (("--providers", "NoSuchExecutionProvider"), "NoSuchExecutionProvider not available in this install; available:"),
     (("--slices", "2by2"), "--slices must look like 2x2"),
     (("--slice-overlap", "0.3"), "--slice-overlap and --no-full-frame need --slices"),
+    (("--mavlink-system-id", "2"), "--mavlink-system-id applies to a MAVLink .tlog or a udp:HOST:PORT stream"),
 ])
 def test_detect_refuses_bad_flags_in_one_line(flight, tmp_path, capsys, extra, message):
     assert _detect(flight, tmp_path / "o", *extra) == 2
