@@ -147,8 +147,12 @@ class MavlinkUdpFeed:
             while not self._samples:
                 left = deadline - time.monotonic()
                 if left <= 0:
+                    others = self._assembler.position_counts
+                    seen = (f"; positions came from system {', '.join(str(sysid) for sysid in others)} only"
+                            if others and self._system_id_given else "")
                     raise ValueError(f"no MAVLink position (GLOBAL_POSITION_INT) on {self.spec} within {timeout_s:g} s "
-                                     f"({self.datagrams} datagrams received): is the autopilot's stream sent here?")
+                                     f"({self.datagrams} datagrams received{seen}): is the autopilot's stream sent "
+                                     "here?")
                 self._cond.wait(left)
             anchor_deadline = time.monotonic() + anchor_wait_s
             while self._assembler.unix_offset_s is None and time.monotonic() < anchor_deadline:

@@ -170,7 +170,7 @@ class DatasetSource:
             raise ValueError(f"{self.directory / 'images.json'} has no images")
         self.video_id = next(iter(self.dataset.videos)) if video_id is None else self.dataset.resolve_video(video_id)
         self.class_names = dict(self.dataset.categories)
-        self.name = f"dataset:{self.directory.name}:video{video_id}"
+        self.name = f"dataset:{self.directory.name}:video{self.video_id}"
         self.problems: list[PoseProblem] = []
         self.image_dir = (self.directory if image_dir is None else Path(image_dir)) if use_images else None
         self.images_missing = 0

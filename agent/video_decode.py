@@ -18,6 +18,8 @@ from __future__ import annotations
 
 import logging
 import math
+import statistics
+from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -34,8 +36,10 @@ log = logging.getLogger(__name__)
 MAX_FAILED_READS = 8
 #: ... and while frames the container announces are still to come (two seconds at 30 frames/s).
 MAX_FAILED_READS_BEFORE_END = 64
-#: A frame whose time is off the nominal grid (index / fps from the first frame) by more than this many frame
-#: intervals makes the report say the video's frame times are irregular.
+#: Intervals between frames measured before a step of several counts as frames missing.
+_INTERVALS_NEEDED = 3
+#: A step between two frames off the video's recent interval (times the frames it spans) by more than this share of
+#: it counts as irregular (a variable frame rate).
 _IRREGULAR_INTERVALS = 0.5
 
 
@@ -52,13 +56,19 @@ class DecodedFrame:
 @dataclass(slots=True)
 class VideoDecodeReport:
     """What reading a video met: frames decoded, reads that failed (first_failed: the first such frame's number),
-    frames placed on the nominal rate for want of a container time, and the largest gap between a frame's
-    container time and its index over the nominal rate (seconds)."""
+    frames placed on the nominal rate for want of a container time, frames left out whose time went back (a
+    decoder's after a damaged packet), frame numbers without a frame (skipped;
+    first_skipped: the first), steps between frames off the video's recent interval by more than half of it
+    (irregular; max_off_grid_s: the largest such difference, seconds, at frame worst_frame)."""
 
     decoded: int = 0
     failed: int = 0
     first_failed: int | None = None
     untimed: int = 0
+    out_of_order: int = 0
+    irregular: int = 0
+    skipped: int = 0
+    first_skipped: int | None = None
     max_off_grid_s: float = 0.0
     worst_frame: int | None = None
 
@@ -115,64 +125,104 @@ class VideoReader:
             capture.release()
 
     def frames(self) -> Iterator[DecodedFrame]:
-        """Every frame in presentation order with its time (the module docstring); the report is filled as it goes
-        and said in one warning when the last frame is read (failed reads, far fewer frames than announced)."""
+        """Every frame in presentation order with its time and number (the module docstring); the report is filled as
+        it goes and said when the last frame is read (failed reads, skipped numbers, fewer frames than announced).
+
+        A frame's number is one more than the frame before's, and more where its time steps by several of the
+        video's recent intervals (their median, once three are known; the container's nominal rate can be far off):
+        a frame the decoder drops inside a read (a damaged packet in a transport stream or a B-frame stream) leaves
+        its number out instead of shifting every later frame's. Without times (or before three intervals are
+        known) a read that failed counts as a frame.
+        """
         import cv2
 
         report = self.report = VideoDecodeReport()
         capture = self._open()
         period = 1.0 / self.fps
-        index, failed_in_row = 0, 0
+        index, failed_in_row = -1, 0
+        intervals: deque[float] = deque(maxlen=15)  # the recent steps between frames' times, per frame number
         prev_t: float | None = None
-        first_t = 0.0
+        last_pos: float | None = None  # the container's time of the frame before, as it gave it
         try:
             while True:
                 ok, image = capture.read()
                 if not ok or image is None:
                     failed_in_row += 1
-                    announced_left = self.frame_count is not None and index < self.frame_count
+                    announced_left = self.frame_count is not None and index + failed_in_row < self.frame_count
                     if failed_in_row >= (MAX_FAILED_READS_BEFORE_END if announced_left else MAX_FAILED_READS):
                         break
-                    # a damaged frame, or the end: only a frame read after it tells (then it counts as failed)
-                    index += 1
+                    continue  # a damaged frame, or the end: only a frame read after it tells
+                pos = float(capture.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
+                valid = math.isfinite(pos) and pos >= 0.0
+                timed = valid and (prev_t is None or pos > prev_t)
+                if timed:
+                    t = pos
+                elif valid and last_pos is not None and pos < last_pos:
+                    # a time going back: a frame a decoder puts out of order after a damaged packet (its image is
+                    # an older frame's or garbled); not a frame of this place in the video
+                    report.out_of_order += 1
                     continue
+                else:  # no container time that increases: one nominal interval after the frame before
+                    t = 0.0 if prev_t is None else prev_t + period * (1 + failed_in_row)
+                    report.untimed += 1
+                if valid:
+                    last_pos = pos
+                if prev_t is None:
+                    number = 0
+                elif timed and len(intervals) >= _INTERVALS_NEEDED:
+                    # frames missing where the time steps by several of the video's recent intervals
+                    recent = statistics.median(intervals)
+                    steps = max(1, round((t - prev_t) / recent))
+                    number = index + steps  # a failed read that left no gap in the times took no frame's place
+                    off = abs(t - prev_t - steps * recent)
+                    if off > report.max_off_grid_s:
+                        report.max_off_grid_s, report.worst_frame = off, number
+                    if off > _IRREGULAR_INTERVALS * recent:
+                        report.irregular += 1
+                    intervals.append((t - prev_t) / steps)
+                else:
+                    number = index + 1 + failed_in_row
+                    if timed:
+                        intervals.append((t - prev_t) / (1 + failed_in_row))
+                missing = number - index - 1 - failed_in_row  # numbers without a frame nor a failed read
+                if missing > 0:
+                    report.skipped += missing
+                    if report.first_skipped is None:
+                        report.first_skipped = index + 1
                 if failed_in_row:  # the failed reads were frames of the video after all
                     report.failed += failed_in_row
                     if report.first_failed is None:
-                        report.first_failed = index - failed_in_row
+                        report.first_failed = index + 1
                     failed_in_row = 0
-                pos = float(capture.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
-                if math.isfinite(pos) and pos >= 0.0 and (prev_t is None or pos > prev_t):
-                    t = pos
-                else:  # no container time that increases: one nominal interval after the frame before
-                    t = 0.0 if prev_t is None else prev_t + period
-                    report.untimed += 1
-                if prev_t is None:
-                    first_t = t
-                off = abs(t - (first_t + index * period))
-                if off > report.max_off_grid_s:
-                    report.max_off_grid_s, report.worst_frame = off, index
-                prev_t = t
+                prev_t, index = t, number
                 report.decoded += 1
-                yield DecodedFrame(index, t, image)
-                index += 1
+                yield DecodedFrame(number, t, image)
         finally:
             capture.release()
         self._say(report)
 
     def _say(self, report: VideoDecodeReport) -> None:
         name = self.path.name
-        if report.max_off_grid_s > _IRREGULAR_INTERVALS / self.fps:
-            log.info("video %s: frame times are irregular (variable frame rate or dropped frames: frame %s is %.3f s "
-                     "off its index over %.3f frames/s); each frame is placed at its own container time", name,
-                     report.worst_frame, report.max_off_grid_s, self.fps)
+        if report.irregular:
+            log.info("video %s: frame times are irregular (a variable frame rate: %d steps between frames off the "
+                     "recent interval, by up to %.3f s at frame %s); each frame is placed at its own container time",
+                     name, report.irregular, report.max_off_grid_s, report.worst_frame)
         if report.untimed:
             log.info("video %s: %d of %d frames had no container time that increases: placed 1/%.3f s after the "
                      "frame before", name, report.untimed, report.decoded, self.fps)
-        if report.failed:
-            log.warning("video %s: %d frame(s) could not be decoded (the first is frame %d; a damaged file?): they "
-                        "are skipped, the frames after them keep their own times", name, report.failed,
-                        report.first_failed)
+        if report.skipped:
+            log.info("video %s: %d frame number(s) have no frame (the first is %d): frames dropped when recording, "
+                     "or lost in decoding; the frames after keep their own times and numbers", name, report.skipped,
+                     report.first_skipped)
+        if report.failed or report.out_of_order:
+            what = [f"{report.failed} frame(s) could not be decoded, the first is frame {report.first_failed},"
+                    ] if report.failed else []
+            what += [f"{report.out_of_order} came out of order"] if report.out_of_order else []
+            log.warning("video %s: %s (a damaged file?): they are skipped, the frames after them keep their own times",
+                        name, " and ".join(what).rstrip(","))
         if self.frame_count is not None and report.decoded < 0.9 * self.frame_count:
-            log.warning("video %s: %d frames decoded of the %d its container announces", name, report.decoded,
-                        self.frame_count)
+            # a transport stream's count is its duration times the rate: frames before the first key frame of a
+            # recording begun mid-GOP count there, so without failed reads this is no sign of damage
+            log.log(logging.WARNING if report.failed or report.out_of_order else logging.INFO,
+                    "video %s: %d frames decoded of the %d its container announces", name, report.decoded,
+                    self.frame_count)

@@ -55,7 +55,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     det.add_argument("--conf-threshold", type=float, default=0.01, help="lowest candidate score kept (0.01)")
     tel = p.add_argument_group("telemetry")
     tel.add_argument("--telemetry-offset-s", type=float, default=None,
-                     help="telemetry time of the video's first frame, seconds on the telemetry's clock "
+                     help="telemetry time of video time 0 (the first frame's, unless a stream starts mid-GOP), "
+                          "seconds on the telemetry's clock "
                           "(default: KLV in a transport stream tells it by its PTS; else where the log starts "
                           "recording, AirData's isVideo; else the first record's)")
     tel.add_argument("--telemetry-timeout-s", type=float, default=10.0,

@@ -20,6 +20,8 @@ CLOCK_JUMP_S = 1.0
 #: A boot time this far behind the latest of the boot while the log's receive time goes on is a new boot; messages
 #: of one boot come out of order by far less.
 REBOOT_S = 3.0
+#: ... unless the boot goes on within this much receive time after it (a late repeat, not a reboot).
+REPEAT_WINDOW_S = 5.0
 
 
 @dataclass(slots=True)
@@ -49,21 +51,39 @@ def boot_segments(stamp_s: ArrayLike, boot_s: ArrayLike) -> NDArray[np.int64]:
     none) -> (N,) int segment index 0, 1, ... in log order.
 
     A new boot starts where the boot time falls more than `REBOOT_S` behind the latest of the current boot while the
-    receive time is not behind the receive time of that latest one (a reboot; a router's late repeat is neither).
+    receive time is not behind the receive time of that latest one, and the current boot's stream does not go on
+    within `REPEAT_WINDOW_S` of receive time after it (a reboot: receive time minus boot time jumps by more than
+    REBOOT_S for good). Messages logged with an old receive time, and a late
+    repeat (a link buffer flushed, a second link with more latency: old boot times received late while the stream
+    goes on), start none.
     """
     stamps = np.asarray(stamp_s, dtype=float)
     boots = np.asarray(boot_s, dtype=float)
     out = np.zeros(len(stamps), dtype=np.int64)
+    timed = np.flatnonzero(np.isfinite(boots))
     segment, top_boot, top_stamp = 0, -math.inf, -math.inf
-    for i in np.flatnonzero(np.isfinite(boots)):  # a Python loop: one comparison per message, ~10^5 in a log
+    for k, i in enumerate(timed):  # a Python loop: one comparison per message, ~10^5 in a log
         boot, stamp = boots[i], stamps[i]
         if boot < top_boot - REBOOT_S and stamp >= top_stamp:
+            if _goes_on(stamps, boots, timed[k + 1:], stamp + REPEAT_WINDOW_S, top_stamp - top_boot):
+                continue  # a late repeat: the boot's own stream goes on
             segment += 1
             out[i:] = segment
             top_boot, top_stamp = boot, stamp
         elif boot > top_boot:
             top_boot, top_stamp = boot, stamp
     return out
+
+
+def _goes_on(stamps: NDArray, boots: NDArray, later: NDArray[np.intp], until_s: float, offset_s: float) -> bool:
+    """Whether a message of `later` (indices, in log order) received up to until_s is on the clock of the current
+    boot: its receive time minus boot time within REBOOT_S of offset_s, that boot's (a reboot moves it by more)."""
+    for j in later:
+        if stamps[j] > until_s:
+            return False
+        if abs(stamps[j] - boots[j] - offset_s) <= REBOOT_S:
+            return True
+    return False
 
 
 def yaw_between_deg(t0_s: float, yaw0_deg: float, t1_s: float, yaw1_deg: float, t_s: float) -> float:

@@ -59,3 +59,18 @@ def test_a_later_jump_of_the_vehicles_clock_is_warned_and_the_records_keep_their
     records = wait_until(lambda: len(feed.records()) == 24 and feed.records(), 5.0, "the later records")
     assert [r.t for r in records[:len(first)]] == pytest.approx([r.t for r in first])
     assert [r.t for r in records] == pytest.approx([f.t for f in flight + later], abs=2e-3)
+
+
+def test_a_system_id_not_on_the_link_names_the_systems_that_are():
+    """--mavlink-system-id 7 on a link where only system 1 sends positions: the timeout says whose came."""
+    from agent.mavlink_feed import MavlinkUdpFeed
+
+    port = free_udp_port()
+    feed = MavlinkUdpFeed(f"udp:127.0.0.1:{port}", system_id=7)
+    try:
+        replay_udp(flight_packets(_flight()), port, rounds=1)
+        with pytest.raises(ValueError, match=r"within 1 s \(\d+ datagrams received; positions came from system 1 "
+                                             r"only\)"):
+            feed.start(timeout_s=1.0)
+    finally:
+        feed.close()

@@ -72,6 +72,20 @@ def test_a_boot_time_going_back_while_the_log_goes_on_is_a_new_boot(first_s, aga
     assert boot_segments(stamps, boots).tolist() == [0] * 21 + [1] * 5
 
 
+@settings(max_examples=100, deadline=None)
+@given(late_s=st.floats(REBOOT_S + 0.1, 60), burst=st.integers(1, 40), rate=st.sampled_from([5.0, 10.0, 50.0]))
+def test_a_burst_repeated_late_while_the_stream_goes_on_is_no_reboot(late_s, burst, rate):
+    """A link buffer flushed: `burst` messages of boot time 10 s.. received `late_s` later, between the stream's own
+    messages (it was taken for a reboot: a warning and duplicate records)."""
+    boots = np.arange(0.0, 120.0, 1.0 / rate)
+    stamps = 1e9 + boots
+    repeat = boots[(boots >= 10.0) & (boots < 10.0 + late_s)][:burst]  # what the stream had sent by then
+    at = np.searchsorted(stamps, stamps[0] + 10.0 + late_s)
+    boots = np.r_[boots[:at], repeat, boots[at:]]
+    stamps = np.r_[stamps[:at], stamps[at - 1] + 1e-4 * np.arange(1, len(repeat) + 1), stamps[at:]]
+    assert boot_segments(stamps, boots).tolist() == [0] * len(boots)
+
+
 def test_late_repeats_and_small_disorder_are_no_reboot():
     boots = np.array([10.0, 11.0, 12.0, 10.5, 13.0, 2.0, 14.0])
     stamps = np.array([1.0, 2.0, 3.0, 3.1, 4.0, 1.5, 5.0])  # 2.0: a repeat logged with its old receive time
