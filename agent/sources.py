@@ -243,7 +243,8 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None, hei
 
 def video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
                     pitch_deg: float | None = None, heading_deg: float | None = None,
-                    need_angles: bool = False, system_id: int | None = None) -> tuple[list[Telemetry], float | None]:
+                    need_angles: bool = False, system_id: int | None = None,
+                    utc_offset_h: float | None = None) -> tuple[list[Telemetry], float | None]:
     """Telemetry records of a video, checked for what georeferencing needs, and the telemetry time of video time 0.
 
     Parameters
@@ -265,6 +266,9 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     system_id : int, optional
         The MAVLink system id of the vehicle in a ``.tlog`` that holds several (`--mavlink-system-id`; default: the
         one with the most positions, a warning names the others); ValueError for another kind of file.
+    utc_offset_h : float, optional
+        Hours a DJI SRT's date lines are ahead of UTC (`--telemetry-utc-offset-h`: DJI writes the drone's local
+        time without a zone; 2 for CEST); None reads them as UTC. ValueError for another kind of file.
 
     Returns
     -------
@@ -292,6 +296,12 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         if suffix != ".tlog":
             raise ValueError(f"--mavlink-system-id applies to a MAVLink .tlog or a udp:HOST:PORT stream, not {path}")
         kw["system_id"] = int(system_id)
+    if utc_offset_h is not None:
+        if suffix != ".srt":
+            raise ValueError(f"--telemetry-utc-offset-h applies to a DJI .srt (whose dates are local time), not {path}")
+        if not (math.isfinite(utc_offset_h) and -14.0 <= utc_offset_h <= 14.0):
+            raise ValueError(f"--telemetry-utc-offset-h {utc_offset_h!r} must be hours within -14 .. 14")
+        kw["utc_offset_s"] = float(utc_offset_h) * 3600.0
     if kw and suffix == ".json":
         raise ValueError(f"--height-offset-m applies to .srt and .csv telemetry, not {path} (SeaDronesSee altitude "
                          "is already height above the water)")
@@ -437,7 +447,7 @@ class VideoSource:
                  height_m: float | None = None, height_offset_m: float | None = None,
                  providers: Sequence[str] = ("CPUExecutionProvider",), slices: SliceGrid | None = None,
                  slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0,
-                 system_id: int | None = None) -> None:
+                 system_id: int | None = None, utc_offset_h: float | None = None) -> None:
         from agent.detector import OnnxYoloDetector
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
         from agent.slicing import SlicedDetector
@@ -457,7 +467,8 @@ class VideoSource:
         if not live:
             self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                           pitch_deg=pitch_deg, heading_deg=heading_deg,
-                                                          need_angles=True, system_id=system_id)
+                                                          need_angles=True, system_id=system_id,
+                                                          utc_offset_h=utc_offset_h)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         self.reader = VideoReader(self.video_path)

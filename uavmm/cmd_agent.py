@@ -56,6 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="--video: " + "MAVLink telemetry (.tlog, udp:HOST:PORT): the vehicle's system id "
                           "when the log or link carries several (default: a .tlog's vehicle with the most positions, a "
                           "live link's first; a warning names the others)")
+    src.add_argument("--telemetry-utc-offset-h", type=float, default=None, metavar="H",
+                     help="--video with a DJI .srt: hours its date lines are ahead of UTC (DJI writes the drone's "
+                          "local time; e.g. 2 for CEST; default: read as UTC)")
     src.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     src.add_argument("--heading-deg", type=float, default=None,
                      help="--video: fixed gimbal heading if telemetry lacks it")
@@ -132,7 +135,7 @@ def source_from_args(args: argparse.Namespace):
                        telemetry_offset_s=args.telemetry_offset_s, class_names=args.class_names,
                        conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
                        height_m=args.height_m, height_offset_m=args.height_offset_m,
-                       system_id=args.mavlink_system_id)
+                       system_id=args.mavlink_system_id, utc_offset_h=args.telemetry_utc_offset_h)
 
 
 def settings_from_args(args: argparse.Namespace):

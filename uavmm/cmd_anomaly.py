@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mavlink-system-id", type=int, default=None, metavar="N",
                    help="--video with a MAVLink .tlog: the vehicle's system id when the log carries several (default: "
                         "the one with the most positions; a warning names the others)")
+    p.add_argument("--telemetry-utc-offset-h", type=float, default=None, metavar="H",
+                   help="--video with a DJI .srt: hours its date lines are ahead of UTC (DJI writes the drone's "
+                        "local time; e.g. 2 for CEST; default: read as UTC)")
     p.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     p.add_argument("--heading-deg", type=float, default=None,
                    help="--video: fixed gimbal heading if telemetry lacks it")
@@ -103,7 +106,7 @@ def run_anomaly(args: argparse.Namespace) -> int:
         raise ValueError("--video needs --telemetry FILE")
     if args.frames is not None and args.telemetry is not None:
         raise ValueError("--telemetry goes with --video (--frames carries its telemetry in images.json meta)")
-    for flag in ("height_offset_m", "pitch_deg", "heading_deg", "mavlink_system_id"):
+    for flag in ("height_offset_m", "pitch_deg", "heading_deg", "mavlink_system_id", "telemetry_utc_offset_h"):
         if args.frames is not None and getattr(args, flag) is not None:
             raise ValueError(f"--{flag.replace('_', '-')} goes with --video (--frames carries its telemetry in "
                              "images.json meta)")
@@ -117,7 +120,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
               else iter(VideoFrames(args.video, args.telemetry, camera, height_m=args.height_m,
                                     telemetry_offset_s=args.telemetry_offset_s, height_offset_m=args.height_offset_m,
                                     pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
-                                    system_id=args.mavlink_system_id)))
+                                    system_id=args.mavlink_system_id,
+                                    utc_offset_h=args.telemetry_utc_offset_h)))
     detector = AnomalyDetector(cfg, method)
     results = []
     video = None

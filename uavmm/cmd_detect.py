@@ -65,6 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="MAVLink telemetry (.tlog, udp:HOST:PORT): the vehicle's system id "
                           "when the log or link carries several (default: a .tlog's vehicle with the most positions, a "
                           "live link's first; a warning names the others)")
+    tel.add_argument("--telemetry-utc-offset-h", type=float, default=None, metavar="H",
+                     help="a DJI .srt: hours its date lines are ahead of UTC (DJI writes the drone's local time; "
+                          "e.g. 2 for CEST; default: read as UTC)")
     tel.add_argument("--pitch-deg", type=float, default=None, help="fixed gimbal pitch if telemetry lacks it")
     tel.add_argument("--heading-deg", type=float, default=None, help="fixed gimbal heading if telemetry lacks it")
     tel.add_argument("--height-m", type=float, default=None, metavar="METRES",
@@ -143,7 +146,8 @@ def run(args: argparse.Namespace) -> int:
                          conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
                          height_m=args.height_m, height_offset_m=args.height_offset_m, providers=providers,
                          slices=slices, slice_full_frame=not args.no_full_frame,
-                         telemetry_timeout_s=args.telemetry_timeout_s, system_id=args.mavlink_system_id)
+                         telemetry_timeout_s=args.telemetry_timeout_s, system_id=args.mavlink_system_id,
+                         utc_offset_h=args.telemetry_utc_offset_h)
     progress = ProgressLine(f"detect {args.video.name}", enabled=not args.quiet)
     try:
         summary = run_detect(source, args.out, pipeline_config, size_filter, tracker_config, options=options,

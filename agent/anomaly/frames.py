@@ -65,7 +65,7 @@ class VideoFrames:
                  telemetry_offset_s: float | None = None, max_gap_s: float = 1.0,
                  height_m: float | None = None, height_offset_m: float | None = None,
                  pitch_deg: float | None = None, heading_deg: float | None = None,
-                 system_id: int | None = None) -> None:
+                 system_id: int | None = None, utc_offset_h: float | None = None) -> None:
         from agent.sources import resolve_video_telemetry, video_start_time, video_telemetry
         from agent.video_decode import VideoReader
 
@@ -87,7 +87,8 @@ class VideoFrames:
         # without gimbal angles (and no --pitch-deg / --heading-deg) the frames have no pose: the per-frame
         # heatmap still runs, so the file is not refused (need_angles off: a warning says why)
         records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
-                                                 pitch_deg=pitch_deg, heading_deg=heading_deg, system_id=system_id)
+                                                 pitch_deg=pitch_deg, heading_deg=heading_deg, system_id=system_id,
+                                                 utc_offset_h=utc_offset_h)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
         self.height_m = height_m

@@ -167,6 +167,29 @@ def test_video_source_reads_the_vehicle_given_of_a_tlog_with_several(tmp_path, c
         VideoSource(video, srt, model, camera, system_id=2)
 
 
+def test_an_srts_local_dates_are_put_on_utc_with_the_offset_given(tmp_path):
+    """DJI writes the drone's local time: --telemetry-utc-offset-h 2 (CEST) moves every frame's time 2 h back to
+    UTC (a UNIX --telemetry-offset-s, and another UAV's UTC log, then meet it) and leaves the poses as they were."""
+    video = _write_video(tmp_path / "flight.avi", 12)
+    srt = tmp_path / "flight.srt"
+    blocks = [f"{i + 1}\n00:00:00,{100 * i:03d} --> 00:00:00,{100 * i + 100:03d}\n2023-06-01 12:00:00.{100 * i:03d}\n"
+              f"[latitude: {48.53 + 1e-5 * i:.6f}] [longitude: 9.06] [rel_alt: 30.0 abs_alt: 400.0] "
+              f"[gb_yaw: 10.0 gb_pitch: -60.0 gb_roll: 0.0]\n\n" for i in range(10)]
+    srt.write_text("".join(blocks))
+    model = _write_model(tmp_path / "model.onnx")
+    local = list(VideoSource(video, srt, model, "dji-mavic2-pro").frames())
+    utc = list(VideoSource(video, srt, model, "dji-mavic2-pro", utc_offset_h=2.0).frames())
+    assert local[0].t == pytest.approx(1685620800.0)  # 2023-06-01 12:00:00 read as UTC
+    assert [b.t for b in utc] == pytest.approx([a.t - 7200.0 for a in local])
+    assert [b.pose for b in utc] == [a.pose for a in local]
+    csv = tmp_path / "flight.csv"
+    csv.write_text("time_s,lat,lon,height_m,pitch_deg,heading_deg\n0,48.53,9.06,30,60,10\n1,48.53,9.06,30,60,10\n")
+    with pytest.raises(ValueError, match="--telemetry-utc-offset-h applies to a DJI .srt"):
+        VideoSource(video, csv, model, "dji-mavic2-pro", utc_offset_h=2.0)
+    with pytest.raises(ValueError, match="must be hours within -14 .. 14"):
+        VideoSource(video, srt, model, "dji-mavic2-pro", utc_offset_h=20.0)
+
+
 def test_video_source_makes_a_preset_at_the_videos_size_without_a_warning(tmp_path, caplog):
     video = _write_video(tmp_path / "flight.avi", 2, size=(320, 240))  # 4:3 frames, a preset made at their size
     telemetry = tmp_path / "flight.csv"
