@@ -259,6 +259,10 @@ REPLAY_SYNC_MIN_LEAD_S = 0.5
 #: ... and only a clock whose rate (over the last second or more of its states) is within this share of this
 #: agent's speed.
 REPLAY_SYNC_RATE_TOL = 0.2
+#: Another UAV's source clock this close (s) to a whole number of TIME_ZONE_STEP_S from this agent's is taken for
+#: a time zone (said once; time zones differ by half hours at the least, bar three quarter-hour ones).
+TIME_ZONE_STEP_S = 1800.0
+TIME_ZONE_TOL_S = 60.0
 
 
 class AgentNode:
@@ -339,12 +343,26 @@ class AgentNode:
         # only clocks that run at this agent's speed: a replay played faster would drag it along (the link keeps
         # no clock of this UAV's own states)
         clocks = self.link.partner_clocks.read(REPLAY_SYNC_MAX_AGE_S)
+        self._say_time_zones(clocks, mine)
         lead = max((t + age * s.speed - mine for _, t, age, rate in clocks
                     if rate is not None and abs(rate - s.speed) <= REPLAY_SYNC_RATE_TOL * s.speed), default=0.0)
         if REPLAY_SYNC_MIN_LEAD_S < lead <= s.replay_sync_s:
             self._clock0 = (t0, w0 - lead / s.speed)
             self.counts["replay_sync_s"] += lead
             log.info("agent %s: another UAV's clock is %.2f s ahead: catching up", s.uav_id, lead)
+
+    def _say_time_zones(self, clocks: list[tuple[str, float, float, float | None]], mine: float) -> None:
+        """Warn once per UAV whose source clock is a whole number of half hours from this agent's (+-1 min): two
+        time zones, most likely a DJI SRT's local dates beside a UTC log, which no replay sync bridges."""
+        warned = self.__dict__.setdefault("_zone_warned", set())
+        for uav, t, age, _ in clocks:
+            apart = t + age * self.settings.speed - mine
+            zones = round(apart / TIME_ZONE_STEP_S)
+            if uav not in warned and zones and abs(apart - zones * TIME_ZONE_STEP_S) <= TIME_ZONE_TOL_S:
+                warned.add(uav)
+                log.warning("agent %s: %s's clock is %+.2f h from this agent's: two time zones? A DJI SRT's dates are "
+                            "the drone's local time (--telemetry-utc-offset-h puts them on UTC); replays this far "
+                            "apart are not lined up", self.settings.uav_id, uav, apart / 3600.0)
 
     def _frames(self) -> Iterator[SourceFrame]:
         offset = 0.0

@@ -87,3 +87,12 @@ def test_replay_sync_must_be_a_finite_non_negative_number():
     for bad in (-1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="replay_sync_s"):
             AgentSettings(uav_id="uav1", replay_sync_s=bad)
+
+
+def test_a_uav_whole_hours_apart_is_named_as_a_time_zone(server, caplog):
+    """A DJI SRT's local dates (CEST) beside a UTC log: 2 h apart, no sync; one warning names the flag."""
+    with caplog.at_level("WARNING", logger="agent.node"):
+        node, _ = _run_with_partner(server, 7200.0 + 12.0)
+    assert node.counts["replay_sync_s"] == 0.0
+    warned = [r.getMessage() for r in caplog.records if "time zones" in r.getMessage()]
+    assert len(warned) == 1 and "uav2's clock is +2.00 h" in warned[0] and "--telemetry-utc-offset-h" in warned[0]
