@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import logging
 import math
+import statistics
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -244,7 +245,8 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None, hei
 def video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
                     pitch_deg: float | None = None, heading_deg: float | None = None,
                     need_angles: bool = False, system_id: int | None = None,
-                    utc_offset_h: float | None = None) -> tuple[list[Telemetry], float | None]:
+                    utc_offset_h: float | None = None,
+                    camera_hfov_deg: float | None = None) -> tuple[list[Telemetry], float | None]:
     """Telemetry records of a video, checked for what georeferencing needs, and the telemetry time of video time 0.
 
     Parameters
@@ -269,6 +271,9 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     utc_offset_h : float, optional
         Hours a DJI SRT's date lines are ahead of UTC (`--telemetry-utc-offset-h`: DJI writes the drone's local
         time without a zone; 2 for CEST); None reads them as UTC. ValueError for another kind of file.
+    camera_hfov_deg : float, optional
+        The camera file's horizontal field of view: KLV whose fields of view (tag 16) differ from it by more than
+        15 %, or change during the flight (a zoom), gets a warning (they are not applied to the camera).
 
     Returns
     -------
@@ -316,6 +321,8 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     elif suffix in KLV_FILE_SUFFIXES:
         klv = read_klv_report(path, **kw)  # logs what it skipped
         records, video_start_t = klv.records, klv.video_start_t
+        if camera_hfov_deg is not None:
+            _check_klv_field_of_view(path, [s.hfov_deg for s in klv.samples if s.hfov_deg], camera_hfov_deg)
         above_sea_level_only, sea_level_name = klv.heights_above_sea_level_only, "KLV sensor altitude, no frame centre"
     else:
         records = read_telemetry(path, **kw)
@@ -352,6 +359,30 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
             log.info("telemetry %s: %d of %d records have no gimbal %s: using %s %g", path, missing, len(records),
                      name, flag, value)
     return records, video_start_t
+
+
+def _hfov_deg(camera: str | Path) -> float | None:
+    """The horizontal field of view of a camera file or preset, None when it cannot be read (the video source says
+    why when it loads the camera, after the telemetry's checks)."""
+    try:
+        cam = Camera.from_spec(camera)
+    except (ValueError, OSError):
+        return None
+    return 2.0 * math.degrees(math.atan2(cam.width / 2.0, cam.fx))
+
+
+def _check_klv_field_of_view(path: str | Path, hfovs: list[float], camera_hfov_deg: float) -> None:
+    """Warn when the KLV's horizontal fields of view (deg) differ from the camera file's by more than 15 % or vary by
+    more than that during the flight: a zoom lens, whose focal length the camera file does not follow (a box's
+    ground point scales with it: 40 m where the truth is 4 m at 8 against 65 deg in a probe)."""
+    if not hfovs:
+        return
+    lo, mid, hi = min(hfovs), statistics.median(hfovs), max(hfovs)
+    if abs(mid / camera_hfov_deg - 1.0) > 0.15 or hi / lo > 1.15:
+        log.warning("telemetry %s: the KLV's horizontal field of view is %.1f deg (%.1f .. %.1f over the flight) where "
+                    "the camera's is %.1f deg: a zoom lens? Every frame is projected with the camera file's focal "
+                    "length (the KLV's field of view is not applied): give a camera file for the zoom in use",
+                    path, mid, lo, hi, camera_hfov_deg)
 
 
 def _check_span(video: Path, telemetry: Path, reader: VideoReader, start_s: float, end_s: float,
@@ -468,7 +499,7 @@ class VideoSource:
             self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                           pitch_deg=pitch_deg, heading_deg=heading_deg,
                                                           need_angles=True, system_id=system_id,
-                                                          utc_offset_h=utc_offset_h)
+                                                          utc_offset_h=utc_offset_h, camera_hfov_deg=_hfov_deg(camera))
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         self.reader = VideoReader(self.video_path)

@@ -170,10 +170,35 @@ def terrain_from_args(args: argparse.Namespace):
     if args.dem is not None:
         from agent.dem import load_terrain
 
+        _klv_heights_on_the_dem(args)
         return load_terrain(args.dem, args.takeoff_elevation_m)
     if args.takeoff_elevation_m is not None:
         raise CliError("--takeoff-elevation-m needs --dem FILE")
     return None
+
+
+def _klv_heights_on_the_dem(args: argparse.Namespace) -> None:
+    """KLV telemetry with --dem: ST 0601 gives the sensor's altitude above sea level and the frame centre's, and
+    without an offset the reader takes their difference, the height above the ground where the camera looks, which
+    the DEM would then count from the take-off's elevation (13.7 m off on a 20 % slope in a probe). With neither
+    --height-offset-m nor --takeoff-elevation-m the heights are the sensor's altitude above sea level and the
+    take-off elevation 0 (the DEM's datum: sea level for SRTM and most GeoTIFFs); with one of them alone a warning."""
+    from shared.telemetry import KLV_FILE_SUFFIXES
+
+    telemetry = getattr(args, "telemetry", None)
+    if telemetry is None or getattr(args, "height_offset_m", "absent") == "absent":
+        return
+    klv = str(telemetry) == "klv" or Path(str(telemetry)).suffix.lower() in KLV_FILE_SUFFIXES
+    if not klv:
+        return
+    if args.height_offset_m is None and args.takeoff_elevation_m is None:
+        args.height_offset_m, args.takeoff_elevation_m = 0.0, 0.0
+        log.info("KLV telemetry on the DEM %s: heights are the sensor's altitude above sea level and the take-off "
+                 "elevation 0 (the DEM's datum; give --height-offset-m and --takeoff-elevation-m otherwise)", args.dem)
+    elif args.height_offset_m is None or args.takeoff_elevation_m is None:
+        log.warning("KLV telemetry on the DEM %s with only one of --height-offset-m and --takeoff-elevation-m: the "
+                    "KLV's heights above sea level go with --height-offset-m 0 --takeoff-elevation-m 0 (both "
+                    "unset does that)", args.dem)
 
 
 def _add_clock_offset_flags(g: argparse._ArgumentGroup, *, fallback: str | None = None) -> None:

@@ -54,8 +54,12 @@ class KlvReport:
         Samples without sensor latitude / longitude (no record).
     no_pitch : int
         Records without pitch: the camera above the horizon or past nadir.
+    attitude_out_of_range : int
+        Records without camera angles because the platform pitch or roll was sent as "out of range" (a dive or a
+        bank beyond tags 6 / 7, no full-range tag 90 / 91): the line of sight is unknown, not level.
     unknown_tags : dict of int to int
-        Tags this reader does not decode -> how often they came (skipped).
+        Tags this reader does not decode and does not know as unused (slant range, corner points, ...) -> how
+        often they came (skipped).
     skipped_bytes : int
         Bytes outside decoded packets (garbage between packets, the bytes of skipped ones).
     video_start_t : float or None
@@ -81,6 +85,7 @@ class KlvReport:
     no_time: int = 0
     no_position: int = 0
     no_pitch: int = 0
+    attitude_out_of_range: int = 0
     unknown_tags: dict[int, int] = field(default_factory=dict)
     skipped_bytes: int = 0
     video_start_t: float | None = None
@@ -91,7 +96,7 @@ class KlvReport:
     def problems(self) -> dict[str, int]:
         """The non-zero counts of skipped packets and items and of records without pitch, by reason."""
         names = ("bad_checksum", "missing_checksum", "truncated", "malformed", "bad_items", "no_time",
-                 "no_position", "no_pitch")
+                 "no_position", "no_pitch", "attitude_out_of_range")
         return {name: getattr(self, name) for name in names if getattr(self, name)}
 
 
@@ -103,13 +108,15 @@ def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, 
             sample = replace(sample, video_time_s=(pts - video_start_pts) / PTS_HZ)
         samples.append(sample)
     timed = [s.t - s.video_time_s for s in samples if s.video_time_s is not None]
-    records, no_position, no_pitch, above_sea_level_only = [], 0, 0, 0
+    records, no_position, no_pitch, above_sea_level_only, attitude_out_of_range = [], 0, 0, 0, 0
     for sample in samples:
         record = sample.to_telemetry(height_offset_m)
         if record is None:
             no_position += 1
             continue
-        no_pitch += record.pitch_deg is None and sample.sensor_rel_elevation_deg is not None
+        no_pitch += (record.pitch_deg is None and sample.sensor_rel_elevation_deg is not None
+                     and not sample.attitude_out_of_range)
+        attitude_out_of_range += sample.attitude_out_of_range and sample.sensor_rel_elevation_deg is not None
         above_sea_level_only += record.height_m is None and sample.sensor_alt_msl_m is not None
         records.append(record)
     records.sort(key=lambda r: r.t)
@@ -117,7 +124,8 @@ def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, 
         source=source, records=records, samples=tuple(samples), packets=decoder.packets, decoded=decoder.decoded,
         bad_checksum=decoder.bad_checksum, missing_checksum=decoder.missing_checksum, truncated=decoder.truncated,
         malformed=decoder.malformed, bad_items=decoder.bad_items, no_time=decoder.no_time, no_position=no_position,
-        no_pitch=no_pitch, unknown_tags=dict(sorted(decoder.unknown_tags.items())),
+        no_pitch=no_pitch, attitude_out_of_range=attitude_out_of_range,
+        unknown_tags=dict(sorted(decoder.unknown_tags.items())),
         skipped_bytes=decoder.bytes_seen - decoder.bytes_decoded,
         video_start_t=statistics.median(timed) if timed else None,
         heights_missing=sum(r.height_m is None for r in records), heights_above_sea_level_only=above_sea_level_only,

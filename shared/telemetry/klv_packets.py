@@ -19,6 +19,7 @@ treated as absent. Other tags are counted by number and skipped.
 
 from __future__ import annotations
 
+import math
 from collections import Counter
 from dataclasses import dataclass, field
 
@@ -140,6 +141,12 @@ _ITEMS: dict[int, _Item] = {
     90: _Item("platform_pitch_deg", 4, -90.0, 90.0, signed=True),  # after tag 6: the full-range value wins
     91: _Item("platform_roll_deg", 4, -90.0, 90.0, signed=True),
 }
+#: The short platform attitude items, whose "out of range" value means beyond their range, and the full-range ones.
+_SHORT_ATTITUDE_TAGS = frozenset({6, 7})
+_FULL_RANGE_ATTITUDE_TAGS = frozenset({90, 91})
+#: Items read and not used (slant range, target width, ...): not reported as "not decoded".
+KNOWN_UNUSED_TAGS = frozenset({3, 4, 8, 9, 10, 11, 12, 21, 22, 26, 27, 28, 29, 30, 31, 32, 33, 47, 56, 57, 59, 64,
+                               72, 82, 83, 84, 85, 86, 87, 88, 89, 94})
 
 
 @dataclass
@@ -165,6 +172,9 @@ class KlvDecoder:
     unknown_tags: Counter[int] = field(default_factory=Counter)
     samples: list[tuple[KlvSample, int | None]] = field(default_factory=list)
     held: dict[str, tuple[float | int, float]] = field(default_factory=dict)
+    #: Short platform pitch / roll items (tags 6, 7) sent as "out of range" with no full-range value to stand in.
+    attitude_out_of_range: int = 0
+    _full_range_t: dict[str, float] = field(default_factory=dict)  # field -> time of its last tag 90 / 91 value
 
     def feed(self, data: bytes, pts: int | None = None, *, final: bool = True) -> int:
         """Decode the packets in `data`; returns the bytes consumed.
@@ -247,17 +257,28 @@ class KlvDecoder:
                 continue
             spec = _ITEMS.get(tag)
             if spec is None:
-                self.unknown_tags[tag] += 1
+                if tag not in KNOWN_UNUSED_TAGS:
+                    self.unknown_tags[tag] += 1
                 continue
             raw = items[tag]
             if len(raw) != spec.size:
                 self.bad_items += 1
                 continue
             value = spec.decode(raw)
-            if value is None:
+            if value is None and tag in _SHORT_ATTITUDE_TAGS:
+                # "out of range" of the short item (pitch beyond +-20 deg, roll beyond +-50: a dive, a bank): a
+                # full-range value (tags 90, 91) held from a recent packet still stands; else the attitude is
+                # unknown now, which is not level (NaN: the camera's angles cannot be composed)
+                full = self._full_range_t.get(spec.field)
+                if full is None or abs(t - full) > self.max_hold_s:
+                    self.held[spec.field] = (math.nan, t)
+                    self.attitude_out_of_range += 1
+            elif value is None:
                 self.held.pop(spec.field, None)  # "unknown now": an older value must not stand in
             else:
                 self.held[spec.field] = (value, t)
+                if tag in _FULL_RANGE_ATTITUDE_TAGS:
+                    self._full_range_t[spec.field] = t
         values = {name: value for name, (value, t_item) in self.held.items() if abs(t - t_item) <= self.max_hold_s}
         self.samples.append((KlvSample(t=t, **values), pts))  # type: ignore[arg-type]
 

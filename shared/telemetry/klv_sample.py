@@ -83,7 +83,8 @@ class KlvSample:
         Presentation time in the video, seconds after its first frame (from the PES PTS of a transport stream
         with video); None for raw KLV files or metadata without a PTS.
     platform_heading_deg, platform_pitch_deg, platform_roll_deg : float or None
-        Aircraft attitude: heading clockwise from true north, pitch nose up, roll right wing down.
+        Aircraft attitude: heading clockwise from true north, pitch nose up, roll right wing down; NaN pitch or roll:
+        sent as "out of range" (beyond the short items' +-20 / +-50 deg, no full-range item).
     sensor_lat, sensor_lon : float or None
         WGS84 position of the sensor.
     sensor_alt_msl_m, sensor_hae_m : float or None
@@ -134,10 +135,12 @@ class KlvSample:
         Without ``height_offset_m``: sensor altitude - frame centre elevation (both above MSL), else the same
         with the ellipsoid heights (tags 75, 78): the height above the terrain where the camera looks, equal to
         the height above the ground below the UAV over level ground. With ``height_offset_m`` (minus the ground
-        elevation above MSL, as ``--height-offset-m`` gives it): sensor altitude + offset.
+        elevation above MSL, as ``--height-offset-m`` gives it): sensor altitude + offset (the height above the
+        ellipsoid, tag 75, where no altitude above MSL is sent: the offset is then minus the ground's).
         """
         alt = self.sensor_alt_msl_m
-        if height_offset_m is not None:
+        if height_offset_m is not None:  # above MSL, else above the ellipsoid (a stream with tag 75 only)
+            alt = alt if alt is not None else self.sensor_hae_m
             return None if alt is None else alt + height_offset_m
         if alt is not None and self.frame_center_elevation_m is not None:
             return alt - self.frame_center_elevation_m
@@ -145,14 +148,22 @@ class KlvSample:
             return self.sensor_hae_m - self.frame_center_hae_m
         return None
 
+    @property
+    def attitude_out_of_range(self) -> bool:
+        """The platform pitch or roll was sent as "out of range" (NaN): beyond tags 6 / 7, with no tag 90 / 91."""
+        return any(v is not None and math.isnan(v) for v in (self.platform_pitch_deg, self.platform_roll_deg))
+
     def camera_angles(self) -> tuple[float | None, float | None, float]:
         """(heading or None, depression or None, roll) of the camera, by `camera_angles_deg`.
 
-        Missing platform pitch / roll and sensor azimuth / roll count as 0. No platform heading: heading None.
+        Missing platform pitch / roll and sensor azimuth / roll count as 0; a pitch or roll sent as "out of range"
+        (NaN, `attitude_out_of_range`) leaves heading and depression None. No platform heading: heading None.
         No sensor relative elevation: depression None, heading = platform heading + azimuth, roll 0 (a camera
         fixed on the airframe: its tilt comes from ``--pitch-deg``).
         """
         azimuth = self.sensor_rel_azimuth_deg or 0.0
+        if self.attitude_out_of_range and self.sensor_rel_elevation_deg is not None:
+            return None, None, 0.0  # a dive or a bank beyond the short items' range: the line of sight is unknown
         if self.sensor_rel_elevation_deg is None:
             heading = None if self.platform_heading_deg is None else wrap360(self.platform_heading_deg + azimuth)
             return heading, None, 0.0

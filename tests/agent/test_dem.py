@@ -111,3 +111,29 @@ def test_load_terrain_carries_the_takeoff_elevation(tmp_path):
     terrain = load_terrain(path, 95.0)
     assert terrain.takeoff_elevation_m == 95.0 and terrain.grid.shape == (2, 2)
     assert load_terrain(path).takeoff_elevation_m is None
+
+
+@pytest.mark.parametrize(("telemetry", "given", "expected"), [
+    ("klv", {}, (0.0, 0.0)),                                  # both unset: MSL altitudes on the DEM's datum
+    ("flight.ts", {}, (0.0, 0.0)),
+    ("klv", {"height_offset_m": -450.0}, (-450.0, None)),    # one given: left as given, with a warning
+    ("flight.srt", {}, (None, None)),                         # not KLV: heights above take-off, as always
+])
+def test_klv_heights_on_a_dem_are_altitudes_above_sea_level(tmp_path, caplog, telemetry, given, expected):
+    """ST 0601's heights without an offset are above the frame centre's ground; the DEM counted them from the
+    take-off elevation under the first pose (13.7 m off on a 20 % slope in a probe)."""
+    import argparse
+
+    from uavmm.cli import terrain_from_args
+
+    path = tmp_path / "dem.npz"
+    write_npz(path, ElevationGrid(np.full((2, 2), 100.0), lat0_deg=47.001, lon0_deg=9.0, lat_step_deg=-0.001,
+                                  lon_step_deg=0.001))
+    args = argparse.Namespace(**{"dem": path, "takeoff_elevation_m": None, "telemetry": telemetry,
+                                 "height_offset_m": None, **given})
+    with caplog.at_level("INFO", logger="uavmm"):
+        terrain = terrain_from_args(args)
+    assert (args.height_offset_m, args.takeoff_elevation_m) == expected
+    assert terrain.takeoff_elevation_m == expected[1]
+    if given:
+        assert "only one of --height-offset-m and --takeoff-elevation-m" in caplog.text

@@ -256,6 +256,26 @@ def test_video_source_takes_the_klv_inside_a_transport_stream(tmp_path):
         VideoSource(avi, "klv", tmp_path / "model.onnx", camera)
 
 
+@pytest.mark.parametrize(("hfovs", "warned"), [((60.0, 60.0), False), ((8.0, 8.0), True), ((60.0, 30.0), True)])
+def test_a_klv_field_of_view_unlike_the_cameras_is_named(tmp_path, caplog, hfovs, warned):
+    """A zooming ISR gimbal: the KLV says 8 deg where the camera file's lens has 65 (a box 100 px off centre put
+    40 m out where it is 4 m), or the field of view changes in flight. The camera file is used; a warning says so."""
+    pytest.importorskip("av")
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    t0 = 1_717_236_000.0
+    klv = [packet(t0 + 0.1 * i, {**FULL_FIELDS, "hfov_deg": hfovs[i * len(hfovs) // 6]}) for i in range(6)]
+    video = write_ts_with_pyav(tmp_path / "flight.ts", klv, fps=10, size=(320, 180))
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))  # 65.2 deg
+    with caplog.at_level("WARNING", logger="agent.sources"):
+        VideoSource(video, "klv", _write_model(tmp_path / "model.onnx"), camera)
+    said = [r.getMessage() for r in caplog.records if "field of view" in r.getMessage()]
+    assert bool(said) == warned
+    if warned:
+        assert "where the camera's is 65.2 deg: a zoom lens?" in said[0]
+
+
 # ---- telemetry without a height: --height-m / --height-offset-m ------------------------------------
 # Mavic 2 Pro firmware that logs the position and no altitude (issue 21), gimbal angles from the flags.
 _SRT_NO_HEIGHT = "".join(

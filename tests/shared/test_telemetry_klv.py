@@ -149,6 +149,30 @@ def test_height_needs_the_frame_centre_or_an_offset_and_falls_back_to_ellipsoid_
     assert ellipsoid.records[0].height_m == pytest.approx(30.0, abs=0.61)
 
 
+def test_an_ellipsoid_height_only_stream_takes_the_height_offset():
+    """A stream with the sensor's height above the ellipsoid (tag 75) and no altitude above MSL (tag 15):
+    --height-offset-m was ignored and the run refused for want of a height."""
+    hae_only = {k: v for k, v in FULL.items() if k not in ("sensor_alt_msl_m", "frame_center_elevation_m")}
+    report = parse_klv_report(packet(T0, {**hae_only, "sensor_hae_m": 560.0}), height_offset_m=-520.0)
+    assert report.records[0].height_m == pytest.approx(40.0, abs=0.31)
+
+
+@pytest.mark.parametrize("which", ["platform_pitch_deg", "platform_roll_deg"])
+def test_a_platform_attitude_out_of_range_gives_no_camera_angles_not_a_level_platform(which):
+    """A 60 deg bank or a 25 deg dive: tags 6 / 7 carry "out of range" (0x8000). It was read as 0 (level): the
+    camera 60 deg off, silently. Now the record has no angles, counted; a full-range tag 90 / 91, sent in the packet
+    or held from a recent one, still stands."""
+    report = parse_klv_report(packet(T0, {**FULL, which: None}))
+    (rec,) = report.records
+    assert rec.pitch_deg is None and rec.heading_deg is None
+    assert report.problems() == {"attitude_out_of_range": 1}
+    full = which.replace("_deg", "_full_deg")
+    held = parse_klv_report(packet(T0, {**FULL, full: 35.0}) + packet(T0 + 0.1, {**FULL, which: None}))
+    assert [r.pitch_deg is not None for r in held.records] == [True, True]
+    assert getattr(held.samples[1], which) == pytest.approx(35.0, abs=1e-3)
+    assert held.problems() == {}
+
+
 # ---- malformed input: counted and skipped ------------------------------------------------------------------
 def test_bad_checksum_packet_is_counted_and_skipped():
     good = _flight(3)
@@ -173,9 +197,12 @@ def test_missing_checksum_and_missing_time_are_counted():
 
 
 def test_unknown_tags_are_counted_and_the_rest_decoded():
-    extra = item(3, b"MISSION-7") + item(200, b"\x01\x02\x03") + item(48, item(1, b"\x01"))  # 200: 2-byte BER-OID
+    """Items the standard defines and this reader does not use (mission id 3, slant range 21, target width 22) are
+    not reported on every run; a security set (48) and tags it does not know are."""
+    extra = (item(3, b"MISSION-7") + item(21, b"\x00\x00\x10\x00") + item(22, b"\x00\x10") + item(200, b"\x01\x02\x03")
+             + item(48, item(1, b"\x01")))  # 200: 2-byte BER-OID
     report = parse_klv_report(packet(T0, FULL, extra=extra))
-    assert report.unknown_tags == {3: 1, 48: 1, 200: 1}
+    assert report.unknown_tags == {48: 1, 200: 1}
     assert report.records[0].pitch_deg == pytest.approx(45.0, abs=1e-6)
 
 
