@@ -66,6 +66,10 @@ class KlvReport:
         above MSL but no frame centre elevation (``height_offset_m`` fixes them).
     ts : TsStats or None
         The transport stream's counts (None for raw KLV).
+    ignored_streams : dict of int to int
+        Further ST 0601 streams of the transport stream, not read (PID -> their ST 0601 packets): a payload with
+        several sensors (EO and IR) writes one stream each, and merged their records would alternate between
+        two cameras. Read is the first stream the PMT lists in the first video's program (else the first listed).
     """
 
     source: str
@@ -87,6 +91,7 @@ class KlvReport:
     heights_missing: int = 0
     heights_above_sea_level_only: int = 0
     ts: TsStats | None = None
+    ignored_streams: dict[int, int] = field(default_factory=dict)
 
     def problems(self) -> dict[str, int]:
         """The non-zero counts of skipped packets and items and of records without pitch, by reason."""
@@ -145,6 +150,20 @@ def parse_klv_report(data: bytes, *, source: str = "<klv>", height_offset_m: flo
     return _report(source, decoder, height_offset_m=height_offset_m, ts=None)
 
 
+def _one_stream(decoders: dict[int, KlvDecoder], ts: TsStats) -> tuple[int | None, dict[int, int]]:
+    """The KLV stream to read when a transport stream has several, and the others' PID -> ST 0601 packets.
+
+    The first the PMT lists in the program of the first video stream, else the first listed; a stream with no
+    ST 0601 packet with a time stamp is passed over (another local set, e.g. a stand-alone VMTI stream).
+    Ignored streams without ST 0601 packets are not named.
+    """
+    video_program = None if ts.video_pid is None else ts.programs.get(ts.video_pid)
+    listed = [pid for pid in dict.fromkeys(ts.metadata_pids) if pid in decoders]
+    listed.sort(key=lambda pid: ts.programs.get(pid) != video_program)  # stable: the video's program first
+    chosen = next((pid for pid in listed if decoders[pid].samples), listed[0] if listed else None)
+    return chosen, {pid: decoders[pid].packets for pid in listed if pid != chosen and decoders[pid].packets}
+
+
 def _no_record_message(report: KlvReport) -> str:
     if report.ts is not None and not report.ts.metadata_pids:
         listed = ", ".join(f"0x{kind:02x} on PID {pid}" for pid, kind in sorted(report.ts.streams.items()))
@@ -195,6 +214,7 @@ def read_klv_report(path: str | Path, *, height_offset_m: float | None = None,
     source = str(path)
     decoder = _decoder(max_hold_s, height_offset_m)
     ts: TsStats | None = None
+    ignored: dict[int, int] = {}
     try:
         with open(path, "rb") as stream:
             if Path(path).suffix.lower() == ".klv":
@@ -205,11 +225,20 @@ def read_klv_report(path: str | Path, *, height_offset_m: float | None = None,
                 decoder.feed(carry)
             else:
                 ts = TsStats()
+                decoders: dict[int, KlvDecoder] = {}
                 for unit in iter_metadata_units(stream, ts, source=source):
-                    decoder.feed(unit.payload, unit.pts)
+                    if unit.pid not in decoders:  # one decoder a stream: items are held within a stream only
+                        decoders[unit.pid] = _decoder(max_hold_s, height_offset_m)
+                    decoders[unit.pid].feed(unit.payload, unit.pts)
+                chosen, ignored = _one_stream(decoders, ts)
+                decoder = decoder if chosen is None else decoders[chosen]
     except OSError as exc:
         raise ValueError(f"{source}: cannot read the file ({exc.strerror or exc})") from None
-    report = _report(source, decoder, height_offset_m=height_offset_m, ts=ts)
+    if ignored:
+        log.warning("telemetry %s: %d ST 0601 KLV streams (one per sensor?); reading PID %s only, ignoring %s",
+                    source, len(ignored) + 1, chosen,
+                    ", ".join(f"PID {pid} ({n} packets)" for pid, n in ignored.items()))
+    report = replace(_report(source, decoder, height_offset_m=height_offset_m, ts=ts), ignored_streams=ignored)
     if not report.records:
         raise ValueError(_no_record_message(report))
     _log_report(report)
