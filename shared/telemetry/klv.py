@@ -19,6 +19,7 @@ from typing import Any
 
 from shared.telemetry.klv_packets import DEFAULT_MAX_HOLD_S, KlvDecoder
 from shared.telemetry.klv_sample import KlvSample
+from shared.telemetry.klv_series import sample_times
 from shared.telemetry.mpegts import PTS_HZ, TsStats, iter_metadata_units
 from shared.telemetry.record import Telemetry
 
@@ -42,7 +43,8 @@ class KlvReport:
     records : list of Telemetry
         One per sample with a sensor position, sorted by ``t`` (UNIX seconds).
     samples : tuple of KlvSample
-        Every decoded packet with a time stamp, in stream order (fields of view, frame centre, raw angles).
+        Every decoded packet with a time stamp, in stream order (fields of view, frame centre, raw angles); their
+        ``t`` is the sample's time (`times_from`).
     packets : int
         Local-set keys found. Of these: decoded, bad_checksum, missing_checksum (no checksum item at the end),
         truncated (cut short), malformed (broken BER inside a checked packet, or an absurd length).
@@ -70,6 +72,13 @@ class KlvReport:
         Further ST 0601 streams of the transport stream, not read (PID -> their ST 0601 packets): a payload with
         several sensors (EO and IR) writes one stream each, and merged their records would alternate between
         two cameras. Read is the first stream the PMT lists in the first video's program (else the first listed).
+    repeated_stamps : int
+        Samples whose Precision Time Stamp equals the one before: an encoder holding the stamp (e.g. from the
+        GPS's 1 Hz PPS) while it writes a packet per frame.
+    times_from : str
+        Where the samples' and records' ``t`` come from (`klv_series.sample_times`): "stamps" (no stamp repeats:
+        the stamps themselves), "pts" (stamps repeat: each sample's PTS, on the stamps' clock by the offset where
+        each stamp is new) or "spread" (stamps repeat without PTS: spread evenly between the stamps).
     """
 
     source: str
@@ -92,6 +101,8 @@ class KlvReport:
     heights_above_sea_level_only: int = 0
     ts: TsStats | None = None
     ignored_streams: dict[int, int] = field(default_factory=dict)
+    repeated_stamps: int = 0
+    times_from: str = "stamps"
 
     def problems(self) -> dict[str, int]:
         """The non-zero counts of skipped packets and items and of records without pitch, by reason."""
@@ -102,8 +113,12 @@ class KlvReport:
 
 def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, ts: TsStats | None) -> KlvReport:
     video_start_pts = None if ts is None else ts.video_start_pts
+    times = sample_times([s.t for s, _ in decoder.samples],
+                         [None if pts is None else pts / PTS_HZ for _, pts in decoder.samples])
     samples = []
-    for sample, pts in decoder.samples:
+    for (sample, pts), t in zip(decoder.samples, times.t.tolist(), strict=True):
+        if t != sample.t:
+            sample = replace(sample, t=t)
         if pts is not None and video_start_pts is not None:
             sample = replace(sample, video_time_s=(pts - video_start_pts) / PTS_HZ)
         samples.append(sample)
@@ -126,7 +141,7 @@ def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, 
         skipped_bytes=decoder.bytes_seen - decoder.bytes_decoded,
         video_start_t=statistics.median(timed) if timed else None,
         heights_missing=sum(r.height_m is None for r in records), heights_above_sea_level_only=above_sea_level_only,
-        ts=ts,
+        ts=ts, repeated_stamps=times.repeated, times_from=times.method,
     )
 
 
@@ -239,6 +254,12 @@ def read_klv_report(path: str | Path, *, height_offset_m: float | None = None,
                     source, len(ignored) + 1, chosen,
                     ", ".join(f"PID {pid} ({n} packets)" for pid, n in ignored.items()))
     report = replace(_report(source, decoder, height_offset_m=height_offset_m, ts=ts), ignored_streams=ignored)
+    if report.repeated_stamps:
+        log.info("telemetry %s: %d of %d packets repeat the time stamp before them (held stamps): %s", source,
+                 report.repeated_stamps, len(report.samples),
+                 "their times are their PTS on the stamps' clock (offset where each stamp is new)"
+                 if report.times_from == "pts" else
+                 "without PTS, they are spread evenly up to the next stamp (a whole-second stamp over its second)")
     if not report.records:
         raise ValueError(_no_record_message(report))
     _log_report(report)
