@@ -19,7 +19,7 @@ from typing import Any
 
 from shared.telemetry.klv_packets import DEFAULT_MAX_HOLD_S, KlvDecoder
 from shared.telemetry.klv_sample import KlvSample
-from shared.telemetry.klv_series import sample_times
+from shared.telemetry.klv_series import sample_times, with_positions_in_time
 from shared.telemetry.mpegts import PTS_HZ, TsStats, iter_metadata_units
 from shared.telemetry.record import Telemetry
 
@@ -54,6 +54,11 @@ class KlvReport:
         Decoded packets without a Precision Time Stamp (skipped).
     no_position : int
         Samples without sensor latitude / longitude (no record).
+    no_recent_position : int
+        Samples whose packet sent no sensor position, with no two packets that did within
+        `klv_series.POSITION_BRACKET_S` around them and none within `POSITION_HOLD_S` before (a GPS outage; no
+        record). A position sent less often than the angles is interpolated in time between the packets that sent
+        it (`klv_series.positions_in_time`), not held.
     no_pitch : int
         Records without pitch: the camera above the horizon or past nadir.
     unknown_tags : dict of int to int
@@ -93,6 +98,7 @@ class KlvReport:
     bad_items: int = 0
     no_time: int = 0
     no_position: int = 0
+    no_recent_position: int = 0
     no_pitch: int = 0
     unknown_tags: dict[int, int] = field(default_factory=dict)
     skipped_bytes: int = 0
@@ -107,7 +113,7 @@ class KlvReport:
     def problems(self) -> dict[str, int]:
         """The non-zero counts of skipped packets and items and of records without pitch, by reason."""
         names = ("bad_checksum", "missing_checksum", "truncated", "malformed", "bad_items", "no_time",
-                 "no_position", "no_pitch")
+                 "no_position", "no_recent_position", "no_pitch")
         return {name: getattr(self, name) for name in names if getattr(self, name)}
 
 
@@ -122,12 +128,14 @@ def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, 
         if pts is not None and video_start_pts is not None:
             sample = replace(sample, video_time_s=(pts - video_start_pts) / PTS_HZ)
         samples.append(sample)
+    samples, stale = with_positions_in_time(samples, decoder.sent)
     timed = [s.t - s.video_time_s for s in samples if s.video_time_s is not None]
-    records, no_position, no_pitch, above_sea_level_only = [], 0, 0, 0
-    for sample in samples:
+    records, no_position, no_recent_position, no_pitch, above_sea_level_only = [], 0, 0, 0, 0
+    for sample, position_too_old in zip(samples, stale, strict=True):
         record = sample.to_telemetry(height_offset_m)
         if record is None:
-            no_position += 1
+            no_recent_position += position_too_old
+            no_position += not position_too_old
             continue
         no_pitch += record.pitch_deg is None and sample.sensor_rel_elevation_deg is not None
         above_sea_level_only += record.height_m is None and sample.sensor_alt_msl_m is not None
@@ -137,6 +145,7 @@ def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, 
         source=source, records=records, samples=tuple(samples), packets=decoder.packets, decoded=decoder.decoded,
         bad_checksum=decoder.bad_checksum, missing_checksum=decoder.missing_checksum, truncated=decoder.truncated,
         malformed=decoder.malformed, bad_items=decoder.bad_items, no_time=decoder.no_time, no_position=no_position,
+        no_recent_position=no_recent_position,
         no_pitch=no_pitch, unknown_tags=dict(sorted(decoder.unknown_tags.items())),
         skipped_bytes=decoder.bytes_seen - decoder.bytes_decoded,
         video_start_t=statistics.median(timed) if timed else None,

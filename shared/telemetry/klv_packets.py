@@ -148,7 +148,8 @@ class KlvDecoder:
 
     Feed it the bytes of a stream in order (`feed`). The counts mean what `klv.KlvReport`'s do; bytes_seen and
     bytes_decoded are the bytes consumed and the bytes of decoded packets. samples: (sample, PTS or None) in
-    stream order; held: field -> (last value, time stamp of the packet that gave it).
+    stream order; held: field -> (last value, time stamp of the packet that gave it); sent: per sample, the fields
+    its own packet sent (the others in it are held).
     """
 
     max_hold_s: float = DEFAULT_MAX_HOLD_S
@@ -165,6 +166,7 @@ class KlvDecoder:
     unknown_tags: Counter[int] = field(default_factory=Counter)
     samples: list[tuple[KlvSample, int | None]] = field(default_factory=list)
     held: dict[str, tuple[float | int, float]] = field(default_factory=dict)
+    sent: list[frozenset[str]] = field(default_factory=list)
 
     def feed(self, data: bytes, pts: int | None = None, *, final: bool = True) -> int:
         """Decode the packets in `data`; returns the bytes consumed.
@@ -242,6 +244,7 @@ class KlvDecoder:
             self.no_time += 1  # tag 2 is mandatory: without it the packet has no place in time
             return
         t = int.from_bytes(stamp, "big") / 1e6
+        before = dict(self.held)  # an item the packet sends is stored as a new tuple: `sent` compares identities
         for tag in sorted(items):
             if tag in (_CHECKSUM_TAG, _TIME_TAG):
                 continue
@@ -260,4 +263,5 @@ class KlvDecoder:
                 self.held[spec.field] = (value, t)
         values = {name: value for name, (value, t_item) in self.held.items() if abs(t - t_item) <= self.max_hold_s}
         self.samples.append((KlvSample(t=t, **values), pts))  # type: ignore[arg-type]
+        self.sent.append(frozenset(name for name, entry in self.held.items() if entry is not before.get(name)))
 
