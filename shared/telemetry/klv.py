@@ -19,6 +19,7 @@ from typing import Any
 
 from shared.telemetry.klv_packets import DEFAULT_MAX_HOLD_S, KlvDecoder
 from shared.telemetry.klv_sample import KlvSample
+from shared.telemetry.klv_series import sample_times, with_positions_in_time
 from shared.telemetry.mpegts import PTS_HZ, TsStats, iter_metadata_units
 from shared.telemetry.record import Telemetry
 
@@ -42,7 +43,8 @@ class KlvReport:
     records : list of Telemetry
         One per sample with a sensor position, sorted by ``t`` (UNIX seconds).
     samples : tuple of KlvSample
-        Every decoded packet with a time stamp, in stream order (fields of view, frame centre, raw angles).
+        Every decoded packet with a time stamp, in stream order (fields of view, frame centre, raw angles); their
+        ``t`` is the sample's time (`times_from`).
     packets : int
         Local-set keys found. Of these: decoded, bad_checksum, missing_checksum (no checksum item at the end),
         truncated (cut short), malformed (broken BER inside a checked packet, or an absurd length).
@@ -52,6 +54,11 @@ class KlvReport:
         Decoded packets without a Precision Time Stamp (skipped).
     no_position : int
         Samples without sensor latitude / longitude (no record).
+    no_recent_position : int
+        Samples whose packet sent no sensor position, with no two packets that did within
+        `klv_series.POSITION_BRACKET_S` around them and none within `POSITION_HOLD_S` before (a GPS outage; no
+        record). A position sent less often than the angles is interpolated in time between the packets that sent
+        it (`klv_series.positions_in_time`), not held.
     no_pitch : int
         Records without pitch: the camera above the horizon or past nadir.
     attitude_out_of_range : int
@@ -70,6 +77,17 @@ class KlvReport:
         above MSL but no frame centre elevation (``height_offset_m`` fixes them).
     ts : TsStats or None
         The transport stream's counts (None for raw KLV).
+    ignored_streams : dict of int to int
+        Further ST 0601 streams of the transport stream, not read (PID -> their ST 0601 packets): a payload with
+        several sensors (EO and IR) writes one stream each, and merged their records would alternate between
+        two cameras. Read is the first stream the PMT lists in the first video's program (else the first listed).
+    repeated_stamps : int
+        Samples whose Precision Time Stamp equals the one before: an encoder holding the stamp (e.g. from the
+        GPS's 1 Hz PPS) while it writes a packet per frame.
+    times_from : str
+        Where the samples' and records' ``t`` come from (`klv_series.sample_times`): "stamps" (no stamp repeats:
+        the stamps themselves), "pts" (stamps repeat: each sample's PTS, on the stamps' clock by the offset where
+        each stamp is new) or "spread" (stamps repeat without PTS: spread evenly between the stamps).
     """
 
     source: str
@@ -84,6 +102,7 @@ class KlvReport:
     bad_items: int = 0
     no_time: int = 0
     no_position: int = 0
+    no_recent_position: int = 0
     no_pitch: int = 0
     attitude_out_of_range: int = 0
     unknown_tags: dict[int, int] = field(default_factory=dict)
@@ -92,27 +111,37 @@ class KlvReport:
     heights_missing: int = 0
     heights_above_sea_level_only: int = 0
     ts: TsStats | None = None
+    ignored_streams: dict[int, int] = field(default_factory=dict)
+    repeated_stamps: int = 0
+    times_from: str = "stamps"
 
     def problems(self) -> dict[str, int]:
         """The non-zero counts of skipped packets and items and of records without pitch, by reason."""
         names = ("bad_checksum", "missing_checksum", "truncated", "malformed", "bad_items", "no_time",
-                 "no_position", "no_pitch", "attitude_out_of_range")
+                 "no_position", "no_recent_position", "no_pitch", "attitude_out_of_range")
         return {name: getattr(self, name) for name in names if getattr(self, name)}
 
 
 def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, ts: TsStats | None) -> KlvReport:
     video_start_pts = None if ts is None else ts.video_start_pts
+    times = sample_times([s.t for s, _ in decoder.samples],
+                         [None if pts is None else pts / PTS_HZ for _, pts in decoder.samples])
     samples = []
-    for sample, pts in decoder.samples:
+    for (sample, pts), t in zip(decoder.samples, times.t.tolist(), strict=True):
+        if t != sample.t:
+            sample = replace(sample, t=t)
         if pts is not None and video_start_pts is not None:
             sample = replace(sample, video_time_s=(pts - video_start_pts) / PTS_HZ)
         samples.append(sample)
+    samples, stale = with_positions_in_time(samples, decoder.sent)
     timed = [s.t - s.video_time_s for s in samples if s.video_time_s is not None]
-    records, no_position, no_pitch, above_sea_level_only, attitude_out_of_range = [], 0, 0, 0, 0
-    for sample in samples:
+    records, no_position, no_recent_position, no_pitch, above_sea_level_only = [], 0, 0, 0, 0
+    attitude_out_of_range = 0
+    for sample, position_too_old in zip(samples, stale, strict=True):
         record = sample.to_telemetry(height_offset_m)
         if record is None:
-            no_position += 1
+            no_recent_position += position_too_old
+            no_position += not position_too_old
             continue
         no_pitch += (record.pitch_deg is None and sample.sensor_rel_elevation_deg is not None
                      and not sample.attitude_out_of_range)
@@ -124,12 +153,12 @@ def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, 
         source=source, records=records, samples=tuple(samples), packets=decoder.packets, decoded=decoder.decoded,
         bad_checksum=decoder.bad_checksum, missing_checksum=decoder.missing_checksum, truncated=decoder.truncated,
         malformed=decoder.malformed, bad_items=decoder.bad_items, no_time=decoder.no_time, no_position=no_position,
-        no_pitch=no_pitch, attitude_out_of_range=attitude_out_of_range,
+        no_recent_position=no_recent_position, no_pitch=no_pitch, attitude_out_of_range=attitude_out_of_range,
         unknown_tags=dict(sorted(decoder.unknown_tags.items())),
         skipped_bytes=decoder.bytes_seen - decoder.bytes_decoded,
         video_start_t=statistics.median(timed) if timed else None,
         heights_missing=sum(r.height_m is None for r in records), heights_above_sea_level_only=above_sea_level_only,
-        ts=ts,
+        ts=ts, repeated_stamps=times.repeated, times_from=times.method,
     )
 
 
@@ -151,6 +180,20 @@ def parse_klv_report(data: bytes, *, source: str = "<klv>", height_offset_m: flo
     decoder = _decoder(max_hold_s, height_offset_m)
     decoder.feed(bytes(data))
     return _report(source, decoder, height_offset_m=height_offset_m, ts=None)
+
+
+def _one_stream(decoders: dict[int, KlvDecoder], ts: TsStats) -> tuple[int | None, dict[int, int]]:
+    """The KLV stream to read when a transport stream has several, and the others' PID -> ST 0601 packets.
+
+    The first the PMT lists in the program of the first video stream, else the first listed; a stream with no
+    ST 0601 packet with a time stamp is passed over (another local set, e.g. a stand-alone VMTI stream).
+    Ignored streams without ST 0601 packets are not named.
+    """
+    video_program = None if ts.video_pid is None else ts.programs.get(ts.video_pid)
+    listed = [pid for pid in dict.fromkeys(ts.metadata_pids) if pid in decoders]
+    listed.sort(key=lambda pid: ts.programs.get(pid) != video_program)  # stable: the video's program first
+    chosen = next((pid for pid in listed if decoders[pid].samples), listed[0] if listed else None)
+    return chosen, {pid: decoders[pid].packets for pid in listed if pid != chosen and decoders[pid].packets}
 
 
 def _no_record_message(report: KlvReport) -> str:
@@ -203,6 +246,7 @@ def read_klv_report(path: str | Path, *, height_offset_m: float | None = None,
     source = str(path)
     decoder = _decoder(max_hold_s, height_offset_m)
     ts: TsStats | None = None
+    ignored: dict[int, int] = {}
     try:
         with open(path, "rb") as stream:
             if Path(path).suffix.lower() == ".klv":
@@ -213,11 +257,26 @@ def read_klv_report(path: str | Path, *, height_offset_m: float | None = None,
                 decoder.feed(carry)
             else:
                 ts = TsStats()
+                decoders: dict[int, KlvDecoder] = {}
                 for unit in iter_metadata_units(stream, ts, source=source):
-                    decoder.feed(unit.payload, unit.pts)
+                    if unit.pid not in decoders:  # one decoder a stream: items are held within a stream only
+                        decoders[unit.pid] = _decoder(max_hold_s, height_offset_m)
+                    decoders[unit.pid].feed(unit.payload, unit.pts)
+                chosen, ignored = _one_stream(decoders, ts)
+                decoder = decoder if chosen is None else decoders[chosen]
     except OSError as exc:
         raise ValueError(f"{source}: cannot read the file ({exc.strerror or exc})") from None
-    report = _report(source, decoder, height_offset_m=height_offset_m, ts=ts)
+    if ignored:
+        log.warning("telemetry %s: %d ST 0601 KLV streams (one per sensor?); reading PID %s only, ignoring %s",
+                    source, len(ignored) + 1, chosen,
+                    ", ".join(f"PID {pid} ({n} packets)" for pid, n in ignored.items()))
+    report = replace(_report(source, decoder, height_offset_m=height_offset_m, ts=ts), ignored_streams=ignored)
+    if report.repeated_stamps:
+        log.info("telemetry %s: %d of %d packets repeat the time stamp before them (held stamps): %s", source,
+                 report.repeated_stamps, len(report.samples),
+                 "their times are their PTS on the stamps' clock (offset where each stamp is new)"
+                 if report.times_from == "pts" else
+                 "without PTS, they are spread evenly up to the next stamp (a whole-second stamp over its second)")
     if not report.records:
         raise ValueError(_no_record_message(report))
     _log_report(report)

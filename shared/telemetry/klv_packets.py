@@ -155,7 +155,8 @@ class KlvDecoder:
 
     Feed it the bytes of a stream in order (`feed`). The counts mean what `klv.KlvReport`'s do; bytes_seen and
     bytes_decoded are the bytes consumed and the bytes of decoded packets. samples: (sample, PTS or None) in
-    stream order; held: field -> (last value, time stamp of the packet that gave it).
+    stream order; held: field -> (last value, time stamp of the packet that gave it); sent: per sample, the fields
+    its own packet sent (the others in it are held).
     """
 
     max_hold_s: float = DEFAULT_MAX_HOLD_S
@@ -172,6 +173,7 @@ class KlvDecoder:
     unknown_tags: Counter[int] = field(default_factory=Counter)
     samples: list[tuple[KlvSample, int | None]] = field(default_factory=list)
     held: dict[str, tuple[float | int, float]] = field(default_factory=dict)
+    sent: list[frozenset[str]] = field(default_factory=list)
     #: Short platform pitch / roll items (tags 6, 7) sent as "out of range" with no full-range value to stand in.
     attitude_out_of_range: int = 0
     _full_range_t: dict[str, float] = field(default_factory=dict)  # field -> time of its last tag 90 / 91 value
@@ -252,6 +254,7 @@ class KlvDecoder:
             self.no_time += 1  # tag 2 is mandatory: without it the packet has no place in time
             return
         t = int.from_bytes(stamp, "big") / 1e6
+        before = dict(self.held)  # an item the packet sends is stored as a new tuple: `sent` compares identities
         for tag in sorted(items):
             if tag in (_CHECKSUM_TAG, _TIME_TAG):
                 continue
@@ -281,4 +284,5 @@ class KlvDecoder:
                     self._full_range_t[spec.field] = t
         values = {name: value for name, (value, t_item) in self.held.items() if abs(t - t_item) <= self.max_hold_s}
         self.samples.append((KlvSample(t=t, **values), pts))  # type: ignore[arg-type]
+        self.sent.append(frozenset(name for name, entry in self.held.items() if entry is not before.get(name)))
 

@@ -101,7 +101,9 @@ class TsStats:
     streams : dict of int to int
         PID -> stream_type of every elementary stream in the PMTs.
     metadata_pids : list of int
-        The KLV streams among them.
+        The KLV streams among them, in the order the PMTs list them.
+    programs : dict of int to int
+        PID -> program number of the PMT that lists it (a multi-program stream pairs each video with its KLV).
     pes, pes_cut : int
         Metadata PES read, and of those the ones cut short.
     video_pid : int or None
@@ -119,6 +121,7 @@ class TsStats:
     psi_crc_errors: int = 0
     streams: dict[int, int] = field(default_factory=dict)
     metadata_pids: list[int] = field(default_factory=list)
+    programs: dict[int, int] = field(default_factory=dict)
     pes: int = 0
     pes_cut: int = 0
     video_pid: int | None = None
@@ -307,6 +310,7 @@ class _Demuxer:
                 self.wanted_changed = True
 
     def _pmt(self, section: bytes) -> None:
+        program = (section[3] << 8) | section[4]
         pos = 12 + (((section[10] & 0x0F) << 8) | section[11])
         end = len(section) - 4
         while pos + 5 <= end:
@@ -318,6 +322,7 @@ class _Demuxer:
             if self.stats.streams.get(pid) == stream_type:
                 continue
             self.stats.streams[pid] = stream_type
+            self.stats.programs[pid] = program
             klv = _KLVA in identifiers or (stream_type == STREAM_TYPE_METADATA and not identifiers)
             if klv and stream_type in (STREAM_TYPE_METADATA, STREAM_TYPE_PRIVATE_DATA):
                 self.metadata[pid] = stream_type

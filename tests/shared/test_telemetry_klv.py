@@ -481,3 +481,54 @@ def test_klv_sample_validates_its_time():
         KlvSample(t=math.nan)
     with pytest.raises(ValueError, match=r"KlvSample.video_time_s='1' must be a finite number"):
         KlvSample(t=0.0, video_time_s="1")  # type: ignore[arg-type]
+
+
+# ---- several KLV streams in one transport stream --------------------------------------------------------
+def _two_sensor_ts(order: list[bool], *, programs: bool = False) -> bytes:
+    """EO (KLV PID 0x101, 45 deg down, 40 m up) and IR (PID 0x103, looking left, 20 deg down) packets, 30 each,
+    written in `order` (True: the next EO packet). One program listing video 0x100, EO, video 0x102, IR; or
+    (`programs`) program 1 with IR only, listed first, and program 2 with the video and EO."""
+    from tests.shared.klv_writer import TsWriter, pes, section
+
+    def stream(stream_type: int, pid: int, descriptor: bytes = b"") -> bytes:
+        return bytes([stream_type, 0xE0 | (pid >> 8), pid & 0xFF, 0xF0, len(descriptor)]) + descriptor
+
+    def pmt(program: int, *streams: bytes) -> bytes:
+        return section(0x02, program, bytes([0xE1, 0x00, 0xF0, 0x00]) + b"".join(streams))
+
+    klva = bytes([0x05, 4]) + b"KLVA"
+    ts = TsWriter()
+    if programs:
+        ts.unit(0, section(0x00, 1, bytes([0, 1, 0xF0, 0x00, 0, 2, 0xF0, 0x01])), psi=True)
+        ts.unit(0x1000, pmt(1, stream(0x06, 0x103, klva)), psi=True)
+        ts.unit(0x1001, pmt(2, stream(0x1B, 0x100), stream(0x06, 0x101, klva)), psi=True)
+    else:
+        ts.unit(0, section(0x00, 1, bytes([0, 1, 0xF0, 0x00])), psi=True)
+        ts.unit(0x1000, pmt(1, stream(0x1B, 0x100), stream(0x06, 0x101, klva), stream(0x1B, 0x102),
+                            stream(0x06, 0x103, klva)), psi=True)
+    ts.unit(0x100, pes(0xE0, bytes(300), 9_000, bounded=False))
+    eo = iter(_flight(30))
+    ir = iter(packet(T0 + 0.1 * i + 0.005, {**FULL, "sensor_rel_azimuth_deg": 270.0, "sensor_rel_elevation_deg": -20.0,
+                                            "frame_center_elevation_m": 422.0}) for i in range(30))
+    counts = [0, 0]
+    for take_eo in order + [True] * 30 + [False] * 30:
+        k = int(not take_eo)
+        if counts[k] < 30:
+            ts.unit(0x101 if take_eo else 0x103, pes(0xBD, next(eo if take_eo else ir), 9_000 * (1 + counts[k])))
+            counts[k] += 1
+    return ts.bytes()
+
+
+@settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(order=st.lists(st.booleans(), max_size=60), programs=st.booleans())
+def test_two_sensors_klv_streams_are_not_merged_the_first_videos_one_is_read(tmp_path, order, programs, caplog):
+    # regression: both streams went into one decoder, so records alternated between the EO and the IR camera
+    path = tmp_path / "eo-ir.ts"
+    path.write_bytes(_two_sensor_ts(order, programs=programs))
+    alone = parse_klv_report(b"".join(_flight(30)))
+    caplog.clear()
+    report = read_klv_report(path)
+    assert report.records == alone.records  # EO only: heading 10, pitch 45, 40 m
+    assert report.ignored_streams == {0x103: 30} and report.decoded == 30
+    warned = [r.getMessage() for r in caplog.records if r.levelname == "WARNING"]
+    assert len(warned) == 1 and "reading PID 257 only, ignoring PID 259 (30 packets)" in warned[0]
