@@ -263,6 +263,7 @@ REPLAY_SYNC_RATE_TOL = 0.2
 #: a time zone (said once; time zones differ by half hours at the least, bar three quarter-hour ones).
 TIME_ZONE_STEP_S = 1800.0
 TIME_ZONE_TOL_S = 60.0
+TIME_ZONE_MAX_S = 26 * 3600.0
 
 
 class AgentNode:
@@ -318,6 +319,7 @@ class AgentNode:
         self._t_frame: float | None = None
         self._tracks: list[TrackOutput] = []
         self._clock0: tuple[float, float] | None = None  # (frame t, monotonic) of the first frame
+        self._zone_warned: set[str] = set()  # UAVs whose clock was named as another time zone
         self._started = 0.0
 
     # ---- evidence for the tracker's re-identification ------------------------------------------
@@ -352,14 +354,17 @@ class AgentNode:
             log.info("agent %s: another UAV's clock is %.2f s ahead: catching up", s.uav_id, lead)
 
     def _say_time_zones(self, clocks: list[tuple[str, float, float, float | None]], mine: float) -> None:
-        """Warn once per UAV whose source clock is a whole number of half hours from this agent's (+-1 min): two
-        time zones, most likely a DJI SRT's local dates beside a UTC log, which no replay sync bridges."""
-        warned = self.__dict__.setdefault("_zone_warned", set())
-        for uav, t, age, _ in clocks:
-            apart = t + age * self.settings.speed - mine
+        """Warn once per UAV whose source clock is a whole number of half hours from this agent's (+-1 min, at most
+        26 h, running at this agent's speed): two time zones, most likely a DJI SRT's local dates beside a UTC log,
+        which no replay sync bridges (other days, simulated clocks from 0 and faster replays are not named)."""
+        speed = self.settings.speed
+        for uav, t, age, rate in clocks:
+            apart = t + age * speed - mine
             zones = round(apart / TIME_ZONE_STEP_S)
-            if uav not in warned and zones and abs(apart - zones * TIME_ZONE_STEP_S) <= TIME_ZONE_TOL_S:
-                warned.add(uav)
+            if (uav not in self._zone_warned and zones and abs(apart) <= TIME_ZONE_MAX_S
+                    and abs(apart - zones * TIME_ZONE_STEP_S) <= TIME_ZONE_TOL_S
+                    and rate is not None and abs(rate - speed) <= REPLAY_SYNC_RATE_TOL * speed):
+                self._zone_warned.add(uav)
                 log.warning("agent %s: %s's clock is %+.2f h from this agent's: two time zones? A DJI SRT's dates are "
                             "the drone's local time (--telemetry-utc-offset-h puts them on UTC); replays this far "
                             "apart are not lined up", self.settings.uav_id, uav, apart / 3600.0)

@@ -182,23 +182,36 @@ def _klv_heights_on_the_dem(args: argparse.Namespace) -> None:
     without an offset the reader takes their difference, the height above the ground where the camera looks, which
     the DEM would then count from the take-off's elevation (13.7 m off on a 20 % slope in a probe). With neither
     --height-offset-m nor --takeoff-elevation-m the heights are the sensor's altitude above sea level and the
-    take-off elevation 0 (the DEM's datum: sea level for SRTM and most GeoTIFFs); with one of them alone a warning."""
+    take-off elevation 0 (the DEM's datum: sea level for SRTM and most GeoTIFFs), when the stream sends that altitude
+    (tag 15; an ellipsoid height alone is metres off the geoid) and no --height-m is given; --takeoff-elevation-m
+    alone gets a warning."""
     from shared.telemetry import KLV_FILE_SUFFIXES
 
     telemetry = getattr(args, "telemetry", None)
     if telemetry is None or getattr(args, "height_offset_m", "absent") == "absent":
         return
     klv = str(telemetry) == "klv" or Path(str(telemetry)).suffix.lower() in KLV_FILE_SUFFIXES
-    if not klv:
+    if not klv or getattr(args, "height_m", None) is not None:  # --height-m: heights above the take-off, as given
         return
     if args.height_offset_m is None and args.takeoff_elevation_m is None:
+        from agent.sources import resolve_video_telemetry
+        from shared.telemetry import read_klv_report
+
+        try:
+            path = resolve_video_telemetry(telemetry, getattr(args, "video", None) or "")
+            msl = any(s.sensor_alt_msl_m is not None for s in read_klv_report(path).samples)
+        except (ValueError, OSError):
+            return  # the video source names what is wrong with the file
+        if not msl:  # the ellipsoid height alone is not on a DEM's (geoid) datum: left to the user
+            return
         args.height_offset_m, args.takeoff_elevation_m = 0.0, 0.0
-        log.info("KLV telemetry on the DEM %s: heights are the sensor's altitude above sea level and the take-off "
-                 "elevation 0 (the DEM's datum; give --height-offset-m and --takeoff-elevation-m otherwise)", args.dem)
-    elif args.height_offset_m is None or args.takeoff_elevation_m is None:
-        log.warning("KLV telemetry on the DEM %s with only one of --height-offset-m and --takeoff-elevation-m: the "
-                    "KLV's heights above sea level go with --height-offset-m 0 --takeoff-elevation-m 0 (both "
-                    "unset does that)", args.dem)
+        log.info("KLV telemetry on the DEM %s: heights are the sensor's altitude above sea level (tag 15) and the "
+                 "take-off elevation 0 (the DEM's datum; give --height-offset-m and --takeoff-elevation-m "
+                 "otherwise)", args.dem)
+    elif args.takeoff_elevation_m is not None and args.height_offset_m is None:
+        log.warning("KLV telemetry on the DEM %s with --takeoff-elevation-m alone: the KLV's heights are above the "
+                    "frame centre's ground unless --height-offset-m is given (0 with --takeoff-elevation-m 0: "
+                    "altitudes above sea level on the DEM's datum)", args.dem)
 
 
 def _add_clock_offset_flags(g: argparse._ArgumentGroup, *, fallback: str | None = None) -> None:

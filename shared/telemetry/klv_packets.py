@@ -174,8 +174,6 @@ class KlvDecoder:
     samples: list[tuple[KlvSample, int | None]] = field(default_factory=list)
     held: dict[str, tuple[float | int, float]] = field(default_factory=dict)
     sent: list[frozenset[str]] = field(default_factory=list)
-    #: Short platform pitch / roll items (tags 6, 7) sent as "out of range" with no full-range value to stand in.
-    attitude_out_of_range: int = 0
     _full_range_t: dict[str, float] = field(default_factory=dict)  # field -> time of its last tag 90 / 91 value
 
     def feed(self, data: bytes, pts: int | None = None, *, final: bool = True) -> int:
@@ -275,7 +273,6 @@ class KlvDecoder:
                 full = self._full_range_t.get(spec.field)
                 if full is None or abs(t - full) > self.max_hold_s:
                     self.held[spec.field] = (math.nan, t)
-                    self.attitude_out_of_range += 1
             elif value is None:
                 self.held.pop(spec.field, None)  # "unknown now": an older value must not stand in
             else:

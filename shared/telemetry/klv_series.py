@@ -16,14 +16,18 @@ from numpy.typing import ArrayLike
 from shared.telemetry.interpolation import spread_repeated_stamps
 from shared.telemetry.klv_sample import KlvSample
 
-__all__ = ["POSITION_BRACKET_S", "POSITION_HOLD_S", "SampleTimes", "positions_in_time", "sample_times",
-           "with_positions_in_time"]
+__all__ = ["ALTITUDE_BRACKET_S", "POSITION_BRACKET_S", "POSITION_HOLD_S", "SampleTimes", "positions_in_time",
+           "sample_times", "with_positions_in_time"]
 
 #: Two packets that sent the position at most this far apart bracket the samples between them, which get the
 #: position interpolated in time (a position sent at 1 Hz beside 30 Hz angles is; a longer GPS outage is not).
-POSITION_BRACKET_S = 2.0
-#: Else a sample keeps a position sent at most this long before it (then it has none: no record).
+POSITION_BRACKET_S = 3.0
+#: Else a sample keeps a position sent at most this long before it (then it has none: no record), or, after the
+#: last packet that sent it, one interval of the stream's positions (the tail of a 1 Hz stream is no outage).
 POSITION_HOLD_S = 0.5
+#: The sensor's altitude changes slowly and encoders send it less often (on change, every few seconds): it is
+#: interpolated between packets that sent it up to this far apart, else held as the decoder holds it.
+ALTITUDE_BRACKET_S = 10.0
 #: Fields interpolated together (a latitude without its longitude is no position); longitude on the shortest arc.
 POSITION_GROUPS = (("sensor_lat", "sensor_lon"), ("sensor_alt_msl_m",), ("sensor_hae_m",))
 
@@ -80,7 +84,12 @@ def sample_times(stamps_s: ArrayLike, pts_s: Sequence[float | None]) -> SampleTi
     t = stamps[ref] + np.maximum(pts - pts[ref], 0.0)
     if len(fresh) > 1:  # the first stamp may have been held already when the stream began: not fresh
         head, nxt = np.arange(fresh[1]), fresh[1]
-        t[head] = np.maximum(stamps[0], stamps[nxt] - np.maximum(pts[nxt] - pts[head], 0.0))
+        ahead = pts[nxt] - pts[head]  # 0 for packets sharing the next stamp's PES: no timing to go by, kept
+        t[head] = np.where(ahead > 0, np.maximum(stamps[0], stamps[nxt] - ahead), stamps[head])
+    # a held sample is never past the next fresh stamp (a PTS discontinuity would push it on)
+    later = np.searchsorted(fresh, np.arange(n), side="right")
+    capped = later < len(fresh)
+    t[capped] = np.minimum(t[capped], stamps[fresh[later[capped]]])
     return SampleTimes(t, "pts", count)
 
 
@@ -111,6 +120,8 @@ def positions_in_time(t_s: ArrayLike, values: Mapping[str, ArrayLike], sent: Map
     for group in POSITION_GROUPS:
         if not all(name in values for name in group):
             continue
+        latlon = group[-1] == "sensor_lon"
+        group_bracket_s = bracket_s if latlon else max(bracket_s, ALTITUDE_BRACKET_S)
         vals = np.column_stack([np.asarray(values[name], dtype=np.float64).reshape(-1) for name in group])
         have = np.isfinite(vals).all(axis=1)
         own = have & np.logical_and.reduce([np.asarray(sent[name], dtype=bool).reshape(-1) for name in group])
@@ -125,16 +136,22 @@ def positions_in_time(t_s: ArrayLike, values: Mapping[str, ArrayLike], sent: Map
             prev = senders[np.clip(before, 0, None)]
             nxt = senders[np.clip(after, None, len(senders) - 1)]
             span = t[nxt] - t[prev]
-            bracket = (before >= 0) & (after < len(senders)) & (span <= bracket_s)
+            bracket = (before >= 0) & (after < len(senders)) & (span <= group_bracket_s)
             step = vals[nxt] - vals[prev]
-            if group[-1] == "sensor_lon":
+            if latlon:
                 step[:, -1] = (step[:, -1] + 180.0) % 360.0 - 180.0  # across the antimeridian the short way
             frac = np.divide(q - t[prev], span, out=np.zeros_like(q), where=span > 0)
             between = vals[prev] + frac[:, None] * step
-            if group[-1] == "sensor_lon":
+            if latlon:
                 between[:, -1] = np.where(np.abs(between[:, -1]) > 180.0,
                                           (between[:, -1] + 180.0) % 360.0 - 180.0, between[:, -1])
-            held = (before >= 0) & ~bracket & (q - t[prev] <= hold_s)
+            if latlon:
+                # after the last sender, the stream's own interval (a 1 Hz position's last second) is no outage
+                period = float(np.median(np.diff(t[senders]))) if senders.size > 1 else 0.0
+                tail = (after >= len(senders)) & (q - t[prev] <= min(max(period, hold_s), group_bracket_s))
+                held = (before >= 0) & ~bracket & ((q - t[prev] <= hold_s) | tail)
+            else:  # the decoder's hold already let it go when too old (NaN): what is left stands
+                held = (before >= 0) & ~bracket
             result[others[bracket]] = between[bracket]
             result[others[held]] = vals[prev][held]
         for k, name in enumerate(group):

@@ -114,9 +114,11 @@ def test_load_terrain_carries_the_takeoff_elevation(tmp_path):
 
 
 @pytest.mark.parametrize(("telemetry", "given", "expected"), [
-    ("klv", {}, (0.0, 0.0)),                                  # both unset: MSL altitudes on the DEM's datum
-    ("flight.ts", {}, (0.0, 0.0)),
-    ("klv", {"height_offset_m": -450.0}, (-450.0, None)),    # one given: left as given, with a warning
+    ("flight.klv", {}, (0.0, 0.0)),                           # both unset: MSL altitudes on the DEM's datum
+    ("klv", {}, (0.0, 0.0)),                                  # the KLV inside the video
+    ("hae.klv", {}, (None, None)),                            # ellipsoid heights only: metres off the geoid, left
+    ("flight.klv", {"height_m": 40.0}, (None, None)),         # --height-m: above the take-off, as given
+    ("flight.klv", {"takeoff_elevation_m": 0.0}, (None, 0.0)),  # one alone: a warning
     ("flight.srt", {}, (None, None)),                         # not KLV: heights above take-off, as always
 ])
 def test_klv_heights_on_a_dem_are_altitudes_above_sea_level(tmp_path, caplog, telemetry, given, expected):
@@ -124,16 +126,24 @@ def test_klv_heights_on_a_dem_are_altitudes_above_sea_level(tmp_path, caplog, te
     take-off elevation under the first pose (13.7 m off on a 20 % slope in a probe)."""
     import argparse
 
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts
     from uavmm.cli import terrain_from_args
 
     path = tmp_path / "dem.npz"
     write_npz(path, ElevationGrid(np.full((2, 2), 100.0), lat0_deg=47.001, lon0_deg=9.0, lat_step_deg=-0.001,
                                   lon_step_deg=0.001))
-    args = argparse.Namespace(**{"dem": path, "takeoff_elevation_m": None, "telemetry": telemetry,
-                                 "height_offset_m": None, **given})
+    t0 = 1_717_236_000.0
+    (tmp_path / "flight.klv").write_bytes(b"".join(packet(t0 + 0.1 * i, FULL_FIELDS) for i in range(3)))
+    hae = {k: v for k, v in FULL_FIELDS.items() if k not in ("sensor_alt_msl_m", "frame_center_elevation_m")}
+    (tmp_path / "hae.klv").write_bytes(b"".join(packet(t0 + 0.1 * i, {**hae, "sensor_hae_m": 560.0,
+                                                                      "frame_center_hae_m": 520.0}) for i in range(3)))
+    (tmp_path / "video.ts").write_bytes(write_ts([(90_000 + 9_000 * i, packet(t0 + 0.1 * i, FULL_FIELDS))
+                                                  for i in range(3)], video_pts=[90_000]))
+    args = argparse.Namespace(**{"dem": path, "takeoff_elevation_m": None, "height_offset_m": None, "height_m": None,
+                                 "video": tmp_path / "video.ts",
+                                 "telemetry": telemetry if telemetry == "klv" else tmp_path / telemetry, **given})
     with caplog.at_level("INFO", logger="uavmm"):
         terrain = terrain_from_args(args)
     assert (args.height_offset_m, args.takeoff_elevation_m) == expected
     assert terrain.takeoff_elevation_m == expected[1]
-    if given:
-        assert "only one of --height-offset-m and --takeoff-elevation-m" in caplog.text
+    assert ("--takeoff-elevation-m alone" in caplog.text) == ("takeoff_elevation_m" in given)

@@ -96,3 +96,12 @@ def test_a_uav_whole_hours_apart_is_named_as_a_time_zone(server, caplog):
     assert node.counts["replay_sync_s"] == 0.0
     warned = [r.getMessage() for r in caplog.records if "time zones" in r.getMessage()]
     assert len(warned) == 1 and "uav2's clock is +2.00 h" in warned[0] and "--telemetry-utc-offset-h" in warned[0]
+
+
+@pytest.mark.parametrize(("lead_s", "rate"), [(30 * 86400.0 + 7200.0, 1.0), (7200.0, 4.0)])
+def test_clocks_days_apart_or_running_faster_are_not_named_as_a_time_zone(server, caplog, lead_s, rate):
+    """Another day's flight (a whole number of half hours apart by chance) or a replay at four times the speed
+    (drifting through the window) is no time zone."""
+    with caplog.at_level("WARNING", logger="agent.node"):
+        _run_with_partner(server, lead_s, rate)
+    assert "time zones" not in caplog.text
