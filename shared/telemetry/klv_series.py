@@ -86,10 +86,14 @@ def sample_times(stamps_s: ArrayLike, pts_s: Sequence[float | None]) -> SampleTi
         head, nxt = np.arange(fresh[1]), fresh[1]
         ahead = pts[nxt] - pts[head]  # 0 for packets sharing the next stamp's PES: no timing to go by, kept
         t[head] = np.where(ahead > 0, np.maximum(stamps[0], stamps[nxt] - ahead), stamps[head])
-    # a held sample is never past the next fresh stamp (a PTS discontinuity would push it on)
+    # a held sample stays before the next fresh stamp: one on the stamps' boundary (its stamp not yet new) would
+    # tie with the fresh one, and a PTS discontinuity would push it past
     later = np.searchsorted(fresh, np.arange(n), side="right")
-    capped = later < len(fresh)
-    t[capped] = np.minimum(t[capped], stamps[fresh[later[capped]]])
+    has_next = later < len(fresh)
+    limit = np.full(n, np.inf)
+    limit[has_next] = stamps[fresh[later[has_next]]]
+    over = t >= limit
+    t[over] = limit[over] - 1e-6
     return SampleTimes(t, "pts", count)
 
 

@@ -8,7 +8,7 @@ import math
 
 import numpy as np
 import pytest
-from hypothesis import HealthCheck, given, settings
+from hypothesis import HealthCheck, example, given, settings
 from hypothesis import strategies as st
 
 from shared.telemetry import parse_klv_report, read_klv_report
@@ -27,6 +27,7 @@ def _panning(t_true: float, stamp: float) -> bytes:
 
 @settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
 @given(hold_hz=st.sampled_from([1, 2, 5]), rate_hz=st.sampled_from([25, 30]), phase_s=st.floats(0.0, 0.99))
+@example(hold_hz=5, rate_hz=30, phase_s=1 / 3)  # frames on the stamps' boundaries
 def test_held_time_stamps_are_timed_by_the_pts_of_their_packets(tmp_path, hold_hz, rate_hz, phase_s):
     # regression: a stamp held at 1 Hz put video_start_t 0.48 s early and every packet under one stamp at the
     # stamp's time (the first of them won in interpolation: angles lagged by up to a second)
@@ -175,3 +176,5 @@ def test_a_first_stamp_sharing_the_next_ones_pes_keeps_its_time():
     times = sample_times(stamps, [10.0, 10.0, 10.0, 10.1, 10.1, 10.1])
     assert times.method == "pts" and times.t[0] == T0 and times.t[1] == pytest.approx(T0 + 1 / 30)
     assert (np.diff(times.t) >= 0).all() and times.t[3] <= stamps[4]
+    jump = sample_times(stamps, [10.0, 10.0, 10.0, 19.0, 19.1, 19.2])  # a PTS discontinuity under a held stamp
+    assert jump.t[3] < stamps[4] and (np.diff(jump.t) > 0).all()
