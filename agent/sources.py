@@ -28,6 +28,7 @@ if TYPE_CHECKING:
     from agent.detector import Detections
     from agent.slicing import SliceGrid
     from agent.video_decode import VideoReader
+    from shared.telemetry import KlvReport
 
 log = logging.getLogger(__name__)
 
@@ -311,6 +312,7 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         raise ValueError(f"--height-offset-m applies to .srt and .csv telemetry, not {path} (SeaDronesSee altitude "
                          "is already height above the water)")
     above_sea_level_only, sea_level_name, video_start_t = 0, "abs_alt", None
+    klv: KlvReport | None = None
     if suffix == ".srt":
         report = read_srt_report(path, **kw)
         records, video_start_t = report.records, report.video_start_t
@@ -342,6 +344,10 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
                  height_m)
     elif height_m is not None:
         log.warning("telemetry %s: every record has a height: --height-m %g is not used", path, height_m)
+    # KLV sends the angles and still gives none: say why (a nadir camera on a tilted platform looks past nadir)
+    why_no_angles = "" if klv is None else "".join(
+        f" ({n} with the camera above the horizon or past nadir, {m} with the platform's attitude out of range)"
+        for n, m in [(klv.no_pitch, klv.attitude_out_of_range)] if n or m)
     for field, flag, value, what in (("pitch_deg", "--pitch-deg", pitch_deg, "the camera's depression below the "
                                       "horizon, 90 = straight down"),
                                      ("heading_deg", "--heading-deg", heading_deg, "the camera's compass heading")):
@@ -349,8 +355,8 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         name = "pitch" if field == "pitch_deg" else "heading"
         if missing == len(records) and value is None:
             if need_angles:
-                raise ValueError(f"telemetry file {path} has no gimbal {name} in any of its {len(records)} records: "
-                                 f"pass {flag} DEG ({what})")
+                raise ValueError(f"telemetry file {path} has no gimbal {name} in any of its {len(records)} records"
+                                 f"{why_no_angles}: pass {flag} DEG ({what})")
             log.warning("telemetry %s has no gimbal %s in any record: no frame has a pose (no ground layer); pass %s",
                         path, name, flag)
         if not missing and value is not None:

@@ -276,6 +276,22 @@ def test_a_klv_field_of_view_unlike_the_cameras_is_named(tmp_path, caplog, hfovs
         assert "where the camera's is 65.2 deg: a zoom lens?" in said[0]
 
 
+def test_klv_that_sends_angles_and_gives_no_pitch_says_why(tmp_path):
+    """A nadir gimbal on a platform banked 3 deg looks past nadir (roll beyond 90) in every packet: the run was
+    refused with "no gimbal pitch in any record", though tag 19 was in every packet."""
+    pytest.importorskip("av")
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    t0 = 1_717_236_000.0
+    fields = {**FULL_FIELDS, "platform_roll_deg": 3.0, "sensor_rel_elevation_deg": -90.0}
+    video = write_ts_with_pyav(tmp_path / "flight.ts", [packet(t0 + 0.1 * i, fields) for i in range(6)], fps=10,
+                               size=(320, 180))
+    with pytest.raises(ValueError, match=r"no gimbal pitch in any of its 6 records \(6 with the camera above the "
+                                         r"horizon or past nadir, 0 with the platform's attitude out of range\): "
+                                         r"pass --pitch-deg DEG"):
+        VideoSource(video, "klv", _write_model(tmp_path / "model.onnx"), "dji-mavic2-pro")
+
+
 # ---- telemetry without a height: --height-m / --height-offset-m ------------------------------------
 # Mavic 2 Pro firmware that logs the position and no altitude (issue 21), gimbal angles from the flags.
 _SRT_NO_HEIGHT = "".join(
