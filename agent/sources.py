@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import logging
 import math
-import statistics
 from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -27,7 +26,6 @@ if TYPE_CHECKING:
     from agent.dataset import PoseProblem
     from agent.detector import Detections
     from agent.slicing import SliceGrid
-    from agent.video_decode import VideoReader
     from shared.telemetry import KlvReport
 
 log = logging.getLogger(__name__)
@@ -324,7 +322,9 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         klv = read_klv_report(path, **kw)  # logs what it skipped
         records, video_start_t = klv.records, klv.video_start_t
         if camera_hfov_deg is not None:
-            _check_klv_field_of_view(path, [s.hfov_deg for s in klv.samples if s.hfov_deg], camera_hfov_deg)
+            from agent.source_checks import check_klv_field_of_view
+
+            check_klv_field_of_view(path, [s.hfov_deg for s in klv.samples if s.hfov_deg], camera_hfov_deg)
         above_sea_level_only, sea_level_name = klv.heights_above_sea_level_only, "KLV sensor altitude, no frame centre"
     else:
         records = read_telemetry(path, **kw)
@@ -365,49 +365,6 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
             log.info("telemetry %s: %d of %d records have no gimbal %s: using %s %g", path, missing, len(records),
                      name, flag, value)
     return records, video_start_t
-
-
-def _hfov_deg(camera: str | Path) -> float | None:
-    """The horizontal field of view of a camera file or preset, None when it cannot be read (the video source says
-    why when it loads the camera, after the telemetry's checks)."""
-    try:
-        cam = Camera.from_spec(camera)
-    except (ValueError, OSError):
-        return None
-    return 2.0 * math.degrees(math.atan2(cam.width / 2.0, cam.fx))
-
-
-def _check_klv_field_of_view(path: str | Path, hfovs: list[float], camera_hfov_deg: float) -> None:
-    """Warn when the KLV's horizontal fields of view (deg) differ from the camera file's by more than 15 % or vary by
-    more than that during the flight: a zoom lens, whose focal length the camera file does not follow (a box's
-    ground point scales with it: 40 m where the truth is 4 m at 8 against 65 deg in a probe)."""
-    if not hfovs:
-        return
-    lo, mid, hi = min(hfovs), statistics.median(hfovs), max(hfovs)
-    if abs(mid / camera_hfov_deg - 1.0) > 0.15 or hi / lo > 1.15:
-        log.warning("telemetry %s: the KLV's horizontal field of view is %.1f deg (%.1f .. %.1f over the flight) where "
-                    "the camera's is %.1f deg: a zoom lens? Every frame is projected with the camera file's focal "
-                    "length (the KLV's field of view is not applied): give a camera file for the zoom in use",
-                    path, mid, lo, hi, camera_hfov_deg)
-
-
-def _check_span(video: Path, telemetry: Path, reader: VideoReader, start_s: float, end_s: float,
-                max_gap_s: float) -> None:
-    """Warn when the telemetry and the video plainly do not belong together: the video runs on past the telemetry
-    (its last frames get no pose), or, for a DJI SRT (written per video, as long as it), the SRT runs on far past
-    the video (a clip cut from a longer recording given the recording's SRT: every frame takes the pose of the
-    recording's first seconds). start_s, end_s: the telemetry's first and last record in video time (s)."""
-    if reader.frame_count is None:
-        return
-    duration = reader.frame_count / reader.fps
-    if duration > end_s + max_gap_s:
-        log.warning("telemetry %s ends %.1f s into the video but %s lasts %.1f s: its last %.1f s get no pose",
-                    telemetry.name, end_s, video.name, duration, duration - max(end_s, 0.0))
-    elif telemetry.suffix.lower() == ".srt" and end_s - duration > max(2.0, 0.1 * duration):
-        log.warning("the SRT %s runs %.1f s but %s lasts %.1f s: a clip cut from a longer recording? Its frames are "
-                    "put on the SRT's first %.1f s; give the SRT written with this clip, or --telemetry-offset-s (the "
-                    "SRT's time of the clip's first frame)", telemetry.name, end_s - start_s, video.name, duration,
-                    duration)
 
 
 def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemetry_offset_s: float | None = None,
@@ -488,6 +445,8 @@ class VideoSource:
         from agent.detector import OnnxYoloDetector
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
         from agent.slicing import SlicedDetector
+        from agent.source_checks import camera_hfov_deg as hfov_of
+        from agent.source_checks import check_span
         from agent.video_decode import VideoReader
 
         live = is_live_telemetry(telemetry)  # udp:HOST:PORT: MAVLink from the flight controller
@@ -505,7 +464,7 @@ class VideoSource:
             self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                           pitch_deg=pitch_deg, heading_deg=heading_deg,
                                                           need_angles=True, system_id=system_id,
-                                                          utc_offset_h=utc_offset_h, camera_hfov_deg=_hfov_deg(camera))
+                                                          utc_offset_h=utc_offset_h, camera_hfov_deg=hfov_of(camera))
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         self.reader = VideoReader(self.video_path)
@@ -544,7 +503,7 @@ class VideoSource:
         self.name = f"video:{self.video_path.name}"
         self.problems = 0
         if not live and self.records:
-            _check_span(self.video_path, Path(telemetry), self.reader, self._record_t[0] - self.telemetry_offset_s,
+            check_span(self.video_path, Path(telemetry), self.reader, self._record_t[0] - self.telemetry_offset_s,
                         self._record_t[-1] - self.telemetry_offset_s, self.max_gap_s)
 
     def _pose(self, tel: Telemetry | None) -> Pose | None:
