@@ -4,7 +4,6 @@ camera file's, and telemetry that does not span the video."""
 from __future__ import annotations
 
 import logging
-import math
 import statistics
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -26,7 +25,7 @@ def camera_hfov_deg(camera: str | Path) -> float | None:
         cam = Camera.from_spec(camera)
     except (ValueError, OSError):
         return None
-    return 2.0 * math.degrees(math.atan2(cam.width / 2.0, cam.fx))
+    return cam.hfov_deg
 
 
 def check_klv_field_of_view(path: str | Path, hfovs: list[float], camera_hfov_deg: float) -> None:

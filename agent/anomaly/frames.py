@@ -4,7 +4,6 @@ its pose, time and camera; no detector involved. Bad input raises ValueError wit
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
@@ -90,8 +89,7 @@ class VideoFrames:
         records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                  pitch_deg=pitch_deg, heading_deg=heading_deg, system_id=system_id,
                                                  utc_offset_h=utc_offset_h,
-                                                 camera_hfov_deg=2.0 * math.degrees(math.atan2(camera.width / 2.0,
-                                                                                               camera.fx)))
+                                                 camera_hfov_deg=camera.hfov_deg)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
         self.height_m = height_m
