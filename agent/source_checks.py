@@ -1,45 +1,18 @@
-"""Checks of a video's telemetry that warn (the video source's, `agent.sources`): a KLV field of view unlike the
-camera file's, and telemetry that does not span the video."""
+"""Checks of a video's telemetry that warn (the video source's, `agent.sources`): telemetry that does not span the
+video (a KLV field of view: `agent.field_of_view`)."""
 
 from __future__ import annotations
 
 import logging
-import statistics
 from pathlib import Path
 from typing import TYPE_CHECKING
-
-from shared.geo import Camera
 
 if TYPE_CHECKING:
     from agent.video_decode import VideoReader
 
-__all__ = ["camera_hfov_deg", "check_klv_field_of_view", "check_span"]
+__all__ = ["check_span"]
 
 log = logging.getLogger("agent.sources")  # the video source's warnings, under its name
-
-
-def camera_hfov_deg(camera: str | Path) -> float | None:
-    """The horizontal field of view of a camera file or preset, None when it cannot be read (the video source says
-    why when it loads the camera, after the telemetry's checks)."""
-    try:
-        cam = Camera.from_spec(camera)
-    except (ValueError, OSError):
-        return None
-    return cam.hfov_deg
-
-
-def check_klv_field_of_view(path: str | Path, hfovs: list[float], camera_hfov_deg: float) -> None:
-    """Warn when the KLV's horizontal fields of view (deg) differ from the camera file's by more than 15 % or vary by
-    more than that during the flight: a zoom lens, whose focal length the camera file does not follow (a box's
-    ground point scales with it: 40 m where the truth is 4 m at 8 against 65 deg in a probe)."""
-    if not hfovs:
-        return
-    lo, mid, hi = min(hfovs), statistics.median(hfovs), max(hfovs)
-    if abs(mid / camera_hfov_deg - 1.0) > 0.15 or hi / lo > 1.15:
-        log.warning("telemetry %s: the KLV's horizontal field of view is %.1f deg (%.1f .. %.1f over the flight) where "
-                    "the camera's is %.1f deg: a zoom lens? Every frame is projected with the camera file's focal "
-                    "length (the KLV's field of view is not applied): give a camera file for the zoom in use",
-                    path, mid, lo, hi, camera_hfov_deg)
 
 
 def check_span(video: Path, telemetry: Path, reader: VideoReader, start_s: float, end_s: float,

@@ -244,8 +244,7 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None, hei
 def video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
                     pitch_deg: float | None = None, heading_deg: float | None = None,
                     need_angles: bool = False, system_id: int | None = None,
-                    utc_offset_h: float | None = None,
-                    camera_hfov_deg: float | None = None) -> tuple[list[Telemetry], float | None]:
+                    utc_offset_h: float | None = None) -> tuple[list[Telemetry], float | None]:
     """Telemetry records of a video, checked for what georeferencing needs, and the telemetry time of video time 0.
 
     Parameters
@@ -270,9 +269,6 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     utc_offset_h : float, optional
         Hours a DJI SRT's date lines are ahead of UTC (`--telemetry-utc-offset-h`: DJI writes the drone's local
         time without a zone; 2 for CEST); None reads them as UTC. ValueError for another kind of file.
-    camera_hfov_deg : float, optional
-        The camera file's horizontal field of view: KLV whose fields of view (tag 16) differ from it by more than
-        15 %, or change during the flight (a zoom), gets a warning (they are not applied to the camera).
 
     Returns
     -------
@@ -321,10 +317,6 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     elif suffix in KLV_FILE_SUFFIXES:
         klv = read_klv_report(path, **kw)  # logs what it skipped
         records, video_start_t = klv.records, klv.video_start_t
-        if camera_hfov_deg is not None:
-            from agent.source_checks import check_klv_field_of_view
-
-            check_klv_field_of_view(path, [s.hfov_deg for s in klv.samples if s.hfov_deg], camera_hfov_deg)
         above_sea_level_only, sea_level_name = klv.heights_above_sea_level_only, "KLV sensor altitude, no frame centre"
     else:
         records = read_telemetry(path, **kw)
@@ -443,9 +435,9 @@ class VideoSource:
                  slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0,
                  system_id: int | None = None, utc_offset_h: float | None = None) -> None:
         from agent.detector import OnnxYoloDetector
+        from agent.field_of_view import field_of_view_track
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
         from agent.slicing import SlicedDetector
-        from agent.source_checks import camera_hfov_deg as hfov_of
         from agent.source_checks import check_span
         from agent.video_decode import VideoReader
 
@@ -464,7 +456,7 @@ class VideoSource:
             self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                           pitch_deg=pitch_deg, heading_deg=heading_deg,
                                                           need_angles=True, system_id=system_id,
-                                                          utc_offset_h=utc_offset_h, camera_hfov_deg=hfov_of(camera))
+                                                          utc_offset_h=utc_offset_h)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         self.reader = VideoReader(self.video_path)
@@ -502,6 +494,8 @@ class VideoSource:
         self.heading_deg = heading_deg
         self.name = f"video:{self.video_path.name}"
         self.problems = 0
+        #: The field of view per frame when the telemetry's changes (a zoom lens, `agent.field_of_view`), else None.
+        self.field_of_view = None if live else field_of_view_track(telemetry, self.records, self.camera)
         if not live and self.records:
             check_span(self.video_path, Path(telemetry), self.reader, self._record_t[0] - self.telemetry_offset_s,
                         self._record_t[-1] - self.telemetry_offset_s, self.max_gap_s)
@@ -553,8 +547,9 @@ class VideoSource:
             if (image.shape[1], image.shape[0]) != (self.camera.width, self.camera.height):
                 self.camera = self.camera_file.fitted_to(image.shape[1], image.shape[0], source="the video's frames")
             dets = self.detector(image)
+            camera = self.camera if self.field_of_view is None else self.field_of_view.camera_at(t, self.camera)
             yield SourceFrame(frame.index, t, pose, pose_t, dets.boxes_xyxy, dets.scores,
-                              dets.class_ids.astype(np.int64), self.camera, image=image)
+                              dets.class_ids.astype(np.int64), camera, image=image)
 
     def close(self) -> None:
         """Drop the model session and stop a live telemetry stream."""

@@ -211,6 +211,16 @@ class Camera:
             d["dist"] = list(self.dist)
         return d
 
+    def with_hfov(self, hfov_deg: float) -> Camera:
+        """The same camera with its focal lengths scaled so that its horizontal field of view is `hfov_deg` (a zoom
+        lens at another focal length): principal point, aspect of fx to fy and distortion kept. ValueError outside
+        (0, 180) degrees."""
+        hfov = float(hfov_deg)
+        if not (math.isfinite(hfov) and 0.0 < hfov < 180.0):
+            raise ValueError(f"a horizontal field of view must be within (0, 180) degrees, got {hfov_deg!r}")
+        factor = (self.width / 2.0) / math.tan(math.radians(hfov) / 2.0) / self.fx
+        return replace(self, fx=self.fx * factor, fy=self.fy * factor)
+
     def scaled(self, width: int, height: int) -> Camera:
         """The same camera at another resolution (e.g. a downscaled video)."""
         sx, sy = width / self.width, height / self.height

@@ -66,6 +66,7 @@ class VideoFrames:
                  height_m: float | None = None, height_offset_m: float | None = None,
                  pitch_deg: float | None = None, heading_deg: float | None = None,
                  system_id: int | None = None, utc_offset_h: float | None = None) -> None:
+        from agent.field_of_view import field_of_view_track
         from agent.sources import resolve_video_telemetry, video_start_time, video_telemetry
         from agent.video_decode import VideoReader
 
@@ -88,14 +89,15 @@ class VideoFrames:
         # heatmap still runs, so the file is not refused (need_angles off: a warning says why)
         records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                  pitch_deg=pitch_deg, heading_deg=heading_deg, system_id=system_id,
-                                                 utc_offset_h=utc_offset_h,
-                                                 camera_hfov_deg=camera.hfov_deg)
+                                                 utc_offset_h=utc_offset_h)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
         self.height_m = height_m
         self.offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,
                                          video_start_t=video_start_t)
         self.max_gap_s = float(max_gap_s)
+        #: The field of view per frame when the telemetry's changes (a zoom lens, `agent.field_of_view`), else None.
+        self.field_of_view = field_of_view_track(telemetry, self.records, self.camera)
         duration = max(count - 1, 0) / self.fps
         t0, t1 = self.records[0].t, self.records[-1].t
         if self.offset_s < t0 - max_gap_s or self.offset_s + duration > t1 + max_gap_s:
@@ -116,4 +118,5 @@ class VideoFrames:
                     pose = tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
                 except ValueError:
                     pose = None
-            yield AnomalyInput(frame.index, 0, frame.image, t, pose, self.camera)
+            camera = self.camera if self.field_of_view is None else self.field_of_view.camera_at(t)
+            yield AnomalyInput(frame.index, 0, frame.image, t, pose, camera)

@@ -46,7 +46,7 @@ def interpolate(
     Returns
     -------
     list of Telemetry or None, length N
-        ``t`` = the query time. lat, height, pitch and speeds are linear; lon, heading and roll follow
+        ``t`` = the query time. lat, height, pitch, speeds and field of view are linear; lon, heading and roll follow
         the shortest arc (359 -> 1 passes 0, +179 -> -179 lon crosses the antimeridian). An optional
         field (height included) is None where a bracketing record lacks it. ``frame`` is kept only where a query time
         equals a record's ``t``. Records at latitude and longitude 0 (a logger's "no GPS fix") are left out, as if
@@ -91,6 +91,7 @@ def interpolate(
     speed = interp(_optional(r.speed_mps for r in recs))
     vel_e = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[0] for r in recs))
     vel_n = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[1] for r in recs))
+    hfov = interp(_optional(r.hfov_deg for r in recs))
     inside = (query >= t_rec[0] - extrapolate_s) & (query <= t_rec[-1] + extrapolate_s)
     if max_gap_s is not None and len(t_rec) > 1:
         after = np.clip(np.searchsorted(t_rec, query, side="left"), 1, len(t_rec) - 1)
@@ -120,6 +121,7 @@ def interpolate(
                 speed_mps=None if np.isnan(speed[i]) else max(float(speed[i]), 0.0),
                 vel_en_mps=None if np.isnan(vel_e[i]) or np.isnan(vel_n[i]) else (float(vel_e[i]), float(vel_n[i])),
                 frame=recs[hit[i]].frame if exact[i] else None,
+                hfov_deg=opt(hfov, i),
             )
         )
     return out

@@ -177,7 +177,8 @@ class KlvSample:
 
         pitch_deg is None when the camera looks above the horizon or past nadir by more than
         `PITCH_TOLERANCE_DEG` (smaller overshoots are clamped, as for every source); height as in
-        `height_above_ground_m`; velocity from tags 79 / 80.
+        `height_above_ground_m`; velocity from tags 79 / 80; the horizontal field of view from tag 16 (none at 0 or
+        180 deg, which no pinhole camera has).
         """
         if self.sensor_lat is None or self.sensor_lon is None:
             return None
@@ -192,4 +193,5 @@ class KlvSample:
             self.vel_east_mps, self.vel_north_mps)
         return Telemetry(t=self.t, lat=self.sensor_lat, lon=self.sensor_lon,
                          height_m=self.height_above_ground_m(height_offset_m), pitch_deg=pitch, heading_deg=heading,
-                         roll_deg=roll, speed_mps=None if vel is None else math.hypot(*vel), vel_en_mps=vel)
+                         roll_deg=roll, speed_mps=None if vel is None else math.hypot(*vel), vel_en_mps=vel,
+                         hfov_deg=self.hfov_deg if self.hfov_deg is not None and 0.0 < self.hfov_deg < 180.0 else None)

@@ -74,6 +74,10 @@ class Telemetry:
     recording : bool or None
         The camera was recording video at this sample (AirData's ``isVideo``); None when the source does
         not say.
+    hfov_deg : float or None
+        The camera's horizontal field of view at this sample, in (0, 180) degrees, when the source sends it (MISB
+        ST 0601 tag 16: a zoom lens's current field of view); None otherwise. The video source applies it to the
+        camera per frame when it changes during the flight (`agent.field_of_view`).
     """
 
     t: float
@@ -87,6 +91,7 @@ class Telemetry:
     vel_en_mps: tuple[float, float] | None = None
     frame: int | None = None
     recording: bool | None = None
+    hfov_deg: float | None = None
 
     def __post_init__(self) -> None:
         put = object.__setattr__  # frozen: normalised values are written once, here
@@ -129,6 +134,11 @@ class Telemetry:
             raise ValueError(f"Telemetry.recording must be a bool or None, got {self.recording!r}")
         if self.recording is not None:
             put(self, "recording", bool(self.recording))
+        if self.hfov_deg is not None:
+            hfov = finite_number("hfov_deg", self.hfov_deg)
+            if not 0.0 < hfov < 180.0:
+                raise ValueError(f"Telemetry.hfov_deg={hfov!r} is outside (0, 180) degrees")
+            put(self, "hfov_deg", hfov)
 
     def to_pose(
         self, pitch_deg: float | None = None, heading_deg: float | None = None, *, height_m: float | None = None,

@@ -116,3 +116,18 @@ def test_video_without_gimbal_angles_warns_and_takes_them_from_the_flags(tmp_pat
     err = _error(capsys, ["--video", str(video), "--telemetry", str(srt), "--mavlink-system-id", "2", "--camera",
                           str(camera), "--out", str(out)])
     assert "--mavlink-system-id applies to a MAVLink .tlog" in err
+
+
+def test_video_frames_follow_a_zoom_lens_by_the_klv_field_of_view(tmp_path):
+    """The KLV's field of view goes from 40 to 20 deg in flight: each frame's camera has the field of view of the
+    sample it shows (the camera file's 65.2 deg otherwise; the anomaly heatmap is put on the ground with it)."""
+    pytest.importorskip("av")
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    klv = [packet(T0 + 0.1 * i, {**FULL_FIELDS, "hfov_deg": 40.0 - 2.0 * i}) for i in range(FRAMES)]
+    video = write_ts_with_pyav(tmp_path / "zoom.ts", klv, fps=10, size=(320, 180))
+    cam = Camera(width=320, height=180, fx=250.0, fy=250.0, cx=160.0, cy=90.0)
+    frames = list(VideoFrames(video, "klv", cam))
+    assert [round(f.camera.hfov_deg, 1) for f in frames] == pytest.approx([40.0 - 2.0 * i for i in range(FRAMES)],
+                                                                           abs=0.01)
+    assert all((f.camera.cx, f.camera.cy) == (160.0, 90.0) for f in frames)

@@ -81,3 +81,43 @@ def test_detect_skips_klv_packets_whose_checksum_fails_and_says_so(tmp_path, cap
     # the frames of the skipped packets take the poses between their neighbours' samples
     lat = [(im.get("meta") or {}).get("gps_latitude") for im in images]
     assert lat[7] == pytest.approx(48.53 + 7e-6, abs=2e-7) and lat[19] == pytest.approx(48.53 + 19e-6, abs=2e-7)
+
+
+def test_detect_follows_a_zoom_lens_by_the_klv_field_of_view(tmp_path):
+    """The gimbal zooms from 30 to 15 deg during the clip while the camera file's lens has 65.2: a box 80 px right
+    of the image centre lies 10.7 deg right of the camera's heading at 30 deg and 5.3 at 15 deg (24.3 with the
+    camera file's focal length). The track follows the zoom's bearing, frame by frame."""
+    pytest.importorskip("av")
+    pytest.importorskip("onnx")
+    from shared.geo import Camera, Pose, pixel_to_local
+    from tests.agent.test_detector import make_constant_model
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    hfovs = [30.0 - 15.0 * i / (FRAMES - 1) for i in range(FRAMES)]
+    klv = [packet(T0 + 0.1 * i, {**FULL_FIELDS, "hfov_deg": h}) for i, h in enumerate(hfovs)]
+    video = write_ts_with_pyav(tmp_path / "flight.ts", klv, fps=10, size=(320, 180))
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    raw = np.zeros((1, 4 + 2, 100), np.float32)  # x 480 of the 640 input: x 240 of the 320 frame, 80 px right
+    raw[0, :4, 0], raw[0, 4, 0] = [480, 320, 20, 40], 0.9
+    model = make_constant_model(tmp_path / "model.onnx", raw, metadata={"names": str({0: "person", 1: "swimmer"})})
+    out = tmp_path / "out"
+    assert _detect(video, camera, model, out) == 0
+    features = json.loads((out / "tracks.geojson").read_text())["features"]
+    assert len(features) == 1  # one object, one track, though its ground point moves 4 m with the zoom
+    coords = features[0]["geometry"]["coordinates"]
+
+    def bearing(lon: float, lat: float) -> float:
+        north, east = (lat - 48.53) * 111_320.0, (lon - 9.06) * 111_320.0 * np.cos(np.radians(48.53))
+        return float(np.degrees(np.arctan2(east, north)))
+
+    pose = Pose(lat=48.53, lon=9.06, height_m=40.0, pitch_deg=45.0, heading_deg=10.0)
+    base = Camera(width=320, height=180, fx=250.0, fy=250.0, cx=160.0, cy=90.0)
+
+    def expected(hfov: float) -> float:
+        east, north, _ = pixel_to_local(np.array([[240.0, 100.0]]), base.with_hfov(hfov), pose)
+        return float(np.degrees(np.arctan2(east[0], north[0])))
+
+    assert expected(30.0) == pytest.approx(20.7, abs=0.3) and expected(15.0) == pytest.approx(15.3, abs=0.3)
+    assert bearing(*coords[-1][:2]) == pytest.approx(expected(hfovs[-1]), abs=1.0)
+    assert bearing(*coords[0][:2]) == pytest.approx(expected(hfovs[0]), abs=1.0)

@@ -256,10 +256,15 @@ def test_video_source_takes_the_klv_inside_a_transport_stream(tmp_path):
         VideoSource(avi, "klv", tmp_path / "model.onnx", camera)
 
 
-@pytest.mark.parametrize(("hfovs", "warned"), [((60.0, 60.0), False), ((8.0, 8.0), True), ((60.0, 30.0), True)])
-def test_a_klv_field_of_view_unlike_the_cameras_is_named(tmp_path, caplog, hfovs, warned):
+@pytest.mark.parametrize(("hfovs", "said"), [
+    ((60.0, 60.0), None),
+    ((8.0, 8.0), "constant over the flight, where the camera's is 65.2 deg"),
+    ((60.0, 30.0), "changes during the flight (30.0 .. 60.0 deg, a zoom lens"),
+])
+def test_a_klv_field_of_view_is_applied_when_the_lens_zooms(tmp_path, caplog, hfovs, said):
     """A zooming ISR gimbal: the KLV says 8 deg where the camera file's lens has 65 (a box 100 px off centre put
-    40 m out where it is 4 m), or the field of view changes in flight. The camera file is used; a warning says so."""
+    40 m out where it is 4 m). Constant, it is not applied (the camera file or the encoder is wrong, and nothing
+    says which); changing in flight, each frame's camera follows it. A warning says which."""
     pytest.importorskip("av")
     from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
 
@@ -269,11 +274,17 @@ def test_a_klv_field_of_view_unlike_the_cameras_is_named(tmp_path, caplog, hfovs
     camera = tmp_path / "camera.json"
     camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))  # 65.2 deg
     with caplog.at_level("WARNING", logger="agent.sources"):
-        VideoSource(video, "klv", _write_model(tmp_path / "model.onnx"), camera)
-    said = [r.getMessage() for r in caplog.records if "field of view" in r.getMessage()]
-    assert bool(said) == warned
-    if warned:
-        assert "where the camera's is 65.2 deg: a zoom lens?" in said[0]
+        source = VideoSource(video, "klv", _write_model(tmp_path / "model.onnx"), camera)
+    messages = [r.getMessage() for r in caplog.records if "field of view" in r.getMessage()]
+    assert (len(messages) == 1 and said in messages[0]) if said else not messages
+    frames = list(source.frames())
+    assert len(frames) == 6
+    fovs = [round(f.camera.hfov_deg, 1) for f in frames if f.pose is not None]
+    if hfovs[0] != hfovs[1]:  # the frames show samples 0-2 at 60 deg, 3-5 at 30
+        assert fovs[0] == 60.0 and fovs[-1] == 30.0 and len(fovs) >= 5
+        assert all(f.camera.cx == 160.0 and f.camera.width == 320 for f in frames)
+    else:
+        assert set(fovs) == {65.2}
 
 
 def test_klv_that_sends_angles_and_gives_no_pitch_says_why(tmp_path):

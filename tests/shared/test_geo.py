@@ -27,6 +27,7 @@ from shared.geo import (
     local_to_latlon,
     meridian_radius_m,
     metres_per_pixel,
+    normalized_coords,
     pixel_ground_distance_m,
     pixel_to_latlon,
     pixel_to_local,
@@ -386,3 +387,24 @@ def test_fitted_to_scales_the_same_aspect_and_refuses_another(num, den, size):
     with pytest.raises(ValueError, match="another aspect ratio"):
         camera.fitted_to(*other)
     assert camera.fitted_to(*size) is camera
+
+
+@given(st.floats(0.5, 170.0), st.floats(20.0, 120.0), st.floats(0.8, 1.25), st.booleans())
+def test_with_hfov_gives_that_field_of_view_and_keeps_the_rest(hfov, hfov0, aspect, distorted):
+    """A zoom lens at another focal length: the same principal point, pixel aspect and distortion."""
+    fx = 960.0 / math.tan(math.radians(hfov0) / 2.0)
+    camera = Camera(width=1920, height=1080, fx=fx, fy=fx * aspect, cx=955.0, cy=545.0,
+                    dist=(-0.1, 0.02, 0.0, 0.0) if distorted else None)
+    zoomed = camera.with_hfov(hfov)
+    assert zoomed.hfov_deg == pytest.approx(hfov, rel=1e-9)
+    assert zoomed.fy / zoomed.fx == pytest.approx(camera.fy / camera.fx, rel=1e-12)
+    assert (zoomed.cx, zoomed.cy, zoomed.dist, zoomed.width) == (camera.cx, camera.cy, camera.dist, camera.width)
+    if not distorted:  # a pixel off centre looks at an angle whose tangent scales with the field of view's
+        x = normalized_coords(np.array([[1500.0, 545.0]]), zoomed)[0, 0]
+        assert x == pytest.approx((1500.0 - 955.0) * math.tan(math.radians(hfov) / 2.0) / 960.0, rel=1e-9)
+
+
+@pytest.mark.parametrize("hfov", [0.0, 180.0, -1.0, float("nan"), float("inf")])
+def test_with_hfov_refuses_what_no_pinhole_camera_has(hfov):
+    with pytest.raises(ValueError, match="field of view"):
+        CAM.with_hfov(hfov)

@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import logging
 import math
+from dataclasses import replace
 from datetime import datetime, timezone
 from itertools import pairwise
 
@@ -1034,6 +1035,19 @@ def test_interpolation_missing_optional_field_gives_none():
     out = interpolate(records, [0.5, 1.5])
     assert out[0].pitch_deg is None
     assert out[1].pitch_deg == pytest.approx(35.0)
+
+
+def test_interpolation_carries_a_zoom_lens_field_of_view_linearly_and_none_where_a_record_lacks_it():
+    records = [replace(rec(0.0), hfov_deg=None), replace(rec(1.0), hfov_deg=40.0), replace(rec(2.0), hfov_deg=20.0)]
+    out = interpolate(records, [0.5, 1.0, 1.25])
+    assert out[0].hfov_deg is None
+    assert (out[1].hfov_deg, out[2].hfov_deg) == pytest.approx((40.0, 35.0))
+
+
+@pytest.mark.parametrize("hfov", [0.0, 180.0, -5.0, float("nan"), "60"])
+def test_a_field_of_view_outside_0_to_180_is_refused_naming_it(hfov):
+    with pytest.raises(ValueError, match="hfov_deg"):
+        Telemetry(t=0.0, lat=47.0, lon=9.0, height_m=30.0, pitch_deg=45.0, heading_deg=0.0, hfov_deg=hfov)
 
 
 def test_interpolation_missing_height_gives_none_and_to_pose_asks_for_one():

@@ -135,7 +135,14 @@ def test_records_carry_position_camera_angles_height_and_velocity():
     assert rec.pitch_deg == pytest.approx(45.0, abs=1e-6)
     assert rec.height_m == pytest.approx(40.0, abs=0.31)  # 512 - 472, each to 0.3 m
     assert rec.vel_en_mps == pytest.approx((-4.0, 3.0), abs=0.01) and rec.speed_mps == pytest.approx(5.0, abs=0.01)
-    assert report.samples[0].hfov_deg == pytest.approx(60.0, abs=0.003)  # kept for focal lengths
+    assert report.samples[0].hfov_deg == pytest.approx(60.0, abs=0.003)
+    assert rec.hfov_deg == pytest.approx(60.0, abs=0.003)  # a zoom lens's focal length (agent.field_of_view)
+
+
+@pytest.mark.parametrize("hfov", [0.0, 180.0])
+def test_a_field_of_view_no_pinhole_camera_has_is_left_out(hfov):
+    (rec,) = parse_klv_report(packet(T0, {**FULL, "hfov_deg": hfov})).records
+    assert rec.hfov_deg is None and rec.pitch_deg == pytest.approx(45.0, abs=1e-6)
 
 
 def test_height_needs_the_frame_centre_or_an_offset_and_falls_back_to_ellipsoid_heights():

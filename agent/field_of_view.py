@@ -1,0 +1,99 @@
+"""A zoom lens's field of view from the telemetry, applied to each frame's camera (the video sources of `uavmm
+agent`, `detect` and `anomaly --video`).
+
+MISB ST 0601 KLV sends the sensor's horizontal field of view (tag 16; `Telemetry.hfov_deg`). A camera file holds
+one focal length; a zoom lens's changes in flight, and every ground point off the image centre scales with it (a
+box 100 px off centre seen at 8 deg, projected with a camera file's 65 deg, lands 40 m out where it is 4 m). What
+the telemetry's fields of view say decides, and the rule stands down where they do not settle it:
+
+- they change during the flight by more than `ZOOM_RATIO` (a zoom): each frame's camera is the camera file's with
+  the focal length of the field of view at the frame's time (`FieldOfView.at`; principal point and distortion
+  kept); one warning says so, with the range;
+- they stay constant and agree with the camera file within `AGREE_FRACTION`: the camera file as it is, nothing
+  said;
+- they stay constant and differ from it: a camera file made for another zoom, or an encoder sending a configured
+  constant, and nothing in the file tells which: the camera file stays and a warning names both.
+"""
+
+from __future__ import annotations
+
+import logging
+import statistics
+from collections.abc import Sequence
+from pathlib import Path
+
+import numpy as np
+
+from shared.camera import Camera
+from shared.telemetry import Telemetry
+
+__all__ = ["AGREE_FRACTION", "LINEAR_WITHIN_S", "ZOOM_RATIO", "FieldOfView", "field_of_view_track"]
+
+log = logging.getLogger("agent.sources")  # the video source's warnings, under its name
+
+#: Largest over smallest field of view above which the lens zooms during the flight.
+ZOOM_RATIO = 1.05
+#: A constant field of view within this fraction of the camera file's agrees with it.
+AGREE_FRACTION = 0.15
+#: Two field-of-view samples at most this far apart (s) are interpolated between; farther apart the earlier one
+#: holds until the next (an encoder that sends the field of view only when it changes).
+LINEAR_WITHIN_S = 1.0
+
+
+class FieldOfView:
+    """The horizontal field of view over a flight, from the records that send one, and the camera it makes."""
+
+    def __init__(self, t: Sequence[float], hfov_deg: Sequence[float], camera: Camera) -> None:
+        order = np.argsort(np.asarray(t, dtype=np.float64), kind="stable")
+        self.t = np.asarray(t, dtype=np.float64)[order]
+        self.hfov_deg = np.asarray(hfov_deg, dtype=np.float64)[order]
+        if not len(self.t):
+            raise ValueError("FieldOfView needs at least one sample")
+        self.camera = camera
+        self._last: tuple[Camera, float, Camera] | None = None
+
+    def at(self, t: float) -> float:
+        """The field of view (deg) at telemetry time t: interpolated between samples up to `LINEAR_WITHIN_S` apart,
+        else the last one before t (held), the first one before the first sample."""
+        after = int(np.searchsorted(self.t, t, side="right"))
+        if after == 0:
+            return float(self.hfov_deg[0])
+        if after == len(self.t):
+            return float(self.hfov_deg[-1])
+        t0, t1 = self.t[after - 1], self.t[after]
+        h0, h1 = self.hfov_deg[after - 1], self.hfov_deg[after]
+        if t1 - t0 > LINEAR_WITHIN_S:
+            return float(h0)
+        return float(h0 + (h1 - h0) * (t - t0) / (t1 - t0))
+
+    def camera_at(self, t: float, camera: Camera | None = None) -> Camera:
+        """`camera` (default the one given at construction; e.g. refitted to the frames' size) with the field of view
+        at time t; the same object for the same field of view (to 0.001 deg) on consecutive frames."""
+        base = self.camera if camera is None else camera
+        hfov = round(self.at(t), 3)
+        if self._last is not None and self._last[0] is base and self._last[1] == hfov:
+            return self._last[2]
+        zoomed = base.with_hfov(hfov)
+        self._last = (base, hfov, zoomed)
+        return zoomed
+
+
+def field_of_view_track(path: str | Path, records: Sequence[Telemetry], camera: Camera) -> FieldOfView | None:
+    """The field of view to apply per frame when the telemetry's changes during the flight (a zoom), else None; warns
+    as the module says (a zoom applied; a constant field of view unlike the camera file's, not applied)."""
+    sent = [(r.t, r.hfov_deg) for r in records if r.hfov_deg is not None]
+    if not sent:
+        return None
+    hfovs = [h for _, h in sent]
+    lo, mid, hi = min(hfovs), statistics.median(hfovs), max(hfovs)
+    if hi / lo > ZOOM_RATIO:
+        log.warning("telemetry %s: the horizontal field of view changes during the flight (%.1f .. %.1f deg, a zoom "
+                    "lens; the camera file's is %.1f deg): each frame's focal length follows it", path, lo, hi,
+                    camera.hfov_deg)
+        return FieldOfView([t for t, _ in sent], hfovs, camera)
+    if abs(mid / camera.hfov_deg - 1.0) > AGREE_FRACTION:
+        log.warning("telemetry %s: the KLV's horizontal field of view is %.1f deg, constant over the flight, where "
+                    "the camera's is %.1f deg: a camera file for another zoom, or an encoder sending a set value? "
+                    "Every frame is projected with the camera file's focal length (a constant field of view is not "
+                    "applied): give a camera file for the zoom in use", path, mid, camera.hfov_deg)
+    return None
