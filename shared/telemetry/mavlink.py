@@ -14,6 +14,8 @@ Messages used (one record per ``GLOBAL_POSITION_INT`` of the vehicle, with its a
   = earth frame, as MAVLink specifies);
 - ``MOUNT_ORIENTATION`` (ArduPilot: pitch, roll, yaw relative to the vehicle, ``yaw_absolute``) and the older
   ``MOUNT_STATUS`` (centidegrees; yaw relative to the vehicle);
+- ``CAMERA_FOV_STATUS``: the camera's horizontal field of view (a zoom lens; `Telemetry.hfov_deg`), of the first
+  camera that sends one (NaN: unknown, none);
 - ``SYSTEM_TIME`` of the vehicle's autopilot: UNIX time of the boot clock, so records are stamped in UNIX seconds
   (`shared.telemetry.mavlink_clock`: the clock's jumps, reboots).
 
@@ -109,13 +111,14 @@ class MavlinkSample:
     roll_deg: float
     vel_en: tuple[float, float]
     yaw_rel_deg: float | None = None
+    hfov_deg: float | None = None
 
     def to_telemetry(self, clock_offset_s: float = 0.0, height_offset_m: float = 0.0) -> Telemetry:
         """The record at time ``boot_s + clock_offset_s`` with ``height_offset_m`` added to the height."""
         return Telemetry(t=self.boot_s + clock_offset_s, lat=self.lat, lon=self.lon,
                          height_m=self.height_m + height_offset_m, pitch_deg=self.pitch_deg,
                          heading_deg=self.heading_deg, roll_deg=self.roll_deg,
-                         speed_mps=math.hypot(*self.vel_en), vel_en_mps=self.vel_en)
+                         speed_mps=math.hypot(*self.vel_en), vel_en_mps=self.vel_en, hfov_deg=self.hfov_deg)
 
 
 @dataclass(slots=True)
@@ -151,6 +154,10 @@ class MavlinkAssembler:
         self.gimbal: _Gimbal | None = None
         self.gimbal_used: str | None = None
         self.gimbals_ignored: dict[str, int] = {}
+        #: The latest horizontal field of view of the first camera that sent a ``CAMERA_FOV_STATUS`` (None: none yet,
+        #: or it said unknown), and that camera (camera_device_id, component).
+        self.hfov_deg: float | None = None
+        self._fov_camera: tuple[int, int | None] | None = None
         self.position_counts: dict[int, int] = {}
         self.counts: dict[str, int] = {}
         self.attitudes: list[tuple[float, float]] | None = [] if keep_attitudes else None
@@ -263,6 +270,16 @@ class MavlinkAssembler:
         self.gimbal = _Gimbal(f["pointing_a"] / 100.0, f["pointing_b"] / 100.0, f["pointing_c"] / 100.0, False)
         return None
 
+    def _camera_fov(self, f: Mapping[str, Any]) -> None:
+        camera = (int(f.get("camera_device_id") or 0), self._src[1])
+        if self._fov_camera is None:
+            self._fov_camera = camera
+        elif camera != self._fov_camera:  # another camera's (an IR beside the EO)
+            return None
+        hfov = float(f["hfov"])
+        self.hfov_deg = hfov if math.isfinite(hfov) and 0.0 < hfov < 180.0 else None
+        return None
+
     def _position(self, f: Mapping[str, Any]) -> MavlinkSample | None:
         lat, lon = f["lat"] / 1e7, f["lon"] / 1e7
         if (lat, lon) == (0.0, 0.0):  # no GPS fix yet
@@ -284,7 +301,8 @@ class MavlinkAssembler:
                 None if vehicle_yaw is None else vehicle_yaw + gimbal.yaw_deg)
         return MavlinkSample(boot_s=boot_s, lat=lat, lon=lon, height_m=f["relative_alt"] / 1e3,
                              pitch_deg=pitch, heading_deg=None if heading is None else heading % 360.0,
-                             roll_deg=roll, vel_en=(f["vy"] / 100.0, f["vx"] / 100.0), yaw_rel_deg=yaw_rel)
+                             roll_deg=roll, vel_en=(f["vy"] / 100.0, f["vx"] / 100.0), yaw_rel_deg=yaw_rel,
+                             hfov_deg=self.hfov_deg)
 
 
 _HANDLERS = {
@@ -293,6 +311,7 @@ _HANDLERS = {
     "GIMBAL_DEVICE_ATTITUDE_STATUS": MavlinkAssembler._gimbal_device,
     "MOUNT_ORIENTATION": MavlinkAssembler._mount_orientation,
     "MOUNT_STATUS": MavlinkAssembler._mount_status,
+    "CAMERA_FOV_STATUS": MavlinkAssembler._camera_fov,
 }
 
 
@@ -424,6 +443,7 @@ _FIELDS: dict[str, tuple[str, ...]] = {
     "GIMBAL_DEVICE_ATTITUDE_STATUS": ("q", "flags", "gimbal_device_id"),
     "MOUNT_ORIENTATION": ("pitch", "roll", "yaw", "yaw_absolute"),
     "MOUNT_STATUS": ("pointing_a", "pointing_b", "pointing_c"),
+    "CAMERA_FOV_STATUS": ("hfov", "camera_device_id"),
     "SYSTEM_TIME": ("time_unix_usec", "time_boot_ms"),
 }
 _USED = frozenset(_HANDLERS) | {"SYSTEM_TIME"}

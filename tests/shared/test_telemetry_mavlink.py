@@ -47,6 +47,26 @@ def test_tlog_gives_the_records_the_flight_logged(tmp_path, gimbal):
     _same(read_telemetry(path), flight)
 
 
+def test_camera_fov_status_gives_each_record_the_zoom_lens_field_of_view(tmp_path):
+    """A gimbal camera with a zoom (ArduPilot's mount camera, MAVLink's camera protocol) sends CAMERA_FOV_STATUS:
+    each position takes the latest horizontal field of view of the first camera (NaN: unknown; another camera's,
+    an IR beside the EO, ignored)."""
+    flight = _flight()
+    packets = []
+    for t, p in flight_packets(flight):
+        if _type(p) == "GLOBAL_POSITION_INT":
+            k = sum(1 for _, q in packets if _type(q) == "GLOBAL_POSITION_INT")
+            hfov = math.nan if k == 3 else 60.0 - 4.0 * k
+            eo = _mav(1, 100).camera_fov_status_encode(0, 0, 0, 0, 0, 0, 0, [1, 0, 0, 0], hfov, hfov * 0.56, 1)
+            ir = _mav(1, 100).camera_fov_status_encode(0, 0, 0, 0, 0, 0, 0, [1, 0, 0, 0], 9.0, 7.0, 2)
+            packets += [(t, eo.pack(_mav(1, 100))), (t, ir.pack(_mav(1, 100)))]
+        packets.append((t, p))
+    records = read_telemetry(write_tlog(tmp_path / "zoom.tlog", packets))
+    _same(records, flight)
+    assert [r.hfov_deg for r in records] == pytest.approx(
+        [None if k == 3 else 60.0 - 4.0 * k for k in range(len(flight))], abs=1e-4)
+
+
 def test_mount_orientation_prefers_the_absolute_yaw_to_the_vehicle_relative_one():
     from shared.telemetry.mavlink import MavlinkAssembler
 
