@@ -57,6 +57,13 @@ class SrtReport:
         its place in the video): its time minus its start. So blocks skipped at the start (no GPS fix yet, as
         when recording begins before the lock) do not move the video's clock. None when that block has no
         timing line.
+    digital_zoom : tuple of (int, float) or None
+        (records, largest ratio) of the records whose block gives a DJI ``dzoom_ratio`` above 1 (written as the
+        ratio, 1.77, or times 10,000, 10000 for 1x), else None: the frame is a crop of the sensor, its focal length
+        that many times the camera's.
+    focal_lengths : tuple of (float, float) or None
+        The smallest and largest ``focal_len`` of the records as the SRT writes it (35 mm equivalent, some firmware
+        in tenths of a millimetre) when it changes during the file by more than 5 % (a zoom), else None.
     """
 
     source: str
@@ -69,6 +76,8 @@ class SrtReport:
     gps_decimals_seen: dict[int, int] = field(default_factory=dict)
     clock_notes: tuple[str, ...] = ()
     video_start_t: float | None = None
+    digital_zoom: tuple[int, float] | None = None
+    focal_lengths: tuple[float, float] | None = None
 
     @property
     def gps_step_m(self) -> float | None:
@@ -295,9 +304,21 @@ def parse_srt_report(
         gps_decimals_seen=dict(sorted(decimals_seen.items())),
         clock_notes=tuple(clock_notes),
         video_start_t=None if times_in[0].start_s is None else times_out[0] - times_in[0].start_s,
+        **_zoom([facts for _, facts, _, _ in kept]),
     )
     _log_report(report)
     return report
+
+
+def _zoom(facts: list[BlockFacts]) -> dict[str, Any]:
+    """SrtReport's digital_zoom and focal_lengths of the usable blocks."""
+    ratios = [r / 10_000.0 if r >= 1_000.0 else r for r in (f.values["dzoom_ratio"][0] for f in facts
+                                                            if "dzoom_ratio" in f.values)]
+    zoomed = [r for r in ratios if r > 1.005]  # 1.00 as written; 10000 / 10000
+    focals = [f.values["focal_len"][0] for f in facts if "focal_len" in f.values and f.values["focal_len"][0] > 0]
+    changes = bool(focals) and max(focals) > 1.05 * min(focals)
+    return {"digital_zoom": (len(zoomed), max(zoomed)) if zoomed else None,
+            "focal_lengths": (min(focals), max(focals)) if changes else None}
 
 
 def _no_record_message(source: str, blocks: int, skipped: list[tuple[int, str]]) -> str:
@@ -337,6 +358,17 @@ def _log_report(report: SrtReport) -> None:
             "%s: %d of %d records have no height above ground (%s); their height_m is None",
             source, report.heights_missing, len(report.records), "; ".join(why),
         )
+    if report.digital_zoom is not None or report.focal_lengths is not None:
+        what = []
+        if report.digital_zoom is not None:
+            what.append(f"digital zoom in {report.digital_zoom[0]} of {len(report.records)} records, up to "
+                        f"{report.digital_zoom[1]:.2f}x")
+        if report.focal_lengths is not None:
+            what.append(f"focal_len {report.focal_lengths[0]:g} .. {report.focal_lengths[1]:g}")
+        logger.warning(
+            "%s: the camera zooms (%s): every frame is projected with the camera file's focal length, so in zoomed "
+            "frames a point off the image centre is put that many times too far from the centre's ground point; "
+            "use the clips recorded without zoom, or a camera file for the zoom in use", source, "; ".join(what))
     seen = ", ".join(f"{decimals} decimals in {count}" for decimals, count in report.gps_decimals_seen.items())
     logger.info("%s: GPS written with %s record(s): steps of about %.2g m", source, seen, report.gps_step_m)
 

@@ -42,6 +42,11 @@ _MS_RE = re.compile(rf"({NUM})\s*(?:ms)?")
 _ANGLE_RE = re.compile(rf"({NUM})\s*(?:°|Â°|deg)?")
 _NOT_AVAILABLE = ("n/a", "na", "nan", "")
 _METRE_KEYS = ("barometer", "Hb", "Hs")
+#: Camera items read leniently (a value that is not a number is left out, the block kept): the zoom.
+_CAMERA_KEYS = {
+    "dzoom_ratio": re.compile(r"\bdzoom_ratio" + _TOKEN, re.IGNORECASE),
+    "focal_len": re.compile(r"\bfocal_len" + _TOKEN, re.IGNORECASE),
+}
 
 
 class BadBlock(ValueError):
@@ -203,6 +208,11 @@ def block_facts(block: RawBlock, utc_offset_s: float) -> BlockFacts:
                 raise BadBlock(lineno, f"G.PRY {pry.group(0)!r} needs pitch, roll, yaw")
             p, r, y = (_number(lineno, "G.PRY", part, _ANGLE_RE) for part in parts)
             facts.gimbal_pry = (p, r, y, lineno)
+        for key, pattern in _CAMERA_KEYS.items():
+            if key not in facts.values and (match := pattern.search(line)) is not None:
+                number = NUM_RE.fullmatch(match.group(1))
+                if number is not None and math.isfinite(float(number.group(0))):
+                    facts.values[key] = (float(number.group(0)), lineno)
         if "H" not in facts.values and (height := _HEIGHT_H_RE.search(line)) is not None:
             facts.values["H"] = (_number(lineno, "H", height.group(1)), lineno)
         if "H.S" not in facts.values and (speed := _SPEED_HS_RE.search(line)) is not None:

@@ -268,6 +268,30 @@ def test_matrice_30_gimbal_pitch_converted_and_yaw_normalised():
     assert first.t == pytest.approx(utc(2025, 4, 9, 9, 15, 2) + 0.655)
 
 
+@pytest.mark.parametrize(("text", "zoom", "focals"), [
+    (MINI_3_SRT, None, None),  # dzoom_ratio 10000: 1x
+    (MATRICE_30_SRT, (2, 1.77), None),  # the zoom camera at 1.77x digital zoom, the whole clip
+    (MINI_3_SRT.replace("dzoom_ratio: 10000", "dzoom_ratio: 20000"), (1, 2.0), None),
+    (MATRICE_30_SRT.replace("[focal_len: 284.80] [dzoom_ratio: 1.77]", "[focal_len: 113.0] [dzoom_ratio: 1.00]", 1),
+     (1, 1.77), (113.0, 284.8)),  # zooming in during the clip
+    (MINI_3_SRT.replace("dzoom_ratio: 10000", "dzoom_ratio: n/a").replace("focal_len : 240", "focal_len : ?"),
+     None, None),  # not numbers: left out, the block kept
+])
+def test_a_zooming_dji_camera_is_named_and_its_records_kept(caplog, text, zoom, focals):
+    """DJI's digital zoom crops the sensor: the frames' focal length is that many times the camera file's, and
+    every point off the image centre lands that many times too far out. Not applied (the SRT's focal_len units
+    vary by firmware), said."""
+    with caplog.at_level(logging.WARNING):
+        report = parse_srt_report(text, source="clip.SRT")
+    assert len(report.records) == text.count("-->")
+    assert report.digital_zoom == (pytest.approx(zoom) if zoom else None)
+    assert report.focal_lengths == (pytest.approx(focals) if focals else None)
+    said = [r.getMessage() for r in caplog.records if "zooms" in r.getMessage()]
+    assert len(said) == (1 if zoom or focals else 0)
+    if zoom:
+        assert f"digital zoom in {zoom[0]} of {len(report.records)} records, up to {zoom[1]:.2f}x" in said[0]
+
+
 def test_utc_offset_shifts_the_naive_drone_clock():
     (rec,) = parse_srt(MINI_3_SRT, utc_offset_s=-3 * 3600.0)  # Brazil, UTC-3
     assert rec.t == pytest.approx(utc(2024, 1, 18, 13, 23, 26) + 0.397)
