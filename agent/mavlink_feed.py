@@ -176,6 +176,19 @@ class MavlinkUdpFeed:
             samples = list(self._samples)
         return [s.to_telemetry(self._anchor, self.height_offset_m) for s in samples]
 
+    def records_between(self, t_first: float, t_last: float) -> list[Telemetry]:
+        """The records from the last one at or before `t_first` to the first one at or after `t_last` (telemetry
+        clock), sorted: what interpolating to times within [t_first, t_last] needs. Its cost does not grow with the
+        flight (`records` converts every record so far: 97 ms a call after 30 minutes at 10 Hz, this VM)."""
+        if self._anchor is None:
+            raise RuntimeError("MavlinkUdpFeed.start() must be called before records_between()")
+        with self._cond:
+            anchor = self._anchor
+            lo = max(bisect.bisect_right(self._times, t_first - anchor) - 1, 0)
+            hi = bisect.bisect_left(self._times, t_last - anchor) + 1
+            samples = self._samples[lo:hi]
+        return [s.to_telemetry(anchor, self.height_offset_m) for s in samples]
+
     def wait_for(self, t_first: float, t_last: float, *, timeout_s: float = 5.0, idle_s: float = 1.0) -> None:
         """Wait until the records span [t_first, t_last] (telemetry clock), the stream has been silent for
         `idle_s`, or `timeout_s` passed: whichever comes first. Frames then take what is there."""

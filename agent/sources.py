@@ -520,13 +520,13 @@ class VideoSource:
         Only the records bracketing the times are interpolated, so long flights cost the same per frame. With a
         live stream this first waits (bounded) for the records that bracket the times.
         """
-        if self.feed is not None:
+        if self.feed is not None:  # only the records around the times: the stream's whole list grows all flight
             self.feed.wait_for(float(times[0]), float(times[-1]) + min(self.max_gap_s, 0.2))
-            self.records = self.feed.records()
-            self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
-        lo = max(int(np.searchsorted(self._record_t, times[0] - self.max_gap_s, side="left")) - 1, 0)
-        hi = int(np.searchsorted(self._record_t, times[-1] + self.max_gap_s, side="right")) + 1
-        records = self.records[lo:hi]
+            records = self.feed.records_between(float(times[0]) - self.max_gap_s, float(times[-1]) + self.max_gap_s)
+        else:
+            lo = max(int(np.searchsorted(self._record_t, times[0] - self.max_gap_s, side="left")) - 1, 0)
+            hi = int(np.searchsorted(self._record_t, times[-1] + self.max_gap_s, side="right")) + 1
+            records = self.records[lo:hi]
         if not records:
             return [(None, None)] * len(times)
         out: list[tuple[Pose | None, float | None]] = []

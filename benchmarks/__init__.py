@@ -25,6 +25,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "render": "benchmarks.bench_render",
     "anomaly": "benchmarks.bench_anomaly",
     "view_cuts": "benchmarks.bench_view_cuts",
+    "live_feed": "benchmarks.bench_live_feed",
 }
 
 

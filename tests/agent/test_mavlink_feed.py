@@ -74,3 +74,21 @@ def test_a_system_id_not_on_the_link_names_the_systems_that_are():
             feed.start(timeout_s=1.0)
     finally:
         feed.close()
+
+
+@pytest.mark.parametrize(("t_first", "t_last", "want"), [
+    (T0 + 0.35, T0 + 0.55, range(3, 7)),  # 0.3 .. 0.6: the records bracketing the span
+    (T0 + 0.31, T0 + 0.32, range(3, 5)),  # between two records: those two
+    (T0 - 5.0, T0 + 0.05, range(0, 2)),  # before the first: from the first
+    (T0 + 1.05, T0 + 9.0, range(10, 12)),  # past the last: to the last
+])
+def test_records_between_are_the_slice_of_all_records_that_brackets_the_span(feed, t_first, t_last, want):
+    """The video source asks per frame for the records around its time: the whole list, converted every frame, cost
+    97 ms a frame after 30 minutes at 10 Hz."""
+    flight = _flight()
+    replay_udp(flight_packets(flight), feed.port, rounds=1)
+    feed.start(timeout_s=5.0)
+    every = wait_until(lambda: len(feed.records()) == len(flight) and feed.records(), 5.0, "the flight's records")
+    got = feed.records_between(t_first, t_last)
+    assert [r.t for r in got] == pytest.approx([every[i].t for i in want])
+    assert got == [every[i] for i in want]
