@@ -18,6 +18,7 @@ the telemetry's fields of view say decides, and the rule stands down where they 
 from __future__ import annotations
 
 import logging
+import math
 import statistics
 from collections.abc import Sequence
 from pathlib import Path
@@ -27,7 +28,7 @@ import numpy as np
 from shared.camera import Camera
 from shared.telemetry import Telemetry
 
-__all__ = ["AGREE_FRACTION", "LINEAR_WITHIN_S", "ZOOM_RATIO", "FieldOfView", "field_of_view_track"]
+__all__ = ["AGREE_FRACTION", "LINEAR_WITHIN_S", "ZOOM_RATIO", "FieldOfView", "LiveFieldOfView", "field_of_view_track"]
 
 log = logging.getLogger("agent.sources")  # the video source's warnings, under its name
 
@@ -40,6 +41,37 @@ AGREE_FRACTION = 0.15
 LINEAR_WITHIN_S = 1.0
 
 
+def _fov_at(times: np.ndarray, hfovs: np.ndarray, t: float) -> float:
+    """The field of view at t of samples (times sorted): interpolated between samples up to `LINEAR_WITHIN_S` apart,
+    else the last one before t (held), the first one before the first sample."""
+    after = int(np.searchsorted(times, t, side="right"))
+    if after == 0:
+        return float(hfovs[0])
+    if after == len(times):
+        return float(hfovs[-1])
+    t0, t1 = times[after - 1], times[after]
+    h0, h1 = hfovs[after - 1], hfovs[after]
+    if t1 - t0 > LINEAR_WITHIN_S:
+        return float(h0)
+    return float(h0 + (h1 - h0) * (t - t0) / (t1 - t0))
+
+
+class _Zoomed:
+    """A camera at a field of view, the same object for the same base camera and field of view (to 0.001 deg) on
+    consecutive frames: the pipeline compares cameras to see a change."""
+
+    def __init__(self) -> None:
+        self._last: tuple[Camera, float, Camera] | None = None
+
+    def __call__(self, base: Camera, hfov_deg: float) -> Camera:
+        hfov = round(hfov_deg, 3)
+        if self._last is not None and self._last[0] is base and self._last[1] == hfov:
+            return self._last[2]
+        zoomed = base.with_hfov(hfov)
+        self._last = (base, hfov, zoomed)
+        return zoomed
+
+
 class FieldOfView:
     """The horizontal field of view over a flight, from the records that send one, and the camera it makes."""
 
@@ -50,32 +82,44 @@ class FieldOfView:
         if not len(self.t):
             raise ValueError("FieldOfView needs at least one sample")
         self.camera = camera
-        self._last: tuple[Camera, float, Camera] | None = None
+        self._zoomed = _Zoomed()
 
     def at(self, t: float) -> float:
         """The field of view (deg) at telemetry time t: interpolated between samples up to `LINEAR_WITHIN_S` apart,
         else the last one before t (held), the first one before the first sample."""
-        after = int(np.searchsorted(self.t, t, side="right"))
-        if after == 0:
-            return float(self.hfov_deg[0])
-        if after == len(self.t):
-            return float(self.hfov_deg[-1])
-        t0, t1 = self.t[after - 1], self.t[after]
-        h0, h1 = self.hfov_deg[after - 1], self.hfov_deg[after]
-        if t1 - t0 > LINEAR_WITHIN_S:
-            return float(h0)
-        return float(h0 + (h1 - h0) * (t - t0) / (t1 - t0))
+        return _fov_at(self.t, self.hfov_deg, t)
 
     def camera_at(self, t: float, camera: Camera | None = None) -> Camera:
         """`camera` (default the one given at construction; e.g. refitted to the frames' size) with the field of view
         at time t; the same object for the same field of view (to 0.001 deg) on consecutive frames."""
-        base = self.camera if camera is None else camera
-        hfov = round(self.at(t), 3)
-        if self._last is not None and self._last[0] is base and self._last[1] == hfov:
-            return self._last[2]
-        zoomed = base.with_hfov(hfov)
-        self._last = (base, hfov, zoomed)
-        return zoomed
+        return self._zoomed(self.camera if camera is None else camera, self.at(t))
+
+
+class LiveFieldOfView:
+    """The same rule on a live link, where the flight's fields of view are not known in advance: the camera file
+    until the fields of view seen so far differ by more than `ZOOM_RATIO` (the lens zoomed: one warning), then each
+    frame's from the records around it. A constant one is never applied (as in `field_of_view_track`)."""
+
+    def __init__(self, name: str) -> None:
+        self.name = name
+        self.lo, self.hi = math.inf, -math.inf
+        self.active = False
+        self._zoomed = _Zoomed()
+
+    def camera_at(self, t: float, records: Sequence[Telemetry], camera: Camera) -> Camera:
+        """`camera` with the field of view at t of `records` (those around t, sorted) once the lens has zoomed."""
+        sent = [(r.t, r.hfov_deg) for r in records if r.hfov_deg is not None]
+        if sent:
+            self.lo = min(self.lo, min(h for _, h in sent))
+            self.hi = max(self.hi, max(h for _, h in sent))
+        if not self.active and self.hi / self.lo > ZOOM_RATIO:
+            self.active = True
+            log.warning("telemetry %s: the horizontal field of view changed (%.1f .. %.1f deg so far, a zoom lens; the "
+                        "camera file's is %.1f deg): from now on each frame's focal length follows it", self.name,
+                        self.lo, self.hi, camera.hfov_deg)
+        if not self.active or not sent:
+            return camera
+        return self._zoomed(camera, _fov_at(np.array([s[0] for s in sent]), np.array([s[1] for s in sent]), t))
 
 
 def field_of_view_track(path: str | Path, records: Sequence[Telemetry], camera: Camera) -> FieldOfView | None:

@@ -435,7 +435,7 @@ class VideoSource:
                  slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0,
                  system_id: int | None = None, utc_offset_h: float | None = None) -> None:
         from agent.detector import OnnxYoloDetector
-        from agent.field_of_view import field_of_view_track
+        from agent.field_of_view import LiveFieldOfView, field_of_view_track
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
         from agent.slicing import SlicedDetector
         from agent.source_checks import check_span
@@ -496,6 +496,7 @@ class VideoSource:
         self.problems = 0
         #: The field of view per frame when the telemetry's changes (a zoom lens, `agent.field_of_view`), else None.
         self.field_of_view = None if live else field_of_view_track(telemetry, self.records, self.camera)
+        self.live_field_of_view = LiveFieldOfView(str(telemetry)) if live else None
         if not live and self.records:
             check_span(self.video_path, Path(telemetry), self.reader, self._record_t[0] - self.telemetry_offset_s,
                         self._record_t[-1] - self.telemetry_offset_s, self.max_gap_s)
@@ -547,7 +548,11 @@ class VideoSource:
             if (image.shape[1], image.shape[0]) != (self.camera.width, self.camera.height):
                 self.camera = self.camera_file.fitted_to(image.shape[1], image.shape[0], source="the video's frames")
             dets = self.detector(image)
-            camera = self.camera if self.field_of_view is None else self.field_of_view.camera_at(t, self.camera)
+            camera = self.camera
+            if self.field_of_view is not None:
+                camera = self.field_of_view.camera_at(t, self.camera)
+            elif self.feed is not None and self.live_field_of_view is not None:
+                camera = self.live_field_of_view.camera_at(t, self.feed.records_between(t - 1.0, t + 1.0), camera)
             yield SourceFrame(frame.index, t, pose, pose_t, dets.boxes_xyxy, dets.scores,
                               dets.class_ids.astype(np.int64), camera, image=image)
 

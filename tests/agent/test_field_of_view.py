@@ -70,3 +70,20 @@ def test_the_field_of_view_at_any_time_lies_within_the_samples(samples, t):
     lo, hi = min(s[1] for s in samples), max(s[1] for s in samples)
     assert lo - 1e-9 <= track.at(t) <= hi + 1e-9
     assert track.camera_at(t).hfov_deg == pytest.approx(round(track.at(t), 3), abs=1e-6)
+
+
+def test_on_a_live_link_the_camera_file_stands_until_the_lens_zooms(caplog):
+    from agent.field_of_view import LiveFieldOfView
+
+    live = LiveFieldOfView("udp:127.0.0.1:14550")
+    steady = _records([8.0, 8.0, 8.0])  # constant, far from the camera file's: never applied (as for a file)
+    with caplog.at_level(logging.WARNING, logger="agent.sources"):
+        assert live.camera_at(100.1, steady, CAMERA) is CAMERA
+        assert live.camera_at(100.1, _records([None, None]), CAMERA) is CAMERA
+        zoom = _records([8.0, 8.0, 8.0, 12.0])
+        assert live.camera_at(100.3, zoom, CAMERA).hfov_deg == pytest.approx(12.0, abs=1e-3)
+        assert live.camera_at(100.1, zoom, CAMERA).hfov_deg == pytest.approx(8.0, abs=1e-3)  # from now on
+        assert live.camera_at(100.1, _records([None]), CAMERA) is CAMERA  # no field of view around: the file's
+    assert [r.getMessage() for r in caplog.records] == [
+        "telemetry udp:127.0.0.1:14550: the horizontal field of view changed (8.0 .. 12.0 deg so far, a zoom lens; "
+        "the camera file's is 65.2 deg): from now on each frame's focal length follows it"]

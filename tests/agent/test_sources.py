@@ -167,6 +167,61 @@ def test_video_source_reads_the_vehicle_given_of_a_tlog_with_several(tmp_path, c
         VideoSource(video, srt, model, camera, system_id=2)
 
 
+def _with_fov(packets, hfovs):
+    """The packets with a CAMERA_FOV_STATUS (camera component 100) before each position, its hfov from hfovs."""
+    from pymavlink.dialects.v20 import ardupilotmega
+
+    camera = ardupilotmega.MAVLink(None, srcSystem=1, srcComponent=100)
+    decoder = ardupilotmega.MAVLink(None)
+    out, k = [], 0
+    for t, p in packets:
+        if decoder.decode(bytearray(p)).get_type() == "GLOBAL_POSITION_INT":
+            fov = camera.camera_fov_status_encode(0, 0, 0, 0, 0, 0, 0, [1, 0, 0, 0], hfovs[k], hfovs[k] * 0.56)
+            out.append((t, fov.pack(camera)))
+            k += 1
+        out.append((t, p))
+    return out
+
+
+@pytest.mark.parametrize("live", [False, True])
+def test_a_mavlink_camera_that_zooms_gives_each_frame_its_field_of_view(tmp_path, caplog, live):
+    """A gimbal camera zooming from 60 to 30 deg (CAMERA_FOV_STATUS): from a .tlog, and on a live link once the
+    field of view has changed, each frame's camera has the field of view of its time; one warning says so."""
+    pytest.importorskip("pymavlink")
+    import threading
+
+    from shared.telemetry import Telemetry
+    from tests.netutil import free_udp_port
+    from tests.shared.mavlink_writer import flight_packets, replay_udp, write_tlog
+
+    t0 = 1_700_000_000.0
+    flight = [Telemetry(t=t0 + 0.1 * i, lat=48.53 + 1e-5 * i, lon=9.06, height_m=30.0, pitch_deg=60.0,
+                        heading_deg=10.0) for i in range(14)]
+    hfovs = [60.0 - 2.5 * i for i in range(14)]
+    packets = _with_fov(flight_packets(flight), hfovs)
+    video = _write_video(tmp_path / "flight.avi", 12)
+    model, camera = _write_model(tmp_path / "model.onnx"), "dji-mavic2-pro"
+    with caplog.at_level(logging.WARNING, logger="agent.sources"):
+        if live:
+            port = free_udp_port()
+            thread = threading.Thread(target=replay_udp, args=(packets, port), kwargs={"rounds": 1}, daemon=True)
+            thread.start()
+            source = VideoSource(video, f"udp:127.0.0.1:{port}", model, camera, telemetry_offset_s=t0)
+            thread.join(timeout=10.0)
+        else:
+            source = VideoSource(video, write_tlog(tmp_path / "zoom.tlog", packets), model, camera)
+        try:
+            frames = list(source.frames())
+        finally:
+            source.close()
+    assert len(frames) == 12 and all(f.pose is not None for f in frames)
+    said = [r.getMessage() for r in caplog.records if "field of view" in r.getMessage()]
+    assert len(said) == 1 and "a zoom lens" in said[0]
+    # frame i is at t0 + 0.1 i: the field of view of record i; the camera's principal point stays
+    assert [round(f.camera.hfov_deg, 2) for f in frames[-4:]] == pytest.approx(hfovs[8:12], abs=0.01)
+    assert all(f.camera.cx == frames[0].camera.cx for f in frames)
+
+
 def test_an_srts_local_dates_are_put_on_utc_with_the_offset_given(tmp_path):
     """DJI writes the drone's local time: --telemetry-utc-offset-h 2 (CEST) moves every frame's time 2 h back to
     UTC (a UNIX --telemetry-offset-s, and another UAV's UTC log, then meet it) and leaves the poses as they were."""
