@@ -425,6 +425,11 @@ class VideoSource:
     telemetry_timeout_s : float
         A live MAVLink stream (``telemetry`` = ``udp:HOST:PORT``, `agent.mavlink_feed`) must deliver a position
         within this many seconds, else ValueError.
+    system_id, utc_offset_h : optional
+        As in `video_telemetry`.
+    video_fps : float, optional
+        The frame rate of a raw ``.h264`` / ``.h265`` stream, which has no frame times (`agent.video_decode`); a
+        ValueError beside a container.
     """
 
     def __init__(self, video: str | Path, telemetry: str | Path, model: str | Path, camera: str | Path, *,
@@ -433,7 +438,8 @@ class VideoSource:
                  height_m: float | None = None, height_offset_m: float | None = None,
                  providers: Sequence[str] = ("CPUExecutionProvider",), slices: SliceGrid | None = None,
                  slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0,
-                 system_id: int | None = None, utc_offset_h: float | None = None) -> None:
+                 system_id: int | None = None, utc_offset_h: float | None = None,
+                 video_fps: float | None = None) -> None:
         from agent.detector import OnnxYoloDetector
         from agent.field_of_view import LiveFieldOfView, field_of_view_track
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
@@ -459,7 +465,7 @@ class VideoSource:
                                                           utc_offset_h=utc_offset_h)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
-        self.reader = VideoReader(self.video_path)
+        self.reader = VideoReader(self.video_path, fps=video_fps)  # video_fps: a raw stream's rate (--video-fps)
         width, height = self.reader.width, self.reader.height
         #: Frames the container announces (None when it does not say, e.g. a stream).
         self.frame_count: int | None = self.reader.frame_count

@@ -27,9 +27,15 @@ from pathlib import Path
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["DecodedFrame", "VideoDecodeReport", "VideoReader"]
+__all__ = ["RAW_STREAM_SUFFIXES", "DecodedFrame", "VideoDecodeReport", "VideoReader", "check_video_fps"]
 
 log = logging.getLogger(__name__)
+
+#: Elementary video streams (no container): their frames carry no times, and FFmpeg takes the rate from the stream's
+#: timing information or, without it, guesses 25 frames/s.
+RAW_STREAM_SUFFIXES = (".h264", ".264", ".avc", ".h265", ".265", ".hevc")
+#: The rate FFmpeg assumes for a raw stream that states none.
+_FFMPEG_GUESSED_FPS = 25.0
 
 #: Reads that fail in a row before the video counts as ended, when the container announces no frame count or
 #: the announced frames are past (a damaged packet costs one read; H.264 decodes on after it).
@@ -41,6 +47,17 @@ _INTERVALS_NEEDED = 3
 #: A step between two frames off the video's recent interval (times the frames it spans) by more than this share of
 #: it counts as irregular (a variable frame rate).
 _IRREGULAR_INTERVALS = 0.5
+
+
+def check_video_fps(path: Path, fps: float) -> float:
+    """`fps` (the commands' --video-fps) for the video `path`: ValueError unless it is a raw stream (which has no
+    frame times) and fps is within (0, 1000]."""
+    if path.suffix.lower() not in RAW_STREAM_SUFFIXES:
+        raise ValueError(f"--video-fps applies to a raw {'/'.join(RAW_STREAM_SUFFIXES)} stream, which has no frame "
+                         f"times; {path.name} is a container with its own")
+    if not (math.isfinite(fps) and 0.0 < fps <= 1000.0):
+        raise ValueError(f"--video-fps {fps!r} must be frames per second within (0, 1000]")
+    return float(fps)
 
 
 @dataclass(frozen=True, slots=True)
@@ -76,15 +93,20 @@ class VideoDecodeReport:
 class VideoReader:
     """A video file read by OpenCV: its nominal rate and announced frame count, and its frames with their times.
 
-    fps: the container's nominal rate (30 when it gives none); frame_count: the frames it announces (None when it
-    does not say, e.g. a transport stream); width, height: the frames' size as stored; rotation_deg: the
-    rotation metadata that is not applied (0 without). Raises ValueError when OpenCV cannot open the file.
+    fps: the container's nominal rate (30 when it gives none), or the rate given for a raw stream (`fps`, the
+    commands' `--video-fps`: a raw .h264/.h265 stream has no frame times, so its frames are placed 1/fps apart);
+    frame_count: the frames it announces (None when it does not say, e.g. a transport stream); width, height: the
+    frames' size as stored; rotation_deg: the rotation metadata that is not applied (0 without). Raises ValueError
+    when OpenCV cannot open the file, or for `fps` beside a container (which has its own frame times) or not > 0.
+    A raw stream read at FFmpeg's guess of 25 frames/s (no `fps`) is warned about: its frames would drift from
+    their times by 20 % at 30 frames/s.
     """
 
-    def __init__(self, path: str | Path) -> None:
+    def __init__(self, path: str | Path, fps: float | None = None) -> None:
         import cv2
 
         self.path = Path(path)
+        given_fps = fps
         capture = self._open()
         try:
             fps = float(capture.get(cv2.CAP_PROP_FPS))
@@ -95,6 +117,13 @@ class VideoReader:
         finally:
             capture.release()
         self.fps = fps if math.isfinite(fps) and fps > 0 else 30.0
+        raw = self._raw = self.path.suffix.lower() in RAW_STREAM_SUFFIXES
+        if given_fps is not None:
+            self.fps = check_video_fps(self.path, given_fps)
+        elif raw and self.fps == _FFMPEG_GUESSED_FPS:
+            log.warning("video %s is a raw stream without frame times nor a stated rate: its frames are placed 1/25 s "
+                        "apart (FFmpeg's guess); give --video-fps, the rate it was recorded at (at 30 frames/s a "
+                        "frame a minute in would be put 12 s late)", self.path.name)
         self.frame_count: int | None = count if count > 0 else None
         self.rotation_deg = int(rotation) % 360 if math.isfinite(rotation) else 0
         if self.rotation_deg:
@@ -152,7 +181,8 @@ class VideoReader:
                     if failed_in_row >= (MAX_FAILED_READS_BEFORE_END if announced_left else MAX_FAILED_READS):
                         break
                     continue  # a damaged frame, or the end: only a frame read after it tells
-                pos = float(capture.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
+                # a raw stream's times are FFmpeg's own (0, or a guessed rate): every frame one interval on
+                pos = math.nan if self._raw else float(capture.get(cv2.CAP_PROP_POS_MSEC)) / 1000.0
                 valid = math.isfinite(pos) and pos >= 0.0
                 timed = valid and (prev_t is None or pos > prev_t)
                 if timed:

@@ -56,6 +56,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="--video: " + "MAVLink telemetry (.tlog, udp:HOST:PORT): the vehicle's system id "
                           "when the log or link carries several (default: a .tlog's vehicle with the most positions, a "
                           "live link's first; a warning names the others)")
+    src.add_argument("--video-fps", type=float, default=None, metavar="FPS",
+                     help="--video as a raw .h264/.h265 stream, which has no frame times: the rate it was recorded "
+                          "at (default: the rate the stream states, else FFmpeg's guess of 25, with a warning)")
     src.add_argument("--telemetry-utc-offset-h", type=float, default=None, metavar="H",
                      help="--video with a DJI .srt: hours its date lines are ahead of UTC (DJI writes the drone's "
                           "local time; e.g. 2 for CEST; default: read as UTC)")
@@ -135,7 +138,8 @@ def source_from_args(args: argparse.Namespace):
                        telemetry_offset_s=args.telemetry_offset_s, class_names=args.class_names,
                        conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
                        height_m=args.height_m, height_offset_m=args.height_offset_m,
-                       system_id=args.mavlink_system_id, utc_offset_h=args.telemetry_utc_offset_h)
+                       system_id=args.mavlink_system_id, utc_offset_h=args.telemetry_utc_offset_h,
+                       video_fps=args.video_fps)
 
 
 def settings_from_args(args: argparse.Namespace):

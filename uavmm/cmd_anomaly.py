@@ -55,6 +55,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--mavlink-system-id", type=int, default=None, metavar="N",
                    help="--video with a MAVLink .tlog: the vehicle's system id when the log carries several (default: "
                         "the one with the most positions; a warning names the others)")
+    p.add_argument("--video-fps", type=float, default=None, metavar="FPS",
+                   help="--video as a raw .h264/.h265 stream, which has no frame times: the rate it was recorded "
+                        "at (default: the rate the stream states, else FFmpeg's guess of 25, with a warning)")
     p.add_argument("--telemetry-utc-offset-h", type=float, default=None, metavar="H",
                    help="--video with a DJI .srt: hours its date lines are ahead of UTC (DJI writes the drone's "
                         "local time; e.g. 2 for CEST; default: read as UTC)")
@@ -106,7 +109,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
         raise ValueError("--video needs --telemetry FILE")
     if args.frames is not None and args.telemetry is not None:
         raise ValueError("--telemetry goes with --video (--frames carries its telemetry in images.json meta)")
-    for flag in ("height_offset_m", "pitch_deg", "heading_deg", "mavlink_system_id", "telemetry_utc_offset_h"):
+    for flag in ("height_offset_m", "pitch_deg", "heading_deg", "mavlink_system_id", "telemetry_utc_offset_h",
+                 "video_fps"):
         if args.frames is not None and getattr(args, flag) is not None:
             raise ValueError(f"--{flag.replace('_', '-')} goes with --video (--frames carries its telemetry in "
                              "images.json meta)")
@@ -121,7 +125,7 @@ def run_anomaly(args: argparse.Namespace) -> int:
                                     telemetry_offset_s=args.telemetry_offset_s, height_offset_m=args.height_offset_m,
                                     pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
                                     system_id=args.mavlink_system_id,
-                                    utc_offset_h=args.telemetry_utc_offset_h)))
+                                    utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)))
     detector = AnomalyDetector(cfg, method)
     results = []
     video = None

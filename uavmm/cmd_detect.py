@@ -65,6 +65,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                      help="MAVLink telemetry (.tlog, udp:HOST:PORT): the vehicle's system id "
                           "when the log or link carries several (default: a .tlog's vehicle with the most positions, a "
                           "live link's first; a warning names the others)")
+    tel.add_argument("--video-fps", type=float, default=None, metavar="FPS",
+                     help="the video as a raw .h264/.h265 stream, which has no frame times: the rate it was recorded "
+                          "at (default: the rate the stream states, else FFmpeg's guess of 25, with a warning)")
     tel.add_argument("--telemetry-utc-offset-h", type=float, default=None, metavar="H",
                      help="a DJI .srt: hours its date lines are ahead of UTC (DJI writes the drone's local time; "
                           "e.g. 2 for CEST; default: read as UTC)")
@@ -147,7 +150,7 @@ def run(args: argparse.Namespace) -> int:
                          height_m=args.height_m, height_offset_m=args.height_offset_m, providers=providers,
                          slices=slices, slice_full_frame=not args.no_full_frame,
                          telemetry_timeout_s=args.telemetry_timeout_s, system_id=args.mavlink_system_id,
-                         utc_offset_h=args.telemetry_utc_offset_h)
+                         utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)
     progress = ProgressLine(f"detect {args.video.name}", enabled=not args.quiet)
     try:
         summary = run_detect(source, args.out, pipeline_config, size_filter, tracker_config, options=options,

@@ -65,18 +65,21 @@ class VideoFrames:
                  telemetry_offset_s: float | None = None, max_gap_s: float = 1.0,
                  height_m: float | None = None, height_offset_m: float | None = None,
                  pitch_deg: float | None = None, heading_deg: float | None = None,
-                 system_id: int | None = None, utc_offset_h: float | None = None) -> None:
+                 system_id: int | None = None, utc_offset_h: float | None = None,
+                 video_fps: float | None = None) -> None:
         from agent.field_of_view import field_of_view_track
         from agent.sources import resolve_video_telemetry, video_start_time, video_telemetry
-        from agent.video_decode import VideoReader
+        from agent.video_decode import VideoReader, check_video_fps
 
         telemetry = resolve_video_telemetry(telemetry, video)
         for what, p in (("video", video), ("telemetry", telemetry)):
             if not Path(p).is_file():
                 raise ValueError(f"{what} file {p} does not exist")
         self.path = Path(video)
+        if video_fps is not None:
+            check_video_fps(self.path, video_fps)  # before the file is opened: its own message
         try:
-            self.reader = VideoReader(self.path)
+            self.reader = VideoReader(self.path, fps=video_fps)  # a raw stream's rate (--video-fps)
             first = self.reader.first_image()
         except ValueError:
             first = None

@@ -218,3 +218,46 @@ def test_frames_inside_a_gap_of_the_telemetry_get_no_pose(tmp_path, model):
     frames = list(source.frames())
     without = [f.index for f in frames if f.pose is None]
     assert without == [k for k in range(90) if 0.9 + 0.5 < k / 30 < 2.3 - 0.5 - 1e-9]
+
+
+def test_a_raw_h264_stream_takes_its_rate_from_video_fps(tmp_path, model, caplog):
+    """A raw .h264 stream (a Raspberry Pi camera, a DVR) has no frame times and FFmpeg guesses 25 frames/s: a 30
+    frames/s recording drifted 20 % (frame 44 put at 1.76 s, 2.9 m of flight at 10 m/s, where it is at 1.47 s).
+    --video-fps gives the rate; without it a warning names the flag."""
+    pts = [k / 30 for k in range(45)]
+    video = _write(tmp_path / "pi.h264", pts)
+    with caplog.at_level(logging.WARNING, logger="agent.video_decode"):
+        guessed = list(VideoReader(video).frames())
+    assert [_index(f.image) for f in guessed] == list(range(45))
+    assert np.allclose([f.t for f in guessed], [k / 25 for k in range(45)], atol=1e-9)
+    assert "pi.h264 is a raw stream without frame times nor a stated rate" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):
+        source = VideoSource(video, _srt(tmp_path / "pi.srt", pts), model, _camera(tmp_path / "camera.json"),
+                             telemetry_offset_s=T0, video_fps=30.0)
+        frames = list(source.frames())
+    assert not [r for r in caplog.records if "raw stream" in r.getMessage()]
+    assert [f.index for f in frames] == list(range(45))
+    assert np.allclose([_pose_time(f) for f in frames], pts, atol=2e-3)  # each frame at its own time
+    with pytest.raises(ValueError, match=r"--video-fps applies to a raw .* stream, which has no frame times; "
+                                         r"cfr\.mp4 is a container with its own"):
+        VideoReader(_write(tmp_path / "cfr.mp4", pts), fps=30.0)
+    for bad in (0.0, -5.0, float("nan")):
+        with pytest.raises(ValueError, match="--video-fps"):
+            VideoReader(video, fps=bad)
+
+
+def test_video_fps_beside_a_container_is_refused_in_one_line_by_each_command(tmp_path, model, capsys):
+    from uavmm.cli import main
+
+    pts = [k / 30 for k in range(6)]
+    video, srt = _write(tmp_path / "cfr.mp4", pts), _srt(tmp_path / "cfr.srt", pts)
+    camera = _camera(tmp_path / "c.json")
+    detect = ["detect", str(video), "--telemetry", str(srt), "--model", str(model), "--camera", str(camera), "--out",
+              str(tmp_path / "out"), "--video-fps", "30"]
+    anomaly = ["anomaly", "--video", str(video), "--telemetry", str(srt), "--camera", str(camera), "--out",
+               str(tmp_path / "rois.json"), "--video-fps", "30"]
+    for argv in (detect, anomaly):
+        assert main(argv) == 2
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and "--video-fps applies to a raw" in err[0] and "cfr.mp4 is a container" in err[0]
