@@ -48,6 +48,9 @@ class KlvReport:
     packets : int
         Local-set keys found. Of these: decoded, bad_checksum, missing_checksum (no checksum item at the end),
         truncated (cut short), malformed (broken BER inside a checked packet, or an absurd length).
+    checksum_without_key : int
+        Decoded packets whose checksum leaves the 16-byte key out (a known encoder bug): accepted, as the sum still
+        checks the rest of each packet; said at info level.
     bad_items : int
         Known items of the wrong size (skipped; the rest of the packet is used).
     no_time : int
@@ -97,6 +100,7 @@ class KlvReport:
     decoded: int = 0
     bad_checksum: int = 0
     missing_checksum: int = 0
+    checksum_without_key: int = 0
     truncated: int = 0
     malformed: int = 0
     bad_items: int = 0
@@ -151,7 +155,8 @@ def _report(source: str, decoder: KlvDecoder, *, height_offset_m: float | None, 
     records.sort(key=lambda r: r.t)
     return KlvReport(
         source=source, records=records, samples=tuple(samples), packets=decoder.packets, decoded=decoder.decoded,
-        bad_checksum=decoder.bad_checksum, missing_checksum=decoder.missing_checksum, truncated=decoder.truncated,
+        bad_checksum=decoder.bad_checksum, missing_checksum=decoder.missing_checksum,
+        checksum_without_key=decoder.checksum_without_key, truncated=decoder.truncated,
         malformed=decoder.malformed, bad_items=decoder.bad_items, no_time=decoder.no_time, no_position=no_position,
         no_recent_position=no_recent_position, no_pitch=no_pitch, attitude_out_of_range=attitude_out_of_range,
         unknown_tags=dict(sorted(decoder.unknown_tags.items())),
@@ -210,6 +215,10 @@ def _log_report(report: KlvReport) -> None:
     log.info("telemetry %s: %d records from %d ST 0601 packets; video starts at t=%s", report.source,
              len(report.records), report.packets,
              "unknown" if report.video_start_t is None else f"{report.video_start_t:.3f}")
+    if report.checksum_without_key:
+        log.info("telemetry %s: %d of %d packets' checksums leave out the 16-byte key (an encoder's known bug): read, "
+                 "as the sum still checks the rest of each packet", report.source, report.checksum_without_key,
+                 report.decoded)
     problems = report.problems()
     if problems or report.unknown_tags:
         log.warning("telemetry %s: %s; tags not decoded: %s", report.source,

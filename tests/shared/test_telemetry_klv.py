@@ -191,6 +191,29 @@ def test_bad_checksum_packet_is_counted_and_skipped():
     assert report.skipped_bytes == len(bad)
 
 
+def _without_key_checksum(data: bytes) -> bytes:
+    """The packet with its checksum summed from the length on, the key left out (an encoder's known bug)."""
+    return data[:-2] + standard_checksum(data[len(KEY):-2]).to_bytes(2, "big")
+
+
+@pytest.mark.parametrize("long_length", [False, True])
+def test_a_checksum_that_leaves_out_the_key_is_read_and_said(tmp_path, caplog, long_length):
+    """Some encoders sum from the length on: every packet was rejected as a bad checksum and the file refused. The
+    sum still checks the rest of each packet, so such packets are read, counted, and said at info level; a byte
+    changed in one of them is still caught."""
+    packets = [_without_key_checksum(packet(T0 + 0.1 * i, FULL, long_length=long_length)) for i in range(4)]
+    broken = bytearray(packets[2])
+    broken[25] ^= 0x01
+    path = tmp_path / "encoder.klv"
+    path.write_bytes(packets[0] + packets[1] + bytes(broken) + packets[3])
+    with caplog.at_level("INFO", logger="shared.telemetry.klv"):
+        report = read_klv_report(path)
+    assert (report.decoded, report.checksum_without_key, report.bad_checksum) == (3, 3, 1)
+    assert [round(r.t - T0, 3) for r in report.records] == [0.0, 0.1, 0.3]
+    assert "3 of 3 packets' checksums leave out the 16-byte key" in caplog.text
+    assert parse_klv_report(b"".join(_flight(3))).checksum_without_key == 0  # standard packets: not counted
+
+
 def test_truncated_packets_are_counted_in_the_middle_and_at_the_end():
     good = _flight(3)
     report = parse_klv_report(good[0] + good[1][:40] + good[2] + good[1][:30])
