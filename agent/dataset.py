@@ -17,6 +17,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.field_of_view import ZoomedCamera
 from agent.telemetry_clock import ClockReport, TelemetryClockSettings, TelemetryTrack, reconcile_clock
 from agent.telemetry_dequantize import dequantize_track
 from shared.geo import Camera, Pose
@@ -526,6 +527,7 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
     info.pitch_convention = pitch_convention_of(image.meta for image in images)
     info.at_frame_time = at_frame_time
     cameras: dict[tuple[int, int], Camera] = {}
+    zoomed = ZoomedCamera()
     records: list[Telemetry | None] = []
     clocks: list[float | None] = []
     for image in images:
@@ -567,6 +569,8 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
             t = t_prev  # non-monotonic clocks: never run the memory backwards
         t_prev, i_prev = t, image.frame_index
         cam = cameras[(image.width, image.height)]
+        if tel is not None and tel.hfov_deg is not None:  # a zoom lens's frame (meta hfov_deg, `uavmm detect`)
+            cam = zoomed(cam, tel.hfov_deg)
         if tel is None:
             yield Frame(image, None, t, cam)
             continue

@@ -28,7 +28,8 @@ import numpy as np
 from shared.camera import Camera
 from shared.telemetry import Telemetry
 
-__all__ = ["AGREE_FRACTION", "LINEAR_WITHIN_S", "ZOOM_RATIO", "FieldOfView", "LiveFieldOfView", "field_of_view_track"]
+__all__ = ["AGREE_FRACTION", "LINEAR_WITHIN_S", "ZOOM_RATIO", "FieldOfView", "LiveFieldOfView", "ZoomedCamera",
+           "field_of_view_track"]
 
 log = logging.getLogger("agent.sources")  # the video source's warnings, under its name
 
@@ -56,7 +57,7 @@ def _fov_at(times: np.ndarray, hfovs: np.ndarray, t: float) -> float:
     return float(h0 + (h1 - h0) * (t - t0) / (t1 - t0))
 
 
-class _Zoomed:
+class ZoomedCamera:
     """A camera at a field of view, the same object for the same base camera and field of view (to 0.001 deg) on
     consecutive frames: the pipeline compares cameras to see a change."""
 
@@ -82,7 +83,7 @@ class FieldOfView:
         if not len(self.t):
             raise ValueError("FieldOfView needs at least one sample")
         self.camera = camera
-        self._zoomed = _Zoomed()
+        self._zoomed = ZoomedCamera()
 
     def at(self, t: float) -> float:
         """The field of view (deg) at telemetry time t: interpolated between samples up to `LINEAR_WITHIN_S` apart,
@@ -104,7 +105,7 @@ class LiveFieldOfView:
         self.name = name
         self.lo, self.hi = math.inf, -math.inf
         self.active = False
-        self._zoomed = _Zoomed()
+        self._zoomed = ZoomedCamera()
 
     def camera_at(self, t: float, records: Sequence[Telemetry], camera: Camera) -> Camera:
         """`camera` with the field of view at t of `records` (those around t, sorted) once the lens has zoomed."""

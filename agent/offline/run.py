@@ -144,8 +144,10 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             seconds["tracker"] += t3 - t2
             rows.extend(TrackRow(frame.index, frame.index, t, tr) for tr in reported)
             detections.extend(results_to_coco(frame.index, result))
+            base = getattr(source, "camera", None)  # a zoom lens's frames: their own field of view in the meta
+            zoomed = base is not None and frame.camera is not base and frame.camera.fx != base.fx
             images.append(image_entry(frame.index, t, frame.camera.width, frame.camera.height, frame.pose,
-                                      frame.pose_t))
+                                      frame.pose_t, hfov_deg=frame.camera.hfov_deg if zoomed else None))
             counts["frames"] += 1
             counts["frames_without_pose"] += frame.pose is None
             counts["candidates"] += result.n_candidates

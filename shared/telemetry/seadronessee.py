@@ -291,7 +291,8 @@ def from_seadronessee_meta(
         Or the flight-log layout (SeaDronesSee Object Detection v2, AirData names): ``latitude``,
         ``longitude``, ``height_above_takeoff(meter)`` (or ``(feet)``), ``gimbal_pitch(degrees)``,
         ``gimbal_heading(degrees)``, ``speed(m/s)``, ``xspeed(m/s)``, ``yspeed(m/s)``, ``datetime(utc)``
-        (units as in `shared.telemetry.csv_table.CSV_COLUMNS`; a time named ``(utc)`` is UTC).
+        (units as in `shared.telemetry.csv_table.CSV_COLUMNS`; a time named ``(utc)`` is UTC). Ours beside them:
+        ``hfov_deg``, a zoom lens's horizontal field of view at the frame (`uavmm detect` writes it).
     frame : int, optional
         The image's frame index, stored in `Telemetry.frame`.
     utc_offset_s : float
@@ -332,6 +333,7 @@ def from_seadronessee_meta(
     pitch = _pitch(_meta_number(meta, "gimbal_pitch", "pitch", required=False), "gimbal_pitch", pitch_convention,
                    flight_log=False)
     heading = _meta_number(meta, "gimbal_heading", "heading", required=False)
+    hfov = _meta_number(meta, "hfov_deg", "field of view", required=False)  # ours: a zoom lens's frame
     speed = _meta_number(meta, "speed", "speed", required=False)
     if speed is not None and speed < 0.0:
         raise MetaProblem("bad speed", f"SeaDronesSee meta field 'speed'={speed!r} is negative")
@@ -354,6 +356,7 @@ def from_seadronessee_meta(
             speed_mps=speed,
             vel_en_mps=None if north is None or east is None else (east, north),
             frame=frame,
+            hfov_deg=hfov,
         )
     except ValueError as err:
         raise MetaProblem("bad value", f"SeaDronesSee meta: {err}") from None
@@ -374,7 +377,8 @@ def to_seadronessee_meta(
     -------
     dict
         All of `SEADRONESSEE_META_FIELDS`; unknown values are None (JSON null), never a made-up 0.
-        ``date_time`` is ISO 8601 UTC with microseconds, e.g. ``2020-08-24T15:45:20.250000``.
+        ``date_time`` is ISO 8601 UTC with microseconds, e.g. ``2020-08-24T15:45:20.250000``. A record with a field
+        of view (a zoom lens's, `Telemetry.hfov_deg`) adds ``hfov_deg``, which SeaDronesSee's layout does not have.
     """
     vel = tel.vel_en_mps
     return {
@@ -391,7 +395,7 @@ def to_seadronessee_meta(
         "yspeed": None if vel is None else vel[0],
         "zspeed": zspeed_mps,
         "date_time": format_datetime(tel.t),
-    }
+    } | ({} if tel.hfov_deg is None else {"hfov_deg": tel.hfov_deg})
 
 
 def parse_seadronessee_coco(

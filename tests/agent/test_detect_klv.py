@@ -121,3 +121,14 @@ def test_detect_follows_a_zoom_lens_by_the_klv_field_of_view(tmp_path):
     assert expected(30.0) == pytest.approx(20.7, abs=0.3) and expected(15.0) == pytest.approx(15.3, abs=0.3)
     assert bearing(*coords[-1][:2]) == pytest.approx(expected(hfovs[-1]), abs=1.0)
     assert bearing(*coords[0][:2]) == pytest.approx(expected(hfovs[0]), abs=1.0)
+    # the frames' fields of view are in detect's images.json (meta hfov_deg), so `uavmm track` on its outputs with
+    # the same camera file puts the track where detect did
+    metas = [im["meta"] for im in json.loads((out / "images.json").read_text())["images"]]
+    assert [m["hfov_deg"] for m in metas] == pytest.approx(hfovs, abs=0.01)
+    again = tmp_path / "again.geojson"
+    assert main(["track", "--frames", str(out / "images.json"), "--candidates", str(out / "detections.json"),
+                 "--camera", str(camera), "--out", str(tmp_path / "again.txt"), "--geojson", str(again),
+                 "--no-size-filter", "--log-level", "ERROR"]) == 0
+    redone = json.loads(again.read_text())["features"]
+    assert len(redone) == 1
+    assert bearing(*redone[0]["geometry"]["coordinates"][-1][:2]) == pytest.approx(expected(hfovs[-1]), abs=1.0)

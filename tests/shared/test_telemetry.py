@@ -856,6 +856,19 @@ def test_to_seadronessee_meta_writes_every_field_and_nulls_for_unknowns():
     assert from_seadronessee_meta(meta) == tel
 
 
+def test_a_zoom_lens_field_of_view_rides_in_the_meta_and_back():
+    """`uavmm detect` writes a zooming camera's field of view per frame (meta hfov_deg, not SeaDronesSee's); the
+    dataset reader reads it back; a bad one names the field."""
+    tel = Telemetry(t=utc(2021, 3, 1, 12, 0, 0), lat=48.5, lon=9.0, height_m=40.0, pitch_deg=45.0, heading_deg=10.0,
+                    hfov_deg=12.5)
+    meta = to_seadronessee_meta(tel)
+    assert set(meta) == set(SEADRONESSEE_META_FIELDS) | {"hfov_deg"} and meta["hfov_deg"] == 12.5
+    assert from_seadronessee_meta(json.loads(json.dumps(meta))) == tel
+    for bad in (0.0, 190.0, "wide"):
+        with pytest.raises(ValueError, match="hfov_deg"):
+            from_seadronessee_meta({**meta, "hfov_deg": bad})
+
+
 def test_seadronessee_coco_json_ordered_by_frame_index_and_skips_null_meta(tmp_path):
     def image(i, frame, meta):
         return {"id": i, "file_name": f"{i}.jpg", "video_id": 3, "frame_index": frame, "meta": meta}
