@@ -172,6 +172,7 @@ class AgentLink:
         self._known_remotes: set[str] = set()
         self._alone_since: float | None = None  # monotonic time since when no router/peer is connected
         self._alone_warned = False
+        self._ever_connected = False
 
     # ---- lifecycle -----------------------------------------------------------------------------
     def open(self, stop: threading.Event | None = None, *, timeout_s: float | None = None) -> bool:
@@ -195,6 +196,7 @@ class AgentLink:
         self._declared = [self._routing.declare(session, lambda callback: self._guarded(callback, "a shard token"))]
         self._known_remotes = self._remotes()
         self._alone_since = None if self._known_remotes else time.monotonic()
+        self._ever_connected = bool(self._known_remotes)
         self._thread = threading.Thread(target=self._run, name=f"uavmm-agent-{self.uav}-publisher", daemon=True)
         self._thread.start()
         log.info("agent %s: zenoh session %s open (%d router/peer connections)", self.uav, session.zid(),
@@ -210,6 +212,15 @@ class AgentLink:
         if self._thread is not None:
             self._thread.join(timeout=10.0)
             self._thread = None
+        if self.session is not None and not self._ever_connected and not self._alone_warned:
+            try:  # a run shorter than ALONE_WARN_S that never reached anyone: say so once, at the end
+                reached = bool(self._remotes())
+            except zenoh.ZError:
+                reached = False
+            if not reached:
+                log.warning("agent %s: no zenoh router or peer was reached during the run (connect: %s): what it "
+                            "published reached nobody; is the fusion server up and --connect right?", self.uav,
+                            self._connect_endpoints())
         if self.session is not None:
             if self._publishers is not None:
                 self._publishers.clear()
@@ -354,6 +365,7 @@ class AgentLink:
         """Warn once per outage when nothing this agent publishes has reached anyone for ALONE_WARN_S."""
         now = time.monotonic()
         if connected:
+            self._ever_connected = True
             if self._alone_warned:
                 log.warning("agent %s: zenoh connected again: publishing reaches the fusion server", self.uav)
             self._alone_since, self._alone_warned = None, False

@@ -55,6 +55,19 @@ def test_a_connected_agent_never_warns(monkeypatch, caplog):
     finally:
         link.close()
         server.close()
+    assert not _warnings(caplog, "no zenoh router or peer was reached during the run")
+
+
+def test_a_run_shorter_than_the_warning_that_reached_nobody_says_so_at_the_end(caplog):
+    """`uavmm agent --duration 2 --connect tcp/127.0.0.1:WRONG` ran, printed "up" and exited 0 with no sign that
+    nothing it published went anywhere (the outage warning waits ALONE_WARN_S)."""
+    port = free_port()
+    conf = agent_zenoh_config(ZenohOptions(connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False))
+    link = AgentLink(conf, KEYS, "uav1", GRID)
+    assert link.open(timeout_s=10.0)
+    link.close()
+    (warning,) = _warnings(caplog, "no zenoh router or peer was reached during the run")
+    assert f"tcp/127.0.0.1:{port}" in warning and "uav1" in warning
 
 
 @pytest.mark.parametrize("endpoints", [None, ("tcp/10.0.0.2:7447", "tcp/10.0.0.3:7447")])
