@@ -10,7 +10,7 @@ from pathlib import Path
 
 import pytest
 
-from uavmm.cli import build_parser
+from uavmm.cli import build_parser, main
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -130,3 +130,35 @@ def test_eval_coop_takes_the_scenarios_whose_uavs_fly_at_once(tmp_path, capsys):
     assert report["config_overrides"] == {"correction_anchor_s": 7.5}  # --config reaches every variant
     assert {s["variant"] for s in report["summary"]} >= {"own memory map", "own memory map + DEM"}
     assert "## Terrain: flat earth vs --dem" in capsys.readouterr().out
+
+
+def test_an_unknown_flag_gets_the_subcommands_usage_and_one_error_line(capsys):
+    """`uavmm detect ... --bogus` printed the top level's usage (`uavmm [-h] ... COMMAND`), not detect's."""
+    with pytest.raises(SystemExit) as exit_info:
+        main(["detect", "x.mp4", "--telemetry", "t.srt", "--model", "m.onnx", "--camera", "c.json", "--out", "o",
+              "--bogus", "1"])
+    assert exit_info.value.code == 2
+    err = capsys.readouterr().err
+    assert err.startswith("usage: uavmm detect ") and err.rstrip().endswith(
+        "uavmm detect: error: unrecognized arguments: --bogus 1")
+    with pytest.raises(SystemExit):
+        main(["--bogus"])
+    assert capsys.readouterr().err.rstrip().endswith("uavmm: error: unrecognized arguments: --bogus")
+
+
+def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly(monkeypatch, capsys):
+    """`uavmm eval --list-domains | head -2` ended with 'uavmm eval: error: [Errno 32] Broken pipe'."""
+    import os
+
+    read_fd, write_fd = os.pipe()
+    os.close(read_fd)  # the reader has left
+    stdout = os.fdopen(write_fd, "w", buffering=1)
+    monkeypatch.setattr(sys, "stdout", stdout)
+    try:
+        assert main(["eval", "--list-domains"]) == 1
+        stdout.write("after: goes to the null device\n")  # the interpreter's last flush does not fail either
+        stdout.flush()
+    finally:
+        monkeypatch.undo()
+        stdout.close()
+    assert "Broken pipe" not in capsys.readouterr().err
