@@ -95,6 +95,7 @@ class VideoFrames:
                                                  utc_offset_h=utc_offset_h)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
+        self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.height_m = height_m
         self.offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,
                                          video_start_t=video_start_t)
@@ -113,7 +114,12 @@ class VideoFrames:
         `agent.video_decode.VideoReader`), its id its number in the video."""
         for frame in self.reader.frames():
             t = self.offset_s + frame.t
-            tel = interpolate(self.records, np.array([t]), extrapolate_s=self.max_gap_s, max_gap_s=self.max_gap_s)[0]
+            # the records around t only: interpolating the whole log per frame cost 163 ms a frame an hour in
+            lo = max(int(np.searchsorted(self._record_t, t - self.max_gap_s, side="left")) - 1, 0)
+            hi = int(np.searchsorted(self._record_t, t + self.max_gap_s, side="right")) + 1
+            window = self.records[lo:hi]
+            tel = interpolate(window, np.array([t]), extrapolate_s=self.max_gap_s,
+                              max_gap_s=self.max_gap_s)[0] if window else None
             pose = None
             if tel is not None:
                 try:
