@@ -22,9 +22,14 @@ from fusion_server.association import M_PER_DEG_LAT as _M_PER_DEG_LAT
 from fusion_server.association import gated_assignment, ground_distance_m
 from shared.messages import MAX_MEMBERS, MAX_TRACKS, JointTrackItem, JointTracksMessage, TracksMessage
 
-__all__ = ["GlobalTrack", "GlobalTracker", "TrackRecord", "ground_distance_m"]
+__all__ = ["MAX_INACTIVE_MEMBERS", "GlobalTrack", "GlobalTracker", "TrackRecord", "ground_distance_m"]
 
 _MAX_MEMBERS_KEPT = min(MAX_MEMBERS, 256)
+#: Members no UAV reports any more kept per track, the most recent (a local id that comes back finds its global
+#: id): in a crowd a held track takes in new local tracks near it and never ends, and with every ended member
+#: kept its member list (sent with every joint/tracks message) grew all flight (a soak: 4.9 -> 14.5 members a
+#: track in 12 minutes, the message 22 -> 44 KiB, heading for the cap of 256 in an hour).
+MAX_INACTIVE_MEMBERS = 8
 
 
 @dataclass(slots=True)
@@ -166,6 +171,7 @@ class GlobalTracker:
         next_gid: int = 1,
         gid_step: int = 1,
         adopt: Callable[[str, int, str, float, float], int | None] | None = None,
+        keep_changes: bool = True,
         clock=time.monotonic,
         wall=time.time,
     ) -> None:
@@ -195,6 +201,9 @@ class GlobalTracker:
         #: carries them on ("out")
         self.handovers: Counter[str] = Counter()
         self._next_gid = next_gid
+        #: collect what changed for `drain_changes` (persistence); a server without a database never drains, and
+        #: kept its history rows, ended tracks and changed ids all flight (a soak: 63k rows in 8 minutes)
+        self.keep_changes = keep_changes
         self._dirty: set[int] = set()  # for persistence
         self._history_out: list[tuple[int, float, float, float]] = []
         self._ended_pending: dict[int, TrackRecord] = {}
@@ -256,6 +265,7 @@ class GlobalTracker:
         if member is None or not member.active:
             return set()
         member.active = False
+        self._trim_members(track)  # type: ignore[arg-type]
         return {gid}  # type: ignore[set-item]
 
     def _associate(self, uav: str, items: list, claimed: set[int], now: float, wall: float) -> None:
@@ -337,10 +347,9 @@ class GlobalTracker:
         return lat2, lon2
 
     def _trim_members(self, track: GlobalTrack) -> None:
-        while len(track.members) > _MAX_MEMBERS_KEPT:
-            oldest = next((k for k, m in track.members.items() if not m.active), None)
-            if oldest is None:
-                break
+        inactive = [k for k, m in track.members.items() if not m.active]  # oldest first (insertion order)
+        excess = max(len(inactive) - MAX_INACTIVE_MEMBERS, len(track.members) - _MAX_MEMBERS_KEPT, 0)
+        for oldest in inactive[:excess]:
             del track.members[oldest]
             if self._local.get(oldest) == track.gid:
                 del self._local[oldest]
@@ -364,11 +373,13 @@ class GlobalTracker:
             if wall - last >= self.history_interval_s:
                 row = (wall, track.lat, track.lon)
                 track.history.append(row)
-                self._history_out.append((track.gid, *row))
+                if self.keep_changes:
+                    self._history_out.append((track.gid, *row))
         elif track.lost_since is None:
             track.lost_since = now
             self._lost[track.gid] = None
-        self._dirty.add(track.gid)
+        if self.keep_changes:
+            self._dirty.add(track.gid)
 
     def expire(self, now: float | None = None) -> bool:
         """Lose members whose UAV went quiet, end tracks held longer than hold_s; True if changed."""
@@ -425,8 +436,9 @@ class GlobalTracker:
                     self._active.get(key[0], set()).discard(key[1])
         record = track.to_record()
         self._ended.append(record)
-        self._dirty.add(gid)
-        self._ended_pending[gid] = record
+        if self.keep_changes:
+            self._dirty.add(gid)
+            self._ended_pending[gid] = record
 
     def dropped(self) -> dict[str, int]:
         """What the bounds refused, by reason: "too_many_tracks" (track items cut from messages),

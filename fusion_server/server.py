@@ -92,6 +92,7 @@ class FusionServer:
             gate_m=settings.track_gate_m, hold_s=settings.track_hold_s, member_ttl_s=settings.ttl_s,
             history_len=settings.track_history_len, history_interval_s=settings.track_history_interval_s,
             next_gid=shard.index + 1, gid_step=shard.count,  # shards hand out disjoint ids
+            keep_changes=settings.db_path is not None,  # only a database drains them
         )
         self.uavs = UavRegistry(max_uavs=settings.max_uavs)
         #: (what was wrong, where the bad file went) when --db-recover moved a database aside

@@ -248,3 +248,40 @@ def test_joint_message_says_which_members_still_report_each_track(tracker, clock
     tracker.expire()
     (item,) = tracker.joint_message().tracks
     assert item.active == () and tracker.records()[0].status == "lost"
+
+
+def test_a_held_track_in_a_crowd_keeps_its_recent_members_only(tracker, clock):
+    """A crowd: every second the UAV's local track there ends and a new one starts within the gate, so the held
+    global track takes each in and never ends. Every ended member was kept and sent with every joint/tracks
+    message (a soak: the message doubled in 12 minutes, heading for 256 members a track in an hour)."""
+    from fusion_server.global_tracks import MAX_INACTIVE_MEMBERS
+
+    for k in range(200):
+        clock.now = float(k)
+        tracker.update(msg("a", (k, 0.1 * (k % 7), 0.0), (10_000, 0.0, 30.0)))  # plus one steady track
+    (track, steady) = tracker.records()
+    assert len(track.active) == 1 and len(track.members) == 1 + MAX_INACTIVE_MEMBERS
+    assert track.members[-1] == ("a", 199) and ("a", 191) in track.members and ("a", 190) not in track.members
+    message = tracker.joint_message()
+    assert max(len(item.members) for item in message.tracks) == 1 + MAX_INACTIVE_MEMBERS
+    assert tracker.stats()["local_ids"] == 1 + MAX_INACTIVE_MEMBERS + 1  # the ids forgotten with their members
+    # a recently ended local id that comes back keeps its global id
+    clock.now = 200.0
+    tracker.update(msg("a", (195, 0.0, 0.0), (10_000, 0.0, 30.0)))
+    assert gids(tracker)[("a", 195)] == track.gid and steady.members == (("a", 10_000),)
+
+
+def test_without_a_database_the_changes_are_not_collected(clock):
+    """A server run without --db never drains the changes: history rows, ended tracks and changed ids grew all
+    flight (63k rows in 8 minutes of a soak)."""
+    kept = GlobalTracker(hold_s=1.0, history_interval_s=0.0, clock=clock, wall=clock)
+    quiet = GlobalTracker(hold_s=1.0, history_interval_s=0.0, keep_changes=False, clock=clock, wall=clock)
+    for k in range(50):
+        clock.now = float(k)
+        for t in (kept, quiet):
+            t.update(msg("a", (k // 10, 100.0 * (k // 10), 0.0)))
+            t.expire()
+    records, history = kept.drain_changes()
+    assert len(records) == 5 and len(history) == 50
+    assert quiet.drain_changes() == ([], [])
+    assert [r.gid for r in quiet.records(include_ended=True)] == [r.gid for r in kept.records(include_ended=True)]

@@ -84,3 +84,20 @@ def test_each_flush_pulls_the_sources_into_the_same_commit_and_survives_a_failin
     store.close()  # the last flush pulls again
     assert [u.id for u in FusionStore(path).load().uavs] == ["uav-a", "uav-b"]
     assert isinstance(restored.uavs[0], UavRecord)
+
+
+def test_an_ended_tracks_rows_are_trimmed_with_it_and_it_is_not_remembered(tmp_path):
+    """A track that ended with fewer than 50 rows since its last trim kept an entry all flight (1,873 after 12
+    minutes of a crowd soak), and its rows beyond history_len stayed in the file."""
+    import sqlite3
+
+    store = FusionStore(tmp_path / "f.sqlite", history_len=10)
+    store.save_tracks([record(1)], [(1, float(t), 47.0, 9.0) for t in range(30)], next_gid=2)
+    assert store._attempt()
+    store.save_tracks([record(1, ended=40.0)], [(1, float(t), 47.0, 9.0) for t in range(30, 40)], next_gid=2)
+    assert store._attempt()
+    assert store._since_trim == {}
+    rows = sqlite3.connect(tmp_path / "f.sqlite").execute(
+        "SELECT t FROM track_history WHERE gid = 1 ORDER BY t").fetchall()
+    assert [r[0] for r in rows] == [float(t) for t in range(30, 40)]
+    store.close()
