@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from agent.boost import results_to_coco, write_results
+from agent.boost import StreamedResults, results_to_coco
 from agent.frame_result import FrameResult
 from agent.global_ids import GlobalIdAdopter
 from agent.joint_window import window_tiles
@@ -314,7 +314,8 @@ class AgentNode:
                                        "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0,
                                        "replay_sync_s": 0.0}
         self._rows: list[tuple[int, float, TrackOutput]] = []
-        self._detections: list[dict[str, Any]] = []  # COCO results for settings.detections_out
+        # COCO results for settings.detections_out, written as they come
+        self._detections = None if settings.detections_out is None else StreamedResults(settings.detections_out)
         self._last_pose: tuple[float, Pose, Camera] | None = None
         self._t_frame: float | None = None
         self._tracks: list[TrackOutput] = []
@@ -408,9 +409,9 @@ class AgentNode:
         if s.tracks_out is not None:
             n = self.write_tracks(s.tracks_out)
             log.info("wrote %d tracks to %s", n, s.tracks_out)
-        if s.detections_out is not None:
-            write_results(self._detections, s.detections_out)
-            log.info("wrote %d detections to %s", len(self._detections), s.detections_out)
+        if self._detections is not None:
+            self._detections.close()
+            log.info("wrote %d detections to %s", self._detections.count, s.detections_out)
         return self.summary()
 
     def _loop(self, stop: threading.Event) -> None:
@@ -479,7 +480,7 @@ class AgentNode:
         self.counts["detections"] += len(result)
         if result.from_joint is not None:  # detections the other UAVs' evidence added or promoted
             self.counts["joint_detections"] += int(result.from_joint.sum())
-        if self.settings.detections_out is not None:
+        if self._detections is not None:
             self._detections.extend(results_to_coco(frame.index if frame.image_id is None else frame.image_id, result))
         if self.settings.tracks_out is not None:
             self._rows.extend((frame.index, frame.t, tr) for tr in tracks if tr.confirmed and tr.matched)

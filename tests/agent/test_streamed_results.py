@@ -1,0 +1,35 @@
+"""`agent.boost.StreamedResults`: the agent's --detections-out written as the results come, one valid JSON array at
+the end, never a truncated file in its place."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from agent.boost import StreamedResults
+
+
+def _result(i: int) -> dict:
+    return {"image_id": i, "category_id": 1, "bbox": [1.0, 2.0, 3.0, 4.0], "score": 0.5 + i / 1000}
+
+
+def test_results_stream_to_a_tmp_file_and_land_whole_at_close(tmp_path):
+    out = tmp_path / "dets.json"
+    spool = StreamedResults(out)
+    spool.extend([_result(0), _result(1)])
+    spool.extend([])
+    spool.extend([_result(2)])
+    assert not out.exists() and (tmp_path / "dets.json.tmp").exists()  # a run that dies here leaves no results file
+    spool.close()
+    spool.close()  # idempotent
+    assert json.loads(out.read_text()) == [_result(0), _result(1), _result(2)] and spool.count == 3
+    assert not (tmp_path / "dets.json.tmp").exists()
+
+
+def test_no_results_give_an_empty_array_and_a_missing_folder_is_named(tmp_path):
+    spool = StreamedResults(tmp_path / "none.json")
+    spool.close()
+    assert json.loads((tmp_path / "none.json").read_text()) == []
+    with pytest.raises(FileNotFoundError, match="output directory .*missing does not exist"):
+        StreamedResults(tmp_path / "missing" / "d.json")
