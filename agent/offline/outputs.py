@@ -57,6 +57,12 @@ def _date_time(t: float) -> str | None:
         return None
 
 
+def _utc(t: float) -> str | None:
+    """ISO 8601 with the zone said ("Z"): a map or a browser reads a time without one as its own local time."""
+    text = _date_time(t)
+    return None if text is None else text + "Z"
+
+
 def image_entry(index: int, t: float, width: int, height: int, pose: Pose | None, pose_t: float | None, *,
                 video_id: int = 0, hfov_deg: float | None = None) -> dict[str, Any]:
     """One frame as an IMAGES.json image (DESIGN.md 6): id = frame index, SeaDronesSee ``meta`` from its pose.
@@ -96,7 +102,7 @@ def objects_geojson(rows: Sequence[TrackRow], class_names: Mapping[int, str]) ->
 
     Properties: ``id, cls`` (class name), ``cls_id, score`` (highest boosted confidence, clipped to 1),
     ``mean_score, frames`` (frames reported), ``first_t, t`` (first and last seen, UNIX s or the telemetry's
-    clock), ``first_seen, last_seen`` (ISO 8601 UTC), ``vel_en`` (m/s at the last sighting).
+    clock), ``first_seen, last_seen`` (ISO 8601 UTC, ending in "Z"), ``vel_en`` (m/s at the last sighting).
     """
     by_track: dict[int, list[TrackRow]] = {}
     for r in rows:
@@ -113,7 +119,7 @@ def objects_geojson(rows: Sequence[TrackRow], class_names: Mapping[int, str]) ->
                 "id": tid, "cls": class_names.get(last.track.cls, str(last.track.cls)), "cls_id": last.track.cls,
                 "score": round(max(scores), 4), "mean_score": round(sum(scores) / len(scores), 4),
                 "frames": len(trs), "first_t": round(trs[0].t, 3), "t": round(last.t, 3),
-                "first_seen": _date_time(trs[0].t), "last_seen": _date_time(last.t),
+                "first_seen": _utc(trs[0].t), "last_seen": _utc(last.t),
                 "vel_en": [round(last.track.vel_en[0], 3), round(last.track.vel_en[1], 3)],
             },
         })

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import xml.etree.ElementTree as ET
+from datetime import datetime, timezone
 from pathlib import Path
 
 import cv2
@@ -110,6 +111,11 @@ def test_detect_writes_outputs_that_standard_tools_read(flight, tmp_path):
             coords = np.array(feature["geometry"]["coordinates"]).reshape(-1, 2)
             assert np.allclose(coords[:, 0], lon0, atol=0.01) and np.allclose(coords[:, 1], lat0, atol=0.01)
             assert feature["properties"]["cls"] in {"person", "swimmer"}
+            if name == "objects.geojson":  # UTC said, or a map reads it as its own local time
+                props = feature["properties"]
+                assert props["first_seen"].endswith("Z") and props["last_seen"].endswith("Z")
+                last = datetime.fromisoformat(props["last_seen"][:-1]).replace(tzinfo=timezone.utc)  # 3.10: no "Z"
+                assert last.timestamp() == pytest.approx(props["t"], abs=1e-3)
 
     # KML: parses, one Placemark per object and per track
     ns = {"k": "http://www.opengis.net/kml/2.2"}
