@@ -137,7 +137,7 @@ def field_of_view_track(path: str | Path, records: Sequence[Telemetry], camera: 
                     camera.hfov_deg)
         return FieldOfView([t for t, _ in sent], hfovs, camera)
     if abs(mid / camera.hfov_deg - 1.0) > AGREE_FRACTION:
-        log.warning("telemetry %s: the KLV's horizontal field of view is %.1f deg, constant over the flight, where "
+        log.warning("telemetry %s: the horizontal field of view it sends is %.1f deg, constant over the flight, where "
                     "the camera's is %.1f deg: a camera file for another zoom, or an encoder sending a set value? "
                     "Every frame is projected with the camera file's focal length (a constant field of view is not "
                     "applied): give a camera file for the zoom in use", path, mid, camera.hfov_deg)

@@ -280,6 +280,8 @@ class GlobalTracker:
                 assigned[int(r)] = candidates[int(c)]
         for i, item in enumerate(items):
             track = assigned.get(i)
+            if track is not None and track.gid not in self._tracks:  # ended to make room for an earlier item
+                track = None
             adopted = self.adopt(uav, item.id, item.cls, item.lat, item.lon) if track is None and self.adopt else None
             if adopted is not None and adopted in self._tracks:  # our held copy of the handed-over track
                 mine = self._tracks[adopted]
@@ -347,8 +349,13 @@ class GlobalTracker:
         return lat2, lon2
 
     def _trim_members(self, track: GlobalTrack) -> None:
-        inactive = [k for k, m in track.members.items() if not m.active]  # oldest first (insertion order)
+        inactive = [k for k, m in track.members.items() if not m.active]
         excess = max(len(inactive) - MAX_INACTIVE_MEMBERS, len(track.members) - _MAX_MEMBERS_KEPT, 0)
+        if not excess:
+            return
+        # the ones that ended first go: last reported longest ago (a member reported all along that ends now is
+        # the most recent, wherever it stands in the list)
+        inactive.sort(key=lambda k: track.members[k].received)
         for oldest in inactive[:excess]:
             del track.members[oldest]
             if self._local.get(oldest) == track.gid:

@@ -382,13 +382,16 @@ class FusionStore:
             next_gid, self._next_gid = self._next_gid, None
         if not (tracks or history or joint or uavs or next_gid is not None):
             return
-        for gid, *_ in history:  # counted first, so an ended track's last rows are trimmed with it
-            self._since_trim[gid] = self._since_trim.get(gid, 0) + 1
         try:
             self._write(conn, tracks, history, joint, uavs, next_gid)
         except BaseException:
             self._requeue(tracks, history, joint, uavs, next_gid)
             raise
+        for gid, *_ in history:  # counted once written (a failed attempt's batch comes again)
+            self._since_trim[gid] = self._since_trim.get(gid, 0) + 1
+        for record in tracks.values():  # an ended track was trimmed with its last rows: not counted on
+            if record.ended is not None:
+                self._since_trim.pop(record.gid, None)
         with self._lock:
             self.flushes += 1
             self.last_success = time.time()
@@ -399,8 +402,8 @@ class FusionStore:
     def _write(self, conn: sqlite3.Connection, tracks, history, joint, uavs, next_gid) -> None:
         # a track's rows beyond history_len go every 50 new rows, and once more when it ends (its entry goes: kept
         # for every ended track with fewer rows since its last trim, the dict grew all flight)
-        ended = {r.gid for r in tracks.values() if r.ended is not None}
-        trim = [g for g, count in self._since_trim.items() if count >= 50 or g in ended]
+        ended = [r.gid for r in tracks.values() if r.ended is not None]
+        trim = list(dict.fromkeys([g for g, count in self._since_trim.items() if count >= 50] + ended))
         with conn:
             conn.execute("BEGIN")
             conn.executemany(

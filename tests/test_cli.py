@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import re
 import subprocess
 import sys
@@ -162,3 +163,20 @@ def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly(monkeypatch, cap
         monkeypatch.undo()
         stdout.close()
     assert "Broken pipe" not in capsys.readouterr().err
+
+
+def test_a_broken_pipe_other_than_stdout_is_an_error_not_silence(monkeypatch, capsys):
+    """The quiet ending is for a reader that left stdout; a child process's pipe breaking is said."""
+    import uavmm.cli
+
+    def handler(args):
+        raise BrokenPipeError(32, "Broken pipe")
+
+    parser = uavmm.cli.build_parser()
+    args = parser.parse_args(["eval", "--list-domains"])
+    monkeypatch.setattr(argparse.ArgumentParser, "parse_known_args", lambda self, argv=None: (args, []))
+    monkeypatch.setattr(args, "handler", handler)
+    with open(os.devnull, "w") as healthy:  # stdout itself is fine
+        monkeypatch.setattr(sys, "stdout", healthy)
+        assert main(["eval", "--list-domains"]) == 2
+    assert "uavmm eval: error: [Errno 32] Broken pipe" in capsys.readouterr().err

@@ -566,6 +566,19 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _stdout_reader_left() -> bool:
+    """Whether stdout is a pipe whose reader has gone (poll says error or hang-up); True where that cannot be asked
+    (no poll, no file descriptor)."""
+    try:
+        import select
+
+        poller = select.poll()
+        poller.register(sys.stdout.fileno(), select.POLLOUT)
+        return any(events & (select.POLLERR | select.POLLHUP) for _, events in poller.poll(0))
+    except (AttributeError, ValueError, OSError):
+        return True
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
@@ -580,9 +593,12 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         return int(args.handler(args) or 0)
-    except BrokenPipeError:  # `uavmm eval --list-domains | head`: the reader left; nothing to say (Python's recipe)
-        os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-        return 1
+    except BrokenPipeError as exc:
+        if _stdout_reader_left():  # `uavmm eval --list-domains | head`: nothing to say (Python's recipe)
+            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+            return 1
+        print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)  # another pipe (a child process's)
+        return 2
     except (CliError, ValueError, OSError, ImportError) as exc:
         print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)
         return 2

@@ -139,7 +139,10 @@ class GroundRegistration:
         prev = self._prev
         g = tel
         motion = None
-        if prev is not None and prev[2] == camera and row0 < camera.height - 2:
+        # the same frame size: a zoom lens's new focal length (a new camera each frame, agent.field_of_view) is in
+        # the telemetry homographies, and the image motion between two frames of it is a homography still
+        if prev is not None and (prev[2].width, prev[2].height) == (camera.width, camera.height) \
+                and row0 < camera.height - 2:
             prev_grey, prev_g, _ = prev
             s = np.diag([k, k, 1.0])
             mask = np.zeros_like(grey)

@@ -64,19 +64,17 @@ def _utc(t: float) -> str | None:
 
 
 def image_entry(index: int, t: float, width: int, height: int, pose: Pose | None, pose_t: float | None, *,
-                video_id: int = 0, hfov_deg: float | None = None) -> dict[str, Any]:
+                video_id: int = 0) -> dict[str, Any]:
     """One frame as an IMAGES.json image (DESIGN.md 6): id = frame index, SeaDronesSee ``meta`` from its pose.
 
     ``file_name`` is empty (no image files are written; ``frame_index`` says which frame of the video it is);
     ``meta`` is None for a frame without pose. The meta's ``date_time`` is the telemetry's time, the image's
-    ``date_time`` the frame's. hfov_deg: the frame's horizontal field of view where a zoom lens's differs from the
-    camera file's (`agent.field_of_view`), written as the meta's ``hfov_deg`` (read back by the dataset reader).
+    ``date_time`` the frame's. A zoom lens's field of view is added to the meta by the caller (`agent.offline.run`).
     """
     meta = None
     if pose is not None:
         tel = Telemetry(t=pose_t if pose_t is not None else t, lat=pose.lat, lon=pose.lon, height_m=pose.height_m,
-                        pitch_deg=pose.pitch_deg, heading_deg=pose.heading_deg, roll_deg=pose.roll_deg,
-                        hfov_deg=hfov_deg)
+                        pitch_deg=pose.pitch_deg, heading_deg=pose.heading_deg, roll_deg=pose.roll_deg)
         meta = to_seadronessee_meta(tel)
     return {"id": index, "file_name": "", "width": width, "height": height, "video_id": video_id,
             "frame_index": index, "date_time": _date_time(t), "meta": meta}

@@ -113,6 +113,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     annotator: VideoAnnotator | None = None
     detections: list[dict[str, Any]] = []
     images: list[dict[str, Any]] = []
+    hfovs: list[float] = []  # each frame's field of view, written when the lens zoomed (below)
+    zoomed = False
     rows: list[TrackRow] = []
     counts = {"frames": 0, "frames_without_pose": 0, "candidates": 0, "size_filtered": 0, "detections": 0}
     seconds = {"source": 0.0, "pipeline": 0.0, "tracker": 0.0, "draw": 0.0}
@@ -144,10 +146,11 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             seconds["tracker"] += t3 - t2
             rows.extend(TrackRow(frame.index, frame.index, t, tr) for tr in reported)
             detections.extend(results_to_coco(frame.index, result))
-            base = getattr(source, "camera", None)  # a zoom lens's frames: their own field of view in the meta
-            zoomed = base is not None and frame.camera is not base and frame.camera.fx != base.fx
             images.append(image_entry(frame.index, t, frame.camera.width, frame.camera.height, frame.pose,
-                                      frame.pose_t, hfov_deg=frame.camera.hfov_deg if zoomed else None))
+                                      frame.pose_t))
+            hfovs.append(frame.camera.hfov_deg)
+            base = getattr(source, "camera", None)
+            zoomed |= base is not None and frame.camera is not base and frame.camera.fx != base.fx
             counts["frames"] += 1
             counts["frames_without_pose"] += frame.pose is None
             counts["candidates"] += result.n_candidates
@@ -173,6 +176,11 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         source.close()
     if annotator is not None:
         annotator.close()
+    if zoomed:  # a zoom lens: every frame with a pose carries its field of view (`hfov_deg`, read back by the
+        # dataset reader), its unzoomed ones too: one left out would take its neighbours' when read as telemetry
+        for image, hfov in zip(images, hfovs, strict=True):
+            if image["meta"] is not None:
+                image["meta"]["hfov_deg"] = hfov
     files = write_outputs(out, detections=detections, images=images, rows=rows, class_names=source.class_names,
                           video_name=video_name, source=str(video_path or source.name))
     if annotator is not None:

@@ -429,3 +429,29 @@ def test_a_full_resolution_4k_heatmap_keeps_a_small_object():
         assert abs(peak[0] - 300) <= 2 and abs(peak[1] - 400) <= 2
         peaks.append(back.max())
     assert peaks[0] >= 0.9 * peaks[1] > 0.03
+
+
+def test_image_registration_goes_on_while_the_lens_zooms():
+    """A zoom gives every frame a new camera (agent.field_of_view); the registration compared cameras and was off
+    for the whole zoom. Only the frame size matters: the focal length is in the telemetry homographies."""
+    import cv2
+
+    from agent.anomaly.registration import GroundRegistration
+    from agent.field_of_view import FieldOfView
+
+    cam = Camera(width=640, height=360, fx=500.0, fy=500.0, cx=320.0, cy=180.0)
+    img = cv2.GaussianBlur((np.random.default_rng(0).random((360, 640, 3)) * 255).astype(np.uint8), (7, 7), 2)
+    pose = Pose(lat=48.5, lon=9.0, height_m=50.0, pitch_deg=70.0, heading_deg=0.0)
+    ts = np.arange(0.0, 10.01, 0.1)
+    zoom = FieldOfView(ts, 65.0 - 3.5 * ts, cam)  # 65 -> 30 deg over 10 s
+    for cameras in ([cam] * 3, [zoom.camera_at(t) for t in (5.0, 5.033, 5.067)]):
+        reg, used = GroundRegistration(), []
+        for k, camera in enumerate(cameras):
+            reg.update(img, camera, pose, row0=0, t=k / 30)
+            used.append(reg._motion_prev is not None)
+        assert used == [False, True, True]
+    refit = Camera(width=320, height=180, fx=250.0, fy=250.0, cx=160.0, cy=90.0)  # another frame size: starts over
+    reg = GroundRegistration()
+    reg.update(img, cam, pose, row0=0, t=0.0)
+    reg.update(cv2.resize(img, (320, 180)), refit, pose, row0=0, t=1 / 30)
+    assert reg._motion_prev is None

@@ -132,3 +132,29 @@ def test_detect_follows_a_zoom_lens_by_the_klv_field_of_view(tmp_path):
     redone = json.loads(again.read_text())["features"]
     assert len(redone) == 1
     assert bearing(*redone[0]["geometry"]["coordinates"][-1][:2]) == pytest.approx(expected(hfovs[-1]), abs=1.0)
+
+
+def test_every_frame_of_a_zooming_flight_carries_its_field_of_view(tmp_path):
+    """Frames at the camera file's own field of view were written without hfov_deg; read back as telemetry, they
+    took their zoomed neighbours' (a frame at 65.2 deg read as 30)."""
+    pytest.importorskip("av")
+    pytest.importorskip("onnx")
+    from shared.telemetry import read_telemetry
+    from tests.agent.test_detector import make_constant_model
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    wide = 65.24  # the camera file's (fx 250 at 320 px)
+    hfovs = [wide] * 10 + [wide - (wide - 30.0) * (i + 1) / (FRAMES - 10) for i in range(FRAMES - 10)]
+    klv = [packet(T0 + 0.1 * i, {**FULL_FIELDS, "hfov_deg": h}) for i, h in enumerate(hfovs)]
+    video = write_ts_with_pyav(tmp_path / "flight.ts", klv, fps=10, size=(320, 180))
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    raw = np.zeros((1, 4 + 2, 100), np.float32)
+    raw[0, :4, 0], raw[0, 4, 0] = [480, 320, 20, 40], 0.9
+    model = make_constant_model(tmp_path / "model.onnx", raw, metadata={"names": str({0: "person", 1: "swimmer"})})
+    out = tmp_path / "out"
+    assert _detect(video, camera, model, out) == 0
+    metas = [im["meta"] for im in json.loads((out / "images.json").read_text())["images"]]
+    assert [m["hfov_deg"] for m in metas] == pytest.approx(hfovs, abs=0.01)
+    back = read_telemetry(out / "images.json")
+    assert [r.hfov_deg for r in back] == pytest.approx(hfovs, abs=0.01)

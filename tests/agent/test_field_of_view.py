@@ -41,7 +41,7 @@ def test_a_zoom_during_the_flight_is_applied_and_said(caplog):
     ([65.0] * 5, None),
     ([None] * 5, None),
     ([70.0, 71.0, 72.0], None),  # within 5 %: no zoom; within 15 % of the camera's
-    ([8.0] * 5, "the KLV's horizontal field of view is 8.0 deg, constant over the flight, where the camera's is "
+    ([8.0] * 5, "the horizontal field of view it sends is 8.0 deg, constant over the flight, where the camera's is "
                 "65.2 deg"),
 ])
 def test_a_constant_field_of_view_is_not_applied(caplog, hfovs, said):

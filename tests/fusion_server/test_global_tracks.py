@@ -285,3 +285,35 @@ def test_without_a_database_the_changes_are_not_collected(clock):
     assert len(records) == 5 and len(history) == 50
     assert quiet.drain_changes() == ([], [])
     assert [r.gid for r in quiet.records(include_ended=True)] == [r.gid for r in kept.records(include_ended=True)]
+
+
+def test_a_long_reported_member_that_ends_is_the_most_recent_one_kept(tracker, clock):
+    """The trim kept the members inserted last: a UAV's local id reported all along (updated in place, first in the
+    list) was the first one dropped when it missed one report, and came back under another global id."""
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    gid = gids(tracker)[("a", 1)]
+    for k in range(12):  # b's local tracks come and go there while a keeps reporting its id 1
+        clock.now = 0.1 * (k + 1)
+        tracker.update(msg("a", (1, 0.0, 0.0)))
+        tracker.update(msg("b", (100 + k, 0.5, 0.0)))
+    clock.now = 1.5
+    tracker.update(msg("a"))  # one missed report
+    (track,) = tracker.records()
+    assert ("a", 1) in track.members  # the most recent of the ended ones
+    clock.now = 1.6
+    tracker.update(msg("a", (1, 6.0, 0.0)))  # back, 6 m off (beyond this tracker's 5 m gate)
+    assert gids(tracker)[("a", 1)] == gid
+
+
+def test_a_held_track_ended_to_make_room_is_not_given_to_a_later_item(clock):
+    """Making room for a new track could end the held track a later item of the same message was matched to: the
+    item joined the ended track and its local id pointed at a global id that no longer existed."""
+    tracker = GlobalTracker(gate_m=10.0, max_tracks_per_uav=1, clock=clock, wall=clock)
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    clock.now = 0.1
+    tracker.update(msg("a"))  # its track is held
+    clock.now = 0.2
+    tracker.update(msg("a", (5, 1000.0, 0.0), (6, 0.0, 0.0)))  # 5: new and far (ends the held one), 6: at it
+    live = {r.gid for r in tracker.records()}
+    assert set(gids(tracker).values()) <= live and set(tracker._local.values()) <= live
+    assert {m for item in tracker.joint_message().tracks for m in item.members} == {("a", 5)}

@@ -101,3 +101,23 @@ def test_an_ended_tracks_rows_are_trimmed_with_it_and_it_is_not_remembered(tmp_p
         "SELECT t FROM track_history WHERE gid = 1 ORDER BY t").fetchall()
     assert [r[0] for r in rows] == [float(t) for t in range(30, 40)]
     store.close()
+
+
+def test_rows_are_counted_towards_a_trim_once_written(tmp_path, monkeypatch):
+    """A batch that failed to write and came again was counted once per attempt (13 rows after three failures: 39)."""
+    import sqlite3
+
+    store = FusionStore(tmp_path / "f.sqlite", history_len=10)
+    real, fails = store._write, [3]
+
+    def flaky(*args):
+        if fails[0]:
+            fails[0] -= 1
+            raise sqlite3.OperationalError("database is locked")
+        return real(*args)
+
+    monkeypatch.setattr(store, "_write", flaky)
+    store.save_tracks([record(1)], [(1, float(t), 47.0, 9.0) for t in range(13)], next_gid=2)
+    assert [store._attempt() for _ in range(4)] == [False, False, False, True]
+    assert store._since_trim == {1: 13}
+    store.close()
