@@ -145,6 +145,10 @@ def test_an_unknown_flag_gets_the_subcommands_usage_and_one_error_line(capsys):
     with pytest.raises(SystemExit):
         main(["--bogus"])
     assert capsys.readouterr().err.rstrip().endswith("uavmm: error: unrecognized arguments: --bogus")
+    with pytest.raises(SystemExit):
+        main(["secure", "init", "fleet", "--uavs", "u1", "--bogus"])
+    err = capsys.readouterr().err
+    assert err.startswith("usage: uavmm secure init ") and "uavmm secure init: error: unrecognized" in err
 
 
 def test_a_reader_that_leaves_the_pipe_ends_the_command_quietly(monkeypatch, capsys):

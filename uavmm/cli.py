@@ -566,6 +566,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _innermost(parser: argparse.ArgumentParser, argv: Sequence[str]) -> argparse.ArgumentParser:
+    """The deepest subcommand's parser that argv names (`uavmm secure init ...` -> init's)."""
+    for token in argv:
+        subs = next((a for a in parser._actions if isinstance(a, argparse._SubParsersAction)), None)
+        if subs is not None and token in subs.choices:
+            parser = subs.choices[token]
+    return parser
+
+
 def _stdout_reader_left() -> bool:
     """Whether stdout is a pipe whose reader has gone (poll says error or hang-up); True where that cannot be asked
     (no poll, no file descriptor)."""
@@ -582,10 +591,9 @@ def _stdout_reader_left() -> bool:
 def main(argv: Sequence[str] | None = None) -> int:
     parser = build_parser()
     args, unknown = parser.parse_known_args(argv)
-    if unknown:  # the subcommand's usage and one error line, not the top level's
-        sub = next((a.choices.get(getattr(args, "command", None)) for a in parser._actions
-                    if isinstance(a, argparse._SubParsersAction)), None)
-        (sub or parser).error(f"unrecognized arguments: {' '.join(unknown)}")
+    if unknown:  # the (sub)subcommand's usage and one error line, not the top level's
+        _innermost(parser, argv if argv is not None else sys.argv[1:]).error(
+            f"unrecognized arguments: {' '.join(unknown)}")
     logging.basicConfig(level=args.log_level, format="%(asctime)s %(levelname)s %(name)s: %(message)s",
                         stream=sys.stderr)
     if not getattr(args, "handler", None):
