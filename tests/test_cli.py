@@ -184,3 +184,14 @@ def test_a_broken_pipe_other_than_stdout_is_an_error_not_silence(monkeypatch, ca
         monkeypatch.setattr(sys, "stdout", healthy)
         assert main(["eval", "--list-domains"]) == 2
     assert "uavmm eval: error: [Errno 32] Broken pipe" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(("source", "flags", "said"), [
+    (["--sim", "coop"], ["--video-fps", "30"], "--video-fps goes with --video, not --sim"),
+    (["--dataset", "d"], ["--pitch-deg", "45", "--height-m", "30"],
+     "--pitch-deg, --height-m go with --video, not --dataset"),
+])
+def test_agent_refuses_video_flags_beside_another_source(capsys, source, flags, said):
+    """They did nothing, silently: a user who gave --pitch-deg with --dataset thought the pitch was applied."""
+    assert main(["agent", "--uav-id", "u1", "--connect", "tcp/127.0.0.1:1", *source, *flags]) == 2
+    assert f"uavmm agent: error: {said}" in capsys.readouterr().err

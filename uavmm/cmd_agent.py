@@ -119,10 +119,20 @@ def anomaly_from_args(args: argparse.Namespace, terrain=None):
     return AnomalyDetector(AnomalyConfig(method=args.anomaly, terrain=terrain))
 
 
+#: The --video source's flags (default None), refused beside --sim / --dataset.
+_VIDEO_ONLY = ("telemetry", "model", "class_names", "telemetry_offset_s", "mavlink_system_id", "video_fps",
+               "telemetry_utc_offset_h", "pitch_deg", "heading_deg", "height_m", "height_offset_m")
+
+
 def source_from_args(args: argparse.Namespace):
     """The frame source the flags describe; ValueError for missing companion flags or bad files."""
     from agent.sources import DatasetSource, VideoSource
 
+    if args.video is None:  # a --video flag beside --sim / --dataset did nothing, silently
+        given = [f"--{name.replace('_', '-')}" for name in _VIDEO_ONLY if getattr(args, name, None) is not None]
+        if given:
+            raise ValueError(f"{', '.join(given)} go{'es' if len(given) == 1 else ''} with --video, not "
+                             f"{'--sim' if args.sim is not None else '--dataset'}")
     if args.sim is not None:
         from sim.source import SimSource  # the simulated source lives with the simulator (sim imports agent)
 
