@@ -95,18 +95,23 @@ class JointRegistration:
         b = self.bin_rad
         lo = d.min(axis=0) - 3 * b
         bins = np.maximum(np.ceil((d.max(axis=0) + 3 * b - lo) / b).astype(int), 1)
-        hist = np.zeros((bins[1], bins[0]), np.float32)
         cells = np.minimum(((d - lo) / b).astype(int), bins - 1)
-        np.add.at(hist, (cells[:, 1], cells[:, 0]), 1.0)
-        hist = cv2.GaussianBlur(hist, (0, 0), 2.0)
+        counts = np.bincount(cells[:, 1] * bins[0] + cells[:, 0], minlength=int(bins[0] * bins[1]))
+        hist = cv2.GaussianBlur(counts.astype(np.float32).reshape(bins[1], bins[0]), (0, 0), 2.0)
         rows, cols = np.nonzero((hist >= cv2.dilate(hist, _KERNEL)) & (hist > 0))
         order = np.argsort(-hist[rows, cols], kind="stable")[:self.candidates]
-        best, best_n = np.zeros(2), -1
+        # peaks with a pair near each candidate, counted on a mark per peak id (np.unique sorted them: ~3x slower)
+        first_id = int(ids.min())
+        marks = np.zeros(int(ids.max()) - first_id + 1, bool)
+        best_near, best_n = None, -1
         for k in order:
             centre = lo + (np.array([cols[k], rows[k]]) + 0.5) * b
             near = np.hypot(*(d - centre).T) <= self.match_rad
-            n = len(np.unique(ids[near]))
+            marks[:] = False
+            marks[ids[near] - first_id] = True
+            n = int(np.count_nonzero(marks))
             if n > best_n:
-                best, best_n = np.median(d[near], axis=0), n
+                best_near, best_n = near, n
+        best = np.median(d[best_near], axis=0) if best_near is not None else np.zeros(2)
         self._cached = (float(best[0]), float(best[1]))
         return self._cached
