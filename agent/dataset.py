@@ -5,7 +5,6 @@ File I/O and validation live here so the pipeline, tracker and evaluation take p
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from collections import Counter, defaultdict
@@ -17,7 +16,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.candidates import Candidates  # noqa: F401  (re-exported: agent.dataset.Candidates, as before)
 from agent.field_of_view import ZoomedCamera
+from agent.json_files import read_json
 from agent.telemetry_clock import ClockReport, TelemetryClockSettings, TelemetryTrack, reconcile_clock
 from agent.telemetry_dequantize import dequantize_track
 from shared.geo import Camera, Pose
@@ -31,18 +32,6 @@ DEFAULT_FPS = 30.0
 #: more than this many seconds (and more than TIME_GAP_STEPS of their median step).
 TIME_GAP_S = 10.0
 TIME_GAP_STEPS = 20.0
-
-
-def read_json(path: str | Path, what: str) -> Any:
-    """Parse a JSON file; errors name the file and what it was meant to be."""
-    path = Path(path)
-    try:
-        with path.open("rb") as f:
-            return json.load(f)
-    except FileNotFoundError:
-        raise ValueError(f"{what} file {path} does not exist") from None
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{what} file {path} is not valid JSON: {exc}") from None
 
 
 def _one_file(folder: Path, name: str, pattern: str, what: str) -> Path:
@@ -283,111 +272,6 @@ def _int(d: dict, key: str, default: int | None = None) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
         raise ValueError(f"field {key!r} must be an integer, got {value!r}")
     return int(value)
-
-
-@dataclass
-class Candidates:
-    """Pre-NMS candidates per image: boxes_xyxy (N, 4) float32, scores (N,) float32, class ids (N,).
-
-    embeddings: per image, (N, D) float32 appearance descriptors from the optional ``embedding`` field
-    of the entries (NaN rows for entries without one); only images where some entry has one.
-    """
-
-    by_image: dict[int, tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]]
-    skipped: dict[str, int]
-    embeddings: dict[int, NDArray[np.float32]] = field(default_factory=dict)
-
-    def get_embeddings(self, image_id: int) -> NDArray[np.float32] | None:
-        """(N, D) descriptors of the image's candidates in `get`'s order, or None when it has none."""
-        return self.embeddings.get(image_id)
-
-    def get(self, image_id: int) -> tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]:
-        empty = (np.zeros((0, 4), np.float32), np.zeros(0, np.float32), np.zeros(0, np.int64))
-        return self.by_image.get(image_id, empty)
-
-    @classmethod
-    def load(cls, path: str | Path, dataset: Dataset) -> Candidates:
-        return cls.from_list(read_json(path, "candidates"), dataset, source=str(path))
-
-    @classmethod
-    def from_list(cls, entries: Any, dataset: Dataset, *, source: str = "<candidates>") -> Candidates:
-        """Validate a COCO result list.
-
-        Entries naming an unknown image_id or category_id, or malformed ones (missing fields,
-        non-numeric values) raise ValueError naming the entry: they mean the files do not belong
-        together. Degenerate boxes (NaN/inf, width or height <= 0) and scores outside [0, 1] or NaN
-        are skipped and counted in `skipped` (detectors emit those; one should not stop a run).
-        """
-        if not isinstance(entries, list):
-            raise ValueError(f"{source}: expected a JSON list of {{image_id, category_id, bbox, score}}")
-        n = len(entries)
-        image_ids = np.empty(n, np.int64)
-        cat_ids = np.empty(n, np.int64)
-        boxes = np.empty((n, 4), np.float64)
-        scores = np.empty(n, np.float64)
-        emb_rows: dict[int, list[float]] = {}  # optional appearance descriptors (docs/tracking.md)
-        for i, e in enumerate(entries):
-            try:
-                image_ids[i] = e["image_id"]
-                cat_ids[i] = e["category_id"]
-                bbox = e["bbox"]
-                if len(bbox) != 4:
-                    raise ValueError(f"bbox must have 4 numbers, got {len(bbox)}")
-                boxes[i] = bbox
-                scores[i] = e["score"]
-                if "embedding" in e:
-                    emb = e["embedding"]
-                    if not isinstance(emb, list) or not emb or not all(
-                            isinstance(v, (int, float)) and not isinstance(v, bool) for v in emb):
-                        raise ValueError("embedding must be a non-empty list of numbers")
-                    emb_rows[i] = emb
-            except (KeyError, TypeError, ValueError, OverflowError) as exc:
-                raise ValueError(f"{source}: entry {i} is malformed ({exc!r}): {str(e)[:200]}") from None
-        dims = {len(v) for v in emb_rows.values()}
-        if len(dims) > 1:
-            raise ValueError(f"{source}: embeddings of different lengths {sorted(dims)}")
-        emb_all = None
-        if emb_rows:
-            emb_all = np.full((n, dims.pop()), np.nan, np.float32)
-            rows = np.fromiter(emb_rows, np.int64, len(emb_rows))
-            emb_all[rows] = np.asarray(list(emb_rows.values()), np.float32)
-        unknown_img = ~np.isin(image_ids, np.fromiter(dataset.images, np.int64, len(dataset.images)))
-        if unknown_img.any():
-            i = int(np.flatnonzero(unknown_img)[0])
-            raise ValueError(f"{source}: entry {i} references unknown image_id {int(image_ids[i])} "
-                             f"({int(unknown_img.sum())} such entries)")
-        unknown_cat = ~np.isin(cat_ids, np.fromiter(dataset.categories, np.int64, len(dataset.categories)))
-        if unknown_cat.any():
-            i = int(np.flatnonzero(unknown_cat)[0])
-            raise ValueError(f"{source}: entry {i} references unknown category_id {int(cat_ids[i])}; "
-                             f"known: {sorted(dataset.categories)}")
-        finite = np.isfinite(boxes).all(axis=1)
-        positive = finite & (boxes[:, 2] > 0) & (boxes[:, 3] > 0)
-        good_score = np.isfinite(scores) & (scores >= 0) & (scores <= 1)
-        skipped = {
-            "non_finite_box": int((~finite).sum()),
-            "non_positive_size": int((finite & ~positive).sum()),
-            "score_out_of_range": int((positive & ~good_score).sum()),
-        }
-        if any(skipped.values()):
-            log.warning("%s: skipped candidates: %s", source, skipped)
-        keep = positive & good_score
-        image_ids, cat_ids, boxes, scores = image_ids[keep], cat_ids[keep], boxes[keep], scores[keep]
-        xyxy = np.column_stack([boxes[:, 0], boxes[:, 1], boxes[:, 0] + boxes[:, 2], boxes[:, 1] + boxes[:, 3]])
-        order = np.argsort(image_ids, kind="stable")
-        image_ids, cat_ids, xyxy, scores = image_ids[order], cat_ids[order], xyxy[order], scores[order]
-        if emb_all is not None:
-            emb_all = emb_all[keep][order]
-        by_image = {}
-        embeddings = {}
-        if len(image_ids):
-            splits = np.flatnonzero(np.diff(image_ids)) + 1
-            for idx in np.split(np.arange(len(image_ids)), splits):
-                by_image[int(image_ids[idx[0]])] = (xyxy[idx].astype(np.float32), scores[idx].astype(np.float32),
-                                                    cat_ids[idx])
-                if emb_all is not None and np.isfinite(emb_all[idx]).all(axis=1).any():
-                    embeddings[int(image_ids[idx[0]])] = emb_all[idx]
-        return cls(by_image, skipped, embeddings)
 
 
 def image_file(image_dir: str | Path, image: ImageRecord) -> Path | None:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import re
 import subprocess
 import sys
 
@@ -262,3 +263,34 @@ def test_boost_measures_a_late_telemetry_clock_and_re_times_the_poses(late_telem
     last = [float(r["clock_offset_s"]) for r in rows if r["frame_index"] == "449"]
     # 0.3 s plus half a 30 Hz telemetry sample held: measured by the end of each video
     assert len(last) == 2 and all(abs(v - 0.31) < 0.06 for v in last), last
+
+
+def test_a_candidates_file_read_entry_by_entry_is_the_list_parsed_whole(tmp_path):
+    """Candidates.load streams the file (an hour's list held as Python dicts took ~10 GB); the arrays, the skipped
+    counts, the embeddings (NaN rows where an entry has none) and the errors are what the whole list gives."""
+    d = make_dataset(tmp_path, frames=3)
+    ds = Dataset.load(d / "images.json")
+    entries = json.loads((d / "pre_nms.json").read_text())
+    entries[0]["embedding"] = [1.0, 0.5, -2]
+    entries[2]["embedding"] = [0.0, 1.0, 3.5]
+    entries += [{"image_id": 1, "category_id": 1, "bbox": [0, 0, -5, 5], "score": 0.5, "embedding": [9, 9, 9]},
+                {"image_id": 2.0, "category_id": 1, "bbox": ["1.5", 2, 3, 4], "score": 0.25}]  # as numpy takes them
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(entries, indent=1))
+    whole, streamed = Candidates.from_list(entries, ds), Candidates.load(path, ds)
+    assert streamed.skipped == whole.skipped == {"non_finite_box": 0, "non_positive_size": 1, "score_out_of_range": 0}
+    assert streamed.by_image.keys() == whole.by_image.keys() and streamed.embeddings.keys() == whole.embeddings.keys()
+    for image_id, arrays in whole.by_image.items():
+        for a, b in zip(arrays, streamed.by_image[image_id], strict=True):
+            assert a.dtype == b.dtype and np.array_equal(a, b)
+    for image_id, emb in whole.embeddings.items():
+        assert np.array_equal(emb, streamed.embeddings[image_id], equal_nan=True)
+    for bad, message in (([{**entries[0], "image_id": "x"}], "entry 0 is malformed"),
+                         ({"image_id": 1}, "expected a JSON list of {image_id, category_id, bbox, score}"),
+                         ([entries[0], {**entries[1], "embedding": [1.0]}], "embeddings of different lengths")):
+        path.write_text(json.dumps(bad))
+        with pytest.raises(ValueError, match=re.escape(message)):
+            Candidates.load(path, ds)
+        if isinstance(bad, list):
+            with pytest.raises(ValueError, match=re.escape(message)):
+                Candidates.from_list(bad, ds)
