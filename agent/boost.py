@@ -11,6 +11,7 @@ import logging
 import math
 import statistics
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -182,8 +183,12 @@ CORRECTION_COLUMNS = ("image_id", "video_id", "frame_index", "east_m", "north_m"
 
 def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_path: str | Path,
                   config: PipelineConfig, size_filter: SizeFilter | None = None, *,
-                  corrections: list[tuple] | None = None) -> tuple[list[dict], dict]:
+                  corrections: list[tuple] | None = None,
+                  sink: Callable[[list[dict[str, Any]]], None] | None = None) -> tuple[list[dict], dict]:
     """Load the three files, run, and return (COCO results, stats).
+
+    sink: when given, each frame's results go to it as they come (e.g. `StreamedResults.extend`: an hour's
+    results as dicts are several times the file) and the returned list is empty.
 
     corrections: when a list, one row per frame is appended (CORRECTION_COLUMNS; a frame without pose
     or correction gets zeros and measured False; clock_offset_s: the video/telemetry clock offset its pose
@@ -195,8 +200,10 @@ def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     results: list[dict[str, Any]] = []
     offsets: dict[int, ClockOffset] = {}
 
+    add = results.extend if sink is None else sink
+
     def on_frame(frame, res: FrameResult) -> None:
-        results.extend(results_to_coco(frame.image.id, res))
+        add(results_to_coco(frame.image.id, res))
         if corrections is not None:
             c = res.correction
             offset = offsets.get(frame.image.id)
@@ -257,8 +264,15 @@ class StreamedResults:
             self._file = self._tmp.open("w")
             self._file.write("[")
         for result in results:
-            self._file.write(("," if self.count else "") + json.dumps(result))
+            self._file.write((", " if self.count else "") + json.dumps(result))
             self.count += 1
+
+    def abort(self) -> None:
+        """Drop what was written (a failed run leaves no .tmp behind); idempotent."""
+        if self._file is not None and not self._file.closed:
+            self._file.close()
+        self._tmp.unlink(missing_ok=True)
+        self.closed = True
 
     def close(self) -> None:
         """End the array and put the file in place (idempotent)."""

@@ -276,19 +276,24 @@ def _add_boost(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_boost(args: argparse.Namespace) -> int:
-    from agent.boost import boost_dataset, write_corrections, write_results
+    from agent.boost import StreamedResults, boost_dataset, write_corrections
 
     cfg, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
     if args.clock_offset is not None:  # else the configuration's (on by default)
         cfg = dataclasses.replace(cfg, estimate_clock_offset=args.clock_offset)
     require_out_parent(args.out, args.corrections_out)
     corrections: list[tuple] | None = [] if args.corrections_out is not None else None
-    results, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter,
-                                   corrections=corrections)
-    write_results(results, args.out)
+    spool = StreamedResults(args.out)  # written as the frames come; in place once the run ends well
+    try:
+        _, stats = boost_dataset(args.frames, args.candidates, args.camera, cfg, size_filter,
+                                 corrections=corrections, sink=spool.extend)
+    except BaseException:
+        spool.abort()
+        raise
+    spool.close()
     if corrections is not None:
         write_corrections(corrections, args.corrections_out)
-    print_run_summary(f"wrote {len(results)} detections to {args.out}", stats)
+    print_run_summary(f"wrote {spool.count} detections to {args.out}", stats)
     return 0
 
 

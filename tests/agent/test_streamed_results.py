@@ -33,3 +33,12 @@ def test_no_results_give_an_empty_array_and_a_missing_folder_is_named(tmp_path):
     assert json.loads((tmp_path / "none.json").read_text()) == []
     with pytest.raises(FileNotFoundError, match="output directory .*missing does not exist"):
         StreamedResults(tmp_path / "missing" / "d.json")
+
+
+def test_an_aborted_run_leaves_neither_the_file_nor_its_tmp(tmp_path):
+    out = tmp_path / "dets.json"
+    spool = StreamedResults(out)
+    spool.extend([_result(0)])
+    spool.abort()
+    spool.close()  # after an abort: nothing to put in place
+    assert not out.exists() and not (tmp_path / "dets.json.tmp").exists()
