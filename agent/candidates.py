@@ -63,6 +63,11 @@ class Candidates:
             return cls._from_entries(iter_json_list(path, "candidates"), dataset, source)
         except NotAJsonList:
             raise ValueError(_NOT_A_LIST.format(source=source)) from None
+        except MalformedEntry:
+            # parsed whole, a file broken further on said that first: check the rest (entry by entry) before
+            for _ in iter_json_list(path, "candidates"):
+                pass
+            raise
 
     @classmethod
     def from_list(cls, entries: Any, dataset: Dataset, *, source: str = "<candidates>") -> Candidates:
@@ -83,16 +88,22 @@ class Candidates:
         # optional appearance descriptors (docs/tracking.md): the rows of the first length seen, and which entries
         emb_buf, emb_at, dims = array("f"), array("q"), set()
         i = -1
+        # one entry's values put into numpy scalars first, in the order and with the conversions of the arrays the
+        # whole list was once put into: the same values accepted (null -> NaN, skipped below), the same errors
+        id1, cat1, box1, score1 = np.empty(1, np.int64), np.empty(1, np.int64), np.empty(4), np.empty(1)
         for i, e in enumerate(entries):
             try:
-                image_id, cat_id, bbox, score = e["image_id"], e["category_id"], e["bbox"], e["score"]
+                id1[0] = e["image_id"]
+                cat1[0] = e["category_id"]
+                bbox = e["bbox"]
                 if len(bbox) != 4:
                     raise ValueError(f"bbox must have 4 numbers, got {len(bbox)}")
-                row = [float(v) for v in bbox]
-                ids_buf.append(_integer(image_id))
-                cats_buf.append(_integer(cat_id))
-                boxes_buf.extend(row)
-                scores_buf.append(float(score))
+                box1[:] = bbox
+                score1[0] = e["score"]
+                ids_buf.append(int(id1[0]))
+                cats_buf.append(int(cat1[0]))
+                boxes_buf.frombytes(box1.tobytes())
+                scores_buf.append(float(score1[0]))
                 if "embedding" in e:
                     emb = e["embedding"]
                     if not isinstance(emb, list) or not emb or not all(
@@ -103,7 +114,7 @@ class Candidates:
                         emb_buf.extend(emb)
                         emb_at.append(i)
             except (KeyError, TypeError, ValueError, OverflowError) as exc:
-                raise ValueError(f"{source}: entry {i} is malformed ({exc!r}): {str(e)[:200]}") from None
+                raise MalformedEntry(f"{source}: entry {i} is malformed ({exc!r}): {str(e)[:200]}") from None
         n = i + 1
         image_ids = np.frombuffer(ids_buf, np.int64) if n else np.zeros(0, np.int64)
         cat_ids = np.frombuffer(cats_buf, np.int64) if n else np.zeros(0, np.int64)
@@ -160,7 +171,5 @@ class Candidates:
 _NOT_A_LIST = "{source}: expected a JSON list of {{image_id, category_id, bbox, score}}"
 
 
-def _integer(value: Any) -> int:
-    """An id as numpy puts it into an int64 array (what the loader did before it streamed): the same values
-    accepted, the same TypeError / ValueError / OverflowError otherwise."""
-    return int(np.int64(value))
+class MalformedEntry(ValueError):
+    """An entry that is not {image_id, category_id, bbox, score} (reading the file stops there)."""

@@ -5,6 +5,7 @@ dicts, where the arrays made of them keep ~40).
 
 from __future__ import annotations
 
+import io
 import json
 from collections.abc import Iterator
 from pathlib import Path
@@ -46,17 +47,21 @@ def iter_json_list(path: str | Path, what: str, *, chunk_chars: int = _CHUNK_CHA
     path = Path(path)
     decoder = json.JSONDecoder()
     try:
-        f = path.open(encoding="utf-8-sig")
+        raw = path.open("rb")
     except FileNotFoundError:
         raise ValueError(f"{what} file {path} does not exist") from None
-    with f:
+    # the encoding json.load finds (UTF-8 with or without a BOM, UTF-16 / 32 as Windows tools write them)
+    encoding = json.detect_encoding(raw.peek(4)[:4])
+    with io.TextIOWrapper(raw, encoding=encoding, errors="surrogatepass") as f:
         buf, pos, eof = "", 0, False
 
-        def more() -> bool:
+        def more(at_least: int = 0) -> bool:
+            """Read on (at least `at_least` characters: an entry that keeps failing to decode reads geometrically
+            more, so a broken or huge one costs the file's length once, not once per chunk)."""
             nonlocal buf, pos, eof
             if eof:
                 return False
-            chunk = f.read(chunk_chars)
+            chunk = f.read(max(chunk_chars, at_least))
             if not chunk:
                 eof = True
                 return False
@@ -97,15 +102,15 @@ def iter_json_list(path: str | Path, what: str, *, chunk_chars: int = _CHUNK_CHA
                     try:
                         entry, end = decoder.raw_decode(buf, pos)
                     except json.JSONDecodeError:
-                        if more():
-                            continue  # the entry runs past the chunk
+                        if more(len(buf) - pos):
+                            continue  # the entry runs past what was read
                         raise
                     break
                 pos = end
                 yield entry
-        except json.JSONDecodeError:
+        except (json.JSONDecodeError, UnicodeDecodeError) as exc:
             read_json(path, what)  # the whole file's message, which names the place
-            raise  # valid after all (cannot happen): keep the chunk's error
+            raise ValueError(f"{what} file {path} is not valid JSON: {exc}") from None  # (parsed whole it was)
 
 
 def _not_a_list(path: Path, what: str) -> None:

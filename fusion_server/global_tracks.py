@@ -280,7 +280,7 @@ class GlobalTracker:
                 assigned[int(r)] = candidates[int(c)]
         for i, item in enumerate(items):
             track = assigned.get(i)
-            if track is not None and track.gid not in self._tracks:  # ended to make room for an earlier item
+            if track is not None and self._tracks.get(track.gid) is not track:  # ended to make room for an earlier item
                 track = None
             adopted = self.adopt(uav, item.id, item.cls, item.lat, item.lon) if track is None and self.adopt else None
             if adopted is not None and adopted in self._tracks:  # our held copy of the handed-over track
@@ -288,7 +288,7 @@ class GlobalTracker:
                 track = mine if mine.cls == item.cls and adopted not in claimed else None
                 adopted = None
             if track is None:
-                if not self._make_room(uav):
+                if not self._make_room(uav, claimed):
                     continue
                 gid = adopted
                 if gid is None:
@@ -311,11 +311,12 @@ class GlobalTracker:
             self._local[key] = track.gid
             claimed.add(track.gid)
 
-    def _make_room(self, uav: str) -> bool:
-        """Whether ``uav`` may create a global track now, ending a held one to make room if needed."""
+    def _make_room(self, uav: str, claimed: set[int]) -> bool:
+        """Whether ``uav`` may create a global track now, ending a held one to make room if needed (not one
+        `claimed` by this message: it is reported again, though still marked held until the message is done)."""
         owned = self._owned.get(uav, {})
         if len(owned) >= self.max_tracks_per_uav:
-            victim = next((gid for gid in owned if gid in self._lost), None)
+            victim = next((gid for gid in owned if gid in self._lost and gid not in claimed), None)
             if victim is None:
                 self._count("uav_track_quota")
                 return False
@@ -323,7 +324,7 @@ class GlobalTracker:
         if len(self._tracks) >= self.max_global_tracks:
             # the UAV that created the most pays first: a flood evicts its own held tracks
             for owner in sorted(self._owned, key=lambda u: -len(self._owned[u])):
-                victim = next((gid for gid in self._owned[owner] if gid in self._lost), None)
+                victim = next((gid for gid in self._owned[owner] if gid in self._lost and gid not in claimed), None)
                 if victim is not None:
                     self._evict(victim)
                     break

@@ -294,3 +294,24 @@ def test_a_candidates_file_read_entry_by_entry_is_the_list_parsed_whole(tmp_path
         if isinstance(bad, list):
             with pytest.raises(ValueError, match=re.escape(message)):
                 Candidates.from_list(bad, ds)
+
+
+def test_candidates_read_from_a_file_keep_the_old_loaders_leniency_and_messages(tmp_path):
+    """null (a NaN as orjson and JavaScript write it) in a box or a score was skipped and counted, not a stop; a
+    file broken after a malformed entry says it is not valid JSON, as parsing it whole did; UTF-16 (Windows
+    PowerShell's `>`) is read like json.load reads it."""
+    d = make_dataset(tmp_path, frames=2)
+    ds = Dataset.load(d / "images.json")
+    entries = json.loads((d / "pre_nms.json").read_text())
+    nulls = entries + [{"image_id": 1, "category_id": 1, "bbox": [None, 0, 5, 5], "score": 0.5},
+                       {"image_id": 1, "category_id": 1, "bbox": [0, 0, 5, 5], "score": None}]
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps(nulls))
+    assert Candidates.load(path, ds).skipped == Candidates.from_list(nulls, ds).skipped == {
+        "non_finite_box": 1, "non_positive_size": 0, "score_out_of_range": 1}
+    path.write_text(json.dumps([{**entries[0], "bbox": [1, 2, 3]}] + entries[1:])[:-30])  # cut short, too
+    with pytest.raises(ValueError, match="is not valid JSON"):
+        Candidates.load(path, ds)
+    path.write_text(json.dumps(entries), encoding="utf-16")
+    loaded = Candidates.load(path, ds)
+    assert sum(len(v[1]) for v in loaded.by_image.values()) == len(entries)

@@ -18,13 +18,15 @@ _values = st.recursive(_scalars, lambda inner: st.lists(inner, max_size=4) | st.
 
 @settings(max_examples=150, deadline=None)
 @given(entries=st.lists(_values, max_size=12), indent=st.sampled_from([None, 0, 2]), chunk=st.integers(1, 64),
-       bom=st.booleans())
-@example(entries=[12345, 6789], indent=None, chunk=3, bom=False)  # a number cut by the chunk's end
-@example(entries=[{"a": "]},["}], indent=None, chunk=2, bom=False)
-def test_entries_read_one_at_a_time_are_the_whole_files(tmp_path_factory, entries, indent, chunk, bom):
+       bom=st.booleans(), encoding=st.sampled_from(["utf-8", "utf-16-le", "utf-16", "utf-32"]))
+@example(entries=[12345, 6789], indent=None, chunk=3, bom=False, encoding="utf-8")  # a number cut by a chunk's end
+@example(entries=[{"a": "]},["}], indent=None, chunk=2, bom=False, encoding="utf-8")
+def test_entries_read_one_at_a_time_are_the_whole_files(tmp_path_factory, entries, indent, chunk, bom, encoding):
+    """Any JSON values, any chunk size, a BOM, the encodings json.load finds (UTF-16 from Windows tools)."""
     path = tmp_path_factory.mktemp("j") / "list.json"
-    path.write_text(("\ufeff" if bom else "") + json.dumps(entries, indent=indent), encoding="utf-8")
-    assert list(iter_json_list(path, "candidates", chunk_chars=chunk)) == entries
+    bom = bom and encoding == "utf-8"
+    path.write_bytes(("\ufeff" if bom else "").encode() + json.dumps(entries, indent=indent).encode(encoding))
+    assert list(iter_json_list(path, "candidates", chunk_chars=chunk)) == entries == read_json(path, "candidates")
 
 
 @pytest.mark.parametrize("text", ['[{"a": 1}, {"a": 2}', '[{"a": 1} {"a": 2}]', '[{"a": 1},]', '[1] 2',

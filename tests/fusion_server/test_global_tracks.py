@@ -317,3 +317,19 @@ def test_a_held_track_ended_to_make_room_is_not_given_to_a_later_item(clock):
     live = {r.gid for r in tracker.records()}
     assert set(gids(tracker).values()) <= live and set(tracker._local.values()) <= live
     assert {m for item in tracker.joint_message().tracks for m in item.members} == {("a", 5)}
+
+
+def test_a_held_track_reported_again_is_not_evicted_for_a_new_one_in_the_same_message(clock):
+    """Its id missed once, then back together with a new id: making room for the new one ended the held track
+    the returning id had just re-claimed (its mark of held is cleared after the message), and the id was refused
+    from then on."""
+    tracker = GlobalTracker(gate_m=10.0, max_tracks_per_uav=1, clock=clock, wall=clock)
+    tracker.update(msg("a", (1, 0.0, 0.0)))
+    gid = gids(tracker)[("a", 1)]
+    clock.now = 0.5
+    tracker.update(msg("a"))
+    clock.now = 1.0
+    tracker.update(msg("a", (1, 0.0, 0.0), (2, 1000.0, 0.0)))
+    clock.now = 1.5
+    tracker.update(msg("a", (1, 0.0, 0.0), (2, 1000.0, 0.0)))
+    assert gids(tracker) == {("a", 1): gid} and tracker.dropped() == {"uav_track_quota": 2}
