@@ -10,6 +10,7 @@ cost near-linear time instead of a cubic one. No I/O.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -63,7 +64,8 @@ class Assignment:
 
 
 def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b: ArrayLike, gate_m: float,
-                     max_exact_cells: int = MAX_EXACT_CELLS, max_candidates: int = MAX_CANDIDATES) -> Assignment:
+                     max_exact_cells: int = MAX_EXACT_CELLS, max_candidates: int = MAX_CANDIDATES,
+                     forbid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> Assignment:
     """Match points a (N,) to points b (M,) one-to-one, only within ``gate_m`` metres.
 
     Each point of a considers its ``max_candidates`` nearest points of b inside the gate (more than
@@ -71,7 +73,8 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     Per group of points connected by gated pairs: with at most ``max_exact_cells`` rows x columns,
     the most pairs with the least total distance (``linear_sum_assignment``, the same answer as over
     the whole matrix with pairs beyond the gate forbidden); larger groups greedily, shortest pairs
-    first. Degrees in, metres out (:func:`ground_distance_m`).
+    first. Degrees in, metres out (:func:`ground_distance_m`). forbid(ia, ib) -> (K,) bool: gated pairs (indexes
+    into a and b) that may not be matched whatever their distance.
     """
     lat_a, lon_a, lat_b, lon_b = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (lat_a, lon_a, lat_b, lon_b))
     empty = np.zeros(0, np.int64)
@@ -88,6 +91,8 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     ib = nearest[found].astype(np.int64)
     cost = ground_distance_m(lat_a[ia], lon_a[ia], lat_b[ib], lon_b[ib])
     keep = cost <= gate_m
+    if forbid is not None and keep.any():
+        keep[keep] = ~forbid(ia[keep], ib[keep])
     ia, ib, cost = ia[keep], ib[keep], cost[keep]
     if ia.size == 0:
         return Assignment(empty, empty, np.zeros(0), 0)

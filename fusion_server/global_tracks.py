@@ -172,6 +172,7 @@ class GlobalTracker:
         gid_step: int = 1,
         adopt: Callable[[str, int, str, float, float], int | None] | None = None,
         keep_changes: bool = True,
+        same_uav_gate_m: float | None = 3.0,
         clock=time.monotonic,
         wall=time.time,
     ) -> None:
@@ -204,6 +205,9 @@ class GlobalTracker:
         #: collect what changed for `drain_changes` (persistence); a server without a database never drains, and
         #: kept its history rows, ended tracks and changed ids all flight (a soak: 63k rows in 8 minutes)
         self.keep_changes = keep_changes
+        #: a UAV's new local track does not join a global track on which this UAV has an active member farther than
+        #: this (metres; None: it may); see `_elsewhere_for`
+        self.same_uav_gate_m = same_uav_gate_m
         self._dirty: set[int] = set()  # for persistence
         self._history_out: list[tuple[int, float, float, float]] = []
         self._ended_pending: dict[int, TrackRecord] = {}
@@ -274,7 +278,7 @@ class GlobalTracker:
         if candidates:
             t_lat, t_lon = self._predicted(candidates, now)
             match = gated_assignment([item.lat for item in items], [item.lon for item in items], t_lat, t_lon,
-                                     self.gate_m)
+                                     self.gate_m, forbid=self._elsewhere_for(uav, items, candidates, now))
             self._greedy_groups += match.greedy_groups
             for r, c in zip(match.rows, match.cols, strict=True):
                 assigned[int(r)] = candidates[int(c)]
@@ -310,6 +314,39 @@ class GlobalTracker:
             self._trim_members(track)
             self._local[key] = track.gid
             claimed.add(track.gid)
+
+    def _elsewhere_for(self, uav: str, items: list, candidates: list[GlobalTrack], now: float
+                       ) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
+        """Pairs (item, candidate) to forbid: the candidate holds an active member of this UAV, another of its local
+        tracks, more than `same_uav_gate_m` from the item. The UAV sees two objects there, so the new local track is
+        not that one (it joined it when that member went unreported for a message, and the global track then held two
+        objects as they parted). Closer, it may be the same object under a new local id (a tracker's id switch). The
+        member's position is moved on by its velocity since it was reported (a fast boat's id switch)."""
+        if self.same_uav_gate_m is None:
+            return None
+        own_lat = np.full(len(candidates), np.nan)
+        own_lon = np.full(len(candidates), np.nan)
+        for c, track in enumerate(candidates):
+            for (member_uav, _), member in track.members.items():
+                if member_uav == uav and member.active:
+                    dt = min(max(now - member.received, 0.0), self.member_ttl_s)
+                    own_lat[c] = member.lat + member.vel_en[1] * dt / _M_PER_DEG_LAT
+                    own_lon[c] = member.lon + member.vel_en[0] * dt / (
+                        _M_PER_DEG_LAT * max(math.cos(math.radians(member.lat)), 1e-6))
+                    break
+        if np.isnan(own_lat).all():
+            return None
+        lat = np.array([item.lat for item in items])
+        lon = np.array([item.lon for item in items])
+        gate = self.same_uav_gate_m
+
+        def forbid(ia: np.ndarray, ib: np.ndarray) -> np.ndarray:
+            has = ~np.isnan(own_lat[ib])
+            out = np.zeros(len(ia), bool)
+            out[has] = ground_distance_m(lat[ia[has]], lon[ia[has]], own_lat[ib[has]], own_lon[ib[has]]) > gate
+            return out
+
+        return forbid
 
     def _make_room(self, uav: str, claimed: set[int]) -> bool:
         """Whether ``uav`` may create a global track now, ending a held one to make room if needed (not one
