@@ -205,9 +205,7 @@ class GlobalTracker:
         #: collect what changed for `drain_changes` (persistence); a server without a database never drains, and
         #: kept its history rows, ended tracks and changed ids all flight (a soak: 63k rows in 8 minutes)
         self.keep_changes = keep_changes
-        #: a UAV's new local track does not join a global track on which this UAV has an active member farther than
-        #: this (metres; None: it may); see `_elsewhere_for`
-        self.same_uav_gate_m = same_uav_gate_m
+        self.same_uav_gate_m = same_uav_gate_m  # metres, None: off (`_elsewhere_for`)
         self._dirty: set[int] = set()  # for persistence
         self._history_out: list[tuple[int, float, float, float]] = []
         self._ended_pending: dict[int, TrackRecord] = {}
@@ -317,25 +315,30 @@ class GlobalTracker:
 
     def _elsewhere_for(self, uav: str, items: list, candidates: list[GlobalTrack], now: float
                        ) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
-        """Pairs (item, candidate) to forbid: the candidate holds an active member of this UAV, another of its local
-        tracks, more than `same_uav_gate_m` from the item. The UAV sees two objects there, so the new local track is
-        not that one (it joined it when that member went unreported for a message, and the global track then held two
-        objects as they parted). Closer, it may be the same object under a new local id (a tracker's id switch). The
-        member's position is moved on by its velocity since it was reported (a fast boat's id switch)."""
+        """Pairs (item, candidate) to forbid: the candidate holds an active member of this UAV (another of its local
+        tracks, moved on by its velocity since its report) more than `same_uav_gate_m` from the item: two objects
+        (joined when that member went unreported for a message, the global track held both as they parted). Closer,
+        it may be the same object under a new local id (a tracker's id switch)."""
         if self.same_uav_gate_m is None:
+            return None
+        own: dict[int, _Member] = {}  # gid -> this UAV's active member on it, from the index of its active ids
+        for local_id in self._active.get(uav, ()):
+            gid = self._local.get((uav, local_id))
+            track = self._tracks.get(gid) if gid is not None else None
+            member = track.members.get((uav, local_id)) if track is not None else None
+            if member is not None and member.active:
+                own.setdefault(track.gid, member)  # type: ignore[union-attr]
+        if not own:
             return None
         own_lat = np.full(len(candidates), np.nan)
         own_lon = np.full(len(candidates), np.nan)
         for c, track in enumerate(candidates):
-            for (member_uav, _), member in track.members.items():
-                if member_uav == uav and member.active:
-                    dt = min(max(now - member.received, 0.0), self.member_ttl_s)
-                    own_lat[c] = member.lat + member.vel_en[1] * dt / _M_PER_DEG_LAT
-                    own_lon[c] = member.lon + member.vel_en[0] * dt / (
-                        _M_PER_DEG_LAT * max(math.cos(math.radians(member.lat)), 1e-6))
-                    break
-        if np.isnan(own_lat).all():
-            return None
+            member = own.get(track.gid)
+            if member is not None:
+                dt = min(max(now - member.received, 0.0), self.member_ttl_s)
+                own_lat[c] = member.lat + member.vel_en[1] * dt / _M_PER_DEG_LAT
+                own_lon[c] = member.lon + member.vel_en[0] * dt / (
+                    _M_PER_DEG_LAT * max(math.cos(math.radians(member.lat)), 1e-6))
         lat = np.array([item.lat for item in items])
         lon = np.array([item.lon for item in items])
         gate = self.same_uav_gate_m
