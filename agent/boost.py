@@ -233,16 +233,6 @@ def write_corrections(rows: list[tuple], out_path: str | Path) -> None:
     tmp.replace(out_path)
 
 
-def write_results(results: list[dict[str, Any]], out_path: str | Path) -> None:
-    """Write atomically: a failed run never leaves a truncated results file."""
-    out_path = Path(out_path)
-    if not out_path.parent.is_dir():
-        raise FileNotFoundError(f"output directory {out_path.parent} does not exist (for {out_path})")
-    tmp = out_path.with_name(out_path.name + ".tmp")
-    tmp.write_text(json.dumps(results))
-    tmp.replace(out_path)
-
-
 class StreamedResults:
     """A COCO results file written as the results come (`uavmm agent --detections-out`): an hour of a live flight
     held ~0.7 M result dicts in memory until the end (~0.4 GB at 10 frames/s and 20 detections a frame). Entries go

@@ -241,6 +241,15 @@ def load_video_telemetry(path: str | Path, *, height_m: float | None = None, hei
                            heading_deg=heading_deg, need_angles=need_angles)[0]
 
 
+def records_around(records: list[Telemetry], record_t: NDArray[np.float64], t_first: float, t_last: float,
+                   max_gap_s: float) -> list[Telemetry]:
+    """The sorted records (times record_t) that interpolating to [t_first, t_last] with `max_gap_s` needs: those
+    within max_gap_s and one more on each side, so a frame's cost does not grow with the log."""
+    lo = max(int(np.searchsorted(record_t, t_first - max_gap_s, side="left")) - 1, 0)
+    hi = int(np.searchsorted(record_t, t_last + max_gap_s, side="right")) + 1
+    return records[lo:hi]
+
+
 def video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
                     pitch_deg: float | None = None, heading_deg: float | None = None,
                     need_angles: bool = False, system_id: int | None = None,
@@ -531,9 +540,7 @@ class VideoSource:
             self.feed.wait_for(float(times[0]), float(times[-1]) + min(self.max_gap_s, 0.2))
             records = self.feed.records_between(float(times[0]) - self.max_gap_s, float(times[-1]) + self.max_gap_s)
         else:
-            lo = max(int(np.searchsorted(self._record_t, times[0] - self.max_gap_s, side="left")) - 1, 0)
-            hi = int(np.searchsorted(self._record_t, times[-1] + self.max_gap_s, side="right")) + 1
-            records = self.records[lo:hi]
+            records = records_around(self.records, self._record_t, float(times[0]), float(times[-1]), self.max_gap_s)
         if not records:
             return [(None, None)] * len(times)
         out: list[tuple[Pose | None, float | None]] = []

@@ -32,6 +32,12 @@ _MAX_MEMBERS_KEPT = min(MAX_MEMBERS, 256)
 MAX_INACTIVE_MEMBERS = 8
 
 
+def _moved_on(lat: np.ndarray, lon: np.ndarray, vel_en: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions (degrees) moved on by velocities (N, 2) east, north m/s for dt (N,) seconds."""
+    return (lat + vel_en[:, 1] * dt / _M_PER_DEG_LAT,
+            lon + vel_en[:, 0] * dt / (_M_PER_DEG_LAT * np.maximum(np.cos(np.radians(lat)), 1e-6)))
+
+
 @dataclass(slots=True)
 class _Member:
     lat: float
@@ -328,17 +334,16 @@ class GlobalTracker:
             member = track.members.get((uav, local_id)) if track is not None else None
             if member is not None and member.active:
                 own.setdefault(track.gid, member)  # type: ignore[union-attr]
-        if not own:
+        mine = [own.get(track.gid) for track in candidates]
+        at = [m for m in mine if m is not None]
+        if not at:
             return None
+        has_own = np.array([m is not None for m in mine])
         own_lat = np.full(len(candidates), np.nan)
         own_lon = np.full(len(candidates), np.nan)
-        for c, track in enumerate(candidates):
-            member = own.get(track.gid)
-            if member is not None:
-                dt = min(max(now - member.received, 0.0), self.member_ttl_s)
-                own_lat[c] = member.lat + member.vel_en[1] * dt / _M_PER_DEG_LAT
-                own_lon[c] = member.lon + member.vel_en[0] * dt / (
-                    _M_PER_DEG_LAT * max(math.cos(math.radians(member.lat)), 1e-6))
+        own_lat[has_own], own_lon[has_own] = _moved_on(
+            np.array([m.lat for m in at]), np.array([m.lon for m in at]), np.array([m.vel_en for m in at]),
+            np.array([min(max(now - m.received, 0.0), self.member_ttl_s) for m in at]))
         lat = np.array([item.lat for item in items])
         lon = np.array([item.lon for item in items])
         gate = self.same_uav_gate_m
@@ -380,14 +385,9 @@ class GlobalTracker:
     def _predicted(self, tracks: list[GlobalTrack], now: float) -> tuple[np.ndarray, np.ndarray]:
         # a lost track is extrapolated with its last velocity (for at most hold_s) so a UAV that
         # finds a moving object again still falls inside the gate
-        lat = np.array([t.lat for t in tracks])
-        lon = np.array([t.lon for t in tracks])
+        lat, lon = np.array([t.lat for t in tracks]), np.array([t.lon for t in tracks])
         dt = np.array([min(now - t.lost_since, self.hold_s) if t.lost_since is not None else 0.0 for t in tracks])
-        ve = np.array([t.vel_en[0] for t in tracks])
-        vn = np.array([t.vel_en[1] for t in tracks])
-        lat2 = lat + vn * dt / _M_PER_DEG_LAT
-        lon2 = lon + ve * dt / (_M_PER_DEG_LAT * np.maximum(np.cos(np.radians(lat)), 1e-6))
-        return lat2, lon2
+        return _moved_on(lat, lon, np.array([t.vel_en for t in tracks]).reshape(-1, 2), dt)
 
     def _trim_members(self, track: GlobalTrack) -> None:
         inactive = [k for k, m in track.members.items() if not m.active]

@@ -112,12 +112,12 @@ class VideoFrames:
     def __iter__(self) -> Iterator[AnomalyInput]:
         """The frames with their poses; a frame is at offset_s + its time in the video (its container time,
         `agent.video_decode.VideoReader`), its id its number in the video."""
+        from agent.sources import records_around
+
         for frame in self.reader.frames():
             t = self.offset_s + frame.t
             # the records around t only: interpolating the whole log per frame cost 163 ms a frame an hour in
-            lo = max(int(np.searchsorted(self._record_t, t - self.max_gap_s, side="left")) - 1, 0)
-            hi = int(np.searchsorted(self._record_t, t + self.max_gap_s, side="right")) + 1
-            window = self.records[lo:hi]
+            window = records_around(self.records, self._record_t, t, t, self.max_gap_s)
             tel = interpolate(window, np.array([t]), extrapolate_s=self.max_gap_s,
                               max_gap_s=self.max_gap_s)[0] if window else None
             pose = None
