@@ -92,3 +92,117 @@ def test_records_between_are_the_slice_of_all_records_that_brackets_the_span(fee
     got = feed.records_between(t_first, t_last)
     assert [r.t for r in got] == pytest.approx([every[i].t for i in want])
     assert got == [every[i] for i in want]
+
+
+# ---- a reboot of the autopilot mid-flight: its boot clock restarts ------------------------------------------------
+
+def _paced(packets, port: int, t0: float) -> None:
+    """Send (receive time, packet) pairs at their times relative to t0 (a real link's timing: the reboot rule reads
+    receive time minus boot time)."""
+    import socket
+    import time
+
+    start = time.monotonic()
+    with socket.socket(socket.AF_INET, socket.SOCK_DGRAM) as sock:
+        for t, packet in packets:
+            delay = (t - t0) - (time.monotonic() - start)
+            if delay > 0:
+                time.sleep(delay)
+            sock.sendto(packet, ("127.0.0.1", port))
+
+
+def _rebooting_flight(*, new_boot_system_time: bool):
+    before = _flight(15, T0)  # 1.4 s at boot 100 s
+    after = _flight(16, T0 + 2.5)  # rebooted: 1.1 s of silence, then 1.5 s from boot 4 s
+    packets = flight_packets(before, boot_ms0=100_000) + flight_packets(after, boot_ms0=4_000,
+                                                                        system_time=new_boot_system_time)
+    return before, after, packets
+
+
+@pytest.fixture
+def quick_feed():
+    from agent.mavlink_feed import MavlinkUdpFeed
+
+    port = free_udp_port()
+    feed = MavlinkUdpFeed(f"udp:127.0.0.1:{port}", reboot_confirm_s=1.0)
+    feed.port = port  # type: ignore[attr-defined]
+    yield feed
+    feed.close()
+
+
+@pytest.mark.parametrize("new_boot_system_time", [False, True])
+def test_a_reboot_mid_flight_puts_the_new_boots_positions_at_their_time(quick_feed, caplog, new_boot_system_time):
+    """Before: the new boot's positions (boot time 4 s) landed 96 s in the past, and every frame after the reboot had
+    no pose until the agent restarted. Now they continue the clock: from the vehicle's SYSTEM_TIME of the new boot
+    (exact), else from the receive times (within the loopback's latency jitter)."""
+    import threading
+
+    from tests.shared.mavlink_writer import port_is_bound
+
+    before, after, packets = _rebooting_flight(new_boot_system_time=new_boot_system_time)
+    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
+    sender = threading.Thread(target=_paced, args=(packets, quick_feed.port, T0))
+    with caplog.at_level("WARNING"):
+        sender.start()
+        quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
+        sender.join()
+        wait_until(lambda: quick_feed.reboots == 1, 5.0, "the reboot confirmed")
+    records = wait_until(lambda: len(quick_feed.records()) == len(before) + len(after) and quick_feed.records(), 5.0,
+                         "both boots' records")
+    tol = 2e-3 if new_boot_system_time else 0.05
+    assert [r.t for r in records] == pytest.approx([f.t for f in before + after], abs=tol)
+    assert [r.lat for r in records] == pytest.approx([f.lat for f in before + after])
+    assert "rebooted (its boot time went from 101.4 s back to 4.0 s)" in caplog.text
+    assert ("by the vehicle's SYSTEM_TIME" in caplog.text) == new_boot_system_time
+    assert "jumped by" not in caplog.text  # the new boot's SYSTEM_TIME is the reboot's, not a clock step
+    # a frame after the reboot gets the new boot's records around it; one in the silence gets its two sides
+    got = quick_feed.records_between(T0 + 3.05, T0 + 3.25)
+    assert [r.t for r in got] == pytest.approx([T0 + 3.0, T0 + 3.1, T0 + 3.2, T0 + 3.3], abs=tol)
+    gap = quick_feed.records_between(T0 + 2.0, T0 + 2.0)
+    assert [r.t for r in gap] == pytest.approx([T0 + 1.4, T0 + 2.5], abs=tol)
+
+
+def test_old_positions_received_late_while_the_stream_goes_on_are_no_reboot(quick_feed, caplog):
+    """A second link with more latency repeats the first 0.5 s 4 s later (more than REBOOT_S behind the boot's latest
+    time): they join the boot they are of once its stream goes on."""
+    import threading
+
+    from tests.shared.mavlink_writer import port_is_bound
+
+    flight = _flight(46, T0)
+    packets = flight_packets(flight, boot_ms0=100_000)
+    late = [(t + 4.0, p) for t, p in packets if t < T0 + 0.5]
+    schedule = sorted(packets + late, key=lambda item: item[0])
+    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
+    sender = threading.Thread(target=_paced, args=(schedule, quick_feed.port, T0))
+    with caplog.at_level("WARNING"):
+        sender.start()
+        quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
+        sender.join()
+    wait_until(lambda: quick_feed.late_repeats >= 1, 5.0, "the repeat taken back")
+    assert quick_feed.reboots == 0
+    records = wait_until(lambda: len(quick_feed.records()) == len(flight) and quick_feed.records(), 5.0, "the records")
+    assert [r.t for r in records] == pytest.approx([f.t for f in flight], abs=2e-3)
+    assert "rebooted" not in caplog.text
+
+
+def test_a_frame_waiting_for_positions_does_not_stall_while_a_reboot_is_pending(quick_feed):
+    """While the new boot is not yet confirmed no record of the old boot will come: wait_for returns at once instead
+    of its timeout per frame (a 10 fps agent would fall 5 s behind a frame)."""
+    import threading
+    import time
+
+    from tests.shared.mavlink_writer import port_is_bound
+
+    quick_feed.reboot_confirm_s = 60.0  # the reboot stays pending for this test
+    _before, _after, packets = _rebooting_flight(new_boot_system_time=False)
+    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
+    sender = threading.Thread(target=_paced, args=(packets, quick_feed.port, T0))
+    sender.start()
+    quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
+    sender.join()
+    wait_until(lambda: quick_feed._pending is not None, 5.0, "the pending boot")
+    began = time.monotonic()
+    quick_feed.wait_for(T0 + 3.0, T0 + 3.1, timeout_s=30.0, idle_s=30.0)
+    assert time.monotonic() - began < 10.0
+    assert quick_feed.records_between(T0 + 3.0, T0 + 3.1)[-1].t == pytest.approx(T0 + 1.4, abs=2e-3)
