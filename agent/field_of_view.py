@@ -1,7 +1,9 @@
 """A zoom lens's field of view from the telemetry, applied to each frame's camera (the video sources of `uavmm
 agent`, `detect` and `anomaly --video`).
 
-MISB ST 0601 KLV sends the sensor's horizontal field of view (tag 16; `Telemetry.hfov_deg`). A camera file holds
+MISB ST 0601 KLV sends the sensor's horizontal field of view (tag 16; `Telemetry.hfov_deg`), MAVLink its
+``CAMERA_FOV_STATUS``, a DJI SRT a digital zoom (`Telemetry.zoom_ratio`: the camera file's view narrowed that many
+times). A camera file holds
 one focal length; a zoom lens's changes in flight, and every ground point off the image centre scales with it (a
 box 100 px off centre seen at 8 deg, projected with a camera file's 65 deg, lands 40 m out where it is 4 m). What
 the telemetry's fields of view say decides, and the rule stands down where they do not settle it:
@@ -29,7 +31,7 @@ from shared.camera import Camera
 from shared.telemetry import Telemetry
 
 __all__ = ["AGREE_FRACTION", "LINEAR_WITHIN_S", "ZOOM_RATIO", "FieldOfView", "LiveFieldOfView", "ZoomedCamera",
-           "field_of_view_track"]
+           "field_of_view_track", "zoomed_hfov_deg"]
 
 log = logging.getLogger("agent.sources")  # the video source's warnings, under its name
 
@@ -123,22 +125,33 @@ class LiveFieldOfView:
         return self._zoomed(camera, _fov_at(np.array([s[0] for s in sent]), np.array([s[1] for s in sent]), t))
 
 
+def zoomed_hfov_deg(hfov_deg: float, zoom_ratio: float) -> float:
+    """The horizontal field of view of a digital zoom `zoom_ratio` of a view `hfov_deg` wide (the centre 1 / ratio of
+    the image: the tangent of the half angle shrinks that many times)."""
+    return math.degrees(2.0 * math.atan(math.tan(math.radians(hfov_deg) / 2.0) / zoom_ratio))
+
+
 def field_of_view_track(path: str | Path, records: Sequence[Telemetry], camera: Camera) -> FieldOfView | None:
     """The field of view to apply per frame when the telemetry's changes during the flight (a zoom), else None; warns
-    as the module says (a zoom applied; a constant field of view unlike the camera file's, not applied)."""
+    as the module says (a zoom applied; a constant field of view unlike the camera file's, not applied). Records that
+    send a field of view (`Telemetry.hfov_deg`) decide; else those that send a digital zoom (`Telemetry.zoom_ratio`,
+    a DJI SRT's ``dzoom_ratio``), as the camera file's field of view narrowed by it."""
     sent = [(r.t, r.hfov_deg) for r in records if r.hfov_deg is not None]
+    what, kind = "horizontal field of view", "a zoom lens"
+    if not sent:
+        sent = [(r.t, zoomed_hfov_deg(camera.hfov_deg, r.zoom_ratio)) for r in records if r.zoom_ratio is not None]
+        what, kind = "digital zoom's field of view", "a digital zoom"
     if not sent:
         return None
     hfovs = [h for _, h in sent]
     lo, mid, hi = min(hfovs), statistics.median(hfovs), max(hfovs)
     if hi / lo > ZOOM_RATIO:
-        log.warning("telemetry %s: the horizontal field of view changes during the flight (%.1f .. %.1f deg, a zoom "
-                    "lens; the camera file's is %.1f deg): each frame's focal length follows it", path, lo, hi,
-                    camera.hfov_deg)
+        log.warning("telemetry %s: the %s changes during the flight (%.1f .. %.1f deg, %s; the camera file's is "
+                    "%.1f deg): each frame's focal length follows it", path, what, lo, hi, kind, camera.hfov_deg)
         return FieldOfView([t for t, _ in sent], hfovs, camera)
     if abs(mid / camera.hfov_deg - 1.0) > AGREE_FRACTION:
-        log.warning("telemetry %s: the horizontal field of view it sends is %.1f deg, constant over the flight, where "
-                    "the camera's is %.1f deg: a camera file for another zoom, or an encoder sending a set value? "
-                    "Every frame is projected with the camera file's focal length (a constant field of view is not "
-                    "applied): give a camera file for the zoom in use", path, mid, camera.hfov_deg)
+        log.warning("telemetry %s: the %s it sends is %.1f deg, constant over the flight, where the camera's is %.1f "
+                    "deg: a camera file for another zoom, or an encoder sending a set value? Every frame is projected "
+                    "with the camera file's focal length (a constant field of view is not applied): give a camera "
+                    "file for the zoom in use", path, what, mid, camera.hfov_deg)
     return None

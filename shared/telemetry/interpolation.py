@@ -92,6 +92,7 @@ def interpolate(
     vel_e = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[0] for r in recs))
     vel_n = interp(_optional(None if r.vel_en_mps is None else r.vel_en_mps[1] for r in recs))
     hfov = interp(_optional(r.hfov_deg for r in recs))
+    zoom = interp(_optional(r.zoom_ratio for r in recs))
     inside = (query >= t_rec[0] - extrapolate_s) & (query <= t_rec[-1] + extrapolate_s)
     if max_gap_s is not None and len(t_rec) > 1:
         after = np.clip(np.searchsorted(t_rec, query, side="left"), 1, len(t_rec) - 1)
@@ -122,6 +123,7 @@ def interpolate(
                 vel_en_mps=None if np.isnan(vel_e[i]) or np.isnan(vel_n[i]) else (float(vel_e[i]), float(vel_n[i])),
                 frame=recs[hit[i]].frame if exact[i] else None,
                 hfov_deg=opt(hfov, i),
+                zoom_ratio=opt(zoom, i),
             )
         )
     return out

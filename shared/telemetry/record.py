@@ -78,6 +78,10 @@ class Telemetry:
         The camera's horizontal field of view at this sample, in (0, 180) degrees, when the source sends it (MISB
         ST 0601 tag 16: a zoom lens's current field of view); None otherwise. The video source applies it to the
         camera per frame when it changes during the flight (`agent.field_of_view`).
+    zoom_ratio : float or None
+        The camera's digital zoom at this sample, > 0 (1 = none): the frame is the centre 1 / zoom_ratio of the
+        unzoomed view, so its field of view is the camera file's narrowed that many times (a DJI SRT's
+        ``dzoom_ratio`` on a fixed lens); None when the source does not say. Applied like hfov_deg (which wins).
     """
 
     t: float
@@ -92,6 +96,7 @@ class Telemetry:
     frame: int | None = None
     recording: bool | None = None
     hfov_deg: float | None = None
+    zoom_ratio: float | None = None
 
     def __post_init__(self) -> None:
         put = object.__setattr__  # frozen: normalised values are written once, here
@@ -139,6 +144,11 @@ class Telemetry:
             if not 0.0 < hfov < 180.0:
                 raise ValueError(f"Telemetry.hfov_deg={hfov!r} is outside (0, 180) degrees")
             put(self, "hfov_deg", hfov)
+        if self.zoom_ratio is not None:
+            zoom = finite_number("zoom_ratio", self.zoom_ratio)
+            if zoom <= 0.0:
+                raise ValueError(f"Telemetry.zoom_ratio={zoom!r} must be > 0 (1 = no zoom)")
+            put(self, "zoom_ratio", zoom)
 
     def to_pose(
         self, pitch_deg: float | None = None, heading_deg: float | None = None, *, height_m: float | None = None,

@@ -59,8 +59,10 @@ class SrtReport:
         timing line.
     digital_zoom : tuple of (int, float) or None
         (records, largest ratio) of the records whose block gives a DJI ``dzoom_ratio`` above 1 (written as the
-        ratio, 1.77, or times 10,000, 10000 for 1x), else None: the frame is a crop of the sensor, its focal length
-        that many times the camera's.
+        ratio, 1.77, or times 10,000, 10000 for 1x; Mini 2: ``DZOOM 1.000``), else None: the frame is a crop of the
+        sensor, its focal length that many times the camera's. Each record carries its ratio (`Telemetry.zoom_ratio`)
+        unless the focal length changes too (a hybrid zoom, whose ratio's reference moves with the lens: named in a
+        warning, not applied).
     focal_lengths : tuple of (float, float) or None
         The smallest and largest ``focal_len`` of the records as the SRT writes it (35 mm equivalent, some firmware
         in tenths of a millimetre) when it changes during the file by more than 5 % (a zoom), else None.
@@ -292,7 +294,12 @@ def parse_srt_report(
     if not kept:
         raise ValueError(_no_record_message(source, subtitle_blocks, skipped))
     times_out, clock_notes = monotonic_times(times_in)
-    records = [replace(record, t=t) for (_, _, record, _), t in zip(kept, times_out, strict=True)]
+    zoom = _zoom([facts for _, facts, _, _ in kept])
+    # a digital zoom on a fixed lens goes with each record (applied by the video source where it changes); beside
+    # a focal length that changes (a hybrid zoom: the ratio's reference moves with the lens) it is only named
+    ratios = [_dzoom(facts) for _, facts, _, _ in kept] if zoom["focal_lengths"] is None else [None] * len(kept)
+    records = [replace(record, t=t, zoom_ratio=ratio)
+               for (_, _, record, _), t, ratio in zip(kept, times_out, ratios, strict=True)]
     report = SrtReport(
         source=source,
         records=records,
@@ -304,16 +311,25 @@ def parse_srt_report(
         gps_decimals_seen=dict(sorted(decimals_seen.items())),
         clock_notes=tuple(clock_notes),
         video_start_t=None if times_in[0].start_s is None else times_out[0] - times_in[0].start_s,
-        **_zoom([facts for _, facts, _, _ in kept]),
+        **zoom,
     )
     _log_report(report)
     return report
 
 
+def _dzoom(facts: BlockFacts) -> float | None:
+    """A block's digital zoom as a ratio (written as the ratio, 1.77, or times 10,000, 10000 for 1x), None without
+    one or at a value that is no zoom (0)."""
+    if "dzoom_ratio" not in facts.values:
+        return None
+    ratio = facts.values["dzoom_ratio"][0]
+    ratio = ratio / 10_000.0 if ratio >= 1_000.0 else ratio
+    return ratio if ratio > 0.0 else None
+
+
 def _zoom(facts: list[BlockFacts]) -> dict[str, Any]:
     """SrtReport's digital_zoom and focal_lengths of the usable blocks."""
-    ratios = [r / 10_000.0 if r >= 1_000.0 else r for r in (f.values["dzoom_ratio"][0] for f in facts
-                                                            if "dzoom_ratio" in f.values)]
+    ratios = [r for r in map(_dzoom, facts) if r is not None]
     zoomed = [r for r in ratios if r > 1.005]  # 1.00 as written; 10000 / 10000
     focals = [f.values["focal_len"][0] for f in facts if "focal_len" in f.values and f.values["focal_len"][0] > 0]
     changes = bool(focals) and max(focals) > 1.05 * min(focals)
@@ -358,7 +374,7 @@ def _log_report(report: SrtReport) -> None:
             "%s: %d of %d records have no height above ground (%s); their height_m is None",
             source, report.heights_missing, len(report.records), "; ".join(why),
         )
-    if report.digital_zoom is not None or report.focal_lengths is not None:
+    if report.focal_lengths is not None:  # a digital zoom alone goes with the records (agent.field_of_view)
         what = []
         if report.digital_zoom is not None:
             what.append(f"digital zoom in {report.digital_zoom[0]} of {len(report.records)} records, up to "

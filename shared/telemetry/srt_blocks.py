@@ -44,7 +44,8 @@ _NOT_AVAILABLE = ("n/a", "na", "nan", "")
 _METRE_KEYS = ("barometer", "Hb", "Hs")
 #: Camera items read leniently (a value that is not a number is left out, the block kept): the zoom.
 _CAMERA_KEYS = {
-    "dzoom_ratio": re.compile(r"\bdzoom_ratio" + _TOKEN, re.IGNORECASE),
+    # [dzoom_ratio: 10000, delta:0] (Mini 3, Air 2S), [dzoom_ratio: 1.77] (Matrice 30), DZOOM 1.000 (Mini 2)
+    "dzoom_ratio": re.compile(r"\b(?:dzoom_ratio\s*:|dzoom\s*[:=]?)\s*([^\s\[\],]*)", re.IGNORECASE),
     "focal_len": re.compile(r"\bfocal_len" + _TOKEN, re.IGNORECASE),
 }
 

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
-from agent.field_of_view import LINEAR_WITHIN_S, FieldOfView, field_of_view_track
+from agent.field_of_view import LINEAR_WITHIN_S, FieldOfView, field_of_view_track, zoomed_hfov_deg
 from shared.geo import Camera
 from shared.telemetry import Telemetry
 
@@ -87,3 +87,44 @@ def test_on_a_live_link_the_camera_file_stands_until_the_lens_zooms(caplog):
     assert [r.getMessage() for r in caplog.records] == [
         "telemetry udp:127.0.0.1:14550: the horizontal field of view changed (8.0 .. 12.0 deg so far, a zoom lens; "
         "the camera file's is 65.2 deg): from now on each frame's focal length follows it"]
+
+
+def _zoom_records(ratios, dt=0.1):
+    return [Telemetry(t=100.0 + dt * i, lat=48.53, lon=9.06, height_m=40.0, pitch_deg=45.0, heading_deg=10.0,
+                      zoom_ratio=z) for i, z in enumerate(ratios)]
+
+
+def test_a_digital_zoom_that_changes_narrows_the_camera_files_view(caplog):
+    """A DJI SRT's dzoom_ratio on a fixed lens: 2x is the centre half of the image, so the focal length doubles (the
+    field of view's half-angle tangent halves) and a box 80 px off centre is half as far off on the ground."""
+    with caplog.at_level(logging.WARNING, logger="agent.sources"):
+        track = field_of_view_track("clip.SRT", _zoom_records([1.0, 1.0, 2.0, 2.0]), CAMERA)
+    assert track is not None
+    assert track.camera_at(100.0).fx == pytest.approx(CAMERA.fx, rel=1e-4)
+    assert track.camera_at(100.3).fx == pytest.approx(2.0 * CAMERA.fx, rel=1e-4)
+    assert CAMERA.fx < track.camera_at(100.15).fx < 2.0 * CAMERA.fx  # between the samples: in between
+    (said,) = [r.getMessage() for r in caplog.records]
+    assert "the digital zoom's field of view changes during the flight (35.5 .. 65.2 deg, a digital zoom" in said
+
+
+def test_a_constant_digital_zoom_is_named_not_applied(caplog):
+    with caplog.at_level(logging.WARNING, logger="agent.sources"):
+        assert field_of_view_track("clip.SRT", _zoom_records([1.0] * 4), CAMERA) is None
+        assert not caplog.records
+        assert field_of_view_track("clip.SRT", _zoom_records([2.0] * 4), CAMERA) is None
+    assert "digital zoom's field of view it sends is 35.5 deg, constant" in caplog.records[0].getMessage()
+
+
+def test_a_field_of_view_sent_beside_a_digital_zoom_wins():
+    records = [Telemetry(t=100.0 + i, lat=48.53, lon=9.06, height_m=40.0, pitch_deg=45.0, heading_deg=10.0,
+                         hfov_deg=h, zoom_ratio=4.0) for i, h in enumerate([30.0, 20.0])]
+    track = field_of_view_track("f.ts", records, CAMERA)
+    assert track is not None and track.at(100.0) == pytest.approx(30.0)
+
+
+@given(st.floats(1.0, 1000.0), st.floats(1.0, 170.0))
+def test_a_digital_zoom_scales_the_focal_length(zoom, hfov):
+    narrowed = zoomed_hfov_deg(hfov, zoom)
+    assert 0.0 < narrowed <= hfov + 1e-9
+    camera = CAMERA.with_hfov(hfov)
+    assert camera.with_hfov(narrowed).fx == pytest.approx(zoom * camera.fx, rel=1e-6)

@@ -222,6 +222,25 @@ def test_a_mavlink_camera_that_zooms_gives_each_frame_its_field_of_view(tmp_path
     assert all(f.camera.cx == frames[0].camera.cx for f in frames)
 
 
+def test_an_srts_digital_zoom_that_changes_narrows_each_frames_camera(tmp_path):
+    """A Mini 3's dzoom_ratio going from 1x to 2x mid-clip: each frame's focal length follows it (before, only a
+    warning: a box off the image centre was put twice as far from the centre's ground point in the zoomed frames)."""
+    video = _write_video(tmp_path / "flight.avi", 12)
+    srt = tmp_path / "flight.srt"
+    ratios = [10000] * 5 + [20000] * 5
+    blocks = [f"{i + 1}\n00:00:00,{100 * i:03d} --> 00:00:00,{100 * i + 100:03d}\n2023-06-01 12:00:00.{100 * i:03d}\n"
+              f"[focal_len : 240] [dzoom_ratio: {z}, delta:0],[latitude: {48.53 + 1e-5 * i:.6f}] [longitude: 9.06] "
+              f"[rel_alt: 30.0 abs_alt: 400.0] [gb_yaw: 10.0 gb_pitch: -60.0 gb_roll: 0.0]\n\n"
+              for i, z in enumerate(ratios)]
+    srt.write_text("".join(blocks))
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    frames = list(VideoSource(video, srt, _write_model(tmp_path / "model.onnx"), camera).frames())
+    assert frames[0].camera.fx == pytest.approx(250.0, rel=1e-4)
+    assert [f.camera.fx for f in frames[6:10]] == pytest.approx([500.0] * 4, rel=1e-4)
+    assert all((f.camera.cx, f.camera.cy) == (160.0, 90.0) for f in frames)
+
+
 def test_an_srts_local_dates_are_put_on_utc_with_the_offset_given(tmp_path):
     """DJI writes the drone's local time: --telemetry-utc-offset-h 2 (CEST) moves every frame's time 2 h back to
     UTC (a UNIX --telemetry-offset-s, and another UAV's UTC log, then meet it) and leaves the poses as they were."""

@@ -279,17 +279,32 @@ def test_matrice_30_gimbal_pitch_converted_and_yaw_normalised():
 ])
 def test_a_zooming_dji_camera_is_named_and_its_records_kept(caplog, text, zoom, focals):
     """DJI's digital zoom crops the sensor: the frames' focal length is that many times the camera file's, and
-    every point off the image centre lands that many times too far out. Not applied (the SRT's focal_len units
-    vary by firmware), said."""
+    every point off the image centre lands that many times too far out. On a fixed lens each record carries its
+    ratio (the video source applies it where it changes: agent.field_of_view); beside a focal length that changes
+    (a hybrid zoom, the SRT's focal_len units vary by firmware) it is not applied, and said."""
     with caplog.at_level(logging.WARNING):
         report = parse_srt_report(text, source="clip.SRT")
     assert len(report.records) == text.count("-->")
     assert report.digital_zoom == (pytest.approx(zoom) if zoom else None)
     assert report.focal_lengths == (pytest.approx(focals) if focals else None)
     said = [r.getMessage() for r in caplog.records if "zooms" in r.getMessage()]
-    assert len(said) == (1 if zoom or focals else 0)
-    if zoom:
+    assert len(said) == (1 if focals else 0)
+    if focals:
         assert f"digital zoom in {zoom[0]} of {len(report.records)} records, up to {zoom[1]:.2f}x" in said[0]
+        assert all(r.zoom_ratio is None for r in report.records)
+    elif zoom:
+        assert max(r.zoom_ratio for r in report.records) == pytest.approx(zoom[1])
+
+
+@pytest.mark.parametrize(("written", "ratio"), [("DZOOM 1.000", 1.0), ("DZOOM 2.500", 2.5), ("DZOOM 0", None)])
+def test_a_mini_2_digital_zoom_is_read(written, ratio):
+    """The Mini 2 writes one line, ``F/2.8, SS 1667.11, ISO 100, EV 0, DZOOM 1.000, GPS (lon, lat, 26), ...``."""
+    text = ("1\n00:00:00,000 --> 00:00:00,033\n"
+            f"F/2.8, SS 1667.11, ISO 100, EV 0, {written}, GPS (120.3534, 23.1201, 26), D 499.16m, H 98.00m, "
+            "H.S 4.81m/s, V.S 0.10m/s\n")
+    (rec,) = parse_srt(text)
+    assert (rec.lat, rec.lon, rec.height_m) == pytest.approx((23.1201, 120.3534, 98.0))
+    assert rec.zoom_ratio == (pytest.approx(ratio) if ratio else None)
 
 
 def test_utc_offset_shifts_the_naive_drone_clock():
