@@ -21,6 +21,7 @@ from shared.telemetry.dates import format_datetime
 
 __all__ = [
     "OUTPUT_FILES",
+    "StreamedImages",
     "image_entry",
     "images_json",
     "objects_geojson",
@@ -95,6 +96,53 @@ def images_json(images: Sequence[dict[str, Any]], class_names: Mapping[int, str]
     }
 
 
+class StreamedImages:
+    """The frames' `images_json` document written as the frames come: each entry goes to a hidden lines file beside
+    `path` at once (an hour's entries held in memory were ~2 KB a frame), and `close` writes the document through a
+    hidden temporary and renames it: the same bytes as ``json.dumps(images_json(...))``. `abort` removes what was
+    written (a failed run leaves no file)."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = Path(path)
+        self._lines = self.path.with_name(f".{self.path.name}.lines.tmp")
+        self._file: Any = self._lines.open("w")
+        self.count = 0
+
+    def add(self, entry: dict[str, Any]) -> None:
+        self._file.write(json.dumps(entry) + "\n")
+        self.count += 1
+
+    def abort(self) -> None:
+        """Drop what was written (idempotent)."""
+        if not self._file.closed:
+            self._file.close()
+        self._lines.unlink(missing_ok=True)
+
+    def close(self, class_names: Mapping[int, str], video_name: str, *, source: str = "",
+              hfovs: Sequence[float] | None = None) -> None:
+        """Write the document; `hfovs` (one per frame, a zoom lens's) go into the meta of every frame that has one."""
+        self._file.close()
+        head = images_json([], class_names, video_name, source=source)
+        text = json.dumps(head)
+        before, after = text.split('"images": []', 1)  # the images' place in the document, keys in images_json's order
+        tmp = self.path.with_name(f".{self.path.name}.tmp")
+        try:
+            with self._lines.open() as lines, tmp.open("w") as out:
+                out.write(before + '"images": [')
+                for i, line in enumerate(lines):
+                    if hfovs is not None:
+                        entry = json.loads(line)
+                        if entry["meta"] is not None:
+                            entry["meta"]["hfov_deg"] = hfovs[i]
+                        line = json.dumps(entry)
+                    out.write((", " if i else "") + line.rstrip("\n"))
+                out.write("]" + after)
+            tmp.replace(self.path)
+        finally:
+            tmp.unlink(missing_ok=True)
+            self._lines.unlink(missing_ok=True)
+
+
 def objects_geojson(rows: Sequence[TrackRow], class_names: Mapping[int, str]) -> dict[str, Any]:
     """One Point per track: where it was last seen, with when, how often and how confidently.
 
@@ -124,10 +172,11 @@ def objects_geojson(rows: Sequence[TrackRow], class_names: Mapping[int, str]) ->
     return {"type": "FeatureCollection", "features": features}
 
 
-def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]], images: list[dict[str, Any]],
+def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, images: list[dict[str, Any]] | None,
                   rows: list[TrackRow], class_names: Mapping[int, str], video_name: str,
                   source: str = "") -> dict[str, str]:
-    """Write the COCO, MOT, GeoJSON and KML files into out_dir; returns {kind: path}."""
+    """Write the COCO, MOT, GeoJSON and KML files into out_dir; returns {kind: path}. `detections` / `images` None:
+    that file was streamed (`agent.boost.StreamedResults`, `StreamedImages`) and is only named."""
     names = dict(class_names)
     tracks = geojson_tracks({0: list(rows)}, names)
     for feature in tracks["features"]:  # the class name as `cls` (REST and KML convention), the id kept
@@ -136,13 +185,19 @@ def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]], images: li
         props["cls"] = props.pop("cls_name")
     objects = objects_geojson(rows, names)
     files = {
-        "detections": json.dumps(detections),
-        "images": json.dumps(images_json(images, names, video_name, source=source)),
         "mot": "".join(line + "\n" for line in mot_lines(list(rows))),
         "tracks_geojson": json.dumps(tracks),
         "objects_geojson": json.dumps(objects),
     }
     paths = {}
+    if detections is not None:
+        files["detections"] = json.dumps(detections)
+    else:
+        paths["detections"] = str(out_dir / OUTPUT_FILES["detections"])
+    if images is not None:
+        files["images"] = json.dumps(images_json(images, names, video_name, source=source))
+    else:
+        paths["images"] = str(out_dir / OUTPUT_FILES["images"])
     for kind, text in files.items():
         path = out_dir / OUTPUT_FILES[kind]
         write_text_atomic(path, text)

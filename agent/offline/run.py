@@ -17,9 +17,9 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agent.boost import results_to_coco
+from agent.boost import StreamedResults, results_to_coco
 from agent.offline.annotate import VideoAnnotator
-from agent.offline.outputs import OUTPUT_FILES, image_entry, write_outputs, write_text_atomic
+from agent.offline.outputs import OUTPUT_FILES, StreamedImages, image_entry, write_outputs, write_text_atomic
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
@@ -111,8 +111,10 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     if options.max_frames is not None:
         total = options.max_frames if total is None else min(total, options.max_frames)
     annotator: VideoAnnotator | None = None
-    detections: list[dict[str, Any]] = []
-    images: list[dict[str, Any]] = []
+    # the detections and the frames go to their files as they come (held to the end, they were ~9 KB a frame:
+    # ~0.3 GB an hour at 10 frames/s); the files are put in place at the end, removed when the run fails
+    detections = StreamedResults(out / OUTPUT_FILES["detections"])
+    images = StreamedImages(out / OUTPUT_FILES["images"])
     hfovs: list[float] = []  # each frame's field of view, written when the lens zoomed (below)
     zoomed = False
     rows: list[TrackRow] = []
@@ -146,8 +148,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             seconds["tracker"] += t3 - t2
             rows.extend(TrackRow(frame.index, frame.index, t, tr) for tr in reported)
             detections.extend(results_to_coco(frame.index, result))
-            images.append(image_entry(frame.index, t, frame.camera.width, frame.camera.height, frame.pose,
-                                      frame.pose_t))
+            images.add(image_entry(frame.index, t, frame.camera.width, frame.camera.height, frame.pose,
+                                   frame.pose_t))
             hfovs.append(frame.camera.hfov_deg)
             base = getattr(source, "camera", None)
             zoomed |= base is not None and frame.camera is not base and frame.camera.fx != base.fx
@@ -171,17 +173,24 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     except BaseException:
         if annotator is not None:
             annotator.abort()
+        detections.abort()
+        images.abort()
         raise
     finally:
         source.close()
     if annotator is not None:
         annotator.close()
-    if zoomed:  # a zoom lens: every frame with a pose carries its field of view (`hfov_deg`, read back by the
-        # dataset reader), its unzoomed ones too: one left out would take its neighbours' when read as telemetry
-        for image, hfov in zip(images, hfovs, strict=True):
-            if image["meta"] is not None:
-                image["meta"]["hfov_deg"] = hfov
-    files = write_outputs(out, detections=detections, images=images, rows=rows, class_names=source.class_names,
+    try:
+        # a zoom lens: every frame with a pose carries its field of view (`hfov_deg`, read back by the dataset
+        # reader), its unzoomed ones too: one left out would take its neighbours' when read as telemetry
+        images.close(source.class_names, video_name, source=str(video_path or source.name),
+                     hfovs=hfovs if zoomed else None)
+        detections.close()
+    except BaseException:
+        detections.abort()
+        images.abort()
+        raise
+    files = write_outputs(out, detections=None, images=None, rows=rows, class_names=source.class_names,
                           video_name=video_name, source=str(video_path or source.name))
     if annotator is not None:
         files["video"] = str(annotator.path)

@@ -1,0 +1,73 @@
+"""`uavmm detect`'s files written as the frames come (agent.offline.outputs.StreamedImages, the streamed detections):
+the same bytes as the documents built whole, and nothing left behind by a run that fails."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agent.offline.outputs import StreamedImages, image_entry, images_json
+from agent.offline.run import run_detect
+from agent.sources import SourceFrame
+from shared.geo import Camera, Pose
+
+CAMERA = Camera(width=640, height=360, fx=500.0, fy=500.0, cx=320.0, cy=180.0)
+POSE = Pose(lat=48.53, lon=9.06, height_m=40.0, pitch_deg=60.0, heading_deg=10.0)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.lists(st.tuples(st.booleans(), st.floats(1.0, 120.0)), max_size=12), st.booleans(),
+       st.text(max_size=8), st.dictionaries(st.integers(0, 5), st.text(min_size=1, max_size=6), max_size=3))
+def test_streamed_images_are_the_document_built_whole(tmp_path_factory, frames, zoomed, name, classes):
+    out = tmp_path_factory.mktemp("images") / "images.json"
+    entries = [image_entry(i, 1.7e9 + i, 640, 360, POSE if posed else None, 1.7e9 + i)
+               for i, (posed, _) in enumerate(frames)]
+    spool = StreamedImages(out)
+    for entry in entries:
+        spool.add(entry)
+    hfovs = [h for _, h in frames]
+    spool.close(classes, name, source="src", hfovs=hfovs if zoomed else None)
+    if zoomed:
+        for entry, hfov in zip(entries, hfovs, strict=True):
+            if entry["meta"] is not None:
+                entry["meta"]["hfov_deg"] = hfov
+    assert out.read_text() == json.dumps(images_json(entries, classes, name, source="src"))
+    assert sorted(p.name for p in out.parent.iterdir()) == ["images.json"]
+
+
+class _Source:
+    """Frames with two candidates each; frame `fail_at` raises (a decoder error mid-video)."""
+
+    name = "test"
+    class_names = {0: "person"}
+    camera = CAMERA
+
+    def __init__(self, n: int, fail_at: int | None = None) -> None:
+        self.n, self.fail_at = n, fail_at
+
+    def frames(self):
+        for i in range(self.n):
+            if i == self.fail_at:
+                raise OSError("the video broke off")
+            boxes = np.array([[300, 200, 320, 240], [301, 201, 321, 241]], np.float32)
+            yield SourceFrame(i, 1.7e9 + 0.1 * i, POSE, 1.7e9 + 0.1 * i, boxes, np.array([0.9, 0.5], np.float32),
+                              np.zeros(2, np.int64), CAMERA)
+
+    def close(self) -> None:
+        pass
+
+
+def test_a_run_writes_its_streamed_files_and_one_that_fails_leaves_none(tmp_path):
+    summary = run_detect(_Source(6), tmp_path / "ok")
+    images = json.loads((tmp_path / "ok" / "images.json").read_text())["images"]
+    detections = json.loads((tmp_path / "ok" / "detections.json").read_text())
+    assert [im["id"] for im in images] == list(range(6))
+    assert {d["image_id"] for d in detections} == set(range(6)) and len(detections) == summary["detections"]
+    assert not [p.name for p in (tmp_path / "ok").iterdir() if "tmp" in p.name]
+    with pytest.raises(OSError, match="broke off"):
+        run_detect(_Source(6, fail_at=4), tmp_path / "failed")
+    assert list((tmp_path / "failed").iterdir()) == []
