@@ -63,13 +63,13 @@ def parse_udp_endpoint(spec: str) -> tuple[str, int]:
 class _Boot:
     """The positions of one boot of the autopilot, sorted by boot time (one per boot time), and its clock."""
 
-    __slots__ = ("times", "samples", "top_boot", "first_rx", "recent_offsets", "anchor", "by_vehicle")
+    __slots__ = ("times", "samples", "top_boot", "first_rx", "last_rx", "recent_offsets", "anchor", "by_vehicle")
 
     def __init__(self, sample: MavlinkSample, rx: float) -> None:
         self.times = [sample.boot_s]
         self.samples = [sample]
         self.top_boot = sample.boot_s
-        self.first_rx = rx
+        self.first_rx = self.last_rx = rx
         # receive time - boot time of the latest messages: their minimum is the fastest path's, latency jitter aside
         self.recent_offsets: collections.deque[float] = collections.deque([rx - sample.boot_s], maxlen=64)
         self.anchor: float | None = None  # UNIX time of the boot's zero on the records' clock (None: not known yet)
@@ -84,11 +84,15 @@ class _Boot:
         self.top_boot = max(self.top_boot, sample.boot_s)
         if rx is not None:
             self.recent_offsets.append(rx - sample.boot_s)
+            self.last_rx = max(self.last_rx, rx)
 
     def on_clock(self, sample: MavlinkSample, rx: float) -> bool:
-        """Whether a position received at `rx` is of this boot: its boot time not far behind the boot's latest, or
-        its receive time minus boot time near this boot's."""
-        return (sample.boot_s >= self.top_boot - REBOOT_S
+        """Whether a position received at `rx` is of this boot: its boot time not far behind the boot's latest nor
+        further ahead of it than the receive time moved on (a stream replayed faster than real time moves its boot
+        time ahead of the receive time step by step, never by more than REBOOT_S at once), or its receive time minus
+        boot time near this boot's."""
+        ahead = sample.boot_s - self.top_boot
+        return (-REBOOT_S <= ahead <= max(rx - self.last_rx, 0.0) + REBOOT_S
                 or abs(rx - sample.boot_s - min(self.recent_offsets)) <= REBOOT_S)
 
     @property
@@ -179,13 +183,13 @@ class MavlinkUdpFeed:
             pending.add(sample, rx)
         elif current.on_clock(sample, rx):
             current.add(sample, rx)
-            if pending is not None and sample.boot_s > pending.top_boot + REBOOT_S:
-                # the old boot's stream goes on: the pending positions were old ones received late
-                for old in pending.samples:
-                    current.add(old, None)
-                self._pending = None
+            if pending is not None:  # the current boot's stream goes on: the pending positions were received late
+                if pending.top_boot < current.top_boot:  # repeated late: they join the boot (as a .tlog reads them)
+                    for old in pending.samples:
+                        current.add(old, None)
+                self._pending = None  # (ahead of it: an earlier boot's, dropped)
                 self.late_repeats += 1
-        else:  # a boot time far behind on a receive clock that moved on: perhaps a reboot
+        else:  # a boot time far off on a receive clock that moved on: perhaps a reboot
             self._pending = _Boot(sample, rx)
 
     def _confirm_reboot(self, now: float) -> None:

@@ -206,3 +206,26 @@ def test_a_frame_waiting_for_positions_does_not_stall_while_a_reboot_is_pending(
     quick_feed.wait_for(T0 + 3.0, T0 + 3.1, timeout_s=30.0, idle_s=30.0)
     assert time.monotonic() - began < 10.0
     assert quick_feed.records_between(T0 + 3.0, T0 + 3.1)[-1].t == pytest.approx(T0 + 1.4, abs=2e-3)
+
+
+def test_an_earlier_boots_positions_received_after_the_reboot_do_not_join_the_new_boot(quick_feed):
+    """Old positions (boot 100.5 s) from a second, slower link arrive after the reboot was confirmed: their boot time
+    is 96 s ahead of the new boot's, and filed under it they were records 96 s in the future."""
+    import threading
+
+    from tests.shared.mavlink_writer import port_is_bound
+
+    before, after, packets = _rebooting_flight(new_boot_system_time=False)
+    more = _flight(10, T0 + 4.1)
+    stragglers = [(T0 + 4.05, p) for t, p in flight_packets(before, boot_ms0=100_000) if T0 + 0.5 <= t < T0 + 0.8]
+    schedule = packets + stragglers + flight_packets(more, boot_ms0=5_600, system_time=False)
+    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
+    sender = threading.Thread(target=_paced, args=(schedule, quick_feed.port, T0))
+    sender.start()
+    quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
+    sender.join()
+    truth = before + after + more
+    records = wait_until(lambda: len(quick_feed.records()) >= len(truth) and quick_feed.records(), 5.0, "the records")
+    assert quick_feed.reboots == 1
+    assert len(records) == len(truth)
+    assert [r.t for r in records] == pytest.approx([f.t for f in truth], abs=0.05)
