@@ -253,7 +253,8 @@ def records_around(records: list[Telemetry], record_t: NDArray[np.float64], t_fi
 def video_telemetry(path: str | Path, *, height_m: float | None = None, height_offset_m: float | None = None,
                     pitch_deg: float | None = None, heading_deg: float | None = None,
                     need_angles: bool = False, system_id: int | None = None,
-                    utc_offset_h: float | None = None) -> tuple[list[Telemetry], float | None]:
+                    utc_offset_h: float | None = None, video: str | Path | None = None
+                    ) -> tuple[list[Telemetry], float | None]:
     """Telemetry records of a video, checked for what georeferencing needs, and the telemetry time of video time 0.
 
     Parameters
@@ -278,6 +279,9 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     utc_offset_h : float, optional
         Hours a DJI SRT's date lines are ahead of UTC (`--telemetry-utc-offset-h`: DJI writes the drone's local
         time without a zone; 2 for CEST); None reads them as UTC. ValueError for another kind of file.
+    video : path, optional
+        The video the telemetry is for: of a SeaDronesSee ``.json`` holding several videos, the one named like it
+        is read (`agent.json_video.read_video_json`; its records keep their frame numbers for `on_video_frames`).
 
     Returns
     -------
@@ -327,6 +331,10 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         klv = read_klv_report(path, **kw)  # logs what it skipped
         records, video_start_t = klv.records, klv.video_start_t
         above_sea_level_only, sea_level_name = klv.heights_above_sea_level_only, "KLV sensor altitude, no frame centre"
+    elif suffix == ".json":
+        from agent.json_video import read_video_json
+
+        records = read_video_json(path, video)
     else:
         records = read_telemetry(path, **kw)
     if not records:
@@ -471,7 +479,7 @@ class VideoSource:
             self.records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                           pitch_deg=pitch_deg, heading_deg=heading_deg,
                                                           need_angles=True, system_id=system_id,
-                                                          utc_offset_h=utc_offset_h)
+                                                          utc_offset_h=utc_offset_h, video=video)
         self.height_m = height_m
         self.camera_file = Camera.from_spec(camera)  # a camera file or a preset name
         self.reader = VideoReader(self.video_path, fps=video_fps)  # video_fps: a raw stream's rate (--video-fps)
@@ -479,6 +487,10 @@ class VideoSource:
         #: Frames the container announces (None when it does not say, e.g. a stream).
         self.frame_count: int | None = self.reader.frame_count
         self.fps = self.reader.fps
+        if Path(str(telemetry)).suffix.lower() == ".json":  # SeaDronesSee: each meta at its own video frame
+            from agent.json_video import on_video_frames
+
+            self.records, video_start_t = on_video_frames(self.records, self.fps, telemetry)
         same_size = (width, height) in ((0, 0), (self.camera_file.width, self.camera_file.height))
         self.camera = self.camera_file if same_size else self.camera_file.fitted_to(width, height,
                                                                                       source=f"the frames of {video}")

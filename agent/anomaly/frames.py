@@ -92,7 +92,11 @@ class VideoFrames:
         # heatmap still runs, so the file is not refused (need_angles off: a warning says why)
         records, video_start_t = video_telemetry(telemetry, height_m=height_m, height_offset_m=height_offset_m,
                                                  pitch_deg=pitch_deg, heading_deg=heading_deg, system_id=system_id,
-                                                 utc_offset_h=utc_offset_h)
+                                                 utc_offset_h=utc_offset_h, video=video)
+        if Path(str(telemetry)).suffix.lower() == ".json":  # SeaDronesSee: each meta at its own video frame
+            from agent.json_video import on_video_frames
+
+            records, video_start_t = on_video_frames(records, self.fps, telemetry)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)

@@ -441,6 +441,9 @@ def parse_seadronessee_coco(
     if video_id is None and len(videos) > 1:
         raise ValueError(f"{source}: holds {len(videos)} videos ({', '.join(videos[:10])}): pass video_id")
     chosen = [image for image in images if video_id is None or video_of(image) == video_id]
+    # the pitch convention is the video's (a camera looks down far more than up), not each value's: one frame
+    # looking 3 deg above the horizon (-3 where positive is down) is no DJI-signed depression of 3 deg
+    convention = pitch_convention_of(image.get("meta") for image in chosen if isinstance(image.get("meta"), Mapping))
     records: list[tuple[int, Telemetry]] = []
     skipped, problems = 0, []
     for image in chosen:
@@ -451,7 +454,8 @@ def parse_seadronessee_coco(
             problems.append(f"image id {image.get('id')!r}: frame index {frame!r} is not an index")
             continue
         try:
-            tel = from_seadronessee_meta(image.get("meta"), frame=frame, utc_offset_s=utc_offset_s)
+            tel = from_seadronessee_meta(image.get("meta"), frame=frame, utc_offset_s=utc_offset_s,
+                                         pitch_convention=convention)
         except ValueError as err:  # one frame's meta: that frame has no telemetry, the others keep theirs
             problems.append(f"image id {image.get('id')!r}: {err}")
             continue

@@ -1,0 +1,104 @@
+"""A SeaDronesSee COCO file as the telemetry of its video (``--telemetry FLIGHT.json`` beside ``FLIGHT.MP4``).
+
+Such a file says which video frame each meta belongs to (``source.frame_no``, or ``frame_index``), and real ones
+start mid-video and keep every 15th frame (the dev file's ``DJI_0032`` starts at frame 5415): taking the first
+image for video time 0, as for a log, gave every frame the pose of three minutes later. Its stamps are the flight
+log's (``datetime(utc)`` at whole seconds, one sample repeated on the frames until the next: sample and hold). So:
+
+- the video is the one named like the video file (a file with several videos; the only one otherwise);
+- a sample repeated on later frames (the same stamp second and the same values) counts once, at the frame where it
+  first appears (held, it became a staircase lagging up to a sample interval);
+- each sample is put at its frame's time on the video clock, ``offset + frame / fps``, the offset being the median
+  of ``stamp - frame / fps`` over the samples (the records keep UTC, to within the stamps' rounding), so every frame
+  gets the pose of its own place in the video whatever the stamps' zone or rounding.
+
+Records without frame numbers (or a video without a frame rate) are left as they are, and a summary line says which.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import logging
+import math
+import statistics
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+from shared.telemetry import Telemetry
+from shared.telemetry.seadronessee import parse_seadronessee_coco
+from shared.telemetry.text import read_text
+
+__all__ = ["on_video_frames", "read_video_json"]
+
+log = logging.getLogger("agent.sources")  # the video source's messages, under its name
+
+
+def _video_of(image: Mapping[str, Any]) -> Any:
+    src = image.get("source")
+    return src["video"] if isinstance(src, Mapping) and src.get("video") is not None else image.get("video_id")
+
+
+def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetry]:
+    """The records of the video `video` in the SeaDronesSee COCO file `path`: the file's only video, else the one
+    whose name (``source.video``, or the ``videos`` entry of its ``video_id``) has the video file's stem. ValueError
+    naming the file's videos when none or several match."""
+    try:
+        coco = json.loads(read_text(path))
+    except json.JSONDecodeError as err:
+        raise ValueError(f"{path}:{err.lineno}: not valid JSON: {err.msg}") from None
+    images = coco.get("images") if isinstance(coco, Mapping) else None
+    if not isinstance(images, list) or not all(isinstance(im, Mapping) for im in images):
+        return parse_seadronessee_coco(coco, source=str(path))  # its own error for a file that is no COCO
+    ids = {repr(v): v for v in (_video_of(im) for im in images)}
+    if len(ids) <= 1 or video is None:
+        return parse_seadronessee_coco(coco, source=str(path))
+    names = {v["id"]: v.get("name") for v in coco.get("videos") or [] if isinstance(v, Mapping) and "id" in v}
+    stem = Path(str(video)).stem.lower()
+
+    def name_of(vid: Any) -> str:
+        name = names.get(vid, vid) if not isinstance(vid, str) else vid
+        return Path(str(name)).stem.lower()
+
+    matching = [vid for vid in ids.values() if name_of(vid) == stem]
+    if len(matching) != 1:
+        shown = ", ".join(sorted({str(names.get(v, v)) for v in ids.values()})[:12])
+        raise ValueError(f"telemetry {path} holds {len(ids)} videos ({shown}) and "
+                         f"{'none' if not matching else 'several'} named like the video {Path(str(video)).name}: "
+                         "name the video file as its entry in the JSON (e.g. DJI_0032.MP4 for source.video "
+                         "DJI_0032.MP4), or give a JSON of that video alone")
+    log.info("telemetry %s: video %s of %d (named like %s)", path, names.get(matching[0], matching[0]), len(ids),
+             Path(str(video)).name)
+    return parse_seadronessee_coco(coco, video_id=matching[0], source=str(path))
+
+
+def _values(r: Telemetry) -> tuple[Any, ...]:
+    return (r.lat, r.lon, r.height_m, r.heading_deg, r.pitch_deg, r.roll_deg)
+
+
+def on_video_frames(records: Sequence[Telemetry], fps: float | None, telemetry: str | Path
+                    ) -> tuple[list[Telemetry], float | None]:
+    """(records put on the video clock by their frame numbers, the telemetry time of video time 0), or (the records
+    as they are, None) when a record has no frame number or the video no frame rate (module docstring)."""
+    if not records or fps is None or not (math.isfinite(fps) and fps > 0.0) or any(r.frame is None for r in records):
+        missing = sum(r.frame is None for r in records)
+        if records and missing:
+            log.info("telemetry %s: %d of %d records have no frame number: video time 0 is the first record's time",
+                     telemetry, missing, len(records))
+        return list(records), None
+    ordered = sorted(records, key=lambda r: (r.frame, r.t))
+    samples: list[Telemetry] = []
+    for r in ordered:  # sample and hold: the same values in the same stamp second are one sample, first seen here
+        if samples and math.floor(samples[-1].t) == math.floor(r.t) and _values(samples[-1]) == _values(r):
+            continue
+        if samples and samples[-1].frame == r.frame:
+            continue  # two images of one frame: the first
+        samples.append(r)
+    frame_of = [r.frame for r in samples]
+    offset = statistics.median(r.t - f / fps for r, f in zip(samples, frame_of, strict=True))  # type: ignore[operator]
+    out = [dataclasses.replace(r, t=offset + f / fps) for r, f in zip(samples, frame_of, strict=True)]  # type: ignore
+    held = len(records) - len(samples)
+    log.info("telemetry %s: %d samples placed at their video frames (%d repeats of a held sample dropped); video "
+             "time 0 is telemetry time %.3f", telemetry, len(samples), held, offset)
+    return out, offset
