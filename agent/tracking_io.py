@@ -169,7 +169,8 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
     tracker = GpsTracker(tracker_config, dataset.categories, evidence_at=memory_evidence(pipe))
     rows: list[TrackRow] = []
     counts = {"frames": 0, "frames_without_pose": 0, "detections": 0, "pipeline_s": 0.0, "tracker_s": 0.0,
-              "images_read": 0, "images_missing": 0, "appearance_s": 0.0}
+              "images_read": 0, "images_missing": 0, "appearance_s": 0.0, "confident_posed": 0,
+              "confident_without_ground_point": 0}
     t_prev = -math.inf
     problems: list[PoseProblem] = []
     telemetry = VideoTelemetry()
@@ -213,9 +214,19 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         counts["frames"] += 1
         counts["frames_without_pose"] += frame.pose is None
         counts["detections"] += len(result)
+        if frame.pose is not None:  # a track starts only at a ground point: count the confident boxes without one
+            confident = result.raw_scores >= tracker.config.birth_score
+            counts["confident_posed"] += int(confident.sum())
+            counts["confident_without_ground_point"] += int((confident & ~np.isfinite(result.lat)).sum())
         rows.extend(TrackRow(frame.image.frame_index, frame.image.id, t, tr) for tr in tracker.report(tracks))
         if on_frame is not None:
             on_frame(frame, result, tracks)
+    far, confident = counts["confident_without_ground_point"], counts["confident_posed"]
+    if confident and far * 2 >= confident:
+        log.warning("video %s: %d of %d confident detections in frames with a pose have no ground point (beyond the "
+                    "pipeline's range of %g m, or at the horizon): they follow tracks but start none%s; a longer range "
+                    "(--window-m, twice the range) lets them", dataset.video_names.get(video_id, video_id), far,
+                    confident, pipeline_config.range_limit_m, "" if rows else ", and the video has no track")
     if stats is not None:
         for k, v in counts.items():
             stats[k] = stats.get(k, 0) + v
@@ -439,5 +450,6 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
         "appearance_ms_per_image": round(1000 * stats.get("appearance_s", 0.0) / max(stats.get("images_read", 0), 1),
                                          3),
         "seconds": round(time.perf_counter() - t0, 3), "skipped_candidates": candidates.skipped,
+        "confident_without_ground_point": stats.get("confident_without_ground_point", 0),
     })
     return summary
