@@ -7,6 +7,7 @@ server so an agent on a drone needs neither the server package nor its dependenc
 from __future__ import annotations
 
 import json
+import re
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -17,6 +18,10 @@ if TYPE_CHECKING:
 __all__ = ["ZENOH_MODES", "ZenohOptions", "config_file_value", "zenoh_config"]
 
 ZENOH_MODES = ("peer", "router", "client")
+
+
+#: A Zenoh endpoint's shape: a protocol, a slash, an address (tcp/HOST:PORT, udp/..., tls/..., unixsock-stream/PATH).
+_ENDPOINT = re.compile(r"^[A-Za-z][A-Za-z0-9_-]*/\S+$")
 
 
 @dataclass(frozen=True, slots=True)
@@ -58,10 +63,17 @@ def zenoh_config(options: ZenohOptions) -> zenoh.Config:
         raise ValueError(f"cannot read zenoh config {options.config_file}: {exc}") from None
     if options.mode is not None:
         conf.insert_json5("mode", json.dumps(options.mode))
-    if options.connect is not None:
-        conf.insert_json5("connect/endpoints", json.dumps(list(options.connect)))
-    if options.listen is not None:
-        conf.insert_json5("listen/endpoints", json.dumps(list(options.listen)))
+    for flag, endpoints in (("--connect", options.connect), ("--listen", options.listen)):
+        if endpoints is None:
+            continue
+        for endpoint in endpoints:
+            if not _ENDPOINT.match(endpoint):
+                raise ValueError(f"{flag} {endpoint!r} is not a Zenoh endpoint: <protocol>/<address>, e.g. "
+                                 "tcp/192.168.1.10:7447")
+        try:
+            conf.insert_json5(f"{flag[2:]}/endpoints", json.dumps(list(endpoints)))
+        except zenoh.ZError as exc:
+            raise ValueError(f"{flag} {', '.join(endpoints)}: {exc}") from None
     if options.multicast_scouting is not None:
         conf.insert_json5("scouting/multicast/enabled", json.dumps(options.multicast_scouting))
     for item in options.cfg:

@@ -51,6 +51,26 @@ def test_bad_files_and_cfg_values_are_value_errors(tmp_path):
         zenoh_config(ZenohOptions(cfg=("mode:{not json5",)))
 
 
+@pytest.mark.parametrize(("kwargs", "message"), [
+    ({"connect": ("notanendpoint",)}, r"--connect 'notanendpoint' is not a Zenoh endpoint: <protocol>/<address>"),
+    ({"listen": ("tcp/127.0.0.1:7447", "bad")}, r"--listen 'bad' is not a Zenoh endpoint"),
+    ({"connect": ("/no-protocol",)}, r"--connect '/no-protocol' is not a Zenoh endpoint"),
+])
+def test_a_malformed_endpoint_is_named_in_one_line(kwargs, message):
+    """`uavmm agent --connect notanendpoint` ended in zenoh's traceback (fusion and gateway printed its message)."""
+    with pytest.raises(ValueError, match=message):
+        zenoh_config(ZenohOptions(**kwargs))
+
+
+def test_the_agent_refuses_a_malformed_endpoint_in_one_line(capsys):
+    from uavmm.cli import main
+
+    assert main(["agent", "--uav-id", "uav1", "--sim", "coop", "--connect", "notanendpoint", "--duration", "1"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["uavmm agent: error: --connect 'notanendpoint' is not a Zenoh endpoint: <protocol>/<address>, "
+                   "e.g. tcp/192.168.1.10:7447"]
+
+
 def test_the_old_import_paths_are_the_same_objects():
     import agent.zenoh_config
     import fusion_server.config
