@@ -37,11 +37,13 @@ def real_files(path: str | Path, detections: str | Path | None,
 
 def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_spec: str | Path, *,
                   config: PipelineConfig | None = None, size_filter: SizeFilter | None = None,
-                  out_dir: Path | None = None) -> dict[str, Any]:
+                  out_dir: Path | None = None, terrain: Any = None) -> dict[str, Any]:
     """Score the four variants; returns the report (also report.json/report.md in out_dir when given).
 
     config, size_filter: our variant's settings (default PipelineConfig() and the built-in priors), e.g. a
-    `uavmm tune` parameters file; memory off is the same with use_memory False.
+    `uavmm tune` parameters file; memory off is the same with use_memory False. terrain: the ground (`--dem`,
+    agent.dem.Terrain) every variant puts the boxes on, the paper's rule too (geometry, not a rule's choice);
+    None: flat ground.
     """
     t0 = time.perf_counter()
     coco = read_json(images_path, "images")
@@ -51,6 +53,8 @@ def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_s
     raw = read_json(detections_path, "detections")
     ours = config or PipelineConfig()
     variants = {MEMORY_OFF: dataclasses.replace(ours, use_memory=False), OURS: ours, PAPER: paper_rule_config()}
+    if terrain is not None:
+        variants = {name: dataclasses.replace(cfg, terrain=terrain) for name, cfg in variants.items()}
     metrics = {DETECTOR: per_class_metrics(coco, raw)}
     stats: dict[str, dict[str, Any]] = {}
     for name, cfg in variants.items():

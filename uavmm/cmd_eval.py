@@ -9,7 +9,7 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
-from uavmm.cli import CliError
+from uavmm.cli import CliError, add_terrain_options, terrain_from_args
 from uavmm.csv_args import csv_list
 
 
@@ -54,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                            "with --tasks coop: every variant's (e.g. a correction_anchor_s)")
     real.add_argument("--size-filter", type=Path, default=None, metavar="FILTER.json",
                       help="with --real: a fitted size filter (uavmm fit-size-filter) for our variant and memory off")
+    add_terrain_options(p)  # with --real: every variant on the DEM's ground (the simulator has its own terrains)
     p.add_argument("--out", type=Path, default=Path("out/eval"), help="report directory (out/eval)")
     p.set_defaults(handler=_run_eval)
 
@@ -69,7 +70,8 @@ def _run_real_eval(args: argparse.Namespace) -> int:
 
         size_filter = SizeFilter.load(args.size_filter)
     out = args.out / "real"
-    report = run_real_eval(images, detections, camera, config=config, size_filter=size_filter, out_dir=out)
+    report = run_real_eval(images, detections, camera, config=config, size_filter=size_filter, out_dir=out,
+                           terrain=terrain_from_args(args))
     print((out / "report.md").read_text())
     print(f"reports: {out / 'report.md'}, {out / 'report.json'} ({report['seconds']} s)")
     return 0
@@ -88,8 +90,8 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     if args.real is not None:
         return _run_real_eval(args)
-    if any(v is not None for v in (args.detections, args.camera, args.size_filter)):
-        raise CliError("--detections, --camera and --size-filter go with --real")
+    if any(v is not None for v in (args.detections, args.camera, args.size_filter, args.dem)):
+        raise CliError("--detections, --camera, --size-filter and --dem go with --real")
     if args.pipeline_config is not None and "coop" not in (args.tasks or "").split(","):
         raise CliError("--config goes with --real or --tasks coop")
     if args.list_domains or args.domains is not None:

@@ -1,0 +1,53 @@
+"""`uavmm eval --real` on a small COCO file with meta and its detector's candidates (a simulated flight written in the
+real layout's place): the per-class report, and `--dem` (DESIGN 5: on every command that georeferences)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from agent.dem import write_npz
+from shared.terrain import ElevationGrid
+from sim.dataset import write_dataset
+from uavmm.cli import main
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("real") / "data"
+    write_dataset("reid", out, seed=3, frames=30, progress=False)
+    return out
+
+
+def _eval(d: Path, out: Path, *extra: str) -> dict:
+    assert main(["eval", "--real", str(d / "images.json"), "--detections", str(d / "pre_nms.json"), "--camera",
+                 str(d / "camera.json"), "--out", str(out), *extra]) == 0
+    return json.loads((out / "real" / "report.json").read_text())
+
+
+def _dem(path: Path, elevation: float) -> Path:
+    write_npz(path, ElevationGrid(np.full((3, 3), elevation), lat0_deg=48.54, lon0_deg=9.05, lat_step_deg=-0.01,
+                                  lon_step_deg=0.01))
+    return path
+
+
+def test_eval_real_takes_a_dem_and_a_flat_one_changes_nothing(data, tmp_path):
+    flat = _eval(data, tmp_path / "flat")
+    assert [row["class"] for row in flat["rows"]] == ["all", "person"]
+    on_dem = _eval(data, tmp_path / "dem", "--dem", str(_dem(tmp_path / "flat.npz", 120.0)),
+                   "--takeoff-elevation-m", "120")
+    for a, b in zip(on_dem["rows"], flat["rows"], strict=True):  # the ray meets a flat DEM by iteration: AR
+        assert {k: v for k, v in a.items() if "AR" not in k} == {k: v for k, v in b.items() if "AR" not in k}
+        assert [a[k] for k in a if "AR" in k] == pytest.approx([b[k] for k in b if "AR" in k], abs=0.1)
+    # ground 25 m above the take-off point under the whole flight: every box lands elsewhere, the figures move
+    raised = _eval(data, tmp_path / "raised", "--dem", str(_dem(tmp_path / "raised.npz", 145.0)),
+                   "--takeoff-elevation-m", "120")
+    assert raised["rows"] != flat["rows"]
+
+
+def test_dem_without_real_is_refused(capsys):
+    assert main(["eval", "--dem", "x.npz"]) == 2
+    assert "--dem go with --real" in capsys.readouterr().err
