@@ -14,7 +14,7 @@ from typing import Any
 
 from shared.telemetry.dates import DATETIME_RE, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
-from shared.telemetry.record import Telemetry, pitch_or_none
+from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, pitch_or_none
 from shared.telemetry.text import NUM_RE, read_text
 
 log = logging.getLogger(__name__)
@@ -47,8 +47,11 @@ _DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
 #: A bare `pitch` column below this depression in every row is likely the airframe's pitch (a warning says so).
 _AIRFRAME_PITCH_DEG = 10.0
 #: Columns that name the drone a row belongs to (a log of several drones): one drone per file is read.
-_DRONE_COLUMNS = ("uav", "uav_id", "drone", "drone_id", "vehicle", "vehicle_id", "aircraft", "aircraft_serial",
-                  "serial", "sysid", "system_id")
+_DRONE_COLUMNS = ("uav", "uav_id", "uas_id", "drone", "drone_id", "drone_name", "drone_serial", "vehicle",
+                  "vehicle_id", "vehicle_name", "aircraft", "aircraft_id", "aircraft_name", "aircraft_serial",
+                  "aircraft_sn", "serial", "serial_number", "sn", "sysid", "system_id")
+#: Ground speed (m/s) no drone flies: consecutive rows further apart than this are not one flight.
+_MAX_SPEED_MPS = 150.0
 #: A unitless time column whose values exceed this is in milliseconds since 1970 (in seconds: the year 5138).
 _EPOCH_MS_MIN = 1e11
 #: A unitless time column whose median step between distinct stamps is at least this is in milliseconds (a drone
@@ -56,6 +59,13 @@ _EPOCH_MS_MIN = 1e11
 #: its values are epoch seconds (`_EPOCH_S_MIN` .. `_EPOCH_MS_MIN`).
 _MS_STEP_MIN = 20.0
 _EPOCH_S_MIN = 1e8
+#: A time column stepping back by more than this (s) while the dates go on has started again (a reset).
+_RESET_S = 1.0
+#: Cells that say a value is missing (pandas writes NaN, R NA, JSON-minded tools null): read as an empty cell.
+_MISSING = frozenset({"nan", "na", "n/a", "null", "none", "-"})
+#: Yes/no columns and the words they may hold (AirData's isVideo as pandas writes it: True / False).
+_BOOLEAN_COLUMNS = ("isvideo", "is_video", "recording")
+_BOOLEANS = {"true": 1.0, "false": 0.0, "yes": 1.0, "no": 0.0}
 _HEADER_RE = re.compile(r"(?P<name>.*?)\s*(?:\((?P<paren>[^()]*)\)|\[(?P<bracket>[^\[\]]*)\])?")
 
 
@@ -123,8 +133,10 @@ def _csv_columns(header: list[str], header_line: int, source: str) -> dict[str, 
 
 def _csv_float(cell: str, line: int, column: _CsvColumn, source: str) -> float | None:
     text = cell.strip()
-    if not text:
+    if not text or text.lower() in _MISSING:  # pandas writes NaN, R NA: a missing value, as an empty cell
         return None
+    if column.alias in _BOOLEAN_COLUMNS and text.lower() in _BOOLEANS:
+        return _BOOLEANS[text.lower()]
     try:
         value = float(text)
     except ValueError:
@@ -143,8 +155,9 @@ def parse_csv(
     AirData exports write them (``time(millisecond)``, ``height_above_takeoff(feet)``, ``speed(mph)``):
 
     - time: ``time_s, time, t, timestamp`` (seconds or ms; numbers, or date-times) and/or ``date_time,
-      datetime, datetime(utc)``. With both, t = first date + (time - first time): the date anchors the
-      epoch, the finer time column spaces the rows. A naive date is UTC unless ``utc_offset_s`` is given
+      datetime, datetime(utc)``. With both, the dates anchor the epoch (t = date - time offset + time; whole-second
+      dates: the offset every row's date allows, `date_offset`) and the finer time column spaces the rows; a time
+      column that starts again is anchored part by part. A naive date is UTC unless ``utc_offset_s`` is given
       (a column named ``(utc)`` is UTC whatever ``utc_offset_s`` says).
     - required: ``lat, latitude``; ``lon, lng, longitude``; height ``height_m, rel_alt,
       height_above_takeoff, height, altitude`` (m or ft; ``height_offset_m`` is added).
@@ -158,7 +171,8 @@ def parse_csv(
     beats the aircraft's ``pitch``/``yaw``/``roll``).
 
     DJI pitch rule: the pitch column is in DJI convention (negative down, -90 = nadir) when it is named
-    ``gb_pitch`` or ``gimbal_pitch_dji``, or when any of its values is negative; it is then converted
+    ``gb_pitch`` or ``gimbal_pitch_dji``, or when more of its values are clearly negative than clearly positive
+    (beyond `PITCH_TOLERANCE_DEG`); it is then converted
     with `pitch_from_dji`. Otherwise it is our depression 0..90. Either way readings within
     `PITCH_TOLERANCE_DEG` outside 0..90 are clamped and others rejected.
 
@@ -208,7 +222,28 @@ def parse_csv(
         raise ValueError(f"{source}: no data rows after the header")
     _one_drone(header, rows[1:], source)
     kept = _usable_rows(rows[1:], header, columns, source, utc_offset_s, height_offset_m)
-    return _records(kept, columns, source, utc_offset_s, height_offset_m)
+    records = _records(kept, columns, source, utc_offset_s, height_offset_m)
+    _warn_jumps(records, [line for line, _ in kept], source)
+    return records
+
+
+def _warn_jumps(records: list[Telemetry], lines: list[int], source: str) -> None:
+    """One warning when consecutive rows are further apart than any drone flies in the time between them
+    (`_MAX_SPEED_MPS`): rows of several drones interleaved (under a column not named like a drone's), or GPS
+    glitches; those poses are wrong."""
+    jumps: list[int] = []
+    for i in range(1, len(records)):
+        a, b = records[i - 1], records[i]
+        if (a.lat, a.lon) == (0.0, 0.0) or (b.lat, b.lon) == (0.0, 0.0):
+            continue  # no GPS fix
+        north = (b.lat - a.lat) * 111_320.0
+        east = (b.lon - a.lon) * 111_320.0 * math.cos(math.radians(a.lat))
+        if math.hypot(north, east) > _MAX_SPEED_MPS * max(abs(b.t - a.t), 0.05) + 5.0:
+            jumps.append(i)
+    if jumps:
+        log.warning("%s: the position jumps faster than %g m/s between %d pairs of rows (first at line %d): rows of "
+                    "several drones in one file, or GPS glitches? Those rows' poses are wrong: keep the rows of the "
+                    "drone that filmed the video", source, _MAX_SPEED_MPS, len(jumps), lines[jumps[0]])
 
 
 def _records(rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float,
@@ -302,7 +337,33 @@ def _csv_times(
         # a log stamped at whole seconds (AirData's datetime(utc) without its time(millisecond)): the rows of
         # one second are spread over it in their order
         return spread_whole_second_stamps(anchors)
-    return [anchors[0] + (value - numeric[0]) for value in numeric]
+    # the dates anchor the epoch, the finer time column spaces the rows; a time column that starts again while the
+    # dates go on (two logs joined, a logger restarted) is anchored part by part
+    starts = [0] + [i for i in range(1, len(numeric)) if numeric[i] < numeric[i - 1] - _RESET_S]
+    if len(starts) > 1 and not quiet:
+        line = rows[starts[1]][0]
+        log.warning("%s: column %r starts again %d time(s) (first at line %d) while %r goes on: each part is placed "
+                    "by its dates", source, time_column.name if time_column else "time", len(starts) - 1, line,
+                    date_column.name)
+    out: list[float] = []
+    for a, b in zip(starts, [*starts[1:], len(numeric)], strict=True):
+        offset = date_offset(anchors[a:b], numeric[a:b])
+        out.extend(offset + value for value in numeric[a:b])
+    return out
+
+
+def date_offset(dates: list[float], times: list[float]) -> float:
+    """The offset c with each row's date = c + its time, from rows with both. Dates at whole seconds that repeat
+    (AirData's datetime(utc) beside time(millisecond)) are truncated: c is the middle of the offsets that every row
+    allows (floor(c + time) = date), the median + 0.5 s when truncation does not explain them (rounded dates); else
+    the median of date - time. The first row's date alone was up to a second off (a flight starting at .9 s read
+    0.9 s early)."""
+    gaps = sorted(d - t for d, t in zip(dates, times, strict=True))
+    median = gaps[len(gaps) // 2]
+    if len(set(dates)) == len(dates) or any(d != math.floor(d) for d in dates):
+        return median
+    lo, hi = gaps[-1], gaps[0] + 1.0
+    return 0.5 * (lo + hi) if lo < hi else median + 0.5
 
 
 def _seconds(values: list[float], column: _CsvColumn, source: str, *, warn: bool = True) -> list[float]:
@@ -385,7 +446,11 @@ def _csv_pitch(
     if raw is None:
         return [None] * len(rows)
     column = columns["pitch"]
-    dji = column.alias in _DJI_PITCH_COLUMNS or any(v is not None and v < 0.0 for v in raw)
+    # DJI's sign (negative below the horizon) when more readings are clearly negative than clearly positive: a camera
+    # looks down far more than up, and one reading above the horizon (-3 where positive is down) is no DJI sign
+    negative = sum(v is not None and v < -PITCH_TOLERANCE_DEG for v in raw)
+    positive = sum(v is not None and v > PITCH_TOLERANCE_DEG for v in raw)
+    dji = column.alias in _DJI_PITCH_COLUMNS or negative > positive or (negative and not positive)
     out: list[float | None] = []
     for (line, _), value in zip(rows, raw, strict=True):
         if value is None:

@@ -131,10 +131,31 @@ def interpolate(
 
 def spread_whole_second_stamps(stamps: list[float]) -> list[float]:
     """Stamps at whole seconds that repeat (a log stamped at whole seconds without a finer clock): the samples of
-    one second are spread over it in their order (`spread_repeated_stamps`); any other list is returned as it is."""
-    if all(a == round(a) for a in stamps) and len(set(stamps)) < len(stamps):
-        return [float(v) for v in spread_repeated_stamps(stamps, True)]
-    return stamps
+    one second are spread over it in their order (`spread_repeated_stamps`); any other list is returned as it is.
+
+    A first second with fewer rows than the file's usual seconds (a log started at .7 s) holds the end of that
+    second at the usual rate (.7, .8, .9 at 10 rows a second), a last one the start: spread over the whole second
+    they put every later frame's pose up to a second early (the usual rate: the median count of the seconds between
+    two others; without one, each second is spread whole)."""
+    if not (all(a == round(a) for a in stamps) and len(set(stamps)) < len(stamps)):
+        return stamps
+    out = spread_repeated_stamps(stamps, True)
+    groups: list[tuple[int, int]] = []  # (start, count) of each run of one stamp
+    for i, value in enumerate(stamps):
+        if groups and stamps[groups[-1][0]] == value:
+            groups[-1] = (groups[-1][0], groups[-1][1] + 1)
+        else:
+            groups.append((i, 1))
+    inner = [count for k, (start, count) in enumerate(groups[1:-1], 1)
+             if stamps[start] - stamps[groups[k - 1][0]] == 1.0 and stamps[groups[k + 1][0]] - stamps[start] == 1.0]
+    if inner:
+        usual = int(np.median(inner))
+        (s0, k0), (s1, k1) = groups[0], groups[-1]
+        if len(groups) > 1 and 0 < k0 < usual and stamps[groups[1][0]] - stamps[s0] == 1.0:
+            out[s0:s0 + k0] = stamps[s0] + (usual - k0 + np.arange(k0)) / usual
+        if len(groups) > 1 and 0 < k1 < usual and stamps[s1] - stamps[groups[-2][0]] == 1.0:
+            out[s1:s1 + k1] = stamps[s1] + np.arange(k1) / usual
+    return [float(v) for v in out]
 
 
 def spread_repeated_stamps(stamps: ArrayLike, whole_seconds: bool) -> np.ndarray:

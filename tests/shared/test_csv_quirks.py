@@ -1,0 +1,115 @@
+"""Telemetry CSV files as other tools write them (shared.telemetry.csv_table): whole-second dates beside a fine
+clock, a first second cut short, a clock that starts again, a single reading above the horizon, missing values as
+NaN / NA, yes/no as True / False, several drones under other column names. Each case failed before (a helper's audit,
+proof scripts in the commit's note)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+import math
+
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from shared.telemetry.csv_table import parse_csv
+
+START = dt.datetime(2024, 5, 1, 10, 0, 0, tzinfo=dt.timezone.utc)
+AIRDATA = ("time(millisecond),datetime(utc),latitude,longitude,height_above_takeoff(feet),gimbal_heading(degrees),"
+           "gimbal_pitch(degrees),isVideo")
+
+
+def _stamp(seconds: float) -> str:
+    return (START + dt.timedelta(seconds=seconds)).strftime("%Y-%m-%d %H:%M:%S")  # truncated to the second
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(0.0, 0.999), st.integers(20, 200))
+def test_whole_second_dates_beside_a_fine_clock_place_the_flight_to_a_sample(phase, rows):
+    """AirData: datetime(utc) at whole seconds, time(millisecond) fine. The first row's date alone put a flight
+    starting at .9 s 0.9 s early; every row's date bounds the start to one 10 Hz sample."""
+    text = "\n".join([AIRDATA] + [f"{100 * i},{_stamp(phase + 0.1 * i)},47.0,9.0,100,0,-90,1" for i in range(rows)])
+    records = parse_csv(text)
+    truth = START.timestamp() + phase
+    assert records[0].t == pytest.approx(truth, abs=0.1)
+    assert [r.t - records[0].t for r in records] == pytest.approx([0.1 * i for i in range(rows)], abs=1e-6)
+
+
+@settings(max_examples=50, deadline=None)
+@given(st.floats(0.0, 0.999), st.integers(25, 80))
+def test_a_first_second_cut_short_holds_the_end_of_that_second(phase, rows):
+    """Only whole-second dates, 10 rows a second, the log starting at .7 s: the first second's 3 rows are .7, .8, .9
+    (spread over the whole second they were .0, .33, .67, and every later frame's pose came 0.7 s early)."""
+    text = "\n".join(["datetime(utc),latitude,longitude,height_above_takeoff(meter),gimbal_pitch(degrees)"]
+                     + [f"{_stamp(phase + 0.1 * i)},47.0,9.0,30,-90" for i in range(rows)])
+    records = parse_csv(text)
+    truth = [START.timestamp() + phase + 0.1 * i for i in range(rows)]
+    assert max(abs(r.t - t) for r, t in zip(records, truth, strict=True)) < 0.1 + 1e-6
+
+
+def test_a_time_column_that_starts_again_is_placed_by_its_dates(caplog):
+    """Two logs joined: time(millisecond) back to 0 ten minutes later while datetime(utc) goes on. The second part
+    was laid over the first part's times (sorted by time, the pose jumped 1.1 km every sample)."""
+    rows = [AIRDATA]
+    for part, t0 in enumerate((0.0, 600.0)):
+        rows += [f"{100 * i},{_stamp(t0 + 0.1 * i)},{47 + 0.01 * part:.4f},9.0,100,0,-90,1" for i in range(50)]
+    with caplog.at_level(logging.WARNING):
+        records = parse_csv("\n".join(rows), source="joined.csv")
+    assert records[50].t - records[0].t == pytest.approx(600.0, abs=0.1)
+    assert all(b.t > a.t for a, b in zip(records, records[1:], strict=False))
+    assert "joined.csv: column 'time(millisecond)' starts again 1 time(s) (first at line 52)" in caplog.text
+
+
+def test_one_reading_above_the_horizon_does_not_flip_the_pitch_convention(caplog):
+    """Positive below the horizon, one row at -3 (the camera tilted up): that row has no pitch; before, the one
+    negative value made the whole column DJI's (negative down) and every other row lost its pitch."""
+    text = "\n".join(["time_s,lat,lon,height_m,gimbal_pitch"]
+                     + [f"{i},47.0,9.0,30,{p}" for i, p in enumerate([40, 30, 20, 10, 5, -3, 10, 20])])
+    with caplog.at_level(logging.WARNING):
+        records = parse_csv(text)
+    assert [r.pitch_deg for r in records] == [40, 30, 20, 10, 5, None, 10, 20]
+    dji = parse_csv(text.replace(",40\n", ",-40\n").replace(",30\n", ",-30\n").replace(",20\n", ",-20\n")
+                    .replace(",10\n", ",-10\n").replace(",5\n", ",-5\n").replace(",20", ",-20"))
+    assert [r.pitch_deg for r in dji][:3] == [40, 30, 20]  # mostly negative: DJI's sign
+
+
+@pytest.mark.parametrize("missing", ["NaN", "nan", "NA", "null", "n/a"])
+def test_missing_values_written_as_words_are_empty_cells(missing):
+    text = "\n".join(["time_s,lat,lon,height_m,pitch_deg,speed_mps"]
+                     + [f"{i},47.0,9.0,30,60,{missing if i % 3 else 4.5}" for i in range(9)])
+    records = parse_csv(text)
+    assert len(records) == 9
+    assert [r.speed_mps for r in records] == [4.5 if i % 3 == 0 else None for i in range(9)]
+
+
+def test_a_yes_no_column_written_as_true_false_is_read():
+    text = "\n".join(["time_s,lat,lon,height_m,pitch_deg,isVideo"]
+                     + [f"{i},47.0,9.0,30,60,{'True' if i >= 2 else 'False'}" for i in range(5)])
+    assert [r.recording for r in parse_csv(text)] == [False, False, True, True, True]
+    with pytest.raises(ValueError, match="'True' is not a number"):  # a yes/no word in a number column stays wrong
+        parse_csv(text.replace(",60,", ",True,"))
+
+
+@pytest.mark.parametrize("column", ["uas_id", "serial_number", "drone_name", "aircraft_name", "aircraft_sn"])
+def test_a_column_naming_several_drones_is_refused_under_its_other_names(column):
+    text = "\n".join([f"time_s,{column},lat,lon,height_m,pitch_deg"]
+                     + [f"{0.05 * i},{'A' if i % 2 else 'B'},{47.0 + 0.01 * (i % 2)},9.0,30,60" for i in range(10)])
+    with pytest.raises(ValueError, match=f"column '{column}' names 2 drones"):
+        parse_csv(text)
+
+
+def test_rows_further_apart_than_a_drone_flies_are_named(caplog):
+    """Two drones 1.1 km apart interleaved under an unnamed column (or GPS glitches): said, with the first line."""
+    text = "\n".join(["time_s,lat,lon,height_m,pitch_deg"]
+                     + [f"{0.1 * i},{47.0 + 0.01 * (i % 2)},9.0,30,60" for i in range(10)])
+    with caplog.at_level(logging.WARNING):
+        records = parse_csv(text, source="mixed.csv")
+    assert len(records) == 10
+    assert "mixed.csv: the position jumps faster than 150 m/s between 9 pairs of rows (first at line 3)" in caplog.text
+    caplog.clear()
+    with caplog.at_level(logging.WARNING):  # 15 m/s: a drone
+        parse_csv("\n".join(["time_s,lat,lon,height_m,pitch_deg"]
+                            + [f"{0.1 * i},{47.0 + 1.5 * i / 111_320.0:.8f},9.0,30,60" for i in range(10)]))
+    assert "jumps" not in caplog.text
+    assert math.isfinite(records[0].t)
