@@ -81,8 +81,9 @@ class CameraIntrinsics(_Open):
 
 
 class UavState(_Open):
-    """The UAV's last state message (DESIGN.md 4), without the version field."""
+    """The UAV's last state message (DESIGN.md 4)."""
 
+    v: int = Field(description="protocol version of the message")
     uav: str
     t: float = Field(description="UNIX seconds")
     lat: float

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 from fusion_server.metrics import RateWindow
-from shared.messages import StateMessage
+from shared.messages import VERSION, StateMessage
 
 __all__ = ["SESSION_WINDOW_S", "UavRecord", "UavRegistry", "state_to_dict"]
 
@@ -33,8 +33,9 @@ NO_SESSION = "unknown"
 
 
 def state_to_dict(state: StateMessage) -> dict[str, Any]:
-    """A state message as JSON-ready data (the wire fields without ``v``)."""
+    """A state message as JSON-ready data: its wire fields (DESIGN.md 4), ``v`` (the protocol version) first."""
     return {
+        "v": VERSION,
         "uav": state.uav,
         "t": state.t,
         "lat": state.lat,

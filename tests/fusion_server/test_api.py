@@ -103,6 +103,9 @@ def test_uavs_shows_online_state_and_offline_within_3_s_after_close(server, http
     row = rows[0]
     assert row["online"] is True and row["last_seen"] > 0
     assert row["state"]["lat"] == pytest.approx(LAT) and row["state"]["camera"]["fx"] == 1400.0
+    # the last state message as sent (DESIGN 4 and 7), its protocol version too
+    assert set(row["state"]) == {"v", "uav", "t", "lat", "lon", "height_m", "pitch_deg", "heading_deg", "footprint",
+                                 "camera"} and row["state"]["v"] == 1
     assert row["rates"]["state"] > 0
     closed = time.monotonic()
     agent.close()
