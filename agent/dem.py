@@ -14,11 +14,12 @@ from pathlib import Path
 
 import numpy as np
 
+from agent.stage_report import StageReport
 from shared.geo import Pose
 from shared.terrain import ElevationGrid, Terrain
 
-__all__ = ["DEM_SUFFIXES", "NPZ_FORMAT", "load_terrain", "read_dem", "read_hgt", "read_npz", "read_raster",
-           "takeoff_terrain", "write_npz"]
+__all__ = ["DEM_SUFFIXES", "DemCoverage", "NPZ_FORMAT", "load_terrain", "read_dem", "read_hgt", "read_npz",
+           "read_raster", "takeoff_terrain", "write_npz"]
 
 #: Extensions read without rasterio; anything else goes to rasterio (GeoTIFF .tif/.tiff, .vrt, .img, ...).
 DEM_SUFFIXES = (".hgt", ".npz")
@@ -66,6 +67,42 @@ def takeoff_terrain(terrain: Terrain, pose: Pose) -> Terrain:
     log.warning("terrain: the video's first pose (%.6f, %.6f) is off the DEM: heights are taken above the DEM under "
                 "the UAV, frame by frame", pose.lat, pose.lon)
     return terrain
+
+
+class DemCoverage:
+    """Whether the DEM lies under the flight: counted per frame with a pose (the UAV's position on the grid or off
+    it). A DEM of another place gives the boxes no ground point (no memory map, no size filter: the detector's
+    boxes as they are), and a run finished without a word; now one warning when the UAV is off the DEM in each of
+    the first `WARN_AFTER` frames, and the stage report says in how many frames it was over it."""
+
+    WARN_AFTER = 10
+
+    def __init__(self) -> None:
+        self.on = self.off = 0
+        self._warned = False
+        self._last: Pose | None = None
+
+    def observe(self, terrain: Terrain, pose: Pose) -> None:
+        """Count a frame's pose once (the pipeline asks for the terrain several times a frame, with one pose)."""
+        if pose is self._last:
+            return
+        self._last = pose
+        if math.isfinite(float(terrain.height_at(pose.lat, pose.lon))):
+            self.on += 1
+            return
+        self.off += 1
+        if not self._warned and self.on == 0 and self.off >= self.WARN_AFTER:
+            self._warned = True
+            lat0, lat1, lon0, lon1 = terrain.grid.bounds()
+            log.warning("terrain: the UAV is off the DEM in each of the first %d frames (at %.6f, %.6f; the DEM spans "
+                        "lat %.6f .. %.6f, lon %.6f .. %.6f): boxes seen off it get no ground point (no memory map, "
+                        "no size filter for them); is it this flight's DEM?", self.off, pose.lat, pose.lon, lat0, lat1,
+                        lon0, lon1)
+
+    def report(self) -> StageReport:
+        """The run's terrain stage: acted where the UAV was over the DEM."""
+        why = f"UAV over the DEM in {self.on} of {self.on + self.off} frames"
+        return StageReport("terrain", self.on > 0, why if self.on else why + " (another place's DEM?)")
 
 
 def read_hgt(path: str | Path) -> ElevationGrid:

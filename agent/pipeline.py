@@ -14,7 +14,7 @@ from numpy.typing import NDArray
 
 from agent._kernels import georeference_and_filter, small_distinct
 from agent.boxes import anchor_fraction, box_anchor_points, nms, unboost_fragments
-from agent.dem import takeoff_terrain
+from agent.dem import DemCoverage, takeoff_terrain
 from agent.frame_result import FrameResult
 from agent.joint_boost import registered_joint_evidence
 from agent.joint_detections import JointCarry, JointRegistration, add_joint_detections
@@ -150,6 +150,7 @@ class DetectionPipeline:
         terrain = self.config.terrain
         if terrain is None or pose is None:
             return None
+        self.__dict__.setdefault("_dem_coverage", DemCoverage()).observe(terrain, pose)
         if terrain.takeoff_elevation_m is not None:
             return terrain
         cached = self.__dict__.get("_video_terrain")
@@ -291,7 +292,7 @@ class DetectionPipeline:
         corrector = self.__dict__.get("_corrector")
         if corrector is not None:
             out.append(corrector[1].report())
-        return out
+        return out + ([self._dem_coverage.report()] if "_dem_coverage" in self.__dict__ else [])
 
     def _calibration(self) -> ScoreCalibration | None:
         """The video's score calibration (agent.score_calibration), None when off or without the memory map."""
