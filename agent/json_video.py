@@ -12,7 +12,9 @@ log's (``datetime(utc)`` at whole seconds, one sample repeated on the frames unt
   of ``stamp - frame / fps`` over the samples (the records keep UTC, to within the stamps' rounding), so every frame
   gets the pose of its own place in the video whatever the stamps' zone or rounding.
 
-Records without frame numbers (or a video without a frame rate) are left as they are, and a summary line says which.
+Records without frame numbers (or a video without a frame rate), and frame numbers that do not follow the stamps at
+the video's rate (their stamp - frame / fps spreading over more than `MAX_SPREAD_S`: image indices of a sampled
+sequence, another video's frames) are left as they are, and a line says which.
 """
 
 from __future__ import annotations
@@ -30,7 +32,10 @@ from shared.telemetry import Telemetry
 from shared.telemetry.seadronessee import parse_seadronessee_coco
 from shared.telemetry.text import read_text
 
-__all__ = ["on_video_frames", "read_video_json"]
+__all__ = ["MAX_SPREAD_S", "on_video_frames", "read_video_json"]
+
+#: The inter-quartile range of stamp - frame / fps above which the frame numbers are not the video's (s).
+MAX_SPREAD_S = 2.0
 
 log = logging.getLogger("agent.sources")  # the video source's messages, under its name
 
@@ -95,9 +100,18 @@ def on_video_frames(records: Sequence[Telemetry], fps: float | None, telemetry: 
         if samples and samples[-1].frame == r.frame:
             continue  # two images of one frame: the first
         samples.append(r)
-    frame_of = [r.frame for r in samples]
-    offset = statistics.median(r.t - f / fps for r, f in zip(samples, frame_of, strict=True))  # type: ignore[operator]
-    out = [dataclasses.replace(r, t=offset + f / fps) for r, f in zip(samples, frame_of, strict=True)]  # type: ignore
+    frame_of = [float(r.frame) for r in samples]  # type: ignore[arg-type]
+    gaps = sorted(r.t - f / fps for r, f in zip(samples, frame_of, strict=True))
+    offset = statistics.median(gaps)
+    # the frame numbers must follow the stamps at the video's rate (whole-second stamps and held samples scatter
+    # them by about a second): image indices of a sampled sequence, or another video's frames, do not
+    spread = gaps[(3 * len(gaps)) // 4] - gaps[len(gaps) // 4]
+    if spread > MAX_SPREAD_S:
+        log.warning("telemetry %s: its frame numbers do not follow its stamps at the video's %.3g frames/s (stamp - "
+                    "frame / fps spreads over %.1f s): not used; video time 0 is the first record's time (pass "
+                    "--telemetry-offset-s for another)", telemetry, fps, spread)
+        return list(records), None
+    out = [dataclasses.replace(r, t=offset + f / fps) for r, f in zip(samples, frame_of, strict=True)]
     held = len(records) - len(samples)
     log.info("telemetry %s: %d samples placed at their video frames (%d repeats of a held sample dropped); video "
              "time 0 is telemetry time %.3f", telemetry, len(samples), held, offset)

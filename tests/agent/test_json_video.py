@@ -113,3 +113,13 @@ def test_read_telemetry_of_a_json_is_unchanged_by_the_video_rule(tmp_path):
     path.write_text(json.dumps({"images": _images(0, 30, 5)}))
     assert len(read_telemetry(path)) == 6
     assert len(read_video_json(path, None)) == 6
+
+
+def test_frame_numbers_that_do_not_follow_the_stamps_are_not_used(caplog):
+    """Image indices of a sequence sampled every 15th frame (0, 1, 2, ... half a second apart): read as video frames
+    at 30 frames/s they would squeeze the flight 15 times. The stamps say so: the rule stands down."""
+    records = [_rec(1.6e9 + 0.5 * i, i, lat=48.0 + 1e-5 * i) for i in range(40)]
+    with caplog.at_level(logging.WARNING, logger="agent.sources"):
+        out, start = on_video_frames(records, 30.0, "seq.json")
+    assert (out, start) == (records, None)
+    assert "its frame numbers do not follow its stamps at the video's 30 frames/s" in caplog.text
