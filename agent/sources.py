@@ -322,7 +322,7 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     klv: KlvReport | None = None
     if suffix == ".srt":
         report = read_srt_report(path, **kw)
-        records, video_start_t = report.records, report.video_start_t
+        records, video_start_t = report.on_video_clock(), report.video_start_t  # joined clips: the video's clock
         above_sea_level_only = report.heights_above_sea_level_only
         log.info("telemetry %s: %d records from %d blocks (%d skipped); GPS with %s decimals, steps of %.2g m",
                  path, len(records), report.blocks, len(report.skipped), report.gps_decimals,

@@ -80,6 +80,32 @@ class SrtReport:
     video_start_t: float | None = None
     digital_zoom: tuple[int, float] | None = None
     focal_lengths: tuple[float, float] | None = None
+    subtitle_starts: tuple[float | None, ...] = ()
+
+    def on_video_clock(self, tolerance_s: float = 1.0) -> list[Telemetry]:
+        """The records for its video: where a record's time and its subtitle start disagree with the first one's by
+        more than `tolerance_s` (two recordings joined into one video and their SRTs into one: the dates jump 30
+        minutes where the subtitle timing goes on), its time is moved to the video's clock, `video_start_t` + its
+        start, with one warning; the records as they are otherwise (a consistent file, or one without timing).
+        Kept on their dates, the joined clip's records lay past the video's end and its frames got no pose."""
+        starts = self.subtitle_starts
+        if self.video_start_t is None or len(starts) != len(self.records) or any(st is None for st in starts) \
+                or any(b < a for a, b in zip(starts, starts[1:], strict=False)):  # type: ignore[operator]
+            return list(self.records)  # (a timing that starts again is no video clock either: the dates stay)
+        moved = [i for i, (r, st) in enumerate(zip(self.records, starts, strict=True))
+                 if abs(r.t - (self.video_start_t + st)) > tolerance_s]  # type: ignore[operator]
+        if not moved:
+            return list(self.records)
+        first = moved[0]
+        off = self.records[first].t - self.video_start_t - starts[first]  # type: ignore[operator]
+        logger.warning("%s: from record %d on (subtitle time %.3f s) its dates are %.1f s off the subtitle timing (two "
+                       "recordings joined?): %d records placed on the video's clock by their subtitle timing",
+                       self.source, first + 1, starts[first], off, len(moved))
+        out = list(self.records)
+        for i in moved:
+            out[i] = replace(out[i], t=self.video_start_t + starts[i])  # type: ignore[operator]
+        out.sort(key=lambda r: r.t)
+        return out
 
     @property
     def gps_step_m(self) -> float | None:
@@ -312,6 +338,7 @@ def parse_srt_report(
         clock_notes=tuple(clock_notes),
         video_start_t=None if times_in[0].start_s is None else times_out[0] - times_in[0].start_s,
         **zoom,
+        subtitle_starts=tuple(times.start_s for times in times_in),
     )
     _log_report(report)
     return report

@@ -1691,3 +1691,40 @@ def test_property_csv_whole_second_stamps_and_no_fix_rows(rows, start):
     # interpolation never takes a (0, 0) sample for a position
     poses = interpolate(records, np.array(times), extrapolate_s=0.5)
     assert all(p is None or (p.lat, p.lon) == (48.5, 9.05) for p in poses)
+
+
+def _joined_srt(restart_timing: bool = False) -> str:
+    """Two 10 s clips at 10 blocks a second joined, their dates 30 minutes apart; the subtitle timing goes on across
+    the join (or starts again at 0 with `restart_timing`)."""
+    def ts(sec: float) -> str:
+        ms = int(round(sec * 1000))
+        return f"{ms // 3600000:02d}:{ms // 60000 % 60:02d}:{ms // 1000 % 60:02d},{ms % 1000:03d}"
+
+    blocks, n = [], 0
+    for clip, (minute, lat0) in enumerate(((0, 47.0), (30, 47.01))):
+        for i in range(100):
+            n += 1
+            start = (0 if restart_timing else 10 * clip) + i / 10
+            blocks.append(f"{n}\n{ts(start)} --> {ts(start + 0.1)}\nFrameCnt: {n}, DiffTime: 100ms\n"
+                          f"2024-05-01 10:{minute + i // 600:02d}:{(i // 10) % 60:02d}.{(i % 10) * 100:03d}\n"
+                          f"[latitude: {lat0 + i * 1e-6:.6f}] [longitude: 9.000000] [rel_alt: 30.000 abs_alt: 450.000] "
+                          "[gb_yaw: 0.0 gb_pitch: -90.0 gb_roll: 0.0]\n")
+    return "\n".join(blocks)
+
+
+def test_joined_clips_are_put_on_the_videos_clock_by_their_subtitle_timing(caplog):
+    """Kept on their dates, the second clip's records lay 30 minutes past the joined video's end: its frames had no
+    pose (and the first second of it the first clip's last one)."""
+    from shared.telemetry import interpolate
+
+    with caplog.at_level(logging.WARNING):
+        report = parse_srt_report(_joined_srt(), source="joined.srt")
+        records = report.on_video_clock()
+    assert report.records[-1].t - report.video_start_t > 1000  # the dates, as the report keeps them
+    (pose,) = interpolate(records, [report.video_start_t + 15.0], max_gap_s=1.0)
+    assert pose is not None and pose.lat == pytest.approx(47.01 + 50e-6, abs=2e-6)
+    assert "from record 101 on (subtitle time 10.000 s) its dates are 1790.0 s off the subtitle timing" in caplog.text
+    single = parse_srt_report(MATRICE_30_SRT, source="one.srt")
+    assert single.on_video_clock() == single.records  # a consistent file: as it is
+    restarted = parse_srt_report(_joined_srt(restart_timing=True), source="restart.srt")
+    assert restarted.on_video_clock() == restarted.records  # a timing that starts again is no video clock
