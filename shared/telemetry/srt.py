@@ -85,7 +85,7 @@ class SrtReport:
     def on_video_clock(self, tolerance_s: float = 1.0) -> list[Telemetry]:
         """The records for its video: where a record's time and its subtitle start disagree with the first one's by
         more than `tolerance_s` (two recordings joined into one video and their SRTs into one: the dates jump 30
-        minutes where the subtitle timing goes on), its time is moved to the video's clock, `video_start_t` + its
+        minutes where the subtitle timing goes on), every record goes on the video's clock, `video_start_t` + its
         start, with one warning; the records as they are otherwise (a consistent file, or one without timing).
         Kept on their dates, the joined clip's records lay past the video's end and its frames got no pose."""
         starts = self.subtitle_starts
@@ -99,13 +99,10 @@ class SrtReport:
         first = moved[0]
         off = self.records[first].t - self.video_start_t - starts[first]  # type: ignore[operator]
         logger.warning("%s: from record %d on (subtitle time %.3f s) its dates are %.1f s off the subtitle timing (two "
-                       "recordings joined?): %d records placed on the video's clock by their subtitle timing",
-                       self.source, first + 1, starts[first], off, len(moved))
-        out = list(self.records)
-        for i in moved:
-            out[i] = replace(out[i], t=self.video_start_t + starts[i])  # type: ignore[operator]
-        out.sort(key=lambda r: r.t)
-        return out
+                       "recordings joined, or a drifting clock?): every record is placed on the video's clock by its "
+                       "subtitle timing", self.source, first + 1, starts[first], off)
+        # all of them, not only those off: a seam where part of the records moved would interleave two clocks
+        return [replace(r, t=self.video_start_t + st) for r, st in zip(self.records, starts, strict=True)]  # type: ignore
 
     @property
     def gps_step_m(self) -> float | None:
