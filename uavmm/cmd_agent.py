@@ -143,7 +143,12 @@ def source_from_args(args: argparse.Namespace):
     missing = [flag for flag, value in (("--telemetry", args.telemetry), ("--model", args.model),
                                         ("--camera", args.camera)) if value is None]
     if missing:
-        raise ValueError(f"--video needs {', '.join(missing)}")
+        from shared.camera import CAMERA_PRESETS
+
+        what = {"--telemetry": "--telemetry FILE (.srt, .csv, .json, .tlog, .ulg, KLV, udp:HOST:PORT)",
+                "--model": "--model M.onnx (a YOLO ONNX export with raw, pre-NMS output: docs/detect.md, Inputs)",
+                "--camera": f"--camera C.json or a preset ({', '.join(sorted(CAMERA_PRESETS))})"}
+        raise ValueError(f"--video needs {'; '.join(what[flag] for flag in missing)}")
     return VideoSource(args.video, args.telemetry, args.model, args.camera,
                        telemetry_offset_s=args.telemetry_offset_s, class_names=args.class_names,
                        conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,

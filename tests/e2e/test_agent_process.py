@@ -72,7 +72,9 @@ def test_agent_process_plays_a_dataset_and_writes_tracks_with_global_ids(server,
 @pytest.mark.parametrize(("args", "message"), [
     (["--sim", "nosuch"], "unknown scenario 'nosuch'; valid scenarios: coop, coop-slope, grass, hills, reid, sea"),
     (["--dataset", "/nonexistent/dir"], "dataset directory /nonexistent/dir does not exist"),
-    (["--video", "v.mp4"], "--video needs --telemetry, --model, --camera"),
+    (["--video", "v.mp4"], "--video needs --telemetry FILE (.srt, .csv, .json, .tlog, .ulg, KLV, udp:HOST:PORT); "
+                           "--model M.onnx (a YOLO ONNX export with raw, pre-NMS output: docs/detect.md, Inputs); "
+                           "--camera C.json or a preset (dji-air2s, "),
     (["--sim", "coop", "--uav-index", "5"], "uav_index must be in 0..1"),
     (["--sim", "coop", "--publish-hz", "0"], "publish_hz must be a finite number > 0"),
 ])
