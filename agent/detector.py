@@ -163,6 +163,21 @@ def resolve_providers(providers: Sequence[str], available: Sequence[str] | None 
     return list(dict.fromkeys(names))
 
 
+def _imgsz(metadata: Mapping[str, str]) -> tuple[int, int] | None:
+    """The (h, w) an ultralytics export was made at (its ``imgsz`` metadata, ``[1280, 1280]`` or ``640``), if
+    readable and a multiple of 32 from 32 to 8192; else None."""
+    try:
+        value = ast.literal_eval(metadata.get("imgsz", "None"))
+    except (ValueError, SyntaxError, TypeError):
+        return None
+    if isinstance(value, int):
+        value = [value, value]
+    if not (isinstance(value, (list, tuple)) and len(value) == 2 and all(isinstance(v, int) for v in value)):
+        return None
+    h, w = value
+    return (h, w) if all(32 <= v <= 8192 and v % 32 == 0 for v in (h, w)) else None
+
+
 def _static_dim(dim: Any) -> int | None:
     return dim if isinstance(dim, int) and dim > 0 else None
 
@@ -255,16 +270,31 @@ class OnnxYoloDetector:
         self.providers = resolve_providers(providers, ort.get_available_providers())
         self._session = ort.InferenceSession(str(self.model_path), options, providers=self.providers)
 
-        model_input = self._session.get_inputs()[0]
+        inputs = self._session.get_inputs()
+        model_input = inputs[0]
         shape = list(model_input.shape)
-        if len(shape) != 4 or _static_dim(shape[1]) not in (3, None) or _static_dim(shape[0]) not in (1, None):
+        name = self.model_path.name
+        if len(inputs) > 1:  # RT-DETR / D-FINE exports also take the original image size: not a YOLO head
+            raise ValueError(f"model {name} takes {len(inputs)} inputs ({', '.join(i.name for i in inputs)}): the "
+                             f"detector feeds one image tensor [1, 3, H, W]; {RAW_EXPORT_HINT}")
+        if len(shape) != 4 or _static_dim(shape[1]) not in (3, None) or _static_dim(shape[0]) not in (1, None) \
+                or (_static_dim(shape[1]) is None and _static_dim(shape[3]) == 3):  # [N, H, W, 3]: channels last
             raise ValueError(f"model input {model_input.name!r} has shape {shape}: expected [1, 3, H, W]")
+        if model_input.type not in ("tensor(float)", "tensor(float16)"):
+            raise ValueError(f"model {name} input {model_input.name!r} is {model_input.type}: the detector feeds "
+                             "float32 or float16 RGB in 0..1 (a YOLO export)")
         self._input_name = model_input.name
         self._input_dtype = np.float16 if model_input.type == "tensor(float16)" else np.float32
         static_hw = (_static_dim(shape[2]), _static_dim(shape[3]))
         self._dynamic_input = None in static_hw
+        metadata = dict(self._session.get_modelmeta().custom_metadata_map)
+        if input_size is None and self._dynamic_input:
+            # a dynamic export carries the size it was trained and exported at (ultralytics' imgsz): 640 otherwise
+            input_size = _imgsz(metadata) or (640, 640)
+            if input_size != (640, 640):
+                logger.info("model %s: dynamic input, run at its export size %s (metadata imgsz)", name, input_size)
         if input_size is None:
-            self.input_size = static_hw if not self._dynamic_input else (640, 640)  # type: ignore[assignment]
+            self.input_size = static_hw  # type: ignore[assignment]
         else:
             self.input_size = _as_hw(input_size)
             if not self._dynamic_input and self.input_size != static_hw:
@@ -275,7 +305,6 @@ class OnnxYoloDetector:
             raise ValueError("rect=True needs a model with dynamic input height/width")
         self.rect = bool(rect)
 
-        metadata = dict(self._session.get_modelmeta().custom_metadata_map)
         try:
             self.stride = max(int(ast.literal_eval(metadata.get("stride", "32"))), 1)
         except (ValueError, SyntaxError, TypeError):
@@ -292,7 +321,15 @@ class OnnxYoloDetector:
         self._layout: str | None = None
         self._num_classes: int | None = None
         self._resolved_shape: tuple[int, ...] | None = None
-        output_shape = tuple(self._session.get_outputs()[0].shape)
+        outputs = self._session.get_outputs()
+        # YOLOv9's own export keeps both heads, the auxiliary one first and the main one last, of one shape (its
+        # detect_dual.py uses the last): of several outputs shaped like the first, the last; else the first
+        same = [o for o in outputs if list(o.shape) == list(outputs[0].shape)]
+        self._output_name = same[-1].name
+        if len(same) > 1:
+            logger.info("model %s: %d outputs of shape %s (YOLOv9's auxiliary and main heads): using the last, %r",
+                        name, len(same), list(outputs[0].shape), self._output_name)
+        output_shape = tuple(same[-1].shape)
         if all(_static_dim(d) is not None for d in output_shape):
             self._resolve_output(output_shape)  # fail fast on unsupported static shapes
         logger.info(
@@ -361,8 +398,9 @@ class OnnxYoloDetector:
         return blob, transform
 
     def infer(self, blob: np.ndarray) -> np.ndarray:
-        """Run the network: (1, 3, h, w) input -> the first raw output as float32."""
-        return np.asarray(self._session.run(None, {self._input_name: blob})[0], dtype=np.float32)
+        """Run the network: (1, 3, h, w) input -> its raw head output as float32 (the first output; of several
+        shaped like it, the last: YOLOv9's main head)."""
+        return np.asarray(self._session.run([self._output_name], {self._input_name: blob})[0], dtype=np.float32)
 
     def decode(self, raw: np.ndarray, transform: LetterboxTransform) -> Detections:
         """Raw output -> :class:`Detections` in original-image pixels (threshold, top-k, un-letterbox).

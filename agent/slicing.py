@@ -117,6 +117,11 @@ class SlicedDetector:
 
     def __init__(self, detector: Callable[[np.ndarray], Detections], grid: SliceGrid, *,
                  full_frame: bool = True) -> None:
+        if full_frame and grid.overlap == 0 and (grid.cols, grid.rows) != (1, 1):
+            # beside the full frame a tile keeps the boxes no larger than the overlap: at 0 none (all the cost of the
+            # tiles for the whole frame's candidates alone)
+            raise ValueError("--slice-overlap 0 beside the full frame keeps no tile's candidate (a tile keeps the "
+                             "boxes no larger than the overlap): give an overlap (0.2), or --no-full-frame")
         self.detector = detector
         self.grid = grid
         self.full_frame = bool(full_frame)

@@ -44,6 +44,9 @@ MAX_FAILED_READS = 8
 MAX_FAILED_READS_BEFORE_END = 64
 #: Intervals between frames measured before a step of several counts as frames missing.
 _INTERVALS_NEEDED = 3
+#: A first decoded frame up to this far into the video is numbered by its time (past it, by the failed reads only:
+#: a container whose times do not start near 0).
+_FIRST_FRAME_BY_TIME_S = 60.0
 #: A step between two frames off the video's recent interval (times the frames it spans) by more than this share of
 #: it counts as irregular (a variable frame rate).
 _IRREGULAR_INTERVALS = 0.5
@@ -144,8 +147,8 @@ class VideoReader:
     def first_image(self) -> NDArray[np.uint8] | None:
         """The first frame that decodes (None: none within the first reads)."""
         capture = self._open()
-        try:
-            for _ in range(MAX_FAILED_READS):
+        try:  # as many failed reads as `frames` takes at the start (a video whose first frames are damaged)
+            for _ in range(MAX_FAILED_READS_BEFORE_END if self.frame_count else MAX_FAILED_READS):
                 ok, image = capture.read()
                 if ok and image is not None:
                     return image
@@ -198,7 +201,12 @@ class VideoReader:
                 if valid:
                     last_pos = pos
                 if prev_t is None:
-                    number = 0
+                    # the first frame that decodes: after the failed reads before it, or where its time puts it (a
+                    # damaged first key frame takes the frames up to the next one with it, reads that fail or not);
+                    # it was numbered 0 and every later frame shifted by as many
+                    number = failed_in_row
+                    if timed and t < _FIRST_FRAME_BY_TIME_S:
+                        number = max(number, round(t / period))
                 elif timed and len(intervals) >= _INTERVALS_NEEDED:
                     # frames missing where the time steps by several of the video's recent intervals
                     recent = statistics.median(intervals)

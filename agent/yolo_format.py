@@ -96,7 +96,9 @@ def load_class_names(path: str | os.PathLike[str]) -> list[str]:
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"class names file not found: {path}")
-    text = path.read_text(encoding="utf-8")
+    from shared.telemetry.text import read_text  # UTF-8 with or without a BOM (Notepad), UTF-16 with one
+
+    text = read_text(path)
     if path.suffix.lower() == ".json":
         content = json.loads(text)
         if isinstance(content, dict):

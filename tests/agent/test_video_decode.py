@@ -261,3 +261,23 @@ def test_video_fps_beside_a_container_is_refused_in_one_line_by_each_command(tmp
         assert main(argv) == 2
         err = capsys.readouterr().err.strip().splitlines()
         assert len(err) == 1 and "--video-fps applies to a raw" in err[0] and "cfr.mp4 is a container" in err[0]
+
+
+@pytest.mark.parametrize(("codec", "suffix", "damaged", "first"), [("mjpeg", "mkv", 10, 10), ("libx264", "mp4", 1, 10)])
+def test_a_video_whose_first_frames_do_not_decode_keeps_every_frames_number(tmp_path, codec, suffix, damaged, first):
+    """The first packets damaged (a bad card sector; for H.264 its first key frame, which takes the frames up to the
+    next one with it): the first frame that decodes was numbered 0 and every later one shifted by as many (image ids
+    and MOT frames of detect and agent --video), and anomaly --video refused a file with 10 such frames."""
+    clean = _write(tmp_path / f"clean.{suffix}", [k / 30 for k in range(40)], codec, g="10")
+    data = bytearray(clean.read_bytes())
+    with av.open(str(clean)) as container:
+        packets = [(p.pos, p.size) for p in container.demux(container.streams.video[0]) if p.size and p.pos >= 0]
+    for pos, size in packets[:damaged]:
+        data[pos + 8:pos + size] = bytes(size - 8)
+    video = tmp_path / f"bad.{suffix}"
+    video.write_bytes(bytes(data))
+    reader = VideoReader(video)
+    frames = list(reader.frames())
+    assert frames[0].index == first and frames[0].t == pytest.approx(first / 30, abs=1e-3)
+    assert all(f.index == _index(f.image) for f in frames)  # each frame's number is the one it shows
+    assert reader.first_image() is not None

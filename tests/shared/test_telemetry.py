@@ -1723,7 +1723,8 @@ def test_joined_clips_are_put_on_the_videos_clock_by_their_subtitle_timing(caplo
     assert report.records[-1].t - report.video_start_t > 1000  # the dates, as the report keeps them
     (pose,) = interpolate(records, [report.video_start_t + 15.0], max_gap_s=1.0)
     assert pose is not None and pose.lat == pytest.approx(47.01 + 50e-6, abs=2e-6)
-    assert "from record 101 on (subtitle time 10.000 s) its dates are 1790.0 s off the subtitle timing (two recordings joined, or a drifting clock?)" in caplog.text
+    assert ("from record 101 on (subtitle time 10.000 s) its dates are 1790.0 s off the subtitle timing (two "
+            "recordings joined, or a drifting clock?)") in caplog.text
     single = parse_srt_report(MATRICE_30_SRT, source="one.srt")
     assert single.on_video_clock() == single.records  # a consistent file: as it is
     restarted = parse_srt_report(_joined_srt(restart_timing=True), source="restart.srt")
