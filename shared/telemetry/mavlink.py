@@ -28,6 +28,7 @@ import logging
 import math
 import statistics
 import struct
+from collections import deque
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from datetime import datetime, timezone
@@ -147,9 +148,10 @@ class MavlinkAssembler:
     ``keep_attitudes`` keeps every ``ATTITUDE`` as (boot s, yaw deg) in ``attitudes`` (a log read as a whole).
     """
 
-    def __init__(self, system_id: int | None = None, *, keep_attitudes: bool = False) -> None:
+    def __init__(self, system_id: int | None = None, *, keep_attitudes: bool = False,
+                 component_id: int | None = None) -> None:
         self.system_id = system_id
-        self.component_id: int | None = None
+        self.component_id: int | None = component_id
         self.vehicle_yaw_deg: float | None = None
         self.gimbal: _Gimbal | None = None
         self.gimbal_used: str | None = None
@@ -164,6 +166,7 @@ class MavlinkAssembler:
         self._attitude_prev: tuple[float, float] | None = None  # (boot s, yaw deg) of the two latest ATTITUDEs
         self._attitude_last: tuple[float, float] | None = None
         self._clocks: dict[tuple[int | None, int | None], UnixClock] = {}
+        self._early: dict[int, deque[tuple[str, Mapping[str, Any], int, int | None]]] = {}
         self._src: tuple[int | None, int | None] = (None, None)
 
     @property
@@ -200,11 +203,17 @@ class MavlinkAssembler:
                 self.system_id = src_system
             if src_system == self.system_id and self.component_id is None:
                 self.component_id = src_component
-        if self.system_id is not None and src_system is not None and src_system != self.system_id:
+            early = self._early.pop(src_system, None) if src_system == self.system_id else None
+            self._early.clear()
+            for msg in early or ():  # the vehicle's own messages from before it was known, in their order
+                self.add(*msg)
+        if src_system is not None and src_system != self.system_id:
+            if self.system_id is None and msg_type in _HANDLERS:  # kept per system until the vehicle is known: a
+                self._early.setdefault(src_system, deque(maxlen=_EARLY_KEPT)).append(  # second drone's gimbal
+                    (msg_type, fields, src_system, src_component))  # took the vehicle's place for the whole flight
             return None
-        if (msg_type == "ATTITUDE" and None not in (self.component_id, src_component)
-                and src_component != self.component_id):
-            return None
+        if msg_type == "ATTITUDE" and src_component is not None and src_component != self.component_id:
+            return None  # another component's (a companion computer's, on its own boot clock), or before it is known
         handler = _HANDLERS.get(msg_type)
         if handler is None:
             return None
@@ -250,7 +259,9 @@ class MavlinkAssembler:
         except ValueError:
             return None
         flags = int(f["flags"])
-        if flags & _YAW_IN_EARTH_FRAME:
+        if flags == _PX4_RC_FLAGS and self._src[1] is not None and self._src[1] == self.component_id:
+            earth = False  # PX4's own servo (RC/AUX) gimbal, sent by the autopilot: the outputs, vehicle-relative
+        elif flags & _YAW_IN_EARTH_FRAME:
             earth = True
         elif flags & _YAW_IN_VEHICLE_FRAME:
             earth = False
@@ -263,7 +274,10 @@ class MavlinkAssembler:
         absolute = float(f.get("yaw_absolute", math.nan))
         earth = math.isfinite(absolute) and absolute != 0.0
         yaw = absolute if earth else float(f["yaw"])
-        self.gimbal = _Gimbal(float(f["pitch"]), float(f["roll"]), yaw, earth)
+        pitch, roll = float(f["pitch"]), float(f["roll"])
+        if not (math.isfinite(pitch) and math.isfinite(yaw)):  # NaN: invalid (ardupilotmega.xml): no reading
+            return None
+        self.gimbal = _Gimbal(pitch, roll if math.isfinite(roll) else 0.0, yaw, earth)
         return None
 
     def _mount_status(self, f: Mapping[str, Any]) -> None:
@@ -304,6 +318,12 @@ class MavlinkAssembler:
                              roll_deg=roll, vel_en=(f["vy"] / 100.0, f["vx"] / 100.0), yaw_rel_deg=yaw_rel,
                              hfov_deg=self.hfov_deg)
 
+
+#: The flags PX4's gimbal module sends for a servo (RC/AUX) gimbal whatever its mode: NEUTRAL and the three locks,
+#: with the servo outputs' angles, relative to the vehicle (src/modules/gimbal/output_rc.cpp).
+_PX4_RC_FLAGS = 2 | 4 | 8 | 16
+#: Messages of each system kept from before the vehicle is known (the latest; replayed for the vehicle's).
+_EARLY_KEPT = 32
 
 _HANDLERS = {
     "GLOBAL_POSITION_INT": MavlinkAssembler._position,
@@ -384,7 +404,7 @@ def parse_tlog(data: bytes, *, source: str = "<tlog>", height_offset_m: float = 
     gimbal_used: str | None = None
     gimbals_ignored: dict[str, int] = {}
     for a, b in zip(starts[:-1], starts[1:], strict=True):
-        assembler = MavlinkAssembler(vehicle, keep_attitudes=True)
+        assembler = MavlinkAssembler(vehicle, keep_attitudes=True, component_id=autopilot)
         assembler.gimbal_used = gimbal_used  # one gimbal for the whole log
         samples = [(m.stamp_s, s) for m in messages[a:b]
                    if (s := assembler.add(m.type, m.fields, m.system, m.component)) is not None]

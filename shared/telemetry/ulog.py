@@ -44,6 +44,9 @@ ULOG_EXTRA_HINT = "PX4 .ulg logs need pyulog: pip install 'uav-memory-maps[ulog]
 _TOPICS = ["vehicle_global_position", "vehicle_local_position", "vehicle_attitude",
            "gimbal_device_attitude_status", "vehicle_gps_position", "sensor_gps", "home_position"]
 _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
+#: The flags PX4's gimbal module publishes for a servo (RC/AUX) gimbal: NEUTRAL | ROLL_LOCK | PITCH_LOCK | YAW_LOCK,
+#: whatever the mode, with the servo outputs' angles, relative to the vehicle (src/modules/gimbal/output_rc.cpp).
+_PX4_RC_FLAGS = 2 | 4 | 8 | 16
 
 
 def _topic(ulog: Any, name: str) -> dict[str, NDArray] | None:
@@ -145,7 +148,9 @@ def _home_z_at(home: dict[str, NDArray] | None, t: NDArray) -> NDArray | None:
 def _yaws_deg(data: dict[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
     """(roll, pitch, yaw) in degrees per sample of a topic with q[0..3]; yaw unwrapped for interpolation."""
     q = np.column_stack([data[f"q[{i}]"] for i in range(4)]).astype(np.float64)
-    euler = np.array([quaternion_to_euler_deg(tuple(row)) if np.any(row) else (np.nan,) * 3 for row in q])
+    # a zero or NaN quaternion (a gimbal not ready, a MAVLink gimbal's invalid reading copied in) is no reading
+    euler = np.array([quaternion_to_euler_deg(tuple(row)) if np.any(row) and np.all(np.isfinite(row)) else
+                      (np.nan,) * 3 for row in q])
     return euler[:, 0], euler[:, 1], _unwrapped_deg(euler[:, 2])
 
 
@@ -239,7 +244,16 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
             pitch = _interp(t_us, t_g, g_pitch[ok])
             roll = _interp(t_us, t_g, g_roll[ok])
             flags = gimbal["device_flags"][ok] if "device_flags" in gimbal else np.full(len(t_g), _YAW_LOCK)
-            heading = _camera_heading_deg(t_us, t_g, g_yaw[ok], _yaw_in_earth_frame(flags), t_vehicle, yaw_vehicle)
+            earth = _yaw_in_earth_frame(flags)
+            if "received_from_mavlink" in gimbal:  # PX4's own servo (RC/AUX) output: flags fixed at NEUTRAL and the
+                # three locks, angles the servo outputs, relative to the vehicle (gimbal/output_rc.cpp)
+                own = np.asarray(gimbal["received_from_mavlink"])[ok] == 0
+                servo = own & (flags.astype(np.int64) == _PX4_RC_FLAGS)
+                if servo.any():
+                    log.info("%s: %d gimbal samples of PX4's own servo output (flags %d, not from a MAVLink gimbal): "
+                             "their yaw is relative to the vehicle", path, int(servo.sum()), _PX4_RC_FLAGS)
+                earth = earth & ~servo
+            heading = _camera_heading_deg(t_us, t_g, g_yaw[ok], earth, t_vehicle, yaw_vehicle)
     offset_s = _utc_offset_s(ulog)
     if offset_s is None:
         log.warning("%s: no GPS UTC time in the log (time_utc_usec of vehicle_gps_position or sensor_gps, any "
