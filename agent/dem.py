@@ -80,13 +80,11 @@ class DemCoverage:
     def __init__(self) -> None:
         self.on = self.off = 0
         self._warned = False
-        self._last: Pose | None = None
 
-    def observe(self, terrain: Terrain, pose: Pose) -> None:
-        """Count a frame's pose once (the pipeline asks for the terrain several times a frame, with one pose)."""
-        if pose is self._last:
+    def observe(self, terrain: Terrain | None, pose: Pose | None) -> None:
+        """Count one frame (`DetectionPipeline.process` calls it once a frame; without a terrain or a pose: nothing)."""
+        if terrain is None or pose is None:
             return
-        self._last = pose
         if math.isfinite(float(terrain.height_at(pose.lat, pose.lon))):
             self.on += 1
             return

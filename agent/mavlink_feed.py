@@ -63,7 +63,8 @@ def parse_udp_endpoint(spec: str) -> tuple[str, int]:
 class _Boot:
     """The positions of one boot of the autopilot, sorted by boot time (one per boot time), and its clock."""
 
-    __slots__ = ("times", "samples", "top_boot", "first_rx", "last_rx", "recent_offsets", "anchor", "by_vehicle")
+    __slots__ = ("times", "samples", "top_boot", "first_rx", "last_rx", "recent_offsets", "anchor", "by_vehicle",
+                 "clock_seen")
 
     def __init__(self, sample: MavlinkSample, rx: float) -> None:
         self.times = [sample.boot_s]
@@ -74,6 +75,7 @@ class _Boot:
         self.recent_offsets: collections.deque[float] = collections.deque([rx - sample.boot_s], maxlen=64)
         self.anchor: float | None = None  # UNIX time of the boot's zero on the records' clock (None: not known yet)
         self.by_vehicle = False  # the anchor is the vehicle's SYSTEM_TIME of this boot
+        self.clock_seen = False  # a UNIX time (SYSTEM_TIME) of this boot came after the reboot was confirmed
 
     def add(self, sample: MavlinkSample, rx: float | None) -> None:
         """File a position received at `rx` (None: received late, its receive time says nothing of the clock)."""
@@ -232,10 +234,13 @@ class MavlinkUdpFeed:
         a = self._assembler
         jumps, gimbals, systems = a.clock_jumps, a.gimbals_ignored, a.position_counts
         if self._anchor is not None and len(jumps) > self._warned_jumps:
-            top = self._boots[-1].top_boot
+            latest = self._boots[-1]
             for boot_s, step_s in jumps[self._warned_jumps:]:
-                if boot_s < top - REBOOT_S:
+                if boot_s < latest.top_boot - REBOOT_S:
                     continue  # at a boot time far behind the latest: a reboot's (its own warning)
+                if len(self._boots) > 1 and not latest.clock_seen and boot_s >= latest.times[0] - REBOOT_S:
+                    latest.clock_seen = True  # the rebooted autopilot's first UNIX time: the reboot's step, which
+                    continue  # the records do not take (they continue the clock); no clock of the vehicle jumped
                 log.warning("MAVLink on %s: the vehicle's UNIX clock (SYSTEM_TIME) jumped by %+.3f s at boot %.1f s "
                             "(set from the ground station or GPS); the records keep the clock fixed at start: a "
                             "--telemetry-offset-s read from the new clock is %+.3f s off", self.spec, step_s, boot_s,

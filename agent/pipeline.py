@@ -150,7 +150,6 @@ class DetectionPipeline:
         terrain = self.config.terrain
         if terrain is None or pose is None:
             return None
-        self.__dict__.setdefault("_dem_coverage", DemCoverage()).observe(terrain, pose)
         if terrain.takeoff_elevation_m is not None:
             return terrain
         cached = self.__dict__.get("_video_terrain")
@@ -183,6 +182,7 @@ class DetectionPipeline:
         self.__dict__.pop("_score_calibration", None)
         self.__dict__.pop("_joint_registration", None)  # the previous video's offset and sightings
         self.__dict__.pop("_joint_carry", None)
+        self.__dict__.pop("_dem_coverage", None)
         self._size_check = SizeFilterCheck(self.size_filter, self.config.size_check_settings())
         self._classes_seen = set()
 
@@ -208,6 +208,7 @@ class DetectionPipeline:
         if len(present) and not self._classes_seen.issuperset(self.class_names[c] for c in present):
             self._classes_seen.update(self.class_names[c] for c in present)
         cfg = self.config
+        self.__dict__.setdefault("_dem_coverage", DemCoverage()).observe(cfg.terrain, pose)  # once a frame
         src: NDArray[np.int64] | None = None  # rows of the input still in play (None: all), for the embeddings
         if embeddings is not None:
             embeddings = np.asarray(embeddings, dtype=np.float32)
@@ -292,7 +293,7 @@ class DetectionPipeline:
         corrector = self.__dict__.get("_corrector")
         if corrector is not None:
             out.append(corrector[1].report())
-        return out + ([self._dem_coverage.report()] if "_dem_coverage" in self.__dict__ else [])
+        return out + ([c.report()] if (c := self.__dict__.get("_dem_coverage")) is not None and c.on + c.off else [])
 
     def _calibration(self) -> ScoreCalibration | None:
         """The video's score calibration (agent.score_calibration), None when off or without the memory map."""

@@ -389,7 +389,8 @@ def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemet
     if telemetry_offset_s is not None:
         return float(telemetry_offset_s)
     if video_start_t is not None:  # the file's own video clock: KLV's PTS, an SRT's subtitle timing
-        clock = "the SRT's subtitle timing" if Path(str(telemetry)).suffix.lower() == ".srt" else "the KLV PTS"
+        clock = {".srt": "the SRT's subtitle timing", ".json": "the JSON's frame numbers"}.get(
+            Path(str(telemetry)).suffix.lower(), "the KLV PTS")
         log.info("telemetry %s: video time 0 is telemetry time %.3f (from %s)", telemetry, video_start_t, clock)
         return video_start_t
     start, starts = recording_start(records)

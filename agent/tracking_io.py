@@ -221,12 +221,12 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         rows.extend(TrackRow(frame.image.frame_index, frame.image.id, t, tr) for tr in tracker.report(tracks))
         if on_frame is not None:
             on_frame(frame, result, tracks)
-    far, confident = counts["confident_without_ground_point"], counts["confident_posed"]
-    if confident and far * 2 >= confident:
+    far, posed = counts["confident_without_ground_point"], counts["confident_posed"]
+    if posed and far * 2 >= posed:
         log.warning("video %s: %d of %d confident detections in frames with a pose have no ground point (beyond the "
                     "pipeline's range of %g m, or at the horizon): they follow tracks but start none%s; a longer range "
                     "(--window-m, twice the range) lets them", dataset.video_names.get(video_id, video_id), far,
-                    confident, pipeline_config.range_limit_m, "" if rows else ", and the video has no track")
+                    posed, pipeline_config.range_limit_m, "" if rows else ", and the video has no track")
     if stats is not None:
         for k, v in counts.items():
             stats[k] = stats.get(k, 0) + v

@@ -90,8 +90,9 @@ def _run_eval(args: argparse.Namespace) -> int:
 
     if args.real is not None:
         return _run_real_eval(args)
-    if any(v is not None for v in (args.detections, args.camera, args.size_filter, args.dem)):
-        raise CliError("--detections, --camera, --size-filter and --dem go with --real")
+    if any(v is not None for v in (args.detections, args.camera, args.size_filter, args.dem,
+                                   args.takeoff_elevation_m)):
+        raise CliError("--detections, --camera, --size-filter, --dem and --takeoff-elevation-m go with --real")
     if args.pipeline_config is not None and "coop" not in (args.tasks or "").split(","):
         raise CliError("--config goes with --real or --tasks coop")
     if args.list_domains or args.domains is not None:

@@ -355,15 +355,15 @@ def _csv_times(
 def date_offset(dates: list[float], times: list[float]) -> float:
     """The offset c with each row's date = c + its time, from rows with both. Dates at whole seconds that repeat
     (AirData's datetime(utc) beside time(millisecond)) are truncated: c is the middle of the offsets that every row
-    allows (floor(c + time) = date), the median + 0.5 s when truncation does not explain them (rounded dates); else
-    the median of date - time. The first row's date alone was up to a second off (a flight starting at .9 s read
-    0.9 s early)."""
-    gaps = sorted(d - t for d, t in zip(dates, times, strict=True))
-    median = gaps[len(gaps) // 2]
+    allows (floor(c + time) = date); else, and where truncation does not explain them, the first row's date - its
+    time (the old anchor: dates that do not step with the time, a start date on every row, stay exact). The first
+    row's date alone was up to a second off for truncated dates (a flight starting at .9 s read 0.9 s early)."""
+    first = dates[0] - times[0]
     if len(set(dates)) == len(dates) or any(d != math.floor(d) for d in dates):
-        return median
-    lo, hi = gaps[-1], gaps[0] + 1.0
-    return 0.5 * (lo + hi) if lo < hi else median + 0.5
+        return first
+    gaps = [d - t for d, t in zip(dates, times, strict=True)]
+    lo, hi = max(gaps), min(gaps) + 1.0
+    return 0.5 * (lo + hi) if lo < hi else first
 
 
 def _seconds(values: list[float], column: _CsvColumn, source: str, *, warn: bool = True) -> list[float]:

@@ -229,3 +229,25 @@ def test_an_earlier_boots_positions_received_after_the_reboot_do_not_join_the_ne
     assert quick_feed.reboots == 1
     assert len(records) == len(truth)
     assert [r.t for r in records] == pytest.approx([f.t for f in truth], abs=0.05)
+
+
+def test_the_rebooted_autopilots_first_unix_time_after_confirmation_is_no_clock_jump(quick_feed, caplog):
+    """The UNIX time comes back with GPS, after the reboot was confirmed: it was warned as a jump of +98.5 s that
+    would put a --telemetry-offset-s off by as much, though the records were placed right."""
+    import threading
+
+    from tests.shared.mavlink_writer import port_is_bound
+
+    before, after, packets = _rebooting_flight(new_boot_system_time=False)
+    late = T0 + 3.9  # 1.4 s into the new boot, past the 1 s confirmation
+    packets = sorted(packets + [(late, _system_time(1, 1, late, 4_000 + 1_400))], key=lambda item: item[0])
+    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
+    sender = threading.Thread(target=_paced, args=(packets, quick_feed.port, T0))
+    with caplog.at_level("WARNING"):
+        sender.start()
+        quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
+        sender.join()
+        records = wait_until(lambda: len(quick_feed.records()) == len(before) + len(after) and quick_feed.records(),
+                             5.0, "both boots' records")
+    assert quick_feed.reboots == 1 and "jumped by" not in caplog.text
+    assert [r.t for r in records] == pytest.approx([f.t for f in before + after], abs=0.05)

@@ -113,3 +113,12 @@ def test_rows_further_apart_than_a_drone_flies_are_named(caplog):
                             + [f"{0.1 * i},{47.0 + 1.5 * i / 111_320.0:.8f},9.0,30,60" for i in range(10)]))
     assert "jumps" not in caplog.text
     assert math.isfinite(records[0].t)
+
+
+def test_a_start_date_on_every_row_beside_elapsed_seconds_stays_exact():
+    """date_time the log's start on every row, time_s the seconds since: date + time, exactly (the second read found
+    the truncation rule moving such a flight by half its length)."""
+    text = "\n".join(["time_s,date_time,lat,lon,height_m,pitch_deg"]
+                     + [f"{i},{_stamp(0.0)},47.0,9.0,30,60" for i in range(600)])
+    records = parse_csv(text)
+    assert records[0].t == pytest.approx(START.timestamp()) and records[-1].t == pytest.approx(START.timestamp() + 599)

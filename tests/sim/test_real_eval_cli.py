@@ -48,6 +48,7 @@ def test_eval_real_takes_a_dem_and_a_flat_one_changes_nothing(data, tmp_path):
     assert raised["rows"] != flat["rows"]
 
 
-def test_dem_without_real_is_refused(capsys):
-    assert main(["eval", "--dem", "x.npz"]) == 2
-    assert "--dem go with --real" in capsys.readouterr().err
+@pytest.mark.parametrize("flag", [["--dem", "x.npz"], ["--takeoff-elevation-m", "120"]])
+def test_terrain_flags_without_real_are_refused(capsys, flag):
+    assert main(["eval", *flag, "--list-domains"]) == 2
+    assert "--dem and --takeoff-elevation-m go with --real" in capsys.readouterr().err
