@@ -5,6 +5,7 @@ File I/O and validation live here so the pipeline, tracker and evaluation take p
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections import Counter, defaultdict
@@ -23,6 +24,7 @@ from agent.telemetry_clock import ClockReport, TelemetryClockSettings, Telemetry
 from agent.telemetry_dequantize import dequantize_track
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
+from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.seadronessee import MetaProblem, pitch_convention_of
 
 log = logging.getLogger(__name__)
@@ -32,6 +34,8 @@ DEFAULT_FPS = 30.0
 #: more than this many seconds (and more than TIME_GAP_STEPS of their median step).
 TIME_GAP_S = 10.0
 TIME_GAP_STEPS = 20.0
+#: Times of one video name going back by more than this (s) along its frame numbers: two recordings of one name.
+RECORDING_GAP_S = 60.0
 
 
 def _one_file(folder: Path, name: str, pattern: str, what: str) -> Path:
@@ -85,8 +89,9 @@ class ImageRecord:
 class Dataset:
     """A COCO images file: images grouped by video (sorted by frame index) and categories.
 
-    Videos: ``source.video`` (SeaDronesSee Object Detection v2, per ``source.drone``), else ``video_id``,
-    else split by the images' clock; frame index: ``source.frame_no``, else ``frame_index``.
+    Videos: ``video_id`` (the file's own), else ``source.video`` (SeaDronesSee Object Detection v2, per
+    ``source.drone``; two recordings of one name split by their times), else split by the images' clock; frame
+    index: ``source.frame_no``, else ``frame_index``, else the rank in time.
     """
 
     images: dict[int, ImageRecord]
@@ -138,7 +143,7 @@ class Dataset:
                     id=_int(im, "id"), width=_int(im, "width"), height=_int(im, "height"),
                     video_id=video_id, frame_index=i if frame_index is None else frame_index,
                     date_time=im.get("date_time") if isinstance(im.get("date_time"), str) else None,
-                    meta=im.get("meta") if isinstance(im.get("meta"), dict) else None,
+                    meta=_meta(im.get("meta")),
                     file_name=str(im.get("file_name", "")),
                 )
             except ValueError as exc:
@@ -153,6 +158,16 @@ class Dataset:
             frames.sort(key=lambda r: r.frame_index)
         names = _video_names(coco, ids, [im for im in coco["images"] if isinstance(im, dict)])
         return cls(images, dict(sorted(videos.items())), categories, coco, names)
+
+
+def _meta(meta: Any) -> dict | None:
+    """An image's meta: an object, or one written as JSON text (a CSV-minded export); else None (no meta)."""
+    if isinstance(meta, str) and meta.strip().startswith("{"):
+        try:
+            meta = json.loads(meta)
+        except json.JSONDecodeError:
+            return None
+    return meta if isinstance(meta, dict) else None
 
 
 def _source(im: dict) -> dict:
@@ -189,8 +204,9 @@ def _image_time(im: dict) -> float | None:
 def _video_ids(images: list[dict]) -> dict[int, tuple[int, int | None]]:
     """Video id and frame index of every image (keyed by id() of its dict).
 
-    Videos come from ``source.video`` (with ``source.drone``: two drones' files may share a name), else
-    ``video_id``, else the images' clock: sorted by time and split where it jumps (TIME_GAP_S). Frame
+    Videos come from ``video_id`` (the file's own, also beside a ``source`` it kept), else ``source.video`` (with
+    ``source.drone``: two drones' files may share a name; `_recordings` splits two recordings of one name), else the
+    images' clock: sorted by time and split where it jumps (TIME_GAP_S). Frame
     indices: ``source.frame_no``, else ``frame_index``, else the order in time (None: the file's order).
     Names from ``source`` get integer ids after the largest ``video_id`` in the file, in sorted order.
     """
@@ -201,20 +217,21 @@ def _video_ids(images: list[dict]) -> dict[int, tuple[int, int | None]]:
     for im in images:
         key = _source_video(im)
         frame = _source(im).get("frame_no", im.get("frame_index"))
-        if key is not None:
-            named[key].append(im)
-        elif "video_id" in im:
+        if "video_id" in im:  # the file's own video (and its `videos` name), also beside a `source` it kept
             vid = _int(im, "video_id")
             used.add(vid)
             out[id(im)] = (vid, None if frame is None else _int({"frame_index": frame}, "frame_index"))
+        elif key is not None:
+            named[key].append(im)
         else:
             loose.append(im)
     next_id = max(used) + 1 if used else (1 if named else 0)  # a file of loose images alone: video 0, as before
     for key in sorted(named):
-        for im in named[key]:
-            frame = _source(im).get("frame_no", im.get("frame_index"))
-            out[id(im)] = (next_id, None if frame is None else _int({"frame_index": frame}, "frame_index"))
-        next_id += 1
+        for part in _recordings(named[key]):  # one name, two recordings (numbering restarted on a new card)
+            for im in part:
+                frame = _source(im).get("frame_no", im.get("frame_index"))
+                out[id(im)] = (next_id, None if frame is None else _int({"frame_index": frame}, "frame_index"))
+            next_id += 1
     if loose:
         for group in _split_by_time(loose):
             timed = all(_image_time(im) is not None for im in group)
@@ -222,7 +239,45 @@ def _video_ids(images: list[dict]) -> dict[int, tuple[int, int | None]]:
                 frame = im.get("frame_index")
                 out[id(im)] = (next_id, _int(im, "frame_index") if frame is not None else (rank if timed else None))
             next_id += 1
+    return _ranked_by_time(images, out)
+
+
+def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) -> dict[int, tuple[int, int | None]]:
+    """Frames of a video without frame indices: ranked by their time when every one has one (they were walked in
+    the file's order, interleaved or shuffled: time went back 24 times in 50 frames); else left to the file's order."""
+    pending: dict[int, list[tuple[float | None, int, dict]]] = defaultdict(list)
+    for order, im in enumerate(images):
+        vid, frame = out[id(im)]
+        if frame is None:
+            pending[vid].append((_image_time(im), order, im))
+    for vid, frames in pending.items():
+        if all(t is not None for t, _, _ in frames):
+            for rank, (_, _, im) in enumerate(sorted(frames, key=lambda item: (item[0], item[1]))):
+                out[id(im)] = (vid, rank)
     return out
+
+
+def _recordings(images: list[dict]) -> list[list[dict]]:
+    """The images of one video name as recordings: one, unless their times, walked by frame number, go back by
+    more than RECORDING_GAP_S (two recordings of one name interleaved: a camera numbering again from DJI_0001 on a
+    new card, flights on two days); then split where the times, sorted, jump by more than that."""
+    def frame_of(im: dict) -> float:
+        value = _source(im).get("frame_no", im.get("frame_index"))
+        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.inf
+
+    timed = [(t, im) for im in images if (t := _image_time(im)) is not None]
+    if len(timed) < len(images) or len(images) < 2:
+        return [images]
+    by_frame = sorted(timed, key=lambda item: frame_of(item[1]))
+    if not any(b[0] < a[0] - RECORDING_GAP_S for a, b in zip(by_frame, by_frame[1:], strict=False)):
+        return [images]
+    by_time = sorted(timed, key=lambda item: item[0])
+    parts: list[list[dict]] = [[by_time[0][1]]]
+    for (ta, _), (tb, im) in zip(by_time, by_time[1:], strict=False):
+        if tb - ta > RECORDING_GAP_S:
+            parts.append([])
+        parts[-1].append(im)
+    return parts
 
 
 def _split_by_time(images: list[dict]) -> list[list[dict]]:
@@ -439,13 +494,17 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         zone = info.clock.zone_offset_s
         if dequantize and at_frame_time:
             track, info.quanta = dequantize_track(track)
+    # The frame's own clock first (telemetry at 10 Hz repeats its time for 3 frames at 30 fps), else its telemetry
+    # stamp moved onto the frame clock; such times at whole seconds that repeat are spread over their second in frame
+    # order, as a log's rows are (the frames of one second shared a time: a zero step, no memory evidence, one pose)
+    stamped = [c if c is not None else (tel.t + zone if tel is not None else None) for c, tel in zip(clocks, records,
+                                                                                                      strict=True)]
+    known = [i for i, v in enumerate(stamped) if v is not None and math.isfinite(v)]
+    for i, v in zip(known, spread_whole_second_stamps([stamped[i] for i in known]), strict=True):  # type: ignore[misc]
+        stamped[i] = v
     t_prev: float | None = None
     i_prev = 0
-    for image, tel, frame_clock in zip(images, records, clocks, strict=True):
-        # The frame's own clock first: telemetry at 10 Hz repeats its time for 3 frames at 30 fps.
-        t = frame_clock
-        if t is None and tel is not None:
-            t = tel.t + zone
+    for image, tel, t in zip(images, records, stamped, strict=True):
         if t is None or not math.isfinite(t):
             # No clock on this frame: continue the last one by the frame-index step.
             t = image.frame_index / fps if t_prev is None else t_prev + (image.frame_index - i_prev) / fps

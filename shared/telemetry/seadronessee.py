@@ -322,13 +322,16 @@ def from_seadronessee_meta(
         raise MetaProblem("not a dict", f"SeaDronesSee meta must be a dict or None, got {type(meta).__name__}")
     if is_flight_log_meta(meta):
         try:
-            return _from_flight_log(meta, frame, utc_offset_s, pitch_convention, t_default)
+            record = _from_flight_log(meta, frame, utc_offset_s, pitch_convention, t_default)
         except MetaProblem:
             raise
         except ValueError as err:  # Telemetry's own range checks
             raise MetaProblem("bad value", f"SeaDronesSee meta: {err}") from None
+        _no_fix(record.lat, record.lon)
+        return record
     lat = _meta_coordinate(meta, "gps_latitude", ("N", "S"), 90.0)
     lon = _meta_coordinate(meta, "gps_longitude", ("E", "W"), 180.0)
+    _no_fix(lat, lon)
     height_m = _meta_number(meta, "altitude", "height", required=True)
     pitch = _pitch(_meta_number(meta, "gimbal_pitch", "pitch", required=False), "gimbal_pitch", pitch_convention,
                    flight_log=False)
@@ -360,6 +363,13 @@ def from_seadronessee_meta(
         )
     except ValueError as err:
         raise MetaProblem("bad value", f"SeaDronesSee meta: {err}") from None
+
+
+def _no_fix(lat: float, lon: float) -> None:
+    """MetaProblem "no position" for (0, 0): what DJI's logs write before the GPS fix, as every other reader takes
+    it (a pose there was 5,000 km off, and interpolated poses beside it 1,900 km)."""
+    if lat == 0.0 and lon == 0.0:
+        raise MetaProblem("no position", "SeaDronesSee meta position (0, 0): no GPS fix yet")
 
 
 def to_seadronessee_meta(

@@ -153,6 +153,10 @@ def test_a_video_s_pitch_convention_is_decided_by_its_majority():
 def test_property_flight_log_values_round_trip(lat, lon, height, pitch, heading, feet, stamp):
     from datetime import datetime, timezone
 
+    from hypothesis import assume
+
+    assume((lat, lon) != (0.0, 0.0))  # (0, 0) is no GPS fix: no record (tested apart)
+
     text = datetime.fromtimestamp(stamp, tz=timezone.utc).strftime("%Y-%m-%d %H:%M:%S")
     unit, factor = ("feet", 0.3048) if feet else ("meter", 1.0)
     meta = {"latitude": lat, "longitude": lon, f"height_above_takeoff({unit})": height / factor,
@@ -246,3 +250,19 @@ def test_a_coco_file_of_mostly_unusable_meta_is_refused_and_a_null_frame_no_fall
     images[1]["source"]["frame_no"] = None
     images[1]["frame_index"] = 7
     assert [r.frame for r in parse_seadronessee_coco({"images": images})] == [0, 7]
+
+
+@pytest.mark.parametrize("meta", [
+    {"latitude": 0.0, "longitude": 0.0, "height_above_takeoff(meter)": 30.0, "gimbal_pitch(degrees)": 60.0,
+     "gimbal_heading(degrees)": 10.0, "datetime(utc)": "2020-08-25 12:19:21"},
+    {"gps_latitude": 0.0, "gps_latitude_ref": "N", "gps_longitude": 0.0, "gps_longitude_ref": "E", "altitude": 30.0,
+     "gimbal_pitch": 60.0, "gimbal_heading": 10.0, "date_time": "2020-08-25T12:19:21"},
+])
+def test_a_position_at_0_0_is_no_gps_fix(meta):
+    """DJI logs write (0, 0) before the fix; as a position it was 5,346 km off the flight, and the poses interpolated
+    beside it up to 1,876 km (a helper's audit): no position, as every other reader takes it."""
+    from shared.telemetry.seadronessee import MetaProblem, from_seadronessee_meta
+
+    with pytest.raises(MetaProblem, match=r"position \(0, 0\): no GPS fix yet") as err:
+        from_seadronessee_meta(meta)
+    assert err.value.reason == "no position"

@@ -52,3 +52,17 @@ def test_eval_real_takes_a_dem_and_a_flat_one_changes_nothing(data, tmp_path):
 def test_terrain_flags_without_real_are_refused(capsys, flag):
     assert main(["eval", *flag, "--list-domains"]) == 2
     assert "--dem and --takeoff-elevation-m go with --real" in capsys.readouterr().err
+
+
+def test_ids_and_scores_written_as_text_are_scored_as_numbers(data, tmp_path):
+    """Results with "image_id": "3464", "category_id": "1", "score": "0.58": the pipeline variants read them, the
+    detector's own row was scored raw (0 AP50 beside the variants', a gain of +88; or a pycocotools traceback)."""
+    plain = _eval(data, tmp_path / "plain")
+    results = json.loads((data / "pre_nms.json").read_text())
+    as_text = [{**r, "image_id": str(r["image_id"]), "category_id": str(r["category_id"]), "score": str(r["score"])}
+               for r in results]
+    (tmp_path / "text.json").write_text(json.dumps(as_text))
+    assert main(["eval", "--real", str(data / "images.json"), "--detections", str(tmp_path / "text.json"),
+                 "--camera", str(data / "camera.json"), "--out", str(tmp_path / "text")]) == 0
+    text = json.loads((tmp_path / "text" / "real" / "report.json").read_text())
+    assert [r["AP50 detector"] for r in text["rows"]] == [r["AP50 detector"] for r in plain["rows"]]
