@@ -5,7 +5,6 @@ File I/O and validation live here so the pipeline, tracker and evaluation take p
 
 from __future__ import annotations
 
-import json
 import logging
 import math
 from collections import Counter, defaultdict
@@ -25,7 +24,7 @@ from agent.telemetry_dequantize import dequantize_track
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
-from shared.telemetry.seadronessee import MetaProblem, pitch_convention_of
+from shared.telemetry.seadronessee import MetaProblem, meta_object, pitch_convention_of
 
 log = logging.getLogger(__name__)
 
@@ -34,8 +33,6 @@ DEFAULT_FPS = 30.0
 #: more than this many seconds (and more than TIME_GAP_STEPS of their median step).
 TIME_GAP_S = 10.0
 TIME_GAP_STEPS = 20.0
-#: Times of one video name going back by more than this (s) along its frame numbers: two recordings of one name.
-RECORDING_GAP_S = 60.0
 
 
 def _one_file(folder: Path, name: str, pattern: str, what: str) -> Path:
@@ -89,9 +86,9 @@ class ImageRecord:
 class Dataset:
     """A COCO images file: images grouped by video (sorted by frame index) and categories.
 
-    Videos: ``video_id`` (the file's own), else ``source.video`` (SeaDronesSee Object Detection v2, per
-    ``source.drone``; two recordings of one name split by their times), else split by the images' clock; frame
-    index: ``source.frame_no``, else ``frame_index``, else the rank in time.
+    Videos: ``source.video`` (SeaDronesSee Object Detection v2, per ``source.drone``; with the file's own
+    ``video_id`` where it is consistent), else ``video_id``, else split by the images' clock; frame index:
+    ``source.frame_no``, else ``frame_index``, else the rank in time (the frames' own ``date_time``).
     """
 
     images: dict[int, ImageRecord]
@@ -132,7 +129,8 @@ class Dataset:
             if not isinstance(c, dict) or not isinstance(c.get("id"), int) or not isinstance(c.get("name"), str):
                 raise ValueError(f"{source}: categories[{i}] needs an integer 'id' and a string 'name'")
             categories[c["id"]] = c["name"]
-        ids = _video_ids([im for im in coco["images"] if isinstance(im, dict)])
+        listed = [v["id"] for v in coco.get("videos") or [] if isinstance(v, dict) and isinstance(v.get("id"), int)]
+        ids = _video_ids([im for im in coco["images"] if isinstance(im, dict)], listed)
         images: dict[int, ImageRecord] = {}
         for i, im in enumerate(coco["images"]):
             if not isinstance(im, dict):
@@ -161,13 +159,9 @@ class Dataset:
 
 
 def _meta(meta: Any) -> dict | None:
-    """An image's meta: an object, or one written as JSON text (a CSV-minded export); else None (no meta)."""
-    if isinstance(meta, str) and meta.strip().startswith("{"):
-        try:
-            meta = json.loads(meta)
-        except json.JSONDecodeError:
-            return None
-    return meta if isinstance(meta, dict) else None
+    """An image's meta: an object, or one written as JSON text (`shared.telemetry.seadronessee.meta_object`)."""
+    value = meta_object(meta)
+    return value if isinstance(value, dict) or value is None else dict(value)
 
 
 def _source(im: dict) -> dict:
@@ -188,8 +182,8 @@ def _source_video(im: dict) -> tuple[str, str] | None:
 def _image_time(im: dict) -> float | None:
     """An image's time for grouping: its own date_time, else its meta's; None when neither parses."""
     texts = [im.get("date_time")]
-    meta = im.get("meta")
-    if isinstance(meta, dict):
+    meta = _meta(im.get("meta"))
+    if meta is not None:
         texts += [meta.get("date_time")] + [v for k, v in meta.items() if isinstance(k, str)
                                             and k.lower().startswith("datetime")]
     for text in texts:
@@ -201,37 +195,50 @@ def _image_time(im: dict) -> float | None:
     return None
 
 
-def _video_ids(images: list[dict]) -> dict[int, tuple[int, int | None]]:
+def _video_ids(images: list[dict], reserved: Iterable[int] = ()) -> dict[int, tuple[int, int | None]]:
     """Video id and frame index of every image (keyed by id() of its dict).
 
-    Videos come from ``video_id`` (the file's own, also beside a ``source`` it kept), else ``source.video`` (with
-    ``source.drone``: two drones' files may share a name; `_recordings` splits two recordings of one name), else the
-    images' clock: sorted by time and split where it jumps (TIME_GAP_S). Frame
-    indices: ``source.frame_no``, else ``frame_index``, else the order in time (None: the file's order).
-    Names from ``source`` get integer ids after the largest ``video_id`` in the file, in sorted order.
+    Videos come from ``source.video`` (with ``source.drone``: two drones' files may share a name), else
+    ``video_id``, else the images' clock: sorted by time and split where it jumps (TIME_GAP_S). A ``source`` video
+    whose images all carry one integer ``video_id`` that no other video claims keeps it (DESIGN 6's layout with
+    v2's ``source`` kept: the file's ids and its ``videos`` names then agree); other names get integer ids after the
+    largest id in the file (``reserved``: the ``videos`` list's), in sorted order. Frame indices: ``source.frame_no``,
+    else ``frame_index``, else the rank in time by the frames' own ``date_time`` (`_ranked_by_time`; None: the
+    file's order).
     """
     out: dict[int, tuple[int, int | None]] = {}
     named: dict[tuple[str, str], list[dict]] = defaultdict(list)
     loose: list[dict] = []
-    used: set[int] = set()
+    used: set[int] = set(reserved)
     for im in images:
         key = _source_video(im)
         frame = _source(im).get("frame_no", im.get("frame_index"))
-        if "video_id" in im:  # the file's own video (and its `videos` name), also beside a `source` it kept
+        if key is not None:
+            named[key].append(im)
+        elif im.get("video_id") is not None:
             vid = _int(im, "video_id")
             used.add(vid)
             out[id(im)] = (vid, None if frame is None else _int({"frame_index": frame}, "frame_index"))
-        elif key is not None:
-            named[key].append(im)
         else:
             loose.append(im)
-    next_id = max(used) + 1 if used else (1 if named else 0)  # a file of loose images alone: video 0, as before
+    own: dict[tuple[str, str], int] = {}  # a source video's own id from the file, where it is its alone
+    claims: dict[int, list[tuple[str, str]]] = defaultdict(list)
+    for key, group in named.items():
+        ids = {im.get("video_id") for im in group}
+        if len(ids) == 1 and isinstance(vid := next(iter(ids)), int) and not isinstance(vid, bool):
+            claims[vid].append(key)
+    for vid, keys in claims.items():
+        if len(keys) == 1 and not any(out_vid == vid for out_vid, _ in out.values()):
+            own[keys[0]] = vid
+    taken = used | set(own.values())
+    next_id = max(taken) + 1 if taken else (1 if named else 0)  # a file of loose images alone: video 0, as before
     for key in sorted(named):
-        for part in _recordings(named[key]):  # one name, two recordings (numbering restarted on a new card)
-            for im in part:
-                frame = _source(im).get("frame_no", im.get("frame_index"))
-                out[id(im)] = (next_id, None if frame is None else _int({"frame_index": frame}, "frame_index"))
-            next_id += 1
+        vid = own.get(key)
+        if vid is None:
+            vid, next_id = next_id, next_id + 1
+        for im in named[key]:
+            frame = _source(im).get("frame_no", im.get("frame_index"))
+            out[id(im)] = (vid, None if frame is None else _int({"frame_index": frame}, "frame_index"))
     if loose:
         for group in _split_by_time(loose):
             timed = all(_image_time(im) is not None for im in group)
@@ -243,13 +250,14 @@ def _video_ids(images: list[dict]) -> dict[int, tuple[int, int | None]]:
 
 
 def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) -> dict[int, tuple[int, int | None]]:
-    """Frames of a video without frame indices: ranked by their time when every one has one (they were walked in
-    the file's order, interleaved or shuffled: time went back 24 times in 50 frames); else left to the file's order."""
+    """Frames of a video without frame indices: ranked by their own ``date_time`` when every one has one (they were
+    walked in the file's order, interleaved or shuffled: time went back 24 times in 50 frames); else left to the
+    file's order (a meta's UTC stamp beside another frame's local clock would mix two clocks)."""
     pending: dict[int, list[tuple[float | None, int, dict]]] = defaultdict(list)
     for order, im in enumerate(images):
         vid, frame = out[id(im)]
         if frame is None:
-            pending[vid].append((_image_time(im), order, im))
+            pending[vid].append((_frame_date(im), order, im))
     for vid, frames in pending.items():
         if all(t is not None for t, _, _ in frames):
             for rank, (_, _, im) in enumerate(sorted(frames, key=lambda item: (item[0], item[1]))):
@@ -257,27 +265,15 @@ def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) 
     return out
 
 
-def _recordings(images: list[dict]) -> list[list[dict]]:
-    """The images of one video name as recordings: one, unless their times, walked by frame number, go back by
-    more than RECORDING_GAP_S (two recordings of one name interleaved: a camera numbering again from DJI_0001 on a
-    new card, flights on two days); then split where the times, sorted, jump by more than that."""
-    def frame_of(im: dict) -> float:
-        value = _source(im).get("frame_no", im.get("frame_index"))
-        return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else math.inf
-
-    timed = [(t, im) for im in images if (t := _image_time(im)) is not None]
-    if len(timed) < len(images) or len(images) < 2:
-        return [images]
-    by_frame = sorted(timed, key=lambda item: frame_of(item[1]))
-    if not any(b[0] < a[0] - RECORDING_GAP_S for a, b in zip(by_frame, by_frame[1:], strict=False)):
-        return [images]
-    by_time = sorted(timed, key=lambda item: item[0])
-    parts: list[list[dict]] = [[by_time[0][1]]]
-    for (ta, _), (tb, im) in zip(by_time, by_time[1:], strict=False):
-        if tb - ta > RECORDING_GAP_S:
-            parts.append([])
-        parts[-1].append(im)
-    return parts
+def _frame_date(im: dict) -> float | None:
+    """An image's own ``date_time`` (the frame clock), None when absent or unreadable."""
+    text = im.get("date_time")
+    if isinstance(text, str) and text.strip():
+        try:
+            return parse_datetime(text)
+        except ValueError:
+            return None
+    return None
 
 
 def _split_by_time(images: list[dict]) -> list[list[dict]]:

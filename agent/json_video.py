@@ -61,12 +61,14 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
         return parse_seadronessee_coco(coco, source=str(path))
     names = {v["id"]: v.get("name") for v in coco.get("videos") or [] if isinstance(v, Mapping) and "id" in v}
     stem = Path(str(video)).stem.lower()
-
-    def name_of(vid: Any) -> str:
-        name = names.get(vid, vid) if not isinstance(vid, str) else vid
-        return Path(str(name)).stem.lower()
-
-    matching = [vid for vid in ids.values() if name_of(vid) == stem]
+    # a video's names: its source.video, and the `videos` entry of the video_id its images carry (as agent.dataset)
+    listed: dict[str, set[str]] = {}
+    for im in images:
+        vid, own = _video_of(im), im.get("video_id")
+        found = listed.setdefault(repr(vid), {Path(str(names.get(vid, vid))).stem.lower()})
+        if isinstance(own, int) and isinstance(names.get(own), str):
+            found.add(Path(names[own]).stem.lower())
+    matching = [vid for key, vid in ids.items() if stem in listed[key]]
     if len(matching) != 1:
         shown = ", ".join(sorted({str(names.get(v, v)) for v in ids.values()})[:12])
         raise ValueError(f"telemetry {path} holds {len(ids)} videos ({shown}) and "

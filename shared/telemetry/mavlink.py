@@ -130,6 +130,9 @@ class _Gimbal:
     earth_frame: bool
 
 
+_EarlyMessage = tuple[str, Mapping[str, Any], int, "int | None"]  # (type, fields, system, component)
+
+
 class MavlinkAssembler:
     """Turns a stream of decoded MAVLink messages into `MavlinkSample`s.
 
@@ -166,7 +169,9 @@ class MavlinkAssembler:
         self._attitude_prev: tuple[float, float] | None = None  # (boot s, yaw deg) of the two latest ATTITUDEs
         self._attitude_last: tuple[float, float] | None = None
         self._clocks: dict[tuple[int | None, int | None], UnixClock] = {}
-        self._early: dict[int, deque[tuple[str, Mapping[str, Any], int, int | None]]] = {}
+        #: system -> (type, component, gimbal id, camera id) -> (arrival, message) of the latest, before the vehicle
+        self._early: dict[int, dict[tuple[Any, ...], deque[tuple[int, _EarlyMessage]]]] = {}
+        self._arrivals = 0
         self._src: tuple[int | None, int | None] = (None, None)
 
     @property
@@ -205,12 +210,17 @@ class MavlinkAssembler:
                 self.component_id = src_component
             early = self._early.pop(src_system, None) if src_system == self.system_id else None
             self._early.clear()
-            for msg in early or ():  # the vehicle's own messages from before it was known, in their order
-                self.add(*msg)
+            for _, msg in sorted((item for kept in (early or {}).values() for item in kept), key=lambda i: i[0]):
+                self.add(*msg)  # the vehicle's own messages from before it was known, in their order
         if src_system is not None and src_system != self.system_id:
-            if self.system_id is None and msg_type in _HANDLERS:  # kept per system until the vehicle is known: a
-                self._early.setdefault(src_system, deque(maxlen=_EARLY_KEPT)).append(  # second drone's gimbal
-                    (msg_type, fields, src_system, src_component))  # took the vehicle's place for the whole flight
+            if self.system_id is None and msg_type in _HANDLERS:  # kept per system until the vehicle is known (a
+                # second drone's gimbal took the vehicle's place for the whole flight): the latest of each kind and
+                # sender, the two latest ATTITUDEs (to interpolate between)
+                source = (msg_type, src_component, fields.get("gimbal_device_id"), fields.get("camera_device_id"))
+                kept = self._early.setdefault(src_system, {}).setdefault(
+                    source, deque(maxlen=2 if msg_type == "ATTITUDE" else 1))
+                self._arrivals += 1
+                kept.append((self._arrivals, (msg_type, fields, src_system, src_component)))
             return None
         if msg_type == "ATTITUDE" and src_component is not None and src_component != self.component_id:
             return None  # another component's (a companion computer's, on its own boot clock), or before it is known
@@ -322,9 +332,6 @@ class MavlinkAssembler:
 #: The flags PX4's gimbal module sends for a servo (RC/AUX) gimbal whatever its mode: NEUTRAL and the three locks,
 #: with the servo outputs' angles, relative to the vehicle (src/modules/gimbal/output_rc.cpp).
 _PX4_RC_FLAGS = 2 | 4 | 8 | 16
-#: Messages of each system kept from before the vehicle is known (the latest; replayed for the vehicle's).
-_EARLY_KEPT = 32
-
 _HANDLERS = {
     "GLOBAL_POSITION_INT": MavlinkAssembler._position,
     "ATTITUDE": MavlinkAssembler._attitude,

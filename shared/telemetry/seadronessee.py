@@ -365,6 +365,17 @@ def from_seadronessee_meta(
         raise MetaProblem("bad value", f"SeaDronesSee meta: {err}") from None
 
 
+def meta_object(value: Any) -> Mapping[str, Any] | None:
+    """An image's ``meta`` as an object: as it is, or decoded from JSON text (a CSV-minded export writes it so);
+    None for anything else (no meta, or not one)."""
+    if isinstance(value, str) and value.strip().startswith("{"):
+        try:
+            value = json.loads(value)
+        except json.JSONDecodeError:
+            return None
+    return value if isinstance(value, Mapping) else None
+
+
 def _no_fix(lat: float, lon: float) -> None:
     """MetaProblem "no position" for (0, 0): what DJI's logs write before the GPS fix, as every other reader takes
     it (a pose there was 5,000 km off, and interpolated poses beside it 1,900 km)."""
@@ -453,10 +464,11 @@ def parse_seadronessee_coco(
     chosen = [image for image in images if video_id is None or video_of(image) == video_id]
     # the pitch convention is the video's (a camera looks down far more than up), not each value's: one frame
     # looking 3 deg above the horizon (-3 where positive is down) is no DJI-signed depression of 3 deg
-    convention = pitch_convention_of(image.get("meta") for image in chosen if isinstance(image.get("meta"), Mapping))
+    metas = [meta_object(image.get("meta")) for image in chosen]
+    convention = pitch_convention_of(meta for meta in metas if meta is not None)
     records: list[tuple[int, Telemetry]] = []
     skipped, problems = 0, []
-    for image in chosen:
+    for image, meta in zip(chosen, metas, strict=True):
         src = image.get("source")
         frame = src.get("frame_no") if isinstance(src, Mapping) else None
         frame = image.get("frame_index") if frame is None else frame
@@ -464,8 +476,8 @@ def parse_seadronessee_coco(
             problems.append(f"image id {image.get('id')!r}: frame index {frame!r} is not an index")
             continue
         try:
-            tel = from_seadronessee_meta(image.get("meta"), frame=frame, utc_offset_s=utc_offset_s,
-                                         pitch_convention=convention)
+            tel = from_seadronessee_meta(meta if meta is not None else image.get("meta"), frame=frame,
+                                         utc_offset_s=utc_offset_s, pitch_convention=convention)
         except ValueError as err:  # one frame's meta: that frame has no telemetry, the others keep theirs
             problems.append(f"image id {image.get('id')!r}: {err}")
             continue

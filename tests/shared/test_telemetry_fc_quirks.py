@@ -131,3 +131,19 @@ def test_px4s_servo_gimbal_status_sent_by_the_autopilot_is_vehicle_relative_in_a
     device = MavlinkAssembler(1, component_id=1)  # a gimbal device of its own (component 154): its flags stand
     device.add("GIMBAL_DEVICE_ATTITUDE_STATUS", status, 1, 154)
     assert device.add("GLOBAL_POSITION_INT", position, 1, 1).heading_deg == pytest.approx(0.0)
+
+
+def test_the_vehicles_early_gimbal_and_field_of_view_outlast_a_burst_of_attitudes():
+    """Kept as the last 32 messages of any kind, a gimbal status and a CAMERA_FOV_STATUS were pushed out by 0.7 s of
+    50 Hz ATTITUDE before the first position (the third read): the latest of each kind and sender now."""
+    assembler = MavlinkAssembler()
+    assembler.add("GIMBAL_DEVICE_ATTITUDE_STATUS", {"flags": 4 | 8 | 32, "q": euler_to_quaternion(0, -60, 0),
+                                                     "gimbal_device_id": 0}, 1, 154)
+    assembler.add("CAMERA_FOV_STATUS", {"hfov": 60.0, "camera_device_id": 0}, 1, 100)
+    for k in range(35):
+        assembler.add("ATTITUDE", {"time_boot_ms": 59_300 + 20 * k, "yaw": math.radians(30.0)}, 1, 1)
+    position = {"time_boot_ms": 60_000, "lat": 470000000, "lon": 80000000, "relative_alt": 50_000, "vx": 0, "vy": 0,
+                "hdg": 3000}
+    sample = assembler.add("GLOBAL_POSITION_INT", position, 1, 1)
+    assert sample.pitch_deg == pytest.approx(60.0) and sample.hfov_deg == pytest.approx(60.0)
+    assert sample.heading_deg == pytest.approx(30.0)

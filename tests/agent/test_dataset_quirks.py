@@ -1,0 +1,108 @@
+"""COCO files with meta as other tools and datasets write them (agent.dataset): the file's own video ids beside a
+`source` it kept, frames without frame indices, two recordings under one video name, a meta written as JSON text,
+frame times at whole seconds. Each failed before (a helper's audit, proof scripts in the commit's note)."""
+
+from __future__ import annotations
+
+import datetime as dt
+import json
+
+import pytest
+
+from agent.dataset import Dataset, iter_video_frames
+from shared.geo import Camera
+
+CAMERA = Camera(width=3840, height=2160, fx=3000.0, fy=3000.0, cx=1920.0, cy=1080.0)
+START = dt.datetime(2020, 8, 25, 12, 19, 0)
+
+
+def _meta(seconds: float, lat: float = 53.9) -> dict:
+    return {"datetime(utc)": (START + dt.timedelta(seconds=int(seconds))).strftime("%Y-%m-%d %H:%M:%S"),
+            "latitude": lat + 1e-5 * seconds, "longitude": 8.1, "height_above_takeoff(meter)": 40.0,
+            "gimbal_heading(degrees)": 90.0, "gimbal_pitch(degrees)": 60.0}
+
+
+def _image(image_id: int, video: str, frame: int, seconds: float, *, day: int = 0, **extra) -> dict:
+    when = START + dt.timedelta(days=day, hours=2, seconds=seconds)
+    return {"id": image_id, "file_name": f"{image_id}.jpg", "width": 3840, "height": 2160,
+            "source": {"drone": "mavic", "video": video, "frame_no": frame}, "date_time": when.isoformat(),
+            "meta": _meta(seconds), **extra}
+
+
+def _coco(images: list[dict], **extra) -> dict:
+    return {"images": images, "annotations": [], "categories": [{"id": 1, "name": "swimmer"}], **extra}
+
+
+def test_the_files_own_video_ids_and_names_hold_beside_a_source_it_kept():
+    """DESIGN 6's layout with v2's `source` kept: the reader numbered the videos by their sorted source names and took
+    the names from the file's `videos` list by those ids: video 1 named DJI_0069 held DJI_0032's frames."""
+    images = [_image(k, "DJI_0069.MP4", 3120 + 15 * k, 0.5 * k, video_id=1, frame_index=k) for k in range(5)]
+    images += [_image(100 + k, "DJI_0032.MP4", 5415 + 15 * k, 0.5 * k, video_id=2, frame_index=k) for k in range(5)]
+    data = Dataset.from_dict(_coco(images, videos=[{"id": 1, "name": "DJI_0069.MP4"},
+                                                   {"id": 2, "name": "DJI_0032.MP4"}]))
+    assert [im.id for im in data.videos[data.resolve_video("DJI_0069.MP4")]] == [0, 1, 2, 3, 4]
+    assert [im.id for im in data.videos[2]] == [100, 101, 102, 103, 104]
+
+
+def test_frames_without_frame_indices_are_walked_in_time_order():
+    """A video id, no frame index, the images shuffled: they were walked in the file's order (time went back)."""
+    images = [{"id": k, "file_name": f"{k}.jpg", "width": 3840, "height": 2160, "video_id": 1,
+               "date_time": (START + dt.timedelta(seconds=0.5 * k)).isoformat(), "meta": _meta(0.5 * k)}
+              for k in (3, 0, 4, 1, 2)]
+    data = Dataset.from_dict(_coco(images))
+    assert [im.id for im in data.videos[1]] == [0, 1, 2, 3, 4]
+    times = [f.t for f in iter_video_frames(data, CAMERA, 1)]
+    assert times == sorted(times) and len(set(times)) == 5
+
+
+@pytest.mark.parametrize("video_id", [None, 0])
+def test_a_video_id_that_does_not_tell_videos_apart_leaves_them_to_their_source(video_id):
+    """A null video_id (a DataFrame's NaN) or one value on every image beside two source videos: the file was
+    refused, or the two videos merged with their frames interleaved (the third read). The source names them."""
+    images = [_image(k, "DJI_0069.MP4", 15 * k, 0.5 * k, video_id=video_id) for k in range(4)]
+    images += [_image(100 + k, "DJI_0032.MP4", 15 * k, 0.5 * k, video_id=video_id) for k in range(4)]
+    data = Dataset.from_dict(_coco(images))
+    assert sorted(data.video_names[v] for v in data.videos) == ["DJI_0032.MP4", "DJI_0069.MP4"]
+    assert [im.id for im in data.videos[data.resolve_video("DJI_0032.MP4")]] == [100, 101, 102, 103]
+
+
+def test_frames_are_ranked_by_their_own_clock_only():
+    """Two frames without a date_time of their own: their meta's UTC stamp is two hours behind the others' local
+    clock, and ranking on both put them first (the third read): the file's order then."""
+    images = [{"id": k, "file_name": f"{k}.jpg", "width": 3840, "height": 2160, "video_id": 1,
+               "date_time": (START + dt.timedelta(hours=2, seconds=k)).isoformat(), "meta": _meta(k)}
+              for k in range(6)]
+    for k in (3, 4):
+        images[k]["date_time"] = None
+    data = Dataset.from_dict(_coco(images))
+    assert [im.id for im in data.videos[1]] == [0, 1, 2, 3, 4, 5]
+
+
+def test_a_meta_written_as_json_text_is_read():
+    from shared.telemetry.seadronessee import parse_seadronessee_coco
+
+    images = [_image(k, "DJI_0032.MP4", 15 * k, 0.5 * k) for k in range(4)]
+    for image in images:
+        image["meta"] = json.dumps(image["meta"])
+        del image["date_time"]  # the meta's stamp is the only clock: it is read from the text too
+    data = Dataset.from_dict(_coco(images))
+    assert data.images[0].meta is not None and data.images[0].meta["latitude"] == pytest.approx(53.9)
+    assert [f.pose is not None for f in iter_video_frames(data, CAMERA, next(iter(data.videos)))] == [True] * 4
+    assert len(parse_seadronessee_coco(_coco(images))) == 4  # the video's telemetry path reads it as well
+
+
+@pytest.mark.parametrize("clock", ["frame", "meta"])
+def test_frame_times_at_whole_seconds_are_spread_over_their_second(clock):
+    """Frames every 0.5 s whose date_time (or, without one, meta stamp) is written at whole seconds: every other
+    frame shared its neighbour's time (a zero step: no memory evidence, one pose for both)."""
+    images = []
+    for k in range(8):
+        image = _image(k, "DJI_0032.MP4", 15 * k, 0.5 * k)
+        if clock == "frame":
+            image["date_time"] = (START + dt.timedelta(hours=2, seconds=int(0.5 * k))).isoformat()
+        else:
+            del image["date_time"]
+        images.append(image)
+    data = Dataset.from_dict(_coco(images))
+    times = [f.t for f in iter_video_frames(data, CAMERA, next(iter(data.videos)))]
+    assert [round(b - a, 3) for a, b in zip(times, times[1:], strict=False)] == [0.5] * 7
