@@ -120,7 +120,14 @@ def _footprint_cells(grid: TileGrid, camera: Camera, pose: Pose, range_m: float,
     poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8, terrain=terrain)
     lat, lon = local_to_latlon(poly[:, 0], poly[:, 1], pose.lat, pose.lon)
     gx, gy = grid.latlon_to_cell_index(lat, lon)
+    world = grid.world_cells
+    px, _ = grid.latlon_to_cell_index(np.array([pose.lat]), np.array([pose.lon]))
+    gx = gx + world * np.round((float(px[0]) - gx) / world)  # unwrapped about the UAV's column
     gx0, gy0 = int(gx.min()) - 1, int(gy.min()) - 1
+    if gx0 < 0 or int(gx.max()) + 1 >= world:
+        # a view across the antimeridian: its columns wrap, which the joint layer's block does not (as one block it
+        # was the width of the world, 57.7 GiB, every frame): no joint detections for such a view
+        return 0, 0, 0, 0
     return gx0, gy0, int(gx.max()) - gx0 + 2, int(gy.max()) - gy0 + 2
 
 

@@ -29,15 +29,22 @@ __all__ = ["JointWindowSubscriptions", "window_tiles"]
 log = logging.getLogger(__name__)
 
 
-def window_tiles(origin: tuple[int, int], size_cells: int, n: int, margin: int = 1) -> set[tuple[int, int]]:
+def window_tiles(origin: tuple[int, int], size_cells: int, n: int, margin: int = 1,
+                 tiles_per_side: int | None = None) -> set[tuple[int, int]]:
     """(x, y) of the tiles a window of ``size_cells`` cells at global cell ``origin`` (north-west)
-    overlaps, plus ``margin`` tiles around it (so a tile is subscribed before the window reaches it)."""
+    overlaps, plus ``margin`` tiles around it (so a tile is subscribed before the window reaches it).
+    With ``tiles_per_side`` (the grid's 2**z) x wraps at the antimeridian and y stops at the map's edge, as
+    `shared.tiles.CellWindow` does: a window at the world's east edge asked for tile 2**z, which no key holds,
+    and the agent stopped (without it, x below 0 is cut and x past the edge kept, as before)."""
     if size_cells <= 0:
         return set()
     gx0, gy0 = origin
     tx0, ty0 = gx0 // n - margin, gy0 // n - margin
     tx1, ty1 = (gx0 + size_cells - 1) // n + margin, (gy0 + size_cells - 1) // n + margin
-    return {(x, y) for y in range(max(ty0, 0), ty1 + 1) for x in range(max(tx0, 0), tx1 + 1)}
+    if tiles_per_side is None:
+        return {(x, y) for y in range(max(ty0, 0), ty1 + 1) for x in range(max(tx0, 0), tx1 + 1)}
+    return {(x % tiles_per_side, y) for y in range(max(ty0, 0), min(ty1, tiles_per_side - 1) + 1)
+            for x in range(tx0, tx1 + 1)}
 
 
 class JointWindowSubscriptions:

@@ -526,8 +526,9 @@ class AgentNode:
         memory = self.pipeline.memory
         if s.joint_window and memory.size_cells > 0:
             # joint tiles of the window and one tile around it; tracks of the regions the window touches
-            self.link.set_joint_window(window_tiles(memory.origin, memory.size_cells, memory.grid.n),
-                                       window_tiles(memory.origin, memory.size_cells, memory.grid.n, margin=0))
+            origin, size, n, side = memory.origin, memory.size_cells, memory.grid.n, memory.grid.tiles_per_side
+            self.link.set_joint_window(window_tiles(origin, size, n, tiles_per_side=side),
+                                       window_tiles(origin, size, n, margin=0, tiles_per_side=side))
         for cls, x, y, payload in self.tiles.messages(memory, t):
             messages.append(("tile", self.link.tile_key(cls, x, y), payload))
         if self.anomaly_tiles is not None and self.anomaly is not None:

@@ -21,7 +21,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 __all__ = ["MAX_CANDIDATES", "MAX_EXACT_CELLS", "M_PER_DEG_LAT", "Assignment", "gated_assignment",
-           "ground_distance_m"]
+           "ground_distance_m", "weighted_lon"]
 
 #: Metres per degree of latitude (and of longitude at the equator) of the equirectangular distance.
 M_PER_DEG_LAT = 111_320.0
@@ -43,6 +43,17 @@ def ground_distance_m(lat1, lon1, lat2, lon2) -> np.ndarray:
     east = dlon * M_PER_DEG_LAT * np.cos(np.radians(0.5 * (lat1 + lat2)))
     north = (lat2 - lat1) * M_PER_DEG_LAT
     return np.hypot(east, north)
+
+
+def weighted_lon(weights: ArrayLike, lon: ArrayLike) -> float:
+    """Weighted mean of longitudes (degrees) that lie near each other, across the antimeridian: taken on their
+    differences from the first, wrapped, then put back in [-180, 180) (a plain mean of 179.999997 and -179.999997
+    put a track at 0, 20,000 km away)."""
+    w = np.asarray(weights, dtype=np.float64)
+    lo = np.asarray(lon, dtype=np.float64)
+    offsets = (lo - lo[0] + 180.0) % 360.0 - 180.0
+    mean = float(lo[0] + np.dot(w, offsets) / w.sum())
+    return mean if -180.0 <= mean < 180.0 else (mean + 180.0) % 360.0 - 180.0
 
 
 def _sphere_xyz(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:

@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from fusion_server.association import M_PER_DEG_LAT as _M_PER_DEG_LAT
-from fusion_server.association import gated_assignment, ground_distance_m
+from fusion_server.association import gated_assignment, ground_distance_m, weighted_lon
 from shared.messages import MAX_MEMBERS, MAX_TRACKS, JointTrackItem, JointTracksMessage, TracksMessage
 
 __all__ = ["MAX_INACTIVE_MEMBERS", "GlobalTrack", "GlobalTracker", "TrackRecord", "ground_distance_m"]
@@ -408,7 +408,7 @@ class GlobalTracker:
             weights = np.array([max(m.score, 1e-3) for m in active])
             weights /= weights.sum()
             track.lat = float(np.dot(weights, [m.lat for m in active]))
-            track.lon = float(np.dot(weights, [m.lon for m in active]))
+            track.lon = weighted_lon(weights, [m.lon for m in active])  # across the antimeridian too
             track.vel_en = (
                 float(np.dot(weights, [m.vel_en[0] for m in active])),
                 float(np.dot(weights, [m.vel_en[1] for m in active])),

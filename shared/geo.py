@@ -130,12 +130,16 @@ def prime_vertical_radius_m(lat_deg: ArrayLike) -> FloatArray:
 
 
 def local_to_latlon(east_m: ArrayLike, north_m: ArrayLike, lat0: float, lon0: float) -> tuple[FloatArray, FloatArray]:
-    """Local east/north offsets (metres) around (lat0, lon0) to lat/lon degrees (tangent plane)."""
+    """Local east/north offsets (metres) around (lat0, lon0) to lat/lon degrees (tangent plane); longitudes past the
+    antimeridian wrap into [-180, 180) (a drone over Fiji: 180.0002 was refused in its state message)."""
     e = np.asarray(east_m, dtype=np.float64)
     n = np.asarray(north_m, dtype=np.float64)
     m = float(meridian_radius_m(lat0))
     p = float(prime_vertical_radius_m(lat0)) * math.cos(math.radians(lat0))
-    return lat0 + np.degrees(n / m), lon0 + np.degrees(e / p)
+    lon = lon0 + np.degrees(e / p)
+    if np.any(np.abs(lon) > 180.0):  # rare: only then the wrap's rounding (lon0 itself stays as given)
+        lon = np.where(np.abs(lon) > 180.0, (lon + 180.0) % 360.0 - 180.0, lon)
+    return lat0 + np.degrees(n / m), lon
 
 
 def latlon_to_local(lat: ArrayLike, lon: ArrayLike, lat0: float, lon0: float) -> tuple[FloatArray, FloatArray]:
