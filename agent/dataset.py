@@ -228,7 +228,7 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = ()) -> dict[int, tu
         if len(ids) == 1 and isinstance(vid := next(iter(ids)), int) and not isinstance(vid, bool):
             claims[vid].append(key)
     for vid, keys in claims.items():
-        if len(keys) == 1 and not any(out_vid == vid for out_vid, _ in out.values()):
+        if len(keys) == 1:  # (images without a source that carry the same id join it: the file says so)
             own[keys[0]] = vid
     taken = used | set(own.values())
     next_id = max(taken) + 1 if taken else (1 if named else 0)  # a file of loose images alone: video 0, as before
@@ -250,17 +250,22 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = ()) -> dict[int, tu
 
 
 def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) -> dict[int, tuple[int, int | None]]:
-    """Frames of a video without frame indices: ranked by their own ``date_time`` when every one has one (they were
-    walked in the file's order, interleaved or shuffled: time went back 24 times in 50 frames); else left to the
-    file's order (a meta's UTC stamp beside another frame's local clock would mix two clocks)."""
-    pending: dict[int, list[tuple[float | None, int, dict]]] = defaultdict(list)
+    """Frames of a video without frame indices: ranked by their own ``date_time`` when every one has one, by their
+    metas' stamps when none has one (they were walked in the file's order, interleaved or shuffled: time went back 24
+    times in 50 frames); a mix of the two is left to the file's order (a meta's UTC stamp beside another frame's local
+    clock would mix two clocks)."""
+    pending: dict[int, list[tuple[int, dict]]] = defaultdict(list)
     for order, im in enumerate(images):
         vid, frame = out[id(im)]
         if frame is None:
-            pending[vid].append((_frame_date(im), order, im))
+            pending[vid].append((order, im))
     for vid, frames in pending.items():
-        if all(t is not None for t, _, _ in frames):
-            for rank, (_, _, im) in enumerate(sorted(frames, key=lambda item: (item[0], item[1]))):
+        own = [_frame_date(im) for _, im in frames]
+        if any(t is None for t in own):  # one clock for all: the frames' own, else (none has one) the metas'
+            own = [_image_time(im) for _, im in frames] if all(t is None for t in own) else [None]
+        if all(t is not None for t in own):
+            ranked = sorted(zip(own, frames, strict=True), key=lambda item: (item[0], item[1][0]))
+            for rank, (_, (_, im)) in enumerate(ranked):
                 out[id(im)] = (vid, rank)
     return out
 

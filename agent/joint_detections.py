@@ -121,8 +121,9 @@ def _footprint_cells(grid: TileGrid, camera: Camera, pose: Pose, range_m: float,
     lat, lon = local_to_latlon(poly[:, 0], poly[:, 1], pose.lat, pose.lon)
     gx, gy = grid.latlon_to_cell_index(lat, lon)
     world = grid.world_cells
-    px, _ = grid.latlon_to_cell_index(np.array([pose.lat]), np.array([pose.lon]))
-    gx = gx + world * np.round((float(px[0]) - gx) / world)  # unwrapped about the UAV's column
+    gx = gx + world * np.round((float(gx[0]) - gx) / world)  # unwrapped about the footprint's first vertex
+    if gx.min() < 0:
+        gx = gx + world  # the block's columns in [0, world) where it does not straddle
     gx0, gy0 = int(gx.min()) - 1, int(gy.min()) - 1
     if gx0 < 0 or int(gx.max()) + 1 >= world:
         # a view across the antimeridian: its columns wrap, which the joint layer's block does not (as one block it

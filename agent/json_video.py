@@ -62,12 +62,20 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
     names = {v["id"]: v.get("name") for v in coco.get("videos") or [] if isinstance(v, Mapping) and "id" in v}
     stem = Path(str(video)).stem.lower()
     # a video's names: its source.video, and the `videos` entry of the video_id its images carry (as agent.dataset)
+    # (only where all of a video's images carry one id that no other video claims, as agent.dataset decides)
     listed: dict[str, set[str]] = {}
+    carried: dict[str, set[Any]] = {}
     for im in images:
-        vid, own = _video_of(im), im.get("video_id")
-        found = listed.setdefault(repr(vid), {Path(str(names.get(vid, vid))).stem.lower()})
-        if isinstance(own, int) and isinstance(names.get(own), str):
-            found.add(Path(names[own]).stem.lower())
+        vid = _video_of(im)
+        listed.setdefault(repr(vid), {Path(str(names.get(vid, vid))).stem.lower()})
+        carried.setdefault(repr(vid), set()).add(im.get("video_id"))
+    claims: dict[Any, list[str]] = {}
+    for key, own in carried.items():
+        if len(own) == 1 and isinstance(vid_id := next(iter(own)), int) and not isinstance(vid_id, bool):
+            claims.setdefault(vid_id, []).append(key)
+    for vid_id, keys in claims.items():
+        if len(keys) == 1 and isinstance(names.get(vid_id), str):
+            listed[keys[0]].add(Path(names[vid_id]).stem.lower())
     matching = [vid for key, vid in ids.items() if stem in listed[key]]
     if len(matching) != 1:
         shown = ", ".join(sorted({str(names.get(v, v)) for v in ids.values()})[:12])

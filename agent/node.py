@@ -62,6 +62,19 @@ log = logging.getLogger(__name__)
 # Settings
 # ---------------------------------------------------------------------------------------------
 
+#: The longitude a footprint vertex past the antimeridian is held at (just inside it, on the UAV's side).
+_EDGE_LON = 180.0 - 1e-7
+
+
+def _this_side(lon: float, uav_lon: float) -> float:
+    """A footprint vertex's longitude held on the UAV's side of the antimeridian (a vertex past it, wrapped to the
+    other sign, at the line): the server fills the polygon vertex by vertex, and across the line it covered the
+    rest of the world."""
+    if abs(lon) > 90.0 and abs(uav_lon) > 90.0 and (lon < 0.0) != (uav_lon < 0.0):
+        return math.copysign(_EDGE_LON, uav_lon)
+    return min(max(lon, -_EDGE_LON), _EDGE_LON)
+
+
 def _positive(name: str, value: object) -> None:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
         raise ValueError(f"AgentSettings.{name} must be a finite number > 0, got {value!r}")
@@ -206,7 +219,9 @@ def state_message(uav: str, t: float, pose: Pose, camera: Camera, *, range_m: fl
     return StateMessage(
         uav=uav, t=t, lat=pose.lat, lon=pose.lon, height_m=pose.height_m, pitch_deg=pose.pitch_deg,
         heading_deg=pose.heading_deg % 360.0,
-        footprint=tuple((float(a), float(b)) for a, b in polygon),
+        # past the antimeridian kept on the UAV's side (the server fills a polygon vertex by vertex: wrapped, one
+        # straddling the line would cover the rest of the world; past 180 the message was refused)
+        footprint=tuple((float(a), _this_side(float(b), pose.lon)) for a, b in polygon),
         camera=CameraInfo(width=camera.width, height=camera.height, fx=camera.fx, fy=camera.fy,
                           cx=camera.cx, cy=camera.cy),
     )

@@ -179,13 +179,9 @@ class UavRegistry:
             entry.conflict_reported = False
 
     def rejected(self, uav: str, reason: str) -> None:
-        """Count a dropped message of a UAV that is known: by its messages, or by its liveliness token (a UAV online
-        whose every message is dropped, e.g. stamped minutes in the future, showed no rejections at all); other
-        ids are not added (a forged id costs nothing)."""
+        """Count a dropped message of a UAV that is already known (unknown ids are not added)."""
         with self._lock:
             entry = self._uavs.get(uav)
-            if entry is None and uav in self._tokens:
-                entry = self._get(uav)
             if entry is not None:
                 entry.rejected[reason] = entry.rejected.get(reason, 0) + 1
 

@@ -70,6 +70,7 @@ class TerrainCells:
         the samples; exact: `shared.geo.local_to_latlon` is linear)."""
         g = self.grid
         lat, lon = local_to_latlon(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), pose.lat, pose.lon)
+        lon = lon[0] + (lon - lon[0] + 180.0) % 360.0 - 180.0  # the steps, not the wrap at the antimeridian
         col = (lon - g.lon0_deg) / g.lon_step_deg
         row = (lat - g.lat0_deg) / g.lat_step_deg
         return np.array([[col[1] - col[0], col[2] - col[0], col[0]], [row[1] - row[0], row[2] - row[0], row[0]]])

@@ -106,3 +106,38 @@ def test_frame_times_at_whole_seconds_are_spread_over_their_second(clock):
     data = Dataset.from_dict(_coco(images))
     times = [f.t for f in iter_video_frames(data, CAMERA, next(iter(data.videos)))]
     assert [round(b - a, 3) for a, b in zip(times, times[1:], strict=False)] == [0.5] * 7
+
+
+def test_images_without_a_source_join_the_source_video_that_carries_their_video_id():
+    """Every image with video_id 1 (DJI_0069 in the videos list), two of them without a source: they took id 1
+    and the source video became a second 'DJI_0069' (the fourth read)."""
+    images = [_image(k, "DJI_0069.MP4", 15 * k, 0.5 * k, video_id=1, frame_index=k) for k in range(5)]
+    for k in (2, 4):
+        del images[k]["source"]
+    data = Dataset.from_dict(_coco(images, videos=[{"id": 1, "name": "DJI_0069.MP4"}]))
+    assert {v: sorted(im.id for im in frames) for v, frames in data.videos.items()} == {1: [0, 1, 2, 3, 4]}
+    assert data.video_names[1] == "DJI_0069.MP4"
+
+
+def test_frames_with_only_meta_stamps_are_ranked_by_them():
+    """No frame has its own date_time: the metas' stamps are one clock (the fourth read found file order again)."""
+    images = [{"id": k, "file_name": f"{k}.jpg", "width": 3840, "height": 2160, "video_id": 1, "meta": _meta(2.0 * k)}
+              for k in (3, 0, 4, 1, 2)]
+    data = Dataset.from_dict(_coco(images))
+    assert [im.id for im in data.videos[1]] == [0, 1, 2, 3, 4]
+
+
+def test_the_video_telemetry_path_names_a_video_as_the_dataset_does():
+    """video_id 0 on every image of two source videos, the videos list naming 0 'A.MP4': the dataset gives the id to
+    neither, and the telemetry path refused 'A.MP4' as ambiguous (the fourth read)."""
+    import tempfile
+    from pathlib import Path
+
+    from agent.json_video import read_video_json
+
+    images = [_image(k, "A.MP4", 15 * k, 0.5 * k, video_id=0) for k in range(4)]
+    images += [_image(100 + k, "B.MP4", 15 * k, 0.5 * k, video_id=0) for k in range(4)]
+    with tempfile.TemporaryDirectory() as tmp:
+        path = Path(tmp) / "two.json"
+        path.write_text(json.dumps(_coco(images, videos=[{"id": 0, "name": "A.MP4"}])))
+        assert len(read_video_json(path, "A.MP4")) == 4
