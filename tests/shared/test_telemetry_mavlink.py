@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import io
 import math
+import re
 import struct
 
 import numpy as np
@@ -195,7 +196,10 @@ def test_the_clock_after_its_last_jump_times_the_log_and_one_warning_gives_the_j
         records = parse_tlog(_tlog(packets))
     _same(records, flight)
     jumped = [r.getMessage() for r in caplog.records if "jumped" in r.getMessage()]
-    assert len(jumped) == 1 and all(f"by {step:+.3f} s" in jumped[0] for step in steps)
+    assert len(jumped) == 1
+    # the steps as measured from the microsecond stamps: 2.0555 reads +2.055 (hypothesis found the rounding edge)
+    said = [float(v) for v in re.findall(r"by ([+-]\d+\.\d+) s", jumped[0])]
+    assert said == pytest.approx(list(steps), abs=2e-3)
 
 
 @pytest.mark.parametrize("second_boot_ms", [BOOT_MS0 - 3_000, BOOT_MS0 - 5_037])  # on the first's 100 ms grid or not
