@@ -81,6 +81,7 @@ class UavRegistry:
         self._lock = threading.Lock()
         self._uavs: dict[str, _Uav] = {}
         self._tokens: OrderedDict[str, float] = OrderedDict()  # uav -> online since (wall), oldest first
+        self._token_rejected: dict[str, dict[str, int]] = {}  # token-only uav -> its dropped messages by reason
         self._dirty: set[str] = set()  # UAVs changed since the last drain_changes (persistence)
         self._forgotten: set[str] = set()
         self.tokens_evicted = 0
@@ -94,6 +95,7 @@ class UavRegistry:
                 if len(self._uavs) >= self.max_uavs:
                     return None
             entry = self._uavs[uav] = _Uav(online_since=self._tokens.get(uav))
+            entry.rejected.update(self._token_rejected.pop(uav, {}))  # what it had dropped while known by token
             self._forgotten.discard(uav)
         self._dirty.add(uav)
         return entry
@@ -113,6 +115,7 @@ class UavRegistry:
         with self._lock:
             if not online:
                 self._tokens.pop(uav, None)
+                self._token_rejected.pop(uav, None)
                 entry = self._uavs.get(uav)
                 if entry is not None:
                     entry.last_seen = now
@@ -136,6 +139,7 @@ class UavRegistry:
         if victim is None:
             return False
         del self._tokens[victim]
+        self._token_rejected.pop(victim, None)
         self.tokens_evicted += 1
         return True
 
@@ -179,11 +183,16 @@ class UavRegistry:
             entry.conflict_reported = False
 
     def rejected(self, uav: str, reason: str) -> None:
-        """Count a dropped message of a UAV that is already known (unknown ids are not added)."""
+        """Count a dropped message of a UAV that is known: by its messages, or by its liveliness token alone (a UAV
+        online whose every message is dropped, its clock minutes ahead, showed no rejection at all). A token-only
+        UAV's counts are kept apart (bounded by the tokens, gone with its token, never an entry that counts against
+        max_uavs or is persisted); other ids are not counted (a forged id costs nothing)."""
         with self._lock:
             entry = self._uavs.get(uav)
-            if entry is not None:
-                entry.rejected[reason] = entry.rejected.get(reason, 0) + 1
+            counts = entry.rejected if entry is not None else (
+                self._token_rejected.setdefault(uav, {}) if uav in self._tokens else None)
+            if counts is not None:
+                counts[reason] = counts.get(reason, 0) + 1
 
     def drain_changes(self) -> tuple[list[UavRecord], list[str]]:
         """UAVs changed since the last call (for persistence) and the ids forgotten since."""
@@ -258,7 +267,7 @@ class UavRegistry:
                     "rates": {kind: round(r[0], 3) for kind, r in rates.items()},
                     "bytes_per_s": round(sum(r[1] for r in rates.values()), 1),
                     "messages": dict(entry.counts),
-                    "rejected": dict(entry.rejected),
+                    "rejected": dict(entry.rejected) if uav in self._uavs else dict(self._token_rejected.get(uav, {})),
                     "sessions": sessions,
                     "conflict": len(sessions) > 1,
                 }

@@ -81,3 +81,24 @@ def test_a_rejection_is_counted_on_its_uav_and_logged_once_per_interval_with_the
     assert [r.getMessage() for r in caplog.records] == [
         f"gateway: dropped state message on {KEYS.uav_state('uav1')}: bad_version: v 2"]
 
+
+
+def test_a_uav_online_whose_every_message_is_dropped_shows_its_rejections():
+    """A drone whose clock runs 2 minutes ahead: every message dropped as t_in_future, yet its /v1/uavs row (known by
+    its liveliness token only) showed no rejection (a helper's live audit). Kept apart from the registry's entries:
+    such ids never count against max_uavs nor lock a real UAV out (the fourth read), and go with their token."""
+    registry = UavRegistry(max_uavs=2)
+    for uav in ("slow-1", "slow-2"):
+        registry.alive(uav, True)
+        for _ in range(3):
+            registry.rejected(uav, "t_in_future")
+    registry.rejected("nobody", "t_in_future")  # a forged id: not counted
+    rows = {row["id"]: row for row in registry.snapshot()}
+    assert rows["slow-1"]["rejected"] == {"t_in_future": 3} and rows["slow-1"]["online"] is True
+    assert "nobody" not in rows
+    assert registry.message("real", "tile", 100)  # two token-only ids took no place of a real UAV
+    assert [record.id for record in registry.drain_changes()[0]] == ["real"]  # nothing persisted for a token alone
+    assert registry.message("slow-1", "tile", 100)  # once it sends a valid message its counts come along
+    assert {row["id"]: row for row in registry.snapshot()}["slow-1"]["rejected"] == {"t_in_future": 3}
+    registry.alive("slow-2", False)
+    assert {row["id"]: row for row in registry.snapshot()}.get("slow-2") is None
