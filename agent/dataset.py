@@ -8,10 +8,10 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter, defaultdict
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -31,6 +31,8 @@ log = logging.getLogger(__name__)
 DEFAULT_FPS = 30.0
 #: Images with neither ``source.video`` nor ``video_id`` are split into videos where their clock jumps by
 #: more than this many seconds (and more than TIME_GAP_STEPS of their median step).
+K = TypeVar("K")
+
 TIME_GAP_S = 10.0
 TIME_GAP_STEPS = 20.0
 
@@ -179,6 +181,17 @@ def _source_video(im: dict) -> tuple[str, str] | None:
     return (drone.strip() if isinstance(drone, str) else "", video.strip())
 
 
+def _parse_time(text: Any) -> float | None:
+    """A date-time text as UNIX seconds; None when absent, unreadable or not finite."""
+    if not isinstance(text, str) or not text.strip():
+        return None
+    try:
+        t = parse_datetime(text)
+    except ValueError:
+        return None
+    return t if math.isfinite(t) else None
+
+
 def _image_time(im: dict) -> float | None:
     """An image's time for grouping: its own date_time, else its meta's; None when neither parses."""
     texts = [im.get("date_time")]
@@ -186,13 +199,7 @@ def _image_time(im: dict) -> float | None:
     if meta is not None:
         texts += [meta.get("date_time")] + [v for k, v in meta.items() if isinstance(k, str)
                                             and k.lower().startswith("datetime")]
-    for text in texts:
-        if isinstance(text, str) and text.strip():
-            try:
-                return parse_datetime(text)
-            except ValueError:
-                continue
-    return None
+    return next((t for t in map(_parse_time, texts) if t is not None), None)
 
 
 def _video_ids(images: list[dict], reserved: Iterable[int] = ()) -> dict[int, tuple[int, int | None]]:
@@ -221,15 +228,7 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = ()) -> dict[int, tu
             out[id(im)] = (vid, None if frame is None else _int({"frame_index": frame}, "frame_index"))
         else:
             loose.append(im)
-    own: dict[tuple[str, str], int] = {}  # a source video's own id from the file, where it is its alone
-    claims: dict[int, list[tuple[str, str]]] = defaultdict(list)
-    for key, group in named.items():
-        ids = {im.get("video_id") for im in group}
-        if len(ids) == 1 and isinstance(vid := next(iter(ids)), int) and not isinstance(vid, bool):
-            claims[vid].append(key)
-    for vid, keys in claims.items():
-        if len(keys) == 1:  # (images without a source that carry the same id join it: the file says so)
-            own[keys[0]] = vid
+    own = own_video_ids(named)  # (images without a source that carry the same id join it: the file says so)
     taken = used | set(own.values())
     next_id = max(taken) + 1 if taken else (1 if named else 0)  # a file of loose images alone: video 0, as before
     for key in sorted(named):
@@ -247,6 +246,17 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = ()) -> dict[int, tu
                 out[id(im)] = (next_id, _int(im, "frame_index") if frame is not None else (rank if timed else None))
             next_id += 1
     return _ranked_by_time(images, out)
+
+
+def own_video_ids(groups: Mapping[K, list[dict]]) -> dict[K, int]:
+    """The file's own ``video_id`` of each group of images (a ``source`` video) whose images all carry one integer id
+    that no other group carries (DESIGN 6's layout with v2's ``source`` kept); groups without one are absent."""
+    claims: dict[int, list[K]] = defaultdict(list)
+    for key, group in groups.items():
+        ids = {im.get("video_id") for im in group}
+        if len(ids) == 1 and isinstance(vid := next(iter(ids)), int) and not isinstance(vid, bool):
+            claims[vid].append(key)
+    return {keys[0]: vid for vid, keys in claims.items() if len(keys) == 1}
 
 
 def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) -> dict[int, tuple[int, int | None]]:
@@ -272,13 +282,7 @@ def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) 
 
 def _frame_date(im: dict) -> float | None:
     """An image's own ``date_time`` (the frame clock), None when absent or unreadable."""
-    text = im.get("date_time")
-    if isinstance(text, str) and text.strip():
-        try:
-            return parse_datetime(text)
-        except ValueError:
-            return None
-    return None
+    return _parse_time(im.get("date_time"))
 
 
 def _split_by_time(images: list[dict]) -> list[list[dict]]:
@@ -435,13 +439,7 @@ def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto") -> tuple
 
 
 def _frame_clock(image: ImageRecord) -> float | None:
-    if not image.date_time:
-        return None
-    try:
-        t = parse_datetime(image.date_time)
-    except ValueError:
-        return None
-    return t if math.isfinite(t) else None
+    return _parse_time(image.date_time)
 
 
 def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: float = DEFAULT_FPS,

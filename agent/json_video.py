@@ -29,7 +29,7 @@ from pathlib import Path
 from typing import Any
 
 from shared.telemetry import Telemetry
-from shared.telemetry.seadronessee import parse_seadronessee_coco
+from shared.telemetry.seadronessee import parse_seadronessee_coco, video_of
 from shared.telemetry.text import read_text
 
 __all__ = ["MAX_SPREAD_S", "on_video_frames", "read_video_json"]
@@ -38,11 +38,6 @@ __all__ = ["MAX_SPREAD_S", "on_video_frames", "read_video_json"]
 MAX_SPREAD_S = 2.0
 
 log = logging.getLogger("agent.sources")  # the video source's messages, under its name
-
-
-def _video_of(image: Mapping[str, Any]) -> Any:
-    src = image.get("source")
-    return src["video"] if isinstance(src, Mapping) and src.get("video") is not None else image.get("video_id")
 
 
 def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetry]:
@@ -56,26 +51,22 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
     images = coco.get("images") if isinstance(coco, Mapping) else None
     if not isinstance(images, list) or not all(isinstance(im, Mapping) for im in images):
         return parse_seadronessee_coco(coco, source=str(path))  # its own error for a file that is no COCO
-    ids = {repr(v): v for v in (_video_of(im) for im in images)}
+    ids = {repr(v): v for v in (video_of(im) for im in images)}
     if len(ids) <= 1 or video is None:
         return parse_seadronessee_coco(coco, source=str(path))
     names = {v["id"]: v.get("name") for v in coco.get("videos") or [] if isinstance(v, Mapping) and "id" in v}
     stem = Path(str(video)).stem.lower()
     # a video's names: its source.video, and the `videos` entry of the video_id its images carry (as agent.dataset)
     # (only where all of a video's images carry one id that no other video claims, as agent.dataset decides)
-    listed: dict[str, set[str]] = {}
-    carried: dict[str, set[Any]] = {}
+    from agent.dataset import own_video_ids
+
+    groups: dict[str, list[Mapping[str, Any]]] = {}
     for im in images:
-        vid = _video_of(im)
-        listed.setdefault(repr(vid), {Path(str(names.get(vid, vid))).stem.lower()})
-        carried.setdefault(repr(vid), set()).add(im.get("video_id"))
-    claims: dict[Any, list[str]] = {}
-    for key, own in carried.items():
-        if len(own) == 1 and isinstance(vid_id := next(iter(own)), int) and not isinstance(vid_id, bool):
-            claims.setdefault(vid_id, []).append(key)
-    for vid_id, keys in claims.items():
-        if len(keys) == 1 and isinstance(names.get(vid_id), str):
-            listed[keys[0]].add(Path(names[vid_id]).stem.lower())
+        groups.setdefault(repr(video_of(im)), []).append(im)
+    listed = {key: {Path(str(names.get(ids[key], ids[key]))).stem.lower()} for key in groups}
+    for key, vid_id in own_video_ids(groups).items():
+        if isinstance(names.get(vid_id), str):
+            listed[key].add(Path(names[vid_id]).stem.lower())
     matching = [vid for key, vid in ids.items() if stem in listed[key]]
     if len(matching) != 1:
         shown = ", ".join(sorted({str(names.get(v, v)) for v in ids.values()})[:12])

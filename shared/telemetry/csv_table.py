@@ -12,7 +12,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from shared.telemetry.dates import DATETIME_RE, parse_datetime
+from shared.telemetry.dates import DATETIME_RE, parse_datetime, truncated_date_offset
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, pitch_or_none
 from shared.telemetry.text import NUM_RE, read_text
@@ -361,9 +361,8 @@ def date_offset(dates: list[float], times: list[float]) -> float:
     first = dates[0] - times[0]
     if len(set(dates)) == len(dates) or any(d != math.floor(d) for d in dates):
         return first
-    gaps = [d - t for d, t in zip(dates, times, strict=True)]
-    lo, hi = max(gaps), min(gaps) + 1.0
-    return 0.5 * (lo + hi) if lo < hi else first
+    offset = truncated_date_offset([d - t for d, t in zip(dates, times, strict=True)])
+    return first if offset is None else offset
 
 
 def _seconds(values: list[float], column: _CsvColumn, source: str, *, warn: bool = True) -> list[float]:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
 
 # 2020-08-24T15:45:20 | 2017.07.29 15:18:50 | 2020:08:24 15:45:20 (EXIF) | 2022-08-07 13:40:40,774,808 (DJI ms,us)
@@ -66,3 +67,11 @@ def format_datetime(t: float) -> str:
     except OverflowError as err:
         raise ValueError(f"t={t!r} cannot be written as a date: {err}") from None
     return stamp.replace(tzinfo=None).isoformat(timespec="microseconds")
+
+
+def truncated_date_offset(gaps: Sequence[float]) -> float | None:
+    """The offset c with floor(c + time) = date for every row, from its date - time gaps (dates truncated to whole
+    seconds beside a finer clock): the middle of the offsets all of them allow; None when truncation does not
+    explain them (rounded dates, a start date on every row)."""
+    lo, hi = max(gaps), min(gaps) + 1.0
+    return 0.5 * (lo + hi) if lo < hi else None

@@ -419,6 +419,13 @@ def to_seadronessee_meta(
     } | ({} if tel.hfov_deg is None else {"hfov_deg": tel.hfov_deg})
 
 
+def video_of(image: Mapping[str, Any]) -> Any:
+    """The video an image of a SeaDronesSee COCO file is of: ``source.video`` (Object Detection v2), else
+    ``video_id``."""
+    src = image.get("source")
+    return src["video"] if isinstance(src, Mapping) and src.get("video") is not None else image.get("video_id")
+
+
 def parse_seadronessee_coco(
     coco: Mapping[str, Any], *, video_id: Any = None, source: str = "<json>", utc_offset_s: float = 0.0
 ) -> list[Telemetry]:
@@ -454,10 +461,6 @@ def parse_seadronessee_coco(
     for image in images:
         if not isinstance(image, Mapping):
             raise ValueError(f"{source}: images must be objects, got {image!r:.80}")
-    def video_of(image: Mapping[str, Any]) -> Any:
-        src = image.get("source")  # SeaDronesSee Object Detection v2: source.video (and source.frame_no)
-        return src["video"] if isinstance(src, Mapping) and src.get("video") is not None else image.get("video_id")
-
     videos = sorted({repr(video_of(image)) for image in images})
     if video_id is None and len(videos) > 1:
         raise ValueError(f"{source}: holds {len(videos)} videos ({', '.join(videos[:10])}): pass video_id")

@@ -10,6 +10,8 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 
+from shared.telemetry.dates import truncated_date_offset
+
 #: Date steps and subtitle-timing steps further apart than this disagree (DJI date lines of the oldest
 #: firmware have whole seconds only, so 1 s of difference is normal).
 CLOCK_TOLERANCE_S = 1.5
@@ -104,8 +106,9 @@ def _refine_whole_second_dates(run: list[int], blocks: Sequence[BlockTimes], val
             or any(b < a for a, b in zip(starts, starts[1:], strict=False)):  # type: ignore[operator]
         return  # (a timing that steps back inside the run would make the times go back: the dates stay)
     gaps = [d - st for d, st in zip(dates, starts, strict=True) if st is not None]
-    lo, hi = max(gaps), min(gaps) + 1.0
-    c = 0.5 * (lo + hi) if lo < hi else sorted(gaps)[len(gaps) // 2] + 0.5
+    c = truncated_date_offset(gaps)
+    if c is None:
+        c = sorted(gaps)[len(gaps) // 2] + 0.5
     for i, st in zip(run, starts, strict=True):
         assert st is not None
         values[i] = c + st

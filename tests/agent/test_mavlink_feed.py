@@ -3,11 +3,13 @@ SYSTEM_TIME ignored, a later jump of the vehicle's clock warned about while the 
 
 from __future__ import annotations
 
+import threading
+
 import pytest
 
 from shared.telemetry import Telemetry
 from tests.netutil import free_udp_port, wait_until
-from tests.shared.mavlink_writer import flight_packets, replay_udp
+from tests.shared.mavlink_writer import flight_packets, port_is_bound, replay_udp
 
 pytest.importorskip("pymavlink")
 
@@ -111,6 +113,15 @@ def _paced(packets, port: int, t0: float) -> None:
             sock.sendto(packet, ("127.0.0.1", port))
 
 
+def _start_while_paced(feed, packets) -> None:
+    """Start the feed while a thread sends the packets at their times (they start before it is anchored)."""
+    wait_until(lambda: port_is_bound(feed.port), 10.0, "the feed's port")
+    sender = threading.Thread(target=_paced, args=(packets, feed.port, T0))
+    sender.start()
+    feed.start(timeout_s=5.0, anchor_wait_s=0.5)
+    sender.join()
+
+
 def _rebooting_flight(*, new_boot_system_time: bool):
     before = _flight(15, T0)  # 1.4 s at boot 100 s
     after = _flight(16, T0 + 2.5)  # rebooted: 1.1 s of silence, then 1.5 s from boot 4 s
@@ -135,17 +146,9 @@ def test_a_reboot_mid_flight_puts_the_new_boots_positions_at_their_time(quick_fe
     """Before: the new boot's positions (boot time 4 s) landed 96 s in the past, and every frame after the reboot had
     no pose until the agent restarted. Now they continue the clock: from the vehicle's SYSTEM_TIME of the new boot
     (exact), else from the receive times (within the loopback's latency jitter)."""
-    import threading
-
-    from tests.shared.mavlink_writer import port_is_bound
-
     before, after, packets = _rebooting_flight(new_boot_system_time=new_boot_system_time)
-    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
-    sender = threading.Thread(target=_paced, args=(packets, quick_feed.port, T0))
     with caplog.at_level("WARNING"):
-        sender.start()
-        quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
-        sender.join()
+        _start_while_paced(quick_feed, packets)
         wait_until(lambda: quick_feed.reboots == 1, 5.0, "the reboot confirmed")
     records = wait_until(lambda: len(quick_feed.records()) == len(before) + len(after) and quick_feed.records(), 5.0,
                          "both boots' records")
@@ -165,20 +168,12 @@ def test_a_reboot_mid_flight_puts_the_new_boots_positions_at_their_time(quick_fe
 def test_old_positions_received_late_while_the_stream_goes_on_are_no_reboot(quick_feed, caplog):
     """A second link with more latency repeats the first 0.5 s 4 s later (more than REBOOT_S behind the boot's latest
     time): they join the boot they are of once its stream goes on."""
-    import threading
-
-    from tests.shared.mavlink_writer import port_is_bound
-
     flight = _flight(46, T0)
     packets = flight_packets(flight, boot_ms0=100_000)
     late = [(t + 4.0, p) for t, p in packets if t < T0 + 0.5]
     schedule = sorted(packets + late, key=lambda item: item[0])
-    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
-    sender = threading.Thread(target=_paced, args=(schedule, quick_feed.port, T0))
     with caplog.at_level("WARNING"):
-        sender.start()
-        quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
-        sender.join()
+        _start_while_paced(quick_feed, schedule)
     wait_until(lambda: quick_feed.late_repeats >= 1, 5.0, "the repeat taken back")
     assert quick_feed.reboots == 0
     records = wait_until(lambda: len(quick_feed.records()) == len(flight) and quick_feed.records(), 5.0, "the records")
@@ -189,18 +184,11 @@ def test_old_positions_received_late_while_the_stream_goes_on_are_no_reboot(quic
 def test_a_frame_waiting_for_positions_does_not_stall_while_a_reboot_is_pending(quick_feed):
     """While the new boot is not yet confirmed no record of the old boot will come: wait_for returns at once instead
     of its timeout per frame (a 10 fps agent would fall 5 s behind a frame)."""
-    import threading
     import time
-
-    from tests.shared.mavlink_writer import port_is_bound
 
     quick_feed.reboot_confirm_s = 60.0  # the reboot stays pending for this test
     _before, _after, packets = _rebooting_flight(new_boot_system_time=False)
-    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
-    sender = threading.Thread(target=_paced, args=(packets, quick_feed.port, T0))
-    sender.start()
-    quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
-    sender.join()
+    _start_while_paced(quick_feed, packets)
     wait_until(lambda: quick_feed._pending is not None, 5.0, "the pending boot")
     began = time.monotonic()
     quick_feed.wait_for(T0 + 3.0, T0 + 3.1, timeout_s=30.0, idle_s=30.0)
@@ -211,19 +199,11 @@ def test_a_frame_waiting_for_positions_does_not_stall_while_a_reboot_is_pending(
 def test_an_earlier_boots_positions_received_after_the_reboot_do_not_join_the_new_boot(quick_feed):
     """Old positions (boot 100.5 s) from a second, slower link arrive after the reboot was confirmed: their boot time
     is 96 s ahead of the new boot's, and filed under it they were records 96 s in the future."""
-    import threading
-
-    from tests.shared.mavlink_writer import port_is_bound
-
     before, after, packets = _rebooting_flight(new_boot_system_time=False)
     more = _flight(10, T0 + 4.1)
     stragglers = [(T0 + 4.05, p) for t, p in flight_packets(before, boot_ms0=100_000) if T0 + 0.5 <= t < T0 + 0.8]
     schedule = packets + stragglers + flight_packets(more, boot_ms0=5_600, system_time=False)
-    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
-    sender = threading.Thread(target=_paced, args=(schedule, quick_feed.port, T0))
-    sender.start()
-    quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
-    sender.join()
+    _start_while_paced(quick_feed, schedule)
     truth = before + after + more
     records = wait_until(lambda: len(quick_feed.records()) >= len(truth) and quick_feed.records(), 5.0, "the records")
     assert quick_feed.reboots == 1
@@ -234,19 +214,11 @@ def test_an_earlier_boots_positions_received_after_the_reboot_do_not_join_the_ne
 def test_the_rebooted_autopilots_first_unix_time_after_confirmation_is_no_clock_jump(quick_feed, caplog):
     """The UNIX time comes back with GPS, after the reboot was confirmed: it was warned as a jump of +98.5 s that
     would put a --telemetry-offset-s off by as much, though the records were placed right."""
-    import threading
-
-    from tests.shared.mavlink_writer import port_is_bound
-
     before, after, packets = _rebooting_flight(new_boot_system_time=False)
     late = T0 + 3.9  # 1.4 s into the new boot, past the 1 s confirmation
     packets = sorted(packets + [(late, _system_time(1, 1, late, 4_000 + 1_400))], key=lambda item: item[0])
-    wait_until(lambda: port_is_bound(quick_feed.port), 10.0, "the feed's port")
-    sender = threading.Thread(target=_paced, args=(packets, quick_feed.port, T0))
     with caplog.at_level("WARNING"):
-        sender.start()
-        quick_feed.start(timeout_s=5.0, anchor_wait_s=0.5)
-        sender.join()
+        _start_while_paced(quick_feed, packets)
         records = wait_until(lambda: len(quick_feed.records()) == len(before) + len(after) and quick_feed.records(),
                              5.0, "both boots' records")
     assert quick_feed.reboots == 1 and "jumped by" not in caplog.text
