@@ -21,6 +21,7 @@ import numpy as np
 import zenoh
 from numpy.typing import NDArray
 
+from agent.joint_clock import MAX_CLOCK_SKEW_S, JointClock
 from agent.joint_window import JointWindowSubscriptions
 from agent.partner_clocks import PartnerClocks
 from agent.shard_routing import ShardRouting
@@ -55,8 +56,6 @@ MAX_JOINT_TRACKS_BYTES = 8 * 1024 * 1024
 _CONNECTIVITY_CHECK_S = 0.5
 #: Warn when the session has reached no router or peer for this long (a dead or mistyped --connect).
 ALONE_WARN_S = 5.0
-#: A joint message whose t is further ahead of this clock is dropped ("t_in_future"), seconds.
-MAX_CLOCK_SKEW_S = 30.0
 #: A joint tile not newer (by seq and t) than the held one is stale only within this long of the held
 #: one's arrival (a late query reply); later it replaces it, so one forged tile with a huge seq
 #: cannot block the server's real ones.
@@ -163,6 +162,7 @@ class AgentLink:
         self._footprints: dict[str, tuple[tuple[tuple[float, float], ...], float]] = {}
         self._footprints_pending: set[str] = set()
         self.partner_clocks = PartnerClocks()  # the other UAVs' source clocks (AgentSettings.replay_sync_s)
+        self.joint_clock = JointClock(MAX_CLOCK_SKEW_S)  # how far the joint messages' clock leads this one
         self._counts: Counter[str] = Counter()
         self._bytes: Counter[str] = Counter()
         self._rejects: Counter[str] = Counter()
@@ -450,8 +450,9 @@ class AgentLink:
             return None
 
     def _in_future(self, key: str, t: float) -> bool:
-        """Whether a joint message's t is ahead of this clock by more than MAX_CLOCK_SKEW_S (rejected)."""
-        if t > time.time() + MAX_CLOCK_SKEW_S:
+        """Whether a joint message's t is ahead of this clock (and the lead agent.joint_clock adopted) by more
+        than MAX_CLOCK_SKEW_S (rejected)."""
+        if not self.joint_clock.accepts(t):
             self._reject("t_in_future", key, f"t {t!r:.30} is ahead of this clock")
             return True
         return False
@@ -588,12 +589,9 @@ class AgentLink:
 
     def stats(self) -> dict[str, Any]:
         """Counters: messages and bytes sent per kind, joint messages received, rejects by reason,
-        publishers declared, joint tiles held."""
+        publishers declared, joint tiles held, the joint messages' clock lead adopted (agent.joint_clock)."""
         with self._lock:
-            return {
-                "counts": dict(self._counts),
-                "bytes": dict(self._bytes),
-                "rejected": dict(self._rejects),
-                "publishers": 0 if self._publishers is None else len(self._publishers),
-                "joint_tiles_held": len(self._joint_tiles),
-            }
+            return {"counts": dict(self._counts), "bytes": dict(self._bytes), "rejected": dict(self._rejects),
+                    "publishers": 0 if self._publishers is None else len(self._publishers),
+                    "joint_tiles_held": len(self._joint_tiles),
+                    "joint_clock_lead_s": round(self.joint_clock.lead_s, 3)}

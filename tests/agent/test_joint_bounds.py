@@ -83,3 +83,22 @@ def test_the_joint_layer_holds_at_most_max_tiles_newest_first():
     assert len(layer) == 5
     assert layer.values_at("person", [(X + 8) * GRID.n], [Y * GRID.n], now=201.0)[0] == pytest.approx(0.5)
     assert layer.values_at("person", [(X + 7) * GRID.n], [Y * GRID.n], now=201.0)[0] == 0.0  # evicted
+
+
+def test_an_agent_whose_clock_is_minutes_behind_takes_the_joint_map_once_the_lead_is_steady(link_and_server):
+    # probe: a companion computer 2 minutes behind the server dropped every joint message (t_in_future)
+    link, server = link_and_server
+    seq = 1
+    deadline = time.monotonic() + 10.0
+    while held_value(link) is None and time.monotonic() < deadline:
+        seq += 1
+        server.put(*joint_tile(0.7, t=time.time() + 120.0, seq=seq))
+        time.sleep(0.4)
+    stats = link.stats()
+    assert 4 <= stats["rejected"]["t_in_future"] <= 8  # rejected until five over 2 s confirmed the lead
+    assert stats["joint_clock_lead_s"] == pytest.approx(120.0, abs=1.0)
+    server.put(*joint_tile(0.9, t=time.time() + 121.0, seq=seq + 1))
+    assert wait_until(lambda: held_value(link)) == pytest.approx(0.9, abs=0.01)
+    server.put(*joint_tile(0.3, t=1e300, seq=seq + 2))  # an absurd stamp is still refused
+    wait_until(lambda: link.stats()["rejected"]["t_in_future"] == stats["rejected"]["t_in_future"] + 1)
+    assert held_value(link) is None

@@ -1,0 +1,70 @@
+"""How far the joint messages' clock leads this machine's: a companion computer without a real-time clock
+or NTP can boot minutes to years behind, and every joint message would look like it came from the future.
+
+The joint side's times are the fusion server's wall clock (joint tracks, emptied tiles) and the UAVs'
+source clocks (a tile carries its newest contributor's t), which the server keeps within its own clock
+skew. A message ahead of this clock by more than the skew is rejected (``t_in_future``: a corrupt or
+forged t); when such messages keep coming, at least CONFIRM_MESSAGES over CONFIRM_S of receive time and
+all of them ahead, this clock is taken to be behind by the smallest lead among them, which from then on
+is added to this clock before the skew check (warned once per step, and in the agent's summary). One
+message ahead, or a few within a moment, never moves it; the lead only grows (a clock set right later
+just leaves the check looser by the lead), and is bounded by MAX_LEAD_S so an absurd t (1e300) stays
+rejected.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+
+__all__ = ["CONFIRM_MESSAGES", "CONFIRM_S", "MAX_CLOCK_SKEW_S", "MAX_LEAD_S", "JointClock"]
+
+log = logging.getLogger(__name__)
+
+#: A joint message whose t is further ahead of this clock (plus the lead) is dropped ("t_in_future"), seconds.
+MAX_CLOCK_SKEW_S = 30.0
+#: Messages ahead of the skew needed before this clock is taken to be behind.
+CONFIRM_MESSAGES = 5
+#: ...over at least this much receive time (s), within the last EVIDENCE_S.
+CONFIRM_S = 2.0
+EVIDENCE_S = 10.0
+#: A lead beyond this (s, ~100 years) is no clock's: such messages stay rejected.
+MAX_LEAD_S = 3.2e9
+
+
+class JointClock:
+    """Thread-safe: ``accepts(t)`` from the Zenoh callbacks. ``lead_s``: the lead adopted (0 until then)."""
+
+    def __init__(self, skew_s: float, *, wall: Callable[[], float] = time.time,
+                 monotonic: Callable[[], float] = time.monotonic) -> None:
+        self.skew_s = float(skew_s)
+        self.lead_s = 0.0
+        self._wall = wall
+        self._monotonic = monotonic
+        self._lock = threading.Lock()
+        self._ahead: deque[tuple[float, float]] = deque()  # (receive monotonic, lead) of rejected messages
+
+    def accepts(self, t: float) -> bool:
+        """Whether a joint message stamped t is not ahead of this clock (plus the lead adopted) by more than
+        the skew; a rejected one counts as evidence that this clock is behind."""
+        lead = t - self._wall()
+        with self._lock:
+            if lead <= self.lead_s + self.skew_s:
+                return True
+            if not math.isfinite(lead) or lead > MAX_LEAD_S:
+                return False
+            now = self._monotonic()
+            self._ahead.append((now, lead))
+            while self._ahead and now - self._ahead[0][0] > EVIDENCE_S:
+                self._ahead.popleft()
+            if len(self._ahead) < CONFIRM_MESSAGES or now - self._ahead[0][0] < CONFIRM_S:
+                return False
+            self.lead_s = min(lead for _, lead in self._ahead)
+            self._ahead.clear()
+        log.warning("the joint messages run %.0f s ahead of this machine's clock (no RTC or NTP?): taken as this "
+                    "clock's lead from now on; set this machine's clock", self.lead_s)
+        return True
