@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import contextlib
 import io
+import math
+from collections import Counter
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
@@ -24,11 +26,63 @@ def _load_json(obj: Any, what: str) -> Any:
 
 
 def load_images(images_json: str | Path | dict[str, Any]) -> dict[str, Any]:
-    """A COCO ground truth (dict, or path to its JSON) with 'images' and 'annotations'; ValueError otherwise."""
+    """A COCO ground truth (dict, or path to its JSON) with 'images' and 'annotations'; ValueError otherwise, and for
+    an annotation pycocotools would misread (see `_checked_annotations`)."""
     gt = _load_json(images_json, "images")
     if not isinstance(gt, dict) or "images" not in gt or "annotations" not in gt:
         raise ValueError("images JSON must be a COCO dict with 'images' and 'annotations'")
-    return gt
+    annotations = _checked_annotations(gt)
+    return gt if annotations is gt["annotations"] else {**gt, "annotations": annotations}
+
+
+def _integer(value: Any) -> int | None:
+    """An id as an int: an int, or an integral number or numeric string ("3464", as the candidate loader reads)."""
+    if isinstance(value, bool):
+        return None
+    if isinstance(value, int):
+        return value
+    try:
+        number = float(value) if isinstance(value, (float, str)) else math.nan
+    except ValueError:
+        return None
+    return int(number) if math.isfinite(number) and number == int(number) else None
+
+
+def _checked_annotations(gt: dict[str, Any]) -> list[Any]:
+    """The annotations with integer ``image_id`` / ``category_id`` (numeric strings read as numbers: pycocotools
+    matched none of them and every class scored 0) and ``bbox`` as 4 finite numbers of non-negative size; the list
+    itself when nothing needed converting. ValueError naming the first annotation otherwise (a missing or short
+    bbox was a pycocotools traceback, a negative size a box it silently ignores), or a category_id the file does
+    not list."""
+    annotations = gt["annotations"]
+    if not isinstance(annotations, list):
+        raise ValueError("images JSON: 'annotations' must be a list")
+    listed = {_integer(c.get("id")) for c in gt.get("categories") or [] if isinstance(c, dict)}
+    out, changed = [], False
+    for i, a in enumerate(annotations):
+        where = f"images JSON: annotation {i}"
+        if not isinstance(a, dict):
+            raise ValueError(f"{where} is not an object")
+        image_id, category_id = _integer(a.get("image_id")), _integer(a.get("category_id"))
+        if image_id is None or category_id is None:
+            bad = "image_id" if image_id is None else "category_id"
+            raise ValueError(f"{where} (id {a.get('id')!r}): {bad} {a.get(bad)!r} is not an integer")
+        if listed and category_id not in listed:
+            raise ValueError(f"{where} (id {a.get('id')!r}): category_id {category_id} is not in 'categories'")
+        box = a.get("bbox")
+        try:
+            numbers = [float(v) for v in box] if isinstance(box, (list, tuple)) and not isinstance(box, str) else []
+        except (TypeError, ValueError):
+            numbers = []
+        if len(numbers) != 4 or not all(map(math.isfinite, numbers)) or numbers[2] < 0 or numbers[3] < 0:
+            raise ValueError(f"{where} (id {a.get('id')!r}): bbox {box!r:.80} is not [x, y, w, h] of finite numbers "
+                             "with w, h >= 0")
+        if (image_id is not a["image_id"] or category_id is not a["category_id"]
+                or any(type(v) is not float and type(v) is not int for v in box)):
+            a = {**a, "image_id": image_id, "category_id": category_id, "bbox": numbers}
+            changed = True
+        out.append(a)
+    return out if changed else annotations
 
 
 def load_results(results: str | Path | Sequence[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -108,6 +162,14 @@ def coco_detection_metrics(images_json: str | Path | dict[str, Any],
     return {"AP50": stats[1], "AP": stats[0], "AR100": stats[8]}
 
 
+def _row_names(categories: list[dict[str, Any]]) -> dict[int, str]:
+    """Category id -> its row's name: the category's name, with the id beside it where two categories share a name or
+    one is named "all" (rows are keyed by name: one would have overwritten the other, or the overall row)."""
+    names = {int(c["id"]): str(c.get("name", c["id"])) for c in categories}
+    seen = Counter(names.values())
+    return {cid: f"{name} ({cid})" if seen[name] > 1 or name == "all" else name for cid, name in names.items()}
+
+
 def per_class_metrics(images_json: str | Path | dict[str, Any],
                       results: str | Path | Sequence[dict[str, Any]], *,
                       image_ids: Iterable[int] | None = None) -> dict[str, dict[str, float]]:
@@ -124,7 +186,7 @@ def per_class_metrics(images_json: str | Path | dict[str, Any],
     ids = sorted({int(i["id"]) for i in gt["images"]}) if image_ids is None else sorted({int(i) for i in image_ids})
     id_set = set(ids)
     res = [r for r in res if int(r["image_id"]) in id_set]
-    names = {int(c["id"]): str(c["name"]) for c in gt.get("categories", [])}
+    names = _row_names(gt.get("categories", []))
     counts: dict[int, int] = {}
     for a in gt["annotations"]:
         if int(a["image_id"]) in id_set and not a.get("iscrowd", 0):

@@ -88,21 +88,32 @@ def prenms_recall(images_json: str | Path | dict[str, Any], candidates: str | Pa
     return matched / len(anns)
 
 
+def _inside_fraction(a_xywh: np.ndarray, b_xywh: np.ndarray) -> np.ndarray:
+    """(A, B) intersection of COCO boxes a with boxes b over a's area: COCO's IoU against a crowd box."""
+    lt = np.maximum(a_xywh[:, None, :2], b_xywh[None, :, :2])
+    rb = np.minimum(a_xywh[:, None, :2] + a_xywh[:, None, 2:], b_xywh[None, :, :2] + b_xywh[None, :, 2:])
+    inter = np.prod(np.clip(rb - lt, 0.0, None), axis=2)
+    return inter / np.maximum(a_xywh[:, 2] * a_xywh[:, 3], 1e-12)[:, None]
+
+
 def pr_curve(images_json: str | Path | dict[str, Any], results: str | Path | Sequence[dict[str, Any]],
              iou: float = 0.5) -> dict[str, np.ndarray]:
     """Precision-recall curve at one IoU: arrays over detections sorted by score (descending).
 
-    Greedy one-to-one matching per image and class in score order (as COCO does). Returns
+    Greedy one-to-one matching per image and class in score order (as COCO does; a detection left unmatched inside
+    a crowd box of its class is ignored, as COCO does). Returns
     {"scores", "precision", "recall"}, each (D,) float64; recall is NaN without ground truth.
     """
     gt = load_images(images_json)
     dets = list(load_results(results))
     anns = [a for a in gt["annotations"] if not a.get("iscrowd", 0)]
     gt_by_image = _group_by_image([{**a, "score": 1.0} for a in anns])
+    crowd_by_image = _group_by_image([{**a, "score": 1.0} for a in gt["annotations"] if a.get("iscrowd", 0)])
     all_scores: list[np.ndarray] = []
     all_tp: list[np.ndarray] = []
     for image_id, (d_boxes, d_scores, d_cats) in _group_by_image(dets).items():
         tp = np.zeros(len(d_scores), dtype=bool)
+        keep = np.ones(len(d_scores), dtype=bool)
         if image_id in gt_by_image:
             g_boxes, _, g_cats = gt_by_image[image_id]
             ious = _iou_matrix(d_boxes, g_boxes)
@@ -113,8 +124,13 @@ def pr_curve(images_json: str | Path | dict[str, Any], results: str | Path | Seq
                 j = int(np.argmax(cand)) if len(cand) else -1
                 if j >= 0 and cand[j] >= iou:
                     taken[j] = tp[i] = True
-        all_scores.append(d_scores)
-        all_tp.append(tp)
+        if image_id in crowd_by_image:  # an unmatched detection inside a crowd region of its class: ignored (COCO)
+            c_boxes, _, c_cats = crowd_by_image[image_id]
+            ioa = _inside_fraction(d_boxes, c_boxes)
+            ioa[d_cats[:, None] != c_cats[None, :]] = 0.0
+            keep = tp | ~(ioa >= iou).any(axis=1)
+        all_scores.append(d_scores[keep])
+        all_tp.append(tp[keep])
     scores = np.concatenate(all_scores) if all_scores else np.zeros(0)
     tps = np.concatenate(all_tp) if all_tp else np.zeros(0, dtype=bool)
     order = np.argsort(-scores, kind="stable")

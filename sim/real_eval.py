@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 import time
 from pathlib import Path
 from typing import Any
@@ -45,11 +46,31 @@ def _numeric_results(raw: Any) -> list[dict[str, Any]]:
     out = []
     for r in raw:
         try:
-            out.append({**r, "image_id": int(r["image_id"]), "category_id": int(r["category_id"]),
-                        "score": float(r["score"]), "bbox": [float(v) for v in r["bbox"]]})
+            entry = {**r, "image_id": int(r["image_id"]), "category_id": int(r["category_id"]),
+                     "score": float(r["score"]), "bbox": [float(v) for v in r["bbox"]]}
         except (KeyError, TypeError, ValueError):
             continue
+        box = entry["bbox"]
+        # the candidate loader's own rule: the detector is scored on the entries every variant gets
+        if len(box) == 4 and all(math.isfinite(v) for v in box) and box[2] > 0 and box[3] > 0:
+            out.append(entry)
     return out
+
+
+def _check_scores(candidates: Candidates, raw: Any, source: str | Path) -> None:
+    """Refuse a detections file whose scores the pipeline would drop (outside [0, 1]): the variants would be scored on
+    a part of what the detector is scored on (611 boosted scores above 1 read as boat 86.2 -> 27.4)."""
+    bad = candidates.skipped.get("score_out_of_range", 0)
+    if not bad:
+        return
+    scores = [r["score"] for r in raw if isinstance(r, dict) and isinstance(r.get("score"), (int, float))]
+    outside = [v for v in scores if not 0.0 <= v <= 1.0]
+    hint = (" (percentages? divide them by 100)" if outside and max(outside) <= 100.0 and min(scores) >= 0.0
+            and sum(v > 1.0 for v in scores) > len(scores) / 2 else
+            " (a detector's confidences are in [0, 1]; `uavmm detect`'s boosted scores are not a detector's output)")
+    first = f": e.g. {outside[0]!r}" if outside else ""
+    raise ValueError(f"{source}: {bad} of the detections have a score outside [0, 1]{first}; the pipeline would "
+                     f"drop them, and the detector would be scored on more than the variants{hint}")
 
 
 def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_spec: str | Path, *,
@@ -67,7 +88,9 @@ def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_s
     dataset = Dataset.from_dict(coco, source=str(images_path))
     candidates = Candidates.load(detections_path, dataset)
     camera = Camera.from_spec(camera_spec)
-    raw = _numeric_results(read_json(detections_path, "detections"))
+    raw = read_json(detections_path, "detections")
+    _check_scores(candidates, raw, detections_path)
+    raw = _numeric_results(raw)
     ours = config or PipelineConfig()
     variants = {MEMORY_OFF: dataclasses.replace(ours, use_memory=False), OURS: ours, PAPER: paper_rule_config()}
     if terrain is not None:
@@ -95,7 +118,8 @@ def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_s
               "frames": ours_stats["frames"], "videos": len(dataset.videos),
               "frames_without_pose": ours_stats["frames_without_pose"],
               "frames_without_pose_by_reason": ours_stats["frames_without_pose_by_reason"],
-              "rows": rows, "stages": ours_stats["stages"], "seconds": round(time.perf_counter() - t0, 2)}
+              "skipped_detections": {k: v for k, v in candidates.skipped.items() if v}, "rows": rows,
+              "stages": ours_stats["stages"], "seconds": round(time.perf_counter() - t0, 2)}
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
         (out_dir / "report.json").write_text(json.dumps(report, indent=1))
@@ -115,6 +139,10 @@ def markdown_real_report(report: dict[str, Any]) -> str:
         cells = [f"{row[f'AP50 {n}']:.1f} / {row[f'AR100 {n}']:.1f}" for n in names]
         lines.append(f"| {row['class']} | {row['gt']} | " + " | ".join(cells)
                      + f" | {row['gain']:+.1f} | {row['paper gain']:+.1f} |")
+    skipped = report.get("skipped_detections") or {}
+    if skipped:
+        lines += ["", "Detections skipped by every column (the detector's too): "
+                  + ", ".join(f"{k} {v}" for k, v in skipped.items())]
     reasons = report.get("frames_without_pose_by_reason") or {}
     if reasons:
         lines += ["", "Frames without pose: " + ", ".join(f"{k} {v}" for k, v in reasons.items())]

@@ -265,6 +265,12 @@ def _coordinate(annotation: dict[str, Any], key: str) -> float:
     return float(value) if isinstance(value, (int, float)) and not isinstance(value, bool) else float("nan")
 
 
+def _matchable(iou: np.ndarray) -> np.ndarray:
+    """IoU with pairs below MATCH_IOU zeroed before the assignment, as TrackEval does: a pair too weak to match must
+    not steer which boxes the others take (a hidden object's 0.4 pair took a visible one's box, HOTA 63.2 -> 47.4)."""
+    return np.where(iou >= MATCH_IOU - np.finfo(float).eps, iou, 0.0)
+
+
 def drop_ignored(truth: SequenceTruth, tracks: SequenceTracks) -> SequenceTracks:
     """Remove tracker boxes that match a hidden object rather than a visible one (TrackEval's
     MOTChallenge preprocessing for distractors: Hungarian on IoU >= MATCH_IOU over all objects)."""
@@ -277,9 +283,9 @@ def drop_ignored(truth: SequenceTruth, tracks: SequenceTracks) -> SequenceTracks
             continue
         g_boxes = np.vstack([truth.frames.get(f, (None, np.zeros((0, 4))))[1], i_boxes])
         n_vis = len(g_boxes) - len(i_boxes)
-        iou = box_iou(g_boxes, t_boxes)
+        iou = _matchable(box_iou(g_boxes, t_boxes))
         r, c = linear_sum_assignment(-iou)
-        drop = c[(iou[r, c] >= MATCH_IOU) & (r >= n_vis)]
+        drop = c[(iou[r, c] > 0) & (r >= n_vis)]
         keep = np.ones(len(t_ids), dtype=bool)
         keep[drop] = False
         out.frames[f] = (t_ids[keep], t_boxes[keep], t_scores[keep])
@@ -353,9 +359,9 @@ def frame_matches(truth: SequenceTruth, tracks: SequenceTracks) -> dict[int, dic
         t_ids, t_boxes, _ = tracks.frames.get(f, (np.zeros(0, np.int64), np.zeros((0, 4)), np.zeros(0)))
         if not len(g_ids) or not len(t_ids):
             continue
-        iou = box_iou(g_boxes, t_boxes)
+        iou = _matchable(box_iou(g_boxes, t_boxes))
         r, c = linear_sum_assignment(-iou)
-        ok = iou[r, c] >= MATCH_IOU
+        ok = iou[r, c] > 0
         out[f] = {int(g_ids[i]): int(t_ids[j]) for i, j in zip(r[ok], c[ok], strict=True)}
     return out
 

@@ -93,3 +93,21 @@ def test_emulator_matches_the_paper_statistics(fixture: str, request: pytest.Fix
     m = coco_detection_metrics(gt, kept)
     assert 0.60 <= m["AP50"] <= 0.85
     assert m["AR100"] < 0.6  # imperfect localisation, as real detectors on small objects
+
+
+def test_pr_curve_ignores_unmatched_detections_inside_a_crowd_box_of_their_class() -> None:
+    # probe: three detections inside a crowd region counted as false positives (precision 0.25, pycocotools 1.0)
+    from sim.metrics import pr_curve
+
+    gt = {"images": [{"id": 1, "width": 640, "height": 480}],
+          "categories": [{"id": 1, "name": "p"}, {"id": 2, "name": "q"}],
+          "annotations": [{"id": 1, "image_id": 1, "category_id": 1, "bbox": [10, 10, 20, 20]},
+                          {"id": 2, "image_id": 1, "category_id": 1, "bbox": [200, 200, 200, 200], "iscrowd": 1}]}
+    dets = [{"image_id": 1, "category_id": 1, "bbox": [10, 10, 20, 20], "score": 0.9}]
+    dets += [{"image_id": 1, "category_id": 1, "bbox": [220 + 40 * k, 220, 20, 20], "score": 0.95} for k in range(3)]
+    curve = pr_curve(gt, dets)
+    assert curve["precision"].tolist() == [1.0] and curve["recall"].tolist() == [1.0]
+    # of another class, or outside the region, they count
+    other = [{**d, "category_id": 2} for d in dets[1:]] + [{**dets[1], "bbox": [500, 10, 20, 20]}]
+    curve = pr_curve(gt, dets[:1] + other)
+    assert len(curve["scores"]) == 5 and curve["precision"][-1] == 0.2

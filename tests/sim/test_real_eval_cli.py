@@ -66,3 +66,39 @@ def test_ids_and_scores_written_as_text_are_scored_as_numbers(data, tmp_path):
                  "--camera", str(data / "camera.json"), "--out", str(tmp_path / "text")]) == 0
     text = json.loads((tmp_path / "text" / "real" / "report.json").read_text())
     assert [r["AP50 detector"] for r in text["rows"]] == [r["AP50 detector"] for r in plain["rows"]]
+
+
+def _eval_with(data: Path, tmp_path: Path, name: str, results: list) -> tuple[int, Path]:
+    (tmp_path / f"{name}.json").write_text(json.dumps(results))
+    code = main(["eval", "--real", str(data / "images.json"), "--detections", str(tmp_path / f"{name}.json"),
+                 "--camera", str(data / "camera.json"), "--out", str(tmp_path / name)])
+    return code, tmp_path / name / "real" / "report.json"
+
+
+def test_boxes_the_pipeline_skips_are_skipped_for_the_detector_too(data, tmp_path):
+    # probe: zero-size and non-finite boxes were scored as the detector's false positives, never as the variants'
+    plain = _eval(data, tmp_path / "plain")
+    results = json.loads((data / "pre_nms.json").read_text())
+    junk = [{**r, "bbox": [r["bbox"][0], r["bbox"][1], 0.0, r["bbox"][3]], "score": 0.99} for r in results[:40]]
+    code, report = _eval_with(data, tmp_path, "junk", results + junk)
+    assert code == 0
+    got = json.loads(report.read_text())
+    assert got["rows"] == plain["rows"]
+    assert got["skipped_detections"] == {"non_positive_size": 40}
+    assert "non_positive_size 40" in (report.parent / "report.md").read_text()
+
+
+@pytest.mark.parametrize(("scale", "hint"), [(100.0, "percentages? divide them by 100"), (None, "boosted scores")])
+def test_scores_outside_zero_one_are_refused_naming_them(data, tmp_path, capsys, scale, hint):
+    # probe: 611 boosted scores above 1 read as boat 86.2 (detector) -> 27.4 (memory off), gain -21; percentages
+    # gave every variant 0.0
+    results = json.loads((data / "pre_nms.json").read_text())
+    if scale is None:  # a boosted output: some scores above 1
+        changed = [{**r, "score": r["score"] * 1.6} for r in results]
+    else:
+        changed = [{**r, "score": r["score"] * scale} for r in results]
+    bad = sum(not 0 <= r["score"] <= 1 for r in changed)
+    code, report = _eval_with(data, tmp_path, f"scores{scale}", changed)
+    err = capsys.readouterr().err
+    assert code == 2 and not report.exists()
+    assert f"{bad} of the detections have a score outside [0, 1]" in err and hint in err

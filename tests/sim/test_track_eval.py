@@ -102,6 +102,23 @@ def test_boxes_on_hidden_objects_are_dropped_not_counted_as_false_positives():
     assert mot_metrics([trackeval_data(truth, kept)])["FP"] == 10  # only the box on nothing
 
 
+def test_a_pair_below_the_match_iou_does_not_decide_which_box_a_hidden_object_takes():
+    # probe (TrackEval zeroes IoU < 0.5 before its assignment): a visible object V, a hidden one H beside it, and two
+    # tracker boxes: T1 on V (IoU 0.63) and H (0.86), T2 on H (0.64) and V (0.499). On the raw IoU the 0.499 pair
+    # gave T2 to V and T1 to H: T1 was dropped, T2 scored a false positive (HOTA 47.4, MOTA -100 against 63.2, 100)
+    v, h = [0.0, 0.0, 100.0, 100.0], [26.6, 0.0, 102.8, 100.0]
+    t1, t2 = [28.4, 0.0, 113.4, 100.0], [31.4, 0.0, 137.5, 100.0]
+    truth = SequenceTruth({f: (np.array([1]), np.array([v])) for f in range(20)}, fps=30.0)
+    truth.ignore = {f: (np.array([2]), np.array([h])) for f in range(20)}
+    seq = SequenceTracks()
+    for f in range(20):
+        seq.frames[f] = (np.array([7, 8]), np.array([t1, t2]), np.ones(2))
+    kept = drop_ignored(truth, seq)
+    assert all(ids.tolist() == [7] for ids, _, _ in kept.frames.values())
+    m = mot_metrics([trackeval_data(truth, kept)])
+    assert m["MOTA"] == pytest.approx(100.0) and m["FP"] == 0 and m["IDF1"] == pytest.approx(100.0)
+
+
 def test_position_errors_follow_the_matched_boxes_and_survive_dropping_hidden_ones():
     truth = truth_of({1: list(range(10)), 2: list(range(5, 10))}, 10)
     # object i at (10 i m east, 0); the track on object 1 is reported 2 m north of it, on object 2 4 m north
