@@ -9,7 +9,6 @@ send in `agent.tile_updates`, global id adoption in `agent.global_ids`.
 from __future__ import annotations
 
 import dataclasses
-import json
 import logging
 import math
 import threading
@@ -31,6 +30,7 @@ from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.sources import FrameSource, SourceFrame
 from agent.tile_updates import TileChangeTracker
+from agent.track_rows import TrackRowLog
 from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
@@ -328,7 +328,7 @@ class AgentNode:
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,
                                        "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0,
                                        "replay_sync_s": 0.0}
-        self._rows: list[tuple[int, float, TrackOutput]] = []
+        self._rows = TrackRowLog()  # for settings.tracks_out, as columns (72 B a row; 538 B as objects)
         # COCO results for settings.detections_out, written as they come
         self._detections = None if settings.detections_out is None else StreamedResults(settings.detections_out)
         self._last_pose: tuple[float, Pose, Camera] | None = None
@@ -498,7 +498,7 @@ class AgentNode:
         if self._detections is not None:
             self._detections.extend(results_to_coco(frame.index if frame.image_id is None else frame.image_id, result))
         if self.settings.tracks_out is not None:
-            self._rows.extend((frame.index, frame.t, tr) for tr in tracks if tr.confirmed and tr.matched)
+            self._rows.extend(frame.index, frame.t, (tr for tr in tracks if tr.confirmed and tr.matched))
         if self.on_frame is not None:
             self.on_frame(frame, result, tracks)
         return result, tracks
@@ -584,13 +584,8 @@ class AgentNode:
     def write_tracks(self, path: str | Path) -> int:
         """Write the reported tracks as GeoJSON (see `agent.tracking_io.geojson_tracks`) with ``uav`` and
         ``gid`` (the adopted global id, null without one) in each feature's properties."""
-        from agent.tracking_io import TrackRow, geojson_tracks
-
-        rows = [TrackRow(index, index, t, tr) for index, t, tr in self._rows]
-        collection = geojson_tracks({0: rows}, self.pipeline.class_names)
-        for feature in collection["features"]:
-            props = feature["properties"]
+        def add(props: dict[str, Any]) -> None:
             props["uav"] = self.settings.uav_id
             props["gid"] = self.adopter.gid_of(props["id"])
-        Path(path).write_text(json.dumps(collection))
-        return len(collection["features"])
+
+        return self._rows.write_geojson(path, self.pipeline.class_names, add)
