@@ -216,17 +216,18 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         counts["detections"] += len(result)
         if frame.pose is not None:  # a track starts only at a ground point: count the confident boxes without one
             confident = result.raw_scores >= tracker.config.birth_score
+            grounded = np.isfinite(result.lat) if tracker.last_grounded is None else tracker.last_grounded
             counts["confident_posed"] += int(confident.sum())
-            counts["confident_without_ground_point"] += int((confident & ~np.isfinite(result.lat)).sum())
+            counts["confident_without_ground_point"] += int((confident & ~grounded).sum())
         rows.extend(TrackRow(frame.image.frame_index, frame.image.id, t, tr) for tr in tracker.report(tracks))
         if on_frame is not None:
             on_frame(frame, result, tracks)
     far, posed = counts["confident_without_ground_point"], counts["confident_posed"]
     if posed and far * 2 >= posed:
         log.warning("video %s: %d of %d confident detections in frames with a pose have no ground point (beyond the "
-                    "pipeline's range of %g m, or at the horizon): they follow tracks but start none%s; a longer range "
-                    "(--window-m, twice the range) lets them", dataset.video_names.get(video_id, video_id), far,
-                    posed, pipeline_config.range_limit_m, "" if rows else ", and the video has no track")
+                    "reach of the tracker's error model, far_reach_sigma_m, or at the horizon): they follow tracks "
+                    "but start none%s", dataset.video_names.get(video_id, video_id), far, posed,
+                    "" if rows else ", and the video has no track")
     if stats is not None:
         for k, v in counts.items():
             stats[k] = stats.get(k, 0) + v

@@ -135,6 +135,11 @@ class TrackerConfig:
         the ray slant^2 / h * d_beta and range / h * dh, a pixel slant / f (times slant / h along).
     max_measurement_sigma_m : float
         Cap of the sideways and along-ray errors (far pixels near the horizon), metres.
+    far_reach_sigma_m, far_anchor : float, str
+        Boxes the pipeline left without a ground point (beyond its range) get one from the tracker where the
+        along-ray error of a pitch error of pitch_sigma_deg (slant^2 / h * d_beta) is at most this many metres (60:
+        ~430 m at 27 m up), on flat ground, anchored as PipelineConfig.anchor ("auto"; set both alike); 0: off, as
+        before 30 Nov 2026 (agent.tracking.far_points).
     telemetry_latency_s, max_heading_correction_deg : float
         How much older the telemetry is than its stamp (s): while the gimbal turns, ground points are
         turned about the UAV by rate * (frame time - pose time + latency), at most this many degrees.
@@ -381,6 +386,8 @@ class TrackerConfig:
     height_sigma_m: float = 0.3
     pixel_sigma_px: float = 4.0
     max_measurement_sigma_m: float = 30.0
+    far_reach_sigma_m: float = 60.0
+    far_anchor: str = "auto"
     telemetry_latency_s: float = 0.05
     max_heading_correction_deg: float = 30.0
     timing_sigma_s: float = 0.05
@@ -466,7 +473,7 @@ class TrackerConfig:
                           "carry_correction", "use_pipeline_correction",
                           "merge_keep_idle", "merge_edge_twins",
                           "class_motion", "default_motion",
-                          "pair_max_cost", "exit_margin_px", "image_overlap"):
+                          "pair_max_cost", "exit_margin_px", "image_overlap", "far_anchor"):
                 continue
             if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
                 raise ValueError(f"TrackerConfig.{f.name} must be a finite number, got {value!r}")
@@ -486,6 +493,8 @@ class TrackerConfig:
                 or self.merge_edge_twins < 0:
             raise ValueError(f"TrackerConfig.merge_edge_twins must be an int >= 0 (0: off), "
                              f"got {self.merge_edge_twins!r}")
+        if self.far_anchor not in ("auto", "center", "bottom"):
+            raise ValueError(f"TrackerConfig.far_anchor must be one of auto, center, bottom, got {self.far_anchor!r}")
         if self.image_overlap not in IMAGE_OVERLAPS:
             raise ValueError(f"TrackerConfig.image_overlap must be one of {IMAGE_OVERLAPS}, got {self.image_overlap!r}")
         for name in ("jump_agree_min", "jump_motion_min"):

@@ -26,6 +26,7 @@ from agent.tracking.association import (
     resolve_alternatives,
 )
 from agent.tracking.config import TrackerConfig
+from agent.tracking.far_points import fill_far_points
 from agent.tracking.gimbal_rates import GimbalRates
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, reanchor, retire
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
@@ -133,6 +134,10 @@ class GpsTracker:
         self._ground: tuple[Pose, GroundSurface | None] | None = None  # the last registered frame's pose, terrain
         self._level: float | None = None  # running mean of the frames' top raw scores (report_level_ref)
         self._jump = ViewJumpGuard()
+        #: rows of the last frame's result with a ground point, the pipeline's or the tracker's own beyond the
+        #: pipeline's range (agent.tracking.far_points); None for a frame without a pose. n_far_points: those so far.
+        self.last_grounded: NDArray[np.bool_] | None = None
+        self.n_far_points = 0
 
     # ----------------------------------------------------------------------------- views
     @property
@@ -271,12 +276,16 @@ class GpsTracker:
         if dets.emb is not None:
             state.ensure_descriptor_columns(dets.emb.shape[1])
         if pose is None:
+            self.last_grounded = None
             associate_iou(state, dets, t, np.ones(len(dets.scores), dtype=bool))
         else:
             pose_t = t if pose_t is None or not math.isfinite(pose_t) else pose_t
             self._rates.update(pose, pose_t, t)
             state.heading_now = self._rates.smoothed_heading(pose.heading_deg, dt, self.config.heading_smoothing_s)
             reanchor(state, pose)
+            if terrain is None:  # flat ground: what lies beyond the pipeline's range, within the error model's reach
+                self.n_far_points += int(fill_far_points(dets, pose, camera, result.correction, self.config).sum())
+            self.last_grounded = np.isfinite(dets.lat) & np.isfinite(dets.lon)
             # The telemetry's heading is older than the frame (by t - pose_t, plus telemetry_latency_s unless the
             # pose was retimed): the frame's points are turned about the UAV by the heading change since.
             lag_s = max(t - pose_t, 0.0) + (0.0 if pose_retimed else self.config.telemetry_latency_s)

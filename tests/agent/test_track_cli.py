@@ -215,16 +215,23 @@ def test_registrations_out_has_the_tracker_pose_correction_of_every_frame(data, 
     assert all(float(r[3]) == float(r[4]) == 0.0 for r in rows if r[7] == r[8] == "False")
 
 
-def test_a_video_whose_boxes_all_lie_beyond_the_range_says_why_it_has_no_track(data, tmp_path, caplog):
+def test_a_video_whose_boxes_all_lie_beyond_the_pipelines_range_is_tracked_on_the_trackers_own_points(
+        data, tmp_path, caplog):
     """Two of the eight real SeaDronesSee dev videos (17 m at 1.6 deg, 60 m at 10 deg) put every box 231 m or more
-    away, beyond the 150 m range: no track starts and the MOT file came out empty without a word. A 24 m window
-    (12 m range) does the same to the simulated flight here."""
-    out = tmp_path / "tracks.txt"
-    with caplog.at_level("WARNING", logger="agent.tracking_io"):
-        assert track(data, out, "--video-id", "1", "--window-m", "24") == 0
-    said = [r.getMessage() for r in caplog.records if "have no ground point" in r.getMessage()]
-    assert len(said) == 1 and "beyond the pipeline's range of 12 m" in said[0] and "--window-m" in said[0]
-    caplog.clear()
+    away, beyond the 150 m range: no track started and the MOT file came out empty. A 24 m window (12 m range) does
+    the same to the simulated flight here: the tracker now places those boxes itself (agent.tracking.far_points), and
+    says why a video has no track only when its own reach is off too."""
     with caplog.at_level("WARNING", logger="agent.tracking_io"):
         assert track(data, tmp_path / "normal.txt", "--video-id", "1") == 0
+        assert track(data, tmp_path / "short.txt", "--video-id", "1", "--window-m", "24") == 0
     assert not [r for r in caplog.records if "have no ground point" in r.getMessage()]
+    normal = {line.split(",")[1] for line in (tmp_path / "normal.txt").read_text().splitlines()}
+    short = (tmp_path / "short.txt").read_text().splitlines()
+    assert len(short) > 100 and len({line.split(",")[1] for line in short}) <= 2 * len(normal)
+    (tmp_path / "off.json").write_text('{"far_reach_sigma_m": 0}')
+    with caplog.at_level("WARNING", logger="agent.tracking_io"):
+        assert track(data, tmp_path / "off.txt", "--video-id", "1", "--window-m", "24", "--tracker-config",
+                     str(tmp_path / "off.json")) == 0
+    said = [r.getMessage() for r in caplog.records if "have no ground point" in r.getMessage()]
+    assert len(said) == 1 and "far_reach_sigma_m" in said[0] and "no track" in said[0]
+    assert (tmp_path / "off.txt").read_text() == ""
