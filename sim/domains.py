@@ -150,7 +150,8 @@ class Domain:
                 text = text.replace(f", {later}=None", "")
         if self.descriptors:
             text = text.replace(", descriptors=True", "")
-        text = text.replace(", min_turn_s=0.2)", ")")  # HoverSweepsSpec's later field at its default
+        text = text.replace(", min_pitch_deg=17.0)", ")")  # HoverSweepsSpec's later fields at their defaults
+        text = text.replace(", min_turn_s=0.2)", ")")
         text = text.replace(", aspect_deg=None", "")  # TerrainSpec's later field: the terrain domains keep theirs
         return hashlib.sha1(text.encode()).hexdigest()[:8]
 
@@ -346,10 +347,29 @@ _DOMAIN_LIST = (
            noise={"time_offset_s": 0.15, "heading_bias_deg": 3.0}),
 )
 
+#: Far, low views (30 Nov 2026): every object beyond the pipeline's 150 m range, a 4K tele camera on a hover with slow
+#: sweeps below the simulator's usual 17 deg pitch floor. Where the tracker's own far ground points were chosen
+#: (docs/tracking.md, "Far views"); a group of their own (`--domains far`), apart from the grid above, whose
+#: figures and bars they would shift (the memory map boosts nothing beyond its range).
+_FAR_SWEEPS = {"sweep_deg": (5.0, 12.0), "sweep_rate_deg_s": (3.0, 8.0), "dwell_s": (2.0, 4.0), "min_pitch_deg": 3.0}
+_FAR_LIST = (
+    Domain("sea-far-tele", "swimmers 190-260 m away, 20-35 m up at 5-9 deg, 4K tele, per-frame jitter", "tune",
+           "gentle", "sea", (HoverSweepsSpec(distance_m=(190.0, 260.0), height_m=(20.0, 35.0), pitch_deg=(5.0, 9.0),
+                                             **_FAR_SWEEPS),), camera="4k-tele", noise=_JITTER),
+    Domain("sea-farther-tele", "swimmers 380-520 m away, 20-35 m up at 3-5 deg, 4K tele, per-frame jitter", "tune",
+           "gentle", "sea", (HoverSweepsSpec(distance_m=(380.0, 520.0), height_m=(20.0, 35.0), pitch_deg=(3.0, 5.0),
+                                             **_FAR_SWEEPS),), camera="4k-tele", noise=_JITTER),
+    Domain("grass-far-tele", "people 220-320 m away, 25-45 m up at 5-9 deg, 4K tele at 24 fps, drifting clocks",
+           "heldout", "gentle", "grass", (HoverSweepsSpec(distance_m=(220.0, 320.0), height_m=(25.0, 45.0),
+                                                          pitch_deg=(5.0, 9.0), **_FAR_SWEEPS),),
+           camera="4k-tele", fps=24.0, noise={**_DRIFT, "telemetry_hz": 24.0}),
+)
+
 #: All domains by name.
-DOMAINS: dict[str, Domain] = {d.name: d for d in _DOMAIN_LIST}
+DOMAINS: dict[str, Domain] = {d.name: d for d in (*_DOMAIN_LIST, *_FAR_LIST)}
 TUNING_DOMAINS: tuple[str, ...] = tuple(d.name for d in _DOMAIN_LIST if d.split == "tune")
 HELDOUT_DOMAINS: tuple[str, ...] = tuple(d.name for d in _DOMAIN_LIST if d.split == "heldout")
+FAR_DOMAINS: tuple[str, ...] = tuple(d.name for d in _FAR_LIST)
 
 
 def get_domain(name: str) -> Domain:
@@ -373,16 +393,18 @@ def resolve_named(names: list[str], groups: dict[str, tuple[str, ...]], get: Cal
 
 
 def resolve_domains(names: list[str]) -> list[Domain]:
-    """Domains named in `names` (the groups "all", "tune", "heldout" expand), in order, without repeats."""
-    return resolve_named(names, {"all": tuple(DOMAINS), "tune": TUNING_DOMAINS, "heldout": HELDOUT_DOMAINS},
-                         get_domain)
+    """Domains named in `names` (the groups "all" (tune and held out), "tune", "heldout" and "far" expand), in order,
+    without repeats."""
+    return resolve_named(names, {"all": TUNING_DOMAINS + HELDOUT_DOMAINS, "tune": TUNING_DOMAINS,
+                                 "heldout": HELDOUT_DOMAINS, "far": FAR_DOMAINS}, get_domain)
 
 
 def domain_table() -> str:
     """Markdown table of the domains (the `uavmm eval --list-domains` output and docs/simulator.md)."""
     lines = ["| domain | split | flights | base | fps | clip | camera | changes |", "|---|---|---|---|---|---|---|---|"]
-    for d in _DOMAIN_LIST:
+    for d in (*_DOMAIN_LIST, *_FAR_LIST):
         changes = ", ".join(f"{k}={v}" for k, v in d.changes().items())
-        lines.append(f"| {d.name} | {d.split} | {d.motion} | {d.base} | {d.fps:g} | {d.clip_s:g} s | {d.camera} | "
+        split = f"{d.split} (far)" if d in _FAR_LIST else d.split
+        lines.append(f"| {d.name} | {split} | {d.motion} | {d.base} | {d.fps:g} | {d.clip_s:g} s | {d.camera} | "
                      f"{changes} |")
     return "\n".join(lines)

@@ -160,11 +160,12 @@ def _u(rng: np.random.Generator, lo_hi: tuple[float, float]) -> float:
     return float(rng.uniform(lo_hi[0], lo_hi[1]))
 
 
-def _check_ranges(name: str, height_m: tuple[float, float], pitch_deg: tuple[float, float]) -> None:
+def _check_ranges(name: str, height_m: tuple[float, float], pitch_deg: tuple[float, float],
+                  min_pitch_deg: float = MIN_PITCH_DEG) -> None:
     if not MIN_HEIGHT_M <= height_m[0] <= height_m[1] <= MAX_HEIGHT_M:
         raise ValueError(f"{name}.height_m={height_m!r} must lie in [{MIN_HEIGHT_M}, {MAX_HEIGHT_M}] m")
-    if not MIN_PITCH_DEG <= pitch_deg[0] <= pitch_deg[1] <= MAX_PITCH_DEG:
-        raise ValueError(f"{name}.pitch_deg={pitch_deg!r} must lie in [{MIN_PITCH_DEG}, {MAX_PITCH_DEG}] deg")
+    if not min_pitch_deg <= pitch_deg[0] <= pitch_deg[1] <= MAX_PITCH_DEG:
+        raise ValueError(f"{name}.pitch_deg={pitch_deg!r} must lie in [{min_pitch_deg}, {MAX_PITCH_DEG}] deg")
 
 
 @dataclass(frozen=True, slots=True)
@@ -187,9 +188,15 @@ class HoverSweepsSpec:
     dwell_s: tuple[float, float] = (2.0, 5.0)
     kind: str = "hover"
     min_turn_s: float = 0.2
+    #: The lowest pitch the spec may ask for: MIN_PITCH_DEG, or lower (down to 3 deg) for a far, low view whose
+    #: objects lie beyond the pipeline's range (sim.domains' far group); a view that low shows the horizon.
+    min_pitch_deg: float = MIN_PITCH_DEG
 
     def __post_init__(self) -> None:
-        _check_ranges("HoverSweepsSpec", self.height_m, self.pitch_deg)
+        if not 3.0 <= self.min_pitch_deg <= MIN_PITCH_DEG:
+            raise ValueError(f"HoverSweepsSpec.min_pitch_deg={self.min_pitch_deg!r} must lie in [3, {MIN_PITCH_DEG}] "
+                             "deg")
+        _check_ranges("HoverSweepsSpec", self.height_m, self.pitch_deg, self.min_pitch_deg)
         if not (math.isfinite(self.min_turn_s) and self.min_turn_s > 0):
             raise ValueError(f"HoverSweepsSpec.min_turn_s={self.min_turn_s!r} must be > 0 s")
 

@@ -227,3 +227,18 @@ def test_a_domain_without_descriptors_writes_the_same_boxes_without_embeddings(t
     pa, pb = json.loads((a / "pre_nms.json").read_text()), json.loads((b / "pre_nms.json").read_text())
     assert any("embedding" in c for c in pa) and not any("embedding" in c for c in pb)
     assert len(pa) > 0 and [c["bbox"] for c in pa] == [c["bbox"] for c in pb]
+
+
+def test_the_far_group_flies_below_the_usual_pitch_floor_apart_from_the_grid() -> None:
+    from sim.domains import FAR_DOMAINS, HELDOUT_DOMAINS, resolve_domains
+    from sim.flight import MIN_PITCH_DEG, HoverSweepsSpec
+
+    far = resolve_domains(["far"])
+    assert [d.name for d in far] == list(FAR_DOMAINS) == ["sea-far-tele", "sea-farther-tele", "grass-far-tele"]
+    assert not set(FAR_DOMAINS) & {d.name for d in resolve_domains(["all"])}
+    assert {d.split for d in far} == {"tune", "heldout"} and "grass-far-tele" not in HELDOUT_DOMAINS
+    assert all(f.pitch_deg[0] < MIN_PITCH_DEG and f.min_pitch_deg == 3.0 for d in far for f in d.flights)
+    with pytest.raises(ValueError, match="pitch_deg"):
+        HoverSweepsSpec(pitch_deg=(5.0, 9.0))  # the usual floor still holds
+    with pytest.raises(ValueError, match="min_pitch_deg"):
+        HoverSweepsSpec(pitch_deg=(2.0, 9.0), min_pitch_deg=2.0)
