@@ -131,14 +131,8 @@ class TrackRecord:
             "id": self.gid,
             "geometry": {"type": "Point", "coordinates": [self.lon, self.lat]},
             "properties": {
-                "gid": self.gid,
-                "cls": self.cls,
-                "score": self.score,
-                "vel_en": list(self.vel_en),
-                "status": self.status,
-                "created": self.created,
-                "last_update": self.last_update,
-                "ended": self.ended,
+                "gid": self.gid, "cls": self.cls, "score": self.score, "vel_en": list(self.vel_en),
+                "status": self.status, "created": self.created, "last_update": self.last_update, "ended": self.ended,
                 "members": [list(m) for m in self.members],
                 "active_members": [list(m) for m in self.active],
                 "history": [list(row) for row in self.history],
@@ -313,6 +307,9 @@ class GlobalTracker:
                 self._owner[track.gid] = uav
                 self._owned.setdefault(uav, {})[track.gid] = None
             key = (uav, item.id)
+            if self._local.get(key, track.gid) != track.gid:  # moved on (its old track claimed): no longer a member
+                for old in self._deactivate(*key):  # there (it was active there forever: a track that never ended)
+                    self._refresh(self._tracks[old], now, wall)
             track.members.pop(key, None)  # re-insert: most recent last
             track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
             self._trim_members(track)

@@ -366,3 +366,37 @@ def test_a_tracker_id_switch_keeps_the_global_id(clock, north_m, speed_mps):
                       vel_en=(0.0, speed_mps))
     tracker.update(TracksMessage(uav="a", t=0.2, tracks=(moved,)))
     assert gids(tracker)[("a", 5)] == gid
+
+
+def test_a_local_id_that_moves_to_another_global_track_stops_being_a_member_of_its_old_one():
+    # probe (audit): person 1 (local 1) leaves; person 2 (local 2), 6 m away, joins person 1's held global track; person
+    # 1 comes back under its old local id beside person 2: local 1 takes its track back, local 2 moves to a new one but
+    # stayed an active member of the old: that track stayed "tracked" forever (1,999 such after 48 h of one episode a
+    # minute, then the UAV's new tracks refused as uav_track_quota)
+    now = [0.0]
+    tracker = GlobalTracker(clock=lambda: now[0], wall=lambda: 1.7e9 + now[0])
+    m = 1 / 111_320.0
+
+    def send(items: list[tuple[int, float]], n: int) -> None:
+        for _ in range(n):
+            tracker.update(TracksMessage(uav="uav1", t=1.7e9 + now[0], tracks=tuple(
+                TrackItem(id=i, cls="person", lat=48 + dn * m, lon=9.0, score=0.8, vel_en=(0.0, 0.0))
+                for i, dn in items)))
+            now[0] += 0.2
+            tracker.expire()
+
+    send([(1, 0.0)], 10)
+    send([], 5)
+    send([(2, 6.0)], 10)
+    first = {r.gid: r for r in tracker.records()}
+    assert len(first) == 1 and set(next(iter(first.values())).active) == {("uav1", 2)}
+    send([(1, 0.0), (2, 6.0)], 10)
+    records = {r.gid: r for r in tracker.records()}
+    assert len(records) == 2
+    assert sorted(len(r.active) for r in records.values()) == [1, 1]  # each local id active on one track only
+    assert {k for r in records.values() for k in r.active} == {("uav1", 1), ("uav1", 2)}
+    send([], 5)
+    for _ in range(300):  # a minute of silence: both held, then ended
+        now[0] += 0.2
+        tracker.expire()
+    assert tracker.records() == [] or all(r.status == "ended" for r in tracker.records())
