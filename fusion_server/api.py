@@ -473,7 +473,8 @@ def create_app(server: FusionView) -> FastAPI:
             raise HTTPException(status_code=400, detail=f"since ({since}) is after until ({until})")
         if cls is not None:
             _check_cls(cls)
-        window = history_window(server.history_tracks(cls=cls, since=since), since, until)
+        window = history_window(server.history_tracks(cls=cls, since=since, until=until, ends_only=not rows),
+                                since, until)
         if not rows:
             for feature in window["features"]:
                 del feature["properties"]["history"]

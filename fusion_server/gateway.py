@@ -136,9 +136,12 @@ class Gateway:
         """Classes of the shards' joint tiles (seen since start)."""
         return self.joint.classes()
 
-    def history_tracks(self, cls: str | None = None, since: float | None = None) -> list[dict[str, Any]]:
+    def history_tracks(self, cls: str | None = None, since: float | None = None, until: float | None = None,
+                       ends_only: bool = False) -> list[dict[str, Any]]:
         """/v1/history's tracks: every shard's stored tracks (class ``cls``, updated since ``since``) with
-        their history rows, merged by global id; the gateway's own merged tracks when no shard answers."""
+        their history rows, merged by global id; the gateway's own merged tracks when no shard answers. until and
+        ends_only (a server's own database read, `FusionServer.history_tracks`) are not sent to the shards: they
+        answer with every row since ``since`` and `history_window` clips them."""
         found = self.shard_tracks.stored(cls, since)
         if found is None:
             return [record.to_geojson() for record in self.tracker.records(include_ended=True)

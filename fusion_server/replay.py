@@ -20,16 +20,17 @@ MAX_HISTORY_ROWS = 200_000
 
 
 def stored_tracks(db_path: Path | None, live: list[dict[str, Any]], *, cls: str | None,
-                  since: float | None) -> list[dict[str, Any]]:
+                  since: float | None, until: float | None = None, ends_only: bool = False) -> list[dict[str, Any]]:
     """Track features with history: from the database (read-only) when there is one, else ``live``.
 
     live: the tracker's features (`TrackRecord.to_geojson`), used without a database or when the file
     cannot be read yet (a new server before its first write). ValueError is never raised for a missing
-    database file: the live tracks answer instead.
+    database file: the live tracks answer instead. until, ends_only: `read_history`'s (the database's rows
+    only: the live features carry theirs, bounded by the tracker, for `history_window` to clip).
     """
     if db_path is not None and db_path.is_file():
         try:
-            return read_history(db_path, cls=cls, since=since).tracks
+            return read_history(db_path, cls=cls, since=since, until=until, ends_only=ends_only).tracks
         except ValueError:
             pass
     return [f for f in live if cls is None or f["properties"]["cls"] == cls]

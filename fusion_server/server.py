@@ -190,10 +190,13 @@ class FusionServer:
     def _track_features(self) -> list[dict[str, Any]]:
         return [record.to_geojson() for record in self.tracker.records(include_ended=True)]
 
-    def history_tracks(self, cls: str | None = None, since: float | None = None) -> list[dict[str, Any]]:
+    def history_tracks(self, cls: str | None = None, since: float | None = None, until: float | None = None,
+                       ends_only: bool = False) -> list[dict[str, Any]]:
         """Track features with their history rows for ``/v1/history``: from the database when there is one
-        (class ``cls``, updated since ``since``), else the tracker's own (fusion_server.replay)."""
-        return stored_tracks(self.settings.db_path, self._track_features(), cls=cls, since=since)
+        (class ``cls``, updated since ``since``, rows up to ``until``; ``ends_only``: each track's first and last
+        row), else the tracker's own (fusion_server.replay)."""
+        return stored_tracks(self.settings.db_path, self._track_features(), cls=cls, since=since, until=until,
+                             ends_only=ends_only)
 
     def _track_features_for(self, request: TrackQuery) -> list[dict[str, Any]]:
         """What a shard answers a ``fusion/tracks`` query with (fusion_server.shard_tracks): the features its
