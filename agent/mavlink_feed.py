@@ -19,6 +19,8 @@ positions, a second link with more latency: they join the old boot), as `.tlog` 
 one's plus the step of (receive time - boot time) between the two boots' fastest messages, and the vehicle's own
 ``SYSTEM_TIME`` of the new boot replaces that when it agrees within `CLOCK_JUMP_S` (it has no latency jitter). Frames
 before the reboot is confirmed get no pose.
+
+Memory: each boot keeps the positions of its last `KEEP_S` (5 minutes; a frame reads those around its own time).
 """
 
 from __future__ import annotations
@@ -60,16 +62,24 @@ def parse_udp_endpoint(spec: str) -> tuple[str, int]:
     return host, port
 
 
-class _Boot:
-    """The positions of one boot of the autopilot, sorted by boot time (one per boot time), and its clock."""
+#: Positions older (boot time) than this behind a boot's latest are let go, TRIM_STEP at a time: a frame reads the
+#: records around its own time, seconds behind the stream at most; kept, a flight's whole stream grew ~6 MB an hour
+#: at 10 Hz (~32 MB at 50 Hz).
+KEEP_S = 300.0
+TRIM_STEP = 1024
 
-    __slots__ = ("times", "samples", "top_boot", "first_rx", "last_rx", "recent_offsets", "anchor", "by_vehicle",
-                 "clock_seen")
+
+class _Boot:
+    """The positions of one boot of the autopilot, sorted by boot time (one per boot time; the last KEEP_S), and its
+    clock. first_boot: the earliest boot time it ever held (where the boot begins, after a trim too)."""
+
+    __slots__ = ("times", "samples", "top_boot", "first_boot", "first_rx", "last_rx", "recent_offsets", "anchor",
+                 "by_vehicle", "clock_seen")
 
     def __init__(self, sample: MavlinkSample, rx: float) -> None:
         self.times = [sample.boot_s]
         self.samples = [sample]
-        self.top_boot = sample.boot_s
+        self.top_boot = self.first_boot = sample.boot_s
         self.first_rx = self.last_rx = rx
         # receive time - boot time of the latest messages: their minimum is the fastest path's, latency jitter aside
         self.recent_offsets: collections.deque[float] = collections.deque([rx - sample.boot_s], maxlen=64)
@@ -84,6 +94,9 @@ class _Boot:
             self.times.insert(i, sample.boot_s)
             self.samples.insert(i, sample)
         self.top_boot = max(self.top_boot, sample.boot_s)
+        self.first_boot = min(self.first_boot, sample.boot_s)
+        if len(self.times) > 2 * TRIM_STEP and self.top_boot - self.times[TRIM_STEP] > KEEP_S:
+            del self.times[:TRIM_STEP], self.samples[:TRIM_STEP]
         if rx is not None:
             self.recent_offsets.append(rx - sample.boot_s)
             self.last_rx = max(self.last_rx, rx)
@@ -207,7 +220,7 @@ class MavlinkUdpFeed:
             self._anchor_boots()
         log.warning("MAVLink on %s: the autopilot rebooted (its boot time went from %.1f s back to %.1f s): the new "
                     "boot's positions are placed %s; frames of the %.0f s before the reboot was certain got no pose",
-                    self.spec, previous.top_boot, pending.times[0],
+                    self.spec, previous.top_boot, pending.first_boot,
                     "by the vehicle's SYSTEM_TIME" if pending.by_vehicle else
                     "by continuing the receive clock (+- the link's latency jitter)", self.reboot_confirm_s)
 
@@ -223,7 +236,7 @@ class MavlinkUdpFeed:
             boot.anchor = prev.anchor + boot.fastest_offset - prev.fastest_offset
             vehicle = self._assembler.unix_offset_s  # after the UNIX clock's last jump: this boot's if that was
             if (self._anchored_by_vehicle and vehicle is not None and jumps  # at one of its boot times
-                    and boot.times[0] - REBOOT_S <= jumps[-1][0] <= boot.top_boot + REBOOT_S
+                    and boot.first_boot - REBOOT_S <= jumps[-1][0] <= boot.top_boot + REBOOT_S
                     and abs(vehicle - boot.anchor) <= CLOCK_JUMP_S):
                 boot.anchor = vehicle
                 boot.by_vehicle = True
@@ -238,7 +251,7 @@ class MavlinkUdpFeed:
             for boot_s, step_s in jumps[self._warned_jumps:]:
                 if boot_s < latest.top_boot - REBOOT_S:
                     continue  # at a boot time far behind the latest: a reboot's (its own warning)
-                if len(self._boots) > 1 and not latest.clock_seen and boot_s >= latest.times[0] - REBOOT_S:
+                if len(self._boots) > 1 and not latest.clock_seen and boot_s >= latest.first_boot - REBOOT_S:
                     latest.clock_seen = True  # the rebooted autopilot's first UNIX time: the reboot's step, which
                     continue  # the records do not take (they continue the clock); no clock of the vehicle jumped
                 log.warning("MAVLink on %s: the vehicle's UNIX clock (SYSTEM_TIME) jumped by %+.3f s at boot %.1f s "
@@ -334,7 +347,7 @@ class MavlinkUdpFeed:
                 if last.anchor is None:  # a reboot confirmed before start(): wait on the boots anchored
                     last = next(b for b in reversed(self._boots) if b.anchor is not None)
                 assert first.anchor is not None and last.anchor is not None
-                if first.times[0] + first.anchor <= t_first and last.times[-1] + last.anchor >= t_last:
+                if first.first_boot + first.anchor <= t_first and last.times[-1] + last.anchor >= t_last:
                     return
                 now = time.monotonic()
                 if now >= deadline or now - self._last_rx >= idle_s or self._pending is not None:

@@ -223,3 +223,27 @@ def test_the_rebooted_autopilots_first_unix_time_after_confirmation_is_no_clock_
                              5.0, "both boots' records")
     assert quick_feed.reboots == 1 and "jumped by" not in caplog.text
     assert [r.t for r in records] == pytest.approx([f.t for f in before + after], abs=0.05)
+
+
+def test_a_boot_keeps_the_last_minutes_of_positions_not_the_whole_flight():
+    # probe (audit): every position of the flight was kept, 288k at 10 Hz after 8 h (~6 MB an hour, ~32 MB at 50 Hz)
+    from agent.mavlink_feed import KEEP_S, TRIM_STEP, _Boot
+    from shared.telemetry import MavlinkSample
+
+    def sample(boot_s: float) -> MavlinkSample:
+        return MavlinkSample(boot_s=boot_s, lat=47.6, lon=9.3, height_m=30.0, pitch_deg=45.0, heading_deg=90.0,
+                             roll_deg=0.0, vel_en=(0.0, 0.0))
+
+    rate = 50.0
+    boot = _Boot(sample(12.0), rx=1000.0)
+    n = int(3600 * rate)  # an hour at 50 Hz
+    for k in range(1, n):
+        boot_s = 12.0 + k / rate
+        boot.add(sample(boot_s), 1000.0 + k / rate)
+    assert len(boot.times) == len(boot.samples) <= KEEP_S * rate + 2 * TRIM_STEP
+    assert boot.times == sorted(boot.times) and [s.boot_s for s in boot.samples] == boot.times
+    assert boot.times[-1] == boot.top_boot == pytest.approx(12.0 + (n - 1) / rate)
+    assert boot.top_boot - boot.times[0] >= KEEP_S  # at least the last KEEP_S are there
+    assert boot.first_boot == 12.0  # where the boot began, for the reboot rules
+    boot.add(sample(11.0), None)  # a late straggler from before: filed, and the boot's start moves back
+    assert boot.first_boot == 11.0
