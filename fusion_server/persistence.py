@@ -14,6 +14,7 @@ The file is checked when opened (:mod:`fusion_server.db_check`). A restarted ser
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import sqlite3
@@ -56,6 +57,8 @@ CREATE TABLE IF NOT EXISTS uavs(
 """
 #: History rows kept in memory while the database cannot be written (oldest dropped beyond it).
 MAX_HISTORY_BACKLOG = 200_000
+#: Tracks queued for writing at most (beyond: the ended ones that ended first go).
+MAX_QUEUED_TRACKS = 50_000
 #: Longest wait between retries of a failing flush, seconds.
 _MAX_BACKOFF_S = 10.0
 
@@ -218,10 +221,23 @@ class FusionStore:
                     next_gid: int) -> None:
         """Queue track upserts (latest per gid wins), history rows (gid, t, lat, lon) and the gid counter."""
         with self._lock:
-            for record in records:
-                self._tracks[record.gid] = record
+            for record in records:  # the writer stores no record's history (the rows come apart): not held queued
+                self._tracks[record.gid] = dataclasses.replace(record, history=()) if record.history else record
             self._history.extend(history)
+            self._bound_queue()
             self._next_gid = next_gid
+
+    def _bound_queue(self) -> None:
+        """While the database cannot be written (lock held): history rows beyond MAX_HISTORY_BACKLOG go, oldest
+        first (counted in history_dropped), and ended tracks beyond MAX_QUEUED_TRACKS, those that ended first (the
+        database keeps max_ended of them anyway). A day without a database grew the queue by ~36 MB an hour."""
+        if len(self._history) > MAX_HISTORY_BACKLOG:
+            self.history_dropped += len(self._history) - MAX_HISTORY_BACKLOG
+            del self._history[: len(self._history) - MAX_HISTORY_BACKLOG]
+        if len(self._tracks) > MAX_QUEUED_TRACKS:
+            ended = sorted((r.ended, gid) for gid, r in self._tracks.items() if r.ended is not None)
+            for _, gid in ended[: len(self._tracks) - MAX_QUEUED_TRACKS * 9 // 10]:  # a tenth of room: not every call
+                del self._tracks[gid]
 
     def save_joint(self, key: TileKey, tile: JointTile | None) -> None:
         """Queue the latest joint tile at key (None: the tile was dropped)."""
@@ -335,6 +351,7 @@ class FusionStore:
                 backoff = min(max(backoff * 2, self.flush_interval_s), _MAX_BACKOFF_S)
 
     def _attempt_failed(self, exc: BaseException) -> None:
+        self._pull_sources()  # into the bounded queue (also when connecting failed): the sources' buffers are not
         with self._lock:
             self.write_errors += 1
             self.last_error = f"{type(exc).__name__}: {exc}"[:300]
@@ -352,11 +369,8 @@ class FusionStore:
         with self._lock:
             for gid, record in tracks.items():
                 self._tracks.setdefault(gid, record)
-            merged = history + self._history
-            if len(merged) > MAX_HISTORY_BACKLOG:
-                self.history_dropped += len(merged) - MAX_HISTORY_BACKLOG
-                merged = merged[-MAX_HISTORY_BACKLOG:]
-            self._history = merged
+            self._history = history + self._history
+            self._bound_queue()
             for key, tile in joint.items():
                 self._joint.setdefault(key, tile)
             for uav, row in uavs.items():

@@ -93,3 +93,35 @@ def test_failed_writes_are_retried_shown_and_nothing_is_lost(tmp_path):
     with sqlite3.connect(db) as conn:
         members = [row[0] for row in conn.execute("SELECT members FROM tracks")]
     assert all(any(f'["uav1", {i}]' in m for m in members) for i in range(1, 12))
+
+
+def test_a_database_that_cannot_even_be_opened_still_drains_the_tracker_into_a_bounded_queue(tmp_path, monkeypatch):
+    # probe (audit): when connecting failed (the -shm file could not be made) the writer never pulled its sources, so
+    # the tracker's history rows and ended tracks piled up unbounded (180k, then 360k rows: 36, then 73 MB at 1, 2 h);
+    # when connecting worked but writing failed, every queued record held its whole history tuple
+    import fusion_server.persistence as persistence
+    from fusion_server.global_tracks import GlobalTracker
+    from shared.messages import TrackItem, TracksMessage
+
+    monkeypatch.setattr(persistence, "MAX_HISTORY_BACKLOG", 500)
+    monkeypatch.setattr(persistence, "MAX_QUEUED_TRACKS", 40)
+    now = [0.0]
+    tracker = GlobalTracker(clock=lambda: now[0], wall=lambda: 1.7e9 + now[0], hold_s=1.0)
+    store = persistence.FusionStore(tmp_path / "fusion.sqlite")
+    store.sources.append(lambda: store.save_tracks(*tracker.drain_changes(), tracker.next_gid))
+    store.path = tmp_path / "gone" / "fusion.sqlite"  # the folder went away: connecting fails from now on
+    for step in range(600):  # 10 min of one new 20 s track every 5 s, a message a second
+        alive = range(step // 5 - 3, step // 5 + 1)
+        tracker.update(TracksMessage(uav="uav1", t=1.7e9 + now[0], tracks=tuple(
+            TrackItem(id=i, cls="person", lat=48.0 + i * 1e-3, lon=9.0, score=0.7, vel_en=(0.0, 0.0))
+            for i in alive if i >= 0)))
+        tracker.expire()
+        now[0] += 1.0
+        if step % 10 == 9:
+            assert not store._attempt()
+    assert not tracker._history_out and not tracker._ended_pending  # drained although nothing could be written
+    assert len(store._history) <= 500 and store.history_dropped > 0
+    assert len(store._tracks) <= 40 and all(not r.history for r in store._tracks.values())
+    assert store.health()["status"] == "failing"
+    store.path = tmp_path / "fusion.sqlite"  # back: what the queue holds is written
+    assert store._attempt() and store.pending() == 0
