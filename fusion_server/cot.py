@@ -9,6 +9,7 @@ last event that is already stale, so TAK removes it. Sent as UDP datagrams (unic
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import logging
 import math
@@ -22,6 +23,7 @@ from datetime import datetime, timezone
 from typing import Any
 from urllib.parse import urlsplit
 
+from fusion_server.global_tracks import TrackRecord
 from fusion_server.peaks import Peak
 
 __all__ = ["CLASS_TYPES", "CotSender", "CotTarget", "object_event", "parse_cot_url", "track_event", "uav_event"]
@@ -149,7 +151,9 @@ def uav_event(row: Mapping[str, Any], now: float, stale_s: float, *, uid_prefix:
 class CotSender:
     """A background thread sending the fleet's CoT events every ``interval_s``; never raises into the server.
 
-    tracks: () -> Features of the global tracks (with recently ended ones). uavs: () -> ``/v1/uavs`` rows.
+    tracks: () -> the global tracks (with recently ended ones): Features of ``/v1/tracks``, or better their
+    ``TrackRecord``s, which are converted here only when sent (an ended track that went out already is skipped
+    before anything is built) and without their history (CoT sends none). uavs: () -> ``/v1/uavs`` rows.
     objects: () -> the fused objects (joint-map peaks, strongest first) or None for none; those within
     ``OBJECT_GATE_M`` of a live track of their class are left out, at most ``MAX_OBJECTS`` are sent, and they
     go stale after ``object_stale_s`` (3 intervals by default: a peak that moves on leaves no ghost for long).
@@ -157,7 +161,7 @@ class CotSender:
     at the next interval (TCP reconnects).
     """
 
-    def __init__(self, target: CotTarget, tracks: Callable[[], Iterable[Mapping[str, Any]]],
+    def __init__(self, target: CotTarget, tracks: Callable[[], Iterable[Mapping[str, Any] | TrackRecord]],
                  uavs: Callable[[], Iterable[Mapping[str, Any]]], *, interval_s: float = 1.0,
                  stale_s: float = 10.0, clock: Callable[[], float] = time.time,
                  objects: Callable[[], Iterable[Peak]] | None = None, object_stale_s: float | None = None) -> None:
@@ -192,13 +196,17 @@ class CotSender:
         now = self._clock()
         out = [e for row in self._uavs() if (e := uav_event(row, now, self.stale_s)) is not None]
         live: list[tuple[str, float, float]] = []
-        for feature in self._tracks():
-            gid = feature["properties"]["gid"]
-            if feature["properties"].get("status") == "ended":
+        for track in self._tracks():
+            if isinstance(track, TrackRecord):
+                gid, ended = track.gid, track.ended is not None
+            else:
+                gid, ended = track["properties"]["gid"], track["properties"].get("status") == "ended"
+            if ended:
                 if gid in self._ended_sent:
                     continue
                 self._ended_sent.add(gid)
-            else:
+            feature = dataclasses.replace(track, history=()).to_geojson() if isinstance(track, TrackRecord) else track
+            if not ended:
                 lon, lat = feature["geometry"]["coordinates"]
                 live.append((str(feature["properties"]["cls"]), float(lat), float(lon)))
             out.append(track_event(feature, now, self.stale_s))

@@ -66,6 +66,7 @@ class Handover:
         self.gate_m = tracker.gate_m
         self._clock = clock
         self._lock = threading.Lock()
+        # both oldest seen first (an entry seen again moves to the end), so pruning pops from the front only
         self._by_member: dict[tuple[str, int], tuple[int, float]] = {}  # (uav, local id) -> (gid, seen)
         self._recent: dict[int, tuple[str, float, float, float]] = {}  # gid -> (cls, lat, lon, seen)
         #: foreign region messages taken and refused (malformed, or on a region of ours)
@@ -104,27 +105,35 @@ class Handover:
         self.received += 1
         now = self._clock()
         with self._lock:
+            recent, by_member = self._recent, self._by_member
             for item in message.tracks:
-                self._recent[item.gid] = (item.cls, item.lat, item.lon, now)
+                recent.pop(item.gid, None)
+                recent[item.gid] = (item.cls, item.lat, item.lon, now)
                 for member in item.members:
-                    self._by_member[member] = (item.gid, now)
-            if len(self._by_member) > MAX_ENTRIES or len(self._recent) > MAX_ENTRIES:
-                self._prune(now)
+                    by_member.pop(member, None)
+                    by_member[member] = (item.gid, now)
+            self._prune(now)
         for item in message.tracks:
             self.tracker.hand_over(item.gid)
 
     def _prune(self, now: float) -> None:
-        self._by_member = {k: v for k, v in self._by_member.items() if now - v[1] <= MEMBER_KEEP_S}
-        self._recent = {k: v for k, v in self._recent.items() if now - v[3] <= POSITION_KEEP_S}
-        for table in (self._by_member, self._recent):
-            while len(table) > MAX_ENTRIES:
-                table.pop(next(iter(table)))
+        """Forget what is past its use (lock held): entries are oldest seen first, so this costs what it drops.
+
+        Without it a day of other shards' ids piled up to MAX_ENTRIES and ``adopt`` scanned them all.
+        """
+        for table, keep_s, seen_at in ((self._by_member, MEMBER_KEEP_S, 1), (self._recent, POSITION_KEEP_S, 3)):
+            while table:
+                key = next(iter(table))
+                if now - table[key][seen_at] <= keep_s and len(table) <= MAX_ENTRIES:
+                    break
+                del table[key]
 
     # ---- the question of the global tracker -------------------------------------------------------
     def adopt(self, uav: str, local_id: int, cls: str, lat: float, lon: float) -> int | None:
         """The global id another shard gave this object, or None (the tracker gives a new one)."""
         now = self._clock()
         with self._lock:
+            self._prune(now)
             found = self._by_member.get((uav, local_id))
             if found is not None and now - found[1] <= MEMBER_KEEP_S:
                 return found[0]

@@ -214,6 +214,7 @@ class JointMap:
         self._footprints: dict[str, list[_Footprint]] = {}  # oldest first
         self._masks: dict[tuple[str, int, int], tuple[int, NDArray[np.bool_] | None]] = {}
         self._fp_versions: dict[str, int] = {}  # per UAV: bumped when its footprints change
+        self._fp_version_last = 0  # versions come from one counter, so a UAV dropped and back reuses none
         self._next_prune = -math.inf  # monotonic time of the next sweep of old footprints
 
     # ---- input ---------------------------------------------------------------------------------
@@ -306,6 +307,7 @@ class JointMap:
             self._bump_footprints(uav)
             if not prints:
                 del self._footprints[uav]
+                self._fp_versions.pop(uav, None)
                 return None
         _, _, x, y = key
         version = self._fp_versions.get(uav, 0)
@@ -324,7 +326,8 @@ class JointMap:
 
     def _bump_footprints(self, uav: str) -> None:
         """Invalidate the cached coverage masks of ``uav`` (its footprints changed)."""
-        self._fp_versions[uav] = self._fp_versions.get(uav, 0) + 1
+        self._fp_version_last += 1
+        self._fp_versions[uav] = self._fp_version_last
 
     def restore(self, tiles: Iterable[JointTile], keep_s: float, now: float | None = None) -> int:
         """Serve joint tiles loaded from the database until ``keep_s`` after their last update.

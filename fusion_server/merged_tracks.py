@@ -32,7 +32,7 @@ __all__ = ["DEFAULT_STALE_S", "MergedTracks"]
 
 #: A region whose last message is older than this drops out of the merged view, seconds.
 DEFAULT_STALE_S = 3.0
-#: Most regions remembered (the oldest are forgotten beyond it).
+#: Most regions remembered (the oldest are forgotten beyond it; stale ones are forgotten anyway).
 _MAX_REGIONS = 65_536
 #: Ended tracks kept for ``include_ended``.
 _MAX_ENDED = 256
@@ -108,6 +108,11 @@ class MergedTracks:
 
     def _merge(self, now: float) -> None:
         """Recompute the merged view (lock held); tracks that left it become ended ones."""
+        # regions are oldest heard first (put moves a region to the end): forget the stale ones, so a fleet
+        # moving over new ground for days costs what the fresh regions cost, not every region ever heard
+        regions = self._regions
+        while regions and now - next(iter(regions.values()))[0] > self.stale_s:
+            regions.popitem(last=False)
         merged: dict[int, tuple[float, JointTrackItem]] = {}
         for received, t, items in self._regions.values():
             if now - received > self.stale_s:

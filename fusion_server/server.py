@@ -126,7 +126,8 @@ class FusionServer:
         self.http: HttpThread | None = None
         self.cot: CotSender | None = None
         if settings.cot_url is not None:
-            self.cot = CotSender(parse_cot_url(settings.cot_url), self._track_features, self.uavs.snapshot,
+            self.cot = CotSender(parse_cot_url(settings.cot_url), lambda: self.tracker.records(include_ended=True),
+                                 self.uavs.snapshot,
                                  interval_s=settings.cot_interval_s,
                                  objects=None if settings.cot_objects_min_score is None else self._object_peaks)
 

@@ -3,7 +3,9 @@
 Fed by the Zenoh side (liveliness samples, valid messages, drops), read by ``GET /v1/uavs``. Both
 kinds of entries are bounded so a flood of made-up ids cannot exhaust memory or lock real UAVs out:
 UAVs that sent data (at most ``max_uavs``; offline ones are forgotten first) and liveliness tokens
-(at most ``4 * max_uavs``; tokens of ids that never sent data are forgotten first, oldest first).
+(at most ``4 * max_uavs``; tokens of ids that never sent data are forgotten first, oldest first); so are
+the forgotten ids kept for persistence (at most ``4 * max_uavs``, oldest dropped: a server without a
+database never drains them).
 A UAV id heard from more than one Zenoh session at once (two drones configured with the same id,
 or an impostor) is reported. Thread-safe.
 """
@@ -83,7 +85,9 @@ class UavRegistry:
         self._tokens: OrderedDict[str, float] = OrderedDict()  # uav -> online since (wall), oldest first
         self._token_rejected: dict[str, dict[str, int]] = {}  # token-only uav -> its dropped messages by reason
         self._dirty: set[str] = set()  # UAVs changed since the last drain_changes (persistence)
-        self._forgotten: set[str] = set()
+        # ids forgotten since the last drain_changes, oldest first (a dict as an ordered set)
+        self._forgotten: dict[str, None] = {}
+        self.max_forgotten = 4 * max_uavs
         self.tokens_evicted = 0
         self.conflicts_total = 0
 
@@ -96,7 +100,7 @@ class UavRegistry:
                     return None
             entry = self._uavs[uav] = _Uav(online_since=self._tokens.get(uav))
             entry.rejected.update(self._token_rejected.pop(uav, {}))  # what it had dropped while known by token
-            self._forgotten.discard(uav)
+            self._forgotten.pop(uav, None)
         self._dirty.add(uav)
         return entry
 
@@ -106,8 +110,14 @@ class UavRegistry:
         if offline:
             victim = min(offline)[1]
             del self._uavs[victim]
-            self._forgotten.add(victim)
+            self._forget(victim)
             self._dirty.discard(victim)
+
+    def _forget(self, uav: str) -> None:
+        # only persistence drains these: without a database (--no-db) nobody does, so keep the newest few
+        self._forgotten[uav] = None
+        while len(self._forgotten) > self.max_forgotten:
+            del self._forgotten[next(iter(self._forgotten))]
 
     def alive(self, uav: str, online: bool) -> bool:
         """Record a liveliness token appearing (online) or disappearing; False if refused (full)."""
@@ -227,7 +237,7 @@ class UavRegistry:
             for uav in old:
                 del self._uavs[uav]
                 self._dirty.discard(uav)
-                self._forgotten.add(uav)
+                self._forget(uav)
         return old
 
     def online(self) -> list[str]:
