@@ -41,6 +41,11 @@ def _integer(value: Any) -> int | None:
         return None
     if isinstance(value, int):
         return value
+    if isinstance(value, str):
+        try:
+            return int(value.strip())  # exact for any length ("9007199254740993" through float lost its last digit)
+        except ValueError:
+            pass
     try:
         number = float(value) if isinstance(value, (float, str)) else math.nan
     except ValueError:

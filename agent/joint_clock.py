@@ -4,12 +4,14 @@ or NTP can boot minutes to years behind, and every joint message would look like
 The joint side's times are the fusion server's wall clock (joint tracks, emptied tiles) and the UAVs'
 source clocks (a tile carries its newest contributor's t), which the server keeps within its own clock
 skew. A message ahead of this clock by more than the skew is rejected (``t_in_future``: a corrupt or
-forged t); when such messages keep coming, at least CONFIRM_MESSAGES over CONFIRM_S of receive time and
-all of them ahead, this clock is taken to be behind by the smallest lead among them, which from then on
-is added to this clock before the skew check (warned once per step, and in the agent's summary). One
-message ahead, or a few within a moment, never moves it; the lead only grows (a clock set right later
-just leaves the check looser by the lead), and is bounded by MAX_LEAD_S so an absurd t (1e300) stays
-rejected.
+forged t). When such messages of one kind (tiles, tracks) keep coming, at least CONFIRM_MESSAGES over CONFIRM_S
+of receive time, all of them ahead and none of that kind on time in between, this clock is taken to be behind
+by the smallest lead among them, which from then on is added to this clock before the skew check (warned once per
+step, and in the agent's summary). A message on time clears its kind's evidence: forged stamps among the server's
+own messages, or tiles of a UAV whose clock runs ahead, never move it, while the server's tracks all ahead still
+do when the tiles carry a replayed UAV's past clock. One message ahead, or a few within a moment, never moves it;
+the lead only grows (a clock set right later just leaves the check looser by the lead), and is bounded by
+MAX_LEAD_S so an absurd t (1e300) stays rejected.
 """
 
 from __future__ import annotations
@@ -46,25 +48,30 @@ class JointClock:
         self._wall = wall
         self._monotonic = monotonic
         self._lock = threading.Lock()
-        self._ahead: deque[tuple[float, float]] = deque()  # (receive monotonic, lead) of rejected messages
+        # per kind of message: (receive monotonic, lead) of the rejected ones since the last on time
+        self._ahead: dict[str, deque[tuple[float, float]]] = {}
 
-    def accepts(self, t: float) -> bool:
-        """Whether a joint message stamped t is not ahead of this clock (plus the lead adopted) by more than
-        the skew; a rejected one counts as evidence that this clock is behind."""
+    def accepts(self, t: float, kind: str = "") -> bool:
+        """Whether a joint message of `kind` ("tiles", "tracks") stamped t is not ahead of this clock (plus the lead
+        adopted) by more than the skew; a rejected one counts as evidence that this clock is behind, one on time
+        clears its kind's."""
         lead = t - self._wall()
         with self._lock:
+            ahead = self._ahead.setdefault(kind, deque())
             if lead <= self.lead_s + self.skew_s:
+                ahead.clear()  # on time: what was ahead is not this clock's lag (forged, or a UAV's clock)
                 return True
             if not math.isfinite(lead) or lead > MAX_LEAD_S:
                 return False
             now = self._monotonic()
-            self._ahead.append((now, lead))
-            while self._ahead and now - self._ahead[0][0] > EVIDENCE_S:
-                self._ahead.popleft()
-            if len(self._ahead) < CONFIRM_MESSAGES or now - self._ahead[0][0] < CONFIRM_S:
+            ahead.append((now, lead))
+            while ahead and now - ahead[0][0] > EVIDENCE_S:
+                ahead.popleft()
+            if len(ahead) < CONFIRM_MESSAGES or now - ahead[0][0] < CONFIRM_S:
                 return False
-            self.lead_s = min(lead for _, lead in self._ahead)
-            self._ahead.clear()
+            self.lead_s = min(lead for _, lead in ahead)
+            for evidence in self._ahead.values():
+                evidence.clear()
         log.warning("the joint messages run %.0f s ahead of this machine's clock (no RTC or NTP?): taken as this "
                     "clock's lead from now on; set this machine's clock", self.lead_s)
         return True

@@ -452,7 +452,7 @@ class AgentLink:
     def _in_future(self, key: str, t: float) -> bool:
         """Whether a joint message's t is ahead of this clock (and the lead agent.joint_clock adopted) by more
         than MAX_CLOCK_SKEW_S (rejected)."""
-        if not self.joint_clock.accepts(t):
+        if not self.joint_clock.accepts(t, "tiles" if "/joint/tiles/" in key else "tracks"):
             self._reject("t_in_future", key, f"t {t!r:.30} is ahead of this clock")
             return True
         return False

@@ -100,8 +100,10 @@ class FusionView(Protocol):
 
     def count_http_denied(self, reason: str) -> None: ...
 
-    def history_tracks(self, cls: str | None = None, since: float | None = None) -> list[dict[str, Any]]:
-        """Track features with their history rows (class ``cls``, updated since ``since``) for /v1/history."""
+    def history_tracks(self, cls: str | None = None, since: float | None = None, until: float | None = None,
+                       ends_only: bool = False) -> list[dict[str, Any]]:
+        """Track features with their history rows (class ``cls``, updated since ``since``; rows up to ``until``, and
+        with ``ends_only`` each track's first and last row, where a database answers) for /v1/history."""
         ...
 
     def cluster_health(self) -> dict[str, Any]:

@@ -76,17 +76,18 @@ def read_history(db_path: str | Path, *, cls: str | None = None, since: float | 
         history: dict[int, list[list[float]]] = {}
         window = (since if since is not None else float("-inf"), until if until is not None else float("inf"))
         if ends_only:
+            first_rowid: dict[int, int] = {}
             for order in ("ASC", "DESC"):  # one index seek a track and end, not a scan of every row
-                for gid, t, lat, lon in conn.execute(
-                        "SELECT h.gid, h.t, h.lat, h.lon FROM tracks tr JOIN track_history h ON h.rowid = "
+                for rowid, gid, t, lat, lon in conn.execute(
+                        "SELECT h.rowid, h.gid, h.t, h.lat, h.lon FROM tracks tr JOIN track_history h ON h.rowid = "
                         "(SELECT rowid FROM track_history WHERE gid = tr.gid AND t >= ? AND t <= ? ORDER BY t "
-                        f"{order} LIMIT 1) WHERE {' AND '.join('tr.' + w for w in where)}", (*window, *args)):
-                    ends = history.setdefault(gid, [])
-                    if not ends or ends[-1][0] != t:
-                        ends.append([t, lat, lon])
-        else:
-            for gid, t, lat, lon in conn.execute(
-                    "SELECT gid, t, lat, lon FROM track_history WHERE t >= ? AND t <= ? ORDER BY gid, t", window):
+                        f"{order}, rowid {order} LIMIT 1) WHERE {' AND '.join('tr.' + w for w in where)}",
+                        (*window, *args)):
+                    if first_rowid.setdefault(gid, rowid) != rowid or order == "ASC":  # a one-row window: once
+                        history.setdefault(gid, []).append([t, lat, lon])
+        else:  # rows of one time in the order written (the ends above take the same)
+            for gid, t, lat, lon in conn.execute("SELECT gid, t, lat, lon FROM track_history WHERE t >= ? AND t <= ? "
+                                                 "ORDER BY gid, t, rowid", window):
                 history.setdefault(gid, []).append([t, lat, lon])
     except sqlite3.DatabaseError as exc:
         raise ValueError(f"{path} is not a uavmm fusion database ({exc})") from None

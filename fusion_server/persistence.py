@@ -57,7 +57,7 @@ CREATE TABLE IF NOT EXISTS uavs(
 """
 #: History rows kept in memory while the database cannot be written (oldest dropped beyond it).
 MAX_HISTORY_BACKLOG = 200_000
-#: Tracks queued for writing at most (beyond: the ended ones that ended first go).
+#: Tracks queued for writing in full (beyond it the ended ones are queued without their members).
 MAX_QUEUED_TRACKS = 50_000
 #: Longest wait between retries of a failing flush, seconds.
 _MAX_BACKOFF_S = 10.0
@@ -119,6 +119,7 @@ class FusionStore:
         self._wake = threading.Condition(self._lock)
         self._tracks: dict[int, TrackRecord] = {}
         self._history: list[tuple[int, float, float, float]] = []
+        self._compacted = 0  # queued tracks when the ended ones were last compacted (`_bound_queue`)
         self._joint: dict[TileKey, JointTile | None] = {}
         self._since_trim: dict[int, int] = {}
         self._uavs: dict[str, UavRecord | None] = {}
@@ -229,15 +230,18 @@ class FusionStore:
 
     def _bound_queue(self) -> None:
         """While the database cannot be written (lock held): history rows beyond MAX_HISTORY_BACKLOG go, oldest
-        first (counted in history_dropped), and ended tracks beyond MAX_QUEUED_TRACKS, those that ended first (the
-        database keeps max_ended of them anyway). A day without a database grew the queue by ~36 MB an hour."""
+        first (counted in history_dropped), and beyond MAX_QUEUED_TRACKS queued tracks the ended ones keep only what
+        their row needs to say they ended (no members: ~0.2 KB each). Dropped, a track the database holds alive
+        would have stayed alive there and been restored as live. A day without a database grew the queue by ~36 MB
+        an hour."""
         if len(self._history) > MAX_HISTORY_BACKLOG:
             self.history_dropped += len(self._history) - MAX_HISTORY_BACKLOG
             del self._history[: len(self._history) - MAX_HISTORY_BACKLOG]
-        if len(self._tracks) > MAX_QUEUED_TRACKS:
-            ended = sorted((r.ended, gid) for gid, r in self._tracks.items() if r.ended is not None)
-            for _, gid in ended[: len(self._tracks) - MAX_QUEUED_TRACKS * 9 // 10]:  # a tenth of room: not every call
-                del self._tracks[gid]
+        if len(self._tracks) > MAX_QUEUED_TRACKS and len(self._tracks) >= self._compacted + MAX_QUEUED_TRACKS // 10:
+            for gid, record in self._tracks.items():
+                if record.ended is not None and record.members:
+                    self._tracks[gid] = dataclasses.replace(record, members=())
+            self._compacted = len(self._tracks)
 
     def save_joint(self, key: TileKey, tile: JointTile | None) -> None:
         """Queue the latest joint tile at key (None: the tile was dropped)."""
@@ -390,6 +394,7 @@ class FusionStore:
         self._pull_sources()
         with self._lock:
             tracks, self._tracks = self._tracks, {}
+            self._compacted = 0
             history, self._history = self._history, []
             joint, self._joint = self._joint, {}
             uavs, self._uavs = self._uavs, {}

@@ -23,7 +23,7 @@ from typing import Any
 from agent.memory_map import MemoryMapConfig
 from agent.pipeline_config import PipelineConfig
 from agent.tracking import TrackerConfig
-from sim.domains import Domain
+from sim.domains import FAR_DOMAINS, Domain
 from sim.evaluate import Variant, evaluate_detection
 from sim.position_error import format_metres, mean_known
 from sim.terrain_eval import DEM_SUFFIX, TWIN, markdown_terrain, summarise_terrain, terrain_acceptance, terrain_of
@@ -212,7 +212,8 @@ def summarise_tracking(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
 def acceptance(report: dict[str, Any]) -> list[dict[str, Any]]:
     """The issue's bars on the held-out domains: [{criterion, value, bar, ok}]."""
     out: list[dict[str, Any]] = []
-    det = [s for s in report["detection"] if s["split"] == "heldout"]
+    # the far group's boxes all lie beyond the memory map's range: only its tracking bars apply
+    det = [s for s in report["detection"] if s["split"] == "heldout" and s["domain"] not in FAR_DOMAINS]
     for noise, bar in ((1.0, 3.0), (2.0, 2.0)):
         rows = [s for s in det if s["noise_scale"] == noise]
         if not rows:

@@ -51,8 +51,10 @@ def _numeric_results(raw: Any) -> list[dict[str, Any]]:
         except (KeyError, TypeError, ValueError):
             continue
         box = entry["bbox"]
-        # the candidate loader's own rule: the detector is scored on the entries every variant gets
-        if len(box) == 4 and all(math.isfinite(v) for v in box) and box[2] > 0 and box[3] > 0:
+        # the candidate loader's own rule: the detector is scored on the entries every variant gets (a NaN score
+        # skipped as there; a finite one outside [0, 1] was refused before, `_check_scores`)
+        if (len(box) == 4 and all(math.isfinite(v) for v in box) and box[2] > 0 and box[3] > 0
+                and 0.0 <= entry["score"] <= 1.0):
             out.append(entry)
     return out
 
@@ -60,15 +62,22 @@ def _numeric_results(raw: Any) -> list[dict[str, Any]]:
 def _check_scores(candidates: Candidates, raw: Any, source: str | Path) -> None:
     """Refuse a detections file whose scores the pipeline would drop (outside [0, 1]): the variants would be scored on
     a part of what the detector is scored on (611 boosted scores above 1 read as boat 86.2 -> 27.4)."""
-    bad = candidates.skipped.get("score_out_of_range", 0)
+    if not candidates.skipped.get("score_out_of_range", 0):
+        return
+    scores = []
+    for r in raw if isinstance(raw, list) else []:
+        try:
+            scores.append(float(r["score"]))
+        except (KeyError, TypeError, ValueError):
+            continue
+    outside = [v for v in scores if math.isfinite(v) and not 0.0 <= v <= 1.0]  # NaN: skipped, as detectors emit it
+    bad = len(outside)
     if not bad:
         return
-    scores = [r["score"] for r in raw if isinstance(r, dict) and isinstance(r.get("score"), (int, float))]
-    outside = [v for v in scores if not 0.0 <= v <= 1.0]
-    hint = (" (percentages? divide them by 100)" if outside and max(outside) <= 100.0 and min(scores) >= 0.0
+    hint = (" (percentages? divide them by 100)" if max(outside) <= 100.0 and min(outside) >= 0.0
             and sum(v > 1.0 for v in scores) > len(scores) / 2 else
             " (a detector's confidences are in [0, 1]; `uavmm detect`'s boosted scores are not a detector's output)")
-    first = f": e.g. {outside[0]!r}" if outside else ""
+    first = f": e.g. {outside[0]!r}"
     raise ValueError(f"{source}: {bad} of the detections have a score outside [0, 1]{first}; the pipeline would "
                      f"drop them, and the detector would be scored on more than the variants{hint}")
 

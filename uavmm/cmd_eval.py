@@ -33,9 +33,10 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "coop (two UAVs with a joint map), anomaly (rendered frames, docs/anomaly.md) "
                         "(default: detection; with --domains: detection,tracking)")
     p.add_argument("--domains", default=None,
-                   help="comma-separated evaluation domains (sim.domains) or the groups all, tune, heldout: "
-                        "detection and tracking per domain, held-out domains reported apart (seeds default 0,1,2; "
-                        "tasks detection,tracking). With --tasks coop: the cooperative domains (sim.coop_domains; "
+                   help="comma-separated evaluation domains (sim.domains) or the groups all, tune, heldout (and "
+                        "far: far, low views beyond the pipeline's range, for tracking): detection and tracking per "
+                        "domain, held-out domains reported apart (seeds default 0,1,2; tasks detection,tracking). "
+                        "With --tasks coop: the cooperative domains (sim.coop_domains; "
                         "the same groups), per UAV the detector, its own map and the joint map (first noise scale)")
     p.add_argument("--list-domains", action="store_true",
                    help="print the domains (with --tasks coop: the cooperative ones) as a table and exit")

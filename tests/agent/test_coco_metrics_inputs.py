@@ -117,3 +117,14 @@ def test_categories_that_share_a_name_or_are_named_all_keep_their_own_rows():
     assert set(rows) == {"all", "all (1)", "boat (2)", "boat (3)"}
     assert rows["all"]["AP50"] == pytest.approx(_pycocotools_ap50(gt, _results(gt)))
     assert sum(rows[k]["gt"] for k in rows if k != "all") == rows["all"]["gt"] == len(gt["annotations"])
+
+
+def test_ids_written_as_long_text_keep_every_digit():
+    # probe (review): "9007199254740993" went through float and lost its last digit: the box matched no image
+    gt = _gt()
+    big = 2**53 + 1
+    gt["images"].append({"id": big, "width": 640, "height": 480})
+    gt["annotations"].append({"id": 99, "image_id": str(big), "category_id": 1, "bbox": [1, 1, 10, 10]})
+    res = _results(_gt()) + [{"image_id": big, "category_id": 1, "bbox": [1, 1, 10, 10], "score": 0.99}]
+    rows = per_class_metrics(gt, res)
+    assert rows["swimmer"]["gt"] == 3.0 and rows["all"]["gt"] == 5.0

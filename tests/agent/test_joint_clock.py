@@ -87,3 +87,26 @@ def test_messages_within_the_skew_pass_and_are_no_evidence():
         assert clock.accepts(clocks.wall - 86_400.0)  # from the past (a replayed source clock): fine
         clocks.step(0.5)
     assert clock.lead_s == 0.0
+
+
+def test_stamps_far_ahead_among_messages_on_time_never_move_the_clock():
+    # probe (review): five stamps 31 years ahead spread over 2 s among the server's own messages on time set the lead,
+    # and from then on the t_in_future check was off for good
+    clock, clocks = clock_and_time()
+    for i in range(30):
+        assert clock.accepts(clocks.wall - 0.05, "tracks")  # the server's own, on time
+        if i % 3 == 0:
+            assert not clock.accepts(clocks.wall + 1e9, "tracks")  # forged, interleaved
+        clocks.step(0.2)
+    assert clock.lead_s == 0.0
+
+
+def test_tiles_on_a_replayed_past_clock_do_not_hold_back_the_servers_lead():
+    # a UAV replaying a 2020 dataset stamps its tiles in the past; the server's tracks run 2 minutes ahead of this clock
+    clock, clocks = clock_and_time()
+    adopted = []
+    for _ in range(15):
+        assert clock.accepts(1.6e9, "tiles")
+        adopted.append(clock.accepts(clocks.wall + 120.0, "tracks"))
+        clocks.step(0.5)
+    assert adopted.index(True) == 4 and all(adopted[4:]) and clock.lead_s == pytest.approx(120.0)

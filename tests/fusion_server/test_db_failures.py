@@ -121,7 +121,18 @@ def test_a_database_that_cannot_even_be_opened_still_drains_the_tracker_into_a_b
             assert not store._attempt()
     assert not tracker._history_out and not tracker._ended_pending  # drained although nothing could be written
     assert len(store._history) <= 500 and store.history_dropped > 0
-    assert len(store._tracks) <= 40 and all(not r.history for r in store._tracks.values())
+    assert all(not r.history for r in store._tracks.values())
+    # beyond 40 queued tracks the ended ones keep no members, but stay queued: dropped, the ones the database holds
+    # alive would have stayed alive there (and been restored as live)
+    ended = [r for r in store._tracks.values() if r.ended is not None]
+    assert len(store._tracks) > 40 and len(ended) > 40
+    assert sum(bool(r.members) for r in ended) <= 40 // 10  # those that ended since the last compaction
     assert store.health()["status"] == "failing"
     store.path = tmp_path / "fusion.sqlite"  # back: what the queue holds is written
     assert store._attempt() and store.pending() == 0
+    import sqlite3
+
+    conn = sqlite3.connect(tmp_path / "fusion.sqlite")
+    alive = {gid for (gid,) in conn.execute("SELECT gid FROM tracks WHERE ended IS NULL")}
+    conn.close()
+    assert alive == {r.gid for r in tracker.records()}  # every track that ended says so in the database
