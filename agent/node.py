@@ -328,7 +328,7 @@ class AgentNode:
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,
                                        "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0,
                                        "replay_sync_s": 0.0}
-        self._rows = TrackRowLog()  # for settings.tracks_out, as columns (72 B a row; 538 B as objects)
+        self._rows = TrackRowLog()  # for settings.tracks_out, as columns (104 B a row; 538 B as objects)
         # COCO results for settings.detections_out, written as they come
         self._detections = None if settings.detections_out is None else StreamedResults(settings.detections_out)
         self._last_pose: tuple[float, Pose, Camera] | None = None

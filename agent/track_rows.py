@@ -1,15 +1,17 @@
 """The rows `uavmm agent --tracks-out` writes at the end of a run, held as columns while it runs.
 
-A row is one confirmed track matched in one frame. Held as `TrackOutput` objects they cost ~540 B each: an agent
-tracking ten objects at 30 fps grew ~580 MB an hour. Here they are 72 B each, in fixed-size column chunks, and the
-GeoJSON (`agent.tracking_io.geojson_tracks`'s layout, byte for byte) is written feature by feature.
+A row is one track reported in one frame. Held as `TrackOutput` objects they cost ~540-665 B each: an agent tracking
+ten objects at 30 fps grew ~580 MB an hour, `uavmm detect` on a video with ~20 people ~840 MB an hour. Here they are
+104 B each, in fixed-size column chunks, and the outputs are written from them piece by piece: the GeoJSON
+(`agent.tracking_io.geojson_tracks`'s layout), the MOT rows (`mot_lines`') and the objects (`uavmm detect`'s), byte for
+byte.
 """
 
 from __future__ import annotations
 
 import json
 import os
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -20,7 +22,8 @@ from agent.tracking import TrackOutput
 __all__ = ["ROW_DTYPE", "TrackRowLog"]
 
 ROW_DTYPE = np.dtype([("frame", "<i8"), ("t", "<f8"), ("id", "<i8"), ("cls", "<i8"), ("lat", "<f8"),
-                      ("lon", "<f8"), ("score", "<f8"), ("ve", "<f8"), ("vn", "<f8")])
+                      ("lon", "<f8"), ("score", "<f8"), ("ve", "<f8"), ("vn", "<f8"), ("x1", "<f8"), ("y1", "<f8"),
+                      ("x2", "<f8"), ("y2", "<f8")])
 
 
 class TrackRowLog:
@@ -48,27 +51,41 @@ class TrackRowLog:
                 self._open = np.empty(self._chunk_rows, ROW_DTYPE)
                 self._n_open = 0
             self._open[self._n_open] = (frame_index, t, tr.id, tr.cls, tr.lat, tr.lon, tr.score, tr.vel_en[0],
-                                        tr.vel_en[1])
+                                        tr.vel_en[1], *tr.box_xyxy)
             self._n_open += 1
 
     def rows(self) -> np.ndarray:
         """Every row, in the order added (a copy)."""
         return np.concatenate([*self._full, self._open[: self._n_open]])
 
+    def track_ids(self) -> int:
+        """Distinct track ids."""
+        return len(np.unique(self.rows()["id"]))
+
+    def mot_lines(self) -> Iterator[str]:
+        """`agent.tracking_io.mot_lines` of the rows (frame = frame index + 1), sorted by frame and id."""
+        rows = self.rows()
+        rows = rows[np.lexsort((rows["id"], rows["frame"]))]
+        for frame, tid, x1, y1, x2, y2, score in zip(*(rows[k].tolist() for k in ("frame", "id", "x1", "y1", "x2",
+                                                                                    "y2", "score")), strict=True):
+            yield f"{frame + 1},{tid},{x1:.2f},{y1:.2f},{x2 - x1:.2f},{y2 - y1:.2f},{score:.5f},-1,-1,-1"
+
+    def by_track(self) -> Iterator[np.ndarray]:
+        """The rows with a finite position, one array per track id (ascending), in the order added."""
+        rows = self.rows()
+        rows = rows[np.isfinite(rows["lat"]) & np.isfinite(rows["lon"])]
+        rows = rows[np.argsort(rows["id"], kind="stable")]
+        if not len(rows):
+            return
+        starts = np.flatnonzero(np.r_[True, rows["id"][1:] != rows["id"][:-1]])
+        for a, b in zip(starts.tolist(), np.r_[starts[1:], len(rows)].tolist(), strict=True):
+            yield rows[a:b]
+
     def features(self, class_names: dict[int, str], properties: Callable[[dict[str, Any]], None] | None = None
                  ) -> Iterable[dict[str, Any]]:
         """One GeoJSON feature per track id (ascending), as `geojson_tracks` builds them for video 0; rows without a
         finite position are left out. properties: called on each feature's properties (to add to them)."""
-        rows = self.rows()
-        rows = rows[np.isfinite(rows["lat"]) & np.isfinite(rows["lon"])]
-        order = np.argsort(rows["id"], kind="stable")
-        rows = rows[order]
-        if not len(rows):
-            return
-        starts = np.flatnonzero(np.r_[True, rows["id"][1:] != rows["id"][:-1]])
-        ends = np.r_[starts[1:], len(rows)]
-        for a, b in zip(starts.tolist(), ends.tolist(), strict=True):
-            trs = rows[a:b]
+        for trs in self.by_track():
             coords = [[round(lon, 8), round(lat, 8)] for lon, lat in zip(trs["lon"].tolist(), trs["lat"].tolist(),
                                                                          strict=True)]
             geometry = ({"type": "Point", "coordinates": coords[0]} if len(coords) == 1

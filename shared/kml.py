@@ -11,11 +11,11 @@ import io
 import json
 import xml.etree.ElementTree as ET
 import zipfile
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
 from datetime import datetime, timezone
 from typing import Any
 
-__all__ = ["KML_MEDIA_TYPE", "KMZ_MEDIA_TYPE", "feature_collections_kml", "kmz"]
+__all__ = ["KML_MEDIA_TYPE", "KMZ_MEDIA_TYPE", "feature_collections_kml", "kml_chunks", "kmz"]
 
 KML_MEDIA_TYPE = "application/vnd.google-earth.kml+xml"
 KMZ_MEDIA_TYPE = "application/vnd.google-earth.kmz"
@@ -73,15 +73,29 @@ def _placemark(folder: ET.Element, feature: Mapping[str, Any]) -> None:
 
 def feature_collections_kml(name: str, folders: Mapping[str, Mapping[str, Any]]) -> bytes:
     """A KML document with one Folder per FeatureCollection (``{folder name: collection}``)."""
+    return b"".join(kml_chunks(name, {k: c.get("features", ()) for k, c in folders.items()}))
+
+
+def kml_chunks(name: str, folders: Mapping[str, Iterable[Mapping[str, Any]]]) -> Iterator[bytes]:
+    """`feature_collections_kml`'s bytes piece by piece, one Placemark at a time, from ``{folder name: features}``
+    (iterables: a long video's tracks are never held as one document)."""
     kml = ET.Element("kml", {"xmlns": _NS})
     document = ET.SubElement(kml, "Document")
     ET.SubElement(document, "name").text = name
-    for folder_name, collection in folders.items():
+    for i, folder_name in enumerate(folders):
         folder = ET.SubElement(document, "Folder")
         ET.SubElement(folder, "name").text = folder_name
-        for feature in collection.get("features", ()):
-            _placemark(folder, feature)
-    return b'<?xml version="1.0" encoding="UTF-8"?>\n' + ET.tostring(kml, encoding="utf-8")
+        ET.SubElement(folder, f"slot{i}")  # where the folder's placemarks go, cut out below
+    text = ET.tostring(kml, encoding="utf-8")
+    yield b'<?xml version="1.0" encoding="UTF-8"?>\n'
+    for i, features in enumerate(folders.values()):
+        head, text = text.split(f"<slot{i} />".encode(), 1)
+        yield head
+        for feature in features:
+            holder = ET.Element("Folder")
+            _placemark(holder, feature)
+            yield ET.tostring(holder[0], encoding="utf-8")
+    yield text
 
 
 def kmz(kml: bytes) -> bytes:

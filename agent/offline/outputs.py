@@ -8,14 +8,13 @@ interrupted run never leaves a truncated file.
 from __future__ import annotations
 
 import json
-import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from agent.tracking_io import TrackRow, geojson_tracks, mot_lines
+from agent.track_rows import TrackRowLog
 from shared.geo import Pose
-from shared.kml import feature_collections_kml
+from shared.kml import kml_chunks
 from shared.telemetry import Telemetry, to_seadronessee_meta
 from shared.telemetry.dates import format_datetime
 
@@ -143,53 +142,71 @@ class StreamedImages:
             self._lines.unlink(missing_ok=True)
 
 
-def objects_geojson(rows: Sequence[TrackRow], class_names: Mapping[int, str]) -> dict[str, Any]:
+def objects_geojson(rows: TrackRowLog, class_names: Mapping[int, str]) -> dict[str, Any]:
     """One Point per track: where it was last seen, with when, how often and how confidently.
 
     Properties: ``id, cls`` (class name), ``cls_id, score`` (highest boosted confidence, clipped to 1),
     ``mean_score, frames`` (frames reported), ``first_t, t`` (first and last seen, UNIX s or the telemetry's
     clock), ``first_seen, last_seen`` (ISO 8601 UTC, ending in "Z"), ``vel_en`` (m/s at the last sighting).
     """
-    by_track: dict[int, list[TrackRow]] = {}
-    for r in rows:
-        if math.isfinite(r.track.lat) and math.isfinite(r.track.lon):
-            by_track.setdefault(r.track.id, []).append(r)
     features = []
-    for tid, trs in sorted(by_track.items()):
+    for trs in rows.by_track():
         last = trs[-1]
-        scores = [min(max(r.track.score, 0.0), 1.0) for r in trs]
+        tid, cls, first_t, t = int(last["id"]), int(last["cls"]), float(trs["t"][0]), float(last["t"])
+        scores = [min(max(score, 0.0), 1.0) for score in trs["score"].tolist()]
         features.append({
             "type": "Feature", "id": tid,
-            "geometry": {"type": "Point", "coordinates": [round(last.track.lon, 8), round(last.track.lat, 8)]},
+            "geometry": {"type": "Point", "coordinates": [round(float(last["lon"]), 8), round(float(last["lat"]), 8)]},
             "properties": {
-                "id": tid, "cls": class_names.get(last.track.cls, str(last.track.cls)), "cls_id": last.track.cls,
+                "id": tid, "cls": class_names.get(cls, str(cls)), "cls_id": cls,
                 "score": round(max(scores), 4), "mean_score": round(sum(scores) / len(scores), 4),
-                "frames": len(trs), "first_t": round(trs[0].t, 3), "t": round(last.t, 3),
-                "first_seen": _utc(trs[0].t), "last_seen": _utc(last.t),
-                "vel_en": [round(last.track.vel_en[0], 3), round(last.track.vel_en[1], 3)],
+                "frames": len(trs), "first_t": round(first_t, 3), "t": round(t, 3),
+                "first_seen": _utc(first_t), "last_seen": _utc(t),
+                "vel_en": [round(float(last["ve"]), 3), round(float(last["vn"]), 3)],
             },
         })
     return {"type": "FeatureCollection", "features": features}
 
 
-def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, images: list[dict[str, Any]] | None,
-                  rows: list[TrackRow], class_names: Mapping[int, str], video_name: str,
-                  source: str = "") -> dict[str, str]:
-    """Write the COCO, MOT, GeoJSON and KML files into out_dir; returns {kind: path}. `detections` / `images` None:
-    that file was streamed (`agent.boost.StreamedResults`, `StreamedImages`) and is only named."""
-    names = dict(class_names)
-    tracks = geojson_tracks({0: list(rows)}, names)
-    for feature in tracks["features"]:  # the class name as `cls` (REST and KML convention), the id kept
-        props = feature["properties"]
+def _track_features(rows: TrackRowLog, names: Mapping[int, str]) -> Iterator[dict[str, Any]]:
+    """The tracks' GeoJSON features (`agent.tracking_io.geojson_tracks`) with the class name as `cls` (REST and KML
+    convention) and the id as `cls_id`, one at a time."""
+    def rename(props: dict[str, Any]) -> None:
         props["cls_id"] = props["cls"]
         props["cls"] = props.pop("cls_name")
-    objects = objects_geojson(rows, names)
-    files = {
-        "mot": "".join(line + "\n" for line in mot_lines(list(rows))),
-        "tracks_geojson": json.dumps(tracks),
-        "objects_geojson": json.dumps(objects),
-    }
-    paths = {}
+
+    return iter(rows.features(dict(names), rename))
+
+
+def _collection_chunks(features: Iterable[dict[str, Any]]) -> Iterator[str]:
+    """``json.dumps`` of a FeatureCollection of the features, piece by piece."""
+    yield '{"type": "FeatureCollection", "features": ['
+    for i, feature in enumerate(features):
+        yield (", " if i else "") + json.dumps(feature)
+    yield "]}"
+
+
+def write_chunks_atomic(path: Path, chunks: Iterable[str | bytes]) -> None:
+    """`write_text_atomic` of text given piece by piece (text or bytes, not both)."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            for chunk in chunks:
+                f.write(chunk if isinstance(chunk, bytes) else chunk.encode("utf-8"))
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, images: list[dict[str, Any]] | None,
+                  rows: TrackRowLog, class_names: Mapping[int, str], video_name: str,
+                  source: str = "") -> dict[str, str]:
+    """Write the COCO, MOT, GeoJSON and KML files into out_dir; returns {kind: path}. `detections` / `images` None:
+    that file was streamed (`agent.boost.StreamedResults`, `StreamedImages`) and is only named. The track files are
+    written from the rows' columns piece by piece (a long video's tracks are never one document in memory)."""
+    names = dict(class_names)
+    paths: dict[str, str] = {}
+    files: dict[str, str] = {}
     if detections is not None:
         files["detections"] = json.dumps(detections)
     else:
@@ -198,11 +215,17 @@ def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, ima
         files["images"] = json.dumps(images_json(images, names, video_name, source=source))
     else:
         paths["images"] = str(out_dir / OUTPUT_FILES["images"])
+    write_chunks_atomic(out_dir / OUTPUT_FILES["mot"], (line + "\n" for line in rows.mot_lines()))
+    write_chunks_atomic(out_dir / OUTPUT_FILES["tracks_geojson"], _collection_chunks(_track_features(rows, names)))
+    objects = objects_geojson(rows, names)
+    write_text_atomic(out_dir / OUTPUT_FILES["objects_geojson"], json.dumps(objects))
+    for kind in ("mot", "tracks_geojson", "objects_geojson"):
+        paths[kind] = str(out_dir / OUTPUT_FILES[kind])
     for kind, text in files.items():
         path = out_dir / OUTPUT_FILES[kind]
         write_text_atomic(path, text)
         paths[kind] = str(path)
-    kml = feature_collections_kml(f"uavmm detect: {video_name}", {"objects": objects, "tracks": tracks})
-    write_text_atomic(out_dir / OUTPUT_FILES["kml"], kml)
+    write_chunks_atomic(out_dir / OUTPUT_FILES["kml"], kml_chunks(f"uavmm detect: {video_name}", {
+        "objects": objects["features"], "tracks": _track_features(rows, names)}))
     paths["kml"] = str(out_dir / OUTPUT_FILES["kml"])
     return paths
