@@ -25,6 +25,8 @@ ROW_DTYPE = np.dtype([("frame", "<i8"), ("t", "<f8"), ("id", "<i8"), ("cls", "<i
                       ("lon", "<f8"), ("score", "<f8"), ("ve", "<f8"), ("vn", "<f8"), ("x1", "<f8"), ("y1", "<f8"),
                       ("x2", "<f8"), ("y2", "<f8")])
 
+_LINES_AT_ONCE = 65_536
+
 
 class TrackRowLog:
     """Append-only rows (frame index, time, track); ``write_geojson`` at the end. Not thread-safe (the agent's loop)."""
@@ -65,10 +67,12 @@ class TrackRowLog:
     def mot_lines(self) -> Iterator[str]:
         """`agent.tracking_io.mot_lines` of the rows (frame = frame index + 1), sorted by frame and id."""
         rows = self.rows()
-        rows = rows[np.lexsort((rows["id"], rows["frame"]))]
-        for frame, tid, x1, y1, x2, y2, score in zip(*(rows[k].tolist() for k in ("frame", "id", "x1", "y1", "x2",
-                                                                                    "y2", "score")), strict=True):
-            yield f"{frame + 1},{tid},{x1:.2f},{y1:.2f},{x2 - x1:.2f},{y2 - y1:.2f},{score:.5f},-1,-1,-1"
+        order = np.lexsort((rows["id"], rows["frame"]))
+        for a in range(0, len(order), _LINES_AT_ONCE):  # as Python numbers a slice at a time, not every row at once
+            part = rows[order[a:a + _LINES_AT_ONCE]]
+            for frame, tid, x1, y1, x2, y2, score in zip(*(part[k].tolist() for k in (
+                    "frame", "id", "x1", "y1", "x2", "y2", "score")), strict=True):
+                yield f"{frame + 1},{tid},{x1:.2f},{y1:.2f},{x2 - x1:.2f},{y2 - y1:.2f},{score:.5f},-1,-1,-1"
 
     def by_track(self) -> Iterator[np.ndarray]:
         """The rows with a finite position, one array per track id (ascending), in the order added."""

@@ -67,10 +67,13 @@ def _check_scores(candidates: Candidates, raw: Any, source: str | Path) -> None:
     scores = []
     for r in raw if isinstance(raw, list) else []:
         try:
-            scores.append(float(r["score"]))
+            box = [float(v) for v in r["bbox"]]
+            if len(box) == 4 and all(map(math.isfinite, box)) and box[2] > 0 and box[3] > 0:  # else skipped anyway
+                scores.append(float(r["score"]))
         except (KeyError, TypeError, ValueError):
             continue
-    outside = [v for v in scores if math.isfinite(v) and not 0.0 <= v <= 1.0]  # NaN: skipped, as detectors emit it
+    # a NaN or infinite score is skipped, as detectors emit them
+    outside = [v for v in scores if math.isfinite(v) and not 0.0 <= v <= 1.0]
     bad = len(outside)
     if not bad:
         return

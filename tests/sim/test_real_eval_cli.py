@@ -115,3 +115,18 @@ def test_a_nan_score_is_skipped_in_every_column_not_refused(data, tmp_path):
     assert code == 0
     got = json.loads(report.read_text())
     assert got["rows"] == plain["rows"] and got["skipped_detections"] == {"score_out_of_range": 1}
+
+
+def test_a_bad_score_on_a_box_skipped_anyway_does_not_refuse_the_file(data, tmp_path):
+    # probe (second review): a zero-width box scored 1.5 beside a NaN score refused the file, though every column
+    # skips that box for its size
+    plain = _eval(data, tmp_path / "plain")
+    results = json.loads((data / "pre_nms.json").read_text())
+    r = results[0]
+    extra = [{**r, "bbox": [r["bbox"][0], r["bbox"][1], 0.0, r["bbox"][3]], "score": 1.5},
+             {**r, "score": float("nan")}, {**r, "score": float("inf")}]
+    code, report = _eval_with(data, tmp_path, "mixed", results + extra)
+    assert code == 0
+    got = json.loads(report.read_text())
+    assert got["rows"] == plain["rows"]
+    assert got["skipped_detections"] == {"non_positive_size": 1, "score_out_of_range": 2}
