@@ -19,7 +19,7 @@ import numpy as np
 
 from agent.tracking import TrackOutput
 
-__all__ = ["ROW_DTYPE", "TrackRowLog"]
+__all__ = ["ROW_DTYPE", "TrackRowLog", "collection_chunks", "write_chunks_atomic"]
 
 ROW_DTYPE = np.dtype([("frame", "<i8"), ("t", "<f8"), ("id", "<i8"), ("cls", "<i8"), ("lat", "<f8"),
                       ("lon", "<f8"), ("score", "<f8"), ("ve", "<f8"), ("vn", "<f8"), ("x1", "<f8"), ("y1", "<f8"),
@@ -106,19 +106,36 @@ class TrackRowLog:
 
     def write_geojson(self, path: str | Path, class_names: dict[int, str],
                       properties: Callable[[dict[str, Any]], None] | None = None) -> int:
-        """Write the FeatureCollection to path, feature by feature (a temporary file renamed into place: a reader never
-        sees half a file, and a failed write leaves what was there). Returns the number of features."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+        """Write the FeatureCollection to path, feature by feature (`write_chunks_atomic`). Returns the number of
+        features."""
         n = 0
-        try:
-            with open(tmp, "w", encoding="utf-8") as f:
-                f.write('{"type": "FeatureCollection", "features": [')
-                for feature in self.features(class_names, properties):
-                    f.write((", " if n else "") + json.dumps(feature))
-                    n += 1
-                f.write("]}")
-            os.replace(tmp, path)
-        finally:
-            tmp.unlink(missing_ok=True)
+
+        def counted() -> Iterator[dict[str, Any]]:
+            nonlocal n
+            for feature in self.features(class_names, properties):
+                n += 1
+                yield feature
+
+        write_chunks_atomic(Path(path), collection_chunks(counted()))
         return n
+
+
+def collection_chunks(features: Iterable[dict[str, Any]]) -> Iterator[str]:
+    """``json.dumps`` of a FeatureCollection of the features, piece by piece."""
+    yield '{"type": "FeatureCollection", "features": ['
+    for i, feature in enumerate(features):
+        yield (", " if i else "") + json.dumps(feature)
+    yield "]}"
+
+
+def write_chunks_atomic(path: Path, chunks: Iterable[str | bytes]) -> None:
+    """Write text given piece by piece (str or bytes) through a hidden temporary beside path, then rename: a reader
+    never sees half a file, and a failed write leaves what was there."""
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as f:
+            for chunk in chunks:
+                f.write(chunk if isinstance(chunk, bytes) else chunk.encode("utf-8"))
+        tmp.replace(path)
+    finally:
+        tmp.unlink(missing_ok=True)

@@ -216,9 +216,9 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
         counts["detections"] += len(result)
         if frame.pose is not None:  # a track starts only at a ground point: count the confident boxes without one
             confident = result.raw_scores >= tracker.config.birth_score
-            grounded = np.isfinite(result.lat) if tracker.last_grounded is None else tracker.last_grounded
+            assert tracker.last_grounded is not None  # set by every frame with a pose
             counts["confident_posed"] += int(confident.sum())
-            counts["confident_without_ground_point"] += int((confident & ~grounded).sum())
+            counts["confident_without_ground_point"] += int((confident & ~tracker.last_grounded).sum())
         rows.extend(TrackRow(frame.image.frame_index, frame.image.id, t, tr) for tr in tracker.report(tracks))
         if on_frame is not None:
             on_frame(frame, result, tracks)

@@ -449,10 +449,10 @@ class AgentLink:
             self._reject(exc.reason, key, exc)
             return None
 
-    def _in_future(self, key: str, t: float) -> bool:
-        """Whether a joint message's t is ahead of this clock (and the lead agent.joint_clock adopted) by more
-        than MAX_CLOCK_SKEW_S (rejected)."""
-        if not self.joint_clock.accepts(t, "tiles" if "/joint/tiles/" in key else "tracks"):
+    def _in_future(self, key: str, t: float, kind: str) -> bool:
+        """Whether a joint message's t is ahead of this clock (and the lead agent.joint_clock adopted for `kind`'s
+        evidence) by more than MAX_CLOCK_SKEW_S (rejected)."""
+        if not self.joint_clock.accepts(t, kind):
             self._reject("t_in_future", key, f"t {t!r:.30} is ahead of this clock")
             return True
         return False
@@ -470,7 +470,7 @@ class AgentLink:
         if msg.z != self.grid.z or msg.n != self.grid.n:
             self._reject("wrong_grid", key, f"z={msg.z} n={msg.n}, agent grid z={self.grid.z} n={self.grid.n}")
             return
-        if self._in_future(key, msg.t):
+        if self._in_future(key, msg.t, "tiles"):
             return
         tile_id = (msg.cls, msg.x, msg.y)
         now = time.monotonic()
@@ -498,7 +498,7 @@ class AgentLink:
         if msg.uav != JOINT_UAV:
             self._reject("uav_mismatch", key, f"uav {msg.uav!r} on the joint tracks key")
             return
-        if self._in_future(key, msg.t):
+        if self._in_future(key, msg.t, "tracks"):
             return
         with self._lock:
             if region is None:

@@ -76,15 +76,16 @@ def read_history(db_path: str | Path, *, cls: str | None = None, since: float | 
         history: dict[int, list[list[float]]] = {}
         window = (since if since is not None else float("-inf"), until if until is not None else float("inf"))
         if ends_only:
-            first_rowid: dict[int, int] = {}
+            ends: dict[str, dict[int, tuple[int, list[float]]]] = {}  # order -> gid -> (rowid, [t, lat, lon])
             for order in ("ASC", "DESC"):  # one index seek a track and end, not a scan of every row
-                for rowid, gid, t, lat, lon in conn.execute(
-                        "SELECT h.rowid, h.gid, h.t, h.lat, h.lon FROM tracks tr JOIN track_history h ON h.rowid = "
-                        "(SELECT rowid FROM track_history WHERE gid = tr.gid AND t >= ? AND t <= ? ORDER BY t "
-                        f"{order}, rowid {order} LIMIT 1) WHERE {' AND '.join('tr.' + w for w in where)}",
-                        (*window, *args)):
-                    if first_rowid.setdefault(gid, rowid) != rowid or order == "ASC":  # a one-row window: once
-                        history.setdefault(gid, []).append([t, lat, lon])
+                ends[order] = {gid: (rowid, [t, lat, lon]) for rowid, gid, t, lat, lon in conn.execute(
+                    "SELECT h.rowid, h.gid, h.t, h.lat, h.lon FROM tracks tr JOIN track_history h ON h.rowid = "
+                    "(SELECT rowid FROM track_history WHERE gid = tr.gid AND t >= ? AND t <= ? ORDER BY t "
+                    f"{order}, rowid {order} LIMIT 1) WHERE {' AND '.join('tr.' + w for w in where)}",
+                    (*window, *args))}
+            for gid, (first_id, first) in ends["ASC"].items():
+                last_id, last = ends["DESC"][gid]
+                history[gid] = [first] if last_id == first_id else [first, last]  # a one-row window: once
         else:  # rows of one time in the order written (the ends above take the same)
             for gid, t, lat, lon in conn.execute("SELECT gid, t, lat, lon FROM track_history WHERE t >= ? AND t <= ? "
                                                  "ORDER BY gid, t, rowid", window):

@@ -40,7 +40,8 @@ def _numeric_results(raw: Any) -> list[dict[str, Any]]:
     """The detector's results as pycocotools scores them: ids and score as numbers, as the candidate loader reads
     them (agent.candidates: "3464", "1", "0.5859" are read there). Scored raw, a string category_id gave the detector
     0 AP50 beside the variants' 87.5 (a gain of +88), a string image_id or score a pycocotools traceback. Entries the
-    loader refuses never get here (it runs first); the list as it is when it is not one."""
+    loader refuses never get here (it runs first); the list as it is when it is not one. Only the boxes the loader
+    keeps (4 finite numbers, w and h > 0): the detector is scored on the entries every variant gets."""
     if not isinstance(raw, list):
         return raw  # type: ignore[no-any-return]
     out = []
@@ -51,38 +52,26 @@ def _numeric_results(raw: Any) -> list[dict[str, Any]]:
         except (KeyError, TypeError, ValueError):
             continue
         box = entry["bbox"]
-        # the candidate loader's own rule: the detector is scored on the entries every variant gets (a NaN score
-        # skipped as there; a finite one outside [0, 1] was refused before, `_check_scores`)
-        if (len(box) == 4 and all(math.isfinite(v) for v in box) and box[2] > 0 and box[3] > 0
-                and 0.0 <= entry["score"] <= 1.0):
+        if len(box) == 4 and all(math.isfinite(v) for v in box) and box[2] > 0 and box[3] > 0:
             out.append(entry)
     return out
 
 
-def _check_scores(candidates: Candidates, raw: Any, source: str | Path) -> None:
-    """Refuse a detections file whose scores the pipeline would drop (outside [0, 1]): the variants would be scored on
-    a part of what the detector is scored on (611 boosted scores above 1 read as boat 86.2 -> 27.4)."""
-    if not candidates.skipped.get("score_out_of_range", 0):
-        return
-    scores = []
-    for r in raw if isinstance(raw, list) else []:
-        try:
-            box = [float(v) for v in r["bbox"]]
-            if len(box) == 4 and all(map(math.isfinite, box)) and box[2] > 0 and box[3] > 0:  # else skipped anyway
-                scores.append(float(r["score"]))
-        except (KeyError, TypeError, ValueError):
-            continue
-    # a NaN or infinite score is skipped, as detectors emit them
+def _scored(entries: list[dict[str, Any]], source: str | Path) -> list[dict[str, Any]]:
+    """The entries with a score in [0, 1], as the loader keeps them (a NaN or infinite score skipped: detectors emit
+    them). A finite score outside [0, 1] refuses the file: the pipeline would drop it and the variants would be
+    scored on a part of what the detector is scored on (611 boosted scores above 1 read as boat 86.2 -> 27.4)."""
+    scores = [e["score"] for e in entries]
     outside = [v for v in scores if math.isfinite(v) and not 0.0 <= v <= 1.0]
-    bad = len(outside)
-    if not bad:
-        return
-    hint = (" (percentages? divide them by 100)" if max(outside) <= 100.0 and min(outside) >= 0.0
-            and sum(v > 1.0 for v in scores) > len(scores) / 2 else
-            " (a detector's confidences are in [0, 1]; `uavmm detect`'s boosted scores are not a detector's output)")
-    first = f": e.g. {outside[0]!r}"
-    raise ValueError(f"{source}: {bad} of the detections have a score outside [0, 1]{first}; the pipeline would "
-                     f"drop them, and the detector would be scored on more than the variants{hint}")
+    if outside:
+        hint = (" (percentages? divide them by 100)" if max(outside) <= 100.0 and min(outside) >= 0.0
+                and sum(v > 1.0 for v in scores) > len(scores) / 2 else
+                " (a detector's confidences are in [0, 1]; `uavmm detect`'s boosted scores are not a detector's "
+                "output)")
+        raise ValueError(f"{source}: {len(outside)} of the detections have a score outside [0, 1]: e.g. "
+                         f"{outside[0]!r}; the pipeline would drop them, and the detector would be scored on more "
+                         f"than the variants{hint}")
+    return [e for e in entries if 0.0 <= e["score"] <= 1.0]
 
 
 def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_spec: str | Path, *,
@@ -100,9 +89,7 @@ def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_s
     dataset = Dataset.from_dict(coco, source=str(images_path))
     candidates = Candidates.load(detections_path, dataset)
     camera = Camera.from_spec(camera_spec)
-    raw = read_json(detections_path, "detections")
-    _check_scores(candidates, raw, detections_path)
-    raw = _numeric_results(raw)
+    raw = _scored(_numeric_results(read_json(detections_path, "detections")), detections_path)
     ours = config or PipelineConfig()
     variants = {MEMORY_OFF: dataclasses.replace(ours, use_memory=False), OURS: ours, PAPER: paper_rule_config()}
     if terrain is not None:

@@ -8,11 +8,11 @@ interrupted run never leaves a truncated file.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterable, Iterator, Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from agent.track_rows import TrackRowLog
+from agent.track_rows import TrackRowLog, collection_chunks, write_chunks_atomic
 from shared.geo import Pose
 from shared.kml import kml_chunks
 from shared.telemetry import Telemetry, to_seadronessee_meta
@@ -178,26 +178,6 @@ def _track_features(rows: TrackRowLog, names: Mapping[int, str]) -> Iterator[dic
     return iter(rows.features(dict(names), rename))
 
 
-def _collection_chunks(features: Iterable[dict[str, Any]]) -> Iterator[str]:
-    """``json.dumps`` of a FeatureCollection of the features, piece by piece."""
-    yield '{"type": "FeatureCollection", "features": ['
-    for i, feature in enumerate(features):
-        yield (", " if i else "") + json.dumps(feature)
-    yield "]}"
-
-
-def write_chunks_atomic(path: Path, chunks: Iterable[str | bytes]) -> None:
-    """`write_text_atomic` of text given piece by piece (text or bytes, not both)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk if isinstance(chunk, bytes) else chunk.encode("utf-8"))
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
 def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, images: list[dict[str, Any]] | None,
                   rows: TrackRowLog, class_names: Mapping[int, str], video_name: str,
                   source: str = "") -> dict[str, str]:
@@ -216,7 +196,7 @@ def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, ima
     else:
         paths["images"] = str(out_dir / OUTPUT_FILES["images"])
     write_chunks_atomic(out_dir / OUTPUT_FILES["mot"], (line + "\n" for line in rows.mot_lines()))
-    write_chunks_atomic(out_dir / OUTPUT_FILES["tracks_geojson"], _collection_chunks(_track_features(rows, names)))
+    write_chunks_atomic(out_dir / OUTPUT_FILES["tracks_geojson"], collection_chunks(_track_features(rows, names)))
     objects = objects_geojson(rows, names)
     write_text_atomic(out_dir / OUTPUT_FILES["objects_geojson"], json.dumps(objects))
     for kind in ("mot", "tracks_geojson", "objects_geojson"):
