@@ -11,31 +11,25 @@ step, and in the agent's summary). A message on time clears its kind's evidence:
 own messages, or tiles of a UAV whose clock runs ahead, never move it, while the server's tracks all ahead still
 do when the tiles carry a replayed UAV's past clock. One message ahead, or a few within a moment, never moves it;
 the lead only grows (a clock set right later just leaves the check looser by the lead), and is bounded by
-MAX_LEAD_S so an absurd t (1e300) stays rejected.
+MAX_LEAD_S so an absurd t (1e300) stays rejected. The rule of evidence is shared.clock_lead's, which the
+fusion server applies per UAV the other way round (fusion_server.uav_clocks: a UAV's clock ahead of the server's).
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import threading
 import time
-from collections import deque
 from collections.abc import Callable
 
-__all__ = ["CONFIRM_MESSAGES", "CONFIRM_S", "MAX_CLOCK_SKEW_S", "MAX_LEAD_S", "JointClock"]
+from shared.clock_lead import CONFIRM_MESSAGES, CONFIRM_S, EVIDENCE_S, MAX_LEAD_S, LeadEvidence, plausible_lead
+
+__all__ = ["CONFIRM_MESSAGES", "CONFIRM_S", "EVIDENCE_S", "MAX_CLOCK_SKEW_S", "MAX_LEAD_S", "JointClock"]
 
 log = logging.getLogger(__name__)
 
 #: A joint message whose t is further ahead of this clock (plus the lead) is dropped ("t_in_future"), seconds.
 MAX_CLOCK_SKEW_S = 30.0
-#: Messages ahead of the skew needed before this clock is taken to be behind.
-CONFIRM_MESSAGES = 5
-#: ...over at least this much receive time (s), within the last EVIDENCE_S.
-CONFIRM_S = 2.0
-EVIDENCE_S = 10.0
-#: A lead beyond this (s, ~100 years) is no clock's: such messages stay rejected.
-MAX_LEAD_S = 3.2e9
 
 
 class JointClock:
@@ -48,8 +42,8 @@ class JointClock:
         self._wall = wall
         self._monotonic = monotonic
         self._lock = threading.Lock()
-        # per kind of message: (receive monotonic, lead) of the rejected ones since the last on time
-        self._ahead: dict[str, deque[tuple[float, float]]] = {}
+        # per kind of message: the rejected ones since the last on time (shared.clock_lead)
+        self._ahead: dict[str, LeadEvidence] = {}
 
     def accepts(self, t: float, kind: str = "") -> bool:
         """Whether a joint message of `kind` ("tiles", "tracks") stamped t is not ahead of this clock (plus the lead
@@ -57,21 +51,19 @@ class JointClock:
         clears its kind's."""
         lead = t - self._wall()
         with self._lock:
-            ahead = self._ahead.setdefault(kind, deque())
+            ahead = self._ahead.setdefault(kind, LeadEvidence())
             if lead <= self.lead_s + self.skew_s:
                 ahead.clear()  # on time: what was ahead is not this clock's lag (forged, or a UAV's clock)
                 return True
-            if not math.isfinite(lead) or lead > MAX_LEAD_S:
+            if not plausible_lead(lead):
                 return False
-            now = self._monotonic()
-            ahead.append((now, lead))
-            while ahead and now - ahead[0][0] > EVIDENCE_S:
-                ahead.popleft()
-            if len(ahead) < CONFIRM_MESSAGES or now - ahead[0][0] < CONFIRM_S:
+            adopted = ahead.add(self._monotonic(), lead)
+            if adopted is None:
                 return False
-            self.lead_s = min(lead for _, lead in ahead)
+            self.lead_s = adopted  # every lead of the run is beyond lead_s + skew: the lead only grows
             for evidence in self._ahead.values():
                 evidence.clear()
         log.warning("the joint messages run %.0f s ahead of this machine's clock (no RTC or NTP?): taken as this "
                     "clock's lead from now on; set this machine's clock", self.lead_s)
-        return True
+        # the lead taken is the smallest of its run: the message that confirmed it may still be too far ahead of it
+        return lead <= self.lead_s + self.skew_s

@@ -166,11 +166,13 @@ class FusionMetrics:
             return {kind: window.rates(now)[0] for kind, window in self.rates.items()}
 
     def prometheus(self, gauges: Mapping[str, tuple[str, float]] | None = None,
-                   reasons: Mapping[str, tuple[str, Mapping[str, int]]] | None = None) -> str:
+                   reasons: Mapping[str, tuple[str, Mapping[str, int]]] | None = None,
+                   labelled: Mapping[str, tuple[str, str, Mapping[str, float]]] | None = None) -> str:
         """The metrics in Prometheus text exposition format (version 0.0.4).
 
         gauges: extra gauges ``name -> (help, value)`` from other components. reasons: extra
-        counters by reason ``name -> (help, {reason: count})`` (e.g. the tracker's bounds).
+        counters by reason ``name -> (help, {reason: count})`` (e.g. the tracker's bounds). labelled:
+        extra gauges with one label ``name -> (help, label, {label value: value})`` (e.g. per UAV).
         """
         now = self._clock()
         lines: list[str] = []
@@ -226,4 +228,8 @@ class FusionMetrics:
         for name, (help_text, value) in sorted((gauges or {}).items()):
             family(name, "gauge", help_text)
             lines.append(f"{name} {_num(value)}")
+        for name, (help_text, label, values) in sorted((labelled or {}).items()):
+            family(name, "gauge", help_text)
+            for key, value in sorted(values.items()):
+                lines.append(f"{name}{_labels({label: key})} {_num(value)}")
         return "\n".join(lines) + "\n"

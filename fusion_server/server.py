@@ -31,11 +31,12 @@ from fusion_server.rate_limit import UavRateLimiter
 from fusion_server.replay import stored_tracks
 from fusion_server.rules import get_fusion_rule
 from fusion_server.shard_tracks import TrackQuery
+from fusion_server.uav_clocks import UavClocks
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
 from fusion_server.zenoh_node import FusionNode
 
-__all__ = ["FusionServer", "HttpThread", "run"]
+__all__ = ["ClockedUavs", "FusionServer", "HttpThread", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -75,6 +76,27 @@ class HttpThread:
         return f"http://{shown}:{self.port}/"
 
 
+class ClockedUavs(UavRegistry):
+    """The UAV registry of a fusion server: every /v1/uavs row also says how far that UAV's clock runs ahead of the
+    server's (``clock_lead_s``, the largest lead adopted among its kinds of message, 0.0 when none; its messages
+    are moved back by it) and, when there is one, the lead of each kind (``clock_leads_s``: {kind: s})."""
+
+    def __init__(self, clocks: UavClocks, max_uavs: int = 256) -> None:
+        super().__init__(max_uavs=max_uavs)
+        self.clocks = clocks
+
+    def snapshot(self, tile_counts: dict[str, int] | None = None) -> list[dict[str, Any]]:
+        """UavRegistry.snapshot() rows plus ``clock_lead_s`` (float) and ``clock_leads_s`` (when a lead is held)."""
+        rows = super().snapshot(tile_counts)
+        leads = self.clocks.leads()
+        for row in rows:
+            found = leads.get(row["id"], {})
+            row["clock_lead_s"] = round(max(found.values(), default=0.0), 3)
+            if found:
+                row["clock_leads_s"] = {kind: round(lead, 3) for kind, lead in sorted(found.items())}
+        return rows
+
+
 class FusionServer:
     """All components of one fusion server, built from validated settings."""
 
@@ -94,7 +116,9 @@ class FusionServer:
             next_gid=shard.index + 1, gid_step=shard.count,  # shards hand out disjoint ids
             keep_changes=settings.db_path is not None,  # only a database drains them
         )
-        self.uavs = UavRegistry(max_uavs=settings.max_uavs)
+        #: how far each UAV's clock runs ahead of this one's, adopted on evidence (the validator moves its messages)
+        self.clocks = UavClocks(settings.max_clock_skew_s)
+        self.uavs = ClockedUavs(self.clocks, max_uavs=settings.max_uavs)
         #: (what was wrong, where the bad file went) when --db-recover moved a database aside
         self.db_recovered: tuple[str, Path] | None = None
         self.store: FusionStore | None = None
@@ -108,7 +132,7 @@ class FusionServer:
                                 problem, moved)
             self.store = FusionStore(settings.db_path, flush_interval_s=settings.persist_interval_s,
                                      history_len=settings.track_history_len)
-        validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s)
+        validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s, clocks=self.clocks)
         self.node = FusionNode(
             zenoh_config(settings.zenoh), keys, validator, self.joint, self.tracker,
             self.uavs, self.metrics, self.store,
@@ -257,7 +281,11 @@ class FusionServer:
                 "uavmm_fusion_db_history_dropped_total": ("History rows dropped from the backlog while the "
                                                           "database could not be written.", db["history_dropped"]),
             })
-        return self.metrics.prometheus(gauges, reasons)
+        leads = {uav: max(kinds.values()) for uav, kinds in self.clocks.leads().items()}
+        labelled = {"uavmm_fusion_uav_clock_lead_seconds": (
+            "How far a UAV's clock runs ahead of the server's, adopted on evidence (its messages are moved back by "
+            "it); UAVs without a lead are not listed.", "uav", leads)}
+        return self.metrics.prometheus(gauges, reasons, labelled)
 
     def cluster_health(self) -> dict[str, Any]:
         """``shard`` (K/N), what crossed its borders and the ``fusion/tracks`` queries it answered and

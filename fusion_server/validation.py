@@ -1,13 +1,16 @@
 """Validation of every message the agents publish (DESIGN.md 4): key, payload schema, key/payload agreement.
 
 :meth:`MessageValidator.validate` turns ``(key, payload)`` into a decoded message or raises
-:class:`Rejected` with a short machine-readable ``reason`` (for the rejection counters).
+:class:`Rejected` with a short machine-readable ``reason`` (for the rejection counters). Given the UAVs' clocks
+(fusion_server.uav_clocks), a message of a UAV whose clock is known to run ahead comes out moved onto the server's.
 """
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 from shared.keys import KeySpace, ParsedKey
 from shared.messages import (
@@ -22,6 +25,9 @@ from shared.messages import (
 from shared.tilecodec import DEFAULT_MAX_TILE_BYTES, SparseTile, TileMessage, decode_tile, decode_tile_sparse
 from shared.tiles import MAX_LAT_DEG, TileGrid
 
+if TYPE_CHECKING:
+    from fusion_server.uav_clocks import UavClocks
+
 __all__ = ["REJECT_REASONS", "MessageValidator", "Received", "Rejected"]
 
 #: Reasons of this module on top of the codecs' ``MESSAGE_ERROR_REASONS``, plus those of the
@@ -35,8 +41,8 @@ REJECT_REASONS = frozenset(
         "wrong_grid",  # z or n differ from the server's grid
         "rate_limited",  # more messages a second than the UAV's limit (fusion_server.rate_limit)
         "byte_rate_limited",  # more payload bytes a second than the UAV's limit
-        "t_in_future",  # t later than the server clock + max_clock_skew_s (e.g. t = 1e300)
-        "seq_in_future",  # a tile seq above the server clock in nanoseconds + skew (e.g. 2**64 - 1)
+        "t_in_future",  # t later than the server clock + max_clock_skew_s (+ the UAV's adopted clock lead; 1e300)
+        "seq_in_future",  # a tile seq above the server clock (+ the UAV's lead) in nanoseconds + skew (2**64 - 1)
         "stale",  # not newer than the stored tile of that UAV
         "too_many_tiles",
         "too_many_uavs",
@@ -60,12 +66,14 @@ class Rejected(Exception):
 
 @dataclass(frozen=True, slots=True)
 class Received:
-    """A valid message. kind: "tile", "state" or "tracks"; key: the parsed key; nbytes: payload size."""
+    """A valid message. kind: "tile", "state" or "tracks"; key: the parsed key; nbytes: payload size.
+    lead_s: seconds taken off the message's t (its UAV's adopted clock lead; 0.0: as it came)."""
 
     kind: str
     key: ParsedKey
     message: TileMessage | SparseTile | StateMessage | TracksMessage
     nbytes: int
+    lead_s: float = 0.0
 
 
 _KINDS = {"uav_tile": "tile", "uav_state": "state", "uav_tracks": "tracks"}
@@ -81,6 +89,10 @@ class MessageValidator:
     micro- or nanoseconds pass; 2**64 - 1 does not). Times in the past are accepted: freshness is
     judged by receive time. Both bounds keep one forged message from blocking a UAV's real tiles as
     "stale" (DESIGN.md 4: a tile replaces the stored one when it is newer by seq or by t).
+    clocks: the UAVs' clock leads (fusion_server.uav_clocks), or None (the gateway's: every message ahead is
+    rejected). With them, an otherwise valid message ahead is evidence of its UAV's lead, and once that lead is
+    taken the UAV's messages that need it pass with ``t`` minus the lead (``seq`` is bounded by the clock plus the
+    lead, not moved: it orders one UAV's tiles only, and is often a counter).
     """
 
     def __init__(
@@ -93,6 +105,7 @@ class MessageValidator:
         max_tracks_bytes: int = 256 * 1024,
         max_clock_skew_s: float = 30.0,
         wall=time.time,
+        clocks: UavClocks | None = None,
     ) -> None:
         self.keys = keys
         self.grid = grid
@@ -101,6 +114,7 @@ class MessageValidator:
         self.max_tracks_bytes = max_tracks_bytes
         self.max_clock_skew_s = float(max_clock_skew_s)
         self._wall = wall
+        self.clocks = clocks
         self._known_keys: dict[str, tuple[ParsedKey, str]] = {}
 
     def parse_key(self, key: str) -> tuple[ParsedKey, str]:
@@ -161,10 +175,37 @@ class MessageValidator:
             raise Rejected(exc.reason, str(exc)[:200], kind) from None
         if message.uav != parsed.uav:
             raise Rejected("uav_mismatch", f"message uav {message.uav!r} published under {parsed.uav!r}", kind)
-        latest = self._wall() + self.max_clock_skew_s
-        if message.t > latest:
-            raise Rejected("t_in_future", f"t {message.t!r:.30} is more than {self.max_clock_skew_s:g} s ahead of "
-                                          "the server clock", kind)
+        wall = self._wall()
+        latest = wall + self.max_clock_skew_s
+        try:
+            self._check_fields(message, parsed, kind)
+        except Rejected:
+            if message.t > latest:  # the reason it had before the clocks: the time comes first
+                raise self._in_future(message.t, kind) from None
+            raise
+        lead = 0.0
+        if self.clocks is not None:  # evidence only from messages valid but for their time
+            found = self.clocks.lead_for(parsed.uav, kind, message.t, wall)
+            if found is None:
+                raise self._in_future(message.t, kind)
+            lead = found
+        elif message.t > latest:
+            raise self._in_future(message.t, kind)
+        if kind == "tile":
+            assert isinstance(message, TileMessage | SparseTile)
+            if message.seq > int((latest + lead) * 1e9):
+                raise Rejected("seq_in_future", f"seq {message.seq} is above the server clock in nanoseconds", kind)
+        if lead:
+            message = dataclasses.replace(message, t=message.t - lead)
+        return Received(kind, parsed, message, len(payload), lead)
+
+    def _in_future(self, t: float, kind: str) -> Rejected:
+        return Rejected("t_in_future", f"t {t!r:.30} is more than {self.max_clock_skew_s:g} s ahead of the server "
+                                       "clock", kind)
+
+    def _check_fields(self, message: TileMessage | SparseTile | StateMessage | TracksMessage, parsed: ParsedKey,
+                      kind: str) -> None:
+        """The checks of a decoded message beyond its time: footprint latitudes, tile key and grid."""
         if isinstance(message, StateMessage) and any(abs(lat) > MAX_LAT_DEG for lat, _ in message.footprint):
             raise Rejected("out_of_range", f"footprint beyond the map's latitude limit +-{MAX_LAT_DEG:.4f}", kind)
         if kind == "tile":
@@ -180,6 +221,3 @@ class MessageValidator:
                 raise Rejected(
                     "wrong_grid", f"tile z={message.z} n={message.n}, server grid z={self.grid.z} n={self.grid.n}", kind
                 )
-            if message.seq > int(latest * 1e9):
-                raise Rejected("seq_in_future", f"seq {message.seq} is above the server clock in nanoseconds", kind)
-        return Received(kind, parsed, message, len(payload))
