@@ -20,6 +20,10 @@ one's plus the step of (receive time - boot time) between the two boots' fastest
 ``SYSTEM_TIME`` of the new boot replaces that when it agrees within `CLOCK_JUMP_S` (it has no latency jitter). Frames
 before the reboot is confirmed get no pose.
 
+A wrap of ``time_boot_ms`` (uint32 milliseconds: at 49.7 days up) is no reboot: from within 60 s of 2**32 ms to within
+60 s of 0 while the receive time moves on as much (within REBOOT_S), the assembler counts the boot time on past 2**32 ms
+(`shared.telemetry.mavlink.BootTimeUnwrap`), so the boot, its clock, gimbal and records go on.
+
 Memory: each boot keeps the positions of its last `KEEP_S` (5 minutes; a frame reads those around its own time).
 """
 
@@ -178,7 +182,7 @@ class MavlinkUdpFeed:
             now = time.time()
             for msg in self._parser.feed(data):
                 sample = self._assembler.add(msg.get_type(), msg.to_dict(), msg.get_srcSystem(),
-                                             msg.get_srcComponent())
+                                             msg.get_srcComponent(), now)
                 with self._cond:
                     self._last_rx = time.monotonic()
                     if sample is not None:

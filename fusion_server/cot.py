@@ -119,10 +119,12 @@ def object_event(peak: Peak, now: float, stale_s: float, *, uid_prefix: str = "u
 
 
 def _explained(peak: Peak, tracks: list[tuple[str, float, float]], gate_m: float) -> bool:
-    """True when a live track of the peak's class lies within gate_m of it (equirectangular metres)."""
+    """True when a live track of the peak's class lies within gate_m of it (equirectangular metres; the longitude
+    difference taken the short way round, across the antimeridian too)."""
     cos_lat = math.cos(math.radians(peak.lat))
     for cls, lat, lon in tracks:
-        if cls == peak.cls and math.hypot((lon - peak.lon) * cos_lat, lat - peak.lat) * 111_320.0 <= gate_m:
+        d_lon = (lon - peak.lon + 180.0) % 360.0 - 180.0
+        if cls == peak.cls and math.hypot(d_lon * cos_lat, lat - peak.lat) * 111_320.0 <= gate_m:
             return True
     return False
 

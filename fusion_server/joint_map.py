@@ -525,14 +525,20 @@ class JointMap:
             return [tile for tile in self._joint.values() if tile.cls == cls]
 
     def tiles_in_range(self, cls: str, x0: int, x1: int, y0: int, y1: int) -> list[JointTile]:
-        """Joint tiles of ``cls`` at the grid's zoom with x0 <= x <= x1 and y0 <= y <= y1."""
-        z = self.grid.z
-        if (x1 - x0 + 1) * (y1 - y0 + 1) <= 64:
+        """Joint tiles of ``cls`` at the grid's zoom with x0 <= x <= x1 and y0 <= y <= y1.
+
+        x wraps around the world (the antimeridian): x0 = -1 is the last column, x1 = 2**z the first, so a range
+        with a tile of margin past either end holds the tiles across the line.
+        """
+        z, side = self.grid.z, self.grid.tiles_per_side
+        width = min(x1 - x0 + 1, side)
+        if width * (y1 - y0 + 1) <= 64:
             with self._lock:
-                found = (self._joint.get((cls, z, x, y)) for y in range(y0, y1 + 1) for x in range(x0, x1 + 1))
+                found = (self._joint.get((cls, z, (x0 + dx) % side, y)) for y in range(y0, y1 + 1)
+                         for dx in range(width))
                 return [tile for tile in found if tile is not None]
         with self._lock:
-            return [t for t in self._joint.values() if t.cls == cls and x0 <= t.x <= x1 and y0 <= t.y <= y1]
+            return [t for t in self._joint.values() if t.cls == cls and (t.x - x0) % side < width and y0 <= t.y <= y1]
 
     def classes(self) -> set[str]:
         """Classes seen since start (in UAV tiles or restored joint tiles), at most 1024."""

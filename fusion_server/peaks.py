@@ -2,7 +2,8 @@
 
 A cell is a peak when it equals the maximum of its 3 x 3 neighbourhood (``cv2.dilate``), looking
 across tile borders; a plateau of equal maxima is one peak at its centroid; peaks closer than
-``min_distance_cells`` to a stronger one are suppressed.
+``min_distance_cells`` to a stronger one are suppressed. The antimeridian is a tile border like any other:
+tile x = 2**z - 1 neighbours x = 0, and distances in x are taken around the world.
 """
 
 from __future__ import annotations
@@ -36,15 +37,17 @@ class Peak:
     gy: float
 
 
-def _padded(tiles: dict[tuple[int, int], NDArray[np.uint8]], x: int, y: int, n: int) -> NDArray[np.uint8]:
-    """(n + 2, n + 2) tile (x, y) with a one-cell border taken from its 8 neighbours (0 where none)."""
+def _padded(tiles: dict[tuple[int, int], NDArray[np.uint8]], x: int, y: int, n: int, side: int
+            ) -> NDArray[np.uint8]:
+    """(n + 2, n + 2) tile (x, y) with a one-cell border taken from its 8 neighbours (0 where none); x wraps
+    modulo ``side`` (tiles per world edge): across the antimeridian x = side - 1 and x = 0 are neighbours."""
     out = np.zeros((n + 2, n + 2), dtype=np.uint8)
     out[1:-1, 1:-1] = tiles[(x, y)]
     for dy in (-1, 0, 1):
         for dx in (-1, 0, 1):
             if dx == dy == 0:
                 continue
-            other = tiles.get((x + dx, y + dy))
+            other = tiles.get(((x + dx) % side, y + dy))
             if other is None:
                 continue
             rows_dst = slice(0, 1) if dy < 0 else slice(n + 1, n + 2) if dy > 0 else slice(1, n + 1)
@@ -105,7 +108,7 @@ def find_peaks(
     for (x, y), values in by_xy.items():
         if int(values.max()) < min_byte:
             continue
-        cols, rows, vals = _tile_peaks(_padded(by_xy, x, y, n), min_byte)
+        cols, rows, vals = _tile_peaks(_padded(by_xy, x, y, n, grid.tiles_per_side), min_byte)
         gxs.append(x * n + cols + 0.5)
         gys.append(y * n + rows + 0.5)
         scores.append(vals)
@@ -120,19 +123,20 @@ def find_peaks(
         gx, gy, score, lat, lon = gx[inside], gy[inside], score[inside], lat[inside], lon[inside]
     order = np.argsort(-score, kind="stable")
     radius = np.maximum(min_distance_cells, min_distance_m / np.maximum(grid.cell_size_m(lat), 1e-9))  # per peak
-    keep = _suppress(gx[order], gy[order], radius[order])
+    keep = _suppress(gx[order], gy[order], radius[order], grid.world_cells)
     picked = order[keep][:limit]
     return [Peak(cls, float(lat[i]), float(lon[i]), float(score[i]), float(gx[i]), float(gy[i])) for i in picked]
 
 
-def _suppress(gx: NDArray[np.float64], gy: NDArray[np.float64], radius: float | NDArray[np.float64]
-              ) -> NDArray[np.intp]:
+def _suppress(gx: NDArray[np.float64], gy: NDArray[np.float64], radius: float | NDArray[np.float64],
+              world_cells: int) -> NDArray[np.intp]:
     """Indices (into the score-sorted arrays) of peaks with no stronger kept peak within radius (cells; one, or one
-    per peak: the kept peak's)."""
+    per peak: the kept peak's). gx, gy in [0, world_cells); gx is periodic (the antimeridian), gy is not."""
     radii = np.broadcast_to(np.asarray(radius, dtype=np.float64), gx.shape)
     if gx.size <= 1 or not np.any(radii > 0):
         return np.arange(gx.size)
-    tree = cKDTree(np.column_stack([gx, gy]))
+    # a torus in x; in y a period of twice the world, which no radius spans (the poles are no neighbours)
+    tree = cKDTree(np.column_stack([gx, gy]), boxsize=(float(world_cells), 2.0 * world_cells))
     suppressed = np.zeros(gx.size, dtype=bool)
     keep = []
     for i in range(gx.size):

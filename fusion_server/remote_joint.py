@@ -74,14 +74,16 @@ class RemoteJoint:
         return list(tiles) if cls is None else [t for t in tiles if t.cls == cls]
 
     def tiles_in_range(self, cls: str, x0: int, x1: int, y0: int, y1: int) -> list[JointTile]:
-        """Joint tiles of ``cls`` at the grid's zoom with x0 <= x <= x1 and y0 <= y <= y1."""
-        z = self.grid.z
+        """Joint tiles of ``cls`` at the grid's zoom with x0 <= x <= x1 and y0 <= y <= y1; x wraps around the world
+        as in `JointMap.tiles_in_range` (x0 = -1 is the last column, x1 = 2**z the first)."""
+        z, side = self.grid.z, self.grid.tiles_per_side
+        width = min(x1 - x0 + 1, side)
         whole = self._fresh_all()
-        if whole is None and (x1 - x0 + 1) * (y1 - y0 + 1) <= SMALL_RANGE_TILES:
-            keys = [(cls, z, x, y) for y in range(y0, y1 + 1) for x in range(x0, x1 + 1)]
+        if whole is None and width * (y1 - y0 + 1) <= SMALL_RANGE_TILES:
+            keys = [(cls, z, (x0 + dx) % side, y) for y in range(y0, y1 + 1) for dx in range(width)]
             return [tile for tile in self._by_keys(keys) if tile is not None]
         tiles = whole if whole is not None else self._everything()
-        return [t for t in tiles.values() if t.cls == cls and x0 <= t.x <= x1 and y0 <= t.y <= y1]
+        return [t for t in tiles.values() if t.cls == cls and (t.x - x0) % side < width and y0 <= t.y <= y1]
 
     def get(self, key: TileKey) -> JointTile | None:
         """The current joint tile at key (cls, z, x, y), or None."""

@@ -17,7 +17,7 @@ Messages used (one record per ``GLOBAL_POSITION_INT`` of the vehicle, with its a
 - ``CAMERA_FOV_STATUS``: the camera's horizontal field of view (a zoom lens; `Telemetry.hfov_deg`), of the first
   camera that sends one (NaN: unknown, none);
 - ``SYSTEM_TIME`` of the vehicle's autopilot: UNIX time of the boot clock, so records are stamped in UNIX seconds
-  (`shared.telemetry.mavlink_clock`: the clock's jumps, reboots).
+  (`shared.telemetry.mavlink_clock`: the clock's jumps, reboots; `BootTimeUnwrap`: a wrap of ``time_boot_ms``).
 
 Pitch becomes our depression (MAVLink: negative down, -90 = nadir); heading is wrapped to [0, 360).
 """
@@ -37,11 +37,12 @@ from typing import Any
 
 import numpy as np
 
-from shared.telemetry.mavlink_clock import UnixClock, boot_segments, interpolate_yaw_deg, yaw_between_deg
+from shared.telemetry.mavlink_clock import REBOOT_S, UnixClock, boot_segments, interpolate_yaw_deg, yaw_between_deg
 from shared.telemetry.record import Telemetry, pitch_or_none
 
 __all__ = [
     "MAVLINK_EXTRA_HINT",
+    "BootTimeUnwrap",
     "MavlinkAssembler",
     "MavlinkByteParser",
     "MavlinkSample",
@@ -58,6 +59,40 @@ _YAW_LOCK = 16
 _YAW_IN_VEHICLE_FRAME = 32
 _YAW_IN_EARTH_FRAME = 64
 _UNKNOWN_HDG = 65535
+#: ``time_boot_ms`` counts modulo this (uint32 milliseconds: 49.7 days).
+BOOT_MS_WRAP = 1 << 32
+#: A wrap goes from within this of 2**32 ms to within this of 0 (a link gap up to this long), seconds.
+WRAP_WINDOW_S = 60.0
+
+
+@dataclass(slots=True)
+class BootTimeUnwrap:
+    """One boot clock's ``time_boot_ms`` (uint32) -> milliseconds since boot, counting on past 2**32 (`unwrap`).
+
+    A value that went back is a wrap (2**32 ms more from then on) when, one wrap later, it is at most `WRAP_WINDOW_S`
+    after the latest (so the latest was within that of 2**32 ms and it is within that of 0) and, with receive times,
+    the receive time moved on as much: receive minus unwrapped boot time within `REBOOT_S` of the latest's (a reboot
+    restarts the clock later by the boot's length). Other values that went back are kept for the reboot detection
+    (a reboot, or a late repeat); one of the last wrap received after it stays on it. Values >= 2**32 pass unchanged.
+    """
+
+    wraps: int = 0
+    _top_ms: int | None = None  # the largest unwrapped value so far
+    _top_offset_s: float | None = None  # receive time minus boot time of that one, seconds
+
+    def unwrap(self, boot_ms: int, rx_s: float | None = None) -> int:
+        """The unwrapped boot time (ms) of ``boot_ms`` received at UNIX time ``rx_s`` (None: unknown)."""
+        value, top, window = int(boot_ms), self._top_ms, WRAP_WINDOW_S * 1e3
+        if value < BOOT_MS_WRAP and top is not None:
+            value, later = value + self.wraps * BOOT_MS_WRAP, value + (self.wraps + 1) * BOOT_MS_WRAP
+            if 0 < later - top <= window and (rx_s is None or self._top_offset_s is None
+                                              or abs(rx_s - later / 1e3 - self._top_offset_s) <= REBOOT_S):
+                self.wraps, value = self.wraps + 1, later
+            elif self.wraps and 0 <= top - (value - BOOT_MS_WRAP) <= window:
+                value -= BOOT_MS_WRAP  # sent before the wrap, received after it
+        if top is None or value > top:
+            self._top_ms, self._top_offset_s = value, None if rx_s is None else rx_s - value / 1e3
+        return value
 
 
 #: Within this (the horizontal length of the unit optical axis: ~0.06 deg of the vertical) a camera looks straight
@@ -97,10 +132,10 @@ def quaternion_to_euler_deg(q: tuple[float, float, float, float]) -> tuple[float
 class MavlinkSample:
     """One position of the vehicle with the camera's angles, on the flight controller's boot clock.
 
-    boot_s: seconds since the autopilot booted; pitch_deg: depression 0..90 or None (no gimbal message, or the
-    camera looking up); heading_deg: camera heading or None; vel_en: (east, north) m/s; yaw_rel_deg: the camera's
-    yaw relative to the vehicle when the heading is the vehicle's yaw plus it (0 for a fixed camera, a gimbal's
-    vehicle-frame yaw), None when the heading is in the earth frame or unknown.
+    boot_s: seconds since the autopilot booted (on past a wrap of ``time_boot_ms``); pitch_deg: depression 0..90 or
+    None (no gimbal message, or the camera looking up); heading_deg: camera heading or None; vel_en: (east, north)
+    m/s; yaw_rel_deg: the camera's yaw relative to the vehicle when the heading is the vehicle's yaw plus it (0 for a
+    fixed camera, a gimbal's vehicle-frame yaw), None when the heading is in the earth frame or unknown.
     """
 
     boot_s: float
@@ -130,7 +165,7 @@ class _Gimbal:
     earth_frame: bool
 
 
-_EarlyMessage = tuple[str, Mapping[str, Any], int, "int | None"]  # (type, fields, system, component)
+_EarlyMessage = tuple[str, Mapping[str, Any], int, "int | None", "float | None"]  # (type, fields, sys, comp, rx)
 
 
 class MavlinkAssembler:
@@ -149,6 +184,7 @@ class MavlinkAssembler:
     Of several gimbals (``GIMBAL_DEVICE_ATTITUDE_STATUS`` of several ``gimbal_device_id``, or of several components
     when the id is 0) the first seen is used (``gimbal_used``); ``gimbals_ignored`` counts the others' messages.
     ``keep_attitudes`` keeps every ``ATTITUDE`` as (boot s, yaw deg) in ``attitudes`` (a log read as a whole).
+    ``time_boot_ms`` is unwrapped per sender (`BootTimeUnwrap`, on ``add``'s receive times ``rx_s`` where given).
     """
 
     def __init__(self, system_id: int | None = None, *, keep_attitudes: bool = False,
@@ -169,6 +205,7 @@ class MavlinkAssembler:
         self._attitude_prev: tuple[float, float] | None = None  # (boot s, yaw deg) of the two latest ATTITUDEs
         self._attitude_last: tuple[float, float] | None = None
         self._clocks: dict[tuple[int | None, int | None], UnixClock] = {}
+        self._boot_clocks: dict[tuple[int | None, int | None], BootTimeUnwrap] = {}  # per sender
         #: system -> (type, component, gimbal id, camera id) -> (arrival, message) of the latest, before the vehicle
         self._early: dict[int, dict[tuple[Any, ...], deque[tuple[int, _EarlyMessage]]]] = {}
         self._arrivals = 0
@@ -197,10 +234,11 @@ class MavlinkAssembler:
         return [] if clock is None else list(clock.jumps)
 
     def add(self, msg_type: str, fields: Mapping[str, Any], src_system: int | None = None,
-            src_component: int | None = None) -> MavlinkSample | None:
-        """Take one message; a sample when it was the vehicle's position."""
+            src_component: int | None = None, rx_s: float | None = None) -> MavlinkSample | None:
+        """Take one message (``rx_s``: its UNIX receive time or None); a sample when it was the vehicle's position."""
         if msg_type == "SYSTEM_TIME":  # kept per system until the vehicle is known
-            self._system_time((src_system, src_component), fields)
+            src = (src_system, src_component)
+            self._system_time(src, self._unwrapped(msg_type, fields, src, rx_s))
             return None
         if msg_type == "GLOBAL_POSITION_INT" and src_system is not None:
             self.position_counts[src_system] = self.position_counts.get(src_system, 0) + 1
@@ -220,7 +258,7 @@ class MavlinkAssembler:
                 kept = self._early.setdefault(src_system, {}).setdefault(
                     source, deque(maxlen=2 if msg_type == "ATTITUDE" else 1))
                 self._arrivals += 1
-                kept.append((self._arrivals, (msg_type, fields, src_system, src_component)))
+                kept.append((self._arrivals, (msg_type, fields, src_system, src_component, rx_s)))
             return None
         if msg_type == "ATTITUDE" and src_component is not None and src_component != self.component_id:
             return None  # another component's (a companion computer's, on its own boot clock), or before it is known
@@ -229,7 +267,15 @@ class MavlinkAssembler:
             return None
         self.counts[msg_type] = self.counts.get(msg_type, 0) + 1
         self._src = (src_system, src_component)
-        return handler(self, fields)
+        return handler(self, self._unwrapped(msg_type, fields, self._src, rx_s))
+
+    def _unwrapped(self, msg_type: str, f: Mapping[str, Any], src: tuple[int | None, int | None],
+                   rx_s: float | None) -> Mapping[str, Any]:
+        """The fields with ``time_boot_ms`` unwrapped on the sender's boot clock (a gimbal's is its own: left)."""
+        if msg_type not in _BOOT_CLOCKED or "time_boot_ms" not in f:
+            return f
+        boot_ms = self._boot_clocks.setdefault(src, BootTimeUnwrap()).unwrap(f["time_boot_ms"], rx_s)
+        return f if boot_ms == f["time_boot_ms"] else {**f, "time_boot_ms": boot_ms}
 
     # ---- handlers --------------------------------------------------------------------------------
     def _system_time(self, src: tuple[int | None, int | None], f: Mapping[str, Any]) -> None:
@@ -246,7 +292,6 @@ class MavlinkAssembler:
                 self._attitude_prev, self._attitude_last = self._attitude_last, sample
                 if self.attitudes is not None:
                     self.attitudes.append(sample)
-        return None
 
     def _yaw_at(self, boot_s: float) -> float | None:
         """The vehicle's yaw at `boot_s`: interpolated between the two latest ``ATTITUDE`` where they bracket it,
@@ -278,7 +323,6 @@ class MavlinkAssembler:
         else:
             earth = bool(flags & _YAW_LOCK)
         self.gimbal = _Gimbal(pitch, roll, yaw, earth)
-        return None
 
     def _mount_orientation(self, f: Mapping[str, Any]) -> None:
         absolute = float(f.get("yaw_absolute", math.nan))
@@ -288,11 +332,9 @@ class MavlinkAssembler:
         if not (math.isfinite(pitch) and math.isfinite(yaw)):  # NaN: invalid (ardupilotmega.xml): no reading
             return None
         self.gimbal = _Gimbal(pitch, roll if math.isfinite(roll) else 0.0, yaw, earth)
-        return None
 
     def _mount_status(self, f: Mapping[str, Any]) -> None:
         self.gimbal = _Gimbal(f["pointing_a"] / 100.0, f["pointing_b"] / 100.0, f["pointing_c"] / 100.0, False)
-        return None
 
     def _camera_fov(self, f: Mapping[str, Any]) -> None:
         camera = (int(f.get("camera_device_id") or 0), self._src[1])
@@ -302,7 +344,6 @@ class MavlinkAssembler:
             return None
         hfov = float(f["hfov"])
         self.hfov_deg = hfov if math.isfinite(hfov) and 0.0 < hfov < 180.0 else None
-        return None
 
     def _position(self, f: Mapping[str, Any]) -> MavlinkSample | None:
         lat, lon = f["lat"] / 1e7, f["lon"] / 1e7
@@ -399,7 +440,8 @@ def parse_tlog(data: bytes, *, source: str = "<tlog>", height_offset_m: float = 
     messages = _tlog_messages(data)
     vehicle, autopilot = _choose_vehicle(messages, system_id, source)
     messages = [m for m in messages if m.system == vehicle]
-    boots = np.array([m.values[_BOOT_MS_AT[m.type]] / 1e3
+    clock = BootTimeUnwrap()  # as each boot's assembler unwraps it (a wrap is no reboot)
+    boots = np.array([clock.unwrap(m.values[_BOOT_MS_AT[m.type]], m.stamp_s) / 1e3
                       if m.type in _BOOT_CLOCKED and m.component in (autopilot, None) else math.nan for m in messages])
     stamps = np.array([m.stamp_s for m in messages])
     segment_of = boot_segments(stamps, boots)
@@ -414,7 +456,7 @@ def parse_tlog(data: bytes, *, source: str = "<tlog>", height_offset_m: float = 
         assembler = MavlinkAssembler(vehicle, keep_attitudes=True, component_id=autopilot)
         assembler.gimbal_used = gimbal_used  # one gimbal for the whole log
         samples = [(m.stamp_s, s) for m in messages[a:b]
-                   if (s := assembler.add(m.type, m.fields, m.system, m.component)) is not None]
+                   if (s := assembler.add(m.type, m.fields, m.system, m.component, m.stamp_s)) is not None]
         gimbal_used = assembler.gimbal_used
         for key, count in assembler.gimbals_ignored.items():
             gimbals_ignored[key] = gimbals_ignored.get(key, 0) + count

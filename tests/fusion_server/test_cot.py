@@ -224,3 +224,16 @@ def test_a_failing_round_does_not_stop_the_thread():
     finally:
         sender.close()
     assert sender.failed == 1 and not threading.current_thread().name == "uavmm-cot"
+
+
+def test_a_track_across_the_antimeridian_explains_its_object():
+    """A peak at 179.99999 E and its track 1.1 m east of it, at 179.99999 W: one object, sent as the track only
+    (the longitude difference was taken the long way round, 360 degrees, and the object was sent as well)."""
+    track = {"type": "Feature", "id": 1, "geometry": {"type": "Point", "coordinates": [-179.99999, -17.0]},
+             "properties": {"gid": 1, "cls": "swimmer", "score": 0.8, "vel_en": [0.0, 0.0], "status": "tracked",
+                            "members": [["uav1", 3]], "active_members": [["uav1", 3]]}}
+    peaks = [Peak(cls="swimmer", lat=-17.0, lon=179.99999, score=0.9, gx=0.5, gy=0.5),
+             Peak(cls="swimmer", lat=-17.0, lon=179.9, score=0.9, gx=1.5, gy=0.5)]  # 10 km west: its own
+    sender = CotSender(CotTarget("udp", "127.0.0.1", 9), lambda: [track], lambda: [], clock=lambda: NOW,
+                       objects=lambda: peaks, interval_s=0.5)
+    assert [ET.fromstring(e).get("uid") for e in sender.events()] == ["uavmm.track.1", "uavmm.object.swimmer.1.0"]

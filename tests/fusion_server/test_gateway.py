@@ -370,3 +370,25 @@ def test_shard_watch_counts_only_its_shard_count():
     watch.token(1, 3, False)
     watch.token(1, 3, False)  # a repeated DELETE changes nothing
     assert watch.status()["1"] == {"status": "down", "since": 200.0, "changes": 2}
+
+
+def test_a_range_across_the_antimeridian_holds_the_tiles_on_both_sides(cluster):
+    """x wraps as on a single server (JointMap.tiles_in_range): a range from the last column to one past it holds
+    the first column's tile too (the gateway's range stopped at the line, and its /v1/objects missed an object's
+    other half)."""
+    _, gateway, port = cluster
+    side = GRID.tiles_per_side
+    y = 2 ** GRID.z * 9 // 20  # ~16 deg S: Fiji's row
+    agent = FakeAgent("uav-a", f"tcp/127.0.0.1:{port}")
+    try:
+        def both():
+            for x in (side - 1, 0):
+                agent.tile(blob(100, 100), x=x, y=y)
+            return all(gateway.joint.get(("person", GRID.z, x, y)) is not None for x in (side - 1, 0))
+
+        wait_until(both, 10.0, "the tiles on both sides of the antimeridian")
+        assert sorted(t.x for t in gateway.joint.tiles_in_range("person", side - 1, side, y, y)) == [0, side - 1]
+        assert sorted(t.x for t in gateway.joint.tiles_in_range("person", -1, 0, y, y)) == [0, side - 1]
+        assert [t.x for t in gateway.joint.tiles_in_range("person", 0, 0, y, y)] == [0]
+    finally:
+        agent.close()
