@@ -25,6 +25,7 @@ from fusion_server.metrics import FusionMetrics
 from fusion_server.remote_joint import DEFAULT_CACHE_S, RemoteJoint
 from fusion_server.server import HttpThread
 from fusion_server.shard_tracks import ShardTracks
+from fusion_server.uav_clocks import UavClocks
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
 from shared.sharding import ShardSpec
@@ -40,8 +41,9 @@ class ShardedUavs(UavRegistry):
     UAV (``shard``, from its last state's position; None without a state) and whether that shard is down
     (``degraded``)."""
 
-    def __init__(self, spec: ShardSpec, grid: TileGrid, shards: ShardWatch, max_uavs: int = 256) -> None:
-        super().__init__(max_uavs=max_uavs)
+    def __init__(self, spec: ShardSpec, grid: TileGrid, shards: ShardWatch, max_uavs: int = 256,
+                 clocks: UavClocks | None = None) -> None:
+        super().__init__(max_uavs=max_uavs, clocks=clocks)
         self.spec = spec
         self.grid = grid
         self.shards = shards
@@ -92,8 +94,10 @@ class Gateway:
         self.shard_tracks = ShardTracks(keys, settings.shard_count, history_len=settings.track_history_len,
                                         on_reject=lambda reason: self.metrics.reject("shard_tracks", reason))
         self.tracker.details = self.shard_tracks.live
-        self.uavs = ShardedUavs(self.spec, grid, self.shards, max_uavs=settings.max_uavs)
-        validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s)
+        #: how far each UAV's clock runs ahead, taken on evidence as a shard does (its states moved back by it)
+        self.clocks = UavClocks(settings.max_clock_skew_s)
+        self.uavs = ShardedUavs(self.spec, grid, self.shards, max_uavs=settings.max_uavs, clocks=self.clocks)
+        validator = MessageValidator(keys, grid, max_clock_skew_s=settings.max_clock_skew_s, clocks=self.clocks)
         self.node = GatewayNode(zenoh_config(settings.zenoh), keys, validator, self.tracker, self.uavs,
                                 self.shards, self.metrics, tracks_max_hz=settings.tracks_max_hz,
                                 uav_keep_s=settings.uav_keep_s)
@@ -138,11 +142,12 @@ class Gateway:
 
     def history_tracks(self, cls: str | None = None, since: float | None = None, until: float | None = None,
                        ends_only: bool = False) -> list[dict[str, Any]]:
-        """/v1/history's tracks: every shard's stored tracks (class ``cls``, updated since ``since``) with
-        their history rows, merged by global id; the gateway's own merged tracks when no shard answers. until and
-        ends_only (a server's own database read, `FusionServer.history_tracks`) are not sent to the shards: they
-        answer with every row since ``since`` and `history_window` clips them."""
-        found = self.shard_tracks.stored(cls, since)
+        """/v1/history's tracks: every shard's stored tracks (class ``cls``, updated since ``since``) with their
+        history rows up to ``until`` (``ends_only``: the rows at each track's first and last time, what
+        ``rows=false`` needs), merged by global id; the gateway's own merged tracks when no shard answers.
+        The window is asked of the shards (a shard of the older version answers with every row since ``since``)
+        and `history_window` cuts it again, so the answer is the same either way."""
+        found = self.shard_tracks.stored(cls, since, until, ends_only)
         if found is None:
             return [record.to_geojson() for record in self.tracker.records(include_ended=True)
                     if cls is None or record.cls == cls]

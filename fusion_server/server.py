@@ -36,7 +36,7 @@ from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
 from fusion_server.zenoh_node import FusionNode
 
-__all__ = ["ClockedUavs", "FusionServer", "HttpThread", "run"]
+__all__ = ["FusionServer", "HttpThread", "run"]
 
 log = logging.getLogger(__name__)
 
@@ -76,27 +76,6 @@ class HttpThread:
         return f"http://{shown}:{self.port}/"
 
 
-class ClockedUavs(UavRegistry):
-    """The UAV registry of a fusion server: every /v1/uavs row also says how far that UAV's clock runs ahead of the
-    server's (``clock_lead_s``, the largest lead adopted among its kinds of message, 0.0 when none; its messages
-    are moved back by it) and, when there is one, the lead of each kind (``clock_leads_s``: {kind: s})."""
-
-    def __init__(self, clocks: UavClocks, max_uavs: int = 256) -> None:
-        super().__init__(max_uavs=max_uavs)
-        self.clocks = clocks
-
-    def snapshot(self, tile_counts: dict[str, int] | None = None) -> list[dict[str, Any]]:
-        """UavRegistry.snapshot() rows plus ``clock_lead_s`` (float) and ``clock_leads_s`` (when a lead is held)."""
-        rows = super().snapshot(tile_counts)
-        leads = self.clocks.leads()
-        for row in rows:
-            found = leads.get(row["id"], {})
-            row["clock_lead_s"] = round(max(found.values(), default=0.0), 3)
-            if found:
-                row["clock_leads_s"] = {kind: round(lead, 3) for kind, lead in sorted(found.items())}
-        return rows
-
-
 class FusionServer:
     """All components of one fusion server, built from validated settings."""
 
@@ -118,7 +97,7 @@ class FusionServer:
         )
         #: how far each UAV's clock runs ahead of this one's, adopted on evidence (the validator moves its messages)
         self.clocks = UavClocks(settings.max_clock_skew_s)
-        self.uavs = ClockedUavs(self.clocks, max_uavs=settings.max_uavs)
+        self.uavs = UavRegistry(max_uavs=settings.max_uavs, clocks=self.clocks)
         #: (what was wrong, where the bad file went) when --db-recover moved a database aside
         self.db_recovered: tuple[str, Path] | None = None
         self.store: FusionStore | None = None
@@ -220,14 +199,14 @@ class FusionServer:
         """Track features with their history rows for ``/v1/history``: from the database when there is one
         (class ``cls``, updated since ``since``, rows up to ``until``; ``ends_only``: each track's first and last
         row), else the tracker's own (fusion_server.replay)."""
-        return stored_tracks(self.settings.db_path, self._track_features(), cls=cls, since=since, until=until,
+        return stored_tracks(self.settings.db_path, self._track_features, cls=cls, since=since, until=until,
                              ends_only=ends_only)
 
     def _track_features_for(self, request: TrackQuery) -> list[dict[str, Any]]:
         """What a shard answers a ``fusion/tracks`` query with (fusion_server.shard_tracks): the features its
         ``/v1/tracks`` (``live``) or ``/v1/history`` (``stored``) would list."""
         if request.source == "stored":
-            return self.history_tracks(request.cls, request.since)
+            return self.history_tracks(request.cls, request.since, request.until, request.ends_only)
         return [record.to_geojson() for record in self.tracker.records(include_ended=request.ended)]
 
     def _object_peaks(self) -> list[Peak]:

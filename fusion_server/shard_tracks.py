@@ -5,7 +5,8 @@ A region tracks message says where each global track is and which of its members
 --shard K/N``) answers queries on ``{prefix}/fusion/tracks/{N}/{K}`` (``KeySpace.shard_tracks``) with
 its global tracks as its own REST API would list them (:class:`TrackQuery`): ``live``, the tracks of
 ``/v1/tracks`` with their history (``ended``: also the recently ended ones), or ``stored``, the tracks
-of ``/v1/history`` from its database (``cls``, ``since``). The gateway (:class:`ShardTracks`) asks
+of ``/v1/history`` from its database (``cls``, ``since``; its rows cut to ``until``, and with ``ends_only``
+to each track's ends: the map page's poll). The gateway (:class:`ShardTracks`) asks
 every shard at once, checks each reply (a bad one is dropped and counted, never raised), merges the
 copies of one global id (after a handover across a region border each shard holds part of its life:
 the histories are joined) and reuses an answer ``cache_s`` seconds. A shard answers from a worker
@@ -13,10 +14,13 @@ thread (:class:`TracksQueryable`), never on a Zenoh thread: reading a long histo
 the tiles.
 
 Wire (msgpack): the query's payload, optional, ``{"v": 1, "source": "live"|"stored", "ended": bool,
-"cls": str, "since": float}``; a reply ``{"v": 1, "shard": K, "shards": N, "source", "tracks": [...]}``
-with one map per track: the properties of its ``/v1/tracks`` feature (``gid, cls, score, vel_en,
-status, created, last_update, ended, members``, ``active_members`` when the shard lists them), its
-position ``lat, lon`` and ``history`` as bytes: float64 little-endian rows (t, lat, lon).
+"cls": str, "since": float, "until": float, "ends_only": bool}`` (``cls``, ``since`` and ``until`` only when
+set, ``ends_only`` only when true: a shard of the older version ignores the keys it does not know and
+answers with every row since ``since``, which the gateway cuts to the window all the same); a reply
+``{"v": 1, "shard": K, "shards": N, "source", "tracks": [...]}`` with one map per track: the properties of
+its ``/v1/tracks`` feature (``gid, cls, score, vel_en, status, created, last_update, ended, members``,
+``active_members`` when the shard lists them), its position ``lat, lon`` and ``history`` as bytes: float64
+little-endian rows (t, lat, lon).
 """
 
 from __future__ import annotations
@@ -35,6 +39,7 @@ import numpy as np
 import zenoh
 
 from fusion_server.global_tracks import TrackRecord
+from fusion_server.replay import window_rows
 from shared.keys import KeySpace
 from shared.messages import (
     VERSION,
@@ -86,12 +91,16 @@ _ROW = np.dtype("<f8")
 class TrackQuery:
     """What the gateway asks a shard for: ``source`` "live" (``/v1/tracks``; ``ended``: with the recently
     ended tracks) or "stored" (``/v1/history``: the database's tracks of class ``cls`` (None: all) updated
-    at or after ``since`` (None: any time), with their rows from then on)."""
+    at or after ``since`` (None: any time), with their rows from then on up to ``until`` (None: the newest);
+    ``ends_only``: only each track's rows at its first and last time in that window, for
+    ``/v1/history?rows=false``). Epoch seconds; ``since`` after ``until`` is refused."""
 
     source: str = "live"
     ended: bool = False
     cls: str | None = None
     since: float | None = None
+    until: float | None = None
+    ends_only: bool = False
 
     def __post_init__(self) -> None:
         if self.source not in SOURCES:
@@ -103,6 +112,13 @@ class TrackQuery:
             check_name(self.cls, "cls")
         if self.since is not None:
             object.__setattr__(self, "since", check_float(self.since, "since"))
+        if self.until is not None:
+            object.__setattr__(self, "until", check_float(self.until, "until"))
+            if self.since is not None and self.since > self.until:
+                raise MessageError("out_of_range", f"since ({self.since}) is after until ({self.until})", "until")
+        if not isinstance(self.ends_only, bool):
+            raise MessageError("bad_type", f"ends_only must be a bool, got {type(self.ends_only).__name__}",
+                               "ends_only")
 
 
 def encode_request(request: TrackQuery) -> bytes:
@@ -112,17 +128,23 @@ def encode_request(request: TrackQuery) -> bytes:
         body["cls"] = request.cls
     if request.since is not None:
         body["since"] = request.since
+    if request.until is not None:
+        body["until"] = request.until
+    if request.ends_only:
+        body["ends_only"] = True
     return msgpack.packb(body, use_bin_type=True)
 
 
 def decode_request(payload: bytes | None) -> TrackQuery:
-    """The TrackQuery of a query payload (None or empty: the live tracks); MessageError when malformed."""
+    """The TrackQuery of a query payload (None or empty: the live tracks); MessageError when malformed. A key
+    it does not know is ignored (a newer gateway's); one that is missing takes its default."""
     if not payload:
         return TrackQuery()
     record = unpack_map(payload, 64 * 1024)
     check_version(get_field(record, "v"))
     return TrackQuery(source=record.get("source", "live"), ended=record.get("ended", False),
-                      cls=record.get("cls"), since=record.get("since"))
+                      cls=record.get("cls"), since=record.get("since"), until=record.get("until"),
+                      ends_only=record.get("ends_only", False))
 
 
 @dataclass(frozen=True, slots=True)
@@ -260,7 +282,11 @@ def merge_tracks(tracks: Iterable[ShardTrack], history_len: int | None = None) -
     """One track per global id, by gid. Copies of one id (a handover: the shard it left holds the past,
     possibly ended, the one it entered carries it on) become one: the alive, reported, most recently
     updated copy for where it is and its status; the earliest ``created``, the latest ``last_update``,
-    the members of every copy and their histories joined in time (the newest ``history_len`` rows)."""
+    the members of every copy and their histories joined in time (the newest ``history_len`` rows).
+
+    Copies cut to their ends (``TrackQuery.ends_only``) join into the ends of the whole: each copy carries
+    every row at its first and last time, so the joined rows' first and last are those of all copies' rows
+    joined (the same row where the last time ties, as joining the full histories picks it)."""
     by_gid: dict[int, list[ShardTrack]] = {}
     for track in tracks:
         by_gid.setdefault(track.gid, []).append(track)
@@ -285,7 +311,9 @@ def merge_tracks(tracks: Iterable[ShardTrack], history_len: int | None = None) -
 
 class TracksQueryable:
     """A shard's answer to ``fusion/tracks`` queries: ``on_query`` (a Zenoh callback) queues the query,
-    a worker thread asks ``source(TrackQuery)`` for the track features and replies on ``key``.
+    a worker thread asks ``source(TrackQuery)`` for the track features and replies on ``key``. A stored
+    answer carries only the rows of the query's window (``since``, ``until``, ``ends_only``;
+    `fusion_server.replay.window_rows`), whatever ``source`` read.
 
     shard, count: this shard's K and N. max_pending: queries waiting for the worker; beyond, the query
     is answered with an error ("busy") at once. Malformed queries get an error reply too.
@@ -363,6 +391,8 @@ class TracksQueryable:
             query, request = item
             try:
                 features = self.source(request)
+                if request.source == "stored":  # only the window's rows go on the wire
+                    features = window_rows(features, request.since, request.until, request.ends_only)
                 query.reply(self.key, encode_reply(self.shard, self.count, request.source, features))
                 self.answered += 1
             except Exception as exc:
@@ -397,6 +427,8 @@ class ShardTracks:
         self._clock = clock
         self._lock = threading.Lock()
         self._asking: dict[TrackQuery, threading.Lock] = {}
+        # keyed by the whole query (source, ended, cls, since, until, ends_only): a rows=false answer is never
+        # served for rows=true, nor one window's for another
         self._cache: dict[TrackQuery, tuple[float, list[ShardTrack]]] = {}
         self._log = RateLimitedLog(log)
 
@@ -404,10 +436,14 @@ class ShardTracks:
         """Every shard's live tracks (and recently ended ones), merged by gid; None when no shard answered."""
         return self._answer(TrackQuery(source="live", ended=include_ended), self.history_len)
 
-    def stored(self, cls: str | None = None, since: float | None = None) -> list[ShardTrack] | None:
-        """Every shard's stored tracks (class ``cls``, updated since ``since``) with their history rows,
-        merged by gid; None when no shard answered."""
-        return self._answer(TrackQuery(source="stored", cls=cls, since=since), None)
+    def stored(self, cls: str | None = None, since: float | None = None, until: float | None = None,
+               ends_only: bool = False) -> list[ShardTrack] | None:
+        """Every shard's stored tracks (class ``cls``, updated since ``since``) with their history rows up to
+        ``until`` (``ends_only``: the rows at each track's first and last time in the window), merged by gid;
+        None when no shard answered. A shard of the older version answers with every row since ``since``:
+        cut the window afterwards (`fusion_server.replay.history_window`)."""
+        return self._answer(TrackQuery(source="stored", cls=cls, since=since, until=until, ends_only=ends_only),
+                            None)
 
     def _answer(self, request: TrackQuery, history_len: int | None) -> list[ShardTrack] | None:
         with self._lock:

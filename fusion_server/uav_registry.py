@@ -17,10 +17,13 @@ import threading
 import time
 from collections import OrderedDict
 from dataclasses import dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fusion_server.metrics import RateWindow
 from shared.messages import VERSION, StateMessage
+
+if TYPE_CHECKING:
+    from fusion_server.uav_clocks import UavClocks
 
 __all__ = ["SESSION_WINDOW_S", "UavRecord", "UavRegistry", "state_to_dict"]
 
@@ -75,8 +78,11 @@ class _Uav:
 class UavRegistry:
     """Per-UAV status. max_uavs bounds the UAVs that sent data; 4 * max_uavs the liveliness tokens."""
 
-    def __init__(self, max_uavs: int = 256, clock=time.monotonic, wall=time.time) -> None:
+    def __init__(self, max_uavs: int = 256, clock=time.monotonic, wall=time.time,
+                 clocks: UavClocks | None = None) -> None:
         self.max_uavs = max_uavs
+        #: the UAVs' clock leads the validator took (fusion_server.uav_clocks): shown in snapshot() when given
+        self.clocks = clocks
         self.max_tokens = 4 * max_uavs
         self._clock = clock
         self._wall = wall
@@ -259,9 +265,12 @@ class UavRegistry:
         or None), rates ({kind: messages/s} over 10 s), bytes_per_s, messages ({kind: count}),
         rejected ({reason: count} of its dropped messages), sessions (Zenoh sessions it was heard
         from within SESSION_WINDOW_S), conflict (more than one of them), tiles (fresh tiles it
-        covers, when tile_counts is given).
+        covers, when tile_counts is given). With the UAVs' clocks: clock_lead_s (how far its clock runs ahead,
+        the largest lead taken among its kinds of message, 0.0 when none; its messages are moved back by it)
+        and, while it holds one, clock_leads_s ({kind: s}).
         """
         now = self._clock()
+        leads = self.clocks.leads() if self.clocks is not None else None
         rows = []
         with self._lock:
             for uav in sorted(set(self._uavs) | set(self._tokens)):
@@ -283,5 +292,10 @@ class UavRegistry:
                 }
                 if tile_counts is not None:
                     row["tiles"] = tile_counts.get(uav, 0)
+                if leads is not None:
+                    found = leads.get(uav, {})
+                    row["clock_lead_s"] = round(max(found.values(), default=0.0), 3)
+                    if found:
+                        row["clock_leads_s"] = {kind: round(lead, 3) for kind, lead in sorted(found.items())}
                 rows.append(row)
         return rows

@@ -17,7 +17,14 @@ from fusion_server.gateway import Gateway
 from fusion_server.merged_tracks import MergedTracks
 from fusion_server.server import FusionServer
 from shared.keys import KeySpace
-from shared.messages import JointTrackItem, JointTracksMessage, decode_joint_tracks
+from shared.messages import (
+    CameraInfo,
+    JointTrackItem,
+    JointTracksMessage,
+    StateMessage,
+    decode_joint_tracks,
+    encode_state,
+)
 from shared.sharding import ShardSpec
 from tests.fusion_server.fake_agent import GRID, TILE_X, TILE_Y, FakeAgent, blob, client_config
 from tests.netutil import free_port, wait_until
@@ -390,5 +397,30 @@ def test_a_range_across_the_antimeridian_holds_the_tiles_on_both_sides(cluster):
         assert sorted(t.x for t in gateway.joint.tiles_in_range("person", side - 1, side, y, y)) == [0, side - 1]
         assert sorted(t.x for t in gateway.joint.tiles_in_range("person", -1, 0, y, y)) == [0, side - 1]
         assert [t.x for t in gateway.joint.tiles_in_range("person", 0, 0, y, y)] == [0]
+    finally:
+        agent.close()
+
+
+def test_a_uav_whose_clock_runs_ahead_is_followed_by_the_gateway_as_by_its_shard(cluster):
+    """A UAV two minutes ahead: the gateway takes its steady lead as a shard does (it had dropped every state of
+    it as t_in_future, so /v1/uavs had no position for it and no shard column)."""
+    (s0, _), gateway, port = cluster
+    x, y = _tiles_by_owner(s0.settings.shard)[0]
+    lat, lon = _center(x, y)
+    agent = FakeAgent("uav-ahead", f"tcp/127.0.0.1:{port}")
+    camera = CameraInfo(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+    try:
+        def seen():
+            agent.put(KEYS.uav_state(agent.uav), encode_state(StateMessage(
+                uav=agent.uav, t=time.time() + 120.0, lat=lat, lon=lon, height_m=40.0, pitch_deg=60.0,
+                heading_deg=90.0, footprint=((lat, lon), (lat + 1e-4, lon), (lat, lon + 1e-4)), camera=camera)))
+            time.sleep(0.2)
+            rows = {r["id"]: r for r in _get(gateway, "/v1/uavs").json()}
+            return rows.get("uav-ahead", {}).get("state") and rows["uav-ahead"]
+
+        row = wait_until(seen, 10.0, "the gateway taking the UAV's clock lead")
+        assert row["clock_lead_s"] == pytest.approx(120.0, abs=1.0) and row["shard"] == 0
+        assert row["state"]["t"] <= time.time() + 1.0  # moved onto the gateway's clock
+        assert row["rejected"].get("t_in_future", 0) >= 4  # dropped until the evidence held, as before
     finally:
         agent.close()
