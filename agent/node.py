@@ -228,8 +228,9 @@ def state_message(uav: str, t: float, pose: Pose, camera: Camera, *, range_m: fl
 
 
 def publishable_tracks(tracks: list[TrackOutput]) -> list[TrackOutput]:
-    """The tracks an agent reports: confirmed (also while coasting) with a finite ground position."""
-    return [tr for tr in tracks if tr.confirmed and math.isfinite(tr.lat) and math.isfinite(tr.lon)]
+    """The tracks an agent reports: confirmed (also while coasting) with a finite ground position that is not
+    loose (a far track placed only beyond the tracker's reach, `TrackOutput.loose`)."""
+    return [tr for tr in tracks if tr.confirmed and not tr.loose and math.isfinite(tr.lat) and math.isfinite(tr.lon)]
 
 
 def tracks_message(uav: str, t: float, tracks: list[TrackOutput], class_names: dict[int, str]) -> TracksMessage:

@@ -224,9 +224,10 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
             on_frame(frame, result, tracks)
     far, posed = counts["confident_without_ground_point"], counts["confident_posed"]
     if posed and far * 2 >= posed:
-        log.warning("video %s: %d of %d confident detections in frames with a pose have no ground point (beyond the "
-                    "reach of the tracker's error model, far_reach_sigma_m, or at the horizon): they follow tracks "
-                    "but start none%s", dataset.video_names.get(video_id, video_id), far, posed,
+        log.warning("video %s: %d of %d confident detections in frames with a pose have no ground point (at or "
+                    "above the horizon, over a DEM beyond the pipeline's range, or beyond far_reach_sigma_m's reach "
+                    "with far_loose_gate 0): they follow tracks but start none%s",
+                    dataset.video_names.get(video_id, video_id), far, posed,
                     "" if rows else ", and the video has no track")
     if stats is not None:
         for k, v in counts.items():

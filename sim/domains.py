@@ -363,6 +363,11 @@ _FAR_LIST = (
            "heldout", "gentle", "grass", (HoverSweepsSpec(distance_m=(220.0, 320.0), height_m=(25.0, 45.0),
                                                           pitch_deg=(5.0, 9.0), **_FAR_SWEEPS),),
            camera="4k-tele", fps=24.0, noise={**_DRIFT, "telemetry_hz": 24.0}),
+    # added 30 Nov 2026 with the loose far points (TrackerConfig.far_loose_gate), held out from their choice
+    Domain("grass-farther-tele", "people 400-600 m away, 30-50 m up at 3-6 deg, 4K tele at 24 fps, drifting clocks",
+           "heldout", "gentle", "grass", (HoverSweepsSpec(distance_m=(400.0, 600.0), height_m=(30.0, 50.0),
+                                                          pitch_deg=(3.0, 6.0), **_FAR_SWEEPS),),
+           camera="4k-tele", fps=24.0, noise={**_DRIFT, "telemetry_hz": 24.0}),
 )
 
 #: All domains by name.

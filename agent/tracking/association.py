@@ -17,8 +17,9 @@ from agent.tracking.config import TrackerConfig
 from agent.tracking.model import FloatArray, kalman_update, mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, Table, TrackState
 
-__all__ = ["associate_ground", "associate_image", "associate_iou", "duplicate_mask", "expected_boxes", "fresh_in_image",
-           "frame_detections", "ground_duplicates", "image_cost", "mark_hit", "resolve_alternatives"]
+__all__ = ["associate_centres", "associate_ground", "associate_image", "associate_iou", "duplicate_mask",
+           "expected_boxes", "fresh_in_image", "frame_detections", "ground_duplicates", "image_cost", "mark_hit",
+           "resolve_alternatives"]
 
 
 def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetections:
@@ -317,6 +318,37 @@ def associate_image(state: TrackState, dets: FrameDetections, det_mask: NDArray[
     mark_hit(state, tr, dets, dr, t)
 
 
+def associate_centres(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_],
+                      gate: float) -> None:
+    """Match detections (det_mask) to tracks by the distance of their box centres from each track's last box,
+    in the two boxes' mean sizes (square root of the area), within `gate`: far boxes are a few pixels wide and
+    one pixel of jitter halves their IoU. A pair whose ground point lies within the track's gate updates its
+    filter (a loose far point, `far_points.fill_far_points`, still says how the object moves); others coast."""
+    act = state.active
+    det_mask = det_mask & ~dets.used & (dets.scores >= state.config.low_score)
+    ti = np.flatnonzero(~act["matched"])
+    di = np.flatnonzero(det_mask)
+    if not len(ti) or not len(di):
+        return
+    prev, boxes = act["box"][ti], dets.boxes[di]
+    size_t = np.sqrt(np.prod(np.maximum(prev[:, 2:] - prev[:, :2], 1.0), axis=1))
+    size_d = np.sqrt(np.prod(np.maximum(boxes[:, 2:] - boxes[:, :2], 1.0), axis=1))
+    step = 0.5 * ((boxes[None, :, :2] + boxes[None, :, 2:]) - (prev[:, None, :2] + prev[:, None, 2:]))
+    dist = np.hypot(step[..., 0], step[..., 1]) / (0.5 * (size_t[:, None] + size_d[None, :]))
+    allowed = (dist <= gate) & (act["cls"][ti][:, None] == dets.cls[di][None, :])
+    r, c = gated_assignment(dist, allowed)
+    if not len(r):
+        return
+    tr, dr = ti[r], di[c]
+    d2, _ = mahalanobis2_and_logdet(dets.z[dr] - act["x"][tr, :2], act["P"][tr, :2, :2] + dets.R[dr])
+    upd = dets.geo[dr] & (d2 <= state.config.gate_chi2)
+    if upd.any():
+        u, z = tr[upd], dr[upd]
+        _, speed_cap = state.motion.accel_and_cap(act["cls"][u])
+        act.cols["x"][u], act.cols["P"][u] = kalman_update(act["x"][u], act["P"][u], dets.z[z], dets.R[z], speed_cap)
+    mark_hit(state, tr, dets, dr, t)
+
+
 def associate_iou(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_]) -> None:
     """Match detections (det_mask) to tracks by IoU with each track's last box; the ground state only coasts."""
     act = state.active
@@ -362,5 +394,6 @@ def mark_hit(state: TrackState, ti: NDArray[np.int64], dets: FrameDetections, di
         act.cols["emb"][ti] = blend_descriptors(act["emb"][ti], dets.emb[di], state.config.appearance_ema)
     act.cols["matched"][ti] = True
     act.cols["det_row"][ti] = di
+    act.cols["loose"][ti] &= ~dets.geo[di] | (dets.loose is not None and dets.loose[di])
     act.cols["confirmed"][ti] |= (act["support"][ti] >= state.config.confirm_hits) & ~act["pending"][ti]
     dets.used[di] = True

@@ -140,6 +140,11 @@ class TrackerConfig:
         along-ray error of a pitch error of pitch_sigma_deg (slant^2 / h * d_beta) is at most this many metres (60:
         ~430 m at 27 m up), on flat ground, anchored as PipelineConfig.anchor ("auto"; set both alike); 0: off, as
         before 30 Nov 2026 (agent.tracking.far_points).
+    far_loose_gate : float
+        Boxes beyond that reach (up to the horizon) get a loose ground point as well: they may start tracks and
+        follow them in the image only (a box centre within this many box sizes of the track's last box;
+        `association.associate_centres`), the loose point updating the track's position where it agrees
+        (0: off: such boxes follow tracks by IoU and start none, as before 30 Nov 2026).
     telemetry_latency_s, max_heading_correction_deg : float
         How much older the telemetry is than its stamp (s): while the gimbal turns, ground points are
         turned about the UAV by rate * (frame time - pose time + latency), at most this many degrees.
@@ -388,6 +393,7 @@ class TrackerConfig:
     max_measurement_sigma_m: float = 30.0
     far_reach_sigma_m: float = 60.0
     far_anchor: str = "auto"
+    far_loose_gate: float = 1.0
     telemetry_latency_s: float = 0.05
     max_heading_correction_deg: float = 30.0
     timing_sigma_s: float = 0.05

@@ -6,8 +6,9 @@ the eight real dev videos) gave an empty MOT file. The tracker places them itsel
 pipeline's telemetry correction, as far as its own error model can: where the along-ray error of a pitch error of
 `TrackerConfig.pitch_sigma_deg` (slant^2 / h * d_beta) stays within `far_reach_sigma_m`. Beyond that reach ground
 points are too loose to associate by (a simulated view at 400-550 m: HOTA 3-14 on the ground against an image
-tracker's 14-17), and such boxes still only follow tracks by image IoU. Measured on simulated far views
-(docs/tracking.md, "Far views").
+tracker's 14-17). Such boxes get a loose point, marked `FrameDetections.loose`, out to the horizon: it starts a
+track and moves it where it agrees, but they are associated in the image (`TrackerConfig.far_loose_gate`).
+Measured on simulated far views (docs/tracking.md, "Far views").
 """
 
 from __future__ import annotations
@@ -41,8 +42,9 @@ def far_reach_m(config: TrackerConfig, height_m: float) -> float:
 def fill_far_points(dets: FrameDetections, pose: Pose, camera: Camera, correction: GroundCorrection | None,
                     config: TrackerConfig) -> NDArray[np.bool_]:
     """Give the rows of dets without a ground point one within `far_reach_m` (flat ground, the anchor
-    `config.far_anchor`, the pose moved by the pipeline's correction as its own points are); dets.lat / lon are
-    replaced by copies (the FrameResult's arrays are not written). Returns (N,) bool: the rows filled."""
+    `config.far_anchor`, the pose moved by the pipeline's correction as its own points are), and with
+    `far_loose_gate` a loose one beyond it (dets.loose); dets.lat / lon are replaced by copies (the FrameResult's
+    arrays are not written). Returns (N,) bool: the rows filled."""
     filled = np.zeros(len(dets.lat), dtype=bool)
     miss = ~(np.isfinite(dets.lat) & np.isfinite(dets.lon))
     reach = far_reach_m(config, pose.height_m)
@@ -50,9 +52,13 @@ def fill_far_points(dets: FrameDetections, pose: Pose, camera: Camera, correctio
         return filled
     moved = pose if correction is None else correction.moved(pose)
     uv = box_anchor_points(dets.boxes[miss], config.far_anchor, pose.pitch_deg)
-    east, north, ok = pixel_to_local(uv, camera, moved, max_range_m=None if math.isinf(reach) else reach)
+    loose_on = config.far_loose_gate > 0 and not math.isinf(reach)
+    east, north, ok = pixel_to_local(uv, camera, moved, max_range_m=None if math.isinf(reach) or loose_on else reach)
     if not ok.any():
         return filled
+    if loose_on:
+        dets.loose = np.zeros(len(dets.lat), dtype=bool)
+        dets.loose[np.flatnonzero(miss)[ok]] = np.hypot(east[ok], north[ok]) > reach
     lat, lon = local_to_latlon(east[ok], north[ok], moved.lat, moved.lon)
     rows = np.flatnonzero(miss)[ok]
     dets.lat, dets.lon = dets.lat.copy(), dets.lon.copy()

@@ -50,6 +50,8 @@ def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_],
         ti, oj = ti[same], oj[same]
         dj = order[oj]
         d2, _ = mahalanobis2_and_logdet(dets.z[dj] - act["x"][ti, :2], act["P"][ti, :2, :2] + dets.R[dj])
+        if dets.loose is not None:
+            d2 = np.where(dets.loose[dj], np.inf, d2)
         free[oj[d2 <= cfg.birth_suppress_chi2]] = False
         taken = act["matched"]
         if taken.any():
@@ -66,7 +68,7 @@ def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_],
                     continue
                 near = b[same]
                 d2, _ = mahalanobis2_and_logdet(dets.z[j][None] - dets.z[near], dets.R[near] + dets.R[j][None])
-                if d2.min() <= cfg.birth_suppress_chi2:
+                if (dets.loose is None or not dets.loose[j]) and d2.min() <= cfg.birth_suppress_chi2:
                     continue
         born.append(int(j))
     if not born:
@@ -90,6 +92,7 @@ def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_],
                matched=np.ones(n, bool), reid=np.zeros(n, bool), strong=dets.raw[b] >= cfg.confirm_score,
                R_last=dets.R[b], quality=dets.raw[b], heading_hit=np.full(n, state.heading_now),
                pending=pending, probation=np.zeros(n, bool), shown=np.zeros(n, bool), det_row=b,
+               loose=np.zeros(n, bool) if dets.loose is None else dets.loose[b],
                **({} if dets.emb is None else {"emb": dets.emb[b]}))
     dets.used[b] = True
 

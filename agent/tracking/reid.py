@@ -225,7 +225,7 @@ def reidentify(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bo
                         reid=np.zeros(n, bool), strong=strong, R_last=dets.R[rows],
                         quality=lost["quality"][r], heading_hit=np.full(n, state.heading_now),
                         pending=np.zeros(n, bool), probation=np.ones(n, bool), shown=np.ones(n, bool),
-                        det_row=rows, **extra)
+                        det_row=rows, loose=np.zeros(n, bool), **extra)
     lost.cols["claimed"][r] = True
     dets.used[rows] = True
     log.debug("revived %d track(s) on probation after %s s", n, np.round(lost_for[r], 2).tolist())

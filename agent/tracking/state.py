@@ -30,6 +30,8 @@ ACTIVE_FIELDS = {
     "shown": ((), np.bool_), "det_row": ((), np.int64),
     # vel_img: image velocity of the box centre, px/s (NaN: unknown)
     "vel_img": ((2,), np.float64),
+    # loose: the ground position comes from loose far points only (agent.tracking.far_points)
+    "loose": ((), np.bool_),
 }
 LOST_FIELDS = {
     "id": ((), np.int64), "cls": ((), np.int64), "pos": ((2,), np.float64), "vel": ((2,), np.float64),
@@ -97,6 +99,7 @@ class FrameDetections:
     view_h: FloatArray | None = None  # (n,) over a terrain: the flat-ground height of each point's error model
     alt_latlon: FloatArray | None = None  # (n, 2) a second ground point (lat, lon) past a terrain edge
     alt: FloatArray | None = None  # (n, 2) z's step to the other point, metres (set with z; swapped with it)
+    loose: NDArray[np.bool_] | None = None  # (n,) ground points beyond the far reach: births and IoU only
 
 
 @dataclass

@@ -16,6 +16,7 @@ from agent.frame_result import FrameResult
 from agent.stage_report import StageReport
 from agent.tracking import registration, reid
 from agent.tracking.association import (
+    associate_centres,
     associate_ground,
     associate_image,
     associate_iou,
@@ -70,6 +71,9 @@ class TrackOutput:
         The track was revived from the re-ID memory in this frame.
     quality : float
         Running mean of the detector's own confidence (raw score) over the matched detections.
+    loose : bool
+        The ground position comes from loose far points only, beyond the tracker's reach
+        (`TrackerConfig.far_loose_gate`): tens to hundreds of metres off; not reported to the fusion server.
     """
 
     id: int
@@ -85,6 +89,7 @@ class TrackOutput:
     time_since_update_s: float = 0.0
     reidentified: bool = False
     quality: float = 0.0
+    loose: bool = False
 
 
 class GpsTracker:
@@ -389,25 +394,31 @@ class GpsTracker:
                                            cfg.duplicate_chi2, cfg.duplicate_raw_ratio)
 
         # 1. strong detections, confirmed tracks first (they own their object), then tentative ones;
-        # 2. weak detections to confirmed tracks left over.
+        # 2. weak detections to confirmed tracks left over. Loose far points start tracks, but are not associated
+        # by on the ground (agent.tracking.far_points).
+        tight = geo if dets.loose is None else geo & ~dets.loose
         confirmed = state.active["confirmed"].copy()
-        strong = geo & ~dets.used & (dets.scores >= cfg.match_score)
+        strong = tight & ~dets.used & (dets.scores >= cfg.match_score)
         if cfg.image_first_iou > 0:
             associate_image(state, dets, strong, t, confirmed, cfg.image_first_iou)
             strong &= ~dets.used
         associate_ground(state, dets, strong, t, confirmed)
         strong &= ~dets.used
         associate_ground(state, dets, strong, t, ~confirmed)
-        weak = geo & ~dets.used & (dets.scores >= cfg.low_score)
+        weak = tight & ~dets.used & (dets.scores >= cfg.low_score)
         if weak.any():
             associate_ground(state, dets, weak, t, confirmed)
-        # Detections the pipeline could not georeference (beyond its range) still follow by IoU.
-        far = ~geo & ~dets.used & (dets.scores >= cfg.match_score)
+        # Detections without a ground point to associate by (beyond the pipeline's range and the far reach, above
+        # the horizon) follow in the image.
+        far = ~tight & ~dets.used & (dets.scores >= cfg.match_score)
         if far.any():
-            associate_iou(state, dets, t, far)
+            if cfg.far_loose_gate > 0:
+                associate_centres(state, dets, t, far, cfg.far_loose_gate)
+            else:
+                associate_iou(state, dets, t, far)
         # 3. re-identification from the lost-track memory (at once, or deferred: reid.resolve_pending).
         # Free detections and young tracks whose id nobody has seen yet compete for the lost ids.
-        cand = geo & ~dets.used & (dets.entry >= cfg.reid_score)
+        cand = tight & ~dets.used & (dets.entry >= cfg.reid_score)
         young = reid.unreported(state, dets, t)
         if cfg.reid_delay_s <= 0 and (cand.any() or len(young)) and len(state.lost):
             if state.evidence_at is not None and cfg.reid_min_evidence > 0:
@@ -559,7 +570,8 @@ class GpsTracker:
         cols = zip(act["id"].tolist(), act["cls"].tolist(), map(tuple, act["box"].tolist()), lat.tolist(),
                    lon.tolist(), map(tuple, act["x"][:, 2:].tolist()), act["score"].tolist(),
                    act["confirmed"].tolist(), act["matched"].tolist(), act["hits"].tolist(),
-                   (now - act["t_hit"]).tolist(), act["reid"].tolist(), act["quality"].tolist(), strict=True)
+                   (now - act["t_hit"]).tolist(), act["reid"].tolist(), act["quality"].tolist(),
+                   act["loose"].tolist(), strict=True)
         return [TrackOutput(*c) for c in cols]
 
 

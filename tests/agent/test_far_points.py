@@ -52,7 +52,7 @@ def test_the_reach_is_where_the_along_ray_error_meets_the_sigma(height, sigma, p
        corr=st.tuples(st.floats(-3, 3), st.floats(-3, 3)))
 def test_boxes_without_a_point_get_theirs_within_the_reach_and_the_others_are_untouched(height, pitch, heading, corr):
     pose = Pose(lat=47.6, lon=9.3, height_m=height, pitch_deg=pitch, heading_deg=heading)
-    config = TrackerConfig(far_anchor="bottom")  # the boxes' bottom centres are the ground points
+    config = TrackerConfig(far_anchor="bottom", far_loose_gate=0.0)  # the boxes' bottom centres are the ground points
     reach = far_reach_m(config, height)
     ahead = height / math.tan(math.radians(pitch))  # the image centre's ground range
     ranges = [0.6 * ahead, 0.97 * reach, 1.05 * reach]
@@ -67,7 +67,18 @@ def test_boxes_without_a_point_get_theirs_within_the_reach_and_the_others_are_un
     filled = fill_far_points(dets, pose, CAMERA, result.correction, config)
     assert not filled[0] and dets.lat[0] == 47.61  # the pipeline's own point stays
     assert np.isnan(result.lat[1:]).all()  # the FrameResult is not written
-    assert not filled[2] and np.isnan(dets.lat[2])  # beyond the reach: none
+    assert not filled[2] and np.isnan(dets.lat[2])  # beyond the reach: none without loose points
+    assert dets.loose is None
+    loose_config = TrackerConfig(far_anchor="bottom")  # far_loose_gate on: a loose point beyond the reach
+    loose = frame_detections(result, loose_config)
+    loose_filled = fill_far_points(loose, pose, CAMERA, result.correction, loose_config)
+    assert loose.loose is not None and not loose.loose[0]
+    if inside[2]:
+        assert loose_filled[2] and loose.loose[2]
+        e, n = latlon_to_local(loose.lat[2], loose.lon[2], pose.lat, pose.lon)
+        assert float(e) == pytest.approx(points[2][0] + corr[0], abs=0.05 + 1e-4 * ranges[2])
+    if inside[1]:
+        assert loose_filled[1] and not loose.loose[1] and loose.lat[1] == pytest.approx(dets.lat[1], abs=1e-12)
     if inside[1]:
         assert filled[1]
         e, n = latlon_to_local(dets.lat[1], dets.lon[1], pose.lat, pose.lon)
@@ -103,6 +114,69 @@ def test_the_tracker_starts_tracks_on_far_boxes_and_not_with_the_reach_off():
             assert sorted(np.round(n, 0).tolist()) == [200.0, 215.0]
 
 
-def test_the_far_anchor_is_checked():
+def test_the_far_anchor_and_the_loose_gate_are_checked():
     with pytest.raises(ValueError, match="far_anchor"):
         TrackerConfig(far_anchor="top")
+    for bad in (-1.0, float("nan"), True):
+        with pytest.raises(ValueError, match="far_loose_gate"):
+            TrackerConfig(far_loose_gate=bad)
+
+
+def _far_view() -> tuple[Pose, float]:
+    pose = Pose(lat=47.6, lon=9.3, height_m=25.0, pitch_deg=5.0, heading_deg=0.0)
+    return pose, far_reach_m(TrackerConfig(), pose.height_m)
+
+
+def _small_boxes(pose: Pose, east_north: list[tuple[float, float]], size: float, jitter: np.ndarray) -> np.ndarray:
+    """size x size px boxes whose bottom centres are the ground points, moved by jitter (N, 2) pixels."""
+    uv, _ = local_to_pixel(np.array([e for e, _ in east_north]), np.array([n for _, n in east_north]), CAMERA, pose)
+    uv = uv + jitter
+    return np.array([[u - size / 2, v - size, u + size / 2, v] for u, v in uv])
+
+
+def test_boxes_beyond_the_reach_start_loose_tracks_followed_in_the_image():
+    """Two swimmers beyond the reach: tracks start and keep their ids while the boxes, 6 px wide, jitter by up to
+    4 px (IoU down to ~0.2); their positions are loose, so the agent does not report them to the fusion server.
+    Probe: with far_loose_gate 0 no track starts (the tracker had nothing to place them by)."""
+    from agent.node import publishable_tracks
+
+    pose, reach = _far_view()
+    points = [(-20.0, 1.3 * reach), (25.0, 1.4 * reach)]
+    rng = np.random.default_rng(3)
+    for config, tracked in ((TrackerConfig(), True), (TrackerConfig(far_loose_gate=0.0), False)):
+        tracker = GpsTracker(config, {1: "swimmer"})
+        seen: dict[int, set[int]] = {0: set(), 1: set()}
+        for k in range(40):
+            boxes = _small_boxes(pose, points, 6.0, rng.uniform(-2.0, 2.0, (2, 2)))
+            tracks = tracker.update(_result(boxes, np.full(2, np.nan), np.full(2, np.nan)), pose, 100.0 + k / 10,
+                                    CAMERA)
+            for tr in tracks:
+                if tr.confirmed and tr.matched:
+                    seen[int(np.argmin(np.abs(boxes[:, 0] - tr.box_xyxy[0])))].add(tr.id)
+        if not tracked:
+            assert seen == {0: set(), 1: set()}
+            continue
+        assert [len(ids) for ids in seen.values()] == [1, 1] and seen[0] != seen[1]
+        confirmed = [tr for tr in tracks if tr.confirmed]
+        assert len(confirmed) == 2 and all(tr.loose for tr in confirmed)
+        assert publishable_tracks(tracks) == []
+        e, n = latlon_to_local(np.array([tr.lat for tr in confirmed]), np.array([tr.lon for tr in confirmed]),
+                               pose.lat, pose.lon)
+        # roughly where they are: a loose point is as far off as a few pixels make it at that range
+        assert np.all(np.abs(np.sort(n) - np.array([p[1] for p in points])) < 0.2 * reach)
+
+
+def test_a_loose_track_taking_a_point_within_the_reach_stops_being_loose():
+    pose, reach = _far_view()
+    tracker = GpsTracker(TrackerConfig(), {1: "swimmer"})
+    far = np.zeros((1, 2))
+    for k in range(5):  # beyond the reach
+        boxes = _small_boxes(pose, [(0.0, 1.1 * reach)], 8.0, far)
+        tracks = tracker.update(_result(boxes, np.full(1, np.nan), np.full(1, np.nan)), pose, 100.0 + k / 10, CAMERA)
+    assert len(tracks) == 1 and tracks[0].loose
+    for k in range(5, 40):  # the object comes within the reach, its box moving 2 px a frame
+        d = 1.1 * reach - (k - 4) * 0.004 * reach
+        boxes = _small_boxes(pose, [(0.0, d)], 8.0, far)
+        tracks = tracker.update(_result(boxes, np.full(1, np.nan), np.full(1, np.nan)), pose, 100.0 + k / 10, CAMERA)
+    assert [tr.id for tr in tracks if tr.matched] == [1]
+    assert not tracks[0].loose and tracks[0].confirmed
