@@ -1,5 +1,6 @@
 """The autopilot's boot clock in MAVLink telemetry: its UNIX offset from ``SYSTEM_TIME`` (and that clock's jumps),
-reboots in a ``.tlog``, and the vehicle's yaw interpolated to a position's boot time.
+its ``time_boot_ms`` wrap at 2**32 ms, reboots in a ``.tlog``, and the vehicle's yaw interpolated to a position's boot
+time.
 
 Pure: numbers in, numbers out (the messages are decoded in `shared.telemetry.mavlink`).
 """
@@ -12,7 +13,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-__all__ = ["CLOCK_JUMP_S", "REBOOT_S", "UnixClock", "boot_segments", "interpolate_yaw_deg", "yaw_between_deg"]
+__all__ = ["BOOT_MS_WRAP", "CLOCK_JUMP_S", "REBOOT_S", "WRAP_WINDOW_S", "BootTimeUnwrap", "UnixClock", "boot_segments",
+           "interpolate_yaw_deg", "yaw_between_deg"]
 
 #: Consecutive ``SYSTEM_TIME`` offsets (UNIX - boot) further apart than this are a step of the vehicle's UNIX clock
 #: (set from the ground station's clock, then from GPS), not jitter: both stamps are taken at one tick on board.
@@ -22,6 +24,41 @@ CLOCK_JUMP_S = 1.0
 REBOOT_S = 3.0
 #: ... unless the boot goes on within this much receive time after it (a late repeat, not a reboot).
 REPEAT_WINDOW_S = 5.0
+
+#: ``time_boot_ms`` counts modulo this (uint32 milliseconds: 49.7 days).
+BOOT_MS_WRAP = 1 << 32
+#: A wrap goes from within this of 2**32 ms to within this of 0 (a link gap up to this long), seconds.
+WRAP_WINDOW_S = 60.0
+
+
+@dataclass(slots=True)
+class BootTimeUnwrap:
+    """One boot clock's ``time_boot_ms`` (uint32) -> milliseconds since boot, counting on past 2**32 (`unwrap`).
+
+    A value that went back is a wrap (2**32 ms more from then on) when, one wrap later, it is at most `WRAP_WINDOW_S`
+    after the latest (so the latest was within that of 2**32 ms and it is within that of 0) and, with receive times,
+    the receive time moved on as much: receive minus unwrapped boot time within `REBOOT_S` of the latest's (a reboot
+    restarts the clock later by the boot's length). Other values that went back are kept for the reboot detection
+    (a reboot, or a late repeat); one of the last wrap received after it stays on it. Values >= 2**32 pass unchanged.
+    """
+
+    wraps: int = 0
+    _top_ms: int | None = None  # the largest unwrapped value so far
+    _top_offset_s: float | None = None  # receive time minus boot time of that one, seconds
+
+    def unwrap(self, boot_ms: int, rx_s: float | None = None) -> int:
+        """The unwrapped boot time (ms) of ``boot_ms`` received at UNIX time ``rx_s`` (None: unknown)."""
+        value, top, window = int(boot_ms), self._top_ms, WRAP_WINDOW_S * 1e3
+        if value < BOOT_MS_WRAP and top is not None:
+            value, later = value + self.wraps * BOOT_MS_WRAP, value + (self.wraps + 1) * BOOT_MS_WRAP
+            if 0 < later - top <= window and (rx_s is None or self._top_offset_s is None
+                                              or abs(rx_s - later / 1e3 - self._top_offset_s) <= REBOOT_S):
+                self.wraps, value = self.wraps + 1, later
+            elif self.wraps and 0 <= top - (value - BOOT_MS_WRAP) <= window:
+                value -= BOOT_MS_WRAP  # sent before the wrap, received after it
+        if top is None or value > top:
+            self._top_ms, self._top_offset_s = value, None if rx_s is None else rx_s - value / 1e3
+        return value
 
 
 @dataclass(slots=True)
