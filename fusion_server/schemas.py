@@ -113,6 +113,10 @@ class Uav(_Open):
     shard: int | None = Field(None, description="a gateway: the shard owning the region under the UAV "
                                                 "(None without a state)")
     degraded: bool | None = Field(None, description="a gateway: True while that shard is down")
+    clock_lead_s: float | None = Field(None, description="how far its clock runs ahead of the server's, taken on "
+                                                         "evidence (its messages are moved back by it); 0.0: none")
+    clock_leads_s: dict[str, float] | None = Field(None, description="while it holds a lead: the lead of each kind "
+                                                                     "of message (tile, state, tracks)")
 
 
 # ---- GeoJSON ---------------------------------------------------------------------------------------------------

@@ -426,7 +426,7 @@ class ShardTracks:
         self._on_reject = on_reject
         self._clock = clock
         self._lock = threading.Lock()
-        self._asking: dict[TrackQuery, threading.Lock] = {}
+        self._asking: dict[TrackQuery, list] = {}  # query -> [its lock, threads using it]
         # keyed by the whole query (source, ended, cls, since, until, ends_only): a rows=false answer is never
         # served for rows=true, nor one window's for another
         self._cache: dict[TrackQuery, tuple[float, list[ShardTrack]]] = {}
@@ -450,23 +450,31 @@ class ShardTracks:
             cached = self._cache.get(request)
             if cached is not None and self._clock() - cached[0] <= self.cache_s:
                 return cached[1]
-            asking = self._asking.setdefault(request, threading.Lock())
-        with asking:
+            # one asker per distinct query at a time; the entry lives while threads wait on it (a query nobody
+            # answers caches nothing, and clients choose since / until: entries kept after use grew without bound)
+            entry = self._asking.setdefault(request, [threading.Lock(), 0])
+            entry[1] += 1
+        try:
+            with entry[0]:
+                with self._lock:
+                    cached = self._cache.get(request)
+                    if cached is not None and self._clock() - cached[0] <= self.cache_s:
+                        return cached[1]  # another thread asked while this one waited
+                asked = self._clock()
+                replies = self._ask(request)
+                found = None if replies is None else merge_tracks(replies, history_len)
+                if found is None:  # nobody answered (no session, every shard down or too old to answer): ask again
+                    return None
+                with self._lock:
+                    if len(self._cache) > 64:  # many distinct history windows: forget them
+                        self._cache.clear()
+                    self._cache[request] = (asked, found)
+                return found
+        finally:
             with self._lock:
-                cached = self._cache.get(request)
-                if cached is not None and self._clock() - cached[0] <= self.cache_s:
-                    return cached[1]  # another thread asked while this one waited
-            asked = self._clock()
-            replies = self._ask(request)
-            found = None if replies is None else merge_tracks(replies, history_len)
-            if found is None:  # nobody answered (no session, every shard down or too old to answer): ask again
-                return None
-            with self._lock:
-                if len(self._cache) > 64:  # many distinct history windows: forget them
-                    self._cache.clear()
-                    self._asking = {request: asking}
-                self._cache[request] = (asked, found)
-            return found
+                entry[1] -= 1
+                if not entry[1]:
+                    self._asking.pop(request, None)
 
     def _ask(self, request: TrackQuery) -> list[ShardTrack] | None:
         session = self.session

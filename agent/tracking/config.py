@@ -144,7 +144,8 @@ class TrackerConfig:
         Boxes beyond that reach (up to the horizon) get a loose ground point as well: they may start tracks and
         follow them in the image only (a box centre within this many box sizes of the track's last box;
         `association.associate_centres`), the loose point updating the track's position where it agrees
-        (0: off: such boxes follow tracks by IoU and start none, as before 30 Nov 2026).
+        (0: off: such boxes follow tracks by IoU and start none, as before 30 Nov 2026). Boxes without any point
+        (at or above the horizon, over a DEM beyond the pipeline's range) follow tracks by IoU either way.
     telemetry_latency_s, max_heading_correction_deg : float
         How much older the telemetry is than its stamp (s): while the gimbal turns, ground points are
         turned about the UAV by rate * (frame time - pose time + latency), at most this many degrees.

@@ -84,15 +84,16 @@ def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_],
     state.next_id += n
     # With lost tracks of its class around, a new track may turn out to be an old one.
     pending = np.zeros(n, dtype=bool)
-    if cfg.reid_delay_s > 0 and len(state.lost):
-        pending = np.isin(dets.cls[b], state.lost["cls"])
+    loose = np.zeros(n, bool) if dets.loose is None else dets.loose[b]
+    if cfg.reid_delay_s > 0 and len(state.lost):  # not by a loose far point's ground position
+        pending = np.isin(dets.cls[b], state.lost["cls"]) & ~loose
     act.append(id=ids, cls=dets.cls[b], x=x, P=P, box=dets.boxes[b], score=dets.scores[b],
                hits=np.ones(n, np.int64), support=np.ones(n, np.int64), t_hit=np.full(n, t),
                t_born=np.full(n, t), t_shadow=np.full(n, np.nan), confirmed=~pending & (cfg.confirm_hits <= 1),
                matched=np.ones(n, bool), reid=np.zeros(n, bool), strong=dets.raw[b] >= cfg.confirm_score,
                R_last=dets.R[b], quality=dets.raw[b], heading_hit=np.full(n, state.heading_now),
                pending=pending, probation=np.zeros(n, bool), shown=np.zeros(n, bool), det_row=b,
-               loose=np.zeros(n, bool) if dets.loose is None else dets.loose[b],
+               loose=loose,
                **({} if dets.emb is None else {"emb": dets.emb[b]}))
     dets.used[b] = True
 

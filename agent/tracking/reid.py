@@ -147,8 +147,8 @@ def _settle(state: TrackState, mask: NDArray[np.bool_]) -> None:
 def unreported(state: TrackState, dets: FrameDetections, t: float) -> NDArray[np.int64]:
     """Indices of active tracks that may still take a lost track's id (`reid_unreported_s`): born
     within that time, id never reported or not reported now (quality below report_quality), not
-    pending or on probation, and holding in this frame a georeferenced detection with entry score
-    >= reid_score (its row: the "det_row" column)."""
+    pending or on probation, and holding in this frame a georeferenced detection (not a loose far point) with entry
+    score >= reid_score (its row: the "det_row" column)."""
     cfg = state.config
     act = state.active
     if cfg.reid_unreported_s <= 0 or not len(act) or not len(state.lost):
@@ -159,7 +159,8 @@ def unreported(state: TrackState, dets: FrameDetections, t: float) -> NDArray[np
     ok &= ~act["shown"] | (act["quality"] < cfg.report_quality)
     k = np.flatnonzero(ok)
     r = row[k]
-    return k[dets.geo[r] & (dets.entry[r] >= cfg.reid_score)]
+    grounded = dets.geo[r] if dets.loose is None else dets.geo[r] & ~dets.loose[r]  # a loose far point: not by it
+    return k[grounded & (dets.entry[r] >= cfg.reid_score)]
 
 
 def reidentify(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_], t: float,

@@ -99,7 +99,7 @@ class FrameDetections:
     view_h: FloatArray | None = None  # (n,) over a terrain: the flat-ground height of each point's error model
     alt_latlon: FloatArray | None = None  # (n, 2) a second ground point (lat, lon) past a terrain edge
     alt: FloatArray | None = None  # (n, 2) z's step to the other point, metres (set with z; swapped with it)
-    loose: NDArray[np.bool_] | None = None  # (n,) ground points beyond the far reach: births and IoU only
+    loose: NDArray[np.bool_] | None = None  # (n,) ground points beyond the far reach: births, image association
 
 
 @dataclass

@@ -408,14 +408,13 @@ class GpsTracker:
         weak = tight & ~dets.used & (dets.scores >= cfg.low_score)
         if weak.any():
             associate_ground(state, dets, weak, t, confirmed)
-        # Detections without a ground point to associate by (beyond the pipeline's range and the far reach, above
-        # the horizon) follow in the image.
+        # Detections without a ground point to associate by follow in the image: loose far points by their box
+        # centres, those without any point (at the horizon, over a DEM beyond the pipeline's range) by IoU.
         far = ~tight & ~dets.used & (dets.scores >= cfg.match_score)
-        if far.any():
-            if cfg.far_loose_gate > 0:
-                associate_centres(state, dets, t, far, cfg.far_loose_gate)
-            else:
-                associate_iou(state, dets, t, far)
+        if dets.loose is not None and (far & dets.loose).any():
+            associate_centres(state, dets, t, far & dets.loose, cfg.far_loose_gate)
+        if (far & ~geo).any():
+            associate_iou(state, dets, t, far & ~geo)
         # 3. re-identification from the lost-track memory (at once, or deferred: reid.resolve_pending).
         # Free detections and young tracks whose id nobody has seen yet compete for the lost ids.
         cand = tight & ~dets.used & (dets.entry >= cfg.reid_score)

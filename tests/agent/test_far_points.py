@@ -180,3 +180,59 @@ def test_a_loose_track_taking_a_point_within_the_reach_stops_being_loose():
         tracks = tracker.update(_result(boxes, np.full(1, np.nan), np.full(1, np.nan)), pose, 100.0 + k / 10, CAMERA)
     assert [tr.id for tr in tracks if tr.matched] == [1]
     assert not tracks[0].loose and tracks[0].confirmed
+
+
+def test_boxes_without_any_point_follow_by_iou_whatever_the_loose_gate():
+    """Review finding: the loose gate had also matched boxes without any ground point (far points off, over a DEM, at
+    the horizon) by box centres. A 40 px box jumping 36 px a frame (IoU ~0.05) after losing its ground point is not
+    followed, with the loose gate on or off."""
+    camera = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
+    pose = Pose(lat=47.6, lon=9.3, height_m=30.0, pitch_deg=45.0, heading_deg=0.0)
+    for gate in (1.0, 0.0):
+        tracker = GpsTracker(TrackerConfig(far_reach_sigma_m=0.0, far_loose_gate=gate), {1: "person"})
+        matched = []
+        for k in range(10):
+            x = 900.0 + max(k - 4, 0) * 36.0
+            box = np.array([[x, 500.0, x + 40.0, 540.0]])
+            if k < 5:
+                lat, lon = latlon_at(camera, pose, box)
+            else:
+                lat, lon = np.full(1, np.nan), np.full(1, np.nan)
+            tracks = tracker.update(_result(box, lat, lon), pose, 100.0 + k / 10, camera)
+            matched.append([tr.matched for tr in tracks if tr.id == 1])
+        assert matched[4] == [True] and all(m in ([False], []) for m in matched[5:]), (gate, matched)
+
+
+def latlon_at(camera: Camera, pose: Pose, boxes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    from shared.geo import pixel_to_latlon
+
+    uv = np.column_stack([(boxes[:, 0] + boxes[:, 2]) / 2, boxes[:, 3]])
+    lat, lon, _ = pixel_to_latlon(uv, camera, pose)
+    return np.asarray(lat, float), np.asarray(lon, float)
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.3])
+def test_a_loose_far_point_takes_no_lost_id(delay):
+    """Review finding: a young track born from a loose point took a lost track's id by the loose point's ground
+    position (tens to hundreds of metres off). An object lost within the reach and back just beyond it gets a new
+    id, at once or deferred (reid_delay_s)."""
+    pose, reach = _far_view()
+    tracker = GpsTracker(TrackerConfig(reid_delay_s=delay), {1: "swimmer"})
+    t = 100.0
+
+    def frame(d):
+        nonlocal t
+        boxes = np.zeros((0, 4)) if d is None else _small_boxes(pose, [(0.0, d)], 8.0, np.zeros((1, 2)))
+        tracks = tracker.update(_result(boxes, np.full(len(boxes), np.nan), np.full(len(boxes), np.nan)), pose, t,
+                                CAMERA)
+        t += 0.1
+        return tracks
+
+    for _ in range(10):
+        tracks = frame(0.99 * reach)
+    assert [(tr.id, tr.confirmed, tr.loose) for tr in tracks] == [(1, True, False)]
+    for _ in range(15):
+        frame(None)
+    for _ in range(8):
+        tracks = frame(1.01 * reach)
+    assert [tr.id for tr in tracks if tr.matched] == [2] and tracker.n_reidentified == 0

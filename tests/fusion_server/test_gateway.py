@@ -422,5 +422,8 @@ def test_a_uav_whose_clock_runs_ahead_is_followed_by_the_gateway_as_by_its_shard
         assert row["clock_lead_s"] == pytest.approx(120.0, abs=1.0) and row["shard"] == 0
         assert row["state"]["t"] <= time.time() + 1.0  # moved onto the gateway's clock
         assert row["rejected"].get("t_in_future", 0) >= 4  # dropped until the evidence held, as before
+        assert schemas.Uav.model_validate(row).clock_leads_s == {"state": pytest.approx(120.0, abs=1.0)}
+        openapi = _get(gateway, "/openapi.json").json()["components"]["schemas"]["Uav"]["properties"]
+        assert {"clock_lead_s", "clock_leads_s"} <= set(openapi)
     finally:
         agent.close()
