@@ -238,12 +238,14 @@ class StreamedResults:
     held ~0.7 M result dicts in memory until the end (~0.4 GB at 10 frames/s and 20 detections a frame). Entries go
     to ``<out>.tmp`` as they are added (opened with the first); `close` ends the JSON array and renames it to
     ``out`` (a run that dies leaves the .tmp, never a truncated results file). FileNotFoundError when the folder
-    does not exist."""
+    does not exist, IsADirectoryError when ``out`` is a folder (found at the start, not after the run)."""
 
     def __init__(self, out_path: str | Path) -> None:
         self.path = Path(out_path)
         if not self.path.parent.is_dir():
             raise FileNotFoundError(f"output directory {self.path.parent} does not exist (for {self.path})")
+        if self.path.is_dir():
+            raise IsADirectoryError(f"{self.path} is a directory: give the results file's path")
         self._tmp = self.path.with_name(self.path.name + ".tmp")
         self._file: Any = None
         self.count = 0

@@ -5,8 +5,6 @@ and `uavmm anomaly-train` (the autoencoder). Registered through `uavmm.cli.COMMA
 from __future__ import annotations
 
 import argparse
-import json
-import os
 import sys
 import time
 from pathlib import Path
@@ -103,14 +101,15 @@ def run_anomaly(args: argparse.Namespace) -> int:
     """Handler of `uavmm anomaly`: returns the exit code; ValueError/OSError become one line and exit 2."""
     from agent.anomaly import ANOMALY_CLASS, AnomalyDetector
     from agent.anomaly.frames import VideoFrames, dataset_frames
+    from agent.boost import StreamedResults
     from shared.geo import Camera
 
     if args.video is not None and args.telemetry is None:
         raise ValueError("--video needs --telemetry FILE")
     if args.frames is not None and args.telemetry is not None:
         raise ValueError("--telemetry goes with --video (--frames carries its telemetry in images.json meta)")
-    for flag in ("height_offset_m", "pitch_deg", "heading_deg", "mavlink_system_id", "telemetry_utc_offset_h",
-                 "video_fps"):
+    for flag in ("height_m", "height_offset_m", "pitch_deg", "heading_deg", "mavlink_system_id",
+                 "telemetry_utc_offset_h", "video_fps"):
         if args.frames is not None and getattr(args, flag) is not None:
             raise ValueError(f"--{flag.replace('_', '-')} goes with --video (--frames carries its telemetry in "
                              "images.json meta)")
@@ -118,6 +117,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
         raise ValueError("--telemetry-offset-s goes with --video (--frames carries its times in images.json meta)")
     if not args.out.parent.is_dir():
         raise ValueError(f"output directory {args.out.parent} does not exist (for {args.out})")
+    if args.out.is_dir():
+        raise ValueError(f"--out {args.out} is a directory: give the results file's path")
     cfg, method = _config(args)
     camera = Camera.from_spec(args.camera)
     frames = (dataset_frames(args.frames, camera) if args.frames is not None
@@ -127,31 +128,41 @@ def run_anomaly(args: argparse.Namespace) -> int:
                                     system_id=args.mavlink_system_id,
                                     utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)))
     detector = AnomalyDetector(cfg, method)
-    results = []
+    # written as the frames come (an hour at 100 regions a frame held ~4 GiB until the end): a failed run leaves
+    # nothing, Ctrl-C the regions of the frames done
+    spool = StreamedResults(args.out)
     video = None
     n = without_pose = 0
     started = time.perf_counter()
-    for frame in frames:
-        if frame.video != video:
-            detector.reset()
-            video = frame.video
-        out = detector.process(frame.image, frame.pose, frame.t, frame.camera)
-        for (x0, y0, x1, y1), score in zip(out.boxes_xyxy.tolist(), out.roi_scores.tolist(), strict=True):
-            results.append({"image_id": frame.image_id, "category_id": 1, "category": ANOMALY_CLASS,
-                            "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
-                            "score": round(float(score), 4)})
-        n += 1
-        without_pose += frame.pose is None
-        if not args.quiet and n % 50 == 0:
-            print(f"\ranomaly: {n} frames", end="", file=sys.stderr, flush=True)
+    try:
+        for frame in frames:
+            if frame.video != video:
+                detector.reset()
+                video = frame.video
+            out = detector.process(frame.image, frame.pose, frame.t, frame.camera)
+            spool.extend([{"image_id": frame.image_id, "category_id": 1, "category": ANOMALY_CLASS,
+                           "bbox": [round(x0, 2), round(y0, 2), round(x1 - x0, 2), round(y1 - y0, 2)],
+                           "score": round(float(score), 4)}
+                          for (x0, y0, x1, y1), score in zip(out.boxes_xyxy.tolist(), out.roi_scores.tolist(),
+                                                             strict=True)])
+            n += 1
+            without_pose += frame.pose is None
+            if not args.quiet and n % 50 == 0:
+                print(f"\ranomaly: {n} frames", end="", file=sys.stderr, flush=True)
+    except KeyboardInterrupt:
+        spool.close()
+        print(f"\nstopped: wrote {spool.count} regions of interest for the {n} frames done to {args.out}",
+              file=sys.stderr)
+        raise
+    except BaseException:
+        spool.abort()
+        raise
+    spool.close()
     if not args.quiet and n >= 50:
         print(file=sys.stderr)
-    tmp = args.out.with_name(f".{args.out.name}.tmp")
-    tmp.write_text(json.dumps(results))
-    os.replace(tmp, args.out)
     seconds = time.perf_counter() - started
     mode = ("per-frame" if args.no_memory else "memory map") + (f", terrain {args.dem.name}" if args.dem else "")
-    print(f"wrote {len(results)} regions of interest for {n} frames to {args.out} ({args.method}, {mode}; "
+    print(f"wrote {spool.count} regions of interest for {n} frames to {args.out} ({args.method}, {mode}; "
           f"{without_pose} frames without telemetry; {n / max(seconds, 1e-9):.1f} frames/s)")
     return 0
 

@@ -113,3 +113,61 @@ def test_the_protocol_gives_recall_per_rate_and_false_alarm_persistence(rendered
     report = {"rates": list(RATES), "seeds": [0], "frames": FRAMES, "image_size": [320, 180],
               "results": {"sea": {"mean": {**summary, "objects": run["objects"]}}}}
     assert f"| mean | {summary['frame']['AR']} | {summary['memory']['AR']} |" in format_report(report)
+
+
+def test_flags_that_do_not_apply_and_a_folder_as_out_are_refused_at_the_start(rendered, tmp_path, capsys):
+    """Audit findings: `--height-m` beside `--frames` was silently ignored; `--out` naming a folder ran the whole
+    video and failed at the end, leaving a temporary file."""
+    cam = str(rendered / "camera.json")
+    frames = ["--frames", str(rendered / "images.json")]
+    err = _error(capsys, ["anomaly", *frames, "--camera", cam, "--out", str(tmp_path / "r.json"), "--height-m", "30"])
+    assert "--height-m goes with --video" in err
+    folder = tmp_path / "out"
+    folder.mkdir()
+    err = _error(capsys, ["anomaly", *frames, "--camera", cam, "--out", str(folder)])
+    assert "is a directory" in err
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"] and not any(folder.iterdir())
+
+
+def test_regions_are_written_as_they_come_and_ctrl_c_keeps_those_of_the_frames_done(rendered, tmp_path):
+    """Audit finding: every region was held to the end (an hour at 100 a frame: ~4 GiB), and Ctrl-C lost them all.
+    The file is written as the frames come (the same bytes as the whole list dumped at once, checked on a full
+    run) and an interrupted run puts what it has in place."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    whole = tmp_path / "whole.json"
+    args = ["anomaly", "--frames", str(rendered / "images.json"), "--camera", str(rendered / "camera.json"),
+            "--method", "mean", "--quiet"]
+    assert main([*args, "--out", str(whole)]) == 0
+    rois = json.loads(whole.read_text())
+    assert rois and whole.read_text() == json.dumps(rois)
+    # a slow run (many copies of the frames): interrupted once its first regions are on disk
+    many = tmp_path / "many"
+    many.mkdir()
+    coco = json.loads((rendered / "images.json").read_text())
+    for im in coco["images"]:
+        (many / im["file_name"]).parent.mkdir(parents=True, exist_ok=True)
+        os.symlink(rendered / im["file_name"], many / im["file_name"])
+    coco.pop("videos", None)  # 40 copies of each video, as videos of their own
+    coco["images"] = [{**im, "id": k * 10_000 + im["id"], "video_id": k * 100 + im["video_id"]}
+                      for k in range(40) for im in coco["images"]]
+    (many / "images.json").write_text(json.dumps(coco))
+    out = tmp_path / "partial.json"
+    cmd = [sys.executable, "-m", "uavmm.cli", "anomaly", "--frames", str(many / "images.json"), "--camera",
+           str(rendered / "camera.json"), "--method", "mean", "--out", str(out)]
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    spool = out.with_name(out.name + ".tmp")
+    deadline = time.monotonic() + 120
+    while not (spool.exists() and spool.stat().st_size > 1000) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert proc.poll() is None, proc.communicate()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    partial = json.loads(out.read_text())
+    assert partial and "stopped: wrote" in err and not spool.exists()
+    assert {r["image_id"] for r in partial} < {im["id"] for im in coco["images"]}

@@ -42,3 +42,11 @@ def test_an_aborted_run_leaves_neither_the_file_nor_its_tmp(tmp_path):
     spool.abort()
     spool.close()  # after an abort: nothing to put in place
     assert not out.exists() and not (tmp_path / "dets.json.tmp").exists()
+
+
+def test_a_folder_as_the_results_file_is_refused_before_the_run(tmp_path):
+    """`uavmm boost --out DIR` ran the whole dataset and failed when putting the file in place, leaving the .tmp."""
+    (tmp_path / "out").mkdir()
+    with pytest.raises(IsADirectoryError, match="is a directory"):
+        StreamedResults(tmp_path / "out")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
