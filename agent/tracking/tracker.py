@@ -54,7 +54,7 @@ class TrackOutput:
     box_xyxy : tuple of 4 float
         Image box, pixels: the detection matched in this frame, else the last matched one.
     lat, lon : float
-        Filtered ground position, degrees.
+        Filtered ground position, degrees; NaN without one (no pose yet, or a loose far track).
     vel_en : tuple of 2 float
         Filtered ground velocity (east, north), m/s.
     score : float
@@ -73,7 +73,8 @@ class TrackOutput:
         Running mean of the detector's own confidence (raw score) over the matched detections.
     loose : bool
         The ground position comes from loose far points only, beyond the tracker's reach
-        (`TrackerConfig.far_loose_gate`): tens to hundreds of metres off; not reported to the fusion server.
+        (`TrackerConfig.far_loose_gate`): tens to hundreds of metres off, so lat / lon are NaN (no GeoJSON or KML
+        feature, not sent to the fusion server); the MOT rows have the track.
     """
 
     id: int
@@ -562,6 +563,8 @@ class GpsTracker:
             return []
         if self._state.origin is not None:
             lat, lon = local_to_latlon(act["x"][:, 0], act["x"][:, 1], *self._state.origin)
+            # a loose far track's point may be hundreds of metres off: no position is reported for it
+            lat, lon = np.where(act["loose"], np.nan, lat), np.where(act["loose"], np.nan, lon)
         else:
             lat = lon = np.full(n, np.nan)
         now = self._t if self._t is not None else 0.0
