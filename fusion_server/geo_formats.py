@@ -11,7 +11,8 @@ from typing import Any
 
 from fastapi.responses import JSONResponse
 
-__all__ = ["GEOJSON_MEDIA_TYPE", "GeoJSONResponse", "tilejson", "track_lines_geojson", "uavs_geojson"]
+__all__ = ["GEOJSON_MEDIA_TYPE", "GeoJSONResponse", "tilejson", "track_line_feature", "track_lines_geojson",
+           "uavs_geojson"]
 
 GEOJSON_MEDIA_TYPE = "application/geo+json"
 
@@ -64,19 +65,22 @@ def track_lines_geojson(features: Iterable[Mapping[str, Any]]) -> dict[str, Any]
     property. A track with one history row is a LineString of that point twice (GeoJSON needs two
     positions); one without history is left out.
     """
-    lines = []
-    for feature in features:
-        properties = dict(feature["properties"])
-        history = properties.pop("history", None) or []
-        if not history:
-            continue
-        coordinates = [[float(lon), float(lat)] for _t, lat, lon in history]
-        if len(coordinates) == 1:
-            coordinates.append(list(coordinates[0]))
-        properties["times"] = [float(t) for t, _lat, _lon in history]
-        lines.append({"type": "Feature", "id": feature.get("id"), "properties": properties,
-                      "geometry": {"type": "LineString", "coordinates": coordinates}})
-    return {"type": "FeatureCollection", "features": lines}
+    lines = (track_line_feature(feature) for feature in features)
+    return {"type": "FeatureCollection", "features": [line for line in lines if line is not None]}
+
+
+def track_line_feature(feature: Mapping[str, Any]) -> dict[str, Any] | None:
+    """One `track_lines_geojson` LineString of a global track's Point Feature; None without history."""
+    properties = dict(feature["properties"])
+    history = properties.pop("history", None) or []
+    if not history:
+        return None
+    coordinates = [[float(lon), float(lat)] for _t, lat, lon in history]
+    if len(coordinates) == 1:
+        coordinates.append(list(coordinates[0]))
+    properties["times"] = [float(t) for t, _lat, _lon in history]
+    return {"type": "Feature", "id": feature.get("id"), "properties": properties,
+            "geometry": {"type": "LineString", "coordinates": coordinates}}
 
 
 def tilejson(cls: str, tile_url: str, *, bounds: Sequence[float] | None, max_zoom: int,

@@ -1,30 +1,35 @@
 """`uavmm export`: the fusion server's stored history (its SQLite file) as GeoPackage, KML or GeoJSON.
 
-Reads the database read-only (a running server may keep writing) and makes three layers: ``tracks``
-(each global track at its last position), ``track_lines`` (its history as a line) and ``track_points``
-(one point per history row, with an ISO time for QGIS's temporal controller).
+Reads the database read-only (a running server may keep writing) in one snapshot, a track at a time: each format
+streams from the database's cursors into a temporary file beside the output, renamed over it once complete, so
+memory does not grow with the history and a failed write leaves the previous file. Layers: ``tracks`` (each global
+track at its last position), ``track_lines`` (its history as a line) and, in a GeoPackage, ``track_points`` (one
+point per history row, with a DATETIME for QGIS's temporal controller).
 """
 
 from __future__ import annotations
 
+import itertools
 import json
+import math
+import os
 import sqlite3
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import IO, Any, TypeVar
 
-from fusion_server.geo_formats import track_lines_geojson
+from fusion_server.geo_formats import track_line_feature
 from fusion_server.gpkg import Layer, write_geopackage
-from shared.kml import feature_collections_kml, kmz
+from shared.kml import kml_chunks, write_kmz
 
-__all__ = ["EXPORT_FORMATS", "HistoryExport", "export_history", "read_history"]
+__all__ = ["EXPORT_FORMATS", "HistoryExport", "export_history", "read_history", "stored_classes"]
 
 EXPORT_FORMATS = {".gpkg": "GeoPackage", ".kml": "KML", ".kmz": "KMZ", ".geojson": "GeoJSON", ".json": "GeoJSON"}
-
-
-def _iso(t: float | None) -> str | None:
-    return None if t is None else datetime.fromtimestamp(t, timezone.utc).isoformat(timespec="milliseconds")
+_TRACK_COLUMNS = "gid, cls, lat, lon, score, vel_e, vel_n, created, last_update, ended, members"
+_HISTORY_ROWS = "SELECT gid, t, lat, lon FROM track_history WHERE t >= ? AND t <= ? ORDER BY gid, t, rowid"
+_T = TypeVar("_T")
 
 
 @dataclass(frozen=True)
@@ -33,19 +38,58 @@ class HistoryExport:
 
     tracks: list[dict[str, Any]]
 
-    def collections(self) -> dict[str, dict[str, Any]]:
-        """``tracks``, ``track_lines`` and ``track_points`` as GeoJSON FeatureCollections."""
-        points = []
-        for feature in self.tracks:
-            props = feature["properties"]
-            for t, lat, lon in props["history"]:
-                points.append({"type": "Feature", "geometry": {"type": "Point", "coordinates": [lon, lat]},
-                               "properties": {"gid": props["gid"], "cls": props["cls"], "t": t, "time": _iso(t)}})
-        bare = [{**f, "properties": {k: v for k, v in f["properties"].items() if k != "history"}}
-                for f in self.tracks]
-        return {"tracks": {"type": "FeatureCollection", "features": bare},
-                "track_lines": track_lines_geojson(self.tracks),
-                "track_points": {"type": "FeatureCollection", "features": points}}
+
+def _connect(path: Path) -> sqlite3.Connection:
+    if not path.is_file():
+        raise ValueError(f"database {path} does not exist")
+    try:
+        return sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+    except sqlite3.Error as exc:
+        raise ValueError(f"cannot open database {path}: {exc}") from None
+
+
+def _not_fusion(path: Path, exc: sqlite3.Error) -> ValueError:
+    return ValueError(f"{path} is not a uavmm fusion database ({exc})")
+
+
+def _selection(cls: str | None, since: float | None) -> tuple[list[str], list[Any]]:
+    """The tracks' WHERE terms and their arguments: updated at or after ``since``, of class ``cls``."""
+    where = ["last_update >= ?"]
+    args: list[Any] = [since if since is not None else float("-inf")]
+    if cls is not None:
+        where.append("cls = ?")
+        args.append(cls)
+    return where, args
+
+
+def _feature(row: tuple[Any, ...], history: list[list[float]] | None) -> dict[str, Any]:
+    """A ``tracks`` row as a Point Feature (`/v1/tracks`' form); ``history`` None: without that property."""
+    gid, name, lat, lon, score, vel_e, vel_n, created, last_update, ended, members = row
+    properties = {"gid": gid, "cls": name, "score": score, "vel_en": [vel_e, vel_n],
+                  "status": "ended" if ended is not None else "tracked", "created": created,
+                  "last_update": last_update, "ended": ended, "members": json.loads(members)}
+    if history is not None:
+        properties["history"] = history
+    return {"type": "Feature", "id": gid, "geometry": {"type": "Point", "coordinates": [lon, lat]},
+            "properties": properties}
+
+
+def _features(conn: sqlite3.Connection, where: list[str], args: list[Any],
+              window: tuple[float, float]) -> Iterator[dict[str, Any]]:
+    """Each selected track's Feature with its history rows in the window, in gid order, one track at a time: the
+    tracks and the history (rows of one time in the order written) are read side by side, both by gid."""
+    tracks = conn.execute(f"SELECT {_TRACK_COLUMNS} FROM tracks WHERE {' AND '.join(where)} ORDER BY gid", args)
+    rows = conn.execute(_HISTORY_ROWS, window)
+    pending = next(rows, None)
+    for track in tracks:
+        gid = track[0]
+        while pending is not None and pending[0] < gid:  # rows of tracks not selected
+            pending = next(rows, None)
+        history = []
+        while pending is not None and pending[0] == gid:
+            history.append([pending[1], pending[2], pending[3]])
+            pending = next(rows, None)
+        yield _feature(track, history)
 
 
 def read_history(db_path: str | Path, *, cls: str | None = None, since: float | None = None,
@@ -59,100 +103,208 @@ def read_history(db_path: str | Path, *, cls: str | None = None, since: float | 
     day). ValueError for a file that is missing or not a fusion database.
     """
     path = Path(db_path)
-    if not path.is_file():
-        raise ValueError(f"database {path} does not exist")
+    conn = _connect(path)
     try:
-        conn = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
-    except sqlite3.Error as exc:
-        raise ValueError(f"cannot open database {path}: {exc}") from None
-    try:
-        where, args = ["last_update >= ?"], [since if since is not None else float("-inf")]
-        if cls is not None:
-            where.append("cls = ?")
-            args.append(cls)
-        rows = conn.execute(
-            "SELECT gid, cls, lat, lon, score, vel_e, vel_n, created, last_update, ended, members FROM tracks "
-            f"WHERE {' AND '.join(where)} ORDER BY gid", args).fetchall()
-        history: dict[int, list[list[float]]] = {}
+        where, args = _selection(cls, since)
         window = (since if since is not None else float("-inf"), until if until is not None else float("inf"))
-        if ends_only:
-            # every row at each track's first and last time in the window (one each but for a tie, which keeps
-            # all its rows: merging a handed-over track's copies across shards then finds the same last row as
-            # the full read), by the index: one seek a track and end, not a scan of every row. CROSS JOIN keeps
-            # tracks the outer loop: left to itself SQLite scanned track_history (0.19 s, not 4 ms, at 324k rows)
-            ends: dict[int, dict[int, list[float]]] = {}  # gid -> rowid -> [t, lat, lon]
-            for order in ("ASC", "DESC"):
-                for rowid, gid, t, lat, lon in conn.execute(
-                        "SELECT h.rowid, h.gid, h.t, h.lat, h.lon FROM tracks tr CROSS JOIN track_history h ON h.gid = "
-                        "tr.gid AND h.t = (SELECT t FROM track_history WHERE gid = tr.gid AND t >= ? AND t <= ? "
-                        f"ORDER BY t {order} LIMIT 1) WHERE {' AND '.join('tr.' + w for w in where)}",
-                        (*window, *args)):
-                    ends.setdefault(gid, {})[rowid] = [t, lat, lon]  # a one-time window: its rows once
-            for gid, found in ends.items():  # rows of one time in the order written, as the full read
-                history[gid] = [row for _, row in sorted(found.items(), key=lambda item: (item[1][0], item[0]))]
-        else:  # rows of one time in the order written (the ends above take the same)
-            for gid, t, lat, lon in conn.execute("SELECT gid, t, lat, lon FROM track_history WHERE t >= ? AND t <= ? "
-                                                 "ORDER BY gid, t, rowid", window):
-                history.setdefault(gid, []).append([t, lat, lon])
+        if not ends_only:
+            return HistoryExport(list(_features(conn, where, args, window)))
+        rows = conn.execute(f"SELECT {_TRACK_COLUMNS} FROM tracks WHERE {' AND '.join(where)} ORDER BY gid",
+                            args).fetchall()
+        # every row at each track's first and last time in the window (one each but for a tie, which keeps
+        # all its rows: merging a handed-over track's copies across shards then finds the same last row as
+        # the full read), by the index: one seek a track and end, not a scan of every row. CROSS JOIN keeps
+        # tracks the outer loop: left to itself SQLite scanned track_history (0.19 s, not 4 ms, at 324k rows)
+        ends: dict[int, dict[int, list[float]]] = {}  # gid -> rowid -> [t, lat, lon]
+        for order in ("ASC", "DESC"):
+            for rowid, gid, t, lat, lon in conn.execute(
+                    "SELECT h.rowid, h.gid, h.t, h.lat, h.lon FROM tracks tr CROSS JOIN track_history h ON h.gid = "
+                    "tr.gid AND h.t = (SELECT t FROM track_history WHERE gid = tr.gid AND t >= ? AND t <= ? "
+                    f"ORDER BY t {order} LIMIT 1) WHERE {' AND '.join('tr.' + w for w in where)}",
+                    (*window, *args)):
+                ends.setdefault(gid, {})[rowid] = [t, lat, lon]  # a one-time window: its rows once
     except sqlite3.DatabaseError as exc:
-        raise ValueError(f"{path} is not a uavmm fusion database ({exc})") from None
+        raise _not_fusion(path, exc) from None
     finally:
         conn.close()
-    tracks = []
-    for gid, name, lat, lon, score, vel_e, vel_n, created, last_update, ended, members in rows:
-        tracks.append({"type": "Feature", "id": gid, "geometry": {"type": "Point", "coordinates": [lon, lat]},
-                       "properties": {
-                           "gid": gid, "cls": name, "score": score, "vel_en": [vel_e, vel_n],
-                           "status": "ended" if ended is not None else "tracked", "created": created,
-                           "last_update": last_update, "ended": ended, "members": json.loads(members),
-                           "history": history.get(gid, [])}})
-    return HistoryExport(tracks)
+    history = {  # rows of one time in the order written, as the full read
+        gid: [row for _, row in sorted(found.items(), key=lambda item: (item[1][0], item[0]))]
+        for gid, found in ends.items()}
+    return HistoryExport([_feature(row, history.get(row[0], [])) for row in rows])
 
 
-def _layers(export: HistoryExport) -> list[Layer]:
-    collections = export.collections()
-    tracks = [((f["geometry"]["coordinates"][0], f["geometry"]["coordinates"][1]), {
-        "gid": p["gid"], "cls": p["cls"], "score": p["score"], "status": p["status"],
-        "created": _iso(p["created"]), "last_update": _iso(p["last_update"]), "ended": _iso(p["ended"]),
-        "members": json.dumps(p["members"])}) for f in collections["tracks"]["features"] for p in [f["properties"]]]
-    lines = [(f["geometry"]["coordinates"], {
-        "gid": p["gid"], "cls": p["cls"], "start": _iso(min(p["times"])), "end": _iso(max(p["times"])),
-        "points": len(p["times"])}) for f in collections["track_lines"]["features"] for p in [f["properties"]]]
-    points = [(tuple(f["geometry"]["coordinates"]), {"gid": p["gid"], "cls": p["cls"], "t": p["t"], "time": p["time"]})
-              for f in collections["track_points"]["features"] for p in [f["properties"]]]
-    return [
-        Layer("tracks", "POINT", {"gid": int, "cls": str, "score": float, "status": str, "created": str,
-                                  "last_update": str, "ended": str, "members": str}, tracks,
-              "global tracks at their last position"),
-        Layer("track_lines", "LINESTRING", {"gid": int, "cls": str, "start": str, "end": str, "points": int}, lines,
-              "global tracks' history as lines"),
-        Layer("track_points", "POINT", {"gid": int, "cls": str, "t": float, "time": str}, points,
-              "global tracks' history, one point per row (time for a temporal controller)"),
-    ]
+def stored_classes(db_path: str | Path) -> tuple[dict[str, int], float | None]:
+    """The classes of a fusion database's tracks with their numbers of tracks, and the latest ``last_update``
+    (epoch seconds; None without tracks): what to tell a user whose filter matched nothing. ValueError as
+    `read_history`."""
+    path = Path(db_path)
+    conn = _connect(path)
+    try:
+        classes = dict(conn.execute("SELECT cls, count(*) FROM tracks GROUP BY cls ORDER BY cls"))
+        (latest,) = conn.execute("SELECT max(last_update) FROM tracks").fetchone()
+    except sqlite3.DatabaseError as exc:
+        raise _not_fusion(path, exc) from None
+    finally:
+        conn.close()
+    return classes, latest
+
+
+class _Reader:
+    """One export's reads of the database: the selected tracks, read again for each layer from one snapshot (a
+    read transaction), each read one track at a time. A database error while reading is the ValueError of
+    `read_history`, raised where the rows are consumed (inside a writer)."""
+
+    def __init__(self, path: Path, cls: str | None, since: float | None) -> None:
+        self.path = path
+        self.where, self.args = _selection(cls, since)
+        self.window = (since if since is not None else float("-inf"), float("inf"))
+        self.counts: dict[str, int] = {}
+        self.conn = _connect(path)
+        try:
+            self.conn.execute("BEGIN")  # one snapshot for every layer, while the server keeps writing
+            self.conn.execute(f"SELECT {_TRACK_COLUMNS} FROM tracks LIMIT 0").fetchall()  # not a fusion db: now
+            self.conn.execute(f"{_HISTORY_ROWS} LIMIT 0", self.window).fetchall()
+        except sqlite3.DatabaseError as exc:
+            self.conn.close()
+            raise _not_fusion(path, exc) from None
+
+    def close(self) -> None:
+        self.conn.close()
+
+    def _guarded(self, items: Iterator[_T], layer: str | None = None) -> Iterator[_T]:
+        try:
+            for item in items:
+                if layer is not None:
+                    self.counts[layer] = self.counts.get(layer, 0) + 1
+                yield item
+        except sqlite3.DatabaseError as exc:
+            raise _not_fusion(self.path, exc) from None
+        if layer is not None:
+            self.counts.setdefault(layer, 0)
+
+    def _track_rows(self) -> Iterator[tuple[Any, ...]]:
+        yield from self.conn.execute(
+            f"SELECT {_TRACK_COLUMNS} FROM tracks WHERE {' AND '.join(self.where)} ORDER BY gid", self.args)
+
+    def positions(self) -> Iterator[dict[str, Any]]:
+        """The ``tracks`` layer: each track's Point Feature (id ``track-GID``), without history."""
+        for row in self._guarded(self._track_rows(), "tracks"):
+            feature = _feature(row, None)
+            feature["id"] = f"track-{row[0]}"  # unique beside its line, and a valid XML ID (KML's Placemark@id)
+            yield feature
+
+    def lines(self) -> Iterator[dict[str, Any]]:
+        """The ``track_lines`` layer: each track with history as a LineString Feature (id ``track-GID-path``)."""
+        for feature in self._guarded(_features(self.conn, self.where, self.args, self.window)):
+            line = track_line_feature(feature)
+            if line is not None:
+                self.counts["track_lines"] = self.counts.get("track_lines", 0) + 1
+                line["id"] = f"track-{feature['id']}-path"
+                yield line
+        self.counts.setdefault("track_lines", 0)
+
+    def layers(self) -> list[Layer]:
+        """The three GeoPackage layers, each a stream of (coordinates, attributes)."""
+        when = _datetime
+
+        def tracks() -> Iterator[tuple[Any, dict[str, Any]]]:
+            for gid, name, lat, lon, score, _ve, _vn, created, last_update, ended, members in self._guarded(
+                    self._track_rows()):
+                yield (lon, lat), {"gid": gid, "cls": name, "score": score,
+                                   "status": "ended" if ended is not None else "tracked", "created": when(created),
+                                   "last_update": when(last_update), "ended": when(ended),
+                                   "members": json.dumps(json.loads(members))}
+
+        def lines() -> Iterator[tuple[Any, dict[str, Any]]]:
+            for feature in self.lines():
+                p = feature["properties"]
+                yield feature["geometry"]["coordinates"], {
+                    "gid": p["gid"], "cls": p["cls"], "start": when(min(p["times"])), "end": when(max(p["times"])),
+                    "points": len(p["times"])}
+
+        def points() -> Iterator[tuple[Any, dict[str, Any]]]:
+            for feature in self._guarded(_features(self.conn, self.where, self.args, self.window)):
+                gid, name = feature["id"], feature["properties"]["cls"]
+                for t, lat, lon in feature["properties"]["history"]:
+                    yield (lon, lat), {"gid": gid, "cls": name, "t": t, "time": when(t)}
+
+        return [
+            Layer("tracks", "POINT", {"gid": int, "cls": str, "score": float, "status": str, "created": datetime,
+                                      "last_update": datetime, "ended": datetime, "members": str}, tracks(),
+                  "global tracks at their last position"),
+            Layer("track_lines", "LINESTRING", {"gid": int, "cls": str, "start": datetime, "end": datetime,
+                                                "points": int}, lines(), "global tracks' history as lines"),
+            Layer("track_points", "POINT", {"gid": int, "cls": str, "t": float, "time": datetime}, points(),
+                  "global tracks' history, one point per row (time for a temporal controller)"),
+        ]
+
+
+def _datetime(t: float | None) -> datetime | None:
+    return None if t is None else datetime.fromtimestamp(t, timezone.utc)
+
+
+def _write_file(out: Path, write: Callable[[IO[bytes]], None]) -> None:
+    """Call ``write`` on a hidden temporary file beside ``out``, then rename it over ``out``: a failure (a full
+    disk) leaves the previous file as it was and no temporary. OSError naming ``out`` when it cannot be written."""
+    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    try:
+        with open(tmp, "wb") as file:
+            write(file)
+            file.flush()
+            os.fsync(file.fileno())  # on disk before the rename makes it the output
+        tmp.replace(out)
+    except OSError as exc:
+        raise OSError(f"cannot write {out}: {exc.strerror or exc}") from None
+    finally:
+        tmp.unlink(missing_ok=True)
+
+
+def _geojson_chunks(features: Iterable[dict[str, Any]]) -> Iterator[bytes]:
+    """``json.dumps`` of a FeatureCollection of the features, a feature at a time (the same bytes)."""
+    yield b'{"type": "FeatureCollection", "features": ['
+    for i, feature in enumerate(features):
+        yield (", " if i else "").encode() + json.dumps(feature).encode()
+    yield b"]}"
 
 
 def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None = None,
                    since: float | None = None) -> dict[str, int]:
     """Write the database's history to ``out_path`` (format by extension: .gpkg, .kml, .kmz, .geojson/.json).
 
-    Returns the feature count per layer. ValueError for an unknown extension or a bad database;
-    FileNotFoundError when the output folder does not exist.
+    A GeoPackage has the layers tracks, track_lines and track_points; KML a folder of positions and one of lines;
+    GeoJSON the lines, then the positions. Ids are ``track-GID`` (position) and ``track-GID-path`` (line).
+    Returns the feature count per layer written. ValueError for an unknown extension, a non-finite ``since`` or a
+    bad database; FileNotFoundError when the output folder does not exist; OSError naming the output when it
+    cannot be written (nothing is left then, and an existing file stays as it was).
     """
     out = Path(out_path)
     suffix = out.suffix.lower()
     if suffix not in EXPORT_FORMATS:
         raise ValueError(f"--out must end in {', '.join(EXPORT_FORMATS)}, got {out.name!r}")
+    if since is not None and not math.isfinite(since):
+        raise ValueError(f"since must be a finite time (epoch seconds), got {since}")
     if not out.parent.is_dir():
         raise FileNotFoundError(f"output directory {out.parent} does not exist (for {out})")
-    export = read_history(db_path, cls=cls, since=since)
-    collections = export.collections()
-    if suffix == ".gpkg":
-        write_geopackage(out, _layers(export))
-    elif suffix in (".kml", ".kmz"):
-        document = feature_collections_kml("uavmm tracks", {
-            "tracks": collections["tracks"], "track lines": collections["track_lines"]})
-        out.write_bytes(kmz(document) if suffix == ".kmz" else document)
-    else:  # one GeoJSON file: the lines (with times) and the last positions
-        features = collections["track_lines"]["features"] + collections["tracks"]["features"]
-        out.write_text(json.dumps({"type": "FeatureCollection", "features": features}))
-    return {name: len(c["features"]) for name, c in collections.items()}
+    if out.is_dir():
+        raise ValueError(f"--out {out} is a directory")
+    reader = _Reader(Path(db_path), cls, since)
+    try:
+        if suffix == ".gpkg":
+            return write_geopackage(out, reader.layers())
+
+        def write(file: IO[bytes]) -> None:
+            if suffix == ".kml":
+                for chunk in kml_chunks("uavmm tracks", {"tracks": reader.positions(),
+                                                         "track lines": reader.lines()}):
+                    file.write(chunk)
+            elif suffix == ".kmz":
+                write_kmz(file, kml_chunks("uavmm tracks", {"tracks": reader.positions(),
+                                                            "track lines": reader.lines()}))
+            else:  # one GeoJSON file: the lines (with times), then the last positions
+                for chunk in _geojson_chunks(itertools.chain(reader.lines(), reader.positions())):
+                    file.write(chunk)
+
+        _write_file(out, write)
+        return {"tracks": reader.counts["tracks"], "track_lines": reader.counts["track_lines"]}
+    finally:
+        reader.close()

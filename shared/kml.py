@@ -13,9 +13,9 @@ import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Iterable, Iterator, Mapping
 from datetime import datetime, timezone
-from typing import Any
+from typing import IO, Any
 
-__all__ = ["KML_MEDIA_TYPE", "KMZ_MEDIA_TYPE", "feature_collections_kml", "kml_chunks", "kmz"]
+__all__ = ["KML_MEDIA_TYPE", "KMZ_MEDIA_TYPE", "feature_collections_kml", "kml_chunks", "kmz", "write_kmz"]
 
 KML_MEDIA_TYPE = "application/vnd.google-earth.kml+xml"
 KMZ_MEDIA_TYPE = "application/vnd.google-earth.kmz"
@@ -98,11 +98,23 @@ def kml_chunks(name: str, folders: Mapping[str, Iterable[Mapping[str, Any]]]) ->
     yield text
 
 
+def _doc_kml() -> zipfile.ZipInfo:
+    info = zipfile.ZipInfo("doc.kml", date_time=(1980, 1, 1, 0, 0, 0))  # fixed: same input, same bytes
+    info.compress_type = zipfile.ZIP_DEFLATED
+    return info
+
+
 def kmz(kml: bytes) -> bytes:
     """A KMZ archive (ZIP, deflated) holding the KML document as ``doc.kml``, the name readers open first."""
     buffer = io.BytesIO()
     with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
-        info = zipfile.ZipInfo("doc.kml", date_time=(1980, 1, 1, 0, 0, 0))  # fixed: same input, same bytes
-        info.compress_type = zipfile.ZIP_DEFLATED
-        archive.writestr(info, kml)
+        archive.writestr(_doc_kml(), kml)
     return buffer.getvalue()
+
+
+def write_kmz(file: IO[bytes], chunks: Iterable[bytes]) -> None:
+    """`kmz` of the document given piece by piece (`kml_chunks`), written to a seekable binary file as it comes:
+    the same bytes as ``kmz(b"".join(chunks))`` without holding the document (up to 2 GiB of KML: no ZIP64)."""
+    with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive, archive.open(_doc_kml(), "w") as member:
+        for chunk in chunks:
+            member.write(chunk)

@@ -74,8 +74,10 @@ def test_geopackage_export_opens_in_gdal_as_three_layers(history_db, tmp_path, c
             assert srs == 4326 and len(points) >= 5
             lons = [p[0] for p in points]
             assert lons == sorted(lons) or lons == sorted(lons, reverse=True)  # walking east or west
-        assert conn.execute("SELECT count(*) FROM track_points WHERE time LIKE '____-__-__T__:__:__.___+00:00'"
-                            ).fetchone()[0] >= 10
+        # GeoPackage DATETIME text (UTC, milliseconds, 'Z'), what GDAL reads as DateTime: every row
+        (timed,) = conn.execute("SELECT count(*) FROM track_points WHERE time LIKE '____-__-__T__:__:__.___Z'"
+                                ).fetchone()
+        assert timed >= 10 and timed == conn.execute("SELECT count(*) FROM track_points").fetchone()[0]
     pyogrio = pytest.importorskip("pyogrio", reason="GDAL (pyogrio) reads the GeoPackage as QGIS does")
     layers = {name: kind for name, kind in pyogrio.list_layers(out)}
     assert layers == {"tracks": "Point", "track_lines": "LineString", "track_points": "Point"}
@@ -108,11 +110,14 @@ def test_kml_and_geojson_exports(history_db, tmp_path):
 def test_kmz_export_is_the_kml_zipped_as_doc_kml(history_db, tmp_path):
     import zipfile
 
+    from shared.kml import kmz
+
     assert main(["export", "--db", str(history_db), "--out", str(tmp_path / "t.kml")]) == 0
     assert main(["export", "--db", str(history_db), "--out", str(tmp_path / "t.kmz")]) == 0
     with zipfile.ZipFile(tmp_path / "t.kmz") as archive:
         assert archive.namelist() == ["doc.kml"] and archive.testzip() is None
         assert archive.read("doc.kml") == (tmp_path / "t.kml").read_bytes()
+    assert (tmp_path / "t.kmz").read_bytes() == kmz((tmp_path / "t.kml").read_bytes())  # zipped as it streams
     pyogrio = pytest.importorskip("pyogrio")  # GDAL's KML driver reads a KMZ through /vsizip/, as QGIS does
     layers = {name for name, _ in pyogrio.list_layers(f"/vsizip/{tmp_path / 't.kmz'}/doc.kml")}
     assert {"tracks", "track lines"} <= layers
