@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import math
 from collections import defaultdict
+from collections.abc import Collection
 from pathlib import Path
 from typing import Any
 
@@ -41,12 +42,15 @@ def box_geometry(boxes_xyxy: np.ndarray, camera: Camera, pose: Pose, anchor: str
 
 
 def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: float = 3.0,
-                     anchor: str = "auto", min_samples: int = 20,
-                     terrain: Terrain | None = None) -> tuple[SizeFilter, dict[str, dict[str, Any]]]:
+                     anchor: str = "auto", min_samples: int = 20, terrain: Terrain | None = None,
+                     image_ids: Collection[int] | None = None) -> tuple[SizeFilter, dict[str, dict[str, Any]]]:
     """Fit a SizeFilter from the dataset's annotations; returns it and a per-class report.
 
     terrain: georeference the boxes on this DEM (`--dem`) instead of flat ground; without a take-off elevation
     each video takes the DEM's height under its first pose (`agent.dem.takeoff_terrain`, as the pipeline does).
+    image_ids: fit on the annotations of these images only (`uavmm tune`'s held-out check keeps the held-out
+    frames' ground truth out of its fit); the poses still come from every frame of their videos. The bands hold
+    only the classes with min_samples boxes: the others have none (a user of the filter keeps its priors for them).
     """
     dataset = Dataset.load(images_path)
     camera = Camera.from_spec(camera_path)
@@ -66,7 +70,7 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
                 continue
             if terrain is not None and video_terrain is None:
                 video_terrain = takeoff_terrain(terrain, frame.pose)
-            if frame.image.id not in by_image:
+            if frame.image.id not in by_image or (image_ids is not None and frame.image.id not in image_ids):
                 continue
             image_anns = by_image[frame.image.id]
             xywh = np.array([a["bbox"] for a in image_anns], dtype=np.float64)

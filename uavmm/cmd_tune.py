@@ -21,24 +21,31 @@ def register(sub: argparse._SubParsersAction) -> None:
     """Add the ``tune`` subcommand."""
     p = sub.add_parser(
         "tune", help="fit the memory-map parameters and the size filter on an annotated set (PARAMS.json)",
-        description="Fit the distance-size filter from the ground truth (kept when it scores at least as well "
-                    "as the built-in priors), then search the memory map's evidence per second, forgetting "
-                    "half-life, Gaussian radius and boost weight for the best AP50 (pycocotools), starting from "
-                    "the defaults. With two or more videos the report also tunes on half of them and scores the "
-                    "other half. Writes PARAMS.json for boost, track and agent (--config). With --dem every run (the "
-                    "size filter's fit, the search, the held-out check) georeferences on the terrain; PARAMS.json "
-                    "does not keep the DEM: give --dem to boost, track and agent too.",
+        description="Fit the distance-size filter from the ground truth (its classes over the built-in priors, "
+                    "or over the --config file's filter), then search the memory map's evidence per second, "
+                    "forgetting half-life, Gaussian radius and boost weight for the best AP50 (pycocotools), "
+                    "starting from the defaults. Every choice must beat its own noise: a gain of at least 2 "
+                    "standard deviations of a bootstrap over 2-s time blocks (at least 8 of them), made again on "
+                    "half of the videos (or the first half of one long video) and carried over to the other half, "
+                    "or 3 standard deviations where nothing can be held out; a choice that does not stands down "
+                    "and the start is written (docs/memory-map.md). Writes PARAMS.json for boost, track and agent "
+                    "(--config). With --dem every run (the size filter's fits, the search, the held-out check) "
+                    "georeferences on the terrain; PARAMS.json does not keep the DEM: give --dem to boost, track "
+                    "and agent too.",
     )
     p.add_argument("--frames", type=Path, required=True, help="IMAGES.json with annotations and meta")
     p.add_argument("--candidates", type=Path, required=True, help="PRE_NMS.json (COCO result list)")
     p.add_argument("--camera", type=Path, required=True, help="CAMERA.json or a camera preset's name")
     p.add_argument("--out", type=Path, required=True, help="PARAMS.json to write")
     p.add_argument("--config", dest="start_config", type=Path, default=None,
-                   help="start from this pipeline config or PARAMS.json instead of the defaults")
-    p.add_argument("--no-size-filter-fit", action="store_true", help="keep the built-in size-filter priors")
-    p.add_argument("--no-holdout", action="store_true", help="skip the held-out check (halves the run time)")
+                   help="start from this pipeline config or PARAMS.json (its settings and its size filter) instead "
+                        "of the defaults")
+    p.add_argument("--no-size-filter-fit", action="store_true",
+                   help="keep the starting size filter (the built-in priors, or the --config file's)")
+    p.add_argument("--no-holdout", action="store_true",
+                   help="skip the held-out check (halves the run time; a choice then needs 3 sd in sample)")
     p.add_argument("--min-gain", type=float, default=0.2,
-                   help="AP50 points a step must gain to move away from the defaults (0.2)")
+                   help="AP50 points any move must gain at least, beside beating its noise (0.2)")
     p.add_argument("--quiet", action="store_true", help="no progress lines on stderr")
     add_terrain_options(p)
     p.set_defaults(handler=_run_tune)
@@ -50,9 +57,11 @@ def _run_tune(args: argparse.Namespace) -> int:
 
     if not args.out.parent.is_dir():
         raise CliError(f"output directory {args.out.parent} does not exist (for {args.out})")
+    if args.out.is_dir():  # found before the work, not when writing after it
+        raise CliError(f"--out {args.out} is a directory: give the PARAMS.json file to write")
     if not (args.min_gain >= 0):
         raise CliError(f"--min-gain must be >= 0, got {args.min_gain}")
-    base, _ = load_params(args.start_config)
+    base, start_filter = load_params(args.start_config)
     terrain = terrain_from_args(args)
     if terrain is not None:  # every run's ground (fit, search, held-out check); not a setting PARAMS.json keeps
         base = dataclasses.replace(base, terrain=terrain)
@@ -60,18 +69,25 @@ def _run_tune(args: argparse.Namespace) -> int:
     def progress(line: str) -> None:
         sys.stderr.write(f"uavmm tune: {line}\n")
 
-    result = tune(args.frames, args.candidates, args.camera, base=base, fit_size_filter=not args.no_size_filter_fit,
-                  min_gain=args.min_gain, holdout=not args.no_holdout, progress=None if args.quiet else progress)
+    result = tune(args.frames, args.candidates, args.camera, base=base, start_filter=start_filter,
+                  fit_size_filter=not args.no_size_filter_fit, min_gain=args.min_gain, holdout=not args.no_holdout,
+                  progress=None if args.quiet else progress)
     tmp = args.out.with_name(args.out.name + ".tmp")
     tmp.write_text(json.dumps(result.params(), indent=1))
     tmp.replace(args.out)
     r = result.report
-    print(f"AP50: no memory {r['AP50_no_memory']:.2f}, defaults {r['AP50_start']:.2f}, tuned {r['AP50_tuned']:.2f} "
-          f"({r['videos']} videos, {r['pipeline_runs']} runs); size filter: {r['size_filter']['used']}")
+    start = "start" if args.start_config else "defaults"
+    print(f"AP50: no memory {r['AP50_no_memory']:.2f}, {start} {r['AP50_start']:.2f}, search's best "
+          f"{r['AP50_searched']:.2f}, written {r['AP50_tuned']:.2f} ({r['videos']} videos, {r['boxes']} boxes, "
+          f"{r['time_blocks']} blocks of {r['rule']['block_s']:g} s, {r['pipeline_runs']} runs)")
+    print(f"size filter: {r['size_filter']['used']} ({r['size_filter']['decision']})")
     if "holdout" in r:
         h = r["holdout"]
-        print(f"held-out videos {h['scored_on_videos']}: no memory {h['AP50_no_memory']:.2f}, defaults "
-              f"{h['AP50_start']:.2f}, tuned on {h['tuned_on_videos']} {h['AP50_tuned']:.2f}")
-    print(f"settings: {json.dumps(r['settings'])}")
+        where = (f"held-out videos {h['scored_on_videos']}" if h["split"] == "videos" else f"held out {h['scored_on']}")
+        tuned_on = h["tuned_on_videos"] if h["split"] == "videos" else h["tuned_on"]
+        print(f"{where} ({h['held_boxes']} boxes, {h['held_blocks']} blocks): no memory {h['AP50_no_memory']:.2f}, "
+              f"{start} {h['AP50_start']:.2f}, tuned on {tuned_on} {h['AP50_tuned']:.2f}")
+    kept = "tuned" if r["settings_acted"] else f"{start} kept"
+    print(f"settings: {kept} ({r['settings_decision']}): {json.dumps(r['settings'])}")
     print(f"wrote {args.out}")
     return 0

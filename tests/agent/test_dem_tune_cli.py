@@ -83,6 +83,7 @@ def _record_runs(monkeypatch):
     """Wrap tune's pipeline runs and size-filter fit: the terrain each one was given, in call order."""
     runs: list = []
     fits: list = []
+    fit_images: list = []
     real_run, real_fit = agent.tune.run_pipeline, agent.tune.fit_from_dataset
 
     def run_pipeline(dataset, candidates, camera, config, *args, **kwargs):
@@ -91,13 +92,14 @@ def _record_runs(monkeypatch):
 
     def fit(*args, **kwargs):
         fits.append(kwargs.get("terrain"))
+        fit_images.append(kwargs.get("image_ids"))
         return real_fit(*args, **kwargs)
 
     monkeypatch.setattr(agent.tune, "run_pipeline", run_pipeline)
     monkeypatch.setattr(agent.tune, "fit_from_dataset", fit)
     # one setting, two values: the runs stay few, the search and the held-out check still run
     monkeypatch.setattr(agent.tune, "SEARCH_SPACE", (("boost_weight", (1.0, 2.0)),))
-    return runs, fits
+    return runs, fits, fit_images
 
 
 def _tune(d, out, *extra):
@@ -107,11 +109,15 @@ def _tune(d, out, *extra):
 
 def test_tune_runs_every_pipeline_and_the_size_filter_fit_on_the_dem(hills, monkeypatch, capsys):
     d, takeoff_m = hills
-    runs, fits = _record_runs(monkeypatch)
+    runs, fits, fit_images = _record_runs(monkeypatch)
     assert _tune(d, "params_dem.json", "--dem", str(d / "dem.npz"), "--takeoff-elevation-m", str(takeoff_m)) == 0
     out = capsys.readouterr().out
     assert "held-out videos [2]" in out
-    assert len(fits) == 1 and fits[0] is not None and fits[0].takeoff_elevation_m == pytest.approx(takeoff_m)
+    # one fit on every video, one on the held-out check's tuning video alone (its ground truth only), both on the DEM
+    assert len(fits) == 2 and fits[0] is not None and fits[0].takeoff_elevation_m == pytest.approx(takeoff_m)
+    assert fits[1] is fits[0]
+    video_1 = {im["id"] for im in json.loads((d / "images.json").read_text())["images"] if im["video_id"] == 1}
+    assert fit_images == [None, video_1]
     assert runs and all(terrain is fits[0] for terrain, _ in runs)
     assert {tuple(v) for _, v in runs} == {(1, 2), (1,), (2,)}  # all videos, then the held-out check's halves
     params = json.loads((d / "params_dem.json").read_text())
@@ -122,7 +128,7 @@ def test_tune_runs_every_pipeline_and_the_size_filter_fit_on_the_dem(hills, monk
     runs.clear()
     fits.clear()
     assert _tune(d, "params_flat.json") == 0
-    assert fits == [None] and runs and all(terrain is None for terrain, _ in runs)
+    assert fits == [None, None] and runs and all(terrain is None for terrain, _ in runs)
     flat_fit = json.loads((d / "params_flat.json").read_text())["tuned_on"]["size_filter"]["fit"]["person"]
     assert flat_fit["median_size_m"] != dem_fit
 
