@@ -451,10 +451,13 @@ def create_app(server: FusionView) -> FastAPI:
             if not history and geometry == "point":
                 del feature["properties"]["history"]
             features.append(feature)
-        if format in ("kml", "kmz"):
+        if format in ("kml", "kmz"):  # Placemark ids unique and valid XML ids, as `uavmm export` writes them
+            lines = track_lines_geojson(features)["features"]
             return _kml("uavmm global tracks", {
-                "tracks": {"type": "FeatureCollection", "features": features},
-                "track lines": track_lines_geojson(features)}, format)
+                "tracks": {"type": "FeatureCollection",
+                           "features": [{**f, "id": f"track-{f['id']}"} for f in features]},
+                "track lines": {"type": "FeatureCollection",
+                                "features": [{**f, "id": f"track-{f['id']}-path"} for f in lines]}}, format)
         if geometry == "line":
             return track_lines_geojson(features)
         return {"type": "FeatureCollection", "features": features}

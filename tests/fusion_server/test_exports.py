@@ -151,6 +151,9 @@ def test_rest_kml(server, http, agent_factory):
         root = ET.fromstring(response.content)
         assert folder in [f.find(f"{KML}name").text for f in root.iter(f"{KML}Folder")]
     tracks = ET.fromstring(http.get("/v1/tracks?format=kml").content)
+    ids = [mark.get("id") for mark in tracks.iter(f"{KML}Placemark")]
+    # the position and the line of a track had one digit-only id (KML ids are unique XML ids)
+    assert len(ids) == 2 and len(set(ids)) == 2 and all(i.startswith("track-") for i in ids), ids
     (point,) = tracks.findall(f".//{KML}Point/{KML}coordinates")
     assert [float(v) for v in point.text.split(",")] == pytest.approx([LON, LAT])
     # format=kmz: the same documents zipped, offered as a download
