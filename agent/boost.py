@@ -255,9 +255,9 @@ class StreamedResults:
         if results and self._file is None:
             self._file = self._tmp.open("w")
             self._file.write("[")
-        for result in results:
-            self._file.write((", " if self.count else "") + json.dumps(result))
-            self.count += 1
+        if results:  # one write: a Ctrl-C lands before or after a frame's results, never inside them
+            self._file.write((", " if self.count else "") + ", ".join(json.dumps(result) for result in results))
+            self.count += len(results)
 
     def abort(self) -> None:
         """Drop what was written (a failed run leaves no .tmp behind); idempotent."""

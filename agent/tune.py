@@ -412,8 +412,9 @@ def _split(dataset: Dataset, candidates: Candidates, camera: Camera, scorer: _Sc
 
 
 def _with_priors(fitted: SizeFilter, start: SizeFilter) -> SizeFilter:
-    """The fitted bands over the start filter's: fitted classes take theirs, the others keep the start's."""
-    return SizeFilter({**start.bands, **fitted.bands}, fitted.k)
+    """The fitted bands over the start filter's: fitted classes take theirs, the others keep the start's, and the
+    start's k (a `fit-size-filter --k 2` file stays at 2 for the classes the fit did not touch)."""
+    return SizeFilter({**start.bands, **fitted.bands}, start.k)
 
 
 def _tune_filter(images_path: str | Path, camera_path: str | Path, base: PipelineConfig, start: SizeFilter,

@@ -9,6 +9,7 @@ Features are written as they come (an iterable), so a layer of millions of rows 
 from __future__ import annotations
 
 import math
+import os
 import re
 import sqlite3
 import struct
@@ -112,7 +113,7 @@ def write_geopackage(path: str | Path, layers: Iterable[Layer]) -> dict[str, int
     path = Path(path)
     if not path.parent.is_dir():
         raise FileNotFoundError(f"output directory {path.parent} does not exist (for {path})")
-    tmp = path.with_name(f".{path.name}.tmp")
+    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")  # two exports to one file: each its own
     counts: dict[str, int] = {}
     try:
         tmp.unlink(missing_ok=True)

@@ -114,7 +114,11 @@ def kmz(kml: bytes) -> bytes:
 
 def write_kmz(file: IO[bytes], chunks: Iterable[bytes]) -> None:
     """`kmz` of the document given piece by piece (`kml_chunks`), written to a seekable binary file as it comes:
-    the same bytes as ``kmz(b"".join(chunks))`` without holding the document (up to 2 GiB of KML: no ZIP64)."""
-    with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive, archive.open(_doc_kml(), "w") as member:
-        for chunk in chunks:
-            member.write(chunk)
+    the same bytes as ``kmz(b"".join(chunks))`` without holding the document (up to 2 GiB of KML: no ZIP64; beyond,
+    OSError: write .kml instead)."""
+    try:
+        with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive, archive.open(_doc_kml(), "w") as member:
+            for chunk in chunks:
+                member.write(chunk)
+    except RuntimeError as exc:  # zipfile: "File size too large, try using force_zip64"
+        raise OSError(f"the KML is over 2 GiB, more than a KMZ written as it comes holds ({exc}); write .kml") from None

@@ -50,3 +50,16 @@ def test_a_folder_as_the_results_file_is_refused_before_the_run(tmp_path):
     with pytest.raises(IsADirectoryError, match="is a directory"):
         StreamedResults(tmp_path / "out")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["out"]
+
+
+def test_a_frame_is_written_whole_or_not_at_all(tmp_path):
+    """Second read: a frame's results were written one by one, so an interrupt inside a frame (Ctrl-C in `uavmm
+    anomaly`, which then puts the file in place) left part of it. Here the third result of a frame fails to
+    serialise: none of that frame is written."""
+    out = tmp_path / "dets.json"
+    spool = StreamedResults(out)
+    spool.extend([_result(0)])
+    with pytest.raises(TypeError):
+        spool.extend([_result(1), _result(2), {"image_id": 3, "score": object()}])
+    spool.close()
+    assert json.loads(out.read_text()) == [_result(0)] and spool.count == 1

@@ -324,3 +324,16 @@ def test_an_output_that_is_a_directory_is_refused_before_the_work(tmp_path, caps
     assert run_tune(d) == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "is a directory: give the PARAMS.json file to write" in err
+
+
+def test_a_fitted_filter_keeps_the_start_filters_k():
+    """Second read: the merged filter took the fit's k (3), so a start file made with `fit-size-filter --k 2` loosened
+    the classes the fit never touched."""
+    from agent.size_filter import SizeFilter
+    from agent.tune import _with_priors
+
+    start = SizeFilter.builtin()
+    start = SizeFilter(dict(start.bands), 2.0)
+    fitted = SizeFilter({"person": start.bands[next(iter(start.bands))]}, 3.0)
+    merged = _with_priors(fitted, start)
+    assert merged.k == 2.0 and set(merged.bands) == set(start.bands) | {"person"}

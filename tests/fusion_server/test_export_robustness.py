@@ -213,3 +213,15 @@ def test_an_export_matching_nothing_warns_with_the_classes_held(tmp_path, small_
         conn.execute("DELETE FROM tracks")
     assert main(["export", "--db", str(empty), "--out", str(tmp_path / "e.kml")]) == 0
     assert capsys.readouterr().err == "uavmm export: warning: the database has no tracks yet\n"
+
+
+def test_a_kmz_too_large_to_stream_is_a_clear_error(tmp_path, monkeypatch):
+    """Second read: past zipfile's ZIP64 limit (2 GiB of KML; lowered here) the streamed KMZ raised RuntimeError, a
+    traceback from `uavmm export`; it is now an OSError the CLI prints as one line."""
+    import zipfile
+
+    from shared.kml import write_kmz
+
+    monkeypatch.setattr(zipfile, "ZIP64_LIMIT", 1024)
+    with (tmp_path / "big.kmz").open("wb") as file, pytest.raises(OSError, match="over 2 GiB"):
+        write_kmz(file, [b"<kml>" + b" " * 2048 + b"</kml>"])
