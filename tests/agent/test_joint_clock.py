@@ -10,16 +10,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from agent.joint_clock import CONFIRM_MESSAGES, CONFIRM_S, MAX_CLOCK_SKEW_S, MAX_LEAD_S, JointClock
-
-
-class Clocks:
-    def __init__(self, wall: float = 1.7e9) -> None:
-        self.wall = wall
-        self.mono = 100.0
-
-    def step(self, dt: float) -> None:
-        self.wall += dt
-        self.mono += dt
+from tests.fakeclock import Clocks
 
 
 def clock_and_time(wall: float = 1.7e9) -> tuple[JointClock, Clocks]:

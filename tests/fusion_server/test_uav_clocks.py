@@ -17,6 +17,7 @@ from shared.keys import KeySpace
 from shared.messages import CameraInfo, StateMessage, encode_state
 from shared.tilecodec import TileMessage, encode_tile
 from shared.tiles import TileGrid
+from tests.fakeclock import Clocks
 from tests.fusion_server.fake_agent import KEYS, TILE_X, TILE_Y
 
 SKEW_S = 30.0
@@ -25,14 +26,6 @@ STEP_S = 0.5
 ADOPTED_AT = max(CONFIRM_MESSAGES, int(CONFIRM_S / STEP_S) + 1) - 1
 
 
-class Clocks:
-    def __init__(self, wall: float = 1.7e9) -> None:
-        self.wall = wall
-        self.mono = 100.0
-
-    def step(self, dt: float) -> None:
-        self.wall += dt
-        self.mono += dt
 
 
 def clocks_and_time(**kwargs) -> tuple[UavClocks, Clocks]:
