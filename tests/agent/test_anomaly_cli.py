@@ -159,7 +159,10 @@ def test_regions_are_written_as_they_come_and_ctrl_c_keeps_those_of_the_frames_d
     out = tmp_path / "partial.json"
     cmd = [sys.executable, "-m", "uavmm.cli", "anomaly", "--frames", str(many / "images.json"), "--camera",
            str(rendered / "camera.json"), "--method", "mean", "--out", str(out)]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    # SIGINT at its default in the child: a suite run in the background (nohup ... &) ignores it, and Python then
+    # installs no KeyboardInterrupt for Ctrl-C
+    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     spool = out.with_name(out.name + ".tmp")
     deadline = time.monotonic() + 120
     while not (spool.exists() and spool.stat().st_size > 1000) and time.monotonic() < deadline:
