@@ -9,8 +9,6 @@ byte.
 
 from __future__ import annotations
 
-import json
-import os
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from agent.tracking import TrackOutput
+from shared.files import collection_chunks, write_chunks_atomic  # re-exported: agent.offline.outputs uses them
 
 __all__ = ["ROW_DTYPE", "TrackRowLog", "collection_chunks", "write_chunks_atomic"]
 
@@ -118,24 +117,3 @@ class TrackRowLog:
 
         write_chunks_atomic(Path(path), collection_chunks(counted()))
         return n
-
-
-def collection_chunks(features: Iterable[dict[str, Any]]) -> Iterator[str]:
-    """``json.dumps`` of a FeatureCollection of the features, piece by piece."""
-    yield '{"type": "FeatureCollection", "features": ['
-    for i, feature in enumerate(features):
-        yield (", " if i else "") + json.dumps(feature)
-    yield "]}"
-
-
-def write_chunks_atomic(path: Path, chunks: Iterable[str | bytes]) -> None:
-    """Write text given piece by piece (str or bytes) through a hidden temporary beside path, then rename: a reader
-    never sees half a file, and a failed write leaves what was there."""
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
-    try:
-        with open(tmp, "wb") as f:
-            for chunk in chunks:
-                f.write(chunk if isinstance(chunk, bytes) else chunk.encode("utf-8"))
-        tmp.replace(path)
-    finally:
-        tmp.unlink(missing_ok=True)

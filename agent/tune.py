@@ -308,10 +308,6 @@ class _Scorer:
             self._ap[key] = ap50(self._run(config, size_filter), weights)
         return self._ap[key]
 
-    def __call__(self, config: PipelineConfig, size_filter: SizeFilter | None) -> float:
-        """AP50 (percent, 2 decimals) on all the scorer's images."""
-        return round(float(self.ap(config, size_filter, self.part("all"))[0]), 2)
-
     def evidence(self, part: _Part, new: tuple[PipelineConfig, SizeFilter | None],
                  old: tuple[PipelineConfig, SizeFilter | None], *, z: float, min_gain: float) -> Evidence:
         """The rule of evidence on moving from old to new (config, size filter) on the part."""

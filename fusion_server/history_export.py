@@ -12,9 +12,8 @@ from __future__ import annotations
 import itertools
 import json
 import math
-import os
 import sqlite3
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
@@ -22,6 +21,7 @@ from typing import IO, Any, TypeVar
 
 from fusion_server.geo_formats import track_line_feature
 from fusion_server.gpkg import Layer, write_geopackage
+from shared.files import collection_chunks, write_atomic
 from shared.kml import kml_chunks, write_kmz
 
 __all__ = ["EXPORT_FORMATS", "HistoryExport", "export_history", "read_history", "stored_classes"]
@@ -244,27 +244,12 @@ def _datetime(t: float | None) -> datetime | None:
 
 
 def _write_file(out: Path, write: Callable[[IO[bytes]], None]) -> None:
-    """Call ``write`` on a hidden temporary file beside ``out``, then rename it over ``out``: a failure (a full
-    disk) leaves the previous file as it was and no temporary. OSError naming ``out`` when it cannot be written."""
-    tmp = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    """`shared.files.write_atomic`: a failure (a full disk) leaves the previous file as it was and no temporary;
+    OSError naming ``out`` when it cannot be written."""
     try:
-        with open(tmp, "wb") as file:
-            write(file)
-            file.flush()
-            os.fsync(file.fileno())  # on disk before the rename makes it the output
-        tmp.replace(out)
+        write_atomic(out, write)
     except OSError as exc:
         raise OSError(f"cannot write {out}: {exc.strerror or exc}") from None
-    finally:
-        tmp.unlink(missing_ok=True)
-
-
-def _geojson_chunks(features: Iterable[dict[str, Any]]) -> Iterator[bytes]:
-    """``json.dumps`` of a FeatureCollection of the features, a feature at a time (the same bytes)."""
-    yield b'{"type": "FeatureCollection", "features": ['
-    for i, feature in enumerate(features):
-        yield (", " if i else "").encode() + json.dumps(feature).encode()
-    yield b"]}"
 
 
 def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None = None,
@@ -293,16 +278,15 @@ def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None
             return write_geopackage(out, reader.layers())
 
         def write(file: IO[bytes]) -> None:
-            if suffix == ".kml":
-                for chunk in kml_chunks("uavmm tracks", {"tracks": reader.positions(),
-                                                         "track lines": reader.lines()}):
-                    file.write(chunk)
-            elif suffix == ".kmz":
-                write_kmz(file, kml_chunks("uavmm tracks", {"tracks": reader.positions(),
-                                                            "track lines": reader.lines()}))
-            else:  # one GeoJSON file: the lines (with times), then the last positions
-                for chunk in _geojson_chunks(itertools.chain(reader.lines(), reader.positions())):
-                    file.write(chunk)
+            if suffix == ".geojson":  # one GeoJSON file: the lines (with times), then the last positions
+                for text in collection_chunks(itertools.chain(reader.lines(), reader.positions())):
+                    file.write(text.encode())
+                return
+            chunks = kml_chunks("uavmm tracks", {"tracks": reader.positions(), "track lines": reader.lines()})
+            if suffix == ".kmz":
+                write_kmz(file, chunks)
+            else:
+                file.writelines(chunks)
 
         _write_file(out, write)
         return {"tracks": reader.counts["tracks"], "track_lines": reader.counts["track_lines"]}

@@ -107,8 +107,7 @@ def _doc_kml() -> zipfile.ZipInfo:
 def kmz(kml: bytes) -> bytes:
     """A KMZ archive (ZIP, deflated) holding the KML document as ``doc.kml``, the name readers open first."""
     buffer = io.BytesIO()
-    with zipfile.ZipFile(buffer, "w", zipfile.ZIP_DEFLATED) as archive:
-        archive.writestr(_doc_kml(), kml)
+    write_kmz(buffer, [kml])
     return buffer.getvalue()
 
 

@@ -115,10 +115,9 @@ def run_anomaly(args: argparse.Namespace) -> int:
                              "images.json meta)")
     if args.frames is not None and args.telemetry_offset_s is not None:
         raise ValueError("--telemetry-offset-s goes with --video (--frames carries its times in images.json meta)")
-    if not args.out.parent.is_dir():
-        raise ValueError(f"output directory {args.out.parent} does not exist (for {args.out})")
-    if args.out.is_dir():
-        raise ValueError(f"--out {args.out} is a directory: give the results file's path")
+    # written as the frames come (an hour at 100 regions a frame held ~4 GiB until the end): a failed run leaves
+    # nothing, Ctrl-C the regions of the frames done; a missing folder or a folder as --out is refused here
+    spool = StreamedResults(args.out)
     cfg, method = _config(args)
     camera = Camera.from_spec(args.camera)
     frames = (dataset_frames(args.frames, camera) if args.frames is not None
@@ -128,9 +127,6 @@ def run_anomaly(args: argparse.Namespace) -> int:
                                     system_id=args.mavlink_system_id,
                                     utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)))
     detector = AnomalyDetector(cfg, method)
-    # written as the frames come (an hour at 100 regions a frame held ~4 GiB until the end): a failed run leaves
-    # nothing, Ctrl-C the regions of the frames done
-    spool = StreamedResults(args.out)
     video = None
     n = without_pose = 0
     started = time.perf_counter()

@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from uavmm.cli import CliError, add_terrain_options, terrain_from_args
+from uavmm.cli import CliError, add_terrain_options, require_out_parent, terrain_from_args
 
 __all__ = ["register"]
 
@@ -55,8 +55,7 @@ def _run_tune(args: argparse.Namespace) -> int:
     from agent.boost import load_params
     from agent.tune import tune
 
-    if not args.out.parent.is_dir():
-        raise CliError(f"output directory {args.out.parent} does not exist (for {args.out})")
+    require_out_parent(args.out)
     if args.out.is_dir():  # found before the work, not when writing after it
         raise CliError(f"--out {args.out} is a directory: give the PARAMS.json file to write")
     if not (args.min_gain >= 0):
