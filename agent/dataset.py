@@ -8,10 +8,10 @@ from __future__ import annotations
 import logging
 import math
 from collections import Counter, defaultdict
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
@@ -25,16 +25,18 @@ from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.seadronessee import MetaProblem, meta_object, pitch_convention_of
+from shared.telemetry.seadronessee_videos import (  # noqa: F401  (TIME_GAP_*, own_video_ids: re-exported, as before)
+    TIME_GAP_S,
+    TIME_GAP_STEPS,
+    VideoGroup,
+    group_videos,
+    own_video_ids,
+    time_gap_s,
+)
 
 log = logging.getLogger(__name__)
 
 DEFAULT_FPS = 30.0
-#: Images with neither ``source.video`` nor ``video_id`` are split into videos where their clock jumps by
-#: more than this many seconds (and more than TIME_GAP_STEPS of their median step).
-K = TypeVar("K")
-
-TIME_GAP_S = 10.0
-TIME_GAP_STEPS = 20.0
 
 
 def _one_file(folder: Path, name: str, pattern: str, what: str) -> Path:
@@ -88,9 +90,10 @@ class ImageRecord:
 class Dataset:
     """A COCO images file: images grouped by video (sorted by frame index) and categories.
 
-    Videos: ``source.video`` (SeaDronesSee Object Detection v2, per ``source.drone``; with the file's own
-    ``video_id`` where it is consistent), else ``video_id``, else split by the images' clock; frame index:
-    ``source.frame_no``, else ``frame_index``, else the rank in time (the frames' own ``date_time``).
+    Videos: `shared.telemetry.seadronessee_videos.group_videos`'s (``source.video`` per drone, folder and
+    recording, with the file's own ``video_id`` where it is consistent; else ``video_id``; else per drone or meta
+    layout), images without any video then split by their clock; what was split is logged as a warning. Frame
+    index: ``source.frame_no``, else ``frame_index``, else the rank in time (the frames' own ``date_time``).
     """
 
     images: dict[int, ImageRecord]
@@ -132,7 +135,7 @@ class Dataset:
                 raise ValueError(f"{source}: categories[{i}] needs an integer 'id' and a string 'name'")
             categories[c["id"]] = c["name"]
         listed = [v["id"] for v in coco.get("videos") or [] if isinstance(v, dict) and isinstance(v.get("id"), int)]
-        ids = _video_ids([im for im in coco["images"] if isinstance(im, dict)], listed)
+        ids, found = _video_ids([im for im in coco["images"] if isinstance(im, dict)], listed, source)
         images: dict[int, ImageRecord] = {}
         for i, im in enumerate(coco["images"]):
             if not isinstance(im, dict):
@@ -156,8 +159,7 @@ class Dataset:
             videos[rec.video_id].append(rec)
         for frames in videos.values():
             frames.sort(key=lambda r: r.frame_index)
-        names = _video_names(coco, ids, [im for im in coco["images"] if isinstance(im, dict)])
-        return cls(images, dict(sorted(videos.items())), categories, coco, names)
+        return cls(images, dict(sorted(videos.items())), categories, coco, _video_names(coco, found))
 
 
 def _meta(meta: Any) -> dict | None:
@@ -169,16 +171,6 @@ def _meta(meta: Any) -> dict | None:
 def _source(im: dict) -> dict:
     src = im.get("source")
     return src if isinstance(src, dict) else {}
-
-
-def _source_video(im: dict) -> tuple[str, str] | None:
-    """(drone, video) of SeaDronesSee Object Detection v2's ``source``, None without a video name."""
-    src = _source(im)
-    video = src.get("video")
-    if not isinstance(video, str) or not video.strip():
-        return None
-    drone = src.get("drone")
-    return (drone.strip() if isinstance(drone, str) else "", video.strip())
 
 
 def _parse_time(text: Any) -> float | None:
@@ -202,61 +194,60 @@ def _image_time(im: dict) -> float | None:
     return next((t for t in map(_parse_time, texts) if t is not None), None)
 
 
-def _video_ids(images: list[dict], reserved: Iterable[int] = ()) -> dict[int, tuple[int, int | None]]:
-    """Video id and frame index of every image (keyed by id() of its dict).
+def _frame(im: dict) -> int | None:
+    frame = _source(im).get("frame_no", im.get("frame_index"))
+    return None if frame is None else _int({"frame_index": frame}, "frame_index")
 
-    Videos come from ``source.video`` (with ``source.drone``: two drones' files may share a name), else
-    ``video_id``, else the images' clock: sorted by time and split where it jumps (TIME_GAP_S). A ``source`` video
-    whose images all carry one integer ``video_id`` that no other video claims keeps it (DESIGN 6's layout with
-    v2's ``source`` kept: the file's ids and its ``videos`` names then agree); other names get integer ids after the
-    largest id in the file (``reserved``: the ``videos`` list's), in sorted order. Frame indices: ``source.frame_no``,
-    else ``frame_index``, else the rank in time by the frames' own ``date_time`` (`_ranked_by_time`; None: the
-    file's order).
+
+def _video_ids(images: list[dict], reserved: Iterable[int] = (), source: str = "<images>"
+               ) -> tuple[dict[int, tuple[int, int | None]], dict[int, str]]:
+    """Video id and frame index of every image (keyed by id() of its dict), and the names of the videos that have one.
+
+    Videos are `group_videos`'s (its notices logged as warnings). A ``source`` video whose images all carry one integer
+    ``video_id`` that no other video claims keeps it (DESIGN 6's layout with v2's ``source`` kept: the file's ids and
+    its ``videos`` names then agree); other ``source`` videos get integer ids after the largest id in the file
+    (``reserved``: the ``videos`` list's), in their order (drone, video, folder, recording); images without any video
+    then, per group (drone, meta layout), split where their clock jumps (TIME_GAP_S). Frame indices:
+    ``source.frame_no``, else ``frame_index``, else the rank in time by the frames' own ``date_time``
+    (`_ranked_by_time`; None: the file's order).
     """
+    grouping = group_videos(images)
+    for notice in grouping.notices:
+        log.warning("%s: %s", source, notice)
+    of_image = grouping.of_images(len(images))
     out: dict[int, tuple[int, int | None]] = {}
-    named: dict[tuple[str, str], list[dict]] = defaultdict(list)
-    loose: list[dict] = []
     used: set[int] = set(reserved)
-    for im in images:
-        key = _source_video(im)
-        frame = _source(im).get("frame_no", im.get("frame_index"))
-        if key is not None:
-            named[key].append(im)
-        elif im.get("video_id") is not None:
+    for im, group in zip(images, of_image, strict=True):
+        if group.kind == "id":
             vid = _int(im, "video_id")
             used.add(vid)
-            out[id(im)] = (vid, None if frame is None else _int({"frame_index": frame}, "frame_index"))
-        else:
-            loose.append(im)
+            out[id(im)] = (vid, _frame(im))
+    named = {g.order: [images[i] for i in g.images] for g in grouping.groups if g.kind == "source"}
     own = own_video_ids(named)  # (images without a source that carry the same id join it: the file says so)
     taken = used | set(own.values())
     next_id = max(taken) + 1 if taken else (1 if named else 0)  # a file of loose images alone: video 0, as before
-    for key in sorted(named):
-        vid = own.get(key)
-        if vid is None:
+    names: dict[int, str] = {}
+    for group in grouping.groups:
+        if group.kind != "source":
+            continue
+        if group.order in own:
+            vid = own[group.order]
+        else:
             vid, next_id = next_id, next_id + 1
-        for im in named[key]:
-            frame = _source(im).get("frame_no", im.get("frame_index"))
-            out[id(im)] = (vid, None if frame is None else _int({"frame_index": frame}, "frame_index"))
-    if loose:
-        for group in _split_by_time(loose):
-            timed = all(_image_time(im) is not None for im in group)
-            for rank, im in enumerate(group):
+        names[vid] = group.name
+        for i in group.images:
+            out[id(images[i])] = (vid, _frame(images[i]))
+    for group in (g for g in grouping.groups if g.kind == "loose"):
+        pieces = _split_by_time([images[i] for i in group.images])
+        for n, piece in enumerate(pieces):
+            timed = all(_image_time(im) is not None for im in piece)
+            for rank, im in enumerate(piece):
                 frame = im.get("frame_index")
                 out[id(im)] = (next_id, _int(im, "frame_index") if frame is not None else (rank if timed else None))
+            if group.name is not None:
+                names[next_id] = group.name if len(pieces) == 1 else f"{group.name}_{n + 1}"
             next_id += 1
-    return _ranked_by_time(images, out)
-
-
-def own_video_ids(groups: Mapping[K, list[dict]]) -> dict[K, int]:
-    """The file's own ``video_id`` of each group of images (a ``source`` video) whose images all carry one integer id
-    that no other group carries (DESIGN 6's layout with v2's ``source`` kept); groups without one are absent."""
-    claims: dict[int, list[K]] = defaultdict(list)
-    for key, group in groups.items():
-        ids = {im.get("video_id") for im in group}
-        if len(ids) == 1 and isinstance(vid := next(iter(ids)), int) and not isinstance(vid, bool):
-            claims[vid].append(key)
-    return {keys[0]: vid for vid, keys in claims.items() if len(keys) == 1}
+    return _ranked_by_time(images, out), names
 
 
 def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) -> dict[int, tuple[int, int | None]]:
@@ -294,10 +285,7 @@ def _split_by_time(images: list[dict]) -> list[list[dict]]:
     if timed:
         timed.sort(key=lambda item: (item[0], item[1]))
         times = np.array([item[0] for item in timed])
-        steps = np.diff(times)
-        median = float(np.median(steps[steps > 0])) if (steps > 0).any() else 0.0
-        gap = max(TIME_GAP_S, TIME_GAP_STEPS * median)
-        cuts = np.flatnonzero(steps > gap) + 1
+        cuts = np.flatnonzero(np.diff(times) > time_gap_s(times)) + 1
         for part in np.split(np.arange(len(timed)), cuts):
             groups.append([timed[k][2] for k in part])
     if untimed:
@@ -305,24 +293,14 @@ def _split_by_time(images: list[dict]) -> list[list[dict]]:
     return groups
 
 
-def _video_names(coco: dict, ids: dict[int, tuple[int, int | None]], images: list[dict]) -> dict[int, str]:
-    """Video id -> name: the COCO ``videos`` list, ``source.video`` (with the drone when two share it)."""
+def _video_names(coco: dict, found: dict[int, str]) -> dict[int, str]:
+    """Video id -> name: the COCO ``videos`` list, else the name `_video_ids` found (``source.video``, told apart when
+    it holds several recordings; a label for images without a video split apart)."""
     names: dict[int, str] = {}
     for v in coco.get("videos") or []:
         if isinstance(v, dict) and isinstance(v.get("id"), int) and isinstance(v.get("name"), str) and v["name"]:
             names[v["id"]] = v["name"]
-    by_name: dict[str, set[str]] = defaultdict(set)
-    for im in images:
-        key = _source_video(im)
-        if key is not None:
-            by_name[key[1]].add(key[0])
-    for im in images:
-        key = _source_video(im)
-        vid = ids[id(im)][0]
-        if key is not None and vid not in names:
-            drone, video = key
-            names[vid] = f"{drone}_{video}" if len(by_name[video]) > 1 and drone else video
-    return names
+    return names | {vid: name for vid, name in found.items() if vid not in names}
 
 
 def _int(d: dict, key: str, default: int | None = None) -> int:

@@ -29,7 +29,8 @@ from pathlib import Path
 from typing import Any
 
 from shared.telemetry import Telemetry
-from shared.telemetry.seadronessee import parse_seadronessee_coco, video_of
+from shared.telemetry.seadronessee import parse_seadronessee_coco
+from shared.telemetry.seadronessee_videos import group_videos, own_video_ids
 from shared.telemetry.text import read_text
 
 __all__ = ["MAX_SPREAD_S", "on_video_frames", "read_video_json"]
@@ -42,8 +43,9 @@ log = logging.getLogger("agent.sources")  # the video source's messages, under i
 
 def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetry]:
     """The records of the video `video` in the SeaDronesSee COCO file `path`: the file's only video, else the one
-    whose name (``source.video``, or the ``videos`` entry of its ``video_id``) has the video file's stem. ValueError
-    naming the file's videos when none or several match."""
+    whose name (`group_videos`': ``source.video``, with the drone in front when two drones wrote it, ...; or the
+    ``videos`` entry of its ``video_id``) has the video file's stem. ValueError naming the file's videos when none or
+    several match."""
     try:
         coco = json.loads(read_text(path))
     except json.JSONDecodeError as err:
@@ -51,18 +53,17 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
     images = coco.get("images") if isinstance(coco, Mapping) else None
     if not isinstance(images, list) or not all(isinstance(im, Mapping) for im in images):
         return parse_seadronessee_coco(coco, source=str(path))  # its own error for a file that is no COCO
-    ids = {repr(v): v for v in (video_of(im) for im in images)}
+    groups: dict[str, list[Mapping[str, Any]]] = {}
+    ids: dict[str, Any] = {}
+    for group in group_videos(images).groups:
+        groups.setdefault(repr(group.name), []).extend(images[i] for i in group.images)
+        ids[repr(group.name)] = group.name
     if len(ids) <= 1 or video is None:
         return parse_seadronessee_coco(coco, source=str(path))
     names = {v["id"]: v.get("name") for v in coco.get("videos") or [] if isinstance(v, Mapping) and "id" in v}
     stem = Path(str(video)).stem.lower()
-    # a video's names: its source.video, and the `videos` entry of the video_id its images carry (as agent.dataset)
+    # a video's names: its own (group_videos'), and the `videos` entry of the video_id its images carry
     # (only where all of a video's images carry one id that no other video claims, as agent.dataset decides)
-    from agent.dataset import own_video_ids
-
-    groups: dict[str, list[Mapping[str, Any]]] = {}
-    for im in images:
-        groups.setdefault(repr(video_of(im)), []).append(im)
     listed = {key: {Path(str(names.get(ids[key], ids[key]))).stem.lower()} for key in groups}
     for key, vid_id in own_video_ids(groups).items():
         if isinstance(names.get(vid_id), str):
@@ -73,7 +74,8 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
         raise ValueError(f"telemetry {path} holds {len(ids)} videos ({shown}) and "
                          f"{'none' if not matching else 'several'} named like the video {Path(str(video)).name}: "
                          "name the video file as its entry in the JSON (e.g. DJI_0032.MP4 for source.video "
-                         "DJI_0032.MP4), or give a JSON of that video alone")
+                         "DJI_0032.MP4, mavic_DJI_0001.MP4 where two drones wrote DJI_0001.MP4), or give a JSON of "
+                         "that video alone")
     log.info("telemetry %s: video %s of %d (named like %s)", path, names.get(matching[0], matching[0]), len(ids),
              Path(str(video)).name)
     return parse_seadronessee_coco(coco, video_id=matching[0], source=str(path))

@@ -2,9 +2,10 @@
 
 Also interpolates telemetry to video frame times and writes SeaDronesSee meta; angles follow DESIGN.md 2.
 One module per concept: `record` (the record, DJI pitch), `dates`, `srt` (with `srt_blocks` and
-`srt_clock`), `csv_table`, `seadronessee`, `mavlink` (MAVLink messages and `.tlog`), `ulog` (PX4 `.ulg`),
-`klv` (MISB ST 0601 KLV in MPEG-TS or raw, with `mpegts`, `klv_packets` and `klv_sample`), `readers` (by
-extension) and `interpolation`; the public names are re-exported here.
+`srt_clock`), `csv_table`, `seadronessee` (which video an image is of: `seadronessee_videos`), `mavlink`
+(MAVLink messages and `.tlog`), `ulog` (PX4 `.ulg`), `klv` (MISB ST 0601 KLV in MPEG-TS or raw, with `mpegts`,
+`klv_packets` and `klv_sample`), `readers` (by extension) and `interpolation`; the public names are re-exported
+here.
 """
 
 from shared.telemetry.csv_table import CSV_COLUMNS, parse_csv, read_csv

@@ -16,6 +16,7 @@ from shared.telemetry.csv_table import match_column
 from shared.telemetry.dates import format_datetime, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch
+from shared.telemetry.seadronessee_videos import group_videos, meta_object
 from shared.telemetry.text import read_text
 
 logger = logging.getLogger(__name__)
@@ -365,17 +366,6 @@ def from_seadronessee_meta(
         raise MetaProblem("bad value", f"SeaDronesSee meta: {err}") from None
 
 
-def meta_object(value: Any) -> Mapping[str, Any] | None:
-    """An image's ``meta`` as an object: as it is, or decoded from JSON text (a CSV-minded export writes it so);
-    None for anything else (no meta, or not one)."""
-    if isinstance(value, str) and value.strip().startswith("{"):
-        try:
-            value = json.loads(value)
-        except json.JSONDecodeError:
-            return None
-    return value if isinstance(value, Mapping) else None
-
-
 def _no_fix(lat: float, lon: float) -> None:
     """MetaProblem "no position" for (0, 0): what DJI's logs write before the GPS fix, as every other reader takes
     it (a pose there was 5,000 km off, and interpolated poses beside it 1,900 km)."""
@@ -419,13 +409,6 @@ def to_seadronessee_meta(
     } | ({} if tel.hfov_deg is None else {"hfov_deg": tel.hfov_deg})
 
 
-def video_of(image: Mapping[str, Any]) -> Any:
-    """The video an image of a SeaDronesSee COCO file is of: ``source.video`` (Object Detection v2), else
-    ``video_id``."""
-    src = image.get("source")
-    return src["video"] if isinstance(src, Mapping) and src.get("video") is not None else image.get("video_id")
-
-
 def parse_seadronessee_coco(
     coco: Mapping[str, Any], *, video_id: Any = None, source: str = "<json>", utc_offset_s: float = 0.0
 ) -> list[Telemetry]:
@@ -436,7 +419,9 @@ def parse_seadronessee_coco(
     coco : dict
         COCO dict whose ``images[i]`` carry ``frame_index``, ``video_id`` and ``meta`` (may be null).
     video_id : optional
-        Which video to read; required when the file holds several.
+        Which video to read, by its name (`shared.telemetry.seadronessee_videos.group_videos`: ``source.video``,
+        with the drone, folder or start in front when that name holds several recordings; else ``video_id``);
+        required when the file holds several.
     source : str
         Name used in error messages.
 
@@ -444,7 +429,8 @@ def parse_seadronessee_coco(
     -------
     list of Telemetry
         One per image with usable meta, ``frame`` = ``source.frame_no`` (SeaDronesSee Object Detection v2) or
-        ``frame_index``; the video is ``source.video`` or ``video_id``. Images with null meta are skipped, those
+        ``frame_index``; the videos are `group_videos`'s (what it split is logged as a warning). Images with null
+        meta are skipped, those
         with unusable meta or no frame index too, counted in one warning (half of the images with meta or more
         unusable fails the file, naming the first). Stamps at whole seconds that repeat
         (flight-log meta) are spread over their second in frame order.
@@ -461,10 +447,14 @@ def parse_seadronessee_coco(
     for image in images:
         if not isinstance(image, Mapping):
             raise ValueError(f"{source}: images must be objects, got {image!r:.80}")
-    videos = sorted({repr(video_of(image)) for image in images})
+    grouping = group_videos(images)
+    for notice in grouping.notices:
+        logger.warning("%s: %s", source, notice)
+    videos = sorted({repr(group.name) for group in grouping.groups})
     if video_id is None and len(videos) > 1:
         raise ValueError(f"{source}: holds {len(videos)} videos ({', '.join(videos[:10])}): pass video_id")
-    chosen = [image for image in images if video_id is None or video_of(image) == video_id]
+    chosen = [images[i] for i in sorted(i for group in grouping.groups if video_id is None or group.name == video_id
+                                        for i in group.images)]
     # the pitch convention is the video's (a camera looks down far more than up), not each value's: one frame
     # looking 3 deg above the horizon (-3 where positive is down) is no DJI-signed depression of 3 deg
     metas = [meta_object(image.get("meta")) for image in chosen]

@@ -4,6 +4,7 @@ meta, several drones in one file, no video ids at all, frames without a usable p
 from __future__ import annotations
 
 import json
+import logging
 from datetime import datetime, timedelta
 from pathlib import Path
 
@@ -13,6 +14,7 @@ import pytest
 from agent.boost import boost_dataset
 from agent.dataset import Dataset, PoseProblem, VideoTelemetry, count_reasons, iter_video_frames
 from agent.pipeline_config import PipelineConfig
+from agent.tracking_io import mot_output_paths
 from shared.geo import Camera
 
 CAMERA = Camera.from_preset("dji-mavic2-pro")
@@ -137,3 +139,75 @@ def test_every_frame_of_the_real_dev_file_has_a_pose():
         assert report.clock.zone_offset_s == 7200.0 and report.clock.whole_seconds
         assert all(0.0 < f.pose.pitch_deg < 90.0 for f in frames)
     assert problems == []
+
+
+def _fixed_wing(image_id: int, k: int) -> dict:
+    """The fixed-wing of the same public files: no video field, its latitude in gps_latitude_ref, flying at once."""
+    when = T0 + timedelta(seconds=0.5 * k + 0.25)
+    return {"id": image_id, "file_name": f"{image_id}.jpg", "width": 3840, "height": 2160,
+            "date_time": when.isoformat(), "source": {"drone": "fixedwing", "frame_no": 15 * k},
+            "meta": {"gps_latitude_ref": 54.1 + 1e-5 * k, "gps_longitude_ref": 8.3, "altitude": 80.0,
+                     "gimbal_pitch": 60.0, "gimbal_heading": 180.0,
+                     "date_time": (when - timedelta(hours=2)).isoformat()}}
+
+
+def test_two_drones_without_a_video_field_are_two_videos_with_their_own_poses(caplog):
+    """Before: one video whose poses jumped 22 km between the two drones every frame (a memory map and a tracker
+    fed two flights at once)."""
+    images = [im for k in range(6) for im in (_flight_log_image(k + 1, "x", 15 * k, k), _fixed_wing(100 + k, k))]
+    for im in images:
+        im["source"].pop("video", None)
+    with caplog.at_level(logging.WARNING, logger="agent.dataset"):
+        ds = Dataset.from_dict(_coco(images), source="two.json")
+    assert {ds.video_names[v]: [im.id for im in frames] for v, frames in ds.videos.items()} == {
+        "fixedwing": list(range(100, 106)), "mavic": list(range(1, 7))}
+    for v in ds.videos:
+        lats = {round(f.pose.lat, 1) for f in iter_video_frames(ds, CAMERA, v)}
+        assert lats == ({54.1} if ds.video_names[v] == "fixedwing" else {47.7})
+    assert "two.json: 12 images without a video" in caplog.text
+    assert sorted(p.name for p in mot_output_paths("out/", ds, list(ds.videos)).values()) == ["fixedwing.txt",
+                                                                                              "mavic.txt"]
+
+
+def test_one_drones_video_name_on_two_days_is_two_videos():
+    """DJI_0001.MP4 recorded again the next day, frame numbers from 0: before, one video whose frames alternated
+    between the two days (time clamped, poses from two flights)."""
+    images = [_flight_log_image(k, "DJI_0001.MP4", 15 * k, k) for k in range(4)]
+    for k in range(4):
+        image = _flight_log_image(10 + k, "DJI_0001.MP4", 15 * k, k, heading=200.0)
+        image["date_time"] = (T0 + timedelta(days=1, seconds=0.5 * k)).isoformat()
+        stamp = T0 + timedelta(days=1, hours=-2, seconds=0.5 * k)
+        image["meta"]["datetime(utc)"] = stamp.strftime("%Y-%m-%d %H:%M:%S")
+        images.append(image)
+    ds = Dataset.from_dict(_coco(images))
+    assert {ds.video_names[v]: [im.id for im in frames] for v, frames in ds.videos.items()} == {
+        "20200825T141921_DJI_0001.MP4": [0, 1, 2, 3], "20200826T141921_DJI_0001.MP4": [10, 11, 12, 13]}
+
+
+def test_the_video_telemetry_of_one_of_two_drones_sharing_a_video_name(tmp_path):
+    """`--telemetry FLIGHT.json` beside a video: before, both drones' samples were one video's (the second drone's
+    dropped as 'repeats of a held sample', or taken for the first's)."""
+    from agent.json_video import read_video_json
+
+    images = [_flight_log_image(k, "DJI_0001.MP4", 15 * k, k) for k in range(4)]
+    images += [_flight_log_image(10 + k, "DJI_0001.MP4", 15 * k, k, drone="matrice", heading=200.0) for k in range(4)]
+    path = tmp_path / "two.json"
+    path.write_text(json.dumps(_coco(images)))
+    assert {r.heading_deg for r in read_video_json(path, tmp_path / "matrice_DJI_0001.mp4")} >= {200.0}
+    assert all(r.heading_deg < 200.0 for r in read_video_json(path, tmp_path / "mavic_DJI_0001.mp4"))
+    with pytest.raises(ValueError, match=r"holds 2 videos \(matrice_DJI_0001.MP4, mavic_DJI_0001.MP4\) and none named "
+                                         r"like the video DJI_0001.mp4"):
+        read_video_json(path, tmp_path / "DJI_0001.mp4")
+
+
+@pytest.mark.skipif(not (REAL / "instances_dev.json").is_file(), reason="the team's real data is not beside the repo")
+def test_the_real_dev_file_keeps_its_video_ids_names_and_output_files(caplog):
+    with caplog.at_level(logging.WARNING, logger="agent.dataset"):
+        ds = Dataset.load(REAL / "instances_dev.json")
+    assert caplog.text == ""  # nothing split
+    names = ["DJI_0032.MP4", "DJI_0069.MP4", "NorthSea_Fri_DJI_0110.MP4", "NorthSea_Fri_DJI_0113.MP4",
+             "NorthSea_Fri_DJI_0115.MP4", "NorthSea_Sat_DJI_0122.MP4", "NorthSea_Sat_DJI_0129.MP4",
+             "NorthSea_Thu_DJI_0108.MP4"]
+    assert ds.video_names == dict(enumerate(names, start=1)) and list(ds.videos) == list(range(1, 9))
+    assert [p.name for p in mot_output_paths("out/tracks.txt", ds, list(ds.videos)).values()] == [
+        f"tracks_{n}.txt" for n in names]
