@@ -12,13 +12,18 @@ from typing import Any
 
 from shared.keys import KeySpace, validate_uav_id
 
-__all__ = ["ACL_MESSAGES", "FUSION_IDENTITY", "FleetIdentities", "access_control"]
+__all__ = ["ACL_MESSAGES", "FUSION_IDENTITY", "MAX_IDENTITY_LEN", "ROUTER_IDENTITY", "FleetIdentities",
+           "access_control"]
 
 #: every message kind a Zenoh 1.x ACL rule can name
 ACL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "declare_queryable", "reply",
                 "liveliness_token", "declare_liveliness_subscriber", "liveliness_query")
 #: the certificate common name / user name of the fusion server
 FUSION_IDENTITY = "fusion"
+#: the certificate common name of a zenohd router (its folder ``router/`` beside ``fusion/``)
+ROUTER_IDENTITY = "router"
+#: an identity is a certificate's common name, which X.509 bounds to 64 characters (RFC 5280, ub-common-name)
+MAX_IDENTITY_LEN = 64
 
 
 @dataclass(frozen=True, slots=True)
@@ -27,6 +32,8 @@ class FleetIdentities:
 
     uavs: UAV ids (the `--uav-id` of each agent; the safe id set of docs/protocol.md).
     operators: read-only identities (a ground-station viewer, a recorder).
+    Each is at most `MAX_IDENTITY_LEN` characters, and none is `FUSION_IDENTITY` or `ROUTER_IDENTITY` (the
+    ground station's own identities: a UAV so named would get their folder and server certificate).
     """
 
     uavs: tuple[str, ...]
@@ -35,15 +42,17 @@ class FleetIdentities:
     def __post_init__(self) -> None:
         if not self.uavs:
             raise ValueError("uavs: give at least one UAV id")
-        for uav in self.uavs:
-            validate_uav_id(uav, "uavs")
-        for name in self.operators:
-            validate_uav_id(name, "operators")  # same safe character set: it becomes a file and a CN
-        names = [*self.uavs, *self.operators, FUSION_IDENTITY]
+        for group, members in (("uavs", self.uavs), ("operators", self.operators)):
+            for name in members:
+                validate_uav_id(name, group)  # operators too: the same safe characters, it becomes a file and a CN
+                if len(name) > MAX_IDENTITY_LEN:
+                    raise ValueError(f"{group} {name!r} has {len(name)} characters: an identity is a certificate "
+                                     f"common name, at most {MAX_IDENTITY_LEN} characters")
+        names = [*self.uavs, *self.operators, FUSION_IDENTITY, ROUTER_IDENTITY]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:
-            raise ValueError(f"identities must be unique (and not {FUSION_IDENTITY!r}), repeated: "
-                             f"{', '.join(duplicates)}")
+            raise ValueError(f"identities must be unique (and not {FUSION_IDENTITY!r} or {ROUTER_IDENTITY!r}, the "
+                             f"ground station's), repeated: {', '.join(duplicates)}")
 
 
 def _rule(rule_id: str, messages: Sequence[str], flow: str, key_exprs: Sequence[str]) -> dict[str, Any]:

@@ -3,6 +3,7 @@
 Writes a folder per identity (fusion server, optional zenohd router, each UAV, each operator) holding its
 Zenoh config, the CA certificate and its own key and certificate (or password), plus the REST tokens.
 Files are 0600 and folders 0700. Re-running on the same folder adds identities and keeps existing keys.
+Everything is checked and every key made before the first file is written: a refusal writes nothing.
 """
 
 from __future__ import annotations
@@ -14,11 +15,14 @@ import secrets
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
-from fusion_server.acl import FUSION_IDENTITY, FleetIdentities, access_control
+from fusion_server.acl import FUSION_IDENTITY, ROUTER_IDENTITY, FleetIdentities, access_control
 from fusion_server.http_auth import read_token_file
+from shared import pki
+from shared.files import write_atomic
 from shared.keys import KeySpace
+from shared.pki import CA_DAYS, host_problem
 
 __all__ = ["AUTH_MODES", "FleetPlan", "ProvisionResult", "provision"]
 
@@ -55,8 +59,15 @@ class FleetPlan:
         object.__setattr__(self, "identities", FleetIdentities(tuple(self.uavs), tuple(self.operators)))
         if self.auth not in AUTH_MODES:
             raise ValueError(f"auth must be one of {', '.join(AUTH_MODES)}, got {self.auth!r}")
-        if not self.server_hosts or any(not h or "/" in h or " " in h for h in self.server_hosts):
-            raise ValueError(f"server_hosts must be non-empty host names or addresses, got {self.server_hosts!r}")
+        if not self.server_hosts:
+            raise ValueError("server_hosts: give at least one host name or address the agents dial")
+        for host in self.server_hosts:
+            problem = host_problem(host)
+            if problem is not None:
+                raise ValueError(f"server_hosts: {host!r} is not a host name or IP address: {problem}")
+        if isinstance(self.days, bool) or not isinstance(self.days, int) or not 1 <= self.days <= CA_DAYS:
+            raise ValueError(f"days must be an int in 1..{CA_DAYS}, got {self.days!r} (a certificate cannot "
+                             f"outlive the fleet's CA, {CA_DAYS} days)")
         if isinstance(self.port, bool) or not isinstance(self.port, int) or not 1 <= self.port <= 65535:
             raise ValueError(f"port must be in 1..65535, got {self.port!r}")
         KeySpace(self.prefix)
@@ -66,22 +77,27 @@ class FleetPlan:
 
 @dataclass(frozen=True, slots=True)
 class ProvisionResult:
-    """What was written: the folder, the identities added this time and every identity's folder."""
+    """What was written: the folder, the identities added this time and every identity's folder.
+
+    without_token: operators left without a REST token because their line was deleted from
+    ``fusion/http-tokens`` (a withdrawn token stays withdrawn until the operator is named again).
+    """
 
     root: Path
     added: tuple[str, ...]
     folders: dict[str, Path]
+    without_token: tuple[str, ...] = ()
 
 
 def _write(path: Path, content: bytes | str) -> None:
-    """Write a file readable by its owner only (created 0600, never world-readable, not even briefly)."""
+    """Write a file readable by its owner only: whole or not at all, created 0600 before a byte goes in
+    (`shared.files.write_atomic`; a file planted at the temporary's name is replaced, never written through)."""
     data = content.encode() if isinstance(content, str) else content
-    tmp = path.with_name(path.name + ".tmp")
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, _FILE_MODE)
-    with os.fdopen(fd, "wb") as handle:
+
+    def put(handle: IO[bytes]) -> None:
         handle.write(data)
-    os.chmod(tmp, _FILE_MODE)
-    os.replace(tmp, path)
+
+    write_atomic(path, put, mode=_FILE_MODE)
 
 
 def _mkdir(path: Path) -> Path:
@@ -147,75 +163,118 @@ def _load_manifest(root: Path, plan: FleetPlan) -> dict[str, Any] | None:
         if manifest.get(name) != ours:
             raise ValueError(f"{root} was made with {name} {manifest.get(name)!r}, not {ours!r}: "
                              f"use the same {name} to add identities (nothing was written)")
-    if not (root / "ca" / "ca.key").exists():
-        raise ValueError(f"{root / 'ca' / 'ca.key'} is missing: the CA key is needed to add identities "
-                         "(put it back from where you keep it offline)")
+    for name in ("ca.key", "ca.pem"):
+        if not (root / "ca" / name).exists():
+            raise ValueError(f"{root / 'ca' / name} is missing: the CA is needed to add identities (put it back "
+                             "from where you keep it offline; nothing was written)")
     return manifest
+
+
+def _check_identity_files(folders: dict[str, Path]) -> None:
+    """ValueError for an identity folder holding a certificate without its key or a key without its certificate."""
+    for folder in folders.values():
+        has = {name: (folder / name).exists() for name in ("cert.pem", "key.pem")}
+        if has["cert.pem"] != has["key.pem"]:
+            there, lost = ("cert.pem", "key.pem") if has["cert.pem"] else ("key.pem", "cert.pem")
+            raise ValueError(f"{folder} holds {there} but no {lost}: put {lost} back, or delete {there} to issue "
+                             "a new key and certificate (nothing was written)")
+
+
+def _load_ca(root: Path, days: int) -> pki.CertifiedKey:
+    """The folder's CA; ValueError if it cannot be read or cannot sign certificates of ``days`` days."""
+    from cryptography import x509
+    from cryptography.hazmat.primitives import serialization
+    from cryptography.hazmat.primitives.asymmetric import ec
+
+    try:
+        key = serialization.load_pem_private_key((root / "ca" / "ca.key").read_bytes(), password=None)
+        certificate = x509.load_pem_x509_certificate((root / "ca" / "ca.pem").read_bytes())
+    except (OSError, ValueError, TypeError) as exc:
+        raise ValueError(f"cannot read the fleet's CA in {root / 'ca'}: {exc}") from None
+    if not isinstance(key, ec.EllipticCurvePrivateKey):
+        raise ValueError(f"{root / 'ca' / 'ca.key'} is not the ECDSA key `uavmm secure init` makes")
+    end = certificate.not_valid_after_utc
+    left = (end - datetime.now(timezone.utc)).days
+    if days > left:
+        raise ValueError(f"the fleet's CA ({root / 'ca' / 'ca.pem'}) is valid until {end:%Y-%m-%d}, {max(left, 0)} "
+                         f"days from now: give days of at most {max(left, 0)} (nothing was written)")
+    return pki.CertifiedKey(key, certificate)
 
 
 def provision(root: Path, plan: FleetPlan) -> ProvisionResult:
     """Write (or extend) the fleet folder ``root`` for ``plan``; see the module docstring.
 
-    Existing keys, certificates and passwords are kept; identities of an earlier run stay in the ACL.
-    Raises ValueError naming the problem (a non-empty folder of something else, settings that differ
-    from the folder's, a missing CA key) before writing anything.
+    Existing keys, certificates, passwords and tokens are kept; identities of an earlier run stay in the ACL.
+    An earlier operator whose line was deleted from ``fusion/http-tokens`` gets no new token unless
+    ``plan.operators`` names it (`ProvisionResult.without_token`). Raises ValueError naming the problem (a
+    non-empty folder of something else, settings that differ from the folder's, a missing CA file, a
+    certificate without its key, days beyond the CA's end) before writing anything.
     """
-    from cryptography import x509
-    from cryptography.hazmat.primitives import serialization
-
-    from shared import pki
-
+    # ---- check and make everything in memory: a refusal below leaves the folder as it was
     manifest = _load_manifest(root, plan)
+    named_operators = set(plan.operators)
+    earlier_operators: set[str] = set()
     if manifest is not None:  # the union of the earlier identities and the new ones
+        earlier_operators = set(manifest.get("operators", []))
         uavs = tuple(dict.fromkeys([*manifest.get("uavs", []), *plan.uavs]))
         operators = tuple(dict.fromkeys([*manifest.get("operators", []), *plan.operators]))
         plan = FleetPlan(uavs=uavs, operators=operators, server_hosts=plan.server_hosts, port=plan.port,
                          auth=plan.auth, prefix=plan.prefix, mount_path=plan.mount_path, days=plan.days)
     fleet = _Fleet(root, plan)
-    _mkdir(root)
-    ca_dir = _mkdir(root / "ca")
-    if (ca_dir / "ca.key").exists():
-        ca_key = serialization.load_pem_private_key((ca_dir / "ca.key").read_bytes(), password=None)
-        ca = pki.CertifiedKey(ca_key, x509.load_pem_x509_certificate((ca_dir / "ca.pem").read_bytes()))  # type: ignore[arg-type]
-    else:
-        ca = pki.new_ca(f"uavmm fleet CA {datetime.now(timezone.utc):%Y-%m-%d}")
-        _write(ca_dir / "ca.key", ca.key_pem)
-        _write(ca_dir / "ca.pem", ca.certificate_pem)
-
-    for group in ("uavs", "operators"):
-        _mkdir(root / group)
-    folders = {FUSION_IDENTITY: root / "fusion", "router": root / "router"}
+    folders = {FUSION_IDENTITY: root / "fusion", ROUTER_IDENTITY: root / "router"}
     folders.update({uav: root / "uavs" / uav for uav in plan.uavs})
     folders.update({name: root / "operators" / name for name in plan.operators})
-    added = []
-    passwords = _read_passwords(root / "fusion" / "users.txt")
+    _check_identity_files(folders)
+    new_ca = manifest is None
+    ca = pki.new_ca(f"uavmm fleet CA {datetime.now(timezone.utc):%Y-%m-%d}") if new_ca else _load_ca(root, plan.days)
+    issued: dict[str, pki.CertifiedKey] = {}
     for identity, folder in folders.items():
-        fresh = not folder.exists()
-        _mkdir(folder)
-        _write(folder / "ca.pem", ca.certificate_pem)
-        server = identity in (FUSION_IDENTITY, "router")
+        server = identity in (FUSION_IDENTITY, ROUTER_IDENTITY)
         if (server or plan.auth == "mtls") and not (folder / "cert.pem").exists():
-            hosts = plan.server_hosts if server else ()
-            cert = pki.issue(ca, identity, hosts=hosts, days=plan.days)
-            _write(folder / "key.pem", cert.key_pem)
-            _write(folder / "cert.pem", cert.certificate_pem)
-        if plan.auth == "usrpwd" and identity != "router":
-            passwords.setdefault(identity, secrets.token_urlsafe(24))
-        if fresh and identity != "router":
-            added.append(identity)
-
+            issued[identity] = pki.issue(ca, identity, hosts=plan.server_hosts if server else (), days=plan.days)
+    passwords = _read_passwords(root / "fusion" / "users.txt")
+    if plan.auth == "usrpwd":
+        for identity in folders:
+            if identity != ROUTER_IDENTITY:
+                passwords.setdefault(identity, secrets.token_urlsafe(24))
+    tokens = _read_tokens(root / "fusion" / "http-tokens")
+    without_token: list[str] = []
+    for name in plan.operators:
+        if name in tokens:
+            continue
+        if name in earlier_operators and name not in named_operators:
+            without_token.append(name)  # its line was deleted from http-tokens: withdrawn, not renewed
+            continue
+        tokens[name] = secrets.token_urlsafe(32)
     acl = access_control(plan.identities, prefix=plan.prefix,
                          subject_field="cert_common_names" if plan.auth == "mtls" else "usernames")
+
+    # ---- write
+    _mkdir(root)
+    ca_dir = _mkdir(root / "ca")
+    if new_ca:
+        _write(ca_dir / "ca.key", ca.key_pem)
+        _write(ca_dir / "ca.pem", ca.certificate_pem)
+    for group in ("uavs", "operators"):
+        _mkdir(root / group)
+    added = []
+    for identity, folder in folders.items():
+        if not folder.exists() and identity != ROUTER_IDENTITY:
+            added.append(identity)
+        _mkdir(folder)
+        _write(folder / "ca.pem", ca.certificate_pem)
+        if identity in issued:
+            _write(folder / "key.pem", issued[identity].key_pem)
+            _write(folder / "cert.pem", issued[identity].certificate_pem)
     if plan.auth == "usrpwd":
         _write(root / "fusion" / "users.txt", "".join(f"{u}:{p}\n" for u, p in passwords.items()))
         _write(root / "router" / "users.txt", "".join(f"{u}:{p}\n" for u, p in passwords.items()))
     _write_server_configs(fleet, folders, acl, passwords)
     for identity in (*plan.uavs, *plan.operators):
         _write_client_config(fleet, identity, folders[identity], passwords, operator=identity in plan.operators)
-    tokens = _read_tokens(root / "fusion" / "http-tokens")
     for name in plan.operators:
-        tokens.setdefault(name, secrets.token_urlsafe(32))
-        _write(folders[name] / "http-token", tokens[name] + "\n")
+        if name in tokens:
+            _write(folders[name] / "http-token", tokens[name] + "\n")
     _write(root / "fusion" / "http-tokens",
            "# name:token, one REST API bearer token per operator (uavmm fusion --http-token-file)\n"
            + "".join(f"{n}:{t}\n" for n, t in tokens.items()))
@@ -225,7 +284,7 @@ def provision(root: Path, plan: FleetPlan) -> ProvisionResult:
         "updated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
     }, indent=2) + "\n")
     _write(root / "README.md", _readme(fleet, folders))
-    return ProvisionResult(root, tuple(added), folders)
+    return ProvisionResult(root, tuple(added), folders, tuple(without_token))
 
 
 def _read_passwords(path: Path) -> dict[str, str]:
@@ -276,7 +335,7 @@ def _write_server_configs(fleet: _Fleet, folders: dict[str, Path], acl: dict, pa
     _write(fusion / "zenoh-client.json5", _json5(client, (
         "uavmm fusion --config zenoh-client.json5: the fusion server as a client of a zenohd router\n"
         "that runs with ../router/zenohd.json5.")))
-    router = folders["router"]
+    router = folders[ROUTER_IDENTITY]
     router_config = {
         "mode": "router", "listen": listen, "scouting": {"multicast": {"enabled": False}},
         "transport": {"link": {"tls": fleet.tls(router, listen=True, client_cert=False)},
@@ -321,7 +380,7 @@ offline (only `uavmm secure init` on this folder needs it, to add UAVs or operat
   `uavmm agent --uav-id {uav} --config {conf(uav, 'zenoh.json5')} ...`
 - `operators/NAME/` goes to an operator: the REST token (`Authorization: Bearer $(cat http-token)`,
   or the page at `http://GROUND:8000/#token=...`) and a read-only Zenoh config.
-- `router/` is for a zenohd router, if you use one: `zenohd -c {conf('router', 'zenohd.json5')}`;
+- `router/` is for a zenohd router, if you use one: `zenohd -c {conf(ROUTER_IDENTITY, 'zenohd.json5')}`;
   the fusion server then runs with `fusion/zenoh-client.json5`.
 
 Agents dial `{fleet.endpoint()}` (server names in the certificate: {', '.join(plan.server_hosts)}).

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import datetime as dt
 import ipaddress
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -16,9 +17,14 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-__all__ = ["CertifiedKey", "certificate_common_name", "issue", "new_ca", "pem_certificate", "pem_private_key"]
+__all__ = ["CA_DAYS", "CertifiedKey", "certificate_common_name", "host_problem", "issue", "new_ca", "pem_certificate",
+           "pem_private_key"]
 
 _BACKDATE = dt.timedelta(minutes=10)  # tolerate clocks a little behind the ground station's
+#: validity of a new CA in days (10 years); no certificate it signs is valid longer
+CA_DAYS = 3650
+#: one DNS label: ASCII letters, digits, '-' and '_' (compose service names), not starting or ending with '-'
+_DNS_LABEL = re.compile(r"[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?\Z")
 
 
 @dataclass(frozen=True)
@@ -72,7 +78,7 @@ def _validity(days: int) -> tuple[dt.datetime, dt.datetime]:
     return now - _BACKDATE, now + dt.timedelta(days=days)
 
 
-def new_ca(name: str, *, days: int = 3650) -> CertifiedKey:
+def new_ca(name: str, *, days: int = CA_DAYS) -> CertifiedKey:
     """A self-signed CA that may only sign end-entity certificates (path length 0)."""
     key = ec.generate_private_key(ec.SECP256R1())
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)])
@@ -88,6 +94,28 @@ def new_ca(name: str, *, days: int = 3650) -> CertifiedKey:
     return CertifiedKey(key, certificate)
 
 
+def host_problem(host: object) -> str | None:
+    """Why ``host`` cannot be a server certificate's name and the host clients dial, or None.
+
+    Valid: an IPv4 or IPv6 address (without brackets) or a DNS name of 1..253 characters whose dot-separated
+    labels (1..63 characters) use ASCII letters, digits, ``-`` and ``_``. Not a port, a wildcard, a URL or an
+    internationalised name (give its ``xn--`` form).
+    """
+    if not isinstance(host, str) or not host:
+        return "it is empty"
+    try:
+        ipaddress.ip_address(host)
+        return None
+    except ValueError:
+        pass
+    if len(host) > 253:
+        return f"a DNS name has at most 253 characters, this one {len(host)}"
+    if not all(_DNS_LABEL.match(label) for label in host.split(".")):
+        return ("give an IP address (IPv6 without brackets) or a DNS name of ASCII letters, digits, '-' and '_' "
+                "in dot-separated labels (no port, no wildcard, no scheme)")
+    return None
+
+
 def _san(host: str) -> x509.GeneralName:
     try:
         return x509.IPAddress(ipaddress.ip_address(host))
@@ -98,13 +126,19 @@ def _san(host: str) -> x509.GeneralName:
 def issue(ca: CertifiedKey, common_name: str, *, hosts: Sequence[str] = (), days: int = 825) -> CertifiedKey:
     """A certificate for ``common_name`` signed by ``ca``.
 
-    hosts: DNS names or IP addresses the holder serves under (subject alternative names); given, the
-    certificate is good for TLS servers and clients, else for clients only.
+    hosts: DNS names or IP addresses the holder serves under (subject alternative names, see `host_problem`);
+    given, the certificate is good for TLS servers and clients, else for clients only. The certificate ends
+    after ``days`` days or with the CA, whichever is first (a verifier refuses it after the CA's end anyway).
     """
     if not common_name:
         raise ValueError("common_name must not be empty")
+    for host in hosts:
+        problem = host_problem(host)
+        if problem is not None:
+            raise ValueError(f"host {host!r} is not a host name or IP address: {problem}")
     key = ec.generate_private_key(ec.SECP256R1())
     start, end = _validity(days)
+    end = min(end, ca.certificate.not_valid_after_utc)
     usages = [ExtendedKeyUsageOID.CLIENT_AUTH]
     if hosts:
         usages.insert(0, ExtendedKeyUsageOID.SERVER_AUTH)

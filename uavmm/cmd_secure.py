@@ -49,7 +49,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     init.add_argument("--mount-path", default=None, metavar="PATH",
                       help="write file paths for each folder mounted at PATH (e.g. /etc/uavmm in containers); "
                            "default: the folders' own absolute paths")
-    init.add_argument("--days", type=int, default=825, help="validity of new certificates in days (825)")
+    init.add_argument("--days", type=int, default=825,
+                      help="validity of new certificates in days (825; at most 3650 and what the folder's CA has left)")
     p.set_defaults(handler=_run_secure, secure_parser=p)
 
 
@@ -97,5 +98,8 @@ def _run_secure(args: argparse.Namespace) -> int:
                      "--http-token-file http-tokens\n")
     for uav in plan.uavs:
         sys.stdout.write(f"  {uav}: {result.folders[uav]}/  -> uavmm agent --uav-id {uav} --config zenoh.json5 ...\n")
+    if result.without_token:
+        sys.stdout.write(f"  no REST token (its line was deleted from http-tokens): {', '.join(result.without_token)}; "
+                         "name them with --operators to issue new ones\n")
     sys.stdout.write(f"  keep {result.root / 'ca' / 'ca.key'} offline; see {result.root / 'README.md'}\n")
     return 0

@@ -3,22 +3,27 @@ identities without touching existing keys, and refusals that write nothing."""
 
 from __future__ import annotations
 
+import datetime as dt
 import json
+import os
+import re
 import stat
 from pathlib import Path
 
+import httpx
 import pytest
 import zenoh
 from cryptography import x509
+from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID
-from hypothesis import given, settings
+from hypothesis import assume, given, settings
 from hypothesis import strategies as st
 
 from fusion_server.acl import ACL_MESSAGES, FleetIdentities, access_control
 from fusion_server.http_auth import read_token_file
 from fusion_server.provision import FleetPlan, provision
-from shared.pki import certificate_common_name
+from shared.pki import certificate_common_name, issue, new_ca, pem_certificate
 from uavmm.cli import main
 
 
@@ -114,6 +119,12 @@ def test_cli_rerun_takes_the_folders_settings(tmp_path):
     (["--uavs", "uav1,uav1"], "repeated: uav1"),
     (["--uavs", "fusion"], "repeated: fusion"),
     (["--uavs", ""], "at least one UAV"),
+    # found by the audit: these were refused only after files were written (or not at all)
+    (["--uavs", "router"], "repeated: router"),  # the router's folder, config and server certificate
+    (["--uavs", "uav2", "--operators", "router"], "repeated: router"),
+    (["--uavs", "u" * 65], "at most 64 characters"),  # a certificate common name's limit
+    (["--uavs", "uav2", "--days", "0"], "days must be an int in 1..3650, got 0"),
+    (["--uavs", "uav2", "--days", "10000000"], "days must be an int in 1..3650"),
 ])
 def test_bad_requests_are_refused_and_change_nothing(tmp_path, capsys, argv, problem):
     root = tmp_path / "fleet"
@@ -176,3 +187,146 @@ def test_acl_rejects_a_bad_subject_field_and_prefix():
         access_control(FleetIdentities(("uav1",)), subject_field="zids")
     with pytest.raises(ValueError, match="prefix chunk"):
         access_control(FleetIdentities(("uav1",)), prefix="uavmm/**")
+
+
+@pytest.mark.parametrize(("argv", "problem"), [
+    (["--uavs", "uav1", "--days", "0"], "days must be an int in 1..3650, got 0"),
+    (["--uavs", "uav1", "--days", "5000"], "days must be an int in 1..3650, got 5000"),
+    (["--uavs", "u" * 65], "at most 64 characters"),
+    (["--uavs", "uav1,router"], "repeated: router"),
+    (["--uavs", "uav1", "--server-host", "ground.local:7447"], "'ground.local:7447' is not a host name"),
+    (["--uavs", "uav1", "--server-host", "grönd.local"], "'grönd.local' is not a host name"),
+    (["--uavs", "uav1", "--server-host", "*.example.org"], "'*.example.org' is not a host name"),
+    (["--uavs", "uav1", "--server-host", "[::1]"], "'[::1]' is not a host name"),
+    (["--uavs", "uav1", "--server-host", "ground..local"], "'ground..local' is not a host name"),
+])
+def test_a_refused_new_fleet_writes_nothing(tmp_path, capsys, argv, problem):
+    """Refused before a byte is written, so the corrected command works on the same folder."""
+    root = tmp_path / "fleet"
+    assert main(["secure", "init", str(root), *argv]) == 2
+    assert problem in capsys.readouterr().err
+    assert not root.exists()
+    assert main(["secure", "init", str(root), "--uavs", "uav1"]) == 0
+
+
+@pytest.mark.parametrize("host", ["ground.local", "fusion", "fusion_server", "10.0.0.2", "fd00::2",
+                                  "a" * 63 + ".example"])
+def test_server_hosts_go_into_the_certificate_and_the_endpoint(tmp_path, host):
+    root = tmp_path / "fleet"
+    provision(root, FleetPlan(uavs=("uav1",), server_hosts=(host,)))
+    names = _verify(root / "fusion" / "cert.pem", root / "ca" / "ca.pem").extensions.get_extension_for_class(
+        x509.SubjectAlternativeName).value
+    assert [str(getattr(n.value, "compressed", n.value)) for n in names] == [host]
+    shown = f"[{host}]" if ":" in host else host
+    assert _json5(root / "uavs" / "uav1" / "zenoh.json5")["connect"]["endpoints"] == [f"tls/{shown}:7447"]
+
+
+_SAFE_ID = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,63}")
+
+
+@settings(max_examples=150)
+@given(st.one_of(st.text(max_size=70), st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,70}", fullmatch=True),
+                 st.sampled_from(["*", "a/b", "$x", "a b", "..", ".", "-a", "uav1/**", "joint", "fusion", "router"])))
+def test_an_identity_is_a_safe_id_of_at_most_64_characters(identity):
+    """Accepted exactly when it is one key chunk, a file name and a certificate common name; else a
+    ValueError naming the field."""
+    assume(identity != "uav0")
+    safe = _SAFE_ID.fullmatch(identity) is not None and identity not in ("joint", "fusion", "router")
+    for field in ("uavs", "operators"):
+        try:
+            FleetIdentities(("uav0",) if field == "operators" else (identity,),
+                            (identity,) if field == "operators" else ())
+        except ValueError as exc:
+            assert not safe and (field in str(exc) or "repeated" in str(exc)), str(exc)
+        else:
+            assert safe
+            assert identity not in (".", "..") and "/" not in identity
+            cert = issue(new_ca("test CA"), identity)  # a certificate common name X.509 accepts
+            assert certificate_common_name(cert.certificate_pem) == identity
+
+
+def test_days_beyond_what_the_ca_has_left_are_refused(tmp_path):
+    root = tmp_path / "fleet"
+    provision(root, FleetPlan(uavs=("uav1",), days=3650))  # a new CA: its full 10 years
+    ca = x509.load_pem_x509_certificate((root / "ca" / "ca.pem").read_bytes())
+    leaf = x509.load_pem_x509_certificate((root / "uavs" / "uav1" / "cert.pem").read_bytes())
+    assert leaf.not_valid_after_utc <= ca.not_valid_after_utc  # never valid beyond its CA
+    keys = {p: p.read_bytes() for p in root.rglob("*") if p.name in ("key.pem", "cert.pem", "ca.key", "http-token")}
+    (root / "ca" / "ca.pem").write_bytes(pem_certificate(_aged(root, days_left=100)))
+    with pytest.raises(ValueError, match=r"valid until .* 100 days from now: give days of at most 100"):
+        provision(root, FleetPlan(uavs=("uav2",), days=825))
+    assert not (root / "uavs" / "uav2").exists()
+    provision(root, FleetPlan(uavs=("uav2",), days=100))
+    assert {p: p.read_bytes() for p in keys} == keys
+
+
+def _aged(root: Path, days_left: int) -> x509.Certificate:
+    """The fleet's CA certificate re-signed (same key and name) to end ``days_left`` days (and an hour) from now."""
+    key = serialization.load_pem_private_key((root / "ca" / "ca.key").read_bytes(), password=None)
+    ca = x509.load_pem_x509_certificate((root / "ca" / "ca.pem").read_bytes())
+    now = dt.datetime.now(dt.timezone.utc)
+    builder = (x509.CertificateBuilder().subject_name(ca.subject).issuer_name(ca.subject).public_key(ca.public_key())
+               .serial_number(x509.random_serial_number()).not_valid_before(now - dt.timedelta(days=3000))
+               .not_valid_after(now + dt.timedelta(days=days_left, hours=1)))
+    for extension in ca.extensions:
+        builder = builder.add_extension(extension.value, extension.critical)
+    return builder.sign(key, hashes.SHA256())  # type: ignore[arg-type]
+
+
+def test_a_damaged_fleet_is_refused_before_writing(tmp_path):
+    root = tmp_path / "fleet"
+    provision(root, FleetPlan(uavs=("uav1", "uav2")))
+    (root / "uavs" / "uav1" / "key.pem").unlink()  # its certificate is still there, its config names the key
+    files = {p: p.read_bytes() for p in root.rglob("*") if p.is_file()}
+    with pytest.raises(ValueError, match=r"uavs/uav1 holds cert.pem but no key.pem: .*delete cert.pem"):
+        provision(root, FleetPlan(uavs=("uav3",)))
+    (root / "ca" / "ca.pem").rename(root / "ca" / "ca.pem.bak")
+    with pytest.raises(ValueError, match=r"ca/ca.pem is missing"):
+        provision(root, FleetPlan(uavs=("uav3",)))
+    (root / "ca" / "ca.pem.bak").rename(root / "ca" / "ca.pem")
+    assert {p: p.read_bytes() for p in root.rglob("*") if p.is_file()} == files
+    (root / "uavs" / "uav1" / "cert.pem").unlink()  # both gone: the documented way to renew an identity
+    provision(root, FleetPlan(uavs=("uav3",)))
+    assert certificate_common_name((root / "uavs" / "uav1" / "cert.pem").read_bytes()) == "uav1"
+    assert (root / "uavs" / "uav1" / "cert.pem").read_bytes() != files[root / "uavs" / "uav1" / "cert.pem"]
+
+
+def test_a_withdrawn_rest_token_stays_withdrawn_until_named_again(tmp_path, server_factory):
+    root = tmp_path / "fleet"
+    provision(root, FleetPlan(uavs=("uav1",), operators=("alice", "bob")))
+    tokens_file = root / "fusion" / "http-tokens"
+    bob = (root / "operators" / "bob" / "http-token").read_text().strip()
+    # docs/deploy.md's revocation: delete bob's line
+    tokens_file.write_text("".join(f"{line}\n" for line in tokens_file.read_text().splitlines()
+                                   if not line.startswith("bob:")))
+    result = provision(root, FleetPlan(uavs=("uav2",), operators=()))  # adding a UAV later
+    assert [t.name for t in read_token_file(tokens_file)] == ["alice"]
+    assert result.without_token == ("bob",)
+    server = server_factory(http_tokens=read_token_file(tokens_file))
+    with httpx.Client(base_url=server.url.rstrip("/"), timeout=10.0) as http:
+        for token in (bob, (root / "operators" / "bob" / "http-token").read_text().strip()):
+            assert http.get("/v1/uavs", headers={"Authorization": f"Bearer {token}"}).status_code == 401
+    result = provision(root, FleetPlan(uavs=("uav2",), operators=("bob",)))  # named again: a new token
+    assert result.without_token == ()
+    new = (root / "operators" / "bob" / "http-token").read_text().strip()
+    assert new != bob and ("bob", new) in {(t.name, t.token) for t in read_token_file(tokens_file)}
+
+
+def test_private_files_are_written_0600_whatever_the_umask_and_never_through_a_planted_file(tmp_path):
+    root = tmp_path / "fleet"
+    provision(root, FleetPlan(uavs=("uav1",)))
+    outside = tmp_path / "outside.pem"
+    outside.write_text("")
+    (root / "uavs" / "uav2").mkdir(mode=0o700)
+    for name in ("key.pem.tmp", f".key.pem.{os.getpid()}.tmp"):  # the temporary names, old and new
+        (root / "uavs" / "uav2" / name).symlink_to(outside)
+    old = os.umask(0)
+    try:
+        provision(root, FleetPlan(uavs=("uav2",), operators=()))
+    finally:
+        os.umask(old)
+    assert outside.read_text() == ""  # the new private key did not go through the link
+    key = root / "uavs" / "uav2" / "key.pem"
+    assert not key.is_symlink() and stat.S_IMODE(key.stat().st_mode) == 0o600
+    assert b"PRIVATE KEY" in key.read_bytes()
+    assert not [p for p in root.rglob("*.tmp") if not p.is_symlink()]  # no temporary of ours left behind
