@@ -29,7 +29,14 @@ class Dataset(Protocol):
     @property
     def categories(self) -> Mapping[int, Any]: ...
 
-__all__ = ["Candidates"]
+__all__ = ["Candidates", "scores_outside_unit_error"]
+
+#: Finite scores outside [0, 1] are skipped and counted (a detector's glitch) while they are at most this share of
+#: the boxes or fewer than OUT_OF_RANGE_MIN; more means the file's scores are on another scale (percentages, logits,
+#: boosted scores) and the run is refused: skipped, they left a percent-scaled file 0 of 4,216 candidates and wrote
+#: an empty results file with exit 0.
+OUT_OF_RANGE_SHARE = 0.01
+OUT_OF_RANGE_MIN = 10
 
 log = logging.getLogger("agent.dataset")  # its messages as before the split
 
@@ -135,6 +142,12 @@ class Candidates:
         finite = np.isfinite(boxes).all(axis=1)
         positive = finite & (boxes[:, 2] > 0) & (boxes[:, 3] > 0)
         good_score = np.isfinite(scores) & (scores >= 0) & (scores <= 1)
+        outside = positive & np.isfinite(scores) & ~good_score
+        n_outside = int(outside.sum())
+        if n_outside >= OUT_OF_RANGE_MIN and n_outside > OUT_OF_RANGE_SHARE * int(positive.sum()):
+            error = scores_outside_unit_error(scores[positive], source, "and run on the rest")
+            assert error is not None
+            raise error
         skipped = {
             "non_finite_box": int((~finite).sum()),
             "non_positive_size": int((finite & ~positive).sum()),
@@ -169,6 +182,27 @@ class Candidates:
 
 
 _NOT_A_LIST = "{source}: expected a JSON list of {{image_id, category_id, bbox, score}}"
+
+
+def scores_outside_unit(scores: Iterable[float]) -> list[float]:
+    """The finite scores outside [0, 1] (NaN and infinities are a detector's glitches, skipped elsewhere)."""
+    return [float(v) for v in scores if np.isfinite(v) and not 0.0 <= v <= 1.0]
+
+
+def scores_outside_unit_error(scores: Iterable[float], source: str, consequence: str) -> ValueError | None:
+    """A ValueError naming how many of the scores are finite and outside [0, 1], with an example and what they look
+    like (percentages when most are above 1 and none above 100; else not a detector's confidences, e.g. `uavmm
+    detect`'s boosted scores); None when there are none. consequence: what the caller would do with them, after
+    "the pipeline would drop them"."""
+    values = list(scores)
+    outside = scores_outside_unit(values)
+    if not outside:
+        return None
+    hint = (" (percentages? divide them by 100)" if max(outside) <= 100.0 and min(outside) >= 0.0
+            and sum(v > 1.0 for v in values) > len(values) / 2 else
+            " (a detector's confidences are in [0, 1]; `uavmm detect`'s boosted scores are not a detector's output)")
+    return ValueError(f"{source}: {len(outside)} of the detections have a score outside [0, 1]: e.g. {outside[0]!r}; "
+                      f"the pipeline would drop them, {consequence}{hint}")
 
 
 class MalformedEntry(ValueError):

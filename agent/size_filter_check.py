@@ -130,8 +130,10 @@ class SizeFilterCheck:
         return self._active
 
     def reports(self, classes: list[str] | None = None) -> list[StageReport]:
-        """One decision per class with a prior (only `classes` when given, e.g. those the video holds)."""
-        out = []
+        """One decision per class with a prior (only `classes` when given, e.g. those the video holds), and one
+        standing down for each of `classes` the filter has no band for (its boxes pass unfiltered)."""
+        out = [StageReport("size filter", False, f"{name}: no size band for this class (boxes unfiltered)")
+               for name in classes or () if name not in self.size_filter.bands]
         s = self.settings
         for name in self.size_filter.bands:
             if classes is not None and name not in classes:

@@ -17,7 +17,7 @@ import numpy as np
 from agent.boxes import box_anchor_points
 from agent.dataset import Dataset, iter_video_frames
 from agent.dem import takeoff_terrain
-from agent.size_filter import SizeFilter, fit_band, slant_and_depression
+from agent.size_filter import SizeFilter, fit_class, slant_and_depression
 from shared.geo import Camera, Pose, pixel_to_local
 from shared.terrain import Terrain, pixel_to_terrain
 
@@ -43,14 +43,22 @@ def box_geometry(boxes_xyxy: np.ndarray, camera: Camera, pose: Pose, anchor: str
 
 def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: float = 3.0,
                      anchor: str = "auto", min_samples: int = 20, terrain: Terrain | None = None,
-                     image_ids: Collection[int] | None = None) -> tuple[SizeFilter, dict[str, dict[str, Any]]]:
-    """Fit a SizeFilter from the dataset's annotations; returns it and a per-class report.
+                     image_ids: Collection[int] | None = None, left_out: dict[str, int] | None = None,
+                     ) -> tuple[SizeFilter, dict[str, dict[str, Any]]]:
+    """Fit a SizeFilter from the dataset's annotations; returns it and a per-class report (the evidence of each
+    class, `agent.size_filter.fit_class`). ValueError naming each class's reason when none could be fitted.
 
+    Each class is fitted and checked on its own evidence: its objects are the annotations' track ids within a
+    video, or the videos where the file has none (SeaDronesSee's detection sets); a class with fewer than
+    min_samples boxes or 2 objects gets no band (its report says why). Annotations marked ``iscrowd`` or
+    ``ignore`` (regions, not one object's box) are not fitted on. left_out (when given) is filled with the boxes
+    not fitted on: crowd_or_ignore_regions, frames_without_pose, without_ground_point.
     terrain: georeference the boxes on this DEM (`--dem`) instead of flat ground; without a take-off elevation
     each video takes the DEM's height under its first pose (`agent.dem.takeoff_terrain`, as the pipeline does).
     image_ids: fit on the annotations of these images only (`uavmm tune`'s held-out check keeps the held-out
     frames' ground truth out of its fit); the poses still come from every frame of their videos. The bands hold
-    only the classes with min_samples boxes: the others have none (a user of the filter keeps its priors for them).
+    only the classes fitted: `uavmm tune` keeps its start filter's for the others; `--size-filter FILE` leaves them
+    unfiltered (the run's summary names them).
     """
     dataset = Dataset.load(images_path)
     camera = Camera.from_spec(camera_path)
@@ -58,19 +66,26 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
     if not isinstance(anns, list) or not anns:
         raise ValueError(f"{images_path}: no 'annotations' to fit from")
     by_image: dict[int, list[dict]] = defaultdict(list)
+    regions = 0
     for i, a in enumerate(anns):
         if not isinstance(a, dict) or "image_id" not in a or "bbox" not in a or "category_id" not in a:
             raise ValueError(f"{images_path}: annotations[{i}] needs image_id, category_id and bbox")
+        if a.get("iscrowd") or a.get("ignore"):  # a crowd or an ignore region: no single object's size
+            regions += 1
+            continue
         by_image[a["image_id"]].append(a)
-    samples: dict[str, tuple[list[float], list[float]]] = defaultdict(lambda: ([], []))
+    samples: dict[str, tuple[list[float], list[float], list[str]]] = defaultdict(lambda: ([], [], []))
+    no_ground = no_pose = 0
     for video_id in dataset.videos:
         video_terrain: Terrain | None = None
         for frame in iter_video_frames(dataset, camera, video_id):
+            wanted = frame.image.id in by_image and (image_ids is None or frame.image.id in image_ids)
             if frame.pose is None:
+                no_pose += len(by_image[frame.image.id]) if wanted else 0
                 continue
             if terrain is not None and video_terrain is None:
                 video_terrain = takeoff_terrain(terrain, frame.pose)
-            if frame.image.id not in by_image or (image_ids is not None and frame.image.id not in image_ids):
+            if not wanted:
                 continue
             image_anns = by_image[frame.image.id]
             xywh = np.array([a["bbox"] for a in image_anns], dtype=np.float64)
@@ -80,23 +95,43 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
             log_size = np.log(np.maximum(diag, 1e-6) * slant / f)
             for a, d, y in zip(image_anns, dep, log_size, strict=True):
                 name = dataset.categories.get(a["category_id"])
-                if name is not None and np.isfinite(d) and np.isfinite(y):
-                    samples[name][0].append(float(d))
-                    samples[name][1].append(float(y))
+                if name is None:
+                    continue
+                if not (np.isfinite(d) and np.isfinite(y)):
+                    no_ground += 1
+                    continue
+                track = a.get("track_id")
+                samples[name][0].append(float(d))
+                samples[name][1].append(float(y))
+                samples[name][2].append(f"{video_id}" if track is None else f"{video_id}/{track}")
     bands = {}
     report: dict[str, dict[str, Any]] = {}
-    for name, (dep, y) in sorted(samples.items()):
-        if len(y) < min_samples:
-            report[name] = {"samples": len(y), "fitted": False}
+    for name, (dep_deg, log_sizes, units) in sorted(samples.items()):
+        band, evidence = fit_class(dep_deg, log_sizes, units, k=k, min_samples=min_samples)
+        unit = "tracks" if all("/" in u for u in units) else "videos" if not any("/" in u for u in units) else \
+            "tracks and videos"
+        report[name] = {"fitted": band is not None, **evidence, "objects_are": unit}
+        if band is None:
             continue
-        band = fit_band(dep, y, min_samples=min_samples)
         bands[name] = band
         lo, hi = band.bounds_m([30.0, 60.0, 90.0], k)
-        report[name] = {
-            "samples": len(y), "fitted": True,
-            "median_size_m": round(float(np.exp(np.median(y))), 3),
-            "band_m_at_30_60_90_deg": [f"{a:.2f}-{b:.2f}" for a, b in zip(lo, hi, strict=True)],
-        }
+        report[name].update({
+            "median_size_m": round(float(np.exp(np.median(log_sizes))), 3),
+            "band_m_at_30_60_90_deg": [f"{a:.2f}-{b:.2f}" if band.measured([d])[0] else "not measured"
+                                       for a, b, d in zip(lo, hi, (30.0, 60.0, 90.0), strict=True)],
+        })
+    counts = {"crowd_or_ignore_regions": regions, "frames_without_pose": no_pose, "without_ground_point": no_ground}
+    if left_out is not None:
+        left_out.update(counts)
     if not bands:
-        raise ValueError(f"{images_path}: no class has {min_samples} georeferenced annotations to fit")
+        why = "; ".join(f"{n}: {r['why']}" for n, r in report.items()) or "no annotated box with a ground point"
+        raise ValueError(f"{images_path}: no class could be fitted ({why}; boxes left out: {left_out_text(counts)})")
     return SizeFilter(bands, k), report
+
+
+def left_out_text(counts: dict[str, int]) -> str:
+    """`fit_from_dataset`'s left_out counts in words, e.g. "3 crowd or ignore regions, 12 on frames without a pose"."""
+    words = {"crowd_or_ignore_regions": "crowd or ignore regions",
+             "frames_without_pose": "on frames without a pose (meta missing or unusable)",
+             "without_ground_point": "without a ground point (at or above the horizon)"}
+    return ", ".join(f"{v} {words.get(k, k)}" for k, v in counts.items() if v) or "none"

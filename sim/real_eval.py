@@ -17,6 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from agent.boost import results_to_coco, run_pipeline
+from agent.candidates import scores_outside_unit_error
 from agent.coco_metrics import per_class_metrics
 from agent.dataset import Candidates, Dataset, dataset_files, read_json
 from agent.pipeline_config import PipelineConfig
@@ -61,16 +62,10 @@ def _scored(entries: list[dict[str, Any]], source: str | Path) -> list[dict[str,
     """The entries with a score in [0, 1], as the loader keeps them (a NaN or infinite score skipped: detectors emit
     them). A finite score outside [0, 1] refuses the file: the pipeline would drop it and the variants would be
     scored on a part of what the detector is scored on (611 boosted scores above 1 read as boat 86.2 -> 27.4)."""
-    scores = [e["score"] for e in entries]
-    outside = [v for v in scores if math.isfinite(v) and not 0.0 <= v <= 1.0]
-    if outside:
-        hint = (" (percentages? divide them by 100)" if max(outside) <= 100.0 and min(outside) >= 0.0
-                and sum(v > 1.0 for v in scores) > len(scores) / 2 else
-                " (a detector's confidences are in [0, 1]; `uavmm detect`'s boosted scores are not a detector's "
-                "output)")
-        raise ValueError(f"{source}: {len(outside)} of the detections have a score outside [0, 1]: e.g. "
-                         f"{outside[0]!r}; the pipeline would drop them, and the detector would be scored on more "
-                         f"than the variants{hint}")
+    error = scores_outside_unit_error([e["score"] for e in entries], str(source),
+                                      "and the detector would be scored on more than the variants")
+    if error is not None:
+        raise error
     return [e for e in entries if 0.0 <= e["score"] <= 1.0]
 
 

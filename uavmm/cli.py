@@ -31,6 +31,16 @@ def require_out_parent(*paths: Path | None) -> None:
             raise CliError(f"output directory {path.parent} does not exist (for {path})")
 
 
+def require_new_output(out: Path, *inputs: Path | str | None) -> None:
+    """CliError when an output file's path is a folder or one of the run's input files: writing it would have
+    failed after the work, or put the results over the input they came from (`boost --out PRE_NMS.json`)."""
+    if out.is_dir():
+        raise CliError(f"{out} is a directory: give the output file's path")
+    for path in inputs:
+        if path is not None and out.exists() and Path(path).exists() and out.samefile(path):
+            raise CliError(f"{out} is an input of this run ({path}): give another output path")
+
+
 # --------------------------------------------------------------------------------------------- sim
 
 def _add_sim(sub: argparse._SubParsersAction) -> None:
@@ -282,6 +292,10 @@ def _run_boost(args: argparse.Namespace) -> int:
     if args.clock_offset is not None:  # else the configuration's (on by default)
         cfg = dataclasses.replace(cfg, estimate_clock_offset=args.clock_offset)
     require_out_parent(args.out, args.corrections_out)
+    inputs = (args.frames, args.candidates, args.camera, args.pipeline_config, args.size_filter, args.dem)
+    for out in (args.out, args.corrections_out):
+        if out is not None:
+            require_new_output(out, *inputs)
     corrections: list[tuple] | None = [] if args.corrections_out is not None else None
     spool = StreamedResults(args.out)  # written as the frames come; in place once the run ends well
     try:
@@ -294,6 +308,10 @@ def _run_boost(args: argparse.Namespace) -> int:
     if corrections is not None:
         write_corrections(corrections, args.corrections_out)
     print_run_summary(f"wrote {spool.count} detections to {args.out}", stats)
+    if stats["candidates"] and stats["candidates"] - stats["size_filtered"] == stats["detections"]:
+        print(f"  NMS removed none of the {stats['candidates']} candidates: they look like a detector's final output "
+              "(post-NMS), not pre-NMS candidates; the memory map can only re-rank them (docs/memory-map.md, "
+              "\"Pre-NMS candidates and a detector's final output\")")
     return 0
 
 
@@ -322,7 +340,10 @@ def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
         "fit-size-filter", help="fit the distance-size filter from a dataset with meta",
         description="Fit per class the metric box diameter (pixels x range / focal length) as a function "
                     "of the viewing depression from ground-truth boxes (range and depression to where each box's "
-                    "ground point's ray meets the --dem terrain, when given), and save it for --size-filter.",
+                    "ground point's ray meets the --dem terrain, when given), and save it for --size-filter. Each "
+                    "class's spread is checked on its objects (track ids, else videos) left out of the fit; a class "
+                    "with fewer than 20 boxes or 2 objects gets no band, views without boxes are not judged, crowd "
+                    "and ignore regions are not fitted on, and the file records the evidence (docs/memory-map.md).",
     )
     p.add_argument("--frames", type=Path, required=True, help="IMAGES.json with annotations and meta")
     p.add_argument("--camera", type=Path, required=True, help="CAMERA.json")
@@ -334,14 +355,26 @@ def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_fit_size_filter(args: argparse.Namespace) -> int:
-    from agent.size_filter_fit import fit_from_dataset
+    from agent.size_filter_fit import fit_from_dataset, left_out_text
 
+    if not (args.k > 0 and args.k < float("inf")):
+        raise CliError(f"--k must be a positive number, got {args.k}")
     terrain = terrain_from_args(args)
     require_out_parent(args.out)
-    sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor, terrain=terrain)
-    sf.save(args.out)
+    require_new_output(args.out, args.frames, args.camera, args.dem)
+    left_out: dict[str, int] = {}
+    sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor, terrain=terrain,
+                                  left_out=left_out)
+    sf.save(args.out, evidence={"frames": str(args.frames), "camera": str(args.camera), "anchor": args.anchor,
+                                "dem": None if args.dem is None else str(args.dem), "boxes_left_out": left_out,
+                                "classes": report})
     for name, row in report.items():
         print(f"{name}: " + ", ".join(f"{k}={v}" for k, v in row.items()))
+    if any(left_out.values()):
+        print(f"boxes not fitted on: {left_out_text(left_out)}")
+    skipped = [name for name, row in report.items() if not row["fitted"]]
+    if skipped:
+        print(f"no band for {', '.join(skipped)}: with --size-filter {args.out} their boxes pass unfiltered")
     print(f"wrote {args.out}")
     return 0
 

@@ -315,3 +315,48 @@ def test_candidates_read_from_a_file_keep_the_old_loaders_leniency_and_messages(
     path.write_text(json.dumps(entries), encoding="utf-16")
     loaded = Candidates.load(path, ds)
     assert sum(len(v[1]) for v in loaded.by_image.values()) == len(entries)
+
+
+@pytest.mark.parametrize("flag", ["--out", "--corrections-out"])
+def test_an_output_naming_an_input_is_refused_and_the_input_kept(tmp_path, capsys, flag):
+    # probe: `--out PRE_NMS.json` put the results over the candidates they were made from (exit 0)
+    d = make_dataset(tmp_path, frames=3)
+    before = (d / "pre_nms.json").read_bytes()
+    args = ["boost", "--frames", str(d / "images.json"), "--candidates", str(d / "pre_nms.json"), "--camera",
+            str(d / "camera.json"), "--out", str(d / "results.json")]
+    assert main([*args, flag, str(d / "pre_nms.json")]) == 2
+    assert f"{d / 'pre_nms.json'} is an input of this run" in capsys.readouterr().err
+    assert (d / "pre_nms.json").read_bytes() == before and not (d / "results.json").exists()
+
+
+def test_scores_on_another_scale_are_refused_not_skipped_into_an_empty_file(tmp_path, capsys):
+    # probe: percentages (0-100) skipped every candidate as "score_out_of_range" and wrote 0 detections, exit 0
+    d = make_dataset(tmp_path, frames=3)
+    cands = json.loads((d / "pre_nms.json").read_text())
+    (d / "pre_nms.json").write_text(json.dumps([{**c, "score": 100 * c["score"]} for c in cands]))
+    assert run_boost(d) == 2
+    err = capsys.readouterr().err
+    assert f"{len(cands)} of the detections have a score outside [0, 1]" in err
+    assert "percentages? divide them by 100" in err and not (d / "results.json").exists()
+
+
+def test_the_summary_names_a_class_the_size_filter_has_no_band_for(tmp_path, capsys):
+    # probe: with a fitted file of swimmers only, the people passed unfiltered and the summary had no size filter line
+    from agent.size_filter import BUILTIN_PRIORS, SizeFilter
+
+    d = make_dataset(tmp_path, frames=3)
+    SizeFilter({"swimmer": BUILTIN_PRIORS["swimmer"]}).save(d / "swimmers.json")
+    assert run_boost(d, "--size-filter", str(d / "swimmers.json")) == 0
+    assert "size filter: acted 0, stood down 1 - person: no size band for this class (boxes unfiltered)" in \
+        capsys.readouterr().out
+
+
+def test_the_summary_says_when_the_candidates_look_post_nms(tmp_path, capsys):
+    # probe: a detector's final output passed as candidates ran without a word (NMS removed none of them)
+    d = make_dataset(tmp_path, frames=6)
+    assert run_boost(d) == 0
+    assert "look like a detector's final output" not in capsys.readouterr().out
+    (d / "results.json").rename(d / "final.json")
+    assert main(["boost", "--frames", str(d / "images.json"), "--candidates", str(d / "final.json"),
+                 "--camera", str(d / "camera.json"), "--out", str(d / "again.json")]) == 0
+    assert "NMS removed none of the" in capsys.readouterr().out

@@ -73,10 +73,12 @@ def flights(d, kinds, *, frames=40, fps=2.0, seed=0):
             else:
                 people = [(rng.uniform(-12, 12), rng.uniform(20, 45), 0.5) for _ in range(2)]
                 false = [(8.0, 30.0, 0.55, 1.0)]
-            for east, north, score in people:
+            for i, (east, north, score) in enumerate(people):
                 box = box_at(east, north)
+                # the same four people all flight long (a new two every frame in "clutter"): the size fit's objects
+                track = i + 1 if kind in ("flicker", "big") else 100 * image_id + i
                 anns.append({"id": len(anns) + 1, "image_id": image_id, "category_id": 1, "bbox": box,
-                             "area": box[2] * box[3], "iscrowd": 0})
+                             "area": box[2] * box[3], "iscrowd": 0, "track_id": track})
                 add(image_id, box, score)
             for east, north, score, scale in false:
                 add(image_id, box_at(east, north, scale), score, n=2)
