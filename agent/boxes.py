@@ -65,7 +65,7 @@ def outranked_overlaps(boxes_xyxy: NDArray, rank: NDArray, min_iou: float,
     if class_ids is not None:
         class_ids = np.asarray(class_ids)
         above &= class_ids[None, :] == class_ids[sel, None]
-    hit = ((box_iou(boxes[sel], boxes) >= min_iou) & above).any(axis=1)
+    hit = np.asarray(((box_iou(boxes[sel], boxes) >= min_iou) & above).any(axis=1))  # (R,) bool
     if rows is None:
         return hit
     out = np.zeros(len(boxes), dtype=bool)

@@ -75,15 +75,16 @@ def _checked_annotations(gt: dict[str, Any]) -> list[Any]:
         if listed and category_id not in listed:
             raise ValueError(f"{where} (id {a.get('id')!r}): category_id {category_id} is not in 'categories'")
         box = a.get("bbox")
+        items = box if isinstance(box, list | tuple) else ()
         try:
-            numbers = [float(v) for v in box] if isinstance(box, (list, tuple)) and not isinstance(box, str) else []
+            numbers = [float(v) for v in items]
         except (TypeError, ValueError):
             numbers = []
         if len(numbers) != 4 or not all(map(math.isfinite, numbers)) or numbers[2] < 0 or numbers[3] < 0:
             raise ValueError(f"{where} (id {a.get('id')!r}): bbox {box!r:.80} is not [x, y, w, h] of finite numbers "
                              "with w, h >= 0")
         if (image_id is not a["image_id"] or category_id is not a["category_id"]
-                or any(type(v) is not float and type(v) is not int for v in box)):
+                or any(type(v) is not float and type(v) is not int for v in items)):
             a = {**a, "image_id": image_id, "category_id": category_id, "bbox": numbers}
             changed = True
         out.append(a)

@@ -333,7 +333,8 @@ def read_image(image_dir: str | Path, image: ImageRecord) -> NDArray[np.uint8] |
     pixels = cv2.imread(str(path), cv2.IMREAD_COLOR)
     if pixels is None:
         log.warning("image %s cannot be read by OpenCV", path)
-    return pixels
+        return None
+    return np.asarray(pixels, dtype=np.uint8)  # IMREAD_COLOR: always 8-bit
 
 
 @dataclass(frozen=True, slots=True)
@@ -458,15 +459,14 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
             problems.append(problem)
         records.append(tel)
         clocks.append(_frame_clock(image))
-    posed = [i for i, tel in enumerate(records) if tel is not None]
+    posed = [(tel, clocks[i]) for i, tel in enumerate(records) if tel is not None]
     track: TelemetryTrack | None = None
     zone = 0.0
     if posed:
-        stamps = np.array([records[i].t for i in posed])  # type: ignore[union-attr]
-        own_clock = np.array([clocks[i] is not None for i in posed])
-        frame_t = np.array([clocks[i] if clocks[i] is not None else records[i].t for i in posed])  # type: ignore
-        values = np.array([[r.lat, r.lon, r.height_m, r.heading_deg, r.pitch_deg]
-                           for r in (records[i] for i in posed)], dtype=np.float64)  # type: ignore[union-attr]
+        stamps = np.array([tel.t for tel, _ in posed])
+        own_clock = np.array([c is not None for _, c in posed])
+        frame_t = np.array([c if c is not None else tel.t for tel, c in posed])
+        values = np.array([[r.lat, r.lon, r.height_m, r.heading_deg, r.pitch_deg] for r, _ in posed], dtype=np.float64)
         track, info.clock = reconcile_clock(frame_t, stamps, values, own_clock, clock)
         zone = info.clock.zone_offset_s
         if dequantize and at_frame_time:

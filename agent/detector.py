@@ -183,13 +183,10 @@ def _static_dim(dim: Any) -> int | None:
 
 
 def _as_hw(size: int | Sequence[int]) -> tuple[int, int]:
-    if isinstance(size, int | np.integer):
-        hw = (int(size), int(size))
-    else:
-        hw = tuple(int(s) for s in size)
+    hw = [int(size)] * 2 if isinstance(size, int | np.integer) else [int(s) for s in size]
     if len(hw) != 2 or min(hw) <= 0:
         raise ValueError(f"input_size must be a positive int or (height, width), got {size!r}")
-    return hw  # type: ignore[return-value]
+    return hw[0], hw[1]
 
 
 class OnnxYoloDetector:
@@ -294,7 +291,8 @@ class OnnxYoloDetector:
             if input_size != (640, 640):
                 logger.info("model %s: dynamic input, run at its export size %s (metadata imgsz)", name, input_size)
         if input_size is None:
-            self.input_size = static_hw  # type: ignore[assignment]
+            assert static_hw[0] is not None and static_hw[1] is not None  # a dynamic input has a size by now
+            self.input_size = (static_hw[0], static_hw[1])
         else:
             self.input_size = _as_hw(input_size)
             if not self._dynamic_input and self.input_size != static_hw:

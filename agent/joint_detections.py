@@ -119,9 +119,10 @@ def _footprint_cells(grid: TileGrid, camera: Camera, pose: Pose, range_m: float,
     terrain: the footprint is cast onto it (a view over falling ground reaches farther than over flat)."""
     poly = footprint_local(camera, pose, max_range_m=range_m, samples_per_edge=8, terrain=terrain)
     lat, lon = local_to_latlon(poly[:, 0], poly[:, 1], pose.lat, pose.lon)
-    gx, gy = grid.latlon_to_cell_index(lat, lon)
+    wrapped_gx, gy = grid.latlon_to_cell_index(lat, lon)
     world = grid.world_cells
-    gx = gx + world * np.round((float(gx[0]) - gx) / world)  # unwrapped about the footprint's first vertex
+    # unwrapped about the footprint's first vertex (float64)
+    gx = wrapped_gx + world * np.round((float(wrapped_gx[0]) - wrapped_gx) / world)
     if gx.min() < 0:
         gx = gx + world  # the block's columns in [0, world) where it does not straddle
     gx0, gy0 = int(gx.min()) - 1, int(gy.min()) - 1

@@ -66,8 +66,8 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
     # (only where all of a video's images carry one id that no other video claims, as agent.dataset decides)
     listed = {key: {Path(str(names.get(ids[key], ids[key]))).stem.lower()} for key in groups}
     for key, vid_id in own_video_ids(groups).items():
-        if isinstance(names.get(vid_id), str):
-            listed[key].add(Path(names[vid_id]).stem.lower())
+        if isinstance(name := names.get(vid_id), str):
+            listed[key].add(Path(name).stem.lower())
     matching = [vid for key, vid in ids.items() if stem in listed[key]]
     if len(matching) != 1:
         shown = ", ".join(sorted({str(names.get(v, v)) for v in ids.values()})[:12])

@@ -526,9 +526,9 @@ class JointLayer:
         return out
 
 
-def boost_scores(conf: NDArray, evidence: NDArray, boost_mode: str, boost_weight: float,
+def boost_scores(conf: NDArray, evidence: NDArray | np.floating, boost_mode: str, boost_weight: float,
                  logodds_scale: float) -> NDArray:
-    """Boosted confidences of candidates with confidence `conf` at cells holding memory `evidence`.
+    """Boosted confidences of candidates with confidence `conf` at cells holding memory `evidence` (or one value).
 
     "add" (the paper): c + w p; "logodds": sigmoid(logit(c) + w * logodds_scale * p), c clipped to
     [1e-6, 1 - 1e-6]. Same dtype as the inputs.

@@ -21,7 +21,7 @@ from agent.joint_detections import JointCarry, JointRegistration, add_joint_dete
 from agent.memory_map import JointLayer, MemoryMap, boost_scores
 from agent.pipeline_config import PipelineConfig
 from agent.score_calibration import ScoreCalibration
-from agent.size_filter import SizeFilter, _warn_unfiltered, slant_and_depression
+from agent.size_filter import SizeBand, SizeFilter, _warn_unfiltered, slant_and_depression
 from agent.size_filter_check import SizeFilterCheck
 from agent.stage_report import StageReport
 from agent.telemetry_correction import GroundCorrection, GroundOffsetEstimator, register_offset
@@ -205,8 +205,7 @@ class DetectionPipeline:
         unknown = set(present) - set(self.class_names)
         if unknown:
             raise ValueError(f"unknown class id(s) {sorted(unknown)}; known: {sorted(self.class_names)}")
-        if len(present) and not self._classes_seen.issuperset(self.class_names[c] for c in present):
-            self._classes_seen.update(self.class_names[c] for c in present)
+        self._classes_seen.update(self.class_names[c] for c in present)
         cfg = self.config
         self.__dict__.setdefault("_dem_coverage", DemCoverage()).observe(cfg.terrain, pose)  # once a frame
         src: NDArray[np.int64] | None = None  # rows of the input still in play (None: all), for the embeddings
@@ -269,8 +268,8 @@ class DetectionPipeline:
                              n, n_filtered, n_geo,
                              None if embeddings is None else embeddings[keep if src is None else src[keep]],
                              correction=correction, view_height_m=None if view_h is None else view_h[keep],
-                             alt_latlon=None if view_h is None or not cfg.edge_probe else self._alternatives(
-                                 boxes[keep], lat[keep], lon[keep], pose, correction))
+                             alt_latlon=None if view_h is None or pose is None or not cfg.edge_probe
+                             else self._alternatives(boxes[keep], lat[keep], lon[keep], pose, correction))
         if (self.joint is not None and cfg.use_memory and cfg.joint_detections and cfg.joint_mode != "local"
                 and pose is not None):
             if correction is not None and (correction.east_m or correction.north_m):
@@ -377,7 +376,7 @@ class DetectionPipeline:
         if ids and ids[-1] - lo >= 65536:
             return None
         band_of_class = np.full(ids[-1] - lo + 1 if ids else 0, -1, dtype=np.int64)
-        bands = []
+        bands: list[SizeBand] = []
         for cid in ids:
             band = size_filter.bands.get(self.class_names[cid])
             if band is not None:
@@ -551,15 +550,16 @@ class DetectionPipeline:
 
     def _alternatives(self, boxes: NDArray, lat: NDArray, lon: NDArray, pose: Pose,
                       correction: GroundCorrection | None) -> NDArray[np.float64]:
-        """(K, 2) lat, lon of each box's second ground point where its anchor's ray passes an edge of the terrain
-        within edge_probe of its height (shared.terrain.edge_alternatives), moved as the boxes' own points are by
-        the telemetry correction; NaN rows where none."""
+        """(K, 2) lat, lon of each box's second ground point where its ray passes a terrain edge within edge_probe
+        of its height (shared.terrain.edge_alternatives), corrected as the boxes' points are; NaN rows where none."""
+        terrain = self.terrain_for(pose)
+        assert terrain is not None  # asked with view heights only: over a terrain
         moved = pose if correction is None else correction.moved(pose)
         shift = np.array([moved.lat - pose.lat, moved.lon - pose.lon])
         east, north = latlon_to_local(lat - shift[0], lon - shift[1], pose.lat, pose.lon)
         ae, an = edge_alternatives(box_anchor_points(boxes, self.config.anchor, pose.pitch_deg),
                                    self.config.edge_probe * (boxes[:, 3] - boxes[:, 1]), self.camera, pose,
-                                   self.terrain_for(pose), east, north, max_range_m=self.config.range_limit_m)
+                                   terrain, east, north, max_range_m=self.config.range_limit_m)
         return np.column_stack(local_to_latlon(ae, an, pose.lat, pose.lon)) + shift
 
     def _registered_cells(self, boxes: NDArray, idx: NDArray[np.int64], pose: Pose,

@@ -169,4 +169,4 @@ class ScoreCalibration:
         # float32 throughout: this runs on every candidate of every frame
         q = np.clip(np.asarray(scores, dtype=np.float32), np.float32(_EPS), np.float32(1.0 - _EPS))
         odds = np.power(q / (np.float32(1.0) - q), np.float32(a))  # exp(a * logit)
-        return odds / (np.float32(1.0) + odds)
+        return np.asarray(odds / (np.float32(1.0) + odds), dtype=np.float32)  # float32 already: no copy

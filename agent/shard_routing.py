@@ -32,7 +32,7 @@ class ShardRouting:
     """
 
     def __init__(self, keys: KeySpace, uav: str, z: int, on_bad_key: Callable[[str, object], None],
-                 warn: Callable[..., None]) -> None:
+                 warn: Callable[..., object]) -> None:
         self.keys = keys
         self.uav = uav
         self.z = z

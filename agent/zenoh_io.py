@@ -577,9 +577,8 @@ class AgentLink:
         if fresh:
             newest = max(received for _, received in fresh)
             if latest is None or newest >= latest[1]:
-                by_gid = {}  # a track that moved between regions: the newer region's message wins
-                for msg, _ in sorted(fresh, key=lambda entry: entry[1]):
-                    by_gid.update((item.gid, item) for item in msg.tracks)
+                # a track that moved between regions: the newer region's message wins
+                by_gid = {item.gid: item for msg, _ in sorted(fresh, key=lambda entry: entry[1]) for item in msg.tracks}
                 merged = JointTracksMessage(t=max(msg.t for msg, _ in fresh),
                                             tracks=tuple(by_gid[gid] for gid in sorted(by_gid)))
                 return merged, now - newest

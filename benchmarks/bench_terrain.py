@@ -10,6 +10,8 @@ are marched again from the moved UAV). The baseline of each is the flat-ground f
 from __future__ import annotations
 
 import dataclasses
+import functools
+from collections.abc import Callable, Iterator
 from typing import Any
 
 import numpy as np
@@ -51,24 +53,22 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
     for n in (1000, 5000):
         boxes, scores, cids = _frame(n, rng, camera)
         uv = np.column_stack([(boxes[:, 0] + boxes[:, 2]) / 2, boxes[:, 3]]).astype(np.float64)
-        flat = median_time_s(lambda uv=uv: pixel_to_local(uv, camera, pose, max_range_m=150.0), repeat=repeat)
+        flat = median_time_s(functools.partial(pixel_to_local, uv, camera, pose, max_range_m=150.0), repeat=repeat)
         rows.append({"case": f"anchors -> ground, flat, {n} boxes", "value": flat * 1e3, "unit": "ms/frame"})
         for name, terrain in terrains.items():
-            t = median_time_s(lambda uv=uv, terrain=terrain: pixel_to_local(uv, camera, pose, max_range_m=150.0,
-                                                                            terrain=terrain), repeat=repeat)
+            t = median_time_s(functools.partial(pixel_to_local, uv, camera, pose, max_range_m=150.0, terrain=terrain),
+                              repeat=repeat)
             rows.append({"case": f"anchors -> ground, {name}, {n} boxes", "value": t * 1e3, "unit": "ms/frame",
                          "baseline_name": "flat", "ratio": t / flat})
         times = {}
-        for name, terrain, stamp, probe in (("flat", None, "shrink", 0.3),
-                                            ("hills DEM 1 m", hills.terrain, "shrink", 0.3),
-                                            ("fixed stamp", hills.terrain, "off", 0.3),
-                                            ("no edge probe", hills.terrain, "shrink", 0.0)):
-            config = PipelineConfig(terrain=terrain, edge_probe=probe)
+        for name, dem, stamp, probe in (("flat", None, "shrink", 0.3),
+                                        ("hills DEM 1 m", hills.terrain, "shrink", 0.3),
+                                        ("fixed stamp", hills.terrain, "off", 0.3),
+                                        ("no edge probe", hills.terrain, "shrink", 0.0)):
+            config = PipelineConfig(terrain=dem, edge_probe=probe)
             config = dataclasses.replace(config, memory=dataclasses.replace(config.memory, terrain_stamp=stamp))
             pipe = DetectionPipeline(camera, {1: "person"}, config)
-            clock = iter(np.arange(0.0, 1e6, 1.0 / 30.0))
-            times[name] = median_time_s(lambda pipe=pipe, clock=clock, b=boxes, s=scores, c=cids:
-                                        pipe.process(b, s, c, pose, float(next(clock))), repeat=repeat)
+            times[name] = median_time_s(_frames(pipe, boxes, scores, cids, pose, _clock()), repeat=repeat)
         rows.append({"case": f"pipeline frame, flat (compiled), {n} boxes", "value": times["flat"] * 1e3,
                      "unit": "ms/frame"})
         rows.append({"case": f"pipeline frame, hills DEM 1 m, {n} boxes", "value": times["hills DEM 1 m"] * 1e3,
@@ -98,12 +98,22 @@ def _with_correction(camera: Camera, pose: Pose, terrain: Terrain, boxes: np.nda
     out = {}
     for name, correct in (("off", False), ("applied", True)):
         pipe = DetectionPipeline(camera, {1: "person"}, PipelineConfig(terrain=terrain, correct_telemetry=correct))
-        clock = iter(np.arange(0.0, 1e6, 1.0 / 30.0))
+        clock = _clock()
         for _ in range(30):
             pipe.process(boxes, scores, cids, pose, float(next(clock)))
         result = pipe.process(boxes, scores, cids, stepped, float(next(clock)))
         if correct and (result.correction is None or not result.correction.measured):
             raise RuntimeError(f"bench terrain: the correction did not measure the GPS step ({name})")
-        out[name] = median_time_s(lambda pipe=pipe, clock=clock: pipe.process(boxes, scores, cids, stepped,
-                                                                              float(next(clock))), repeat=repeat)
+        out[name] = median_time_s(_frames(pipe, boxes, scores, cids, stepped, clock), repeat=repeat)
     return out
+
+
+def _clock() -> Iterator[float]:
+    """Frame times at 30 fps from 0 s."""
+    return (float(t) for t in np.arange(0.0, 1e6, 1.0 / 30.0))
+
+
+def _frames(pipe: DetectionPipeline, boxes: np.ndarray, scores: np.ndarray, cids: np.ndarray, pose: Pose,
+            clock: Iterator[float]) -> Callable[[], object]:
+    """A pipeline frame of these boxes per call, at the clock's next time."""
+    return lambda: pipe.process(boxes, scores, cids, pose, next(clock))

@@ -18,7 +18,9 @@ from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
+from agent.clock_offset import ClockOffset
 from agent.dataset import Frame, ImageRecord
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
@@ -33,7 +35,10 @@ _FPS = 30.0
 _HEIGHT_M, _PITCH_DEG = 30.0, 35.0
 
 
-def _clip(seconds: float, jumps: bool) -> tuple[list[tuple[Frame, None]], dict[int, tuple]]:
+_Boxes = tuple[NDArray[np.float32], NDArray[np.float32], NDArray[np.int64]]  # boxes_xyxy, scores, class ids
+
+
+def _clip(seconds: float, jumps: bool) -> tuple[list[tuple[Frame, ClockOffset | None]], dict[int, _Boxes]]:
     """Frames with 1 Hz interpolated poses and the detections (people 20 x 50 px, score 0.9, plus 20 false
     positives at random) of the static field seen with the true heading."""
     rng = np.random.default_rng(0)
@@ -47,7 +52,8 @@ def _clip(seconds: float, jumps: bool) -> tuple[list[tuple[Frame, None]], dict[i
     stamps = np.arange(0.0, seconds + 1e-9, 1.0)
     values = np.array([[0.0, 0.0, _HEIGHT_M, heading(t), _PITCH_DEG] for t in stamps])
     track = TelemetryTrack(stamps, values)
-    frames, dets = [], {}
+    frames: list[tuple[Frame, ClockOffset | None]] = []
+    dets: dict[int, _Boxes] = {}
     for i in range(int(seconds * _FPS)):
         t = i / _FPS
         _, _, h, head, pitch = track.at(t)[0]

@@ -131,10 +131,15 @@ class _GraphBuilder:
             self.num_params += int(array.size)
         return name
 
-    def op(self, op_type: str, inputs: Sequence[str], n_out: int = 1, **attrs) -> str | list[str]:
+    def op(self, op_type: str, inputs: Sequence[str], **attrs) -> str:
+        """Add a node with one output; returns the output's name."""
+        return self.op_outputs(op_type, inputs, 1, **attrs)[0]
+
+    def op_outputs(self, op_type: str, inputs: Sequence[str], n_out: int, **attrs) -> list[str]:
+        """Add a node with n_out outputs; returns their names."""
         outs = [self.name(op_type.lower()) for _ in range(n_out)]
         self.nodes.append(helper.make_node(op_type, list(inputs), outs, name=self.name(op_type), **attrs))
-        return outs[0] if n_out == 1 else outs
+        return outs
 
     def make_model(
         self,
@@ -217,7 +222,7 @@ def _c2f(g: _GraphBuilder, x: _Feature, c_out: int, n: int, shortcut: bool) -> _
     c = c_out // 2
     y = _conv2d(g, x, 2 * c, 1)
     split = g.const(np.array([c, c], dtype=np.int64), "split")
-    a, b = g.op("Split", [y.name, split], n_out=2, axis=1)
+    a, b = g.op_outputs("Split", [y.name, split], 2, axis=1)
     parts = [_Feature(a, c, y.side), _Feature(b, c, y.side)]
     for _ in range(n):
         prev = parts[-1]
@@ -291,13 +296,13 @@ def _v8_head(g: _GraphBuilder, feats: Sequence[_Feature], num_classes: int) -> s
     box_parts, cls_parts = [], []
     for f in feats:
         # DFL logits spread enough that box sizes vary from candidate to candidate.
-        box = _conv2d(g, _conv2d(g, _conv2d(g, f, c2, 3), c2, 3), 4 * REG_MAX, 1, act=False, target_std=2.0)
-        cls = _conv2d(
+        box_map = _conv2d(g, _conv2d(g, _conv2d(g, f, c2, 3), c2, 3), 4 * REG_MAX, 1, act=False, target_std=2.0)
+        cls_map = _conv2d(
             g, _conv2d(g, _conv2d(g, f, c3, 3), c3, 3), num_classes, 1,
             act=False, bias=CLS_LOGIT_BIAS, target_std=CLS_LOGIT_STD,
         )  # fmt: skip
-        box_parts.append(_flatten_hw(g, box))
-        cls_parts.append(_flatten_hw(g, cls))
+        box_parts.append(_flatten_hw(g, box_map))
+        cls_parts.append(_flatten_hw(g, cls_map))
     box = g.op("Concat", box_parts, axis=2)  # (1, 64, A)
     cls = g.op("Concat", cls_parts, axis=2)  # (1, C, A)
     num_anchors = sum(f.side * f.side for f in feats)
@@ -310,7 +315,7 @@ def _v8_head(g: _GraphBuilder, feats: Sequence[_Feature], num_classes: int) -> s
         [g.op("Mul", [dist, bins]), g.const(np.array([2], dtype=np.int64), "axes")],
         keepdims=0,
     )  # (1, 4, A): left, top, right, bottom
-    lt, rb = g.op("Split", [dist, g.const(np.array([2, 2], dtype=np.int64), "split")], n_out=2, axis=1)
+    lt, rb = g.op_outputs("Split", [dist, g.const(np.array([2, 2], dtype=np.int64), "split")], 2, axis=1)
     centres, strides = _anchor_grid([f.side for f in feats], STRIDES)
     half = g.const(np.array(0.5, dtype=np.float32), "half")
     cxy = g.op("Add", [g.const(centres, "anchors"), g.op("Mul", [g.op("Sub", [rb, lt]), half])])
@@ -328,13 +333,13 @@ def _v5_head(g: _GraphBuilder, feats: Sequence[_Feature], num_classes: int) -> s
         bias = np.zeros((3, no), dtype=np.float32)
         bias[:, 4] = OBJ_LOGIT_BIAS
         bias[:, 5:] = CLS_LOGIT_BIAS
-        y = _conv2d(g, f, 3 * no, 1, act=False, bias=bias.ravel(), target_std=CLS_LOGIT_STD)
+        conv = _conv2d(g, f, 3 * no, 1, act=False, bias=bias.ravel(), target_std=CLS_LOGIT_STD)
         hw = f.side * f.side
         # (1, 3*no, H, W) -> (1, 3, no, HW) -> (1, 3, HW, no)
-        y = g.op("Reshape", [y.name, g.const(np.array([1, 3, no, hw], dtype=np.int64), "shape")])
+        y = g.op("Reshape", [conv.name, g.const(np.array([1, 3, no, hw], dtype=np.int64), "shape")])
         y = g.op("Sigmoid", [g.op("Transpose", [y], perm=[0, 1, 3, 2])])
-        xy, wh, rest = g.op(
-            "Split", [y, g.const(np.array([2, 2, no - 4], dtype=np.int64), "split")], n_out=3, axis=3
+        xy, wh, rest = g.op_outputs(
+            "Split", [y, g.const(np.array([2, 2, no - 4], dtype=np.int64), "split")], 3, axis=3
         )
         gy, gx = np.meshgrid(np.arange(f.side), np.arange(f.side), indexing="ij")
         grid = (np.stack([gx.ravel(), gy.ravel()], axis=1) - 0.5).astype(np.float32)[None, None]  # (1,1,HW,2)

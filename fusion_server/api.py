@@ -83,12 +83,23 @@ class FusionView(Protocol):
     `fusion_server.gateway.Gateway` another): the API depends on this view, not on the server module, so
     the server can build the app without a cycle."""
 
-    settings: FusionSettings
-    started: float
-    joint: JointView
-    tracker: TracksView
-    uavs: UavRegistry
-    basemap: Basemap | None
+    @property
+    def settings(self) -> FusionSettings: ...
+
+    @property
+    def started(self) -> float: ...
+
+    @property
+    def joint(self) -> JointView: ...
+
+    @property
+    def tracker(self) -> TracksView: ...
+
+    @property
+    def uavs(self) -> UavRegistry: ...
+
+    @property
+    def basemap(self) -> Basemap | None: ...
 
     def classes(self) -> set[str]: ...
 

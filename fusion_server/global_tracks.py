@@ -237,7 +237,7 @@ class GlobalTracker:
                 key = (uav, item.id)
                 gid = self._local.get(key)
                 track = self._tracks.get(gid) if gid is not None else None
-                if track is None or track.cls != item.cls or gid in claimed:
+                if gid is None or track is None or track.cls != item.cls or gid in claimed:
                     unmatched.append(item)
                     continue
                 track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
@@ -264,11 +264,11 @@ class GlobalTracker:
         gid = self._local.get((uav, local_id))
         track = self._tracks.get(gid) if gid is not None else None
         member = track.members.get((uav, local_id)) if track is not None else None
-        if member is None or not member.active:
+        if gid is None or track is None or member is None or not member.active:
             return set()
         member.active = False
-        self._trim_members(track)  # type: ignore[arg-type]
-        return {gid}  # type: ignore[set-item]
+        self._trim_members(track)
+        return {gid}
 
     def _associate(self, uav: str, items: list, claimed: set[int], now: float, wall: float) -> None:
         candidates = [t for gid, t in self._tracks.items() if t.cls == items[0].cls and gid not in claimed]
@@ -329,8 +329,8 @@ class GlobalTracker:
             gid = self._local.get((uav, local_id))
             track = self._tracks.get(gid) if gid is not None else None
             member = track.members.get((uav, local_id)) if track is not None else None
-            if member is not None and member.active:
-                own.setdefault(track.gid, member)  # type: ignore[union-attr]
+            if track is not None and member is not None and member.active:
+                own.setdefault(track.gid, member)
         mine = [own.get(track.gid) for track in candidates]
         at = [m for m in mine if m is not None]
         if not at:

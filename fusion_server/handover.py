@@ -22,7 +22,8 @@ import dataclasses
 import logging
 import threading
 import time
-from typing import TYPE_CHECKING
+from collections.abc import Callable
+from typing import TYPE_CHECKING, TypeVar
 
 import numpy as np
 
@@ -38,6 +39,9 @@ if TYPE_CHECKING:
     from shared.tiles import TileGrid
 
 __all__ = ["Handover"]
+
+_K = TypeVar("_K")
+_V = TypeVar("_V")
 
 log = logging.getLogger(__name__)
 
@@ -121,12 +125,8 @@ class Handover:
 
         Without it a day of other shards' ids piled up to MAX_ENTRIES and ``adopt`` scanned them all.
         """
-        for table, keep_s, seen_at in ((self._by_member, MEMBER_KEEP_S, 1), (self._recent, POSITION_KEEP_S, 3)):
-            while table:
-                key = next(iter(table))
-                if now - table[key][seen_at] <= keep_s and len(table) <= MAX_ENTRIES:
-                    break
-                del table[key]
+        _drop_oldest(self._by_member, lambda entry: now - entry[1] <= MEMBER_KEEP_S)
+        _drop_oldest(self._recent, lambda entry: now - entry[3] <= POSITION_KEEP_S)
 
     # ---- the question of the global tracker -------------------------------------------------------
     def adopt(self, uav: str, local_id: int, cls: str, lat: float, lon: float) -> int | None:
@@ -145,3 +145,12 @@ class Handover:
                                  np.array([n[1] for n in near]), np.array([n[2] for n in near]))
         best = int(np.argmin(dist))
         return int(near[best][0]) if float(dist[best]) <= self.gate_m else None
+
+
+def _drop_oldest(table: dict[_K, _V], fresh: Callable[[_V], bool]) -> None:
+    """Drop entries, oldest inserted first, until the oldest is fresh and the table holds at most MAX_ENTRIES."""
+    while table:
+        key = next(iter(table))
+        if fresh(table[key]) and len(table) <= MAX_ENTRIES:
+            break
+        del table[key]

@@ -442,7 +442,7 @@ class JointMap:
                 continue
             per_uav = self._covers.get(key)
             entry = per_uav.get(uav) if per_uav is not None else None
-            if entry is None or entry.received != received:
+            if per_uav is None or entry is None or entry.received != received:
                 continue  # replaced by a newer tile: its own heap entry decides
             del per_uav[uav]
             self._n_uav_tiles -= 1

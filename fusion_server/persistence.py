@@ -271,15 +271,15 @@ class FusionStore:
         failing_for_s, last_success}`` (times: epoch seconds)."""
         now = time.time()
         with self._lock:
-            failing = self.failing_since is not None
+            since = self.failing_since
             return {
-                "status": "failing" if failing else "ok",
+                "status": "failing" if since is not None else "ok",
                 "pending": len(self._tracks) + len(self._history) + len(self._joint) + len(self._uavs),
                 "flushes": self.flushes,
                 "write_errors": self.write_errors,
                 "history_dropped": self.history_dropped,
                 "last_error": self.last_error,
-                "failing_for_s": round(now - self.failing_since, 3) if failing else None,
+                "failing_for_s": round(now - since, 3) if since is not None else None,
                 "last_success": self.last_success,
             }
 

@@ -86,24 +86,25 @@ def parse_bbox(text: str) -> BBox:
 
 def window_for_bbox(grid: TileGrid, bbox: BBox) -> CellWindow:
     """The smallest cell window of ``grid`` covering ``bbox``."""
-    gx0, gy0 = grid.latlon_to_cell_index(bbox.max_lat, bbox.min_lon)
-    _, gy1 = grid.latlon_to_cell(bbox.min_lat, bbox.max_lon)
+    west_gx, north_gy = grid.latlon_to_cell_index(bbox.max_lat, bbox.min_lon)
+    gx0, gy0 = int(west_gx), int(north_gy)
+    _, south_gy = grid.latlon_to_cell(bbox.min_lat, bbox.max_lon)
     # not latlon_to_cell's x: it wraps lon 180 to the world's west edge (a one-cell window)
-    gx1 = (bbox.max_lon + 180.0) * (grid.world_cells / 360.0)
+    east_gx = (bbox.max_lon + 180.0) * (grid.world_cells / 360.0)
     # the east/south edges are exclusive: a box ending exactly on a cell edge does not take that cell
-    gx1 = max(math.ceil(float(gx1)) - 1, int(gx0))
-    gy1 = min(max(math.ceil(float(gy1)) - 1, int(gy0)), grid.world_cells - 1)
-    return CellWindow(gx0=int(gx0), gy0=int(gy0), width=gx1 - int(gx0) + 1, height=gy1 - int(gy0) + 1, grid=grid)
+    gx1 = max(math.ceil(east_gx) - 1, gx0)
+    gy1 = min(max(math.ceil(float(south_gy)) - 1, gy0), grid.world_cells - 1)
+    return CellWindow(gx0=gx0, gy0=gy0, width=gx1 - gx0 + 1, height=gy1 - gy0 + 1, grid=grid)
 
 
 def window_bounds(grid: TileGrid, window: CellWindow) -> tuple[float, float, float, float]:
     """Outer edges of a cell window in degrees: (west, south, east, north); east is 180 (not the
     wrapped -180) for a window that ends at the antimeridian."""
-    north, west = grid.cell_to_latlon(window.gx0, window.gy0)
-    south, east = grid.cell_to_latlon(window.gx0 + window.width, window.gy0 + window.height)
-    if window.gx0 + window.width >= grid.world_cells and float(east) <= float(west):
+    north, west = (float(v) for v in grid.cell_to_latlon(window.gx0, window.gy0))
+    south, east = (float(v) for v in grid.cell_to_latlon(window.gx0 + window.width, window.gy0 + window.height))
+    if window.gx0 + window.width >= grid.world_cells and east <= west:
         east = 180.0
-    return float(west), float(south), float(east), float(north)
+    return west, south, east, north
 
 
 def _block_reduce(values: NDArray[np.uint8], size: int, agg: str) -> NDArray[np.float32]:
@@ -117,9 +118,10 @@ def _block_reduce(values: NDArray[np.uint8], size: int, agg: str) -> NDArray[np.
         return out.astype(np.float32) / 255.0
     if agg == "max":  # grow every cell over its neighbours first so sampling cannot skip a peak
         k = math.ceil(n / size)
-        values = cv2.dilate(values, np.ones((k, k), np.uint8))
-        return cv2.resize(values, (size, size), interpolation=cv2.INTER_NEAREST).astype(np.float32) / 255.0
-    return cv2.resize(values.astype(np.float32), (size, size), interpolation=cv2.INTER_AREA) / 255.0
+        grown = cv2.dilate(values, np.ones((k, k), np.uint8))
+        return cv2.resize(grown, (size, size), interpolation=cv2.INTER_NEAREST).astype(np.float32) / 255.0
+    area = np.asarray(cv2.resize(values.astype(np.float32), (size, size), interpolation=cv2.INTER_AREA), np.float32)
+    return area / 255.0
 
 
 def tile_values(

@@ -223,7 +223,7 @@ class FusionServer:
     def prometheus(self) -> str:
         """Prometheus text of all metrics, with the gauges of the joint map, UAVs and tracks."""
         stats = self.joint.stats()
-        gauges = {
+        gauges: dict[str, tuple[str, float]] = {
             "uavmm_fusion_uavs_online": ("UAVs whose liveliness token is present.", len(self.uavs.online())),
             "uavmm_fusion_joint_tiles": ("Joint tiles currently published.", stats["joint_tiles"]),
             "uavmm_fusion_uav_tiles": ("Fresh UAV tiles held for fusion.", stats["uav_tiles"]),

@@ -163,6 +163,7 @@ class MessageValidator:
             if size > self.max_bytes(kind):
                 raise Rejected("too_large", f"payload has {size} bytes, limit {self.max_bytes(kind)}", kind)
             payload = payload.to_bytes()
+        message: TileMessage | SparseTile | StateMessage | TracksMessage
         try:
             if kind == "tile":
                 decode = decode_tile_sparse if sparse else decode_tile

@@ -43,6 +43,8 @@ from transport.publishers import PublisherCache
 from transport.session import close_session
 
 if TYPE_CHECKING:
+    from numpy.typing import NDArray
+
     from fusion_server.global_tracks import GlobalTracker
     from fusion_server.metrics import FusionMetrics
     from fusion_server.persistence import FusionStore
@@ -260,8 +262,8 @@ class FusionNode:
     def _ingest(self, batch: list[zenoh.Sample]) -> None:
         """Validate a batch of samples; states and tracks are applied in order, tiles go to the joint
         map together at the end (one lock)."""
-        tiles: list[tuple[str, TileKey, object, object, float, int]] = []
-        accepted: list[tuple[Received, str]] = []
+        tiles: list[tuple[str, TileKey, NDArray[np.uint16], NDArray[np.uint8], float, int]] = []
+        accepted: list[tuple[Received, str, int]] = []  # with the tile's seq
         for sample in batch:
             received, key = self._admit(sample)
             if received is None:
@@ -271,7 +273,7 @@ class FusionNode:
                 if isinstance(message, SparseTile):
                     tiles.append((message.uav, (message.cls, message.z, message.x, message.y), message.idx,
                                   message.val, message.t, message.seq))
-                    accepted.append((received, key))
+                    accepted.append((received, key, message.seq))
                     continue
                 if isinstance(message, StateMessage):
                     self.joint.put_footprint(message.uav, message.footprint)
@@ -286,14 +288,14 @@ class FusionNode:
                 log.exception("internal error handling a sample on %.120s", key)
         if not tiles:
             return
-        reasons = self.joint.put_many(tiles)  # type: ignore[arg-type]
+        reasons = self.joint.put_many(tiles)
         count = nbytes = 0
-        for reason, (received, key) in zip(reasons, accepted, strict=True):
+        for reason, (received, key, seq) in zip(reasons, accepted, strict=True):
             if reason is None:
                 count += 1
                 nbytes += received.nbytes
             else:
-                self._intake.reject("tile", reason, key, f"seq {received.message.seq}", received.key.uav)
+                self._intake.reject("tile", reason, key, f"seq {seq}", received.key.uav)
         if count:
             self.metrics.message("tile", nbytes, count)
 

@@ -291,7 +291,9 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
         unknown = sorted(set(variants) - set(_ORDER))
         if unknown:
             raise ValueError(f"evaluate_coop: unknown variant(s) {', '.join(unknown)}; valid: {', '.join(_ORDER)}")
-    runs, tracked, sequences, peak_rows = {}, {}, {}, []
+    runs, peak_rows = {}, []
+    tracked: dict[str, dict[int, list[list[float]]]] = {}
+    sequences: dict[str, dict[int, SequenceTracks]] = {}
     registration: dict[str, dict[str, dict[str, float]]] = {}
     terrain = (data_dir / "dem.npz").exists()
     for name, variant, share, dem in _variants(terrain, config or PipelineConfig()):

@@ -21,7 +21,7 @@ import hashlib
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any, TypeVar
+from typing import Any, TypedDict, TypeVar
 
 from sim.detector_emulator import EmulatorParams
 from sim.flight import HoverSweepsSpec, LawnmowerSpec, LineSpec, OrbitSpec
@@ -347,11 +347,21 @@ _DOMAIN_LIST = (
            noise={"time_offset_s": 0.15, "heading_bias_deg": 3.0}),
 )
 
+class _Sweeps(TypedDict):
+    """The sweep fields of a HoverSweepsSpec."""
+
+    sweep_deg: tuple[float, float]
+    sweep_rate_deg_s: tuple[float, float]
+    dwell_s: tuple[float, float]
+    min_pitch_deg: float
+
+
 #: Far, low views (30 Nov 2026): every object beyond the pipeline's 150 m range, a 4K tele camera on a hover with slow
 #: sweeps below the simulator's usual 17 deg pitch floor. Where the tracker's own far ground points were chosen
 #: (docs/tracking.md, "Far views"); a group of their own (`--domains far`), apart from the grid above, whose
 #: figures and bars they would shift (the memory map boosts nothing beyond its range).
-_FAR_SWEEPS = {"sweep_deg": (5.0, 12.0), "sweep_rate_deg_s": (3.0, 8.0), "dwell_s": (2.0, 4.0), "min_pitch_deg": 3.0}
+_FAR_SWEEPS: _Sweeps = {"sweep_deg": (5.0, 12.0), "sweep_rate_deg_s": (3.0, 8.0), "dwell_s": (2.0, 4.0),
+                        "min_pitch_deg": 3.0}
 _FAR_LIST = (
     Domain("sea-far-tele", "swimmers 190-260 m away, 20-35 m up at 5-9 deg, 4K tele, per-frame jitter", "tune",
            "gentle", "sea", (HoverSweepsSpec(distance_m=(190.0, 260.0), height_m=(20.0, 35.0), pitch_deg=(5.0, 9.0),

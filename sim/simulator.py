@@ -369,12 +369,12 @@ class Simulation:
                                       t=t_unix, date_time=frame_clock, true_pose=pose, meta=meta, objects=objects,
                                       candidates=cands, blurred=blurred)
             for v in videos:
+                weak = emulators[v.id].weak
                 facts["videos"].append({
                     "video_id": v.id, "name": v.name, "uav": v.uav, "kind": v.kind, "group": g,
                     "telemetry_bias": streams[v.id].bias, "telemetry_phase_s": streams[v.id].phase_s,
                     "blurred_frames": int(blurred_counts[v.id]), "frames_without_meta": int(missing_counts[v.id]),
-                    **({} if emulators[v.id].weak is None else {"weak_track_ids": [
-                        int(k) for k in world.track_ids[emulators[v.id].weak[:n_obj]]]}),
+                    **({} if weak is None else {"weak_track_ids": [int(k) for k in world.track_ids[weak[:n_obj]]]}),
                     **({"takeoff_elevation_m": round(relief.takeoff_elevation_m + self.takeoff_up_m[v.id], 4)}
                        if relief is not None and sc.takeoff != "origin" else {}),
                 })

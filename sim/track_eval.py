@@ -165,7 +165,7 @@ def pipeline_frames(dataset: Dataset, candidates: Candidates, camera: Camera, vi
     the frame's boxes were put on (`--dem`; None: flat ground): computed once, then given to every tracker
     variant."""
     pipe = DetectionPipeline(camera, dataset.categories, config, size_filter=size_filter)
-    out = []
+    out: list[tuple[Frame, FrameResult, float, GroundSurface | None]] = []
     t_prev = -np.inf
     for frame, _ in prepared_frames(dataset, camera, video_id, candidates, config, pipe):
         if pipe.camera != frame.camera:
@@ -252,7 +252,7 @@ def sequence_truth(dataset: Dataset, video_id: int, fps: float = 30.0,
     latlon = {f: np.array([p for _, _, p in items], dtype=np.float64).reshape(-1, 2) for f, items in per_frame.items()}
     hidden_frame: dict[int, list[tuple[int, list[float]]]] = {}
     for o in hidden or []:
-        f = images.get(o.get("image_id"))
+        f = images.get(o["image_id"]) if "image_id" in o else None
         if f is not None:
             hidden_frame.setdefault(f, []).append((int(o["track_id"]), o["bbox"]))
     ignore = {f: (np.array([i for i, _ in items], dtype=np.int64), _xywh_to_xyxy([b for _, b in items]))

@@ -310,6 +310,7 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
                 _warn(f"the {label} did not start{hint} (log {child.log_path}):\n{child.log_tail()}")
                 return code
         fusion = servers[-1]  # the process that serves the map
+        assert match is not None  # its line, the last one waited for, names the map
         url = match.group(1)
         # an --http beyond loopback: the server generated a REST token and printed the page with it
         from fusion_server.http_auth import is_loopback_host

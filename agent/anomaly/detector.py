@@ -139,7 +139,7 @@ def extract_rois(scores: NDArray[np.float32], threshold: float, *, max_rois: int
     """
     mask = (scores >= threshold).astype(np.uint8)
     if dilate_px > 0 and mask.any():
-        mask = cv2.dilate(mask, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8))
+        mask = np.asarray(cv2.dilate(mask, np.ones((2 * dilate_px + 1, 2 * dilate_px + 1), np.uint8)), dtype=np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(mask, connectivity=8)
     if n <= 1:
         return np.zeros((0, 4), np.float32), np.zeros(0, np.float32)

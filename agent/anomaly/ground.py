@@ -412,8 +412,9 @@ class AnomalyMap:
         px_per_cell = scale / max(float(np.hypot(step[0], step[1])), 1e-9)
         if px_per_cell > _MAX_PX_PER_CELL:
             k = _RESAMPLE_PX_PER_CELL / px_per_cell
-            band = cv2.resize(band, (max(1, int(round(band.shape[1] * k))), max(1, int(round(band.shape[0] * k)))),
-                              interpolation=cv2.INTER_LINEAR)
+            band = np.asarray(cv2.resize(band, (max(1, int(round(band.shape[1] * k))),
+                                                max(1, int(round(band.shape[0] * k)))),
+                                         interpolation=cv2.INTER_LINEAR), dtype=np.float32)
         sx, sy = band.shape[1] / camera.width, band.shape[0] / ((hh - first) * camera.height / hh)
         y0 = first * camera.height / hh  # full-resolution row of the band's top edge
         cell_to_band = np.diag([sx, sy, 1.0]) @ _translate(0.0, -y0) @ c2i
@@ -426,7 +427,7 @@ class AnomalyMap:
         seen = np.zeros((size[1], size[0]), np.float32)
         poly = np.round((cells - [c0 + 0.5, r0 + 0.5]) * 16).astype(np.int32)
         cv2.fillPoly(seen, [poly], float(amount), lineType=cv2.LINE_8, shift=4)
-        self._sums.add_block(_HEAT, cv2.multiply(warped, seen), r0, c0)
+        self._sums.add_block(_HEAT, np.asarray(cv2.multiply(warped, seen), dtype=np.float32), r0, c0)
         self._sums.add_block(_SEEN, seen, r0, c0)
         return True
 

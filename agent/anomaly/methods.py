@@ -61,7 +61,7 @@ def to_work(frame_bgr: NDArray[np.uint8], work_width: int) -> NDArray[np.uint8]:
     w, h = work_size(frame_bgr.shape[1], frame_bgr.shape[0], work_width)
     if (w, h) == (frame_bgr.shape[1], frame_bgr.shape[0]):
         return frame_bgr
-    return cv2.resize(frame_bgr, (w, h), interpolation=cv2.INTER_AREA)
+    return np.asarray(cv2.resize(frame_bgr, (w, h), interpolation=cv2.INTER_AREA), dtype=np.uint8)
 
 
 def normalise_robust(residual: FloatImage, z_max: float = DEFAULT_Z_MAX, valid: NDArray[np.bool_] | None = None
@@ -122,7 +122,7 @@ class FilterResidual:
             background = cv2.blur(small, (self.kernel_px, self.kernel_px))
         residual = _colour_residual(small, background)
         if self.blur_sigma_px > 0:
-            residual = cv2.GaussianBlur(residual, (0, 0), self.blur_sigma_px)
+            residual = np.asarray(cv2.GaussianBlur(residual, (0, 0), self.blur_sigma_px), dtype=np.float32)
         return normalise_robust(residual, self.z_max)
 
     def reset(self) -> None:
@@ -152,7 +152,7 @@ class Mog2:
         mask = self._model.apply(small)  # 0 background, 127 shadow, 255 foreground
         heat = mask.astype(np.float32) * np.float32(1.0 / 255.0)
         if self.blur_sigma_px > 0:
-            heat = cv2.GaussianBlur(heat, (0, 0), self.blur_sigma_px)
+            heat = np.asarray(cv2.GaussianBlur(heat, (0, 0), self.blur_sigma_px), dtype=np.float32)
         return np.clip(heat, 0.0, 1.0)
 
 
@@ -203,8 +203,8 @@ class FrameDifference:
         # ECC's warp maps template (current) coordinates into the input (previous): the inverse of h
         warp = (s @ np.linalg.inv(h) @ np.linalg.inv(s)).astype(np.float32)
         warp /= warp[2, 2]
-        try:
-            _, warp = cv2.findTransformECC(a, b, warp, cv2.MOTION_HOMOGRAPHY,
+        try:  # the ignore: the cv2 stubs refuse inputMask None next to gaussFiltSize; OpenCV takes it (no mask)
+            _, warp = cv2.findTransformECC(a, b, warp, cv2.MOTION_HOMOGRAPHY,  # type: ignore[call-overload]
                                            (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, self.ecc_iterations,
                                             1e-4), None, 3)
         except cv2.error:
@@ -216,14 +216,15 @@ class FrameDifference:
     def heatmap(self, frame_bgr: NDArray[np.uint8], image_to_world: NDArray[np.float64] | None = None) -> FloatImage:
         small = to_work(frame_bgr, self.work_width)
         scale = small.shape[1] / frame_bgr.shape[1]
-        grey = cv2.cvtColor(small, cv2.COLOR_BGR2GRAY)
+        grey = np.asarray(cv2.cvtColor(small, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
         prev, prev_g = self._prev, self._prev_g
         self._prev = small
         self._prev_g = None if image_to_world is None else np.asarray(image_to_world, dtype=np.float64)
         if prev is None or prev.shape != small.shape or (self.register == "telemetry" and
                                                           (image_to_world is None or prev_g is None)):
             return np.zeros(small.shape[:2], dtype=np.float32)
-        h = self._homography(image_to_world, prev_g, scale, cv2.cvtColor(prev, cv2.COLOR_BGR2GRAY), grey)
+        prev_grey = np.asarray(cv2.cvtColor(prev, cv2.COLOR_BGR2GRAY), dtype=np.uint8)
+        h = self._homography(image_to_world, prev_g, scale, prev_grey, grey)
         size = (small.shape[1], small.shape[0])
         warped = cv2.warpPerspective(prev, h, size, flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT)
         seen = cv2.warpPerspective(np.full(small.shape[:2], 255, np.uint8), h, size, flags=cv2.INTER_NEAREST,
@@ -232,7 +233,7 @@ class FrameDifference:
         residual = _colour_residual(small, warped)
         residual[~valid] = 0.0  # before blurring: the unseen border must not bleed into its neighbours
         if self.blur_sigma_px > 0:
-            residual = cv2.GaussianBlur(residual, (0, 0), self.blur_sigma_px)
+            residual = np.asarray(cv2.GaussianBlur(residual, (0, 0), self.blur_sigma_px), dtype=np.float32)
         return normalise_robust(residual, self.z_max, valid)
 
 

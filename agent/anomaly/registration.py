@@ -125,7 +125,8 @@ class GroundRegistration:
         """
         k = min(1.0, self.ecc_width / frame_bgr.shape[1])
         size = (max(16, int(round(frame_bgr.shape[1] * k))), max(16, int(round(frame_bgr.shape[0] * k))))
-        grey = cv2.cvtColor(cv2.resize(frame_bgr, size, interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2GRAY)
+        grey = np.asarray(cv2.cvtColor(cv2.resize(frame_bgr, size, interpolation=cv2.INTER_AREA), cv2.COLOR_BGR2GRAY),
+                          dtype=np.uint8)
         dt = DEFAULT_FRAME_S
         if t is not None and self._t_prev is not None and t > self._t_prev:
             dt = min(t - self._t_prev, 0.2)
@@ -183,7 +184,7 @@ class GroundRegistration:
         best, best_score = starts[0], -2.0
         for h in starts:
             m = s @ h @ np.linalg.inv(s)  # coarse previous -> coarse current
-            warped = cv2.warpPerspective(prev_grey, m, size, flags=cv2.INTER_LINEAR)
+            warped = np.asarray(cv2.warpPerspective(prev_grey, m, size, flags=cv2.INTER_LINEAR), dtype=np.uint8)
             seen = cv2.warpPerspective(np.full_like(prev_grey, 255), m, size, flags=cv2.INTER_NEAREST)
             score = _ncc(grey, warped, (mask > 0) & (seen > 0))
             if score > best_score:

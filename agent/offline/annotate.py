@@ -33,7 +33,7 @@ _BLACK = (0, 0, 0)
 def _track_colour(track_id: int) -> tuple[int, int, int]:
     """A stable, saturated BGR colour per track id (golden-ratio hues)."""
     hue = int((track_id * 0.618033988749895 % 1.0) * 179)
-    hsv = np.uint8([[[hue, 220, 255]]])
+    hsv = np.array([[[hue, 220, 255]]], dtype=np.uint8)
     b, g, r = cv2.cvtColor(hsv, cv2.COLOR_HSV2BGR)[0, 0]
     return int(b), int(g), int(r)
 
@@ -68,7 +68,7 @@ class VideoAnnotator:
         self.inset_px = int(round(inset_fraction * min(width, height)))
         self.range_m = float(range_m)
         self._tmp = self.path.with_name(f".{self.path.stem}.tmp{self.path.suffix}")
-        self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter_fourcc(*MP4_FOURCC), float(fps), self.size)
+        self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter.fourcc(*MP4_FOURCC), float(fps), self.size)
         if not self._writer.isOpened():
             raise OSError(f"OpenCV cannot write an MP4 video at {self.path}")
         self._history: dict[int, deque[tuple[float, float, float, float, float]]] = {}  # t, lat, lon, u, v
@@ -105,7 +105,7 @@ class VideoAnnotator:
         if memory is not None and pose is not None and self.inset_px >= 48:
             self._draw_inset(canvas, memory, camera, pose, tracks)
         if (canvas.shape[1], canvas.shape[0]) != self.size:
-            canvas = cv2.resize(canvas, self.size, interpolation=cv2.INTER_AREA)
+            canvas = np.asarray(cv2.resize(canvas, self.size, interpolation=cv2.INTER_AREA), dtype=np.uint8)
         return canvas
 
     def _remember(self, t: float, tracks: list[TrackOutput]) -> None:
@@ -151,7 +151,7 @@ class VideoAnnotator:
         s = self.inset_px
         # square root: weak evidence (a few frames of one candidate) stays visible beside saturated cells
         heat = cv2.applyColorMap((np.sqrt(np.clip(values, 0.0, 1.0)) * 255).astype(np.uint8), cv2.COLORMAP_INFERNO)
-        inset = cv2.resize(heat, (s, s), interpolation=cv2.INTER_AREA)
+        inset = np.asarray(cv2.resize(heat, (s, s), interpolation=cv2.INTER_AREA), dtype=np.uint8)
         scale = s / size
         grid = memory.grid
         gx0, gy0 = memory.origin

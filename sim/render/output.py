@@ -116,7 +116,7 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
                 writer = None
                 tmp_mp4 = out / f".{v.name}.tmp.mp4"  # FFmpeg picks the container by extension
                 if video:
-                    writer = cv2.VideoWriter(str(tmp_mp4), cv2.VideoWriter_fourcc(*MP4_FOURCC), dataset.fps,
+                    writer = cv2.VideoWriter(str(tmp_mp4), cv2.VideoWriter.fourcc(*MP4_FOURCC), dataset.fps,
                                              (cam.width, cam.height))
                     if not writer.isOpened():
                         raise OSError(f"OpenCV cannot write an MP4 video at {tmp_mp4}")

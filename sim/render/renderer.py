@@ -136,7 +136,7 @@ class Scenery:
         s = (self.s0_m + self.speed_mps * t_s) % (2.0 * total)
         backwards = s > total
         s = 2.0 * total - s if backwards else s
-        k = int(min(np.searchsorted(np.cumsum(lengths), s), len(lengths) - 1))
+        k = min(int(np.searchsorted(np.cumsum(lengths), s)), len(lengths) - 1)
         s_k = s - (float(np.cumsum(lengths)[k - 1]) if k else 0.0)
         p = self.path_en[k] + seg[k] * (s_k / max(lengths[k], 1e-9))
         d = -seg[k] if backwards else seg[k]
@@ -374,7 +374,8 @@ class WorldRenderer:
             de, dn = self.drift.offset_en(t_s, self.drift.long_mps)
             e0, n0, e1, n1 = e0 + de, n0 + dn, e1 + de, n1 + dn
         pad = 2.0 * self.ground.res_m
-        inside = ((east >= e0 + pad) & (east <= e1 - pad) & (north >= n0 + pad) & (north <= n1 - pad)).all(axis=1)
+        inside = np.asarray(((east >= e0 + pad) & (east <= e1 - pad) & (north >= n0 + pad) & (north <= n1 - pad)
+                             ).all(axis=1))
         outside = np.flatnonzero(~inside[:-1])
         split = int(outside[-1]) + 1 if len(outside) else 0  # rows below the last outside row are all near
         bands: list[tuple[int, int, GroundTexture, int]] = []

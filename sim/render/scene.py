@@ -328,7 +328,7 @@ def _continued(table: np.ndarray, frame_index: int, continue_frames: float,
             w = (frame_index - f0) / (f1 - f0)
             pos = (1.0 - w) * table[before, 1:] + w * table[after, 1:]
             return float(pos[0]), float(pos[1]), True
-        j = before if frame_index - f0 <= f1 - frame_index else after
+        j: int | None = before if frame_index - f0 <= f1 - frame_index else after
     else:
         j = before if before is not None else after
     assert j is not None

@@ -171,7 +171,7 @@ class SeaEvents:
             ring = (rel[idx, None, :] + ev[idx, None, 4:5] * _CIRCLE[None]).reshape(-1, 2)
             uv, ok_r = project_enu(np.column_stack([ring, np.zeros(len(ring))]), camera, pose)
             uv = uv.reshape(len(idx), _N_OUTLINE, 2)
-            ok_all = np.asarray(ok_r).reshape(len(idx), _N_OUTLINE).all(axis=1)
+            ok_all = np.asarray(np.asarray(ok_r).reshape(len(idx), _N_OUTLINE).all(axis=1))
             colour = np.array(kind.bgr, np.float32)
             for j, e in enumerate(idx):
                 if not ok_all[j]:
@@ -210,7 +210,7 @@ def _blend_disc(image: np.ndarray, poly: np.ndarray, colour: np.ndarray, opacity
         opacity *= 0.5
     a = mask.astype(np.float32) * (opacity / 255.0)
     if sigma >= 0.7:
-        a = cv2.GaussianBlur(a, (0, 0), sigma)
+        a = np.asarray(cv2.GaussianBlur(a, (0, 0), sigma), dtype=np.float32)
     roi = image[y0:y1, x0:x1].astype(np.float32)
     roi += a[..., None] * (colour[None, None, :] - roi)
     image[y0:y1, x0:x1] = np.clip(roi, 0, 255).astype(np.uint8)

@@ -121,7 +121,7 @@ def _shade(bgr: tuple[int, ...], k: float) -> tuple[float, float, float]:
 _WATER = (100.0, 90.0, 45.0)
 
 
-def _washed(bgr: tuple[int, ...], k: float) -> tuple[int, int, int]:
+def _washed(bgr: tuple[float, float, float], k: float) -> tuple[int, int, int]:
     """A colour pulled a fraction k towards the water's (desaturated and darkened by a film of water)."""
     return (int(round(bgr[0] + k * (_WATER[0] - bgr[0]))), int(round(bgr[1] + k * (_WATER[1] - bgr[1]))),
             int(round(bgr[2] + k * (_WATER[2] - bgr[2]))))
