@@ -37,6 +37,9 @@ __all__ = ["Candidates", "scores_outside_unit_error"]
 #: an empty results file with exit 0.
 OUT_OF_RANGE_SHARE = 0.01
 OUT_OF_RANGE_MIN = 10
+#: Scores this close outside [0, 1] are rounding (1.000000001 is 1.0 in float32, as the pipeline holds scores) and
+#: are clipped into it, not skipped or refused.
+SCORE_ROUNDING = 1e-6
 
 log = logging.getLogger("agent.dataset")  # its messages as before the split
 
@@ -126,7 +129,9 @@ class Candidates:
         image_ids = np.frombuffer(ids_buf, np.int64) if n else np.zeros(0, np.int64)
         cat_ids = np.frombuffer(cats_buf, np.int64) if n else np.zeros(0, np.int64)
         boxes = np.frombuffer(boxes_buf, np.float64).reshape(n, 4) if n else np.zeros((0, 4))
-        scores = np.frombuffer(scores_buf, np.float64) if n else np.zeros(0)
+        scores = np.frombuffer(scores_buf, np.float64).copy() if n else np.zeros(0)
+        rounding = (scores >= -SCORE_ROUNDING) & (scores <= 1.0 + SCORE_ROUNDING)
+        scores[rounding] = np.clip(scores[rounding], 0.0, 1.0)
         if len(dims) > 1:
             raise ValueError(f"{source}: embeddings of different lengths {sorted(dims)}")
         unknown_img = ~np.isin(image_ids, np.fromiter(dataset.images, np.int64, len(dataset.images)))
@@ -185,20 +190,21 @@ _NOT_A_LIST = "{source}: expected a JSON list of {{image_id, category_id, bbox, 
 
 
 def scores_outside_unit(scores: Iterable[float]) -> list[float]:
-    """The finite scores outside [0, 1] (NaN and infinities are a detector's glitches, skipped elsewhere)."""
-    return [float(v) for v in scores if np.isfinite(v) and not 0.0 <= v <= 1.0]
+    """The finite scores outside [0, 1] beyond rounding (SCORE_ROUNDING; NaN and infinities are a detector's
+    glitches, skipped elsewhere)."""
+    return [float(v) for v in scores if np.isfinite(v) and not -SCORE_ROUNDING <= v <= 1.0 + SCORE_ROUNDING]
 
 
 def scores_outside_unit_error(scores: Iterable[float], source: str, consequence: str) -> ValueError | None:
-    """A ValueError naming how many of the scores are finite and outside [0, 1], with an example and what they look
-    like (percentages when most are above 1 and none above 100; else not a detector's confidences, e.g. `uavmm
-    detect`'s boosted scores); None when there are none. consequence: what the caller would do with them, after
-    "the pipeline would drop them"."""
+    """A ValueError naming how many of the scores are finite and outside [0, 1] (beyond rounding), with an example
+    and what they look like (percentages when most are above 1, some above 1.5 and none above 100; else not a
+    detector's confidences, e.g. `uavmm detect`'s boosted scores); None when there are none. consequence: what the
+    caller would do with them, after "the pipeline would drop them"."""
     values = list(scores)
     outside = scores_outside_unit(values)
     if not outside:
         return None
-    hint = (" (percentages? divide them by 100)" if max(outside) <= 100.0 and min(outside) >= 0.0
+    hint = (" (percentages? divide them by 100)" if 1.5 < max(outside) <= 100.0 and min(outside) >= 0.0
             and sum(v > 1.0 for v in values) > len(values) / 2 else
             " (a detector's confidences are in [0, 1]; `uavmm detect`'s boosted scores are not a detector's output)")
     return ValueError(f"{source}: {len(outside)} of the detections have a score outside [0, 1]: e.g. {outside[0]!r}; "

@@ -324,7 +324,8 @@ def fit_band(depression_deg: ArrayLike, log_size_m: ArrayLike, *, min_samples: i
                     (float(KNOTS_DEG[first]), float(KNOTS_DEG[last])))
 
 
-#: A class's fit needs the boxes of at least this many objects (tracks; videos where the file has no track ids):
+#: A class's fit needs the boxes of at least this many objects (tracks; videos where the file has no track ids, or
+#: parts of a single video that shows several at once: agent.size_filter_fit._time_parts):
 #: the boxes of one say nothing of how the class's objects differ.
 MIN_UNITS = 2
 #: Objects (or videos) are dealt round-robin into at most this many parts; each part is checked against a band
@@ -363,8 +364,9 @@ def fit_class(depression_deg: ArrayLike, log_size_m: ArrayLike, unit_ids: ArrayL
     if len(y) < min_samples:
         return None, {**evidence, "why": f"{len(y)} boxes, {min_samples} needed"}
     if len(names) < min_units:
-        return None, {**evidence, "why": f"the boxes of {len(names)} object(s), {min_units} needed: how the "
-                                         f"class's objects differ in size is not measured"}
+        return None, {**evidence, "why": f"the boxes of {len(names)} object(s), {min_units} needed (track ids; "
+                                         f"without them videos, or parts of one video showing several at once): "
+                                         f"how the class's objects differ in size is not measured"}
     try:
         band = fit_band(dep, y, min_samples=min_samples, min_std=min_std)
     except ValueError as exc:

@@ -7,7 +7,7 @@ terrain (`--dem`) the range and depression are the camera's to the ray's first h
 from __future__ import annotations
 
 import math
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Collection
 from pathlib import Path
 from typing import Any
@@ -17,7 +17,7 @@ import numpy as np
 from agent.boxes import box_anchor_points
 from agent.dataset import Dataset, iter_video_frames
 from agent.dem import takeoff_terrain
-from agent.size_filter import SizeFilter, fit_class, slant_and_depression
+from agent.size_filter import HELD_OUT_FOLDS, MIN_UNITS, SizeFilter, fit_class, slant_and_depression
 from shared.geo import Camera, Pose, pixel_to_local
 from shared.terrain import Terrain, pixel_to_terrain
 
@@ -49,7 +49,8 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
     class, `agent.size_filter.fit_class`). ValueError naming each class's reason when none could be fitted.
 
     Each class is fitted and checked on its own evidence: its objects are the annotations' track ids within a
-    video, or the videos where the file has none (SeaDronesSee's detection sets); a class with fewer than
+    video, or where the file has none (SeaDronesSee's detection sets) the videos; a class in one video only, whose
+    frames show two or more of it at once, in five parts of that video's time (`_time_parts`); a class with fewer than
     min_samples boxes or 2 objects gets no band (its report says why). Annotations marked ``iscrowd`` or
     ``ignore`` (regions, not one object's box) are not fitted on. left_out (when given) is filled with the boxes
     not fitted on: crowd_or_ignore_regions, frames_without_pose, without_ground_point.
@@ -75,6 +76,7 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
             continue
         by_image[a["image_id"]].append(a)
     samples: dict[str, tuple[list[float], list[float], list[str]]] = defaultdict(lambda: ([], [], []))
+    untracked: dict[tuple[str, int], list[tuple[float, int, int]]] = defaultdict(list)  # (t, image, sample)
     no_ground = no_pose = 0
     for video_id in dataset.videos:
         video_terrain: Terrain | None = None
@@ -104,12 +106,17 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
                 samples[name][0].append(float(d))
                 samples[name][1].append(float(y))
                 samples[name][2].append(f"{video_id}" if track is None else f"{video_id}/{track}")
+                if track is None:
+                    untracked[(name, video_id)].append((frame.t, frame.image.id, len(samples[name][2]) - 1))
+    for (name, video_id), seen in untracked.items():
+        if len(set(samples[name][2])) < MIN_UNITS:  # one video: parts of its time are the only held-out units
+            _time_parts(samples[name][2], video_id, seen)
     bands = {}
     report: dict[str, dict[str, Any]] = {}
     for name, (dep_deg, log_sizes, units) in sorted(samples.items()):
         band, evidence = fit_class(dep_deg, log_sizes, units, k=k, min_samples=min_samples)
-        unit = "tracks" if all("/" in u for u in units) else "videos" if not any("/" in u for u in units) else \
-            "tracks and videos"
+        kinds = {"tracks" if "/" in u else "parts of videos" if "@" in u else "videos" for u in units}
+        unit = " and ".join(sorted(kinds))
         report[name] = {"fitted": band is not None, **evidence, "objects_are": unit}
         if band is None:
             continue
@@ -127,6 +134,22 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
         why = "; ".join(f"{n}: {r['why']}" for n, r in report.items()) or "no annotated box with a ground point"
         raise ValueError(f"{images_path}: no class could be fitted ({why}; boxes left out: {left_out_text(counts)})")
     return SizeFilter(bands, k), report
+
+
+def _time_parts(units: list[str], video_id: int, seen: list[tuple[float, int, int]]) -> None:
+    """The units of a class seen in one video only, without track ids: where a frame shows two or more of its boxes
+    (so the video shows several objects of the class), HELD_OUT_FOLDS contiguous parts of its time ("VIDEO@PART"),
+    each left out of the fit in turn (`agent.size_filter.fit_class`; a weaker check than whole videos, which see
+    other objects: those are the units whenever there are several); else the video stays one unit (its boxes may
+    all be one object's). Without this a single annotated video without track ids never fitted a band."""
+    if max(Counter(image for _, image, _ in seen).values()) < 2:
+        return
+    times = np.array([t for t, _, _ in seen], dtype=np.float64)
+    lo, span = float(times.min()), float(np.ptp(times))
+    parts = np.zeros(len(times), np.int64) if span <= 0 else \
+        np.minimum((HELD_OUT_FOLDS * (times - lo) / span).astype(np.int64), HELD_OUT_FOLDS - 1)
+    for (_, _, at), part in zip(seen, parts, strict=True):
+        units[at] = f"{video_id}@{part}"
 
 
 def left_out_text(counts: dict[str, int]) -> str:

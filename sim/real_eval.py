@@ -17,7 +17,7 @@ from pathlib import Path
 from typing import Any
 
 from agent.boost import results_to_coco, run_pipeline
-from agent.candidates import scores_outside_unit_error
+from agent.candidates import SCORE_ROUNDING, scores_outside_unit_error
 from agent.coco_metrics import per_class_metrics
 from agent.dataset import Candidates, Dataset, dataset_files, read_json
 from agent.pipeline_config import PipelineConfig
@@ -66,7 +66,9 @@ def _scored(entries: list[dict[str, Any]], source: str | Path) -> list[dict[str,
                                       "and the detector would be scored on more than the variants")
     if error is not None:
         raise error
-    return [e for e in entries if 0.0 <= e["score"] <= 1.0]
+    # rounding just outside [0, 1] clipped into it, as the candidates' loader does (SCORE_ROUNDING)
+    return [{**e, "score": min(max(e["score"], 0.0), 1.0)} if not 0.0 <= e["score"] <= 1.0 else e
+            for e in entries if -SCORE_ROUNDING <= e["score"] <= 1.0 + SCORE_ROUNDING]
 
 
 def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_spec: str | Path, *,

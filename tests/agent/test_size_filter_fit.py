@@ -90,6 +90,21 @@ def test_a_video_left_out_of_the_fit_keeps_its_true_boats(real_rows):
 
 
 @needs_real
+def test_one_video_without_track_ids_fits_the_classes_it_shows_several_of_at_once(real_rows):
+    # review probe: one real video (no track ids, as SeaDronesSee's detection sets are) was refused whole, "the boxes
+    # of 1 object(s)", though its frames show up to 4 swimmers at once; the version before fitted it
+    ds = Dataset.load(REAL_IMAGES)
+    video = ds.resolve_video("NorthSea_Fri_DJI_0113.MP4")
+    fitted, report = fit_from_dataset(REAL_IMAGES, "dji-mavic2-pro", image_ids={im.id for im in ds.videos[video]})
+    assert {"swimmer", "buoy", "boat"} <= set(fitted.bands) and "jetski" not in fitted.bands
+    assert report["swimmer"]["objects_are"] == "parts of videos" and report["swimmer"]["units"] == 5
+    assert report["jetski"]["units"] == 1 and "1 object(s)" in report["jetski"]["why"]  # one at a time: one object
+    for name in ("swimmer", "buoy", "boat"):  # what the check widened holds the video's own true boxes
+        bad, total = refused(fitted, real_rows, name, video=video)
+        assert total > 50 and bad <= 0.01 * total, (name, bad, total)
+
+
+@needs_real
 def test_no_box_is_judged_beyond_the_depressions_fitted(real_rows):
     # probe: fitted on the frames looking less than 30 deg down, the band held flat to nadir refused 55 of the 303
     # true swimmers at 60-75 deg and 8 of 220 at 75-90
