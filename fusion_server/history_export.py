@@ -1,23 +1,26 @@
 """`uavmm export`: the fusion server's stored history (its SQLite file) as GeoPackage, KML or GeoJSON.
 
-Reads the database read-only (a running server may keep writing) in one snapshot, a track at a time: each format
-streams from the database's cursors into a temporary file beside the output, renamed over it once complete, so
-memory does not grow with the history and a failed write leaves the previous file. Layers: ``tracks`` (each global
-track at its last position), ``track_lines`` (its history as a line) and, in a GeoPackage, ``track_points`` (one
-point per history row, with a DATETIME for QGIS's temporal controller).
+Reads the database read-only (a running server may keep writing) in short read transactions, into a private copy
+every layer then reads (`_Reader`), a track at a time: each format streams from the copy's cursors into a temporary
+file beside the output, renamed over it once complete, so memory does not grow with the history and a failed write
+leaves the previous file. Layers: ``tracks`` (each global track at its last position), ``track_lines`` (its history
+as a line) and, in a GeoPackage, ``track_points`` (one point per history row, with a DATETIME for QGIS's temporal
+controller).
 """
 
 from __future__ import annotations
 
 import itertools
 import json
+import logging
 import math
 import sqlite3
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterable, Iterator
 from dataclasses import dataclass
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO, Any, TypeVar
+from zipfile import ZIP64_LIMIT
 
 from fusion_server.geo_formats import track_line_feature
 from fusion_server.gpkg import Layer, write_geopackage
@@ -29,7 +32,21 @@ __all__ = ["EXPORT_FORMATS", "HistoryExport", "export_history", "read_history", 
 EXPORT_FORMATS = {".gpkg": "GeoPackage", ".kml": "KML", ".kmz": "KMZ", ".geojson": "GeoJSON", ".json": "GeoJSON"}
 _TRACK_COLUMNS = "gid, cls, lat, lon, score, vel_e, vel_n, created, last_update, ended, members"
 _HISTORY_ROWS = "SELECT gid, t, lat, lon FROM track_history WHERE t >= ? AND t <= ? ORDER BY gid, t, rowid"
+#: history rows copied by one statement, each its own read transaction of the server's database (~10 ms)
+_PAGE_ROWS = 5_000
+_SNAPSHOT_TABLES = (
+    "CREATE TEMP TABLE export_tracks(gid INTEGER PRIMARY KEY, cls, lat, lon, score, vel_e, vel_n, created, "
+    "last_update, ended, members)",
+    "CREATE TEMP TABLE export_history(gid INTEGER NOT NULL, t REAL NOT NULL, lat REAL NOT NULL, lon REAL NOT NULL, "
+    "source_rowid INTEGER NOT NULL)")
+# the selected tracks' rows after (gid, t, rowid) = key, up to the start's last rowid, in the order of _HISTORY_ROWS:
+# tracks the outer loop (by gid), each one's rows by the (gid, t) index (which ends in the rowid): no sort
+_COPY_PAGE = (
+    "INSERT INTO temp.export_history SELECT h.gid, h.t, h.lat, h.lon, h.rowid FROM temp.export_tracks tr CROSS JOIN "
+    "main.track_history h ON h.gid = tr.gid WHERE tr.gid >= ? AND (h.gid, h.t, h.rowid) > (?, ?, ?) AND h.rowid <= ? "
+    "AND h.t >= ? AND h.t <= ? ORDER BY tr.gid, h.t, h.rowid LIMIT ?")
 _T = TypeVar("_T")
+log = logging.getLogger(__name__)
 
 
 @dataclass(frozen=True)
@@ -74,12 +91,9 @@ def _feature(row: tuple[Any, ...], history: list[list[float]] | None) -> dict[st
             "properties": properties}
 
 
-def _features(conn: sqlite3.Connection, where: list[str], args: list[Any],
-              window: tuple[float, float]) -> Iterator[dict[str, Any]]:
-    """Each selected track's Feature with its history rows in the window, in gid order, one track at a time: the
-    tracks and the history (rows of one time in the order written) are read side by side, both by gid."""
-    tracks = conn.execute(f"SELECT {_TRACK_COLUMNS} FROM tracks WHERE {' AND '.join(where)} ORDER BY gid", args)
-    rows = conn.execute(_HISTORY_ROWS, window)
+def _features(tracks: Iterable[tuple[Any, ...]], rows: Iterator[tuple[Any, ...]]) -> Iterator[dict[str, Any]]:
+    """Each track's Feature with its history rows, in gid order, one track at a time: the tracks (ordered by gid) and
+    the history rows (gid, t, lat, lon, ordered by gid, then as `_HISTORY_ROWS`) are read side by side."""
     pending = next(rows, None)
     for track in tracks:
         gid = track[0]
@@ -108,7 +122,8 @@ def read_history(db_path: str | Path, *, cls: str | None = None, since: float | 
         where, args = _selection(cls, since)
         window = (since if since is not None else float("-inf"), until if until is not None else float("inf"))
         if not ends_only:
-            return HistoryExport(list(_features(conn, where, args, window)))
+            tracks = conn.execute(f"SELECT {_TRACK_COLUMNS} FROM tracks WHERE {' AND '.join(where)} ORDER BY gid", args)
+            return HistoryExport(list(_features(tracks, conn.execute(_HISTORY_ROWS, window))))
         rows = conn.execute(f"SELECT {_TRACK_COLUMNS} FROM tracks WHERE {' AND '.join(where)} ORDER BY gid",
                             args).fetchall()
         # every row at each track's first and last time in the window (one each but for a tie, which keeps
@@ -150,23 +165,56 @@ def stored_classes(db_path: str | Path) -> tuple[dict[str, int], float | None]:
 
 
 class _Reader:
-    """One export's reads of the database: the selected tracks, read again for each layer from one snapshot (a
-    read transaction), each read one track at a time. A database error while reading is the ValueError of
-    `read_history`, raised where the rows are consumed (inside a writer)."""
+    """One export's reads of the database, in short read transactions: a reader open for the whole export (15-20 s
+    for a day as a GeoPackage) kept the server from checkpointing its WAL past it, which grew by all the server wrote
+    meanwhile. In one transaction the selected tracks' rows are copied with the last history rowid; then their
+    history rows up to that rowid, `_PAGE_ROWS` a statement, each its own transaction. The copy is in the
+    connection's TEMP database (a file in SQLite's temporary folder, ~40 bytes a row, for a moment in its cache),
+    which every layer then reads, so all layers hold the same rows, read in order without the index.
+
+    The server updates only track rows (copied at the start) and never updates history rows; it deletes the oldest
+    rows of a live track beyond its history length and whole ended tracks past its retention (`FusionStore`). Rows
+    it deletes before their page is copied are not exported (a live track's line then starts a little later), and
+    tracks it deleted by the end of the copy are left out whole. A database error while reading is the ValueError
+    of `read_history`; no room for the copy in the temporary folder is an OSError."""
 
     def __init__(self, path: Path, cls: str | None, since: float | None) -> None:
         self.path = path
-        self.where, self.args = _selection(cls, since)
-        self.window = (since if since is not None else float("-inf"), float("inf"))
         self.counts: dict[str, int] = {}
         self.conn = _connect(path)
+        self.conn.isolation_level = None  # autocommit: each statement its own transaction but the first step's
         try:
-            self.conn.execute("BEGIN")  # one snapshot for every layer, while the server keeps writing
-            self.conn.execute(f"SELECT {_TRACK_COLUMNS} FROM tracks LIMIT 0").fetchall()  # not a fusion db: now
-            self.conn.execute(f"{_HISTORY_ROWS} LIMIT 0", self.window).fetchall()
+            self._copy(*_selection(cls, since), (since if since is not None else float("-inf"), float("inf")))
         except sqlite3.DatabaseError as exc:
             self.conn.close()
-            raise _not_fusion(path, exc) from None
+            raise self._error(exc) from None
+
+    def _copy(self, where: list[str], args: list[Any], window: tuple[float, float]) -> None:
+        conn = self.conn
+        conn.execute("BEGIN")  # the tracks as they stand and the last history row then: one snapshot
+        for table in _SNAPSHOT_TABLES:
+            conn.execute(table)
+        conn.execute(f"INSERT INTO temp.export_tracks SELECT {_TRACK_COLUMNS} FROM main.tracks WHERE "
+                     f"{' AND '.join(where)} ORDER BY gid", args)
+        (last,) = conn.execute("SELECT COALESCE(max(rowid), 0) FROM main.track_history").fetchone()
+        conn.execute("COMMIT")
+        key: tuple[Any, ...] = (-(2**63), -math.inf, -(2**63))
+        while conn.execute(_COPY_PAGE, (key[0], *key, last, *window, _PAGE_ROWS)).rowcount == _PAGE_ROWS:
+            key = conn.execute("SELECT gid, t, source_rowid FROM temp.export_history ORDER BY rowid DESC LIMIT 1"
+                               ).fetchone()
+        # tracks the server's retention deleted meanwhile (some rows copied, maybe): left out whole
+        conn.execute("CREATE TEMP TABLE export_gone AS SELECT gid FROM temp.export_tracks WHERE gid NOT IN "
+                     "(SELECT gid FROM main.tracks)")
+        if conn.execute("SELECT EXISTS (SELECT 1 FROM temp.export_gone)").fetchone()[0]:
+            for table in ("export_tracks", "export_history"):
+                conn.execute(f"DELETE FROM temp.{table} WHERE gid IN (SELECT gid FROM temp.export_gone)")
+
+    def _error(self, exc: sqlite3.DatabaseError) -> Exception:
+        name = getattr(exc, "sqlite_errorname", "")
+        if name == "SQLITE_FULL" or name.startswith("SQLITE_IOERR"):  # the copy's file (or a failing disk)
+            return OSError(f"cannot export {self.path}: {exc} (the export copies the history into SQLite's "
+                           "temporary folder: SQLITE_TMPDIR or TMPDIR if set, else /var/tmp)")
+        return _not_fusion(self.path, exc)
 
     def close(self) -> None:
         self.conn.close()
@@ -178,13 +226,16 @@ class _Reader:
                     self.counts[layer] = self.counts.get(layer, 0) + 1
                 yield item
         except sqlite3.DatabaseError as exc:
-            raise _not_fusion(self.path, exc) from None
+            raise self._error(exc) from None
         if layer is not None:
             self.counts.setdefault(layer, 0)
 
     def _track_rows(self) -> Iterator[tuple[Any, ...]]:
-        yield from self.conn.execute(
-            f"SELECT {_TRACK_COLUMNS} FROM tracks WHERE {' AND '.join(self.where)} ORDER BY gid", self.args)
+        yield from self.conn.execute(f"SELECT {_TRACK_COLUMNS} FROM temp.export_tracks ORDER BY gid")
+
+    def _features(self) -> Iterator[dict[str, Any]]:
+        rows = self.conn.execute("SELECT gid, t, lat, lon FROM temp.export_history ORDER BY rowid")
+        return self._guarded(_features(self._track_rows(), rows))
 
     def positions(self) -> Iterator[dict[str, Any]]:
         """The ``tracks`` layer: each track's Point Feature (id ``track-GID``), without history."""
@@ -195,7 +246,7 @@ class _Reader:
 
     def lines(self) -> Iterator[dict[str, Any]]:
         """The ``track_lines`` layer: each track with history as a LineString Feature (id ``track-GID-path``)."""
-        for feature in self._guarded(_features(self.conn, self.where, self.args, self.window)):
+        for feature in self._features():
             line = track_line_feature(feature)
             if line is not None:
                 self.counts["track_lines"] = self.counts.get("track_lines", 0) + 1
@@ -223,7 +274,7 @@ class _Reader:
                     "points": len(p["times"])}
 
         def points() -> Iterator[tuple[Any, dict[str, Any]]]:
-            for feature in self._guarded(_features(self.conn, self.where, self.args, self.window)):
+            for feature in self._features():
                 gid, name = feature["id"], feature["properties"]["cls"]
                 for t, lat, lon in feature["properties"]["history"]:
                     yield (lon, lat), {"gid": gid, "cls": name, "t": t, "time": when(t)}
@@ -253,11 +304,12 @@ def _write_file(out: Path, write: Callable[[IO[bytes]], None]) -> None:
 
 
 def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None = None,
-                   since: float | None = None) -> dict[str, int]:
+                   since: float | None = None, kmz_zip64_over: int = ZIP64_LIMIT) -> dict[str, int]:
     """Write the database's history to ``out_path`` (format by extension: .gpkg, .kml, .kmz, .geojson/.json).
 
     A GeoPackage has the layers tracks, track_lines and track_points; KML a folder of positions and one of lines;
-    GeoJSON the lines, then the positions. Ids are ``track-GID`` (position) and ``track-GID-path`` (line).
+    GeoJSON the lines, then the positions. Ids are ``track-GID`` (position) and ``track-GID-path`` (line). A KMZ
+    of more than ``kmz_zip64_over`` bytes of KML (2 GiB) is written as ZIP64, with a warning logged (`write_kmz`).
     Returns the feature count per layer written. ValueError for an unknown extension, a non-finite ``since`` or a
     bad database; FileNotFoundError when the output folder does not exist; OSError naming the output when it
     cannot be written (nothing is left then, and an existing file stays as it was).
@@ -282,11 +334,16 @@ def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None
                 for text in collection_chunks(itertools.chain(reader.lines(), reader.positions())):
                     file.write(text.encode())
                 return
-            chunks = kml_chunks("uavmm tracks", {"tracks": reader.positions(), "track lines": reader.lines()})
-            if suffix == ".kmz":
-                write_kmz(file, chunks)
-            else:
-                file.writelines(chunks)
+
+            def document() -> Iterator[bytes]:  # a KMZ past 2 GiB is written twice (ZIP64): counted once
+                reader.counts.clear()
+                return kml_chunks("uavmm tracks", {"tracks": reader.positions(), "track lines": reader.lines()})
+
+            if suffix != ".kmz":
+                file.writelines(document())
+            elif write_kmz(file, document, zip64_over=kmz_zip64_over):
+                log.warning("%s: more KML than a KMZ holds without ZIP64 (2 GiB): written as ZIP64, which unzip, "
+                            "Python and Java read but libkml (GDAL's LIBKML driver) does not open", out)
 
         _write_file(out, write)
         return {"tracks": reader.counts["tracks"], "track_lines": reader.counts["track_lines"]}

@@ -2,7 +2,8 @@
 
 Each Feature becomes a Placemark named after its id (or a property), its properties listed in
 ExtendedData; a feature with ``times`` (track lines) gets a TimeSpan, one with ``t`` a TimeStamp.
-KMZ is the same document zipped as ``doc.kml`` (what ATAK data packages and Google Earth exchange).
+KMZ is the same document zipped as ``doc.kml`` (what ATAK data packages and Google Earth exchange), with ZIP64 only
+past 2 GiB of KML.
 """
 
 from __future__ import annotations
@@ -11,7 +12,7 @@ import io
 import json
 import xml.etree.ElementTree as ET
 import zipfile
-from collections.abc import Iterable, Iterator, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from datetime import datetime, timezone
 from typing import IO, Any
 
@@ -107,17 +108,39 @@ def _doc_kml() -> zipfile.ZipInfo:
 def kmz(kml: bytes) -> bytes:
     """A KMZ archive (ZIP, deflated) holding the KML document as ``doc.kml``, the name readers open first."""
     buffer = io.BytesIO()
-    write_kmz(buffer, [kml])
+    write_kmz(buffer, lambda: [kml])
     return buffer.getvalue()
 
 
-def write_kmz(file: IO[bytes], chunks: Iterable[bytes]) -> None:
-    """`kmz` of the document given piece by piece (`kml_chunks`), written to a seekable binary file as it comes:
-    the same bytes as ``kmz(b"".join(chunks))`` without holding the document (up to 2 GiB of KML: no ZIP64; beyond,
-    OSError: write .kml instead)."""
-    try:
-        with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive, archive.open(_doc_kml(), "w") as member:
-            for chunk in chunks:
-                member.write(chunk)
-    except RuntimeError as exc:  # zipfile: "File size too large, try using force_zip64"
-        raise OSError(f"the KML is over 2 GiB, more than a KMZ written as it comes holds ({exc}); write .kml") from None
+def write_kmz(file: IO[bytes], document: Callable[[], Iterable[bytes]], *,
+              zip64_over: int = zipfile.ZIP64_LIMIT) -> bool:
+    """`kmz` of the document given piece by piece (``document()``: `kml_chunks`), written to a seekable binary file
+    as it comes: the same bytes as ``kmz(b"".join(document()))`` without holding the document.
+
+    ZIP64 only where it is needed: a document of more than ``zip64_over`` bytes (zipfile's limit without ZIP64,
+    2 GiB) is written again from its start with the ZIP64 extensions, calling ``document`` a second time (a stream
+    cannot know its size in advance, and a header written without ZIP64 has no room for it). Not always ZIP64:
+    libkml (GDAL's LIBKML driver, which opens a .kmz) does not open a ZIP64 archive, even a small one. Returns
+    True when the archive was written with ZIP64.
+    """
+    start = file.tell()
+    if _write_doc_kml(file, document(), zip64=False, limit=zip64_over):
+        return False
+    file.seek(start)
+    file.truncate()
+    _write_doc_kml(file, document(), zip64=True, limit=None)
+    return True
+
+
+def _write_doc_kml(file: IO[bytes], chunks: Iterable[bytes], *, zip64: bool, limit: int | None) -> bool:
+    """One archive of the chunks as ``doc.kml``; False (the archive then holds a part) once they pass ``limit``
+    bytes. The deflated KML is smaller than its text, so the text's size is the one that can reach the limit."""
+    size = 0
+    with zipfile.ZipFile(file, "w", zipfile.ZIP_DEFLATED) as archive, \
+            archive.open(_doc_kml(), "w", force_zip64=zip64) as member:
+        for chunk in chunks:
+            size += len(chunk)
+            if limit is not None and size > limit:
+                return False
+            member.write(chunk)
+    return True

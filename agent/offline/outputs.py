@@ -8,7 +8,7 @@ interrupted run never leaves a truncated file.
 from __future__ import annotations
 
 import json
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -178,6 +178,15 @@ def _track_features(rows: TrackRowLog, names: Mapping[int, str]) -> Iterator[dic
     return iter(rows.features(dict(names), rename))
 
 
+def _kml_ids(features: Iterable[dict[str, Any]], suffix: str) -> Iterator[dict[str, Any]]:
+    """The features with the ids `uavmm export` gives a global track's position and line: ``track-ID`` (the object,
+    where the track was last seen) and ``track-ID-path`` (its track), ID the track id. KML's Placemark@id is an XML
+    ID, which cannot start with a digit (the ids were the bare numbers), and unique in the document (the tracks had
+    none)."""
+    for feature in features:
+        yield {**feature, "id": f"track-{feature['properties']['id']}{suffix}"}
+
+
 def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, images: list[dict[str, Any]] | None,
                   rows: TrackRowLog, class_names: Mapping[int, str], video_name: str,
                   source: str = "") -> dict[str, str]:
@@ -206,6 +215,6 @@ def write_outputs(out_dir: Path, *, detections: list[dict[str, Any]] | None, ima
         write_text_atomic(path, text)
         paths[kind] = str(path)
     write_chunks_atomic(out_dir / OUTPUT_FILES["kml"], kml_chunks(f"uavmm detect: {video_name}", {
-        "objects": objects["features"], "tracks": _track_features(rows, names)}))
+        "objects": _kml_ids(objects["features"], ""), "tracks": _kml_ids(_track_features(rows, names), "-path")}))
     paths["kml"] = str(out_dir / OUTPUT_FILES["kml"])
     return paths

@@ -71,3 +71,35 @@ def test_a_run_writes_its_streamed_files_and_one_that_fails_leaves_none(tmp_path
     with pytest.raises(OSError, match="broke off"):
         run_detect(_Source(6, fail_at=4), tmp_path / "failed")
     assert list((tmp_path / "failed").iterdir()) == []
+
+
+def test_detect_kml_ids_are_unique_xml_ids_named_as_the_export_names_them(tmp_path):
+    """tracks.kml's objects had the bare track number as Placemark@id (an XML ID cannot start with a digit) and its
+    tracks no id: now ``track-ID`` (where the track was last seen) and ``track-ID-path`` (its track), the ids
+    `uavmm export` gives a global track's position and line."""
+    import re
+    import xml.etree.ElementTree as ET
+
+    from agent.offline.outputs import OUTPUT_FILES, write_outputs
+    from agent.track_rows import TrackRowLog
+    from agent.tracking import TrackOutput
+
+    log = TrackRowLog()
+    for frame in range(3):  # track 7 seen in every frame, 12 in the first only (a Point in the tracks folder)
+        log.extend(frame, 1.7e9 + frame, [
+            TrackOutput(id=tid, cls=0, box_xyxy=(0.0, 0.0, 1.0, 1.0), lat=48.53 + 1e-5 * frame, lon=9.06 + 1e-4 * tid,
+                        vel_en=(0.1, 0.0), score=0.8, confirmed=True, matched=True)
+            for tid in ((7, 12) if frame == 0 else (7,))])
+    write_outputs(tmp_path, detections=[], images=[], rows=log, class_names={0: "person"}, video_name="v")
+    ns = "{http://www.opengis.net/kml/2.2}"
+    root = ET.parse(tmp_path / OUTPUT_FILES["kml"]).getroot()
+    ids = {folder.findtext(f"{ns}name"): [mark.get("id") for mark in folder.iter(f"{ns}Placemark")]
+           for folder in root.iter(f"{ns}Folder")}
+    assert ids == {"objects": ["track-7", "track-12"], "tracks": ["track-7-path", "track-12-path"]}
+    every = ids["objects"] + ids["tracks"]
+    ncname = re.compile(r"[A-Za-z_][\w.\-]*\Z")  # xsd:ID, what KML's Placemark@id is
+    assert len(set(every)) == len(every) and all(ncname.match(i) for i in every)
+    names = [mark.findtext(f"{ns}name") for mark in root.iter(f"{ns}Placemark")]
+    assert names == ["7", "12", "7", "12"]  # the number stays the name, and `id` in ExtendedData
+    objects = json.loads((tmp_path / OUTPUT_FILES["objects_geojson"]).read_text())["features"]
+    assert [f["id"] for f in objects] == [7, 12]  # the GeoJSON keeps the number as the feature id, as REST does

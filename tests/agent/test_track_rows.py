@@ -133,8 +133,9 @@ def test_detects_files_from_the_columns_are_the_documents_built_from_the_rows(tm
     assert (out / OUTPUT_FILES["mot"]).read_text() == "".join(line + "\n" for line in mot_lines(rows))
     assert (out / OUTPUT_FILES["tracks_geojson"]).read_text() == json.dumps(tracks)
     assert (out / OUTPUT_FILES["objects_geojson"]).read_text() == json.dumps(objects)
-    assert (out / OUTPUT_FILES["kml"]).read_bytes() == feature_collections_kml(
-        "uavmm detect: v<&>", {"objects": objects, "tracks": tracks})
+    assert (out / OUTPUT_FILES["kml"]).read_bytes() == feature_collections_kml("uavmm detect: v<&>", {  # ids: export's
+        "objects": {"features": [{**f, "id": f"track-{f['id']}"} for f in objects["features"]]},
+        "tracks": {"features": [{**f, "id": f"track-{f['properties']['id']}-path"} for f in tracks["features"]]}})
     assert sorted(p.name for p in out.iterdir()) == sorted(
         OUTPUT_FILES[k] for k in ("mot", "tracks_geojson", "objects_geojson", "kml"))
 

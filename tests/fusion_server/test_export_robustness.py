@@ -1,6 +1,7 @@
 """`uavmm export` under load and failure: memory that does not grow with the history, a full disk or an unwritable
-folder (the previous file kept, one line, exit 2), GeoPackage DATETIME columns, unique KML/GeoJSON ids, and inputs
-that match nothing (databases written by the real FusionStore, the real CLI)."""
+folder (the previous file kept, one line, exit 2), GeoPackage DATETIME columns, unique KML/GeoJSON ids, inputs that
+match nothing, a KMZ past 2 GiB, and a server writing meanwhile (its WAL checkpointed; the history copied in short
+reads) (databases written by the real FusionStore, the real CLI)."""
 
 from __future__ import annotations
 
@@ -12,9 +13,12 @@ import signal
 import sqlite3
 import subprocess
 import sys
+import threading
+import time
 import tracemalloc
 import warnings
 import xml.etree.ElementTree as ET
+import zipfile
 from collections import Counter
 from datetime import datetime, timezone
 from pathlib import Path
@@ -23,7 +27,7 @@ import pytest
 
 from fusion_server.geo_formats import track_lines_geojson
 from fusion_server.global_tracks import TrackRecord
-from fusion_server.history_export import export_history, read_history
+from fusion_server.history_export import _PAGE_ROWS, export_history, read_history
 from fusion_server.persistence import FusionStore
 from shared.kml import feature_collections_kml
 from uavmm.cli import main
@@ -81,14 +85,17 @@ def test_export_memory_does_not_grow_with_the_history(tmp_path, ext):
     assert growth / (120 * 200) < 32, f"{growth / (120 * 200):.0f} B per history row"
 
 
-def _cli(*argv: str, limit_bytes: int | None = None) -> subprocess.CompletedProcess[str]:
-    """The real CLI in a child process; limit_bytes: a disk that fills after that many bytes a file (RLIMIT_FSIZE)."""
+def _cli(*argv: str, limit_bytes: int | None = None,
+         env: dict[str, str] | None = None) -> subprocess.CompletedProcess[str]:
+    """The real CLI in a child process; limit_bytes: a disk that fills after that many bytes a file (RLIMIT_FSIZE);
+    env: added to the environment."""
     def full_disk() -> None:
         signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG, as on a full disk
         resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
 
     return subprocess.run([sys.executable, "-m", "uavmm.cli", "export", *argv], capture_output=True, text=True,
-                          cwd=ROOT, timeout=120, preexec_fn=full_disk if limit_bytes is not None else None)
+                          cwd=ROOT, timeout=120, preexec_fn=full_disk if limit_bytes is not None else None,
+                          env={**os.environ, **(env or {})})
 
 
 @pytest.mark.parametrize("ext", ["kml", "kmz", "geojson", "gpkg"])
@@ -215,13 +222,84 @@ def test_an_export_matching_nothing_warns_with_the_classes_held(tmp_path, small_
     assert capsys.readouterr().err == "uavmm export: warning: the database has no tracks yet\n"
 
 
-def test_a_kmz_too_large_to_stream_is_a_clear_error(tmp_path, monkeypatch):
-    """Second read: past zipfile's ZIP64 limit (2 GiB of KML; lowered here) the streamed KMZ raised RuntimeError, a
-    traceback from `uavmm export`; it is now an OSError the CLI prints as one line."""
-    import zipfile
+def test_a_kmz_past_the_zip64_limit_is_written_as_zip64_and_says_so(tmp_path, small_db, caplog):
+    """Past zipfile's limit without ZIP64 (2 GiB of KML; lowered here through the export's parameter) `uavmm export`
+    refused a KMZ (OSError, exit 2): it is now written again as ZIP64, counted once, with a warning (libkml does not
+    open ZIP64)."""
+    assert main(["export", "--db", str(small_db), "--out", str(tmp_path / "t.kml")]) == 0
+    kml = (tmp_path / "t.kml").read_bytes()
+    out = tmp_path / "t.kmz"
+    with caplog.at_level("WARNING", logger="fusion_server.history_export"):
+        counts = export_history(small_db, out, kmz_zip64_over=len(kml) // 2)
+    assert counts == {"tracks": 13, "track_lines": 12}
+    assert out.read_bytes()[4:6] == (45).to_bytes(2, "little")  # version needed to extract: 4.5, ZIP64
+    with zipfile.ZipFile(out) as archive:
+        assert archive.read("doc.kml") == kml
+    assert [r.getMessage() for r in caplog.records] == [
+        f"{out}: more KML than a KMZ holds without ZIP64 (2 GiB): written as ZIP64, which unzip, Python and Java read "
+        "but libkml (GDAL's LIBKML driver) does not open"]
+    assert not [p.name for p in tmp_path.iterdir() if p.name.endswith(".tmp")]
 
-    from shared.kml import write_kmz
 
-    monkeypatch.setattr(zipfile, "ZIP64_LIMIT", 1024)
-    with (tmp_path / "big.kmz").open("wb") as file, pytest.raises(OSError, match="over 2 GiB"):
-        write_kmz(file, [b"<kml>" + b" " * 2048 + b"</kml>"])
+def test_the_export_lets_the_server_checkpoint_its_wal_while_it_writes(tmp_path):
+    """The export held one read transaction for its whole run (15-20 s for a day as a GeoPackage): the server could
+    not checkpoint its WAL past it, which grew by everything written meanwhile (2 to 8 MiB in a 20 s export at
+    ~0.4 MiB/s). It now copies what it exports in short reads first: while it writes its file, a checkpoint of a
+    row written then reaches the WAL's end."""
+    db = fusion_db(tmp_path / "fusion.sqlite", 400, 300)  # 120k rows: the GeoPackage takes a second or more
+    out = tmp_path / "t.gpkg"
+    writing = out.with_name(f".{out.name}.{os.getpid()}.tmp")
+    export = threading.Thread(target=export_history, args=(db, out))
+    export.start()
+    try:
+        deadline = time.monotonic() + 60.0
+        while not writing.exists() and export.is_alive() and time.monotonic() < deadline:
+            time.sleep(0.002)
+        server = sqlite3.connect(db, timeout=10.0)  # the server's kind of write: a history row, committed
+        with server:
+            server.execute("INSERT INTO track_history(gid, t, lat, lon) VALUES (1, ?, 48.5, 9.05)", (T0 + 1e6,))
+        busy, frames, checkpointed = server.execute("PRAGMA wal_checkpoint(PASSIVE)").fetchone()
+        server.close()
+        assert writing.exists() and export.is_alive(), "the export was not writing at the check: give it more rows"
+    finally:
+        export.join()
+    assert (busy, checkpointed) == (0, frames) and frames > 0
+    with sqlite3.connect(out) as gpkg:  # the row written after the export began is not in it
+        assert gpkg.execute("SELECT count(*) FROM track_points").fetchone() == (400 * 300,)
+
+
+def test_history_over_several_copy_pages_is_exported_whole_and_in_order(tmp_path):
+    """The history is copied `_PAGE_ROWS` rows a read, from where the last page ended (gid, t, rowid): rows of one
+    track at one time that straddle a page's end, written out of time order and between other tracks' rows, come
+    out once each, in the order `read_history`'s one query reads them."""
+    db = fusion_db(tmp_path / "fusion.sqlite", 3, 0)  # tracks 1-3 without history, and live track 4
+    rows = [(1, T0 + k, 48.5, 9.05 + 1e-6 * k) for k in range(_PAGE_ROWS - 3)]
+    for k in range(6):  # six rows of track 1 at one time, around the first page's end, between track 2's rows
+        rows += [(1, T0 + 1e5, 48.6 + 1e-6 * k, 9.1), (2, T0 + 1e5 - k, 48.7, 9.2 + 1e-6 * k)]
+    rows += [(3, T0 + 2e5 - k, 48.8, 9.3 + 1e-6 * k) for k in range(_PAGE_ROWS + 7)]
+    with sqlite3.connect(db) as conn:
+        conn.executemany("INSERT INTO track_history(gid, t, lat, lon) VALUES (?, ?, ?, ?)", rows)
+    out = tmp_path / "t.geojson"
+    assert export_history(db, out) == {"tracks": 4, "track_lines": 3}
+    tracks = read_history(db).tracks
+    lines = track_lines_geojson(tracks)["features"]
+    assert sum(len(line["properties"]["times"]) for line in lines) == len(rows)
+    for line in lines:
+        line["id"] = f"track-{line['id']}-path"
+    points = [{**f, "id": f"track-{f['id']}", "properties": {k: v for k, v in f["properties"].items()
+                                                              if k != "history"}} for f in tracks]
+    assert out.read_text() == json.dumps({"type": "FeatureCollection", "features": lines + points})
+
+
+def test_no_room_for_the_export_copy_is_one_line_and_exit_2(tmp_path):
+    """The export copies the history into SQLite's temporary folder (~40 bytes a row): a full one is said as such
+    in one line, exit 2, not as a database that is no fusion database."""
+    db = fusion_db(tmp_path / "fusion.sqlite", 400, 250)  # 100k rows: the copy outgrows its cache into its file
+    folder = tmp_path / "sqlite-tmp"
+    folder.mkdir()
+    out = tmp_path / "t.geojson"
+    result = _cli("--db", str(db), "--out", str(out), limit_bytes=1 << 20, env={"SQLITE_TMPDIR": str(folder)})
+    assert result.returncode == 2, result.stderr
+    (line,) = result.stderr.strip().splitlines()
+    assert line.startswith(f"uavmm export: error: cannot export {db}: ") and "temporary folder" in line, line
+    assert not out.exists() and not list(folder.iterdir())

@@ -1,0 +1,91 @@
+"""shared.kml's KMZ written as it streams: ZIP64 exactly when the KML passes zipfile's limit without it (2 GiB, lowered
+here through `write_kmz`'s own parameter), read back by zipfile (and Info-ZIP's unzip where installed)."""
+
+from __future__ import annotations
+
+import shutil
+import struct
+import subprocess
+import zipfile
+from pathlib import Path
+
+import pytest
+
+from shared.kml import kml_chunks, kmz, write_kmz
+
+LOCAL_HEADER = struct.Struct("<4sHHHHHIIIHH")  # signature, version needed, flags, method, time, date, crc, sizes...
+
+
+def _document(calls: list[int]):
+    """A track line's KML as `kml_chunks` makes it (~6 KB), and a count of the times it was asked for."""
+    feature = {"type": "Feature", "id": "track-1-path", "properties": {"gid": 1, "cls": "person",
+                                                                        "times": [1.79e9, 1.79e9 + 199]},
+               "geometry": {"type": "LineString", "coordinates": [[9.05 + 1e-5 * k, 48.5] for k in range(200)]}}
+
+    def document():
+        calls.append(1)
+        return kml_chunks("t", {"lines": [feature]})
+
+    return document
+
+
+def _local_header(path: Path) -> tuple[int, int, int, bytes]:
+    """(version needed, compressed size, size, extra field) of the archive's first local file header."""
+    data = path.read_bytes()
+    _sig, version, _flags, _method, _time, _date, _crc, csize, usize, name_len, extra_len = \
+        LOCAL_HEADER.unpack_from(data)
+    start = LOCAL_HEADER.size + name_len
+    return version, csize, usize, data[start:start + extra_len]
+
+
+def test_a_kmz_past_the_limit_is_zip64_and_reads_back(tmp_path):
+    """Past zipfile's limit without ZIP64 (2 GiB of KML) a streamed KMZ was refused (OSError, exit 2 from `uavmm
+    export`): it is written again, from the start, with the ZIP64 extensions."""
+    calls: list[int] = []
+    document = _document(calls)
+    text = b"".join(document())
+    out = tmp_path / "big.kmz"
+    with out.open("wb") as file:
+        assert write_kmz(file, document, zip64_over=len(text) - 1) is True
+    assert len(calls) == 1 + 2  # the oracle's, the one cut at the limit, the ZIP64 one
+    version, csize, usize, extra = _local_header(out)
+    assert version == 45 and csize == usize == 0xFFFFFFFF  # ZIP64: the sizes are in the extra field
+    header_id, size, zip64_usize, zip64_csize = struct.unpack("<HHQQ", extra)
+    assert (header_id, size, zip64_usize) == (0x0001, 16, len(text)) and 0 < zip64_csize < len(text)
+    with zipfile.ZipFile(out) as archive:
+        assert archive.namelist() == ["doc.kml"]
+        assert archive.read("doc.kml") == text  # CRC checked
+    if shutil.which("unzip"):
+        check = subprocess.run(["unzip", "-t", str(out)], capture_output=True, text=True, timeout=60)
+        assert check.returncode == 0 and "No errors detected" in check.stdout, check.stdout + check.stderr
+
+
+@pytest.mark.parametrize("margin", [0, 1000])
+def test_a_kmz_within_the_limit_has_no_zip64(tmp_path, margin):
+    """libkml (GDAL's LIBKML driver, which opens a .kmz) does not open a ZIP64 archive, even a small one: ZIP64 only
+    when needed, and below the limit (up to it exactly) the bytes `kmz` makes, written once."""
+    calls: list[int] = []
+    document = _document(calls)
+    text = b"".join(document())
+    out = tmp_path / "small.kmz"
+    with out.open("wb") as file:
+        assert write_kmz(file, document, zip64_over=len(text) + margin) is False
+    assert len(calls) == 2
+    assert out.read_bytes() == kmz(text)
+    version, csize, usize, extra = _local_header(out)
+    assert version == 20 and usize == len(text) and csize < usize and extra == b""
+
+
+def test_a_kmz_written_after_other_bytes_starts_over_where_it_began(tmp_path):
+    """The ZIP64 rewrite goes back to where the archive began in the file, not to the file's start."""
+    calls: list[int] = []
+    document = _document(calls)
+    text = b"".join(document())
+    out = tmp_path / "after.bin"
+    with out.open("wb") as file:
+        file.write(b"HEAD")
+        assert write_kmz(file, document, zip64_over=100)
+    data = out.read_bytes()
+    assert data[:4] == b"HEAD"
+    with zipfile.ZipFile(out) as archive:  # zipfile finds the archive behind the prefix
+        assert archive.read("doc.kml") == text
