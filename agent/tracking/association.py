@@ -19,7 +19,7 @@ from agent.tracking.state import FrameDetections, Table, TrackState
 
 __all__ = ["associate_centres", "associate_ground", "associate_image", "associate_iou", "duplicate_mask",
            "expected_boxes", "fresh_in_image", "frame_detections", "ground_duplicates", "image_cost", "mark_hit",
-           "resolve_alternatives"]
+           "note_image_offsets", "resolve_alternatives"]
 
 
 def frame_detections(result: FrameResult, config: TrackerConfig) -> FrameDetections:
@@ -320,12 +320,15 @@ def associate_image(state: TrackState, dets: FrameDetections, det_mask: NDArray[
 
 def associate_centres(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_],
                       gate: float) -> None:
-    """Match detections (det_mask) to tracks by the distance of their box centres from each track's last box,
-    in the two boxes' mean sizes (square root of the area), within `gate`: far boxes are a few pixels wide and
-    one pixel of jitter halves their IoU. A pair whose ground point lies within the track's gate updates its
-    filter (a loose far point, `far_points.fill_far_points`, still says how the object moves); others coast."""
+    """Match detections (det_mask) to tracks by the distance of their box centres from each track's expected
+    centre, in the two boxes' mean sizes (square root of the area), within `gate`: far boxes are a few pixels wide
+    and one pixel of jitter halves their IoU. The expected centre is the last one, or with `far_shift_radius` that
+    moved by the image's common motion since (`far_points.measure_image_shift`). A pair whose ground point lies
+    within the track's gate updates its filter (a loose far point, `far_points.fill_far_points`, still says how the
+    object moves); others coast."""
     act = state.active
-    det_mask = det_mask & ~dets.used & (dets.scores >= state.config.low_score)
+    cfg = state.config
+    det_mask = det_mask & ~dets.used & (dets.scores >= cfg.low_score)
     ti = np.flatnonzero(~act["matched"])
     di = np.flatnonzero(det_mask)
     if not len(ti) or not len(di):
@@ -333,20 +336,33 @@ def associate_centres(state: TrackState, dets: FrameDetections, t: float, det_ma
     prev, boxes = act["box"][ti], dets.boxes[di]
     size_t = np.sqrt(np.prod(np.maximum(prev[:, 2:] - prev[:, :2], 1.0), axis=1))
     size_d = np.sqrt(np.prod(np.maximum(boxes[:, 2:] - boxes[:, :2], 1.0), axis=1))
-    step = 0.5 * ((boxes[None, :, :2] + boxes[None, :, 2:]) - (prev[:, None, :2] + prev[:, None, 2:]))
-    dist = np.hypot(step[..., 0], step[..., 1]) / (0.5 * (size_t[:, None] + size_d[None, :]))
-    allowed = (dist <= gate) & (act["cls"][ti][:, None] == dets.cls[di][None, :])
-    r, c = gated_assignment(dist, allowed)
+    size = 0.5 * (size_t[:, None] + size_d[None, :])
+    expected = 0.5 * (prev[:, :2] + prev[:, 2:])
+    centres = 0.5 * (boxes[:, :2] + boxes[:, 2:])
+    same = act["cls"][ti][:, None] == dets.cls[di][None, :]
+    if cfg.far_shift_radius > 0:
+        expected = expected + np.nan_to_num(state.image_motion.offset_at(t) - act["img_offset"][ti])
+    step = centres[None, :, :] - expected[:, None, :]
+    dist = np.hypot(step[..., 0], step[..., 1]) / size
+    r, c = gated_assignment(dist, (dist <= gate) & same)
     if not len(r):
         return
     tr, dr = ti[r], di[c]
     d2, _ = mahalanobis2_and_logdet(dets.z[dr] - act["x"][tr, :2], act["P"][tr, :2, :2] + dets.R[dr])
-    upd = dets.geo[dr] & (d2 <= state.config.gate_chi2)
+    upd = dets.geo[dr] & (d2 <= cfg.gate_chi2)
     if upd.any():
         u, z = tr[upd], dr[upd]
         _, speed_cap = state.motion.accel_and_cap(act["cls"][u])
         act.cols["x"][u], act.cols["P"][u] = kalman_update(act["x"][u], act["P"][u], dets.z[z], dets.R[z], speed_cap)
     mark_hit(state, tr, dets, dr, t)
+
+
+def note_image_offsets(state: TrackState, t: float) -> None:
+    """The tracks matched (or born) in the frame at time t keep the image's common offset then
+    (`image_motion.ImageMotion`): their boxes are expected moved by the image's motion since."""
+    act = state.active
+    if len(act):
+        act.cols["img_offset"][act["matched"]] = state.image_motion.offset_at(t)
 
 
 def associate_iou(state: TrackState, dets: FrameDetections, t: float, det_mask: NDArray[np.bool_]) -> None:

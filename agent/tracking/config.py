@@ -146,6 +146,18 @@ class TrackerConfig:
         `association.associate_centres`), the loose point updating the track's position where it agrees
         (0: off: such boxes follow tracks by IoU and start none, as before 30 Nov 2026). Boxes without any point
         (at or above the horizon, over a DEM beyond the pipeline's range) follow tracks by IoU either way.
+    far_image_sigma_m : float
+        With a value below far_reach_sigma_m: points beyond the shorter reach where the along-ray error is this many
+        metres are followed in the image as well, as loose points are, though their tracks keep their positions
+        within far_reach_sigma_m (0, the default: off; docs/tracking.md "Far views in the image").
+    far_shift_radius, far_shift_min_tracks, far_shift_rate_gain : float, int, float
+        Boxes followed in the image are expected where the image's common motion took them since their track's last
+        match (`agent.tracking.image_motion`; a tele camera's sweep or sway moves every far box alike, 2-3 box sizes
+        a frame). A frame with such boxes measures it first: the shift from the expected box centres of the tracks
+        matched within image_max_age_s to the frame's boxes within far_shift_radius box sizes (the smaller box's)
+        that at least far_shift_min_tracks tracks agree on within far_loose_gate sizes; between such frames the
+        offset moves at a rate that each measured shift moves by far_shift_rate_gain times it per second, for up
+        to image_max_age_s after the last one. far_shift_radius 0: off (the last box centre, as before 30 Nov 2026).
     telemetry_latency_s, max_heading_correction_deg : float
         How much older the telemetry is than its stamp (s): while the gimbal turns, ground points are
         turned about the UAV by rate * (frame time - pose time + latency), at most this many degrees.
@@ -394,7 +406,11 @@ class TrackerConfig:
     max_measurement_sigma_m: float = 30.0
     far_reach_sigma_m: float = 60.0
     far_anchor: str = "auto"
-    far_loose_gate: float = 1.0
+    far_loose_gate: float = 2.0
+    far_image_sigma_m: float = 0.0
+    far_shift_radius: float = 8.0
+    far_shift_min_tracks: int = 3
+    far_shift_rate_gain: float = 0.5
     telemetry_latency_s: float = 0.05
     max_heading_correction_deg: float = 30.0
     timing_sigma_s: float = 0.05
@@ -510,7 +526,7 @@ class TrackerConfig:
                 raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 0")
         if self.jump_agree_frac > 1.0:
             raise ValueError(f"TrackerConfig.jump_agree_frac={self.jump_agree_frac!r} must be in [0, 1]")
-        for name in ("register_min_pairs", "image_register_min_pairs", "report_level_top_k"):
+        for name in ("register_min_pairs", "image_register_min_pairs", "report_level_top_k", "far_shift_min_tracks"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:
                 raise ValueError(f"TrackerConfig.{name}={value!r} must be an integer >= 1")

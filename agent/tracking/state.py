@@ -11,6 +11,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from agent.tracking.config import TrackerConfig
+from agent.tracking.image_motion import ImageMotion
 from agent.tracking.model import FloatArray, MotionModels
 
 __all__ = ["ACTIVE_FIELDS", "LOST_FIELDS", "EvidenceFn", "FrameDetections", "Table", "TrackState"]
@@ -32,6 +33,8 @@ ACTIVE_FIELDS = {
     "vel_img": ((2,), np.float64),
     # loose: the ground position comes from loose far points only (agent.tracking.far_points)
     "loose": ((), np.bool_),
+    # img_offset: the image's common offset (px) in the frame the track was last matched in (image_motion)
+    "img_offset": ((2,), np.float64),
 }
 LOST_FIELDS = {
     "id": ((), np.int64), "cls": ((), np.int64), "pos": ((2,), np.float64), "vel": ((2,), np.float64),
@@ -99,7 +102,8 @@ class FrameDetections:
     view_h: FloatArray | None = None  # (n,) over a terrain: the flat-ground height of each point's error model
     alt_latlon: FloatArray | None = None  # (n, 2) a second ground point (lat, lon) past a terrain edge
     alt: FloatArray | None = None  # (n, 2) z's step to the other point, metres (set with z; swapped with it)
-    loose: NDArray[np.bool_] | None = None  # (n,) ground points beyond the far reach: births, image association
+    loose: NDArray[np.bool_] | None = None  # (n,) ground points beyond the image reach: births, image association
+    unplaced: NDArray[np.bool_] | None = None  # (n,) those beyond the far reach as well: no position reported
 
 
 @dataclass
@@ -130,6 +134,8 @@ class TrackState:
     #: while not both took a detection (-1: both did once, two objects); this frame's pairs in edge_twins_now
     edge_twins: dict[tuple[int, int], int] = field(default_factory=dict)
     edge_twins_now: set[tuple[int, int]] = field(default_factory=set)
+    #: the image's common motion as the far tracks show it (TrackerConfig.far_shift_radius)
+    image_motion: ImageMotion = field(default_factory=ImageMotion)
 
     def ensure_descriptor_columns(self, dim: int) -> None:
         """Descriptor columns ("emb", (dim,)) in the track tables, added at the first descriptor."""

@@ -24,10 +24,11 @@ from agent.tracking.association import (
     frame_detections,
     fresh_in_image,
     ground_duplicates,
+    note_image_offsets,
     resolve_alternatives,
 )
 from agent.tracking.config import TrackerConfig
-from agent.tracking.far_points import fill_far_points
+from agent.tracking.far_points import fill_far_points, measure_image_shift, place_far_tracks
 from agent.tracking.gimbal_rates import GimbalRates
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, reanchor, retire
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
@@ -304,7 +305,7 @@ class GpsTracker:
                 self._frame_with_pose(dets, pose, t, camera, turn_deg=turn_deg, dt=dt, undo_en=undo, terrain=terrain)
                 merge_duplicates(state, t)
                 decay_unseen_quality(state, pose, camera, terrain)
-
+        note_image_offsets(state, t)
         reid.settle_probation(state)
         retire(state, t, camera)
         act = state.active
@@ -398,6 +399,7 @@ class GpsTracker:
         # 2. weak detections to confirmed tracks left over. Loose far points start tracks, but are not associated
         # by on the ground (agent.tracking.far_points).
         tight = geo if dets.loose is None else geo & ~dets.loose
+        measure_image_shift(state, dets, t)  # far views: the camera's motion in the image, before the boxes are taken
         confirmed = state.active["confirmed"].copy()
         strong = tight & ~dets.used & (dets.scores >= cfg.match_score)
         if cfg.image_first_iou > 0:
@@ -432,6 +434,7 @@ class GpsTracker:
         cand = geo & ~dets.used & (dets.entry >= cfg.birth_score)
         if cand.any():
             birth(state, dets, cand, t)
+        place_far_tracks(state, dets)
         if cfg.reid_delay_s > 0:
             reid.resolve_pending(state, t)
         if anchored is not None or carried:

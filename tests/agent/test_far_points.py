@@ -69,16 +69,19 @@ def test_boxes_without_a_point_get_theirs_within_the_reach_and_the_others_are_un
     assert np.isnan(result.lat[1:]).all()  # the FrameResult is not written
     assert not filled[2] and np.isnan(dets.lat[2])  # beyond the reach: none without loose points
     assert dets.loose is None
-    loose_config = TrackerConfig(far_anchor="bottom")  # far_loose_gate on: a loose point beyond the reach
+    # far_loose_gate on: a loose point beyond the reach; far_image_sigma_m: followed in the image beyond its own reach
+    loose_config = TrackerConfig(far_anchor="bottom", far_image_sigma_m=20.0)
     loose = frame_detections(result, loose_config)
     loose_filled = fill_far_points(loose, pose, CAMERA, result.correction, loose_config)
-    assert loose.loose is not None and not loose.loose[0]
+    assert loose.loose is not None and loose.unplaced is not None and not (loose.loose[0] or loose.unplaced[0])
+    image_reach = far_reach_m(loose_config, height, loose_config.far_image_sigma_m)
     if inside[2]:
-        assert loose_filled[2] and loose.loose[2]
+        assert loose_filled[2] and loose.loose[2] and loose.unplaced[2]
         e, n = latlon_to_local(loose.lat[2], loose.lon[2], pose.lat, pose.lon)
         assert float(e) == pytest.approx(points[2][0] + corr[0], abs=0.05 + 1e-4 * ranges[2])
-    if inside[1]:
-        assert loose_filled[1] and not loose.loose[1] and loose.lat[1] == pytest.approx(dets.lat[1], abs=1e-12)
+    if inside[1]:  # within the reach: placed, and followed in the image beyond the image reach (far_image_sigma_m)
+        assert loose_filled[1] and not loose.unplaced[1] and loose.lat[1] == pytest.approx(dets.lat[1], abs=1e-12)
+        assert bool(loose.loose[1]) is (ranges[1] > image_reach * (1 + 1e-6))
     if inside[1]:
         assert filled[1]
         e, n = latlon_to_local(dets.lat[1], dets.lon[1], pose.lat, pose.lon)
@@ -236,3 +239,61 @@ def test_a_loose_far_point_takes_no_lost_id(delay):
     for _ in range(8):
         tracks = frame(1.01 * reach)
     assert [tr.id for tr in tracks if tr.matched] == [2] and tracker.n_reidentified == 0
+
+
+def _swept_far_view(config: TrackerConfig, frames: int = 60, seed: int = 5, at: float = 1.3
+                    ) -> tuple[dict[int, set[int]], list]:
+    """Four swimmers at about `at` times the reach, 6 px boxes 40-60 px apart (at 1.3), under a tele camera that
+    sweeps 0.1 deg (13 px, two box sizes) a frame for a second, holds, and sways up and down by up to 8 px a
+    frame, with 1 px of box jitter; two large boxes (clutter) stay put in the image. Returns the ids seen on each
+    swimmer (confirmed, matched) and the last frame's tracks."""
+    pose0, reach = _far_view()
+    points = [(-6.0, at * reach), (-2.0, (at + 0.02) * reach), (2.0, (at - 0.02) * reach), (6.0, (at + 0.01) * reach)]
+    rng = np.random.default_rng(seed)
+    tracker = GpsTracker(config, {1: "swimmer"})
+    seen: dict[int, set[int]] = {k: set() for k in range(len(points))}
+    heading, sway = 0.0, 0.0
+    tracks: list = []
+    for k in range(frames):
+        heading += 0.1 if 5 <= k < 35 else 0.0
+        sway = 0.6 * sway + rng.uniform(-8.0, 8.0)
+        pose = Pose(lat=pose0.lat, lon=pose0.lon, height_m=pose0.height_m, pitch_deg=pose0.pitch_deg,
+                    heading_deg=heading)
+        jitter = rng.uniform(-1.0, 1.0, (len(points), 2)) + np.array([0.0, sway])
+        boxes = np.vstack([_small_boxes(pose, points, 6.0, jitter),
+                           [[300.0, 1500.0, 400.0, 1600.0], [3300.0, 1400.0, 3380.0, 1500.0]]])
+        tracks = tracker.update(_result(boxes, np.full(len(boxes), np.nan), np.full(len(boxes), np.nan)), pose,
+                                100.0 + k / 30, CAMERA)
+        for tr in tracks:
+            if tr.confirmed and tr.matched and tr.box_xyxy[2] - tr.box_xyxy[0] < 20:
+                centre = 0.5 * (tr.box_xyxy[0] + tr.box_xyxy[2])
+                seen[int(np.argmin(np.abs(0.5 * (boxes[:4, 0] + boxes[:4, 2]) - centre)))].add(tr.id)
+    return seen, tracks
+
+
+def test_far_objects_swept_across_the_image_keep_their_ids():
+    """A tele camera's sweep moves every far box two box sizes a frame, its sway up to a size more: each swimmer's
+    track expects its box where the image's common motion took it (`image_motion`, `far_shift_radius`) and keeps
+    its id through the sweep. Probe: expected at its last box centre (far_shift_radius 0, far_loose_gate 1, as
+    before 30 Nov 2026) the boxes leave every track's gate in the sweep and the swimmers change ids."""
+    seen, tracks = _swept_far_view(TrackerConfig())
+    assert [len(ids) for ids in seen.values()] == [1, 1, 1, 1] and len(set().union(*seen.values())) == 4
+    assert sum(tr.confirmed and tr.matched for tr in tracks) == 6  # the swimmers and the two clutter boxes
+    before, _ = _swept_far_view(TrackerConfig(far_shift_radius=0.0, far_loose_gate=1.0))
+    assert sum(len(ids) for ids in before.values()) > 4
+
+
+def test_points_beyond_the_image_reach_are_followed_in_the_image_and_keep_their_positions():
+    """With far_image_sigma_m, points within the reach but beyond the shorter image reach are followed in the image
+    (as loose ones are: through the sweep, one id each) and their tracks still report positions, where the
+    swimmers are."""
+    pose, reach = _far_view()
+    config = TrackerConfig(far_image_sigma_m=20.0)
+    assert far_reach_m(config, pose.height_m, 20.0) < 0.75 * reach
+    seen, tracks = _swept_far_view(config, at=0.8)
+    assert [len(ids) for ids in seen.values()] == [1, 1, 1, 1]
+    swimmers = [tr for tr in tracks if tr.confirmed and tr.box_xyxy[2] - tr.box_xyxy[0] < 20]
+    assert len(swimmers) == 4 and not any(tr.loose for tr in swimmers)
+    e, n = latlon_to_local(np.array([tr.lat for tr in swimmers]), np.array([tr.lon for tr in swimmers]),
+                           pose.lat, pose.lon)
+    assert np.all(np.abs(np.hypot(e, n) - 0.8 * reach) < 0.1 * reach)
