@@ -8,6 +8,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field, fields
+from typing import Any
 
 __all__ = ["DEFAULT_CLASS_MOTION", "ClassMotion", "TrackerConfig"]
 
@@ -560,7 +561,7 @@ class TrackerConfig:
             return self
         floors = {name: k * dt_s for name, k in FRAME_FLOORS.items()}
         floors["confirm_window_s"] = (self.confirm_hits - 0.5) * dt_s
-        changes = {name: value for name, value in floors.items() if getattr(self, name) < value}
+        changes: dict[str, Any] = {name: value for name, value in floors.items() if getattr(self, name) < value}
         return dataclasses.replace(self, **changes) if changes else self
 
     def motion_for(self, class_name: str | None) -> ClassMotion:

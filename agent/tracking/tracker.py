@@ -513,7 +513,7 @@ class GpsTracker:
             return None
         ti, di = ti[pt], strong[pd]
         rel_pairs = rel[row_of[di]]
-        h_pairs = h if np.isscalar(h) else np.asarray(h)[row_of[di]]
+        h_pairs = np.asarray(h, dtype=np.float64)[row_of[di]] if np.ndim(h) else h
         S = act["P"][ti, :2, :2] + self._pixel_cov(rel_pairs, h_pairs, focal_px) \
             + cfg.registered_floor_m ** 2 * np.eye(2)
         prior = np.array([cfg.register_position_sd_m, cfg.register_position_sd_m,
