@@ -22,7 +22,8 @@ ACL_MESSAGES = ("put", "delete", "declare_subscriber", "query", "declare_queryab
 FUSION_IDENTITY = "fusion"
 #: the certificate common name of a zenohd router (its folder ``router/`` beside ``fusion/``)
 ROUTER_IDENTITY = "router"
-#: an identity is a certificate's common name, which X.509 bounds to 64 characters (RFC 5280, ub-common-name)
+#: with client certificates an identity is a certificate's common name, which X.509 bounds to 64 characters
+#: (RFC 5280, ub-common-name; `fusion_server.provision.FleetPlan` checks it in mtls mode)
 MAX_IDENTITY_LEN = 64
 
 
@@ -32,8 +33,8 @@ class FleetIdentities:
 
     uavs: UAV ids (the `--uav-id` of each agent; the safe id set of docs/protocol.md).
     operators: read-only identities (a ground-station viewer, a recorder).
-    Each is at most `MAX_IDENTITY_LEN` characters, and none is `FUSION_IDENTITY` or `ROUTER_IDENTITY` (the
-    ground station's own identities: a UAV so named would get their folder and server certificate).
+    None is `FUSION_IDENTITY` or `ROUTER_IDENTITY` (the ground station's own identities: a UAV so named would get
+    their folder and server certificate); with client certificates each is at most `MAX_IDENTITY_LEN` characters.
     """
 
     uavs: tuple[str, ...]
@@ -45,9 +46,6 @@ class FleetIdentities:
         for group, members in (("uavs", self.uavs), ("operators", self.operators)):
             for name in members:
                 validate_uav_id(name, group)  # operators too: the same safe characters, it becomes a file and a CN
-                if len(name) > MAX_IDENTITY_LEN:
-                    raise ValueError(f"{group} {name!r} has {len(name)} characters: an identity is a certificate "
-                                     f"common name, at most {MAX_IDENTITY_LEN} characters")
         names = [*self.uavs, *self.operators, FUSION_IDENTITY, ROUTER_IDENTITY]
         duplicates = sorted({n for n in names if names.count(n) > 1})
         if duplicates:

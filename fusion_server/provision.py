@@ -17,7 +17,7 @@ from datetime import datetime, timezone
 from pathlib import Path
 from typing import IO, Any
 
-from fusion_server.acl import FUSION_IDENTITY, ROUTER_IDENTITY, FleetIdentities, access_control
+from fusion_server.acl import FUSION_IDENTITY, MAX_IDENTITY_LEN, ROUTER_IDENTITY, FleetIdentities, access_control
 from fusion_server.http_auth import read_token_file
 from shared import pki
 from shared.files import write_atomic
@@ -59,6 +59,13 @@ class FleetPlan:
         object.__setattr__(self, "identities", FleetIdentities(tuple(self.uavs), tuple(self.operators)))
         if self.auth not in AUTH_MODES:
             raise ValueError(f"auth must be one of {', '.join(AUTH_MODES)}, got {self.auth!r}")
+        if self.auth == "mtls":  # user names (usrpwd) are no certificate's: an earlier fleet may have longer ones
+            for group, members in (("uavs", self.uavs), ("operators", self.operators)):
+                for name in members:
+                    if len(name) > MAX_IDENTITY_LEN:
+                        raise ValueError(f"{group} {name!r} has {len(name)} characters: with client certificates "
+                                         f"an identity is a certificate common name, at most {MAX_IDENTITY_LEN} "
+                                         "characters")
         if not self.server_hosts:
             raise ValueError("server_hosts: give at least one host name or address the agents dial")
         for host in self.server_hosts:
@@ -180,8 +187,8 @@ def _check_identity_files(folders: dict[str, Path]) -> None:
                              "a new key and certificate (nothing was written)")
 
 
-def _load_ca(root: Path, days: int) -> pki.CertifiedKey:
-    """The folder's CA; ValueError if it cannot be read or cannot sign certificates of ``days`` days."""
+def _load_ca(root: Path) -> pki.CertifiedKey:
+    """The folder's CA; ValueError if it cannot be read."""
     from cryptography import x509
     from cryptography.hazmat.primitives import serialization
     from cryptography.hazmat.primitives.asymmetric import ec
@@ -193,12 +200,18 @@ def _load_ca(root: Path, days: int) -> pki.CertifiedKey:
         raise ValueError(f"cannot read the fleet's CA in {root / 'ca'}: {exc}") from None
     if not isinstance(key, ec.EllipticCurvePrivateKey):
         raise ValueError(f"{root / 'ca' / 'ca.key'} is not the ECDSA key `uavmm secure init` makes")
-    end = certificate.not_valid_after_utc
-    left = (end - datetime.now(timezone.utc)).days
-    if days > left:
-        raise ValueError(f"the fleet's CA ({root / 'ca' / 'ca.pem'}) is valid until {end:%Y-%m-%d}, {max(left, 0)} "
-                         f"days from now: give days of at most {max(left, 0)} (nothing was written)")
     return pki.CertifiedKey(key, certificate)
+
+
+def _check_ca_days(ca: pki.CertifiedKey, root: Path, days: int, identities: list[str]) -> None:
+    """ValueError when the folder's CA cannot sign the certificates of ``identities`` (to be issued) for ``days``
+    days; nothing to issue, nothing to check (a UAV added to a usrpwd fleet gets no certificate)."""
+    end = ca.certificate.not_valid_after_utc
+    left = (end - datetime.now(timezone.utc)).days
+    if identities and days > left:
+        raise ValueError(f"the fleet's CA ({root / 'ca' / 'ca.pem'}) is valid until {end:%Y-%m-%d}, {max(left, 0)} "
+                         f"days from now, too short for the new certificates of {', '.join(identities)}: give days "
+                         f"of at most {max(left, 0)} (nothing was written)")
 
 
 def provision(root: Path, plan: FleetPlan) -> ProvisionResult:
@@ -226,12 +239,14 @@ def provision(root: Path, plan: FleetPlan) -> ProvisionResult:
     folders.update({name: root / "operators" / name for name in plan.operators})
     _check_identity_files(folders)
     new_ca = manifest is None
-    ca = pki.new_ca(f"uavmm fleet CA {datetime.now(timezone.utc):%Y-%m-%d}") if new_ca else _load_ca(root, plan.days)
-    issued: dict[str, pki.CertifiedKey] = {}
-    for identity, folder in folders.items():
-        server = identity in (FUSION_IDENTITY, ROUTER_IDENTITY)
-        if (server or plan.auth == "mtls") and not (folder / "cert.pem").exists():
-            issued[identity] = pki.issue(ca, identity, hosts=plan.server_hosts if server else (), days=plan.days)
+    ca = pki.new_ca(f"uavmm fleet CA {datetime.now(timezone.utc):%Y-%m-%d}") if new_ca else _load_ca(root)
+    servers = (FUSION_IDENTITY, ROUTER_IDENTITY)
+    to_issue = [identity for identity, folder in folders.items()
+                if (identity in servers or plan.auth == "mtls") and not (folder / "cert.pem").exists()]
+    if not new_ca:  # a new CA outlives every certificate it signs (FleetPlan's days, pki.issue)
+        _check_ca_days(ca, root, plan.days, to_issue)
+    issued = {identity: pki.issue(ca, identity, hosts=plan.server_hosts if identity in servers else (),
+                                  days=plan.days) for identity in to_issue}
     passwords = _read_passwords(root / "fusion" / "users.txt")
     if plan.auth == "usrpwd":
         for identity in folders:

@@ -253,11 +253,37 @@ def test_days_beyond_what_the_ca_has_left_are_refused(tmp_path):
     assert leaf.not_valid_after_utc <= ca.not_valid_after_utc  # never valid beyond its CA
     keys = {p: p.read_bytes() for p in root.rglob("*") if p.name in ("key.pem", "cert.pem", "ca.key", "http-token")}
     (root / "ca" / "ca.pem").write_bytes(pem_certificate(_aged(root, days_left=100)))
-    with pytest.raises(ValueError, match=r"valid until .* 100 days from now: give days of at most 100"):
+    with pytest.raises(ValueError, match=r"valid until .* 100 days from now, too short for the new certificates of "
+                                         r"uav2: give days of at most 100"):
         provision(root, FleetPlan(uavs=("uav2",), days=825))
     assert not (root / "uavs" / "uav2").exists()
     provision(root, FleetPlan(uavs=("uav2",), days=100))
     assert {p: p.read_bytes() for p in keys} == keys
+
+
+def test_a_usrpwd_fleet_adds_without_certificates_whatever_the_ca_has_left(tmp_path):
+    # review probe: a usrpwd fleet whose CA had 300 days left refused adding a UAV at the default --days 825,
+    # though a UAV or operator there gets a password, no certificate
+    root = tmp_path / "fleet"
+    provision(root, FleetPlan(uavs=("uav1",), auth="usrpwd"))
+    (root / "ca" / "ca.pem").write_bytes(pem_certificate(_aged(root, days_left=300)))
+    result = provision(root, FleetPlan(uavs=("uav2",), operators=("op2",), auth="usrpwd"))
+    assert set(result.added) == {"uav2", "op2"} and not (root / "uavs" / "uav2" / "cert.pem").exists()
+    other = tmp_path / "other"  # with mtls the new UAV needs a certificate: refused
+    provision(other, FleetPlan(uavs=("uav1",)))
+    (other / "ca" / "ca.pem").write_bytes(pem_certificate(_aged(other, days_left=300)))
+    with pytest.raises(ValueError, match="too short for the new certificates of uav3"):
+        provision(other, FleetPlan(uavs=("uav3",)))
+
+
+def test_user_names_of_a_usrpwd_fleet_are_not_bound_to_a_common_names_length(tmp_path):
+    # review probe: a usrpwd fleet made with a 70-character UAV id (a user name, no certificate) could no longer be
+    # extended: every re-run refused it as "a certificate common name"
+    root = tmp_path / "fleet"
+    provision(root, FleetPlan(uavs=("u" * 70,), auth="usrpwd"))
+    assert "uav2" in provision(root, FleetPlan(uavs=("uav2",), auth="usrpwd")).added
+    with pytest.raises(ValueError, match="at most 64 characters"):
+        FleetPlan(uavs=("u" * 70,), auth="mtls")
 
 
 def _aged(root: Path, days_left: int) -> x509.Certificate:
