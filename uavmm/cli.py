@@ -355,6 +355,7 @@ def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_fit_size_filter(args: argparse.Namespace) -> int:
+    from agent.size_filter import BUILTIN_PRIORS
     from agent.size_filter_fit import fit_from_dataset, left_out_text
 
     if not (args.k > 0 and args.k < float("inf")):
@@ -365,6 +366,11 @@ def _run_fit_size_filter(args: argparse.Namespace) -> int:
     left_out: dict[str, int] = {}
     sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor, terrain=terrain,
                                   left_out=left_out)
+    skipped = [name for name, row in report.items() if not row["fitted"]]
+    priors = [name for name in skipped if name in BUILTIN_PRIORS]  # as without a file, and as `uavmm tune` keeps them
+    for name in priors:
+        sf.bands[name] = BUILTIN_PRIORS[name]
+        report[name]["band"] = "built-in prior (not fitted)"
     sf.save(args.out, evidence={"frames": str(args.frames), "camera": str(args.camera), "anchor": args.anchor,
                                 "dem": None if args.dem is None else str(args.dem), "boxes_left_out": left_out,
                                 "classes": report})
@@ -372,9 +378,10 @@ def _run_fit_size_filter(args: argparse.Namespace) -> int:
         print(f"{name}: " + ", ".join(f"{k}={v}" for k, v in row.items()))
     if any(left_out.values()):
         print(f"boxes not fitted on: {left_out_text(left_out)}")
-    skipped = [name for name, row in report.items() if not row["fitted"]]
-    if skipped:
-        print(f"no band for {', '.join(skipped)}: with --size-filter {args.out} their boxes pass unfiltered")
+    if priors:
+        print(f"not fitted, the built-in prior kept (as without a file): {', '.join(priors)}")
+    if unfiltered := [name for name in skipped if name not in priors]:
+        print(f"no band for {', '.join(unfiltered)}: with --size-filter {args.out} their boxes pass unfiltered")
     print(f"wrote {args.out}")
     return 0
 

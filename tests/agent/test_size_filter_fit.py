@@ -209,6 +209,23 @@ def test_the_written_file_says_what_it_was_fitted_from(grass, tmp_path, capsys):
     assert "units=" in capsys.readouterr().out
 
 
+@needs_real
+def test_a_class_the_fit_cannot_check_keeps_the_built_in_prior_in_the_file(tmp_path, capsys):
+    # review probe: on the real dev file life_saving_appliances (2 videos, neither fitting a band alone) got no band,
+    # so --size-filter FILE filtered it less than no file at all (the built-in prior), unlike uavmm tune
+    from agent.size_filter import BUILTIN_PRIORS
+
+    out = tmp_path / "f.json"
+    assert main(["fit-size-filter", "--frames", str(REAL_IMAGES), "--camera", "dji-mavic2-pro", "--out",
+                 str(out)]) == 0
+    assert "built-in prior kept (as without a file): life_saving_appliances" in capsys.readouterr().out
+    loaded = SizeFilter.load(out)
+    assert loaded.bands["life_saving_appliances"] == BUILTIN_PRIORS["life_saving_appliances"]
+    assert loaded.bands["boat"] != BUILTIN_PRIORS["boat"]  # the fitted ones are the fit's
+    evidence = json.loads(out.read_text())["evidence"]["classes"]["life_saving_appliances"]
+    assert not evidence["fitted"] and evidence["band"] == "built-in prior (not fitted)"
+
+
 def test_an_output_that_is_a_folder_or_an_input_is_refused_before_the_fit(grass, tmp_path, capsys):
     # probe: --out DIR ended the fit in "[Errno 21] Is a directory"; --out IMAGES.json put the filter over the
     # annotated dataset it was fitted from
