@@ -59,8 +59,8 @@ def fit_from_dataset(images_path: str | Path, camera_path: str | Path, *, k: flo
     image_ids: fit on the annotations of these images only (`uavmm tune`'s held-out check keeps the held-out
     frames' ground truth out of its fit); the poses still come from every frame of their videos. The bands hold
     only the classes fitted: `uavmm tune` keeps its start filter's for the others, `uavmm fit-size-filter` writes
-    the built-in prior of those that have one; a class a `--size-filter FILE` lacks passes unfiltered (the run's
-    summary names it).
+    the built-in prior of every built-in class it did not fit; a class a `--size-filter FILE` lacks passes
+    unfiltered (the run's summary names it).
     """
     dataset = Dataset.load(images_path)
     camera = Camera.from_spec(camera_path)

@@ -60,7 +60,20 @@ def _connect(path: Path) -> sqlite3.Connection:
     if not path.is_file():
         raise ValueError(f"database {path} does not exist")
     try:
-        return sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+        connection = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
+        connection.execute("SELECT 1 FROM sqlite_master LIMIT 1")  # a WAL database on read-only media fails here
+        return connection
+    except sqlite3.OperationalError as exc:
+        if "unable to open" not in str(exc):
+            raise ValueError(f"cannot open database {path}: {exc}") from None
+        wal = path.with_name(path.name + "-wal")
+        if wal.is_file() and wal.stat().st_size > 0:  # rows there would be missed read as the file lies
+            raise ValueError(f"cannot open database {path} ({exc}): a WAL database on read-only media with its "
+                             f"{wal.name}: copy both to a writable folder and export from there") from None
+        try:  # a WAL database whose -shm cannot be made (read-only media): nobody writes there, read it as it lies
+            return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True, timeout=10.0)
+        except sqlite3.Error as exc2:
+            raise ValueError(f"cannot open database {path}: {exc2}") from None
     except sqlite3.Error as exc:
         raise ValueError(f"cannot open database {path}: {exc}") from None
 
@@ -330,7 +343,7 @@ def export_history(db_path: str | Path, out_path: str | Path, *, cls: str | None
             return write_geopackage(out, reader.layers())
 
         def write(file: IO[bytes]) -> None:
-            if suffix == ".geojson":  # one GeoJSON file: the lines (with times), then the last positions
+            if EXPORT_FORMATS[suffix] == "GeoJSON":  # one file (.geojson, .json): the lines, then the last positions
                 for text in collection_chunks(itertools.chain(reader.lines(), reader.positions())):
                     file.write(text.encode())
                 return

@@ -114,15 +114,19 @@ def kmz(kml: bytes) -> bytes:
 
 def write_kmz(file: IO[bytes], document: Callable[[], Iterable[bytes]], *,
               zip64_over: int = zipfile.ZIP64_LIMIT) -> bool:
-    """`kmz` of the document given piece by piece (``document()``: `kml_chunks`), written to a seekable binary file
-    as it comes: the same bytes as ``kmz(b"".join(document()))`` without holding the document.
+    """`kmz` of the document given piece by piece (``document()``: `kml_chunks`), written to a binary file as it
+    comes: the same bytes as ``kmz(b"".join(document()))`` without holding the document.
 
     ZIP64 only where it is needed: a document of more than ``zip64_over`` bytes (zipfile's limit without ZIP64,
     2 GiB) is written again from its start with the ZIP64 extensions, calling ``document`` a second time (a stream
     cannot know its size in advance, and a header written without ZIP64 has no room for it). Not always ZIP64:
     libkml (GDAL's LIBKML driver, which opens a .kmz) does not open a ZIP64 archive, even a small one. Returns
-    True when the archive was written with ZIP64.
+    True when the archive was written with ZIP64. A file that cannot seek (a pipe) gets one pass without ZIP64, as
+    before: zipfile raises past the limit there.
     """
+    if not file.seekable():
+        _write_doc_kml(file, document(), zip64=False, limit=None)
+        return False
     start = file.tell()
     if _write_doc_kml(file, document(), zip64=False, limit=zip64_over):
         return False

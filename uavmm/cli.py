@@ -355,7 +355,7 @@ def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
 
 
 def _run_fit_size_filter(args: argparse.Namespace) -> int:
-    from agent.size_filter import BUILTIN_PRIORS
+    from agent.size_filter import SizeFilter
     from agent.size_filter_fit import fit_from_dataset, left_out_text
 
     if not (args.k > 0 and args.k < float("inf")):
@@ -367,19 +367,24 @@ def _run_fit_size_filter(args: argparse.Namespace) -> int:
     sf, report = fit_from_dataset(args.frames, args.camera, k=args.k, anchor=args.anchor, terrain=terrain,
                                   left_out=left_out)
     skipped = [name for name, row in report.items() if not row["fitted"]]
-    priors = [name for name in skipped if name in BUILTIN_PRIORS]  # as without a file, and as `uavmm tune` keeps them
+    # every built-in class not fitted (no boxes, or too few objects) keeps its prior, as without a file and as
+    # `uavmm tune` keeps them; at the file's k its spread is scaled to the width the built-in k gives
+    builtin = SizeFilter.builtin()
+    priors = sorted(set(builtin.bands) - set(sf.bands))
     for name in priors:
-        sf.bands[name] = BUILTIN_PRIORS[name]
-        report[name]["band"] = "built-in prior (not fitted)"
+        band = builtin.bands[name]
+        sf.bands[name] = dataclasses.replace(band, std_log=tuple(sd * (builtin.k / sf.k) for sd in band.std_log))
+        if name in report:
+            report[name]["band"] = "built-in prior (not fitted)"
     sf.save(args.out, evidence={"frames": str(args.frames), "camera": str(args.camera), "anchor": args.anchor,
                                 "dem": None if args.dem is None else str(args.dem), "boxes_left_out": left_out,
-                                "classes": report})
+                                "classes": report, "built_in_priors": priors})
     for name, row in report.items():
         print(f"{name}: " + ", ".join(f"{k}={v}" for k, v in row.items()))
     if any(left_out.values()):
         print(f"boxes not fitted on: {left_out_text(left_out)}")
-    if priors:
-        print(f"not fitted, the built-in prior kept (as without a file): {', '.join(priors)}")
+    if kept := [name for name in skipped if name in priors]:
+        print(f"not fitted, the built-in prior kept (as without a file): {', '.join(kept)}")
     if unfiltered := [name for name in skipped if name not in priors]:
         print(f"no band for {', '.join(unfiltered)}: with --size-filter {args.out} their boxes pass unfiltered")
     print(f"wrote {args.out}")

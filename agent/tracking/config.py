@@ -143,10 +143,11 @@ class TrackerConfig:
         before 30 Nov 2026 (agent.tracking.far_points).
     far_loose_gate : float
         Boxes beyond that reach (up to the horizon) get a loose ground point as well: they may start tracks and
-        follow them in the image only (a box centre within this many box sizes of the track's last box;
-        `association.associate_centres`), the loose point updating the track's position where it agrees
-        (0: off: such boxes follow tracks by IoU and start none, as before 30 Nov 2026). Boxes without any point
-        (at or above the horizon, over a DEM beyond the pipeline's range) follow tracks by IoU either way.
+        follow them in the image only (a box centre within this many box sizes of the track's last box moved by the
+        image's common motion since, `far_shift_radius`; `association.associate_centres`), the loose point updating
+        the track's position where it agrees (0: off: such boxes follow tracks by IoU and start none, as before 30
+        Nov 2026). Boxes without any point (at or above the horizon, over a DEM beyond the pipeline's range) follow
+        tracks by IoU either way.
     far_image_sigma_m : float
         With a value below far_reach_sigma_m: points beyond the shorter reach where the along-ray error is this many
         metres are followed in the image as well, as loose points are, though their tracks keep their positions

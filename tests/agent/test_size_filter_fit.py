@@ -224,6 +224,13 @@ def test_a_class_the_fit_cannot_check_keeps_the_built_in_prior_in_the_file(tmp_p
     assert loaded.bands["boat"] != BUILTIN_PRIORS["boat"]  # the fitted ones are the fit's
     evidence = json.loads(out.read_text())["evidence"]["classes"]["life_saving_appliances"]
     assert not evidence["fitted"] and evidence["band"] == "built-in prior (not fitted)"
+    # second review: a class without any box got nothing, and at --k 2 the prior was narrower than without a file
+    assert loaded.bands["car"] == BUILTIN_PRIORS["car"]
+    assert main(["fit-size-filter", "--frames", str(REAL_IMAGES), "--camera", "dji-mavic2-pro", "--out",
+                 str(out), "--k", "2"]) == 0
+    at_k2, builtin = SizeFilter.load(out), SizeFilter.builtin()
+    for name in ("life_saving_appliances", "car"):
+        assert np.allclose(at_k2.bands[name].bounds_m([45.0], at_k2.k), builtin.bands[name].bounds_m([45.0], builtin.k))
 
 
 def test_an_output_that_is_a_folder_or_an_input_is_refused_before_the_fit(grass, tmp_path, capsys):

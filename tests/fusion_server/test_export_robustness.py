@@ -303,3 +303,44 @@ def test_no_room_for_the_export_copy_is_one_line_and_exit_2(tmp_path):
     (line,) = result.stderr.strip().splitlines()
     assert line.startswith(f"uavmm export: error: cannot export {db}: ") and "temporary folder" in line, line
     assert not out.exists() and not list(folder.iterdir())
+
+
+def test_a_json_export_is_geojson_as_the_cli_says(tmp_path, small_db, capsys):
+    # review probe: --out X.json (listed as GeoJSON) wrote KML and printed "(GeoJSON)"
+    assert main(["export", "--db", str(small_db), "--out", str(tmp_path / "t.json")]) == 0
+    assert "(GeoJSON)" in capsys.readouterr().out
+    assert main(["export", "--db", str(small_db), "--out", str(tmp_path / "t.geojson")]) == 0
+    assert json.loads((tmp_path / "t.json").read_text())["type"] == "FeatureCollection"
+    assert (tmp_path / "t.json").read_bytes() == (tmp_path / "t.geojson").read_bytes()
+
+
+UNSHARE_RO = """set -e
+mount -t tmpfs -o size=64m tmpfs "$1"
+cp "$2" "$1/f.sqlite"
+[ -z "$4" ] || cp "$4" "$1/f.sqlite-wal"
+mount -o remount,ro "$1"
+exec "$5" -m uavmm.cli export --db "$1/f.sqlite" --out "$3"
+"""
+
+
+@pytest.mark.parametrize("with_wal", [False, True])
+def test_a_wal_database_on_read_only_media_is_exported_or_named(tmp_path, small_db, with_wal):
+    # review probe: a server's WAL database copied to read-only media was refused as "not a uavmm fusion database
+    # (unable to open database file)": its -shm cannot be made. Read as it lies (immutable) unless a -wal beside it
+    # holds rows that would be missed. Run in a mount namespace of its own (a tmpfs remounted read-only).
+    if os.geteuid() != 0 or subprocess.run(["unshare", "-m", "true"], capture_output=True).returncode != 0:
+        pytest.skip("needs root and unshare -m for a read-only mount")
+    assert sqlite3.connect(small_db).execute("PRAGMA journal_mode").fetchone()[0] == "wal"
+    wal = tmp_path / "pending-wal"
+    if with_wal:
+        wal.write_bytes(b"\0" * 32)
+    (tmp_path / "ro").mkdir()
+    out = tmp_path / "t.geojson"
+    run = subprocess.run(["unshare", "-m", "sh", "-c", UNSHARE_RO, "sh", str(tmp_path / "ro"), str(small_db), str(out),
+                          str(wal) if with_wal else "", sys.executable], capture_output=True, text=True, cwd=ROOT,
+                         timeout=120)
+    if with_wal:
+        assert run.returncode == 2 and "copy both to a writable folder" in run.stderr and not out.exists()
+    else:
+        assert run.returncode == 0, run.stderr
+        assert len(json.loads(out.read_text())["features"]) == 2 * 12 + 1  # 12 lines, 13 positions

@@ -89,3 +89,24 @@ def test_a_kmz_written_after_other_bytes_starts_over_where_it_began(tmp_path):
     assert data[:4] == b"HEAD"
     with zipfile.ZipFile(out) as archive:  # zipfile finds the archive behind the prefix
         assert archive.read("doc.kml") == text
+
+
+def test_a_kmz_streams_to_a_file_that_cannot_seek(tmp_path):
+    # review probe: the two-pass writer asked the file where it stood and raised "Illegal seek" on a pipe, where the
+    # one-pass writer before it wrote the archive
+    import os
+    import threading
+
+    read_end, write_end = os.pipe()
+    received = bytearray()
+    reader = threading.Thread(target=lambda: received.extend(os.fdopen(read_end, "rb").read()))
+    reader.start()
+    calls: list[int] = []
+    with os.fdopen(write_end, "wb") as pipe:
+        assert not pipe.seekable()
+        assert write_kmz(pipe, _document(calls)) is False
+    reader.join(timeout=30)
+    (tmp_path / "piped.kmz").write_bytes(bytes(received))
+    with zipfile.ZipFile(tmp_path / "piped.kmz") as archive:
+        assert archive.read("doc.kml") == b"".join(_document([])())
+    assert calls == [1]
