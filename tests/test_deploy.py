@@ -315,10 +315,45 @@ def test_dockerfile_copies_files_that_exist_and_every_package():
     assert {"pyproject.toml", "README.md", "requirements-nodeps.txt"} <= set(copied)
 
 
+def dockerfile_extras() -> set[str]:
+    """The extras of the Dockerfile's `pip install .[...]` of the package (AssertionError if it installs none)."""
+    run = " ".join(rest for keyword, rest in dockerfile_instructions() if keyword == "RUN")
+    match = re.search(r"""pip install ["']?\.(?:\[([\w,-]+)\])?["']?(?:\s|$)""", run)
+    assert match, "the Dockerfile does not pip install the package (.)"
+    return set(match.group(1).split(",")) if match.group(1) else set()
+
+
+def requirement_names(requirements: list[str]) -> set[str]:
+    return {re.match(r"[A-Za-z0-9_.-]+", r).group(0).lower().replace("-", "_") for r in requirements}
+
+
+def test_the_image_has_what_its_commands_import():
+    """The image is for every process (docs/deploy.md): `agent` with live MAVLink / PX4 telemetry (the agent
+    extra) and `eval`'s baselines, which it installs with --no-deps (their runtime imports: the eval extra).
+    Run with the packages the image leaves out made unimportable: it used to install norfair without rich and
+    filterpy (`uavmm eval --tasks tracking` failed in the image) and no pymavlink or pyulog."""
+    import subprocess
+    import sys
+
+    tomllib = pytest.importorskip("tomllib")  # Python >= 3.11
+    project = tomllib.loads((REPO / "pyproject.toml").read_text())["project"]
+    extras = project["optional-dependencies"]
+    installed = dockerfile_extras()
+    assert installed <= set(extras), f"the Dockerfile names extras pyproject does not have: {installed - set(extras)}"
+    in_image = requirement_names(project["dependencies"] + [r for e in installed for r in extras[e]])
+    in_image |= requirement_names([ln.split("#")[0].strip() for ln in (REPO / "requirements-nodeps.txt").read_text()
+                                   .splitlines() if ln.split("#")[0].strip()])
+    left_out = requirement_names([r for role in ("agent", "eval") for r in extras[role]]) - in_image
+    code = (f"import sys\nfor name in {sorted(left_out)!r}:\n    sys.modules[name] = None\n"
+            "import norfair, trackeval\nfrom pymavlink.dialects.v20 import ardupilotmega\nfrom pyulog import ULog\n")
+    result = subprocess.run([sys.executable, "-c", code], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert result.returncode == 0, f"without {sorted(left_out)} (not in the image):\n{result.stderr[-800:]}"
+
+
 def test_dockerfile_installs_like_the_makefile_and_runs_unprivileged():
     rows = dockerfile_instructions()
     run = " ".join(rest for keyword, rest in rows if keyword == "RUN")
-    assert "pip install ." in run
+    dockerfile_extras()  # the package itself
     assert "pip install --no-deps -r requirements-nodeps.txt" in run
     assert "--no-deps -r requirements-nodeps.txt" in (REPO / "Makefile").read_text()  # the same file, the same way
     users = [rest for keyword, rest in rows if keyword == "USER"]

@@ -8,6 +8,7 @@ process kills them all should the demo itself die without cleaning up (even by S
 from __future__ import annotations
 
 import argparse
+import errno
 import json
 import logging
 import os
@@ -25,6 +26,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from uavmm._signals import stop_on_signals
+from uavmm.cmd_fusion import http_address
 
 log = logging.getLogger("uavmm.demo")
 
@@ -110,6 +112,7 @@ class DemoOptions:
             raise ValueError("--cot-url works with one fusion server, not with --shards")
         if not 0 <= self.zenoh_port <= 65535:
             raise ValueError(f"--port must be in 0..65535, got {self.zenoh_port}")
+        http_address(self.http)  # raises ValueError naming --http
         if self.seed < 0:
             raise ValueError(f"--seed must be >= 0, got {self.seed}")
         if not self.speed > 0:
@@ -122,6 +125,8 @@ class DemoOptions:
             from fusion_server.cot import parse_cot_url
 
             parse_cot_url(self.cot_url)
+        if not self.status_interval_s >= 0:
+            raise ValueError(f"--status-every must be >= 0 (0 = never), got {self.status_interval_s}")
         for name in ("startup_timeout_s", "stop_timeout_s"):
             if not getattr(self, name) > 0:
                 raise ValueError(f"{name} must be > 0, got {getattr(self, name)}")
@@ -132,6 +137,25 @@ def free_tcp_port(host: str = "127.0.0.1") -> int:
     with socket.socket() as sock:
         sock.bind((host, 0))
         return int(sock.getsockname()[1])
+
+
+def check_can_listen(host: str, port: int, flag: str) -> None:
+    """Raise OSError (one line naming ``flag``) when a TCP server could not listen on ``host:port`` now.
+
+    The same bind the servers make (SO_REUSEADDR, as uvicorn), so a port in TIME_WAIT passes and one with a
+    listener (another demo) does not; port 0 checks only that the host is an address of this machine.
+    """
+    family = socket.AF_INET6 if ":" in host else socket.AF_INET
+    with socket.socket(family, socket.SOCK_STREAM) as sock:
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        try:
+            sock.bind((host, port))
+        except OSError as exc:
+            value = f"{host}:{port}" if flag == "--http" else str(port)
+            if exc.errno != errno.EADDRINUSE:
+                raise OSError(f"{flag} {value}: cannot listen there ({exc.strerror or exc})") from None
+            hint = "--http 127.0.0.1:0 picks a free port" if flag == "--http" else "leave --port out for a free one"
+            raise OSError(f"{flag} {value}: in use (another demo or server?); {hint}") from None
 
 
 def flying_uavs(scenario_name: str, count: int | None) -> list[str]:
@@ -279,9 +303,14 @@ def _warn(text: str) -> None:
 def run_demo(options: DemoOptions, stop: threading.Event) -> int:
     """Start the server and the agents, report the map URL, run until ``stop`` or the duration, stop all.
 
-    Returns the exit code: 0 after a requested stop, 1 when a process failed to start or died.
+    Returns the exit code: 0 after a requested stop, 1 when a process failed to start or died. OSError (before
+    anything starts) when a port of ``options`` is taken or its host is not an address of this machine.
     """
     uavs = flying_uavs(options.scenario, options.uavs)
+    # a taken port is a user error found before anything starts: one line, nothing to clean up
+    check_can_listen(*http_address(options.http), "--http")
+    if options.zenoh_port:
+        check_can_listen("127.0.0.1", options.zenoh_port, "--port")
     workdir = Path(tempfile.mkdtemp(prefix="uavmm-demo-"))
     log_dir = options.log_dir or workdir
     log_dir.mkdir(parents=True, exist_ok=True)

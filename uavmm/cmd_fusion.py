@@ -134,10 +134,13 @@ def shard_from_args(args: argparse.Namespace):
         raise ValueError(f"--shard: {exc}") from None
 
 
-def _http_address(text: str) -> tuple[str, int]:
+def http_address(text: str) -> tuple[str, int]:
+    """``HOST:PORT`` of --http (an IPv6 host in brackets) as (host, port); ValueError naming --http."""
     host, sep, port = text.rpartition(":")
     if not sep or not port.isdigit() or not host:
         raise ValueError(f"--http must be HOST:PORT, got {text!r}")
+    if not 0 <= int(port) <= 65535:
+        raise ValueError(f"--http: the port must be in 0..65535, got {port}")
     return host.strip("[]"), int(port)
 
 
@@ -173,7 +176,7 @@ def settings_from_args(args: argparse.Namespace):
         default_listen = [DEFAULT_LISTEN]
     zenoh_options = zenoh_options_from_args(args, default_listen=default_listen,
                                             default_mode=None if file_mode is not None else DEFAULT_MODE)
-    host, port = _http_address(args.http)
+    host, port = http_address(args.http)
     tokens, _ = http_tokens_from_args(args, host)
     shard = shard_from_args(args)
     return FusionSettings(

@@ -13,7 +13,7 @@ from pathlib import Path
 
 from uavmm._signals import stop_on_signals
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
-from uavmm.cmd_fusion import _http_address, _rest_access_line, add_map_max_cells_argument, http_tokens_from_args
+from uavmm.cmd_fusion import _rest_access_line, add_map_max_cells_argument, http_address, http_tokens_from_args
 
 __all__ = ["register", "settings_from_args"]
 
@@ -62,7 +62,7 @@ def settings_from_args(args: argparse.Namespace):
         raise ValueError(f"--shards/--region-zoom: {exc}") from None
     if args.shards < 2:
         raise ValueError(f"--shards must be at least 2, got {args.shards} (one fusion server serves its own map)")
-    host, port = _http_address(args.http)
+    host, port = http_address(args.http)
     tokens, _ = http_tokens_from_args(args, host)
     return FusionSettings(
         zenoh=zenoh_options_from_args(args), http_host=host, http_port=port, db_path=None, prefix=args.prefix,

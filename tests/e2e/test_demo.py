@@ -153,6 +153,12 @@ def test_flying_uavs_and_options_validate_their_input():
         DemoOptions(speed=0)
     with pytest.raises(ValueError, match="--port must be in 0..65535"):
         DemoOptions(zenoh_port=70000)
+    with pytest.raises(ValueError, match="--http must be HOST:PORT, got 'nonsense'"):
+        DemoOptions(http="nonsense")
+    with pytest.raises(ValueError, match="--http: the port must be in 0..65535, got 99999"):
+        DemoOptions(http="127.0.0.1:99999")
+    with pytest.raises(ValueError, match="--status-every must be >= 0"):
+        DemoOptions(status_interval_s=-1)
 
 
 def test_trio_scenario_keeps_three_uavs_over_one_scene_for_its_whole_flight():
@@ -191,3 +197,41 @@ def _inside(polygon, x: float, y: float) -> bool:
         if (y0 > y) != (y1 > y) and x < x0 + (y - y0) * (x1 - x0) / (y1 - y0):
             inside = not inside
     return inside
+
+
+def demo_in(tmp_path: Path, *args: str) -> subprocess.CompletedProcess:
+    """`uavmm demo ARGS` with its temporary folders under tmp_path/tmp (checked for leftovers)."""
+    (tmp_path / "tmp").mkdir()
+    return subprocess.run(uavmm("demo", "--duration", "5", "--status-every", "0", *args), cwd=REPO,
+                          env={**ENV, "TMPDIR": str(tmp_path / "tmp")}, capture_output=True, text=True, timeout=90)
+
+
+@pytest.mark.parametrize("http", ["nonsense", ":8000", "127.0.0.1:abc", "127.0.0.1:99999"])
+def test_demo_refuses_a_bad_http_address_before_starting_anything(tmp_path, http):
+    """A user error like the other flags': one line, exit code 2, no process started, no folder kept (the fusion
+    server used to be started to find out, and the demo exited 1 keeping its temporary folder)."""
+    result = demo_in(tmp_path, "--http", http)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.splitlines() == [result.stderr.strip()] and "uavmm demo: error: --http" in result.stderr
+    assert result.stdout == "" and list((tmp_path / "tmp").iterdir()) == []
+
+
+@pytest.mark.parametrize("flag", ["--http", "--port"])
+def test_demo_on_a_taken_port_says_so_in_one_line_and_leaves_nothing(tmp_path, flag):
+    """Port 8000 held by another demo (a socket listening here): one line naming the port and the way out, exit
+    code 2, before any process starts and with no temporary folder kept (it used to take the fusion server's
+    start-up to find out, print its log's tail and keep the folder)."""
+    import socket
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        value = f"127.0.0.1:{port}" if flag == "--http" else str(port)
+        result = demo_in(tmp_path, *([] if flag == "--http" else ["--http", "127.0.0.1:0"]), flag, value)
+    assert result.returncode == 2, result.stdout + result.stderr
+    assert result.stderr.splitlines() == [result.stderr.strip()], result.stderr
+    assert f"uavmm demo: error: {flag} {value}" in result.stderr and "in use" in result.stderr
+    if flag == "--http":
+        assert "--http 127.0.0.1:0 picks a free port" in result.stderr
+    assert result.stdout == "" and list((tmp_path / "tmp").iterdir()) == []
