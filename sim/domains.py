@@ -378,6 +378,13 @@ _FAR_LIST = (
            "heldout", "gentle", "grass", (HoverSweepsSpec(distance_m=(400.0, 600.0), height_m=(30.0, 50.0),
                                                           pitch_deg=(3.0, 6.0), **_FAR_SWEEPS),),
            camera="4k-tele", fps=24.0, noise={**_DRIFT, "telemetry_hz": 24.0}),
+    # added 30 Nov 2026 with far points followed in the image within the reach (TrackerConfig.far_image_sigma_m),
+    # held out from their choice: people who walk behind trees and come back, at 30 fps with per-frame jitter
+    Domain("grass-trees-far-tele", "people among 18 trees 250-400 m away, 30-50 m up at 4-8 deg, 4K tele at 30 fps, "
+           "per-frame jitter, 12 s clips", "heldout", "gentle", "grass",
+           (HoverSweepsSpec(distance_m=(250.0, 400.0), height_m=(30.0, 50.0), pitch_deg=(4.0, 8.0), **_FAR_SWEEPS),),
+           clip_s=12.0, camera="4k-tele", noise={**_JITTER, "telemetry_hz": 30.0},
+           world={"n_trees": 18, "tree_radius_m": (2.5, 5.0), "tree_height_m": (8.0, 18.0)}),
 )
 
 #: All domains by name.

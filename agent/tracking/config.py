@@ -151,7 +151,8 @@ class TrackerConfig:
     far_image_sigma_m : float
         With a value below far_reach_sigma_m: points beyond the shorter reach where the along-ray error is this many
         metres are followed in the image as well, as loose points are, though their tracks keep their positions
-        within far_reach_sigma_m (0, the default: off; docs/tracking.md "Far views in the image").
+        within far_reach_sigma_m and their ground points still re-identify and keep births away from a track
+        (`far_points.placed_rows`; 0, the default: off; docs/tracking.md "Far views in the image").
     far_shift_radius, far_shift_min_tracks, far_shift_rate_gain : float, int, float
         Boxes followed in the image are expected where the image's common motion took them since their track's last
         match (`agent.tracking.image_motion`; a tele camera's sweep or sway moves every far box alike, 2-3 box sizes

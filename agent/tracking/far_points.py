@@ -26,7 +26,7 @@ from agent.tracking.image_motion import FloatArray, common_shift
 from agent.tracking.state import FrameDetections, TrackState
 from shared.geo import Camera, Pose, local_to_latlon, pixel_to_local
 
-__all__ = ["fill_far_points", "far_reach_m", "measure_image_shift", "place_far_tracks"]
+__all__ = ["fill_far_points", "far_reach_m", "measure_image_shift", "place_far_tracks", "placed_rows"]
 
 
 def far_reach_m(config: TrackerConfig, height_m: float, sigma_m: float | None = None) -> float:
@@ -111,3 +111,11 @@ def place_far_tracks(state: TrackState, dets: FrameDetections) -> None:
     k = np.flatnonzero(act["matched"] & (act["det_row"] >= 0))
     rows = act["det_row"][k]
     act.cols["loose"][k[dets.geo[rows] & dets.loose[rows] & ~dets.unplaced[rows]]] = False
+
+
+def placed_rows(dets: FrameDetections) -> NDArray[np.bool_]:
+    """(N,) bool: the rows with a ground point within the far reach (dets.geo, not dets.unplaced). Those followed in
+    the image within that reach (`far_image_sigma_m`) still re-identify lost tracks, hand young tracks lost ids and
+    are kept from starting a track beside one on the ground: a person behind trees on grass comes back in a place
+    the ground still tells (docs/tracking.md, "Far views in the image")."""
+    return dets.geo if dets.unplaced is None else dets.geo & ~dets.unplaced

@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 from agent.boxes import box_iou
 from agent.tracking.assignment import near_pairs
 from agent.tracking.association import expected_boxes
+from agent.tracking.far_points import placed_rows
 from agent.tracking.model import mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, Table, TrackState
 from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_latlon, local_to_pixel
@@ -50,8 +51,10 @@ def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_],
         ti, oj = ti[same], oj[same]
         dj = order[oj]
         d2, _ = mahalanobis2_and_logdet(dets.z[dj] - act["x"][ti, :2], act["P"][ti, :2, :2] + dets.R[dj])
-        if dets.loose is not None:
-            d2 = np.where(dets.loose[dj], np.inf, d2)
+        # Not by a point beyond the far reach; within it, one followed in the image (far_image_sigma_m) beside a
+        # track on the ground is still a leftover around its object.
+        if dets.unplaced is not None:
+            d2 = np.where(dets.unplaced[dj], np.inf, d2)
         free[oj[d2 <= cfg.birth_suppress_chi2]] = False
         taken = act["matched"]
         if taken.any():
@@ -85,8 +88,8 @@ def birth(state: TrackState, dets: FrameDetections, det_mask: NDArray[np.bool_],
     # With lost tracks of its class around, a new track may turn out to be an old one.
     pending = np.zeros(n, dtype=bool)
     loose = np.zeros(n, bool) if dets.loose is None else dets.loose[b]
-    if cfg.reid_delay_s > 0 and len(state.lost):  # not by a loose far point's ground position
-        pending = np.isin(dets.cls[b], state.lost["cls"]) & ~loose
+    if cfg.reid_delay_s > 0 and len(state.lost):  # not by a ground position beyond the far reach
+        pending = np.isin(dets.cls[b], state.lost["cls"]) & placed_rows(dets)[b]
     act.append(id=ids, cls=dets.cls[b], x=x, P=P, box=dets.boxes[b], score=dets.scores[b],
                hits=np.ones(n, np.int64), support=np.ones(n, np.int64), t_hit=np.full(n, t),
                t_born=np.full(n, t), t_shadow=np.full(n, np.nan), confirmed=~pending & (cfg.confirm_hits <= 1),

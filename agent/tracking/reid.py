@@ -11,6 +11,7 @@ from numpy.typing import NDArray
 
 from agent.tracking.appearance import blend_descriptors, cosine_distance, descriptor_distance
 from agent.tracking.assignment import gated_assignment
+from agent.tracking.far_points import placed_rows
 from agent.tracking.model import FloatArray, mahalanobis2_and_logdet, sigma_max
 from agent.tracking.state import FrameDetections, TrackState
 from shared.geo import local_to_latlon
@@ -147,7 +148,7 @@ def _settle(state: TrackState, mask: NDArray[np.bool_]) -> None:
 def unreported(state: TrackState, dets: FrameDetections, t: float) -> NDArray[np.int64]:
     """Indices of active tracks that may still take a lost track's id (`reid_unreported_s`): born
     within that time, id never reported or not reported now (quality below report_quality), not
-    pending or on probation, and holding in this frame a georeferenced detection (not a loose far point) with entry
+    pending or on probation, and holding in this frame a georeferenced detection within the far reach with entry
     score >= reid_score (its row: the "det_row" column)."""
     cfg = state.config
     act = state.active
@@ -159,7 +160,7 @@ def unreported(state: TrackState, dets: FrameDetections, t: float) -> NDArray[np
     ok &= ~act["shown"] | (act["quality"] < cfg.report_quality)
     k = np.flatnonzero(ok)
     r = row[k]
-    grounded = dets.geo[r] if dets.loose is None else dets.geo[r] & ~dets.loose[r]  # a loose far point: not by it
+    grounded = placed_rows(dets)[r]  # a point beyond the far reach: not by it
     return k[grounded & (dets.entry[r] >= cfg.reid_score)]
 
 

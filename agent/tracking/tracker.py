@@ -28,7 +28,7 @@ from agent.tracking.association import (
     resolve_alternatives,
 )
 from agent.tracking.config import TrackerConfig
-from agent.tracking.far_points import fill_far_points, measure_image_shift, place_far_tracks
+from agent.tracking.far_points import fill_far_points, measure_image_shift, place_far_tracks, placed_rows
 from agent.tracking.gimbal_rates import GimbalRates
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, reanchor, retire
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
@@ -420,7 +420,7 @@ class GpsTracker:
             associate_iou(state, dets, t, far & ~geo)
         # 3. re-identification from the lost-track memory (at once, or deferred: reid.resolve_pending).
         # Free detections and young tracks whose id nobody has seen yet compete for the lost ids.
-        cand = tight & ~dets.used & (dets.entry >= cfg.reid_score)
+        cand = placed_rows(dets) & ~dets.used & (dets.entry >= cfg.reid_score)
         young = reid.unreported(state, dets, t)
         if cfg.reid_delay_s <= 0 and (cand.any() or len(young)) and len(state.lost):
             if state.evidence_at is not None and cfg.reid_min_evidence > 0:

@@ -297,3 +297,48 @@ def test_points_beyond_the_image_reach_are_followed_in_the_image_and_keep_their_
     e, n = latlon_to_local(np.array([tr.lat for tr in swimmers]), np.array([tr.lon for tr in swimmers]),
                            pose.lat, pose.lon)
     assert np.all(np.abs(np.hypot(e, n) - 0.8 * reach) < 0.1 * reach)
+
+
+@pytest.mark.parametrize("delay", [0.0, 0.3])
+def test_a_point_followed_in_the_image_within_the_reach_takes_its_lost_id_back(delay):
+    """far_image_sigma_m follows points within the reach in the image, but their ground points still re-identify:
+    a person behind trees comes back where the ground says (grass-far-tele lost its revivals with the option on).
+    An object lost beyond the image reach, within the reach, gets its id back, at once or deferred."""
+    pose, reach = _far_view()
+    config = TrackerConfig(far_image_sigma_m=20.0, reid_delay_s=delay)
+    assert far_reach_m(config, pose.height_m, 20.0) < 0.75 * reach
+    tracker = GpsTracker(config, {1: "swimmer"})
+    t = 100.0
+
+    def frame(d):
+        nonlocal t
+        boxes = np.zeros((0, 4)) if d is None else _small_boxes(pose, [(0.0, d)], 8.0, np.zeros((1, 2)))
+        tracks = tracker.update(_result(boxes, np.full(len(boxes), np.nan), np.full(len(boxes), np.nan)), pose, t,
+                                CAMERA)
+        t += 0.1
+        return tracks
+
+    for _ in range(10):
+        tracks = frame(0.8 * reach)
+    assert [(tr.id, tr.confirmed, tr.loose) for tr in tracks] == [(1, True, False)]
+    for _ in range(15):
+        frame(None)
+    for _ in range(8):
+        tracks = frame(0.8 * reach)
+    assert [tr.id for tr in tracks if tr.matched] == [1] and tracker.n_reidentified == 1
+
+
+def test_a_point_followed_in_the_image_within_the_reach_starts_no_track_beside_one_on_the_ground():
+    """A second box a few sizes above a track's box (a part, or the object's other detection), whose ground point
+    lies within the track's birth gate, starts no track when both are within the reach, followed in the image or
+    not (far_image_sigma_m); beyond the reach (loose points) it does, as before."""
+    pose, reach = _far_view()
+    for at, sigma, born in ((0.8, 0.0, False), (0.8, 20.0, False), (1.3, 0.0, True)):
+        tracker = GpsTracker(TrackerConfig(far_image_sigma_m=sigma), {1: "swimmer"})
+        for k in range(12):
+            boxes = _small_boxes(pose, [(0.0, at * reach)], 8.0, np.zeros((1, 2)))
+            if k >= 6:
+                boxes = np.vstack([boxes, boxes + np.array([0.0, -30.0, 0.0, -30.0])])
+            tracks = tracker.update(_result(boxes, np.full(len(boxes), np.nan), np.full(len(boxes), np.nan)), pose,
+                                    100.0 + k / 10, CAMERA)
+        assert (max(tr.id for tr in tracks) > 1) == born, (at, sigma, [(tr.id, tr.box_xyxy) for tr in tracks])

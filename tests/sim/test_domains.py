@@ -235,7 +235,7 @@ def test_the_far_group_flies_below_the_usual_pitch_floor_apart_from_the_grid() -
 
     far = resolve_domains(["far"])
     assert [d.name for d in far] == list(FAR_DOMAINS) == ["sea-far-tele", "sea-farther-tele", "grass-far-tele",
-                                                             "grass-farther-tele"]
+                                                             "grass-farther-tele", "grass-trees-far-tele"]
     assert not set(FAR_DOMAINS) & {d.name for d in resolve_domains(["all"])}
     assert {d.split for d in far} == {"tune", "heldout"} and "grass-far-tele" not in HELDOUT_DOMAINS
     assert all(f.pitch_deg[0] < MIN_PITCH_DEG and f.min_pitch_deg == 3.0 for d in far for f in d.flights)
