@@ -85,8 +85,10 @@ class Candidates:
 
         Entries naming an unknown image_id or category_id, or malformed ones (missing fields,
         non-numeric values) raise ValueError naming the entry: they mean the files do not belong
-        together. Degenerate boxes (NaN/inf, width or height <= 0) and scores outside [0, 1] or NaN
-        are skipped and counted in `skipped` (detectors emit those; one should not stop a run).
+        together. Degenerate boxes (NaN/inf, width or height <= 0), NaN scores and finite scores outside [0, 1]
+        are skipped and counted in `skipped` (detectors emit those; one should not stop a run), the last while
+        fewer than OUT_OF_RANGE_MIN or at most OUT_OF_RANGE_SHARE of the boxes: more raise ValueError (the scores
+        are on another scale: `scores_outside_unit_error`). Scores within SCORE_ROUNDING of [0, 1] are clipped.
         """
         if not isinstance(entries, list):
             raise ValueError(_NOT_A_LIST.format(source=source))

@@ -28,7 +28,6 @@ from shared.telemetry.seadronessee import MetaProblem, meta_object, pitch_conven
 from shared.telemetry.seadronessee_videos import (  # noqa: F401  (TIME_GAP_*, own_video_ids: re-exported, as before)
     TIME_GAP_S,
     TIME_GAP_STEPS,
-    VideoGroup,
     group_videos,
     own_video_ids,
     time_gap_s,

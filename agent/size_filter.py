@@ -12,12 +12,12 @@ import logging
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO, TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from shared.files import write_atomic
+from shared.files import write_chunks_atomic
 
 if TYPE_CHECKING:
     from shared.geo import Pose
@@ -244,12 +244,7 @@ class SizeFilter:
         """Write the filter as JSON, whole or not at all (`shared.files.write_atomic`: a failed write leaves the
         file that was there); evidence: what it was fitted from, stored beside the bands (read by no one)."""
         doc = self.to_dict() if evidence is None else {**self.to_dict(), "evidence": evidence}
-        text = json.dumps(doc, indent=1).encode()
-
-        def write(file: IO[bytes]) -> None:
-            file.write(text)
-
-        write_atomic(Path(path), write)
+        write_chunks_atomic(Path(path), [json.dumps(doc, indent=1)])
 
     @classmethod
     def load(cls, path: str | Path) -> SizeFilter:

@@ -122,10 +122,14 @@ def write_kmz(file: IO[bytes], document: Callable[[], Iterable[bytes]], *,
     cannot know its size in advance, and a header written without ZIP64 has no room for it). Not always ZIP64:
     libkml (GDAL's LIBKML driver, which opens a .kmz) does not open a ZIP64 archive, even a small one. Returns
     True when the archive was written with ZIP64. A file that cannot seek (a pipe) gets one pass without ZIP64, as
-    before: zipfile raises past the limit there.
+    before (OSError past the limit).
     """
     if not file.seekable():
-        _write_doc_kml(file, document(), zip64=False, limit=None)
+        try:
+            _write_doc_kml(file, document(), zip64=False, limit=None)
+        except RuntimeError as exc:  # zipfile: "File size too large, try using force_zip64"
+            raise OSError(f"the KML is over 2 GiB, more than a KMZ streamed to a file that cannot seek holds ({exc}); "
+                          "write .kml, or the KMZ to a file") from None
         return False
     start = file.tell()
     if _write_doc_kml(file, document(), zip64=False, limit=zip64_over):

@@ -341,9 +341,11 @@ def _add_fit_size_filter(sub: argparse._SubParsersAction) -> None:
         description="Fit per class the metric box diameter (pixels x range / focal length) as a function "
                     "of the viewing depression from ground-truth boxes (range and depression to where each box's "
                     "ground point's ray meets the --dem terrain, when given), and save it for --size-filter. Each "
-                    "class's spread is checked on its objects (track ids, else videos) left out of the fit; a class "
-                    "with fewer than 20 boxes or 2 objects gets no band, views without boxes are not judged, crowd "
-                    "and ignore regions are not fitted on, and the file records the evidence (docs/memory-map.md).",
+                    "class's spread is checked on its objects (track ids, else videos, or parts of a single "
+                    "video) left out of the fit; a class with fewer than 20 boxes or 2 objects, or none of whose "
+                    "objects can be left out and checked, gets no fitted band (a built-in class keeps its prior), "
+                    "views without boxes are not judged, crowd and ignore regions are not fitted on, and the file "
+                    "records the evidence (docs/memory-map.md).",
     )
     p.add_argument("--frames", type=Path, required=True, help="IMAGES.json with annotations and meta")
     p.add_argument("--camera", type=Path, required=True, help="CAMERA.json")

@@ -12,7 +12,7 @@ import json
 import sys
 from pathlib import Path
 
-from uavmm.cli import CliError, add_terrain_options, require_out_parent, terrain_from_args
+from uavmm.cli import CliError, add_terrain_options, require_new_output, require_out_parent, terrain_from_args
 
 __all__ = ["register"]
 
@@ -55,9 +55,8 @@ def _run_tune(args: argparse.Namespace) -> int:
     from agent.boost import load_params
     from agent.tune import tune
 
-    require_out_parent(args.out)
-    if args.out.is_dir():  # found before the work, not when writing after it
-        raise CliError(f"--out {args.out} is a directory: give the PARAMS.json file to write")
+    require_out_parent(args.out)  # found before the work, not when writing after it
+    require_new_output(args.out, args.frames, args.candidates, args.camera, args.start_config, args.dem)
     if not (args.min_gain >= 0):
         raise CliError(f"--min-gain must be >= 0, got {args.min_gain}")
     base, start_filter = load_params(args.start_config)

@@ -325,7 +325,17 @@ def test_an_output_that_is_a_directory_is_refused_before_the_work(tmp_path, caps
     (d / "params.json").mkdir()
     assert run_tune(d) == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "is a directory: give the PARAMS.json file to write" in err
+    assert err.count("\n") == 1 and "is a directory: give the output file's path" in err
+
+
+def test_an_output_naming_an_input_is_refused_before_the_work(tmp_path, capsys, monkeypatch):
+    """Last read: `--out PRE_NMS.json` was not refused (tune checked a folder by hand, not the inputs)."""
+    monkeypatch.setattr(agent.tune, "tune", lambda *a, **k: pytest.fail("tuned before checking --out"))
+    d = make_dataset(tmp_path, frames=5)
+    before = (d / "pre_nms.json").read_bytes()
+    assert main(["tune", "--frames", str(d / "images.json"), "--candidates", str(d / "pre_nms.json"), "--camera",
+                 str(d / "camera.json"), "--out", str(d / "pre_nms.json")]) == 2
+    assert "is an input of this run" in capsys.readouterr().err and (d / "pre_nms.json").read_bytes() == before
 
 
 def test_a_fitted_filter_keeps_the_start_filters_k():

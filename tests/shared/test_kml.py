@@ -110,3 +110,17 @@ def test_a_kmz_streams_to_a_file_that_cannot_seek(tmp_path):
     with zipfile.ZipFile(tmp_path / "piped.kmz") as archive:
         assert archive.read("doc.kml") == b"".join(_document([])())
     assert calls == [1]
+
+
+def test_a_kmz_past_the_limit_on_a_pipe_is_one_line_not_a_traceback(monkeypatch):
+    # last read: the one-pass branch for a file that cannot seek let zipfile's RuntimeError out (uavmm's CLI turns
+    # OSError into one line); zipfile's own limit lowered as the stand-in for 2 GiB
+    import os
+
+    monkeypatch.setattr(zipfile, "ZIP64_LIMIT", 1000)
+    read_end, write_end = os.pipe()
+    with os.fdopen(read_end, "rb") as drain, os.fdopen(write_end, "wb") as pipe:
+        os.set_blocking(read_end, False)
+        with pytest.raises(OSError, match="over 2 GiB"):
+            write_kmz(pipe, _document([]))
+        drain.read()
