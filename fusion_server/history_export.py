@@ -61,21 +61,30 @@ def _connect(path: Path) -> sqlite3.Connection:
         raise ValueError(f"database {path} does not exist")
     try:
         connection = sqlite3.connect(f"file:{path}?mode=ro", uri=True, timeout=10.0)
-        connection.execute("SELECT 1 FROM sqlite_master LIMIT 1")  # a WAL database on read-only media fails here
-        return connection
-    except sqlite3.OperationalError as exc:
-        if "unable to open" not in str(exc):
-            raise ValueError(f"cannot open database {path}: {exc}") from None
-        wal = path.with_name(path.name + "-wal")
-        if wal.is_file() and wal.stat().st_size > 0:  # rows there would be missed read as the file lies
-            raise ValueError(f"cannot open database {path} ({exc}): a WAL database on read-only media with its "
-                             f"{wal.name}: copy both to a writable folder and export from there") from None
-        try:  # a WAL database whose -shm cannot be made (read-only media): nobody writes there, read it as it lies
-            return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True, timeout=10.0)
-        except sqlite3.Error as exc2:
-            raise ValueError(f"cannot open database {path}: {exc2}") from None
     except sqlite3.Error as exc:
         raise ValueError(f"cannot open database {path}: {exc}") from None
+    try:
+        connection.execute("SELECT 1 FROM sqlite_master LIMIT 1")  # a WAL database on read-only media fails here
+    except sqlite3.OperationalError as exc:
+        if "unable to open" in str(exc):
+            connection.close()
+            return _connect_immutable(path, exc)
+    except sqlite3.Error:
+        pass  # not a database at all: the first query says so (_not_fusion)
+    return connection
+
+
+def _connect_immutable(path: Path, exc: sqlite3.Error) -> sqlite3.Connection:
+    """A WAL database whose -shm cannot be made (read-only media): nobody writes there, so it is read as it lies,
+    unless a -wal beside it holds rows that reading so would miss."""
+    wal = path.with_name(path.name + "-wal")
+    if wal.is_file() and wal.stat().st_size > 0:
+        raise ValueError(f"cannot open database {path} ({exc}): a WAL database on read-only media with its "
+                         f"{wal.name}: copy both to a writable folder and export from there") from None
+    try:
+        return sqlite3.connect(f"file:{path}?mode=ro&immutable=1", uri=True, timeout=10.0)
+    except sqlite3.Error as exc2:
+        raise ValueError(f"cannot open database {path}: {exc2}") from None
 
 
 def _not_fusion(path: Path, exc: sqlite3.Error) -> ValueError:
