@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import io
 import json
+import re
 import xml.etree.ElementTree as ET
 import zipfile
 from collections.abc import Callable, Iterable, Iterator, Mapping
@@ -48,9 +49,22 @@ def _geometry(parent: ET.Element, geometry: Mapping[str, Any]) -> None:
         raise ValueError(f"KML export supports Point, LineString and Polygon, got {kind!r}")
 
 
+_NCNAME = re.compile(r"[A-Za-z_][\w.\-]*\Z", re.ASCII)  # xsd:ID, what a KML Placemark's id is
+
+
+def _xml_id(value: Any) -> str:
+    """A feature's id as a valid XML id: as it is when it is one (`track-12`), else its other characters made '-'
+    and, when it does not start with a letter or '_', 'id-' in front (a UAV `3dr/footprint` -> `id-3dr-footprint`)."""
+    text = str(value)
+    if _NCNAME.match(text):
+        return text
+    text = re.sub(r"[^\w.\-]", "-", text, flags=re.ASCII)
+    return text if _NCNAME.match(text) else f"id-{text}"
+
+
 def _placemark(folder: ET.Element, feature: Mapping[str, Any]) -> None:
     props = feature.get("properties") or {}
-    mark = ET.SubElement(folder, "Placemark", {"id": str(feature.get("id", ""))} if "id" in feature else {})
+    mark = ET.SubElement(folder, "Placemark", {"id": _xml_id(feature.get("id", ""))} if "id" in feature else {})
     label = props.get("cls")
     name = f"{label} {props['gid']}" if label is not None and "gid" in props else str(
         props.get("id", feature.get("id", "")))

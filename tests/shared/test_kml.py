@@ -124,3 +124,23 @@ def test_a_kmz_past_the_limit_on_a_pipe_is_one_line_not_a_traceback(monkeypatch)
         with pytest.raises(OSError, match="over 2 GiB"):
             write_kmz(pipe, _document([]))
         drain.read()
+
+
+def test_placemark_ids_are_valid_xml_ids_whatever_the_feature_ids():
+    # left open: /v1/uavs?format=kml&footprints=true wrote ids `UAV/footprint` ('/' is no XML id character), and a
+    # UAV id may start with a digit; ids that are valid stay as they are (the exports' track-GID)
+    import re
+    import xml.etree.ElementTree as ET
+
+    from shared.kml import feature_collections_kml
+
+    def point(fid):
+        return {"type": "Feature", "id": fid, "properties": {"id": str(fid)},
+                "geometry": {"type": "Point", "coordinates": [9.05, 48.5]}}
+
+    ids = ["uav1", "uav1/footprint", "3dr", "3dr/footprint", "track-12", 7, "dji mini"]
+    root = ET.fromstring(feature_collections_kml("t", {"f": {"type": "FeatureCollection",
+                                                             "features": [point(i) for i in ids]}}))
+    got = [m.get("id") for m in root.iter("{http://www.opengis.net/kml/2.2}Placemark")]
+    assert got == ["uav1", "uav1-footprint", "id-3dr", "id-3dr-footprint", "track-12", "id-7", "dji-mini"]
+    assert all(re.fullmatch(r"[A-Za-z_][\w.\-]*", g, re.ASCII) for g in got) and len(set(got)) == len(got)
