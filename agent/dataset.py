@@ -29,7 +29,10 @@ from shared.telemetry.seadronessee_videos import (  # noqa: F401  (TIME_GAP_*, o
     TIME_GAP_S,
     TIME_GAP_STEPS,
     group_videos,
+    image_time,
     own_video_ids,
+    parse_time,
+    source_of,
     time_gap_s,
 )
 
@@ -167,34 +170,8 @@ def _meta(meta: Any) -> dict | None:
     return value if isinstance(value, dict) or value is None else dict(value)
 
 
-def _source(im: dict) -> dict:
-    src = im.get("source")
-    return src if isinstance(src, dict) else {}
-
-
-def _parse_time(text: Any) -> float | None:
-    """A date-time text as UNIX seconds; None when absent, unreadable or not finite."""
-    if not isinstance(text, str) or not text.strip():
-        return None
-    try:
-        t = parse_datetime(text)
-    except ValueError:
-        return None
-    return t if math.isfinite(t) else None
-
-
-def _image_time(im: dict) -> float | None:
-    """An image's time for grouping: its own date_time, else its meta's; None when neither parses."""
-    texts = [im.get("date_time")]
-    meta = _meta(im.get("meta"))
-    if meta is not None:
-        texts += [meta.get("date_time")] + [v for k, v in meta.items() if isinstance(k, str)
-                                            and k.lower().startswith("datetime")]
-    return next((t for t in map(_parse_time, texts) if t is not None), None)
-
-
 def _frame(im: dict) -> int | None:
-    frame = _source(im).get("frame_no", im.get("frame_index"))
+    frame = source_of(im).get("frame_no", im.get("frame_index"))
     return None if frame is None else _int({"frame_index": frame}, "frame_index")
 
 
@@ -239,7 +216,7 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = (), source: str = "
     for group in (g for g in grouping.groups if g.kind == "loose"):
         pieces = _split_by_time([images[i] for i in group.images])
         for n, piece in enumerate(pieces):
-            timed = all(_image_time(im) is not None for im in piece)
+            timed = all(image_time(im) is not None for im in piece)
             for rank, im in enumerate(piece):
                 frame = im.get("frame_index")
                 out[id(im)] = (next_id, _int(im, "frame_index") if frame is not None else (rank if timed else None))
@@ -262,7 +239,7 @@ def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) 
     for vid, frames in pending.items():
         own = [_frame_date(im) for _, im in frames]
         if any(t is None for t in own):  # one clock for all: the frames' own, else (none has one) the metas'
-            own = [_image_time(im) for _, im in frames] if all(t is None for t in own) else [None]
+            own = [image_time(im) for _, im in frames] if all(t is None for t in own) else [None]
         if all(t is not None for t in own):
             ranked = sorted(zip(own, frames, strict=True), key=lambda item: (item[0], item[1][0]))
             for rank, (_, (_, im)) in enumerate(ranked):
@@ -272,14 +249,14 @@ def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) 
 
 def _frame_date(im: dict) -> float | None:
     """An image's own ``date_time`` (the frame clock), None when absent or unreadable."""
-    return _parse_time(im.get("date_time"))
+    return parse_time(im.get("date_time"))
 
 
 def _split_by_time(images: list[dict]) -> list[list[dict]]:
     """Images without a video, as videos: in time order, split where the clock jumps by more than
     TIME_GAP_S and TIME_GAP_STEPS median steps; images without a time form one video in file order."""
-    timed = [(t, i, im) for i, im in enumerate(images) if (t := _image_time(im)) is not None]
-    untimed = [im for im in images if _image_time(im) is None]
+    timed = [(t, i, im) for i, im in enumerate(images) if (t := image_time(im)) is not None]
+    untimed = [im for im in images if image_time(im) is None]
     groups: list[list[dict]] = []
     if timed:
         timed.sort(key=lambda item: (item[0], item[1]))
@@ -417,7 +394,7 @@ def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto") -> tuple
 
 
 def _frame_clock(image: ImageRecord) -> float | None:
-    return _parse_time(image.date_time)
+    return parse_time(image.date_time)
 
 
 def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: float = DEFAULT_FPS,

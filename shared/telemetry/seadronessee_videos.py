@@ -20,7 +20,7 @@ from numpy.typing import ArrayLike
 from shared.telemetry.dates import parse_datetime
 
 __all__ = ["TIME_GAP_S", "TIME_GAP_STEPS", "VideoGroup", "VideoGrouping", "group_videos", "meta_object",
-           "own_video_ids", "time_gap_s"]
+           "image_time", "own_video_ids", "parse_time", "source_of", "time_gap_s"]
 
 K = TypeVar("K")
 
@@ -97,7 +97,7 @@ def time_gap_s(times: ArrayLike) -> float:
     return max(TIME_GAP_S, TIME_GAP_STEPS * median)
 
 
-def _source(image: Mapping[str, Any]) -> Mapping[str, Any]:
+def source_of(image: Mapping[str, Any]) -> Mapping[str, Any]:
     src = image.get("source")
     return src if isinstance(src, Mapping) else {}
 
@@ -107,12 +107,12 @@ def _text(value: Any) -> str:
 
 
 def _frame_no(image: Mapping[str, Any]) -> int | None:
-    frame = _source(image).get("frame_no")
+    frame = source_of(image).get("frame_no")
     frame = image.get("frame_index") if frame is None else frame
     return frame if isinstance(frame, int) and not isinstance(frame, bool) else None
 
 
-def _parse_time(text: Any) -> float | None:
+def parse_time(text: Any) -> float | None:
     if not isinstance(text, str) or not text.strip():
         return None
     try:
@@ -128,13 +128,19 @@ def _meta_time(image: Mapping[str, Any]) -> float | None:
         return None
     texts = [meta.get("date_time")] + [v for k, v in meta.items() if isinstance(k, str)
                                        and k.lower().startswith("datetime")]
-    return next((t for t in map(_parse_time, texts) if t is not None), None)
+    return next((t for t in map(parse_time, texts) if t is not None), None)
+
+
+def image_time(image: Mapping[str, Any]) -> float | None:
+    """An image's time: its own ``date_time``, else its meta's stamp; None when neither parses."""
+    own = parse_time(image.get("date_time"))
+    return own if own is not None else _meta_time(image)
 
 
 def _one_clock(images: Sequence[Mapping[str, Any]]) -> list[float] | None:
     """Every image's own ``date_time``, else (when none has one) every meta's stamp; None without one clock for all
     (a meta's UTC stamp beside another frame's local clock would mix two clocks)."""
-    own = [_parse_time(im.get("date_time")) for im in images]
+    own = [parse_time(im.get("date_time")) for im in images]
     if all(t is not None for t in own):
         return own  # type: ignore[return-value]
     if all(t is None for t in own):
@@ -219,7 +225,7 @@ def _source_groups(images: Sequence[Mapping[str, Any]], indices: list[int], noti
     """Images with a ``source.video``: one group per (drone, video, folder) and recording, named (`group_videos`)."""
     by_key: dict[tuple[str, str, str], list[int]] = defaultdict(list)
     for i in indices:
-        src = _source(images[i])
+        src = source_of(images[i])
         by_key[(_text(src.get("drone")), _text(src.get("video")), _text(src.get("folder_name")))].append(i)
     per_video: dict[str, list[tuple[str, str]]] = defaultdict(list)
     for drone, video, folder in sorted(by_key):
@@ -267,7 +273,7 @@ def _loose_groups(images: Sequence[Mapping[str, Any]], indices: list[int], taken
     layout (a meta without a position joins the only layout there is)."""
     keys: dict[int, tuple[str, str, str]] = {}
     for i in indices:
-        src = _source(images[i])
+        src = source_of(images[i])
         drone, folder = _text(src.get("drone")), _text(src.get("folder_name"))
         keys[i] = (drone, folder, "" if drone else _meta_layout(images[i]))
     for drone, folder in {(d, f) for d, f, _ in keys.values() if not d}:
@@ -317,7 +323,7 @@ def group_videos(images: Sequence[Mapping[str, Any]]) -> VideoGrouping:
     for i, im in enumerate(images):
         if not isinstance(im, Mapping):
             continue
-        if _text(_source(im).get("video")):
+        if _text(source_of(im).get("video")):
             source.append(i)
         elif im.get("video_id") is not None:
             by_id[repr(im.get("video_id"))].append(i)
@@ -327,7 +333,7 @@ def group_videos(images: Sequence[Mapping[str, Any]]) -> VideoGrouping:
     groups += [VideoGroup("id", (), images[members[0]].get("video_id"), tuple(members)) for members in by_id.values()]
     groups += _loose_groups(images, loose, {g.name for g in groups if g.kind == "source"}, notices)
     for key, members in by_id.items():
-        drones = sorted({_text(_source(images[i]).get("drone")) for i in members} - {""})
+        drones = sorted({_text(source_of(images[i]).get("drone")) for i in members} - {""})
         if len(drones) > 1:
             notices.append(f"video_id {key} holds images of drones {', '.join(drones)}: kept as one video (the file's "
                            "own id)")
