@@ -17,8 +17,8 @@ from cryptography.hazmat.primitives import hashes, serialization
 from cryptography.hazmat.primitives.asymmetric import ec
 from cryptography.x509.oid import ExtendedKeyUsageOID, NameOID
 
-__all__ = ["CA_DAYS", "CertifiedKey", "certificate_common_name", "host_problem", "issue", "new_ca", "pem_certificate",
-           "pem_private_key"]
+__all__ = ["CA_DAYS", "CertifiedKey", "Validity", "certificate_common_name", "certificate_validities", "host_problem",
+           "issue", "new_ca", "pem_certificate", "pem_private_key"]
 
 _BACKDATE = dt.timedelta(minutes=10)  # tolerate clocks a little behind the ground station's
 #: validity of a new CA in days (10 years); no certificate it signs is valid longer
@@ -65,24 +65,49 @@ def certificate_common_name(pem: bytes) -> str:
     return str(names[0].value)
 
 
+@dataclass(frozen=True)
+class Validity:
+    """When one certificate of a PEM file holds: its subject's common name ('' without one) and its bounds (UTC)."""
+
+    common_name: str
+    not_before: dt.datetime
+    not_after: dt.datetime
+
+
+def certificate_validities(pem: bytes) -> list[Validity]:
+    """The validity of every certificate in ``pem`` (a chain may hold several); ValueError if it holds none."""
+    try:
+        certificates = x509.load_pem_x509_certificates(pem)
+    except ValueError as exc:
+        raise ValueError(f"not a PEM certificate: {exc}") from None
+    out = []
+    for certificate in certificates:
+        names = certificate.subject.get_attributes_for_oid(NameOID.COMMON_NAME)
+        out.append(Validity(str(names[0].value) if names else "", certificate.not_valid_before_utc,
+                            certificate.not_valid_after_utc))
+    return out
+
+
 def _key_usage(*, ca: bool) -> x509.KeyUsage:
     return x509.KeyUsage(digital_signature=True, content_commitment=False, key_encipherment=False,
                          data_encipherment=False, key_agreement=False, key_cert_sign=ca, crl_sign=ca,
                          encipher_only=False, decipher_only=False)
 
 
-def _validity(days: int) -> tuple[dt.datetime, dt.datetime]:
+def _validity(days: int, now: dt.datetime | None = None) -> tuple[dt.datetime, dt.datetime]:
     if not isinstance(days, int) or isinstance(days, bool) or days < 1:
         raise ValueError(f"days must be an int >= 1, got {days!r}")
-    now = dt.datetime.now(dt.timezone.utc)
+    now = dt.datetime.now(dt.timezone.utc) if now is None else now
     return now - _BACKDATE, now + dt.timedelta(days=days)
 
 
-def new_ca(name: str, *, days: int = CA_DAYS) -> CertifiedKey:
-    """A self-signed CA that may only sign end-entity certificates (path length 0)."""
+def new_ca(name: str, *, days: int = CA_DAYS, now: dt.datetime | None = None) -> CertifiedKey:
+    """A self-signed CA that may only sign end-entity certificates (path length 0).
+
+    now: the time it is made (default: the clock's; valid from 10 minutes before it for ``days`` days)."""
     key = ec.generate_private_key(ec.SECP256R1())
     subject = x509.Name([x509.NameAttribute(NameOID.COMMON_NAME, name)])
-    start, end = _validity(days)
+    start, end = _validity(days, now)
     certificate = (
         x509.CertificateBuilder().subject_name(subject).issuer_name(subject).public_key(key.public_key())
         .serial_number(x509.random_serial_number()).not_valid_before(start).not_valid_after(end)
@@ -123,12 +148,14 @@ def _san(host: str) -> x509.GeneralName:
         return x509.DNSName(host)
 
 
-def issue(ca: CertifiedKey, common_name: str, *, hosts: Sequence[str] = (), days: int = 825) -> CertifiedKey:
+def issue(ca: CertifiedKey, common_name: str, *, hosts: Sequence[str] = (), days: int = 825,
+          now: dt.datetime | None = None) -> CertifiedKey:
     """A certificate for ``common_name`` signed by ``ca``.
 
     hosts: DNS names or IP addresses the holder serves under (subject alternative names, see `host_problem`);
     given, the certificate is good for TLS servers and clients, else for clients only. The certificate ends
     after ``days`` days or with the CA, whichever is first (a verifier refuses it after the CA's end anyway).
+    now: the time it is made (default: the clock's).
     """
     if not common_name:
         raise ValueError("common_name must not be empty")
@@ -137,7 +164,7 @@ def issue(ca: CertifiedKey, common_name: str, *, hosts: Sequence[str] = (), days
         if problem is not None:
             raise ValueError(f"host {host!r} is not a host name or IP address: {problem}")
     key = ec.generate_private_key(ec.SECP256R1())
-    start, end = _validity(days)
+    start, end = _validity(days, now)
     end = min(end, ca.certificate.not_valid_after_utc)
     usages = [ExtendedKeyUsageOID.CLIENT_AUTH]
     if hosts:

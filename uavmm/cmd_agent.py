@@ -210,10 +210,13 @@ def _run_agent(args: argparse.Namespace) -> int:
             raise ValueError(f"{flag}: output directory {path.parent} does not exist (for {path})")
     settings = settings_from_args(args)
     from agent.zenoh_config import agent_zenoh_config, identity_problem
+    from transport.certificates import check_certificates
 
-    problem = identity_problem(agent_zenoh_config(settings.zenoh), settings.uav_id)
+    conf = agent_zenoh_config(settings.zenoh)
+    problem = identity_problem(conf, settings.uav_id)
     if problem is not None:
         raise ValueError(problem)
+    check_certificates(conf, log)
     pipeline_config, size_filter = pipeline_from_args(args)
     anomaly = anomaly_from_args(args, pipeline_config.terrain)
     source = source_from_args(args)

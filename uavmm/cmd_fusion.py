@@ -216,8 +216,11 @@ def _run_fusion(args: argparse.Namespace) -> int:
     import zenoh
 
     from fusion_server.server import FusionServer
+    from transport.certificates import check_certificates
+    from transport.options import zenoh_config
 
     settings = settings_from_args(args)
+    check_certificates(zenoh_config(settings.zenoh), log)
     stop = stop_on_signals(log)
     try:
         with FusionServer(settings) as server:

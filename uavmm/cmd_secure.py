@@ -101,5 +101,35 @@ def _run_secure(args: argparse.Namespace) -> int:
     if result.without_token:
         sys.stdout.write(f"  no REST token (its line was deleted from http-tokens): {', '.join(result.without_token)}; "
                          "name them with --operators to issue new ones\n")
+    for line in _expiring(result.root):
+        sys.stdout.write(f"  {line}\n")
     sys.stdout.write(f"  keep {result.root / 'ca' / 'ca.key'} offline; see {result.root / 'README.md'}\n")
     return 0
+
+
+def _expiring(root: Path) -> list[str]:
+    """A line for each certificate of the fleet folder that has run out or runs out within
+    `transport.certificates.EXPIRY_WARNING_DAYS` days (kept certificates are not renewed by a re-run)."""
+    import datetime as dt
+
+    from shared.pki import certificate_validities
+    from transport.certificates import EXPIRY_WARNING_DAYS
+
+    now = dt.datetime.now(dt.timezone.utc)
+    lines = []
+    for path in [root / "ca" / "ca.pem", *sorted(root.rglob("cert.pem"))]:
+        try:
+            validities = certificate_validities(path.read_bytes())
+        except (OSError, ValueError):
+            continue
+        end = min(v.not_after for v in validities)
+        if end - now > dt.timedelta(days=EXPIRY_WARNING_DAYS):
+            continue
+        when = end.strftime("%Y-%m-%d")
+        if path.parent == root / "ca":
+            lines.append(f"the fleet's CA {'expired' if end < now else 'expires'} on {when}: no certificate it "
+                         "signed works after that; make a new fleet folder")
+        else:
+            lines.append(f"{path.parent.name}'s certificate {'expired' if end < now else 'expires'} on {when}: "
+                         f"delete {path} and its key.pem and re-run to renew it")
+    return lines

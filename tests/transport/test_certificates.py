@@ -1,0 +1,133 @@
+"""Certificates checked for their dates before a process opens its session (transport.certificates): an expired
+or not-yet-valid certificate stops `uavmm agent` / `uavmm fusion` at once with a message naming it (Zenoh would
+only retry in silence); one ending within 30 days is a warning; a re-run of `uavmm secure init` lists them."""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+from pathlib import Path
+
+import pytest
+from cryptography import x509
+from cryptography.hazmat.primitives import serialization
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from agent.zenoh_config import agent_zenoh_config
+from shared.pki import CertifiedKey, certificate_validities, issue, new_ca, pem_certificate
+from transport.certificates import EXPIRY_WARNING_DAYS, certificate_notices, check_certificates
+from transport.options import ZenohOptions
+from uavmm.cli import main
+
+NOW = dt.datetime(2026, 11, 30, 12, 0, tzinfo=dt.timezone.utc)
+
+
+@pytest.fixture(scope="module")
+def fleet(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("certs") / "fleet"
+    assert main(["secure", "init", str(root), "--uavs", "uav1", "--server-host", "localhost"]) == 0
+    return root
+
+
+def _ca(root: Path) -> CertifiedKey:
+    key = serialization.load_pem_private_key((root / "ca" / "ca.key").read_bytes(), password=None)
+    return CertifiedKey(key, x509.load_pem_x509_certificate((root / "ca" / "ca.pem").read_bytes()))  # type: ignore[arg-type]
+
+
+def _copy(fleet: Path, tmp_path: Path) -> Path:
+    import shutil
+
+    root = tmp_path / "fleet"
+    shutil.copytree(fleet, root)
+    for config in root.rglob("zenoh.json5"):  # the configs name the files by absolute path
+        config.write_text(config.read_text().replace(str(fleet), str(root)))
+    return root
+
+
+def _uav_config(root: Path):
+    return agent_zenoh_config(ZenohOptions(config_file=root / "uavs" / "uav1" / "zenoh.json5"))
+
+
+def test_a_new_fleet_has_nothing_to_say(fleet):
+    notices = certificate_notices(_uav_config(fleet))
+    assert notices.problems == [] and notices.warnings == []
+    # the same files judged 900 days on: the UAV's certificate (825 days) has run out, the CA (10 years) not
+    later = certificate_notices(_uav_config(fleet), dt.datetime.now(dt.timezone.utc) + dt.timedelta(days=900))
+    assert len(later.problems) == 1 and "connect certificate" in later.problems[0]
+    assert "(uav1) expired on" in later.problems[0] and "uavmm secure init" in later.problems[0]
+
+
+def test_a_clock_before_the_certificates_is_named(fleet):
+    notices = certificate_notices(_uav_config(fleet), dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc))
+    assert len(notices.problems) == 2  # the CA and the UAV's certificate (one file each)
+    assert all("this machine's clock says 1970-01-01" in p and "GPS or NTP" in p for p in notices.problems)
+
+
+@settings(max_examples=60, deadline=None)
+@given(offset_days=st.floats(-30.0, 60.0, allow_nan=False), warn_days=st.floats(0.0, 45.0, allow_nan=False))
+def test_each_certificate_is_judged_by_its_own_dates(tmp_path_factory, offset_days, warn_days):
+    """A certificate valid over [start, start + 20 days] is a problem outside it, a warning within warn_days of
+    its end, else nothing; the CA (ten years) never speaks."""
+    root = tmp_path_factory.mktemp("one")
+    ca = new_ca("test-ca", now=NOW - dt.timedelta(days=100))
+    leaf = issue(ca, "uav9", days=20, now=NOW)
+    (root / "ca.pem").write_bytes(pem_certificate(ca.certificate))
+    (root / "cert.pem").write_bytes(leaf.certificate_pem)
+    conf = agent_zenoh_config(ZenohOptions(cfg=(f'transport/link/tls/root_ca_certificate:"{root / "ca.pem"}"',
+                                                f'transport/link/tls/connect_certificate:"{root / "cert.pem"}"')))
+    when = NOW + dt.timedelta(days=offset_days)
+    notices = certificate_notices(conf, when, warn_days=warn_days)
+    (validity,) = certificate_validities(leaf.certificate_pem)
+    outside = when < validity.not_before or when > validity.not_after
+    assert bool(notices.problems) == outside and len(notices.problems) <= 1
+    expect_warning = not outside and validity.not_after - when <= dt.timedelta(days=warn_days)
+    assert bool(notices.warnings) == expect_warning
+    assert all("uav9" in line for line in notices.problems + notices.warnings)
+
+
+def test_files_zenoh_will_complain_about_are_left_to_it(tmp_path):
+    (tmp_path / "junk.pem").write_text("not a certificate")
+    conf = agent_zenoh_config(ZenohOptions(cfg=(f'transport/link/tls/connect_certificate:"{tmp_path / "junk.pem"}"',
+                                                f'transport/link/tls/root_ca_certificate:"{tmp_path / "none.pem"}"')))
+    notices = certificate_notices(conf, NOW)
+    assert notices.problems == [] and notices.warnings == []
+
+
+def test_an_agent_with_an_expired_certificate_stops_before_it_starts(fleet, tmp_path, capsys):
+    root = _copy(fleet, tmp_path)
+    old = issue(_ca(root), "uav1", days=30, now=dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=60))
+    (root / "uavs" / "uav1" / "cert.pem").write_bytes(old.certificate_pem)
+    (root / "uavs" / "uav1" / "key.pem").write_bytes(old.key_pem)
+    code = main(["agent", "--uav-id", "uav1", "--config", str(root / "uavs" / "uav1" / "zenoh.json5"),
+                 "--sim", "coop", "--uav-index", "0", "--frames", "5"])
+    err = capsys.readouterr().err
+    assert code == 2 and "connect certificate" in err and "(uav1) expired on" in err
+    assert "summary" not in capsys.readouterr().out
+
+
+def test_a_server_certificate_near_its_end_is_a_warning_and_a_dead_one_stops_the_server(fleet, tmp_path, capsys,
+                                                                                      caplog):
+    root = _copy(fleet, tmp_path)
+    now = dt.datetime.now(dt.timezone.utc)
+    soon = issue(_ca(root), "fusion", hosts=("localhost",), days=EXPIRY_WARNING_DAYS + 400,
+                 now=now - dt.timedelta(days=400 + EXPIRY_WARNING_DAYS - 5))  # 5 days left
+    (root / "fusion" / "cert.pem").write_bytes(soon.certificate_pem)
+    (root / "fusion" / "key.pem").write_bytes(soon.key_pem)
+    conf = agent_zenoh_config(ZenohOptions(config_file=root / "fusion" / "zenoh.json5"))
+    notices = certificate_notices(conf)
+    assert notices.problems == [] and len(notices.warnings) == 1  # its listen and connect certificate: one file
+    with caplog.at_level(logging.WARNING, logger="test"):
+        check_certificates(conf, logging.getLogger("test"))  # starts, and says so
+    assert [r.getMessage() for r in caplog.records] == notices.warnings and "in 5.0 days" in notices.warnings[0]
+    # a re-run of `uavmm secure init` names it too (it keeps existing certificates)
+    assert main(["secure", "init", str(root), "--uavs", "uav1"]) == 0
+    out = capsys.readouterr().out
+    assert f"fusion's certificate expires on {soon.certificate.not_valid_after_utc:%Y-%m-%d}" in out
+    assert "uav1's certificate" not in out
+    dead = issue(_ca(root), "fusion", hosts=("localhost",), days=10, now=now - dt.timedelta(days=11))
+    (root / "fusion" / "cert.pem").write_bytes(dead.certificate_pem)
+    code = main(["fusion", "--config", str(root / "fusion" / "zenoh.json5"), "--no-db", "--no-http",
+                 "--listen", "tls/127.0.0.1:0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "(fusion) expired on" in err

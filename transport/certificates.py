@@ -1,0 +1,97 @@
+"""The TLS certificates a Zenoh config names, checked for their dates before a process starts.
+
+A certificate that has run out, or that this machine's clock places before its start (a drone without
+GPS time or NTP), makes every TLS handshake fail, and Zenoh only retries: an agent then flies without a
+word reaching the ground station (docs/deploy.md, "Clocks"). `certificate_notices` reads the CA, listen
+and connect certificates of ``transport/link/tls`` and says which cannot work now (problems: the process
+stops with them) and which run out within `EXPIRY_WARNING_DAYS` (warnings: it starts and says so).
+Files it cannot read or parse are left to Zenoh, which names them itself.
+"""
+
+from __future__ import annotations
+
+import datetime as dt
+import logging
+from dataclasses import dataclass, field
+
+import zenoh
+
+from transport.session import config_value
+
+__all__ = ["EXPIRY_WARNING_DAYS", "CertificateNotices", "certificate_notices", "check_certificates"]
+
+log = logging.getLogger(__name__)
+
+#: a certificate ending within this many days gets a warning at start
+EXPIRY_WARNING_DAYS = 30
+#: the Zenoh config entries naming certificate files, and what each is for
+_CERTIFICATE_KEYS = (
+    ("transport/link/tls/root_ca_certificate", "CA certificate"),
+    ("transport/link/tls/listen_certificate", "listen certificate"),
+    ("transport/link/tls/connect_certificate", "connect certificate"),
+)
+_RENEW = ("renew it: delete the identity's cert.pem and key.pem and re-run `uavmm secure init` (docs/deploy.md); "
+          "for the CA, make a new fleet")
+
+
+@dataclass
+class CertificateNotices:
+    """What `certificate_notices` found: problems (the TLS sessions cannot work) and warnings."""
+
+    problems: list[str] = field(default_factory=list)
+    warnings: list[str] = field(default_factory=list)
+
+
+def _date(when: dt.datetime) -> str:
+    return when.strftime("%Y-%m-%d %H:%M UTC")
+
+
+def certificate_notices(conf: zenoh.Config, now: dt.datetime | None = None, *,
+                        warn_days: float = EXPIRY_WARNING_DAYS) -> CertificateNotices:
+    """The date problems and warnings of the certificates ``conf`` names (every certificate of a chain).
+
+    now: the time to judge by (default: this machine's clock, UTC). A certificate past its end, or not yet
+    started by this clock, is a problem; one ending within ``warn_days`` days a warning. Unset entries and
+    files that cannot be read or parsed give nothing (Zenoh reports those itself).
+    """
+    from shared.pki import certificate_validities
+
+    now = dt.datetime.now(dt.timezone.utc) if now is None else now
+    notices = CertificateNotices()
+    seen: set[str] = set()
+    for key, role in _CERTIFICATE_KEYS:
+        path = config_value(conf, key)
+        if not isinstance(path, str) or not path or path in seen:
+            continue
+        seen.add(path)
+        try:
+            with open(path, "rb") as handle:
+                validities = certificate_validities(handle.read())
+        except (OSError, ValueError) as exc:
+            log.debug("%s %s not checked: %s", role, path, exc)
+            continue
+        for validity in validities:
+            who = f"{role} {path}" + (f" ({validity.common_name})" if validity.common_name else "")
+            if now > validity.not_after:
+                notices.problems.append(f"the {who} expired on {_date(validity.not_after)}: no TLS session can "
+                                        f"open with it; {_RENEW}")
+            elif now < validity.not_before:
+                notices.problems.append(
+                    f"the {who} is valid only from {_date(validity.not_before)}, and this machine's clock says "
+                    f"{_date(now)}: set the clock (GPS or NTP), or no TLS session can open")
+            else:
+                left = validity.not_after - now
+                if left <= dt.timedelta(days=warn_days):
+                    notices.warnings.append(f"the {who} expires on {_date(validity.not_after)}, in "
+                                            f"{left.total_seconds() / 86400:.1f} days; {_RENEW}")
+    return notices
+
+
+def check_certificates(conf: zenoh.Config, logger: logging.Logger) -> None:
+    """Before a process opens its session: ValueError naming every certificate that cannot work now (the CLI
+    prints it and exits 2); a warning logged for each that runs out within `EXPIRY_WARNING_DAYS`."""
+    notices = certificate_notices(conf)
+    if notices.problems:
+        raise ValueError("; ".join(notices.problems))
+    for warning in notices.warnings:
+        logger.warning("%s", warning)
