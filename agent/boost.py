@@ -25,6 +25,7 @@ from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.stage_report import StageSummary
+from shared.files import PendingFile, write_chunks_atomic
 from shared.geo import Camera
 
 log = logging.getLogger(__name__)
@@ -219,7 +220,8 @@ def boost_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
 
 
 def write_corrections(rows: list[tuple], out_path: str | Path) -> None:
-    """The per-frame telemetry corrections as CSV (CORRECTION_COLUMNS), written atomically."""
+    """The per-frame telemetry corrections as CSV (CORRECTION_COLUMNS), written atomically
+    (`shared.files.write_chunks_atomic`: a new temporary beside the file, on disk before the rename)."""
     import csv
     import io
 
@@ -227,18 +229,17 @@ def write_corrections(rows: list[tuple], out_path: str | Path) -> None:
     writer = csv.writer(buffer)
     writer.writerow(CORRECTION_COLUMNS)
     writer.writerows(rows)
-    out_path = Path(out_path)
-    tmp = out_path.with_name(out_path.name + ".tmp")
-    tmp.write_text(buffer.getvalue())
-    tmp.replace(out_path)
+    write_chunks_atomic(Path(out_path), [buffer.getvalue()])
 
 
 class StreamedResults:
     """A COCO results file written as the results come (`uavmm agent --detections-out`): an hour of a live flight
     held ~0.7 M result dicts in memory until the end (~0.4 GB at 10 frames/s and 20 detections a frame). Entries go
-    to ``<out>.tmp`` as they are added (opened with the first); `close` ends the JSON array and renames it to
-    ``out`` (a run that dies leaves the .tmp, never a truncated results file). FileNotFoundError when the folder
-    does not exist, IsADirectoryError when ``out`` is a folder (found at the start, not after the run)."""
+    to a new hidden temporary beside ``out`` as they are added (`shared.files.PendingFile`, created with the first:
+    never a file or link already there, never another run's); `close` ends the JSON array, puts it on disk and
+    renames it to ``out`` (a run that dies leaves the temporary, never a truncated results file). FileNotFoundError
+    when the folder does not exist, IsADirectoryError when ``out`` is a folder (found at the start, not after the
+    run)."""
 
     def __init__(self, out_path: str | Path) -> None:
         self.path = Path(out_path)
@@ -246,34 +247,39 @@ class StreamedResults:
             raise FileNotFoundError(f"output directory {self.path.parent} does not exist (for {self.path})")
         if self.path.is_dir():
             raise IsADirectoryError(f"{self.path} is a directory: give the results file's path")
-        self._tmp = self.path.with_name(self.path.name + ".tmp")
-        self._file: Any = None
+        self._file: PendingFile | None = None
         self.count = 0
         self.closed = False
 
+    @property
+    def spool_path(self) -> Path | None:
+        """The temporary being written, None before the first results and after `close` / `abort`."""
+        return None if self._file is None or self.closed else self._file.tmp
+
     def extend(self, results: list[dict[str, Any]]) -> None:
-        if results and self._file is None:
-            self._file = self._tmp.open("w")
+        if not results:
+            return
+        if self._file is None:
+            self._file = PendingFile(self.path)
             self._file.write("[")
-        if results:  # one write: a Ctrl-C lands before or after a frame's results, never inside them
-            self._file.write((", " if self.count else "") + ", ".join(json.dumps(result) for result in results))
-            self.count += len(results)
+        # one write: a Ctrl-C lands before or after a frame's results, never inside them
+        self._file.write((", " if self.count else "") + ", ".join(json.dumps(result) for result in results))
+        self.count += len(results)
 
     def abort(self) -> None:
-        """Drop what was written (a failed run leaves no .tmp behind); idempotent."""
-        if self._file is not None and not self._file.closed:
-            self._file.close()
-        self._tmp.unlink(missing_ok=True)
+        """Drop what was written (a failed run leaves no temporary behind); idempotent."""
+        if self._file is not None:
+            self._file.discard()
         self.closed = True
 
     def close(self) -> None:
-        """End the array and put the file in place (idempotent)."""
+        """End the array, put it on disk and in place (idempotent)."""
         if self.closed:
             return
+        self.closed = True
         if self._file is None:
-            self._tmp.write_text("[]")
+            self._file = PendingFile(self.path)
+            self._file.write("[]")
         else:
             self._file.write("]")
-            self._file.close()
-        self._tmp.replace(self.path)
-        self.closed = True
+        self._file.commit()

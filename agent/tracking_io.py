@@ -40,6 +40,7 @@ from agent.size_filter import SizeFilter
 from agent.stage_report import StageSummary
 from agent.tracking import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
+from shared.files import write_chunks_atomic
 from shared.geo import Camera
 
 log = logging.getLogger(__name__)
@@ -296,9 +297,7 @@ def check_writable(path: str | Path, *, create_dir: bool = False) -> None:
 
 
 def _write_atomic(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    tmp.replace(path)
+    write_chunks_atomic(path, [text])  # a new temporary beside it (never one there or a link), on disk, renamed
 
 
 def mot_lines(rows: list[TrackRow]) -> list[str]:
@@ -383,7 +382,8 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
                   size_filter: SizeFilter | None = None, *, video_id: int | str | None = None,
                   geojson_path: str | Path | None = None, image_dir: str | Path | None = None,
                   use_images: bool = True, clock_offsets_path: str | Path | None = None,
-                  registrations_path: str | Path | None = None) -> dict[str, Any]:
+                  registrations_path: str | Path | None = None,
+                  check_outputs: Callable[[dict[int, Path]], None] | None = None) -> dict[str, Any]:
     """Load the three files, track every video (or `video_id`), write MOT files (and GeoJSON).
 
     Image files (``file_name`` relative to `image_dir`, default the directory of images.json) that exist
@@ -392,7 +392,9 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     registrations_path: a CSV of the tracker's pose correction of each frame (REGISTRATION_COLUMNS).
 
     Output paths are checked before any work: an unknown video id raises ValueError, an unwritable
-    output OSError. Returns a summary: ``files`` {video_id: path}, ``rows``, ``tracks`` (distinct ids
+    output OSError; `check_outputs` is called with each video's MOT file path as soon as they are known (after
+    reading the frames, before anything else is read or written), e.g. to refuse one that names an input.
+    Returns a summary: ``files`` {video_id: path}, ``rows``, ``tracks`` (distinct ids
     per video), ``geojson``, timing and counters.
     """
     dataset = Dataset.load(images_path)
@@ -400,6 +402,8 @@ def track_dataset(images_path: str | Path, candidates_path: str | Path, camera_p
     if not video_ids:
         raise ValueError(f"{images_path}: no images, nothing to track")
     paths = mot_output_paths(out, dataset, video_ids)
+    if check_outputs is not None:
+        check_outputs(paths)
     out_is_dir = Path(out).is_dir() or str(out).endswith(("/", os.sep))
     for p in paths.values():
         check_writable(p, create_dir=out_is_dir)

@@ -1,45 +1,103 @@
 """Files written whole or not at all, and a GeoJSON FeatureCollection given feature by feature.
 
-Used by the agent's track files (`agent.track_rows`, `uavmm detect`), the fusion server's export
-(`fusion_server.history_export`) and the fleet's credentials (`fusion_server.provision`, 0600): a reader never
-sees half a file, and a failed write (a full disk) leaves what was there and no temporary file.
+Used by the agent's track files (`agent.track_rows`, `uavmm detect`), the results and CSV files of boost, track,
+tune and anomaly, the fusion server's export (`fusion_server.history_export`) and the fleet's credentials
+(`fusion_server.provision`, 0600): a reader never sees half a file, and a failed write (a full disk) leaves what was
+there and no temporary file.
 """
 
 from __future__ import annotations
 
 import json
 import os
+import secrets
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["collection_chunks", "write_atomic", "write_chunks_atomic"]
+__all__ = ["PendingFile", "collection_chunks", "write_atomic", "write_chunks_atomic"]
+
+
+def _new_temporary(path: Path, mode: int) -> tuple[Path, int]:
+    """Create a new hidden file beside ``path`` for writing: ``.NAME.PID.tmp``, or ``.NAME.PID.XXXXXXXX.tmp`` while
+    that name is taken (another writer's temporary in this process, a leftover, a planted link). O_EXCL: a file or a
+    link already at the name is never written through, and two writers never share one. Returns (name, descriptor).
+    """
+    name = f".{path.name}.{os.getpid()}"
+    for attempt in range(100):
+        tmp = path.with_name(f"{name}.tmp" if attempt == 0 else f"{name}.{secrets.token_hex(4)}.tmp")
+        try:
+            return tmp, os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
+        except FileExistsError:
+            continue
+    raise FileExistsError(f"no free temporary name beside {path}")
+
+
+class PendingFile:
+    """A file written beside its final ``path`` under a new hidden name (`_new_temporary`) and put in place whole by
+    `commit` (flushed, on disk, then renamed over ``path``), or dropped by `discard`; the file stays open between, for
+    writers that stream (`agent.boost.StreamedResults`).
+
+    mode: permission bits of the new file (0o600 for a private key), whatever the umask, set before a byte is
+    written. None: ``open``'s default (0o666 less the umask).
+    """
+
+    def __init__(self, path: str | Path, *, mode: int | None = None) -> None:
+        self.path = Path(path)
+        self.tmp, fd = _new_temporary(self.path, 0o666 if mode is None else mode)
+        try:
+            if mode is not None:  # the umask may have taken bits away
+                os.chmod(fd if os.chmod in os.supports_fd else self.tmp, mode)
+            self.file: IO[bytes] = os.fdopen(fd, "wb")
+        except BaseException:
+            os.close(fd)
+            self.tmp.unlink(missing_ok=True)
+            raise
+        self.done = False
+
+    def write(self, data: str | bytes) -> None:
+        """Append text (written as UTF-8) or bytes."""
+        self.file.write(data if isinstance(data, bytes) else data.encode("utf-8"))
+
+    def commit(self) -> None:
+        """Put the file on disk and rename it over ``path`` (idempotent; the temporary is gone either way)."""
+        if self.done:
+            return
+        try:
+            self.file.flush()
+            os.fsync(self.file.fileno())  # on disk before the rename makes it the file
+            self.file.close()
+            self.tmp.replace(self.path)
+            self.done = True  # the name is free again: another writer's temporary may take it from here
+        finally:
+            self.discard()
+
+    def discard(self) -> None:
+        """Close and remove the temporary without touching ``path`` (idempotent; after `commit`, nothing to do)."""
+        if not self.file.closed:
+            try:
+                self.file.close()
+            except OSError:  # what it cannot flush (a full disk) is dropped anyway; the descriptor is closed
+                pass
+        if not self.done:
+            self.tmp.unlink(missing_ok=True)
+            self.done = True
 
 
 def write_atomic(path: Path, write: Callable[[IO[bytes]], None], *, mode: int | None = None) -> None:
-    """Call ``write`` on a hidden temporary file beside ``path`` (``.NAME.PID.tmp``), put it on disk, then rename it
-    over ``path``; the temporary is removed whatever happens.
+    """Call ``write`` on a new hidden temporary file beside ``path`` (`PendingFile`: ``.NAME.PID.tmp``, never one
+    already there nor through a link planted at that name), put it on disk, then rename it over ``path``; the
+    temporary is removed whatever happens.
 
-    mode: permission bits of the new file (0o600 for a private key), whatever the umask, set before ``write``
-    puts a byte in; the temporary is then always a new file (one left at its name, or a link planted there, is
-    replaced, never written through). None: ``open``'s default (0o666 less the umask).
+    mode: permission bits of the new file (0o600 for a private key), whatever the umask. None: ``open``'s default
+    (0o666 less the umask).
     """
-    tmp = path.with_name(f".{path.name}.{os.getpid()}.tmp")
+    pending = PendingFile(path, mode=mode)
     try:
-        if mode is None:
-            file = open(tmp, "wb")
-        else:
-            tmp.unlink(missing_ok=True)
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, mode)  # O_EXCL: never through a link
-            os.chmod(fd if os.chmod in os.supports_fd else tmp, mode)  # the umask may have taken bits away
-            file = os.fdopen(fd, "wb")
-        with file:
-            write(file)
-            file.flush()
-            os.fsync(file.fileno())  # on disk before the rename makes it the file
-        tmp.replace(path)
+        write(pending.file)
+        pending.commit()
     finally:
-        tmp.unlink(missing_ok=True)
+        pending.discard()
 
 
 def write_chunks_atomic(path: Path, chunks: Iterable[str | bytes]) -> None:

@@ -11,7 +11,7 @@ import importlib
 import logging
 import os
 import sys
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 log = logging.getLogger("uavmm")
@@ -29,6 +29,42 @@ def require_out_parent(*paths: Path | None) -> None:
     for path in paths:
         if path is not None and not path.parent.is_dir():
             raise CliError(f"output directory {path.parent} does not exist (for {path})")
+
+
+def same_file(a: Path | str, b: Path | str) -> bool:
+    """Whether two paths name one existing file, however spelled (``./x``, ``../dir/x``) or linked (a symbolic or a
+    hard link); False when either does not exist."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
+
+
+#: (flag, path) pairs of `require_outputs_apart`; a path of None (a flag not given) is skipped.
+FlagPaths = Iterable[tuple[str, Path | str | None]]
+
+
+def require_outputs_apart(outputs: FlagPaths, inputs: FlagPaths) -> None:
+    """CliError naming both flags when an output file is one of the run's input files (`track --out PRE_NMS.json`,
+    through a link or another spelling as well) or when two outputs name one file (the later would replace the
+    earlier): called before the work, so nothing is written over what the run reads or wrote.
+
+    outputs: (flag, file the run writes) pairs, one per file (a folder output gives one pair per file it writes);
+    inputs: (flag, file the run reads) pairs. Paths that do not exist are never inputs; two outputs are one when
+    their real paths are equal (or they are one existing file).
+    """
+    given_inputs = [(flag, path) for flag, path in inputs if path is not None]
+    seen: list[tuple[str, Path | str]] = []
+    for out_flag, out in outputs:
+        if out is None:
+            continue
+        for in_flag, path in given_inputs:
+            if same_file(out, path):
+                raise CliError(f"{out_flag} {out} is the {in_flag} input {path}: give another output path")
+        for other_flag, other in seen:
+            if same_file(out, other) or os.path.realpath(out) == os.path.realpath(other):
+                raise CliError(f"{other_flag} {other} and {out_flag} {out} are one file: give each its own path")
+        seen.append((out_flag, out))
 
 
 def require_new_output(out: Path, *inputs: Path | str | None) -> None:
@@ -296,6 +332,7 @@ def _run_boost(args: argparse.Namespace) -> int:
     for out in (args.out, args.corrections_out):
         if out is not None:
             require_new_output(out, *inputs)
+    require_outputs_apart([("--out", args.out), ("--corrections-out", args.corrections_out)], [])
     corrections: list[tuple] | None = [] if args.corrections_out is not None else None
     spool = StreamedResults(args.out)  # written as the frames come; in place once the run ends well
     try:

@@ -12,7 +12,7 @@ from pathlib import Path
 
 from uavmm._signals import stop_on_signals
 from uavmm._zenoh_args import add_zenoh_arguments, zenoh_options_from_args
-from uavmm.cli import _add_pipeline_options
+from uavmm.cli import _add_pipeline_options, require_outputs_apart
 
 log = logging.getLogger("uavmm.agent")
 
@@ -201,6 +201,23 @@ def params_from_config_flag(args: argparse.Namespace) -> None:
     args.pipeline_config, args.config = args.config, None
 
 
+def input_files(args: argparse.Namespace) -> list[tuple[str, Path | str | None]]:
+    """(flag, path) of every file the run reads (a --dataset folder's images, candidates and camera files), for
+    `require_outputs_apart`; a flag not given has None."""
+    files: list[tuple[str, Path | str | None]] = [
+        ("--video", args.video), ("--telemetry", args.telemetry), ("--model", args.model), ("--camera", args.camera),
+        ("--class-names", args.class_names), ("--pipeline-config", args.pipeline_config),
+        ("--size-filter", args.size_filter), ("--dem", args.dem), ("--config", args.config)]
+    if args.dataset is not None and args.dataset.is_dir():
+        from agent.dataset import dataset_files
+
+        try:
+            files += [("--dataset", path) for path in dataset_files(args.dataset, camera=args.camera)]
+        except ValueError:
+            pass  # the source names what is missing
+    return files
+
+
 def _run_agent(args: argparse.Namespace) -> int:
     from agent.node import AgentNode
 
@@ -208,6 +225,8 @@ def _run_agent(args: argparse.Namespace) -> int:
     for flag, path in (("--tracks-out", args.tracks_out), ("--detections-out", args.detections_out)):
         if path is not None and not path.parent.is_dir():  # before the flight, not after it
             raise ValueError(f"{flag}: output directory {path.parent} does not exist (for {path})")
+    require_outputs_apart([("--tracks-out", args.tracks_out), ("--detections-out", args.detections_out)],
+                          input_files(args))
     settings = settings_from_args(args)
     from agent.zenoh_config import agent_zenoh_config, identity_problem
     from transport.certificates import check_certificates

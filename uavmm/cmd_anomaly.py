@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from uavmm.cli import add_terrain_options, terrain_from_args
+from uavmm.cli import add_terrain_options, require_outputs_apart, terrain_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -115,6 +115,9 @@ def run_anomaly(args: argparse.Namespace) -> int:
                              "images.json meta)")
     if args.frames is not None and args.telemetry_offset_s is not None:
         raise ValueError("--telemetry-offset-s goes with --video (--frames carries its times in images.json meta)")
+    require_outputs_apart([("--out", args.out)], [
+        ("--frames", args.frames), ("--video", args.video), ("--telemetry", args.telemetry), ("--camera", args.camera),
+        ("--model", args.model), ("--dem", args.dem)])
     # written as the frames come (an hour at 100 regions a frame held ~4 GiB until the end): a failed run leaves
     # nothing, Ctrl-C the regions of the frames done; a missing folder or a folder as --out is refused here
     spool = StreamedResults(args.out)

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from uavmm.cli import CliError, _add_pipeline_options, _pipeline_from_args
+from uavmm.cli import CliError, _add_pipeline_options, _pipeline_from_args, require_outputs_apart
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -131,10 +131,17 @@ class ProgressLine:
 def run(args: argparse.Namespace) -> int:
     """Handler of `uavmm detect`: validate, build the source, run, print where the files are."""
     from agent.offline import DetectOptions, prepare_out_dir, run_detect
+    from agent.offline.outputs import OUTPUT_FILES
     from agent.slicing import SliceGrid
     from agent.sources import VideoSource
     from agent.tracking_io import load_tracker_config
 
+    # the files it writes into --out have fixed names: none may be one the run reads (VIDEO as annotated.mp4 there)
+    written = [name for kind, name in OUTPUT_FILES.items() if kind != "video" or args.render_video]
+    require_outputs_apart([("--out", args.out / name) for name in written], [
+        ("VIDEO", args.video), ("--telemetry", args.telemetry), ("--model", args.model), ("--camera", args.camera),
+        ("--class-names", args.class_names), ("--tracker-config", args.tracker_config),
+        ("--config", args.pipeline_config), ("--size-filter", args.size_filter), ("--dem", args.dem)])
     options = DetectOptions(render_video=args.render_video, trail_s=args.trail_s,
                             inset_fraction=0.0 if args.no_inset else 0.28, max_frames=args.max_frames)
     slices = SliceGrid.parse(args.slices, args.slice_overlap) if args.slices else None

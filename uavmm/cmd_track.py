@@ -16,6 +16,7 @@ from uavmm.cli import (
     _add_pipeline_options,
     _pipeline_from_args,
     print_pose_and_stages,
+    require_outputs_apart,
 )
 
 
@@ -72,6 +73,16 @@ def run(args: argparse.Namespace) -> int:
     """Handler of `uavmm track`: validate, run, print a summary; returns the exit code."""
     from agent.tracking_io import load_tracker_config, track_dataset
 
+    inputs = [("--frames", args.frames), ("--candidates", args.candidates), ("--camera", args.camera),
+              ("--config", args.pipeline_config), ("--size-filter", args.size_filter), ("--dem", args.dem),
+              ("--tracker-config", args.tracker_config)]
+    extras = [("--geojson", args.geojson), ("--clock-offsets-out", args.clock_offsets_out),
+              ("--registrations-out", args.registrations_out)]
+    require_outputs_apart([("--out", args.out), *extras], inputs)  # as given; each video's file once they are known
+
+    def check_mot_paths(paths: dict[int, Path]) -> None:
+        require_outputs_apart([*((f"--out (video {v})", p) for v, p in paths.items()), *extras], inputs)
+
     pipeline_config, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
     if args.clock_offset is not None:  # else the configuration's (on by default)
         pipeline_config = dataclasses.replace(pipeline_config, estimate_clock_offset=args.clock_offset)
@@ -88,7 +99,7 @@ def run(args: argparse.Namespace) -> int:
                             size_filter, video_id=args.video_id, geojson_path=args.geojson,
                             image_dir=args.image_dir, use_images=not args.no_images,
                             clock_offsets_path=args.clock_offsets_out,
-                            registrations_path=args.registrations_out)
+                            registrations_path=args.registrations_out, check_outputs=check_mot_paths)
     for video_id, path in summary["files"].items():
         print(f"video {video_id}: {summary['tracks'][video_id]} tracks -> {path}")
     if "clock_offset_median_s" in summary:

@@ -54,6 +54,7 @@ def register(sub: argparse._SubParsersAction) -> None:
 def _run_tune(args: argparse.Namespace) -> int:
     from agent.boost import load_params
     from agent.tune import tune
+    from shared.files import write_chunks_atomic
 
     require_out_parent(args.out)  # found before the work, not when writing after it
     require_new_output(args.out, args.frames, args.candidates, args.camera, args.start_config, args.dem)
@@ -70,9 +71,7 @@ def _run_tune(args: argparse.Namespace) -> int:
     result = tune(args.frames, args.candidates, args.camera, base=base, start_filter=start_filter,
                   fit_size_filter=not args.no_size_filter_fit, min_gain=args.min_gain, holdout=not args.no_holdout,
                   progress=None if args.quiet else progress)
-    tmp = args.out.with_name(args.out.name + ".tmp")
-    tmp.write_text(json.dumps(result.params(), indent=1))
-    tmp.replace(args.out)
+    write_chunks_atomic(args.out, [json.dumps(result.params(), indent=1)])  # a new temporary, on disk, renamed
     r = result.report
     start = "start" if args.start_config else "defaults"
     print(f"AP50: no memory {r['AP50_no_memory']:.2f}, {start} {r['AP50_start']:.2f}, search's best "

@@ -8,11 +8,14 @@ interrupted run never leaves a truncated file.
 from __future__ import annotations
 
 import json
+import os
+import tempfile
 from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 from agent.track_rows import TrackRowLog, collection_chunks, write_chunks_atomic
+from shared.files import PendingFile
 from shared.geo import Pose
 from shared.kml import kml_chunks
 from shared.telemetry import Telemetry, to_seadronessee_meta
@@ -41,13 +44,9 @@ OUTPUT_FILES = {
 
 
 def write_text_atomic(path: Path, text: str | bytes) -> None:
-    """Write a file through a hidden temporary beside it, then rename (no partial files)."""
-    tmp = path.with_name(f".{path.name}.tmp")
-    if isinstance(text, bytes):
-        tmp.write_bytes(text)
-    else:
-        tmp.write_text(text)
-    tmp.replace(path)
+    """Write a file through a new hidden temporary beside it, on disk before the rename (no partial files;
+    `shared.files.write_chunks_atomic`)."""
+    write_chunks_atomic(path, [text])
 
 
 def _date_time(t: float) -> str | None:
@@ -98,13 +97,15 @@ def images_json(images: Sequence[dict[str, Any]], class_names: Mapping[int, str]
 class StreamedImages:
     """The frames' `images_json` document written as the frames come: each entry goes to a hidden lines file beside
     `path` at once (an hour's entries held in memory were ~2 KB a frame), and `close` writes the document through a
-    hidden temporary and renames it: the same bytes as ``json.dumps(images_json(...))``. `abort` removes what was
-    written (a failed run leaves no file)."""
+    new hidden temporary and renames it (`shared.files.PendingFile`): the same bytes as
+    ``json.dumps(images_json(...))``. Both hidden files get new names of their own (never a file or link already
+    there, never another run's). `abort` removes what was written (a failed run leaves no file)."""
 
     def __init__(self, path: Path) -> None:
         self.path = Path(path)
-        self._lines = self.path.with_name(f".{self.path.name}.lines.tmp")
-        self._file: Any = self._lines.open("w")
+        fd, lines = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".lines.tmp", dir=self.path.parent)
+        self._lines = Path(lines)
+        self._file: Any = os.fdopen(fd, "w", encoding="utf-8")
         self.count = 0
 
     def add(self, entry: dict[str, Any]) -> None:
@@ -124,21 +125,23 @@ class StreamedImages:
         head = images_json([], class_names, video_name, source=source)
         text = json.dumps(head)
         before, after = text.split('"images": []', 1)  # the images' place in the document, keys in images_json's order
-        tmp = self.path.with_name(f".{self.path.name}.tmp")
         try:
-            with self._lines.open() as lines, tmp.open("w") as out:
-                out.write(before + '"images": [')
-                for i, line in enumerate(lines):
-                    if hfovs is not None:
-                        entry = json.loads(line)
-                        if entry["meta"] is not None:
-                            entry["meta"]["hfov_deg"] = hfovs[i]
-                        line = json.dumps(entry)
-                    out.write((", " if i else "") + line.rstrip("\n"))
-                out.write("]" + after)
-            tmp.replace(self.path)
+            out = PendingFile(self.path)
+            try:
+                with self._lines.open(encoding="utf-8") as lines:
+                    out.write(before + '"images": [')
+                    for i, line in enumerate(lines):
+                        if hfovs is not None:
+                            entry = json.loads(line)
+                            if entry["meta"] is not None:
+                                entry["meta"]["hfov_deg"] = hfovs[i]
+                            line = json.dumps(entry)
+                        out.write((", " if i else "") + line.rstrip("\n"))
+                    out.write("]" + after)
+                out.commit()
+            finally:
+                out.discard()
         finally:
-            tmp.unlink(missing_ok=True)
             self._lines.unlink(missing_ok=True)
 
 

@@ -6,6 +6,7 @@ import json
 import re
 import subprocess
 import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -378,3 +379,25 @@ def test_the_summary_says_when_the_candidates_look_post_nms(tmp_path, capsys):
     assert main(["boost", "--frames", str(d / "images.json"), "--candidates", str(d / "final.json"),
                  "--camera", str(d / "camera.json"), "--out", str(d / "again.json")]) == 0
     assert "NMS removed none of the" in capsys.readouterr().out
+
+
+def test_the_corrections_csv_goes_through_a_new_temporary_on_disk_before_the_rename(tmp_path, monkeypatch):
+    """write_corrections wrote ``FILE.tmp`` with a plain open() (a link planted there was written through and the
+    rename made the CSV that link) and renamed it without fsync, unlike shared.files' writers."""
+    import os
+
+    import shared.files
+
+    d = make_dataset(tmp_path, frames=3)
+    outside = tmp_path / "outside.txt"
+    outside.write_text("precious\n")
+    for name in ("corr.csv.tmp", f".corr.csv.{os.getpid()}.tmp"):
+        (d / name).symlink_to(outside)
+    synced: list[str] = []
+    real = os.fsync
+    monkeypatch.setattr(shared.files.os, "fsync",
+                        lambda fd: (synced.append(os.readlink(f"/proc/self/fd/{fd}")), real(fd))[1])
+    assert run_boost(d, "--corrections-out", str(d / "corr.csv")) == 0
+    assert outside.read_text() == "precious\n" and not (d / "corr.csv").is_symlink()
+    assert (d / "corr.csv").read_text().startswith("image_id,video_id,frame_index,")
+    assert [Path(p).name.split(".")[1:3] for p in synced] == [["results", "json"], ["corr", "csv"]]

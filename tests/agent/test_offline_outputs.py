@@ -4,13 +4,14 @@ the same bytes as the documents built whole, and nothing left behind by a run th
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from agent.offline.outputs import StreamedImages, image_entry, images_json
+from agent.offline.outputs import OUTPUT_FILES, StreamedImages, image_entry, images_json
 from agent.offline.run import run_detect
 from agent.sources import SourceFrame
 from shared.geo import Camera, Pose
@@ -71,6 +72,30 @@ def test_a_run_writes_its_streamed_files_and_one_that_fails_leaves_none(tmp_path
     with pytest.raises(OSError, match="broke off"):
         run_detect(_Source(6, fail_at=4), tmp_path / "failed")
     assert list((tmp_path / "failed").iterdir()) == []
+
+
+def test_no_output_is_written_through_a_link_planted_at_its_old_temporary_name(tmp_path):
+    """Every file of `uavmm detect` went through a fixed ``.NAME.tmp`` (``.images.json.lines.tmp`` for the frames,
+    ``detections.json.tmp`` for the results) opened with a plain open(): a link left there took the file's content
+    and the rename made the output that link. Each now gets a new temporary of its own."""
+    import os
+
+    out = tmp_path / "out"
+    out.mkdir()
+    outside = tmp_path / "outside.txt"
+    outside.write_text("precious\n")
+    planted = []
+    for name in OUTPUT_FILES.values():
+        planted += [f".{name}.tmp", f"{name}.tmp", f".{name}.{os.getpid()}.tmp"]
+    planted.append(".images.json.lines.tmp")
+    for name in planted:
+        (out / name).symlink_to(outside)
+    summary = run_detect(_Source(4), out)
+    assert outside.read_text() == "precious\n"
+    for path in summary["files"].values():
+        assert not Path(path).is_symlink() and Path(path).stat().st_size > 0
+    assert sorted(p.name for p in out.iterdir() if not p.is_symlink()) == sorted(
+        Path(p).name for p in summary["files"].values())
 
 
 def test_detect_kml_ids_are_unique_xml_ids_named_as_the_export_names_them(tmp_path):

@@ -235,3 +235,19 @@ def test_a_video_whose_boxes_all_lie_beyond_the_pipelines_range_is_tracked_on_th
     said = [r.getMessage() for r in caplog.records if "have no ground point" in r.getMessage()]
     assert len(said) == 1 and "far_reach_sigma_m" in said[0] and "no track" in said[0]
     assert (tmp_path / "off.txt").read_text() == ""
+
+
+def test_no_track_file_is_written_through_a_link_planted_at_its_old_temporary_name(data, tmp_path, capsys):
+    """The MOT, GeoJSON and CSV files went through a fixed ``.NAME.tmp`` opened with a plain open(): a link left
+    there took the tracks (the file it points to overwritten) and the rename made the output that link."""
+    outside = tmp_path / "outside.txt"
+    outside.write_text("precious\n")
+    outputs = ("tracks.txt", "tracks.geojson", "offsets.csv", "registrations.csv")
+    for name in outputs:
+        for planted in (f".{name}.tmp", f".{name}.{os.getpid()}.tmp"):
+            (tmp_path / planted).symlink_to(outside)
+    assert track(data, tmp_path / "tracks.txt", "--video-id", "1", "--no-images", "--geojson",
+                 str(tmp_path / "tracks.geojson"), "--clock-offsets-out", str(tmp_path / "offsets.csv"),
+                 "--registrations-out", str(tmp_path / "registrations.csv")) == 0
+    assert outside.read_text() == "precious\n"
+    assert all(not (tmp_path / name).is_symlink() and (tmp_path / name).stat().st_size for name in outputs)

@@ -108,3 +108,19 @@ def test_a_bad_params_file_is_one_clear_line(tmp_path, capsys, content, message)
     assert run_boost(d, "--config", str(d / "bad.json")) == 2
     err = capsys.readouterr().err
     assert message in err and "bad.json" in err and "Traceback" not in err
+
+
+def test_params_go_through_a_new_temporary_never_through_a_planted_link(tmp_path):
+    """`uavmm tune` wrote ``PARAMS.json.tmp`` with a plain open() and renamed it: a link left at that name got the
+    parameters (the file it points to overwritten) and PARAMS.json became the link; two runs shared the name."""
+    import os
+
+    d = make_dataset(tmp_path, frames=10)
+    outside = tmp_path / "outside.txt"
+    outside.write_text("precious\n")
+    for name in ("params.json.tmp", f".params.json.{os.getpid()}.tmp"):
+        (d / name).symlink_to(outside)
+    assert run_tune(d, "--no-holdout", "--no-size-filter-fit") == 0
+    assert outside.read_text() == "precious\n" and not (d / "params.json").is_symlink()
+    assert json.loads((d / "params.json").read_text())["format"] == PARAMS_FORMAT
+    assert not [p.name for p in d.iterdir() if p.name.endswith(".tmp") and not p.is_symlink()]

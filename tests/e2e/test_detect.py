@@ -199,3 +199,22 @@ def test_detect_refuses_a_model_with_nms_inside_in_one_line(flight, tmp_path, ca
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "yolo26n.onnx is an end-to-end export" in err[0] and "nms=False end2end=False" in err[0]
     assert not list((tmp_path / "o").glob("*"))  # nothing written
+
+
+def test_detect_refuses_to_write_its_annotated_video_over_the_video_it_reads(flight, tmp_path, capsys):
+    """Probe: `uavmm detect run/annotated.mp4 --out run --render-video` (a second pass over the first's video) wrote
+    the new annotated video over the one it read (exit 0). Refused in one line naming both, before any work."""
+    d = flight["dir"]
+    run = tmp_path / "run"
+    run.mkdir()
+    video = run / "annotated.mp4"
+    video.write_bytes((d / f"{flight['name']}.mp4").read_bytes())
+    before = video.read_bytes()
+    assert main(["detect", str(video), "--telemetry", str(d / f"{flight['name']}.srt"), "--model",
+                 str(flight["model"]), "--camera", str(d / "camera.json"), "--out", str(run), "--no-size-filter",
+                 "--render-video", "--quiet"]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and f"--out {video} is the VIDEO input {video}" in err[0]
+    assert video.read_bytes() == before and sorted(p.name for p in run.iterdir()) == ["annotated.mp4"]
+    assert _detect(flight, run, "--quiet") == 0  # without --render-video it writes no annotated.mp4: allowed
+    assert video.read_bytes() == before and (run / "detections.json").is_file()
