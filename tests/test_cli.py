@@ -195,3 +195,18 @@ def test_agent_refuses_video_flags_beside_another_source(capsys, source, flags, 
     """They did nothing, silently: a user who gave --pitch-deg with --dataset thought the pitch was applied."""
     assert main(["agent", "--uav-id", "u1", "--connect", "tcp/127.0.0.1:1", *source, *flags]) == 2
     assert f"uavmm agent: error: {said}" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("module", ["uavmm", "uavmm.cli"])
+def test_a_command_modules_refusal_is_one_line_and_exit_2_however_the_cli_is_started(tmp_path, module):
+    """`python -m uavmm.cli` runs cli.py as __main__: the CliError a cmd_* module raises is uavmm.cli's, which that
+    module's own main did not catch (a traceback and exit 1)."""
+    frames = tmp_path / "frames.json"
+    frames.write_text("{}")
+    (tmp_path / "camera.json").write_text("{}")
+    proc = subprocess.run([sys.executable, "-m", module, "tune", "--frames", str(frames), "--candidates", str(frames),
+                           "--camera", str(tmp_path / "camera.json"), "--out", str(frames)],
+                          cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 2 and "Traceback" not in proc.stderr, proc.stderr
+    assert proc.stderr.strip().splitlines() == [proc.stderr.strip()] and "give another output path" in proc.stderr
+    assert frames.read_text() == "{}"

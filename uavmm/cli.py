@@ -569,4 +569,8 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # `python -m uavmm.cli`: run the imported module's main, whose CliError is the one the cmd_* modules raise (this
+    # __main__ module's own class would not catch theirs: a traceback instead of one line and exit 2)
+    from uavmm.cli import main as _main
+
+    sys.exit(_main())

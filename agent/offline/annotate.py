@@ -9,6 +9,8 @@ without pose falls back to the tracks' recent box centres.
 from __future__ import annotations
 
 import math
+import os
+import tempfile
 from collections import deque
 from datetime import datetime, timezone
 from pathlib import Path
@@ -67,9 +69,14 @@ class VideoAnnotator:
         self.trail_s = float(trail_s)
         self.inset_px = int(round(inset_fraction * min(width, height)))
         self.range_m = float(range_m)
-        self._tmp = self.path.with_name(f".{self.path.stem}.tmp{self.path.suffix}")
+        # a new hidden name beside the output, its suffix kept (OpenCV picks the container from it): never a file or
+        # a link already there, never another run's
+        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent)
+        os.close(fd)
+        self._tmp = Path(tmp)
         self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter.fourcc(*MP4_FOURCC), float(fps), self.size)
         if not self._writer.isOpened():
+            self._tmp.unlink(missing_ok=True)
             raise OSError(f"OpenCV cannot write an MP4 video at {self.path}")
         self._history: dict[int, deque[tuple[float, float, float, float, float]]] = {}  # t, lat, lon, u, v
         self.frames = 0

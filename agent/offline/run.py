@@ -11,6 +11,8 @@ from __future__ import annotations
 import json
 import logging
 import math
+import os
+import tempfile
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -66,9 +68,9 @@ def prepare_out_dir(out_dir: str | Path) -> Path:
         raise NotADirectoryError(f"--out {out} exists and is not a directory")
     try:
         out.mkdir(parents=True, exist_ok=True)
-        probe = out / ".uavmm-write-test"
-        probe.write_bytes(b"")
-        probe.unlink()
+        fd, probe = tempfile.mkstemp(prefix=".uavmm-write-test-", dir=out)  # a new name: never through a planted link
+        os.close(fd)
+        os.unlink(probe)
     except OSError as exc:
         raise OSError(f"output directory {out} is not writable: {exc.strerror or exc}") from None
     return out

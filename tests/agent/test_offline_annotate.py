@@ -132,3 +132,21 @@ def test_the_video_decodes_at_the_input_size_with_the_drawn_frames(tmp_path):
     assert len(frames) == 5 and frames[-1].shape == (CAM.height, CAM.width, 3)
     assert _is(frames[-1][190, 330], _track_colour(1), 80)  # the last box's left edge survives the encoder
     assert not list(tmp_path.glob(".*tmp*"))
+
+
+def test_the_video_is_never_written_through_a_link_planted_at_a_temporary_name(tmp_path):
+    """The partial video goes to a new hidden name (not `.a.tmp.mp4`, where a link could point at another file)."""
+    precious = tmp_path / "precious.bin"
+    precious.write_bytes(b"precious")
+    (tmp_path / ".a.tmp.mp4").symlink_to(precious)
+    annotator = VideoAnnotator(tmp_path / "a.mp4", FPS, CAM.width, CAM.height, {0: "person"})
+    pipe = DetectionPipeline(CAM, {0: "person"}, PipelineConfig(use_size_filter=False))
+    image = np.full((CAM.height, CAM.width, 3), GREY, np.uint8)
+    result = pipe.process(_box(300), np.array([0.9], np.float32), np.array([0]), POSE, 0.0)
+    annotator.write(image, 0.0, CAM, POSE, result, [_track(_box(300))], pipe.memory)
+    annotator.close()
+    assert precious.read_bytes() == b"precious" and (tmp_path / "a.mp4").stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.glob(".*")) == [".a.tmp.mp4"]  # only the planted link is left
+    dropped = VideoAnnotator(tmp_path / "b.mp4", FPS, CAM.width, CAM.height, {0: "person"})
+    dropped.abort()
+    assert not (tmp_path / "b.mp4").exists() and sorted(p.name for p in tmp_path.glob(".*")) == [".a.tmp.mp4"]

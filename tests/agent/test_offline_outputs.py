@@ -128,3 +128,16 @@ def test_detect_kml_ids_are_unique_xml_ids_named_as_the_export_names_them(tmp_pa
     assert names == ["7", "12", "7", "12"]  # the number stays the name, and `id` in ExtendedData
     objects = json.loads((tmp_path / OUTPUT_FILES["objects_geojson"]).read_text())["features"]
     assert [f["id"] for f in objects] == [7, 12]  # the GeoJSON keeps the number as the feature id, as REST does
+
+
+def test_the_write_check_of_the_out_folder_never_writes_through_a_planted_link(tmp_path):
+    from agent.offline.run import prepare_out_dir
+
+    precious = tmp_path / "precious.txt"
+    precious.write_text("precious")
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / ".uavmm-write-test").symlink_to(precious)
+    assert prepare_out_dir(out) == out
+    assert precious.read_text() == "precious"
+    assert [p.name for p in out.iterdir()] == [".uavmm-write-test"]
