@@ -18,6 +18,7 @@ import time
 from typing import Any
 
 from fusion_server.api import create_app
+from fusion_server.basemap import open_basemap
 from fusion_server.config import FusionSettings, zenoh_config
 from fusion_server.gateway_node import GatewayNode, ShardWatch
 from fusion_server.merged_tracks import DEFAULT_STALE_S, MergedTracks
@@ -28,6 +29,7 @@ from fusion_server.shard_tracks import ShardTracks
 from fusion_server.uav_clocks import UavClocks
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
+from shared.messages import MAX_TRACKS
 from shared.sharding import ShardSpec
 from shared.tiles import TileGrid
 
@@ -68,7 +70,7 @@ class ShardedUavs(UavRegistry):
 class Gateway:
     """A gateway over ``settings.shard_count`` shards (its ``settings.shard_index`` is unused).
 
-    settings: FusionSettings of the REST side (http, tokens, CORS, prefix, grid, region zoom, Zenoh);
+    settings: FusionSettings of the REST side (http, tokens, CORS, basemap, prefix, grid, region zoom, Zenoh);
     its database is never used (each shard keeps its own). cache_s: how long the shards' joint tiles
     are reused; stale_s: a region's tracks drop out this long after its last message.
     """
@@ -83,12 +85,15 @@ class Gateway:
         keys = settings.keys
         grid = settings.grid
         self.metrics = FusionMetrics()
-        self.basemap = None
-        self.shards = ShardWatch(settings.shard_count)
+        # the fusion server's page draws the same basemap (an MBTiles file is served by the gateway itself)
+        self.basemap = open_basemap(settings.basemap, settings.basemap_attribution) if settings.basemap else None
+        self.shards = ShardWatch(settings.shard_count, settings.region_zoom)
         self.joint = RemoteJoint(keys, grid, cache_s=cache_s,
                                  on_reject=lambda reason: self.metrics.reject("joint_tile", reason))
+        # each shard lists at most MAX_TRACKS tracks over its regions; twice that leaves room for handovers
         self.tracker = MergedTracks(stale_s=stale_s, history_len=settings.track_history_len,
-                                    history_interval_s=settings.track_history_interval_s)
+                                    history_interval_s=settings.track_history_interval_s,
+                                    max_tracks=2 * MAX_TRACKS * settings.shard_count)
         # the tracks' history, times and ended ones, asked of the shards (their region messages carry
         # where each track is and its status only)
         self.shard_tracks = ShardTracks(keys, settings.shard_count, history_len=settings.track_history_len,
@@ -123,6 +128,10 @@ class Gateway:
         self.joint.session = None
         self.shard_tracks.session = None
         self.node.close()
+        self.joint.join()  # a summary's query in the background ends with the session
+        if self.basemap is not None and self.basemap.mbtiles is not None:
+            self.basemap.mbtiles.close()
+            self.basemap = None
 
     def __enter__(self) -> Gateway:
         return self
@@ -193,6 +202,8 @@ class Gateway:
                                                   self.shard_tracks.queries),
             "uavmm_fusion_uavs_online": ("UAVs whose liveliness token is present.", len(self.uavs.online())),
             "uavmm_fusion_global_tracks": ("Global tracks merged from the shards.", len(self.tracker)),
+            "uavmm_gateway_regions_evicted_total": ("Fresh track regions forgotten beyond the gateway's bound of "
+                                                    "tracks (2 x 10,000 per shard).", self.tracker.regions_evicted),
         }
         reasons = {"uavmm_fusion_http_denied_total": (
             "REST requests refused without a valid bearer token, by reason.", dict(self.http_denied))}

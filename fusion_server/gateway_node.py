@@ -25,7 +25,7 @@ from fusion_server.uav_intake import UavIntake
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator, Rejected
 from shared.keys import KeySpace
-from shared.messages import MessageError, StateMessage, decode_joint_tracks, encode_joint_tracks
+from shared.messages import MAX_TRACKS, MessageError, StateMessage, decode_joint_tracks, encode_joint_tracks
 from transport.guard import guarded
 from transport.publishers import PublisherCache
 from transport.session import close_session
@@ -38,29 +38,51 @@ log = logging.getLogger(__name__)
 _TICK_S = 0.05
 #: joint/tracks is published again after this long even when unchanged, seconds.
 _TRACKS_REFRESH_S = 1.0
+#: Largest joint/tracks message, bytes (a fusion server's bound: fewer tracks beyond it, counted as left out).
+MAX_TRACKS_BYTES = 1024 * 1024
+#: Tokens of other deployments' shards listed in ShardWatch.foreign (and /healthz).
+_MAX_FOREIGN = 64
 
 
 class ShardWatch:
     """Which of the ``count`` shards hold their liveliness token. Thread-safe.
 
-    A shard never seen is down (since None). Tokens of another shard count (a shard started with a
-    different N) are counted in ``foreign`` and logged: they say the deployment is misconfigured.
+    A shard never seen is down (since None). Tokens of another shard count or, when ``region_zoom`` is
+    given, another region zoom (a shard started with a different N or --region-zoom) are listed in
+    ``foreign`` ("K/N", or "K/N zoom Z" for another zoom: True while the token is up) and logged, not counted:
+    they say the deployment is misconfigured. ``foreign`` keeps the latest _MAX_FOREIGN of them (gone ones
+    forgotten first), so tokens the network declares cost bounded memory and /healthz stays small.
     """
 
-    def __init__(self, count: int, wall: Callable[[], float] = time.time) -> None:
+    def __init__(self, count: int, region_zoom: int | None = None, wall: Callable[[], float] = time.time) -> None:
         self.count = count
+        self.region_zoom = region_zoom
         self._wall = wall
         self._lock = threading.Lock()
         self._up: dict[int, bool] = {}
         self._since: dict[int, float] = {}
         self._changes: dict[int, int] = {}
         self.foreign: dict[str, bool] = {}
+        #: foreign tokens forgotten beyond _MAX_FOREIGN
+        self.foreign_forgotten = 0
 
-    def token(self, index: int, count: int, alive: bool) -> None:
-        """A shard token appeared (alive) or disappeared."""
+    def is_foreign(self, count: int, zoom: int | None = None) -> bool:
+        """Whether a token of shard count ``count`` and region zoom ``zoom`` (None: not known) is another
+        deployment's."""
+        return count != self.count or (zoom is not None and self.region_zoom is not None and zoom != self.region_zoom)
+
+    def token(self, index: int, count: int, alive: bool, zoom: int | None = None) -> None:
+        """A shard token (of region zoom ``zoom``, None: not known) appeared (alive) or disappeared."""
         with self._lock:
-            if count != self.count:
-                self.foreign[f"{index}/{count}"] = alive
+            if self.is_foreign(count, zoom):
+                label = f"{index}/{count}" if count != self.count else f"{index}/{count} zoom {zoom}"
+                foreign = self.foreign
+                foreign.pop(label, None)
+                foreign[label] = alive  # the newest last
+                if len(foreign) > _MAX_FOREIGN:
+                    gone = next((name for name, up in foreign.items() if not up), None)
+                    del foreign[gone if gone is not None else next(iter(foreign))]
+                    self.foreign_forgotten += 1
                 return
             if self._up.get(index) == alive:
                 return
@@ -84,13 +106,15 @@ class GatewayNode:
     """One Zenoh session of the gateway, feeding ``tracks``, ``uavs`` and ``shards``.
 
     conf: the Zenoh config; keys: the key space; validator: checks the UAVs' state messages.
-    tracks_max_hz: most ``joint/tracks`` messages a second. session: the open session (None before
+    tracks_max_hz: most ``joint/tracks`` messages a second; max_tracks_bytes: their largest size (fewer
+    tracks beyond it, tracked ones first, counted as ``tracks_left_out``). session: the open session (None before
     start and after close), shared with the gateway's RemoteJoint.
     """
 
     def __init__(self, conf: zenoh.Config, keys: KeySpace, validator: MessageValidator, tracks: MergedTracks,
                  uavs: UavRegistry, shards: ShardWatch, metrics: FusionMetrics, *,
-                 tracks_max_hz: float = 5.0, uav_keep_s: float = 3600.0) -> None:
+                 tracks_max_hz: float = 5.0, uav_keep_s: float = 3600.0,
+                 max_tracks_bytes: int = MAX_TRACKS_BYTES) -> None:
         self.conf = conf
         self.keys = keys
         self.validator = validator
@@ -100,6 +124,7 @@ class GatewayNode:
         self.metrics = metrics
         self.tracks_min_interval_s = 1.0 / tracks_max_hz
         self.uav_keep_s = uav_keep_s
+        self.max_tracks_bytes = max_tracks_bytes
         self.session: zenoh.Session | None = None
         self._declared: list = []
         self._publishers: PublisherCache | None = None
@@ -151,15 +176,16 @@ class GatewayNode:
         try:
             key = str(sample.key_expr)
             try:
-                index, count = self.keys.parse_shard_alive(key)
+                index, count, zoom = self.keys.parse_shard_token(key)
             except ValueError as exc:
                 self._intake.reject("shard_alive", "bad_key", key, exc)
                 return
             alive = sample.kind == zenoh.SampleKind.PUT
-            self.shards.token(index, count, alive)
-            if count != self.shards.count:
-                self._log.warning("foreign_shard", "gateway of %d shards: shard %d/%d %s (started with another "
-                                  "--shard N?)", self.shards.count, index, count, "up" if alive else "down")
+            self.shards.token(index, count, alive, zoom)
+            if self.shards.is_foreign(count, zoom):
+                self._log.warning("foreign_shard", "gateway of %d shards, regions of zoom %s: shard %d/%d of region "
+                                  "zoom %d %s (started with another --shard N or --region-zoom?)", self.shards.count,
+                                  self.shards.region_zoom, index, count, zoom, "up" if alive else "down")
                 return
             log.info("shard %d/%d %s", index, count, "up" if alive else "down")
         except Exception:
@@ -221,7 +247,18 @@ class GatewayNode:
     # ---- publisher thread ---------------------------------------------------------------------------
     def _publish_tracks(self) -> None:
         assert self._publishers is not None
-        payload = encode_joint_tracks(self.tracks.joint_message())
+        # bounded as a fusion server bounds it (MAX_TRACKS tracks, MAX_TRACKS_BYTES, tracked ones first): the
+        # whole map's tracks of many shards made messages agents refuse
+        limit = MAX_TRACKS
+        while True:
+            message = self.tracks.joint_message(limit)
+            payload = encode_joint_tracks(message)
+            if len(payload) <= self.max_tracks_bytes or limit <= 1:
+                break
+            limit = len(message.tracks) // 2
+        left_out = len(self.tracks) - len(message.tracks)
+        if left_out > 0:
+            self.metrics.tracks_left_out(left_out)
         self._tracks_payload = payload
         self._publishers.put(self._tracks_key, payload)
         self.metrics.tracks_sent()

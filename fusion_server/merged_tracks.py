@@ -55,24 +55,39 @@ class MergedTracks:
     ``stale_s`` left out.
 
     history_len: most history rows per track; history_interval_s: least time between two rows.
-    clock: monotonic seconds (freshness); wall: epoch seconds (ended times, message times).
+    max_tracks: most tracks held over all regions (each shard lists at most ``shared.messages.MAX_TRACKS``);
+    beyond it the regions heard from longest ago are forgotten first (counted in ``regions_evicted``), so what
+    the network sends costs bounded memory. clock: monotonic seconds (freshness); wall: epoch seconds (ended
+    times, message times).
+
+    A message costs the tracks it and the region's previous message list, not every track of the map: the
+    merged view is kept up to date per global id (a fleet of 10,000 tracks in 100 regions, each published
+    twice a second, cost ~2 s of CPU a second when every message merged every region again).
     """
 
     def __init__(self, *, stale_s: float = DEFAULT_STALE_S, history_len: int = 600,
-                 history_interval_s: float = 1.0, clock=time.monotonic, wall=time.time) -> None:
+                 history_interval_s: float = 1.0, max_tracks: int = 20 * MAX_TRACKS, clock=time.monotonic,
+                 wall=time.time) -> None:
+        if max_tracks < MAX_TRACKS:
+            raise ValueError(f"max_tracks must be at least one region message's {MAX_TRACKS}, got {max_tracks}")
         self.stale_s = float(stale_s)
         self.history_len = int(history_len)
         self.history_interval_s = float(history_interval_s)
+        self.max_tracks = int(max_tracks)
         self._clock = clock
         self._wall = wall
         self._lock = threading.Lock()
-        # region -> (monotonic receive time, message t, its tracks)
-        self._regions: OrderedDict[Region, tuple[float, float, tuple[JointTrackItem, ...]]] = OrderedDict()
+        # region -> (monotonic receive time, message t, its tracks by gid); oldest heard first
+        self._regions: OrderedDict[Region, tuple[float, float, dict[int, JointTrackItem]]] = OrderedDict()
+        self._tracks_held = 0  # tracks over all of _regions
+        self._holders: dict[int, dict[Region, None]] = {}  # gid -> the regions that list it
         self._seen: dict[int, _Seen] = {}
         self._current: dict[int, tuple[float, JointTrackItem]] = {}
         self._ended: OrderedDict[int, TrackRecord] = OrderedDict()
         #: bumped whenever the merged view changes (the joint/tracks publisher compares it)
         self.version = 0
+        #: regions forgotten while fresh because more than ``max_tracks`` tracks (or _MAX_REGIONS regions) came
+        self.regions_evicted = 0
         #: when set, ``details(include_ended)`` gives the shards' own records of their tracks (history,
         #: times, the ended ones), or None when no shard answered (ShardTracks.live)
         self.details: Callable[[bool], list[ShardTrack] | None] | None = None
@@ -80,19 +95,21 @@ class MergedTracks:
     def put(self, region: Region, message: JointTracksMessage) -> None:
         """Record a region's tracks message (an empty one: the region has no tracks any more)."""
         now = self._clock()
+        tracks = {item.gid: item for item in message.tracks}
         with self._lock:
-            self._regions[region] = (now, message.t, message.tracks)
-            self._regions.move_to_end(region)
-            while len(self._regions) > _MAX_REGIONS:
-                self._regions.popitem(last=False)
-            for item in message.tracks:
-                seen = self._seen.get(item.gid)
+            changed = self._drop_region(region)
+            self._regions[region] = (now, message.t, tracks)
+            self._tracks_held += len(tracks)
+            for gid, item in tracks.items():
+                self._holders.setdefault(gid, {})[region] = None
+                changed.add(gid)
+                seen = self._seen.get(gid)
                 if seen is None:
-                    seen = self._seen[item.gid] = _Seen(message.t, self.history_len)
+                    seen = self._seen[gid] = _Seen(message.t, self.history_len)
                 history = seen.history
                 if not history or message.t - history[-1][0] >= self.history_interval_s:
                     history.append((message.t, item.lat, item.lon))
-            self._merge(now)
+            self._merge(now, changed)
 
     def refresh(self) -> None:
         """Drop regions that went stale (their shard stopped publishing) from the merged view."""
@@ -106,35 +123,69 @@ class MergedTracks:
             return {region: now - entry[0] for region, entry in self._regions.items()
                     if now - entry[0] <= self.stale_s}
 
-    def _merge(self, now: float) -> None:
-        """Recompute the merged view (lock held); tracks that left it become ended ones."""
+    def _drop_region(self, region: Region) -> set[int]:
+        """Forget a region's message (lock held); the gids it listed."""
+        entry = self._regions.pop(region, None)
+        if entry is None:
+            return set()
+        tracks = entry[2]
+        self._tracks_held -= len(tracks)
+        for gid in tracks:
+            holders = self._holders.get(gid)
+            if holders is not None:
+                holders.pop(region, None)
+                if not holders:
+                    del self._holders[gid]
+        return set(tracks)
+
+    def _merge(self, now: float, changed: set[int] | None = None) -> None:
+        """Bring the merged view up to date (lock held): forget stale regions, and the oldest ones beyond the
+        bounds, then merge again the gids they and ``changed`` list; tracks that left the view become ended ones."""
+        changed = set() if changed is None else changed
         # regions are oldest heard first (put moves a region to the end): forget the stale ones, so a fleet
         # moving over new ground for days costs what the fresh regions cost, not every region ever heard
         regions = self._regions
-        while regions and now - next(iter(regions.values()))[0] > self.stale_s:
-            regions.popitem(last=False)
-        merged: dict[int, tuple[float, JointTrackItem]] = {}
-        for received, t, items in self._regions.values():
-            if now - received > self.stale_s:
+        while regions:
+            region, (received, _, _) = next(iter(regions.items()))
+            stale = now - received > self.stale_s
+            if not stale and len(regions) <= _MAX_REGIONS and (self._tracks_held <= self.max_tracks
+                                                               or len(regions) == 1):
+                break
+            if not stale:
+                self.regions_evicted += 1
+            changed |= self._drop_region(region)
+        if not changed:
+            return
+        left: list[int] = []
+        came = False
+        for gid in changed:
+            best: tuple[float, float, JointTrackItem] | None = None
+            for region in self._holders.get(gid, ()):
+                received, t, tracks = regions[region]
+                # the newest message's copy; of equal times the one heard first (as the regions' order gave it)
+                if best is None or (t, -received) > (best[0], -best[1]):
+                    best = (t, received, tracks[gid])
+            old = self._current.get(gid)
+            if best is None:
+                if old is not None:
+                    left.append(gid)
                 continue
-            for item in items:
-                old = merged.get(item.gid)
-                if old is None or t > old[0]:
-                    merged[item.gid] = (t, item)
-        if merged == self._current:
+            found = (best[0], best[2])
+            if found != old:
+                self._current[gid] = found
+                came = True
+                self._ended.pop(gid, None)  # back (a shard restarted, a region came back)
+        if not left and not came:
             return
         wall = self._wall()
-        for gid in self._current.keys() - merged.keys():
-            t, item = self._current[gid]
+        for gid in sorted(left):
+            t, item = self._current.pop(gid)
             self._ended[gid] = self._record(gid, t, item, ended=wall)
             self._ended.move_to_end(gid)
             while len(self._ended) > _MAX_ENDED:
                 old_gid, _ = self._ended.popitem(last=False)
-                if old_gid not in merged:
+                if old_gid not in self._current:
                     self._seen.pop(old_gid, None)
-        for gid in merged.keys() & self._ended.keys():
-            del self._ended[gid]  # back (a shard restarted, a region came back)
-        self._current = merged
         self.version += 1
 
     def _record(self, gid: int, t: float, item: JointTrackItem, ended: float | None = None) -> TrackRecord:
@@ -159,12 +210,14 @@ class MergedTracks:
         return sorted(rows + ended, key=lambda r: r.gid)
 
     def joint_message(self, max_tracks: int = MAX_TRACKS) -> JointTracksMessage:
-        """The ``joint/tracks`` message of the whole map: at most ``max_tracks``, the newest first, by gid."""
+        """The ``joint/tracks`` message of the whole map, by gid: at most ``max_tracks``, as a fusion server
+        chooses them (``GlobalTracker.joint_message``): tracked ones first (a member still reports them), then
+        held ones, each the most recently updated first."""
         with self._lock:
             self._merge(self._clock())
             found = list(self._current.values())
         if len(found) > max_tracks:
-            found.sort(key=lambda entry: -entry[0])
+            found.sort(key=lambda entry: (entry[1].active == (), -entry[0]))
             found = found[:max_tracks]
         items = tuple(item for _, item in sorted(found, key=lambda entry: entry[1].gid))
         return JointTracksMessage(t=self._wall(), tracks=items)

@@ -38,6 +38,10 @@ SMALL_RANGE_TILES = 16
 SUMMARY_MAX_AGE_S = 2.0
 #: Longest wait for the shards' replies, seconds (a query ends earlier, once every shard has answered).
 QUERY_TIMEOUT_S = 2.0
+#: Longest a summary (the class list, /healthz's tile count) waits for the shards, seconds: a shard that does not
+#: answer (cut off until its lease ends, or a peer's queryable that never replies) must not hold up /healthz
+#: for the query's 2 s; the summary then gives the last answer and the query goes on in the background.
+SUMMARY_WAIT_S = 0.5
 #: Most classes remembered (as JointMap).
 _MAX_CLASSES = 1024
 
@@ -63,8 +67,11 @@ class RemoteJoint:
         self._lock = threading.Lock()
         self._all_lock = threading.Lock()  # one query of everything at a time
         self._all: tuple[float, dict[TileKey, JointTile]] | None = None
+        self._all_done = -float("inf")  # when the query of _all ended
         self._by_key: dict[TileKey, tuple[float, JointTile | None]] = {}
         self._classes: set[str] = set()
+        # the background query of the whole map for the summaries: (monotonic start, done, its thread)
+        self._refresh: tuple[float, threading.Event, threading.Thread] | None = None
         self._log = RateLimitedLog(log)
 
     # ---- the read side the REST API uses (JointMap's) ---------------------------------------------
@@ -90,8 +97,9 @@ class RemoteJoint:
         return self._by_keys([key])[0]
 
     def classes(self) -> set[str]:
-        """Classes of the joint tiles seen since start (at most 1024; a new class shows within 2 s)."""
-        self._everything(SUMMARY_MAX_AGE_S)
+        """Classes of the joint tiles seen since start (at most 1024; a new class shows within 2 s while the
+        shards answer; never waits more than SUMMARY_WAIT_S for them)."""
+        self._summary()
         with self._lock:
             return set(self._classes)
 
@@ -102,8 +110,15 @@ class RemoteJoint:
     def stats(self) -> dict[str, int]:
         """JointMap.stats() of the gateway: the joint tiles of all shards; it holds no UAV tiles,
         pending fusions, coverage masks or footprints (those are the shards', on their /healthz)."""
-        return {"joint_tiles": len(self._everything(SUMMARY_MAX_AGE_S)), "uav_tiles": 0, "pending": 0,
+        return {"joint_tiles": len(self._summary()), "uav_tiles": 0, "pending": 0,
                 "coverage_masks": 0, "footprints": 0}
+
+    def join(self, timeout_s: float = QUERY_TIMEOUT_S + 1.0) -> None:
+        """Wait for a background query of the summaries to end (after the session closed: at once)."""
+        with self._lock:
+            refresh = self._refresh
+        if refresh is not None:
+            refresh[2].join(timeout_s)
 
     # ---- queries ----------------------------------------------------------------------------------
     def _fresh_all(self, max_age_s: float | None = None) -> dict[TileKey, JointTile] | None:
@@ -114,14 +129,48 @@ class RemoteJoint:
             return found[1]
         return None
 
+    def _summary(self) -> dict[TileKey, JointTile]:
+        """The whole map for the summaries: an answer at most SUMMARY_MAX_AGE_S old, else a new one asked for in the
+        background and waited for until SUMMARY_WAIT_S after that query started; the last answer (or none) when the
+        shards are slower than that."""
+        found = self._fresh_all(SUMMARY_MAX_AGE_S)
+        if found is not None:
+            return found
+        with self._lock:
+            if self._refresh is None or self._refresh[1].is_set():
+                done = threading.Event()
+                thread = threading.Thread(target=self._run_refresh, args=(done,), name="uavmm-gateway-joint",
+                                          daemon=True)
+                self._refresh = (self._clock(), done, thread)
+                thread.start()
+            started, done, _ = self._refresh
+        done.wait(max(0.0, started + SUMMARY_WAIT_S - self._clock()))
+        with self._lock:
+            last = self._all
+        return last[1] if last is not None else {}
+
+    def _run_refresh(self, done: threading.Event) -> None:
+        try:
+            self._everything(SUMMARY_MAX_AGE_S)
+        except Exception:  # a thread of its own: log, never die silently
+            log.exception("gateway: asking the shards for the whole joint map failed")
+        finally:
+            done.set()
+
     def _everything(self, max_age_s: float | None = None) -> dict[TileKey, JointTile]:
         """Every joint tile of every shard: one query ``joint/tiles/**``, reused up to ``max_age_s``
-        (default cache_s) seconds."""
+        (default cache_s) seconds from when it was asked, and by every thread that waited for it."""
         found = self._fresh_all(max_age_s)
         if found is not None:
             return found
+        waiting = self._clock()
         with self._all_lock:
-            found = self._fresh_all(max_age_s)  # another thread asked while this one waited
+            found = self._fresh_all(max_age_s)
+            with self._lock:
+                if found is None and self._all is not None and self._all_done >= waiting:
+                    # another thread's query ended while this one waited: its answer is as new as this one's
+                    # would be (a query slow to end, 2 s for a shard that does not answer, was asked again)
+                    found = self._all[1]
             if found is not None:
                 return found
             asked = self._clock()
@@ -132,6 +181,7 @@ class RemoteJoint:
                     tiles[tile.key] = tile
             with self._lock:
                 self._all = (asked, tiles)
+                self._all_done = self._clock()
             return tiles
 
     def _by_keys(self, keys: list[TileKey]) -> list[JointTile | None]:

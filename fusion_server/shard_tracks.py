@@ -445,8 +445,16 @@ class ShardTracks:
         return self._answer(TrackQuery(source="stored", cls=cls, since=since, until=until, ends_only=ends_only),
                             None)
 
+    def _forget_old_answers(self) -> None:
+        """Drop the answers too old to be served again (lock held): kept until 64 distinct windows came, 60 stored
+        histories of 2 x 200 tracks of 600 rows held ~1 GB that nothing would read again."""
+        now = self._clock()
+        for request in [r for r, (asked, _) in self._cache.items() if now - asked > self.cache_s]:
+            del self._cache[request]
+
     def _answer(self, request: TrackQuery, history_len: int | None) -> list[ShardTrack] | None:
         with self._lock:
+            self._forget_old_answers()
             cached = self._cache.get(request)
             if cached is not None and self._clock() - cached[0] <= self.cache_s:
                 return cached[1]
@@ -466,7 +474,8 @@ class ShardTracks:
                 if found is None:  # nobody answered (no session, every shard down or too old to answer): ask again
                     return None
                 with self._lock:
-                    if len(self._cache) > 64:  # many distinct history windows: forget them
+                    self._forget_old_answers()
+                    if len(self._cache) > 64:  # many distinct history windows at once: forget them
                         self._cache.clear()
                     self._cache[request] = (asked, found)
                 return found

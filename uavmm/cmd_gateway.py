@@ -43,7 +43,16 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="serve the REST API beyond loopback without a token (only behind your own proxy)")
     p.add_argument("--cors-origin", action="append", default=[], metavar="ORIGIN",
                    help="let pages from ORIGIN read the REST API in a browser (repeatable; none by default)")
+    p.add_argument("--basemap", default=None, metavar="URL|FILE.mbtiles",
+                   help="map under the live page: an XYZ tile URL with {z}/{x}/{y} (fetched by the browser) or "
+                        "an MBTiles file served by this gateway (offline)")
+    p.add_argument("--basemap-attribution", default=None, metavar="TEXT",
+                   help="attribution shown with the basemap (default: the MBTiles file's)")
     p.add_argument("--prefix", default="uavmm/v1", help="key prefix (default uavmm/v1)")
+    p.add_argument("--tracks-max-hz", type=float, default=5.0,
+                   help="most joint/tracks messages a second (5; one a second while nothing changes)")
+    p.add_argument("--max-clock-skew-s", type=float, default=30.0,
+                   help="drop UAV states whose t is this far ahead of the gateway's clock (30; the shards' value)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
     add_map_max_cells_argument(p)
@@ -68,7 +77,8 @@ def settings_from_args(args: argparse.Namespace):
         zenoh=zenoh_options_from_args(args), http_host=host, http_port=port, db_path=None, prefix=args.prefix,
         grid_z=args.grid_z, grid_n=args.grid_n, shard_index=0, shard_count=args.shards, region_zoom=zoom,
         http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
-        map_max_cells=args.map_max_cells,
+        map_max_cells=args.map_max_cells, tracks_max_hz=args.tracks_max_hz, max_clock_skew_s=args.max_clock_skew_s,
+        basemap=args.basemap, basemap_attribution=args.basemap_attribution,
     )
 
 
@@ -76,8 +86,11 @@ def _run_gateway(args: argparse.Namespace) -> int:
     import zenoh
 
     from fusion_server.gateway import Gateway
+    from transport.certificates import check_certificates
+    from transport.options import zenoh_config
 
     settings = settings_from_args(args)
+    check_certificates(zenoh_config(settings.zenoh), log)
     stop = stop_on_signals(log)
     try:
         with Gateway(settings) as gateway:

@@ -131,3 +131,8 @@ def test_a_server_certificate_near_its_end_is_a_warning_and_a_dead_one_stops_the
                  "--listen", "tls/127.0.0.1:0"])
     err = capsys.readouterr().err
     assert code == 2 and "(fusion) expired on" in err
+    # a sharded deployment's gateway runs with the fusion identity's config: the same check
+    code = main(["gateway", "--shards", "2", "--config", str(root / "fusion" / "zenoh.json5"), "--mode", "client",
+                 "--connect", "tls/localhost:1", "--http", "127.0.0.1:0"])
+    err = capsys.readouterr().err
+    assert code == 2 and "(fusion) expired on" in err
