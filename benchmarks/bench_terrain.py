@@ -4,7 +4,9 @@ Cases: the boxes' anchor pixels to ground points (shared.geo.pixel_to_local with
 `hills` scenario's 1 m DEM (hills and hollows up to ~12 m) and on a flat DEM, and the whole per-frame pipeline
 (DetectionPipeline.process: georeference, size filter, boost, map update, NMS) over flat ground (the compiled
 kernel) and with the DEM (the ray marching), also with a telemetry correction applied (over the DEM the map's cells
-are marched again from the moved UAV). The baseline of each is the flat-ground figure measured in the same run.
+are marched again from the moved UAV). The baseline of each is the flat-ground figure measured in the same run: the
+cases compared are timed in turns (one sample of each a round) and each ratio is the median of the per-round
+ratios, so a change of the machine's load between samples does not show up as a ratio.
 """
 
 from __future__ import annotations
@@ -18,7 +20,7 @@ import numpy as np
 
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
-from benchmarks.timing import median_time_s
+from benchmarks.timing import interleaved_samples_s, paired_ratio
 from shared.geo import Camera, Pose, local_to_latlon, pixel_to_local
 from shared.terrain import ElevationGrid, Terrain
 from sim.scenarios import get_scenario
@@ -53,14 +55,17 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
     for n in (1000, 5000):
         boxes, scores, cids = _frame(n, rng, camera)
         uv = np.column_stack([(boxes[:, 0] + boxes[:, 2]) / 2, boxes[:, 3]]).astype(np.float64)
-        flat = median_time_s(functools.partial(pixel_to_local, uv, camera, pose, max_range_m=150.0), repeat=repeat)
-        rows.append({"case": f"anchors -> ground, flat, {n} boxes", "value": flat * 1e3, "unit": "ms/frame"})
-        for name, terrain in terrains.items():
-            t = median_time_s(functools.partial(pixel_to_local, uv, camera, pose, max_range_m=150.0, terrain=terrain),
-                              repeat=repeat)
-            rows.append({"case": f"anchors -> ground, {name}, {n} boxes", "value": t * 1e3, "unit": "ms/frame",
-                         "baseline_name": "flat", "ratio": t / flat})
-        times = {}
+        anchors = interleaved_samples_s({
+            "flat": functools.partial(pixel_to_local, uv, camera, pose, max_range_m=150.0),
+            **{name: functools.partial(pixel_to_local, uv, camera, pose, max_range_m=150.0, terrain=terrain)
+               for name, terrain in terrains.items()}}, repeat=repeat)
+        rows.append({"case": f"anchors -> ground, flat, {n} boxes", "value": _ms(anchors["flat"]),
+                     "unit": "ms/frame"})
+        for name in terrains:
+            rows.append({"case": f"anchors -> ground, {name}, {n} boxes", "value": _ms(anchors[name]),
+                         "unit": "ms/frame", "baseline_name": "flat", "ratio": paired_ratio(anchors[name],
+                                                                                            anchors["flat"])})
+        steps = {}
         for name, dem, stamp, probe in (("flat", None, "shrink", 0.3),
                                         ("hills DEM 1 m", hills.terrain, "shrink", 0.3),
                                         ("fixed stamp", hills.terrain, "off", 0.3),
@@ -68,34 +73,41 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
             config = PipelineConfig(terrain=dem, edge_probe=probe)
             config = dataclasses.replace(config, memory=dataclasses.replace(config.memory, terrain_stamp=stamp))
             pipe = DetectionPipeline(camera, {1: "person"}, config)
-            times[name] = median_time_s(_frames(pipe, boxes, scores, cids, pose, _clock()), repeat=repeat)
-        rows.append({"case": f"pipeline frame, flat (compiled), {n} boxes", "value": times["flat"] * 1e3,
+            steps[name] = _frames(pipe, boxes, scores, cids, pose, _clock())
+        times = interleaved_samples_s(steps, repeat=repeat)
+        on_dem = times["hills DEM 1 m"]
+        rows.append({"case": f"pipeline frame, flat (compiled), {n} boxes", "value": _ms(times["flat"]),
                      "unit": "ms/frame"})
-        rows.append({"case": f"pipeline frame, hills DEM 1 m, {n} boxes", "value": times["hills DEM 1 m"] * 1e3,
-                     "unit": "ms/frame", "baseline_name": "flat", "ratio": times["hills DEM 1 m"] / times["flat"]})
+        rows.append({"case": f"pipeline frame, hills DEM 1 m, {n} boxes", "value": _ms(on_dem),
+                     "unit": "ms/frame", "baseline_name": "flat", "ratio": paired_ratio(on_dem, times["flat"])})
         # the stamp radius following the terrain's footprint (MemoryMapConfig.terrain_stamp) against a fixed one
         rows.append({"case": f"pipeline frame, hills DEM 1 m, stamp by footprint, {n} boxes",
-                     "value": times["hills DEM 1 m"] * 1e3, "unit": "ms/frame", "baseline_name": "fixed stamp",
-                     "ratio": times["hills DEM 1 m"] / times["fixed stamp"]})
+                     "value": _ms(on_dem), "unit": "ms/frame", "baseline_name": "fixed stamp",
+                     "ratio": paired_ratio(on_dem, times["fixed stamp"])})
         # the kept boxes' second ground points past a terrain edge (PipelineConfig.edge_probe) against none
         rows.append({"case": f"pipeline frame, hills DEM 1 m, edge probe, {n} boxes",
-                     "value": times["hills DEM 1 m"] * 1e3, "unit": "ms/frame", "baseline_name": "no edge probe",
-                     "ratio": times["hills DEM 1 m"] / times["no edge probe"]})
+                     "value": _ms(on_dem), "unit": "ms/frame", "baseline_name": "no edge probe",
+                     "ratio": paired_ratio(on_dem, times["no edge probe"])})
         # with a telemetry correction applied: over the DEM the map's cells are marched again from the moved UAV
         moved = _with_correction(camera, pose, hills.terrain, boxes, scores, cids, repeat)
         rows.append({"case": f"pipeline frame, hills DEM 1 m, correction applied, {n} boxes",
-                     "value": moved["applied"] * 1e3, "unit": "ms/frame", "baseline_name": "correction off",
-                     "ratio": moved["applied"] / moved["off"]})
+                     "value": _ms(moved["applied"]), "unit": "ms/frame", "baseline_name": "correction off",
+                     "ratio": paired_ratio(moved["applied"], moved["off"])})
     return rows
 
 
+def _ms(samples_s: list[float]) -> float:
+    return float(np.median(samples_s)) * 1e3
+
+
 def _with_correction(camera: Camera, pose: Pose, terrain: Terrain, boxes: np.ndarray, scores: np.ndarray,
-                     cids: np.ndarray, repeat: int) -> dict[str, float]:
-    """Seconds per frame of the pipeline on the DEM after a 3 m GPS step, once the correction has measured it (the
-    same boxes every frame: the map knows where they are; "applied"), and with the correction switched off ("off")."""
+                     cids: np.ndarray, repeat: int) -> dict[str, list[float]]:
+    """Seconds per frame (interleaved_samples_s) of the pipeline on the DEM after a 3 m GPS step, once the correction
+    has measured it (the same boxes every frame: the map knows where they are; "applied"), and with the correction
+    switched off ("off")."""
     lat, lon = local_to_latlon(3.0, 0.0, pose.lat, pose.lon)
     stepped = dataclasses.replace(pose, lat=float(lat), lon=float(lon))
-    out = {}
+    steps = {}
     for name, correct in (("off", False), ("applied", True)):
         pipe = DetectionPipeline(camera, {1: "person"}, PipelineConfig(terrain=terrain, correct_telemetry=correct))
         clock = _clock()
@@ -104,8 +116,8 @@ def _with_correction(camera: Camera, pose: Pose, terrain: Terrain, boxes: np.nda
         result = pipe.process(boxes, scores, cids, stepped, float(next(clock)))
         if correct and (result.correction is None or not result.correction.measured):
             raise RuntimeError(f"bench terrain: the correction did not measure the GPS step ({name})")
-        out[name] = median_time_s(_frames(pipe, boxes, scores, cids, stepped, clock), repeat=repeat)
-    return out
+        steps[name] = _frames(pipe, boxes, scores, cids, stepped, clock)
+    return interleaved_samples_s(steps, repeat=repeat)
 
 
 def _clock() -> Iterator[float]:

@@ -5,7 +5,8 @@ A 30 s clip at 30 fps of a hovering camera (30 m, 35 deg pitch, a 4K frame) over
 whose gimbal jumps 60 deg every 3 s; the telemetry is sampled at 1 Hz and interpolated at the frames' times, as
 a flight log gives it. Cases: the view cuts over the whole clip (every jump searched and cut), the same clip
 hovering without jumps (no interval turns: nothing searched), and the baseline, DetectionPipeline.process over
-the clip's frames (georeference, size filter, boost, map update, NMS), measured in the same run. Memory: the
+the clip's frames (georeference, size filter, boost, map update, NMS), measured in the same run (the three in
+turns, one sample of each a round; each ratio the median of the per-round ratios). Memory: the
 peak of what each allocates over the clip (tracemalloc, numpy's buffers included), the clip's frames and
 detections already in memory.
 """
@@ -26,7 +27,7 @@ from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.telemetry_clock import TelemetryTrack
 from agent.view_cuts import ViewCutReport, place_view_cuts
-from benchmarks.timing import median_time_s
+from benchmarks.timing import interleaved_samples_s, paired_ratio
 from shared.geo import Camera, Pose, local_to_pixel
 
 DESCRIPTION = "ms per frame of the view cuts on a 1 Hz log with 60 deg jumps vs the per-frame pipeline"
@@ -98,23 +99,25 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
         for frame, _ in frames:
             pipe.process(*dets[frame.image.id], frame.pose, frame.t)
 
-    base = median_time_s(pipeline, repeat=repeat, min_time_s=0.0) / n
-    rows.append({"case": f"pipeline per frame ({n} frames, ~45 people in view)", "value": base * 1e3,
-                 "unit": "ms/frame"})
+    still, still_dets = _clip(seconds, jumps=False)
     report = ViewCutReport()
     place_view_cuts(frames, lambda f: dets[f.image.id], report=report)
-    t = median_time_s(lambda: place_view_cuts(frames, lambda f: dets[f.image.id]), repeat=repeat,
-                      min_time_s=0.0) / n
-    rows.append({"case": f"view cuts, 1 Hz log, {report.cuts} of {report.intervals} jumps cut", "value": t * 1e3,
-                 "unit": "ms/frame", "baseline_name": "pipeline", "ratio": t / base})
+    times = interleaved_samples_s({
+        "pipeline": pipeline,
+        "jumps": lambda: place_view_cuts(frames, lambda f: dets[f.image.id]),
+        "still": lambda: place_view_cuts(still, lambda f: still_dets[f.image.id])}, repeat=repeat, min_time_s=0.0)
+    base = float(np.median(times["pipeline"])) / n
+    rows.append({"case": f"pipeline per frame ({n} frames, ~45 people in view)", "value": base * 1e3,
+                 "unit": "ms/frame"})
+    rows.append({"case": f"view cuts, 1 Hz log, {report.cuts} of {report.intervals} jumps cut",
+                 "value": float(np.median(times["jumps"])) / n * 1e3, "unit": "ms/frame", "baseline_name": "pipeline",
+                 "ratio": paired_ratio(times["jumps"], times["pipeline"])})
     base_mib = _peak_mib(pipeline)
     rows.append({"case": "pipeline over the clip, peak allocated", "value": base_mib, "unit": "MiB"})
     cuts_mib = _peak_mib(lambda: place_view_cuts(frames, lambda f: dets[f.image.id]))
     rows.append({"case": "view cuts over the clip, peak allocated", "value": cuts_mib, "unit": "MiB",
                  "baseline_name": "pipeline", "ratio": cuts_mib / base_mib})
-    still, still_dets = _clip(seconds, jumps=False)
-    t = median_time_s(lambda: place_view_cuts(still, lambda f: still_dets[f.image.id]), repeat=repeat,
-                      min_time_s=0.0) / n
-    rows.append({"case": "view cuts, 1 Hz log, hovering (nothing to search)", "value": t * 1e3, "unit": "ms/frame",
-                 "baseline_name": "pipeline", "ratio": t / base})
+    rows.append({"case": "view cuts, 1 Hz log, hovering (nothing to search)",
+                 "value": float(np.median(times["still"])) / n * 1e3, "unit": "ms/frame", "baseline_name": "pipeline",
+                 "ratio": paired_ratio(times["still"], times["pipeline"])})
     return rows

@@ -448,12 +448,13 @@ def _run_bench(args: argparse.Namespace) -> int:
     from benchmarks import BENCHMARK_MODULES, load_benchmark, run_benchmarks
 
     if args.list:
-        for name in BENCHMARK_MODULES:
+        for name in args.names or BENCHMARK_MODULES:  # an unknown name: ValueError, one line and exit 2
             print(f"{name:14s} {load_benchmark(name).DESCRIPTION}")
         return 0
     require_out_parent(args.json)  # before minutes of benchmarks, not after them
-    try:
-        rows = run_benchmarks(args.names or None, quick=args.quick, json_path=args.json)
+    try:  # unknown names and a --json path that cannot be written are refused before any benchmark runs
+        rows = run_benchmarks(args.names or None, quick=args.quick, json_path=args.json,
+                              progress=lambda line: print(line, file=sys.stderr, flush=True))
     except ValueError as exc:
         raise CliError(str(exc)) from None
     from benchmarks import format_table
