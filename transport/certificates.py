@@ -48,7 +48,8 @@ def _date(when: dt.datetime) -> str:
 
 def certificate_notices(conf: zenoh.Config, now: dt.datetime | None = None, *,
                         warn_days: float = EXPIRY_WARNING_DAYS) -> CertificateNotices:
-    """The date problems and warnings of the certificates ``conf`` names (every certificate of a chain).
+    """The date problems and warnings of the certificates ``conf`` names: every certificate of a listen or connect
+    certificate's chain; of the CA file, the CA valid now that lasts longest (any one of a bundle will do).
 
     now: the time to judge by (default: this machine's clock, UTC). A certificate past its end, or not yet
     started by this clock, is a problem; one ending within ``warn_days`` days a warning. Unset entries and
@@ -70,6 +71,11 @@ def certificate_notices(conf: zenoh.Config, now: dt.datetime | None = None, *,
         except (OSError, ValueError) as exc:
             log.debug("%s %s not checked: %s", role, path, exc)
             continue
+        if key.endswith("root_ca_certificate"):
+            # a bundle of CAs works while any of them does: judge the one that lasts longest of those valid now
+            # (an expired CA among valid ones is no problem), or, with none valid, the first
+            valid = [v for v in validities if v.not_before <= now <= v.not_after]
+            validities = [max(valid, key=lambda v: v.not_after)] if valid else validities[:1]
         for validity in validities:
             who = f"{role} {path}" + (f" ({validity.common_name})" if validity.common_name else "")
             if now > validity.not_after:

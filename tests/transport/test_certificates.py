@@ -136,3 +136,17 @@ def test_a_server_certificate_near_its_end_is_a_warning_and_a_dead_one_stops_the
                  "--connect", "tls/localhost:1", "--http", "127.0.0.1:0"])
     err = capsys.readouterr().err
     assert code == 2 and "(fusion) expired on" in err
+
+
+def test_a_ca_bundle_works_while_one_of_its_cas_does(tmp_path):
+    """An expired CA among valid ones (a bundle) is no problem; a bundle of expired CAs is one, named once."""
+    old = new_ca("old-ca", days=30, now=NOW - dt.timedelta(days=400))
+    good = new_ca("fleet-ca", days=3650, now=NOW - dt.timedelta(days=10))
+    bundle = tmp_path / "bundle.pem"
+    bundle.write_bytes(pem_certificate(old.certificate) + pem_certificate(good.certificate))
+    conf = agent_zenoh_config(ZenohOptions(cfg=(f'transport/link/tls/root_ca_certificate:"{bundle}"',)))
+    notices = certificate_notices(conf, NOW)
+    assert notices.problems == [] and notices.warnings == []
+    bundle.write_bytes(pem_certificate(old.certificate) * 2)
+    notices = certificate_notices(conf, NOW)
+    assert len(notices.problems) == 1 and "(old-ca) expired on" in notices.problems[0]
