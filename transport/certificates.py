@@ -3,8 +3,9 @@
 A certificate that has run out, or that this machine's clock places before its start (a drone without
 GPS time or NTP), makes every TLS handshake fail, and Zenoh only retries: an agent then flies without a
 word reaching the ground station (docs/deploy.md, "Clocks"). `certificate_notices` reads the CA, listen
-and connect certificates of ``transport/link/tls`` and says which cannot work now (problems: the process
-stops with them) and which run out within `EXPIRY_WARNING_DAYS` (warnings: it starts and says so).
+and connect certificates of ``transport/link/tls`` and says which have run out (the process stops), which the
+clock places before their start (it starts and says so loudly: the clock may be set later) and which run out
+within `EXPIRY_WARNING_DAYS` (a warning).
 Files it cannot read or parse are left to Zenoh, which names them itself.
 """
 
@@ -36,9 +37,11 @@ _RENEW = ("renew it: delete the identity's cert.pem and key.pem and re-run `uavm
 
 @dataclass
 class CertificateNotices:
-    """What `certificate_notices` found: problems (the TLS sessions cannot work) and warnings."""
+    """What `certificate_notices` found: problems (expired: no TLS session can work), early (not valid yet by this
+    clock: none works until the clock is set) and warnings (ending soon)."""
 
     problems: list[str] = field(default_factory=list)
+    early: list[str] = field(default_factory=list)
     warnings: list[str] = field(default_factory=list)
 
 
@@ -51,9 +54,9 @@ def certificate_notices(conf: zenoh.Config, now: dt.datetime | None = None, *,
     """The date problems and warnings of the certificates ``conf`` names: every certificate of a listen or connect
     certificate's chain; of the CA file, the CA valid now that lasts longest (any one of a bundle will do).
 
-    now: the time to judge by (default: this machine's clock, UTC). A certificate past its end, or not yet
-    started by this clock, is a problem; one ending within ``warn_days`` days a warning. Unset entries and
-    files that cannot be read or parsed give nothing (Zenoh reports those itself).
+    now: the time to judge by (default: this machine's clock, UTC). A certificate past its end is a problem, one not
+    yet started by this clock is early, one ending within ``warn_days`` days a warning. Unset entries and files that
+    cannot be read or parsed give nothing (Zenoh reports those itself).
     """
     from shared.pki import certificate_validities
 
@@ -82,7 +85,7 @@ def certificate_notices(conf: zenoh.Config, now: dt.datetime | None = None, *,
                 notices.problems.append(f"the {who} expired on {_date(validity.not_after)}: no TLS session can "
                                         f"open with it; {_RENEW}")
             elif now < validity.not_before:
-                notices.problems.append(
+                notices.early.append(
                     f"the {who} is valid only from {_date(validity.not_before)}, and this machine's clock says "
                     f"{_date(now)}: set the clock (GPS or NTP), or no TLS session can open")
             else:
@@ -94,10 +97,14 @@ def certificate_notices(conf: zenoh.Config, now: dt.datetime | None = None, *,
 
 
 def check_certificates(conf: zenoh.Config, logger: logging.Logger) -> None:
-    """Before a process opens its session: ValueError naming every certificate that cannot work now (the CLI
-    prints it and exits 2); a warning logged for each that runs out within `EXPIRY_WARNING_DAYS`."""
+    """Before a process opens its session: ValueError naming every expired certificate (the CLI prints it and exits
+    2: no later moment makes it work); an error logged for each that this machine's clock places before its start
+    (the process starts: a companion computer often gets its time from GPS or NTP after boot, and Zenoh's retries
+    then connect), a warning for each that runs out within `EXPIRY_WARNING_DAYS`."""
     notices = certificate_notices(conf)
     if notices.problems:
         raise ValueError("; ".join(notices.problems))
+    for early in notices.early:
+        logger.error("%s; starting anyway: the sessions open once the clock is set", early)
     for warning in notices.warnings:
         logger.warning("%s", warning)

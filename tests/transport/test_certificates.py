@@ -58,17 +58,25 @@ def test_a_new_fleet_has_nothing_to_say(fleet):
     assert "(uav1) expired on" in later.problems[0] and "uavmm secure init" in later.problems[0]
 
 
-def test_a_clock_before_the_certificates_is_named(fleet):
+def test_a_clock_before_the_certificates_is_named_and_the_process_starts(fleet, caplog):
+    """A companion computer often gets its time after boot (GPS, NTP): said loudly, not a reason to stop."""
     notices = certificate_notices(_uav_config(fleet), dt.datetime(1970, 1, 1, tzinfo=dt.timezone.utc))
-    assert len(notices.problems) == 2  # the CA and the UAV's certificate (one file each)
-    assert all("this machine's clock says 1970-01-01" in p and "GPS or NTP" in p for p in notices.problems)
+    assert notices.problems == [] and len(notices.early) == 2  # the CA and the UAV's certificate (one file each)
+    assert all("this machine's clock says 1970-01-01" in p and "GPS or NTP" in p for p in notices.early)
+    future = issue(_ca(fleet), "uav1", days=30, now=dt.datetime.now(dt.timezone.utc) + dt.timedelta(days=2))
+    early = fleet.parent / "early.pem"
+    early.write_bytes(future.certificate_pem)
+    conf = agent_zenoh_config(ZenohOptions(cfg=(f'transport/link/tls/connect_certificate:"{early}"',)))
+    with caplog.at_level(logging.ERROR, logger="test"):
+        check_certificates(conf, logging.getLogger("test"))  # no ValueError
+    assert len(caplog.records) == 1 and "starting anyway" in caplog.records[0].getMessage()
 
 
 @settings(max_examples=60, deadline=None)
 @given(offset_days=st.floats(-30.0, 60.0, allow_nan=False), warn_days=st.floats(0.0, 45.0, allow_nan=False))
 def test_each_certificate_is_judged_by_its_own_dates(tmp_path_factory, offset_days, warn_days):
-    """A certificate valid over [start, start + 20 days] is a problem outside it, a warning within warn_days of
-    its end, else nothing; the CA (ten years) never speaks."""
+    """A certificate valid over [start, start + 20 days] is a problem after it, early before it, a warning within
+    warn_days of its end, else nothing; the CA (ten years) never speaks."""
     root = tmp_path_factory.mktemp("one")
     ca = new_ca("test-ca", now=NOW - dt.timedelta(days=100))
     leaf = issue(ca, "uav9", days=20, now=NOW)
@@ -79,11 +87,12 @@ def test_each_certificate_is_judged_by_its_own_dates(tmp_path_factory, offset_da
     when = NOW + dt.timedelta(days=offset_days)
     notices = certificate_notices(conf, when, warn_days=warn_days)
     (validity,) = certificate_validities(leaf.certificate_pem)
+    assert bool(notices.problems) == (when > validity.not_after) and len(notices.problems) <= 1
+    assert bool(notices.early) == (when < validity.not_before) and len(notices.early) <= 1
     outside = when < validity.not_before or when > validity.not_after
-    assert bool(notices.problems) == outside and len(notices.problems) <= 1
     expect_warning = not outside and validity.not_after - when <= dt.timedelta(days=warn_days)
     assert bool(notices.warnings) == expect_warning
-    assert all("uav9" in line for line in notices.problems + notices.warnings)
+    assert all("uav9" in line for line in notices.problems + notices.early + notices.warnings)
 
 
 def test_files_zenoh_will_complain_about_are_left_to_it(tmp_path):
@@ -91,7 +100,7 @@ def test_files_zenoh_will_complain_about_are_left_to_it(tmp_path):
     conf = agent_zenoh_config(ZenohOptions(cfg=(f'transport/link/tls/connect_certificate:"{tmp_path / "junk.pem"}"',
                                                 f'transport/link/tls/root_ca_certificate:"{tmp_path / "none.pem"}"')))
     notices = certificate_notices(conf, NOW)
-    assert notices.problems == [] and notices.warnings == []
+    assert notices.problems == [] and notices.early == [] and notices.warnings == []
 
 
 def test_an_agent_with_an_expired_certificate_stops_before_it_starts(fleet, tmp_path, capsys):
