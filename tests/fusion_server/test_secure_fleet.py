@@ -46,16 +46,18 @@ class Inbox:
         self.items.append((str(sample.key_expr), sample.payload.to_bytes()))
 
 
-def _server(server_factory, root: Path, port: int, **overrides):
+def _server(server_factory, root: Path, port: int, ttl_s: float = 2.0, **overrides):
     return server_factory(config_file=root / "fusion" / "zenoh.json5", listen=f"tls/127.0.0.1:{port}",
-                          cfg=('mode:"router"',), ttl_s=2.0, **overrides)
+                          cfg=('mode:"router"',), ttl_s=ttl_s, **overrides)
 
 
 @pytest.mark.parametrize("auth", AUTH)
 def test_a_uav_can_put_only_on_its_own_keys_and_never_on_the_joint_keys(server_factory, zenoh_port, tmp_path,
                                                                         auth):
     root = fleet(tmp_path, zenoh_port, auth)
-    server = _server(server_factory, root, zenoh_port)
+    # tiles live 60 s: uav1's must still be in the joint tile when it is read after the spoofing (a 2 s TTL ran out
+    # there under load, CI's two test workers), and a spoofed one, had it been taken, would be there too
+    server = _server(server_factory, root, zenoh_port, ttl_s=60.0)
     uav1 = FakeAgent("uav1", None, conf=identity_config(root / "uavs" / "uav1"))
     uav2 = FakeAgent("uav2", None, conf=identity_config(root / "uavs" / "uav2"), alive=False)
     inbox = Inbox()
