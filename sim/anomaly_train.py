@@ -2,37 +2,94 @@
 
 Needs the optional ``train`` extra (PyTorch; ``pip install -e '.[train]'``); nothing else in the package
 imports torch. The data are simulated and rendered here (`sim.dataset.write_dataset`, `sim.render`) from fixed
-seeds that the evaluation does not use, so one command reproduces the shipped model
-(`agent/anomaly/sea_autoencoder.onnx`; docs/anomaly.md). The loss ignores the annotated objects' boxes: the
-network learns to redraw water only.
+seeds that the evaluation does not use, with the settings the shipped model (`agent/anomaly/sea_autoencoder.onnx`;
+docs/anomaly.md) was trained with. A run is the same for the same seed, scenes and PyTorch, but on 30 Nov 2026 the
+default run (PyTorch 2.13.0 CPU) gave other weights than the shipped file (why was not established). The loss
+ignores the annotated objects' boxes: the network learns to redraw water only.
+
+Everything a run can be refused for (its values, the ONNX path, the work folder, a missing PyTorch) is checked
+before the scenes are rendered; the model is written whole (`shared.files.write_atomic`), so an interrupted or
+failed run leaves the file that was there, or none.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import io
 import logging
+import os
+import re
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import cv2
 import numpy as np
 
-from agent.anomaly.autoencoder import STRIDE
+from agent.anomaly.autoencoder import DEFAULT_MODEL, STRIDE
 from agent.anomaly.methods import DEFAULT_WORK_WIDTH, to_work
 from agent.dataset import Dataset, read_image
+from shared.files import write_atomic
 
 log = logging.getLogger(__name__)
 
 #: Seeds of the training scenes (the evaluation uses 0-99).
 TRAIN_SEEDS = (100, 101)
 CROP = 128
+#: The install hint when PyTorch is missing (one line: the CLI prints it as the error).
+TORCH_MISSING = "PyTorch is missing (the train extra): pip install -e '.[train]'"
+#: The folders `render_training_scenes` makes in the work folder; nothing else may be there.
+_SCENE_DIR = re.compile(r"sea_\d+x\d+_s\d+_f\d+")
+
+
+def require_torch() -> None:
+    """ImportError with the install hint (`TORCH_MISSING`) unless PyTorch can be imported."""
+    try:
+        import torch  # noqa: F401
+    except ImportError:
+        raise ImportError(TORCH_MISSING) from None
+
+
+def check_paths(out: str | Path, work_dir: str | Path) -> None:
+    """ValueError naming the path when the run would fail or do harm only after its work.
+
+    out: the ONNX file: not a folder, its folder must exist, and not the model shipped in the package
+    (`agent.anomaly.autoencoder.DEFAULT_MODEL`, by any spelling or link: every `uavmm anomaly` runs it; write
+    elsewhere and copy it over deliberately). work_dir: absent, or a folder holding only the scene folders a
+    run makes (``sea_WxH_sSEED_fFRAMES``), so scenes are never written into a folder of other files.
+    """
+    out, work_dir = Path(out), Path(work_dir)
+    if out.is_dir():
+        raise ValueError(f"{out} is a directory: give the ONNX file's path")
+    if not out.parent.is_dir():
+        raise ValueError(f"output directory {out.parent} does not exist (for {out})")
+    if os.path.realpath(out) == os.path.realpath(DEFAULT_MODEL) or _same_file(out, DEFAULT_MODEL):
+        raise ValueError(f"{out} is the model shipped in the package ({DEFAULT_MODEL}): write the new model "
+                         "elsewhere, compare it, then copy it over deliberately")
+    if work_dir.exists() and not work_dir.is_dir():
+        raise ValueError(f"work directory {work_dir} is not a directory")
+    if work_dir.is_dir():
+        other = sorted(p.name for p in work_dir.iterdir() if not (_SCENE_DIR.fullmatch(p.name) and p.is_dir()))
+        if other:
+            shown = ", ".join(other[:5]) + (f" and {len(other) - 5} more" if len(other) > 5 else "")
+            raise ValueError(f"work directory {work_dir} holds other files ({shown}): give an empty or new folder, "
+                             "or one an earlier anomaly-train run made")
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    """Whether two paths name one existing file (another spelling, a symbolic or a hard link)."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
 
 
 def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int,
-                           image_size: tuple[int, int]) -> list[Path]:
-    """Simulate and render the sea scenario for each seed under work_dir (reused when already complete)."""
+                           image_size: tuple[int, int], progress: bool = False) -> list[Path]:
+    """Simulate and render the sea scenario for each seed under work_dir (reused when already complete).
+
+    progress: the simulator's and renderer's progress bars on stderr (only when it is a terminal)."""
     from sim.dataset import write_dataset
     from sim.render import RenderOptions, render_dataset
     from sim.scenarios import get_scenario
@@ -42,10 +99,11 @@ def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int,
     for seed in seeds:
         d = work_dir / f"sea_{image_size[0]}x{image_size[1]}_s{seed}_f{frames}"
         if not (d / "render.json").is_file():
-            write_dataset(scenario, d, seed=seed, frames=frames, progress=False)
+            log.info("rendering the training scene %s", d)
+            write_dataset(scenario, d, seed=seed, frames=frames, progress=progress)
             # the frozen sea the shipped model was trained on (the autoencoder sees single frames, and a frame
             # of the moving sea has the same statistics: docs/anomaly.md)
-            render_dataset(d, options=RenderOptions(sea_waves=False), progress=False)
+            render_dataset(d, options=RenderOptions(sea_waves=False), progress=progress)
         out.append(d)
     return out
 
@@ -95,21 +153,33 @@ def build_model() -> Any:
 def train_autoencoder(out: str | Path, *, work_dir: str | Path = "out/anomaly-train",
                       seeds: Sequence[int] = TRAIN_SEEDS,
                       frames: int = 120, image_size: tuple[int, int] = (1280, 720), steps: int = 1500,
-                      batch: int = 16, lr: float = 2e-3, seed: int = 0, work_width: int = DEFAULT_WORK_WIDTH
+                      batch: int = 16, lr: float = 2e-3, seed: int = 0, work_width: int = DEFAULT_WORK_WIDTH,
+                      progress: bool = False, on_step: Callable[[int, int], None] | None = None
                       ) -> dict[str, Any]:
-    """Render the training scenes, train, export ``out`` (ONNX opset 17, dynamic height and width).
+    """Render the training scenes, train, export ``out`` (ONNX opset 17, dynamic height and width), written whole.
 
+    progress: the rendering's progress bars on stderr (on a terminal); on_step: called with (steps done, steps)
+    after each optimiser step.
     Returns a summary: frames, steps, final masked L1 loss, seconds, the ONNX file's size in bytes.
-    ImportError (with the install hint) when PyTorch is missing.
+    Before any work: ValueError for an empty ``seeds``, a negative seed, ``frames``, ``steps`` or ``batch`` < 1,
+    ``lr`` <= 0 or a refused path (`check_paths`); ImportError (with the install hint) when PyTorch is missing.
     """
-    try:
-        import torch
-    except ImportError:
-        raise ImportError("uavmm anomaly-train needs PyTorch: pip install -e '.[train]'") from None
+    seeds = [int(s) for s in seeds]
+    if not seeds or min(seeds) < 0:
+        raise ValueError(f"seeds must be one or more integers >= 0, got {seeds}")
+    for name, value in (("frames", frames), ("steps", steps), ("batch", batch)):
+        if value < 1:
+            raise ValueError(f"{name} must be >= 1, got {value}")
+    if not lr > 0:
+        raise ValueError(f"lr must be > 0, got {lr}")
+    check_paths(out, work_dir)
+    require_torch()
+    import torch
+
     started = time.perf_counter()
     torch.manual_seed(seed)
     rng = np.random.default_rng(seed)
-    dirs = render_training_scenes(Path(work_dir), seeds, frames, image_size)
+    dirs = render_training_scenes(Path(work_dir), seeds, frames, image_size, progress)
     images, masks = load_frames(dirs, work_width)
     n, h, w = masks.shape
     if h < CROP or w < CROP:
@@ -131,15 +201,22 @@ def train_autoencoder(out: str | Path, *, work_dir: str | Path = "out/anomaly-tr
         loss.backward()
         opt.step()
         sched.step()
-        loss_v = float(loss)
+        loss_v = float(loss.detach())  # float(loss) warns on every run (a tensor that requires grad)
         if step % 250 == 0:
             log.info("step %d/%d: masked L1 %.4f", step, steps, loss_v)
+        if on_step is not None:
+            on_step(step + 1, steps)
     model.eval()
     out = Path(out)
-    out.parent.mkdir(parents=True, exist_ok=True)
     dummy = torch.zeros(1, 3, (h // STRIDE) * STRIDE, (w // STRIDE) * STRIDE)
-    torch.onnx.export(model, dummy, str(out), dynamo=False, opset_version=17, input_names=["frames"],
+    onnx_bytes = io.BytesIO()  # exported in memory, then written whole: torch.onnx.export truncates its file first
+    torch.onnx.export(model, dummy, onnx_bytes, dynamo=False, opset_version=17, input_names=["frames"],
                       output_names=["reconstruction"],
                       dynamic_axes={"frames": {2: "height", 3: "width"}, "reconstruction": {2: "height", 3: "width"}})
+
+    def write(file: IO[bytes]) -> None:
+        file.write(onnx_bytes.getvalue())
+
+    write_atomic(out, write)
     return {"out": str(out), "frames": int(n), "steps": steps, "final_masked_l1": round(loss_v, 5),
             "seconds": round(time.perf_counter() - started, 1), "bytes": out.stat().st_size}

@@ -9,7 +9,7 @@ import sys
 import time
 from pathlib import Path
 
-from uavmm.cli import add_terrain_options, require_outputs_apart, terrain_from_args
+from uavmm.cli import CliError, add_terrain_options, require_outputs_apart, terrain_from_args
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -70,13 +70,15 @@ def register(sub: argparse._SubParsersAction) -> None:
         "anomaly-train", help="train the anomaly autoencoder on rendered sea frames (needs the train extra)",
         description="Simulate and render sea scenes from fixed seeds (not used by the evaluation), train the "
                     "convolutional autoencoder on them and export ONNX. Needs PyTorch: pip install -e '.[train]'. "
-                    "The default reproduces agent/anomaly/sea_autoencoder.onnx.",
+                    "The defaults are the settings the shipped agent/anomaly/sea_autoencoder.onnx was trained with; "
+                    "--out never names that file (write elsewhere, compare, copy deliberately).",
     )
     t.add_argument("--out", type=Path, required=True, help="ONNX file to write")
     t.add_argument("--work-dir", type=Path, default=Path("out/anomaly-train"), help="rendered training scenes")
     t.add_argument("--seeds", default="100,101", help="simulator seeds of the training scenes (100,101)")
     t.add_argument("--frames", type=int, default=120, help="frames per video (120)")
     t.add_argument("--steps", type=int, default=1500, help="optimiser steps (1500)")
+    t.add_argument("--quiet", action="store_true", help="no progress on stderr")
     t.set_defaults(handler=run_train)
 
 
@@ -167,15 +169,53 @@ def run_anomaly(args: argparse.Namespace) -> int:
 
 
 def run_train(args: argparse.Namespace) -> int:
-    """Handler of `uavmm anomaly-train`."""
-    from sim.anomaly_train import train_autoencoder
+    """Handler of `uavmm anomaly-train`: every flag, --out, --work-dir and PyTorch are checked (one line, exit 2)
+    before the scenes are rendered; progress on stderr unless --quiet."""
+    from sim.anomaly_train import check_paths, require_torch, train_autoencoder
 
     try:
         seeds = [int(s) for s in args.seeds.split(",") if s.strip()]
     except ValueError:
-        raise ValueError(f"--seeds: expected comma-separated integers, got {args.seeds!r}") from None
-    if not seeds or args.frames < 1 or args.steps < 1:
-        raise ValueError("--seeds, --frames and --steps must be non-empty / >= 1")
-    summary = train_autoencoder(args.out, work_dir=args.work_dir, seeds=seeds, frames=args.frames, steps=args.steps)
+        raise CliError(f"--seeds: expected comma-separated integers, got {args.seeds!r}") from None
+    if not seeds or min(seeds) < 0:
+        raise CliError(f"--seeds needs one or more integers >= 0, got {args.seeds!r}")
+    for flag, value in (("--frames", args.frames), ("--steps", args.steps)):
+        if value < 1:
+            raise CliError(f"{flag} must be >= 1, got {value}")
+    check_paths(args.out, args.work_dir)  # ValueError naming the path: one line, exit 2
+    require_torch()  # ImportError naming the train extra: one line, exit 2
+    if not args.quiet:
+        print(f"anomaly-train: rendering {len(seeds)} sea scene(s) of {args.frames} frames a video into "
+              f"{args.work_dir} (reused when complete), then {args.steps} training steps", file=sys.stderr)
+    summary = train_autoencoder(args.out, work_dir=args.work_dir, seeds=seeds, frames=args.frames, steps=args.steps,
+                                progress=not args.quiet, on_step=None if args.quiet else _StepProgress())
     print("trained: " + ", ".join(f"{k}={v}" for k, v in summary.items()))
     return 0
+
+
+class _StepProgress:
+    """Training steps on stderr: a bar redrawn in place on a terminal (at most 10 times a second), else a line
+    per 10 %."""
+
+    def __init__(self) -> None:
+        self.tty = sys.stderr.isatty()
+        self.started: float | None = None  # at the first step: rendering and loading are not steps
+        self._last = -1.0
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if self.started is None:
+            self.started = now
+        mark = now if self.tty else float(10 * done // total)
+        due = now - self._last >= 0.1 if self.tty else mark != self._last
+        if not due and done != total:
+            return
+        self._last = mark
+        left = f", {(total - done) * (now - self.started) / (done - 1):.0f} s left" if done > 1 else ""
+        if self.tty:
+            bar = "#" * (30 * done // total) + "." * (30 - 30 * done // total)
+            end = "\n" if done == total else ""
+            sys.stderr.write(f"\ranomaly-train [{bar}] {done}/{total} steps{left}\x1b[K{end}")
+        else:
+            sys.stderr.write(f"anomaly-train: step {done}/{total}{left}\n")
+        sys.stderr.flush()
