@@ -4,11 +4,13 @@ Files: ``images.json`` (COCO ground truth with per-image SeaDronesSee ``meta`` f
 the true ``lat``/``lon`` of every annotation), ``camera.json``, ``pre_nms.json`` (all detector candidates)
 and ``truth.json`` (true poses, scenario settings, realised telemetry biases, occlusion facts), and over a
 terrain ``dem.npz`` (the terrain, `agent.dem`; truth.json's ``terrain`` gives the take-off's elevation). Files
-are written to a temporary folder first and moved in only when everything succeeded.
+are written to a temporary folder first and moved in only when everything succeeded; an earlier render's marks
+(`RENDER_FILES`) go then, as they describe the frames of the dataset replaced.
 """
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
 import json
 import logging
@@ -17,6 +19,7 @@ import shutil
 import sys
 import tempfile
 import time
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -33,6 +36,11 @@ logger = logging.getLogger(__name__)
 DATASET_FILES = ("images.json", "camera.json", "pre_nms.json", "truth.json")
 #: The terrain's DEM (agent.dem's .npz), written beside the dataset when the scenario has a terrain.
 TERRAIN_DEM_FILE = "dem.npz"
+#: What a render (`sim.render`) writes beside each video's image folder and <name>.mp4/.srt/.csv; render.json,
+#: written last, marks a complete render.
+RENDER_FILES = ("unannotated.json", "render.json")
+#: Prefix of the temporary folder `write_dataset` writes in before moving the files in.
+_TMP_PREFIX = ".sim-tmp-"
 
 
 class _Progress:
@@ -87,14 +95,62 @@ def _noise_dict(noise: TelemetryNoise) -> dict[str, Any]:
     return d
 
 
+def existing_outputs(out: str | Path) -> tuple[list[str], list[str]]:
+    """What a folder holds besides a dataset's own files (`DATASET_FILES`, `TERRAIN_DEM_FILE`): (render, other).
+
+    render: an earlier render's outputs for the dataset there (`RENDER_FILES`, each video's image folder and
+    ``<name>.mp4/.srt/.csv``, the video names read from its images.json); other: every other name, hidden ones
+    too (an unreadable images.json names no video). Both sorted; ([], []) when the folder does not exist.
+    """
+    folder = Path(out)
+    if not folder.is_dir():
+        return [], []
+    videos: set[str] = set()
+    try:
+        coco = json.loads((folder / "images.json").read_text())
+        videos = {str(v["name"]) for v in coco.get("videos", [])}
+        videos |= {str(im["file_name"]).split("/")[0] for im in coco.get("images", []) if "/" in str(im["file_name"])}
+    except (OSError, ValueError, TypeError, KeyError, AttributeError):
+        pass
+    rendered = set(RENDER_FILES) | videos | {f"{v}.{ext}" for v in videos for ext in ("mp4", "srt", "csv")}
+    render: list[str] = []
+    other: list[str] = []
+    for name in sorted(p.name for p in folder.iterdir()):
+        if name in DATASET_FILES or name == TERRAIN_DEM_FILE or name.startswith(_TMP_PREFIX):
+            continue  # a dataset's own files, or a run's temporary folder (one killed left it; one running has it)
+        (render if name in rendered else other).append(name)
+    return render, other
+
+
+def require_output_folder(out: str | Path) -> None:
+    """ValueError (one line) when `out` is a file, or a folder holding more than an earlier dataset of
+    `write_dataset` (`existing_outputs`): another's files are not ours to mix with or to lose, and an earlier
+    render (hours at 4K) would stay beside a dataset it does not show. For callers that ask before the work
+    (`uavmm sim`); `write_dataset` itself replaces a dataset wherever it is told to."""
+    folder = Path(out)
+    if folder.exists() and not folder.is_dir():
+        raise ValueError(f"output directory {folder} is a file: give a folder (new, empty, or an earlier dataset's)")
+    render, other = existing_outputs(folder)
+
+    def listed(names: list[str]) -> str:
+        return ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
+
+    if other:
+        raise ValueError(f"output directory {folder} holds files that are not a uavmm sim dataset ({listed(other)}): "
+                         "give a new or empty folder")
+    if render:
+        raise ValueError(f"output directory {folder} holds a rendered dataset ({listed(render)}): a new dataset "
+                         "would leave those frames beside it; give a new folder, or remove them first")
+
+
 def _prepare_output(out: Path) -> tuple[bool, Path]:
     """Create `out` if needed and a temporary folder inside it; OSError naming the path if not writable."""
     created = not out.exists()
+    if out.exists() and not out.is_dir():
+        raise NotADirectoryError(f"output directory {out} is not writable: it is a file, give a folder")
     try:
-        if out.exists() and not out.is_dir():
-            raise NotADirectoryError(f"{out} exists and is not a directory")
         out.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=".sim-tmp-", dir=out))
+        tmp = Path(tempfile.mkdtemp(prefix=_TMP_PREFIX, dir=out))
     except OSError as exc:
         raise OSError(f"output directory {out} is not writable: {exc.strerror or exc}") from exc
     return created, tmp
@@ -122,7 +178,8 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
     scenario : str or Scenario
         A name of `sim.scenarios.SCENARIOS` (or a Scenario, e.g. one with tuned emulator parameters).
     out_dir : str or Path
-        Output folder, created if needed; existing dataset files in it are replaced.
+        Output folder, created if needed; existing dataset files in it are replaced, and an earlier render's
+        render.json and unannotated.json removed (they described the frames of the dataset replaced).
     seed : int
         Non-negative seed.
     frames : int, optional
@@ -143,7 +200,8 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
     ValueError
         Unknown scenario (the message lists the valid ones), seed not a non-negative int, frames < 1.
     OSError
-        `out_dir` cannot be created or written (the message names the path).
+        `out_dir` cannot be created or written (the message names the path), or a file cannot be written (a
+        full disk: the message names the file; what `out_dir` held is left as it was).
     """
     started = time.perf_counter()
     sim = Simulation(scenario, seed=seed, frames=frames, noise_scale=noise_scale)
@@ -215,12 +273,20 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
         if sim.terrain is not None:  # the DEM beside the dataset, for `--dem`; flat worlds write nothing more
             truth["scenario"]["terrain"] = _spec_dict(sim.terrain.spec)
             truth["terrain"] = facts["terrain"]
-            write_npz(tmp / TERRAIN_DEM_FILE, sim.terrain.grid)
+            with _naming(out / TERRAIN_DEM_FILE):
+                write_npz(tmp / TERRAIN_DEM_FILE, sim.terrain.grid)
             files.append(TERRAIN_DEM_FILE)
-        (tmp / "images.json").write_text(json.dumps(coco))
-        (tmp / "camera.json").write_text(json.dumps(sim.camera.to_dict(), indent=2))
-        (tmp / "pre_nms.json").write_text("[" + ",\n".join(cand_lines) + "]\n")
-        (tmp / "truth.json").write_text(json.dumps(truth))
+        texts: list[tuple[str, Callable[[], str]]] = [  # made one at a time: pre_nms.json's text can be large
+            ("images.json", lambda: json.dumps(coco)),
+            ("camera.json", lambda: json.dumps(sim.camera.to_dict(), indent=2)),
+            ("pre_nms.json", lambda: "[" + ",\n".join(cand_lines) + "]\n"),
+            ("truth.json", lambda: json.dumps(truth))]
+        for name, text in texts:
+            with _naming(out / name):
+                (tmp / name).write_text(text())
+        for name in reversed(RENDER_FILES):  # the earlier render's marks first: they describe the old dataset
+            with _naming(out / name):
+                (out / name).unlink(missing_ok=True)
         for name in files:
             os.replace(tmp / name, out / name)
         if sim.terrain is None and (out / TERRAIN_DEM_FILE).exists():  # a terrain dataset's, written here before
@@ -240,6 +306,15 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
     }
     logger.info("wrote %s: %s", out, summary)
     return summary
+
+
+@contextlib.contextmanager
+def _naming(path: Path) -> Iterator[None]:
+    """Re-raise an OSError as one naming ``path`` (the dataset's file, not the temporary being written)."""
+    try:
+        yield
+    except OSError as exc:
+        raise OSError(f"cannot write {path}: {exc.strerror or exc}") from None
 
 
 def _by_video(facts: dict[str, Any], sim: Simulation) -> list[dict[str, Any]]:

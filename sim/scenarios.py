@@ -30,6 +30,9 @@ GAP_BETWEEN_FLIGHTS_S = 60.0
 #: Where a scenario's UAVs take off (their heights count from there): all at the world's origin, or each on the
 #: ground under its flight's first position (only a terrain makes the two differ).
 TAKEOFF_SITES = ("origin", "start")
+#: Longest image side the simulated camera may have (`uavmm sim --image-size`) and the renderer draws: 8K (a frame of
+#: 7680x4320 takes ~2.8 GB to draw; one of 100000x100000 asked 224 GiB and ended in a MemoryError traceback).
+MAX_IMAGE_SIDE_PX = 8192
 
 
 @dataclass(frozen=True, slots=True)

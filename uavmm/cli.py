@@ -87,17 +87,20 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("scenario", nargs="?", help="scenario name (see --list)")
     p.add_argument("--list", action="store_true", help="list the scenarios and exit")
-    p.add_argument("--out", type=Path, help="output directory")
+    p.add_argument("--out", type=Path,
+                   help="output directory: new, empty, or holding an earlier uavmm sim dataset (not rendered), which "
+                        "is replaced")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
     p.add_argument("--frames", type=int, default=None, help="frames per video (default: the scenario's)")
     p.add_argument("--noise-scale", type=float, default=1.0,
                    help="multiply the scenario's telemetry noise levels (default 1.0)")
     p.add_argument("--image-size", metavar="WxH", default=None,
-                   help="image size of the simulated camera, e.g. 1920x1080 (default: the scenario's, 3840x2160); "
-                        "boxes, candidates and camera.json follow it")
+                   help="image size of the simulated camera, e.g. 1920x1080: even numbers, 16..8192 (default: the "
+                        "scenario's, 3840x2160); boxes, candidates and camera.json follow it")
     p.add_argument("--render", action="store_true",
                    help="also draw the frames: the image files named in images.json (and with --video an MP4 "
-                        "per video with SRT/CSV telemetry); see uavmm render")
+                        "per video with SRT/CSV telemetry); --video implies it, and the rendering flags need one of "
+                        "the two; not for terrain scenarios (hills, coop-slope); see uavmm render")
     from uavmm.render_args import add_render_options
 
     add_render_options(p)
@@ -106,14 +109,18 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
 
 
 def _image_size(text: str) -> tuple[int, int]:
-    """'1920x1080' -> (1920, 1080); CliError unless two even integers >= 16."""
+    """'1920x1080' -> (1920, 1080); CliError unless two even integers in 16..`sim.scenarios.MAX_IMAGE_SIDE_PX`."""
+    from sim.scenarios import MAX_IMAGE_SIDE_PX
+
     parts = text.lower().split("x")
     try:
         width, height = (int(v) for v in parts)
     except ValueError:
-        raise CliError(f"sim: --image-size must look like 1920x1080, got {text!r}") from None
+        raise CliError(f"--image-size must look like 1920x1080, got {text!r}") from None
     if width < 16 or height < 16 or width % 2 or height % 2:
-        raise CliError(f"sim: --image-size needs even numbers >= 16 (video encoders require it), got {text!r}")
+        raise CliError(f"--image-size needs even numbers >= 16 (video encoders require it), got {text!r}")
+    if max(width, height) > MAX_IMAGE_SIDE_PX:
+        raise CliError(f"--image-size is at most {MAX_IMAGE_SIDE_PX} a side (the renderer's limit), got {text!r}")
     return width, height
 
 
@@ -125,26 +132,30 @@ def _run_sim(args: argparse.Namespace) -> int:
             print(f"{name:10s} {scenario.description}")
         return 0
     if not args.scenario:
-        raise CliError("sim: give a SCENARIO (or --list)")
+        raise CliError("give a SCENARIO (or --list)")
     if args.out is None:
-        raise CliError("sim: --out DIR is required")
+        raise CliError("--out DIR is required")
     if args.seed < 0:
-        raise CliError(f"sim: --seed must be >= 0, got {args.seed}")
+        raise CliError(f"--seed must be >= 0, got {args.seed}")
     if args.frames is not None and args.frames < 1:
-        raise CliError(f"sim: --frames must be >= 1, got {args.frames}")
-    from uavmm.render_args import print_render_summary, render_kwargs
+        raise CliError(f"--frames must be >= 1, got {args.frames}")
+    from sim.scenarios import get_scenario
+    from uavmm.render_args import print_render_summary, render_flags_given, render_kwargs
 
+    scenario = get_scenario(args.scenario)
     render = args.render or args.video  # --video implies drawing the frames
+    if not render and render_flags_given(args):
+        raise CliError(f"{' '.join(render_flags_given(args))}: rendering flags, they go with --render or --video "
+                       "(nothing is drawn without them)")
+    if render and scenario.terrain is not None:
+        raise CliError(f"--render: scenario {scenario.name} has a terrain and the renderer draws flat ground only "
+                       "(simulate it without --render: the dataset needs no frames)")
     kwargs = render_kwargs(args) if render else None
-    from sim.dataset import write_dataset
-
-    scenario = args.scenario
     if args.image_size is not None:
-        import dataclasses
+        scenario = dataclasses.replace(scenario, image_size=_image_size(args.image_size))
+    from sim.dataset import require_output_folder, write_dataset
 
-        from sim.scenarios import get_scenario
-
-        scenario = dataclasses.replace(get_scenario(args.scenario), image_size=_image_size(args.image_size))
+    require_output_folder(args.out)  # before the work: nobody's files mixed in, no render left beside a new dataset
     summary = write_dataset(scenario, args.out, seed=args.seed, frames=args.frames,
                             noise_scale=args.noise_scale, progress=not args.quiet)
     print(f"wrote {args.out}: " + ", ".join(f"{k}={v}" for k, v in summary.items()))

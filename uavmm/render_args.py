@@ -28,6 +28,15 @@ def add_render_options(p: argparse.ArgumentParser) -> None:
                         "for comparisons)")
 
 
+def render_flags_given(args: argparse.Namespace) -> list[str]:
+    """The rendering flags of `add_render_options` but --video given with values other than their defaults (`uavmm
+    sim` refuses them without --render or --video: nothing is drawn)."""
+    probe = argparse.ArgumentParser(add_help=False)
+    add_render_options(probe)
+    return [action.option_strings[0] for action in probe._actions
+            if action.dest != "video" and getattr(args, action.dest, action.default) != action.default]
+
+
 def render_kwargs(args: argparse.Namespace) -> dict[str, Any]:
     """Keyword arguments of `sim.render.render_dataset` from the parsed flags; ValueError (one line, exit 2 from
     `uavmm.cli.main`) for bad values and combinations."""

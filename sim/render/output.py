@@ -9,7 +9,13 @@
   on the sea; rocks, trees and cars on the meadow): ``{"annotations": [{image_id, kind, bbox}]}``, bbox
   [x, y, w, h] pixels (the anomaly evaluation counts boats and buoys as anomalies, `sim.anomaly_eval`);
 - ``render.json``: the options, each world's ground, sun, atmosphere and unannotated scenery (boats, cars),
-  the files written and the measured speed. It is written last: its presence marks a complete render.
+  the files written and the measured speed. It is written last: its presence marks a complete render (an earlier
+  render's render.json and unannotated.json are removed before the first frame is written, so a render that fails
+  or is interrupted never leaves a folder that looks complete).
+
+Every file is written whole (`shared.files`: a new hidden temporary beside it, renamed into place): a full disk,
+an error or Ctrl-C never leaves a cut image or video under its final name, and the temporaries are new names (never
+a file or a link already there, never another writer's).
 
 Encoding runs on a background thread (OpenCV releases the GIL) while the next frame is drawn.
 """
@@ -20,19 +26,23 @@ import dataclasses
 import json
 import logging
 import os
+import secrets
+import tempfile
 import time
 from collections import deque
 from concurrent.futures import Future, ThreadPoolExecutor
-from pathlib import Path
+from pathlib import Path, PurePosixPath
 from typing import Any
 
 import cv2
 import numpy as np
 
-from sim.dataset import _Progress
+from shared.files import write_chunks_atomic
+from sim.dataset import RENDER_FILES, _Progress
 from sim.render.renderer import RenderOptions, WorldRenderer, exposure_for
 from sim.render.scene import SimulatedDataset
 from sim.render.telemetry_files import format_csv, format_srt, frame_records
+from sim.scenarios import MAX_IMAGE_SIDE_PX
 
 logger = logging.getLogger(__name__)
 
@@ -48,10 +58,44 @@ def _check_quality(jpeg_quality: int) -> None:
 
 
 def _write_image(path: Path, image: np.ndarray, params: list[int]) -> None:
+    """Encode (by ``path``'s suffix, JPEG without one) and write the file whole (`shared.files`)."""
     ok, data = cv2.imencode(path.suffix or ".jpg", image, params)
     if not ok:
         raise OSError(f"OpenCV cannot encode {path}")
-    path.write_bytes(data.tobytes())
+    write_chunks_atomic(path, [data.tobytes()])
+
+
+def _check_writable(out: Path) -> None:
+    """OSError naming the folder when no file can be created in it (read-only, no permission): before the ground
+    set-up, seconds to minutes a world, is spent. The probe is a new name, never a link planted there."""
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".uavmm-write-test-", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise OSError(f"cannot write in the dataset directory {out}: {exc.strerror or exc}") from None
+
+
+def _check_file_names(dataset: SimulatedDataset) -> None:
+    """ValueError naming the image when a ``file_name`` in images.json is missing, absolute or climbs out with
+    ``..``: checked before the drawing, and no image is written outside the dataset directory."""
+    for image_id, im in dataset.images.items():
+        name = str(im.get("file_name") or "")
+        if not name:
+            raise ValueError(f"image {image_id} has no file_name in images.json")
+        if PurePosixPath(name).is_absolute() or ".." in PurePosixPath(name).parts:
+            raise ValueError(f"image {image_id}'s file_name {name!r} in images.json leaves the dataset directory "
+                             f"{dataset.directory}: images are written inside it only")
+
+
+def _forget_previous_render(out: Path) -> None:
+    """Remove an earlier render's render.json (the mark of a complete render) and unannotated.json, so a render that
+    fails or is interrupted does not leave old marks over a mix of old and new frames."""
+    for name in reversed(RENDER_FILES):  # the mark first
+        try:
+            (out / name).unlink(missing_ok=True)
+        except OSError as exc:
+            raise OSError(f"cannot remove the earlier render's {out / name}: {exc.strerror or exc}") from None
 
 
 def render_dataset(directory: str | Path, *, images: bool = True, video: bool = False,
@@ -64,7 +108,7 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     directory : path
         Written by `uavmm sim` (images.json, camera.json, truth.json).
     images : bool
-        Write each image at its ``file_name`` (folders are created; existing files are replaced).
+        Write each image at its ``file_name`` (folders are created; existing files are replaced, each file whole).
     video : bool
         Write ``<video name>.mp4``, ``.srt`` and ``.csv`` per video.
     options : RenderOptions, optional
@@ -83,9 +127,12 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     Raises
     ------
     ValueError
-        Not a simulated dataset (one line, see `SimulatedDataset`), nothing to write, a bad option.
+        Not a simulated dataset (one line, see `SimulatedDataset`), nothing to write, a bad option, a camera
+        wider or higher than `sim.scenarios.MAX_IMAGE_SIDE_PX`.
     OSError
-        A file cannot be written (the message names it).
+        The directory or a file cannot be written (the message names it; the directory is checked before any
+        drawing). render.json and unannotated.json of an earlier render are gone then, the frames written so far
+        are whole files.
     """
     if not images and not video:
         raise ValueError("nothing to render: ask for images, video or both")
@@ -97,6 +144,13 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     cam = dataset.camera
     if video and (cam.width % 2 or cam.height % 2):
         raise ValueError(f"MP4 needs an even image size, the dataset's camera is {cam.width}x{cam.height}")
+    if max(cam.width, cam.height) > MAX_IMAGE_SIDE_PX:
+        raise ValueError(f"the dataset's camera is {cam.width}x{cam.height}: the renderer draws at most "
+                         f"{MAX_IMAGE_SIDE_PX} pixels a side")
+    if images:
+        _check_file_names(dataset)
+    _check_writable(out)
+    _forget_previous_render(out)
     params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
     total = sum(len(v.image_ids) for v in dataset.videos)
     bar = _Progress(f"render {dataset.scenario}", total, progress)
@@ -105,6 +159,7 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     draw_s = setup_s = 0.0
     pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="uavmm-render-encode")
     pending: deque[Future] = deque()
+    temporaries: list[Path] = []  # this render's MP4s being written: removed on failure, nobody else's
     done = 0
     try:
         for group in sorted(dataset.worlds):
@@ -114,12 +169,13 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
             worlds.append(renderer.describe())
             for v in renderer.videos:
                 writer = None
-                tmp_mp4 = out / f".{v.name}.tmp.mp4"  # FFmpeg picks the container by extension
                 if video:
+                    tmp_mp4 = _new_video_temporary(out / f"{v.name}.mp4")
+                    temporaries.append(tmp_mp4)
                     writer = cv2.VideoWriter(str(tmp_mp4), cv2.VideoWriter.fourcc(*MP4_FOURCC), dataset.fps,
                                              (cam.width, cam.height))
                     if not writer.isOpened():
-                        raise OSError(f"OpenCV cannot write an MP4 video at {tmp_mp4}")
+                        raise OSError(f"OpenCV cannot write an MP4 video at {out / f'{v.name}.mp4'}")
                 drift = exposure_for(dataset, v)
                 frame_meta = []
                 try:
@@ -147,7 +203,9 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
                         writer.release()
                 if video:
                     mp4 = out / f"{v.name}.mp4"
+                    _flush_to_disk(tmp_mp4)
                     os.replace(tmp_mp4, mp4)
+                    temporaries.remove(tmp_mp4)
                     videos.append(str(mp4))
                     records = frame_records(frame_meta)
                     srt, csv_path = out / f"{v.name}.srt", out / f"{v.name}.csv"
@@ -158,7 +216,8 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
         bar.close()
     except BaseException:
         bar.close()
-        for tmp in out.glob(".*.tmp.mp4"):
+        pool.shutdown(wait=True)  # the encoder thread is done with the writer before its file goes
+        for tmp in temporaries:
             tmp.unlink(missing_ok=True)
         raise
     finally:
@@ -203,11 +262,32 @@ def _encode(image: np.ndarray, path: Path | None, params: list[int], writer: cv2
         writer.write(image)
 
 
-def _write_text(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
+def _new_video_temporary(mp4: Path) -> Path:
+    """Create a new empty hidden file beside ``mp4`` for OpenCV to write: ``.NAME.PID.XXXXXXXX.tmp.mp4`` (.mp4 last:
+    FFmpeg picks the container by extension). O_EXCL: never a file or a link already there, never another writer's;
+    the permissions are the umask's, as the video's own would be (mkstemp's are 0600)."""
+    for _ in range(100):
+        tmp = mp4.with_name(f".{mp4.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp.mp4")
+        try:
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666))
+        except FileExistsError:
+            continue
+        return tmp
+    raise FileExistsError(f"no free temporary name beside {mp4}")
+
+
+def _flush_to_disk(path: Path) -> None:
+    """fsync a finished file before it is renamed into place (as `shared.files.PendingFile.commit` does)."""
+    fd = os.open(path, os.O_RDONLY)
     try:
-        tmp.write_text(text)
-        os.replace(tmp, path)
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+
+
+def _write_text(path: Path, text: str) -> None:
+    """Write ``text`` whole (`shared.files`); OSError naming ``path``."""
+    try:
+        write_chunks_atomic(path, [text])
     except OSError as exc:
-        tmp.unlink(missing_ok=True)
         raise OSError(f"cannot write {path}: {exc.strerror or exc}") from exc

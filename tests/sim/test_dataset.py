@@ -17,7 +17,7 @@ from pycocotools.coco import COCO
 import sim.dataset as dataset_module
 from shared.geo import Camera, Pose, latlon_to_pixel
 from shared.telemetry import parse_datetime
-from sim.dataset import DATASET_FILES, write_dataset
+from sim.dataset import DATASET_FILES, RENDER_FILES, write_dataset
 from sim.domains import DOMAINS
 from sim.noise import CLOCK_FIELDS
 from tests.sim.conftest import SMALL_FRAMES, load
@@ -184,6 +184,17 @@ def test_existing_dataset_is_replaced(tmp_path: Path) -> None:
     write_dataset("sea", out, seed=0, frames=5, progress=False)
     write_dataset("sea", out, seed=0, frames=7, progress=False)
     assert len(load(out, "images.json")["images"]) == 21
+    assert sorted(p.name for p in out.iterdir()) == sorted(DATASET_FILES)
+
+
+def test_replacing_a_dataset_removes_an_earlier_renders_marks(tmp_path: Path) -> None:
+    """Probe: write_dataset over a rendered folder left render.json, the mark of a complete render, describing the
+    frames of the dataset it replaced (`sim.anomaly_eval` reuses a folder with render.json without drawing it)."""
+    out = tmp_path / "d"
+    write_dataset("sea", out, seed=0, frames=2, progress=False)
+    for name in RENDER_FILES:
+        (out / name).write_text("{}")
+    write_dataset("sea", out, seed=1, frames=2, progress=False)
     assert sorted(p.name for p in out.iterdir()) == sorted(DATASET_FILES)
 
 

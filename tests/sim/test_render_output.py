@@ -1,0 +1,145 @@
+"""`render_dataset`'s files under failure: written whole (a full disk, Ctrl-C), an earlier render's mark of
+completeness gone before the first new frame, temporaries that are new names and only its own, an unwritable folder
+or an oversized camera refused in one line before the drawing."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import os
+import re
+import resource
+import signal
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import sim.render.output as output_module
+from sim.dataset import write_dataset
+from sim.render import RenderOptions, WorldRenderer, render_dataset
+from sim.scenarios import get_scenario
+
+REPO = Path(__file__).resolve().parents[2]
+OPTIONS = RenderOptions(max_texture_px=256)
+
+
+def _dataset(tmp_path: Path, frames: int = 3, size: tuple[int, int] = (320, 180)) -> Path:
+    out = tmp_path / "data"
+    write_dataset(dataclasses.replace(get_scenario("grass"), image_size=size), out, frames=frames, progress=False)
+    return out
+
+
+def _full_disk(limit_bytes: int):
+    def limit() -> None:
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG, as on a full disk
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit_bytes, limit_bytes))
+    return limit
+
+
+def test_a_full_disk_leaves_no_cut_image_and_no_mark_of_a_complete_render(tmp_path):
+    """Probe: a re-render on a full disk left JPEGs cut at the limit under their final names, and the earlier
+    render.json that marks a complete render."""
+    data = _dataset(tmp_path)
+    render_dataset(data, options=OPTIONS, progress=False)
+    jpegs = sorted(data.rglob("*.jpg"))
+    limit = min(p.stat().st_size for p in jpegs) // 2
+    run = subprocess.run([sys.executable, "-m", "uavmm.cli", "render", str(data), "--quiet", "--max-texture-px", "256",
+                          "--sensor-noise", "6"], cwd=REPO, capture_output=True, text=True, timeout=120,
+                         preexec_fn=_full_disk(limit))
+    assert run.returncode == 2, run.stderr
+    (line,) = run.stderr.strip().splitlines()
+    assert line.startswith("uavmm render: error: cannot write image ") and ".tmp" not in line, line
+    assert [p for p in jpegs if p.stat().st_size == limit] == []
+    assert not (data / "render.json").exists() and not (data / "unannotated.json").exists()
+    assert [p.name for p in data.rglob(".*")] == []  # no temporary left
+
+
+def test_an_interrupted_render_does_not_look_complete_and_removes_only_its_own_temporaries(tmp_path, monkeypatch):
+    """Probe: Ctrl-C during a re-render with other options left the earlier render.json over a mix of old and new
+    frames; a failed render deleted every .*.tmp.mp4 in the folder, another writer's (`uavmm detect`) too."""
+    data = _dataset(tmp_path)
+    render_dataset(data, video=True, options=OPTIONS, progress=False)
+    other = data / ".annotated.k3j2.tmp.mp4"
+    other.write_bytes(b"another run's video")
+    real_render, calls = WorldRenderer.render, {"n": 0}
+
+    def interrupted(self, frame, drift=None):
+        calls["n"] += 1
+        if calls["n"] == 5:
+            raise KeyboardInterrupt
+        return real_render(self, frame, drift)
+
+    monkeypatch.setattr(WorldRenderer, "render", interrupted)
+    with pytest.raises(KeyboardInterrupt):
+        render_dataset(data, video=True, options=dataclasses.replace(OPTIONS, sensor_noise_std=0.0), progress=False)
+    assert not (data / "render.json").exists()
+    assert other.read_bytes() == b"another run's video"
+    assert sorted(p.name for p in data.iterdir() if p.name.startswith(".")) == [other.name]
+
+
+def test_links_planted_at_temporary_names_are_not_written_through(tmp_path):
+    """Probe: links at .<video>.tmp.mp4 and .render.json.tmp had the MP4 and render.json written into their
+    targets (and the link moved to <video>.mp4)."""
+    data = _dataset(tmp_path, frames=2, size=(64, 36))
+    victims = {}
+    for name in (".grass_01_orbit_uav1.tmp.mp4", ".render.json.tmp", f".render.json.{os.getpid()}.tmp"):
+        victim = tmp_path / f"victim{len(victims)}"
+        victim.write_text("precious")
+        (data / name).symlink_to(victim)
+        victims[name] = victim
+    render_dataset(data, images=False, video=True, options=OPTIONS, progress=False)
+    assert all(v.read_text() == "precious" for v in victims.values())
+    assert not (data / "grass_01_orbit_uav1.mp4").is_symlink() and not (data / "render.json").is_symlink()
+
+
+def test_an_unwritable_folder_is_one_line_before_the_ground_is_made(tmp_path):
+    """Probe: a read-only dataset folder failed only after the ground set-up (6 s at 640x360, more at 4K), naming a
+    temporary file (`.NAME.tmp.mp4`) the user never gave."""
+    if os.geteuid() != 0 or subprocess.run(["unshare", "-m", "true"], capture_output=True).returncode != 0:
+        pytest.skip("needs root and unshare -m for a read-only mount")
+    data = _dataset(tmp_path, frames=2, size=(64, 36))
+    script = ('mount --bind "$1" "$1" && mount -o remount,bind,ro "$1" && '
+              f'exec "{sys.executable}" -c "import sys, sim.render.renderer as r; '
+              "r.WorldRenderer.__init__ = lambda *a, **k: sys.exit('ground set up'); "
+              "from uavmm.cli import main; sys.exit(main(['render', sys.argv[1], '--video', '--quiet']))\" \"$1\"")
+    run = subprocess.run(["unshare", "-m", "sh", "-c", script, "sh", str(data)], cwd=REPO, capture_output=True,
+                         text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    (line,) = run.stderr.strip().splitlines()
+    assert line == f"uavmm render: error: cannot write in the dataset directory {data}: Read-only file system"
+
+
+def test_a_camera_over_the_renderers_limit_is_refused_before_drawing(tmp_path):
+    """Probe: a dataset simulated at 100000x100000 (possible without --render) made `uavmm render` end in a
+    224 GiB MemoryError traceback, exit 1."""
+    data = _dataset(tmp_path, frames=1, size=(100_000, 100_000))
+    with pytest.raises(ValueError, match="the dataset's camera is 100000x100000: the renderer draws at most 8192"):
+        render_dataset(data, options=OPTIONS, progress=False)
+
+
+def test_images_are_written_whole_through_shared_files(tmp_path, monkeypatch):
+    """Every image file is written whole (a new temporary renamed into place: a kill leaves no cut file under the
+    image's name), never straight to its name."""
+    data = _dataset(tmp_path, frames=1, size=(64, 36))
+    written = []
+    real = output_module.write_chunks_atomic
+    monkeypatch.setattr(output_module, "write_chunks_atomic",
+                        lambda path, chunks: (written.append(path), real(path, chunks)))
+    summary = render_dataset(data, options=OPTIONS, progress=False)
+    assert sum(p.suffix == ".jpg" for p in written) == summary["images"] == 4
+
+
+@pytest.mark.parametrize("file_name", ["{tmp}/escaped.jpg", "../outside/victim.jpg", "v/../../victim.jpg"])
+def test_an_image_file_name_leaving_the_dataset_directory_is_refused_before_drawing(tmp_path, file_name):
+    """Probe: images.json's file_name "/tmp/hD/escaped.jpg" or "../outside/victim.jpg" had `uavmm render` write
+    (over) files outside the dataset directory, exit 0."""
+    data = _dataset(tmp_path, frames=1, size=(64, 36))
+    file_name = file_name.format(tmp=tmp_path)
+    coco = json.loads((data / "images.json").read_text())
+    coco["images"][1]["file_name"] = file_name
+    (data / "images.json").write_text(json.dumps(coco))
+    with pytest.raises(ValueError, match=f"image 2's file_name '{re.escape(file_name)}' in images.json leaves the"):
+        render_dataset(data, options=OPTIONS, progress=False)
+    assert not (data / "grass_01_orbit_uav1").exists()  # refused before the first image
