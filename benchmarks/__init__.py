@@ -12,6 +12,7 @@ import json
 import math
 import os
 import platform
+import stat
 import time
 from collections.abc import Callable
 from datetime import datetime, timezone
@@ -46,6 +47,20 @@ def load_benchmark(name: str) -> ModuleType:
     return importlib.import_module(BENCHMARK_MODULES[name])
 
 
+def results_target(json_path: Path) -> tuple[Path, bool]:
+    """Where the results go: (path, direct). An existing path that is not a regular file (a character device, a
+    pipe, or a link to one: ``--json /dev/stdout``) is written directly, as it is (direct True); a link to a file
+    is replaced at its target, whole (the link stays); anything else is written whole at its own path."""
+    path = Path(json_path)
+    try:
+        mode = path.stat().st_mode
+    except OSError:
+        return path, False
+    if not stat.S_ISREG(mode):
+        return path, True
+    return Path(os.path.realpath(path)), False
+
+
 def check_results_path(json_path: Path) -> None:
     """ValueError in one line when the results cannot be written to json_path: a folder, a folder that does not
     exist, or one this process cannot create a file in (a temporary is created beside it and removed). Checked
@@ -53,6 +68,9 @@ def check_results_path(json_path: Path) -> None:
     path = Path(json_path)
     if path.is_dir():
         raise ValueError(f"{path} is a directory: give the results file's path")
+    path, direct = results_target(path)
+    if direct:  # a device or a pipe (/dev/stdout): written as it is, nothing to probe (a FIFO would block)
+        return
     if not path.parent.is_dir():
         raise ValueError(f"output directory {path.parent} does not exist (for {path})")
     try:
@@ -150,7 +168,12 @@ def run_benchmarks(names: list[str] | None = None, *, quick: bool = False, json_
         meta = {**machine_meta(), "quick": quick, "benchmarks": names, "started_utc": started,
                 "finished_utc": _utc_now(), "load_average_before": load_before, "load_average_after": _load_average()}
         text = json.dumps(_plain({"meta": meta, "rows": rows}), indent=2, allow_nan=False) + "\n"
-        write_chunks_atomic(Path(json_path), [text])
+        target, direct = results_target(Path(json_path))
+        if direct:
+            with open(target, "w") as handle:
+                handle.write(text)
+        else:
+            write_chunks_atomic(target, [text])
     return rows
 
 

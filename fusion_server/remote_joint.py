@@ -98,8 +98,11 @@ class RemoteJoint:
 
     def classes(self) -> set[str]:
         """Classes of the joint tiles seen since start (at most 1024; a new class shows within 2 s while the
-        shards answer; never waits more than SUMMARY_WAIT_S for them)."""
-        self._summary()
+        shards answer). Waits at most SUMMARY_WAIT_S for them once the shards have answered at least once; before
+        that, for the whole query (a gateway just started would answer /v1/objects with nothing)."""
+        with self._lock:
+            answered = self._all is not None
+        self._summary(SUMMARY_WAIT_S if answered else QUERY_TIMEOUT_S + 0.5)
         with self._lock:
             return set(self._classes)
 
@@ -129,9 +132,9 @@ class RemoteJoint:
             return found[1]
         return None
 
-    def _summary(self) -> dict[TileKey, JointTile]:
+    def _summary(self, wait_s: float = SUMMARY_WAIT_S) -> dict[TileKey, JointTile]:
         """The whole map for the summaries: an answer at most SUMMARY_MAX_AGE_S old, else a new one asked for in the
-        background and waited for until SUMMARY_WAIT_S after that query started; the last answer (or none) when the
+        background and waited for until ``wait_s`` after that query started; the last answer (or none) when the
         shards are slower than that."""
         found = self._fresh_all(SUMMARY_MAX_AGE_S)
         if found is not None:
@@ -144,7 +147,7 @@ class RemoteJoint:
                 self._refresh = (self._clock(), done, thread)
                 thread.start()
             started, done, _ = self._refresh
-        done.wait(max(0.0, started + SUMMARY_WAIT_S - self._clock()))
+        done.wait(max(0.0, started + wait_s - self._clock()))
         with self._lock:
             last = self._all
         return last[1] if last is not None else {}

@@ -8,6 +8,7 @@ there and no temporary file.
 
 from __future__ import annotations
 
+import errno
 import json
 import os
 import secrets
@@ -15,7 +16,7 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["PendingFile", "collection_chunks", "write_atomic", "write_chunks_atomic"]
+__all__ = ["PendingFile", "collection_chunks", "sync_to_disk", "write_atomic", "write_chunks_atomic"]
 
 
 def _new_temporary(path: Path, mode: int) -> tuple[Path, int]:
@@ -31,6 +32,21 @@ def _new_temporary(path: Path, mode: int) -> tuple[Path, int]:
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary name beside {path}")
+
+
+#: fsync errors that mean "this file system cannot sync" (some FUSE and network mounts), not "the data is lost"
+_CANNOT_SYNC = frozenset(getattr(errno, name) for name in ("EINVAL", "ENOTSUP", "EOPNOTSUPP", "ENOSYS")
+                         if hasattr(errno, name))
+
+
+def sync_to_disk(fd: int) -> None:
+    """fsync, tolerating a file system that cannot sync (the rename goes ahead: the file is as safe as that file
+    system makes any); other errors (EIO, ENOSPC) raise."""
+    try:
+        os.fsync(fd)
+    except OSError as exc:
+        if exc.errno not in _CANNOT_SYNC:
+            raise
 
 
 class PendingFile:
@@ -65,7 +81,7 @@ class PendingFile:
             return
         try:
             self.file.flush()
-            os.fsync(self.file.fileno())  # on disk before the rename makes it the file
+            sync_to_disk(self.file.fileno())  # on disk before the rename makes it the file
             self.file.close()
             self.tmp.replace(self.path)
             self.done = True  # the name is free again: another writer's temporary may take it from here

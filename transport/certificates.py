@@ -19,7 +19,7 @@ import zenoh
 
 from transport.session import config_value
 
-__all__ = ["EXPIRY_WARNING_DAYS", "CertificateNotices", "certificate_notices", "check_certificates"]
+__all__ = ["EXPIRY_WARNING_DAYS", "CertificateNotices", "certificate_notices", "check_certificates", "uses_tls"]
 
 log = logging.getLogger(__name__)
 
@@ -96,12 +96,34 @@ def certificate_notices(conf: zenoh.Config, now: dt.datetime | None = None, *,
     return notices
 
 
+def _strings(value: object) -> list[str]:
+    if isinstance(value, str):
+        return [value]
+    if isinstance(value, dict):
+        return [s for v in value.values() for s in _strings(v)]
+    if isinstance(value, list):
+        return [s for v in value for s in _strings(v)]
+    return []
+
+
+def uses_tls(conf: zenoh.Config) -> bool:
+    """Whether a listen or connect endpoint of ``conf`` is TLS (``tls/``, ``quic/``: both use the certificates);
+    endpoints may be a list or a table per mode."""
+    endpoints = _strings(config_value(conf, "listen/endpoints")) + _strings(config_value(conf, "connect/endpoints"))
+    return any(e.startswith(("tls/", "quic/")) for e in endpoints)
+
+
 def check_certificates(conf: zenoh.Config, logger: logging.Logger) -> None:
-    """Before a process opens its session: ValueError naming every expired certificate (the CLI prints it and exits
-    2: no later moment makes it work); an error logged for each that this machine's clock places before its start
-    (the process starts: a companion computer often gets its time from GPS or NTP after boot, and Zenoh's retries
-    then connect), a warning for each that runs out within `EXPIRY_WARNING_DAYS`."""
+    """Before a process opens its session: ValueError naming every expired certificate when a listen or connect
+    endpoint is TLS (the CLI prints it and exits 2: no later moment makes it work; with no TLS endpoint, e.g. a
+    fleet's config run with ``--listen tcp/...``, a warning); an error logged for each that this machine's clock
+    places before its start (the process starts: a companion computer often gets its time from GPS or NTP after
+    boot, and Zenoh's retries then connect), a warning for each that runs out within `EXPIRY_WARNING_DAYS`."""
     notices = certificate_notices(conf)
+    if notices.problems and not uses_tls(conf):  # the files are named, but no endpoint is TLS: nothing stops
+        notices.warnings[:0] = [f"{p} (no tls/ or quic/ endpoint is configured, so it is not needed now)"
+                                for p in notices.problems]
+        notices.problems = []
     if notices.problems:
         raise ValueError("; ".join(notices.problems))
     for early in notices.early:

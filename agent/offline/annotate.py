@@ -72,7 +72,12 @@ class VideoAnnotator:
         # a new hidden name beside the output, its suffix kept (OpenCV picks the container from it): never a file or
         # a link already there, never another run's
         fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent)
-        os.close(fd)
+        try:  # mkstemp makes it 0600; the video gets the permissions open() gives every other output
+            umask = os.umask(0)
+            os.umask(umask)
+            os.fchmod(fd, 0o666 & ~umask)
+        finally:
+            os.close(fd)
         self._tmp = Path(tmp)
         self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter.fourcc(*MP4_FOURCC), float(fps), self.size)
         if not self._writer.isOpened():

@@ -37,7 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from shared.files import write_chunks_atomic
+from shared.files import sync_to_disk, write_chunks_atomic
 from sim.dataset import RENDER_FILES, _Progress
 from sim.render.renderer import RenderOptions, WorldRenderer, exposure_for
 from sim.render.scene import SimulatedDataset
@@ -280,7 +280,7 @@ def _flush_to_disk(path: Path) -> None:
     """fsync a finished file before it is renamed into place (as `shared.files.PendingFile.commit` does)."""
     fd = os.open(path, os.O_RDONLY)
     try:
-        os.fsync(fd)
+        sync_to_disk(fd)
     finally:
         os.close(fd)
 

@@ -4,6 +4,9 @@ frames themselves (`VideoAnnotator.draw`), before the lossy MP4 encoder."""
 
 from __future__ import annotations
 
+import os
+import stat
+
 import cv2
 import numpy as np
 import pytest
@@ -150,3 +153,18 @@ def test_the_video_is_never_written_through_a_link_planted_at_a_temporary_name(t
     dropped = VideoAnnotator(tmp_path / "b.mp4", FPS, CAM.width, CAM.height, {0: "person"})
     dropped.abort()
     assert not (tmp_path / "b.mp4").exists() and sorted(p.name for p in tmp_path.glob(".*")) == [".a.tmp.mp4"]
+
+
+def test_the_video_gets_the_permissions_every_other_output_gets(tmp_path):
+    """Its new temporary name (mkstemp) is made 0600; the video then was too, unreadable to a web server or another
+    user (the review's finding): it gets open()'s 0666 less the umask, as the other outputs."""
+    old = os.umask(0o022)
+    try:
+        pipe = DetectionPipeline(CAM, {0: "person"}, PipelineConfig(use_size_filter=False))
+        result = pipe.process(_box(300), np.array([0.9], np.float32), np.array([0]), POSE, 0.0)
+        annotator = VideoAnnotator(tmp_path / "a.mp4", FPS, CAM.width, CAM.height, {0: "person"})
+        annotator.write(np.full((CAM.height, CAM.width, 3), GREY, np.uint8), 0.0, CAM, POSE, result, [], pipe.memory)
+        annotator.close()
+    finally:
+        os.umask(old)
+    assert stat.S_IMODE((tmp_path / "a.mp4").stat().st_mode) == 0o644

@@ -93,3 +93,26 @@ def test_non_finite_figures_become_null():
 
     assert _plain({"a": [np.float64("inf"), 1.0], "b": (np.int32(2), -math.inf)}) == {"a": [None, 1.0],
                                                                                        "b": [2, None]}
+
+
+def test_a_pipe_or_a_link_to_one_is_written_directly_and_a_link_to_a_file_stays_a_link(tmp_path, geo_runs):
+    """--json /dev/stdout worked before the results were written whole: a device or a pipe is written as it is (the
+    review found a link to one replaced by a regular file and the JSON never reaching the pipe)."""
+    import threading
+
+    fifo = tmp_path / "results.fifo"
+    os.mkfifo(fifo)
+    got: list[bytes] = []
+    reader = threading.Thread(target=lambda: got.append(fifo.read_bytes()))
+    reader.start()
+    link = tmp_path / "stdout-link"
+    link.symlink_to(fifo)
+    run_benchmarks(["geo"], quick=True, json_path=link)
+    reader.join(10)
+    assert link.is_symlink() and json.loads(got[0])["rows"][0]["case"] == "stub"
+    target = tmp_path / "kept.json"
+    target.write_text("{}")
+    file_link = tmp_path / "results.json"
+    file_link.symlink_to(target)
+    run_benchmarks(["geo"], quick=True, json_path=file_link)
+    assert file_link.is_symlink() and json.loads(target.read_text())["rows"][0]["case"] == "stub"

@@ -3,6 +3,7 @@ temporary's name, never another writer's), on disk before the rename, and no tem
 
 from __future__ import annotations
 
+import errno
 import os
 import stat
 
@@ -108,3 +109,27 @@ def test_a_write_the_disk_refuses_at_close_leaves_no_temporary(tmp_path):
     pending.file = FullDisk()  # type: ignore[assignment]
     pending.discard()
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("code", [errno.EINVAL, errno.ENOTSUP, errno.ENOSYS])
+def test_a_file_system_that_cannot_sync_still_gets_the_file(tmp_path, monkeypatch, code):
+    """Some FUSE and network mounts answer fsync with EINVAL / ENOTSUP: the writers did not sync before this stop and
+    wrote there; losing every output (a flight's detections spool) for it would be worse (the review's finding)."""
+    def cannot(fd):
+        raise OSError(code, os.strerror(code))
+
+    monkeypatch.setattr(os, "fsync", cannot)
+    write_chunks_atomic(tmp_path / "out.txt", ["kept"])
+    assert (tmp_path / "out.txt").read_text() == "kept"
+
+
+def test_a_sync_that_fails_for_real_keeps_the_old_file(tmp_path, monkeypatch):
+    (tmp_path / "out.txt").write_text("old")
+
+    def broken(fd):
+        raise OSError(errno.EIO, "I/O error")
+
+    monkeypatch.setattr(os, "fsync", broken)
+    with pytest.raises(OSError):
+        write_chunks_atomic(tmp_path / "out.txt", ["new"])
+    assert (tmp_path / "out.txt").read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["out.txt"]

@@ -16,7 +16,7 @@ from hypothesis import strategies as st
 
 from agent.zenoh_config import agent_zenoh_config
 from shared.pki import CertifiedKey, certificate_validities, issue, new_ca, pem_certificate
-from transport.certificates import EXPIRY_WARNING_DAYS, certificate_notices, check_certificates
+from transport.certificates import EXPIRY_WARNING_DAYS, certificate_notices, check_certificates, uses_tls
 from transport.options import ZenohOptions
 from uavmm.cli import main
 
@@ -159,3 +159,22 @@ def test_a_ca_bundle_works_while_one_of_its_cas_does(tmp_path):
     bundle.write_bytes(pem_certificate(old.certificate) * 2)
     notices = certificate_notices(conf, NOW)
     assert len(notices.problems) == 1 and "(old-ca) expired on" in notices.problems[0]
+
+
+def test_an_expired_certificate_stops_only_a_process_that_uses_tls(fleet, tmp_path, caplog):
+    """A fleet's config run with --listen tcp/... (debugging on a LAN) started before the check: it still does, with
+    a warning (the review's finding)."""
+    root = _copy(fleet, tmp_path)
+    dead = issue(_ca(root), "fusion", hosts=("localhost",), days=10,
+                 now=dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=11))
+    (root / "fusion" / "cert.pem").write_bytes(dead.certificate_pem)
+    config = root / "fusion" / "zenoh.json5"
+    tcp = agent_zenoh_config(ZenohOptions(config_file=config, listen=("tcp/127.0.0.1:0",), connect=()))
+    assert not uses_tls(tcp)
+    with caplog.at_level(logging.WARNING, logger="test"):
+        check_certificates(tcp, logging.getLogger("test"))  # no ValueError
+    assert any("(fusion) expired on" in r.getMessage() and "not needed now" in r.getMessage() for r in caplog.records)
+    tls = agent_zenoh_config(ZenohOptions(config_file=config))  # the fleet's own endpoints: tls/
+    assert uses_tls(tls)
+    with pytest.raises(ValueError, match=r"\(fusion\) expired on"):
+        check_certificates(tls, logging.getLogger("test"))
