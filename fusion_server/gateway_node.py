@@ -25,7 +25,13 @@ from fusion_server.uav_intake import UavIntake
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator, Rejected
 from shared.keys import KeySpace
-from shared.messages import MAX_TRACKS, MessageError, StateMessage, decode_joint_tracks, encode_joint_tracks
+from shared.messages import (
+    MessageError,
+    StateMessage,
+    decode_joint_tracks,
+    encode_joint_tracks,
+    encode_joint_tracks_within,
+)
 from transport.guard import guarded
 from transport.publishers import PublisherCache
 from transport.session import close_session
@@ -249,13 +255,7 @@ class GatewayNode:
         assert self._publishers is not None
         # bounded as a fusion server bounds it (MAX_TRACKS tracks, MAX_TRACKS_BYTES, tracked ones first): the
         # whole map's tracks of many shards made messages agents refuse
-        limit = MAX_TRACKS
-        while True:
-            message = self.tracks.joint_message(limit)
-            payload = encode_joint_tracks(message)
-            if len(payload) <= self.max_tracks_bytes or limit <= 1:
-                break
-            limit = len(message.tracks) // 2
+        message, payload = encode_joint_tracks_within(self.tracks.joint_message, self.max_tracks_bytes)
         left_out = len(self.tracks) - len(message.tracks)
         if left_out > 0:
             self.metrics.tracks_left_out(left_out)

@@ -29,12 +29,12 @@ from fusion_server.uav_intake import UavIntake
 from fusion_server.validation import MessageValidator, Received, Rejected
 from shared.keys import track_region
 from shared.messages import (
-    MAX_TRACKS,
     JointTrackItem,
     JointTracksMessage,
     StateMessage,
     TracksMessage,
     encode_joint_tracks,
+    encode_joint_tracks_within,
 )
 from shared.sharding import ShardSpec
 from shared.tilecodec import SparseTile
@@ -398,13 +398,7 @@ class FusionNode:
     def _publish_tracks(self) -> None:
         # bounded: at most MAX_TRACKS tracks (the schema's limit) and max_tracks_bytes, tracked ones
         # first, so a flood of tracks shortens the message instead of stopping it
-        limit = MAX_TRACKS
-        while True:
-            message = self.tracker.joint_message(limit)
-            payload = encode_joint_tracks(message)
-            if len(payload) <= self.max_tracks_bytes or limit <= 1:
-                break
-            limit = len(message.tracks) // 2
+        message, payload = encode_joint_tracks_within(self.tracker.joint_message, self.max_tracks_bytes)
         left_out = len(self.tracker) - len(message.tracks)
         if left_out > 0:
             self.metrics.tracks_left_out(left_out)

@@ -11,7 +11,7 @@ Numbers: float fields accept msgpack ints or floats (never bools); int fields ac
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -39,6 +39,7 @@ __all__ = [
     "decode_state",
     "decode_tracks",
     "encode_joint_tracks",
+    "encode_joint_tracks_within",
     "encode_state",
     "encode_tracks",
 ]
@@ -546,6 +547,20 @@ class JointTracksMessage:
 def encode_joint_tracks(msg: JointTracksMessage) -> bytes:
     """msgpack bytes of a global tracks message."""
     return _encode_tracks_message(msg)
+
+
+def encode_joint_tracks_within(make: Callable[[int], JointTracksMessage],
+                               max_bytes: int) -> tuple[JointTracksMessage, bytes]:
+    """The largest global tracks message ``make(limit)`` gives that encodes within ``max_bytes`` (limit MAX_TRACKS,
+    halved while too large; at 1 track it is taken as it is), and its bytes. ``make`` orders the tracks it keeps
+    (tracked ones first): a flood of tracks shortens the message instead of stopping it."""
+    limit = MAX_TRACKS
+    while True:
+        message = make(limit)
+        payload = encode_joint_tracks(message)
+        if len(payload) <= max_bytes or limit <= 1:
+            return message, payload
+        limit = len(message.tracks) // 2
 
 
 def decode_joint_tracks(payload: bytes, *, max_bytes: int = DEFAULT_MAX_TRACKS_BYTES) -> JointTracksMessage:

@@ -460,3 +460,24 @@ def test_active_indexes_of_a_track_without_members_are_refused_and_kept_increasi
     assert info.value.reason == "out_of_range"
     item = JointTrackItem(1, "p", 0.0, 0.0, 0.5, (0, 0), (("a", 1), ("b", 2)), active=(1, 0))
     assert item.active == (0, 1)
+
+
+@settings(max_examples=40, deadline=None)
+@given(n=st.integers(0, 3000), max_bytes=st.integers(1, 200_000))
+def test_joint_tracks_within_a_byte_bound_keep_the_first_tracks_and_fit(n, max_bytes):
+    """The fusion server's and the gateway's joint/tracks cap (one function since 30 Nov 2026): the message holds
+    the first tracks `make` orders, as many as fit after halving, within max_bytes unless one track alone is more."""
+    from shared.messages import decode_joint_tracks, encode_joint_tracks_within
+
+    items = [JointTrackItem(i, "person", 47.0, 9.0, 0.5, (0.0, 0.0), (("u", i),)) for i in range(n)]
+    asked: list[int] = []
+
+    def make(limit: int) -> JointTracksMessage:
+        asked.append(limit)
+        return JointTracksMessage(1.0, items[:limit])
+
+    message, payload = encode_joint_tracks_within(make, max_bytes)
+    assert [t.gid for t in message.tracks] == list(range(len(message.tracks)))
+    assert len(payload) <= max_bytes or len(message.tracks) <= 1
+    assert [t.gid for t in decode_joint_tracks(payload, max_bytes=10**7).tracks] == [t.gid for t in message.tracks]
+    assert asked[0] == MAX_TRACKS and all(b < a for a, b in zip(asked[:-1], asked[1:], strict=True))
