@@ -13,6 +13,7 @@ import math
 import os
 import platform
 import stat
+import sys
 import time
 from collections.abc import Callable
 from datetime import datetime, timezone
@@ -47,6 +48,11 @@ def load_benchmark(name: str) -> ModuleType:
     return importlib.import_module(BENCHMARK_MODULES[name])
 
 
+#: --json paths that name this process's standard output: written through sys.stdout, so that what the command
+#: prints after stays in order and a file stdout is redirected to is appended to, not replaced
+_STDOUT_PATHS = frozenset({"/dev/stdout", "/dev/fd/1", "/proc/self/fd/1"})
+
+
 def results_target(json_path: Path) -> tuple[Path, bool]:
     """Where the results go: (path, direct). An existing path that is not a regular file (a character device, a
     pipe, or a link to one: ``--json /dev/stdout``) is written directly, as it is (direct True); a link to a file
@@ -66,6 +72,8 @@ def check_results_path(json_path: Path) -> None:
     exist, or one this process cannot create a file in (a temporary is created beside it and removed). Checked
     before the benchmarks run, so minutes of work do not end in an error about the file."""
     path = Path(json_path)
+    if str(path) in _STDOUT_PATHS:
+        return
     if path.is_dir():
         raise ValueError(f"{path} is a directory: give the results file's path")
     path, direct = results_target(path)
@@ -169,7 +177,10 @@ def run_benchmarks(names: list[str] | None = None, *, quick: bool = False, json_
                 "finished_utc": _utc_now(), "load_average_before": load_before, "load_average_after": _load_average()}
         text = json.dumps(_plain({"meta": meta, "rows": rows}), indent=2, allow_nan=False) + "\n"
         target, direct = results_target(Path(json_path))
-        if direct:
+        if str(json_path) in _STDOUT_PATHS:
+            sys.stdout.write(text)
+            sys.stdout.flush()
+        elif direct:
             with open(target, "w") as handle:
                 handle.write(text)
         else:

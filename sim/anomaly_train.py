@@ -70,7 +70,8 @@ def check_paths(out: str | Path, work_dir: str | Path) -> None:
     if work_dir.exists() and not work_dir.is_dir():
         raise ValueError(f"work directory {work_dir} is not a directory")
     if work_dir.is_dir():
-        other = sorted(p.name for p in work_dir.iterdir() if not (_SCENE_DIR.fullmatch(p.name) and p.is_dir()))
+        other = sorted(p.name for p in work_dir.iterdir()
+                       if not (_SCENE_DIR.fullmatch(p.name) and p.is_dir()) and not p.name.startswith("."))
         if other:
             shown = ", ".join(other[:5]) + (f" and {len(other) - 5} more" if len(other) > 5 else "")
             raise ValueError(f"work directory {work_dir} holds other files ({shown}): give an empty or new folder, "

@@ -123,24 +123,28 @@ def existing_outputs(out: str | Path) -> tuple[list[str], list[str]]:
 
 
 def require_output_folder(out: str | Path) -> None:
-    """ValueError (one line) when `out` is a file, or a folder holding more than an earlier dataset of
-    `write_dataset` (`existing_outputs`): another's files are not ours to mix with or to lose, and an earlier
-    render (hours at 4K) would stay beside a dataset it does not show. For callers that ask before the work
-    (`uavmm sim`); `write_dataset` itself replaces a dataset wherever it is told to."""
+    """ValueError (one line) when `out` is a file, or a folder that holds no uavmm sim dataset but other files (not
+    hidden ones: .DS_Store, .gitkeep): another's files are not ours to mix with. A folder holding a dataset is
+    replaced as always (boost's or track's outputs written beside it stay, as the README's commands do); an earlier
+    render there loses its marks (`write_dataset` removes render.json / unannotated.json) and its frames are named
+    in a warning: they no longer show the dataset. For callers that ask before the work (`uavmm sim`)."""
     folder = Path(out)
     if folder.exists() and not folder.is_dir():
         raise ValueError(f"output directory {folder} is a file: give a folder (new, empty, or an earlier dataset's)")
     render, other = existing_outputs(folder)
+    other = [name for name in other if not name.startswith(".")]
 
     def listed(names: list[str]) -> str:
         return ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
 
-    if other:
+    holds_dataset = any((folder / name).is_file() for name in DATASET_FILES)
+    if other and not holds_dataset:
         raise ValueError(f"output directory {folder} holds files that are not a uavmm sim dataset ({listed(other)}): "
                          "give a new or empty folder")
-    if render:
-        raise ValueError(f"output directory {folder} holds a rendered dataset ({listed(render)}): a new dataset "
-                         "would leave those frames beside it; give a new folder, or remove them first")
+    frames = [name for name in render if name not in RENDER_FILES]
+    if frames:
+        logger.warning("output directory %s holds an earlier render's frames (%s): they stay beside the new dataset "
+                       "and no longer show it; render again (uavmm render) or remove them", folder, listed(frames))
 
 
 def _prepare_output(out: Path) -> tuple[bool, Path]:

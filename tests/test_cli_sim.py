@@ -63,19 +63,30 @@ def test_an_out_folder_holding_other_files_is_refused_and_left_as_it_was(tmp_pat
     assert [p.name for p in out.iterdir()] == ["notes.txt"]
 
 
-def test_an_out_folder_holding_a_rendered_dataset_is_refused_and_left_as_it_was(tmp_path, capsys):
-    """Probe: `uavmm sim grass --out D` over a rendered sea dataset replaced its files and left the sea's frames,
-    videos and render.json (the mark of a complete render) beside the grass dataset, exit 0."""
+def test_an_out_folder_holding_a_rendered_dataset_is_replaced_without_its_marks_and_says_so(tmp_path, caplog):
+    """`uavmm sim grass --out D` over a rendered sea dataset left render.json (the mark of a complete render) beside
+    the grass dataset. The dataset is replaced as before (the docs' commands re-run into their folder: the second
+    review's finding against refusing it), the marks go and the frames left are named in a warning."""
     out = tmp_path / "sea"
     write_dataset("sea", out, frames=2, progress=False)
     video = json.loads((out / "images.json").read_text())["videos"][0]["name"]
     (out / video).mkdir()
     (out / f"{video}.mp4").write_bytes(b"frames")
     (out / "render.json").write_text("{}")
-    before = {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()}
-    _one_line_error(capsys, ["sim", "grass", "--out", str(out), *SMALL],
-                    f"output directory {out} holds a rendered dataset")
-    assert {p.name: p.read_bytes() for p in out.iterdir() if p.is_file()} == before
+    (out / "results.json").write_text("[]")  # boost's output beside its dataset (the README's commands)
+    (out / ".DS_Store").write_text("")
+    assert main(["sim", "grass", "--out", str(out), *SMALL]) == 0
+    assert json.loads((out / "truth.json").read_text())["scenario"]["name"] == "grass"
+    assert not (out / "render.json").exists() and (out / "results.json").read_text() == "[]"
+    assert any("earlier render's frames" in r.getMessage() and video in r.getMessage() for r in caplog.records)
+
+
+def test_a_folder_holding_only_hidden_files_is_taken(tmp_path):
+    out = tmp_path / "d"
+    out.mkdir()
+    (out / ".gitkeep").write_text("")
+    assert main(["sim", "grass", "--out", str(out), *SMALL]) == 0
+    assert (out / ".gitkeep").exists() and (out / "images.json").exists()
 
 
 def test_an_earlier_dataset_without_frames_is_replaced_and_a_file_is_refused(tmp_path, capsys):

@@ -116,3 +116,22 @@ def test_a_pipe_or_a_link_to_one_is_written_directly_and_a_link_to_a_file_stays_
     file_link.symlink_to(target)
     run_benchmarks(["geo"], quick=True, json_path=file_link)
     assert file_link.is_symlink() and json.loads(target.read_text())["rows"][0]["case"] == "stub"
+
+
+def test_json_to_dev_stdout_goes_through_stdout_in_order_with_the_table(tmp_path):
+    """With stdout sent to a file (`> log` or `>> log`), --json /dev/stdout replaced that file whole and the table
+    printed after it went into the replaced one (the second review): it is written through stdout instead."""
+    import subprocess
+    import sys
+
+    log = tmp_path / "log.txt"
+    log.write_text("earlier\n")
+    code = ("import sys, benchmarks.bench_geo as g; from uavmm.cli import main\n"
+            "g.run = lambda quick=False: [{'case': 'stub', 'value': 1.0, 'unit': 'ms'}]\n"
+            "sys.exit(main(['bench', 'geo', '--quick', '--json', '/dev/stdout']))")
+    with open(log, "a") as out:
+        proc = subprocess.run([sys.executable, "-c", code], stdout=out, stderr=subprocess.PIPE, text=True,
+                              cwd=Path(__file__).resolve().parents[2], timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    text = log.read_text()
+    assert text.startswith("earlier\n{") and text.index('"rows"') < text.index("benchmark  case")

@@ -101,6 +101,7 @@ def test_a_work_dir_that_is_a_file_is_refused(tmp_path, capsys, no_rendering):
 def test_new_empty_and_earlier_work_dirs_are_accepted(tmp_path):
     (tmp_path / "empty").mkdir()
     (tmp_path / "earlier" / "sea_640x360_s7_f2").mkdir(parents=True)
+    (tmp_path / "earlier" / ".DS_Store").write_text("")  # a file browser's: not a reason to refuse (review)
     for work in ("new", "empty", "earlier"):
         anomaly_train.check_paths(tmp_path / "m.onnx", tmp_path / work)
     (tmp_path / "m.onnx").write_bytes(b"old")  # an existing --out is replaced: no error
