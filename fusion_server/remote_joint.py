@@ -140,6 +140,10 @@ class RemoteJoint:
         if found is not None:
             return found
         with self._lock:
+            if self._all is not None and self._clock() - self._all_done <= SUMMARY_WAIT_S:
+                # an answer that just ended (asked up to QUERY_TIMEOUT_S ago): the tile count after the class list
+                # of one /healthz takes it, not a new query and another wait
+                return self._all[1]
             if self._refresh is None or self._refresh[1].is_set():
                 done = threading.Event()
                 thread = threading.Thread(target=self._run_refresh, args=(done,), name="uavmm-gateway-joint",

@@ -216,7 +216,11 @@ def test_healthz_does_not_wait_for_a_joint_tiles_query_nobody_answers(lone_gatew
     try:
         time.sleep(0.3)
         # the first ever summary waits for its whole query (classes(): a gateway just started would otherwise answer
-        # /v1/objects with nothing while a shard is slow); after that, at most 0.5 s
+        # /v1/objects with nothing while a shard is slow); after that, at most 0.5 s; the tile count right after
+        # the class list takes the answer that just ended, not a new query
+        assert gateway.joint.classes() == set()
+        asked = gateway.joint.queries
+        assert gateway.joint.stats()["joint_tiles"] == 0 and gateway.joint.queries == asked
         assert httpx.get(gateway.url + "healthz", timeout=10).status_code == 200
         time.sleep(2.2)
         for attempt in range(2):
