@@ -149,6 +149,8 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
                          f"{MAX_IMAGE_SIDE_PX} pixels a side")
     if images:
         _check_file_names(dataset)
+    else:
+        _warn_earlier_images(dataset)
     _check_writable(out)
     _forget_previous_render(out)
     params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
@@ -260,6 +262,18 @@ def _encode(image: np.ndarray, path: Path | None, params: list[int], writer: cv2
             raise OSError(f"cannot write image {path}: {exc.strerror or exc}") from exc
     if writer is not None:
         writer.write(image)
+
+
+def _warn_earlier_images(dataset: SimulatedDataset) -> None:
+    """A render without images (``--no-images``) leaves an earlier render's frames where they are: say so, since
+    they may have been drawn with other options than the videos now are (render.json then counts 0 images)."""
+    names = [str(im.get("file_name") or "") for im in dataset.images.values()]
+    kept = sum(1 for name in names if name and not PurePosixPath(name).is_absolute()
+               and ".." not in PurePosixPath(name).parts and (dataset.directory / name).is_file())
+    if kept:
+        logger.warning("%s holds %d frames of an earlier render: --no-images leaves them as they are (they may show "
+                    "other render options than the new videos); render with images to redraw them", dataset.directory,
+                    kept)
 
 
 def _new_video_temporary(mp4: Path) -> Path:

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import logging
 import os
 import re
 import resource
@@ -143,3 +144,21 @@ def test_an_image_file_name_leaving_the_dataset_directory_is_refused_before_draw
     with pytest.raises(ValueError, match=f"image 2's file_name '{re.escape(file_name)}' in images.json leaves the"):
         render_dataset(data, options=OPTIONS, progress=False)
     assert not (data / "grass_01_orbit_uav1").exists()  # refused before the first image
+
+
+def test_videos_without_images_say_that_an_earlier_renders_frames_stay(tmp_path, caplog):
+    """--video --no-images keeps the frames an earlier render drew (perhaps with other options; render.json then
+    counts 0 images): said in a warning, the frames left as they are."""
+    data = _dataset(tmp_path, frames=2)
+    render_dataset(data, options=OPTIONS, progress=False)
+    frames = sorted(p for p in data.rglob("*.jpg"))
+    before = [p.read_bytes() for p in frames]
+    with caplog.at_level(logging.WARNING, logger="sim.render.output"):
+        render_dataset(data, images=False, video=True, options=OPTIONS, progress=False)
+    assert any(f"holds {len(frames)} frames of an earlier render" in r.getMessage() for r in caplog.records)
+    assert [p.read_bytes() for p in frames] == before
+    caplog.clear()
+    fresh = _dataset(tmp_path / "fresh", frames=2)
+    with caplog.at_level(logging.WARNING, logger="sim.render.output"):
+        render_dataset(fresh, images=False, video=True, options=OPTIONS, progress=False)
+    assert not [r for r in caplog.records if "earlier render" in r.getMessage()]
