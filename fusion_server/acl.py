@@ -51,6 +51,13 @@ class FleetIdentities:
         if duplicates:
             raise ValueError(f"identities must be unique (and not {FUSION_IDENTITY!r} or {ROUTER_IDENTITY!r}, the "
                              f"ground station's), repeated: {', '.join(duplicates)}")
+        folded: dict[str, list[str]] = {}
+        for name in names:
+            folded.setdefault(name.casefold(), []).append(name)
+        alike = sorted(" and ".join(group) for group in folded.values() if len(group) > 1)
+        if alike:  # each identity is a folder (uavs/ID): one folder on a case-insensitive file system
+            raise ValueError(f"identities must differ in more than case (each is a folder of the fleet, one on the "
+                             f"case-insensitive file systems of macOS and Windows): {'; '.join(alike)}")
 
 
 def _rule(rule_id: str, messages: Sequence[str], flow: str, key_exprs: Sequence[str]) -> dict[str, Any]:

@@ -151,11 +151,13 @@ def test_a_folder_of_something_else_is_never_touched(tmp_path, capsys):
     assert not (root / "uavs" / "uav2").exists()
 
 
-_IDS = st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,15}", fullmatch=True).filter(lambda s: s not in ("joint", "fusion"))
+_IDS = st.from_regex(r"[A-Za-z0-9][A-Za-z0-9_.-]{0,15}", fullmatch=True).filter(
+    lambda s: s.casefold() not in ("joint", "fusion", "router"))
 
 
 @settings(max_examples=60)
-@given(st.lists(_IDS, min_size=1, max_size=6, unique=True), st.sampled_from(["cert_common_names", "usernames"]))
+@given(st.lists(_IDS, min_size=1, max_size=6, unique_by=str.casefold),
+       st.sampled_from(["cert_common_names", "usernames"]))
 def test_acl_gives_each_uav_only_its_own_keys(uavs, field):
     acl = access_control(FleetIdentities(tuple(uavs), ()), subject_field=field)
     rules = {r["id"]: r for r in acl["rules"]}
@@ -356,3 +358,18 @@ def test_private_files_are_written_0600_whatever_the_umask_and_never_through_a_p
     assert not key.is_symlink() and stat.S_IMODE(key.stat().st_mode) == 0o600
     assert b"PRIVATE KEY" in key.read_bytes()
     assert not [p for p in root.rglob("*.tmp") if not p.is_symlink()]  # no temporary of ours left behind
+
+
+def test_identities_differing_only_in_case_are_refused(tmp_path, capsys):
+    """uav1 and UAV1 were both taken: one folder on a case-insensitive file system (macOS, Windows), where the
+    second's keys would overwrite the first's."""
+    with pytest.raises(ValueError, match="differ in more than case.*(uav1 and UAV1|UAV1 and uav1)"):
+        FleetPlan(uavs=("uav1", "UAV1"))
+    root = tmp_path / "fleet"
+    assert main(["secure", "init", str(root), "--uavs", "uav1"]) == 0
+    before = sorted(p.relative_to(root) for p in root.rglob("*"))
+    assert main(["secure", "init", str(root), "--uavs", "UAV1"]) == 2  # added to the folder's uav1
+    assert "differ in more than case" in capsys.readouterr().err
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before
+    with pytest.raises(ValueError, match="differ in more than case"):
+        FleetPlan(uavs=("Fusion",))
