@@ -24,7 +24,7 @@ from agent.memory_map import MemoryMapConfig
 from agent.pipeline_config import PipelineConfig
 from agent.tracking import TrackerConfig
 from sim.domains import FAR_DOMAINS, Domain
-from sim.evaluate import Variant, evaluate_detection
+from sim.evaluate import Variant, evaluate_detection, write_reports
 from sim.position_error import format_metres, mean_known
 from sim.terrain_eval import DEM_SUFFIX, TWIN, markdown_terrain, summarise_terrain, terrain_acceptance, terrain_of
 
@@ -59,17 +59,75 @@ def domain_detection_variants() -> list[Variant]:
             Variant(PAPER, paper_rule_config())]
 
 
+#: Written last into a domain dataset's folder, which is then renamed into the cache whole: only an entry holding it
+#: is reused (one a killed run left, or one from before 30 Nov 2026 when final_output rewrote pre_nms.json in place
+#: after images.json had marked the entry complete, is built again).
+COMPLETE_MARKER = "complete.json"
+
+
 def ensure_domain_dataset(domain: Domain, seed: int, noise_scale: float, full: bool, cache_dir: Path) -> Path:
-    """Path of the domain's dataset for (seed, noise, clip length), simulated once and reused."""
+    """Path of the domain's dataset for (seed, noise, clip length), simulated once and reused.
+
+    Built in a hidden folder beside the entry (``.NAME.partial-PID``) and renamed into place with `COMPLETE_MARKER`
+    inside, so a run killed while building (SIGKILL, power) never leaves an entry the next run takes as complete;
+    an entry without the marker is built again, and the partial folders of runs no longer alive are removed.
+    """
+    import os
+    import shutil
+
+    from shared.files import write_chunks_atomic
     from sim.dataset import write_dataset
 
     out = cache_dir / f"{domain.name}-{domain.tag}-s{seed}-n{noise_scale:g}{'-full' if full else ''}"
-    if not (out / "images.json").exists():
-        write_dataset(domain.scenario(), out, seed=seed, frames=domain.frames(full), noise_scale=noise_scale,
+    if (out / COMPLETE_MARKER).is_file():
+        return out
+    cache_dir.mkdir(parents=True, exist_ok=True)
+    _remove_dead_partials(cache_dir, out.name)
+    tmp = cache_dir / f".{out.name}.partial-{os.getpid()}"
+    shutil.rmtree(tmp, ignore_errors=True)
+    try:
+        write_dataset(domain.scenario(), tmp, seed=seed, frames=domain.frames(full), noise_scale=noise_scale,
                       progress=False)
         if domain.final_score is not None:
-            final_output(out / "pre_nms.json", domain.final_score)
+            final_output(tmp / "pre_nms.json", domain.final_score)
+        write_chunks_atomic(tmp / COMPLETE_MARKER, [json.dumps({"domain": domain.name, "tag": domain.tag,
+                                                                "seed": seed, "noise_scale": noise_scale,
+                                                                "full": full})])
+        if (out / COMPLETE_MARKER).is_file():  # another run finished it meanwhile: its entry stays (it may be read)
+            return out
+        if out.exists():  # an incomplete entry (a killed run's, or an older version's): set aside, then dropped
+            stale = cache_dir / f".{out.name}.stale-{os.getpid()}"
+            shutil.rmtree(stale, ignore_errors=True)
+            out.rename(stale)
+            shutil.rmtree(stale, ignore_errors=True)
+        try:
+            tmp.rename(out)
+        except OSError:
+            if not (out / COMPLETE_MARKER).is_file():  # not another run's complete entry that won the race
+                raise
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
     return out
+
+
+def _remove_dead_partials(cache_dir: Path, name: str) -> None:
+    """Remove ``.NAME.partial-PID`` folders whose process is gone (runs killed while building the entry)."""
+    import os
+    import shutil
+
+    for path in cache_dir.glob(f".{name}.partial-*"):
+        try:
+            pid = int(path.name.rsplit("-", 1)[1])
+        except ValueError:
+            continue
+        if pid == os.getpid():
+            continue
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            shutil.rmtree(path, ignore_errors=True)
+        except OSError:  # alive under another user: leave it
+            pass
 
 
 def final_output(candidates_path: Path, min_score: float, *, iou: float = 0.5, max_per_image: int = 100) -> int:
@@ -156,8 +214,7 @@ def run_domain_eval(domains: list[Domain], seeds: list[int], *, noise_scales: tu
               "detection": summarise_detection(det_rows), "tracking": summarise_tracking(trk_rows),
               "terrain": terrain_summary, "seconds": round(time.perf_counter() - t0, 1)}
     report["acceptance"] = acceptance(report) + terrain_acceptance(terrain_summary)
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "report.md").write_text(markdown_domain_report(report))
+    write_reports(out_dir, report, markdown_domain_report(report))
     return report
 
 

@@ -23,6 +23,7 @@ from agent.boost import results_to_coco, run_pipeline
 from agent.dataset import Candidates, Dataset
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
+from shared.files import write_chunks_atomic
 from shared.geo import Camera
 
 log = logging.getLogger(__name__)
@@ -230,9 +231,17 @@ def run_eval(scenarios: list[str], seeds: list[int], *, frames: int | None = Non
     report = {"scenarios": scenarios, "seeds": seeds, "frames": frames, "noise_scales": list(noise_scales),
               "rows": rows, "summary": summary, "size_filter": size_filter,
               "seconds": round(time.perf_counter() - t0, 1)}
-    (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-    (out_dir / "report.md").write_text(markdown_report(report))
+    write_reports(out_dir, report, markdown_report(report))
     return report
+
+
+def write_reports(out_dir: Path, report: dict[str, Any], markdown: str) -> None:
+    """Write ``report.json`` (the report) and ``report.md`` (``markdown``, made before either is written) to
+    out_dir, each whole or not at all (`shared.files.write_chunks_atomic`): an interrupted or killed run leaves the
+    previous pair as it was, never half a file. Used by `uavmm eval`'s reports (scenarios, domains, real data)."""
+    text = json.dumps(report, indent=1)
+    write_chunks_atomic(out_dir / "report.json", [text])
+    write_chunks_atomic(out_dir / "report.md", [markdown])
 
 
 def summarise(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:

@@ -10,7 +10,6 @@ own ground truth; what each adaptive stage of our run did is reported beside (ag
 from __future__ import annotations
 
 import dataclasses
-import json
 import math
 import time
 from pathlib import Path
@@ -25,6 +24,7 @@ from agent.size_filter import SizeFilter
 from agent.stage_report import stage_lines
 from shared.geo import Camera
 from sim.domain_eval import paper_rule_config
+from sim.evaluate import write_reports
 
 __all__ = ["DETECTOR", "MEMORY_OFF", "OURS", "PAPER", "real_files", "run_real_eval"]
 
@@ -118,8 +118,7 @@ def run_real_eval(images_path: str | Path, detections_path: str | Path, camera_s
               "stages": ours_stats["stages"], "seconds": round(time.perf_counter() - t0, 2)}
     if out_dir is not None:
         out_dir.mkdir(parents=True, exist_ok=True)
-        (out_dir / "report.json").write_text(json.dumps(report, indent=1))
-        (out_dir / "report.md").write_text(markdown_real_report(report))
+        write_reports(out_dir, report, markdown_real_report(report))
     return report
 
 

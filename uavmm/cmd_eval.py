@@ -65,12 +65,14 @@ def _run_real_eval(args: argparse.Namespace) -> int:
     from sim.real_eval import real_files, run_real_eval
 
     images, detections, camera = real_files(args.real, args.detections, args.camera)
+    out = args.out / "real"
+    _require_out_dir(args.out)
+    _require_out_dir(out)
     config, size_filter = load_params(args.pipeline_config)
     if args.size_filter is not None:
         from agent.size_filter import SizeFilter
 
         size_filter = SizeFilter.load(args.size_filter)
-    out = args.out / "real"
     report = run_real_eval(images, detections, camera, config=config, size_filter=size_filter, out_dir=out,
                            terrain=terrain_from_args(args))
     print((out / "report.md").read_text())
@@ -81,6 +83,15 @@ def _run_real_eval(args: argparse.Namespace) -> int:
 def _csv_list(text: str, kind: type, flag: str) -> list:
     try:
         return csv_list(text, kind, flag)
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
+
+
+def _require_out_dir(out: Path) -> None:
+    from uavmm.eval_domains import require_out_dir
+
+    try:
+        require_out_dir(out)
     except ValueError as exc:
         raise CliError(str(exc)) from None
 
@@ -96,6 +107,8 @@ def _run_eval(args: argparse.Namespace) -> int:
         raise CliError("--detections, --camera, --size-filter, --dem and --takeoff-elevation-m go with --real")
     if args.pipeline_config is not None and "coop" not in (args.tasks or "").split(","):
         raise CliError("--config goes with --real or --tasks coop")
+    if args.full and args.domains is None and not args.list_domains:
+        raise CliError("--full goes with --domains")
     if args.list_domains or args.domains is not None:
         from uavmm.eval_domains import run_domain_eval_command
 
@@ -109,7 +122,12 @@ def _run_eval(args: argparse.Namespace) -> int:
         raise CliError("--seeds must be >= 0")
     if args.frames is not None and args.frames < 1:
         raise CliError(f"--frames must be >= 1, got {args.frames}")
-    noise = tuple(_csv_list(args.noise_scales or "1,2", float, "--noise-scales"))
+    from uavmm.eval_domains import noise_scales
+
+    try:
+        noise = tuple(noise_scales(args.noise_scales or "1,2"))
+    except ValueError as exc:
+        raise CliError(str(exc)) from None
     tasks = _csv_list(args.tasks or "detection", str, "--tasks")
     unknown = sorted(set(tasks) - {"detection", "tracking", "coop", "anomaly"})
     if unknown:
@@ -120,6 +138,7 @@ def _run_eval(args: argparse.Namespace) -> int:
         if not coop_scenarios:
             raise CliError("--tasks coop: none of --scenarios flies its UAVs at once; valid: "
                            + ", ".join(sorted(n for n, sc in SCENARIOS.items() if sc.simultaneous)))
+    _require_out_dir(args.out)
     if "detection" in tasks:
         report = run_eval(scenarios, seeds, frames=args.frames, noise_scales=noise, ablations=args.ablations,
                           out_dir=args.out, progress=stderr_progress)

@@ -15,7 +15,7 @@ if TYPE_CHECKING:
     from agent.pipeline_config import PipelineConfig
     from agent.size_filter import SizeFilter
 
-__all__ = ["coop_noise_scale", "coop_params", "run_domain_eval_command"]
+__all__ = ["coop_noise_scale", "coop_params", "noise_scales", "require_out_dir", "run_domain_eval_command"]
 
 
 def coop_params(path: Path | None) -> tuple[PipelineConfig | None, SizeFilter | None]:
@@ -45,6 +45,12 @@ def run_domain_eval_command(args: argparse.Namespace) -> int:
     if args.list_domains:
         print(domain_table())
         return 0
+    given = {"--frames": args.frames is not None, "--scenarios": args.scenarios is not None,
+             "--ablations": args.ablations}
+    ignored = [flag for flag, was_given in given.items() if was_given]
+    if ignored:  # silently dropped until 30 Nov 2026: `--frames 30` ran the domain's full clip
+        raise ValueError(f"{', '.join(ignored)}: not used with --domains (each domain has its clip length; --full "
+                         "makes them 5x longer)")
     try:
         domains = resolve_domains(csv_list(args.domains, str, "--domains"))
     except ValueError as exc:
@@ -53,8 +59,12 @@ def run_domain_eval_command(args: argparse.Namespace) -> int:
     unknown = sorted(set(tasks) - {"detection", "tracking"})
     if unknown:
         raise ValueError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
-    noise = tuple(csv_list(args.noise_scales or "1,2", float, "--noise-scales"))
+    noise = tuple(noise_scales(args.noise_scales or "1,2"))
+    if "tracking" in tasks and 1.0 not in noise:  # until 30 Nov 2026: exit 0 and a report without tracking
+        raise ValueError(f"--noise-scales {args.noise_scales}: tracking runs at noise x1 only; add 1 or give "
+                         "--tasks detection")
     out = args.out if args.out != Path("out/eval") else Path("out/eval-domains")
+    require_out_dir(out)
     report = run_domain_eval(domains, seeds, noise_scales=noise, tasks=tasks, full=args.full, out_dir=out,
                              progress=stderr_progress)
     print((out / "report.md").read_text())
@@ -79,6 +89,7 @@ def _run_coop_domain_eval(args: argparse.Namespace) -> int:
     seeds = _seeds(args.seeds)
     noise = coop_noise_scale(args.noise_scales)
     out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
+    require_out_dir(out)
     config, size_filter = coop_params(args.pipeline_config)  # every variant's settings
     report = run_coop_domain_eval(domains, seeds, noise_scale=noise, out_dir=out, progress=stderr_progress,
                                   config=config, size_filter=size_filter)
@@ -95,6 +106,27 @@ def coop_noise_scale(text: str | None) -> float:
     if not (math.isfinite(noise[0]) and noise[0] >= 0):
         raise ValueError("--noise-scales must be a finite number >= 0")
     return noise[0]
+
+
+def noise_scales(text: str) -> list[float]:
+    """`--noise-scales`: telemetry noise multipliers, each a finite number >= 0 (0: exact telemetry); checked before
+    any work (a bad one after the first failed only when its turn came, with the good ones' work lost)."""
+    noise = csv_list(text, float, "--noise-scales")
+    bad = [v for v in noise if not (math.isfinite(v) and v >= 0)]
+    if bad:
+        raise ValueError(f"--noise-scales: each must be a finite number >= 0, got {bad[0]:g}")
+    return noise
+
+
+def require_out_dir(out: Path) -> None:
+    """ValueError naming `--out` when it, or a folder above it, is a file: found before the work, not by the
+    report's write after it."""
+    for path in (out, *out.parents):
+        if path.exists():
+            if not path.is_dir():
+                what = "" if path == out else f" ({path} is a file)"
+                raise ValueError(f"--out {out}: not a folder{what}: give a folder for the reports")
+            return
 
 
 def _seeds(text: str) -> list[int]:

@@ -1,0 +1,79 @@
+"""`uavmm eval`'s bad input: one line naming the flag and exit 2, before any simulation or scoring starts."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+
+import sim.domain_eval
+import sim.evaluate
+import sim.real_eval
+from sim.dataset import write_dataset
+from uavmm.cli import main
+
+
+@pytest.fixture(autouse=True)
+def no_work(monkeypatch: pytest.MonkeyPatch) -> None:
+    """Any evaluation reached is a failure: the input must have been refused before it."""
+
+    def work(*args: object, **kwargs: object) -> None:
+        raise AssertionError("the evaluation started")
+
+    for module, name in ((sim.evaluate, "run_eval"), (sim.domain_eval, "run_domain_eval"),
+                         (sim.real_eval, "run_real_eval")):
+        monkeypatch.setattr(module, name, work)
+
+
+def _refused(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
+    assert main(["eval", *argv]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1
+    return err
+
+
+@pytest.mark.parametrize("noise", ["1,-1", "1,nan", "inf"])
+@pytest.mark.parametrize("where", [[], ["--domains", "sea-jitter"]])
+def test_a_bad_noise_scale_anywhere_in_the_list_is_refused_before_the_work(
+        noise: str, where: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # until 30 Nov 2026 the first noise scale's whole run came first, then write_dataset's error on `noise_scale`
+    err = _refused([*where, "--seeds", "0", "--noise-scales", noise, "--out", str(tmp_path)], capsys)
+    assert "--noise-scales" in err and ">= 0" in err
+
+
+@pytest.mark.parametrize("where", [[], ["--domains", "sea-jitter"], ["--tasks", "coop", "--domains", "coop-trees"]])
+def test_an_out_that_is_a_file_is_refused_naming_out(where: list[str], tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture[str]) -> None:
+    (tmp_path / "afile").write_text("x")
+    err = _refused([*where, "--seeds", "0", "--out", str(tmp_path / "afile")], capsys)
+    assert f"--out {tmp_path / 'afile'}" in err and "not a folder" in err  # was "[Errno 17] File exists: ..."
+
+
+def test_eval_real_with_an_out_that_is_a_file_is_refused_before_scoring(tmp_path: Path,
+                                                                       capsys: pytest.CaptureFixture[str]) -> None:
+    data = tmp_path / "data"
+    write_dataset("reid", data, seed=3, frames=3, progress=False)
+    (tmp_path / "afile").write_text("x")
+    # until 30 Nov 2026: the whole evaluation, then "[Errno 20] Not a directory: 'afile/real'"
+    err = _refused(["--real", str(data), "--out", str(tmp_path / "afile")], capsys)
+    assert "--out" in err and "not a folder" in err
+
+
+@pytest.mark.parametrize("tasks", [["--tasks", "tracking"], []])
+def test_domain_tracking_without_noise_one_is_refused_not_an_empty_report(
+        tasks: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # until 30 Nov 2026: exit 0 and a report without a row, written over the previous one
+    err = _refused(["--domains", "sea-jitter", *tasks, "--seeds", "0", "--noise-scales", "2",
+                    "--out", str(tmp_path)], capsys)
+    assert "tracking runs at noise x1" in err
+
+
+@pytest.mark.parametrize("flag", [["--frames", "30"], ["--scenarios", "sea"], ["--ablations"]])
+def test_scenario_flags_with_domains_are_refused_not_ignored(flag: list[str], tmp_path: Path,
+                                                             capsys: pytest.CaptureFixture[str]) -> None:
+    err = _refused(["--domains", "sea-jitter", *flag, "--seeds", "0", "--out", str(tmp_path)], capsys)
+    assert flag[0] in err and "--domains" in err
+
+
+def test_full_without_domains_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert "--full goes with --domains" in _refused(["--full", "--seeds", "0", "--out", str(tmp_path)], capsys)
