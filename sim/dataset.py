@@ -291,7 +291,10 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
         for name in reversed(RENDER_FILES):  # the earlier render's marks first: they describe the old dataset
             with _naming(out / name):
                 (out / name).unlink(missing_ok=True)
-        for name in files:
+        # images.json last, and an earlier one gone first: a run stopped between the moves (SIGKILL, power) leaves
+        # no images.json, which every reader takes for a whole dataset (`uavmm eval`'s cache, `uavmm render`)
+        (out / "images.json").unlink(missing_ok=True)
+        for name in sorted(files, key=lambda n: n == "images.json"):
             os.replace(tmp / name, out / name)
         if sim.terrain is None and (out / TERRAIN_DEM_FILE).exists():  # a terrain dataset's, written here before
             os.remove(out / TERRAIN_DEM_FILE)

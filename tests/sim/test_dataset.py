@@ -264,3 +264,26 @@ def test_a_failure_midway_leaves_no_half_dataset(tmp_path: Path, monkeypatch: py
         write_dataset("sea", out, frames=3, progress=False)
     assert sorted(p.name for p in out.iterdir()) == sorted(DATASET_FILES)
     assert {f: (out / f).read_bytes() for f in DATASET_FILES} == before
+
+
+def test_a_run_stopped_between_the_moves_leaves_no_images_json(tmp_path: Path, monkeypatch) -> None:
+    """images.json marks a whole dataset for its readers (`uavmm eval`'s scenario cache reuses a folder holding it):
+    it is moved in last, an earlier one removed first, so a run stopped after some moves leaves none."""
+    out = tmp_path / "d"
+    write_dataset("grass", out, frames=SMALL_FRAMES, progress=False)
+    moved: list[str] = []
+    real_replace = os.replace
+
+    def stop_after_two(src, dst):
+        if len(moved) == 2:
+            raise KeyboardInterrupt  # as a SIGINT between two moves
+        moved.append(Path(dst).name)
+        real_replace(src, dst)
+
+    monkeypatch.setattr(dataset_module.os, "replace", stop_after_two)
+    with pytest.raises(KeyboardInterrupt):
+        write_dataset("sea", out, frames=SMALL_FRAMES, progress=False)
+    assert "images.json" not in moved and not (out / "images.json").exists()
+    monkeypatch.setattr(dataset_module.os, "replace", real_replace)
+    write_dataset("sea", out, frames=SMALL_FRAMES, progress=False)
+    assert (out / "images.json").exists() and json.loads((out / "truth.json").read_text())["scenario"]["name"] == "sea"
