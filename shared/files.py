@@ -16,22 +16,33 @@ from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["PendingFile", "collection_chunks", "sync_to_disk", "write_atomic", "write_chunks_atomic"]
+__all__ = ["PendingFile", "collection_chunks", "new_temporary", "same_file", "sync_to_disk", "write_atomic",
+           "write_chunks_atomic"]
 
 
-def _new_temporary(path: Path, mode: int) -> tuple[Path, int]:
-    """Create a new hidden file beside ``path`` for writing: ``.NAME.PID.tmp``, or ``.NAME.PID.XXXXXXXX.tmp`` while
-    that name is taken (another writer's temporary in this process, a leftover, a planted link). O_EXCL: a file or a
-    link already at the name is never written through, and two writers never share one. Returns (name, descriptor).
-    """
+def new_temporary(path: Path, mode: int = 0o666, *, suffix: str = ".tmp") -> tuple[Path, int]:
+    """Create a new hidden file beside ``path`` for writing: ``.NAME.PID`` + suffix, or ``.NAME.PID.XXXXXXXX`` +
+    suffix while that name is taken (another writer's temporary in this process, a leftover, a planted link).
+    O_EXCL: a file or a link already at the name is never written through, and two writers never share one; the
+    permissions are ``mode`` less the umask, as ``open()`` gives. suffix: ``.tmp.mp4`` for a writer that picks its
+    format from the extension (OpenCV's VideoWriter). Returns (name, descriptor)."""
     name = f".{path.name}.{os.getpid()}"
     for attempt in range(100):
-        tmp = path.with_name(f"{name}.tmp" if attempt == 0 else f"{name}.{secrets.token_hex(4)}.tmp")
+        tmp = path.with_name(f"{name}{suffix}" if attempt == 0 else f"{name}.{secrets.token_hex(4)}{suffix}")
         try:
             return tmp, os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary name beside {path}")
+
+
+def same_file(a: str | Path, b: str | Path) -> bool:
+    """Whether two paths name one existing file, however spelled (``./x``, ``../dir/x``) or linked (a symbolic or a
+    hard link); False when either does not exist."""
+    try:
+        return os.path.samefile(a, b)
+    except (OSError, ValueError):
+        return False
 
 
 #: fsync errors that mean "this file system cannot sync" (some FUSE and network mounts), not "the data is lost"
@@ -50,7 +61,7 @@ def sync_to_disk(fd: int) -> None:
 
 
 class PendingFile:
-    """A file written beside its final ``path`` under a new hidden name (`_new_temporary`) and put in place whole by
+    """A file written beside its final ``path`` under a new hidden name (`new_temporary`) and put in place whole by
     `commit` (flushed, on disk, then renamed over ``path``), or dropped by `discard`; the file stays open between, for
     writers that stream (`agent.boost.StreamedResults`).
 
@@ -60,7 +71,7 @@ class PendingFile:
 
     def __init__(self, path: str | Path, *, mode: int | None = None) -> None:
         self.path = Path(path)
-        self.tmp, fd = _new_temporary(self.path, 0o666 if mode is None else mode)
+        self.tmp, fd = new_temporary(self.path, 0o666 if mode is None else mode)
         try:
             if mode is not None:  # the umask may have taken bits away
                 os.chmod(fd if os.chmod in os.supports_fd else self.tmp, mode)

@@ -30,7 +30,7 @@ import numpy as np
 from agent.anomaly.autoencoder import DEFAULT_MODEL, STRIDE
 from agent.anomaly.methods import DEFAULT_WORK_WIDTH, to_work
 from agent.dataset import Dataset, read_image
-from shared.files import write_atomic
+from shared.files import same_file, write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -64,7 +64,7 @@ def check_paths(out: str | Path, work_dir: str | Path) -> None:
         raise ValueError(f"{out} is a directory: give the ONNX file's path")
     if not out.parent.is_dir():
         raise ValueError(f"output directory {out.parent} does not exist (for {out})")
-    if os.path.realpath(out) == os.path.realpath(DEFAULT_MODEL) or _same_file(out, DEFAULT_MODEL):
+    if os.path.realpath(out) == os.path.realpath(DEFAULT_MODEL) or same_file(out, DEFAULT_MODEL):
         raise ValueError(f"{out} is the model shipped in the package ({DEFAULT_MODEL}): write the new model "
                          "elsewhere, compare it, then copy it over deliberately")
     if work_dir.exists() and not work_dir.is_dir():
@@ -76,14 +76,6 @@ def check_paths(out: str | Path, work_dir: str | Path) -> None:
             shown = ", ".join(other[:5]) + (f" and {len(other) - 5} more" if len(other) > 5 else "")
             raise ValueError(f"work directory {work_dir} holds other files ({shown}): give an empty or new folder, "
                              "or one an earlier anomaly-train run made")
-
-
-def _same_file(a: Path, b: Path) -> bool:
-    """Whether two paths name one existing file (another spelling, a symbolic or a hard link)."""
-    try:
-        return os.path.samefile(a, b)
-    except OSError:
-        return False
 
 
 def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int,

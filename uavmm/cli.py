@@ -14,6 +14,8 @@ import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
+from shared.files import same_file
+
 log = logging.getLogger("uavmm")
 
 Handler = Callable[[argparse.Namespace], int]
@@ -29,15 +31,6 @@ def require_out_parent(*paths: Path | None) -> None:
     for path in paths:
         if path is not None and not path.parent.is_dir():
             raise CliError(f"output directory {path.parent} does not exist (for {path})")
-
-
-def same_file(a: Path | str, b: Path | str) -> bool:
-    """Whether two paths name one existing file, however spelled (``./x``, ``../dir/x``) or linked (a symbolic or a
-    hard link); False when either does not exist."""
-    try:
-        return os.path.samefile(a, b)
-    except (OSError, ValueError):
-        return False
 
 
 #: (flag, path) pairs of `require_outputs_apart`; a path of None (a flag not given) is skipped.

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import math
 import os
-import tempfile
 from collections import deque
 from datetime import datetime, timezone
 from pathlib import Path
@@ -22,6 +21,7 @@ from numpy.typing import NDArray
 from agent.frame_result import FrameResult
 from agent.memory_map import MemoryMap
 from agent.tracking import TrackOutput
+from shared.files import new_temporary
 from shared.geo import Camera, Pose, footprint_latlon, latlon_to_pixel
 
 __all__ = ["MP4_FOURCC", "VideoAnnotator"]
@@ -71,14 +71,8 @@ class VideoAnnotator:
         self.range_m = float(range_m)
         # a new hidden name beside the output, its suffix kept (OpenCV picks the container from it): never a file or
         # a link already there, never another run's
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.stem}.", suffix=f".tmp{self.path.suffix}", dir=self.path.parent)
-        try:  # mkstemp makes it 0600; the video gets the permissions open() gives every other output
-            umask = os.umask(0)
-            os.umask(umask)
-            os.fchmod(fd, 0o666 & ~umask)
-        finally:
-            os.close(fd)
-        self._tmp = Path(tmp)
+        self._tmp, fd = new_temporary(self.path, suffix=f".tmp{self.path.suffix}")  # OpenCV opens it by name
+        os.close(fd)
         self._writer = cv2.VideoWriter(str(self._tmp), cv2.VideoWriter.fourcc(*MP4_FOURCC), float(fps), self.size)
         if not self._writer.isOpened():
             self._tmp.unlink(missing_ok=True)

@@ -26,7 +26,6 @@ import dataclasses
 import json
 import logging
 import os
-import secrets
 import tempfile
 import time
 from collections import deque
@@ -37,7 +36,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from shared.files import sync_to_disk, write_chunks_atomic
+from shared.files import new_temporary, sync_to_disk, write_chunks_atomic
 from sim.dataset import RENDER_FILES, _Progress
 from sim.render.renderer import RenderOptions, WorldRenderer, exposure_for
 from sim.render.scene import SimulatedDataset
@@ -172,7 +171,8 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
             for v in renderer.videos:
                 writer = None
                 if video:
-                    tmp_mp4 = _new_video_temporary(out / f"{v.name}.mp4")
+                    tmp_mp4, fd = new_temporary(out / f"{v.name}.mp4", suffix=".tmp.mp4")  # OpenCV opens it by name
+                    os.close(fd)
                     temporaries.append(tmp_mp4)
                     writer = cv2.VideoWriter(str(tmp_mp4), cv2.VideoWriter.fourcc(*MP4_FOURCC), dataset.fps,
                                              (cam.width, cam.height))
@@ -274,20 +274,6 @@ def _warn_earlier_images(dataset: SimulatedDataset) -> None:
         logger.warning("%s holds %d frames of an earlier render: --no-images leaves them as they are (they may show "
                     "other render options than the new videos); render with images to redraw them", dataset.directory,
                     kept)
-
-
-def _new_video_temporary(mp4: Path) -> Path:
-    """Create a new empty hidden file beside ``mp4`` for OpenCV to write: ``.NAME.PID.XXXXXXXX.tmp.mp4`` (.mp4 last:
-    FFmpeg picks the container by extension). O_EXCL: never a file or a link already there, never another writer's;
-    the permissions are the umask's, as the video's own would be (mkstemp's are 0600)."""
-    for _ in range(100):
-        tmp = mp4.with_name(f".{mp4.stem}.{os.getpid()}.{secrets.token_hex(4)}.tmp.mp4")
-        try:
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), 0o666))
-        except FileExistsError:
-            continue
-        return tmp
-    raise FileExistsError(f"no free temporary name beside {mp4}")
 
 
 def _flush_to_disk(path: Path) -> None:
