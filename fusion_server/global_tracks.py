@@ -486,9 +486,8 @@ class GlobalTracker:
             self._ended_pending[gid] = record
 
     def dropped(self) -> dict[str, int]:
-        """What the bounds refused, by reason: "too_many_tracks" (track items cut from messages),
-        "uav_track_quota" / "too_many_global_tracks" (new tracks that got no global id),
-        "evicted_lost" (held tracks ended early to make room)."""
+        """What the bounds refused, by reason: "too_many_tracks" (track items cut from messages), "uav_track_quota"
+        / "too_many_global_tracks" (new tracks that got no global id), "evicted_lost" (held ones ended for room)."""
         with self._lock:
             return dict(self._dropped)
 
@@ -560,8 +559,7 @@ class GlobalTracker:
     @property
     def next_gid(self) -> int:
         """The global id the next new track gets."""
-        with self._lock:
-            return self._next_gid
+        return self._next_gid  # no lock: one attribute read
 
     # ---- reading -------------------------------------------------------------------------------
     def records(self, include_ended: bool = False) -> list[TrackRecord]:
@@ -571,6 +569,11 @@ class GlobalTracker:
             if include_ended:
                 rows.extend(self._ended)
         return sorted(rows, key=lambda r: r.gid)
+
+    def gid_of(self, uav: str, local_id: int) -> int | None:
+        """The global id of a UAV's local track (a member of a live global track), else None."""
+        gid = self._local.get((uav, local_id))  # no lock: two dict reads
+        return gid if gid in self._tracks else None
 
     def joint_message(self, max_tracks: int = MAX_TRACKS) -> JointTracksMessage:
         """The ``joint/tracks`` message: the current global tracks with the local ids they absorbed, and

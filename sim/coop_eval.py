@@ -24,7 +24,7 @@ import numpy as np
 from agent.boost import results_to_coco
 from agent.dataset import Candidates, Dataset, iter_video_frames
 from agent.memory_map import JointLayer
-from agent.node import state_message
+from agent.node import state_message, tracks_message
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
@@ -34,13 +34,16 @@ from agent.tracking_io import memory_evidence
 from fusion_server.joint_map import JointMap
 from fusion_server.rules import get_fusion_rule
 from shared.geo import Camera
+from shared.messages import TracksMessage
 from shared.tilecodec import decode_tile
 from sim.coop_peaks import PEAK_BAR_M, PeakSampler, standing_objects
 from sim.coop_registration import RegistrationRecord, registration_errors
+from sim.cross_uav import CROSS_METRICS, CrossUavRecorder, cross_uav_metrics
 from sim.position_error import summarise_position_errors
 from sim.terrain_eval import DEM_SUFFIX, terrain_of
 from sim.track_eval import (
     SequenceTracks,
+    SequenceTruth,
     drop_ignored,
     mot_metrics,
     position_errors,
@@ -106,7 +109,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
              dem: bool = False, on_publish: Callable[[float, JointMap, list[int]], None] | None = None,
              tracks_out: dict[int, SequenceTracks] | None = None,
              registration_out: dict[int, list[RegistrationRecord]] | None = None,
-             size_filter: SizeFilter | None = None) -> dict[int, list[dict]]:
+             size_filter: SizeFilter | None = None,
+             on_tracks: Callable[[int, int, TracksMessage], None] | None = None) -> dict[int, list[dict]]:
     """Run both UAVs of a simultaneous dataset; returns COCO results per video id.
 
     share: give each UAV the joint map (fusion `rule` with `coverage`, see `CoopFusion`).
@@ -121,6 +125,9 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
     registration_out: with share, receives per video id each frame's joint registration estimate and telemetry
     correction (`sim.coop_registration.registration_errors` compares them with the truth).
     size_filter: every UAV's fitted size filter (a `uavmm tune` parameters file's; None: the built-in priors).
+    on_tracks: when given, each UAV also runs the GPS tracker and this receives, every frame in time order, the
+    video id, the frame index and the tracks message its agent would publish then (`agent.node.tracks_message`;
+    e.g. `sim.cross_uav.CrossUavRecorder`, the fusion server's global tracks).
     """
     dataset = Dataset.load(data_dir / "images.json")
     candidates = Candidates.load(data_dir / "pre_nms.json", dataset)
@@ -137,7 +144,7 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
     fusion = CoopFusion([uav_of[v] for v in pipes], list(dict.fromkeys(dataset.categories.values())),
                         {uav_of[v]: p for v, p in pipes.items()}, rule=rule, coverage=coverage) if share else None
     trackers = {vid: GpsTracker(None, dataset.categories, evidence_at=memory_evidence(pipes[vid]))
-                for vid in dataset.videos} if track_boxes is not None or tracks_out is not None else {}
+                for vid in dataset.videos} if any(x is not None for x in (track_boxes, tracks_out, on_tracks)) else {}
     if tracks_out is not None:
         tracks_out.update({vid: SequenceTracks() for vid in dataset.videos})
     # live agents: each frame keeps the telemetry sample it carries (no look-ahead to later samples)
@@ -173,6 +180,9 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                                                    (tr.box_xyxy for tr in tracks if tr.confirmed and tr.matched)]
                 if tracks_out is not None:
                     _record_tracks(tracks_out[vid], frame.image.frame_index, trackers[vid].report(tracks))
+                if on_tracks is not None:
+                    on_tracks(vid, frame.image.frame_index,
+                              tracks_message(uav_of[vid], frame.t, tracks, pipes[vid].class_names))
             if frame.pose is not None:
                 poses[uav_of[vid]] = (frame.pose, frame.camera)
         t = max(f.t for f in step.values())
@@ -260,6 +270,7 @@ def _variants(terrain: bool, base: PipelineConfig) -> list[tuple[str, PipelineCo
 
 def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, variants: tuple[str, ...] | None = None,
                   track: bool = True, size_filter: SizeFilter | None = None,
+                  cross_rows: list[dict[str, Any]] | None = None,
                   ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """Per UAV: baseline, own memory map, joint map boosting only, joint map + joint detections (over a terrain
     each also with the DEM, `+ DEM`); and the joint map's peaks against the truth for the variants that share.
@@ -274,6 +285,8 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
     config: the variants' settings (default PipelineConfig()). variants: run only these of the names (the DEM
     variants follow their flat names); track: run the GPS tracker (hidden tracked, HOTA, IDs and track position
     error; NaN without); size_filter: a fitted size filter for every variant (None: the built-in priors).
+    cross_rows: with track, receives per variant the fusion server's global ids over all UAVs
+    (`sim.cross_uav.cross_uav_metrics`: one id per object across UAVs, against each UAV's ids kept apart).
     Returns (rows per UAV and variant, rows per sharing variant with the peak figures).
     """
     from sim.metrics import coco_detection_metrics
@@ -292,6 +305,7 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
         if unknown:
             raise ValueError(f"evaluate_coop: unknown variant(s) {', '.join(unknown)}; valid: {', '.join(_ORDER)}")
     runs, peak_rows = {}, []
+    recorders: dict[str, CrossUavRecorder | None] = {}
     tracked: dict[str, dict[int, list[list[float]]]] = {}
     sequences: dict[str, dict[int, SequenceTracks]] = {}
     registration: dict[str, dict[str, dict[str, float]]] = {}
@@ -305,9 +319,10 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
         sampler = PeakSampler(standing, seen, uav_of_image) if share and variant.joint_detections else None
         # the registration's truth is computed over flat ground (sim.coop_registration): not over a terrain
         records: dict[int, list[RegistrationRecord]] | None = {} if sampler is not None and not terrain else None
+        recorders[name] = CrossUavRecorder() if track and cross_rows is not None else None
         runs[name] = run_coop(data_dir, variant, share=share, track_boxes=tracked[name] if track else None, dem=dem,
                               on_publish=sampler, tracks_out=sequences[name] if track else None,
-                              registration_out=records, size_filter=size_filter)
+                              registration_out=records, size_filter=size_filter, on_tracks=recorders[name])
         if records is not None:
             registration[name] = registration_errors(data_dir, records)
         if sampler is not None:  # the objects any UAV sees, and those each sees
@@ -315,6 +330,8 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
                 peak_rows.append({"variant": name, "uav": uav, "standing_objects": len(standing),
                                   **sampler.summary(None if uav == BOTH else uav)})
     rows = []
+    truths: dict[int, SequenceTruth] = {}
+    kept: dict[str, dict[int, SequenceTracks]] = defaultdict(dict)  # the tracks without those on hidden objects
     for vid, uav in videos.items():
         image_ids = [im.id for im in dataset.videos[vid]]
         id_set = set(image_ids)
@@ -325,7 +342,8 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
             res = per_video[vid]
             mot = pos = None
             if truth is not None:
-                seq = drop_ignored(truth, sequences[name][vid])
+                seq = kept[name][vid] = drop_ignored(truth, sequences[name][vid])
+                truths[vid] = truth
                 mot = mot_metrics([trackeval_data(truth, seq)])
                 pos = summarise_position_errors(position_errors(truth, seq))
             rows.append({
@@ -342,6 +360,9 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
                 "registration_offset_px": registration.get(name, {}).get(uav, {}).get("offset_px", float("nan")),
                 "registration_left_px": registration.get(name, {}).get(uav, {}).get("left_px", float("nan")),
             })
+    for name, recorder in recorders.items():
+        if recorder is not None and cross_rows is not None:
+            cross_rows.append({"variant": name, **cross_uav_metrics(truths, kept[name], recorder.gids)})
     return rows, peak_rows
 
 
@@ -358,21 +379,25 @@ def run_coop_eval(seeds: list[int], *, frames: int | None = None, out_dir: Path 
 
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    rows, peak_rows = [], []
+    rows, peak_rows, cross_rows = [], [], []
     jobs = [(sc, noise, seed) for sc in scenarios for noise in noise_scales for seed in seeds]
     for i, (scenario, noise, seed) in enumerate(jobs):
         if progress:
             progress(f"[{i + 1}/{len(jobs)}] {scenario} seed={seed} noise x{noise:g}")
         data_dir = ensure_dataset(scenario, seed, frames, noise, out_dir / "data")
-        det, peaks = evaluate_coop(data_dir, config, size_filter=size_filter)
+        cross: list[dict[str, Any]] = []
+        det, peaks = evaluate_coop(data_dir, config, size_filter=size_filter, cross_rows=cross)
         tag = {"scenario": scenario, "noise_scale": noise, "seed": seed}
         rows += [{**tag, **r} for r in det]
         peak_rows += [{**tag, **r} for r in peaks]
+        cross_rows += [{**tag, **r} for r in cross]
     summary = _mean_rows(rows, ("scenario", "noise_scale", "uav", "variant"), _METRICS)
     peak_summary = _mean_rows(peak_rows, ("scenario", "noise_scale", "variant", "uav"), _PEAK_METRICS)
+    cross_summary = _mean_rows(cross_rows, ("scenario", "noise_scale", "variant"), CROSS_METRICS)
     report = {"scenarios": list(scenarios), "seeds": seeds, "noise_scales": list(noise_scales), "frames": frames,
               **settings_record(config, size_filter),
               "rows": rows, "summary": summary, "peak_rows": peak_rows, "peak_summary": peak_summary,
+              "cross_rows": cross_rows, "cross_summary": cross_summary,
               "acceptance": slope_acceptance(summary, peak_summary),
               "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))

@@ -61,6 +61,13 @@ def test_coop_eval_reports_every_uav_and_finds_hidden_people(tmp_path):
     assert 0.0 <= peaks["peak_err_m"] <= peaks["peak_err_p90_m"] < 5.0 and peaks["objects_with_peak"] > 50.0
     assert "## Joint-map peaks against the truth" in (tmp_path / "report.md").read_text()
     assert not report["acceptance"]  # the bars are those of a terrain: flat coop has no DEM rows
+    # the fusion server's global tracks: the objects both UAVs track get one id on both more often than not
+    cross = {c["variant"]: c for c in report["cross_summary"]}
+    assert set(cross) == {v for _, v in by}
+    for c in cross.values():
+        assert c["shared_objects"] >= 3 and c["same_id"] > 50.0
+        assert c["IDF1"] > c["IDF1_separate"] + 10.0 and c["IDs"] <= c["IDs_separate"]
+    assert "## One object, one id across UAVs" in (tmp_path / "report.md").read_text()
 
 
 def test_the_slope_bars_compare_the_dem_with_flat_earth_per_uav():
