@@ -3,7 +3,8 @@
 Used by the agent's track files (`agent.track_rows`, `uavmm detect`), the results and CSV files of boost, track,
 tune and anomaly, the fusion server's export (`fusion_server.history_export`) and the fleet's credentials
 (`fusion_server.provision`, 0600): a reader never sees half a file, and a failed write (a full disk) leaves what was
-there and no temporary file.
+there and no temporary file. A writer killed outright (SIGKILL, a power cut) cannot remove its own: `stale_temporaries`
+finds them for the next run to remove.
 """
 
 from __future__ import annotations
@@ -12,12 +13,12 @@ import errno
 import json
 import os
 import secrets
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["PendingFile", "collection_chunks", "new_temporary", "same_file", "sync_to_disk", "write_atomic",
-           "write_chunks_atomic"]
+__all__ = ["PendingFile", "collection_chunks", "new_temporary", "same_file", "stale_temporaries", "sync_to_disk",
+           "temporary_pids", "write_atomic", "write_chunks_atomic"]
 
 
 def new_temporary(path: Path, mode: int = 0o666, *, suffix: str = ".tmp") -> tuple[Path, int]:
@@ -34,6 +35,55 @@ def new_temporary(path: Path, mode: int = 0o666, *, suffix: str = ".tmp") -> tup
         except FileExistsError:
             continue
     raise FileExistsError(f"no free temporary name beside {path}")
+
+
+def temporary_pids(entry: str, names: Collection[str], suffix: str = ".tmp") -> list[int]:
+    """The process ids a `new_temporary` name ``entry`` may carry (``.NAME.PID`` + suffix, or ``.NAME.PID.XXXXXXXX``
+    + suffix with 8 lowercase hex digits) for a NAME in ``names``: [] for any other name. Both readings are given
+    when a name allows two (``.a.1.12345678.tmp`` is ``a``'s of process 1 and ``a.1``'s of process 12345678)."""
+    if not (entry.startswith(".") and entry.endswith(suffix)) or len(entry) <= len(suffix) + 1:
+        return []
+    parts = entry[1:len(entry) - len(suffix)].split(".")
+    pids = []
+    for tail in (1, 2):  # .NAME.PID, then .NAME.PID.XXXXXXXX
+        if len(parts) <= tail:
+            break
+        pid, token = parts[-tail], parts[-1]
+        if tail == 2 and not (len(token) == 8 and all(c in "0123456789abcdef" for c in token)):
+            continue
+        # getpid's decimal form only: no sign, no leading zero, no other script's digits
+        decimal = len(pid) <= 10 and pid.isascii() and pid.isdigit() and pid == str(int(pid))
+        if decimal and ".".join(parts[:-tail]) in names:
+            pids.append(int(pid))
+    return [pid for pid in pids if 0 < pid < 2**31]
+
+
+def _process_gone(pid: int) -> bool:
+    """Whether no process ``pid`` runs on this machine (signal 0 asks without sending one); False when unsure: this
+    process, another user's (EPERM), or Windows, where os.kill would end the process."""
+    if pid == os.getpid() or os.name == "nt":
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except OSError:
+        return False
+    return False
+
+
+def stale_temporaries(folder: Path, names: Collection[str], suffix: str = ".tmp") -> list[Path]:
+    """The temporaries `new_temporary` made in ``folder`` for the files ``names`` whose process is gone (killed by
+    SIGKILL or a power cut before it could remove them; nobody else ever will). Only regular files (not links) named
+    exactly as `temporary_pids` reads them; a live process's stay (a PID given to a new process since keeps its
+    temporary: left, never wrongly removed). [] when ``folder`` cannot be listed. The caller removes them."""
+    try:
+        with os.scandir(folder) as entries:
+            found = [(entry.name, temporary_pids(entry.name, names, suffix)) for entry in entries
+                     if entry.name.startswith(".") and entry.is_file(follow_symlinks=False)]
+    except OSError:
+        return []
+    return [Path(folder) / name for name, pids in found if pids and all(_process_gone(pid) for pid in pids)]
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:

@@ -235,6 +235,46 @@ def run_eval(scenarios: list[str], seeds: list[int], *, frames: int | None = Non
     return report
 
 
+#: What `uavmm eval` writes in its --out folder (and the same in each task's subfolder): the reports (report.json
+#: first), the dataset cache (a folder per dataset) and the subfolders of the other tasks and of --real.
+EVAL_REPORTS = ("report.json", "report.md")
+EVAL_CACHE = "data"
+EVAL_TASK_FOLDERS = ("tracking", "coop", "anomaly", "real")
+
+
+def require_eval_folder(out: Path) -> None:
+    """ValueError (one line) when the folder `out` holds files that are not an earlier `uavmm eval`'s: anything but
+    the reports (report.md only beside report.json, which is written first), a dataset cache ``data/`` of folders
+    and the tasks' subfolders holding the same; hidden names (.DS_Store, temporaries) do not count. A new or empty
+    folder, or an earlier eval's (a re-run reuses its cache and replaces its reports), passes: another's files are
+    not ours to mix with or write over. For callers that ask before the work (`uavmm eval`)."""
+    foreign = _foreign_names(out)
+    if foreign:
+        listed = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more" if len(foreign) > 4 else "")
+        raise ValueError(f"output directory {out} holds files that are not an earlier uavmm eval's ({listed}): give "
+                         "a new or empty folder, or an earlier eval's")
+
+
+def _foreign_names(folder: Path, prefix: str = "") -> list[str]:
+    """The visible names under `folder` (``prefix`` + name) that `require_eval_folder` does not take for an eval's."""
+    if not folder.is_dir():
+        return []
+    foreign = []
+    for path in sorted(p for p in folder.iterdir() if not p.name.startswith(".")):
+        name = path.name
+        if name in EVAL_REPORTS and path.is_file():
+            if name == "report.md" and not (folder / "report.json").is_file():
+                foreign.append(prefix + name)
+        elif name == EVAL_CACHE and path.is_dir():
+            foreign += [f"{prefix}{name}/{p.name}" for p in sorted(path.iterdir())
+                        if not p.name.startswith(".") and not p.is_dir()]
+        elif name in EVAL_TASK_FOLDERS and path.is_dir():
+            foreign += _foreign_names(path, f"{prefix}{name}/")
+        else:
+            foreign.append(prefix + name)
+    return foreign
+
+
 def write_reports(out_dir: Path, report: dict[str, Any], markdown: str) -> None:
     """Write ``report.json`` (the report) and ``report.md`` (``markdown``, made before either is written) to
     out_dir, each whole or not at all (`shared.files.write_chunks_atomic`): an interrupted or killed run leaves the

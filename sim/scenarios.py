@@ -33,6 +33,17 @@ TAKEOFF_SITES = ("origin", "start")
 #: Longest image side the simulated camera may have (`uavmm sim --image-size`) and the renderer draws: 8K (a frame of
 #: 7680x4320 takes ~2.8 GB to draw; one of 100000x100000 asked 224 GiB and ended in a MemoryError traceback).
 MAX_IMAGE_SIDE_PX = 8192
+#: Most frames per video `uavmm sim --frames` (also with --render) and `uavmm eval --frames` take: 20 minutes at the
+#: scenarios' 30 fps, a battery's flight and twice the longest default (trio's 18000). A dataset is held in memory
+#: until written, ~80 kB an image: `sea`'s three videos at the cap peak at ~8.5 GB; 10**9 ran for days.
+MAX_FRAMES_PER_VIDEO = 36_000
+
+
+def check_frames_per_video(frames: int | None, flag: str) -> None:
+    """ValueError naming `flag` unless `frames` is None (the scenario's default) or in 1..`MAX_FRAMES_PER_VIDEO`:
+    the one check of `uavmm sim --frames` and `uavmm eval --frames`, made before any work."""
+    if frames is not None and not 1 <= frames <= MAX_FRAMES_PER_VIDEO:
+        raise ValueError(f"{flag} must be in 1..{MAX_FRAMES_PER_VIDEO} (frames per video), got {frames}")
 
 
 @dataclass(frozen=True, slots=True)

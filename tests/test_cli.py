@@ -125,8 +125,8 @@ def test_eval_coop_takes_the_scenarios_whose_uavs_fly_at_once(tmp_path, capsys):
     assert main(["eval", "--config", str(tmp_path / "anchored.json"), "--out", str(tmp_path)]) == 2
     assert "--config goes with --real or --tasks coop" in capsys.readouterr().err
     assert main(["eval", "--tasks", "coop", "--scenarios", "grass,coop-slope", "--seeds", "0", "--frames", "20",
-                 "--config", str(tmp_path / "anchored.json"), "--out", str(tmp_path)]) == 0
-    report = json.loads((tmp_path / "coop" / "report.json").read_text())
+                 "--config", str(tmp_path / "anchored.json"), "--out", str(tmp_path / "eval")]) == 0
+    report = json.loads((tmp_path / "eval" / "coop" / "report.json").read_text())
     assert report["scenarios"] == ["coop-slope"] and report["noise_scales"] == [1.0]
     assert report["config_overrides"] == {"correction_anchor_s": 7.5}  # --config reaches every variant
     assert {s["variant"] for s in report["summary"]} >= {"own memory map", "own memory map + DEM"}

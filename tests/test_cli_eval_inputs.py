@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -11,6 +13,8 @@ import sim.evaluate
 import sim.real_eval
 from sim.dataset import write_dataset
 from uavmm.cli import main
+
+REPO = Path(__file__).resolve().parents[1]
 
 
 @pytest.fixture(autouse=True)
@@ -77,3 +81,63 @@ def test_scenario_flags_with_domains_are_refused_not_ignored(flag: list[str], tm
 
 def test_full_without_domains_is_refused(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     assert "--full goes with --domains" in _refused(["--full", "--seeds", "0", "--out", str(tmp_path)], capsys)
+
+
+def _eval_process(*argv: str) -> subprocess.CompletedProcess[str]:
+    """`uavmm eval` as a real process (a short scenario run unless argv says otherwise)."""
+    return subprocess.run([sys.executable, "-m", "uavmm.cli", "eval", "--scenarios", "sea", "--seeds", "0",
+                           "--noise-scales", "1", *argv], cwd=REPO, capture_output=True, text=True, timeout=120)
+
+
+@pytest.mark.parametrize("frames", ["36001", "1000000000"])
+def test_frames_over_the_cap_are_refused_in_one_line_before_any_work(frames: str, tmp_path: Path) -> None:
+    # until 30 Nov 2026 no upper bound: --frames 1000000000 simulated for days (the cache folder made first)
+    run = _eval_process("--frames", frames, "--out", str(tmp_path / "e"))
+    assert run.returncode == 2, run.stderr
+    (line,) = run.stderr.strip().splitlines()
+    assert line == f"uavmm eval: error: --frames must be in 1..36000 (frames per video), got {frames}"
+    assert not (tmp_path / "e").exists()
+
+
+def test_an_out_folder_of_the_users_files_is_refused_and_left_as_it_was(tmp_path: Path) -> None:
+    # until 30 Nov 2026 report.json, report.md and data/ were written among the user's files, exit 0
+    out = tmp_path / "mine"
+    (out / "photos").mkdir(parents=True)
+    (out / "photos" / "a.jpg").write_bytes(b"precious")
+    (out / "notes.txt").write_text("precious")
+    run = _eval_process("--frames", "3", "--out", str(out))
+    assert run.returncode == 2, run.stderr
+    (line,) = run.stderr.strip().splitlines()
+    assert line == (f"uavmm eval: error: output directory {out} holds files that are not an earlier uavmm eval's "
+                    "(notes.txt, photos): give a new or empty folder, or an earlier eval's")
+    assert sorted(str(p.relative_to(out)) for p in out.rglob("*")) == ["notes.txt", "photos", "photos/a.jpg"]
+
+
+@pytest.mark.parametrize(("files", "listed"), [
+    (["notes.txt"], "notes.txt"),
+    (["report.md"], "report.md"),  # not beside report.json, which an eval writes first: someone's report
+    (["report.json", "data/table.csv"], "data/table.csv"),  # a cache holds a folder per dataset
+    (["tracking/report.json", "tracking/notes.txt"], "tracking/notes.txt"),
+    ([f"n{i}.txt" for i in range(6)], "n0.txt, n1.txt, n2.txt, n3.txt and 2 more"),
+])
+@pytest.mark.parametrize("where", [[], ["--domains", "sea-jitter"], ["--tasks", "coop", "--domains", "coop-trees"]])
+def test_every_eval_refuses_an_out_folder_of_other_files(files: list[str], listed: str, where: list[str],
+                                                         tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "mine"
+    for name in files:
+        (out / name).parent.mkdir(parents=True, exist_ok=True)
+        (out / name).write_text("precious")
+    err = _refused([*where, "--seeds", "0", "--out", str(out)], capsys)
+    assert f"output directory {out} holds files that are not an earlier uavmm eval's ({listed})" in err
+    assert all((out / name).read_text() == "precious" for name in files)
+
+
+def test_eval_real_refuses_an_out_folder_of_other_files(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    data = tmp_path / "data"
+    write_dataset("reid", data, seed=3, frames=3, progress=False)
+    out = tmp_path / "mine"
+    out.mkdir()
+    (out / "notes.txt").write_text("precious")
+    err = _refused(["--real", str(data), "--out", str(out)], capsys)
+    assert "holds files that are not an earlier uavmm eval's (notes.txt)" in err
+    assert [p.name for p in out.iterdir()] == ["notes.txt"]

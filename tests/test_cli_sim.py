@@ -36,6 +36,25 @@ def test_an_image_size_over_the_renderers_limit_is_refused_before_simulating(tmp
     assert not out.exists()
 
 
+@pytest.mark.parametrize("frames", ["36001", "1000000000"])
+def test_frames_over_the_cap_are_refused_in_one_line_before_any_work(tmp_path, frames):
+    """Probe: `uavmm sim sea --frames 1000000000 --render` had no upper bound: it simulated (for days, the dataset
+    held in memory) before writing or drawing anything. The cap is `uavmm eval --frames`'s too (one check)."""
+    out = tmp_path / "long"
+    run = subprocess.run([sys.executable, "-m", "uavmm.cli", "sim", "sea", "--out", str(out), "--frames", frames,
+                          "--render", "--video", "--quiet"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    assert run.returncode == 2, run.stderr
+    (line,) = run.stderr.strip().splitlines()
+    assert line == f"uavmm sim: error: --frames must be in 1..36000 (frames per video), got {frames}"
+    assert not out.exists()
+
+
+def test_frames_at_the_cap_pass_the_check(tmp_path, capsys):
+    """36000 is taken: the run goes on to the next check (here --out, a file, refused before any work)."""
+    (tmp_path / "afile").write_text("x")
+    _one_line_error(capsys, ["sim", "sea", "--out", str(tmp_path / "afile"), "--frames", "36000"], "is a file")
+
+
 def test_rendering_flags_without_render_are_refused(tmp_path, capsys):
     """Probe: `uavmm sim grass --out o --jpeg-quality 500 --sensor-noise -4` ignored both flags, exit 0."""
     out = tmp_path / "o"

@@ -84,7 +84,7 @@ def _add_sim(sub: argparse._SubParsersAction) -> None:
                    help="output directory: new, empty, or holding an earlier uavmm sim dataset (not rendered), which "
                         "is replaced")
     p.add_argument("--seed", type=int, default=0, help="random seed (default 0)")
-    p.add_argument("--frames", type=int, default=None, help="frames per video (default: the scenario's)")
+    p.add_argument("--frames", type=int, default=None, help="frames per video, 1..36000 (default: the scenario's)")
     p.add_argument("--noise-scale", type=float, default=1.0,
                    help="multiply the scenario's telemetry noise levels (default 1.0)")
     p.add_argument("--image-size", metavar="WxH", default=None,
@@ -118,7 +118,7 @@ def _image_size(text: str) -> tuple[int, int]:
 
 
 def _run_sim(args: argparse.Namespace) -> int:
-    from sim.scenarios import SCENARIOS
+    from sim.scenarios import SCENARIOS, check_frames_per_video
 
     if args.list:
         for name, scenario in SCENARIOS.items():
@@ -130,8 +130,7 @@ def _run_sim(args: argparse.Namespace) -> int:
         raise CliError("--out DIR is required")
     if args.seed < 0:
         raise CliError(f"--seed must be >= 0, got {args.seed}")
-    if args.frames is not None and args.frames < 1:
-        raise CliError(f"--frames must be >= 1, got {args.frames}")
+    check_frames_per_video(args.frames, "--frames")
     from sim.scenarios import get_scenario
     from uavmm.render_args import print_render_summary, render_flags_given, render_kwargs
 

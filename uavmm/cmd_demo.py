@@ -173,7 +173,7 @@ def flying_uavs(scenario_name: str, count: int | None) -> list[str]:
                          f"UAVs fly at the same time: {together}")
     uavs = [spec.uav for spec in scenario.flights]
     if count is not None and count > len(uavs):
-        raise ValueError(f"scenario {scenario_name!r} has {len(uavs)} UAVs, --uavs {count} asked for more")
+        raise ValueError(f"scenario {scenario_name!r} has {_counted(len(uavs), 'UAV')}, --uavs {count} asked for more")
     return uavs[:count] if count is not None else uavs
 
 
@@ -290,6 +290,11 @@ def _health(url: str) -> dict | None:
         return None
 
 
+def _counted(n: int, noun: str) -> str:
+    """``n`` and its noun, plural unless one: '1 UAV flying', '3 UAVs', '0 global tracks'."""
+    return f"{n} {noun}{'' if n == 1 else 's'}"
+
+
 def _say(text: str) -> None:
     sys.stdout.write(f"uavmm demo: {text}\n")
     sys.stdout.flush()
@@ -368,8 +373,8 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
                     return code
                 _warn(f"agent {child.name} did not start (log {child.log_path}):\n{child.log_tail()}")
                 return code
-        _say(f"{len(agents)} UAVs flying ({', '.join(uavs)}; scenario {options.scenario}, seed {options.seed}); "
-             f"logs in {log_dir}; Ctrl-C to stop")
+        _say(f"{_counted(len(agents), 'UAV')} flying ({', '.join(uavs)}; scenario {options.scenario}, "
+             f"seed {options.seed}); logs in {log_dir}; Ctrl-C to stop")
         code = 0
         deadline = None if options.duration_s is None else time.monotonic() + options.duration_s
         next_status = time.monotonic() + options.status_interval_s if options.status_interval_s > 0 else None
@@ -387,8 +392,9 @@ def run_demo(options: DemoOptions, stop: threading.Event) -> int:
                 next_status = now + options.status_interval_s
                 health = _health(url)
                 if health is not None:
-                    _warn(f"{health['uavs_online']} UAVs online, {health['joint_tiles']} joint tiles, "
-                          f"{health['global_tracks']} global tracks")
+                    _warn(f"{_counted(health['uavs_online'], 'UAV')} online, "
+                          f"{_counted(health['joint_tiles'], 'joint tile')}, "
+                          f"{_counted(health['global_tracks'], 'global track')}")
         return code
     finally:
         stop_children(agents, options.stop_timeout_s)  # agents first: their liveliness tokens go cleanly

@@ -25,7 +25,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="comma-separated scenarios (sea,grass; --tasks coop: the ones whose UAVs fly at once, "
                         "default coop, e.g. coop-slope)")
     p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (0,1,2)")
-    p.add_argument("--frames", type=int, default=None, help="frames per video (scenario default)")
+    p.add_argument("--frames", type=int, default=None, help="frames per video, 1..36000 (scenario default)")
     p.add_argument("--noise-scales", default=None, help="telemetry noise multipliers (1,2; --tasks coop: 1)")
     p.add_argument("--ablations", action="store_true", help="also sweep half-life, radius, gain, filter")
     p.add_argument("--tasks", default=None,
@@ -98,7 +98,7 @@ def _require_out_dir(out: Path) -> None:
 
 def _run_eval(args: argparse.Namespace) -> int:
     from sim.evaluate import run_eval, stderr_progress
-    from sim.scenarios import SCENARIOS, get_scenario
+    from sim.scenarios import SCENARIOS, check_frames_per_video, get_scenario
 
     if args.real is not None:
         return _run_real_eval(args)
@@ -120,8 +120,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     seeds = _csv_list(args.seeds, int, "--seeds")
     if any(s < 0 for s in seeds):
         raise CliError("--seeds must be >= 0")
-    if args.frames is not None and args.frames < 1:
-        raise CliError(f"--frames must be >= 1, got {args.frames}")
+    check_frames_per_video(args.frames, "--frames")
     from uavmm.eval_domains import noise_scales
 
     try:

@@ -119,13 +119,17 @@ def noise_scales(text: str) -> list[float]:
 
 
 def require_out_dir(out: Path) -> None:
-    """ValueError naming `--out` when it, or a folder above it, is a file: found before the work, not by the
-    report's write after it."""
+    """ValueError naming `--out` when it, or a folder above it, is a file, and naming the folder when it holds files
+    that are not an earlier eval's (`sim.evaluate.require_eval_folder`): found before the work, not by the report's
+    write after it."""
+    from sim.evaluate import require_eval_folder
+
     for path in (out, *out.parents):
         if path.exists():
             if not path.is_dir():
                 what = "" if path == out else f" ({path} is a file)"
                 raise ValueError(f"--out {out}: not a folder{what}: give a folder for the reports")
+            require_eval_folder(out)
             return
 
 

@@ -15,7 +15,8 @@
 
 Every file is written whole (`shared.files`: a new hidden temporary beside it, renamed into place): a full disk,
 an error or Ctrl-C never leaves a cut image or video under its final name, and the temporaries are new names (never
-a file or a link already there, never another writer's).
+a file or a link already there, never another writer's). A render killed outright (SIGKILL) leaves its temporaries;
+the next render in the folder removes those whose process is gone, and says so in one log line.
 
 Encoding runs on a background thread (OpenCV releases the GIL) while the next frame is drawn.
 """
@@ -36,7 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from shared.files import new_temporary, sync_to_disk, write_chunks_atomic
+from shared.files import new_temporary, stale_temporaries, sync_to_disk, write_chunks_atomic
 from sim.dataset import RENDER_FILES, _Progress
 from sim.render.renderer import RenderOptions, WorldRenderer, exposure_for
 from sim.render.scene import SimulatedDataset
@@ -85,6 +86,36 @@ def _check_file_names(dataset: SimulatedDataset) -> None:
         if PurePosixPath(name).is_absolute() or ".." in PurePosixPath(name).parts:
             raise ValueError(f"image {image_id}'s file_name {name!r} in images.json leaves the dataset directory "
                              f"{dataset.directory}: images are written inside it only")
+
+
+def _remove_dead_renders_temporaries(dataset: SimulatedDataset) -> None:
+    """Remove the temporaries of renders killed in this folder (SIGKILL, a power cut): `shared.files.new_temporary`
+    names of this dataset's MP4s, telemetry, render files and images whose process is gone, which nobody else ever
+    removes; a live render's (another process in the folder) and every other file stay. One log line says so."""
+    out = dataset.directory
+    stale = stale_temporaries(out, {f"{v.name}.mp4" for v in dataset.videos}, suffix=".tmp.mp4")
+    stale += stale_temporaries(out, {f"{v.name}.{ext}" for v in dataset.videos for ext in ("srt", "csv")}
+                               | set(RENDER_FILES))
+    image_names: dict[Path, set[str]] = {}
+    for im in dataset.images.values():
+        name = PurePosixPath(str(im.get("file_name") or ""))
+        if name.name and not name.is_absolute() and ".." not in name.parts:  # only names inside the folder
+            image_names.setdefault(out / name.parent, set()).add(name.name)
+    for folder, names in image_names.items():
+        stale += stale_temporaries(folder, names)
+    removed = []
+    for path in stale:
+        try:
+            path.unlink()
+        except FileNotFoundError:  # another render removed it first
+            continue
+        except OSError as exc:
+            raise OSError(f"cannot remove {path}, a temporary of a killed render: {exc.strerror or exc}") from None
+        removed.append(str(path.relative_to(out)))
+    if removed:
+        more = f" and {len(removed) - 4} more" if len(removed) > 4 else ""
+        logger.warning("removed %d temporary file(s) of earlier renders in %s that were killed before they finished: "
+                       "%s%s", len(removed), out, ", ".join(removed[:4]), more)
 
 
 def _forget_previous_render(out: Path) -> None:
@@ -151,6 +182,7 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
     else:
         _warn_earlier_images(dataset)
     _check_writable(out)
+    _remove_dead_renders_temporaries(dataset)
     _forget_previous_render(out)
     params = [cv2.IMWRITE_JPEG_QUALITY, jpeg_quality]
     total = sum(len(v.image_ids) for v in dataset.videos)

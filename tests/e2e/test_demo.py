@@ -42,10 +42,11 @@ def start_demo(out: Path, *args: str) -> subprocess.Popen:
 
 
 def wait_flying(proc: subprocess.Popen, out: Path) -> tuple[str, str]:
-    """Wait for the demo's "UAVs flying" line; returns (map URL, Zenoh endpoint)."""
-    text = wait_until(lambda: (out.read_text() if "UAVs flying" in out.read_text() or proc.poll() is not None
+    """Wait for the demo's "N UAVs flying" (or "1 UAV flying") line; returns (map URL, Zenoh endpoint)."""
+    flying = re.compile(r"\d+ UAVs? flying")
+    text = wait_until(lambda: (out.read_text() if flying.search(out.read_text()) or proc.poll() is not None
                              else None), 90.0, "the demo's agents")
-    assert "UAVs flying" in text, text
+    assert flying.search(text), text
     url = re.search(r"map: (http://\S+)", text).group(1)
     endpoint = re.search(r"zenoh (tcp/\S+),", text).group(1)
     return url, endpoint
@@ -78,6 +79,24 @@ def test_demo_flies_three_uavs_and_leaves_nothing_behind_after_its_duration(tmp_
     assert processes_with(endpoint) == []
     logs = re.search(r"logs in (\S+);", text).group(1)
     assert not Path(logs).exists()  # the temporary work folder (db and logs) is removed after a clean run
+
+
+def test_one_uav_is_one_uav_in_every_line(tmp_path):
+    """Probe: `uavmm demo --uavs 1` said "1 UAVs flying" and, every status, "1 UAVs online"."""
+    out = tmp_path / "demo.out"
+    proc = start_demo(out, "--uavs", "1", "--duration", "6", "--status-every", "1")
+    try:
+        url, _ = wait_flying(proc, out)
+        wait_until(lambda: uavs_online(url) == ["uav1"], 20.0, "one UAV online")
+        code = proc.wait(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    text = out.read_text()
+    assert code == 0, text
+    assert "uavmm demo: 1 UAV flying (uav1; scenario trio, seed 0)" in text
+    assert re.search(r"uavmm demo: 1 UAV online, \d+ joint tiles?, \d+ global tracks?", text), text
+    assert "1 UAVs" not in text and not re.search(r"\b1 (joint tiles|global tracks)\b", text), text
 
 
 def test_sharded_demo_serves_the_map_through_a_gateway(tmp_path):

@@ -5,12 +5,24 @@ from __future__ import annotations
 
 import errno
 import os
+import signal
 import stat
+import subprocess
+import sys
 
 import pytest
+from hypothesis import given
+from hypothesis import strategies as st
 
 import shared.files
-from shared.files import PendingFile, write_atomic, write_chunks_atomic
+from shared.files import (
+    PendingFile,
+    new_temporary,
+    stale_temporaries,
+    temporary_pids,
+    write_atomic,
+    write_chunks_atomic,
+)
 
 
 def _planted_links(folder, name, target):
@@ -133,3 +145,48 @@ def test_a_sync_that_fails_for_real_keeps_the_old_file(tmp_path, monkeypatch):
     with pytest.raises(OSError):
         write_chunks_atomic(tmp_path / "out.txt", ["new"])
     assert (tmp_path / "out.txt").read_text() == "old" and [p.name for p in tmp_path.iterdir()] == ["out.txt"]
+
+
+_NAMES = st.text(st.characters(blacklist_categories=("Cs",), blacklist_characters="/\x00"), min_size=1, max_size=40)
+_HEX = st.text("0123456789abcdef", min_size=8, max_size=8)
+
+
+@given(name=_NAMES, pid=st.integers(1, 2**22), token=st.none() | _HEX, suffix=st.sampled_from([".tmp", ".tmp.mp4"]))
+def test_every_name_new_temporary_makes_is_read_back_with_its_pid(name, pid, token, suffix):
+    entry = f".{name}.{pid}" + (f".{token}" if token else "") + suffix
+    assert pid in temporary_pids(entry, {name}, suffix)
+    assert temporary_pids(entry, {name + "x"}, suffix) == []  # another file's name: not ours
+    assert temporary_pids(entry, {name}, ".tmp.png") == []  # another suffix
+
+
+@given(entry=st.text(".0123456789abcdefmp4tx", max_size=30), names=st.sets(st.text(".0123456789abcx", max_size=8),
+                                                                             max_size=3))
+def test_a_pid_is_read_only_from_a_name_new_temporary_could_have_made(entry, names):
+    """Whatever the text, each pid read rebuilds it exactly as `.NAME.PID.tmp` or `.NAME.PID.XXXXXXXX.tmp` for a NAME
+    of ``names`` (never a name that merely contains one, never a signed or zero-padded number)."""
+    hexes = ["", *("." + "".join(t) for t in [entry[i:i + 8] for i in range(len(entry))] if len(t) == 8
+                   and set(t) <= set("0123456789abcdef"))]
+    for pid in temporary_pids(entry, names):
+        assert any(entry == f".{name}.{pid}{token}.tmp" for name in names for token in hexes), (entry, pid)
+
+
+def test_a_killed_writers_temporaries_are_stale_and_no_one_elses(tmp_path):
+    """A writer killed with SIGKILL (a real process) leaves its temporaries; those of the asked names and suffix are
+    found, and only they: another file's, a live process's, a link or a directory at such a name are not."""
+    made = subprocess.run([sys.executable, "-c", (
+        "import os, signal, sys; from pathlib import Path; from shared.files import new_temporary\n"
+        "folder = Path(sys.argv[1])\n"
+        "for name, suffix in (('out.mp4', '.tmp'), ('out.mp4', '.tmp'), ('out.mp4', '.tmp.mp4'), ('other', '.tmp')):\n"
+        "    print(new_temporary(folder / name, suffix=suffix)[0].name, flush=True)\n"
+        "os.kill(os.getpid(), signal.SIGKILL)"), str(tmp_path)], capture_output=True, text=True, timeout=60)
+    assert made.returncode == -signal.SIGKILL, made.stderr
+    dead = made.stdout.split()  # .out.mp4.PID.tmp, .out.mp4.PID.XXXXXXXX.tmp, .out.mp4.PID.tmp.mp4, .other.PID.tmp
+    assert len(dead) == 4 and all((tmp_path / name).is_file() for name in dead)
+    live = new_temporary(tmp_path / "out.mp4")[0]  # this process's
+    (tmp_path / ".out.mp4.1.tmp").mkdir()  # a directory at such a name
+    victim = tmp_path / "victim"
+    victim.write_text("precious")
+    (tmp_path / f".out.mp4.{dead[0].split('.')[3]}.{'0' * 8}.tmp").symlink_to(victim)  # a link at such a name
+    assert sorted(p.name for p in stale_temporaries(tmp_path, {"out.mp4"})) == sorted(dead[:2])
+    assert [p.name for p in stale_temporaries(tmp_path, {"out.mp4"}, suffix=".tmp.mp4")] == [dead[2]]
+    assert live.exists() and stale_temporaries(tmp_path / "missing", {"out.mp4"}) == []

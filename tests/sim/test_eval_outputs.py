@@ -120,3 +120,29 @@ def test_reports_are_written_through_a_temporary_renamed_over_them(tmp_path: Pat
     monkeypatch.setattr(Path, "replace", spy)
     domain_eval.run_domain_eval([], [0], out_dir=tmp_path)
     assert renamed == ["report.json", "report.md"]
+
+
+def test_an_earlier_evals_folder_is_taken_again_by_every_task_and_its_cache_reused(tmp_path: Path,
+                                                                                   real_data: Path) -> None:
+    """`uavmm eval --out` refuses a folder of other files, never an earlier eval's: re-runs of detection and tracking
+    (their cache under data/ and tracking/data/ reused), --real beside them (real/), and hidden files, all as real
+    processes."""
+    out = tmp_path / "eval"
+
+    def run(*argv: str) -> None:
+        proc = subprocess.run([sys.executable, "-m", "uavmm.cli", "eval", *argv, "--out", str(out)], cwd=REPO,
+                              capture_output=True, text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+
+    short = ("--scenarios", "sea", "--seeds", "0", "--noise-scales", "1", "--frames", "3")
+    run(*short, "--tasks", "detection,tracking")
+    cached = sorted(p.name for p in (out / "data").iterdir())
+    (out / ".DS_Store").write_text("")
+    stamp = (out / "data" / cached[0] / "images.json").stat().st_mtime_ns
+    run(*short, "--tasks", "detection,tracking")
+    run("--real", str(real_data))
+    run(*short)
+    assert sorted(p.name for p in out.iterdir()) == [".DS_Store", "data", "real", "report.json", "report.md",
+                                                      "tracking"]
+    assert sorted(p.name for p in (out / "data").iterdir()) == cached
+    assert (out / "data" / cached[0] / "images.json").stat().st_mtime_ns == stamp  # reused, not simulated again

@@ -59,7 +59,7 @@ def test_eval_memory_map_beats_baseline_on_a_short_run(tmp_path, capsys):
         (["--scenarios", "moon"], "unknown scenario 'moon'"),
         (["--seeds", "a,b"], "--seeds"),
         (["--seeds", "-1"], "--seeds must be >= 0"),
-        (["--frames", "0"], "--frames must be >= 1"),
+        (["--frames", "0"], "--frames must be in 1..36000 (frames per video), got 0"),
     ],
 )
 def test_eval_bad_input_is_named(tmp_path, capsys, args, message):

@@ -162,3 +162,41 @@ def test_videos_without_images_say_that_an_earlier_renders_frames_stay(tmp_path,
     with caplog.at_level(logging.WARNING, logger="sim.render.output"):
         render_dataset(fresh, images=False, video=True, options=OPTIONS, progress=False)
     assert not [r for r in caplog.records if "earlier render" in r.getMessage()]
+
+
+def test_a_killed_renders_temporaries_are_removed_by_the_next_render_and_said_in_one_line(tmp_path):
+    """Probe: a SIGKILL during `uavmm render --video` left `.<video>.mp4.PID.tmp.mp4` (the whole video so far) and
+    `<video>/.000024.jpg.PID.tmp`; every later render left them there. Now the next render removes the temporaries
+    of this dataset's files whose process is gone, says so in one line, and leaves a live render's and anyone
+    else's."""
+    data = _dataset(tmp_path, frames=2, size=(64, 36))
+    video = json.loads((data / "images.json").read_text())["videos"][0]["name"]
+    killed = subprocess.run([sys.executable, "-c", (
+        "import os, signal, sys; from pathlib import Path; from shared.files import new_temporary\n"
+        "data, video = Path(sys.argv[1]), sys.argv[2]\n"
+        "for path, suffix in ((data / f'{video}.mp4', '.tmp.mp4'), (data / f'{video}.mp4', '.tmp.mp4'),\n"
+        "                     (data / f'{video}.srt', '.tmp'), (data / 'render.json', '.tmp'),\n"
+        "                     (data / video / '000000.jpg', '.tmp'), (data / 'annotated.mp4', '.tmp.mp4')):\n"
+        "    path.parent.mkdir(exist_ok=True)\n"
+        "    print(new_temporary(path, suffix=suffix)[0].relative_to(data), flush=True)\n"
+        "os.kill(os.getpid(), signal.SIGKILL)"), str(data), video], cwd=REPO, capture_output=True, text=True,
+        timeout=60)
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    *ours, detects = killed.stdout.split()  # the last: another command's (uavmm detect's annotated video)
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(120)"])
+    try:
+        kept = [data / detects, data / f".{video}.mp4.{live.pid}.tmp.mp4", data / "notes.mp4.7.tmp",
+                data / f".{video}.mp4.0{live.pid}.tmp.mp4"]  # another's, a live render's, not hidden, zero-padded
+        for path in kept[1:]:
+            path.write_bytes(b"not the killed render's")
+        run = subprocess.run([sys.executable, "-m", "uavmm.cli", "render", str(data), "--video", "--quiet",
+                              "--max-texture-px", "256"], cwd=REPO, capture_output=True, text=True, timeout=120)
+    finally:
+        live.kill()
+        live.wait()
+    assert run.returncode == 0, run.stderr
+    (line,) = run.stderr.strip().splitlines()
+    assert f"removed {len(ours)} temporary file(s) of earlier renders in {data} that were killed" in line, line
+    assert sum(name in line for name in ours) == 4 and line.endswith("and 1 more"), line  # the first four named
+    assert not [name for name in ours if (data / name).exists()]
+    assert all(path.exists() for path in kept)
