@@ -489,8 +489,11 @@ def create_app(server: FusionView) -> FastAPI:
             raise HTTPException(status_code=400, detail=f"since ({since}) is after until ({until})")
         if cls is not None:
             _check_cls(cls)
-        window = history_window(server.history_tracks(cls=cls, since=since, until=until, ends_only=not rows),
-                                since, until)
+        found = server.history_tracks(cls=cls, since=since, until=until, ends_only=not rows)
+        window = history_window(found, since, until)
+        missing = getattr(found, "missing", ())  # a gateway's: the shards that did not answer in time
+        if missing:  # else the answer is a single server's, byte for byte
+            window["missing_shards"] = list(missing)
         if not rows:
             for feature in window["features"]:
                 del feature["properties"]["history"]

@@ -7,7 +7,9 @@
 (:mod:`fusion_server.gateway_node`). :class:`Gateway` offers these through the same view as a fusion
 server (``fusion_server.api.FusionView``), so ``create_app`` serves the same routes and page. While a
 shard is down, /healthz says ``degraded`` and names it, and the UAVs over its regions are ``degraded``
-in /v1/uavs; the rest keeps working.
+in /v1/uavs; the rest keeps working. A shard that holds its token but does not answer (frozen, or cut off until
+its lease ends) costs /v1/history and /v1/tracks at most a short wait after the first answer
+(``fusion_server.shard_tracks.late_answer_s``), and /v1/history names it in ``missing_shards``.
 """
 
 from __future__ import annotations
@@ -25,7 +27,7 @@ from fusion_server.merged_tracks import DEFAULT_STALE_S, MergedTracks
 from fusion_server.metrics import FusionMetrics
 from fusion_server.remote_joint import DEFAULT_CACHE_S, RemoteJoint
 from fusion_server.server import HttpThread
-from fusion_server.shard_tracks import ShardTracks
+from fusion_server.shard_tracks import ShardAnswer, ShardTracks
 from fusion_server.uav_clocks import UavClocks
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator
@@ -121,7 +123,9 @@ class Gateway:
             self.http.start()
 
     def close(self) -> None:
-        """Stop HTTP and close Zenoh (idempotent)."""
+        """Stop HTTP and close Zenoh (idempotent). A request waiting for the shards' tracks gets what has come so far
+        at once: HTTP stops only once its requests end (a silent shard held SIGTERM for the 5 s query)."""
+        self.shard_tracks.close()
         if self.http is not None:
             self.http.stop()
             self.http = None
@@ -150,17 +154,18 @@ class Gateway:
         return self.joint.classes()
 
     def history_tracks(self, cls: str | None = None, since: float | None = None, until: float | None = None,
-                       ends_only: bool = False) -> list[dict[str, Any]]:
+                       ends_only: bool = False) -> ShardAnswer:
         """/v1/history's tracks: every shard's stored tracks (class ``cls``, updated since ``since``) with their
         history rows up to ``until`` (``ends_only``: the rows at each track's first and last time, what
         ``rows=false`` needs), merged by global id; the gateway's own merged tracks when no shard answers.
         The window is asked of the shards (a shard of the older version answers with every row since ``since``)
-        and `history_window` cuts it again, so the answer is the same either way."""
+        and `history_window` cuts it again, so the answer is the same either way. ``missing``: the shards that did
+        not answer in time (`ShardTracks`; all of them when none did), /v1/history's ``missing_shards``."""
         found = self.shard_tracks.stored(cls, since, until, ends_only)
         if found is None:
-            return [record.to_geojson() for record in self.tracker.records(include_ended=True)
-                    if cls is None or record.cls == cls]
-        return [track.to_feature() for track in found]
+            return ShardAnswer([record.to_geojson() for record in self.tracker.records(include_ended=True)
+                                if cls is None or record.cls == cls], range(self.spec.count))
+        return ShardAnswer([track.to_feature() for track in found], found.missing)
 
     def db_health(self) -> dict[str, Any]:
         """``{"status": "off"}``: a gateway keeps nothing; each shard reports its own database."""

@@ -188,6 +188,9 @@ class HistoryCollection(_Open):
     type: Literal["FeatureCollection"]
     features: list[TrackFeature]
     time_range: list[float] | None = Field(description="[first, last] row time over all tracks; null when empty")
+    missing_shards: list[int] | None = Field(None, description="a gateway's, when a shard did not answer in time: "
+                                                               "those shards (K); their tracks are not in this "
+                                                               "answer")
 
 
 class TrackLineProperties(TrackProperties):

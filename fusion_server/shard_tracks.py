@@ -9,7 +9,10 @@ of ``/v1/history`` from its database (``cls``, ``since``; its rows cut to ``unti
 to each track's ends: the map page's poll). The gateway (:class:`ShardTracks`) asks
 every shard at once, checks each reply (a bad one is dropped and counted, never raised), merges the
 copies of one global id (after a handover across a region border each shard holds part of its life:
-the histories are joined) and reuses an answer ``cache_s`` seconds. A shard answers from a worker
+the histories are joined) and reuses an answer ``cache_s`` seconds. A shard that does not answer (its
+process frozen or cut off until its lease ends: its queryable is still declared) is waited for only a
+while after the first answer (`late_answer_s`), not for the whole query, and the answer names it
+(``ShardAnswer.missing``). A shard answers from a worker
 thread (:class:`TracksQueryable`), never on a Zenoh thread: reading a long history must not hold up
 the tiles.
 
@@ -57,6 +60,7 @@ from transport.guard import RateLimitedLog
 __all__ = [
     "DEFAULT_CACHE_S",
     "MAX_HISTORY_ROWS",
+    "ShardAnswer",
     "ShardTrack",
     "ShardTracks",
     "TrackQuery",
@@ -75,6 +79,9 @@ DEFAULT_CACHE_S = 0.5
 #: Longest wait for the shards' replies, seconds: live tracks, and stored history (a database read).
 LIVE_TIMEOUT_S = 2.0
 STORED_TIMEOUT_S = 5.0
+#: After the first shard's answer, the others are waited for this much longer, seconds (/healthz's bound): a shard
+#: that does not answer then held every /v1/history for the whole 5 s query (and a gateway's SIGTERM with it).
+LATE_ANSWER_S = 0.5
 #: Most history rows one track of a reply may carry.
 MAX_HISTORY_ROWS = 100_000
 #: Most tracks one reply may carry, and its largest size in bytes.
@@ -85,6 +92,23 @@ MAX_PENDING = 8
 SOURCES = ("live", "stored")
 STATUSES = ("tracked", "lost", "ended")
 _ROW = np.dtype("<f8")
+
+
+def late_answer_s(source: str, first_s: float) -> float:
+    """How long after the first shard's answer (``first_s`` seconds into the query) the others are still waited
+    for: `LATE_ANSWER_S` for live tracks (each shard answers from memory), and for stored history (a database read,
+    longer the more history a shard holds) as long again as the first took, at least `LATE_ANSWER_S`; the query's
+    own timeout bounds both."""
+    return LATE_ANSWER_S if source == "live" else max(LATE_ANSWER_S, first_s)
+
+
+class ShardAnswer(list):
+    """What the shards answered: a list (of `ShardTrack`, or of their features) and ``missing``, the shards (K,
+    sorted) that did not answer in time (the answer holds none of their tracks)."""
+
+    def __init__(self, items: Iterable[Any] = (), missing: Iterable[int] = ()) -> None:
+        super().__init__(items)
+        self.missing: tuple[int, ...] = tuple(sorted(missing))
 
 
 @dataclass(frozen=True, slots=True)
@@ -412,7 +436,9 @@ class ShardTracks:
     keys: the key space; count: how many shards (N). history_len: most rows a merged live track keeps
     (the tracker's). cache_s: how long an answer is reused. on_reject(reason): called for every reply
     dropped. Thread-safe: HTTP threads call it concurrently; one query per kind runs at a time and the
-    others wait for its answer.
+    others wait for its answer. Answers are `ShardAnswer` (``missing``: the shards that did not answer in time). A
+    query no shard answered before its timeout is not asked again for ``cache_s`` (None at once: the shards are
+    silent, not refusing). ``close()`` ends the waits at once (a gateway's SIGTERM).
     """
 
     def __init__(self, keys: KeySpace, count: int, *, history_len: int = 600, cache_s: float = DEFAULT_CACHE_S,
@@ -429,15 +455,21 @@ class ShardTracks:
         self._asking: dict[TrackQuery, list] = {}  # query -> [its lock, threads using it]
         # keyed by the whole query (source, ended, cls, since, until, ends_only): a rows=false answer is never
         # served for rows=true, nor one window's for another
-        self._cache: dict[TrackQuery, tuple[float, list[ShardTrack]]] = {}
+        self._cache: dict[TrackQuery, tuple[float, ShardAnswer]] = {}
+        self._silent_at = -float("inf")  # when a query last ran to its timeout without any answer
+        self._closed = threading.Event()
         self._log = RateLimitedLog(log)
 
-    def live(self, include_ended: bool = False) -> list[ShardTrack] | None:
+    def close(self) -> None:
+        """End every wait for the shards now (their answers so far are returned) and ask nothing more."""
+        self._closed.set()
+
+    def live(self, include_ended: bool = False) -> ShardAnswer | None:
         """Every shard's live tracks (and recently ended ones), merged by gid; None when no shard answered."""
         return self._answer(TrackQuery(source="live", ended=include_ended), self.history_len)
 
     def stored(self, cls: str | None = None, since: float | None = None, until: float | None = None,
-               ends_only: bool = False) -> list[ShardTrack] | None:
+               ends_only: bool = False) -> ShardAnswer | None:
         """Every shard's stored tracks (class ``cls``, updated since ``since``) with their history rows up to
         ``until`` (``ends_only``: the rows at each track's first and last time in the window), merged by gid;
         None when no shard answered. A shard of the older version answers with every row since ``since``:
@@ -452,7 +484,7 @@ class ShardTracks:
         for request in [r for r, (asked, _) in self._cache.items() if now - asked > self.cache_s]:
             del self._cache[request]
 
-    def _answer(self, request: TrackQuery, history_len: int | None) -> list[ShardTrack] | None:
+    def _answer(self, request: TrackQuery, history_len: int | None) -> ShardAnswer | None:
         with self._lock:
             self._forget_old_answers()
             cached = self._cache.get(request)
@@ -469,10 +501,12 @@ class ShardTracks:
                     if cached is not None and self._clock() - cached[0] <= self.cache_s:
                         return cached[1]  # another thread asked while this one waited
                 asked = self._clock()
+                if asked - self._silent_at <= self.cache_s:
+                    return None  # a query just waited its whole timeout for nobody
                 replies = self._ask(request)
-                found = None if replies is None else merge_tracks(replies, history_len)
-                if found is None:  # nobody answered (no session, every shard down or too old to answer): ask again
+                if replies is None:  # nobody answered (no session, every shard down or too old to answer): ask again
                     return None
+                found = ShardAnswer(merge_tracks(replies, history_len), getattr(replies, "missing", ()))
                 with self._lock:
                     self._forget_old_answers()
                     if len(self._cache) > 64:  # many distinct history windows at once: forget them
@@ -485,22 +519,42 @@ class ShardTracks:
                 if not entry[1]:
                     self._asking.pop(request, None)
 
-    def _ask(self, request: TrackQuery) -> list[ShardTrack] | None:
+    def _ask(self, request: TrackQuery) -> ShardAnswer | None:
+        """Every shard's tracks for ``request``, with the shards that did not answer in time (``missing``); None
+        when none did. Waits until every shard has answered, the query ends, `late_answer_s` after the first
+        answer, or ``close()``."""
         session = self.session
-        if session is None or session.is_closed():
+        if session is None or session.is_closed() or self._closed.is_set():
             return None
         self.queries += 1
         timeout = LIVE_TIMEOUT_S if request.source == "live" else STORED_TIMEOUT_S
+        replies: queue.SimpleQueue[zenoh.Reply | None] = queue.SimpleQueue()
+        started = time.monotonic()  # not self._clock: these are real waits
         try:
-            replies = session.get(self.keys.shard_tracks("*", self.count), target=zenoh.QueryTarget.ALL,
-                                  consolidation=zenoh.ConsolidationMode.NONE, payload=encode_request(request),
-                                  timeout=timeout)
+            session.get(self.keys.shard_tracks("*", self.count), zenoh.handlers.Callback(replies.put,
+                                                                                          lambda: replies.put(None)),
+                        target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                        payload=encode_request(request), timeout=timeout)
         except zenoh.ZError as exc:
             self._reject("query_failed", str(exc))
             return None
         tracks: list[ShardTrack] = []
         answered: set[int] = set()
-        for reply in replies:
+        deadline = started + timeout
+        first_s = 0.0
+        timed_out = False
+        while len(answered) < self.count and not self._closed.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                timed_out = True
+                break
+            try:
+                reply = replies.get(timeout=min(left, 0.1))  # 0.1: close() is seen within it
+            except queue.Empty:
+                continue
+            if reply is None:  # the query ended: every queryable replied, or Zenoh's timeout
+                timed_out = time.monotonic() - started >= timeout - 0.05
+                break
             if reply.ok is None:
                 self._reject("reply_error", "a shard answered with an error")
                 continue
@@ -520,9 +574,21 @@ class ShardTracks:
                 continue
             if shard in answered:
                 continue  # the same shard twice (two routes): one answer is enough
+            if not answered:
+                first_s = time.monotonic() - started
+                deadline = min(deadline, started + first_s + late_answer_s(request.source, first_s))
             answered.add(shard)
             tracks.extend(found)
-        return tracks if answered else None
+        if not answered:
+            if timed_out:  # silent, not refusing: the next query within cache_s would wait as long for nothing
+                self._silent_at = self._clock()
+            return None
+        missing = set(range(self.count)) - answered
+        if missing:
+            self._log.warning("late", "gateway: shard(s) %s did not answer a %s tracks query within %.1f s of the "
+                              "first answer; answered without them", sorted(missing), request.source,
+                              late_answer_s(request.source, first_s))
+        return ShardAnswer(tracks, missing)
 
     def _reject(self, reason: str, detail: str) -> None:
         if self._on_reject is not None:

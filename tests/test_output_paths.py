@@ -10,9 +10,12 @@ import shutil
 from pathlib import Path
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from tests.agent.test_boost_cli import make_dataset
 from uavmm.cli import main
+from uavmm.dataset_inputs import DatasetImages
 
 
 def _snapshot(folder: Path) -> dict[str, bytes | str]:
@@ -76,6 +79,64 @@ def test_track_still_writes_into_a_folder_beside_its_inputs(tmp_path, capsys):
     assert (d / "v1.txt").is_file() and json.loads((d / "pre_nms.json").read_text())
 
 
+@pytest.mark.parametrize("case", ["out over a frame beside --frames", "geojson through a link into --image-dir",
+                                  "offsets a hard link to a frame", "out folder file a frame"])
+def test_track_refuses_an_output_naming_one_of_its_images(tmp_path, capsys, case):
+    """Probe (left open): `track --out FRAME.jpg`, or an output reaching --image-dir's files through a link, exited 0
+    with the image replaced by MOT rows / GeoJSON."""
+    (tmp_path / "d").mkdir()
+    d = make_dataset(tmp_path / "d", frames=3)
+    args = [a for a in _track_args(d) if a != "--no-images"]
+    images = d
+    if case == "geojson through a link into --image-dir":
+        images = tmp_path / "imgs"
+        images.mkdir()
+        (tmp_path / "link").symlink_to(images)
+        args += ["--image-dir", str(images)]
+    for k in range(3):
+        (images / f"{k:05d}.jpg").write_bytes(b"\xff\xd8 not decoded: refused before any image is read")
+    if case == "out over a frame beside --frames":
+        extra, flags = ["--out", str(d / "00001.jpg")], ("--out", "--frames image")
+    elif case == "geojson through a link into --image-dir":
+        extra, flags = ["--out", str(tmp_path / "t.txt"), "--geojson", str(tmp_path / "link" / "00002.jpg")], (
+            "--geojson", "--image-dir image")
+    elif case == "offsets a hard link to a frame":
+        os.link(d / "00000.jpg", tmp_path / "offsets.csv")
+        extra, flags = ["--out", str(tmp_path / "t.txt"), "--clock-offsets-out", str(tmp_path / "offsets.csv")], (
+            "--clock-offsets-out", "--frames image")
+    else:  # --out DIR/ writes DIR/v1.txt, here a hard link to a frame
+        (tmp_path / "out").mkdir()
+        os.link(d / "00002.jpg", tmp_path / "out" / "v1.txt")
+        extra, flags = ["--out", f"{tmp_path / 'out'}/"], ("--out (video 1)", "--frames image")
+    before = _snapshot(tmp_path)
+    assert main([*args, *extra]) == 2
+    _refused(capsys, "track", *flags)
+    assert _snapshot(tmp_path) == before
+
+
+_NAMES = st.one_of(st.none(), st.integers(), st.just(""), st.just("/abs/x.jpg"),
+                   st.text("ab/._-", min_size=1, max_size=12))
+
+
+@settings(max_examples=80, deadline=None)
+@given(entries=st.lists(st.one_of(st.fixed_dictionaries({}, optional={"file_name": _NAMES}), st.integers(),
+                                  st.none()), max_size=6),
+       top=st.sampled_from(["images", "list", "junk"]), image_dir=st.booleans())
+def test_dataset_images_are_the_file_names_images_json_gives(tmp_path_factory, entries, top, image_dir):
+    """`DatasetImages` parses images.json as `agent.dataset.image_file` resolves it: each non-empty string
+    file_name, absolute as is, else under the image folder (default: beside images.json); any other shape gives
+    none, never an error (the command itself says what is wrong)."""
+    folder = tmp_path_factory.mktemp("ds")
+    body = {"images": entries} if top == "images" else entries if top == "list" else None
+    (folder / "images.json").write_text(json.dumps(body) if body is not None else "{not json")
+    base = folder / "imgs" if image_dir else folder
+    found = list(DatasetImages("--frames image", folder / "images.json", base if image_dir else None))
+    names = [e["file_name"] for e in entries if isinstance(e, dict) and isinstance(e.get("file_name"), str)
+             and e["file_name"]] if top == "images" else []
+    assert found == [("--frames image", base / n) for n in names]
+    assert all(p == Path(n) for (_, p), n in zip(found, names, strict=True) if n.startswith("/"))
+
+
 # ---------------------------------------------------------------------------------------------------------- anomaly
 
 @pytest.fixture(scope="module")
@@ -103,6 +164,24 @@ def test_anomaly_refuses_an_output_naming_one_of_its_inputs(tmp_path, capsys, mo
     assert main(["anomaly", "--frames", str(d / "images.json"), "--camera", str(d / "camera.json"), "--method", "mean",
                  "--out", out, "--quiet"]) == 2
     _refused(capsys, "anomaly", *flags)
+    assert _snapshot(tmp_path) == before
+
+
+@pytest.mark.parametrize("case", ["out over a frame", "out a link into the frames' folder"])
+def test_anomaly_refuses_an_output_naming_one_of_its_frames(tmp_path, capsys, rendered, case):
+    """Probe (left open): `anomaly --frames images.json --out FRAME.jpg` exited 0 with the frame replaced by JSON."""
+    d = tmp_path / "r"
+    shutil.copytree(rendered, d)
+    frame = d / json.loads((d / "images.json").read_text())["images"][1]["file_name"]
+    if case == "out over a frame":
+        out = frame
+    else:
+        (tmp_path / "link").symlink_to(frame.parent)
+        out = tmp_path / "link" / frame.name
+    before = _snapshot(tmp_path)
+    assert main(["anomaly", "--frames", str(d / "images.json"), "--camera", str(d / "camera.json"), "--method", "mean",
+                 "--out", str(out), "--quiet"]) == 2
+    _refused(capsys, "anomaly", "--out", "--frames image", frame.name)
     assert _snapshot(tmp_path) == before
 
 

@@ -43,21 +43,36 @@ def require_outputs_apart(outputs: FlagPaths, inputs: FlagPaths) -> None:
     earlier): called before the work, so nothing is written over what the run reads or wrote.
 
     outputs: (flag, file the run writes) pairs, one per file (a folder output gives one pair per file it writes);
-    inputs: (flag, file the run reads) pairs. Paths that do not exist are never inputs; two outputs are one when
-    their real paths are equal (or they are one existing file).
+    inputs: (flag, file the run reads) pairs (a dataset's images: `uavmm.dataset_inputs`). Paths that do not exist
+    are never inputs; two outputs are one when their real paths are equal (or they are one existing file). Inputs
+    are iterated and stat'ed once, and only when an output exists already (a new file is none of them): thousands
+    of images are cheap.
     """
-    given_inputs = [(flag, path) for flag, path in inputs if path is not None]
+    given_outputs = [(flag, out) for flag, out in outputs if out is not None]
+    input_ids: dict[tuple[int, int], tuple[str, Path | str]] = {}
+    if any(_file_id(out) is not None for _, out in given_outputs):
+        for in_flag, path in inputs:
+            if path is not None and (key := _file_id(path)) is not None:
+                input_ids.setdefault(key, (in_flag, path))
     seen: list[tuple[str, Path | str]] = []
-    for out_flag, out in outputs:
-        if out is None:
-            continue
-        for in_flag, path in given_inputs:
-            if same_file(out, path):
-                raise CliError(f"{out_flag} {out} is the {in_flag} input {path}: give another output path")
+    for out_flag, out in given_outputs:
+        out_id = _file_id(out)
+        if out_id is not None and out_id in input_ids:  # os.path.samefile's test (`same_file`), one stat a path
+            in_flag, path = input_ids[out_id]
+            raise CliError(f"{out_flag} {out} is the {in_flag} input {path}: give another output path")
         for other_flag, other in seen:
             if same_file(out, other) or os.path.realpath(out) == os.path.realpath(other):
                 raise CliError(f"{other_flag} {other} and {out_flag} {out} are one file: give each its own path")
         seen.append((out_flag, out))
+
+
+def _file_id(path: Path | str) -> tuple[int, int] | None:
+    """The (device, inode) of the existing file ``path`` names (links followed), or None."""
+    try:
+        st = os.stat(path)
+    except (OSError, ValueError):
+        return None
+    return st.st_dev, st.st_ino
 
 
 def require_new_output(out: Path, *inputs: Path | str | None) -> None:

@@ -5,11 +5,13 @@ and `uavmm anomaly-train` (the autoencoder). Registered through `uavmm.cli.COMMA
 from __future__ import annotations
 
 import argparse
+import itertools
 import sys
 import time
 from pathlib import Path
 
 from uavmm.cli import CliError, add_terrain_options, require_outputs_apart, terrain_from_args
+from uavmm.dataset_inputs import DatasetImages
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -117,9 +119,10 @@ def run_anomaly(args: argparse.Namespace) -> int:
                              "images.json meta)")
     if args.frames is not None and args.telemetry_offset_s is not None:
         raise ValueError("--telemetry-offset-s goes with --video (--frames carries its times in images.json meta)")
-    require_outputs_apart([("--out", args.out)], [
+    images = DatasetImages("--frames image", args.frames) if args.frames is not None else ()
+    require_outputs_apart([("--out", args.out)], itertools.chain([
         ("--frames", args.frames), ("--video", args.video), ("--telemetry", args.telemetry), ("--camera", args.camera),
-        ("--model", args.model), ("--dem", args.dem)])
+        ("--model", args.model), ("--dem", args.dem)], images))  # the images read only if --out exists
     # written as the frames come (an hour at 100 regions a frame held ~4 GiB until the end): a failed run leaves
     # nothing, Ctrl-C the regions of the frames done; a missing folder or a folder as --out is refused here
     spool = StreamedResults(args.out)

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import itertools
 from pathlib import Path
 
 from uavmm.cli import (
@@ -18,6 +19,7 @@ from uavmm.cli import (
     print_pose_and_stages,
     require_outputs_apart,
 )
+from uavmm.dataset_inputs import DatasetImages
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -78,10 +80,15 @@ def run(args: argparse.Namespace) -> int:
               ("--tracker-config", args.tracker_config)]
     extras = [("--geojson", args.geojson), ("--clock-offsets-out", args.clock_offsets_out),
               ("--registrations-out", args.registrations_out)]
-    require_outputs_apart([("--out", args.out), *extras], inputs)  # as given; each video's file once they are known
+    # the image files read for appearance (thousands: images.json read and each stat'ed only if an output exists)
+    images = (() if args.no_images else
+              DatasetImages("--image-dir image" if args.image_dir is not None else "--frames image", args.frames,
+                            args.image_dir))
+    require_outputs_apart([("--out", args.out), *extras], itertools.chain(inputs, images))  # each video's file later
 
     def check_mot_paths(paths: dict[int, Path]) -> None:
-        require_outputs_apart([*((f"--out (video {v})", p) for v, p in paths.items()), *extras], inputs)
+        require_outputs_apart([*((f"--out (video {v})", p) for v, p in paths.items()), *extras],
+                              itertools.chain(inputs, images))
 
     pipeline_config, size_filter = _pipeline_from_args(args, use_memory=not args.no_memory)
     if args.clock_offset is not None:  # else the configuration's (on by default)

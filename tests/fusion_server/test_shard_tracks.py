@@ -185,3 +185,69 @@ def test_queries_nobody_answers_leave_nothing_behind():
     for i in range(2_000):
         assert tracks.stored(None, 1.7e9, 1.7e9 + i, True) is None
     assert tracks._asking == {} and tracks._cache == {}
+
+
+@pytest.mark.parametrize(("source", "delays_s", "missing"), [
+    ("live", (0.0, 1.2), (1,)),  # live: 0.5 s after the first answer
+    ("stored", (0.0, 1.2), (1,)),  # stored: as long again as the first took, at least 0.5 s
+    ("stored", (0.8, 1.4), ()),  # a database read as slow as the first one's is still waited for
+])
+def test_a_shard_answering_late_is_left_out_soon_after_the_first_answer_and_named(sessions, source, delays_s,
+                                                                                   missing):
+    """Before: the gateway waited the query's whole timeout (2 s live, 5 s stored) for a shard that did not answer,
+    and said nothing of it; now it answers `late_answer_s` after the first answer, naming the shard."""
+    import time
+
+    shard_side, gateway_side = sessions
+
+    def source_of(shard: int):
+        def answer(request: TrackQuery) -> list[dict[str, Any]]:
+            time.sleep(delays_s[shard])
+            return [stored_feature(10 + shard)] if request.source == "stored" else [record(shard + 1).to_geojson()]
+        return answer
+
+    queryables = [TracksQueryable(source_of(k), KEYS.shard_tracks(k, 2), k, 2) for k in range(2)]
+    declared = []
+    for queryable in queryables:
+        queryable.start()
+        declared.append(shard_side.declare_queryable(queryable.key, queryable.on_query))
+    try:
+        wait_until(lambda: sum(r.ok is not None for r in gateway_side.get(
+            KEYS.shard_tracks("*", 2), payload=encode_request(TrackQuery()), timeout=5.0)) == 2,
+            20.0, "both shards' queryables to reach the gateway")
+        client = ShardTracks(KEYS, 2, cache_s=0.0)
+        client.session = gateway_side
+        started = time.monotonic()
+        found = client.live() if source == "live" else client.stored()
+        took = time.monotonic() - started
+        assert found is not None and found.missing == missing
+        assert len(found) == 2 - len(missing)
+        first = delays_s[0]
+        bound = first + max(0.5, first if source == "stored" else 0.0)
+        assert took < (bound if missing else delays_s[1]) + 0.4, took
+    finally:
+        for entity in declared:
+            entity.undeclare()
+        for queryable in queryables:
+            queryable.close()
+
+
+def test_close_ends_a_wait_for_silent_shards_at_once(sessions):
+    import threading
+    import time
+
+    shard_side, gateway_side = sessions
+    held: list[zenoh.Query] = []
+    silent = shard_side.declare_queryable(KEYS.shard_tracks(0, 2), held.append)
+    try:
+        wait_until(lambda: gateway_side.get(KEYS.shard_tracks("*", 2), timeout=0.2) and held, 20.0, "the queryable")
+        client = ShardTracks(KEYS, 2, cache_s=0.0)
+        client.session = gateway_side
+        threading.Timer(0.3, client.close).start()
+        started = time.monotonic()
+        assert client.stored() is None
+        assert time.monotonic() - started < 0.8  # not the query's 5 s
+        assert client.live() is None and client.queries == 1  # closed: nothing more asked
+    finally:
+        silent.undeclare()
+        held.clear()

@@ -178,3 +178,75 @@ def test_an_expired_certificate_stops_only_a_process_that_uses_tls(fleet, tmp_pa
     assert uses_tls(tls)
     with pytest.raises(ValueError, match=r"\(fusion\) expired on"):
         check_certificates(tls, logging.getLogger("test"))
+
+
+def _inline(pem: bytes) -> str:
+    import base64
+
+    return base64.b64encode(pem).decode()
+
+
+@pytest.mark.parametrize("where", ["config", "endpoint"])
+@pytest.mark.parametrize("key", ["root_ca_certificate", "listen_certificate", "connect_certificate"])
+def test_an_inline_certificate_is_judged_as_its_file_would_be(tmp_path, caplog, where, key):
+    """Left open: a certificate given inline (``transport/link/tls/*_base64``, or an endpoint's ``#..._base64=``)
+    was never date-checked. Expired stops a TLS process and warns a TCP one, early is an error log, near its end a
+    warning, each named "inline NAME_base64"; an expired CA in a bundle with a valid one is no problem."""
+    now = dt.datetime.now(dt.timezone.utc)
+    ca = new_ca("inline-ca", now=now - dt.timedelta(days=100))
+    side = "connect" if key == "root_ca_certificate" else key.split("_")[0]
+
+    def conf(pem: bytes, endpoint: str):
+        if where == "config":
+            return agent_zenoh_config(ZenohOptions(cfg=(f'transport/link/tls/{key}_base64:"{_inline(pem)}"',),
+                                                   **{side: (endpoint,)}))  # type: ignore[arg-type]
+        return agent_zenoh_config(ZenohOptions(**{side: (f"{endpoint}#{key}_base64={_inline(pem)}",)}))  # type: ignore[arg-type]
+
+    name = f"inline {key}_base64"
+    dead = issue(ca, "uav7", days=10, now=now - dt.timedelta(days=30)).certificate_pem
+    with pytest.raises(ValueError, match=rf"{name} \(uav7\) expired on"):
+        check_certificates(conf(dead, "tls/127.0.0.1:7447"), logging.getLogger("test"))
+    if where == "config":  # a #parameter only exists on a tls/ or quic/ endpoint
+        with caplog.at_level(logging.WARNING, logger="test"):
+            check_certificates(conf(dead, "tcp/127.0.0.1:7447"), logging.getLogger("test"))
+        assert any(f"{name} (uav7) expired on" in r.getMessage() and "not needed now" in r.getMessage()
+                   for r in caplog.records)
+    early = issue(ca, "uav7", days=30, now=now + dt.timedelta(days=2)).certificate_pem
+    caplog.clear()
+    with caplog.at_level(logging.ERROR, logger="test"):
+        check_certificates(conf(early, "quic/127.0.0.1:7447"), logging.getLogger("test"))
+    assert len(caplog.records) == 1 and f"{name} (uav7) is valid only from" in caplog.records[0].getMessage()
+    soon = issue(ca, "uav7", days=30, now=now - dt.timedelta(days=25)).certificate_pem
+    notices = certificate_notices(conf(soon, "tls/127.0.0.1:7447"))
+    assert notices.problems == [] and len(notices.warnings) == 1 and f"{name} (uav7) expires on" in notices.warnings[0]
+    if key == "root_ca_certificate":
+        old = new_ca("old-ca", days=30, now=now - dt.timedelta(days=400)).certificate
+        bundle = pem_certificate(old) + pem_certificate(ca.certificate)
+        assert certificate_notices(conf(bundle, "tls/127.0.0.1:7447")).problems == []
+        (problem,) = certificate_notices(conf(pem_certificate(old), "tls/127.0.0.1:7447")).problems
+        assert "(old-ca) expired on" in problem
+
+
+def test_an_agent_with_an_expired_inline_certificate_stops_before_it_starts(fleet, capsys):
+    dead = issue(_ca(fleet), "uav1", days=10, now=dt.datetime.now(dt.timezone.utc) - dt.timedelta(days=30))
+    code = main(["agent", "--uav-id", "uav1", "--connect", "tls/127.0.0.1:1", "--cfg",
+                 f'transport/link/tls/connect_certificate_base64:"{_inline(dead.certificate_pem)}"',
+                 "--sim", "coop", "--uav-index", "0", "--frames", "5"])
+    err = capsys.readouterr().err
+    assert code == 2 and "inline connect_certificate_base64 (uav1) expired on" in err
+
+
+@settings(max_examples=80, deadline=None)
+@given(before=st.lists(st.sampled_from(["mtu=1500", "enable_mtls=true", "a=b=c", "", "x"]), max_size=3),
+       after=st.lists(st.sampled_from(["so_sndbuf=4096", "verify_name_on_connect=false", ""]), max_size=3),
+       metadata=st.sampled_from(["", "?prio=1-7"]), in_config=st.booleans())
+def test_endpoint_parameters_are_read_as_zenoh_splits_them(before, after, metadata, in_config):
+    """``proto/address?metadata#k=v;k=v``: each parameter split at its first "=", so base64 padding stays; other
+    parameters around it change nothing; the same certificate in the config and the endpoint is named once."""
+    leaf = issue(new_ca("p-ca", now=NOW - dt.timedelta(days=100)), "uav5", days=20, now=NOW - dt.timedelta(days=40))
+    value = _inline(leaf.certificate_pem + b"\n")  # 1 byte more than a multiple of 3 would: "=" padding
+    params = ";".join([*before, f"connect_certificate_base64={value}", *after])
+    cfg = (f'transport/link/tls/connect_certificate_base64:"{value}"',) if in_config else ()
+    conf = agent_zenoh_config(ZenohOptions(connect=(f"tls/127.0.0.1:7447{metadata}#{params}",), cfg=cfg))
+    notices = certificate_notices(conf, NOW)
+    assert len(notices.problems) == 1 and "inline connect_certificate_base64 (uav5) expired" in notices.problems[0]
