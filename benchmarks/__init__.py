@@ -33,6 +33,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "sim": "benchmarks.bench_sim",
     "fusion": "benchmarks.bench_fusion",
     "tracker": "benchmarks.bench_tracker",
+    "global_tracks": "benchmarks.bench_global_tracks",
     "hostile": "benchmarks.bench_hostile",
     "render": "benchmarks.bench_render",
     "anomaly": "benchmarks.bench_anomaly",

@@ -30,6 +30,7 @@ _EARTH_RADIUS_M = M_PER_DEG_LAT * 180.0 / np.pi
 MAX_EXACT_CELLS = 250_000
 #: Candidates per point considered inside the gate (the nearest ones).
 MAX_CANDIDATES = 16
+_NOT_A_PAIR = 1e9  # a cell of an exact group's matrix that is no gated pair (costs stay far below)
 
 
 def ground_distance_m(lat1, lon1, lat2, lon2) -> np.ndarray:
@@ -76,7 +77,8 @@ class Assignment:
 
 def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b: ArrayLike, gate_m: float,
                      max_exact_cells: int = MAX_EXACT_CELLS, max_candidates: int = MAX_CANDIDATES,
-                     forbid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None) -> Assignment:
+                     forbid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
+                     cost: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None) -> Assignment:
     """Match points a (N,) to points b (M,) one-to-one, only within ``gate_m`` metres.
 
     Each point of a considers its ``max_candidates`` nearest points of b inside the gate (more than
@@ -85,7 +87,8 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     the most pairs with the least total distance (``linear_sum_assignment``, the same answer as over
     the whole matrix with pairs beyond the gate forbidden); larger groups greedily, shortest pairs
     first. Degrees in, metres out (:func:`ground_distance_m`). forbid(ia, ib) -> (K,) bool: gated pairs (indexes
-    into a and b) that may not be matched whatever their distance.
+    into a and b) that may not be matched whatever their distance. cost(ia, ib, dist_m) -> (K,): the gated pairs'
+    costs to minimise instead of their distances (inf: may not be matched); Assignment.cost_m stays the distances.
     """
     lat_a, lon_a, lat_b, lon_b = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (lat_a, lon_a, lat_b, lon_b))
     empty = np.zeros(0, np.int64)
@@ -100,11 +103,15 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     found = np.isfinite(dist)
     ia = np.broadcast_to(np.arange(lat_a.size)[:, None], found.shape)[found].astype(np.int64)
     ib = nearest[found].astype(np.int64)
-    cost = ground_distance_m(lat_a[ia], lon_a[ia], lat_b[ib], lon_b[ib])
-    keep = cost <= gate_m
+    dist = ground_distance_m(lat_a[ia], lon_a[ia], lat_b[ib], lon_b[ib])
+    keep = dist <= gate_m
     if forbid is not None and keep.any():
         keep[keep] = ~forbid(ia[keep], ib[keep])
-    ia, ib, cost = ia[keep], ib[keep], cost[keep]
+    ia, ib, dist = ia[keep], ib[keep], dist[keep]
+    if cost is not None and ia.size:
+        dist = np.asarray(cost(ia, ib, dist), dtype=np.float64)
+        allowed = np.isfinite(dist)
+        ia, ib, dist = ia[allowed], ib[allowed], dist[allowed]
     if ia.size == 0:
         return Assignment(empty, empty, np.zeros(0), 0)
     na, nb = lat_a.size, lat_b.size
@@ -112,7 +119,7 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     _, labels = connected_components(graph, directed=False)
     edge_group = labels[ia]
     order = np.argsort(edge_group, kind="stable")
-    ia, ib, cost, edge_group = ia[order], ib[order], cost[order], edge_group[order]
+    ia, ib, dist, edge_group = ia[order], ib[order], dist[order], edge_group[order]
     starts = np.flatnonzero(np.r_[True, edge_group[1:] != edge_group[:-1]])
     ends = np.r_[starts[1:], ia.size]
     rows: list[np.ndarray] = []
@@ -122,14 +129,14 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     rows.append(ia[starts[single]])
     cols.append(ib[starts[single]])
     for start, end in zip(starts[~single], ends[~single], strict=True):
-        ga, gb, gc = ia[start:end], ib[start:end], cost[start:end]
+        ga, gb, gc = ia[start:end], ib[start:end], dist[start:end]
         ua, a_local = np.unique(ga, return_inverse=True)
         ub, b_local = np.unique(gb, return_inverse=True)
         if ua.size * ub.size <= max_exact_cells:
-            block = np.full((ua.size, ub.size), 1e9)
+            block = np.full((ua.size, ub.size), _NOT_A_PAIR)
             block[a_local, b_local] = gc
             r, c = linear_sum_assignment(block)
-            ok = block[r, c] <= gate_m
+            ok = block[r, c] < _NOT_A_PAIR
             rows.append(ua[r[ok]])
             cols.append(ub[c[ok]])
         else:

@@ -64,6 +64,7 @@ class FusionSettings:
     tracks_max_hz: float = 5.0
     track_gate_m: float = 10.0
     track_hold_s: float = 10.0
+    track_reassociate_m: float = 6.0  # GlobalTracker's reassociate_m (0: off)
     track_history_len: int = 600
     track_history_interval_s: float = 1.0
     max_uavs: int = 256
@@ -134,6 +135,9 @@ class FusionSettings:
             _positive(name, getattr(self, name))
         if self.restore_grace_s is not None:
             _positive("restore_grace_s", self.restore_grace_s)
+        reassociate = self.track_reassociate_m
+        if not (isinstance(reassociate, (int, float)) and math.isfinite(reassociate) and reassociate >= 0):
+            raise ValueError(f"track_reassociate_m must be a finite number >= 0 (0: off), got {reassociate!r}")
         for name in ("track_history_len", "max_uavs", "max_uav_tiles", "max_tiles_per_uav", "map_max_cells"):
             value = getattr(self, name)
             if isinstance(value, bool) or not isinstance(value, int) or value < 1:

@@ -13,14 +13,13 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable
-from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
-from fusion_server.association import M_PER_DEG_LAT as _M_PER_DEG_LAT
 from fusion_server.association import gated_assignment, ground_distance_m, weighted_lon
-from shared.messages import MAX_MEMBERS, MAX_TRACKS, JointTrackItem, JointTracksMessage, TracksMessage
+from fusion_server.reassociation import Reassociation
+from fusion_server.track_records import GlobalTrack, Member, TrackRecord, active_indexes, moved_on
+from shared.messages import MAX_MEMBERS, MAX_TRACKS, JointTrackItem, JointTracksMessage, TrackItem, TracksMessage
 
 __all__ = ["MAX_INACTIVE_MEMBERS", "GlobalTrack", "GlobalTracker", "TrackRecord", "ground_distance_m"]
 
@@ -32,121 +31,15 @@ _MAX_MEMBERS_KEPT = min(MAX_MEMBERS, 256)
 MAX_INACTIVE_MEMBERS = 8
 
 
-def _moved_on(lat: np.ndarray, lon: np.ndarray, vel_en: np.ndarray, dt: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Positions (degrees) moved on by velocities (N, 2) east, north m/s for dt (N,) seconds."""
-    return (lat + vel_en[:, 1] * dt / _M_PER_DEG_LAT,
-            lon + vel_en[:, 0] * dt / (_M_PER_DEG_LAT * np.maximum(np.cos(np.radians(lat)), 1e-6)))
-
-
-@dataclass(slots=True)
-class _Member:
-    lat: float
-    lon: float
-    score: float
-    vel_en: tuple[float, float]
-    received: float  # monotonic
-    active: bool = True
-
-
-@dataclass(slots=True)
-class GlobalTrack:
-    """One global track. Positions in degrees, velocities (east, north) m/s, times epoch seconds.
-
-    members: every local track it absorbed, ``(uav, local_id) -> observation``, insertion ordered;
-    ``active`` members are the ones their UAV still reports. lost_since: monotonic time the last
-    active member was lost (None while tracked). history: (t, lat, lon) rows, oldest first, bounded.
-    """
-
-    gid: int
-    cls: str
-    lat: float
-    lon: float
-    score: float
-    vel_en: tuple[float, float]
-    created: float
-    last_update: float
-    members: dict[tuple[str, int], _Member] = field(default_factory=dict)
-    lost_since: float | None = None
-    history: deque = field(default_factory=deque)
-    ended: float | None = None
-
-    def active_members(self) -> list[tuple[str, int]]:
-        """(uav, local_id) of the members their UAVs currently report."""
-        return [key for key, member in self.members.items() if member.active]
-
-    def to_record(self) -> TrackRecord:
-        """A plain copy for persistence and for the REST API."""
-        return TrackRecord(
-            gid=self.gid,
-            cls=self.cls,
-            lat=self.lat,
-            lon=self.lon,
-            score=self.score,
-            vel_en=self.vel_en,
-            created=self.created,
-            last_update=self.last_update,
-            members=tuple(self.members),
-            active=tuple(self.active_members()),
-            ended=self.ended,
-            history=tuple(self.history),
-        )
-
-
-def _active_indexes(track: GlobalTrack) -> tuple[int, ...] | None:
-    """``JointTrackItem.active`` of a track: the indexes of its active members, None when all are."""
-    flags = [member.active for member in track.members.values()]
-    if flags and all(flags):
-        return None
-    return tuple(i for i, active in enumerate(flags) if active)
-
-
-@dataclass(frozen=True, slots=True)
-class TrackRecord:
-    """Immutable view of a global track (see :class:`GlobalTrack`); ``ended`` is None while alive."""
-
-    gid: int
-    cls: str
-    lat: float
-    lon: float
-    score: float
-    vel_en: tuple[float, float]
-    created: float
-    last_update: float
-    members: tuple[tuple[str, int], ...]
-    active: tuple[tuple[str, int], ...] = ()
-    ended: float | None = None
-    history: tuple[tuple[float, float, float], ...] = ()
-
-    @property
-    def status(self) -> str:
-        """"tracked" (a UAV reports it), "lost" (held, nobody reports it) or "ended"."""
-        if self.ended is not None:
-            return "ended"
-        return "tracked" if self.active else "lost"
-
-    def to_geojson(self) -> dict[str, Any]:
-        """A GeoJSON Point Feature; properties hold gid, cls, score, vel_en, members, history, times."""
-        return {
-            "type": "Feature",
-            "id": self.gid,
-            "geometry": {"type": "Point", "coordinates": [self.lon, self.lat]},
-            "properties": {
-                "gid": self.gid, "cls": self.cls, "score": self.score, "vel_en": list(self.vel_en),
-                "status": self.status, "created": self.created, "last_update": self.last_update, "ended": self.ended,
-                "members": [list(m) for m in self.members],
-                "active_members": [list(m) for m in self.active],
-                "history": [list(row) for row in self.history],
-            },
-        }
-
-
 class GlobalTracker:
     """Associates local tracks into global tracks. Thread-safe (one lock).
 
     gate_m: largest ground distance at which a new local track joins a global track. hold_s: how long
     a global track nobody reports is kept. member_ttl_s: a UAV's member counts as lost when its UAV
     sent no tracks message for that long. history_len / history_interval_s: at most that many
-    history rows per track, one per interval. max_ended: ended tracks kept in memory for the API.
+    history rows per track, one per interval. max_ended: ended tracks kept in memory for the API. reassociate_m:
+    a local track moves to the global track other UAVs report its object under when, for seconds, that one lies
+    within this distance and clearly nearer than its own (`fusion_server.reassociation`; 0: never moves).
 
     Bounds (so one UAV, real or forged, cannot exhaust memory or stall the API): a tracks message is
     cut to its ``max_tracks_per_message`` best-scored tracks; one UAV may have created at most
@@ -173,6 +66,7 @@ class GlobalTracker:
         adopt: Callable[[str, int, str, float, float], int | None] | None = None,
         keep_changes: bool = True,
         same_uav_gate_m: float | None = 3.0,
+        reassociate_m: float = 6.0,
         clock=time.monotonic,
         wall=time.time,
     ) -> None:
@@ -206,6 +100,9 @@ class GlobalTracker:
         #: kept its history rows, ended tracks and changed ids all flight (a soak: 63k rows in 8 minutes)
         self.keep_changes = keep_changes
         self.same_uav_gate_m = same_uav_gate_m  # metres, None: off (`_elsewhere_for`)
+        #: moves of local tracks to the global track other UAVs see their object under, up to reassociate_m away
+        self.reassociation = (Reassociation(search_gate_m=gate_m, move_gate_m=reassociate_m) if reassociate_m > 0
+                              else None)
         self._dirty: set[int] = set()  # for persistence
         self._history_out: list[tuple[int, float, float, float]] = []
         self._ended_pending: dict[int, TrackRecord] = {}
@@ -240,11 +137,13 @@ class GlobalTracker:
                 if gid is None or track is None or track.cls != item.cls or gid in claimed:
                     unmatched.append(item)
                     continue
-                track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
+                track.members[key] = Member(item.lat, item.lon, item.score, item.vel_en, now)
                 claimed.add(gid)
             for cls in sorted({item.cls for item in unmatched}):
                 self._associate(uav, [item for item in unmatched if item.cls == cls], claimed, now, wall)
             touched |= claimed
+            if self.reassociation is not None:
+                touched |= self._reassociate(uav, items, now, wall)
             reported = {item.id for item in items}
             for local_id in self._active.get(uav, set()) - reported:
                 touched |= self._deactivate(uav, local_id)
@@ -298,23 +197,86 @@ class GlobalTracker:
                     self._next_gid += self.gid_step
                 else:
                     self.handovers["in"] += 1
-                track = GlobalTrack(
-                    gid=gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score,
-                    vel_en=item.vel_en, created=wall, last_update=wall,
-                    history=deque(maxlen=self.history_len),
-                )
-                self._tracks[track.gid] = track
-                self._owner[track.gid] = uav
-                self._owned.setdefault(uav, {})[track.gid] = None
+                track = self._new_track(uav, item, gid, wall)
             key = (uav, item.id)
             if self._local.get(key, track.gid) != track.gid:  # moved on (its old track claimed): no longer a member
                 for old in self._deactivate(*key):  # there (it was active there forever: a track that never ended)
                     self._refresh(self._tracks[old], now, wall)
             track.members.pop(key, None)  # re-insert: most recent last
-            track.members[key] = _Member(item.lat, item.lon, item.score, item.vel_en, now)
+            track.members[key] = Member(item.lat, item.lon, item.score, item.vel_en, now)
             self._trim_members(track)
             self._local[key] = track.gid
             claimed.add(track.gid)
+
+    def _new_track(self, uav: str, item: TrackItem, gid: int | None, wall: float) -> GlobalTrack:
+        """A new global track of `uav`'s local track `item` (a new gid when gid is None), without members yet."""
+        if gid is None:
+            gid = self._next_gid
+            self._next_gid += self.gid_step
+        track = GlobalTrack(gid=gid, cls=item.cls, lat=item.lat, lon=item.lon, score=item.score, vel_en=item.vel_en,
+                            created=wall, last_update=wall, history=deque(maxlen=self.history_len))
+        self._tracks[gid] = track
+        self._owner[gid] = uav
+        self._owned.setdefault(uav, {})[gid] = None
+        return track
+
+    def _reassociate(self, uav: str, items: tuple[TrackItem, ...], now: float, wall: float) -> set[int]:
+        """Move `uav`'s local tracks to the global tracks the other UAVs see their objects under, where the
+        distances of seconds say so (`fusion_server.reassociation`). Returns the global ids changed."""
+        plan = self.reassociation
+        assert plan is not None
+        plan.forget(uav, {item.id for item in items})
+        if not plan.turn(uav, now):
+            return set()
+        seen: dict[int, list[Member]] = {}  # gid -> the active members other UAVs have on it
+        for other, local_ids in self._active.items():
+            for local_id in local_ids if other != uav else ():
+                gid = self._local.get((other, local_id))
+                member = self._tracks[gid].members.get((other, local_id)) if gid in self._tracks else None
+                if gid is not None and member is not None and member.active:
+                    seen.setdefault(gid, []).append(member)
+        touched: set[int] = set()
+        for cls in sorted({item.cls for item in items}):
+            mine = [item for item in items if item.cls == cls and self._local.get((uav, item.id)) in self._tracks]
+            gids = [gid for gid in seen if self._tracks[gid].cls == cls]
+            if not mine or not gids:
+                continue
+            at_lat, at_lon = self._seen_at([seen[gid] for gid in gids], now)
+            current = [self._local[(uav, item.id)] for item in mine]
+            moves = plan.plan(uav, [item.id for item in mine], current, [item.lat for item in mine],
+                              [item.lon for item in mine], gids, at_lat, at_lon, now)
+            for i, gid in moves.items():
+                touched |= self._move(uav, mine[i], current[i], gid, now, wall)
+        return touched
+
+    def _seen_at(self, groups: list[list[Member]], now: float) -> tuple[np.ndarray, np.ndarray]:
+        """Per group of members, their score-weighted position moved on by their velocities to now (degrees; the
+        longitudes averaged as offsets from each group's first, across the antimeridian too)."""
+        members = [m for group in groups for m in group]
+        index = np.repeat(np.arange(len(groups)), [len(group) for group in groups])
+        lat, lon = moved_on(np.array([m.lat for m in members]), np.array([m.lon for m in members]),
+                            np.array([m.vel_en for m in members]).reshape(-1, 2),
+                            np.array([min(max(now - m.received, 0.0), self.member_ttl_s) for m in members]))
+        weights = np.array([max(m.score, 1e-3) for m in members])
+        total = np.bincount(index, weights, len(groups))
+        first = lon[np.r_[0, np.cumsum([len(group) for group in groups])[:-1]]]
+        offsets = (lon - first[index] + 180.0) % 360.0 - 180.0
+        mean_lon = first + np.bincount(index, weights * offsets, len(groups)) / total
+        return np.bincount(index, weights * lat, len(groups)) / total, (mean_lon + 180.0) % 360.0 - 180.0
+
+    def _move(self, uav: str, item: TrackItem, old_gid: int, gid: int | None, now: float, wall: float) -> set[int]:
+        """Make `uav`'s local track `item` a member of global track gid (a new one when None) instead of old_gid."""
+        if gid is None and not self._make_room(uav, {old_gid}):
+            return set()
+        key = (uav, item.id)
+        old = self._tracks[old_gid]
+        member = old.members.pop(key, None) or Member(item.lat, item.lon, item.score, item.vel_en, now)
+        track = self._new_track(uav, item, None, wall) if gid is None else self._tracks[gid]
+        track.members.pop(key, None)
+        track.members[key] = member
+        self._trim_members(track)
+        self._local[key] = track.gid
+        return {old_gid, track.gid}
 
     def _elsewhere_for(self, uav: str, items: list, candidates: list[GlobalTrack], now: float
                        ) -> Callable[[np.ndarray, np.ndarray], np.ndarray] | None:
@@ -324,7 +286,7 @@ class GlobalTracker:
         it may be the same object under a new local id (a tracker's id switch)."""
         if self.same_uav_gate_m is None:
             return None
-        own: dict[int, _Member] = {}  # gid -> this UAV's active member on it, from the index of its active ids
+        own: dict[int, Member] = {}  # gid -> this UAV's active member on it, from the index of its active ids
         for local_id in self._active.get(uav, ()):
             gid = self._local.get((uav, local_id))
             track = self._tracks.get(gid) if gid is not None else None
@@ -338,7 +300,7 @@ class GlobalTracker:
         has_own = np.array([m is not None for m in mine])
         own_lat = np.full(len(candidates), np.nan)
         own_lon = np.full(len(candidates), np.nan)
-        own_lat[has_own], own_lon[has_own] = _moved_on(
+        own_lat[has_own], own_lon[has_own] = moved_on(
             np.array([m.lat for m in at]), np.array([m.lon for m in at]), np.array([m.vel_en for m in at]),
             np.array([min(max(now - m.received, 0.0), self.member_ttl_s) for m in at]))
         lat = np.array([item.lat for item in items])
@@ -384,7 +346,7 @@ class GlobalTracker:
         # finds a moving object again still falls inside the gate
         lat, lon = np.array([t.lat for t in tracks]), np.array([t.lon for t in tracks])
         dt = np.array([min(now - t.lost_since, self.hold_s) if t.lost_since is not None else 0.0 for t in tracks])
-        return _moved_on(lat, lon, np.array([t.vel_en for t in tracks]).reshape(-1, 2), dt)
+        return moved_on(lat, lon, np.array([t.vel_en for t in tracks]).reshape(-1, 2), dt)
 
     def _trim_members(self, track: GlobalTrack) -> None:
         inactive = [k for k, m in track.members.items() if not m.active]
@@ -445,6 +407,8 @@ class GlobalTracker:
         return changed
 
     def _lose_uav(self, uav: str, now: float, wall: float) -> bool:
+        if self.reassociation is not None:
+            self.reassociation.forget(uav)
         touched: set[int] = set()
         for local_id in self._active.pop(uav, set()):
             touched |= self._deactivate(uav, local_id)
@@ -495,7 +459,8 @@ class GlobalTracker:
         """Sizes and counters: global tracks, held ones, mapped local ids, greedy association groups."""
         with self._lock:
             return {"tracks": len(self._tracks), "lost": len(self._lost), "local_ids": len(self._local),
-                    "greedy_components": self._greedy_groups}
+                    "greedy_components": self._greedy_groups,
+                    "reassociated": self.reassociation.moved if self.reassociation is not None else 0}
 
     # ---- restore / persistence -----------------------------------------------------------------
     def restore(self, records: Iterable[TrackRecord], now: float | None = None) -> int:
@@ -515,7 +480,7 @@ class GlobalTracker:
                     history=deque(rec.history, maxlen=self.history_len),
                 )
                 for key in rec.members:
-                    track.members[key] = _Member(rec.lat, rec.lon, rec.score, rec.vel_en, now, active=False)
+                    track.members[key] = Member(rec.lat, rec.lon, rec.score, rec.vel_en, now, active=False)
                     self._local[key] = rec.gid
                 self._tracks[rec.gid] = track
                 self._lost[rec.gid] = None
@@ -589,7 +554,7 @@ class GlobalTracker:
             items = tuple(
                 JointTrackItem(
                     gid=t.gid, cls=t.cls, lat=t.lat, lon=t.lon, score=min(max(t.score, 0.0), 1.0),
-                    vel_en=t.vel_en, members=tuple(t.members), active=_active_indexes(t),
+                    vel_en=t.vel_en, members=tuple(t.members), active=active_indexes(t),
                 )
                 for t in sorted(tracks, key=lambda t: t.gid)
             )

@@ -91,6 +91,7 @@ class FusionServer:
         shard = settings.shard
         self.tracker = GlobalTracker(
             gate_m=settings.track_gate_m, hold_s=settings.track_hold_s, member_ttl_s=settings.ttl_s,
+            reassociate_m=settings.track_reassociate_m,
             history_len=settings.track_history_len, history_interval_s=settings.track_history_interval_s,
             next_gid=shard.index + 1, gid_step=shard.count,  # shards hand out disjoint ids
             keep_changes=settings.db_path is not None,  # only a database drains them
@@ -228,6 +229,9 @@ class FusionServer:
             "uavmm_fusion_joint_tiles": ("Joint tiles currently published.", stats["joint_tiles"]),
             "uavmm_fusion_uav_tiles": ("Fresh UAV tiles held for fusion.", stats["uav_tiles"]),
             "uavmm_fusion_global_tracks": ("Global tracks (tracked or held).", len(self.tracker)),
+            "uavmm_fusion_tracks_reassociated_total": (
+                "Local tracks moved to the global track other UAVs report their object under (re-association).",
+                self.tracker.stats()["reassociated"]),
             "uavmm_fusion_uav_conflicts": ("UAV ids heard from more than one Zenoh session at once.",
                                            len(self.uavs.conflicts())),
             "uavmm_fusion_liveliness_tokens_evicted": ("Liveliness tokens of ids without data forgotten "

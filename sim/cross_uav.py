@@ -61,6 +61,7 @@ class CrossUavRecorder:
         self.period_s = period_s
         self.tracker = GlobalTracker(gate_m=s.track_gate_m, hold_s=s.track_hold_s, member_ttl_s=s.ttl_s,
                                      history_len=s.track_history_len, history_interval_s=s.track_history_interval_s,
+                                     reassociate_m=s.track_reassociate_m,
                                      keep_changes=False, clock=lambda: self.now, wall=lambda: self.now)
         self.gids: dict[int, dict[int, dict[int, int]]] = {}
         self._next: dict[int, float] = {}

@@ -90,6 +90,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tracks-max-hz", type=float, default=5.0, help="most joint tracks messages a second (5)")
     p.add_argument("--track-gate-m", type=float, default=10.0, help="association gate on the ground, m (10)")
     p.add_argument("--track-hold-s", type=float, default=10.0, help="keep a track nobody reports this long (10)")
+    p.add_argument("--track-reassociate-m", type=float, default=6.0,
+                   help="move a UAV's track to the global track other UAVs report its object under when, for "
+                        "seconds, that one lies within this many metres and clearly nearer than its own (6; 0: off)")
     p.add_argument("--max-clock-skew-s", type=float, default=30.0,
                    help="drop messages whose t is this far ahead of the server clock (30)")
     p.add_argument("--uav-max-msgs-per-s", type=float, default=500.0,
@@ -185,7 +188,8 @@ def settings_from_args(args: argparse.Namespace):
         db_path=None if args.no_db else (args.db or default_db_path()),
         prefix=args.prefix, ttl_s=args.ttl_s, fusion_rule=args.fusion_rule, coverage=args.coverage, grid_z=args.grid_z,
         grid_n=args.grid_n, joint_max_hz=args.joint_max_hz, tracks_max_hz=args.tracks_max_hz,
-        track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, max_clock_skew_s=args.max_clock_skew_s,
+        track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, track_reassociate_m=args.track_reassociate_m,
+        max_clock_skew_s=args.max_clock_skew_s,
         uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
         db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
         http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
