@@ -65,8 +65,8 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
                                   repeat=3 if quick else 5, min_time_s=0.0)
     n = len(messages)
     plain, moving = _replay(messages, 0.0), _replay(messages, 6.0)
-    paired = {name: 100.0 * np.mean([tracker.gid_of(f"uav{2 * p}", i) == tracker.gid_of(f"uav{2 * p + 1}", i)
-                                     for p in range(pairs) for i in range(people)])
+    paired = {name: 100.0 * float(np.mean([tracker.gid_of(f"uav{2 * p}", i) == tracker.gid_of(f"uav{2 * p + 1}", i)
+                                           for p in range(pairs) for i in range(people)]))
               for name, tracker in (("without", plain), ("with", moving))}
     return [
         {"case": f"{2 * pairs} UAVs x {people} tracks at 5 Hz, without re-association", "unit": "ms/message",
