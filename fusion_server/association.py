@@ -21,7 +21,7 @@ from scipy.sparse.csgraph import connected_components
 from scipy.spatial import cKDTree
 
 __all__ = ["MAX_CANDIDATES", "MAX_EXACT_CELLS", "M_PER_DEG_LAT", "Assignment", "gated_assignment",
-           "ground_distance_m", "weighted_lon"]
+           "ground_distance_m", "sphere_xyz", "weighted_lon"]
 
 #: Metres per degree of latitude (and of longitude at the equator) of the equirectangular distance.
 M_PER_DEG_LAT = 111_320.0
@@ -57,7 +57,9 @@ def weighted_lon(weights: ArrayLike, lon: ArrayLike) -> float:
     return mean if -180.0 <= mean < 180.0 else (mean + 180.0) % 360.0 - 180.0
 
 
-def _sphere_xyz(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
+def sphere_xyz(lat: NDArray[np.float64], lon: NDArray[np.float64]) -> NDArray[np.float64]:
+    """(N, 3) points (metres) on a sphere of the earth's radius, for k-d trees: a chord is never longer than the
+    ground distance and equals it within 1e-6 at association distances."""
     lat_r, lon_r = np.radians(lat), np.radians(lon)
     return _EARTH_RADIUS_M * np.column_stack([np.cos(lat_r) * np.cos(lon_r), np.cos(lat_r) * np.sin(lon_r),
                                               np.sin(lat_r)])
@@ -78,7 +80,8 @@ class Assignment:
 def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b: ArrayLike, gate_m: float,
                      max_exact_cells: int = MAX_EXACT_CELLS, max_candidates: int = MAX_CANDIDATES,
                      forbid: Callable[[np.ndarray, np.ndarray], np.ndarray] | None = None,
-                     cost: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None) -> Assignment:
+                     cost: Callable[[np.ndarray, np.ndarray, np.ndarray], np.ndarray] | None = None,
+                     unmatched_cost: float | ArrayLike | None = None) -> Assignment:
     """Match points a (N,) to points b (M,) one-to-one, only within ``gate_m`` metres.
 
     Each point of a considers its ``max_candidates`` nearest points of b inside the gate (more than
@@ -89,6 +92,8 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     first. Degrees in, metres out (:func:`ground_distance_m`). forbid(ia, ib) -> (K,) bool: gated pairs (indexes
     into a and b) that may not be matched whatever their distance. cost(ia, ib, dist_m) -> (K,): the gated pairs'
     costs to minimise instead of their distances (inf: may not be matched); Assignment.cost_m stays the distances.
+    unmatched_cost: what leaving a point of a unmatched costs, one for all or (N,) one each (None or inf: the most
+    pairs first, then the least cost); a pair costing as much or more is never formed.
     """
     lat_a, lon_a, lat_b, lon_b = (np.atleast_1d(np.asarray(v, dtype=np.float64)) for v in (lat_a, lon_a, lat_b, lon_b))
     empty = np.zeros(0, np.int64)
@@ -97,7 +102,7 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
     # chords are never longer than ground distances, and equal them within 1e-6 at gate lengths
     radius = gate_m * (1.0 + 1e-3) + 1e-3
     k = min(max_candidates, lat_b.size)
-    dist, nearest = cKDTree(_sphere_xyz(lat_b, lon_b)).query(_sphere_xyz(lat_a, lon_a), k=k,
+    dist, nearest = cKDTree(sphere_xyz(lat_b, lon_b)).query(sphere_xyz(lat_a, lon_a), k=k,
                                                              distance_upper_bound=radius)
     dist, nearest = dist.reshape(lat_a.size, k), nearest.reshape(lat_a.size, k)
     found = np.isfinite(dist)
@@ -112,6 +117,11 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
         dist = np.asarray(cost(ia, ib, dist), dtype=np.float64)
         allowed = np.isfinite(dist)
         ia, ib, dist = ia[allowed], ib[allowed], dist[allowed]
+    unmatched = None if unmatched_cost is None else np.broadcast_to(np.asarray(unmatched_cost, np.float64),
+                                                                     lat_a.shape)
+    if unmatched is not None:  # a pair dearer than leaving its point unmatched is never worth forming
+        cheaper = dist < unmatched[ia]
+        ia, ib, dist = ia[cheaper], ib[cheaper], dist[cheaper]
     if ia.size == 0:
         return Assignment(empty, empty, np.zeros(0), 0)
     na, nb = lat_a.size, lat_b.size
@@ -133,10 +143,14 @@ def gated_assignment(lat_a: ArrayLike, lon_a: ArrayLike, lat_b: ArrayLike, lon_b
         ua, a_local = np.unique(ga, return_inverse=True)
         ub, b_local = np.unique(gb, return_inverse=True)
         if ua.size * ub.size <= max_exact_cells:
-            block = np.full((ua.size, ub.size), _NOT_A_PAIR)
+            # with unmatched_cost, one more column per point of a: leaving it unmatched, at its cost
+            extra = ua.size if unmatched is not None else 0
+            block = np.full((ua.size, ub.size + extra), _NOT_A_PAIR)
             block[a_local, b_local] = gc
+            if unmatched is not None:
+                block[np.arange(ua.size), ub.size + np.arange(ua.size)] = np.minimum(unmatched[ua], _NOT_A_PAIR)
             r, c = linear_sum_assignment(block)
-            ok = block[r, c] < _NOT_A_PAIR
+            ok = (block[r, c] < _NOT_A_PAIR) & (c < ub.size)
             rows.append(ua[r[ok]])
             cols.append(ub[c[ok]])
         else:

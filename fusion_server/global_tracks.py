@@ -17,7 +17,7 @@ from collections.abc import Callable, Iterable
 import numpy as np
 
 from fusion_server.association import gated_assignment, ground_distance_m, weighted_lon
-from fusion_server.reassociation import Reassociation
+from fusion_server.reassociation import Reassociation, seen_at
 from fusion_server.track_records import GlobalTrack, Member, TrackRecord, active_indexes, moved_on
 from shared.messages import MAX_MEMBERS, MAX_TRACKS, JointTrackItem, JointTracksMessage, TrackItem, TracksMessage
 
@@ -143,7 +143,7 @@ class GlobalTracker:
                 self._associate(uav, [item for item in unmatched if item.cls == cls], claimed, now, wall)
             touched |= claimed
             if self.reassociation is not None:
-                touched |= self._reassociate(uav, items, now, wall)
+                touched |= self._reassociate(uav, items, claimed, now, wall)
             reported = {item.id for item in items}
             for local_id in self._active.get(uav, set()) - reported:
                 touched |= self._deactivate(uav, local_id)
@@ -220,54 +220,49 @@ class GlobalTracker:
         self._owned.setdefault(uav, {})[gid] = None
         return track
 
-    def _reassociate(self, uav: str, items: tuple[TrackItem, ...], now: float, wall: float) -> set[int]:
+    def _reassociate(self, uav: str, items: tuple[TrackItem, ...], claimed: set[int], now: float,
+                     wall: float) -> set[int]:
         """Move `uav`'s local tracks to the global tracks the other UAVs see their objects under, where the
         distances of seconds say so (`fusion_server.reassociation`). Returns the global ids changed."""
         plan = self.reassociation
         assert plan is not None
         plan.forget(uav, {item.id for item in items})
-        if not plan.turn(uav, now):
+        mapped = [item for item in items if self._local.get((uav, item.id)) in self._tracks]
+        if not mapped or not plan.turn(uav, now):
             return set()
+        near = plan.near(self._tracks, now, [item.lat for item in mapped], [item.lon for item in mapped])
         seen: dict[int, list[Member]] = {}  # gid -> the active members other UAVs have on it
-        for other, local_ids in self._active.items():
-            for local_id in local_ids if other != uav else ():
-                gid = self._local.get((other, local_id))
-                member = self._tracks[gid].members.get((other, local_id)) if gid in self._tracks else None
-                if gid is not None and member is not None and member.active:
-                    seen.setdefault(gid, []).append(member)
+        for gid in near:
+            track = self._tracks.get(gid)
+            others = [m for (u, _), m in track.members.items() if m.active and u != uav] if track is not None else []
+            if others:
+                seen[gid] = others
         touched: set[int] = set()
-        for cls in sorted({item.cls for item in items}):
-            mine = [item for item in items if item.cls == cls and self._local.get((uav, item.id)) in self._tracks]
+        for cls in sorted({item.cls for item in mapped}):
+            mine = [item for item in mapped if item.cls == cls]
             gids = [gid for gid in seen if self._tracks[gid].cls == cls]
-            if not mine or not gids:
+            if not gids:
                 continue
-            at_lat, at_lon = self._seen_at([seen[gid] for gid in gids], now)
+            at_lat, at_lon = seen_at([seen[gid] for gid in gids], now, self.member_ttl_s)
             current = [self._local[(uav, item.id)] for item in mine]
             moves = plan.plan(uav, [item.id for item in mine], current, [item.lat for item in mine],
                               [item.lon for item in mine], gids, at_lat, at_lon, now)
-            for i, gid in moves.items():
-                touched |= self._move(uav, mine[i], current[i], gid, now, wall)
+            # a track taken over needs room for its displaced local track first; without room, it is not taken
+            blocked: set[int] = set()
+            for i in sorted(moves, key=lambda i: moves[i] is not None):
+                target = moves[i]
+                if target is None and not self._make_room(uav, claimed | {current[i]}):
+                    blocked.add(current[i])
+                    continue
+                if target is not None and (target in blocked or target not in self._tracks):
+                    continue
+                touched |= self._move(uav, mine[i], current[i], target, now, wall)
+                plan.moved += 1
         return touched
 
-    def _seen_at(self, groups: list[list[Member]], now: float) -> tuple[np.ndarray, np.ndarray]:
-        """Per group of members, their score-weighted position moved on by their velocities to now (degrees; the
-        longitudes averaged as offsets from each group's first, across the antimeridian too)."""
-        members = [m for group in groups for m in group]
-        index = np.repeat(np.arange(len(groups)), [len(group) for group in groups])
-        lat, lon = moved_on(np.array([m.lat for m in members]), np.array([m.lon for m in members]),
-                            np.array([m.vel_en for m in members]).reshape(-1, 2),
-                            np.array([min(max(now - m.received, 0.0), self.member_ttl_s) for m in members]))
-        weights = np.array([max(m.score, 1e-3) for m in members])
-        total = np.bincount(index, weights, len(groups))
-        first = lon[np.r_[0, np.cumsum([len(group) for group in groups])[:-1]]]
-        offsets = (lon - first[index] + 180.0) % 360.0 - 180.0
-        mean_lon = first + np.bincount(index, weights * offsets, len(groups)) / total
-        return np.bincount(index, weights * lat, len(groups)) / total, (mean_lon + 180.0) % 360.0 - 180.0
-
     def _move(self, uav: str, item: TrackItem, old_gid: int, gid: int | None, now: float, wall: float) -> set[int]:
-        """Make `uav`'s local track `item` a member of global track gid (a new one when None) instead of old_gid."""
-        if gid is None and not self._make_room(uav, {old_gid}):
-            return set()
+        """Make `uav`'s local track `item` a member of global track gid (a new one when None) instead of old_gid;
+        the old track ends when no UAV reports it any more (it would only take in the next newcomer near it)."""
         key = (uav, item.id)
         old = self._tracks[old_gid]
         member = old.members.pop(key, None) or Member(item.lat, item.lon, item.score, item.vel_en, now)
@@ -276,6 +271,8 @@ class GlobalTracker:
         track.members[key] = member
         self._trim_members(track)
         self._local[key] = track.gid
+        if not any(m.active for m in old.members.values()):
+            self._end(old_gid, wall)
         return {old_gid, track.gid}
 
     def _elsewhere_for(self, uav: str, items: list, candidates: list[GlobalTrack], now: float

@@ -24,10 +24,12 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike
+from scipy.spatial import cKDTree
 
-from fusion_server.association import gated_assignment
+from fusion_server.association import gated_assignment, sphere_xyz
+from fusion_server.track_records import GlobalTrack, Member, moved_on
 
-__all__ = ["Reassociation"]
+__all__ = ["Reassociation", "seen_at"]
 
 
 @dataclass(slots=True)
@@ -63,7 +65,12 @@ class Reassociation:
         self.period_s = period_s
         #: a measurement this long after the previous one starts the pair's mean again
         self.max_gap_s = max(1.0, 2.5 * period_s)
+        #: what a local track on no other UAV's track pays in the assignment for staying alone: without it the
+        #: assignment formed the most pairs first and broke a right pair to pair a neighbour with it
+        self.unmatched_cost = search_gate_m
+        #: local tracks moved (counted by the tracker as it moves them)
         self.moved = 0
+        self._index: tuple[float, cKDTree | None, list[int]] = (-math.inf, None, [])
         self._pairs: dict[str, dict[int, dict[int, _Pair]]] = {}  # uav -> local id -> gid -> its mean distance
         self._last_plan: dict[str, float] = {}
 
@@ -95,7 +102,11 @@ class Reassociation:
                     out[k] = pair.mean_m
             return out
 
-        match = gated_assignment(lat, lon, other_lat, other_lon, self.search_gate_m, cost=cost)
+        # a local track on no other UAV's track may stay alone (at unmatched_cost: a move must pay for itself); one
+        # on another UAV's track leaves it only when another of this UAV's takes it over
+        on_shared = set(gids)
+        alone = np.array([self.unmatched_cost if g not in on_shared else np.inf for g in current])
+        match = gated_assignment(lat, lon, other_lat, other_lon, self.search_gate_m, cost=cost, unmatched_cost=alone)
         for local_id in local_ids:  # a pair not measured now starts again when it is
             pairs = book.get(local_id, {})
             for gid in [g for g, pair in pairs.items() if pair.last != now]:
@@ -109,8 +120,23 @@ class Reassociation:
                 moves[i] = new
             elif new is None and gid in taken:  # another of this UAV's local tracks takes its track over
                 moves[i] = None
-        self.moved += len(moves)
         return moves
+
+    def near(self, tracks: dict[int, GlobalTrack], now: float, lat: list[float], lon: list[float]) -> set[int]:
+        """The global ids of `tracks` that may lie within the search gate of the points (lat, lon): a k-d tree
+        over all tracks' positions, rebuilt at most once per period_s (so a turn costs what its neighbourhood
+        holds, not the fleet), searched with a margin for what tracks move meanwhile (20 m/s)."""
+        built, tree, gids = self._index
+        if tree is None or now - built >= self.period_s or now < built:
+            gids = list(tracks)
+            tree = cKDTree(sphere_xyz(np.array([tracks[g].lat for g in gids]).reshape(-1),
+                                      np.array([tracks[g].lon for g in gids]).reshape(-1))) if gids else None
+            self._index = (now, tree, gids)
+        if tree is None or not lat:
+            return set()
+        radius = self.search_gate_m + 20.0 * self.period_s + 1.0
+        hits = tree.query_ball_point(sphere_xyz(np.asarray(lat, np.float64), np.asarray(lon, np.float64)), radius)
+        return {gids[k] for row in hits for k in row}
 
     def _measure(self, pairs: dict[int, _Pair], gid: int, dist: float, now: float) -> _Pair:
         pair = pairs.get(gid)
@@ -130,3 +156,20 @@ class Reassociation:
         book = self._pairs.get(uav, {})
         for local_id in [k for k in book if k not in keep]:
             del book[local_id]
+
+
+def seen_at(groups: list[list[Member]], now: float, max_age_s: float) -> tuple[np.ndarray, np.ndarray]:
+    """Per group of members, their score-weighted position moved on by their velocities to now (for at most
+    max_age_s; degrees, the longitudes averaged as offsets from each group's first, across the antimeridian)."""
+    members = [m for group in groups for m in group]
+    sizes = [len(group) for group in groups]
+    index = np.repeat(np.arange(len(groups)), sizes)
+    lat, lon = moved_on(np.array([m.lat for m in members]), np.array([m.lon for m in members]),
+                        np.array([m.vel_en for m in members]).reshape(-1, 2),
+                        np.array([min(max(now - m.received, 0.0), max_age_s) for m in members]))
+    weights = np.array([max(m.score, 1e-3) for m in members])
+    total = np.bincount(index, weights, len(groups))
+    first = lon[np.r_[0, np.cumsum(sizes)[:-1]]]
+    offsets = (lon - first[index] + 180.0) % 360.0 - 180.0
+    mean_lon = first + np.bincount(index, weights * offsets, len(groups)) / total
+    return np.bincount(index, weights * lat, len(groups)) / total, (mean_lon + 180.0) % 360.0 - 180.0

@@ -83,7 +83,7 @@ class CrossUavRecorder:
 def _relabelled(seq: SequenceTracks, index: int, gids: dict[int, dict[int, int]] | None) -> SequenceTracks:
     """seq with each track's id replaced by its global id in that frame (else the first it gets later, else its
     local id kept apart per video); gids None: every local id kept apart (no sharing). Global ids are >= 1,
-    local ones negative."""
+    local ones negative. A global id a frame gives two tracks goes to the first; the other keeps its local id."""
     first_later: dict[int, int] = {}
     if gids is not None:
         for f in sorted(gids, reverse=True):  # a frame's ids -> the first global id each gets from then on
@@ -94,11 +94,15 @@ def _relabelled(seq: SequenceTracks, index: int, gids: dict[int, dict[int, int]]
         ids, boxes, scores = seq.frames[f]
         frame = gids.get(f, {}) if gids is not None else {}
         new = np.empty(len(ids), dtype=np.int64)
+        used: set[int] = set()
         for k, local in enumerate(ids.tolist()):
             gid = frame.get(local, seen.get(local, first_later.get(local))) if gids is not None else None
             if gid is not None:
                 seen[local] = gid
+            if gid in used:  # two of a UAV's tracks on one global id in a frame: one id a frame is one box
+                gid = None
             new[k] = gid if gid is not None else -(index * _ID_SPAN + int(local) + 1)
+            used.add(int(new[k]))
         out.frames[f] = (new, boxes, scores)
     return out
 

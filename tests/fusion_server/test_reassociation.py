@@ -166,3 +166,54 @@ def test_a_live_server_moves_the_track_and_counts_it(server_factory, agent_facto
     assert server.tracker.gid_of("b", 7) not in (server.tracker.gid_of("a", 1), None)
     assert "uavmm_fusion_tracks_reassociated_total" in server.prometheus()
     assert server.tracker.stats()["reassociated"] >= 1
+
+
+def test_a_right_pair_is_not_broken_to_pair_a_neighbour():
+    """a1 and b1 are one person; a2 (5.9 m north) and b2 (5.5 m south) are two others each UAV sees alone. Pairing
+    a1-b2 and a2-b1 forms more pairs, but two wrong ones: the right pair stays (review of 30 Nov 2026)."""
+    clock = Clock()
+    tracker = tracker_on(clock)
+    run(tracker, clock, 1.0, msg("a", (1, 0.0)), msg("b", (1, 0.0)))
+    run(tracker, clock, 12.0, msg("a", (1, 0.0), (2, 5.9)), msg("b", (1, 0.0), (2, -5.5)))
+    assert tracker.gid_of("a", 1) == tracker.gid_of("b", 1)
+    assert len({tracker.gid_of("a", 1), tracker.gid_of("a", 2), tracker.gid_of("b", 2)}) == 3
+    assert tracker.stats()["reassociated"] == 0
+
+
+def test_at_its_track_quota_a_uav_never_holds_two_members_on_one_track():
+    """a's a3 should take b's track from a2, whose new global id the quota (2) refuses: a never holds two members
+    on one track meanwhile (review of 30 Nov 2026: it did, and the track's place was the mean of two people); b's
+    track moves to a3's instead."""
+    clock = Clock()
+    tracker = GlobalTracker(gate_m=10.0, hold_s=10.0, member_ttl_s=2.0, history_interval_s=0.0, clock=clock,
+                            wall=clock, max_tracks_per_uav=2)
+    run(tracker, clock, 1.0, msg("b", (101, 0.0)), msg("a", (1, 200.0), (2, 0.5)))
+    for _ in range(40):
+        tracker.update(msg("a", (1, 200.0), (2, 4.5), (3, 0.3)))
+        tracker.update(msg("b", (101, 0.0)))
+        on_b = [key for key, gid in ((("a", i), tracker.gid_of("a", i)) for i in (1, 2, 3))
+                if gid == tracker.gid_of("b", 101)]
+        assert len(on_b) <= 1, on_b
+        clock.now += 0.2
+    assert tracker.gid_of("b", 101) == tracker.gid_of("a", 3) != tracker.gid_of("a", 2)
+
+
+def test_the_track_a_moved_member_leaves_empty_ends_and_takes_in_no_newcomer():
+    clock = Clock()
+    tracker = tracker_on(clock)
+    run(tracker, clock, 1.0, msg("a", (1, 0.0)), msg("b", (7, 6.0)))
+    run(tracker, clock, 6.0, msg("b", (7, 6.0), (8, 0.5)), msg("a", (1, 0.0)))
+    x = tracker.gid_of("a", 1)
+    assert tracker.gid_of("b", 8) == x
+    assert all(any(True for _ in r.active) for r in tracker.records())  # no track without a UAV reporting it
+    run(tracker, clock, 0.4, msg("b", (7, 6.0), (8, 0.5)), msg("a", (1, 0.0)), msg("c", (30, 0.4)))
+    assert tracker.gid_of("c", 30) == x  # a third UAV's view of the object joins its one track
+
+
+def test_a_turn_looks_only_at_tracks_near_the_uavs_own():
+    plan = Reassociation(search_gate_m=10.0)
+    clock = Clock()
+    tracker = tracker_on(clock, reassociation=False)
+    tracker.update(msg("a", (1, 0.0), (2, 15.0), (3, 5000.0)))
+    near = plan.near(tracker._tracks, 0.0, [LAT], [LON])
+    assert near == {tracker.gid_of("a", 1), tracker.gid_of("a", 2)}

@@ -69,3 +69,10 @@ def test_the_recorder_joins_tracks_within_the_gate_at_the_publish_rate():
     assert 10 not in rec.gids[2][1]
     rec(2, 2, _msg("uav2", 0.2, (8, 2.0), (9, 80.0), (10, 40.5)))
     assert rec.gids[2][2][10] == g[1][0][4]
+
+
+def test_one_global_id_on_two_tracks_of_a_frame_counts_once():
+    truths = {1: _truth(10, [7, 8])}
+    seqs = {1: _tracks(10, [3, 4])}  # two people, two local tracks, both mapped to global id 40
+    out = cross_uav_metrics(truths, seqs, {1: {f: {3: 40, 4: 40} for f in range(10)}})
+    assert out["IDF1"] == pytest.approx(100.0) and out["IDs"] == 0  # the second keeps an id of its own
