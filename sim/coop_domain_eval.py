@@ -2,7 +2,9 @@
 
 Each domain and seed is simulated once (cached by the domain's tag) and run by `sim.coop_eval.evaluate_coop`:
 the single-frame detector (memory off), the UAV's own memory map, and the joint map the fusion server would
-send it (boosting and joint detections, the agent's defaults; no tracking), all on the wire's data path. AP50 counts the
+send it (boosting and joint detections, the agent's defaults), all on the wire's data path; the joint variant is
+also tracked, and its tracks go through the fusion server's global tracker (`sim.cross_uav`: one object, one id
+across UAVs, with and without re-association, against each UAV's ids kept apart). AP50 counts the
 objects a UAV has in view, hidden ones included (does it report everything in its view?). Tuning and held-out
 domains are reported apart; the acceptance rows are issue 30's: on every held-out domain the weaker UAV's joint
 map gains >= JOINT_GAIN_BAR AP50 over its own map, and no other UAV loses more than STRONG_LOSS_BAR.
@@ -20,7 +22,7 @@ from typing import Any
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from sim.coop_domains import CoopDomain
-from sim.coop_report import settings_line
+from sim.coop_report import CROSS_COLUMNS, CROSS_HEADER, cross_cells, settings_line
 
 DETECTOR, OWN, JOINT = "baseline", "own memory map", "joint map + joint detections"
 #: The variants run per domain (the joint map's boosting alone is left to `uavmm eval --tasks coop`).
@@ -56,6 +58,20 @@ def summarise(rows: list[dict[str, Any]], domains: list[CoopDomain]) -> list[dic
                     row[f"{m}|{variant}"] = statistics.fmean(values) if values else float("nan")
             row["gain"] = row[f"AP50|{JOINT}"] - row[f"AP50|{OWN}"]
             out.append(row)
+    return out
+
+
+def summarise_cross(rows: list[dict[str, Any]], domains: list[CoopDomain]) -> list[dict[str, Any]]:
+    """Per domain: the mean over seeds of the cross-UAV identity figures (`sim.cross_uav.CROSS_METRICS`)."""
+    from sim.cross_uav import CROSS_METRICS
+
+    out = []
+    for d in domains:
+        rs = [r for r in rows if r["domain"] == d.name]
+        if rs:
+            out.append({"domain": d.name, "split": d.split, "seeds": len(rs), **{
+                m: statistics.fmean(v) if (v := [r[m] for r in rs if r[m] == r[m]]) else float("nan")
+                for m in CROSS_METRICS}})
     return out
 
 
@@ -97,6 +113,15 @@ def markdown(report: dict[str, Any]) -> str:
                          f"{_pct(s[f'hidden_detected|{JOINT}'])} | {_px(s.get(f'registration_offset_px|{JOINT}'))} -> "
                          f"{_px(s.get(f'registration_left_px|{JOINT}'))} |")
         lines.append("")
+    cross = report.get("cross_summary") or []
+    if cross:
+        lines += ["## One object, one id across UAVs (joint variant)", "",
+                  "The joint variant's GPS tracks, as each agent publishes them at 5 Hz, through the fusion "
+                  "server's global tracker on the frame clock (sim.cross_uav), scored as multi-camera tracking over "
+                  "all UAVs: global ids / the first look's (no re-association) / each UAV's own ids kept apart.", "",
+                  f"| split | domain | {CROSS_HEADER} |", "|---|---|" + "---|" * CROSS_COLUMNS]
+        lines += [f"| {c['split']} | {c['domain']} | {cross_cells(c)} |" for c in cross]
+        lines.append("")
     if report["acceptance"]:
         lines += ["## Acceptance (held-out domains)", "", "| criterion | value | bar | ok |", "|---|---|---|---|"]
         lines += [f"| {a['criterion']} | {a['value']:+.1f} | {a['bar']} | {'yes' if a['ok'] else 'NO'} |"
@@ -129,17 +154,23 @@ def run_coop_domain_eval(domains: list[CoopDomain], seeds: list[int], *, noise_s
     out_dir.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
     rows: list[dict[str, Any]] = []
+    cross_rows: list[dict[str, Any]] = []
     jobs = [(d, s) for d in domains for s in seeds]
     for i, (domain, seed) in enumerate(jobs):
         if progress:
             progress(f"[{i + 1}/{len(jobs)}] coop domain {domain.name} seed={seed}")
         data_dir = ensure_coop_domain_dataset(domain, seed, noise_scale, out_dir / "data")
-        per_uav, _ = evaluate_coop(data_dir, config, variants=VARIANTS, track=False, size_filter=size_filter)
-        rows += [{"domain": domain.name, "split": domain.split, "seed": seed, **r} for r in per_uav]
+        per_uav, _ = evaluate_coop(data_dir, config, variants=(DETECTOR, OWN), track=False, size_filter=size_filter)
+        cross: list[dict[str, Any]] = []  # the joint variant is tracked: the fusion server's global ids over UAVs
+        joint, _ = evaluate_coop(data_dir, config, variants=(JOINT,), size_filter=size_filter, cross_rows=cross)
+        tag = {"domain": domain.name, "split": domain.split, "seed": seed}
+        rows += [{**tag, **r} for r in per_uav + joint]
+        cross_rows += [{**tag, **r} for r in cross]
     summary = summarise(rows, domains)
     report = {"domains": [d.name for d in domains], "seeds": seeds, "noise_scale": noise_scale,
               **settings_record(config, size_filter), "rows": rows,
-              "summary": summary, "acceptance": acceptance(summary), "seconds": round(time.perf_counter() - t0, 1)}
+              "summary": summary, "acceptance": acceptance(summary), "cross_rows": cross_rows,
+              "cross_summary": summarise_cross(cross_rows, domains), "seconds": round(time.perf_counter() - t0, 1)}
     (out_dir / "report.json").write_text(json.dumps(report, indent=1))
     (out_dir / "report.md").write_text(markdown(report))
     return report

@@ -362,7 +362,8 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
             })
     for name, recorder in recorders.items():
         if recorder is not None and cross_rows is not None:
-            cross_rows.append({"variant": name, **cross_uav_metrics(truths, kept[name], recorder.gids)})
+            cross_rows.append({"variant": name, **cross_uav_metrics(truths, kept[name], recorder.gids,
+                                                                     recorder.first_look_gids)})
     return rows, peak_rows
 
 

@@ -11,7 +11,7 @@ from sim.coop_peaks import MATCH_GATE_M, PEAK_BAR_M, PEAK_MIN_SCORE
 from sim.position_error import format_metres
 from sim.terrain_eval import DEM_SUFFIX
 
-__all__ = ["coop_markdown", "settings_line"]
+__all__ = ["CROSS_COLUMNS", "CROSS_HEADER", "coop_markdown", "cross_cells", "settings_line"]
 
 _SCENES = {
     "coop": "A tree line hides resting people (and passing walkers) from the far, oblique uav1 for the whole "
@@ -85,24 +85,35 @@ def coop_markdown(report: dict[str, Any]) -> str:
     return "\n".join(lines) + "\n"
 
 
+#: The cross-UAV identity columns (`cross_cells`), shared with the coop domains' report.
+CROSS_HEADER = "IDF1 | HOTA | IDs | objects on 2+ UAVs | one id %"
+CROSS_COLUMNS = 5
+
+
+def cross_cells(c: dict[str, Any]) -> str:
+    """The CROSS_HEADER cells of a `sim.cross_uav.cross_uav_metrics` row: global / first look / apart."""
+    triples = " | ".join(f"{c[m]:.1f} / {c[m + '_first_look']:.1f} / {c[m + '_separate']:.1f}"
+                         for m in ("IDF1", "HOTA", "IDs"))
+    return f"{triples} | {c['shared_objects']:.1f} | {_pct(c['same_id'])} / {_pct(c['same_id_first_look'])}"
+
+
 def _cross_lines(report: dict[str, Any]) -> list[str]:
     """The fusion server's global ids over all UAVs (sim.cross_uav) per variant, against the UAVs' own ids."""
     rows = []
     for c in report.get("cross_summary", []):
-        pairs = " | ".join(f"{c[m]:.1f} / {c[m + '_separate']:.1f}" for m in ("IDF1", "HOTA", "IDs"))
-        rows.append(f"| {c['scenario']} | x{c['noise_scale']:g} | {c['variant']} | {pairs} | "
-                    f"{c['shared_objects']:.1f} | {_pct(c['same_id'])} |")
+        rows.append(f"| {c['scenario']} | x{c['noise_scale']:g} | {c['variant']} | {cross_cells(c)} |")
     if not rows:
         return []
     return ["", "## One object, one id across UAVs (the fusion server's global tracks)", "",
             "Every UAV's GPS-tracker tracks as its agent publishes them (5 Hz) go through the fusion server's "
             "global tracker (fusion_server.global_tracks, `uavmm fusion`'s defaults) on the frame clock. Scored "
             "as multi-camera tracking: the UAVs' sequences end to end, one ground-truth id per object over all "
-            "UAVs (TrackEval; hidden people as distractors); each figure with the global ids / with each UAV's "
-            "own ids kept apart (UAVs that do not share tracks). 'objects on 2+ UAVs': objects more than one UAV "
-            "tracks; 'one id %': of those, the share whose most frequent id is the same on every UAV.", "",
-            "| scenario | noise | variant | IDF1 | HOTA | IDs | objects on 2+ UAVs | one id % |",
-            "|---|---|---|---|---|---|---|---|", *rows]
+            "UAVs (TrackEval; hidden people as distractors); each figure with the global ids / with the first "
+            "look's (the same messages through a tracker without re-association, --track-reassociate-m 0) / with "
+            "each UAV's own ids kept apart (UAVs that do not share tracks). 'objects on 2+ UAVs': objects more "
+            "than one UAV tracks; 'one id %': of those, the share whose most frequent id is the same on every "
+            "UAV (global / first look).", "",
+            f"| scenario | noise | variant | {CROSS_HEADER} |", "|---|---|---|" + "---|" * CROSS_COLUMNS, *rows]
 
 
 def _terrain_lines(report: dict[str, Any]) -> list[str]:

@@ -13,7 +13,8 @@ TrackEval's HOTA, IDF1 and ID switches are computed (a) with each local track ca
 the local ids kept apart per UAV, the figure of UAVs that do not share their tracks. An object two UAVs see under
 one global id counts as one identity; under two (or under each UAV's local id) it loses the frames of all but one.
 `same_id` is the plain share: of the objects more than one UAV tracks, those whose most frequent id is the same
-in every UAV that tracks them.
+in every UAV that tracks them. Each figure also comes for the first-look association (a second tracker on the
+same messages without re-association, `fusion_server.reassociation`): `*_first_look`.
 
 A local track's frames before its first global id (until the agent's first tracks message with it reaches the
 server, at most one publish period) carry that first id: the figure measures the association, not the latency.
@@ -41,8 +42,9 @@ __all__ = ["CROSS_METRICS", "CrossUavRecorder", "cross_uav_metrics"]
 
 PUBLISH_PERIOD_S = 0.2  # the agent's default 5 Hz
 #: The figures of `cross_uav_metrics`, in report order.
-CROSS_METRICS = ("IDF1", "IDF1_separate", "HOTA", "HOTA_separate", "AssA", "AssA_separate", "IDs", "IDs_separate",
-                 "shared_objects", "same_id")
+CROSS_METRICS = ("IDF1", "IDF1_first_look", "IDF1_separate", "HOTA", "HOTA_first_look", "HOTA_separate", "AssA",
+                 "AssA_first_look", "AssA_separate", "IDs", "IDs_first_look", "IDs_separate", "shared_objects",
+                 "same_id", "same_id_first_look")
 #: Local ids of different UAVs kept apart: video index x this + local id (local ids of a sequence stay below it).
 _ID_SPAN = 1 << 32
 
@@ -52,32 +54,40 @@ class CrossUavRecorder:
 
     settings: the fusion server's settings whose tracker options apply (default `uavmm fusion`'s); period_s: the
     agents' publish period. Call it with (video id, frame index, tracks message) in time order; `gids` then holds,
-    per video id and frame index, local id -> global id of the tracks that had one in that frame.
+    per video id and frame index, local id -> global id of the tracks that had one in that frame, and
+    `first_look_gids` the same from a second tracker fed the same messages without re-association (the first
+    association kept for good, `--track-reassociate-m 0`): the baseline of the same run.
     """
 
     def __init__(self, settings: FusionSettings | None = None, *, period_s: float = PUBLISH_PERIOD_S) -> None:
         s = settings or FusionSettings(db_path=None)
         self.now = float("-inf")
         self.period_s = period_s
-        self.tracker = GlobalTracker(gate_m=s.track_gate_m, hold_s=s.track_hold_s, member_ttl_s=s.ttl_s,
-                                     history_len=s.track_history_len, history_interval_s=s.track_history_interval_s,
-                                     reassociate_m=s.track_reassociate_m,
-                                     keep_changes=False, clock=lambda: self.now, wall=lambda: self.now)
+        self.tracker, self.first_look = (
+            GlobalTracker(gate_m=s.track_gate_m, hold_s=s.track_hold_s, member_ttl_s=s.ttl_s,
+                          history_len=s.track_history_len, history_interval_s=s.track_history_interval_s,
+                          reassociate_m=reassociate_m, keep_changes=False, clock=lambda: self.now,
+                          wall=lambda: self.now)
+            for reassociate_m in (s.track_reassociate_m, 0.0))
         self.gids: dict[int, dict[int, dict[int, int]]] = {}
+        self.first_look_gids: dict[int, dict[int, dict[int, int]]] = {}
         self._next: dict[int, float] = {}
 
     def __call__(self, video_id: int, frame_index: int, msg: TracksMessage) -> None:
         self.now = max(self.now, msg.t)
-        if msg.t >= self._next.get(video_id, float("-inf")):
-            self.tracker.expire(self.now)
-            self.tracker.update(msg, self.now)
+        due = msg.t >= self._next.get(video_id, float("-inf"))
+        if due:
             self._next[video_id] = msg.t + self.period_s
-        frame = {}
-        for item in msg.tracks:
-            gid = self.tracker.gid_of(msg.uav, item.id)
-            if gid is not None:
-                frame[item.id] = gid
-        self.gids.setdefault(video_id, {})[frame_index] = frame
+        for tracker, gids in ((self.tracker, self.gids), (self.first_look, self.first_look_gids)):
+            if due:
+                tracker.expire(self.now)
+                tracker.update(msg, self.now)
+            frame = {}
+            for item in msg.tracks:
+                gid = tracker.gid_of(msg.uav, item.id)
+                if gid is not None:
+                    frame[item.id] = gid
+            gids.setdefault(video_id, {})[frame_index] = frame
 
 
 def _relabelled(seq: SequenceTracks, index: int, gids: dict[int, dict[int, int]] | None) -> SequenceTracks:
@@ -137,25 +147,31 @@ def _same_id(truths: list[SequenceTruth], seqs: list[SequenceTracks]) -> tuple[i
 
 
 def cross_uav_metrics(truths: dict[int, SequenceTruth], seqs: dict[int, SequenceTracks],
-                      gids: dict[int, dict[int, dict[int, int]]]) -> dict[str, Any]:
+                      gids: dict[int, dict[int, dict[int, int]]],
+                      first_look_gids: dict[int, dict[int, dict[int, int]]] | None = None) -> dict[str, Any]:
     """Identity figures over all UAVs (module doc): per video id its truth (hidden objects as ignore regions
-    already dropped from seqs), its tracker output and `CrossUavRecorder.gids`.
+    already dropped from seqs), its tracker output and `CrossUavRecorder.gids` (and `first_look_gids`).
 
-    Returns HOTA, AssA, IDF1 (percent) and IDs with global ids, the same as `*_separate` with each UAV's ids kept
-    apart, `shared_objects` (objects more than one UAV tracks) and `same_id` (percent of them with one id
-    everywhere; NaN without shared objects).
+    Returns HOTA, AssA, IDF1 (percent) and IDs with global ids, the same as `*_first_look` with the first-look
+    global ids (NaN without them) and as `*_separate` with each UAV's ids kept apart, `shared_objects` (objects
+    more than one UAV tracks) and `same_id` / `same_id_first_look` (percent of them with one id everywhere; NaN
+    without shared objects).
     """
     videos = sorted(truths)
     t_list = [truths[v] for v in videos]
     out: dict[str, Any] = {}
-    for suffix, use in (("", True), ("_separate", False)):
-        relabelled = [_relabelled(seqs[v], i, gids.get(v, {}) if use else None) for i, v in enumerate(videos)]
+    for suffix, given in (("", gids), ("_first_look", first_look_gids), ("_separate", None)):
+        if suffix == "_first_look" and given is None:
+            out.update({f"{m}_first_look": float("nan") for m in ("HOTA", "AssA", "IDF1", "IDs", "same_id")})
+            continue
+        relabelled = [_relabelled(seqs[v], i, given.get(v, {}) if given is not None else None)
+                      for i, v in enumerate(videos)]
         truth, seq = _end_to_end(t_list, relabelled)
         m = mot_metrics([trackeval_data(truth, seq)])
         out.update({f"HOTA{suffix}": m["HOTA"], f"AssA{suffix}": m["AssA"], f"IDF1{suffix}": m["IDF1"],
                     f"IDs{suffix}": m["IDs"]})
-        if use:
+        if given is not None:
             shared, same = _same_id(t_list, relabelled)
             out["shared_objects"] = shared
-            out["same_id"] = 100.0 * same / shared if shared else float("nan")
+            out[f"same_id{suffix}"] = 100.0 * same / shared if shared else float("nan")
     return out

@@ -184,6 +184,11 @@ def test_a_small_domain_runs_end_to_end_from_the_cli(tmp_path, capsys):
     text = (tmp_path / "eval" / "report.md").read_text()
     assert text.startswith("# uavmm eval --tasks coop --domains") and " px -> " in text
     assert report["acceptance"] == []  # a tuning domain: no held-out rows
+    # the joint variant is tracked, and its tracks go through the fusion server's global tracker
+    (cross,) = report["cross_summary"]
+    assert cross["domain"] == "coop-trees" and cross["seeds"] == 1
+    assert all(0.0 <= cross[m] <= 100.0 for m in ("IDF1", "IDF1_first_look", "IDF1_separate"))
+    assert "## One object, one id across UAVs (joint variant)" in text
     assert main(["eval", "--tasks", "coop", "--domains", "coop-nowhere", "--out", str(tmp_path / "x")]) == 2
     assert "unknown coop domain" in capsys.readouterr().err
     assert main(["eval", "--tasks", "coop,tracking", "--domains", "tune", "--out", str(tmp_path / "x")]) == 2

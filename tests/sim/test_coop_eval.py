@@ -65,8 +65,9 @@ def test_coop_eval_reports_every_uav_and_finds_hidden_people(tmp_path):
     cross = {c["variant"]: c for c in report["cross_summary"]}
     assert set(cross) == {v for _, v in by}
     for c in cross.values():
-        assert c["shared_objects"] >= 3 and c["same_id"] > 50.0
+        assert c["shared_objects"] >= 3 and c["same_id"] > 50.0 and c["same_id_first_look"] > 0.0
         assert c["IDF1"] > c["IDF1_separate"] + 10.0 and c["IDs"] <= c["IDs_separate"]
+        assert c["IDF1_first_look"] > c["IDF1_separate"]
     assert "## One object, one id across UAVs" in (tmp_path / "report.md").read_text()
 
 

@@ -38,7 +38,11 @@ def test_one_global_id_on_both_uavs_scores_as_one_identity():
     assert same["IDF1_separate"] == pytest.approx(50.0) and same["IDs_separate"] == 1
     apart = cross_uav_metrics(truths, seqs, {1: {f: {3: 40} for f in range(10)}, 2: {f: {5: 41} for f in range(10)}})
     assert apart["IDF1"] == pytest.approx(50.0) and apart["same_id"] == pytest.approx(0.0)
-    assert set(CROSS_METRICS) <= set(same)
+    assert set(CROSS_METRICS) <= set(same) and np.isnan(same["IDF1_first_look"])  # no first-look ids given
+    both = cross_uav_metrics(truths, seqs, {1: {f: {3: 40} for f in range(10)}, 2: {f: {5: 40} for f in range(10)}},
+                             {1: {f: {3: 40} for f in range(10)}, 2: {f: {5: 41} for f in range(10)}})
+    assert both["IDF1"] == pytest.approx(100.0) and both["IDF1_first_look"] == pytest.approx(50.0)
+    assert both["same_id_first_look"] == pytest.approx(0.0)
 
 
 def test_frames_before_the_first_global_id_carry_it_and_without_any_the_local_id_stays_apart():
@@ -64,6 +68,7 @@ def test_the_recorder_joins_tracks_within_the_gate_at_the_publish_rate():
     rec(2, 0, _msg("uav2", 0.0, (8, 2.0), (9, 80.0)))  # 2 m from uav1's track 3: one object; 9 is 40 m from 4
     g = rec.gids
     assert g[2][0][8] == g[1][0][3] and g[2][0][9] not in (g[1][0][3], g[1][0][4])
+    assert rec.first_look_gids[2][0] == {8: g[1][0][3], 9: g[2][0][9]}  # the baseline tracker saw the same
     # within the publish period a new track is not heard yet: no global id for it in that frame
     rec(2, 1, _msg("uav2", 0.1, (8, 2.0), (9, 80.0), (10, 40.5)))
     assert 10 not in rec.gids[2][1]
