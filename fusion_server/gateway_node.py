@@ -7,7 +7,9 @@ global tracks (asking for them once at start, for a late join) and publishes tho
 ``{prefix}/joint/tracks`` (at most ``tracks_max_hz``, and once a second while unchanged) and answers
 queries of that key: the DESIGN.md contract key, which shards leave to the gateway. UAVs come from
 their ``uav/*/state`` messages and ``uav/*/alive`` tokens. Callbacks never raise: a malformed message
-is dropped, counted and logged (rate-limited).
+is dropped, counted and logged (rate-limited); so is a region message whose ``t`` is more than the clock skew
+ahead of the gateway's clock (``t_in_future``: the newest message wins a global id, so such a message, forged
+or from a shard whose clock runs ahead, kept the honest shard's copy of every id it listed out of the view).
 """
 
 from __future__ import annotations
@@ -111,7 +113,8 @@ class ShardWatch:
 class GatewayNode:
     """One Zenoh session of the gateway, feeding ``tracks``, ``uavs`` and ``shards``.
 
-    conf: the Zenoh config; keys: the key space; validator: checks the UAVs' state messages.
+    conf: the Zenoh config; keys: the key space; validator: checks the UAVs' state messages (its
+    ``max_clock_skew_s`` also bounds how far a shard's region message may be ahead of this clock).
     tracks_max_hz: most ``joint/tracks`` messages a second; max_tracks_bytes: their largest size (fewer
     tracks beyond it, tracked ones first, counted as ``tracks_left_out``). session: the open session (None before
     start and after close), shared with the gateway's RemoteJoint.
@@ -237,6 +240,16 @@ class GatewayNode:
                 message = decode_joint_tracks(sample.payload.to_bytes())
             except MessageError as exc:
                 self._intake.reject("region_tracks", exc.reason, key, exc)
+                return
+            # the newest message wins each id it lists: one stamped in the future would hold the honest shard's
+            # copies out of the view for as long as it is fresh (3 s; for good when sent again). A shard whose
+            # clock is ahead by at most the skew keeps working (its copies win handovers, as before)
+            ahead_s = message.t - time.time()
+            if ahead_s > self.validator.max_clock_skew_s:
+                self._intake.reject("region_tracks", "t_in_future", key,
+                                    f"t is {ahead_s:.4g} s ahead of the gateway's clock, more than "
+                                    f"--max-clock-skew-s {self.validator.max_clock_skew_s:g} (forged, or the "
+                                    "shard's clock runs ahead: set it)")
                 return
             assert parsed.z is not None and parsed.x is not None and parsed.y is not None
             self.tracks.put((parsed.z, parsed.x, parsed.y), message)

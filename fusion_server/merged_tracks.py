@@ -4,7 +4,8 @@ Every shard publishes the global tracks of its regions on ``{prefix}/region/trac
 least once a second while a region has tracks, one empty message when it has none left). The gateway
 keeps each region's last message; the merged view is the union of the regions heard from within
 ``stale_s`` seconds (3 by default: a region of a dead shard drops out), one track per global id, the
-one from the newest message (during a handover both shards may publish the id for a moment). A track's
+one from the newest message (during a handover both shards may publish the id for a moment; the gateway node
+drops a message stamped more than the clock skew ahead, which would win every id it lists). A track's
 status comes with it: the region message lists which members still report it (``JointTrackItem.active``;
 a message of an older shard without it reads as all of them: "tracked"). Its history, creation and
 last-update times and the ended tracks come from the shards themselves when ``details`` is set (the

@@ -52,7 +52,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--tracks-max-hz", type=float, default=5.0,
                    help="most joint/tracks messages a second (5; one a second while nothing changes)")
     p.add_argument("--max-clock-skew-s", type=float, default=30.0,
-                   help="drop UAV states whose t is this far ahead of the gateway's clock (30; the shards' value)")
+                   help="drop UAV states and shard region messages whose t is this far ahead of the gateway's "
+                        "clock (30; the shards' value)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
     add_map_max_cells_argument(p)

@@ -174,6 +174,72 @@ def test_joint_tracks_message_is_bounded_in_bytes_tracked_first_and_the_rest_cou
         sub.undeclare()
 
 
+# ---- region messages stamped in the future ---------------------------------------------------------------------
+def _region_put(session: zenoh.Session, region: tuple[int, int, int], t: float, gid: int, lon: float) -> None:
+    item = JointTrackItem(gid=gid, cls="person", lat=47.6, lon=lon, score=0.9, vel_en=(0.0, 0.0),
+                          members=(("uav-a", 1),))
+    session.put(KEYS.region_tracks(*region), encode_joint_tracks(JointTracksMessage(t=t, tracks=(item,))))
+
+
+def test_a_region_message_stamped_beyond_the_clock_skew_does_not_win_its_ids_and_is_counted(lone_gateway):
+    """The newest region message wins a global id: one message of any peer without the ACL (or of a shard whose
+    clock runs an hour ahead) stamped an hour ahead showed its copy of the id at the gateway for 3 s, the honest
+    shard's copy out of the view (for good when sent again each second). A region message whose t is more than
+    --max-clock-skew-s ahead of the gateway's clock is now dropped and counted (t_in_future), as a UAV's state is."""
+    gateway, session = lone_gateway
+    honest, forged = (16, 1, 1), (16, 2, 1)
+
+    def seen() -> bool:
+        _region_put(session, honest, time.time(), 7, 9.2)
+        return {r.gid: r.lon for r in gateway.tracker.records()} == {7: 9.2}
+
+    wait_until(seen, 10.0, "the honest shard's copy of gid 7")
+    for t in (time.time() + 3600.0, 1e300):
+        _region_put(session, forged, t, 7, 10.0)
+        _region_put(session, forged, t, 8, 10.0)
+    wait_until(lambda: gateway.metrics.rejected.get(("region_tracks", "t_in_future"), 0) >= 4, 5.0,
+               "the messages ahead counted")
+    _region_put(session, honest, time.time(), 7, 9.2)
+    wait_until(lambda: gateway.metrics.rejected.get(("region_tracks", "t_in_future"), 0) >= 4
+               and gateway.tracker.regions().keys() == {honest}, 5.0, "the honest region heard again")
+    assert {r.gid: r.lon for r in gateway.tracker.records()} == {7: 9.2}
+    assert all(item.lon == 9.2 for item in gateway.tracker.joint_message().tracks)
+    assert 'uavmm_fusion_rejected_total{kind="region_tracks",reason="t_in_future"} 4' in gateway.prometheus()
+
+
+def test_a_shard_whose_clock_is_ahead_within_the_skew_keeps_its_tracks_at_the_gateway(lone_gateway):
+    """The bound on region messages ahead leaves a shard whose clock runs a little ahead (20 s of the 30 s skew)
+    working as before: its tracks are merged, and its newer copy wins an id two regions list during a handover."""
+    gateway, session = lone_gateway
+
+    def merged() -> bool:
+        _region_put(session, (16, 1, 1), time.time(), 7, 9.2)
+        _region_put(session, (16, 2, 1), time.time() + 20.0, 7, 9.3)
+        return {r.gid: r.lon for r in gateway.tracker.records()} == {7: 9.3}
+
+    wait_until(merged, 10.0, "the copy of the shard 20 s ahead")
+    assert ("region_tracks", "t_in_future") not in gateway.metrics.rejected
+
+
+def test_a_late_join_answer_stamped_beyond_the_clock_skew_is_dropped_too():
+    """The region messages a gateway asks for when it starts pass the same bound as those it hears."""
+    port = free_port()
+    peer = zenoh.open(client_config(f"tcp/127.0.0.1:{port}", extra={"listen/endpoints": [f"tcp/127.0.0.1:{port}"],
+                                                                    "connect/endpoints": []}))
+    future = encode_joint_tracks(JointTracksMessage(t=time.time() + 3600.0, tracks=_items(7, 1)))
+    answer = peer.declare_queryable(KEYS.region_tracks_all(),
+                                    lambda query: query.reply(KEYS.region_tracks(16, 2, 1), future))
+    options = ZenohOptions(mode="peer", connect=(f"tcp/127.0.0.1:{port}",), multicast_scouting=False)
+    gateway = Gateway(FusionSettings(zenoh=options, http_port=0, db_path=None, shard_count=2, region_zoom=ZOOM))
+    try:
+        gateway.start(http=False)
+        assert (gateway.metrics.rejected.get(("region_tracks", "t_in_future")), len(gateway.tracker)) == (1, 0)
+    finally:
+        gateway.close()
+        answer.undeclare()
+        peer.close()
+
+
 # ---- shard tokens of other deployments ---------------------------------------------------------------------------
 def test_foreign_shard_tokens_are_bounded_and_gone_ones_forgotten_first():
     """Every token of another shard count stayed listed, gone or not: 20,000 of them made /healthz 398 kB."""
