@@ -12,18 +12,8 @@ from fusion_server.association import gated_assignment
 from fusion_server.global_tracks import GlobalTracker
 from fusion_server.reassociation import Reassociation
 from shared.messages import TrackItem, TracksMessage
+from tests.fusion_server.test_global_tracks import LAT, LON, M_LAT, Clock
 from tests.netutil import wait_until
-
-LAT, LON = 47.67, 9.27
-M_LAT = 1.0 / 111_320.0  # degrees of latitude per metre
-
-
-class Clock:
-    def __init__(self) -> None:
-        self.now = 0.0
-
-    def __call__(self) -> float:
-        return self.now
 
 
 def msg(uav: str, *items: tuple[int, float]) -> TracksMessage:
