@@ -247,17 +247,22 @@ class GlobalTracker:
             current = [self._local[(uav, item.id)] for item in mine]
             moves = plan.plan(uav, [item.id for item in mine], current, [item.lat for item in mine],
                               [item.lon for item in mine], gids, at_lat, at_lon, now)
-            # a track taken over needs room for its displaced local track first; without room, it is not taken
+            # a track taken over needs room for its displaced local track first; without room it is not taken, nor
+            # then the track the taker would have left (a chain), so no UAV holds two members on one track
             blocked: set[int] = set()
-            for i in sorted(moves, key=lambda i: moves[i] is not None):
-                target = moves[i]
-                if target is None and not self._make_room(uav, claimed | {current[i]}):
+            for i in [i for i, target in moves.items() if target is None]:
+                if self._make_room(uav, claimed | {current[i]}):
+                    touched |= self._move(uav, mine[i], current[i], None, now, wall)
+                    plan.moved += 1
+                else:
                     blocked.add(current[i])
-                    continue
-                if target is not None and (target in blocked or target not in self._tracks):
-                    continue
-                touched |= self._move(uav, mine[i], current[i], target, now, wall)
-                plan.moved += 1
+            while stuck := {current[i] for i, target in moves.items() if target is not None and
+                            (target in blocked or target not in self._tracks)} - blocked:
+                blocked |= stuck
+            for i, target in moves.items():
+                if target is not None and target not in blocked and current[i] not in blocked:
+                    touched |= self._move(uav, mine[i], current[i], target, now, wall)
+                    plan.moved += 1
         return touched
 
     def _move(self, uav: str, item: TrackItem, old_gid: int, gid: int | None, now: float, wall: float) -> set[int]:

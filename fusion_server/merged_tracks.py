@@ -4,8 +4,9 @@ Every shard publishes the global tracks of its regions on ``{prefix}/region/trac
 least once a second while a region has tracks, one empty message when it has none left). The gateway
 keeps each region's last message; the merged view is the union of the regions heard from within
 ``stale_s`` seconds (3 by default: a region of a dead shard drops out), one track per global id, the
-one from the newest message (during a handover both shards may publish the id for a moment; the gateway node
-drops a message stamped more than the clock skew ahead, which would win every id it lists). A track's
+one from the newest message (during a handover both shards may publish the id for a moment; a message's time is
+its `t` or its arrival, whichever is earlier, and the gateway node drops one stamped more than the clock skew
+ahead: a future stamp wins nothing). A track's
 status comes with it: the region message lists which members still report it (``JointTrackItem.active``;
 a message of an older shard without it reads as all of them: "tracked"). Its history, creation and
 last-update times and the ended tracks come from the shards themselves when ``details`` is set (the
@@ -94,22 +95,25 @@ class MergedTracks:
         self.details: Callable[[bool], list[ShardTrack] | None] | None = None
 
     def put(self, region: Region, message: JointTracksMessage) -> None:
-        """Record a region's tracks message (an empty one: the region has no tracks any more)."""
+        """Record a region's tracks message (an empty one: the region has no tracks any more). Its time is its
+        `t`, or the time it arrived when that is earlier: a message stamped ahead (forged without the ACL, or from
+        a shard whose clock runs ahead) wins no id over a copy heard after it, nor holds back the history."""
         now = self._clock()
+        t = min(message.t, self._wall())
         tracks = {item.gid: item for item in message.tracks}
         with self._lock:
             changed = self._drop_region(region)
-            self._regions[region] = (now, message.t, tracks)
+            self._regions[region] = (now, t, tracks)
             self._tracks_held += len(tracks)
             for gid, item in tracks.items():
                 self._holders.setdefault(gid, {})[region] = None
                 changed.add(gid)
                 seen = self._seen.get(gid)
                 if seen is None:
-                    seen = self._seen[gid] = _Seen(message.t, self.history_len)
+                    seen = self._seen[gid] = _Seen(t, self.history_len)
                 history = seen.history
-                if not history or message.t - history[-1][0] >= self.history_interval_s:
-                    history.append((message.t, item.lat, item.lon))
+                if not history or t - history[-1][0] >= self.history_interval_s:
+                    history.append((t, item.lat, item.lon))
             self._merge(now, changed)
 
     def refresh(self) -> None:

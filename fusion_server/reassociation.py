@@ -31,6 +31,8 @@ from fusion_server.track_records import GlobalTrack, Member, moved_on
 
 __all__ = ["Reassociation", "seen_at"]
 
+_MAX_SPEED_MS = 60.0  # the fastest a tracked object is taken to move in the neighbourhood search (a jetski: ~25)
+
 
 @dataclass(slots=True)
 class _Pair:
@@ -70,7 +72,7 @@ class Reassociation:
         self.unmatched_cost = search_gate_m
         #: local tracks moved (counted by the tracker as it moves them)
         self.moved = 0
-        self._index: tuple[float, cKDTree | None, list[int]] = (-math.inf, None, [])
+        self._index: tuple[float, cKDTree | None, list[int], float] = (-math.inf, None, [], 0.0)
         self._pairs: dict[str, dict[int, dict[int, _Pair]]] = {}  # uav -> local id -> gid -> its mean distance
         self._last_plan: dict[str, float] = {}
 
@@ -125,16 +127,20 @@ class Reassociation:
     def near(self, tracks: dict[int, GlobalTrack], now: float, lat: list[float], lon: list[float]) -> set[int]:
         """The global ids of `tracks` that may lie within the search gate of the points (lat, lon): a k-d tree
         over all tracks' positions, rebuilt at most once per period_s (so a turn costs what its neighbourhood
-        holds, not the fleet), searched with a margin for what tracks move meanwhile (20 m/s)."""
-        built, tree, gids = self._index
+        holds, not the fleet), searched with a margin for what the fastest track (20-60 m/s) moves meanwhile."""
+        built, tree, gids, speed = self._index
         if tree is None or now - built >= self.period_s or now < built:
             gids = list(tracks)
             tree = cKDTree(sphere_xyz(np.array([tracks[g].lat for g in gids]).reshape(-1),
                                       np.array([tracks[g].lon for g in gids]).reshape(-1))) if gids else None
-            self._index = (now, tree, gids)
+            speed = max((math.hypot(*tracks[g].vel_en) for g in gids), default=0.0)
+            # a forged velocity must not make every turn search the whole map: at most _MAX_SPEED_MS
+            self._index = built, tree, gids, speed = (now, tree, gids, min(speed, _MAX_SPEED_MS)
+                                                      if math.isfinite(speed) else _MAX_SPEED_MS)
         if tree is None or not lat:
             return set()
-        radius = self.search_gate_m + 20.0 * self.period_s + 1.0
+        # what the fastest track (at least 20 m/s) can move between the tree's build and the end of its period
+        radius = self.search_gate_m + max(speed, 20.0) * (now - built + self.period_s) + 1.0
         hits = tree.query_ball_point(sphere_xyz(np.asarray(lat, np.float64), np.asarray(lon, np.float64)), radius)
         return {gids[k] for row in hits for k in row}
 

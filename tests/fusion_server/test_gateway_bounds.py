@@ -381,3 +381,22 @@ def test_a_gateway_just_started_lists_the_classes_of_a_shard_that_answers_slowly
         assert gateway.joint.classes() == {"person"}
     finally:
         shard.undeclare()
+
+
+def test_a_region_message_stamped_ahead_within_the_skew_wins_nothing_over_a_copy_heard_after_it():
+    """Review of 30 Nov 2026: a forged copy stamped 29 s ahead (inside the 30 s skew) was shown 16 of 16 times
+    against an honest shard publishing at 4 Hz, and held the id's history back for 29 s. A message's time is now
+    its t or its arrival, whichever is earlier."""
+    merged = MergedTracks()
+    honest = (16, 1, 1)
+    forged = (16, 2, 1)
+    merged.put(honest, JointTracksMessage(t=time.time(), tracks=_items(7, 1)))
+    merged.put(forged, JointTracksMessage(t=time.time() + 29.0, tracks=(
+        JointTrackItem(gid=7, cls="person", lat=10.0, lon=10.0, score=0.9, vel_en=(0.0, 0.0), members=(("x", 1),)),
+    )))
+    assert {r.gid: r.lat for r in merged.records()} == {7: 10.0}  # heard last, it is the newest for now
+    time.sleep(0.01)
+    merged.put(honest, JointTracksMessage(t=time.time(), tracks=_items(7, 1)))
+    assert {r.gid: r.lat for r in merged.records()} == {7: 47.6}  # the honest copy heard after it wins
+    (record,) = merged.records()
+    assert all(t <= time.time() for t, _, _ in record.history)  # no row from the future

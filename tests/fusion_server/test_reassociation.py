@@ -207,3 +207,16 @@ def test_a_turn_looks_only_at_tracks_near_the_uavs_own():
     tracker.update(msg("a", (1, 0.0), (2, 15.0), (3, 5000.0)))
     near = plan.near(tracker._tracks, 0.0, [LAT], [LON])
     assert near == {tracker.gid_of("a", 1), tracker.gid_of("a", 2)}
+
+
+def test_the_neighbourhood_search_follows_a_fast_track_until_the_next_rebuild():
+    """Review of 30 Nov 2026: the search margin assumed 20 m/s; a 40 m/s track's own UAV lost it for every turn."""
+    clock = Clock()
+    tracker = tracker_on(clock, reassociation=False)
+    tracker.update(TracksMessage(uav="a", t=0.0, tracks=(TrackItem(id=1, cls="person", lat=LAT, lon=LON, score=0.9,
+                                                                   vel_en=(0.0, 40.0)),)))
+    plan = Reassociation(search_gate_m=10.0, period_s=0.5)
+    gid = tracker.gid_of("a", 1)
+    assert plan.near(tracker._tracks, 0.0, [LAT], [LON]) == {gid}
+    # 0.49 s later (the tree not rebuilt) the track is 19.6 m on, and a point 9 m beyond it is in its gate
+    assert plan.near(tracker._tracks, 0.49, [LAT + 28.6 * M_LAT], [LON]) == {gid}
