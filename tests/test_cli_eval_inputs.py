@@ -141,3 +141,13 @@ def test_eval_real_refuses_an_out_folder_of_other_files(tmp_path: Path, capsys: 
     err = _refused(["--real", str(data), "--out", str(out)], capsys)
     assert "holds files that are not an earlier uavmm eval's (notes.txt)" in err
     assert [p.name for p in out.iterdir()] == ["notes.txt"]
+
+
+@pytest.mark.parametrize("extra", [["--frames", "30"], ["--seeds", "0"], ["--scenarios", "sea"], ["--ablations"],
+                                   ["--tasks", "tracking"], ["--noise-scales", "2"], ["--domains", "tune"],
+                                   ["--full"], ["--frames", "999999999", "--ablations"]])
+def test_the_simulated_evaluations_flags_are_refused_beside_a_real_file(
+        extra: list[str], tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    # until 30 Nov 2026 they did nothing beside --real, silently: `--real F --frames 999999999` exited 0
+    err = _refused(["--real", str(tmp_path), *extra, "--out", str(tmp_path / "out")], capsys)
+    assert "not used with --real" in err and all(flag in err for flag in extra if flag.startswith("--"))

@@ -24,7 +24,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--scenarios", default=None,
                    help="comma-separated scenarios (sea,grass; --tasks coop: the ones whose UAVs fly at once, "
                         "default coop, e.g. coop-slope)")
-    p.add_argument("--seeds", default="0,1,2", help="comma-separated seeds (0,1,2)")
+    p.add_argument("--seeds", default=None, help="comma-separated seeds (0,1,2)")
     p.add_argument("--frames", type=int, default=None, help="frames per video, 1..36000 (scenario default)")
     p.add_argument("--noise-scales", default=None, help="telemetry noise multipliers (1,2; --tasks coop: 1)")
     p.add_argument("--ablations", action="store_true", help="also sweep half-life, radius, gain, filter")
@@ -101,6 +101,14 @@ def _run_eval(args: argparse.Namespace) -> int:
     from sim.scenarios import SCENARIOS, check_frames_per_video, get_scenario
 
     if args.real is not None:
+        # the simulated evaluations' flags did nothing beside a real file, silently (`--real F --frames 30` ran all)
+        unused = [flag for flag, value in (("--scenarios", args.scenarios), ("--seeds", args.seeds),
+                                           ("--frames", args.frames), ("--noise-scales", args.noise_scales),
+                                           ("--tasks", args.tasks), ("--domains", args.domains)) if value is not None]
+        unused += [flag for flag, on in (("--ablations", args.ablations), ("--full", args.full),
+                                         ("--list-domains", args.list_domains)) if on]
+        if unused:
+            raise CliError(f"{', '.join(unused)}: not used with --real (the file's frames are evaluated as they are)")
         return _run_real_eval(args)
     if any(v is not None for v in (args.detections, args.camera, args.size_filter, args.dem,
                                    args.takeoff_elevation_m)):
@@ -117,7 +125,7 @@ def _run_eval(args: argparse.Namespace) -> int:
     scenarios = _csv_list(args.scenarios or "sea,grass", str, "--scenarios")
     for name in scenarios:
         get_scenario(name)  # unknown names fail before any work
-    seeds = _csv_list(args.seeds, int, "--seeds")
+    seeds = _csv_list(args.seeds if args.seeds is not None else "0,1,2", int, "--seeds")
     if any(s < 0 for s in seeds):
         raise CliError("--seeds must be >= 0")
     check_frames_per_video(args.frames, "--frames")

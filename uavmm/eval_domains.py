@@ -55,7 +55,7 @@ def run_domain_eval_command(args: argparse.Namespace) -> int:
         domains = resolve_domains(csv_list(args.domains, str, "--domains"))
     except ValueError as exc:
         raise ValueError(f"--domains: {exc}") from None
-    seeds = _seeds(args.seeds)
+    seeds = _seeds(args.seeds if args.seeds is not None else "0,1,2")
     unknown = sorted(set(tasks) - {"detection", "tracking"})
     if unknown:
         raise ValueError(f"--tasks: with --domains valid tasks are detection, tracking; got {', '.join(unknown)}")
@@ -86,7 +86,7 @@ def _run_coop_domain_eval(args: argparse.Namespace) -> int:
         domains = resolve_coop_domains(csv_list(args.domains, str, "--domains"))
     except ValueError as exc:
         raise ValueError(f"--domains: {exc}") from None
-    seeds = _seeds(args.seeds)
+    seeds = _seeds(args.seeds if args.seeds is not None else "0,1,2")
     noise = coop_noise_scale(args.noise_scales)
     out = args.out if args.out != Path("out/eval") else Path("out/eval-coop-domains")
     require_out_dir(out)
