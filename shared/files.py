@@ -17,8 +17,8 @@ from collections.abc import Callable, Collection, Iterable, Iterator
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["PendingFile", "collection_chunks", "new_temporary", "same_file", "stale_temporaries", "sync_to_disk",
-           "temporary_pids", "write_atomic", "write_chunks_atomic"]
+__all__ = ["PendingFile", "collection_chunks", "new_temporary", "process_gone", "same_file", "stale_temporaries",
+           "sync_to_disk", "temporary_pids", "write_atomic", "write_chunks_atomic"]
 
 
 def new_temporary(path: Path, mode: int = 0o666, *, suffix: str = ".tmp") -> tuple[Path, int]:
@@ -58,7 +58,7 @@ def temporary_pids(entry: str, names: Collection[str], suffix: str = ".tmp") -> 
     return [pid for pid in pids if 0 < pid < 2**31]
 
 
-def _process_gone(pid: int) -> bool:
+def process_gone(pid: int) -> bool:
     """Whether no process ``pid`` runs on this machine (signal 0 asks without sending one); False when unsure: this
     process, another user's (EPERM), or Windows, where os.kill would end the process."""
     if pid == os.getpid() or os.name == "nt":
@@ -83,7 +83,7 @@ def stale_temporaries(folder: Path, names: Collection[str], suffix: str = ".tmp"
                      if entry.name.startswith(".") and entry.is_file(follow_symlinks=False)]
     except OSError:
         return []
-    return [Path(folder) / name for name, pids in found if pids and all(_process_gone(pid) for pid in pids)]
+    return [Path(folder) / name for name, pids in found if pids and all(process_gone(pid) for pid in pids)]
 
 
 def same_file(a: str | Path, b: str | Path) -> bool:

@@ -112,22 +112,17 @@ def ensure_domain_dataset(domain: Domain, seed: int, noise_scale: float, full: b
 
 def _remove_dead_partials(cache_dir: Path, name: str) -> None:
     """Remove ``.NAME.partial-PID`` folders whose process is gone (runs killed while building the entry)."""
-    import os
     import shutil
+
+    from shared.files import process_gone
 
     for path in cache_dir.glob(f".{name}.partial-*"):
         try:
             pid = int(path.name.rsplit("-", 1)[1])
         except ValueError:
             continue
-        if pid == os.getpid():
-            continue
-        try:
-            os.kill(pid, 0)
-        except ProcessLookupError:
+        if process_gone(pid):  # not this run's, nor another user's (alive as far as we can tell)
             shutil.rmtree(path, ignore_errors=True)
-        except OSError:  # alive under another user: leave it
-            pass
 
 
 def final_output(candidates_path: Path, min_score: float, *, iou: float = 0.5, max_per_image: int = 100) -> int:
