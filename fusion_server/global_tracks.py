@@ -269,7 +269,9 @@ class GlobalTracker:
         """Make `uav`'s local track `item` a member of global track gid (a new one when None) instead of old_gid;
         the old track ends when no UAV reports it any more (it would only take in the next newcomer near it)."""
         key = (uav, item.id)
-        old = self._tracks[old_gid]
+        old = self._tracks.get(old_gid)
+        if old is None or self._local.get(key) != old_gid:  # gone, or the local track is no member of it any more
+            return set()
         member = old.members.pop(key, None) or Member(item.lat, item.lon, item.score, item.vel_en, now)
         track = self._new_track(uav, item, None, wall) if gid is None else self._tracks[gid]
         track.members.pop(key, None)
