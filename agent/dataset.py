@@ -21,6 +21,7 @@ from agent.field_of_view import ZoomedCamera
 from agent.json_files import read_json
 from agent.telemetry_clock import ClockReport, TelemetryClockSettings, TelemetryTrack, reconcile_clock
 from agent.telemetry_dequantize import dequantize_track
+from shared.files import listed_names
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
@@ -120,7 +121,7 @@ class Dataset:
         if ids:
             return ids[0]
         names = [self.video_names[v] for v in self.videos if v in self.video_names]
-        shown = ", ".join(repr(n) for n in names[:12]) + (f" and {len(names) - 12} more" if len(names) > 12 else "")
+        shown = listed_names([repr(n) for n in names], 12)
         raise ValueError(f"unknown video {text!r}; known ids: {sorted(self.videos)}"
                          + (f"; names: {shown}" if names else ""))
 

@@ -13,23 +13,32 @@ import errno
 import json
 import os
 import secrets
-from collections.abc import Callable, Collection, Iterable, Iterator
+from collections.abc import Callable, Collection, Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import IO, Any
 
-__all__ = ["PendingFile", "collection_chunks", "new_temporary", "process_gone", "same_file", "stale_temporaries",
-           "sync_to_disk", "temporary_pids", "write_atomic", "write_chunks_atomic"]
+__all__ = ["PendingFile", "collection_chunks", "listed_names", "new_temporary", "process_gone", "same_file",
+           "stale_temporaries", "sync_to_disk", "temporary_pids", "write_atomic", "write_chunks_atomic"]
+
+#: bytes of the random token of a temporary's name when its first name is taken (two hex digits a byte)
+_TOKEN_BYTES = 4
+
+
+def listed_names(names: Sequence[str], shown: int = 4) -> str:
+    """The first ``shown`` names, comma-separated, and how many more there are (for one-line messages)."""
+    return ", ".join(names[:shown]) + (f" and {len(names) - shown} more" if len(names) > shown else "")
 
 
 def new_temporary(path: Path, mode: int = 0o666, *, suffix: str = ".tmp") -> tuple[Path, int]:
-    """Create a new hidden file beside ``path`` for writing: ``.NAME.PID`` + suffix, or ``.NAME.PID.XXXXXXXX`` +
-    suffix while that name is taken (another writer's temporary in this process, a leftover, a planted link).
-    O_EXCL: a file or a link already at the name is never written through, and two writers never share one; the
-    permissions are ``mode`` less the umask, as ``open()`` gives. suffix: ``.tmp.mp4`` for a writer that picks its
-    format from the extension (OpenCV's VideoWriter). Returns (name, descriptor)."""
+    """Create a new hidden file beside ``path`` for writing: ``.NAME.PID`` + suffix, or ``.NAME.PID.TOKEN`` +
+    suffix (TOKEN: 8 random lowercase hex digits) while that name is taken (another writer's temporary in this
+    process, a leftover, a planted link). O_EXCL: a file or a link already at the name is never written through,
+    and two writers never share one; the permissions are ``mode`` less the umask, as ``open()`` gives. suffix:
+    ``.tmp.mp4`` for a writer that picks its format from the extension (OpenCV's VideoWriter). Returns (name,
+    descriptor)."""
     name = f".{path.name}.{os.getpid()}"
     for attempt in range(100):
-        tmp = path.with_name(f"{name}{suffix}" if attempt == 0 else f"{name}.{secrets.token_hex(4)}{suffix}")
+        tmp = path.with_name(f"{name}{suffix}" if attempt == 0 else f"{name}.{secrets.token_hex(_TOKEN_BYTES)}{suffix}")
         try:
             return tmp, os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_CLOEXEC", 0), mode)
         except FileExistsError:
@@ -38,18 +47,18 @@ def new_temporary(path: Path, mode: int = 0o666, *, suffix: str = ".tmp") -> tup
 
 
 def temporary_pids(entry: str, names: Collection[str], suffix: str = ".tmp") -> list[int]:
-    """The process ids a `new_temporary` name ``entry`` may carry (``.NAME.PID`` + suffix, or ``.NAME.PID.XXXXXXXX``
-    + suffix with 8 lowercase hex digits) for a NAME in ``names``: [] for any other name. Both readings are given
+    """The process ids a `new_temporary` name ``entry`` may carry (``.NAME.PID`` + suffix, or ``.NAME.PID.TOKEN``
+    + suffix with TOKEN 8 lowercase hex digits) for a NAME in ``names``: [] for any other name. Both readings are given
     when a name allows two (``.a.1.12345678.tmp`` is ``a``'s of process 1 and ``a.1``'s of process 12345678)."""
     if not (entry.startswith(".") and entry.endswith(suffix)) or len(entry) <= len(suffix) + 1:
         return []
     parts = entry[1:len(entry) - len(suffix)].split(".")
     pids = []
-    for tail in (1, 2):  # .NAME.PID, then .NAME.PID.XXXXXXXX
+    for tail in (1, 2):  # .NAME.PID, then .NAME.PID.TOKEN
         if len(parts) <= tail:
             break
         pid, token = parts[-tail], parts[-1]
-        if tail == 2 and not (len(token) == 8 and all(c in "0123456789abcdef" for c in token)):
+        if tail == 2 and not (len(token) == 2 * _TOKEN_BYTES and all(c in "0123456789abcdef" for c in token)):
             continue
         # getpid's decimal form only: no sign, no leading zero, no other script's digits
         decimal = len(pid) <= 10 and pid.isascii() and pid.isdigit() and pid == str(int(pid))

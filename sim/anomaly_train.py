@@ -30,7 +30,7 @@ import numpy as np
 from agent.anomaly.autoencoder import DEFAULT_MODEL, STRIDE
 from agent.anomaly.methods import DEFAULT_WORK_WIDTH, to_work
 from agent.dataset import Dataset, read_image
-from shared.files import same_file, write_atomic
+from shared.files import listed_names, same_file, write_atomic
 
 log = logging.getLogger(__name__)
 
@@ -73,9 +73,8 @@ def check_paths(out: str | Path, work_dir: str | Path) -> None:
         other = sorted(p.name for p in work_dir.iterdir()
                        if not (_SCENE_DIR.fullmatch(p.name) and p.is_dir()) and not p.name.startswith("."))
         if other:
-            shown = ", ".join(other[:5]) + (f" and {len(other) - 5} more" if len(other) > 5 else "")
-            raise ValueError(f"work directory {work_dir} holds other files ({shown}): give an empty or new folder, "
-                             "or one an earlier anomaly-train run made")
+            raise ValueError(f"work directory {work_dir} holds other files ({listed_names(other, 5)}): give an "
+                             "empty or new folder, or one an earlier anomaly-train run made")
 
 
 def render_training_scenes(work_dir: Path, seeds: Sequence[int], frames: int,

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from agent.dem import write_npz
+from shared.files import listed_names
 from sim.detector_emulator import EmulatorParams
 from sim.noise import CLOCK_FIELDS, TelemetryNoise, format_time
 from sim.scenarios import START_UNIX_S, Scenario
@@ -134,17 +135,15 @@ def require_output_folder(out: str | Path) -> None:
     render, other = existing_outputs(folder)
     other = [name for name in other if not name.startswith(".")]
 
-    def listed(names: list[str]) -> str:
-        return ", ".join(names[:4]) + (f" and {len(names) - 4} more" if len(names) > 4 else "")
-
     holds_dataset = any((folder / name).is_file() for name in DATASET_FILES)
     if other and not holds_dataset:
-        raise ValueError(f"output directory {folder} holds files that are not a uavmm sim dataset ({listed(other)}): "
-                         "give a new or empty folder")
+        raise ValueError(f"output directory {folder} holds files that are not a uavmm sim dataset "
+                         f"({listed_names(other)}): give a new or empty folder")
     frames = [name for name in render if name not in RENDER_FILES]
     if frames:
         logger.warning("output directory %s holds an earlier render's frames (%s): they stay beside the new dataset "
-                       "and no longer show it; render again (uavmm render) or remove them", folder, listed(frames))
+                       "and no longer show it; render again (uavmm render) or remove them", folder,
+                       listed_names(frames))
 
 
 def _prepare_output(out: Path) -> tuple[bool, Path]:

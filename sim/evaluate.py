@@ -23,7 +23,7 @@ from agent.boost import results_to_coco, run_pipeline
 from agent.dataset import Candidates, Dataset
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
-from shared.files import write_chunks_atomic
+from shared.files import listed_names, write_chunks_atomic
 from shared.geo import Camera
 
 log = logging.getLogger(__name__)
@@ -250,8 +250,8 @@ def require_eval_folder(out: Path) -> None:
     not ours to mix with or write over. For callers that ask before the work (`uavmm eval`)."""
     foreign = _foreign_names(out)
     if foreign:
-        listed = ", ".join(foreign[:4]) + (f" and {len(foreign) - 4} more" if len(foreign) > 4 else "")
-        raise ValueError(f"output directory {out} holds files that are not an earlier uavmm eval's ({listed}): give "
+        raise ValueError(f"output directory {out} holds files that are not an earlier uavmm eval's "
+                         f"({listed_names(foreign)}): give "
                          "a new or empty folder, or an earlier eval's")
 
 

@@ -37,7 +37,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from shared.files import new_temporary, stale_temporaries, sync_to_disk, write_chunks_atomic
+from shared.files import listed_names, new_temporary, stale_temporaries, sync_to_disk, write_chunks_atomic
 from sim.dataset import RENDER_FILES, _Progress
 from sim.render.renderer import RenderOptions, WorldRenderer, exposure_for
 from sim.render.scene import SimulatedDataset
@@ -113,9 +113,8 @@ def _remove_dead_renders_temporaries(dataset: SimulatedDataset) -> None:
             raise OSError(f"cannot remove {path}, a temporary of a killed render: {exc.strerror or exc}") from None
         removed.append(str(path.relative_to(out)))
     if removed:
-        more = f" and {len(removed) - 4} more" if len(removed) > 4 else ""
         logger.warning("removed %d temporary file(s) of earlier renders in %s that were killed before they finished: "
-                       "%s%s", len(removed), out, ", ".join(removed[:4]), more)
+                       "%s", len(removed), out, listed_names(removed))
 
 
 def _forget_previous_render(out: Path) -> None:

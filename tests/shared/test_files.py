@@ -162,8 +162,8 @@ def test_every_name_new_temporary_makes_is_read_back_with_its_pid(name, pid, tok
 @given(entry=st.text(".0123456789abcdefmp4tx", max_size=30), names=st.sets(st.text(".0123456789abcx", max_size=8),
                                                                              max_size=3))
 def test_a_pid_is_read_only_from_a_name_new_temporary_could_have_made(entry, names):
-    """Whatever the text, each pid read rebuilds it exactly as `.NAME.PID.tmp` or `.NAME.PID.XXXXXXXX.tmp` for a NAME
-    of ``names`` (never a name that merely contains one, never a signed or zero-padded number)."""
+    """Whatever the text, each pid read rebuilds it exactly as `.NAME.PID.tmp` or `.NAME.PID.TOKEN.tmp` (TOKEN 8 hex
+    digits) for a NAME of ``names`` (never a name that merely contains one, never a signed or zero-padded number)."""
     hexes = ["", *("." + "".join(t) for t in [entry[i:i + 8] for i in range(len(entry))] if len(t) == 8
                    and set(t) <= set("0123456789abcdef"))]
     for pid in temporary_pids(entry, names):
@@ -180,7 +180,7 @@ def test_a_killed_writers_temporaries_are_stale_and_no_one_elses(tmp_path):
         "    print(new_temporary(folder / name, suffix=suffix)[0].name, flush=True)\n"
         "os.kill(os.getpid(), signal.SIGKILL)"), str(tmp_path)], capture_output=True, text=True, timeout=60)
     assert made.returncode == -signal.SIGKILL, made.stderr
-    dead = made.stdout.split()  # .out.mp4.PID.tmp, .out.mp4.PID.XXXXXXXX.tmp, .out.mp4.PID.tmp.mp4, .other.PID.tmp
+    dead = made.stdout.split()  # .out.mp4.PID.tmp, .out.mp4.PID.TOKEN.tmp, .out.mp4.PID.tmp.mp4, .other.PID.tmp
     assert len(dead) == 4 and all((tmp_path / name).is_file() for name in dead)
     live = new_temporary(tmp_path / "out.mp4")[0]  # this process's
     (tmp_path / ".out.mp4.1.tmp").mkdir()  # a directory at such a name
