@@ -132,6 +132,8 @@ def test_liveliness_tokens_without_data_cannot_lock_out_a_real_uav(server_factor
     real.tile(blob(10, 10))
     wait_until(lambda: server.joint.get(TILE) is not None)
     assert server.metrics.rejected_by_reason().get("too_many_uavs", 0) == 0
+    # its tile and its liveliness token travel apart: wait for the token too
+    wait_until(lambda: any(r["id"] == "uav1" and r["online"] for r in http_of(server).get("/v1/uavs").json()))
     rows = {row["id"]: row for row in http_of(server).get("/v1/uavs").json()}
     assert rows["uav1"]["online"] and rows["uav1"]["messages"] == {"tile": 1}
     assert len(rows) <= 8 * 4  # token-only entries are bounded too

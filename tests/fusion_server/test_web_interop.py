@@ -105,7 +105,8 @@ def test_geojson_media_type_uavs_and_track_lines(server, http, agent_factory):
         agent.tracks([(1, "person", LAT + step * 1e-5, LON + step * 2e-5)])
         wait_until(lambda step=step: server.tracker.records(include_ended=False)
                    and len(server.tracker.records(include_ended=False)[0].history) >= 1)
-    wait_until(lambda: http.get("/v1/uavs").json() and http.get("/v1/uavs").json()[0]["state"])
+    # its state and its liveliness token travel apart: wait for both
+    wait_until(lambda: (rows := http.get("/v1/uavs").json()) and rows[0]["state"] and rows[0]["online"])
     for path in ("/v1/objects", "/v1/tracks", "/v1/uavs?format=geojson"):
         assert http.get(path).headers["content-type"] == "application/geo+json", path
     assert http.get("/v1/uavs").headers["content-type"] == "application/json"
