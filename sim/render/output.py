@@ -88,6 +88,16 @@ def _check_file_names(dataset: SimulatedDataset) -> None:
                              f"{dataset.directory}: images are written inside it only")
 
 
+def _check_video_names(dataset: SimulatedDataset) -> None:
+    """ValueError naming the video when its name in images.json is not one plain file name (empty, a path with
+    ``/`` or ``\\``, ``.`` or ``..``): the MP4 and its SRT / CSV telemetry are ``<name>.mp4`` etc. in the dataset
+    directory, never elsewhere. Checked before the drawing."""
+    for v in dataset.videos:
+        if not v.name.strip() or "/" in v.name or "\\" in v.name or v.name in (".", ".."):
+            raise ValueError(f"video {v.id}'s name {v.name!r} in images.json is not a plain file name: its MP4 and "
+                             f"telemetry are written as <name>.mp4, .srt and .csv inside {dataset.directory} only")
+
+
 def _remove_dead_renders_temporaries(dataset: SimulatedDataset) -> None:
     """Remove the temporaries of renders killed in this folder (SIGKILL, a power cut): `shared.files.new_temporary`
     names of this dataset's MP4s, telemetry, render files and images whose process is gone, which nobody else ever
@@ -180,6 +190,8 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
         _check_file_names(dataset)
     else:
         _warn_earlier_images(dataset)
+    if video:
+        _check_video_names(dataset)
     _check_writable(out)
     _remove_dead_renders_temporaries(dataset)
     _forget_previous_render(out)

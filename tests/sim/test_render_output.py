@@ -200,3 +200,17 @@ def test_a_killed_renders_temporaries_are_removed_by_the_next_render_and_said_in
     assert sum(name in line for name in ours) == 4 and line.endswith("and 1 more"), line  # the first four named
     assert not [name for name in ours if (data / name).exists()]
     assert all(path.exists() for path in kept)
+
+
+@pytest.mark.parametrize("name", ["../outside", "sub/../../victim", "{tmp}/escaped", "a\\b", " "])
+def test_a_video_name_that_is_not_a_plain_file_name_is_refused_before_drawing(tmp_path, name):
+    """Probe: a video's name "../outside" in images.json had `uavmm render --video` write outside.mp4 (and its SRT /
+    CSV) beside the dataset directory."""
+    data = _dataset(tmp_path, frames=1, size=(64, 36))
+    name = name.format(tmp=tmp_path)
+    coco = json.loads((data / "images.json").read_text())
+    coco["videos"][0]["name"] = name
+    (data / "images.json").write_text(json.dumps(coco))
+    with pytest.raises(ValueError, match=f"video 1's name {re.escape(repr(name))} in images.json is not a plain"):
+        render_dataset(data, video=True, options=OPTIONS, progress=False)
+    assert not list(tmp_path.rglob("*.mp4")) and not list(tmp_path.rglob("*.jpg"))
