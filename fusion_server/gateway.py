@@ -99,7 +99,8 @@ class Gateway:
         # the tracks' history, times and ended ones, asked of the shards (their region messages carry
         # where each track is and its status only)
         self.shard_tracks = ShardTracks(keys, settings.shard_count, history_len=settings.track_history_len,
-                                        on_reject=lambda reason: self.metrics.reject("shard_tracks", reason))
+                                        on_reject=lambda reason: self.metrics.reject("shard_tracks", reason),
+                                        max_ahead_s=settings.max_clock_skew_s)
         self.tracker.details = self.shard_tracks.live
         #: how far each UAV's clock runs ahead, taken on evidence as a shard does (its states moved back by it)
         self.clocks = UavClocks(settings.max_clock_skew_s)

@@ -435,15 +435,22 @@ class ShardTracks:
 
     keys: the key space; count: how many shards (N). history_len: most rows a merged live track keeps
     (the tracker's). cache_s: how long an answer is reused. on_reject(reason): called for every reply
-    dropped. Thread-safe: HTTP threads call it concurrently; one query per kind runs at a time and the
-    others wait for its answer. Answers are `ShardAnswer` (``missing``: the shards that did not answer in time). A
-    query no shard answered before its timeout is not asked again for ``cache_s`` (None at once: the shards are
-    silent, not refusing). ``close()`` ends the waits at once (a gateway's SIGTERM).
+    dropped, and once (``t_in_future``) for a reply whose tracks were cut: a track ``created`` or
+    ``last_update``d more than ``max_ahead_s`` after ``wall()`` (the gateway's --max-clock-skew-s) is left out
+    (the copy of an id updated last wins the merge, so one stamped ahead, forged or from a shard whose clock
+    runs ahead, would hide the others; None: never). Thread-safe: HTTP threads call it concurrently; one query
+    per kind runs at a time and the others wait for its answer. Answers are `ShardAnswer` (``missing``: the
+    shards that did not answer in time). A query no shard answered before its timeout is not asked again for
+    ``cache_s`` (None at once: the shards are silent, not refusing). ``close()`` ends the waits at once (a
+    gateway's SIGTERM).
     """
 
     def __init__(self, keys: KeySpace, count: int, *, history_len: int = 600, cache_s: float = DEFAULT_CACHE_S,
-                 on_reject: Callable[[str], None] | None = None, clock=time.monotonic) -> None:
+                 on_reject: Callable[[str], None] | None = None, clock=time.monotonic,
+                 max_ahead_s: float | None = None, wall: Callable[[], float] = time.time) -> None:
         self.keys = keys
+        self.max_ahead_s = max_ahead_s
+        self._wall = wall
         self.count = count
         self.history_len = history_len
         self.cache_s = float(cache_s)
@@ -578,7 +585,7 @@ class ShardTracks:
                 first_s = time.monotonic() - started
                 deadline = min(deadline, started + first_s + late_answer_s(request.source, first_s))
             answered.add(shard)
-            tracks.extend(found)
+            tracks.extend(self._not_ahead(found, shard))
         if not answered:
             if timed_out:  # silent, not refusing: the next query within cache_s would wait as long for nothing
                 self._silent_at = self._clock()
@@ -589,6 +596,19 @@ class ShardTracks:
                               "first answer; answered without them", sorted(missing), request.source,
                               late_answer_s(request.source, first_s))
         return ShardAnswer(tracks, missing)
+
+    def _not_ahead(self, found: list[ShardTrack], shard: int) -> list[ShardTrack]:
+        """The tracks of one reply stamped at most max_ahead_s ahead of the wall clock (the others rejected)."""
+        if self.max_ahead_s is None:
+            return found
+        limit = self._wall() + self.max_ahead_s
+        kept = [t for t in found if t.last_update <= limit and t.created <= limit]
+        if len(kept) < len(found):
+            ahead = max(max(t.last_update, t.created) for t in found) - limit + self.max_ahead_s
+            self._reject("t_in_future", f"shard {shard} answered {len(found) - len(kept)} track(s) updated up to "
+                                        f"{ahead:.1f} s ahead of this clock, more than --max-clock-skew-s "
+                                        f"{self.max_ahead_s:g} (forged, or the shard's clock runs ahead): left out")
+        return kept
 
     def _reject(self, reason: str, detail: str) -> None:
         if self._on_reject is not None:

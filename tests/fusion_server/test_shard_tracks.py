@@ -3,6 +3,7 @@ merging a handed-over id's copies, the shard's queryable and the gateway's clien
 
 from __future__ import annotations
 
+import dataclasses
 import json
 from typing import Any
 
@@ -251,3 +252,39 @@ def test_close_ends_a_wait_for_silent_shards_at_once(sessions):
     finally:
         silent.undeclare()
         held.clear()
+
+
+def test_a_copy_stamped_ahead_of_the_gateways_clock_is_left_out_and_counted(sessions):
+    """Probe: a reply (a peer without the ACL answering as shard 1, or a shard whose clock runs an hour ahead)
+    holding gid 1 with last_update an hour ahead was the merge's primary copy: the gateway served gid 1 at the
+    forged place, hiding the honest shard's copy."""
+    shard_side, gateway_side = sessions
+    now = 1_700_000_000.0
+    honest = record(1, created=now - 20.0, last_update=now - 1.0)
+    forged = dataclasses.replace(honest, lat=10.0, last_update=now + 3600.0)
+    answers = {0: [honest.to_geojson()], 1: [forged.to_geojson(), record(2, created=now, last_update=now + 2.0)
+                                             .to_geojson()]}
+    queryables = [TracksQueryable(lambda request, k=k: answers[k], KEYS.shard_tracks(k, 2), k, 2) for k in range(2)]
+    declared = []
+    for queryable in queryables:
+        queryable.start()
+        declared.append(shard_side.declare_queryable(queryable.key, queryable.on_query))
+    try:
+        wait_until(lambda: sum(r.ok is not None for r in gateway_side.get(
+            KEYS.shard_tracks("*", 2), payload=encode_request(TrackQuery()), timeout=2.0)) == 2,
+            20.0, "both shards' queryables to reach the gateway")
+        rejected: list[str] = []
+        client = ShardTracks(KEYS, 2, cache_s=0.0, on_reject=rejected.append, max_ahead_s=5.0, wall=lambda: now)
+        client.session = gateway_side
+        live = client.live()
+        assert live is not None and [t.gid for t in live] == [1, 2]  # gid 2, 2 s ahead: within the skew
+        assert live[0].lat == honest.lat and live[0].last_update == now - 1.0
+        assert rejected == ["t_in_future"] and not live.missing  # shard 1 answered: only its forged copy is out
+        trusting = ShardTracks(KEYS, 2, cache_s=0.0)  # without the bound (as before): the forged copy wins
+        trusting.session = gateway_side
+        assert (trusting.live() or [])[0].lat == 10.0
+    finally:
+        for entity in declared:
+            entity.undeclare()
+        for queryable in queryables:
+            queryable.close()
