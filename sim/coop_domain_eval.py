@@ -62,12 +62,13 @@ def summarise(rows: list[dict[str, Any]], domains: list[CoopDomain]) -> list[dic
 
 
 def summarise_cross(rows: list[dict[str, Any]], domains: list[CoopDomain]) -> list[dict[str, Any]]:
-    """Per domain: the mean over seeds of the cross-UAV identity figures (`sim.cross_uav.CROSS_METRICS`)."""
+    """Per domain: the mean over seeds of the cross-UAV identity figures (`sim.cross_uav.CROSS_METRICS`) of the
+    joint variant over flat ground (over a terrain `evaluate_coop` also runs it on the DEM: not mixed in)."""
     from sim.cross_uav import CROSS_METRICS
 
     out = []
     for d in domains:
-        rs = [r for r in rows if r["domain"] == d.name]
+        rs = [r for r in rows if r["domain"] == d.name and r.get("variant", JOINT) == JOINT]
         if rs:
             out.append({"domain": d.name, "split": d.split, "seeds": len(rs), **{
                 m: statistics.fmean(v) if (v := [r[m] for r in rs if r[m] == r[m]]) else float("nan")

@@ -13,7 +13,7 @@ import pytest
 from agent.params_file import make_params
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeBand, SizeFilter
-from sim.coop_domain_eval import JOINT, OWN, acceptance, markdown, run_coop_domain_eval, summarise
+from sim.coop_domain_eval import JOINT, OWN, acceptance, markdown, run_coop_domain_eval, summarise, summarise_cross
 from sim.coop_domains import (
     COOP_DOMAINS,
     HELDOUT_COOP_DOMAINS,
@@ -241,3 +241,16 @@ def test_coop_domain_is_a_dataclass_of_its_own():
     d = get_coop_domain("coop-sea-rates")
     assert isinstance(d, CoopDomain) and d.frames() == 360 and d.weaker == "uav1"
     assert d.tag == dataclasses.replace(d).tag != dataclasses.replace(d, clip_s=10.0).tag
+
+
+def test_the_cross_uav_summary_is_the_flat_joint_variants_not_mixed_with_its_dem_run():
+    """Over a terrain evaluate_coop also tracks the joint variant on the DEM: its cross rows were averaged in."""
+    from sim.coop_domains import get_coop_domain
+    from sim.cross_uav import CROSS_METRICS
+
+    domain = get_coop_domain("coop-glare")
+    rows = [{"domain": domain.name, "seed": 0, "variant": JOINT, **dict.fromkeys(CROSS_METRICS, 80.0)},
+            {"domain": domain.name, "seed": 0, "variant": JOINT + " + DEM", **dict.fromkeys(CROSS_METRICS, 40.0)},
+            {"domain": domain.name, "seed": 1, "variant": JOINT, **dict.fromkeys(CROSS_METRICS, 90.0)}]
+    (row,) = summarise_cross(rows, [domain])
+    assert row["seeds"] == 2 and row["IDF1"] == 85.0 and row["same_id"] == 85.0
