@@ -29,6 +29,7 @@ from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.sources import FrameSource, SourceFrame
+from agent.stage_report import StageSummary
 from agent.tile_updates import TileChangeTracker
 from agent.track_rows import TrackRowLog
 from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
@@ -325,6 +326,9 @@ class AgentNode:
         self.adopter = GlobalIdAdopter(settings.uav_id, gate_m=settings.gid_gate_m, window_s=settings.gid_window_s)
         self.on_frame = on_frame
         self.on_ready = on_ready
+        prepare = getattr(source, "prepare", None)
+        if prepare is not None:  # a recording: read as `uavmm track` reads it (agent.sources.DatasetSource)
+            prepare(self.pipeline.config, self.pipeline)
         self.counts: dict[str, Any] = {"frames": 0, "frames_without_pose": 0, "frame_errors": 0, "detections": 0,
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,
                                        "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0,
@@ -483,7 +487,7 @@ class AgentNode:
         if frame.image is not None:  # appearance of the kept boxes for re-ID (docs/agent.md)
             result = with_image_descriptors(result, frame.image)
         tracks = self.tracker.update(result, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
-                                     terrain=self.pipeline.terrain_for(frame.pose))
+                                     pose_retimed=frame.pose_retimed, terrain=self.pipeline.terrain_for(frame.pose))
         if self.anomaly is not None and frame.image is not None:
             self.anomaly.process(frame.image, frame.pose, frame.t, frame.camera)
             self.counts["anomaly_frames"] = self.counts.get("anomaly_frames", 0) + 1
@@ -499,7 +503,7 @@ class AgentNode:
         if self._detections is not None:
             self._detections.extend(results_to_coco(frame.index if frame.image_id is None else frame.image_id, result))
         if self.settings.tracks_out is not None:
-            self._rows.extend(frame.index, frame.t, (tr for tr in tracks if tr.confirmed and tr.matched))
+            self._rows.extend(frame.index, frame.t, self.tracker.report(tracks))  # as `uavmm track` reports them
         if self.on_frame is not None:
             self.on_frame(frame, result, tracks)
         return result, tracks
@@ -580,7 +584,18 @@ class AgentNode:
             "gids_adopted_by_position": self.adopter.n_adopted_by_position,
             "sent_bytes_per_s": round(sent / elapsed, 1),
             "link": link,
+            "stages": self.stage_summary().as_dict(),
         }
+
+    def stage_summary(self) -> StageSummary:
+        """What the adaptive stages did so far: the source's telemetry stages (a recording's), the pipeline's and
+        the tracker's (`agent.stage_report`; the summary says whether each acted)."""
+        stages = StageSummary()
+        reports = getattr(self.source, "stage_reports", None)
+        for report in [*(reports() if reports is not None else []), *self.pipeline.stage_reports(),
+                       *self.tracker.stage_reports()]:
+            stages.add(report)
+        return stages
 
     def write_tracks(self, path: str | Path) -> int:
         """Write the reported tracks as GeoJSON (see `agent.tracking_io.geojson_tracks`) with ``uav`` and

@@ -23,9 +23,12 @@ from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, parse_datetime, recording_start
 
 if TYPE_CHECKING:
-    from agent.dataset import PoseProblem
+    from agent.dataset import Frame, PoseProblem, VideoTelemetry
     from agent.detector import Detections
+    from agent.pipeline import DetectionPipeline
+    from agent.pipeline_config import PipelineConfig
     from agent.slicing import SliceGrid
+    from agent.stage_report import StageReport
     from shared.telemetry import KlvReport
 
 log = logging.getLogger(__name__)
@@ -92,6 +95,9 @@ class SourceFrame:
     embeddings: NDArray[np.float32] | None = None
     image: NDArray[np.uint8] | None = None
     image_id: int | None = None
+    #: The pose is the telemetry at the frame's own time (interpolated, or re-timed by the clock-offset estimate):
+    #: the tracker adds no latency compensation (GpsTracker.update(pose_retimed=True)).
+    pose_retimed: bool = False
 
 
 class FrameSource(Protocol):
@@ -147,6 +153,13 @@ class DatasetSource:
         known ids and names otherwise.
     camera : path or str, optional
         A camera file or preset instead of the directory's camera.json.
+    telemetry_as_stamped : bool
+        Each frame keeps the telemetry sample it carries, stamped on the frame clock, as a live feed gives it
+        (`uavmm agent --telemetry-as-stamped`). By default a recording is read as `uavmm track` and `uavmm boost`
+        read it once the agent calls `prepare` (`agent.file_frames.prepared_frames`: time zone, telemetry
+        interpolated at frame time, dequantisation, the clock-offset estimate, view cuts, the pipeline primed on
+        the whole video): the whole file is at hand. On a 1 Hz log with whole-second stamps and 60 deg view jumps
+        (`sea-jumps-log` seed 0) the agent's tracks scored IDF1 22.5 as stamped against 74.7 read as a file.
 
     Frame times are the images' own ``date_time`` when it parses (else the telemetry's, else the
     frame index / 30 fps); the pose time is the telemetry's, as in `uavmm track`. Candidates' descriptors
@@ -155,8 +168,8 @@ class DatasetSource:
     """
 
     def __init__(self, directory: str | Path, *, video_id: int | str | None = None, camera: str | Path | None = None,
-                 image_dir: str | Path | None = None,
-                 use_images: bool = True) -> None:
+                 image_dir: str | Path | None = None, use_images: bool = True,
+                 telemetry_as_stamped: bool = False) -> None:
         from agent.dataset import Candidates, Dataset, dataset_files
 
         self.directory = Path(directory)
@@ -174,18 +187,54 @@ class DatasetSource:
         self.problems: list[PoseProblem] = []
         self.image_dir = (self.directory if image_dir is None else Path(image_dir)) if use_images else None
         self.images_missing = 0
+        self.telemetry_as_stamped = telemetry_as_stamped
+        self._prepare: tuple[PipelineConfig, DetectionPipeline | None] | None = None
+        self._prepared: list[Frame] | None = None
+        self._telemetry: VideoTelemetry | None = None
+
+    def prepare(self, config: PipelineConfig, pipeline: DetectionPipeline | None = None) -> None:
+        """Read the recording with `config`'s telemetry stages, as `uavmm track` does, priming `pipeline` on the
+        whole video (`agent.file_frames.prepared_frames`; at the first `frames()` call, once). Nothing with
+        telemetry_as_stamped."""
+        if not self.telemetry_as_stamped:
+            self._prepare = (config, pipeline)
+            self._prepared = None
+
+    def stage_reports(self) -> list[StageReport]:
+        """What the telemetry stages did to this video (empty before the frames were read, or as stamped)."""
+        from agent.file_frames import telemetry_reports
+
+        if self._telemetry is None or self._prepare is None:
+            return []
+        return telemetry_reports(self._telemetry, self._prepare[0].clock_offset_settings())
+
+    def _video_frames(self) -> Iterator[Frame]:
+        from agent.dataset import VideoTelemetry, iter_video_frames
+        from agent.file_frames import prepared_frames
+
+        if self._prepare is None:
+            # as stamped (a live feed's semantics): each frame keeps the telemetry sample it carries, stamped on
+            # the frame clock; a live feed cannot interpolate towards samples that have not arrived
+            yield from iter_video_frames(self.dataset, self.camera, self.video_id, problems=self.problems,
+                                         at_frame_time=False)
+            return
+        if self._prepared is None:
+            config, pipeline = self._prepare
+            self._telemetry = VideoTelemetry()
+            self.problems.clear()
+            self._prepared = [frame for frame, _ in prepared_frames(
+                self.dataset, self.camera, self.video_id, self.candidates, config, pipeline,
+                problems=self.problems, report=self._telemetry)]
+        yield from self._prepared
 
     def frames(self) -> Iterator[SourceFrame]:
         """Frames of the chosen video in frame order."""
-        from agent.dataset import iter_video_frames, read_image
+        from agent.dataset import read_image
 
         t_prev = -math.inf
-        # live semantics: each frame keeps the telemetry sample it carries (stamped on the frame clock); a
-        # live feed cannot interpolate towards samples that have not arrived
-        for index, frame in enumerate(iter_video_frames(self.dataset, self.camera, self.video_id,
-                                                        problems=self.problems, at_frame_time=False)):
+        for index, frame in enumerate(self._video_frames()):
             t = frame.t
-            if frame.image.date_time:  # the frame's own clock (telemetry stamps repeat at 10 Hz)
+            if self._prepare is None and frame.image.date_time:  # the frame's own clock (stamps repeat at 10 Hz)
                 try:
                     t = parse_datetime(frame.image.date_time)
                 except ValueError:
@@ -205,7 +254,7 @@ class DatasetSource:
                     self.images_missing += 1
             yield SourceFrame(index, t, frame.pose, frame.pose_t if frame.pose is not None else None,
                               boxes, scores, cids, frame.camera, self.candidates.get_embeddings(frame.image.id), image,
-                              image_id=frame.image.id)
+                              image_id=frame.image.id, pose_retimed=frame.pose_retimed)
 
     def close(self) -> None:
         """Nothing to release."""

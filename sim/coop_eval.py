@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 
 from agent.boost import results_to_coco
-from agent.dataset import Candidates, Dataset, iter_video_frames
+from agent.dataset import Candidates, Dataset
+from agent.file_frames import prepared_frames
 from agent.memory_map import JointLayer
 from agent.node import state_message, tracks_message
 from agent.pipeline import DetectionPipeline
@@ -33,7 +34,7 @@ from agent.tracking import GpsTracker
 from agent.tracking_io import memory_evidence
 from fusion_server.joint_map import JointMap
 from fusion_server.rules import get_fusion_rule
-from shared.geo import Camera
+from shared.geo import Camera, Pose
 from shared.messages import TracksMessage
 from shared.tilecodec import decode_tile
 from sim.coop_peaks import PEAK_BAR_M, PeakSampler, standing_objects
@@ -110,7 +111,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
              tracks_out: dict[int, SequenceTracks] | None = None,
              registration_out: dict[int, list[RegistrationRecord]] | None = None,
              size_filter: SizeFilter | None = None,
-             on_tracks: Callable[[int, int, TracksMessage], None] | None = None) -> dict[int, list[dict]]:
+             on_tracks: Callable[[int, int, TracksMessage], None] | None = None,
+             poses_out: dict[int, dict[float, tuple[Pose, Camera]]] | None = None) -> dict[int, list[dict]]:
     """Run both UAVs of a simultaneous dataset; returns COCO results per video id.
 
     share: give each UAV the joint map (fusion `rule` with `coverage`, see `CoopFusion`).
@@ -128,6 +130,10 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
     on_tracks: when given, each UAV also runs the GPS tracker and this receives, every frame in time order, the
     video id, the frame index and the tracks message its agent would publish then (`agent.node.tracks_message`;
     e.g. `sim.cross_uav.CrossUavRecorder`, the fusion server's global tracks).
+    poses_out: receives per video id the pose and camera each frame with a pose was given, by frame time rounded
+    to 0.1 ms (`sim.coop_registration.registration_errors` compares them with the truth).
+    Each UAV reads its recording as `uavmm agent --dataset` does (`agent.file_frames.prepared_frames`: the
+    telemetry stages on the whole video, its pipeline primed on it).
     """
     dataset = Dataset.load(data_dir / "images.json")
     candidates = Candidates.load(data_dir / "pre_nms.json", dataset)
@@ -147,8 +153,10 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                 for vid in dataset.videos} if any(x is not None for x in (track_boxes, tracks_out, on_tracks)) else {}
     if tracks_out is not None:
         tracks_out.update({vid: SequenceTracks() for vid in dataset.videos})
-    # live agents: each frame keeps the telemetry sample it carries (no look-ahead to later samples)
-    iters = {vid: iter_video_frames(dataset, camera, vid, at_frame_time=False) for vid in dataset.videos}
+    # as `uavmm agent --dataset` reads a recording: the telemetry stages over the whole video, the pipeline primed
+    iters = {vid: iter([frame for frame, _ in prepared_frames(dataset, camera, vid, candidates, configs[vid],
+                                                              pipes[vid])])
+             for vid in dataset.videos}
     results: dict[int, list[dict]] = {vid: [] for vid in dataset.videos}
     poses: dict[str, tuple] = {}
     next_publish: float | None = None
@@ -174,6 +182,7 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                         (frame.t, *offset, c.east_m if c is not None else 0.0, c.north_m if c is not None else 0.0))
             if trackers:
                 tracks = trackers[vid].update(res, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
+                                              pose_retimed=frame.pose_retimed,
                                               terrain=pipes[vid].terrain_for(frame.pose))
                 if track_boxes is not None:
                     track_boxes[frame.image.id] = [[b[0], b[1], b[2] - b[0], b[3] - b[1]] for b in
@@ -185,6 +194,8 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                               tracks_message(uav_of[vid], frame.t, tracks, pipes[vid].class_names))
             if frame.pose is not None:
                 poses[uav_of[vid]] = (frame.pose, frame.camera)
+                if poses_out is not None:
+                    poses_out.setdefault(vid, {})[round(frame.t, 4)] = (frame.pose, frame.camera)
         t = max(f.t for f in step.values())
         if fusion is not None and (next_publish is None or t >= next_publish):
             # what each UAV receives now is what the server fused from the tiles just published
@@ -319,12 +330,14 @@ def evaluate_coop(data_dir: Path, config: PipelineConfig | None = None, *, varia
         sampler = PeakSampler(standing, seen, uav_of_image) if share and variant.joint_detections else None
         # the registration's truth is computed over flat ground (sim.coop_registration): not over a terrain
         records: dict[int, list[RegistrationRecord]] | None = {} if sampler is not None and not terrain else None
+        given: dict[int, dict[float, tuple[Pose, Camera]]] | None = {} if records is not None else None
         recorders[name] = CrossUavRecorder() if track and cross_rows is not None else None
         runs[name] = run_coop(data_dir, variant, share=share, track_boxes=tracked[name] if track else None, dem=dem,
                               on_publish=sampler, tracks_out=sequences[name] if track else None,
-                              registration_out=records, size_filter=size_filter, on_tracks=recorders[name])
+                              registration_out=records, size_filter=size_filter, on_tracks=recorders[name],
+                              poses_out=given)
         if records is not None:
-            registration[name] = registration_errors(data_dir, records)
+            registration[name] = registration_errors(data_dir, records, given)
         if sampler is not None:  # the objects any UAV sees, and those each sees
             for uav in (BOTH, *sorted(set(uav_of_image.values()))):
                 peak_rows.append({"variant": name, "uav": uav, "standing_objects": len(standing),

@@ -43,14 +43,19 @@ _SAME_FRAME_S = 0.002
 RegistrationRecord = tuple[float, float, float, float, float]
 
 
-def registration_errors(data_dir: Path, records: dict[int, list[RegistrationRecord]]) -> dict[str, dict[str, float]]:
+def registration_errors(data_dir: Path, records: dict[int, list[RegistrationRecord]],
+                        given: dict[int, dict[float, tuple[Pose, Camera]]] | None = None
+                        ) -> dict[str, dict[str, float]]:
     """Per UAV of a simultaneous dataset: frames compared, `offset_px` (median length of the true offset of the
     others' evidence) and `left_px` (median length of the registration's estimate minus it).
 
     records: per video id, each frame's registration estimate and telemetry correction (`sim.coop_eval.run_coop`'s
-    registration_out). Frames without a true or noisy pose, or whose reference ray meets no ground, are skipped.
+    registration_out). given: the poses the pipeline was given (run_coop's poses_out; None: the telemetry as
+    stamped). Frames without a true or noisy pose, or whose reference ray meets no ground, are skipped.
     """
     dataset, true, noisy = _load(data_dir)
+    if given is not None:
+        noisy = given
     truth = _true_offsets(records, true, noisy)
     uav_of = {v["id"]: v.get("uav", str(v["id"])) for v in dataset.coco.get("videos", [])}
     out: dict[str, dict[str, float]] = {}
@@ -78,7 +83,7 @@ def true_offsets(data_dir: Path, records: dict[int, list[RegistrationRecord]]
 
 def _load(data_dir: Path) -> tuple[Dataset, dict[int, dict[float, Pose]], dict[int, dict[float, tuple[Pose, Camera]]]]:
     """The dataset and, per video id and frame time, its true poses (truth.json) and the noisy ones with cameras
-    (what the pipeline is given, `iter_video_frames` as run_coop reads them)."""
+    (the telemetry as stamped, `iter_video_frames`; registration_errors takes those run_coop gave when it has them)."""
     if (data_dir / "dem.npz").exists():
         raise ValueError(f"registration_errors: {data_dir} is over a terrain (dem.npz); the truth model here puts the "
                          "reference pixel's ground point on flat ground")

@@ -39,6 +39,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     src.add_argument("--noise-scale", type=float, default=1.0, help="--sim: telemetry noise multiplier (1)")
     src.add_argument("--video-id", default=None, metavar="ID|NAME",
                      help="--dataset: which video, by id or name (a SeaDronesSee v2 source.video; default: the first)")
+    src.add_argument("--telemetry-as-stamped", action="store_true",
+                     help="--dataset: each frame keeps the telemetry sample it carries, as a live feed gives it "
+                          "(default: the recording is read as `uavmm track` reads it: time zone, telemetry at frame "
+                          "time, clock offset, view cuts; the summary's stages say what acted)")
     src.add_argument("--telemetry", type=Path,
                      help="--video: telemetry file (.srt, .csv, SeaDronesSee .json, MAVLink .tlog, PX4 .ulg, MISB "
                           "ST 0601 KLV in .ts/.m2ts/.mts or raw .klv), 'klv' for the KLV inside the --video "
@@ -133,13 +137,16 @@ def source_from_args(args: argparse.Namespace):
         if given:
             raise ValueError(f"{', '.join(given)} go{'es' if len(given) == 1 else ''} with --video, not "
                              f"{'--sim' if args.sim is not None else '--dataset'}")
+    if getattr(args, "telemetry_as_stamped", False) and args.dataset is None:
+        raise ValueError("--telemetry-as-stamped goes with --dataset (--sim and --video read telemetry as it comes)")
     if args.sim is not None:
         from sim.source import SimSource  # the simulated source lives with the simulator (sim imports agent)
 
         return SimSource(args.sim, seed=args.seed, uav_index=args.uav_index, frames=args.frames,
                          noise_scale=args.noise_scale)
     if args.dataset is not None:
-        return DatasetSource(args.dataset, video_id=args.video_id, camera=args.camera)
+        return DatasetSource(args.dataset, video_id=args.video_id, camera=args.camera,
+                             telemetry_as_stamped=args.telemetry_as_stamped)
     missing = [flag for flag, value in (("--telemetry", args.telemetry), ("--model", args.model),
                                         ("--camera", args.camera)) if value is None]
     if missing:
