@@ -125,8 +125,10 @@ class Gateway:
 
     def close(self) -> None:
         """Stop HTTP and close Zenoh (idempotent). A request waiting for the shards' tracks gets what has come so far
-        at once: HTTP stops only once its requests end (a silent shard held SIGTERM for the 5 s query)."""
+        at once: HTTP stops only once its requests end (a silent shard held SIGTERM for the 5 s query, and for a
+        tile query's 2 s)."""
         self.shard_tracks.close()
+        self.joint.close()
         if self.http is not None:
             self.http.stop()
             self.http = None

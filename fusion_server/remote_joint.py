@@ -13,6 +13,7 @@ and counted, never raised.
 from __future__ import annotations
 
 import logging
+import queue
 import threading
 import time
 from collections.abc import Callable, Iterable
@@ -72,7 +73,13 @@ class RemoteJoint:
         self._classes: set[str] = set()
         # the background query of the whole map for the summaries: (monotonic start, done, its thread)
         self._refresh: tuple[float, threading.Event, threading.Thread] | None = None
+        self._closed = threading.Event()
         self._log = RateLimitedLog(log)
+
+    def close(self) -> None:
+        """End every wait for the shards now (the tiles come so far are used) and ask nothing more: a gateway's
+        SIGTERM no longer waits out a silent shard's 2 s."""
+        self._closed.set()
 
     # ---- the read side the REST API uses (JointMap's) ---------------------------------------------
     def tiles(self, cls: str | None = None) -> list[JointTile]:
@@ -215,22 +222,35 @@ class RemoteJoint:
     def _ask(self, selectors: Iterable[str]) -> list[JointTile]:
         """Send every selector's query at once, then gather the valid replies of all shards."""
         session = self.session
-        if session is None or session.is_closed():
+        if session is None or session.is_closed() or self._closed.is_set():
             return []
-        handlers = []
+        replies: queue.SimpleQueue[zenoh.Reply | None] = queue.SimpleQueue()  # None: one query ended
+        asked = 0
         for selector in selectors:
             self.queries += 1
             try:
-                handlers.append(session.get(selector, target=zenoh.QueryTarget.ALL,
-                                            consolidation=zenoh.ConsolidationMode.NONE, timeout=QUERY_TIMEOUT_S))
+                session.get(selector, zenoh.handlers.Callback(replies.put, lambda: replies.put(None)),
+                            target=zenoh.QueryTarget.ALL, consolidation=zenoh.ConsolidationMode.NONE,
+                            timeout=QUERY_TIMEOUT_S)
+                asked += 1
             except zenoh.ZError as exc:
                 self._reject("query_failed", f"{selector}: {exc}")
         tiles = []
-        for handler in handlers:
-            for reply in handler:
-                tile = self._tile_of(reply)
-                if tile is not None:
-                    tiles.append(tile)
+        deadline = time.monotonic() + QUERY_TIMEOUT_S + 0.5  # Zenoh ends each query by its timeout: a bound only
+        while asked and not self._closed.is_set():
+            left = deadline - time.monotonic()
+            if left <= 0:
+                break
+            try:
+                reply = replies.get(timeout=min(left, 0.1))  # 0.1: close() is seen within it
+            except queue.Empty:
+                continue
+            if reply is None:
+                asked -= 1
+                continue
+            tile = self._tile_of(reply)
+            if tile is not None:
+                tiles.append(tile)
         return tiles
 
     def _tile_of(self, reply: zenoh.Reply) -> JointTile | None:

@@ -308,6 +308,36 @@ def test_healthz_does_not_wait_for_a_joint_tiles_query_nobody_answers(lone_gatew
     assert not [t for t in threading.enumerate() if t.name == "uavmm-gateway-joint"]
 
 
+def test_close_ends_a_tile_query_a_silent_shard_holds(lone_gateway):
+    """Probe: a /v1/tiles request waiting on a queryable that never answers (a frozen shard) held the gateway's
+    SIGTERM for the query's 2 s: the wait iterated Zenoh's handler, which close() could not end. Now it ends within
+    0.1 s of close(), with the tiles come so far (none); without close() the query still runs to its timeout."""
+    gateway, session = lone_gateway
+    held: list[zenoh.Query] = []  # a query dropped is answered (finished); held, it waits for its timeout
+    silent = session.declare_queryable(KEYS.joint_tiles_all(), held.append)
+    try:
+        time.sleep(0.3)
+        key = ("person", gateway.joint.grid.z, 5, 5)
+        started = time.monotonic()
+        assert gateway.joint.get(key) is None
+        assert time.monotonic() - started >= 1.5  # the query ran to its timeout: nobody answered
+        found: list = []
+        waiting = threading.Thread(target=lambda: found.append(gateway.joint.get(("person", gateway.joint.grid.z,
+                                                                                  6, 6))))
+        waiting.start()
+        time.sleep(0.3)
+        started = time.monotonic()
+        gateway.joint.close()
+        waiting.join(5.0)
+        assert not waiting.is_alive() and found == [None]
+        assert time.monotonic() - started < 0.6
+        asked = gateway.joint.queries
+        assert gateway.joint.get(("person", gateway.joint.grid.z, 7, 7)) is None
+        assert gateway.joint.queries == asked  # closed: asks nothing more, waits for nothing
+    finally:
+        silent.undeclare()
+
+
 # ---- the command line ------------------------------------------------------------------------------------------
 def test_gateway_cli_takes_the_tracks_rate_and_clock_skew_of_the_docs(monkeypatch):
     import argparse
