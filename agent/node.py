@@ -25,6 +25,7 @@ from agent.frame_result import FrameResult
 from agent.global_ids import GlobalIdAdopter
 from agent.joint_window import window_tiles
 from agent.memory_map import JointLayer
+from agent.node_messages import publishable_tracks, state_message, tracks_message
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
@@ -36,14 +37,10 @@ from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
 from agent.zenoh_io import AgentLink, encode_tracks_with_gid
-from shared.geo import Camera, GroundSurface, Pose, footprint_latlon
+from shared.geo import Camera, Pose
 from shared.keys import DEFAULT_PREFIX, KeySpace, validate_uav_id
 from shared.messages import (
-    CameraInfo,
     JointTracksMessage,
-    StateMessage,
-    TrackItem,
-    TracksMessage,
     encode_state,
 )
 from shared.tiles import TileGrid
@@ -51,6 +48,7 @@ from shared.tiles import TileGrid
 __all__ = [
     "AgentNode",
     "AgentSettings",
+    "publishable_tracks",
     "run_first_track_id",
     "state_message",
     "tracks_message",
@@ -62,19 +60,6 @@ log = logging.getLogger(__name__)
 # ---------------------------------------------------------------------------------------------
 # Settings
 # ---------------------------------------------------------------------------------------------
-
-#: The longitude a footprint vertex past the antimeridian is held at (just inside it, on the UAV's side).
-_EDGE_LON = 180.0 - 1e-7
-
-
-def _this_side(lon: float, uav_lon: float) -> float:
-    """A footprint vertex's longitude held on the UAV's side of the antimeridian (a vertex past it, wrapped to the
-    other sign, at the line): the server fills the polygon vertex by vertex, and across the line it covered the
-    rest of the world."""
-    if abs(lon) > 90.0 and abs(uav_lon) > 90.0 and (lon < 0.0) != (uav_lon < 0.0):
-        return math.copysign(_EDGE_LON, uav_lon)
-    return min(max(lon, -_EDGE_LON), _EDGE_LON)
-
 
 def _positive(name: str, value: object) -> None:
     if isinstance(value, bool) or not isinstance(value, int | float) or not math.isfinite(value) or value <= 0:
@@ -203,47 +188,6 @@ class AgentSettings:
         return KeySpace(self.prefix)
 
 
-# ---------------------------------------------------------------------------------------------
-# State and tracks messages
-# ---------------------------------------------------------------------------------------------
-
-def state_message(uav: str, t: float, pose: Pose, camera: Camera, *, range_m: float,
-                  footprint_points: int = 32, terrain: GroundSurface | None = None) -> StateMessage:
-    """The state message of a UAV at time t (seconds) with its camera pose.
-
-    The footprint is the image border cast on the ground up to ``range_m`` (the pipeline's
-    georeferencing range), ``footprint_points`` vertices ``(lat, lon)``; heading is sent in [0, 360).
-    terrain: the pipeline's terrain (`--dem`): the border is cast onto it (shared.geo.footprint_latlon).
-    """
-    polygon = footprint_latlon(camera, pose, max_range_m=range_m, samples_per_edge=footprint_points // 4,
-                               terrain=terrain)
-    return StateMessage(
-        uav=uav, t=t, lat=pose.lat, lon=pose.lon, height_m=pose.height_m, pitch_deg=pose.pitch_deg,
-        heading_deg=pose.heading_deg % 360.0,
-        # past the antimeridian kept on the UAV's side (the server fills a polygon vertex by vertex: wrapped, one
-        # straddling the line would cover the rest of the world; past 180 the message was refused)
-        footprint=tuple((float(a), _this_side(float(b), pose.lon)) for a, b in polygon),
-        camera=CameraInfo(width=camera.width, height=camera.height, fx=camera.fx, fy=camera.fy,
-                          cx=camera.cx, cy=camera.cy),
-    )
-
-
-def publishable_tracks(tracks: list[TrackOutput]) -> list[TrackOutput]:
-    """The tracks an agent reports: confirmed (also while coasting) with a finite ground position that is not
-    loose (a far track placed only beyond the tracker's reach, `TrackOutput.loose`)."""
-    return [tr for tr in tracks if tr.confirmed and not tr.loose and math.isfinite(tr.lat) and math.isfinite(tr.lon)]
-
-
-def tracks_message(uav: str, t: float, tracks: list[TrackOutput], class_names: dict[int, str]) -> TracksMessage:
-    """A tracks message of the publishable tracks; scores (boosted, may exceed 1) are clipped to [0, 1]."""
-    items = tuple(
-        TrackItem(id=tr.id, cls=class_names.get(tr.cls, str(tr.cls)), lat=tr.lat, lon=tr.lon,
-                  score=min(max(tr.score, 0.0), 1.0), vel_en=(tr.vel_en[0], tr.vel_en[1]))
-        for tr in publishable_tracks(tracks)
-    )
-    return TracksMessage(uav=uav, t=t, tracks=items)
-
-
 #: Local track ids of a live run stay below this, so they are exact in JSON numbers (doubles) on the
 #: map page and in REST clients as well as in msgpack/SQLite int64.
 _TRACK_ID_SPAN = 2**53
@@ -327,7 +271,7 @@ class AgentNode:
         self.on_frame = on_frame
         self.on_ready = on_ready
         prepare = getattr(source, "prepare", None)
-        if prepare is not None:  # a recording: read as `uavmm track` reads it (agent.sources.DatasetSource)
+        if prepare is not None:  # a recording: read as `uavmm track` reads it (agent.dataset_source.DatasetSource)
             prepare(self.pipeline.config, self.pipeline)
         self.counts: dict[str, Any] = {"frames": 0, "frames_without_pose": 0, "frame_errors": 0, "detections": 0,
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,

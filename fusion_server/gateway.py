@@ -27,7 +27,8 @@ from fusion_server.merged_tracks import DEFAULT_STALE_S, MergedTracks
 from fusion_server.metrics import FusionMetrics
 from fusion_server.remote_joint import DEFAULT_CACHE_S, RemoteJoint
 from fusion_server.server import HttpThread
-from fusion_server.shard_tracks import ShardAnswer, ShardTracks
+from fusion_server.shard_tracks import ShardAnswer
+from fusion_server.shard_tracks_client import ShardTracks
 from fusion_server.uav_clocks import UavClocks
 from fusion_server.uav_registry import UavRegistry
 from fusion_server.validation import MessageValidator

@@ -130,7 +130,8 @@ _VIDEO_ONLY = ("telemetry", "model", "class_names", "telemetry_offset_s", "mavli
 
 def source_from_args(args: argparse.Namespace):
     """The frame source the flags describe; ValueError for missing companion flags or bad files."""
-    from agent.sources import DatasetSource, VideoSource
+    from agent.dataset_source import DatasetSource
+    from agent.sources import VideoSource
 
     if args.video is None:  # a --video flag beside --sim / --dataset did nothing, silently
         given = [f"--{name.replace('_', '-')}" for name in _VIDEO_ONLY if getattr(args, name, None) is not None]

@@ -10,7 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from agent.sources import DatasetSource, SourceFrame, VideoSource, pose_from_meta
+from agent.dataset_source import DatasetSource
+from agent.sources import SourceFrame, VideoSource, pose_from_meta
 from shared.geo import Camera
 from sim.dataset import write_dataset
 from sim.source import SimSource

@@ -128,7 +128,7 @@ def test_the_gateway_holds_at_most_twice_the_tracks_its_shards_may_list():
 def test_shard_tracks_answers_too_old_to_reuse_are_forgotten():
     """Up to 64 answers stayed cached however old (reused for 0.5 s only): 60 distinct /v1/history windows of two
     shards' stored history (200 tracks of 600 rows each) held ~1 GB that nothing would read again."""
-    from fusion_server.shard_tracks import ShardTracks
+    from fusion_server.shard_tracks_client import ShardTracks
 
     clock = Clock()
     tracks = ShardTracks(KEYS, 2, clock=clock)

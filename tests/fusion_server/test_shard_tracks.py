@@ -14,7 +14,6 @@ import zenoh
 from fusion_server.global_tracks import TrackRecord
 from fusion_server.shard_tracks import (
     ShardTrack,
-    ShardTracks,
     TrackQuery,
     TracksQueryable,
     decode_reply,
@@ -23,6 +22,7 @@ from fusion_server.shard_tracks import (
     encode_request,
     merge_tracks,
 )
+from fusion_server.shard_tracks_client import ShardTracks
 from shared.keys import KeySpace
 from shared.messages import MESSAGE_ERROR_REASONS, MessageError
 from tests.netutil import free_port, wait_until
