@@ -91,13 +91,12 @@ class DatasetSource:
         """What the telemetry stages did to this video (empty before the frames were read, or as stamped)."""
         from agent.file_frames import telemetry_reports
 
-        if self._telemetry is None or self._prepare is None:
+        if self._prepared is None or self._telemetry is None or self._prepare is None:  # not (completely) read
             return []
         return telemetry_reports(self._telemetry, self._prepare[0].clock_offset_settings())
 
     def _video_frames(self) -> Iterator[Frame]:
-        from agent.dataset import VideoTelemetry, iter_video_frames
-        from agent.file_frames import prepared_frames
+        from agent.dataset import iter_video_frames
 
         if self._prepare is None:
             # as stamped (a live feed's semantics): each frame keeps the telemetry sample it carries, stamped on
@@ -105,6 +104,17 @@ class DatasetSource:
             yield from iter_video_frames(self.dataset, self.camera, self.video_id, problems=self.problems,
                                          at_frame_time=False)
             return
+        yield from self.read_recording()
+
+    def read_recording(self) -> list[Frame]:
+        """The prepared frames of the video (`prepare`), read on the first call and kept (``--loop`` plays them again):
+        ~1.3 ms a frame on two shared cores (5 min at 30 fps: 11.6 s). The agent calls it before it connects
+        (AgentNode.run: SIGTERM and --duration hold during it). [] before `prepare` or as stamped."""
+        from agent.dataset import VideoTelemetry
+        from agent.file_frames import prepared_frames
+
+        if self._prepare is None:
+            return []
         if self._prepared is None:
             config, pipeline = self._prepare
             self._telemetry = VideoTelemetry()
@@ -113,10 +123,9 @@ class DatasetSource:
             self._prepared = [frame for frame, _ in prepared_frames(
                 self.dataset, self.camera, self.video_id, self.candidates, config, pipeline,
                 problems=self.problems, report=self._telemetry)]
-            # ~1.3 ms a frame on two shared cores (5 min at 30 fps: 11.6 s) before the first frame plays
             log.info("%s: the recording's telemetry stages read %d frames in %.1f s (--telemetry-as-stamped "
                      "skips them)", self.name, len(self._prepared), time.perf_counter() - started)
-        yield from self._prepared
+        return self._prepared
 
     def frames(self) -> Iterator[SourceFrame]:
         """Frames of the chosen video in frame order."""
@@ -145,7 +154,8 @@ class DatasetSource:
                     self.images_missing += 1
             yield SourceFrame(index, t, frame.pose, frame.pose_t if frame.pose is not None else None,
                               boxes, scores, cids, frame.camera, self.candidates.get_embeddings(frame.image.id), image,
-                              image_id=frame.image.id, pose_retimed=frame.pose_retimed)
+                              image_id=frame.image.id, pose_retimed=frame.pose_retimed,
+                              frame_index=frame.image.frame_index)
 
     def close(self) -> None:
         """Nothing to release."""

@@ -359,16 +359,19 @@ class AgentNode:
         stop = stop or threading.Event()
         s = self.settings
         self._started = time.monotonic()
-        if not self.link.open(stop, timeout_s=s.open_timeout_s):
-            log.warning("agent %s: no zenoh session; stopping", s.uav_id)
-            return self.summary()
-        try:
-            self.counts["joint_query_replies"] = self.link.query_joint(s.query_timeout_s)
-            if self.on_ready is not None:
-                self.on_ready(self)
-            self._loop(stop)
-        finally:
-            self.link.close()
+        if self._read_recording(stop):
+            if not self.link.open(stop, timeout_s=s.open_timeout_s):
+                log.warning("agent %s: no zenoh session; stopping", s.uav_id)
+                return self.summary()
+            try:
+                self.counts["joint_query_replies"] = self.link.query_joint(s.query_timeout_s)
+                if self.on_ready is not None:
+                    self.on_ready(self)
+                self._loop(stop)
+            finally:
+                self.link.close()
+                self.source.close()
+        else:  # stopped (SIGTERM, --duration) while reading the recording: the outputs are written, empty
             self.source.close()
         if s.tracks_out is not None:
             n = self.write_tracks(s.tracks_out)
@@ -377,6 +380,31 @@ class AgentNode:
             self._detections.close()
             log.info("wrote %d detections to %s", self._detections.count, s.detections_out)
         return self.summary()
+
+    def _read_recording(self, stop: threading.Event) -> bool:
+        """Let a recording's source run its telemetry stages before the agent connects (DatasetSource.read_recording),
+        in a thread of its own so that `stop` and --duration hold meanwhile; False when they ended the run."""
+        read = getattr(self.source, "read_recording", None)
+        if read is None:
+            return True
+        failed: list[BaseException] = []
+
+        def work() -> None:
+            try:
+                read()
+            except BaseException as exc:  # raised again below, in the caller's thread
+                failed.append(exc)
+
+        worker = threading.Thread(target=work, name="uavmm-agent-recording", daemon=True)
+        worker.start()
+        deadline = None if self.settings.duration_s is None else self._started + self.settings.duration_s
+        while worker.is_alive():
+            if stop.wait(0.1) or (deadline is not None and time.monotonic() >= deadline):
+                log.info("agent %s: stopped while reading the recording", self.settings.uav_id)
+                return False
+        if failed:
+            raise failed[0]
+        return True
 
     def _loop(self, stop: threading.Event) -> None:
         s = self.settings
@@ -447,7 +475,8 @@ class AgentNode:
         if self._detections is not None:
             self._detections.extend(results_to_coco(frame.index if frame.image_id is None else frame.image_id, result))
         if self.settings.tracks_out is not None:
-            self._rows.extend(frame.index, frame.t, self.tracker.report(tracks))  # as `uavmm track` reports them
+            self._rows.extend(frame.index if frame.frame_index is None else frame.frame_index, frame.t,
+                              self.tracker.report(tracks))  # as `uavmm track` reports them
         if self.on_frame is not None:
             self.on_frame(frame, result, tracks)
         return result, tracks
@@ -544,7 +573,10 @@ class AgentNode:
     def write_tracks(self, path: str | Path) -> int:
         """Write the reported tracks as GeoJSON (see `agent.tracking_io.geojson_tracks`) with ``uav`` and
         ``gid`` (the adopted global id, null without one) in each feature's properties."""
+        video_id = getattr(self.source, "video_id", 0)  # a dataset's video, as `uavmm track` numbers it
+
         def add(props: dict[str, Any]) -> None:
+            props["video_id"] = video_id
             props["uav"] = self.settings.uav_id
             props["gid"] = self.adopter.gid_of(props["id"])
 

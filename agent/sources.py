@@ -94,6 +94,9 @@ class SourceFrame:
     #: The pose is the telemetry at the frame's own time (interpolated, or re-timed by the clock-offset estimate):
     #: the tracker adds no latency compensation (GpsTracker.update(pose_retimed=True)).
     pose_retimed: bool = False
+    #: The frame's ``frame_index`` in its dataset (images.json), which `--tracks-out` numbers frames by as `uavmm
+    #: track` does; None: ``index``.
+    frame_index: int | None = None
 
 
 class FrameSource(Protocol):

@@ -10,7 +10,7 @@ ahead: a future stamp wins nothing). A track's
 status comes with it: the region message lists which members still report it (``JointTrackItem.active``;
 a message of an older shard without it reads as all of them: "tracked"). Its history, creation and
 last-update times and the ended tracks come from the shards themselves when ``details`` is set (the
-gateway's :class:`fusion_server.shard_tracks.ShardTracks`, asked over Zenoh); without it, or for a
+gateway's :class:`fusion_server.shard_tracks_client.ShardTracks`, asked over Zenoh); without it, or for a
 track no shard answered about, the gateway's own record stands in: the history it built from what it
 heard (a point per ``history_interval_s``), and the tracks that left the view as ended ones. It offers
 the read side of

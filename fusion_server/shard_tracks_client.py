@@ -4,6 +4,7 @@ shards' queryable): every shard asked at once, each reply checked, the copies of
 from __future__ import annotations
 
 import logging
+import math
 import queue
 import threading
 import time
@@ -201,13 +202,20 @@ class ShardTracks:
         return ShardAnswer(tracks, missing)
 
     def _not_ahead(self, found: list[ShardTrack], shard: int) -> list[ShardTrack]:
-        """The tracks of one reply stamped at most max_ahead_s ahead of the wall clock (the others rejected)."""
+        """The tracks of one reply whose every time (created, last_update, ended, history rows) is at most max_ahead_s
+        ahead of the wall clock (the others rejected: an honest shard's history never runs past its own last_update;
+        the merge keeps the newest rows, so rows stamped ahead would push the honest ones out)."""
         if self.max_ahead_s is None:
             return found
         limit = self._wall() + self.max_ahead_s
-        kept = [t for t in found if t.last_update <= limit and t.created <= limit]
+
+        def latest(t: ShardTrack) -> float:  # its newest time: created, updated, ended, its history's last row
+            return max(t.created, t.last_update, -math.inf if t.ended is None else t.ended,
+                       max((row[0] for row in t.history), default=-math.inf))
+
+        kept = [t for t in found if latest(t) <= limit]
         if len(kept) < len(found):
-            ahead = max(max(t.last_update, t.created) for t in found) - limit + self.max_ahead_s
+            ahead = max(latest(t) for t in found) - limit + self.max_ahead_s
             self._reject("t_in_future", f"shard {shard} answered {len(found) - len(kept)} track(s) updated up to "
                                         f"{ahead:.1f} s ahead of this clock, more than --max-clock-skew-s "
                                         f"{self.max_ahead_s:g} (forged, or the shard's clock runs ahead): left out")

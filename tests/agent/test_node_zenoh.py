@@ -446,3 +446,63 @@ def test_a_frame_that_fails_is_counted_and_the_agent_goes_on(server, server_port
     summary = RunningAgent(node).__enter__().join(20.0)
     assert summary["frame_errors"] == 1 and summary["frames"] == 9
     assert sorted(results) == [0, 1, 2, 4, 5, 6, 7, 8, 9]
+
+
+@pytest.fixture(scope="module")
+def recording(tmp_path_factory):
+    """A 600-frame `sea` dataset: reading its telemetry stages takes the agent most of a second."""
+    from sim.dataset import write_dataset
+
+    out = tmp_path_factory.mktemp("recording") / "data"
+    write_dataset("sea", out, seed=2, frames=600, progress=False)
+    return out
+
+
+@pytest.mark.parametrize("how", ["stop", "duration"])
+def test_a_stop_or_the_duration_holds_while_the_agent_reads_a_recording(server_port, recording, tmp_path, how):
+    """Review finding: the recording's stages ran inside the frame loop, after the agent was up on Zenoh, deaf to
+    SIGTERM and --duration (a 9,000-frame recording: --duration 2 exited after 6.5 s, SIGTERM took 5.5 s). They now
+    run before the agent connects, in a thread the stop and the duration end; the outputs are written, empty."""
+    from agent.dataset_source import DatasetSource
+
+    stop = threading.Event()
+    if how == "stop":
+        stop.set()
+    out = tmp_path / "tracks.geojson"
+    node = AgentNode(agent_settings(server_port, duration_s=0.01 if how == "duration" else None, tracks_out=out,
+                                    detections_out=tmp_path / "detections.json"),
+                     DatasetSource(recording, video_id=1, use_images=False))
+    summary = node.run(stop)
+    assert summary["frames"] == 0 and summary["publish_cycles"] == 0
+    assert "time zone" not in summary["stages"] and "view cuts" not in summary["stages"]  # the reading did not end
+    assert json.loads(out.read_text())["features"] == []
+    assert json.loads((tmp_path / "detections.json").read_text()) == []
+
+
+def test_the_agent_numbers_a_datasets_frames_and_video_as_uavmm_track_does(server, server_port, recording, tmp_path):
+    """Review finding: `--tracks-out` numbered frames from 0 in playing order and wrote video_id 0, where `uavmm
+    track` writes the dataset's frame_index and video id (the same on simulated data, not on a real file)."""
+    from agent.dataset import Candidates, Dataset
+    from agent.dataset_source import DatasetSource
+    from agent.tracking_io import geojson_tracks, track_video
+
+    coco = json.loads((recording / "images.json").read_text())
+    for im in coco["images"]:  # frame numbers as a real file has them: every 15th frame of a longer video
+        im["frame_index"] = 1000 + 15 * im["frame_index"]
+    data = tmp_path / "renumbered"
+    data.mkdir()
+    (data / "images.json").write_text(json.dumps(coco))
+    for name in ("pre_nms.json", "camera.json"):
+        (data / name).write_bytes((recording / name).read_bytes())
+    out = tmp_path / "tracks.geojson"
+    node = AgentNode(agent_settings(server_port, tracks_out=out, speed=0.0), DatasetSource(data, video_id=2,
+                                                                                            use_images=False))
+    node.run()
+    agent = json.loads(out.read_text())["features"]
+    dataset = Dataset.load(data / "images.json")
+    rows = track_video(dataset, Candidates.load(data / "pre_nms.json", dataset), Camera.from_file(data / "camera.json"),
+                       2, PipelineConfig())
+    track = geojson_tracks({2: rows}, dataset.categories)["features"]
+    assert agent and {f["properties"]["video_id"] for f in agent} == {2}
+    assert sorted(f["properties"]["frames"] for f in agent) == sorted(f["properties"]["frames"] for f in track)
+    assert min(min(f["properties"]["frames"]) for f in agent) >= 1000

@@ -262,8 +262,11 @@ def test_a_copy_stamped_ahead_of_the_gateways_clock_is_left_out_and_counted(sess
     now = 1_700_000_000.0
     honest = record(1, created=now - 20.0, last_update=now - 1.0)
     forged = dataclasses.replace(honest, lat=10.0, last_update=now + 3600.0)
-    answers = {0: [honest.to_geojson()], 1: [forged.to_geojson(), record(2, created=now, last_update=now + 2.0)
-                                             .to_geojson()]}
+    # history rows stamped ahead on a copy updated on time: the merge keeps the newest rows, the honest ones pushed out
+    pushed = record(3, created=now - 20.0, last_update=now - 1.0, history=((now - 20.0, 47.0, 9.0), (1e12, 10.0, 9.0)))
+    answers = {0: [honest.to_geojson(), record(3, created=now - 20.0, last_update=now - 1.0).to_geojson()],
+               1: [forged.to_geojson(), record(2, created=now, last_update=now + 2.0).to_geojson(),
+                   pushed.to_geojson()]}
     queryables = [TracksQueryable(lambda request, k=k: answers[k], KEYS.shard_tracks(k, 2), k, 2) for k in range(2)]
     declared = []
     for queryable in queryables:
@@ -277,9 +280,10 @@ def test_a_copy_stamped_ahead_of_the_gateways_clock_is_left_out_and_counted(sess
         client = ShardTracks(KEYS, 2, cache_s=0.0, on_reject=rejected.append, max_ahead_s=5.0, wall=lambda: now)
         client.session = gateway_side
         live = client.live()
-        assert live is not None and [t.gid for t in live] == [1, 2]  # gid 2, 2 s ahead: within the skew
+        assert live is not None and [t.gid for t in live] == [1, 2, 3]  # gid 2, 2 s ahead: within the skew
         assert live[0].lat == honest.lat and live[0].last_update == now - 1.0
-        assert rejected == ["t_in_future"] and not live.missing  # shard 1 answered: only its forged copy is out
+        assert max(row[0] for row in live[2].history) < now  # the copy with rows stamped ahead left out
+        assert rejected == ["t_in_future"] and not live.missing  # shard 1 answered: only its forged copies are out
         trusting = ShardTracks(KEYS, 2, cache_s=0.0)  # without the bound (as before): the forged copy wins
         trusting.session = gateway_side
         assert (trusting.live() or [])[0].lat == 10.0
