@@ -101,6 +101,7 @@ class DatasetSource:
         if self._prepare is None:
             # as stamped (a live feed's semantics): each frame keeps the telemetry sample it carries, stamped on
             # the frame clock; a live feed cannot interpolate towards samples that have not arrived
+            self.problems.clear()  # one pass's (--loop plays the video again)
             yield from iter_video_frames(self.dataset, self.camera, self.video_id, problems=self.problems,
                                          at_frame_time=False)
             return

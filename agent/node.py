@@ -21,6 +21,7 @@ from typing import Any
 import numpy as np
 
 from agent.boost import StreamedResults, results_to_coco
+from agent.dataset import count_reasons
 from agent.frame_result import FrameResult
 from agent.global_ids import GlobalIdAdopter
 from agent.joint_window import window_tiles
@@ -558,6 +559,9 @@ class AgentNode:
             "sent_bytes_per_s": round(sent / elapsed, 1),
             "link": link,
             "stages": self.stage_summary().as_dict(),
+            # why frames had no pose, by reason (a dataset's meta), as `uavmm track`'s summary gives it
+            "frames_without_pose_by_reason": count_reasons(problems) if isinstance(
+                problems := getattr(self.source, "problems", None), list) else {},
         }
 
     def stage_summary(self) -> StageSummary:

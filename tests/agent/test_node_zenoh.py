@@ -506,3 +506,16 @@ def test_the_agent_numbers_a_datasets_frames_and_video_as_uavmm_track_does(serve
     assert agent and {f["properties"]["video_id"] for f in agent} == {2}
     assert sorted(f["properties"]["frames"] for f in agent) == sorted(f["properties"]["frames"] for f in track)
     assert min(min(f["properties"]["frames"]) for f in agent) >= 1000
+
+
+def test_the_agent_says_why_frames_of_a_dataset_had_no_pose(server, server_port, recording):
+    """The agent counted frames without a pose but never said why (`uavmm track` gives the reasons)."""
+    from agent.dataset_source import DatasetSource
+
+    for stamped in (False, True):
+        summary = AgentNode(agent_settings(server_port, speed=0.0),
+                            DatasetSource(recording, video_id=1, use_images=False,
+                                          telemetry_as_stamped=stamped)).run()
+        reasons = summary["frames_without_pose_by_reason"]
+        assert summary["frames_without_pose"] > 0 and sum(reasons.values()) == summary["frames_without_pose"]
+        assert all(isinstance(k, str) and k for k in reasons)
