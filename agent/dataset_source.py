@@ -26,7 +26,6 @@ __all__ = ["DatasetSource"]
 log = logging.getLogger(__name__)
 
 
-
 class DatasetSource:
     """One video of a dataset directory: ``images.json`` + ``pre_nms.json`` + ``camera.json`` (as `uavmm sim`
     writes it), or the one ``instances*.json`` + ``detections*.json`` of a real file and a camera.
@@ -81,8 +80,8 @@ class DatasetSource:
 
     def prepare(self, config: PipelineConfig, pipeline: DetectionPipeline | None = None) -> None:
         """Read the recording with `config`'s telemetry stages, as `uavmm track` does, priming `pipeline` on the
-        whole video (`agent.file_frames.prepared_frames`; at the first `frames()` call, once). Nothing with
-        telemetry_as_stamped."""
+        whole video (`agent.file_frames.prepared_frames`; once, by `read_recording` or the first `frames()` call).
+        Nothing with telemetry_as_stamped."""
         if not self.telemetry_as_stamped:
             self._prepare = (config, pipeline)
             self._prepared = None
