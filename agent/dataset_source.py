@@ -90,8 +90,9 @@ class DatasetSource:
         """What the telemetry stages did to this video (empty before the frames were read, or as stamped)."""
         from agent.file_frames import telemetry_reports
 
-        if self._prepared is None or self._telemetry is None or self._prepare is None:  # not (completely) read
+        if self._prepared is None:  # not (completely) read
             return []
+        assert self._telemetry is not None and self._prepare is not None  # set by read_recording before _prepared
         return telemetry_reports(self._telemetry, self._prepare[0].clock_offset_settings())
 
     def _video_frames(self) -> Iterator[Frame]:

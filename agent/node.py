@@ -546,6 +546,7 @@ class AgentNode:
         elapsed = max(time.monotonic() - self._started, 1e-9)
         link = self.link.stats()
         sent = sum(v for k, v in link["bytes"].items() if k.startswith("sent_"))
+        problems = getattr(self.source, "problems", None)  # a dataset's PoseProblems (other sources: a count)
         return {
             **self.counts,
             "behind_s_max": round(self.counts["behind_s_max"], 3),
@@ -560,8 +561,7 @@ class AgentNode:
             "link": link,
             "stages": self.stage_summary().as_dict(),
             # why frames had no pose, by reason (a dataset's meta), as `uavmm track`'s summary gives it
-            "frames_without_pose_by_reason": count_reasons(problems) if isinstance(
-                problems := getattr(self.source, "problems", None), list) else {},
+            "frames_without_pose_by_reason": count_reasons(problems) if isinstance(problems, list) else {},
         }
 
     def stage_summary(self) -> StageSummary:

@@ -25,8 +25,6 @@ def _this_side(lon: float, uav_lon: float) -> float:
     return min(max(lon, -_EDGE_LON), _EDGE_LON)
 
 
-
-
 def state_message(uav: str, t: float, pose: Pose, camera: Camera, *, range_m: float,
                   footprint_points: int = 32, terrain: GroundSurface | None = None) -> StateMessage:
     """The state message of a UAV at time t (seconds) with its camera pose.

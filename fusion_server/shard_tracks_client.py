@@ -39,10 +39,10 @@ class ShardTracks:
 
     keys: the key space; count: how many shards (N). history_len: most rows a merged live track keeps
     (the tracker's). cache_s: how long an answer is reused. on_reject(reason): called for every reply
-    dropped, and once (``t_in_future``) for a reply whose tracks were cut: a track ``created`` or
-    ``last_update``d more than ``max_ahead_s`` after ``wall()`` (the gateway's --max-clock-skew-s) is left out
-    (the copy of an id updated last wins the merge, so one stamped ahead, forged or from a shard whose clock
-    runs ahead, would hide the others; None: never). Thread-safe: HTTP threads call it concurrently; one query
+    dropped, and once (``t_in_future``) for a reply whose tracks were cut: a track with any time more than
+    ``max_ahead_s`` after ``wall()`` (the gateway's --max-clock-skew-s) is left out (`_not_ahead`: the copy of
+    an id updated last wins the merge, so one stamped ahead, forged or from a shard whose clock runs ahead,
+    would hide the others; None: never). Thread-safe: HTTP threads call it concurrently; one query
     per kind runs at a time and the others wait for its answer. Answers are `ShardAnswer` (``missing``: the
     shards that did not answer in time). A query no shard answered before its timeout is not asked again for
     ``cache_s`` (None at once: the shards are silent, not refusing). ``close()`` ends the waits at once (a
@@ -207,15 +207,13 @@ class ShardTracks:
         the merge keeps the newest rows, so rows stamped ahead would push the honest ones out)."""
         if self.max_ahead_s is None:
             return found
-        limit = self._wall() + self.max_ahead_s
-
-        def latest(t: ShardTrack) -> float:  # its newest time: created, updated, ended, its history's last row
-            return max(t.created, t.last_update, -math.inf if t.ended is None else t.ended,
-                       max((row[0] for row in t.history), default=-math.inf))
-
-        kept = [t for t in found if latest(t) <= limit]
+        now = self._wall()
+        # each track's newest time: created, updated, ended, its history's rows (a forged copy's need not be sorted)
+        latest = [max(t.created, t.last_update, -math.inf if t.ended is None else t.ended,
+                      max((row[0] for row in t.history), default=-math.inf)) for t in found]
+        kept = [t for t, newest in zip(found, latest, strict=True) if newest <= now + self.max_ahead_s]
         if len(kept) < len(found):
-            ahead = max(latest(t) for t in found) - limit + self.max_ahead_s
+            ahead = max(latest) - now
             self._reject("t_in_future", f"shard {shard} answered {len(found) - len(kept)} track(s) updated up to "
                                         f"{ahead:.1f} s ahead of this clock, more than --max-clock-skew-s "
                                         f"{self.max_ahead_s:g} (forged, or the shard's clock runs ahead): left out")
