@@ -173,7 +173,11 @@ def test_ten_thousand_malformed_messages_leave_the_server_up_and_counted(server_
     def total_rejected() -> int:
         return sum(server.metrics.rejected_by_reason().values())
 
-    wait_until(lambda: total_rejected() >= sent, timeout_s=30.0)
+    try:
+        wait_until(lambda: total_rejected() >= sent, timeout_s=30.0)
+    except AssertionError as error:  # seen once in CI under load (stop 54) with no count behind: name it
+        raise AssertionError(f"{total_rejected()} of {sent} rejected: {server.metrics.rejected_by_reason()}, "
+                             f"skipped {server.node.skipped}, inbox {len(server.node._inbox)}") from error
     assert total_rejected() == sent
     wait_until(lambda: server.joint.get(("person", 18, TILE_X, TILE_Y)) is not None)
     reasons = server.metrics.rejected_by_reason()
