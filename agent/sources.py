@@ -25,6 +25,7 @@ from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, rec
 if TYPE_CHECKING:
     from agent.detector import Detections
     from agent.slicing import SliceGrid
+    from agent.telemetry_clock import TelemetryTrack
     from shared.telemetry import KlvReport
 
 log = logging.getLogger(__name__)
@@ -501,6 +502,32 @@ class VideoSource:
                 camera = self.live_field_of_view.camera_at(t, self.feed.records_between(t - 1.0, t + 1.0), camera)
             yield SourceFrame(frame.index, t, pose, pose_t, dets.boxes_xyxy, dets.scores,
                               dets.class_ids.astype(np.int64), camera, image=image)
+
+    def telemetry_track(self) -> TelemetryTrack | None:
+        """The telemetry's poses as a track on the frames' clock (`agent.telemetry_clock.TelemetryTrack`: what
+        the clock-offset estimate re-times poses on and the view cuts search), None for a live stream (no look
+        ahead) or fewer than two records with a pose. Records at one time: the first."""
+        from agent.telemetry_clock import TelemetryTrack
+
+        if self.feed is not None:
+            return None
+        t: list[float] = []
+        rows: list[tuple[float, float, float, float, float]] = []
+        for record in self.records:
+            if t and record.t <= t[-1]:
+                continue
+            try:  # as `_pose`, uncounted: the frames' problems are counted as they come
+                pose = record.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
+            except ValueError:
+                continue
+            t.append(record.t)
+            rows.append((pose.lat, pose.lon, pose.height_m, pose.heading_deg, pose.pitch_deg))
+        return TelemetryTrack(np.array(t), np.array(rows)) if len(t) >= 2 else None
+
+    def images(self) -> Iterator[tuple[int, NDArray[np.uint8]]]:
+        """Decode the video again, without the detector: (frame index, image) as `frames` numbers them."""
+        for frame in self.reader.frames():
+            yield frame.index, frame.image
 
     def close(self) -> None:
         """Drop the model session and stop a live telemetry stream."""

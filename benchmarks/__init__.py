@@ -39,6 +39,7 @@ BENCHMARK_MODULES: dict[str, str] = {
     "anomaly": "benchmarks.bench_anomaly",
     "view_cuts": "benchmarks.bench_view_cuts",
     "live_feed": "benchmarks.bench_live_feed",
+    "detect": "benchmarks.bench_detect",
 }
 
 

@@ -11,7 +11,7 @@ import sys
 import time
 from pathlib import Path
 
-from uavmm.cli import CliError, _add_pipeline_options, _pipeline_from_args, require_outputs_apart
+from uavmm.cli import CliError, _add_pipeline_options, _pipeline_from_args, print_pose_and_stages, require_outputs_apart
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -40,6 +40,11 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trail-s", type=float, default=2.0, help="--render-video: trail length, seconds (2)")
     p.add_argument("--no-inset", action="store_true", help="--render-video: no memory-map inset")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    p.add_argument("--one-pass", action="store_true",
+                   help="run each frame as it comes, as the live agent does (default: read the recording as a file, "
+                        "in two passes: the detector over the whole video, then the clock-offset estimate, view cuts "
+                        "hidden by sparse telemetry and the adaptive stages on all of it, then memory map and "
+                        "tracker; the candidates wait in a temporary file in --out, ~28 bytes each)")
     p.add_argument("--quiet", action="store_true", help="no progress line")
     det = p.add_argument_group("detector")
     det.add_argument("--providers", default="CPUExecutionProvider",
@@ -89,7 +94,8 @@ class ProgressLine:
     when the total is unknown), so logs stay short."""
 
     def __init__(self, label: str, enabled: bool = True) -> None:
-        self.label = label
+        self.label = self.base_label = label
+        self._last_done = 0
         self.enabled = enabled
         self.tty = sys.stderr.isatty()
         self.started = time.monotonic()
@@ -99,6 +105,12 @@ class ProgressLine:
     def __call__(self, done: int, total: int | None) -> None:
         if not self.enabled:
             return
+        if done < self._last_done:  # the count started again: the second pass (memory map and tracker)
+            self.close()
+            self.label = f"{self.base_label} (pass 2: memory map, tracker)"
+            self.started = time.monotonic()
+            self._last_step = -1
+        self._last_done = done
         elapsed = max(time.monotonic() - self.started, 1e-9)
         rate = done / elapsed
         if self.tty:
@@ -143,7 +155,8 @@ def run(args: argparse.Namespace) -> int:
         ("--class-names", args.class_names), ("--tracker-config", args.tracker_config),
         ("--config", args.pipeline_config), ("--size-filter", args.size_filter), ("--dem", args.dem)])
     options = DetectOptions(render_video=args.render_video, trail_s=args.trail_s,
-                            inset_fraction=0.0 if args.no_inset else 0.28, max_frames=args.max_frames)
+                            inset_fraction=0.0 if args.no_inset else 0.28, max_frames=args.max_frames,
+                            two_pass=not args.one_pass)
     slices = SliceGrid.parse(args.slices, args.slice_overlap) if args.slices else None
     if args.slices is None and (args.no_full_frame or args.slice_overlap != 0.2):
         raise CliError("--slice-overlap and --no-full-frame need --slices")
@@ -166,6 +179,7 @@ def run(args: argparse.Namespace) -> int:
         progress.close()
     print(f"uavmm detect: {summary['frames']} frames ({summary['frames_without_pose']} without telemetry), "
           f"{summary['detections']} detections, {summary['tracks']} tracks in {summary['seconds']} s")
+    print_pose_and_stages(summary)
     for kind, path in summary["files"].items():
         print(f"  {kind:16s} {path}")
     return 0

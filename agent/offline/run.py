@@ -3,7 +3,10 @@ with its telemetry, offline (no Zenoh), collecting what `agent.offline.outputs` 
 
 The same pieces as the live agent (`agent.node.AgentNode.step`), minus the joint map and the network: a frame
 from `agent.sources.VideoSource` (telemetry interpolated to the frame, camera fitted to the frame size) ->
-`DetectionPipeline.process` -> appearance descriptors -> `GpsTracker.update`.
+`DetectionPipeline.process` -> appearance descriptors -> `GpsTracker.update`. By default the recording is read
+as a file, in two passes (`agent.offline.two_pass`: the detector over the whole video, then the clock offset,
+the view cuts and the adaptive stages on all of it, then the chain); `DetectOptions(two_pass=False)` runs each
+frame as it comes.
 """
 
 from __future__ import annotations
@@ -22,10 +25,12 @@ from typing import Any
 from agent.boost import StreamedResults, results_to_coco
 from agent.offline.annotate import VideoAnnotator
 from agent.offline.outputs import OUTPUT_FILES, StreamedImages, image_entry, write_outputs, write_text_atomic
+from agent.offline.two_pass import FilePasses, can_look_ahead
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.sources import FrameSource
+from agent.stage_report import StageSummary
 from agent.track_rows import TrackRowLog
 from agent.tracking import GpsTracker, TrackerConfig
 from agent.tracking.appearance import with_image_descriptors
@@ -35,7 +40,7 @@ __all__ = ["DetectOptions", "prepare_out_dir", "run_detect"]
 
 log = logging.getLogger(__name__)
 
-#: progress(frames done, frames expected or None)
+#: progress(frames done, frames expected or None); in two passes the count starts again at 1 for pass two
 Progress = Callable[[int, int | None], None]
 
 
@@ -45,12 +50,16 @@ class DetectOptions:
 
     render_video: also write the annotated MP4; trail_s: trail length in it, seconds; inset_fraction: edge of
     the memory-map inset over the frame's shorter side (0 = none); max_frames: stop after this many frames.
+    two_pass: read the recording as a file (`agent.offline.two_pass`: the detector over the whole video first,
+    then the clock offset, view cuts and the adaptive stages on all of it); False, or a source that cannot be
+    read twice (a live telemetry stream): one pass, each frame as it comes, as the live agent runs.
     """
 
     render_video: bool = False
     trail_s: float = 2.0
     inset_fraction: float = 0.28
     max_frames: int | None = None
+    two_pass: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.trail_s) and self.trail_s >= 0):
@@ -92,7 +101,7 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         As for `uavmm boost` / `uavmm track` (no joint map offline).
     options : DetectOptions, optional
     progress : callable, optional
-        Called after each frame with (frames done, frames expected or None).
+        Called after each frame with (frames done, frames expected or None), in two passes for each pass.
 
     Returns
     -------
@@ -107,6 +116,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     out = prepare_out_dir(out_dir)
     config = pipeline_config or PipelineConfig()
     pipe = DetectionPipeline(source.camera, source.class_names, config, size_filter=size_filter)
+    why_one_pass = "--one-pass" if not options.two_pass else can_look_ahead(source)
+    passes = None if why_one_pass is not None else FilePasses(source, config, out)
     tracker = GpsTracker(tracker_config, source.class_names, evidence_at=memory_evidence(pipe))
     video_path = getattr(source, "video_path", None)
     video_name = Path(video_path).stem if video_path is not None else source.name
@@ -125,8 +136,13 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     seconds = {"source": 0.0, "pipeline": 0.0, "tracker": 0.0, "draw": 0.0}
     t_prev = -math.inf
     started = time.perf_counter()
-    frames = iter(source.frames())
     try:
+        if passes is not None:  # pass one: the detector over the whole video, then the file stages
+            passes.detect(options.max_frames, progress, total)
+            passes.prime(pipe)
+            seconds["source"] += passes.detector_s
+            total = len(passes)
+        frames = iter(source.frames() if passes is None else passes.frames())
         while options.max_frames is None or counts["frames"] < options.max_frames:
             t0 = time.perf_counter()
             frame = next(frames, None)
@@ -144,7 +160,7 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             t = max(frame.t, t_prev)
             t_prev = t
             tracks = tracker.update(result, frame.pose, t, frame.camera, pose_t=frame.pose_t,
-                                    terrain=pipe.terrain_for(frame.pose))
+                                    pose_retimed=frame.pose_retimed, terrain=pipe.terrain_for(frame.pose))
             reported = tracker.report(tracks)
             t3 = time.perf_counter()
             seconds["pipeline"] += t2 - t1
@@ -180,6 +196,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         images.abort()
         raise
     finally:
+        if passes is not None:
+            passes.close()
         source.close()
     if annotator is not None:
         annotator.close()
@@ -209,6 +227,14 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         "seconds": round(time.perf_counter() - started, 3),
         "files": files,
     }
+    stages = StageSummary()
+    for report in [*(passes.reports if passes is not None else []), *pipe.stage_reports(),
+                   *tracker.stage_reports()]:
+        stages.add(report)
+    summary["two_pass"] = passes is not None
+    if why_one_pass is not None:
+        summary["one_pass_because"] = why_one_pass
+    summary["stages"] = stages.as_dict()
     problems = getattr(source, "problems", 0)
     if isinstance(problems, int) and problems:
         summary["frames_with_unusable_telemetry"] = problems

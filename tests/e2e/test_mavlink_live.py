@@ -87,6 +87,8 @@ def test_live_mavlink_drives_detect(flight, tmp_path):
     replay.join(timeout=30.0)
     summary = json.loads((out / "summary.json").read_text())
     assert summary["frames"] == FRAMES and summary["frames_without_pose"] == 0
+    # a live stream cannot be looked ahead in: one pass, as the live agent runs, and the summary says why
+    assert summary["two_pass"] is False and summary["one_pass_because"] == "live telemetry stream: no look ahead"
     images = json.loads((out / "images.json").read_text())["images"]
     for image, rec in zip(images, flight["records"], strict=True):  # the CSV has a record per frame
         assert image["meta"]["gps_latitude"] == pytest.approx(rec.lat, abs=2e-7)
