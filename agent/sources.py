@@ -506,7 +506,8 @@ class VideoSource:
     def telemetry_track(self) -> TelemetryTrack | None:
         """The telemetry's poses as a track on the frames' clock (`agent.telemetry_clock.TelemetryTrack`: what
         the clock-offset estimate re-times poses on and the view cuts search), None for a live stream (no look
-        ahead) or fewer than two records with a pose. Records at one time: the first."""
+        ahead) or fewer than two records with a pose. Records at one time: the first; records at (0, 0), a
+        logger's "no GPS fix": left out, as `shared.telemetry.interpolate` leaves them."""
         from agent.telemetry_clock import TelemetryTrack
 
         if self.feed is not None:
@@ -514,8 +515,8 @@ class VideoSource:
         t: list[float] = []
         rows: list[tuple[float, float, float, float, float]] = []
         for record in self.records:
-            if t and record.t <= t[-1]:
-                continue
+            if (t and record.t <= t[-1]) or (record.lat == 0.0 and record.lon == 0.0):  # (0, 0): no GPS fix, as
+                continue  # `interpolate` leaves it out
             try:  # as `_pose`, uncounted: the frames' problems are counted as they come
                 pose = record.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
             except ValueError:

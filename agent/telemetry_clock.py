@@ -102,9 +102,9 @@ class ClockReport:
 class TelemetryTrack:
     """One video's distinct telemetry samples on the frame clock, interpolated at any time.
 
-    t (M,) increasing seconds; values (M, 5): lat, lon (degrees), height (m), heading (degrees, unwrapped),
-    pitch (degrees). Interpolation is linear (heading along the shorter turn) and holds the end values
-    outside the samples.
+    t (M,) increasing seconds; values (M, 5): lat, lon (degrees, unwrapped across the antimeridian), height (m),
+    heading (degrees, unwrapped), pitch (degrees). Interpolation is linear (heading and longitude along the shorter
+    way) and holds the end values outside the samples.
     """
 
     COLUMNS = ("lat", "lon", "height_m", "heading_deg", "pitch_deg")
@@ -115,8 +115,9 @@ class TelemetryTrack:
         if len(t) and not np.all(np.diff(t) > 0):
             raise ValueError("TelemetryTrack times must increase strictly")
         values = values.copy()
-        if len(t):
+        if len(t):  # heading, and longitude across the antimeridian, along the shorter way
             values[:, 3] = np.degrees(np.unwrap(np.radians(values[:, 3])))
+            values[:, 1] = np.degrees(np.unwrap(np.radians(values[:, 1])))
         self.t = t
         self.values = values
         # each column contiguous: np.interp copies a strided column whole on every call (90 us a call on an
@@ -137,12 +138,13 @@ class TelemetryTrack:
         return TelemetryTrack(self.t, out)
 
     def at(self, times: NDArray | float) -> NDArray:
-        """(N, 5) values at times (N,): lat, lon, height, heading in [0, 360), pitch."""
+        """(N, 5) values at times (N,): lat, lon in [-180, 180), height, heading in [0, 360), pitch."""
         times = np.atleast_1d(np.asarray(times, dtype=np.float64))
         if not len(self.t):
             raise ValueError("TelemetryTrack has no samples")
         out = np.stack([np.interp(times, self.t, column) for column in self._columns], axis=1)
         out[:, 3] %= 360.0
+        out[:, 1] = (out[:, 1] + 180.0) % 360.0 - 180.0
         return out
 
 

@@ -138,7 +138,7 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     started = time.perf_counter()
     try:
         if passes is not None:  # pass one: the detector over the whole video, then the file stages
-            passes.detect(options.max_frames, progress, total)
+            passes.detect(options.max_frames, progress, total, pipe)
             passes.prime(pipe)
             seconds["source"] += passes.detector_s
             total = len(passes)
@@ -232,6 +232,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
                    *tracker.stage_reports()]:
         stages.add(report)
     summary["two_pass"] = passes is not None
+    if passes is not None and passes.missing_images:
+        summary["frames_without_image"] = passes.missing_images
     if why_one_pass is not None:
         summary["one_pass_because"] = why_one_pass
     summary["stages"] = stages.as_dict()

@@ -20,6 +20,7 @@ MAVLink stream cannot be looked ahead in: it runs in one pass, as the live agent
 
 from __future__ import annotations
 
+import logging
 import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
@@ -36,6 +37,9 @@ from agent.pipeline_config import PipelineConfig
 from agent.sources import SourceFrame
 from agent.stage_report import StageReport
 from agent.view_cuts import ViewCutReport, place_view_cuts
+from shared.geo import GroundSurface, Pose
+
+log = logging.getLogger(__name__)
 
 __all__ = ["CandidateSpool", "FilePasses", "can_look_ahead"]
 
@@ -110,6 +114,8 @@ class FilePasses:
     config: PipelineConfig
     spool_dir: Path
     detector_s: float = 0.0
+    #: frames of pass two whose image the second decode did not give (never, unless the decoder numbers differently)
+    missing_images: int = 0
     reports: list[StageReport] = field(default_factory=list)
     _frames: list[tuple[Frame, ClockOffset | None]] = field(default_factory=list)
     _spool: CandidateSpool | None = None
@@ -119,8 +125,10 @@ class FilePasses:
         return len(self._frames)
 
     def detect(self, max_frames: int | None, progress: Callable[[int, int | None], None] | None,
-               total: int | None) -> None:
-        """Pass one: the detector over every frame (up to max_frames), candidates to the spool."""
+               total: int | None, pipe: DetectionPipeline | None = None) -> None:
+        """Pass one: the detector over every frame (up to max_frames), candidates to the spool; then the file
+        stages (over a `--dem` terrain the clock-offset estimate puts the detections on `pipe`'s terrain, as
+        `agent.file_frames.prepared_frames` does)."""
         import time
 
         spool = self._spool = CandidateSpool(self.spool_dir)
@@ -141,9 +149,11 @@ class FilePasses:
             frames.append(Frame(record, sf.pose, sf.t, sf.camera, sf.pose_t, track=track))
             if progress is not None:
                 progress(len(frames), total)
-        self._frames = self._prepared(frames, spool)
+        terrain_for = pipe.terrain_for if pipe is not None and self.config.terrain is not None else None
+        self._frames = self._prepared(frames, spool, terrain_for)
 
-    def _prepared(self, frames: list[Frame], spool: CandidateSpool) -> list[tuple[Frame, ClockOffset | None]]:
+    def _prepared(self, frames: list[Frame], spool: CandidateSpool,
+                  terrain_for: Callable[[Pose], GroundSurface | None] | None) -> list[tuple[Frame, ClockOffset | None]]:
         """The file stages on the whole video, as `agent.file_frames.prepared_frames` runs them on a dataset."""
         config = self.config
 
@@ -156,7 +166,7 @@ class FilePasses:
         out: list[tuple[Frame, ClockOffset | None]]
         if settings is not None and posed and track is not None:
             windows: list[int] = []
-            out = retime_frames(frames, candidates, settings, windows_out=windows)
+            out = retime_frames(frames, candidates, settings, windows_out=windows, terrain_for=terrain_for)
             found, need = (windows[0] if windows else 0), settings.min_windows
             self.reports.append(StageReport(
                 "clock offset", found >= need, f"measured on {found} turning windows" if found >= need else
@@ -189,6 +199,11 @@ class FilePasses:
                 pending = next(images, None)
             image = pending[1] if pending is not None and pending[0] == index else None
             boxes, scores, cids = spool.get(frame.image.id)
+            if image is None:
+                self.missing_images += 1
+                if self.missing_images == 1:
+                    log.warning("%s: the second decode gave no image for frame %d (its appearance is not described; "
+                                "further frames counted in the summary)", self.source.name, index)
             yield SourceFrame(index, frame.t, frame.pose, frame.pose_t, boxes, scores, cids, frame.camera,
                               image=image, pose_retimed=frame.pose_retimed)
 

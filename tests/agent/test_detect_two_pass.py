@@ -5,6 +5,7 @@ real video (MJPG), a 1 Hz telemetry log and a real ONNX model run by onnxruntime
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
 
 import numpy as np
@@ -70,11 +71,108 @@ def test_two_passes_put_the_view_jumps_a_one_hertz_log_smears_where_the_video_ju
     assert {p.name for p in (tmp_path / "two").iterdir()} == written
 
 
-def test_max_frames_stops_both_passes(flight, tmp_path):
-    summary = _detect(flight, tmp_path / "out", "--max-frames", "17")
+def _open_files_under(folder: Path) -> list[str]:
+    """What this process holds open in folder (an unnamed temporary file shows as `folder/#123 (deleted)`)."""
+    out = []
+    for fd in os.listdir("/proc/self/fd"):
+        try:
+            target = os.readlink(f"/proc/self/fd/{fd}")
+        except OSError:
+            continue
+        if target.startswith(str(folder) + os.sep):
+            out.append(target)
+    return out
+
+
+def test_max_frames_stops_both_passes_and_the_spool_is_closed(flight, tmp_path):
+    from agent.offline.run import DetectOptions, run_detect
+    from agent.sources import VideoSource
+
+    calls: list[tuple[int, int | None]] = []
+    source = VideoSource(flight.video, flight.telemetry, flight.model, flight.camera)
+    summary = run_detect(source, tmp_path / "out", options=DetectOptions(max_frames=17),
+                         progress=lambda done, total: calls.append((done, total)))
     assert summary["frames"] == 17 and summary["two_pass"] is True
+    # pass one read 17 frames (the detector ran on no more), pass two ran on them
+    assert [done for done, _ in calls] == [*range(1, 18), *range(1, 18)]
+    assert all(total == 17 for _, total in calls)
     images = json.loads((tmp_path / "out" / "images.json").read_text())["images"]
     assert [im["frame_index"] for im in images] == list(range(17))
+    assert _open_files_under(tmp_path / "out") == []
+
+
+def test_the_spool_is_closed_when_a_run_fails(flight, tmp_path):
+    from agent.offline.run import run_detect
+    from agent.sources import VideoSource
+
+    def stop(done: int, total: int | None) -> None:
+        if done == 5:
+            raise KeyboardInterrupt
+
+    source = VideoSource(flight.video, flight.telemetry, flight.model, flight.camera)
+    with pytest.raises(KeyboardInterrupt):
+        run_detect(source, tmp_path / "out", progress=stop)
+    assert _open_files_under(tmp_path / "out") == []
+    assert list((tmp_path / "out").iterdir()) == []  # no output file either
+
+
+def test_a_no_fix_record_at_zero_zero_is_left_out_of_the_retimed_poses(tmp_path):
+    # KLV keeps a packet whose sensor position is (0, 0), a logger's "no GPS fix": the interpolation of one pass
+    # leaves it out, and so must the track the two passes re-time poses on
+    pytest.importorskip("av")
+    from tests.agent.test_detector import make_constant_model
+    from tests.shared.klv_writer import FULL_FIELDS, packet, write_ts_with_pyav
+
+    packets = [packet(1_717_236_000.0 + 0.1 * i, {**FULL_FIELDS, **({"sensor_lat": 0.0, "sensor_lon": 0.0}
+                                                                     if i == 15 else {})}) for i in range(30)]
+    video = write_ts_with_pyav(tmp_path / "flight.ts", packets, fps=10, size=(320, 180))
+    camera = tmp_path / "camera.json"
+    camera.write_text(json.dumps({"width": 320, "height": 180, "fx": 250.0}))
+    raw = np.zeros((1, 6, 100), np.float32)
+    raw[0, :4, 0], raw[0, 4, 0] = [320, 320, 20, 40], 0.9
+    model = make_constant_model(tmp_path / "model.onnx", raw, metadata={"names": str({0: "person", 1: "swimmer"})})
+    assert main(["detect", str(video), "--telemetry", "klv", "--model", str(model), "--camera", str(camera),
+                 "--out", str(tmp_path / "out"), "--no-size-filter", "--quiet"]) == 0
+    metas = [im["meta"] for im in json.loads((tmp_path / "out" / "images.json").read_text())["images"]]
+    assert len(metas) == 30 and all(m is not None for m in metas)
+    assert [m["gps_latitude"] for m in metas] == pytest.approx([FULL_FIELDS["sensor_lat"]] * 30, abs=1e-4)
+
+
+def test_a_flight_across_the_antimeridian_keeps_to_it(flight, tmp_path):
+    rows = ["time_s,lat,lon,height_m,pitch_deg,heading_deg"]
+    rows += [f"{t:.1f},-17.0,{179.9999 if t <= 5 else -179.9999},40,60,0" for t in range(14)]
+    telemetry = tmp_path / "across.csv"
+    telemetry.write_text("\n".join(rows) + "\n")
+    assert main(["detect", str(flight.video), "--telemetry", str(telemetry), "--model", str(flight.model),
+                 "--camera", str(flight.camera), "--out", str(tmp_path / "out"), "--quiet"]) == 0
+    images = json.loads((tmp_path / "out" / "images.json").read_text())["images"]
+    lons = [pose_from_meta(im["meta"])[0].lon for im in images]
+    assert len(lons) == len(flight.headings)
+    assert all(abs(abs(lon) - 180.0) < 2e-4 for lon in lons), lons  # never the long way round through 0
+
+
+def test_over_a_dem_the_clock_offset_puts_the_detections_on_the_terrain(flight, tmp_path, monkeypatch):
+    import agent.offline.two_pass as two_pass
+    from agent.dem import write_npz
+    from shared.geo import Pose
+    from shared.terrain import ElevationGrid
+    from tests.agent.jump_flight import LAT, LON
+
+    north = np.arange(100, -101, -1, dtype=float)
+    heights = 300.0 + 0.2 * np.repeat(north[:, None], 201, axis=1)  # a slope rising northward
+    write_npz(tmp_path / "dem.npz", ElevationGrid.from_local(heights, LAT, LON, west_m=-100.0, north_m=100.0,
+                                                            cell_m=1.0))
+    given: list = []
+    real = two_pass.retime_frames
+
+    def retime_frames(*args, **kwargs):  # the real stage, its terrain argument kept
+        given.append(kwargs.get("terrain_for"))
+        return real(*args, **kwargs)
+
+    monkeypatch.setattr(two_pass, "retime_frames", retime_frames)
+    summary = _detect(flight, tmp_path / "out", "--dem", str(tmp_path / "dem.npz"), "--takeoff-elevation-m", "300")
+    assert summary["two_pass"] is True and len(given) == 1 and given[0] is not None
+    assert given[0](Pose(LAT, LON, 40.0, 60.0, 0.0)) is not None  # the DEM under the UAV, as the pipeline has it
 
 
 def test_the_annotated_video_has_every_frame_decoded_again(flight, tmp_path):

@@ -114,3 +114,22 @@ def test_property_any_whole_quarter_hour_zone_is_found(zone_q, lag, n, hold):
     assert report.residual_s == pytest.approx(float(np.median(frame_t - stamp)) - zone, abs=1e-6)
     assert abs(report.residual_s - lag) <= 0.25 * hold  # what is left is the lag and the hold
     assert np.all(np.diff(track.t) > 0)
+
+
+@settings(max_examples=60, deadline=None)
+@given(d=st.floats(0.001, 0.05), speed=st.floats(0.008, 0.02), east=st.booleans(), frac=st.floats(0.0, 1.0))
+def test_property_longitude_is_interpolated_the_short_way_across_the_antimeridian(d, speed, east, frac):
+    # a UAV d degrees short of the antimeridian flying across it at `speed` degrees a sample, east or west
+    n = 8  # 7 steps of >= 0.008 deg carry it across
+    sign = 1.0 if east else -1.0
+    lon0 = sign * (180.0 - d)
+    lons = (lon0 + sign * speed * np.arange(n) + 180.0) % 360.0 - 180.0
+    assert np.any(np.abs(np.diff(lons)) > 180.0)  # the samples do jump from +-180 to -+180
+    values = np.column_stack([np.full(n, -17.0), lons, np.full(n, 40.0), np.zeros(n), np.full(n, 60.0)])
+    track = TelemetryTrack(np.arange(n, dtype=float), values)
+    t = frac * (n - 1)
+    lon = float(track.at(t)[0, 1])
+    assert -180.0 <= lon < 180.0
+    want = lon0 + sign * speed * t
+    assert abs((lon - want + 180.0) % 360.0 - 180.0) < 1e-9  # on the arc the UAV flew, never the long way round
+    np.testing.assert_allclose((track.at(np.arange(n))[:, 1] - lons + 180.0) % 360.0 - 180.0, 0.0, atol=1e-9)
