@@ -173,8 +173,8 @@ def test_ten_thousand_malformed_messages_leave_the_server_up_and_counted(server_
     def total_rejected() -> int:
         return sum(server.metrics.rejected_by_reason().values())
 
-    try:
-        wait_until(lambda: total_rejected() >= sent, timeout_s=30.0)
+    try:  # 1 s alone; a loaded 2-core CI machine has taken longer (a bound, not a wait: it ends when all are in)
+        wait_until(lambda: total_rejected() >= sent, timeout_s=120.0)
     except AssertionError as error:  # seen once in CI under load (stop 54) with no count behind: name it
         raise AssertionError(f"{total_rejected()} of {sent} rejected: {server.metrics.rejected_by_reason()}, "
                              f"skipped {server.node.skipped}, inbox {len(server.node._inbox)}") from error
