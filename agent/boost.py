@@ -168,12 +168,17 @@ def run_pipeline(dataset: Dataset, candidates: Candidates, camera: Camera, confi
 
 def results_to_coco(image_id: int, result: FrameResult) -> list[dict[str, Any]]:
     """One frame's detections as COCO result entries (bbox [x, y, w, h])."""
-    b = result.boxes_xyxy
+    return candidates_to_coco(image_id, result.boxes_xyxy, result.scores, result.class_ids, score_digits=5)
+
+
+def candidates_to_coco(image_id: int, boxes_xyxy, scores, class_ids, *, score_digits: int = 6) -> list[dict[str, Any]]:
+    """Boxes (N, 4 xyxy), scores and class ids as COCO result entries (bbox [x, y, w, h]; a PRE_NMS.json's rows for
+    a frame's pre-NMS candidates)."""
     return [
         {"image_id": image_id, "category_id": int(c),
          "bbox": [round(float(x1), 2), round(float(y1), 2), round(float(x2 - x1), 2), round(float(y2 - y1), 2)],
-         "score": round(float(s), 5)}
-        for (x1, y1, x2, y2), s, c in zip(b, result.scores, result.class_ids, strict=True)
+         "score": round(float(s), score_digits)}
+        for (x1, y1, x2, y2), s, c in zip(boxes_xyxy, scores, class_ids, strict=True)
     ]
 
 

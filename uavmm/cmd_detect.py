@@ -40,6 +40,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--trail-s", type=float, default=2.0, help="--render-video: trail length, seconds (2)")
     p.add_argument("--no-inset", action="store_true", help="--render-video: no memory-map inset")
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
+    p.add_argument("--dataset-files", action="store_true",
+                   help="also write pre_nms.json (every frame's pre-NMS candidates) and camera.json: --out is then a "
+                        "dataset directory (with images.json) that boost, track, tune, eval --real and agent --dataset "
+                        "read without running the detector again")
     p.add_argument("--one-pass", action="store_true",
                    help="run each frame as it comes, as the live agent does (default: read the recording as a file, "
                         "in two passes: the detector over the whole video, then the clock-offset estimate, view cuts "
@@ -143,20 +147,22 @@ class ProgressLine:
 def run(args: argparse.Namespace) -> int:
     """Handler of `uavmm detect`: validate, build the source, run, print where the files are."""
     from agent.offline import DetectOptions, prepare_out_dir, run_detect
-    from agent.offline.outputs import OUTPUT_FILES
+    from agent.offline.outputs import OPTIONAL_OUTPUTS, OUTPUT_FILES
     from agent.slicing import SliceGrid
     from agent.sources import VideoSource
     from agent.tracking_io import load_tracker_config
 
     # the files it writes into --out have fixed names: none may be one the run reads (VIDEO as annotated.mp4 there)
-    written = [name for kind, name in OUTPUT_FILES.items() if kind != "video" or args.render_video]
+    asked = {"--render-video": args.render_video, "--dataset-files": args.dataset_files}
+    written = [name for kind, name in OUTPUT_FILES.items()
+               if kind not in OPTIONAL_OUTPUTS or asked[OPTIONAL_OUTPUTS[kind]]]
     require_outputs_apart([("--out", args.out / name) for name in written], [
         ("VIDEO", args.video), ("--telemetry", args.telemetry), ("--model", args.model), ("--camera", args.camera),
         ("--class-names", args.class_names), ("--tracker-config", args.tracker_config),
         ("--config", args.pipeline_config), ("--size-filter", args.size_filter), ("--dem", args.dem)])
     options = DetectOptions(render_video=args.render_video, trail_s=args.trail_s,
                             inset_fraction=0.0 if args.no_inset else 0.28, max_frames=args.max_frames,
-                            two_pass=not args.one_pass)
+                            two_pass=not args.one_pass, dataset_files=args.dataset_files)
     slices = SliceGrid.parse(args.slices, args.slice_overlap) if args.slices else None
     if args.slices is None and (args.no_full_frame or args.slice_overlap != 0.2):
         raise CliError("--slice-overlap and --no-full-frame need --slices")

@@ -22,6 +22,7 @@ from shared.telemetry import Telemetry, to_seadronessee_meta
 from shared.telemetry.dates import format_datetime
 
 __all__ = [
+    "OPTIONAL_OUTPUTS",
     "OUTPUT_FILES",
     "StreamedImages",
     "image_entry",
@@ -40,7 +41,12 @@ OUTPUT_FILES = {
     "kml": "tracks.kml",
     "video": "annotated.mp4",
     "summary": "summary.json",
+    # with DetectOptions.dataset_files (`uavmm detect --dataset-files`): with images.json, a dataset directory
+    "candidates": "pre_nms.json",
+    "camera": "camera.json",
 }
+#: The files written only when asked for: kind -> the `uavmm detect` flag that asks.
+OPTIONAL_OUTPUTS = {"video": "--render-video", "candidates": "--dataset-files", "camera": "--dataset-files"}
 
 
 def write_text_atomic(path: Path, text: str | bytes) -> None:

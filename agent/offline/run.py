@@ -22,7 +22,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from agent.boost import StreamedResults, results_to_coco
+from agent.boost import StreamedResults, candidates_to_coco, results_to_coco
 from agent.offline.annotate import VideoAnnotator
 from agent.offline.outputs import OUTPUT_FILES, StreamedImages, image_entry, write_outputs, write_text_atomic
 from agent.offline.two_pass import FilePasses, can_look_ahead
@@ -53,6 +53,9 @@ class DetectOptions:
     two_pass: read the recording as a file (`agent.offline.two_pass`: the detector over the whole video first,
     then the clock offset, view cuts and the adaptive stages on all of it); False, or a source that cannot be
     read twice (a live telemetry stream): one pass, each frame as it comes, as the live agent runs.
+    dataset_files: also write pre_nms.json (every frame's pre-NMS candidates, a COCO result list) and camera.json
+    (the camera as fitted to the frames): with images.json --out is then a dataset directory that `uavmm boost`,
+    `track`, `tune`, `eval --real` and `agent --dataset` read, without the detector again.
     """
 
     render_video: bool = False
@@ -60,6 +63,7 @@ class DetectOptions:
     inset_fraction: float = 0.28
     max_frames: int | None = None
     two_pass: bool = True
+    dataset_files: bool = False
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.trail_s) and self.trail_s >= 0):
@@ -128,6 +132,7 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     # the detections and the frames go to their files as they come (held to the end, they were ~9 KB a frame:
     # ~0.3 GB an hour at 10 frames/s); the files are put in place at the end, removed when the run fails
     detections = StreamedResults(out / OUTPUT_FILES["detections"])
+    candidates = StreamedResults(out / OUTPUT_FILES["candidates"]) if options.dataset_files else None
     images = StreamedImages(out / OUTPUT_FILES["images"])
     hfovs: list[float] = []  # each frame's field of view, written when the lens zoomed (below)
     zoomed = False
@@ -167,6 +172,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             seconds["tracker"] += t3 - t2
             rows.extend(frame.index, t, reported)
             detections.extend(results_to_coco(frame.index, result))
+            if candidates is not None:
+                candidates.extend(candidates_to_coco(frame.index, frame.boxes_xyxy, frame.scores, frame.class_ids))
             images.add(image_entry(frame.index, t, frame.camera.width, frame.camera.height, frame.pose,
                                    frame.pose_t))
             hfovs.append(frame.camera.hfov_deg)
@@ -194,6 +201,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             annotator.abort()
         detections.abort()
         images.abort()
+        if candidates is not None:
+            candidates.abort()
         raise
     finally:
         if passes is not None:
@@ -207,14 +216,23 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         images.close(source.class_names, video_name, source=str(video_path or source.name),
                      hfovs=hfovs if zoomed else None)
         detections.close()
+        if candidates is not None:
+            candidates.close()
     except BaseException:
         detections.abort()
         images.abort()
+        if candidates is not None:
+            candidates.abort()
         raise
     files = write_outputs(out, detections=None, images=None, rows=rows, class_names=source.class_names,
                           video_name=video_name, source=str(video_path or source.name))
     if annotator is not None:
         files["video"] = str(annotator.path)
+    if candidates is not None:
+        files["candidates"] = str(candidates.path)
+        camera_path = out / OUTPUT_FILES["camera"]
+        write_text_atomic(camera_path, json.dumps(source.camera.to_dict(), indent=1))
+        files["camera"] = str(camera_path)
     n = max(counts["frames"], 1)
     summary: dict[str, Any] = {
         **counts,

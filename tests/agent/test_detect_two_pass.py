@@ -227,3 +227,32 @@ def test_the_spool_refuses_candidates_that_disagree_in_length(tmp_path):
     finally:
         spool.close()
     assert list(tmp_path.iterdir()) == []  # unnamed: nothing left behind
+
+
+def test_dataset_files_make_the_output_a_dataset_that_track_reads_as_detect_tracked_it(flight, tmp_path):
+    out = tmp_path / "out"
+    summary = _detect(flight, out, "--dataset-files")
+    assert {Path(summary["files"][k]).name for k in ("candidates", "camera")} == {"pre_nms.json", "camera.json"}
+    candidates = json.loads((out / "pre_nms.json").read_text())
+    images = json.loads((out / "images.json").read_text())["images"]
+    assert len(candidates) == summary["candidates"]  # every pre-NMS candidate, not only the kept ones
+    assert {c["image_id"] for c in candidates} <= {im["id"] for im in images}
+    assert json.loads((out / "camera.json").read_text())["fx"] == pytest.approx(500.0)
+    # the directory is a dataset: uavmm track reads it (no detector) and finds the objects detect found
+    assert main(["track", "--frames", str(out / "images.json"), "--candidates", str(out / "pre_nms.json"),
+                 "--camera", str(out / "camera.json"), "--out", str(tmp_path / "again.txt")]) == 0
+    again = {int(line.split(",")[1]) for line in (tmp_path / "again.txt").read_text().splitlines()}
+    assert len(again) <= 12 and abs(len(again) - len(_track_ids(out))) <= 2
+
+
+def test_dataset_files_never_overwrite_an_input(flight, tmp_path, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    camera = out / "camera.json"
+    camera.write_text(flight.camera.read_text())
+    args = ["detect", str(flight.video), "--telemetry", str(flight.telemetry), "--model", str(flight.model),
+            "--camera", str(camera), "--out", str(out), "--quiet"]
+    assert main([*args, "--dataset-files"]) == 2
+    assert "camera.json" in capsys.readouterr().err
+    assert camera.read_text() == flight.camera.read_text()
+    assert main([*args, "--max-frames", "3"]) == 0  # without the flag nothing writes camera.json
