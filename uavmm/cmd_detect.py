@@ -97,9 +97,12 @@ class ProgressLine:
     """Progress on stderr: a bar redrawn in place on a terminal; otherwise a line per 10 % (or per 500 frames
     when the total is unknown), so logs stay short."""
 
-    def __init__(self, label: str, enabled: bool = True) -> None:
-        self.label = self.base_label = label
+    def __init__(self, label: str, enabled: bool = True, first_pass: str = "") -> None:
+        """first_pass: added to the label until the count starts again (the second pass of `uavmm detect`)."""
+        self.base_label = label
+        self.label = label + first_pass
         self._last_done = 0
+        self._last_call = time.monotonic()
         self.enabled = enabled
         self.tty = sys.stderr.isatty()
         self.started = time.monotonic()
@@ -112,9 +115,10 @@ class ProgressLine:
         if done < self._last_done:  # the count started again: the second pass (memory map and tracker)
             self.close()
             self.label = f"{self.base_label} (pass 2: memory map, tracker)"
-            self.started = time.monotonic()
+            self.started = self._last_call  # from the end of pass one: the stages between count in its first frame
             self._last_step = -1
         self._last_done = done
+        self._last_call = time.monotonic()
         elapsed = max(time.monotonic() - self.started, 1e-9)
         rate = done / elapsed
         if self.tty:
@@ -177,7 +181,9 @@ def run(args: argparse.Namespace) -> int:
                          slices=slices, slice_full_frame=not args.no_full_frame,
                          telemetry_timeout_s=args.telemetry_timeout_s, system_id=args.mavlink_system_id,
                          utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)
-    progress = ProgressLine(f"detect {args.video.name}", enabled=not args.quiet)
+    two_passes = source.feed is None and not args.one_pass  # as run_detect decides (agent.offline.two_pass)
+    progress = ProgressLine(f"detect {args.video.name}", enabled=not args.quiet,
+                            first_pass=" (pass 1: detector)" if two_passes else "")
     try:
         summary = run_detect(source, args.out, pipeline_config, size_filter, tracker_config, options=options,
                              progress=progress)

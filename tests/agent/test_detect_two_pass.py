@@ -256,3 +256,17 @@ def test_dataset_files_never_overwrite_an_input(flight, tmp_path, capsys):
     assert "camera.json" in capsys.readouterr().err
     assert camera.read_text() == flight.camera.read_text()
     assert main([*args, "--max-frames", "3"]) == 0  # without the flag nothing writes camera.json
+
+
+def test_the_progress_lines_name_each_pass(flight, tmp_path, capsys):
+    args = ["detect", str(flight.video), "--telemetry", str(flight.telemetry), "--model", str(flight.model),
+            "--camera", str(flight.camera), "--max-frames", "20"]
+    assert main([*args, "--out", str(tmp_path / "two")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    first = [line for line in err if "(pass 1: detector)" in line]
+    second = [line for line in err if "(pass 2: memory map, tracker)" in line]
+    assert first and second and err.index(first[-1]) < err.index(second[0])
+    assert first[-1].split(")")[1].strip().startswith("20/20 frames") and "20/20 frames" in second[-1]
+    assert main([*args, "--out", str(tmp_path / "one"), "--one-pass"]) == 0
+    err = capsys.readouterr().err
+    assert "20/20 frames" in err and "pass 1" not in err and "pass 2" not in err
