@@ -20,6 +20,7 @@ MAVLink stream cannot be looked ahead in: it runs in one pass, as the live agent
 
 from __future__ import annotations
 
+import errno
 import logging
 import tempfile
 from collections.abc import Callable, Iterator
@@ -52,7 +53,9 @@ class CandidateSpool:
     ends), read back by frame position. Not thread-safe."""
 
     def __init__(self, directory: str | Path) -> None:
-        self._file = tempfile.TemporaryFile(prefix=".uavmm-candidates-", dir=directory)
+        self._dir = Path(directory)
+        # unbuffered: a frame's candidates are one write, its failure (a full disk) seen at that frame
+        self._file = tempfile.TemporaryFile(prefix=".uavmm-candidates-", dir=directory, buffering=0)
         self._where: list[tuple[int, int]] = []  # (byte offset, candidates) per added frame
         self._end = 0
 
@@ -72,8 +75,15 @@ class CandidateSpool:
         cids = np.ascontiguousarray(class_ids, dtype=np.int64).reshape(-1)
         if len(scores) != n or len(cids) != n:
             raise ValueError(f"candidates disagree in length: {n} boxes, {len(scores)} scores, {len(cids)} class ids")
-        self._file.seek(self._end)
-        self._file.write(cids.tobytes() + boxes.tobytes() + scores.tobytes())  # 8-byte fields first: aligned reads
+        data = cids.tobytes() + boxes.tobytes() + scores.tobytes()  # 8-byte fields first: aligned reads
+        try:
+            self._file.seek(self._end)
+            if self._file.write(data) != len(data):
+                raise OSError(errno.ENOSPC, "short write")
+        except OSError as exc:  # a full disk, most likely: say what wrote there and how to do without
+            raise OSError(exc.errno, f"the candidates of pass one could not be kept in {self._dir} after "
+                                     f"{self._end / 2 ** 20:.0f} MiB ({exc.strerror or exc}); --one-pass needs no "
+                                     "such file") from exc
         self._where.append((self._end, n))
         self._end += n * _ROW
 

@@ -270,3 +270,32 @@ def test_the_progress_lines_name_each_pass(flight, tmp_path, capsys):
     assert main([*args, "--out", str(tmp_path / "one"), "--one-pass"]) == 0
     err = capsys.readouterr().err
     assert "20/20 frames" in err and "pass 1" not in err and "pass 2" not in err
+
+
+def test_a_spool_that_cannot_be_written_says_where_and_what_does_without(tmp_path):
+    # a full disk, as a file-size limit in a child process (SIGXFSZ ignored: the write fails with EFBIG)
+    import subprocess
+    import sys
+
+    script = f"""
+import resource, signal, sys
+import numpy as np
+from agent.offline.two_pass import CandidateSpool
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+resource.setrlimit(resource.RLIMIT_FSIZE, (4096, resource.getrlimit(resource.RLIMIT_FSIZE)[1]))
+spool = CandidateSpool({str(tmp_path)!r})
+try:
+    for _ in range(100):
+        spool.add(np.zeros((50, 4)), np.ones(50), np.zeros(50))
+except OSError as exc:
+    print("ERROR", len(spool), exc)
+    print("READ", spool.get(0)[1][:2].tolist())
+"""
+    done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=60,
+                          cwd=Path(__file__).resolve().parents[2])
+    assert done.returncode == 0, done.stderr
+    error = next(line for line in done.stdout.splitlines() if line.startswith("ERROR"))
+    assert str(tmp_path) in error and "--one-pass" in error
+    frames = int(error.split()[1])
+    assert 0 < frames < 100  # the frames before the failure stay readable
+    assert "READ [1.0, 1.0]" in done.stdout
