@@ -1,12 +1,15 @@
-"""Stopping a long-running command on a signal: one event that SIGINT/SIGTERM (and more if asked) set."""
+"""Signals: a long-running command stops on an event that SIGINT/SIGTERM (and more if asked) set; any other command
+unwinds on SIGTERM as on Ctrl-C (`terminate_as_interrupt`)."""
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import signal
 import threading
+from collections.abc import Iterator
 
-__all__ = ["stop_on_signals"]
+__all__ = ["Terminated", "stop_on_signals", "terminate_as_interrupt"]
 
 
 def stop_on_signals(log: logging.Logger, signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> threading.Event:
@@ -20,3 +23,27 @@ def stop_on_signals(log: logging.Logger, signums: tuple[int, ...] = (signal.SIGI
     for signum in signums:
         signal.signal(signum, on_signal)
     return stop
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM (`kill`, `timeout`, a service manager) during a command: it unwinds as Ctrl-C does, so what a command
+    removes or finishes on an interrupt (hidden temporaries, a partial results file it keeps) happens on SIGTERM too;
+    exit 143. The servers (`fusion`, `agent`, `gateway`, `demo`) put their own handlers in place (a clean stop)."""
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Within it SIGTERM raises `Terminated` in the main thread (off the main thread, where Python cannot install a
+    handler, nothing changes); the handler before is put back after."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def on_term(_signum: int, _frame: object) -> None:
+        raise Terminated()
+
+    previous = signal.signal(signal.SIGTERM, on_term)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)

@@ -10,11 +10,13 @@ import dataclasses
 import importlib
 import logging
 import os
+import signal
 import sys
 from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from shared.files import same_file
+from uavmm._signals import Terminated, terminate_as_interrupt
 
 log = logging.getLogger("uavmm")
 
@@ -572,19 +574,20 @@ def main(argv: Sequence[str] | None = None) -> int:
     if not getattr(args, "handler", None):
         parser.print_help(sys.stderr)
         return 2
-    try:
-        return int(args.handler(args) or 0)
-    except BrokenPipeError as exc:
-        if _stdout_reader_left():  # `uavmm eval --list-domains | head`: nothing to say (Python's recipe)
-            os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
-            return 1
-        print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)  # another pipe (a child process's)
-        return 2
-    except (CliError, ValueError, OSError, ImportError) as exc:
-        print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)
-        return 2
-    except KeyboardInterrupt:
-        return 130
+    with terminate_as_interrupt():  # SIGTERM unwinds as Ctrl-C (uavmm._signals)
+        try:
+            return int(args.handler(args) or 0)
+        except BrokenPipeError as exc:
+            if _stdout_reader_left():  # `uavmm eval --list-domains | head`: nothing to say (Python's recipe)
+                os.dup2(os.open(os.devnull, os.O_WRONLY), sys.stdout.fileno())
+                return 1
+            print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)  # another pipe (a child process's)
+            return 2
+        except (CliError, ValueError, OSError, ImportError) as exc:
+            print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)
+            return 2
+        except KeyboardInterrupt as exc:
+            return 128 + signal.SIGTERM if isinstance(exc, Terminated) else 130
 
 
 if __name__ == "__main__":

@@ -42,8 +42,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--max-frames", type=int, default=None, help="stop after this many frames")
     p.add_argument("--dataset-files", action="store_true",
                    help="also write pre_nms.json (every frame's pre-NMS candidates) and camera.json: --out is then a "
-                        "dataset directory (with images.json) that boost, track, tune, eval --real and agent --dataset "
-                        "read without running the detector again")
+                        "dataset directory (with images.json) that boost, track and agent --dataset read without "
+                        "running the detector again (tune and eval --real too, once ground truth is added)")
     p.add_argument("--one-pass", action="store_true",
                    help="run each frame as it comes, as the live agent does (default: read the recording as a file, "
                         "in two passes: the detector over the whole video, then the clock-offset estimate, view cuts "
