@@ -34,9 +34,9 @@ class Terminated(KeyboardInterrupt):
 @contextlib.contextmanager
 def terminate_as_interrupt() -> Iterator[None]:
     """Within it SIGTERM raises `Terminated` in the main thread (off the main thread, where Python cannot install a
-    handler, nothing changes); the handler before is put back after."""
-    if threading.current_thread() is not threading.main_thread():
-        yield
+    handler, or where SIGTERM is ignored, nothing changes); the handler before is put back after."""
+    if threading.current_thread() is not threading.main_thread() or signal.getsignal(signal.SIGTERM) == signal.SIG_IGN:
+        yield  # a parent that set SIGTERM to be ignored (nohup-like, `trap '' TERM`) keeps it so, as Python does SIGINT
         return
 
     def on_term(_signum: int, _frame: object) -> None:

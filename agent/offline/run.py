@@ -89,6 +89,22 @@ def prepare_out_dir(out_dir: str | Path) -> Path:
     return out
 
 
+def _remove_stale_dataset_files(out: Path) -> list[str]:
+    """An earlier `--dataset-files` run's pre_nms.json and camera.json in ``out``, removed (with a warning) now that
+    images.json describes other frames: beside it they made a dataset whose candidates belong to another run (`uavmm
+    track` refused it for unknown image ids, or, the frame count equal, mixed them in silently). Returns their names."""
+    removed = []
+    for kind in ("candidates", "camera"):
+        path = out / OUTPUT_FILES[kind]
+        if path.is_file() or path.is_symlink():
+            path.unlink()
+            removed.append(path.name)
+    if removed:
+        log.warning("removed %s of an earlier run from %s: they belonged to its images.json, not this one's (keep them "
+                    "with --dataset-files)", " and ".join(removed), out)
+    return removed
+
+
 def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: PipelineConfig | None = None,
                size_filter: SizeFilter | None = None, tracker_config: TrackerConfig | None = None, *,
                options: DetectOptions | None = None, progress: Progress | None = None) -> dict[str, Any]:
@@ -211,6 +227,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     if annotator is not None:
         annotator.close()
     try:
+        if candidates is not None:  # first: a failure here leaves the dataset's other files where they were
+            write_text_atomic(out / OUTPUT_FILES["camera"], json.dumps(source.camera.to_dict(), indent=1))
         # a zoom lens: every frame with a pose carries its field of view (`hfov_deg`, read back by the dataset
         # reader), its unzoomed ones too: one left out would take its neighbours' when read as telemetry
         images.close(source.class_names, video_name, source=str(video_path or source.name),
@@ -230,9 +248,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         files["video"] = str(annotator.path)
     if candidates is not None:
         files["candidates"] = str(candidates.path)
-        camera_path = out / OUTPUT_FILES["camera"]
-        write_text_atomic(camera_path, json.dumps(source.camera.to_dict(), indent=1))
-        files["camera"] = str(camera_path)
+        files["camera"] = str(out / OUTPUT_FILES["camera"])
+    stale = [] if candidates is not None else _remove_stale_dataset_files(out)
     n = max(counts["frames"], 1)
     summary: dict[str, Any] = {
         **counts,
@@ -250,6 +267,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
                    *tracker.stage_reports()]:
         stages.add(report)
     summary["two_pass"] = passes is not None
+    if stale:
+        summary["removed_stale"] = stale
     if passes is not None and passes.missing_images:
         summary["frames_without_image"] = passes.missing_images
     if why_one_pass is not None:

@@ -237,11 +237,16 @@ def render_dataset(directory: str | Path, *, images: bool = True, video: bool = 
                         pending.append(pool.submit(_encode, image, path, params, writer))
                         written_images += path is not None
                         while len(pending) > _MAX_PENDING:
-                            pending.popleft().result()
+                            # queued until done: an interrupt (Ctrl-C, SIGTERM) in result() leaves it to _drain,
+                            # which waits for the encoder before the writer is released (popped first, a SIGTERM
+                            # released it mid-write: a segfault, 1 run in 5)
+                            pending[0].result()
+                            pending.popleft()
                         done += 1
                         bar.update(done)
                     while pending:
-                        pending.popleft().result()
+                        pending[0].result()
+                        pending.popleft()
                 finally:
                     _drain(pending)  # the encoder thread must be done with the writer before it is released
                     if writer is not None:

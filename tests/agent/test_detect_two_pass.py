@@ -334,3 +334,15 @@ def test_sigterm_or_ctrl_c_mid_run_leaves_no_file_behind(tmp_path, signum, code)
             proc.kill()
             proc.wait()
     assert list(out.iterdir()) == []
+
+
+def test_a_run_without_dataset_files_removes_an_earlier_runs(flight, tmp_path, caplog):
+    # review finding: the earlier run's pre_nms.json stayed beside the new images.json, a dataset of two runs
+    out = tmp_path / "out"
+    _detect(flight, out, "--dataset-files")
+    assert (out / "pre_nms.json").is_file() and (out / "camera.json").is_file()
+    summary = _detect(flight, out, "--max-frames", "40")
+    assert summary["removed_stale"] == ["pre_nms.json", "camera.json"]
+    assert not (out / "pre_nms.json").exists() and not (out / "camera.json").exists()
+    assert "removed pre_nms.json and camera.json of an earlier run" in caplog.text
+    assert "removed_stale" not in _detect(flight, out, "--max-frames", "40")  # nothing left to remove

@@ -214,3 +214,56 @@ def test_a_video_name_that_is_not_a_plain_file_name_is_refused_before_drawing(tm
     with pytest.raises(ValueError, match=f"video 1's name {re.escape(repr(name))} in images.json is not a plain"):
         render_dataset(data, video=True, options=OPTIONS, progress=False)
     assert not list(tmp_path.rglob("*.mp4")) and not list(tmp_path.rglob("*.jpg"))
+
+
+def test_an_interrupt_while_waiting_for_the_encoder_releases_the_video_only_after_its_last_write(tmp_path, monkeypatch):
+    """Review finding: the render popped a frame's encoding off its queue before waiting for it, so an interrupt in
+    that wait (Ctrl-C; SIGTERM since it unwinds the same way) left it out of the drain and released the video
+    writer while the encoder thread was still writing to it: a segfault in 1 run of 5, its temporary left behind."""
+    import threading
+    import time
+    import types
+
+    import cv2
+
+    data = _dataset(tmp_path, frames=12)
+    events: list[str] = []
+
+    class SlowWriter:  # OpenCV's writer, slowed down: the render's queue fills and it waits on the encoder
+        def __init__(self, *args):
+            self._writer = cv2.VideoWriter(*args)
+            self.writing = False
+
+        def isOpened(self):  # noqa: N802 - OpenCV's name
+            return self._writer.isOpened()
+
+        def write(self, image):
+            if not events:  # the first frame: the queue fills within a few frames, then the render waits on it
+                events.append("writing")
+                threading.Timer(0.9, lambda: signal.pthread_kill(main_id, signal.SIGUSR1)).start()
+            self.writing = True
+            time.sleep(0.3)
+            self._writer.write(image)
+            self.writing = False
+
+        def release(self):
+            events.append("release while writing" if self.writing else "release after the last write")
+            self._writer.release()
+
+    shim = types.SimpleNamespace(**{name: getattr(cv2, name) for name in dir(cv2) if not name.startswith("_")})
+    shim.VideoWriter = type("VideoWriter", (), {"__new__": lambda cls, *a: SlowWriter(*a),
+                                                "fourcc": staticmethod(cv2.VideoWriter.fourcc)})
+    monkeypatch.setattr(output_module, "cv2", shim)
+
+    def interrupt(_signum, _frame):
+        raise KeyboardInterrupt
+
+    previous = signal.signal(signal.SIGUSR1, interrupt)  # a signal of our own: SIGINT may be ignored (nohup)
+    main_id = threading.get_ident()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            render_dataset(data, video=True, images=False, options=OPTIONS, progress=False)
+    finally:
+        signal.signal(signal.SIGUSR1, previous)
+    assert events == ["writing", "release after the last write"]
+    assert not [p.name for p in data.iterdir() if p.name.startswith(".")]
