@@ -9,7 +9,11 @@ import signal
 import threading
 from collections.abc import Iterator
 
-__all__ = ["Terminated", "stop_on_signals", "terminate_as_interrupt"]
+__all__ = ["SERVER_COMMANDS", "Terminated", "stop_on_signals", "terminate_as_interrupt"]
+
+#: The commands that run until stopped: SIGINT / SIGTERM stop them cleanly, exit 0 (their own handlers, and before
+#: those are in place `uavmm.cli.main`).
+SERVER_COMMANDS = frozenset({"fusion", "agent", "gateway", "demo"})
 
 
 def stop_on_signals(log: logging.Logger, signums: tuple[int, ...] = (signal.SIGINT, signal.SIGTERM)) -> threading.Event:

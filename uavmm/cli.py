@@ -16,7 +16,7 @@ from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
 from shared.files import same_file
-from uavmm._signals import Terminated, terminate_as_interrupt
+from uavmm._signals import SERVER_COMMANDS, Terminated, terminate_as_interrupt
 
 log = logging.getLogger("uavmm")
 
@@ -587,7 +587,9 @@ def main(argv: Sequence[str] | None = None) -> int:
             print(f"uavmm {args.command}: error: {exc}", file=sys.stderr)
             return 2
         except KeyboardInterrupt as exc:
-            return 128 + signal.SIGTERM if isinstance(exc, Terminated) else 130
+            if isinstance(exc, Terminated):  # a server before its own handler (nothing open yet) stops as after it
+                return 0 if args.command in SERVER_COMMANDS else 128 + signal.SIGTERM
+            return 130
 
 
 if __name__ == "__main__":
