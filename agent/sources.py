@@ -450,12 +450,15 @@ class VideoSource:
             check_span(self.video_path, Path(telemetry), self.reader, self._record_t[0] - self.telemetry_offset_s,
                         self._record_t[-1] - self.telemetry_offset_s, self.max_gap_s)
 
-    def _pose(self, tel: Telemetry | None) -> Pose | None:
+    def _pose(self, tel: Telemetry | None, *, count: bool = True) -> Pose | None:
+        """The record's pose, None when it makes none (counted in `problems` and warned once, when count)."""
         if tel is None:
             return None
         try:  # --pitch-deg / --heading-deg fill what a record lacks, never replace what it logs
             return tel.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
         except ValueError as exc:
+            if not count:
+                return None
             self.problems += 1
             if self.problems == 1:
                 log.warning("telemetry of %s: no pose at t=%.3f: %s (further frames without a pose are counted in the "
@@ -515,11 +518,10 @@ class VideoSource:
         t: list[float] = []
         rows: list[tuple[float, float, float, float, float]] = []
         for record in self.records:
-            if (t and record.t <= t[-1]) or (record.lat == 0.0 and record.lon == 0.0):  # (0, 0): no GPS fix, as
-                continue  # `interpolate` leaves it out
-            try:  # as `_pose`, uncounted: the frames' problems are counted as they come
-                pose = record.to_pose(self.pitch_deg, self.heading_deg, height_m=self.height_m, replace=False)
-            except ValueError:
+            if (t and record.t <= t[-1]) or not record.has_fix:  # as `interpolate` leaves it out
+                continue
+            pose = self._pose(record, count=False)  # the frames' problems are counted as they come
+            if pose is None:
                 continue
             t.append(record.t)
             rows.append((pose.lat, pose.lon, pose.height_m, pose.heading_deg, pose.pitch_deg))

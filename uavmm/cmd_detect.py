@@ -152,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
     """Handler of `uavmm detect`: validate, build the source, run, print where the files are."""
     from agent.offline import DetectOptions, prepare_out_dir, run_detect
     from agent.offline.outputs import OPTIONAL_OUTPUTS, OUTPUT_FILES
+    from agent.offline.two_pass import can_look_ahead
     from agent.slicing import SliceGrid
     from agent.sources import VideoSource
     from agent.tracking_io import load_tracker_config
@@ -181,7 +182,7 @@ def run(args: argparse.Namespace) -> int:
                          slices=slices, slice_full_frame=not args.no_full_frame,
                          telemetry_timeout_s=args.telemetry_timeout_s, system_id=args.mavlink_system_id,
                          utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)
-    two_passes = source.feed is None and not args.one_pass  # as run_detect decides (agent.offline.two_pass)
+    two_passes = not args.one_pass and can_look_ahead(source) is None  # as run_detect decides
     progress = ProgressLine(f"detect {args.video.name}", enabled=not args.quiet,
                             first_pass=" (pass 1: detector)" if two_passes else "")
     try:

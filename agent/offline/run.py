@@ -150,6 +150,7 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     detections = StreamedResults(out / OUTPUT_FILES["detections"])
     candidates = StreamedResults(out / OUTPUT_FILES["candidates"]) if options.dataset_files else None
     images = StreamedImages(out / OUTPUT_FILES["images"])
+    streamed: list[StreamedResults | StreamedImages] = [s for s in (detections, candidates, images) if s is not None]
     hfovs: list[float] = []  # each frame's field of view, written when the lens zoomed (below)
     zoomed = False
     rows = TrackRowLog()  # 104 B a row (as objects ~665 B: ~840 MB an hour of 30 fps video with ~20 people)
@@ -159,8 +160,7 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     started = time.perf_counter()
     try:
         if passes is not None:  # pass one: the detector over the whole video, then the file stages
-            passes.detect(options.max_frames, progress, total, pipe)
-            passes.prime(pipe)
+            passes.detect(pipe, options.max_frames, progress, total)
             seconds["source"] += passes.detector_s
             total = len(passes)
         frames = iter(source.frames() if passes is None else passes.frames())
@@ -215,10 +215,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
     except BaseException:
         if annotator is not None:
             annotator.abort()
-        detections.abort()
-        images.abort()
-        if candidates is not None:
-            candidates.abort()
+        for stream in streamed:
+            stream.abort()
         raise
     finally:
         if passes is not None:
@@ -237,10 +235,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         if candidates is not None:
             candidates.close()
     except BaseException:
-        detections.abort()
-        images.abort()
-        if candidates is not None:
-            candidates.abort()
+        for stream in streamed:
+            stream.abort()
         raise
     files = write_outputs(out, detections=None, images=None, rows=rows, class_names=source.class_names,
                           video_name=video_name, source=str(video_path or source.name))

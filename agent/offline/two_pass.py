@@ -13,9 +13,10 @@ candidates a frame; nothing of it held in memory, removed at the end). Then, as 
 - the size filter's check and the score calibration judge the whole video before its first frame
   (`DetectionPipeline.prime`) instead of warming up on its first frames.
 
-Pass two decodes the video again (the appearance descriptors and the annotated video need the pixels; decoding
-costs a fraction of the detector) and runs the memory map and the tracker on the stored candidates. A live
-MAVLink stream cannot be looked ahead in: it runs in one pass, as the live agent does.
+These are `agent.file_frames.look_ahead`, the dataset path's own. Pass two decodes the video again (the
+appearance descriptors and the annotated video need the pixels; decoding costs a fraction of the detector) and runs
+the memory map and the tracker on the stored candidates. A live MAVLink stream cannot be looked ahead in: it runs in
+one pass, as the live agent does.
 """
 
 from __future__ import annotations
@@ -23,6 +24,7 @@ from __future__ import annotations
 import errno
 import logging
 import tempfile
+import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,14 +33,13 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from agent.clock_offset import ClockOffset, retime_frames
-from agent.dataset import Frame, ImageRecord
+from agent.clock_offset import ClockOffset
+from agent.dataset import Frame, ImageRecord, VideoTelemetry
+from agent.file_frames import look_ahead, look_ahead_reports
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.sources import SourceFrame
 from agent.stage_report import StageReport
-from agent.view_cuts import ViewCutReport, place_view_cuts
-from shared.geo import GroundSurface, Pose
 
 log = logging.getLogger(__name__)
 
@@ -134,13 +135,11 @@ class FilePasses:
         """Frames pass one read."""
         return len(self._frames)
 
-    def detect(self, max_frames: int | None, progress: Callable[[int, int | None], None] | None,
-               total: int | None, pipe: DetectionPipeline | None = None) -> None:
-        """Pass one: the detector over every frame (up to max_frames), candidates to the spool; then the file
-        stages (over a `--dem` terrain the clock-offset estimate puts the detections on `pipe`'s terrain, as
-        `agent.file_frames.prepared_frames` does)."""
-        import time
-
+    def detect(self, pipe: DetectionPipeline, max_frames: int | None,
+               progress: Callable[[int, int | None], None] | None, total: int | None) -> None:
+        """Pass one: the detector over every frame (up to max_frames), candidates to the spool; then the stages that
+        look at the whole video, as for a dataset (`agent.file_frames.look_ahead`: clock offset, view cuts, `pipe`
+        primed)."""
         spool = self._spool = CandidateSpool(self.spool_dir)
         track = self.source.telemetry_track()
         frames: list[Frame] = []
@@ -159,43 +158,9 @@ class FilePasses:
             frames.append(Frame(record, sf.pose, sf.t, sf.camera, sf.pose_t, track=track))
             if progress is not None:
                 progress(len(frames), total)
-        terrain_for = pipe.terrain_for if pipe is not None and self.config.terrain is not None else None
-        self._frames = self._prepared(frames, spool, terrain_for)
-
-    def _prepared(self, frames: list[Frame], spool: CandidateSpool,
-                  terrain_for: Callable[[Pose], GroundSurface | None] | None) -> list[tuple[Frame, ClockOffset | None]]:
-        """The file stages on the whole video, as `agent.file_frames.prepared_frames` runs them on a dataset."""
-        config = self.config
-
-        def candidates(frame: Frame) -> tuple[NDArray, NDArray, NDArray]:
-            return spool.get(frame.image.id)
-
-        posed = any(f.pose is not None for f in frames)
-        track = next((f.track for f in frames if f.track is not None), None)
-        settings = config.clock_offset_settings()
-        out: list[tuple[Frame, ClockOffset | None]]
-        if settings is not None and posed and track is not None:
-            windows: list[int] = []
-            out = retime_frames(frames, candidates, settings, windows_out=windows, terrain_for=terrain_for)
-            found, need = (windows[0] if windows else 0), settings.min_windows
-            self.reports.append(StageReport(
-                "clock offset", found >= need, f"measured on {found} turning windows" if found >= need else
-                f"{found} of {need} turning windows needed: telemetry as stamped"))
-        else:
-            out = [(f, None) for f in frames]
-            if settings is not None:
-                self.reports.append(StageReport("clock offset", False, "no telemetry track" if posed else "no pose"))
-        if config.view_cuts and posed and track is not None:
-            cuts = ViewCutReport()
-            out = place_view_cuts(out, candidates, report=cuts)
-            self.reports.append(cuts.stage_report())
-        return out
-
-    def prime(self, pipe: DetectionPipeline) -> None:
-        """Let the pipeline's adaptive stages judge the whole video (`DetectionPipeline.prime`)."""
-        assert self._spool is not None
-        spool = self._spool
-        pipe.prime((frame.pose, frame.camera, *spool.get(frame.image.id)) for frame, _ in self._frames)
+        info = VideoTelemetry()
+        self._frames = look_ahead(frames, lambda frame: spool.get(frame.image.id), self.config, pipe, info)
+        self.reports = look_ahead_reports(info, self.config.clock_offset_settings())
 
     def frames(self) -> Iterator[SourceFrame]:
         """Pass two: each frame with its prepared pose, its stored candidates and its pixels decoded again."""

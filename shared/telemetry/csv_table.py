@@ -424,7 +424,7 @@ def _usable_rows(rows: list[tuple[int, list[str]]], header: list[str], columns: 
             bad.append(str(err))
             continue
         kept.append((line, row))
-        no_fix += record.lat == 0.0 and record.lon == 0.0
+        no_fix += not record.has_fix
     if not kept or len(bad) * 2 >= len(rows):
         raise ValueError(bad[0])
     if bad or no_fix:

@@ -73,7 +73,7 @@ def interpolate(
         raise ValueError(f"interpolate: records must be sorted by t (record {first} goes back in time)")
     t_rec, keep = np.unique(t_rec, return_index=True)
     recs = [recs[i] for i in keep]
-    fixed = np.array([not (r.lat == 0.0 and r.lon == 0.0) for r in recs])
+    fixed = np.array([r.has_fix for r in recs])
     if not fixed.all():  # a logger's "no GPS fix" (0, 0): no sample of the position, so no pose from it
         if not fixed.any():
             return [None] * len(query)

@@ -150,6 +150,11 @@ class Telemetry:
                 raise ValueError(f"Telemetry.zoom_ratio={zoom!r} must be > 0 (1 = no zoom)")
             put(self, "zoom_ratio", zoom)
 
+    @property
+    def has_fix(self) -> bool:
+        """False at latitude and longitude 0, where loggers write "no GPS fix": no position, so no pose from it."""
+        return not (self.lat == 0.0 and self.lon == 0.0)
+
     def to_pose(
         self, pitch_deg: float | None = None, heading_deg: float | None = None, *, height_m: float | None = None,
         replace: bool = True,

@@ -152,7 +152,7 @@ def test_a_flight_across_the_antimeridian_keeps_to_it(flight, tmp_path):
 
 
 def test_over_a_dem_the_clock_offset_puts_the_detections_on_the_terrain(flight, tmp_path, monkeypatch):
-    import agent.offline.two_pass as two_pass
+    import agent.file_frames as file_frames
     from agent.dem import write_npz
     from shared.geo import Pose
     from shared.terrain import ElevationGrid
@@ -163,13 +163,13 @@ def test_over_a_dem_the_clock_offset_puts_the_detections_on_the_terrain(flight, 
     write_npz(tmp_path / "dem.npz", ElevationGrid.from_local(heights, LAT, LON, west_m=-100.0, north_m=100.0,
                                                             cell_m=1.0))
     given: list = []
-    real = two_pass.retime_frames
+    real = file_frames.retime_frames  # two passes run the dataset path's look-ahead (agent.file_frames)
 
     def retime_frames(*args, **kwargs):  # the real stage, its terrain argument kept
         given.append(kwargs.get("terrain_for"))
         return real(*args, **kwargs)
 
-    monkeypatch.setattr(two_pass, "retime_frames", retime_frames)
+    monkeypatch.setattr(file_frames, "retime_frames", retime_frames)
     summary = _detect(flight, tmp_path / "out", "--dem", str(tmp_path / "dem.npz"), "--takeoff-elevation-m", "300")
     assert summary["two_pass"] is True and len(given) == 1 and given[0] is not None
     assert given[0](Pose(LAT, LON, 40.0, 60.0, 0.0)) is not None  # the DEM under the UAV, as the pipeline has it
