@@ -1,0 +1,89 @@
+"""A recorded flight for `uavmm detect` with an old DJI SRT: a UAV flying north-east at a steady speed, its camera
+looking ahead, a video of white squares (the objects) seen from the true poses, and the Mavic Pro's subtitle file (a
+block a second, `GPS(lon, lat, satellites)` with 4 decimals: the position holds for seconds, then steps by 11 m north
+or 7 m east; no gimbal angles, so --pitch-deg and --heading-deg give them). The detector is the real ONNX blob model
+of tests.agent.jump_flight."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from shared.geo import Camera, Pose, latlon_to_pixel, local_to_latlon
+from tests.agent.jump_flight import FPS, FX, HEIGHT, LAT, LON, SQUARE_PX, WIDTH, make_blob_model
+
+HEIGHT_M, PITCH_DEG, HEADING_DEG = 40.0, 60.0, 45.0
+SPEED_MPS = 6.0
+#: 2017-07-29 13:18:56 UTC, the Mavic Pro sample's first date
+T0 = 1501334336.0
+
+
+@dataclass(frozen=True)
+class CoarseGpsFlight:
+    video: Path
+    srt: Path
+    camera: Path
+    model: Path
+    #: the UAV's true (lat, lon) at each frame
+    positions: np.ndarray
+    #: objects' (lat, lon)
+    objects: np.ndarray
+
+
+def uav_en(t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The UAV's true east, north (m) from its start at time t (s)."""
+    d = SPEED_MPS * np.asarray(t, dtype=np.float64)
+    return d * np.sin(np.radians(HEADING_DEG)), d * np.cos(np.radians(HEADING_DEG))
+
+
+def _srt_time(s: float) -> str:
+    ms = round(s * 1000)
+    return f"{ms // 3600000:02d}:{ms // 60000 % 60:02d}:{ms // 1000 % 60:02d},{ms % 1000:03d}"
+
+
+def write_coarse_gps_flight(folder: Path, *, seconds: float = 12.0, seed: int = 0) -> CoarseGpsFlight:
+    """The flight in folder: flight.avi (MJPG), flight.srt (1 Hz, GPS with 4 decimals), camera.json, blobs.onnx."""
+    folder.mkdir(parents=True, exist_ok=True)
+    rng = np.random.default_rng(seed)
+    camera = Camera(width=WIDTH, height=HEIGHT, fx=FX, fy=FX, cx=WIDTH / 2, cy=HEIGHT / 2)
+    # ten objects along the route, 15-105 m ahead of the start, within 10 m of its line
+    along = np.sort(rng.uniform(15.0, 105.0, 10))
+    across = rng.uniform(-10.0, 10.0, len(along))
+    h = np.radians(HEADING_DEG)
+    east, north = along * np.sin(h) + across * np.cos(h), along * np.cos(h) - across * np.sin(h)
+    lat, lon = local_to_latlon(east, north, LAT, LON)
+    n_frames = int(round(seconds * FPS))
+    times = np.arange(n_frames) / FPS
+    ue, un = uav_en(times)
+    ulat, ulon = local_to_latlon(ue, un, LAT, LON)
+    writer = cv2.VideoWriter(str(folder / "flight.avi"), cv2.VideoWriter.fourcc(*"MJPG"), FPS, (WIDTH, HEIGHT))
+    assert writer.isOpened()
+    half = SQUARE_PX // 2
+    for la, lo in zip(ulat, ulon, strict=True):
+        image = np.full((HEIGHT, WIDTH, 3), 30, np.uint8)
+        uv, valid = latlon_to_pixel(lat, lon, camera, Pose(float(la), float(lo), HEIGHT_M, PITCH_DEG, HEADING_DEG))
+        for (u, v), ok in zip(uv, valid, strict=True):
+            if ok and 0 <= u < WIDTH and 0 <= v < HEIGHT:
+                cv2.rectangle(image, (int(u) - half, int(v) - half), (int(u) + half, int(v) + half),
+                              (255, 255, 255), -1)
+        writer.write(image)
+    writer.release()
+    blocks = []
+    for k in range(int(seconds) + 1):
+        e, n = uav_en(float(k))
+        la, lo = local_to_latlon(e, n, LAT, LON)
+        date = time.strftime("%Y.%m.%d %H:%M:%S", time.gmtime(T0 + k))
+        blocks.append(f"{k + 1}\n{_srt_time(k)} --> {_srt_time(k + 1)}\n"
+                      f"HOME({LON:.4f},{LAT:.4f}) {date}\n"
+                      f"GPS({float(lo):.4f},{float(la):.4f},14) BAROMETER:{HEIGHT_M:.1f}\n"
+                      "ISO:100 Shutter:60 EV: Fnum:2.2 \n")
+    (folder / "flight.srt").write_text("\n".join(blocks))
+    (folder / "camera.json").write_text(json.dumps({"width": WIDTH, "height": HEIGHT, "fx": FX}))
+    return CoarseGpsFlight(folder / "flight.avi", folder / "flight.srt", folder / "camera.json",
+                           make_blob_model(folder / "blobs.onnx"), np.stack([ulat, ulon], axis=1),
+                           np.stack([lat, lon], axis=1))
