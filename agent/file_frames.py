@@ -16,10 +16,11 @@ from agent.dataset import Candidates, Dataset, Frame, PoseProblem, VideoTelemetr
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.stage_report import StageReport
+from agent.telemetry_dequantize import dequantize_report
 from agent.view_cuts import ViewCutReport, place_view_cuts
 from shared.geo import Camera
 
-__all__ = ["dequantize_report", "look_ahead", "look_ahead_reports", "prepared_frames", "telemetry_reports"]
+__all__ = ["look_ahead", "look_ahead_reports", "prepared_frames", "telemetry_reports"]
 
 
 def prepared_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Candidates, config: PipelineConfig,
@@ -80,15 +81,9 @@ def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings
             out.append(StageReport("telemetry at frame time", clock.samples >= 2,
                                    f"interpolated between the telemetry's samples{whole}{held}"
                                    if clock.samples >= 2 else "one telemetry sample"))
-        out.append(dequantize_report(info))
+        out.append(dequantize_report(info.quanta))
         out += look_ahead_reports(info, offset_settings)
     return out
-
-
-def dequantize_report(info: VideoTelemetry) -> StageReport:
-    """What the dequantisation (agent.telemetry_dequantize) found in one video: the quanta per coordinate."""
-    return StageReport("dequantize", bool(info.quanta),
-                       ", ".join(f"{k} {v:g}" for k, v in info.quanta.items()) or "no quantised coordinate")
 
 
 def look_ahead_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings | None) -> list[StageReport]:

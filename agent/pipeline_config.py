@@ -140,7 +140,8 @@ class PipelineConfig:
     dequantize_telemetry: the frame drivers of files make GPS written with 4 or 5 decimals (and altitude in
         whole or half metres) continuous again before anything else (agent.telemetry_dequantize: linear
         through the midpoints of the steps, inside the rounding interval); detected per video from the
-        values themselves, a no-op on other telemetry. The live agent does not.
+        values themselves, a no-op on other telemetry. So do `uavmm detect` and `uavmm agent --video` with the
+        telemetry file they read whole (VideoSource); a live MAVLink stream is not.
 
     terrain: the DEM boxes are georeferenced on (`uavmm ... --dem FILE`, agent.dem; shared.terrain.Terrain: ray
         and terrain intersected instead of ray and flat ground, and the size filter's range and depression taken

@@ -25,6 +25,7 @@ from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, rec
 if TYPE_CHECKING:
     from agent.detector import Detections
     from agent.slicing import SliceGrid
+    from agent.stage_report import StageReport
     from agent.telemetry_clock import TelemetryTrack
     from shared.telemetry import KlvReport
 
@@ -37,6 +38,7 @@ __all__ = [
     "SourceFrame",
     "KLV_IN_VIDEO",
     "VideoSource",
+    "dequantized",
     "load_video_telemetry",
     "pose_from_meta",
     "resolve_video_telemetry",
@@ -297,6 +299,18 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     return records, video_start_t
 
 
+def dequantized(records: list[Telemetry], telemetry: str | Path) -> tuple[list[Telemetry], dict[str, float]]:
+    """`agent.telemetry_dequantize.dequantize_records` on a video's records (sorted by time), logged when it acts.
+    telemetry: the file's name for the log line."""
+    from agent.telemetry_dequantize import dequantize_records
+
+    records, quanta = dequantize_records(records)
+    if quanta:
+        log.info("telemetry %s: quantised %s made continuous", telemetry,
+                 ", ".join(f"{k} ({v:g})" for k, v in quanta.items()))
+    return records, quanta
+
+
 def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemetry_offset_s: float | None = None,
                      video_start_t: float | None = None) -> float:
     """Telemetry time (s) of video time 0 (`--telemetry-offset-s`, the same for every command reading a video).
@@ -369,6 +383,10 @@ class VideoSource:
     video_fps : float, optional
         The frame rate of a raw ``.h264`` / ``.h265`` stream, which has no frame times (`agent.video_decode`); a
         ValueError beside a container.
+    dequantize : bool
+        A telemetry file's GPS written with 4 or 5 decimals and altitude in whole or half metres made continuous
+        (`agent.telemetry_dequantize.dequantize_records`; `PipelineConfig.dequantize_telemetry`); what it found is
+        `quanta` (None for a live stream, or when off).
     """
 
     def __init__(self, video: str | Path, telemetry: str | Path, model: str | Path, camera: str | Path, *,
@@ -378,7 +396,7 @@ class VideoSource:
                  providers: Sequence[str] = ("CPUExecutionProvider",), slices: SliceGrid | None = None,
                  slice_full_frame: bool = True, telemetry_timeout_s: float = 10.0,
                  system_id: int | None = None, utc_offset_h: float | None = None,
-                 video_fps: float | None = None) -> None:
+                 video_fps: float | None = None, dequantize: bool = True) -> None:
         from agent.detector import OnnxYoloDetector
         from agent.field_of_view import LiveFieldOfView, field_of_view_track
         from agent.mavlink_feed import MavlinkUdpFeed, is_live_telemetry
@@ -435,6 +453,10 @@ class VideoSource:
                 raise
             log.info("telemetry %s: live MAVLink, first record at t=%.3f", telemetry, self.records[0].t)
         self.records.sort(key=lambda r: r.t)
+        #: the quanta made continuous per coordinate ({}: none found), None when not looked for
+        self.quanta: dict[str, float] | None = None
+        if dequantize and not live:
+            self.records, self.quanta = dequantized(self.records, telemetry)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.telemetry_offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,
                                                    video_start_t=video_start_t)
@@ -526,6 +548,13 @@ class VideoSource:
             t.append(record.t)
             rows.append((pose.lat, pose.lon, pose.height_m, pose.heading_deg, pose.pitch_deg))
         return TelemetryTrack(np.array(t), np.array(rows)) if len(t) >= 2 else None
+
+    def stage_reports(self) -> list[StageReport]:
+        """What reading the telemetry file did, as stage reports (`agent.stage_report`): the dequantisation, when it
+        ran."""
+        from agent.telemetry_dequantize import dequantize_report
+
+        return [] if self.quanta is None else [dequantize_report(self.quanta)]
 
     def images(self) -> Iterator[tuple[int, NDArray[np.uint8]]]:
         """Decode the video again, without the detector: (frame index, image) as `frames` numbers them."""

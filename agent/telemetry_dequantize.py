@@ -14,17 +14,25 @@ UAV whose value never steps keeps its written level.
 The quantum is detected from the file itself: a coordinate is treated as quantised when every sample of
 the video is a multiple of 1e-4 or 1e-5 degrees (height: 1 m or 0.5 m) and it has at least two distinct
 values; otherwise the poses are left alone. Needs the samples after each frame, so it is for files
-(`uavmm boost`, `uavmm track`, `uavmm tune`, the evaluations), not for a live feed. Arrays in, arrays out.
+(`uavmm boost`, `uavmm track`, `uavmm tune`, the evaluations; `dequantize_records` for a video's telemetry file,
+read whole before its first frame by `uavmm detect`, `uavmm agent --video` and `uavmm anomaly --video`), not for a
+live feed. Arrays in, arrays out (records in, records out).
 """
 
 from __future__ import annotations
 
+from dataclasses import replace
+from typing import Any
+
 import numpy as np
 from numpy.typing import NDArray
 
+from agent.stage_report import StageReport
 from agent.telemetry_clock import TelemetryTrack
+from shared.telemetry import Telemetry
 
-__all__ = ["GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_track", "detect_quantum"]
+__all__ = ["GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records", "dequantize_report",
+           "dequantize_track", "detect_quantum"]
 
 #: Quanta tried, coarsest first: 4 and 5 decimals of a degree (6 decimals, 0.11 m, is left alone).
 GPS_QUANTA_DEG = (1e-4, 1e-5)
@@ -89,3 +97,54 @@ def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, f
             fixed = np.maximum(fixed, 0.1)
         out = out.replace_column(name, fixed)
     return out, quanta
+
+
+def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[str, float]]:
+    """A telemetry file's records (a video's, sorted by time) with quantised latitude, longitude and height made
+    continuous, as `dequantize_track` does for a dataset's video.
+
+    The quanta are judged on the records with a GPS fix (`Telemetry.has_fix`), one a time (the first at a repeated
+    time), height only when every one of them has one; longitude is unwrapped across the antimeridian. Each such
+    record gets the continuous value at its time, never more than half a quantum from what it says; records without
+    a fix keep theirs. Returns the records (the same list when nothing is quantised) and the quanta found ({} when
+    none).
+    """
+    fixed = [i for i, r in enumerate(records) if r.has_fix]
+    if len(fixed) < 2:
+        return records, {}
+    t_all = np.array([records[i].t for i in fixed], dtype=np.float64)
+    if np.any(np.diff(t_all) < 0):
+        raise ValueError("dequantize_records needs the records in time order")
+    first = np.concatenate([[True], np.diff(t_all) > 0])  # one sample a time: the first
+    columns: dict[str, NDArray] = {
+        "lat": np.array([records[i].lat for i in fixed], dtype=np.float64),
+        "lon": np.unwrap(np.array([records[i].lon for i in fixed], dtype=np.float64), period=360.0),
+    }
+    heights = [records[i].height_m for i in fixed]
+    if all(h is not None for h in heights):
+        columns["height_m"] = np.array(heights, dtype=np.float64)
+    quanta: dict[str, float] = {}
+    fixed_values: dict[str, NDArray] = {}
+    for name, values in columns.items():
+        q = detect_quantum(values[first], HEIGHT_QUANTA_M if name == "height_m" else GPS_QUANTA_DEG)
+        if q is None:
+            continue
+        quanta[name] = q
+        smooth = dequantize(t_all[first], values[first], q)
+        fixed_values[name] = np.clip(np.interp(t_all, t_all[first], smooth), values - q / 2.0, values + q / 2.0)
+    if not quanta:
+        return records, {}
+    if "lon" in fixed_values:
+        fixed_values["lon"] = (fixed_values["lon"] + 180.0) % 360.0 - 180.0
+    out = list(records)
+    for k, i in enumerate(fixed):
+        changes: dict[str, Any] = {name: float(v[k]) for name, v in fixed_values.items()}
+        out[i] = replace(records[i], **changes)
+    return out, quanta
+
+
+def dequantize_report(quanta: dict[str, float]) -> StageReport:
+    """What the dequantisation found in one video (`dequantize_track`'s or `dequantize_records`' quanta) as a stage
+    report."""
+    return StageReport("dequantize", bool(quanta),
+                       ", ".join(f"{k} {v:g}" for k, v in quanta.items()) or "no quantised coordinate")

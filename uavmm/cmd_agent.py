@@ -128,8 +128,9 @@ _VIDEO_ONLY = ("telemetry", "model", "class_names", "telemetry_offset_s", "mavli
                "telemetry_utc_offset_h", "pitch_deg", "heading_deg", "height_m", "height_offset_m")
 
 
-def source_from_args(args: argparse.Namespace):
-    """The frame source the flags describe; ValueError for missing companion flags or bad files."""
+def source_from_args(args: argparse.Namespace, *, dequantize: bool = True):
+    """The frame source the flags describe; ValueError for missing companion flags or bad files. dequantize: a
+    --video's telemetry file made continuous where it is quantised (`VideoSource`)."""
     from agent.dataset_source import DatasetSource
     from agent.sources import VideoSource
 
@@ -162,7 +163,7 @@ def source_from_args(args: argparse.Namespace):
                        conf_threshold=args.conf_threshold, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
                        height_m=args.height_m, height_offset_m=args.height_offset_m,
                        system_id=args.mavlink_system_id, utc_offset_h=args.telemetry_utc_offset_h,
-                       video_fps=args.video_fps)
+                       video_fps=args.video_fps, dequantize=dequantize)
 
 
 def settings_from_args(args: argparse.Namespace):
@@ -246,7 +247,7 @@ def _run_agent(args: argparse.Namespace) -> int:
     check_certificates(conf, log)
     pipeline_config, size_filter = pipeline_from_args(args)
     anomaly = anomaly_from_args(args, pipeline_config.terrain)
-    source = source_from_args(args)
+    source = source_from_args(args, dequantize=pipeline_config.dequantize_telemetry)
     stop = stop_on_signals(log)
 
     def on_ready(node: AgentNode) -> None:

@@ -128,12 +128,11 @@ def run_anomaly(args: argparse.Namespace) -> int:
     spool = StreamedResults(args.out)
     cfg, method = _config(args)
     camera = Camera.from_spec(args.camera)
-    frames = (dataset_frames(args.frames, camera) if args.frames is not None
-              else iter(VideoFrames(args.video, args.telemetry, camera, height_m=args.height_m,
-                                    telemetry_offset_s=args.telemetry_offset_s, height_offset_m=args.height_offset_m,
-                                    pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
-                                    system_id=args.mavlink_system_id,
-                                    utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)))
+    video_frames = None if args.frames is not None else VideoFrames(
+        args.video, args.telemetry, camera, height_m=args.height_m, telemetry_offset_s=args.telemetry_offset_s,
+        height_offset_m=args.height_offset_m, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
+        system_id=args.mavlink_system_id, utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)
+    frames = dataset_frames(args.frames, camera) if video_frames is None else iter(video_frames)
     detector = AnomalyDetector(cfg, method)
     video = None
     n = without_pose = 0
@@ -166,8 +165,10 @@ def run_anomaly(args: argparse.Namespace) -> int:
         print(file=sys.stderr)
     seconds = time.perf_counter() - started
     mode = ("per-frame" if args.no_memory else "memory map") + (f", terrain {args.dem.name}" if args.dem else "")
+    quanta = video_frames.quanta if video_frames is not None else None  # the telemetry file's GPS steps
+    continuous = f"; {', '.join(f'{k} {v:g}' for k, v in quanta.items())} made continuous" if quanta else ""
     print(f"wrote {spool.count} regions of interest for {n} frames to {args.out} ({args.method}, {mode}; "
-          f"{without_pose} frames without telemetry; {n / max(seconds, 1e-9):.1f} frames/s)")
+          f"{without_pose} frames without telemetry{continuous}; {n / max(seconds, 1e-9):.1f} frames/s)")
     return 0
 
 

@@ -181,7 +181,8 @@ def run(args: argparse.Namespace) -> int:
                          height_m=args.height_m, height_offset_m=args.height_offset_m, providers=providers,
                          slices=slices, slice_full_frame=not args.no_full_frame,
                          telemetry_timeout_s=args.telemetry_timeout_s, system_id=args.mavlink_system_id,
-                         utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)
+                         utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps,
+                         dequantize=pipeline_config.dequantize_telemetry)
     two_passes = not args.one_pass and can_look_ahead(source) is None  # as run_detect decides
     progress = ProgressLine(f"detect {args.video.name}", enabled=not args.quiet,
                             first_pass=" (pass 1: detector)" if two_passes else "")

@@ -57,6 +57,9 @@ class VideoFrames:
     the file tells (KLV in a transport stream, by its PTS), else where the log starts recording (AirData's
     isVideo), else the first record's time (`agent.sources.video_start_time`, as the video source of agent and detect).
 
+    GPS written with 4 or 5 decimals and altitude in whole or half metres are made continuous when dequantize
+    (`agent.sources.dequantized`, as the detector's video source does).
+
     Checked at construction, each a one-line ValueError: the video opens and has frames, the camera's aspect
     matches the frames, and the telemetry covers the video's duration (within ``max_gap_s``).
     """
@@ -66,9 +69,9 @@ class VideoFrames:
                  height_m: float | None = None, height_offset_m: float | None = None,
                  pitch_deg: float | None = None, heading_deg: float | None = None,
                  system_id: int | None = None, utc_offset_h: float | None = None,
-                 video_fps: float | None = None) -> None:
+                 video_fps: float | None = None, dequantize: bool = True) -> None:
         from agent.field_of_view import field_of_view_track
-        from agent.sources import resolve_video_telemetry, video_start_time, video_telemetry
+        from agent.sources import dequantized, resolve_video_telemetry, video_start_time, video_telemetry
         from agent.video_decode import VideoReader, check_video_fps
 
         telemetry = resolve_video_telemetry(telemetry, video)
@@ -99,6 +102,10 @@ class VideoFrames:
             records, video_start_t = on_video_frames(records, self.fps, telemetry)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
+        #: the quanta made continuous per coordinate (`agent.sources.dequantized`; {}: none), None when off
+        self.quanta: dict[str, float] | None = None
+        if dequantize:
+            self.records, self.quanta = dequantized(self.records, telemetry)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.height_m = height_m
         self.offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,

@@ -259,7 +259,9 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
         "files": files,
     }
     stages = StageSummary()
-    for report in [*(passes.reports if passes is not None else []), *pipe.stage_reports(),
+    source_reports = getattr(source, "stage_reports", None)  # its telemetry file's (VideoSource: dequantisation)
+    for report in [*(source_reports() if callable(source_reports) else []),
+                   *(passes.reports if passes is not None else []), *pipe.stage_reports(),
                    *tracker.stage_reports()]:
         stages.add(report)
     summary["two_pass"] = passes is not None

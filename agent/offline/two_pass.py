@@ -10,9 +10,6 @@ candidates a frame; nothing of it held in memory, removed at the end). Then, as 
   informative windows;
 - view jumps hidden between sparse telemetry samples (a 1 Hz log interpolates a 60 deg jump into a one-second
   turn) are cut where the detections jump (`agent.view_cuts`);
-- GPS written with 4 or 5 decimals (old DJI SRT files: steps of 11 m, held for seconds) and altitude in whole or
-  half metres are made continuous again before all of that (`agent.telemetry_dequantize`, as for a dataset: only
-  where every sample of a coordinate sits on one quantum's grid);
 - the size filter's check and the score calibration judge the whole video before its first frame
   (`DetectionPipeline.prime`) instead of warming up on its first frames.
 
@@ -38,14 +35,11 @@ from numpy.typing import NDArray
 
 from agent.clock_offset import ClockOffset
 from agent.dataset import Frame, ImageRecord, VideoTelemetry
-from agent.file_frames import dequantize_report, look_ahead, look_ahead_reports
+from agent.file_frames import look_ahead, look_ahead_reports
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.sources import SourceFrame
 from agent.stage_report import StageReport
-from agent.telemetry_clock import TelemetryTrack
-from agent.telemetry_dequantize import dequantize_track
-from shared.geo import Pose
 
 log = logging.getLogger(__name__)
 
@@ -110,12 +104,6 @@ class CandidateSpool:
         self._file.close()
 
 
-def _placed_on(pose: Pose, track: TelemetryTrack, t: float) -> Pose:
-    """pose with its position and height from track (the dequantised telemetry) at time t; its angles kept."""
-    lat, lon, height = (float(v) for v in track.at(t)[0, :3])
-    return Pose(lat, lon, max(height, 0.1), pose.pitch_deg, pose.heading_deg, pose.roll_deg)
-
-
 def can_look_ahead(source: Any) -> str | None:
     """None when `source` can be read in two passes (`agent.sources.VideoSource` over a telemetry file), else why
     not."""
@@ -154,9 +142,6 @@ class FilePasses:
         primed)."""
         spool = self._spool = CandidateSpool(self.spool_dir)
         track = self.source.telemetry_track()
-        quanta: dict[str, float] = {}
-        if track is not None and self.config.dequantize_telemetry:
-            track, quanta = dequantize_track(track)
         frames: list[Frame] = []
         it = iter(self.source.frames())
         while max_frames is None or len(frames) < max_frames:
@@ -170,20 +155,12 @@ class FilePasses:
             spool.add(sf.boxes_xyxy, sf.scores, sf.class_ids)
             record = ImageRecord(id=len(frames), width=sf.camera.width, height=sf.camera.height, video_id=0,
                                  frame_index=sf.index, date_time=None, meta=None)
-            pose = sf.pose
-            if quanta and track is not None and pose is not None and sf.pose_t is not None:
-                pose = _placed_on(pose, track, sf.pose_t)
-            frames.append(Frame(record, pose, sf.t, sf.camera, sf.pose_t, track=track))
+            frames.append(Frame(record, sf.pose, sf.t, sf.camera, sf.pose_t, track=track))
             if progress is not None:
                 progress(len(frames), total)
-        info = VideoTelemetry(quanta=quanta)
+        info = VideoTelemetry()
         self._frames = look_ahead(frames, lambda frame: spool.get(frame.image.id), self.config, pipe, info)
         self.reports = look_ahead_reports(info, self.config.clock_offset_settings())
-        if self.config.dequantize_telemetry:
-            if quanta:
-                log.info("%s: quantised telemetry (%s) made continuous", self.source.name,
-                         ", ".join(f"{k} {v:g}" for k, v in quanta.items()))
-            self.reports.insert(0, dequantize_report(info))
 
     def frames(self) -> Iterator[SourceFrame]:
         """Pass two: each frame with its prepared pose, its stored candidates and its pixels decoded again."""

@@ -62,22 +62,33 @@ def _object_errors(flight: CoarseGpsFlight, out: Path) -> np.ndarray:
     return np.array(errors)
 
 
-def test_two_passes_make_four_decimal_gps_continuous_and_the_frames_land_nearer_the_truth(flight, tmp_path, capsys):
-    two = _detect(flight, tmp_path / "two")
+def test_four_decimal_gps_is_made_continuous_and_the_frames_land_nearer_the_truth(flight, tmp_path, capsys):
+    on = _detect(flight, tmp_path / "on")
     printed = capsys.readouterr().out
-    one = _detect(flight, tmp_path / "one", "--one-pass")
-    assert two["stages"]["dequantize"] == {"acted": 1, "stood_down": 0, "why": {"lat 0.0001, lon 0.0001": 1}}
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"dequantize_telemetry": False}))
+    off = _detect(flight, tmp_path / "off", "--config", str(params))
+    assert on["stages"]["dequantize"] == {"acted": 1, "stood_down": 0, "why": {"lat 0.0001, lon 0.0001": 1}}
     assert "dequantize: acted 1" in printed
-    assert "dequantize" not in one["stages"]  # a live feed cannot look ahead at the next step
-    one_err, two_err = _position_errors(flight, tmp_path / "one"), _position_errors(flight, tmp_path / "two")
-    # one pass holds each written level: up to half a step (5.6 m north) off; two passes interpolate through the steps
-    # (seed 0 on this VM: mean 2.41 -> 1.22 m, max 5.71 -> 3.34 m)
-    assert one_err.mean() > 2.0 and one_err.max() > 5.0
-    assert two_err.mean() < 1.5 and two_err.max() < 4.0
-    # the objects found: as many, and where they are no further off than a metre and a half
-    one_obj, two_obj = _object_errors(flight, tmp_path / "one"), _object_errors(flight, tmp_path / "two")
-    assert len(two_obj) == len(one_obj) == 10
-    assert two_obj.max() < 2.0 < one_obj.max()
+    assert "dequantize" not in off["stages"]
+    on_err, off_err = _position_errors(flight, tmp_path / "on"), _position_errors(flight, tmp_path / "off")
+    # as written, each level holds: up to half a step (5.6 m north) off; made continuous, the steps are interpolated
+    # through (seed 0 on this VM: mean 2.41 -> 1.22 m, max 5.71 -> 3.34 m)
+    assert off_err.mean() > 2.0 and off_err.max() > 5.0
+    assert on_err.mean() < 1.5 and on_err.max() < 4.0
+    # the objects found: as many, and none further off than two metres
+    on_obj, off_obj = _object_errors(flight, tmp_path / "on"), _object_errors(flight, tmp_path / "off")
+    assert len(on_obj) == len(off_obj) == 10
+    assert on_obj.max() < 2.0 < off_obj.max()
+
+
+def test_one_pass_reads_the_telemetry_file_made_continuous_too(flight, tmp_path):
+    # the file is read whole before the first frame: one pass (and agent --video, anomaly --video) gets the same poses
+    one = _detect(flight, tmp_path / "one", "--one-pass")
+    _detect(flight, tmp_path / "two")
+    assert one["stages"]["dequantize"]["acted"] == 1
+    np.testing.assert_allclose(_position_errors(flight, tmp_path / "one"), _position_errors(flight, tmp_path / "two"),
+                               atol=1e-3)
 
 
 def test_six_decimal_gps_is_left_as_written(flight, tmp_path):
@@ -99,9 +110,44 @@ def test_six_decimal_gps_is_left_as_written(flight, tmp_path):
                                atol=0.05)
 
 
-def test_no_dequantize_in_the_params_keeps_the_written_levels(flight, tmp_path):
-    params = tmp_path / "params.json"
-    params.write_text(json.dumps({"dequantize_telemetry": False}))
-    two = _detect(flight, tmp_path / "two", "--config", str(params))
-    assert "dequantize" not in two["stages"]
-    assert _position_errors(flight, tmp_path / "two").max() > 5.0
+def test_agent_video_and_anomaly_video_read_the_file_made_continuous(flight, tmp_path):
+    from agent.anomaly.frames import VideoFrames
+    from shared.geo import Camera
+    from uavmm import cmd_agent
+    from uavmm.cli import build_parser
+
+    def errors(poses) -> np.ndarray:
+        out = []
+        for index, pose in poses:
+            lat, lon = flight.positions[index]
+            east, north = latlon_to_local(np.array([pose.lat]), np.array([pose.lon]), lat, lon)
+            out.append(float(np.hypot(east[0], north[0])))
+        return np.array(out)
+
+    args = build_parser().parse_args([
+        "agent", "--uav-id", "uav1", "--video", str(flight.video), "--telemetry", str(flight.srt), "--model",
+        str(flight.model), "--camera", str(flight.camera), "--pitch-deg", str(PITCH_DEG), "--heading-deg",
+        str(HEADING_DEG)])
+    source = cmd_agent.source_from_args(args, dequantize=cmd_agent.pipeline_from_args(args)[0].dequantize_telemetry)
+    try:
+        assert source.quanta == {"lat": 1e-4, "lon": 1e-4}
+        assert [(r.stage, r.acted) for r in source.stage_reports()] == [("dequantize", True)]
+        agent_err = errors((f.index, f.pose) for f in source.frames())
+    finally:
+        source.close()
+    camera = Camera.from_spec(flight.camera)
+    kw = {"pitch_deg": PITCH_DEG, "heading_deg": HEADING_DEG}
+    frames, as_written = VideoFrames(flight.video, flight.srt, camera, **kw), VideoFrames(
+        flight.video, flight.srt, camera, dequantize=False, **kw)
+    assert frames.quanta == {"lat": 1e-4, "lon": 1e-4} and as_written.quanta is None
+    anomaly_err = errors((f.image_id, f.pose) for f in frames)
+    written_err = errors((f.image_id, f.pose) for f in as_written)
+    assert len(agent_err) == len(anomaly_err) == len(written_err) == len(flight.positions)
+    assert agent_err.mean() < 1.5 and anomaly_err.mean() < 1.5 < 2.0 < written_err.mean()
+
+
+def test_anomaly_video_says_it_made_the_gps_continuous(flight, tmp_path, capsys):
+    assert main(["anomaly", "--video", str(flight.video), "--telemetry", str(flight.srt), "--camera", str(flight.camera),
+                 "--pitch-deg", str(PITCH_DEG), "--heading-deg", str(HEADING_DEG), "--out", str(tmp_path / "rois.json"),
+                 "--quiet"]) == 0
+    assert "lat 0.0001, lon 0.0001 made continuous" in capsys.readouterr().out

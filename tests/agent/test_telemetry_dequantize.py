@@ -3,15 +3,18 @@
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.dataset import Dataset, VideoTelemetry, iter_video_frames
 from agent.telemetry_clock import TelemetryTrack
-from agent.telemetry_dequantize import dequantize, dequantize_track, detect_quantum
+from agent.telemetry_dequantize import dequantize, dequantize_records, dequantize_track, detect_quantum
 from shared.geo import Camera
+from shared.telemetry import Telemetry
 
 CAMERA = Camera(width=1920, height=1080, fx=1400.0, fy=1400.0, cx=960.0, cy=540.0)
 
@@ -96,3 +99,57 @@ def test_dataset_frames_get_dequantised_positions_between_the_samples() -> None:
     assert np.abs(lats - truth)[5:-5].max() < 0.3e-4  # the rounded values err by up to 0.5e-4
     plain = list(iter_video_frames(ds, CAMERA, 1))
     assert all(f.pose is not None and round(f.pose.lat, 4) == f.pose.lat for f in plain)
+
+
+# ------------------------------------------------------------------------------------------------------------------
+# A video's telemetry file, record by record (dequantize_records: uavmm detect, agent --video, anomaly --video)
+# ------------------------------------------------------------------------------------------------------------------
+
+def _records(t, lat, lon, height=None) -> list[Telemetry]:
+    return [Telemetry(t=float(ti), lat=float(la), lon=float(lo), height_m=None if height is None else float(height[i]),
+                      pitch_deg=60.0, heading_deg=45.0) for i, (ti, la, lo) in enumerate(zip(t, lat, lon, strict=True))]
+
+
+@settings(max_examples=60, deadline=None)
+@given(lat0=st.floats(-60.0, 60.0), lon0=st.floats(-179.9, 179.9), v_north=st.floats(-12.0, 12.0),
+       v_east=st.floats(-12.0, 12.0), hz=st.sampled_from([1.0, 10.0]), decimals=st.sampled_from([4, 5]))
+def test_records_written_with_4_or_5_decimals_stay_within_half_a_step_and_land_nearer_the_truth(
+        lat0: float, lon0: float, v_north: float, v_east: float, hz: float, decimals: int) -> None:
+    t = np.arange(0.0, 30.0, 1.0 / hz)
+    lat = lat0 + v_north * t / 111_320.0
+    lon = (lon0 + v_east * t / (111_320.0 * math.cos(math.radians(lat0))) + 180.0) % 360.0 - 180.0
+    records = _records(t, np.round(lat, decimals), np.round(lon, decimals))
+    out, quanta = dequantize_records(records)
+    assert len(out) == len(records) and [r.t for r in out] == [r.t for r in records]
+    # the written step, or a coarser one where every value written happens to sit on it (the file cannot tell)
+    assert all(quanta[name] in (10.0 ** -decimals, 1e-4) for name in quanta)
+    q = max(quanta.values(), default=0.0)
+    for before, after in zip(records, out, strict=True):
+        assert abs(after.lat - before.lat) <= q / 2 + 1e-12
+        assert abs((after.lon - before.lon + 180.0) % 360.0 - 180.0) <= q / 2 + 1e-12  # also across +-180
+        assert -180.0 <= after.lon < 180.0 and after.heading_deg == before.heading_deg and after.height_m is None
+    if "lat" in quanta and 4 <= len({r.lat for r in records}) <= len(records) / 3:  # held and stepped: nearer truth
+        got = np.array([r.lat for r in out])
+        assert np.sqrt(np.mean((got - lat) ** 2)) < np.sqrt(np.mean((np.round(lat, decimals) - lat) ** 2))
+
+
+def test_records_without_a_fix_repeated_times_and_six_decimals() -> None:
+    t = np.arange(0.0, 10.0, 1.0)
+    lat = np.round(48.5 + 6.0 * t / 111_320.0, 4)
+    records = _records(t, lat, np.full(len(t), 9.06), height=np.round(40.0 + 0.7 * t))
+    no_fix = Telemetry(t=2.5, lat=0.0, lon=0.0, height_m=40.0, pitch_deg=60.0, heading_deg=45.0)  # "no GPS fix"
+    records.insert(3, no_fix)
+    records.insert(6, replace(records[5], lat=records[5].lat))  # two records at one time
+    out, quanta = dequantize_records(records)
+    assert quanta == {"lat": 1e-4, "height_m": 1.0}  # longitude never steps: left as written
+    assert out[3] is records[3]  # no fix: untouched
+    assert out[5].lat == out[6].lat and out[5].t == out[6].t
+    assert all(r.lon == 9.06 for r in out if r.has_fix)
+    # six decimals (0.11 m): nothing quantised, the very same list back
+    fine = _records(t, 48.5 + 6.0 * t / 111_320.0, np.full(len(t), 9.06))
+    assert dequantize_records(fine) == (fine, {})
+    # one record with a fix: nothing to judge
+    assert dequantize_records(records[:1]) == (records[:1], {})
+    # out of time order: refused
+    with pytest.raises(ValueError, match="time order"):
+        dequantize_records(records[::-1])
