@@ -118,6 +118,8 @@ class ProgressLine:
             self.started = self._last_call  # from the end of pass one: the stages between count in its first frame
             self._last_step = -1
         self._last_done = done
+        if done == 0:  # the announcement of a pass (run_detect's before pass two): nothing done to show yet
+            return
         self._last_call = time.monotonic()
         elapsed = max(time.monotonic() - self.started, 1e-9)
         rate = done / elapsed

@@ -40,7 +40,8 @@ __all__ = ["DetectOptions", "prepare_out_dir", "run_detect"]
 
 log = logging.getLogger(__name__)
 
-#: progress(frames done, frames expected or None); in two passes the count starts again at 1 for pass two
+#: progress(frames done, frames expected or None); in two passes the count starts again for pass two, announced by
+#: progress(0, its frames)
 Progress = Callable[[int, int | None], None]
 
 
@@ -163,6 +164,8 @@ def run_detect(source: FrameSource, out_dir: str | Path, pipeline_config: Pipeli
             passes.detect(pipe, options.max_frames, progress, total)
             seconds["source"] += passes.detector_s
             total = len(passes)
+            if progress is not None and total:
+                progress(0, total)  # pass two begins (a one-frame video's count would not go back)
         frames = iter(source.frames() if passes is None else passes.frames())
         while options.max_frames is None or counts["frames"] < options.max_frames:
             t0 = time.perf_counter()

@@ -147,7 +147,7 @@ def test_agent_video_and_anomaly_video_read_the_file_made_continuous(flight, tmp
 
 
 def test_anomaly_video_says_it_made_the_gps_continuous(flight, tmp_path, capsys):
-    assert main(["anomaly", "--video", str(flight.video), "--telemetry", str(flight.srt), "--camera", str(flight.camera),
-                 "--pitch-deg", str(PITCH_DEG), "--heading-deg", str(HEADING_DEG), "--out", str(tmp_path / "rois.json"),
-                 "--quiet"]) == 0
+    assert main(["anomaly", "--video", str(flight.video), "--telemetry", str(flight.srt), "--camera",
+                 str(flight.camera), "--pitch-deg", str(PITCH_DEG), "--heading-deg", str(HEADING_DEG), "--out",
+                 str(tmp_path / "rois.json"), "--quiet"]) == 0
     assert "lat 0.0001, lon 0.0001 made continuous" in capsys.readouterr().out

@@ -270,6 +270,12 @@ def test_the_progress_lines_name_each_pass(flight, tmp_path, capsys):
     assert main([*args, "--out", str(tmp_path / "one"), "--one-pass"]) == 0
     err = capsys.readouterr().err
     assert "20/20 frames" in err and "pass 1" not in err and "pass 2" not in err
+    # a one-frame run: its count never goes back, the second pass is announced all the same
+    assert main([*args[:-1], "1", "--out", str(tmp_path / "single")]) == 0
+    err = capsys.readouterr().err.splitlines()
+    assert [line.split(" frames")[0] for line in err if "1/1" in line] == [
+        f"detect {flight.video.name} (pass 1: detector) 1/1", f"detect {flight.video.name} (pass 2: memory map, "
+        "tracker) 1/1"]
 
 
 def test_a_spool_that_cannot_be_written_says_where_and_what_does_without(tmp_path):
