@@ -137,9 +137,9 @@ class PipelineConfig:
         sea-sweeps-60 47 -> 7, reid 26 -> 18 over seeds 0-2) while the base `sea`/`grass` scenarios stayed
         within one switch per seed (docs/tracking.md).
 
-    dequantize_telemetry: the frame drivers of files make GPS written with 4 or 5 decimals (and altitude in
-        whole or half metres) continuous again before anything else (agent.telemetry_dequantize: linear
-        through the midpoints of the steps, inside the rounding interval); detected per video from the
+    dequantize_telemetry: the frame drivers of files make GPS written with 3 to 5 decimals (and altitude in
+        whole or half metres) continuous again before anything else (agent.telemetry_dequantize: ramps from the
+        middles of the steps to the levels written, inside the rounding interval); detected per video from the
         values themselves, a no-op on other telemetry. So do `uavmm detect` and `uavmm agent --video` with the
         telemetry file they read whole (VideoSource); a live MAVLink stream is not.
 

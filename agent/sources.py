@@ -384,7 +384,7 @@ class VideoSource:
         The frame rate of a raw ``.h264`` / ``.h265`` stream, which has no frame times (`agent.video_decode`); a
         ValueError beside a container.
     dequantize : bool
-        A telemetry file's GPS written with 4 or 5 decimals and altitude in whole or half metres made continuous
+        A telemetry file's GPS written with 3 to 5 decimals and altitude in whole or half metres made continuous
         (`agent.telemetry_dequantize.dequantize_records`; `PipelineConfig.dequantize_telemetry`); what it found is
         `quanta` (None for a live stream, or when off).
     """

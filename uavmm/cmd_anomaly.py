@@ -64,6 +64,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--pitch-deg", type=float, default=None, help="--video: fixed gimbal pitch if telemetry lacks it")
     p.add_argument("--heading-deg", type=float, default=None,
                    help="--video: fixed gimbal heading if telemetry lacks it")
+    p.add_argument("--telemetry-as-written", action="store_true",
+                   help="--video: keep GPS written with 3-5 decimals and altitude in whole metres as the file has "
+                        "them (default: made continuous, docs/detect.md)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_terrain_options(p)
     p.set_defaults(handler=run_anomaly)
@@ -119,6 +122,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
                              "images.json meta)")
     if args.frames is not None and args.telemetry_offset_s is not None:
         raise ValueError("--telemetry-offset-s goes with --video (--frames carries its times in images.json meta)")
+    if args.frames is not None and args.telemetry_as_written:
+        raise ValueError("--telemetry-as-written goes with --video (--frames takes each image's meta as written)")
     images = DatasetImages("--frames image", args.frames) if args.frames is not None else ()
     require_outputs_apart([("--out", args.out)], itertools.chain([
         ("--frames", args.frames), ("--video", args.video), ("--telemetry", args.telemetry), ("--camera", args.camera),
@@ -131,7 +136,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
     video_frames = None if args.frames is not None else VideoFrames(
         args.video, args.telemetry, camera, height_m=args.height_m, telemetry_offset_s=args.telemetry_offset_s,
         height_offset_m=args.height_offset_m, pitch_deg=args.pitch_deg, heading_deg=args.heading_deg,
-        system_id=args.mavlink_system_id, utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps)
+        system_id=args.mavlink_system_id, utc_offset_h=args.telemetry_utc_offset_h, video_fps=args.video_fps,
+        dequantize=not args.telemetry_as_written)
     frames = dataset_frames(args.frames, camera) if video_frames is None else iter(video_frames)
     detector = AnomalyDetector(cfg, method)
     video = None

@@ -35,9 +35,10 @@ class CoarseGpsFlight:
     objects: np.ndarray
 
 
-def uav_en(t: float | np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The UAV's true east, north (m) from its start at time t (s)."""
-    d = SPEED_MPS * np.asarray(t, dtype=np.float64)
+def uav_en(t: float | np.ndarray, stop_s: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """The UAV's true east, north (m) from its start at time t (s); from stop_s on it hovers."""
+    t = np.asarray(t, dtype=np.float64)
+    d = SPEED_MPS * (t if stop_s is None else np.minimum(t, stop_s))
     return d * np.sin(np.radians(HEADING_DEG)), d * np.cos(np.radians(HEADING_DEG))
 
 
@@ -46,8 +47,10 @@ def _srt_time(s: float) -> str:
     return f"{ms // 3600000:02d}:{ms // 60000 % 60:02d}:{ms // 1000 % 60:02d},{ms % 1000:03d}"
 
 
-def write_coarse_gps_flight(folder: Path, *, seconds: float = 12.0, seed: int = 0) -> CoarseGpsFlight:
-    """The flight in folder: flight.avi (MJPG), flight.srt (1 Hz, GPS with 4 decimals), camera.json, blobs.onnx."""
+def write_coarse_gps_flight(folder: Path, *, seconds: float = 12.0, seed: int = 0,
+                            stop_s: float | None = None) -> CoarseGpsFlight:
+    """The flight in folder: flight.avi (MJPG), flight.srt (1 Hz, GPS with 4 decimals), camera.json, blobs.onnx.
+    stop_s: the UAV stops there and hovers to the end."""
     folder.mkdir(parents=True, exist_ok=True)
     rng = np.random.default_rng(seed)
     camera = Camera(width=WIDTH, height=HEIGHT, fx=FX, fy=FX, cx=WIDTH / 2, cy=HEIGHT / 2)
@@ -59,7 +62,7 @@ def write_coarse_gps_flight(folder: Path, *, seconds: float = 12.0, seed: int = 
     lat, lon = local_to_latlon(east, north, LAT, LON)
     n_frames = int(round(seconds * FPS))
     times = np.arange(n_frames) / FPS
-    ue, un = uav_en(times)
+    ue, un = uav_en(times, stop_s)
     ulat, ulon = local_to_latlon(ue, un, LAT, LON)
     writer = cv2.VideoWriter(str(folder / "flight.avi"), cv2.VideoWriter.fourcc(*"MJPG"), FPS, (WIDTH, HEIGHT))
     assert writer.isOpened()
@@ -75,7 +78,7 @@ def write_coarse_gps_flight(folder: Path, *, seconds: float = 12.0, seed: int = 
     writer.release()
     blocks = []
     for k in range(int(seconds) + 1):
-        e, n = uav_en(float(k))
+        e, n = uav_en(float(k), stop_s)
         la, lo = local_to_latlon(e, n, LAT, LON)
         date = time.strftime("%Y.%m.%d %H:%M:%S", time.gmtime(T0 + k))
         blocks.append(f"{k + 1}\n{_srt_time(k)} --> {_srt_time(k + 1)}\n"

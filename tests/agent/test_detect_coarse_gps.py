@@ -151,3 +151,32 @@ def test_anomaly_video_says_it_made_the_gps_continuous(flight, tmp_path, capsys)
                  str(flight.camera), "--pitch-deg", str(PITCH_DEG), "--heading-deg", str(HEADING_DEG), "--out",
                  str(tmp_path / "rois.json"), "--quiet"]) == 0
     assert "lat 0.0001, lon 0.0001 made continuous" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("stop_s", [6.0, 8.0, 10.0])
+def test_a_uav_that_stops_and_hovers_keeps_its_written_level_in_the_hover(tmp_path, stop_s):
+    # the review's case: ramping on past the last step put the hover up to a whole step off (8.3 m against 3.0 m)
+    flight = write_coarse_gps_flight(tmp_path / "flight", seconds=20.0, stop_s=stop_s)
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"dequantize_telemetry": False}))
+    on = _detect(flight, tmp_path / "on", "--one-pass")
+    _detect(flight, tmp_path / "off", "--one-pass", "--config", str(params))
+    assert on["stages"]["dequantize"]["acted"] == 1
+    on_err, off_err = _position_errors(flight, tmp_path / "on"), _position_errors(flight, tmp_path / "off")
+    frames = np.array([im["frame_index"] for im in json.loads((tmp_path / "on" / "images.json").read_text())["images"]])
+    hover = frames / 10.0 > stop_s + 2.0
+    assert hover.sum() >= 70
+    assert on_err[hover].mean() <= off_err[hover].mean() + 0.05
+    assert on_err.mean() < off_err.mean()
+
+
+def test_anomaly_video_can_keep_the_telemetry_as_written(flight, tmp_path, capsys):
+    args = ["anomaly", "--video", str(flight.video), "--telemetry", str(flight.srt), "--camera", str(flight.camera),
+            "--pitch-deg", str(PITCH_DEG), "--heading-deg", str(HEADING_DEG), "--quiet", "--telemetry-as-written"]
+    assert main([*args, "--out", str(tmp_path / "rois.json")]) == 0
+    assert "made continuous" not in capsys.readouterr().out
+    frames = tmp_path / "images.json"
+    frames.write_text(json.dumps({"images": [], "annotations": [], "categories": []}))
+    assert main(["anomaly", "--frames", str(frames), "--camera", str(flight.camera), "--telemetry-as-written",
+                 "--out", str(tmp_path / "r2.json")]) == 2
+    assert "--telemetry-as-written goes with --video" in capsys.readouterr().err

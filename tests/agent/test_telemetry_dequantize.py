@@ -12,7 +12,14 @@ from hypothesis import strategies as st
 
 from agent.dataset import Dataset, VideoTelemetry, iter_video_frames
 from agent.telemetry_clock import TelemetryTrack
-from agent.telemetry_dequantize import dequantize, dequantize_records, dequantize_track, detect_quantum
+from agent.telemetry_dequantize import (
+    GPS_QUANTA_DEG,
+    HEIGHT_QUANTA_M,
+    dequantize,
+    dequantize_records,
+    dequantize_track,
+    detect_quantum,
+)
 from shared.geo import Camera
 from shared.telemetry import Telemetry
 
@@ -153,3 +160,46 @@ def test_records_without_a_fix_repeated_times_and_six_decimals() -> None:
     # out of time order: refused
     with pytest.raises(ValueError, match="time order"):
         dequantize_records(records[::-1])
+
+
+@settings(max_examples=80, deadline=None)
+@given(stop=st.floats(5.0, 60.0), speed=st.floats(0.5, 12.0), start=st.floats(0.0, 11.0),
+       hz=st.sampled_from([1.0, 10.0]))
+def test_a_uav_that_stops_is_never_put_further_off_in_its_hover_than_as_written(stop: float, speed: float,
+                                                                               start: float, hz: float) -> None:
+    # metres along one axis, written to 11.1 m steps (4 decimals of latitude); flies, then hovers for a minute
+    t = np.arange(0.0, stop + 60.0, 1.0 / hz)
+    truth = start + speed * np.minimum(t, stop)
+    written = np.round(truth / 11.1) * 11.1
+    fixed = dequantize(t, written, 11.1)
+    hover = t > stop + 15.0 / speed + 1.0  # the last step's ramp is over
+    assert np.all(np.abs(fixed - written) <= 5.55 + 1e-9)
+    assert np.abs(fixed - truth)[hover].mean() <= np.abs(written - truth)[hover].mean() + 1e-9
+
+
+def test_take_off_in_whole_metres_and_steps_over_several_levels_reach_their_levels() -> None:
+    t = np.arange(0.0, 120.0, 1.0)
+    height = np.clip(2.0 * (t - 10.0), 0.0, 40.0)  # on the pad, a climb of 2 m a sample (two levels), a hover
+    fixed = dequantize(t, np.round(height), 1.0)
+    assert np.all(fixed[t < 10] == 0.0) and np.all(fixed[t > 31] == 40.0)
+    assert np.abs(fixed - height)[(t > 10) & (t < 30)].max() <= 0.5
+    # one step alone says no speed: it is taken to last its sample interval, the samples keep their written levels
+    # (frames between the two are interpolated across the step downstream)
+    written = np.array([3.0] * 5 + [4.0] * 5)
+    assert np.array_equal(dequantize(np.arange(10.0), written, 1.0), written)
+
+
+def test_the_quantum_is_judged_with_a_coarser_grid_and_an_offset() -> None:
+    assert detect_quantum(np.array([47.599, 47.6, 47.601]), GPS_QUANTA_DEG) == 1e-3  # 3 decimals: 111 m steps
+    assert detect_quantum(np.array([47.59, 47.6, 47.61]), GPS_QUANTA_DEG) is None  # 2 decimals: no position
+    heights = np.array([40.0, 41.0, 43.0]) - 380.4  # whole metres above the sea, minus the ground's 380.4 m
+    assert detect_quantum(heights, HEIGHT_QUANTA_M) is None
+    assert detect_quantum(heights, HEIGHT_QUANTA_M, offset=True) == 1.0
+    assert detect_quantum(np.array([30.0, 31.0, 31.0]), HEIGHT_QUANTA_M, offset=True) is None  # one step: a climb?
+
+
+def test_a_latitude_made_continuous_stays_on_the_globe() -> None:
+    t = np.arange(0.0, 30.0, 1.0)
+    lat = np.round(np.minimum(89.999 + 6.0 * t / 111_320.0, 90.0), 4)  # flying north at 6 m/s to the pole, 4 decimals
+    out, quanta = dequantize_records(_records(t, lat, np.full(len(t), 9.06)))
+    assert quanta == {"lat": 1e-4} and all(-90.0 <= r.lat <= 90.0 for r in out)
