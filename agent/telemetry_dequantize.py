@@ -6,11 +6,12 @@ by 11 m (north) or 7 m (east at 48 N) in one frame, and every ground point of th
 The value written is the true one rounded, so while the UAV moves the true coordinate crosses the middle
 between two written levels at the moment the written value steps: the midpoint of a step, placed halfway
 between the two samples, is a measurement of the true position that is far better than either level.
-From each crossing the coordinate moves into the written level at the speed of the neighbouring steps and stops
-there (`dequantize`): steady motion comes out linear through the crossings, a UAV that stops or hovers keeps its
-written level once the ramp reaches it, and nothing is extrapolated past what the file says before the first and
-after the last step (an extrapolated slope put hovering flights up to a whole quantum off). Never more than half a
-quantum from what the file says; a UAV whose value never steps keeps its written level.
+Where the coordinate moves steadily (successive steps in one direction, a few seconds apart), it is taken linear
+through those crossings; everywhere else the written staircase is averaged over a few seconds (`dequantize`): a
+step followed by a hold (a survey line changed, a stop) becomes a short ramp and then the level written, a hover
+whose GPS noise flips the value about a level's edge comes out near that edge, a hover inside a level keeps it, and
+nothing is extrapolated at the ends. Never more than half a quantum from what the file says; a coordinate that never
+steps keeps its written level.
 
 The quantum is detected from the file itself: a coordinate is treated as quantised when every sample of
 the video is a multiple of 1e-3, 1e-4 or 1e-5 degrees (height: its steps multiples of 1 m or 0.5 m, whatever
@@ -69,65 +70,87 @@ def detect_quantum(values: NDArray, quanta: tuple[float, ...], *, offset: bool =
     return None
 
 
-#: An interval between two steps whose neighbour moved this many times faster is a hover or a stop (`dequantize`).
-SLOW_RATIO = 3.0
+#: Width of the moving average over the written staircase, seconds (`dequantize`).
+AVERAGE_S = 4.0
+#: An interval between two steps is steady motion when it passes through its level within this many seconds and a
+#: neighbouring interval does so in the same direction, within STEADY_RATIO of its time (`dequantize`).
+STEADY_MAX_S = 8.0
+STEADY_RATIO = 3.0
+
+
+def _moving_average(t: NDArray, x: NDArray, width_s: float) -> NDArray:
+    """The written staircase (each value held from halfway after the previous sample to halfway before the next)
+    averaged over a window of width_s seconds centred on each sample; the window shrinks symmetrically near the ends
+    of the data, so the first and last samples keep their values."""
+    n = len(t)
+    edges = np.concatenate([[t[0]], (t[1:] + t[:-1]) / 2.0, [t[-1]]])
+    area = np.concatenate([[0.0], np.cumsum(x * np.diff(edges))])  # the staircase's integral up to each edge
+
+    def integral(s: NDArray) -> NDArray:
+        i = np.clip(np.searchsorted(edges, s, side="right") - 1, 0, n - 1)
+        return area[i] + x[i] * (s - edges[i])
+
+    half = np.minimum(width_s / 2.0, np.minimum(t - t[0], t[-1] - t))
+    inside = half > 1e-9
+    out = x.copy()
+    out[inside] = (integral(t[inside] + half[inside]) - integral(t[inside] - half[inside])) / (2.0 * half[inside])
+    return out
 
 
 def dequantize(t: NDArray, x: NDArray, q: float) -> NDArray:
     """The continuous coordinate behind samples x (rounded to multiples of q) at their times t (increasing).
 
     Each step of the written value is a crossing of the middle between two levels, placed halfway between the two
-    samples that step. From each crossing the coordinate moves into the new level at the speed of its interval
-    (q over the time to the next crossing; where a neighbouring interval moved more than SLOW_RATIO times faster,
-    a hover or a stop, half that neighbour's speed) and stops at the written level: a sample takes the ramp of the
-    nearer crossing (in distance moved), so steady motion comes out linear through the crossings, a hover or a stop
-    holds the written level once the ramp gets there, and beyond the first and last crossing nothing is
-    extrapolated past what the file says. One crossing alone gives no speed: it is taken to last one sample
-    interval. Never more than q/2 from x; x itself where it never steps.
+    samples that step. Where the coordinate moves steadily (an interval between two crossings that passes through
+    its level within STEADY_MAX_S, beside another doing so in the same direction within STEADY_RATIO of its time),
+    it is linear through the crossings, and goes on at that speed into the levels before and after such a run until
+    it reaches the level written (where the UAV may have stopped). Everywhere else, the written staircase averaged
+    over AVERAGE_S seconds: a
+    step then a hold (a survey line changed, a stop) becomes a short ramp and the level written; a hover whose GPS
+    noise flips it about a level's edge comes out near that edge; a hover inside a level keeps it; nothing is
+    extrapolated at the ends. (Linear through every crossing, as before 30 Nov 2026, read a step followed by a hold
+    as a slow drift across the level, and a hover's noise flips as passes through it: worse than written.) Never
+    more than q/2 from x; x itself where it never steps.
     """
     t = np.asarray(t, dtype=np.float64)
     x = np.asarray(x, dtype=np.float64)
     steps = np.flatnonzero(x[1:] != x[:-1]) + 1
     if not len(steps):
         return x.copy()
+    out = _moving_average(t, x, AVERAGE_S)
     tau = (t[steps - 1] + t[steps]) / 2.0
     mid = (x[steps - 1] + x[steps]) / 2.0
-    n = len(tau)
-    # speed of each interval between crossings: the distance between its crossings (at least q: a return to the
-    # crossing it came from is taken as a pass through the level) over its time
-    gaps = np.diff(tau)
-    own = np.maximum(np.abs(np.diff(mid)), q) / np.maximum(gaps, 1e-9)
-    # a crossing's speed into the interval after it (`into_next`) and out of the interval before it (`from_prev`):
-    # the interval's own, or, where a neighbouring interval moved more than SLOW_RATIO times faster (a hover or a
-    # stop in this one), half of that neighbour's; with one crossing, one sample interval
-    if n >= 2:
-        faster_before = np.concatenate([[0.0], own[:-1]])  # the interval before each interval
-        faster_after = np.concatenate([own[1:], [0.0]])
-        neighbour = np.maximum(faster_before, faster_after)
-        interval_speed = np.where(neighbour > SLOW_RATIO * own, neighbour / 2.0, own)
-        into_next = np.concatenate([interval_speed, [interval_speed[-1]]])  # after the last crossing: its last
-        from_prev = np.concatenate([[interval_speed[0]], interval_speed])   # before the first: its first
-    else:
-        one = q / max(float(t[steps[0]] - t[steps[0] - 1]), 1e-9)
-        into_next = from_prev = np.array([one])
-    # per sample: the crossing before it (a) and after it (b), -1 / n where there is none
-    after = np.searchsorted(tau, t, side="right")
-    a, b = after - 1, after
-    out = x.copy()
-    half = q / 2.0
-    has_a, has_b = a >= 0, b < n
-    ia, ib = np.clip(a, 0, n - 1), np.clip(b, 0, n - 1)
-    # distance moved from each crossing into the written level, whose edge is half a quantum from it (a step over
-    # several levels: the crossing is beyond the edge, and the ramp starts at the edge)
-    moved_a = np.where(has_a, into_next[ia] * (t - tau[ia]), np.inf)
-    moved_b = np.where(has_b, from_prev[ib] * (tau[ib] - t), np.inf)
-    from_a = x + np.sign(mid[ia] - x) * np.maximum(np.minimum(np.abs(mid[ia] - x), half) - moved_a, 0.0)
-    from_b = x + np.sign(mid[ib] - x) * np.maximum(np.minimum(np.abs(mid[ib] - x), half) - moved_b, 0.0)
-    use_a = has_a & (~has_b | (moved_a <= moved_b))
-    use_b = has_b & ~use_a
-    out[use_a] = from_a[use_a]
-    out[use_b] = from_b[use_b]
-    return np.clip(out, x - half, x + half)
+    if len(tau) >= 3:
+        moved, took = np.diff(mid), np.diff(tau)
+        through = (np.abs(moved) >= q * (1.0 - 1e-6)) & (took > 0.0) & (took <= STEADY_MAX_S)
+        # neighbouring intervals that agree: both through-passes, one direction, times within STEADY_RATIO
+        agree = (through[:-1] & through[1:] & (np.sign(moved[:-1]) == np.sign(moved[1:]))
+                 & (took[:-1] <= STEADY_RATIO * took[1:]) & (took[1:] <= STEADY_RATIO * took[:-1]))
+        steady = np.zeros(len(took), dtype=bool)
+        steady[:-1] |= agree
+        steady[1:] |= agree
+        i = np.searchsorted(tau, t, side="right") - 1  # the interval each sample lies in (-1: before the first)
+        within = (i >= 0) & (i < len(took))
+        linear = within.copy()
+        linear[within] = steady[i[within]]
+        j = i[linear]
+        out[linear] = mid[j] + (t[linear] - tau[j]) * moved[j] / took[j]
+        # into the levels either side of a steady run: on at the run's speed from its first (last) crossing until
+        # the level written is reached, not past it (the UAV may have stopped there)
+        speed = np.abs(moved) / np.maximum(took, 1e-9)
+        for k in np.flatnonzero(steady & ~np.concatenate([[False], steady[:-1]])):  # a run's first interval
+            before = i == k - 1  # the level before crossing k
+            reach = np.minimum(speed[k] * (tau[k] - t[before]), np.abs(x[before] - mid[k]))
+            ramp = reach < np.abs(x[before] - mid[k])
+            idx = np.flatnonzero(before)[ramp]
+            out[idx] = mid[k] + np.sign(x[idx] - mid[k]) * reach[ramp]
+        for k in np.flatnonzero(steady & ~np.concatenate([steady[1:], [False]])):  # a run's last interval
+            after = i == k + 1  # the level after crossing k + 1
+            reach = np.minimum(speed[k] * (t[after] - tau[k + 1]), np.abs(x[after] - mid[k + 1]))
+            ramp = reach < np.abs(x[after] - mid[k + 1])
+            idx = np.flatnonzero(after)[ramp]
+            out[idx] = mid[k + 1] + np.sign(x[idx] - mid[k + 1]) * reach[ramp]
+    return np.clip(out, x - q / 2.0, x + q / 2.0)
 
 
 def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, float]]:
