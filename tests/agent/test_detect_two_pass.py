@@ -93,8 +93,8 @@ def test_max_frames_stops_both_passes_and_the_spool_is_closed(flight, tmp_path):
     summary = run_detect(source, tmp_path / "out", options=DetectOptions(max_frames=17),
                          progress=lambda done, total: calls.append((done, total)))
     assert summary["frames"] == 17 and summary["two_pass"] is True
-    # pass one read 17 frames (the detector ran on no more), pass two ran on them
-    assert [done for done, _ in calls] == [*range(1, 18), *range(1, 18)]
+    # pass one read 17 frames (the detector ran on no more), pass two (announced with 0 done) ran on them
+    assert [done for done, _ in calls] == [*range(1, 18), 0, *range(1, 18)]
     assert all(total == 17 for _, total in calls)
     images = json.loads((tmp_path / "out" / "images.json").read_text())["images"]
     assert [im["frame_index"] for im in images] == list(range(17))
