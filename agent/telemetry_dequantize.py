@@ -158,7 +158,8 @@ def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, f
     made continuous.
 
     Returns the track (the same object when nothing is quantised) and the quanta found per coordinate
-    ({} when none): the stage acts only where every sample of a coordinate sits on one quantum's grid.
+    ({} when none): the stage acts only where every sample of a coordinate sits on one quantum's grid (height: its
+    steps, `detect_quantum`).
     """
     if len(track) < 2:
         return track, {}

@@ -57,7 +57,7 @@ class VideoFrames:
     the file tells (KLV in a transport stream, by its PTS), else where the log starts recording (AirData's
     isVideo), else the first record's time (`agent.sources.video_start_time`, as the video source of agent and detect).
 
-    GPS written with 4 or 5 decimals and altitude in whole or half metres are made continuous when dequantize
+    GPS written with 3 to 5 decimals and altitude in whole or half metres are made continuous when dequantize
     (`agent.sources.dequantized`, as the detector's video source does).
 
     Checked at construction, each a one-line ValueError: the video opens and has frames, the camera's aspect
