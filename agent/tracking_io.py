@@ -257,6 +257,21 @@ def video_name(dataset: Dataset, video_id: int) -> str:
     return f"video{video_id}"
 
 
+def output_names(dataset: Dataset, video_ids: list[int]) -> dict[int, str]:
+    """`video_name` of each video, told apart where two would give one file name (``a b`` and ``a_b``, or ``A`` and
+    ``a`` on a case-insensitive file system): those get ``_video<id>`` appended, and a warning names them."""
+    names = {v: video_name(dataset, v) for v in video_ids}
+    seen: dict[str, list[int]] = {}
+    for v, name in names.items():
+        seen.setdefault(name.casefold(), []).append(v)
+    for same in (ids for ids in seen.values() if len(ids) > 1):
+        log.warning("videos %s have names that make one file name (%s): each gets _video<id> appended",
+                    ", ".join(str(v) for v in same), names[same[0]])
+        for v in same:
+            names[v] = f"{names[v]}_video{v}"
+    return names
+
+
 def mot_output_paths(out: str | Path, dataset: Dataset, video_ids: list[int]) -> dict[int, Path]:
     """Where each video's MOT file goes (see docs/tracking.md).
 
@@ -264,15 +279,18 @@ def mot_output_paths(out: str | Path, dataset: Dataset, video_ids: list[int]) ->
       video (the MOTChallenge / TrackEval layout);
     - else `out` is a file: with one video, that file; with several, one file per video beside it,
       ``<stem>_<video name><suffix>``.
+
+    Two videos whose names make one file name get ``_video<id>`` appended (`output_names`).
     """
     text = str(out)
     path = Path(out)
+    names = output_names(dataset, video_ids)
     if path.is_dir() or text.endswith(("/", os.sep)):
-        return {v: path / f"{video_name(dataset, v)}.txt" for v in video_ids}
+        return {v: path / f"{names[v]}.txt" for v in video_ids}
     if len(video_ids) == 1:
         return {video_ids[0]: path}
     suffix = path.suffix or ".txt"
-    return {v: path.with_name(f"{path.stem}_{video_name(dataset, v)}{suffix}") for v in video_ids}
+    return {v: path.with_name(f"{path.stem}_{names[v]}{suffix}") for v in video_ids}
 
 
 def check_writable(path: str | Path, *, create_dir: bool = False) -> None:

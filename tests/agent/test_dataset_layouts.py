@@ -211,3 +211,19 @@ def test_the_real_dev_file_keeps_its_video_ids_names_and_output_files(caplog):
     assert ds.video_names == dict(enumerate(names, start=1)) and list(ds.videos) == list(range(1, 9))
     assert [p.name for p in mot_output_paths("out/tracks.txt", ds, list(ds.videos)).values()] == [
         f"tracks_{n}.txt" for n in names]
+
+
+def test_videos_whose_names_make_one_file_name_get_their_ids_appended(tmp_path, caplog):
+    """Before: `a b` and `a_b` (and `A` / `a` on a case-insensitive file system) wrote one MOT file, the second
+    video's tracks over the first's."""
+    images = [_flight_log_image(k, name, 15 * k, k) for name in ("a b", "a_b", "c") for k in range(2)]
+    for i, im in enumerate(images):
+        im["id"] = i
+    ds = Dataset.from_dict(_coco(images))
+    ids = {ds.video_names[v]: v for v in ds.videos}
+    with caplog.at_level(logging.WARNING, logger="agent.tracking_io"):
+        paths = mot_output_paths(f"{tmp_path}/out/", ds, list(ds.videos))
+    assert sorted(p.name for p in paths.values()) == sorted(
+        [f"a_b_video{ids['a b']}.txt", f"a_b_video{ids['a_b']}.txt", "c.txt"])
+    assert "make one file name (a_b)" in caplog.text
+    assert len({p.name.casefold() for p in mot_output_paths(tmp_path / "t.txt", ds, list(ds.videos)).values()}) == 3
