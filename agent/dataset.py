@@ -20,7 +20,7 @@ from agent.candidates import Candidates  # noqa: F401  (re-exported: agent.datas
 from agent.field_of_view import ZoomedCamera
 from agent.json_files import read_json
 from agent.telemetry_clock import ClockReport, TelemetryClockSettings, TelemetryTrack, reconcile_clock
-from agent.telemetry_dequantize import dequantize_track
+from agent.telemetry_dequantize import DEQUANTIZE_OFF, dequantize_track
 from shared.files import listed_names
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
@@ -361,6 +361,8 @@ class VideoTelemetry:
     at_frame_time: bool = False
     #: informative windows the clock-offset estimate found (agent.clock_offset; 0 when it did not run)
     offset_windows: int = 0
+    #: why the dequantisation did not run ("" when it ran): a switch turned it off
+    dequantize_off: str = ""
     #: view cuts (agent.view_cuts): telemetry intervals turning sharply enough to hide one, the cuts placed and the
     #: intervals with too few frames to judge; None when the stage did not run
     view_cuts: tuple[int, int, int] | None = None
@@ -448,6 +450,8 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         zone = info.clock.zone_offset_s
         if dequantize and at_frame_time:
             track, info.quanta = dequantize_track(track)
+        else:
+            info.dequantize_off = DEQUANTIZE_OFF if not dequantize else "off: each frame keeps the sample it carries"
     # The frame's own clock first (telemetry at 10 Hz repeats its time for 3 frames at 30 fps), else its telemetry
     # stamp moved onto the frame clock; such times at whole seconds that repeat are spread over their second in frame
     # order, as a log's rows are (the frames of one second shared a time: a zero step, no memory evidence, one pose)

@@ -4,6 +4,7 @@ part (boosting with it and the detections it adds).
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import numbers
 from dataclasses import dataclass, field
@@ -328,8 +329,10 @@ class PipelineConfig:
                 allowed = (f"in {'(' if low_open else '['}{low:g}, {high:g}]" if math.isfinite(high)
                            else f"{'>' if low_open else '>='} {low:g}")
                 raise ValueError(f"{name} must be a number {allowed}, got {value!r}")
-        if not isinstance(self.joint_register_boost, bool):
-            raise ValueError(f"joint_register_boost must be true or false, got {self.joint_register_boost!r}")
+        for f in dataclasses.fields(self):  # every switch: a JSON "false" (a string) would be truthy, so on
+            value = getattr(self, f.name)
+            if f.type == "bool" and not isinstance(value, bool):
+                raise ValueError(f"{f.name} must be true or false, got {value!r}")
         for name in ("joint_register_min_pairs", "joint_register_candidates", "joint_carry_min_sightings"):
             if not isinstance(getattr(self, name), int):
                 raise ValueError(f"{name} must be an integer, got {getattr(self, name)!r}")

@@ -455,6 +455,7 @@ class VideoSource:
         self.records.sort(key=lambda r: r.t)
         #: the quanta made continuous per coordinate ({}: none found), None when not looked for
         self.quanta: dict[str, float] | None = None
+        self._dequantize_off = not dequantize and not live  # a file whose dequantisation was turned off
         if dequantize and not live:
             self.records, self.quanta = dequantized(self.records, telemetry)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
@@ -550,10 +551,12 @@ class VideoSource:
         return TelemetryTrack(np.array(t), np.array(rows)) if len(t) >= 2 else None
 
     def stage_reports(self) -> list[StageReport]:
-        """What reading the telemetry file did, as stage reports (`agent.stage_report`): the dequantisation, when it
-        ran."""
-        from agent.telemetry_dequantize import dequantize_report
+        """What reading the telemetry file did, as stage reports (`agent.stage_report`): the dequantisation (for a
+        telemetry file; "off" when turned off; nothing for a live stream)."""
+        from agent.telemetry_dequantize import DEQUANTIZE_OFF, dequantize_report
 
+        if self._dequantize_off:
+            return [dequantize_report({}, DEQUANTIZE_OFF)]
         return [] if self.quanta is None else [dequantize_report(self.quanta)]
 
     def images(self) -> Iterator[tuple[int, NDArray[np.uint8]]]:

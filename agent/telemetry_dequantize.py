@@ -34,14 +34,16 @@ from agent.stage_report import StageReport
 from agent.telemetry_clock import TelemetryTrack
 from shared.telemetry import Telemetry
 
-__all__ = ["GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records", "dequantize_report",
-           "dequantize_track", "detect_quantum"]
+__all__ = ["DEQUANTIZE_OFF", "GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records",
+           "dequantize_report", "dequantize_track", "detect_quantum"]
 
 #: Quanta tried, coarsest first: 3, 4 and 5 decimals of a degree (6 decimals, 0.11 m, is left alone; 2 decimals,
 #: 1.1 km, is no position: `detect_quantum` stands down).
 GPS_QUANTA_DEG = (1e-3, 1e-4, 1e-5)
 #: Altitude steps tried: whole and half metres.
 HEIGHT_QUANTA_M = (1.0, 0.5)
+#: The stage report's reason when the switch turned it off (`dequantize_report`).
+DEQUANTIZE_OFF = "off (dequantize_telemetry false)"
 
 
 def detect_quantum(values: NDArray, quanta: tuple[float, ...], *, offset: bool = False) -> float | None:
@@ -226,8 +228,10 @@ def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[
     return out, quanta
 
 
-def dequantize_report(quanta: dict[str, float]) -> StageReport:
+def dequantize_report(quanta: dict[str, float], off: str = "") -> StageReport:
     """What the dequantisation found in one video (`dequantize_track`'s or `dequantize_records`' quanta) as a stage
-    report."""
+    report; off: why it did not run (e.g. DEQUANTIZE_OFF), "" when it ran."""
+    if off:
+        return StageReport("dequantize", False, off)
     return StageReport("dequantize", bool(quanta),
                        ", ".join(f"{k} {v:g}" for k, v in quanta.items()) or "no quantised coordinate")

@@ -258,18 +258,22 @@ def video_name(dataset: Dataset, video_id: int) -> str:
 
 
 def output_names(dataset: Dataset, video_ids: list[int]) -> dict[int, str]:
-    """`video_name` of each video, told apart where two would give one file name (``a b`` and ``a_b``, or ``A`` and
-    ``a`` on a case-insensitive file system): those get ``_video<id>`` appended, and a warning names them."""
+    """`video_name` of each video, told apart where two would give one file name (``a b`` and ``a_b``; ``A`` and ``a``
+    too, which a case-insensitive file system takes for one): those get ``_video<id>`` appended, and a warning names
+    them."""
     names = {v: video_name(dataset, v) for v in video_ids}
-    seen: dict[str, list[int]] = {}
-    for v, name in names.items():
-        seen.setdefault(name.casefold(), []).append(v)
-    for same in (ids for ids in seen.values() if len(ids) > 1):
-        log.warning("videos %s have names that make one file name (%s): each gets _video<id> appended",
-                    ", ".join(str(v) for v in same), names[same[0]])
-        for v in same:
-            names[v] = f"{names[v]}_video{v}"
-    return names
+    while True:  # again after appending: a third video may be named like a renamed one (`a_b_video0`)
+        seen: dict[str, list[int]] = {}
+        for v, name in names.items():
+            seen.setdefault(name.casefold(), []).append(v)
+        clashes = [ids for ids in seen.values() if len(ids) > 1]
+        if not clashes:
+            return names
+        for same in clashes:
+            log.warning("videos %s have names that make one file name (%s): each gets _video<id> appended",
+                        ", ".join(str(v) for v in same), names[same[0]])
+            for v in same:
+                names[v] = f"{names[v]}_video{v}"
 
 
 def mot_output_paths(out: str | Path, dataset: Dataset, video_ids: list[int]) -> dict[int, Path]:

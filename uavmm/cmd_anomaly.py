@@ -65,8 +65,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--heading-deg", type=float, default=None,
                    help="--video: fixed gimbal heading if telemetry lacks it")
     p.add_argument("--telemetry-as-written", action="store_true",
-                   help="--video: keep GPS written with 3-5 decimals and altitude in whole metres as the file has "
-                        "them (default: made continuous, docs/detect.md)")
+                   help="--video: keep GPS written with 3-5 decimals and altitude in whole or half metres as the "
+                        "file has them (default: made continuous, docs/detect.md)")
     p.add_argument("--quiet", action="store_true", help="no progress on stderr")
     add_terrain_options(p)
     p.set_defaults(handler=run_anomaly)

@@ -227,3 +227,10 @@ def test_videos_whose_names_make_one_file_name_get_their_ids_appended(tmp_path, 
         [f"a_b_video{ids['a b']}.txt", f"a_b_video{ids['a_b']}.txt", "c.txt"])
     assert "make one file name (a_b)" in caplog.text
     assert len({p.name.casefold() for p in mot_output_paths(tmp_path / "t.txt", ds, list(ds.videos)).values()}) == 3
+    # a third video named as a renamed one would be: told apart again
+    images += [_flight_log_image(10 + k, f"a_b_video{ids['a b']}", 15 * k, k) for k in range(2)]
+    for i, im in enumerate(images):
+        im["id"] = i
+    ds = Dataset.from_dict(_coco(images))
+    names = [p.name.casefold() for p in mot_output_paths(f"{tmp_path}/out/", ds, list(ds.videos)).values()]
+    assert len(set(names)) == len(names) == 4

@@ -70,7 +70,7 @@ def test_four_decimal_gps_is_made_continuous_and_the_frames_land_nearer_the_trut
     off = _detect(flight, tmp_path / "off", "--config", str(params))
     assert on["stages"]["dequantize"] == {"acted": 1, "stood_down": 0, "why": {"lat 0.0001, lon 0.0001": 1}}
     assert "dequantize: acted 1" in printed
-    assert "dequantize" not in off["stages"]
+    assert off["stages"]["dequantize"]["why"] == {"off (dequantize_telemetry false)": 1}
     on_err, off_err = _position_errors(flight, tmp_path / "on"), _position_errors(flight, tmp_path / "off")
     # as written, each level holds: up to half a step (5.6 m north) off; made continuous, the steps are interpolated
     # through (seed 0 on this VM: mean 2.41 -> 1.22 m, max 5.71 -> 3.34 m)
@@ -180,3 +180,16 @@ def test_anomaly_video_can_keep_the_telemetry_as_written(flight, tmp_path, capsy
     assert main(["anomaly", "--frames", str(frames), "--camera", str(flight.camera), "--telemetry-as-written",
                  "--out", str(tmp_path / "r2.json")]) == 2
     assert "--telemetry-as-written goes with --video" in capsys.readouterr().err
+
+
+def test_a_switch_written_as_a_string_is_refused_and_a_switched_off_stage_says_so(flight, tmp_path, capsys):
+    # the walk-through's case: {"dequantize_telemetry": "false"} was taken as on (a non-empty string is truthy)
+    params = tmp_path / "params.json"
+    params.write_text(json.dumps({"dequantize_telemetry": "false"}))
+    assert main(["detect", str(flight.video), "--telemetry", str(flight.srt), "--model", str(flight.model),
+                 "--camera", str(flight.camera), "--pitch-deg", "60", "--heading-deg", "45", "--out",
+                 str(tmp_path / "x"), "--config", str(params)]) == 2
+    assert "dequantize_telemetry must be true or false, got 'false'" in capsys.readouterr().err
+    params.write_text(json.dumps({"dequantize_telemetry": False}))
+    off = _detect(flight, tmp_path / "off", "--config", str(params))
+    assert off["stages"]["dequantize"] == {"acted": 0, "stood_down": 1, "why": {"off (dequantize_telemetry false)": 1}}

@@ -11,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from agent.dataset import Dataset, VideoTelemetry, iter_video_frames
+from agent.file_frames import telemetry_reports
 from agent.telemetry_clock import TelemetryTrack
 from agent.telemetry_dequantize import (
     GPS_QUANTA_DEG,
@@ -104,8 +105,14 @@ def test_dataset_frames_get_dequantised_positions_between_the_samples() -> None:
     lats = np.array([f.pose.lat for f in frames if f.pose is not None])
     truth = 47.59983 + 2.0e-5 * np.arange(40)
     assert np.abs(lats - truth)[5:-5].max() < 0.3e-4  # the rounded values err by up to 0.5e-4
-    plain = list(iter_video_frames(ds, CAMERA, 1))
+    plain_report = VideoTelemetry()
+    plain = list(iter_video_frames(ds, CAMERA, 1, report=plain_report))
     assert all(f.pose is not None and round(f.pose.lat, 4) == f.pose.lat for f in plain)
+    # the stage reports say which: acted, or turned off (not "no quantised coordinate", as until 30 Nov 2026)
+    stage = {r.stage: r for r in telemetry_reports(report, None)}["dequantize"]
+    assert (stage.acted, stage.why) == (True, "lat 0.0001")
+    stage = {r.stage: r for r in telemetry_reports(plain_report, None)}["dequantize"]
+    assert (stage.acted, stage.why) == (False, "off (dequantize_telemetry false)")
 
 
 # ------------------------------------------------------------------------------------------------------------------
