@@ -49,7 +49,8 @@ DEQUANTIZE_OFF = "off (dequantize_telemetry false)"
 def detect_quantum(values: NDArray, quanta: tuple[float, ...], *, offset: bool = False) -> float | None:
     """The coarsest quantum of which every value is a multiple (to 1e-6 of it), None when none is, when fewer than
     two distinct values were written, or when they all sit on a grid ten times coarser than the coarsest quantum
-    (GPS with 2 decimals, 1.1 km: no position to make continuous). offset: the values may carry a constant added
+    (GPS with 2 decimals, 1.1 km: no position to make continuous), or when two distinct values alone are not one
+    quantum apart. offset: the values may carry a constant added
     after the rounding (`--height-offset-m`): the differences between the distinct values are judged instead, and
     at least three distinct values are needed."""
     v = np.asarray(values, dtype=np.float64).reshape(-1)
@@ -68,6 +69,10 @@ def detect_quantum(values: NDArray, quanta: tuple[float, ...], *, offset: bool =
         return None
     for q in quanta:
         if on_grid(q):
+            # two values alone sit on a ten times coarser grid by chance once in a hundred: only one step apart
+            # do they say that step (a 5-decimal log that jumped 3e-4 is no 4-decimal one)
+            if len(distinct) == 2 and abs(abs(float(distinct[1] - distinct[0])) / q - 1.0) > 1e-6:
+                return None
             return q
     return None
 
