@@ -25,6 +25,7 @@ from numpy.typing import NDArray
 
 from agent.boxes import nms
 from agent.dataset import Candidates, Dataset, Frame, PoseProblem, VideoTelemetry, iter_video_frames
+from agent.telemetry_dequantize import describe_quanta
 from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, pixel_to_local
 
 __all__ = ["ClockOffset", "ClockOffsetEstimator", "ClockOffsetSettings", "HeadingTrack", "retime_frames",
@@ -422,8 +423,7 @@ def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Ca
     frames = list(iter_video_frames(dataset, camera, video_id, problems=problems, dequantize=dequantize,
                                     at_frame_time=at_frame_time, report=info))
     if info.quanta:
-        log.info("video %s: quantised telemetry (%s) made continuous", video_id,
-                 ", ".join(f"{k} {v:g}" for k, v in info.quanta.items()))
+        log.info("video %s: quantised telemetry (%s) made continuous", video_id, describe_quanta(info.quanta))
     if settings is None:
         return [(f, None) for f in frames]
     windows: list[int] = []

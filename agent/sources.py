@@ -302,12 +302,11 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
 def dequantized(records: list[Telemetry], telemetry: str | Path) -> tuple[list[Telemetry], dict[str, float]]:
     """`agent.telemetry_dequantize.dequantize_records` on a video's records (sorted by time), logged when it acts.
     telemetry: the file's name for the log line."""
-    from agent.telemetry_dequantize import dequantize_records
+    from agent.telemetry_dequantize import dequantize_records, describe_quanta
 
     records, quanta = dequantize_records(records)
     if quanta:
-        log.info("telemetry %s: quantised %s made continuous", telemetry,
-                 ", ".join(f"{k} ({v:g})" for k, v in quanta.items()))
+        log.info("telemetry %s: quantised %s made continuous", telemetry, describe_quanta(quanta))
     return records, quanta
 
 
@@ -455,7 +454,6 @@ class VideoSource:
         self.records.sort(key=lambda r: r.t)
         #: the quanta made continuous per coordinate ({}: none found), None when not looked for
         self.quanta: dict[str, float] | None = None
-        self._dequantize_off = not dequantize and not live  # a file whose dequantisation was turned off
         if dequantize and not live:
             self.records, self.quanta = dequantized(self.records, telemetry)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
@@ -555,9 +553,9 @@ class VideoSource:
         telemetry file; "off" when turned off; nothing for a live stream)."""
         from agent.telemetry_dequantize import DEQUANTIZE_OFF, dequantize_report
 
-        if self._dequantize_off:
-            return [dequantize_report({}, DEQUANTIZE_OFF)]
-        return [] if self.quanta is None else [dequantize_report(self.quanta)]
+        if self.feed is not None:
+            return []
+        return [dequantize_report({}, DEQUANTIZE_OFF) if self.quanta is None else dequantize_report(self.quanta)]
 
     def images(self) -> Iterator[tuple[int, NDArray[np.uint8]]]:
         """Decode the video again, without the detector: (frame index, image) as `frames` numbers them."""

@@ -35,7 +35,7 @@ from agent.telemetry_clock import TelemetryTrack
 from shared.telemetry import Telemetry
 
 __all__ = ["DEQUANTIZE_OFF", "GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records",
-           "dequantize_report", "dequantize_track", "detect_quantum"]
+           "dequantize_report", "dequantize_track", "describe_quanta", "detect_quantum"]
 
 #: Quanta tried, coarsest first: 3, 4 and 5 decimals of a degree (6 decimals, 0.11 m, is left alone; 2 decimals,
 #: 1.1 km, is no position: `detect_quantum` stands down).
@@ -145,19 +145,28 @@ def dequantize(t: NDArray, x: NDArray, q: float) -> NDArray:
         # into the levels either side of a steady run: on at the run's speed from its first (last) crossing until
         # the level written is reached, not past it (the UAV may have stopped there)
         speed = np.abs(moved) / np.maximum(took, 1e-9)
-        for k in np.flatnonzero(steady & ~np.concatenate([[False], steady[:-1]])):  # a run's first interval
-            before = i == k - 1  # the level before crossing k
-            reach = np.minimum(speed[k] * (tau[k] - t[before]), np.abs(x[before] - mid[k]))
-            ramp = reach < np.abs(x[before] - mid[k])
-            idx = np.flatnonzero(before)[ramp]
-            out[idx] = mid[k] + np.sign(x[idx] - mid[k]) * reach[ramp]
-        for k in np.flatnonzero(steady & ~np.concatenate([steady[1:], [False]])):  # a run's last interval
-            after = i == k + 1  # the level after crossing k + 1
-            reach = np.minimum(speed[k] * (t[after] - tau[k + 1]), np.abs(x[after] - mid[k + 1]))
-            ramp = reach < np.abs(x[after] - mid[k + 1])
-            idx = np.flatnonzero(after)[ramp]
-            out[idx] = mid[k + 1] + np.sign(x[idx] - mid[k + 1]) * reach[ramp]
+
+        def ramp(level: int, crossing: int, run: int) -> None:
+            """The samples of interval `level` (-1: before the first crossing) from `crossing` at run's speed."""
+            idx = np.flatnonzero(i == level)
+            edge = np.abs(x[idx] - mid[crossing])
+            reach = speed[run] * np.abs(t[idx] - tau[crossing])
+            on = reach < edge
+            out[idx[on]] = mid[crossing] + np.sign(x[idx[on]] - mid[crossing]) * reach[on]
+
+        for k in np.flatnonzero(steady & ~np.concatenate([[False], steady[:-1]])).tolist():  # a run's first
+            ramp(k - 1, k, k)
+        for k in np.flatnonzero(steady & ~np.concatenate([steady[1:], [False]])).tolist():  # a run's last
+            ramp(k + 1, k + 1, k)
     return np.clip(out, x - q / 2.0, x + q / 2.0)
+
+
+def _quantum_of(name: str, values: NDArray) -> float | None:
+    """`detect_quantum` of one coordinate: lat / lon on GPS_QUANTA_DEG, height on HEIGHT_QUANTA_M by its steps (an
+    offset such as `--height-offset-m` may have been added after the rounding)."""
+    if name == "height_m":
+        return detect_quantum(values, HEIGHT_QUANTA_M, offset=True)
+    return detect_quantum(values, GPS_QUANTA_DEG)
 
 
 def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, float]]:
@@ -174,8 +183,7 @@ def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, f
     out = track
     for name in ("lat", "lon", "height_m"):
         values = track.column(name)
-        q = (detect_quantum(values, HEIGHT_QUANTA_M, offset=True) if name == "height_m"
-             else detect_quantum(values, GPS_QUANTA_DEG))
+        q = _quantum_of(name, values)
         if q is None:
             continue
         quanta[name] = q
@@ -213,8 +221,7 @@ def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[
     quanta: dict[str, float] = {}
     fixed_values: dict[str, NDArray] = {}
     for name, values in columns.items():
-        q = (detect_quantum(values[first], HEIGHT_QUANTA_M, offset=True) if name == "height_m"  # --height-offset-m
-             else detect_quantum(values[first], GPS_QUANTA_DEG))
+        q = _quantum_of(name, values[first])
         if q is None:
             continue
         quanta[name] = q
@@ -238,5 +245,9 @@ def dequantize_report(quanta: dict[str, float], off: str = "") -> StageReport:
     report; off: why it did not run (e.g. DEQUANTIZE_OFF), "" when it ran."""
     if off:
         return StageReport("dequantize", False, off)
-    return StageReport("dequantize", bool(quanta),
-                       ", ".join(f"{k} {v:g}" for k, v in quanta.items()) or "no quantised coordinate")
+    return StageReport("dequantize", bool(quanta), describe_quanta(quanta) or "no quantised coordinate")
+
+
+def describe_quanta(quanta: dict[str, float]) -> str:
+    """The quanta found, as the stage reports, logs and `uavmm anomaly` print them: ``lat 0.0001, lon 0.0001``."""
+    return ", ".join(f"{k} {v:g}" for k, v in quanta.items())

@@ -109,6 +109,7 @@ def run_anomaly(args: argparse.Namespace) -> int:
     from agent.anomaly import ANOMALY_CLASS, AnomalyDetector
     from agent.anomaly.frames import VideoFrames, dataset_frames
     from agent.boost import StreamedResults
+    from agent.telemetry_dequantize import describe_quanta
     from shared.geo import Camera
 
     if args.video is not None and args.telemetry is None:
@@ -172,7 +173,7 @@ def run_anomaly(args: argparse.Namespace) -> int:
     seconds = time.perf_counter() - started
     mode = ("per-frame" if args.no_memory else "memory map") + (f", terrain {args.dem.name}" if args.dem else "")
     quanta = video_frames.quanta if video_frames is not None else None  # the telemetry file's GPS steps
-    continuous = f"; {', '.join(f'{k} {v:g}' for k, v in quanta.items())} made continuous" if quanta else ""
+    continuous = f"; {describe_quanta(quanta)} made continuous" if quanta else ""
     print(f"wrote {spool.count} regions of interest for {n} frames to {args.out} ({args.method}, {mode}; "
           f"{without_pose} frames without telemetry{continuous}; {n / max(seconds, 1e-9):.1f} frames/s)")
     return 0
