@@ -422,8 +422,8 @@ def video_frames(dataset: Dataset, camera: Camera, video_id: int, candidates: Ca
     info = report if report is not None else VideoTelemetry()
     frames = list(iter_video_frames(dataset, camera, video_id, problems=problems, dequantize=dequantize,
                                     at_frame_time=at_frame_time, report=info))
-    if info.quanta:
-        log.info("video %s: quantised telemetry (%s) made continuous", video_id, describe_quanta(info.quanta))
+    if info.quanta or info.holds:
+        log.info("video %s: telemetry (%s) made continuous", video_id, describe_quanta(info.quanta, info.holds))
     if settings is None:
         return [(f, None) for f in frames]
     windows: list[int] = []

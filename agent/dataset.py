@@ -352,12 +352,14 @@ def count_reasons(problems: Iterable[PoseProblem]) -> dict[str, int]:
 @dataclass
 class VideoTelemetry:
     """What reading one video's telemetry found and did: the pitch convention of its meta, the clock stage's
-    report (agent.telemetry_clock), the quanta made continuous (agent.telemetry_dequantize), and whether
-    poses were interpolated at the frames' times."""
+    report (agent.telemetry_clock), the quanta made continuous and the coordinates held between updates interpolated
+    (agent.telemetry_dequantize), and whether poses were interpolated at the frames' times."""
 
     pitch_convention: str = "depression"
     clock: ClockReport = field(default_factory=ClockReport)
     quanta: dict[str, float] = field(default_factory=dict)
+    #: coordinates held between regular updates: their update period, seconds (agent.telemetry_holds)
+    holds: dict[str, float] = field(default_factory=dict)
     at_frame_time: bool = False
     #: informative windows the clock-offset estimate found (agent.clock_offset; 0 when it did not run)
     offset_windows: int = 0
@@ -449,7 +451,7 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         track, info.clock = reconcile_clock(frame_t, stamps, values, own_clock, clock)
         zone = info.clock.zone_offset_s
         if dequantize and at_frame_time:
-            track, info.quanta = dequantize_track(track)
+            track, info.quanta, info.holds = dequantize_track(track)
         else:
             info.dequantize_off = DEQUANTIZE_OFF if not dequantize else "off: each frame keeps the sample it carries"
     # The frame's own clock first (telemetry at 10 Hz repeats its time for 3 frames at 30 fps), else its telemetry

@@ -81,7 +81,7 @@ def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings
             out.append(StageReport("telemetry at frame time", clock.samples >= 2,
                                    f"interpolated between the telemetry's samples{whole}{held}"
                                    if clock.samples >= 2 else "one telemetry sample"))
-        out.append(dequantize_report(info.quanta, info.dequantize_off))
+        out.append(dequantize_report(info.quanta, info.dequantize_off, info.holds))
         out += look_ahead_reports(info, offset_settings)
     return out
 

@@ -299,15 +299,16 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     return records, video_start_t
 
 
-def dequantized(records: list[Telemetry], telemetry: str | Path) -> tuple[list[Telemetry], dict[str, float]]:
-    """`agent.telemetry_dequantize.dequantize_records` on a video's records (sorted by time), logged when it acts.
-    telemetry: the file's name for the log line."""
+def dequantized(records: list[Telemetry], telemetry: str | Path
+                ) -> tuple[list[Telemetry], dict[str, float], dict[str, float]]:
+    """`agent.telemetry_dequantize.dequantize_records` on a video's records (sorted by time), logged when it acts:
+    (records, quanta, holds). telemetry: the file's name for the log line."""
     from agent.telemetry_dequantize import dequantize_records, describe_quanta
 
-    records, quanta = dequantize_records(records)
-    if quanta:
-        log.info("telemetry %s: quantised %s made continuous", telemetry, describe_quanta(quanta))
-    return records, quanta
+    records, quanta, holds = dequantize_records(records)
+    if quanta or holds:
+        log.info("telemetry %s: %s made continuous", telemetry, describe_quanta(quanta, holds))
+    return records, quanta, holds
 
 
 def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemetry_offset_s: float | None = None,
@@ -452,10 +453,12 @@ class VideoSource:
                 raise
             log.info("telemetry %s: live MAVLink, first record at t=%.3f", telemetry, self.records[0].t)
         self.records.sort(key=lambda r: r.t)
-        #: the quanta made continuous per coordinate ({}: none found), None when not looked for
+        #: the quanta made continuous per coordinate ({}: none found), None when not looked for; the coordinates
+        #: held between updates, interpolated: their update periods (seconds)
         self.quanta: dict[str, float] | None = None
+        self.holds: dict[str, float] = {}
         if dequantize and not live:
-            self.records, self.quanta = dequantized(self.records, telemetry)
+            self.records, self.quanta, self.holds = dequantized(self.records, telemetry)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.telemetry_offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,
                                                    video_start_t=video_start_t)
@@ -555,7 +558,9 @@ class VideoSource:
 
         if self.feed is not None:
             return []
-        return [dequantize_report({}, DEQUANTIZE_OFF) if self.quanta is None else dequantize_report(self.quanta)]
+        if self.quanta is None:
+            return [dequantize_report({}, DEQUANTIZE_OFF)]
+        return [dequantize_report(self.quanta, holds=self.holds)]
 
     def images(self) -> Iterator[tuple[int, NDArray[np.uint8]]]:
         """Decode the video again, without the detector: (frame index, image) as `frames` numbers them."""

@@ -20,6 +20,10 @@ ten times coarser (2 decimals: no position); otherwise the poses are left alone.
 frame, so it is for files (`uavmm boost`, `uavmm track`, `uavmm tune`, the evaluations; `dequantize_records`
 for a video's telemetry file, read whole before its first frame by `uavmm detect`, `uavmm agent --video` and
 `uavmm anomaly --video`), not for a live feed. Arrays in, arrays out (records in, records out).
+
+A coordinate that is not quantised but held between regular updates (a 1 Hz GPS repeated in a record per frame) is
+taken linear between its updates in the same stage (agent.telemetry_holds); the stage reports both
+(`describe_quanta`: ``lat 0.0001`` or ``lat held 1 s``), and one switch (`dequantize_telemetry`) turns both off.
 """
 
 from __future__ import annotations
@@ -32,6 +36,7 @@ from numpy.typing import NDArray
 
 from agent.stage_report import StageReport
 from agent.telemetry_clock import TelemetryTrack
+from agent.telemetry_holds import detect_hold, interpolate_holds
 from shared.telemetry import Telemetry
 
 __all__ = ["DEQUANTIZE_OFF", "GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records",
@@ -169,44 +174,60 @@ def _quantum_of(name: str, values: NDArray) -> float | None:
     return detect_quantum(values, GPS_QUANTA_DEG)
 
 
-def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, float]]:
-    """One video's telemetry samples (agent.telemetry_clock) with quantised latitude, longitude and height
-    made continuous.
+def _continuous(name: str, t: NDArray, values: NDArray, quanta: dict[str, float],
+                holds: dict[str, float]) -> NDArray | None:
+    """One coordinate's values made continuous (None: left as written), recording what was found: its quantum
+    (`dequantize`), else the period it is held for between updates (agent.telemetry_holds)."""
+    q = _quantum_of(name, values)
+    if q is not None:
+        quanta[name] = q
+        return dequantize(t, values, q)
+    period = detect_hold(t, values)
+    if period is not None:
+        holds[name] = period
+        return interpolate_holds(t, values, period)
+    return None
 
-    Returns the track (the same object when nothing is quantised) and the quanta found per coordinate
-    ({} when none): the stage acts only where every sample of a coordinate sits on one quantum's grid (height: its
-    steps, `detect_quantum`).
+
+def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, float], dict[str, float]]:
+    """One video's telemetry samples (agent.telemetry_clock) with quantised latitude, longitude and height
+    made continuous, and those held between regular updates interpolated between them (agent.telemetry_holds).
+
+    Returns the track (the same object when nothing changed), the quanta found per coordinate and the update
+    periods of the held ones (seconds; {} when none): the stage acts only where every sample of a coordinate sits
+    on one quantum's grid (height: its steps, `detect_quantum`) or the file shows regular updates held between.
     """
-    if len(track) < 2:
-        return track, {}
     quanta: dict[str, float] = {}
+    holds: dict[str, float] = {}
+    if len(track) < 2:
+        return track, quanta, holds
     out = track
     for name in ("lat", "lon", "height_m"):
-        values = track.column(name)
-        q = _quantum_of(name, values)
-        if q is None:
+        fixed = _continuous(name, track.t, track.column(name), quanta, holds)
+        if fixed is None:
             continue
-        quanta[name] = q
-        fixed = dequantize(track.t, values, q)
         if name == "height_m":
             fixed = np.maximum(fixed, 0.1)
         out = out.replace_column(name, fixed)
-    return out, quanta
+    return out, quanta, holds
 
 
-def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[str, float]]:
+def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[str, float], dict[str, float]]:
     """A telemetry file's records (a video's, sorted by time) with quantised latitude, longitude and height made
-    continuous, as `dequantize_track` does for a dataset's video.
+    continuous, and those held between regular updates interpolated, as `dequantize_track` does for a dataset's
+    video.
 
-    The quanta are judged on the records with a GPS fix (`Telemetry.has_fix`), one a time (the first at a repeated
-    time), height only when every one of them has one; longitude is unwrapped across the antimeridian. Each such
-    record gets the continuous value at its time, never more than half a quantum from what it says; records without
-    a fix keep theirs. Returns the records (the same list when nothing is quantised) and the quanta found ({} when
-    none).
+    Judged on the records with a GPS fix (`Telemetry.has_fix`), one a time (the first at a repeated time), height
+    only when every one of them has one; longitude is unwrapped across the antimeridian. Each such record gets the
+    continuous value at its time (a quantised one never more than half a quantum from what it says); records
+    without a fix keep theirs. Returns the records (the same list when nothing changed), the quanta found and the
+    held coordinates' update periods ({} when none).
     """
+    quanta: dict[str, float] = {}
+    holds: dict[str, float] = {}
     fixed = [i for i, r in enumerate(records) if r.has_fix]
     if len(fixed) < 2:
-        return records, {}
+        return records, quanta, holds
     t_all = np.array([records[i].t for i in fixed], dtype=np.float64)
     if np.any(np.diff(t_all) < 0):
         raise ValueError("dequantize_records needs the records in time order")
@@ -218,17 +239,16 @@ def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[
     heights = [records[i].height_m for i in fixed]
     if all(h is not None for h in heights):
         columns["height_m"] = np.array(heights, dtype=np.float64)
-    quanta: dict[str, float] = {}
     fixed_values: dict[str, NDArray] = {}
     for name, values in columns.items():
-        q = _quantum_of(name, values[first])
-        if q is None:
+        smooth = _continuous(name, t_all[first], values[first], quanta, holds)
+        if smooth is None:
             continue
-        quanta[name] = q
-        smooth = dequantize(t_all[first], values[first], q)
-        fixed_values[name] = np.clip(np.interp(t_all, t_all[first], smooth), values - q / 2.0, values + q / 2.0)
-    if not quanta:
-        return records, {}
+        at_all = np.interp(t_all, t_all[first], smooth)
+        q = quanta.get(name)
+        fixed_values[name] = at_all if q is None else np.clip(at_all, values - q / 2.0, values + q / 2.0)
+    if not fixed_values:
+        return records, quanta, holds
     if "lon" in fixed_values:
         fixed_values["lon"] = (fixed_values["lon"] + 180.0) % 360.0 - 180.0
     if "lat" in fixed_values:  # half a step past a pole is no latitude
@@ -237,17 +257,20 @@ def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[
     for k, i in enumerate(fixed):
         changes: dict[str, Any] = {name: float(v[k]) for name, v in fixed_values.items()}
         out[i] = replace(records[i], **changes)
-    return out, quanta
+    return out, quanta, holds
 
 
-def dequantize_report(quanta: dict[str, float], off: str = "") -> StageReport:
-    """What the dequantisation found in one video (`dequantize_track`'s or `dequantize_records`' quanta) as a stage
+def dequantize_report(quanta: dict[str, float], off: str = "", holds: dict[str, float] | None = None) -> StageReport:
+    """What the stage found in one video (`dequantize_track`'s or `dequantize_records`' quanta and holds) as a stage
     report; off: why it did not run (e.g. DEQUANTIZE_OFF), "" when it ran."""
     if off:
         return StageReport("dequantize", False, off)
-    return StageReport("dequantize", bool(quanta), describe_quanta(quanta) or "no quantised coordinate")
+    return StageReport("dequantize", bool(quanta or holds),
+                       describe_quanta(quanta, holds) or "no quantised or held coordinate")
 
 
-def describe_quanta(quanta: dict[str, float]) -> str:
-    """The quanta found, as the stage reports, logs and `uavmm anomaly` print them: ``lat 0.0001, lon 0.0001``."""
-    return ", ".join(f"{k} {v:g}" for k, v in quanta.items())
+def describe_quanta(quanta: dict[str, float], holds: dict[str, float] | None = None) -> str:
+    """What was made continuous, as the stage reports, logs and `uavmm anomaly` print it: ``lat 0.0001, lon 0.0001``
+    for quanta, ``lat held 1 s`` for a coordinate held between updates once a second."""
+    return ", ".join([f"{k} {v:g}" for k, v in quanta.items()]
+                     + [f"{k} held {v:.2g} s" for k, v in (holds or {}).items()])

@@ -172,8 +172,9 @@ def run_anomaly(args: argparse.Namespace) -> int:
         print(file=sys.stderr)
     seconds = time.perf_counter() - started
     mode = ("per-frame" if args.no_memory else "memory map") + (f", terrain {args.dem.name}" if args.dem else "")
-    quanta = video_frames.quanta if video_frames is not None else None  # the telemetry file's GPS steps
-    continuous = f"; {describe_quanta(quanta)} made continuous" if quanta else ""
+    # the telemetry file's GPS steps and holds
+    made = describe_quanta(video_frames.quanta or {}, video_frames.holds) if video_frames is not None else ""
+    continuous = f"; {made} made continuous" if made else ""
     print(f"wrote {spool.count} regions of interest for {n} frames to {args.out} ({args.method}, {mode}; "
           f"{without_pose} frames without telemetry{continuous}; {n / max(seconds, 1e-9):.1f} frames/s)")
     return 0

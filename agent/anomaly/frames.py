@@ -102,10 +102,12 @@ class VideoFrames:
             records, video_start_t = on_video_frames(records, self.fps, telemetry)
         self.pitch_deg, self.heading_deg = pitch_deg, heading_deg
         self.records = sorted(records, key=lambda r: r.t)
-        #: the quanta made continuous per coordinate (`agent.sources.dequantized`; {}: none), None when off
+        #: the quanta made continuous per coordinate (`agent.sources.dequantized`; {}: none), None when off; the
+        #: coordinates held between updates, interpolated: their update periods (seconds)
         self.quanta: dict[str, float] | None = None
+        self.holds: dict[str, float] = {}
         if dequantize:
-            self.records, self.quanta = dequantized(self.records, telemetry)
+            self.records, self.quanta, self.holds = dequantized(self.records, telemetry)
         self._record_t = np.array([r.t for r in self.records], dtype=np.float64)
         self.height_m = height_m
         self.offset_s = video_start_time(self.records, telemetry, telemetry_offset_s=telemetry_offset_s,

@@ -90,3 +90,26 @@ def write_coarse_gps_flight(folder: Path, *, seconds: float = 12.0, seed: int = 
     return CoarseGpsFlight(folder / "flight.avi", folder / "flight.srt", folder / "camera.json",
                            make_blob_model(folder / "blobs.onnx"), np.stack([ulat, ulon], axis=1),
                            np.stack([lat, lon], axis=1))
+
+
+def write_held_gps_srt(flight: CoarseGpsFlight, path: Path, *, seconds: float = 12.0, gps_hz: float = 1.0,
+                       phase_s: float = 0.35, stop_s: float | None = None) -> Path:
+    """A subtitle file for the flight's video as later DJI models write it (Mini 3 / Matrice 30: a block a frame,
+    ``[latitude: ..] [longitude: ..]`` with 6 decimals, ``rel_alt`` every frame), whose GPS updates gps_hz times a
+    second (at phase_s + k / gps_hz) and holds its value on the frames between: the real Matrice 30 sample of
+    tests/shared/test_telemetry.py repeats its position on consecutive frames while rel_alt moves on."""
+    blocks = []
+    for k in range(int(round(seconds * FPS))):
+        t = k / FPS
+        held_t = max(np.floor((t - phase_s) * gps_hz) / gps_hz + phase_s, phase_s - 1.0 / gps_hz)
+        e, n = uav_en(held_t, stop_s)
+        la, lo = local_to_latlon(e, n, LAT, LON)
+        stamp = T0 + t
+        date = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(stamp)) + f".{round((stamp % 1) * 1000) % 1000:03d}"
+        blocks.append(f"{k + 1}\n{_srt_time(t)} --> {_srt_time(t + 1 / FPS)}\n"
+                      f'<font size="28">FrameCnt: {k + 1}, DiffTime: {round(1000 / FPS)}ms\n{date}\n'
+                      f"[iso: 100] [shutter: 1/500.0] [fnum: 2.8] [ev: 0] [focal_len: 24.00] "
+                      f"[latitude: {float(la):.6f}] [longitude: {float(lo):.6f}] "
+                      f"[rel_alt: {HEIGHT_M + 0.001 * (k % 7):.3f} abs_alt: {HEIGHT_M + 400.0:.3f}] </font>\n")
+    path.write_text("\n".join(blocks))
+    return path

@@ -72,22 +72,22 @@ def test_tracks_with_4_decimal_gps_get_continuous_positions_and_others_are_untou
     lats = [round(v, 4) for v in true_lat]
     lons = [9.3] * n
     heights = [40.0 + (i // 20) for i in range(n)]  # 1 m altitude steps
-    track, quanta = dequantize_track(_track(lats, lons, heights))
-    assert quanta == {"lat": 1e-4, "height_m": 1.0}
+    track, quanta, holds = dequantize_track(_track(lats, lons, heights))
+    assert quanta == {"lat": 1e-4, "height_m": 1.0} and holds == {}
     got = track.column("lat")
     assert np.abs(got - true_lat).max() < np.abs(np.array(lats) - true_lat).max()
     assert np.all(track.column("lon") == 9.3)  # never stepped: kept
     assert np.all(np.abs(got - np.array(lats)) <= 0.5e-4 + 1e-12)
     # six decimals: nothing to do, the very same track comes back
     fine = _track([47.599801 + 1e-6 * i for i in range(n)], lons, [40.123] * n)
-    same, none = dequantize_track(fine)
-    assert none == {} and same is fine
+    same, none, held = dequantize_track(fine)
+    assert none == held == {} and same is fine
 
 
 def test_a_track_of_one_sample_is_left_alone() -> None:
     one = _track([47.5998], [9.3], [40.0])
-    same, quanta = dequantize_track(one)
-    assert same is one and quanta == {}
+    same, quanta, holds = dequantize_track(one)
+    assert same is one and quanta == holds == {}
 
 
 def test_dataset_frames_get_dequantised_positions_between_the_samples() -> None:
@@ -134,7 +134,7 @@ def test_records_written_with_4_or_5_decimals_stay_within_half_a_step_and_land_n
     lat = lat0 + v_north * t / 111_320.0
     lon = (lon0 + v_east * t / (111_320.0 * math.cos(math.radians(lat0))) + 180.0) % 360.0 - 180.0
     records = _records(t, np.round(lat, decimals), np.round(lon, decimals))
-    out, quanta = dequantize_records(records)
+    out, quanta, _ = dequantize_records(records)
     assert len(out) == len(records) and [r.t for r in out] == [r.t for r in records]
     # the written step, or a coarser one where every value written happens to sit on it (the file cannot tell)
     assert all(quanta[name] in (10.0 ** -decimals, 1e-4) for name in quanta)
@@ -155,16 +155,16 @@ def test_records_without_a_fix_repeated_times_and_six_decimals() -> None:
     no_fix = Telemetry(t=2.5, lat=0.0, lon=0.0, height_m=40.0, pitch_deg=60.0, heading_deg=45.0)  # "no GPS fix"
     records.insert(3, no_fix)
     records.insert(6, replace(records[5], lat=records[5].lat))  # two records at one time
-    out, quanta = dequantize_records(records)
-    assert quanta == {"lat": 1e-4, "height_m": 1.0}  # longitude never steps: left as written
+    out, quanta, holds = dequantize_records(records)
+    assert quanta == {"lat": 1e-4, "height_m": 1.0} and holds == {}  # longitude never steps: left as written
     assert out[3] is records[3]  # no fix: untouched
     assert out[5].lat == out[6].lat and out[5].t == out[6].t
     assert all(r.lon == 9.06 for r in out if r.has_fix)
     # six decimals (0.11 m): nothing quantised, the very same list back
     fine = _records(t, 48.5 + 6.0 * t / 111_320.0, np.full(len(t), 9.06))
-    assert dequantize_records(fine) == (fine, {})
+    assert dequantize_records(fine) == (fine, {}, {})
     # one record with a fix: nothing to judge
-    assert dequantize_records(records[:1]) == (records[:1], {})
+    assert dequantize_records(records[:1]) == (records[:1], {}, {})
     # out of time order: refused
     with pytest.raises(ValueError, match="time order"):
         dequantize_records(records[::-1])
@@ -214,7 +214,7 @@ def test_the_quantum_is_judged_with_a_coarser_grid_and_an_offset() -> None:
 def test_a_latitude_made_continuous_stays_on_the_globe() -> None:
     t = np.arange(0.0, 30.0, 1.0)
     lat = np.round(np.minimum(89.999 + 6.0 * t / 111_320.0, 90.0), 4)  # flying north at 6 m/s to the pole, 4 decimals
-    out, quanta = dequantize_records(_records(t, lat, np.full(len(t), 9.06)))
+    out, quanta, _ = dequantize_records(_records(t, lat, np.full(len(t), 9.06)))
     assert quanta == {"lat": 1e-4} and all(-90.0 <= r.lat <= 90.0 for r in out)
 
 
