@@ -21,8 +21,9 @@ frame, so it is for files (`uavmm boost`, `uavmm track`, `uavmm tune`, the evalu
 for a video's telemetry file, read whole before its first frame by `uavmm detect`, `uavmm agent --video` and
 `uavmm anomaly --video`), not for a live feed. Arrays in, arrays out (records in, records out).
 
-A coordinate that is not quantised but held between regular updates (a 1 Hz GPS repeated in a record per frame) is
-taken linear between its updates in the same stage (agent.telemetry_holds); the stage reports both
+A coordinate held between regular updates (a 1 Hz GPS repeated in a record per frame) is taken linear between its
+updates in the same stage, whether or not it is quantised (agent.telemetry_holds, tried first: a quantised
+coordinate that steps one quantum at a time is no hold and comes here); the stage reports both
 (`describe_quanta`: ``lat 0.0001`` or ``lat held 1 s``), and one switch (`dequantize_telemetry`) turns both off.
 """
 
@@ -176,16 +177,17 @@ def _quantum_of(name: str, values: NDArray) -> float | None:
 
 def _continuous(name: str, t: NDArray, values: NDArray, quanta: dict[str, float],
                 holds: dict[str, float]) -> NDArray | None:
-    """One coordinate's values made continuous (None: left as written), recording what was found: its quantum
-    (`dequantize`), else the period it is held for between updates (agent.telemetry_holds)."""
-    q = _quantum_of(name, values)
-    if q is not None:
-        quanta[name] = q
-        return dequantize(t, values, q)
+    """One coordinate's values made continuous (None: left as written), recording what was found: the period it is
+    held for between updates (agent.telemetry_holds: also a quantised one, e.g. 5-decimal GPS held for a second,
+    whose steps are many quanta), else its quantum (`dequantize`)."""
     period = detect_hold(t, values)
     if period is not None:
         holds[name] = period
         return interpolate_holds(t, values, period)
+    q = _quantum_of(name, values)
+    if q is not None:
+        quanta[name] = q
+        return dequantize(t, values, q)
     return None
 
 

@@ -12,18 +12,22 @@ Each new value is a sample taken when it first appears (halfway between the reco
 holding it: the update came in between), so between two updates the coordinate is taken linear from one to the
 next (`interpolate_holds`). Only what the file shows is applied (`detect_hold`): at least MIN_UPDATES updates, at
 least MIN_SAMPLES_PER_UPDATE records per update (median), updates at a regular period (their intervals'
-inter-quartile range within MAX_SPREAD of the median interval, the period), steps of at least MIN_STEP_DIGITS of the
-last decimal they are written to (median), and at least MIN_ONWARD of the steps in the direction of the one before.
-A slow coordinate that steps one last digit at a time is rounded, not held: its steps come where it crosses the
-middle between two values, half a digit earlier than a held value's (agent.telemetry_dequantize makes 3 to 5
-decimals continuous; finer rounding is left as written); a barometer's height written to 0.1 m that flips between
-two values is noise about a value, not updates. A value held much longer than the period (the UAV stopped, a
-dropout) is kept until one period before the next update, which is reached by a ramp over that period: never
-further from what the file says than the step the file itself makes next. The last values, after the last update,
-stay as written (nothing is extrapolated).
+inter-quartile range within MAX_SPREAD of the median interval, the period), and steps of more than one size: when
+at least MAX_UNIT_STEPS of them are the size of the smallest, the values sit on a grid and step one unit at a time
+(a slow coordinate rounded to 6 decimals, to whole feet, to a KLV altitude's 0.30 m; a barometer flipping between
+two levels). Rounding steps where the coordinate crosses the middle between two values, half a unit earlier than a
+held value's, so reading it as a hold would move it half a unit the wrong way (agent.telemetry_dequantize makes 3
+to 5 decimals continuous when they step one quantum at a time; a finer grid is left as written). At exactly
+constant speed a hold writes such steps too: the file cannot tell them apart, and the stage stands down.
 
-Used by agent.telemetry_dequantize (for coordinates that are not quantised) on files, not on a live feed: it needs
-the update after each record. Arrays in, arrays out.
+A value held longer than LONG_HOLD periods (the UAV stopped, a dropout) is reached by a ramp over the time its
+step takes at the speed of the faster regular interval beside it, at least one period and at most the whole interval: a
+missed update while moving (a step two periods' worth) is linear across, a stop keeps its value until one period
+before the next update. Never further from what the file says than the step the file itself makes next. The last
+values, after the last update, stay as written (nothing is extrapolated).
+
+Used by agent.telemetry_dequantize (before its quantum: a 5-decimal GPS held for a second steps by several quanta)
+on files, not on a live feed: it needs the update after each record. Arrays in, arrays out.
 """
 
 from __future__ import annotations
@@ -31,8 +35,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LONG_HOLD", "MAX_SPREAD", "MIN_ONWARD", "MIN_SAMPLES_PER_UPDATE", "MIN_STEP_DIGITS", "MIN_UPDATES",
-           "detect_hold", "interpolate_holds", "last_digit"]
+__all__ = ["LONG_HOLD", "MAX_SPREAD", "MAX_UNIT_STEPS", "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "detect_hold",
+           "interpolate_holds"]
 
 #: Updates (changes of the value) needed to judge a period.
 MIN_UPDATES = 5
@@ -42,25 +46,10 @@ MIN_SAMPLES_PER_UPDATE = 2
 #: 10 Hz GPS alternate 2 and 3 frames: 0.4 to 0.5; updates at random times: about 1.6).
 MAX_SPREAD = 0.6
 #: An interval between updates longer than this many periods is a hold (the UAV stopped, a dropout), not an update
-#: period: the value is kept until one period before the next update.
+#: period (`interpolate_holds`).
 LONG_HOLD = 1.5
-#: A held coordinate's steps are at least this many of the last decimal they are written to (median).
-MIN_STEP_DIGITS = 3.0
-#: At least this share of the steps go on in the direction of the step before (a moving coordinate: differences of
-#: noise about a value do so a third of the time).
-MIN_ONWARD = 0.5
-
-
-def last_digit(x: NDArray) -> float:
-    """The last decimal the values are written to: the finest 10**-d (d = 0..9) of which every value is a multiple;
-    0.0 when they have more decimals (a binary float: no decimal grid)."""
-    x = np.asarray(x, dtype=np.float64)
-    scale = float(np.max(np.abs(x), initial=1.0))
-    for d in range(10):
-        k = x * 10.0 ** d
-        if np.all(np.abs(k - np.round(k)) < 1e-12 * scale * 10.0 ** d + 1e-9):  # the float's own error allowed
-            return 10.0 ** -d
-    return 0.0
+#: At most this share of the steps may be the size of the smallest (one unit of a grid the values sit on).
+MAX_UNIT_STEPS = 0.8
 
 
 def detect_hold(t: NDArray, x: NDArray) -> float | None:
@@ -75,10 +64,10 @@ def detect_hold(t: NDArray, x: NDArray) -> float | None:
         return None
     if float(np.median(np.diff(updates))) < MIN_SAMPLES_PER_UPDATE:
         return None
-    steps = x[updates] - x[updates - 1]
-    if float(np.median(np.abs(steps))) < MIN_STEP_DIGITS * last_digit(steps):
-        return None
-    if float(np.mean(np.sign(steps[1:]) == np.sign(steps[:-1]))) < MIN_ONWARD:
+    steps = np.abs(x[updates] - x[updates - 1])
+    unit = float(steps.min())
+    tolerance = 1e-9 * (1.0 + float(np.max(np.abs(x))))  # the float's own error in a difference of two values
+    if float(np.mean(steps <= unit + tolerance)) >= MAX_UNIT_STEPS:
         return None
     intervals = np.diff(t[updates])
     period = float(np.median(intervals))
@@ -93,25 +82,39 @@ def detect_hold(t: NDArray, x: NDArray) -> float | None:
 
 
 def interpolate_holds(t: NDArray, x: NDArray, period: float) -> NDArray:
-    """x with each held value taken linear from the update that wrote it to the next one (`detect_hold`'s period:
-    a hold longer than LONG_HOLD periods keeps the value until one period before the next update; the first values,
-    written before the data began, ramp over the period before the first update; after the last update, as
-    written)."""
+    """x with each held value taken linear from the update that wrote it to the next one (`detect_hold`'s period;
+    a hold longer than LONG_HOLD periods ramps over the time its step takes at the speed of the faster regular
+    interval beside it, between one period and the whole hold; the first values, written before the data began,
+    ramp over the period before the first update; after the last update, as written). t increasing, one sample a
+    time."""
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     x = np.asarray(x, dtype=np.float64).reshape(-1)
+    if len(t) != len(x):
+        raise ValueError(f"interpolate_holds needs one time per value, got {len(t)} times and {len(x)} values")
+    if len(t) > 1 and not np.all(np.diff(t) > 0):
+        raise ValueError("interpolate_holds needs increasing times, one sample a time")
+    if not (np.isfinite(period) and period > 0.0):
+        raise ValueError(f"interpolate_holds needs a period > 0, got {period!r}")
     out = x.copy()
     updates = np.flatnonzero(x[1:] != x[:-1]) + 1
-    if not len(updates) or not period > 0.0:
+    if not len(updates):
         return out
     u = (t[updates - 1] + t[updates]) / 2.0  # each update came between the two records: halfway is the estimate
-    previous = np.concatenate([[-np.inf], u[:-1]])
-    start = np.where(u - previous <= LONG_HOLD * period, previous, u - period)
+    interval = np.diff(np.concatenate([[-np.inf], u]))  # since the update before (the first: unknown)
+    step = np.abs(x[updates] - x[updates - 1])
+    regular = interval <= LONG_HOLD * period
+    speed = np.where(regular, step / np.where(regular, interval, 1.0), np.nan)
+    ramp = np.full(len(u), period)
+    ramp[regular] = interval[regular]
+    for i in np.flatnonzero(~regular & np.isfinite(interval)).tolist():
+        beside = [speed[j] for j in (i - 1, i + 1) if 0 <= j < len(u) and np.isfinite(speed[j]) and speed[j] > 0]
+        if beside:  # the time this step takes at the faster neighbour's speed, within [period, interval]
+            ramp[i] = min(max(step[i] / max(beside), period), interval[i])
+    start = u - ramp
     nxt = np.searchsorted(updates, np.arange(len(x)), side="right")  # the update after each sample
-    on = nxt < len(updates)
-    idx = np.flatnonzero(on)
+    idx = np.flatnonzero(nxt < len(updates))
     k = nxt[idx]
-    ramp = t[idx] >= start[k]
-    idx, k = idx[ramp], k[ramp]
-    frac = (t[idx] - start[k]) / (u[k] - start[k])
-    out[idx] = x[idx] + (x[updates[k]] - x[idx]) * frac
+    on = t[idx] >= start[k]
+    idx, k = idx[on], k[on]
+    out[idx] = x[idx] + (x[updates[k]] - x[idx]) * (t[idx] - start[k]) / (u[k] - start[k])
     return out

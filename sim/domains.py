@@ -345,6 +345,11 @@ _DOMAIN_LIST = (
     Domain("sea-jumps-desc", "swimmers, 60 deg view jumps at 30 fps, 0.15 s offset, 3 deg heading bias, with "
            "appearance descriptors", "heldout", "jumps", "sea", _JUMPS, clip_s=24.0,
            noise={"time_offset_s": 0.15, "heading_bias_deg": 3.0}),
+    # Added 30 Nov 2026 with agent.telemetry_holds (a coordinate held between its updates). Held out: nothing was
+    # chosen on it.
+    Domain("sea-gps-held", "sea, gentle flights at 30 fps, a telemetry record per frame with gimbal jitter whose "
+           "6-decimal GPS updates once a second and repeats in between", "heldout", "gentle", "sea", _GENTLE_SEA,
+           noise={**_JITTER, "telemetry_hz": 30.0, "gps_hz": 1.0}),
 )
 
 class _Sweeps(TypedDict):

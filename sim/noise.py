@@ -127,6 +127,10 @@ class TelemetryNoise:
         The frames' own ``date_time`` is naive local time = UTC + this (seconds, e.g. 7200 for CEST;
         within +-14 h), with microseconds; 0 = UTC with milliseconds as before. Only the written string
         changes: simulation time, true poses and truth.json stay in UTC.
+    gps_hz : float
+        The GPS updates this often (random phase) and every telemetry sample in between repeats its latitude and
+        longitude while the other fields move on (sample and hold field by field, as a 1 Hz GPS in a subtitle
+        block per frame); 0 = a new position with every telemetry sample. At most `telemetry_hz`.
     """
 
     gps_bias_m: float = 1.5
@@ -152,6 +156,7 @@ class TelemetryNoise:
     stamp_resolution_s: float = 0.0
     meta_layout: str = "seadronessee"
     frame_clock_utc_offset_s: float = 0.0
+    gps_hz: float = 0.0
 
     def __post_init__(self) -> None:
         for f in fields(self):
@@ -162,6 +167,9 @@ class TelemetryNoise:
                 raise ValueError(f"TelemetryNoise.{f.name}={value!r} must be a finite number >= 0")
         if self.telemetry_hz <= 0 or self.jitter_corr_s <= 0:
             raise ValueError("TelemetryNoise.telemetry_hz and jitter_corr_s must be > 0")
+        if self.gps_hz > self.telemetry_hz:
+            raise ValueError(f"TelemetryNoise.gps_hz={self.gps_hz!r} must be at most telemetry_hz "
+                             f"({self.telemetry_hz!r}): the GPS is held on the telemetry's samples")
         if self.missing_meta_rate > 1:
             raise ValueError(f"TelemetryNoise.missing_meta_rate={self.missing_meta_rate!r} must be in [0, 1]")
         if isinstance(self.gps_decimals, bool) or not isinstance(self.gps_decimals, int) or self.gps_decimals > 8:
@@ -180,12 +188,12 @@ class TelemetryNoise:
     def scaled(self, k: float) -> TelemetryNoise:
         """The same noise with every bias, jitter and the time offset multiplied by k (k >= 0).
 
-        The telemetry rate, correlation time, dropout rate, the log format (GPS decimals, altitude
+        The telemetry and GPS rates, correlation time, dropout rate, the log format (GPS decimals, altitude
         step) and the clocks and layout (`CLOCK_FIELDS`) are kept.
         """
         if not math.isfinite(k) or k < 0:
             raise ValueError(f"noise scale must be a finite number >= 0, got {k!r}")
-        keep = {"telemetry_hz", "jitter_corr_s", "missing_meta_rate", "gps_decimals", "altitude_step_m",
+        keep = {"telemetry_hz", "gps_hz", "jitter_corr_s", "missing_meta_rate", "gps_decimals", "altitude_step_m",
                 *CLOCK_FIELDS}
         return replace(self, **{f.name: getattr(self, f.name) * k for f in fields(self) if f.name not in keep})
 
@@ -251,6 +259,16 @@ class TelemetryStream:
         self._white_sigma = np.array([wg, wg, noise.white_heading_deg, noise.white_pitch_deg])
         self._white = np.zeros(4)
         self._white_k: int | None = None
+        # a GPS updating slower than the telemetry: its phase, drawn only then and from a child of its own (the other
+        # fields of the stream are those it has without the hold), and the last update's index and position (metres
+        # east, north with their errors)
+        self._gps_phase = 0.0
+        if noise.gps_hz > 0:
+            gps_rng = np.random.default_rng(seed_seq.spawn(1)[0] if seed_seq is not None
+                                            else self._defect_rng.integers(0, 2**63))
+            self._gps_phase = float(gps_rng.uniform(0.0, 1.0 / noise.gps_hz))
+        self._gps_k: int | None = None
+        self._gps_en = (0.0, 0.0)
         self.bias = {"east_m": float(self._bias[0]), "north_m": float(self._bias[1]),
                      "heading_deg": float(self._bias[2]), "pitch_deg": float(self._bias[3]),
                      "height_m": float(self._bias[4])}
@@ -315,8 +333,14 @@ class TelemetryStream:
         white = self._white_at(k)
         if missing:
             return None, st
-        lat_arr, lon_arr = local_to_latlon(st.east_m + err[0] + white[0], st.north_m + err[1] + white[1],
-                                           *self.origin)
+        east, north = st.east_m + err[0] + white[0], st.north_m + err[1] + white[1]
+        if self.noise.gps_hz > 0:  # the position of the GPS's last update, held
+            kg = math.floor((ts - self._gps_phase) * self.noise.gps_hz + 1e-9)
+            if kg != self._gps_k:
+                g = self.flight.state(self._gps_phase + kg / self.noise.gps_hz)
+                self._gps_k, self._gps_en = kg, (g.east_m + err[0] + white[0], g.north_m + err[1] + white[1])
+            east, north = self._gps_en
+        lat_arr, lon_arr = local_to_latlon(east, north, *self.origin)
         lat, lon = float(lat_arr), float(lon_arr)
         digits = self.noise.gps_decimals or 8
         height = max(st.height_m + err[4], 0.1)

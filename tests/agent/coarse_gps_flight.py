@@ -93,17 +93,23 @@ def write_coarse_gps_flight(folder: Path, *, seconds: float = 12.0, seed: int = 
 
 
 def write_held_gps_srt(flight: CoarseGpsFlight, path: Path, *, seconds: float = 12.0, gps_hz: float = 1.0,
-                       phase_s: float = 0.35, stop_s: float | None = None) -> Path:
+                       phase_s: float = 0.35, stop_s: float | None = None, gps_noise_m: float = 0.2,
+                       seed: int = 0) -> Path:
     """A subtitle file for the flight's video as later DJI models write it (Mini 3 / Matrice 30: a block a frame,
     ``[latitude: ..] [longitude: ..]`` with 6 decimals, ``rel_alt`` every frame), whose GPS updates gps_hz times a
-    second (at phase_s + k / gps_hz) and holds its value on the frames between: the real Matrice 30 sample of
-    tests/shared/test_telemetry.py repeats its position on consecutive frames while rel_alt moves on."""
+    second (at phase_s + k / gps_hz), each fix off the truth by gps_noise_m (std per axis), and holds its value on
+    the frames between: the real Matrice 30 sample of tests/shared/test_telemetry.py repeats its position on
+    consecutive frames while rel_alt moves on."""
+    rng = np.random.default_rng(seed)
+    first = int(np.floor(-phase_s * gps_hz))  # the update held at t = 0
+    fixes = np.arange(first, int(np.ceil(seconds * gps_hz)) + 1)
+    noise = {int(k): rng.normal(0.0, gps_noise_m, 2) for k in fixes}
     blocks = []
     for k in range(int(round(seconds * FPS))):
         t = k / FPS
-        held_t = max(np.floor((t - phase_s) * gps_hz) / gps_hz + phase_s, phase_s - 1.0 / gps_hz)
-        e, n = uav_en(held_t, stop_s)
-        la, lo = local_to_latlon(e, n, LAT, LON)
+        fix = int(np.floor((t - phase_s) * gps_hz))
+        e, n = uav_en(phase_s + fix / gps_hz, stop_s)
+        la, lo = local_to_latlon(e + noise[fix][0], n + noise[fix][1], LAT, LON)
         stamp = T0 + t
         date = time.strftime("%Y-%m-%d %H:%M:%S", time.gmtime(stamp)) + f".{round((stamp % 1) * 1000) % 1000:03d}"
         blocks.append(f"{k + 1}\n{_srt_time(t)} --> {_srt_time(t + 1 / FPS)}\n"

@@ -46,12 +46,13 @@ def test_gps_held_for_a_second_is_taken_linear_between_its_updates(flight, tmp_p
     assert on["stages"]["dequantize"] == {"acted": 1, "stood_down": 0, "why": {"lat held 1 s, lon held 1 s": 1}}
     assert off["stages"]["dequantize"]["why"] == {"off (dequantize_telemetry false)": 1}
     on_err, off_err = _position_errors(flight, tmp_path / "on"), _position_errors(flight, tmp_path / "off")
-    # as written, the position lags the UAV by up to a second at 6 m/s; between the updates it is exact but after the
-    # last one (0.65 s held as written at the end). Seed 0 on this VM: mean 2.99 -> 0.37 m, max 5.74 -> 3.30 m
+    # as written, the position lags the UAV by up to a second at 6 m/s; between the updates it is off by the fixes'
+    # own noise (0.2 m), after the last one (0.65 s at the end) as written. Seed 0 on this VM: mean 3.02 -> 0.26 m,
+    # max 6.05 -> 3.20 m
     assert off_err.mean() > 2.5 and off_err.max() > 5.0
-    assert on_err.mean() < 0.8
-    assert np.median(on_err) < 0.2 < 1.0 < np.median(off_err)
-    # the objects found: as many, nearer the truth (seed 0: mean 3.54 -> 1.24 m)
+    assert on_err.mean() < 0.6
+    assert np.median(on_err) < 0.4 < 1.5 < np.median(off_err)
+    # the objects found: as many, nearer the truth (seed 0: mean 3.49 -> 1.01 m)
     on_obj, off_obj = _object_errors(flight, tmp_path / "on"), _object_errors(flight, tmp_path / "off")
     assert len(on_obj) == len(off_obj) == 10
     assert on_obj.mean() < 2.0 < 2.5 < off_obj.mean()
@@ -92,12 +93,12 @@ def test_anomaly_video_says_so_and_can_keep_the_file_as_written(flight, tmp_path
 
 def test_gps_updated_every_frame_is_left_as_written(flight, tmp_path):
     # the same subtitle format with the GPS updating on every frame (10 Hz at 10 fps): nothing held, the stage
-    # stands down and two passes give what one pass interpolates
+    # stands down
     flight, _ = flight
     srt = write_held_gps_srt(flight, tmp_path / "every.srt", gps_hz=10.0, phase_s=0.0)
     two = _detect(flight, tmp_path / "two", srt=srt)
     assert two["stages"]["dequantize"] == {"acted": 0, "stood_down": 1, "why": {"no quantised or held coordinate": 1}}
-    assert _position_errors(flight, tmp_path / "two").max() < 0.2
+    assert _position_errors(flight, tmp_path / "two").mean() < 0.5
 
 
 @pytest.mark.parametrize("stop_s", [5.0, 8.5])
@@ -111,5 +112,6 @@ def test_a_uav_that_stops_keeps_its_written_position_in_the_hover(tmp_path, stop
     frames = np.array([im["frame_index"] for im in json.loads((tmp_path / "on" / "images.json").read_text())["images"]])
     hover = frames / 10.0 > stop_s + 1.0
     assert hover.sum() >= 100
-    assert on_err[hover].max() <= off_err[hover].max() + 0.05 and on_err[hover].max() < 0.2
+    # in the hover each fix is the truth plus its noise: taken linear between two of them, no further off
+    assert on_err[hover].mean() <= off_err[hover].mean() + 0.02 and on_err[hover].max() < 1.0
     assert on_err.mean() < 0.5 * off_err.mean()

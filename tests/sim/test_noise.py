@@ -291,3 +291,35 @@ def test_clock_fields_allow_western_zones_and_survive_scaling() -> None:
     assert noise.scaled(2.0).gps_bias_m == 3.0
     defaults = {f.name: f.default for f in dataclasses.fields(TelemetryNoise) if f.name in CLOCK_FIELDS}
     assert defaults == {"stamp_resolution_s": 0.0, "meta_layout": "seadronessee", "frame_clock_utc_offset_s": 0.0}
+
+
+def test_a_gps_slower_than_the_telemetry_is_held_while_the_rest_moves_on() -> None:
+    # 30 Hz records (one a frame) whose GPS updates once a second: latitude and longitude repeat for ~30 records,
+    # the heading (white jitter) changes on every one; the held position is where the UAV was at the update
+    flight = OrbitFlight(0.0, 0.0, 50.0, 40.0, 40.0, 5.0, 0.0)
+    noise = TelemetryNoise(telemetry_hz=30.0, gps_hz=1.0, white_heading_deg=0.5)
+    stream = TelemetryStream(noise, flight, np.random.default_rng(3), LAT0, LON0, T0)
+    metas = [stream.meta(f / FPS)[0] for f in range(300)]
+    positions = [(m["gps_latitude"], m["gps_longitude"]) for m in metas]
+    updates = sum(a != b for a, b in zip(positions, positions[1:], strict=False))
+    headings = sum(a["gimbal_heading"] != b["gimbal_heading"] for a, b in zip(metas, metas[1:], strict=False))
+    assert 9 <= updates <= 10 and headings >= 290
+    plain_stream = TelemetryStream(dataclasses.replace(noise, gps_hz=0.0), flight, np.random.default_rng(3), LAT0,
+                                   LON0, T0)
+    plain = [plain_stream.meta(f / FPS)[0] for f in range(300)]
+    assert sum(a["gps_latitude"] != b["gps_latitude"] for a, b in zip(plain, plain[1:], strict=False)) >= 290
+    # the held position lags: at 5 m/s up to 5 m (plus the GPS errors, 1.5 m bias)
+    lags = []
+    for f, m in enumerate(metas):
+        st = flight.state(f / FPS)
+        e, n = latlon_to_local(m["gps_latitude"], m["gps_longitude"], LAT0, LON0)
+        lags.append(math.hypot(float(e) - st.east_m, float(n) - st.north_m))
+    assert max(lags) > 4.0
+    # kept by scaling, at most the telemetry's rate, and no random numbers drawn from the stream's own generator
+    assert noise.scaled(2.0).gps_hz == 1.0
+    with pytest.raises(ValueError, match="gps_hz"):
+        TelemetryNoise(telemetry_hz=10.0, gps_hz=20.0)
+    with pytest.raises(ValueError, match="gps_hz"):
+        TelemetryNoise(gps_hz=-1.0)
+    held = [{k: v for k, v in m.items() if k not in ("gps_latitude", "gps_longitude")} for m in metas]
+    assert held == [{k: v for k, v in m.items() if k not in ("gps_latitude", "gps_longitude")} for m in plain]
