@@ -24,7 +24,8 @@ A value held longer than LONG_HOLD periods (the UAV stopped, a dropout) is reach
 step takes at the speed of the faster regular interval beside it, at least one period and at most the whole interval: a
 missed update while moving (a step two periods' worth) is linear across, a stop keeps its value until one period
 before the next update. Never further from what the file says than the step the file itself makes next. The last
-values, after the last update, stay as written (nothing is extrapolated).
+values after the last update go on at the last updates' speed for up to a period when those were steady (the update
+the file did not reach), else stay as written.
 
 Used by agent.telemetry_dequantize (before its quantum: a 5-decimal GPS held for a second steps by several quanta)
 on files, not on a live feed: it needs the update after each record. Arrays in, arrays out.
@@ -35,8 +36,8 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LONG_HOLD", "MAX_SPREAD", "MAX_UNIT_STEPS", "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "detect_hold",
-           "interpolate_holds"]
+__all__ = ["LONG_HOLD", "MAX_SPREAD", "MAX_UNIT_STEPS", "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "TAIL_SPREAD",
+           "TAIL_UPDATES", "detect_hold", "interpolate_holds"]
 
 #: Updates (changes of the value) needed to judge a period.
 MIN_UPDATES = 5
@@ -50,6 +51,10 @@ MAX_SPREAD = 0.6
 LONG_HOLD = 1.5
 #: At most this share of the steps may be the size of the smallest (one unit of a grid the values sit on).
 MAX_UNIT_STEPS = 0.8
+#: The values after the last update go on at the last speed when this many intervals before it were steady ...
+TAIL_UPDATES = 3
+#: ... their speeds of one sign and within this fraction of the largest (a hover's noise, a turn: as written).
+TAIL_SPREAD = 0.3
 
 
 def detect_hold(t: NDArray, x: NDArray) -> float | None:
@@ -85,8 +90,8 @@ def interpolate_holds(t: NDArray, x: NDArray, period: float) -> NDArray:
     """x with each held value taken linear from the update that wrote it to the next one (`detect_hold`'s period;
     a hold longer than LONG_HOLD periods ramps over the time its step takes at the speed of the faster regular
     interval beside it, between one period and the whole hold; the first values, written before the data began,
-    ramp over the period before the first update; after the last update, as written). t increasing, one sample a
-    time."""
+    ramp over the period before the first update; after the last update, `_extrapolate_tail`). t increasing, one
+    sample a time."""
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     x = np.asarray(x, dtype=np.float64).reshape(-1)
     if len(t) != len(x):
@@ -117,4 +122,25 @@ def interpolate_holds(t: NDArray, x: NDArray, period: float) -> NDArray:
     on = t[idx] >= start[k]
     idx, k = idx[on], k[on]
     out[idx] = x[idx] + (x[updates[k]] - x[idx]) * (t[idx] - start[k]) / (u[k] - start[k])
+    _extrapolate_tail(t, x, out, updates, u, interval, period)
     return out
+
+
+def _extrapolate_tail(t: NDArray, x: NDArray, out: NDArray, updates: NDArray, u: NDArray, interval: NDArray,
+                      period: float) -> None:
+    """The values after the last update (no update follows to interpolate to) go on at the last updates' speed
+    when those were steady (TAIL_UPDATES regular intervals, speeds of one sign within TAIL_SPREAD of the largest)
+    and the file ends before a hold would have shown (within LONG_HOLD periods of the last update), for at most
+    one period: the update the file did not reach. Else (a hover's noise, a turn, a stop) as written."""
+    if len(u) < TAIL_UPDATES + 1 or t[-1] - u[-1] > LONG_HOLD * period:
+        return
+    last = interval[-TAIL_UPDATES:]
+    if not np.all(last <= LONG_HOLD * period):
+        return
+    speed = (x[updates[-TAIL_UPDATES:]] - x[updates[-TAIL_UPDATES - 1:-1]]) / last
+    top = float(np.max(np.abs(speed)))
+    if not (top > 0.0 and (np.all(speed > 0) or np.all(speed < 0))
+            and float(np.max(speed) - np.min(speed)) <= TAIL_SPREAD * top):
+        return
+    tail = np.arange(int(updates[-1]), len(x))
+    out[tail] = x[tail] + speed[-1] * np.minimum(t[tail] - u[-1], period)

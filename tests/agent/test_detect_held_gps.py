@@ -47,10 +47,10 @@ def test_gps_held_for_a_second_is_taken_linear_between_its_updates(flight, tmp_p
     assert off["stages"]["dequantize"]["why"] == {"off (dequantize_telemetry false)": 1}
     on_err, off_err = _position_errors(flight, tmp_path / "on"), _position_errors(flight, tmp_path / "off")
     # as written, the position lags the UAV by up to a second at 6 m/s; between the updates it is off by the fixes'
-    # own noise (0.2 m), after the last one (0.65 s at the end) as written. Seed 0 on this VM: mean 3.02 -> 0.26 m,
-    # max 6.05 -> 3.20 m
+    # own noise (0.2 m), after the last one (0.65 s at the end) on at the last steady speed. Seed 0 on this VM:
+    # mean 3.02 -> 0.19 m, max 6.05 -> 0.46 m (held after the last update, until 1 Dec 2026: 0.26 m, 3.20 m)
     assert off_err.mean() > 2.5 and off_err.max() > 5.0
-    assert on_err.mean() < 0.6
+    assert on_err.mean() < 0.6 and on_err.max() < 1.5
     assert np.median(on_err) < 0.4 < 1.5 < np.median(off_err)
     # the objects found: as many, nearer the truth (seed 0: mean 3.49 -> 1.01 m)
     on_obj, off_obj = _object_errors(flight, tmp_path / "on"), _object_errors(flight, tmp_path / "off")

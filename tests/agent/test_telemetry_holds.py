@@ -46,12 +46,18 @@ def test_a_held_coordinate_is_found_and_taken_nearly_exact_between_its_updates(
     fixed = interpolate_holds(t, written, found)
     err, as_written = np.abs(fixed - truth(t)) / deg, np.abs(written - truth(t)) / deg
     last = np.arange(len(t)) >= np.flatnonzero(written[1:] != written[:-1])[-1] + 1  # from the last update on
-    assert np.array_equal(fixed[last], written[last])  # held as written: nothing is extrapolated
     # between the updates off by at most the time an update is placed off (half a record; before the first, the
     # period's error too) plus the curve's bend over a period (acceleration * period^2 / 8), and never further than
     # the step the file makes next
     top, bend = speed + 1.0, omega * period ** 2 / 8.0
     assert err[~last].max() <= top * (0.75 / fps) + bend + 1e-6
+    # after the last update: as written, or on at the last interval's speed (steady: within 30 % over three
+    # intervals, as a swing of 1 m/s is at 8 m/s and more), off by the speed's change since (at most 2 periods
+    # of acceleration, over at most a period) and the placements' error (a record's time at the top speed)
+    if speed >= 8.0 and last.sum() > 1:
+        assert not np.array_equal(fixed[last], written[last])
+    if not np.array_equal(fixed[last], written[last]):
+        assert err[last].max() <= top * (1.0 / fps) + 2.0 * omega * period ** 2 + 1e-6
     assert np.all(np.abs(fixed - written) / deg <= top * period + 1e-6)
     # (two records an update, the second at the update: each record is off by 0 or a half period as written, by a
     # quarter placed halfway between: no better on average)
@@ -143,7 +149,7 @@ def test_records_with_held_gps_across_the_antimeridian_and_without_a_fix() -> No
     # between those points
     knots = np.arange(0.0, 20.0) - 0.05
     expected = 179.9995 + np.interp(t, knots, east(np.arange(0.0, 20.0)))
-    inside = (t > 0.95) & (t < 18.95)  # from the last update on (t = 19): held as written
+    inside = (t > 0.95) & (t < 18.95)  # from the last update on (t = 19): on at the last speed (not this line)
     assert np.abs(got - expected)[inside].max() < 1e-9
     assert np.abs(got - (179.9995 + east(t)))[inside].max() < np.abs(np.unwrap(lon, period=360.0)
                                                                      - (179.9995 + east(t)))[inside].max() / 5
@@ -205,3 +211,33 @@ def test_missed_updates_while_moving_are_linear_across_and_bad_input_is_refused(
                                           (t[:5], written[:5], float("nan"), "period")):
         with pytest.raises(ValueError, match=match):
             interpolate_holds(bad_t, bad_x, period_s)
+
+
+def test_after_the_last_update_on_at_a_steady_speed_else_as_written() -> None:
+    # a 1 Hz GPS at 30 records a second; the file ends 0.8 s after its last update (at 19.3 s)
+    t = np.arange(0.0, 20.1, 1.0 / 30.0)
+    fixes = np.arange(-1.0, 21.0) + 0.3
+
+    def held(truth):
+        return truth(fixes[np.searchsorted(fixes, t, side="right") - 1])
+
+    tail = t > 19.3
+    # steady at about 6 m/s (speeds within 30 % over the last three intervals): on at the last interval's speed,
+    # as the update the file did not reach would have put it (0.6 m at most against 4.8 m as written)
+    steady = lambda s: 6.0 * s + 0.3 * np.sin(s)  # noqa: E731
+    written = held(steady)
+    fixed = interpolate_holds(t, written, 1.0)
+    err, as_written = np.abs(fixed - steady(t)), np.abs(written - steady(t))
+    assert err[tail].max() < 0.6 < 4.0 < as_written[tail].max()
+    # a hover's noise, a turn back, a slowing down by half (steps of one sign but not steady), a UAV that just
+    # stopped (a hold longer than LONG_HOLD periods at the end): as written
+    rng = np.random.default_rng(1)
+    noise = rng.normal(0.0, 0.3, len(fixes))
+    cases = {"hover": lambda s: 0.0 * s, "turn": lambda s: 6.0 * np.minimum(s, 17.5) - 6.0 * np.maximum(s - 17.5, 0.0),
+             "slowing": lambda s: 6.0 * s - np.maximum(s - 16.0, 0.0) ** 2}
+    for name, truth in cases.items():
+        written = held(truth) + (held(lambda s: np.interp(s, fixes, noise)) if name == "hover" else 0.0)
+        assert detect_hold(t, written) is not None, name
+        assert np.array_equal(interpolate_holds(t, written, 1.0)[tail], written[tail]), name
+    stopped = np.where(t < 18.0, held(steady), steady(17.3))  # no update since 17.3 s: 2.8 s at the end
+    assert np.array_equal(interpolate_holds(t, stopped, 1.0)[t > 17.3], stopped[t > 17.3])
