@@ -52,6 +52,9 @@ _DRONE_COLUMNS = ("uav", "uav_id", "uas_id", "drone", "drone_id", "drone_name", 
                   "aircraft_sn", "serial", "serial_number", "sn", "sysid", "system_id")
 #: Ground speed (m/s) no drone flies: consecutive rows further apart than this are not one flight.
 _MAX_SPEED_MPS = 150.0
+#: Longest time (s) between two rows with a position across which the rows written without one are filled
+#: (`_fill_sparse_positions`: a log whose GPS is slower than its rows; 0.2 Hz is the slowest GPS such logs hold).
+SPARSE_FILL_MAX_S = 5.0
 #: A unitless time column whose values exceed this is in milliseconds since 1970 (in seconds: the year 5138).
 _EPOCH_MS_MIN = 1e11
 #: A unitless time column whose median step between distinct stamps is at least this is in milliseconds (a drone
@@ -189,8 +192,10 @@ def parse_csv(
 
     Rows that cannot be a record (cut short, a bad or empty required cell, an out-of-range value) are skipped
     and counted in one warning with rows without a GPS fix (latitude and longitude 0: kept, `interpolate` gives
-    them no pose); half the rows bad or more fails the file. A unitless time column in milliseconds is read as
-    such (`_seconds`); whole-second stamps that repeat are spread over their second.
+    them no pose); half the rows bad or more fails the file. Position cells left empty between the rows where a fix
+    arrived (a GPS slower than the rows) are filled linear in time between those (`_fill_sparse_positions`). A
+    unitless time column in milliseconds is read as such (`_seconds`); whole-second stamps that repeat are spread
+    over their second.
 
     Returns
     -------
@@ -221,7 +226,8 @@ def parse_csv(
     if len(rows) == 1:
         raise ValueError(f"{source}: no data rows after the header")
     _one_drone(header, rows[1:], source)
-    kept = _usable_rows(rows[1:], header, columns, source, utc_offset_s, height_offset_m)
+    data = _fill_sparse_positions(rows[1:], header, columns, source, utc_offset_s)
+    kept = _usable_rows(data, header, columns, source, utc_offset_s, height_offset_m)
     records = _records(kept, columns, source, utc_offset_s, height_offset_m)
     _warn_jumps(records, [line for line, _ in kept], source)
     return records
@@ -401,6 +407,63 @@ def _one_drone(header: list[str], rows: list[tuple[int, list[str]]], source: str
             shown = ", ".join(repr(d) for d in drones[:5]) + (", ..." if len(drones) > 5 else "")
             raise ValueError(f"{source}: column {cell.strip()!r} names {len(drones)} drones ({shown}): keep the rows "
                              "of the drone that filmed the video (one drone per telemetry file)")
+
+
+def _fill_sparse_positions(rows: list[tuple[int, list[str]]], header: list[str], columns: dict[str, _CsvColumn],
+                           source: str, utc_offset_s: float) -> list[tuple[int, list[str]]]:
+    """The rows of a log that writes the position only where a fix arrived (a 10 Hz log of the gimbal with a 1 Hz
+    GPS; an export that merges topics), with latitude and longitude (or height) empty in between: those cells
+    filled linear in time between the rows before and after that have them, when those are at most
+    `SPARSE_FILL_MAX_S` apart, so that each row is a record with its own attitude (a fix is where its row is). A
+    row whose position is (0, 0) (no fix) is no end of such an interval; longitude is taken the short way round.
+    Cells that cannot be filled (before the first fix, after the last, across a longer gap) stay empty, and
+    `_usable_rows` skips and counts those rows. One log line says how many rows were filled."""
+    full = [(line, row) for line, row in rows if len(row) == len(header)]
+    fields = [f for f in ("lat", "lon", "height") if f in columns]
+
+    def empty(row: list[str], f: str) -> bool:
+        text = row[columns[f].index].strip()
+        return not text or text.lower() in _MISSING
+
+    if not full or not any(empty(row, f) for _, row in full for f in fields):
+        return rows
+    try:
+        times = _csv_times(full, columns, source, utc_offset_s, quiet=True)
+        values = {f: [None if empty(row, f) else _csv_float(row[columns[f].index], line, columns[f], source)
+                      for line, row in full] for f in fields}
+    except ValueError:  # a bad cell: rows are judged one by one (`_usable_rows`)
+        return rows
+    filled: dict[int, dict[str, float]] = {}
+    for group in (("lat", "lon"), ("height",)):
+        if not all(f in columns for f in group):
+            continue
+        ends = [i for i in range(len(full)) if all(values[f][i] is not None for f in group)
+                and not (group == ("lat", "lon") and values["lat"][i] == 0.0 and values["lon"][i] == 0.0)]
+        for a, b in zip(ends, ends[1:], strict=False):
+            if b - a < 2 or not 0.0 < times[b] - times[a] <= SPARSE_FILL_MAX_S:
+                continue
+            for i in range(a + 1, b):
+                if not all(values[f][i] is None for f in group) or not times[a] <= times[i] <= times[b]:
+                    continue
+                w = (times[i] - times[a]) / (times[b] - times[a])
+                for f in group:
+                    va, vb = values[f][a], values[f][b]
+                    assert va is not None and vb is not None
+                    d = (vb - va + 180.0) % 360.0 - 180.0 if f == "lon" else vb - va
+                    v = va + w * d
+                    filled.setdefault(i, {})[f] = (v + 180.0) % 360.0 - 180.0 if f == "lon" else v
+    if not filled:
+        return rows
+    log.info("%s: %d of %d rows hold no position (a GPS slower than the rows): filled linear in time between the "
+             "rows with one", source, len(filled), len(rows))
+    out = {line: row for line, row in rows}
+    for i, cells in filled.items():
+        line, row = full[i]
+        row = list(row)
+        for f, v in cells.items():
+            row[columns[f].index] = repr(v / columns[f].scale)
+        out[line] = row
+    return [(line, out[line]) for line, _ in rows]
 
 
 def _usable_rows(rows: list[tuple[int, list[str]]], header: list[str], columns: dict[str, _CsvColumn], source: str,

@@ -122,3 +122,55 @@ def test_a_start_date_on_every_row_beside_elapsed_seconds_stays_exact():
                      + [f"{i},{_stamp(0.0)},47.0,9.0,30,60" for i in range(600)])
     records = parse_csv(text)
     assert records[0].t == pytest.approx(START.timestamp()) and records[-1].t == pytest.approx(START.timestamp() + 599)
+
+
+@settings(max_examples=60, deadline=None)
+@given(gps_every=st.integers(2, 20), phase=st.integers(0, 19), east=st.booleans(), feet=st.booleans())
+def test_a_gps_slower_than_the_rows_is_filled_between_its_fixes(gps_every, phase, east, feet):
+    # a 10 Hz log of the gimbal whose position cells are written only in the rows where a fix arrived (merged
+    # exports): each row a record with its own heading, the position linear between the fixes (until 1 Dec 2026
+    # refused: "column 'latitude' is empty"); rows before the first fix and after the last are skipped and counted
+    phase %= gps_every
+    lon0 = 179.9999 if east else 9.06  # across the antimeridian, the short way round
+    unit = 0.3048 if feet else 1.0
+    header = f"time_s,latitude,longitude,{'height(feet)' if feet else 'height_m'},gimbal_pitch,gimbal_heading"
+    rows = [header]
+    for k in range(200):
+        t = k / 10.0
+        fix = k % gps_every == phase
+        lon = (lon0 + 5.7e-5 * t + 180.0) % 360.0 - 180.0
+        cells = (f"{48.53 + 3.8e-5 * t:.8f}", f"{lon:.8f}", f"{(40.0 + 0.5 * t) / unit:.3f}") if fix else ("", "", "")
+        rows.append(f"{t:.1f},{cells[0]},{cells[1]},{cells[2]},-30.0,{k % 360}")
+    records = parse_csv("\n".join(rows) + "\n", source="sparse.csv")
+    fixes = [k for k in range(200) if k % gps_every == phase]
+    assert [round(r.t * 10) for r in records] == list(range(fixes[0], fixes[-1] + 1))
+    assert [r.heading_deg for r in records] == [float(k % 360) for k in range(fixes[0], fixes[-1] + 1)]
+    for r in records:
+        assert r.lat == pytest.approx(48.53 + 3.8e-5 * r.t, abs=1e-8)
+        assert math.remainder(r.lon - (lon0 + 5.7e-5 * r.t), 360.0) == pytest.approx(0.0, abs=1e-8)
+        assert -180.0 <= r.lon < 180.0
+        assert r.height_m == pytest.approx(40.0 + 0.5 * r.t, abs=2e-3)
+
+
+def test_sparse_positions_are_not_filled_across_a_long_gap_a_no_fix_row_or_one_missing_cell(caplog):
+    # 10 Hz rows with fixes at 0, 1, 2 and 3 s; then a row a second with no fix until 12 s (9 s: too long to
+    # fill); then a fix on every row
+    times = [k / 10.0 for k in range(30)] + [3.0 + k for k in range(10)] + [12.0 + k / 10.0 for k in range(1, 61)]
+    rows = ["time_s,latitude,longitude,height_m,gimbal_pitch"]
+    for k, t in enumerate(times):
+        if k in (0, 10, 20, 30, 39) or k > 39:
+            rows.append(f"{t},{48.5 + 1e-5 * t},{9.0 + 1e-5 * t},40,-30")
+        elif k == 15:
+            rows.append(f"{t},0,0,40,-30")  # no fix: kept, and no end of an interval (10 to 20 is filled)
+        elif k == 5:
+            rows.append(f"{t},48.5,,40,-30")  # latitude without longitude: a bad row, not filled
+        else:
+            rows.append(f"{t},,,40,-30")
+    with caplog.at_level(logging.INFO):
+        records = parse_csv("\n".join(rows) + "\n", source="gaps.csv")
+    kept = [r.t for r in records]
+    assert kept == pytest.approx([t for k, t in enumerate(times) if k != 5 and not 30 < k < 39])
+    assert [r.has_fix for r in records].count(False) == 1
+    assert records[3].lat == pytest.approx(48.5 + 3e-6) and records[13].lon == pytest.approx(9.0 + 1.4e-5)
+    assert "25 of 100 rows hold no position" in caplog.text
+    assert "9 unreadable rows skipped" in caplog.text and "gaps.csv:7: column 'longitude' is empty" in caplog.text
