@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from agent.stage_report import StageReport
 from agent.telemetry_clock import TelemetryTrack
-from agent.telemetry_holds import detect_hold, interpolate_holds
+from agent.telemetry_holds import changes, detect_hold, held_with, interpolate_holds
 from shared.telemetry import Telemetry
 
 __all__ = ["DEQUANTIZE_OFF", "GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records",
@@ -191,6 +191,29 @@ def _continuous(name: str, t: NDArray, values: NDArray, quanta: dict[str, float]
     return None
 
 
+def _continuous_all(t: NDArray, columns: dict[str, NDArray], quanta: dict[str, float],
+                    holds: dict[str, float]) -> dict[str, NDArray]:
+    """`_continuous` for each coordinate (lat, lon, height_m as present), and then latitude and longitude as one
+    fix: a coordinate left as written that changes where the other's held updates are (`held_with`: its own steps
+    too few or too small to show the hold) is held with them. The values of those made continuous."""
+    out: dict[str, NDArray] = {}
+    for name, values in columns.items():
+        fixed = _continuous(name, t, values, quanta, holds)
+        if fixed is not None:
+            out[name] = fixed
+    for name, other in (("lat", "lon"), ("lon", "lat")):
+        if name in columns and name not in out and other in holds:
+            updates = held_with(columns[name], changes(columns[other]))
+            if updates is not None:
+                holds[name] = holds[other]
+                out[name] = interpolate_holds(t, columns[name], holds[other], updates=updates)
+    order = {name: i for i, name in enumerate(columns)}
+    found = sorted(holds.items(), key=lambda item: order.get(item[0], len(order)))
+    holds.clear()
+    holds.update(found)
+    return out
+
+
 def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, float], dict[str, float]]:
     """One video's telemetry samples (agent.telemetry_clock) with quantised latitude, longitude and height
     made continuous, and those held between regular updates interpolated between them (agent.telemetry_holds).
@@ -204,13 +227,9 @@ def dequantize_track(track: TelemetryTrack) -> tuple[TelemetryTrack, dict[str, f
     if len(track) < 2:
         return track, quanta, holds
     out = track
-    for name in ("lat", "lon", "height_m"):
-        fixed = _continuous(name, track.t, track.column(name), quanta, holds)
-        if fixed is None:
-            continue
-        if name == "height_m":
-            fixed = np.maximum(fixed, 0.1)
-        out = out.replace_column(name, fixed)
+    columns = {name: track.column(name) for name in ("lat", "lon", "height_m")}
+    for name, fixed in _continuous_all(track.t, columns, quanta, holds).items():
+        out = out.replace_column(name, np.maximum(fixed, 0.1) if name == "height_m" else fixed)
     return out, quanta, holds
 
 
@@ -242,12 +261,11 @@ def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[
     if all(h is not None for h in heights):
         columns["height_m"] = np.array(heights, dtype=np.float64)
     fixed_values: dict[str, NDArray] = {}
-    for name, values in columns.items():
-        smooth = _continuous(name, t_all[first], values[first], quanta, holds)
-        if smooth is None:
-            continue
+    judged = {name: values[first] for name, values in columns.items()}
+    for name, smooth in _continuous_all(t_all[first], judged, quanta, holds).items():
         at_all = np.interp(t_all, t_all[first], smooth)
         q = quanta.get(name)
+        values = columns[name]
         fixed_values[name] = at_all if q is None else np.clip(at_all, values - q / 2.0, values + q / 2.0)
     if not fixed_values:
         return records, quanta, holds

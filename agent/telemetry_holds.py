@@ -11,14 +11,18 @@ coordinate that holds while the rest of the record moves on.
 Each new value is a sample taken when it first appears (halfway between the record before and the first record
 holding it: the update came in between), so between two updates the coordinate is taken linear from one to the
 next (`interpolate_holds`). Only what the file shows is applied (`detect_hold`): at least MIN_UPDATES updates, at
-least MIN_SAMPLES_PER_UPDATE records per update (median), updates at a regular period (their intervals'
-inter-quartile range within MAX_SPREAD of the median interval, the period), and steps of more than one size: when
-at least MAX_UNIT_STEPS of them are the size of the smallest, the values sit on a grid and step one unit at a time
-(a slow coordinate rounded to 6 decimals, to whole feet, to a KLV altitude's 0.30 m; a barometer flipping between
-two levels). Rounding steps where the coordinate crosses the middle between two values, half a unit earlier than a
-held value's, so reading it as a hold would move it half a unit the wrong way (agent.telemetry_dequantize makes 3
-to 5 decimals continuous when they step one quantum at a time; a finer grid is left as written). At exactly
-constant speed a hold writes such steps too: the file cannot tell them apart, and the stage stands down.
+least MIN_SAMPLES_PER_UPDATE records per update (median), and at least MIN_UPDATES held steps: steps of
+MIN_HELD_STEP_UNITS or more units of the grid the values sit on (`grid_unit`: 1e-6 for 6 decimals, whole feet, a KLV
+altitude's 0.30 m, a float32's spacing; none at full precision). A coordinate rounded to a grid, with records
+between its steps, moves one unit at a time (a slow coordinate in 6 decimals, a barometer flipping between two
+levels, a hover's fix noise); rounding steps where the coordinate crosses the middle between two values, half a
+unit earlier than a held value's, so reading it as a hold would move it half a unit the wrong way
+(agent.telemetry_dequantize makes 3 to 5 decimals continuous when they step one quantum at a time). The held steps
+come at a regular period: the time since the update before each (a hover's small steps between them are updates
+too), their inter-quartile range within MAX_SPREAD of their median, the period. So a long hover whose one-unit steps
+outnumber a leg's held steps, and whose fixes round to the same value for seconds, does not hide the leg. At exactly
+constant speed every step of a hold is the same: the grid is that step, the file cannot tell it from rounding, and
+the stage stands down.
 
 A value held longer than LONG_HOLD periods (the UAV stopped, a dropout) is reached by a ramp over the time its
 step takes at the speed of the faster regular interval beside it, at least one period and at most the whole interval: a
@@ -36,8 +40,9 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LONG_HOLD", "MAX_SPREAD", "MAX_UNIT_STEPS", "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "TAIL_SPREAD",
-           "TAIL_UPDATES", "detect_hold", "interpolate_holds"]
+__all__ = ["LONG_HOLD", "MAX_SPREAD", "MIN_HELD_STEP_UNITS", "MIN_PARTNER_CHANGES", "MIN_PARTNER_SHARE",
+           "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "TAIL_SPREAD", "TAIL_UPDATES", "changes", "detect_hold",
+           "grid_unit", "held_with", "interpolate_holds"]
 
 #: Updates (changes of the value) needed to judge a period.
 MIN_UPDATES = 5
@@ -49,8 +54,15 @@ MAX_SPREAD = 0.6
 #: An interval between updates longer than this many periods is a hold (the UAV stopped, a dropout), not an update
 #: period (`interpolate_holds`).
 LONG_HOLD = 1.5
-#: At most this share of the steps may be the size of the smallest (one unit of a grid the values sit on).
-MAX_UNIT_STEPS = 0.8
+#: A held step moves at least this many units of the grid the values sit on (`grid_unit`); a coordinate rounded to
+#: that grid, with records between its steps, moves one unit at a time (two where noise flips it).
+MIN_HELD_STEP_UNITS = 3
+#: A coordinate changing only where its partner's held updates are needs this many changes to be held with it
+#: (`held_with`).
+MIN_PARTNER_CHANGES = 3
+#: ... at least this share of them where the partner's value changes (one change in 30 frames falls on a
+#: partner's change by chance).
+MIN_PARTNER_SHARE = 0.8
 #: The values after the last update go on at the last speed when this many intervals before it were steady ...
 TAIL_UPDATES = 3
 #: ... their speeds of one sign and within this fraction of the largest (a hover's noise, a turn: as written).
@@ -64,17 +76,23 @@ def detect_hold(t: NDArray, x: NDArray) -> float | None:
     x = np.asarray(x, dtype=np.float64).reshape(-1)
     if len(t) != len(x) or len(t) < 2 or not (np.isfinite(t).all() and np.isfinite(x).all()):
         return None
-    updates = np.flatnonzero(x[1:] != x[:-1]) + 1
+    updates = changes(x)
     if len(updates) < MIN_UPDATES:
         return None
     if float(np.median(np.diff(updates))) < MIN_SAMPLES_PER_UPDATE:
         return None
     steps = np.abs(x[updates] - x[updates - 1])
-    unit = float(steps.min())
     tolerance = 1e-9 * (1.0 + float(np.max(np.abs(x))))  # the float's own error in a difference of two values
-    if float(np.mean(steps <= unit + tolerance)) >= MAX_UNIT_STEPS:
+    unit = grid_unit(steps, tolerance)
+    # only steps of several units are a hold's: rounding with records between its steps moves one unit at a time
+    held = steps > (MIN_HELD_STEP_UNITS - 0.5) * unit + tolerance
+    if int(held.sum()) < MIN_UPDATES:
         return None
-    intervals = np.diff(t[updates])
+    # the time since the update before, at each held step (a hover's one-unit flips between them are updates too;
+    # updates lost where a hover's fix rounds to the value before are not held steps' intervals)
+    intervals = np.diff(t[updates])[held[1:]]
+    if len(intervals) < MIN_UPDATES - 1:
+        return None
     period = float(np.median(intervals))
     if not period > 0.0:
         return None
@@ -86,12 +104,48 @@ def detect_hold(t: NDArray, x: NDArray) -> float | None:
     return float(np.mean(regular))
 
 
-def interpolate_holds(t: NDArray, x: NDArray, period: float) -> NDArray:
+def grid_unit(steps: NDArray, tolerance: float) -> float:
+    """The largest value that every step is a whole multiple of, within `tolerance` (the grid written values sit on:
+    1e-6 for 6 decimals, 0.3048 for whole feet, a float32's spacing); for values at full precision, which sit on no
+    grid, 0.0 or a few tolerances (where Euclid's remainders stop)."""
+    unit = 0.0
+    for step in np.abs(np.asarray(steps, dtype=np.float64)).tolist():
+        a, b = max(unit, step), min(unit, step)
+        while b > tolerance:  # Euclid's algorithm, the remainder taken the short way (either side of a multiple)
+            r = a % b
+            a, b = b, min(r, b - r)
+        unit = a
+        if unit <= tolerance:
+            return 0.0
+    return unit
+
+
+def changes(x: NDArray) -> NDArray:
+    """Indices of the samples whose value differs from the one before."""
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    return np.flatnonzero(x[1:] != x[:-1]) + 1
+
+
+def held_with(x: NDArray, updates: NDArray) -> NDArray | None:
+    """The samples where x took new values when it changes at `updates` (the samples where a partner coordinate
+    held between updates takes its new value) at least MIN_PARTNER_SHARE of the times, and at least
+    MIN_PARTNER_CHANGES times: the same fix writes both (a latitude that moves a few units a second beside a
+    longitude held for a second), so x is held with the partner's updates though its own steps are too few or too
+    small to show it. Its own other changes are updates the partner's value did not show (rounded to the value
+    before): the union of both. None when x is not held with the partner."""
+    own, updates = changes(x), np.asarray(updates, dtype=np.intp).reshape(-1)
+    if len(own) < MIN_PARTNER_CHANGES or float(np.mean(np.isin(own, updates))) < MIN_PARTNER_SHARE:
+        return None
+    return np.union1d(own, updates)
+
+
+def interpolate_holds(t: NDArray, x: NDArray, period: float, updates: NDArray | None = None) -> NDArray:
     """x with each held value taken linear from the update that wrote it to the next one (`detect_hold`'s period;
     a hold longer than LONG_HOLD periods ramps over the time its step takes at the speed of the faster regular
     interval beside it, between one period and the whole hold; the first values, written before the data began,
     ramp over the period before the first update; after the last update, `_extrapolate_tail`). t increasing, one
-    sample a time."""
+    sample a time. updates: the samples where a new value arrived, when a partner coordinate shows them
+    (`held_with`; x may keep its value at some); default: where x changes."""
     t = np.asarray(t, dtype=np.float64).reshape(-1)
     x = np.asarray(x, dtype=np.float64).reshape(-1)
     if len(t) != len(x):
@@ -101,7 +155,14 @@ def interpolate_holds(t: NDArray, x: NDArray, period: float) -> NDArray:
     if not (np.isfinite(period) and period > 0.0):
         raise ValueError(f"interpolate_holds needs a period > 0, got {period!r}")
     out = x.copy()
-    updates = np.flatnonzero(x[1:] != x[:-1]) + 1
+    if updates is None:
+        updates = changes(x)
+    else:
+        updates = np.asarray(updates, dtype=np.intp).reshape(-1)
+        if len(updates) and (updates[0] < 1 or updates[-1] >= len(x) or np.any(np.diff(updates) <= 0)):
+            raise ValueError("interpolate_holds needs updates as increasing sample indices from 1 to len(x) - 1")
+        if not np.isin(changes(x), updates).all():
+            raise ValueError("interpolate_holds: the values change where no update is given")
     if not len(updates):
         return out
     u = (t[updates - 1] + t[updates]) / 2.0  # each update came between the two records: halfway is the estimate

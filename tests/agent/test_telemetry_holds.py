@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from agent.dataset import Dataset, VideoTelemetry, iter_video_frames
 from agent.file_frames import telemetry_reports
 from agent.telemetry_dequantize import dequantize_records
-from agent.telemetry_holds import detect_hold, interpolate_holds
+from agent.telemetry_holds import detect_hold, grid_unit, interpolate_holds
 from shared.geo import Camera
 from shared.telemetry import Telemetry
 
@@ -98,9 +98,11 @@ def test_what_is_not_a_regular_hold_is_left_alone() -> None:
     t = np.arange(0.0, 30.0, 0.1)
     # a value that changes on every record (noise, full precision)
     assert detect_hold(t, 6.0 * t + rng.normal(0.0, 0.3, len(t))) is None
-    # updates at random times (their intervals spread as widely as a Poisson process's)
+    # updates at random times (their intervals spread as widely as a Poisson process's), steps of several sizes
     moments = np.sort(rng.uniform(0.0, 30.0, 25))
-    assert detect_hold(t, np.searchsorted(moments, t).astype(float) * 6.0) is None
+    k = np.searchsorted(moments, t).astype(float)
+    assert detect_hold(t, 6.0 * k + np.sin(k)) is None
+    assert detect_hold(t, 6.0 * np.floor(t) + np.sin(np.floor(t))) == 1.0  # the same steps at whole seconds: held
     # a slow coordinate rounded to 6 decimals steps one last digit at a time at a regular pace: rounded, not held;
     # so does a climb written in whole feet or as a KLV altitude (a 16-bit count of 0.3037 m), and a latitude
     # stored as a 32-bit float (0.42 m apart at 48 N), grids of no decimal
@@ -108,7 +110,8 @@ def test_what_is_not_a_regular_hold_is_left_alone() -> None:
     assert detect_hold(t, np.round((40.0 + 0.5 * t) / 0.3048) * 0.3048) is None
     assert detect_hold(t / 3.0, np.round((40.0 + 0.5 * t / 3.0) / 0.3037) * 0.3037) is None
     assert detect_hold(t, (48.5 + 0.3 * t / 111_320.0).astype(np.float32).astype(np.float64)) is None
-    # a hold at exactly constant speed steps by one length every update: the same values as rounding, stands down
+    # a hold at exactly constant speed steps by one length every update: that length is the grid, as rounding's
+    # one unit is, and it stands down
     assert detect_hold(t, 48.5 + 6.0 * np.floor(t) / 111_320.0) is None
     # too few updates (four) and one update a record are not enough to judge
     assert detect_hold(t, np.floor(t / 7.0) * 6.0) is None
@@ -241,3 +244,81 @@ def test_after_the_last_update_on_at_a_steady_speed_else_as_written() -> None:
         assert np.array_equal(interpolate_holds(t, written, 1.0)[tail], written[tail]), name
     stopped = np.where(t < 18.0, held(steady), steady(17.3))  # no update since 17.3 s: 2.8 s at the end
     assert np.array_equal(interpolate_holds(t, stopped, 1.0)[t > 17.3], stopped[t > 17.3])
+
+
+def test_the_grid_is_the_values_own_not_the_smallest_step() -> None:
+    # a smooth (RTK, filtered) position held for a second at a steady 6 m/s, written with 6 decimals: at heading 45
+    # the latitude steps 38 and 39 millionths of a degree. Judged against the smallest step (until 1 Dec 2026) 83 %
+    # of them were "one unit" and it stood down; on its grid of 1e-6 every step is 38 units or more: held
+    t = np.arange(0.0, 30.0, 1.0 / 30.0)
+    held = np.floor(t - 0.35) + 0.35
+    lat = np.round(48.53 + 6.0 * np.cos(np.radians(45.0)) * held / 111_320.0, 6)
+    steps = np.abs(np.diff(lat)[np.diff(lat) != 0])
+    assert set(np.round(steps * 1e6).astype(int).tolist()) == {38, 39}
+    assert grid_unit(steps, 1e-9 * 49.53) == pytest.approx(1e-6, rel=1e-6)
+    assert detect_hold(t, lat) == pytest.approx(1.0, abs=1e-3)
+    fixed = interpolate_holds(t, lat, 1.0)
+    truth = 48.53 + 6.0 * np.cos(np.radians(45.0)) * t / 111_320.0
+    inside = (t > 1.0) & (t < 29.0)
+    assert np.abs(fixed - truth)[inside].max() * 111_320.0 < 0.1 < 2.0 < np.abs(lat - truth)[inside].mean() * 111_320.0
+    # grids of no decimal and none at all
+    assert grid_unit(np.array([3, 5, 2]) * 0.3048, 1e-9) == pytest.approx(0.3048)
+    assert grid_unit(np.array([0.3037, 0.6074, 0.3037]), 1e-9) == pytest.approx(0.3037)
+    # full precision: no grid, or one a few tolerances wide (Euclid's remainders stop at the tolerance), where every
+    # step is hundreds of units
+    assert grid_unit(np.random.default_rng(0).normal(5e-5, 1e-5, 50), 5e-8) < 5e-7
+    assert grid_unit(np.array([1e-9, 5e-5]), 5e-8) == 0.0
+
+
+def test_a_long_hover_does_not_hide_the_leg_after_it() -> None:
+    # 90 s of hover, its 1 Hz fixes 0.1 m apart (one unit of 6 decimals, or none: the same value for seconds),
+    # then a 15 s leg at 6 m/s: the hover's steps are one and two units at irregular intervals, which stood the
+    # stage down for the whole file until 1 Dec 2026 (the leg's frames 2.9 m off as written)
+    rng = np.random.default_rng(4)
+    t = np.arange(0.0, 105.0, 1.0 / 30.0)
+    fixes = np.arange(-1.0, 106.0) + 0.35
+    noise = rng.normal(0.0, 0.1, len(fixes))
+
+    def north(s):
+        return 6.0 * np.maximum(s - 90.0, 0.0)
+
+    i = np.searchsorted(fixes, t, side="right") - 1
+    lat = np.round(48.53 + (north(fixes[i]) + noise[i]) / 111_320.0, 6)
+    period = detect_hold(t, lat)
+    assert period == pytest.approx(1.0, abs=0.02)
+    err = np.abs(interpolate_holds(t, lat, period) - 48.53 - north(t) / 111_320.0) * 111_320.0
+    as_written = np.abs(lat - 48.53 - north(t) / 111_320.0) * 111_320.0
+    leg = (t > 91.0) & (t < 104.0)
+    assert err[leg].mean() < 0.3 < 2.5 < as_written[leg].mean()
+    hover = t < 89.0
+    assert err[hover].mean() <= as_written[hover].mean() + 0.01
+
+
+def test_a_slow_coordinate_is_held_with_its_partner() -> None:
+    # flying east at 6 m/s with a 1 Hz GPS, drifting north at about 0.2 m/s: the latitude steps 2 units of 6
+    # decimals at most, at some updates none (no held steps of its own: left as written until 1 Dec 2026);
+    # it changes where the longitude's updates are (and once where the longitude rounded to its value before), so
+    # it is held with them
+    t = np.arange(0.0, 20.0, 1.0 / 30.0)
+    fixes = np.floor(t - 0.35) + 0.35
+    north = 0.2 * fixes + 0.1 * np.sin(fixes)
+    lat = np.round(48.53 + north / 111_320.0, 6)
+    lon = np.round(9.06 + 6.0 * fixes / 73_800.0, 6)
+    lon[(t > 5.35) & (t < 6.35)] = lon[np.searchsorted(t, 5.3)]  # one update the longitude does not show
+    records = _records(t, lat, lon)
+    assert detect_hold(t, lat) is None and detect_hold(t, lon) == pytest.approx(1.0, abs=0.01)
+    out, quanta, holds = dequantize_records(records)
+    assert quanta == {} and list(holds) == ["lat", "lon"] and holds["lat"] == holds["lon"]
+    got = np.array([r.lat for r in out])
+    truth = 48.53 + (0.2 * t + 0.1 * np.sin(t)) / 111_320.0
+    inside = (t > 1.0) & (t < 19.3)
+    # 0.09 m as written (the lag and the rounding), 0.02 m held with the longitude
+    assert np.abs(got - truth)[inside].mean() < 0.5 * np.abs(lat - truth)[inside].mean()
+    # a latitude that changes at records of its own (rounding as it crosses, not where the fix arrives): as written
+    own = np.round(48.53 + (0.4 * t) / 111_320.0, 6)
+    out, _, holds = dequantize_records(_records(t, own, lon))
+    assert list(holds) == ["lon"] and [r.lat for r in out] == [r.lat for r in _records(t, own, lon)]
+    with pytest.raises(ValueError, match="change where no update"):
+        interpolate_holds(t, lat, 1.0, updates=np.array([40, 70]))
+    with pytest.raises(ValueError, match="increasing sample indices"):
+        interpolate_holds(t, lat, 1.0, updates=np.array([70, 40]))
