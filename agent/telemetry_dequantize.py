@@ -37,7 +37,7 @@ from numpy.typing import NDArray
 
 from agent.stage_report import StageReport
 from agent.telemetry_clock import TelemetryTrack
-from agent.telemetry_holds import changes, detect_hold, held_with, interpolate_holds
+from agent.telemetry_holds import changes, detect_hold, held_with, interpolate_holds, phase_locked_period
 from shared.telemetry import Telemetry
 
 __all__ = ["DEQUANTIZE_OFF", "GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records",
@@ -185,10 +185,23 @@ def _continuous(name: str, t: NDArray, values: NDArray, quanta: dict[str, float]
         holds[name] = period
         return interpolate_holds(t, values, period)
     q = _quantum_of(name, values)
-    if q is not None:
-        quanta[name] = q
-        return dequantize(t, values, q)
-    return None
+    if q is None:
+        return None
+    quanta[name] = q
+    out = dequantize(t, values, q)
+    locked = phase_locked_period(t, values)
+    if locked is None:
+        return out
+    holds[name] = locked
+    return _earlier_by_half_period(t, out, locked)
+
+
+def _earlier_by_half_period(t: NDArray, values: NDArray, period: float) -> NDArray:
+    """A quantised coordinate's continuous values when it was also held (`phase_locked_period`): each step was
+    seen at the update after its crossing, half a period later on average than the crossing placed halfway between
+    two records (`dequantize`), so the whole curve goes that much earlier (the last values held)."""
+    lag = max(period - float(np.median(np.diff(t))), 0.0) / 2.0
+    return np.interp(t + lag, t, values)
 
 
 def _continuous_all(t: NDArray, columns: dict[str, NDArray], quanta: dict[str, float],
@@ -202,6 +215,12 @@ def _continuous_all(t: NDArray, columns: dict[str, NDArray], quanta: dict[str, f
         if fixed is not None:
             out[name] = fixed
     for name, other in (("lat", "lon"), ("lon", "lat")):
+        if name in quanta and name not in holds and other in holds and other in quanta:
+            # quantised, its steps too few to judge their phase alone: at the partner's
+            locked = phase_locked_period(t, columns[name], partner=columns[other])
+            if locked is not None and locked == holds[other]:
+                holds[name] = locked
+                out[name] = _earlier_by_half_period(t, out[name], locked)
         if name in columns and name not in out and other in holds:
             updates = held_with(columns[name], changes(columns[other]))
             if updates is not None:
@@ -266,7 +285,9 @@ def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[
         at_all = np.interp(t_all, t_all[first], smooth)
         q = quanta.get(name)
         values = columns[name]
-        fixed_values[name] = at_all if q is None else np.clip(at_all, values - q / 2.0, values + q / 2.0)
+        # a quantised value stays within half a quantum of what it says, unless also held (its steps seen late)
+        fixed_values[name] = at_all if q is None or name in holds else np.clip(at_all, values - q / 2.0,
+                                                                                values + q / 2.0)
     if not fixed_values:
         return records, quanta, holds
     if "lon" in fixed_values:

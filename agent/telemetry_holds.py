@@ -31,6 +31,10 @@ before the next update. Never further from what the file says than the step the 
 values after the last update go on at the last updates' speed for up to a period when those were steady (the update
 the file did not reach), else stay as written.
 
+A quantised coordinate held between updates (4 decimals on every frame, a fix once a second) steps one unit at a
+time, which `detect_hold` takes for rounding; its steps then all come at one phase of the update period
+(`phase_locked_period`), and agent.telemetry_dequantize moves its continuous curve half a period earlier.
+
 Used by agent.telemetry_dequantize (before its quantum: a 5-decimal GPS held for a second steps by several quanta)
 on files, not on a live feed: it needs the update after each record. Arrays in, arrays out.
 """
@@ -40,9 +44,10 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["LONG_HOLD", "MAX_SPREAD", "MIN_HELD_STEP_UNITS", "MIN_PARTNER_CHANGES", "MIN_PARTNER_SHARE",
-           "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "TAIL_SPREAD", "TAIL_UPDATES", "changes", "detect_hold",
-           "grid_unit", "held_with", "interpolate_holds"]
+__all__ = ["LONG_HOLD", "MAX_SPREAD", "MIN_HELD_STEP_UNITS", "MIN_LOCKED_STEPS", "MIN_OTHER_MULTIPLE",
+           "MIN_PARTNER_CHANGES", "MIN_PARTNER_SHARE", "MIN_PHASE_LOCK", "MIN_RECORDS_PER_PERIOD",
+           "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "PHASE_PERIODS_S", "TAIL_SPREAD", "TAIL_UPDATES", "changes",
+           "detect_hold", "grid_unit", "held_with", "interpolate_holds", "phase_locked_period", "varied"]
 
 #: Updates (changes of the value) needed to judge a period.
 MIN_UPDATES = 5
@@ -63,6 +68,16 @@ MIN_PARTNER_CHANGES = 3
 #: ... at least this share of them where the partner's value changes (one change in 30 frames falls on a
 #: partner's change by chance).
 MIN_PARTNER_SHARE = 0.8
+#: Update periods (s) tried for steps at one phase (`phase_locked_period`), longest first.
+PHASE_PERIODS_S = (1.0, 0.5, 0.2)
+#: Steps needed to judge their phase, ...
+MIN_LOCKED_STEPS = 8
+#: ... the length of their mean phase vector (1: all at one phase) ...
+MIN_PHASE_LOCK = 0.9
+#: ... and the records a period needed; the intervals between the steps must be more than one whole number of
+#: periods, the second commonest at least this share of them (`varied`).
+MIN_RECORDS_PER_PERIOD = 3
+MIN_OTHER_MULTIPLE = 0.05
 #: The values after the last update go on at the last speed when this many intervals before it were steady ...
 TAIL_UPDATES = 3
 #: ... their speeds of one sign and within this fraction of the largest (a hover's noise, a turn: as written).
@@ -102,6 +117,56 @@ def detect_hold(t: NDArray, x: NDArray) -> float | None:
     # the median is one of the intervals, each a whole number of records: their mean about it is finer
     regular = intervals[np.abs(intervals - period) <= 0.5 * period]
     return float(np.mean(regular))
+
+
+def phase_locked_period(t: NDArray, x: NDArray, partner: NDArray | None = None) -> float | None:
+    """The update period (seconds) of a coordinate whose steps all come at one phase of it, None when they do not:
+    a value held between updates that steps one unit of its grid at a time (GPS in 4 decimals, 11 m, from a fix
+    updated once a second and written on every frame), whose steps `detect_hold` cannot see as a hold. The steps
+    (each placed halfway between the record before and the first with the new value) must number at least
+    MIN_LOCKED_STEPS and sit within one phase of a period in PHASE_PERIODS_S (the longest that fits: their mean
+    phase vector at least MIN_PHASE_LOCK long; steps at random times give about 1 / sqrt(steps)), with at least
+    MIN_RECORDS_PER_PERIOD records a period (with fewer, every step falls on one of a few phases by itself).
+    partner: the other coordinate of the same fix (latitude for longitude), locked itself: then MIN_PARTNER_CHANGES
+    steps of x suffice, locked at that period and, with the partner's, at one phase."""
+    t = np.asarray(t, dtype=np.float64).reshape(-1)
+    x = np.asarray(x, dtype=np.float64).reshape(-1)
+    if len(t) != len(x) or len(t) < 2 or not (np.isfinite(t).all() and np.isfinite(x).all()):
+        return None
+    record = float(np.median(np.diff(t)))
+
+    def step_times(values: NDArray) -> NDArray:
+        k = changes(values)
+        return (t[k - 1] + t[k]) / 2.0
+
+    def locked(u: NDArray, period: float) -> bool:
+        return bool(abs(np.mean(np.exp(2j * np.pi * u / period))) >= MIN_PHASE_LOCK)
+
+    own = step_times(x)
+    theirs = None if partner is None else step_times(np.asarray(partner, dtype=np.float64).reshape(-1))
+    if len(own) < (MIN_LOCKED_STEPS if theirs is None else MIN_PARTNER_CHANGES):
+        return None
+    for period in PHASE_PERIODS_S:
+        if period < MIN_RECORDS_PER_PERIOD * record or not locked(own, period):
+            continue
+        if theirs is None and varied(own, period):
+            return period
+        if theirs is not None and len(theirs) >= MIN_LOCKED_STEPS and locked(theirs, period) \
+                and varied(theirs, period) and locked(np.concatenate([own, theirs]), period):
+            return period
+    return None
+
+
+def varied(u: NDArray, period: float) -> bool:
+    """Whether the intervals between steps at times u are whole numbers of periods of more than one kind (the
+    second commonest at least MIN_OTHER_MULTIPLE of them, and twice): a hold of a flight whose speed varies. At
+    one constant speed whose crossings come every whole number of periods (5.566 m/s north in 4 decimals: every
+    2.000 s) steps written as they cross are locked as well, and cannot be told from a hold."""
+    k = np.round(np.diff(u) / period).astype(np.int64)
+    if len(k) < 2:
+        return False
+    counts = np.sort(np.unique(k, return_counts=True)[1])[::-1]
+    return len(counts) > 1 and counts[1] >= max(2.0, MIN_OTHER_MULTIPLE * len(k))
 
 
 def grid_unit(steps: NDArray, tolerance: float) -> float:

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from agent.dataset import Dataset, VideoTelemetry, iter_video_frames
 from agent.file_frames import telemetry_reports
 from agent.telemetry_dequantize import dequantize_records
-from agent.telemetry_holds import detect_hold, grid_unit, interpolate_holds
+from agent.telemetry_holds import changes, detect_hold, grid_unit, interpolate_holds, phase_locked_period, varied
 from shared.geo import Camera
 from shared.telemetry import Telemetry
 
@@ -322,3 +322,69 @@ def test_a_slow_coordinate_is_held_with_its_partner() -> None:
         interpolate_holds(t, lat, 1.0, updates=np.array([40, 70]))
     with pytest.raises(ValueError, match="increasing sample indices"):
         interpolate_holds(t, lat, 1.0, updates=np.array([70, 40]))
+
+
+def _flight(t: np.ndarray, speed: float, heading_deg: float, swing: float, decimals: int,
+            gps_hz: float | None, phase: float = 0.35) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Truth and written latitude / longitude of a UAV at `speed` m/s give or take `swing` (over 17 s), written
+    with `decimals` on every record, its fix updated gps_hz times a second (None: on every record)."""
+    dist = speed * t + swing * 17.0 / (2.0 * np.pi) * np.sin(2.0 * np.pi * t / 17.0)
+    lat = 48.53 + dist * np.cos(np.radians(heading_deg)) / 111_320.0
+    lon = 9.06 + dist * np.sin(np.radians(heading_deg)) / (111_320.0 * np.cos(np.radians(48.53)))
+    k = np.arange(len(t))
+    if gps_hz is not None:
+        k = np.clip(np.searchsorted(t, np.floor((t - phase) * gps_hz) / gps_hz + phase), 0, len(t) - 1)
+    return lat, lon, np.round(lat[k], decimals), np.round(lon[k], decimals)
+
+
+def _metres(lat_a, lon_a, lat_b, lon_b) -> np.ndarray:
+    return np.hypot((lat_a - lat_b) * 111_320.0, (lon_a - lon_b) * 111_320.0 * np.cos(np.radians(48.53)))
+
+
+@settings(max_examples=40, deadline=None)
+@given(speed=st.floats(3.0, 14.0), heading=st.floats(0.0, 360.0), swing=st.floats(0.3, 1.5),
+       fps=st.sampled_from([10.0, 30.0]), phase=st.floats(0.0, 1.0))
+def test_quantised_gps_held_between_updates_goes_back_half_a_period(speed, heading, swing, fps, phase) -> None:
+    # 4 decimals (11 m) written on every record from a fix updated once a second (the Mavic Mini's per-frame
+    # subtitles): each step one quantum, seen at the update after the crossing, half a second late on average.
+    # The steps' phase shows the hold: the quantum stage's curve goes half a period earlier (until 1 Dec 2026 it
+    # kept the lag; 336 such flights: 5.10 m as written, 3.89 before, 2.36 now)
+    t = np.arange(0.0, 60.0, 1.0 / fps)
+    lat, lon, w_lat, w_lon = _flight(t, speed, heading, swing, 4, 1.0, phase)
+    out, quanta, holds = dequantize_records(_records(t, w_lat, w_lon))
+    assert set(holds) <= set(quanta) and all(v == 1.0 for v in holds.values())
+    got = _metres(np.array([r.lat for r in out]), np.array([r.lon for r in out]), lat, lon)
+    assert got.mean() < _metres(w_lat, w_lon, lat, lon).mean()
+
+
+@pytest.mark.parametrize(("speed", "heading", "before"), [(3.0, 45.0, 1.41), (6.0, 30.0, 2.93), (10.0, 60.0, 4.92)])
+def test_quantised_gps_held_acts_on_both_coordinates(speed: float, heading: float, before: float) -> None:
+    t = np.arange(0.0, 60.0, 1.0 / 30.0)
+    lat, lon, w_lat, w_lon = _flight(t, speed, heading, 0.5, 4, 1.0)
+    out, quanta, holds = dequantize_records(_records(t, w_lat, w_lon))
+    assert quanta == {"lat": 1e-4, "lon": 1e-4} and holds == {"lat": 1.0, "lon": 1.0}
+    got = _metres(np.array([r.lat for r in out]), np.array([r.lon for r in out]), lat, lon)
+    # the quantum stage alone (until 1 Dec 2026: `before`) stayed about half a second's flight off; now 0.78, 1.57,
+    # 1.89 m (as written 3.77, 4.56, 6.02)
+    assert got.mean() < 0.6 * before < before < _metres(w_lat, w_lon, lat, lon).mean()
+
+
+@settings(max_examples=60, deadline=None)
+@given(speed=st.floats(0.5, 14.0), heading=st.floats(0.0, 360.0), swing=st.sampled_from([0.0, 0.1, 1.0]),
+       fps=st.sampled_from([10.0, 30.0]), decimals=st.sampled_from([4, 5]))
+def test_quantised_gps_written_as_it_crosses_is_no_hold(speed, heading, swing, fps, decimals) -> None:
+    # the same GPS written on every record at full rate: its steps come where the UAV crosses, at no one phase
+    t = np.arange(0.0, 60.0, 1.0 / fps)
+    *_, w_lat, w_lon = _flight(t, speed, heading, swing, decimals, None)
+    assert dequantize_records(_records(t, w_lat, w_lon))[2] == {}
+
+
+def test_steps_every_whole_period_at_one_speed_are_no_hold() -> None:
+    # 5.566 m/s north in 4 decimals crosses every 2.000 s: locked to a 1 s period as a hold is, but one interval
+    # only (a hold of a real flight, whose speed varies, steps after 1 or 2 periods): the stage cannot tell
+    t = np.arange(0.0, 60.0, 1.0 / 30.0)
+    lat = np.round(48.53 + 11.132 / 2.0 * t / 111_320.0, 4)
+    assert len(changes(lat)) >= 25 and phase_locked_period(t, lat) is None and not varied(
+        (t[changes(lat) - 1] + t[changes(lat)]) / 2.0, 1.0)
+    held = np.round(48.53 + (5.566 * np.floor(t - 0.35) + 2.0 * np.sin(np.floor(t - 0.35) / 3.0)) / 111_320.0, 4)
+    assert phase_locked_period(t, held) == 1.0
