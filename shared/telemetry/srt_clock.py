@@ -15,6 +15,11 @@ from shared.telemetry.dates import truncated_date_offset
 #: Date steps and subtitle-timing steps further apart than this disagree (DJI date lines of the oldest
 #: firmware have whole seconds only, so 1 s of difference is normal).
 CLOCK_TOLERANCE_S = 1.5
+#: A date-time at most this much before the block before it, where the subtitle timing goes on, is jitter in the
+#: stamps (a date now and then a few ms early), not a new clock: it is taken 1 ms after the block before
+#: (`JITTER_STEP_S`). Taken as a new run, each such step moved every later block one frame step late, adding up.
+JITTER_BACK_S = 0.1
+JITTER_STEP_S = 0.001
 _FALLBACK_STEP_S = 1.0
 
 
@@ -74,6 +79,10 @@ def _runs(blocks: Sequence[BlockTimes]) -> tuple[list[list[int]], list[float], l
             if source == "counter" and prev.source() == "counter" and secondary is not None and secondary >= 0.0:
                 value = values[-1] + secondary  # cumulative: DiffTime alternates 41/42 ms at 23.976 fps
                 step = secondary
+            if source == "date" and prev.source() == source and -JITTER_BACK_S <= step < 0.0 \
+                    and (secondary is None or secondary > 0.0):
+                value = values[-1] + JITTER_STEP_S
+                step = JITTER_STEP_S
             if prev.source() != source:
                 reason = f"line {block.line}: the blocks' clock changes from {prev.source()} to {source}"
             elif step < 0.0:
