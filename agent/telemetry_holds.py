@@ -46,8 +46,9 @@ from numpy.typing import NDArray
 
 __all__ = ["LONG_HOLD", "MAX_SPREAD", "MIN_HELD_STEP_UNITS", "MIN_LOCKED_STEPS", "MIN_OTHER_MULTIPLE",
            "MIN_PARTNER_CHANGES", "MIN_PARTNER_SHARE", "MIN_PHASE_LOCK", "MIN_RECORDS_PER_PERIOD",
-           "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "PHASE_PERIODS_S", "TAIL_SPREAD", "TAIL_UPDATES", "changes",
-           "detect_hold", "grid_unit", "held_with", "interpolate_holds", "phase_locked_period", "varied"]
+           "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "PHASE_PERIODS_S", "RECEIVER_PERIODS_S", "RECEIVER_PERIOD_MATCH",
+           "TAIL_SPREAD", "TAIL_UPDATES", "changes", "detect_hold", "grid_unit", "held_with", "interpolate_holds",
+           "phase_locked_period", "varied"]
 
 #: Updates (changes of the value) needed to judge a period.
 MIN_UPDATES = 5
@@ -62,6 +63,10 @@ LONG_HOLD = 1.5
 #: A held step moves at least this many units of the grid the values sit on (`grid_unit`); a coordinate rounded to
 #: that grid, with records between its steps, moves one unit at a time (two where noise flips it).
 MIN_HELD_STEP_UNITS = 3
+#: Held steps all within one written unit of each other may be a coarser grid written with more decimals, rounding
+#: (`detect_hold`): a hold then needs the update period of a receiver, one of these (s), within this fraction.
+RECEIVER_PERIODS_S = (0.1, 0.2, 0.25, 0.5, 1.0, 2.0)
+RECEIVER_PERIOD_MATCH = 0.03
 #: A coordinate changing only where its partner's held updates are needs this many changes to be held with it
 #: (`held_with`).
 MIN_PARTNER_CHANGES = 3
@@ -97,12 +102,19 @@ def detect_hold(t: NDArray, x: NDArray) -> float | None:
     if float(np.median(np.diff(updates))) < MIN_SAMPLES_PER_UPDATE:
         return None
     steps = np.abs(x[updates] - x[updates - 1])
-    tolerance = 1e-9 * (1.0 + float(np.max(np.abs(x))))  # the float's own error in a difference of two values
+    # the float's own error in a difference of two values read from text (far below a 7-decimal longitude's grid)
+    tolerance = 1e-11 * (1.0 + float(np.max(np.abs(x))))
     unit = grid_unit(steps, tolerance)
     # only steps of several units are a hold's: rounding with records between its steps moves one unit at a time
     held = steps > (MIN_HELD_STEP_UNITS - 0.5) * unit + tolerance
     if int(held.sum()) < MIN_UPDATES:
         return None
+    # steps all of one size give or take a written unit: a coarser grid written with more decimals (KLV's 0.30 m
+    # altitude to 0.1 m, whole feet in centimetres, a float32 latitude to 6 decimals) rounding one of its units at a
+    # time, or a hold at a steady speed (a filtered or RTK position). Only a receiver's update period tells them
+    # apart: rounding crosses its grid every grid / speed seconds, any period
+    k = steps[held] / unit if unit > 0.0 else None
+    one_size = k is not None and float(k.max() - k.min()) <= 1.0 + 1e-6
     # the time since the update before, at each held step (a hover's one-unit flips between them are updates too;
     # updates lost where a hover's fix rounds to the value before are not held steps' intervals)
     intervals = np.diff(t[updates])[held[1:]]
@@ -116,7 +128,10 @@ def detect_hold(t: NDArray, x: NDArray) -> float | None:
         return None
     # the median is one of the intervals, each a whole number of records: their mean about it is finer
     regular = intervals[np.abs(intervals - period) <= 0.5 * period]
-    return float(np.mean(regular))
+    found = float(np.mean(regular))
+    if one_size and not any(abs(found - p) <= RECEIVER_PERIOD_MATCH * p for p in RECEIVER_PERIODS_S):
+        return None
+    return found
 
 
 def phase_locked_period(t: NDArray, x: NDArray, partner: NDArray | None = None) -> float | None:

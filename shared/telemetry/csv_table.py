@@ -226,9 +226,10 @@ def parse_csv(
     if len(rows) == 1:
         raise ValueError(f"{source}: no data rows after the header")
     _one_drone(header, rows[1:], source)
-    data = _fill_sparse_positions(rows[1:], header, columns, source, utc_offset_s)
+    times = _row_times(rows[1:], header, columns, source, utc_offset_s)
+    data = rows[1:] if times is None else _fill_sparse_positions(rows[1:], header, columns, source, times)
     kept = _usable_rows(data, header, columns, source, utc_offset_s, height_offset_m)
-    records = _records(kept, columns, source, utc_offset_s, height_offset_m)
+    records = _records(kept, columns, source, utc_offset_s, height_offset_m, times=times)
     _warn_jumps(records, [line for line, _ in kept], source)
     return records
 
@@ -252,10 +253,33 @@ def _warn_jumps(records: list[Telemetry], lines: list[int], source: str) -> None
                     "drone that filmed the video", source, _MAX_SPEED_MPS, len(jumps), lines[jumps[0]])
 
 
+def _row_times(rows: list[tuple[int, list[str]]], header: list[str], columns: dict[str, _CsvColumn], source: str,
+               utc_offset_s: float) -> dict[int, float] | None:
+    """The time of each data row whose time can be read, by line, judged on all of them (whole-second stamps
+    spread over every row of their second, also those skipped later for another cell); None when they cannot be
+    read together (then `_records` times the rows it keeps)."""
+
+    def timed(line: int, row: list[str]) -> bool:
+        try:
+            _csv_times([(line, row)], columns, source, utc_offset_s, quiet=True)
+        except (ValueError, IndexError):
+            return False
+        return True
+
+    ok = [(line, row) for line, row in rows if len(row) == len(header) and timed(line, row)]
+    if not ok:
+        return None
+    try:
+        return dict(zip([line for line, _ in ok], _csv_times(ok, columns, source, utc_offset_s), strict=True))
+    except ValueError:
+        return None
+
+
 def _records(rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float,
-             height_offset_m: float, *, quiet: bool = False) -> list[Telemetry]:
+             height_offset_m: float, *, quiet: bool = False, times: dict[int, float] | None = None) -> list[Telemetry]:
     """The records of data rows (all of them, or one at a time for `_usable_rows`' check; quiet: no warnings).
-    ValueError ``source:line: ...`` on the first row that cannot be one."""
+    times: the rows' times by line (`_row_times`), else judged on these rows. ValueError ``source:line: ...`` on
+    the first row that cannot be one."""
 
     def floats(fld: str) -> list[float | None] | None:
         column = columns.get(fld)
@@ -273,7 +297,10 @@ def _records(rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], 
         return out
 
     lat, lon, height = required("lat"), required("lon"), required("height")
-    times = _csv_times(rows, columns, source, utc_offset_s, quiet=quiet)
+    if times is not None and all(line in times for line, _ in rows):
+        row_times = [times[line] for line, _ in rows]
+    else:
+        row_times = _csv_times(rows, columns, source, utc_offset_s, quiet=quiet)
     pitch = _csv_pitch(rows, columns, floats("pitch"), source, quiet)
     heading, roll, speed = floats("heading"), floats("roll"), floats("speed")
     north, east = floats("vel_north"), floats("vel_east")
@@ -286,7 +313,7 @@ def _records(rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], 
         try:
             records.append(
                 Telemetry(
-                    t=times[i],
+                    t=row_times[i],
                     lat=lat[i],
                     lon=lon[i],
                     height_m=height[i] + height_offset_m,
@@ -410,55 +437,65 @@ def _one_drone(header: list[str], rows: list[tuple[int, list[str]]], source: str
 
 
 def _fill_sparse_positions(rows: list[tuple[int, list[str]]], header: list[str], columns: dict[str, _CsvColumn],
-                           source: str, utc_offset_s: float) -> list[tuple[int, list[str]]]:
-    """The rows of a log that writes the position only where a fix arrived (a 10 Hz log of the gimbal with a 1 Hz
-    GPS; an export that merges topics), with latitude and longitude (or height) empty in between: those cells
-    filled linear in time between the rows before and after that have them, when those are at most
-    `SPARSE_FILL_MAX_S` apart, so that each row is a record with its own attitude (a fix is where its row is). A
-    row whose position is (0, 0) (no fix) is no end of such an interval; longitude is taken the short way round.
-    Cells that cannot be filled (before the first fix, after the last, across a longer gap) stay empty, and
-    `_usable_rows` skips and counts those rows. One log line says how many rows were filled."""
-    full = [(line, row) for line, row in rows if len(row) == len(header)]
-    fields = [f for f in ("lat", "lon", "height") if f in columns]
+                           source: str, times: dict[int, float]) -> list[tuple[int, list[str]]]:
+    """The rows of a log that writes each value only where it arrived (a 10 Hz log of the gimbal with a 1 Hz GPS;
+    an export that merges topics, its GPS rows without the gimbal and its gimbal rows without a position): the
+    empty cells of latitude and longitude (together) and height, and in such a log (some position filled) those of
+    pitch, heading (the short way round) and roll, filled linear in time between the rows before and after that
+    have them, when those are at most `SPARSE_FILL_MAX_S`
+    apart, so that each row is a record with its own values (a value is where its row is), at its time in `times`
+    (`_row_times`, as the records get). A row whose position is (0, 0) (no fix), or whose cell or time cannot be
+    read, is no end of such an interval; the rows are taken in time order (merged exports need not be sorted).
+    Rows whose position or height cannot be filled (before the first fix,
+    after the last, across a longer gap) stay as they are, and `_usable_rows` skips and counts them. One log line
+    says how many rows were filled."""
+    full = [(line, row) for line, row in rows if line in times]
+    groups = [g for g in (("lat", "lon"), ("height",), ("pitch",), ("heading",), ("roll",))
+              if all(f in columns for f in g)]
+    bad = object()  # a cell that cannot be read
 
-    def empty(row: list[str], f: str) -> bool:
-        text = row[columns[f].index].strip()
-        return not text or text.lower() in _MISSING
+    def cell(line: int, row: list[str], f: str) -> Any:
+        try:
+            return _csv_float(row[columns[f].index], line, columns[f], source)
+        except ValueError:
+            return bad
 
-    if not full or not any(empty(row, f) for _, row in full for f in fields):
+    values = [{f: cell(line, row, f) for g in groups for f in g} for line, row in full]
+    if not any(v[f] is None for v in values for g in groups for f in g):
         return rows
-    try:
-        times = _csv_times(full, columns, source, utc_offset_s, quiet=True)
-        values = {f: [None if empty(row, f) else _csv_float(row[columns[f].index], line, columns[f], source)
-                      for line, row in full] for f in fields}
-    except ValueError:  # a bad cell: rows are judged one by one (`_usable_rows`)
-        return rows
-    filled: dict[int, dict[str, float]] = {}
-    for group in (("lat", "lon"), ("height",)):
-        if not all(f in columns for f in group):
-            continue
-        ends = [i for i in range(len(full)) if all(values[f][i] is not None for f in group)
-                and not (group == ("lat", "lon") and values["lat"][i] == 0.0 and values["lon"][i] == 0.0)]
-        for a, b in zip(ends, ends[1:], strict=False):
-            if b - a < 2 or not 0.0 < times[b] - times[a] <= SPARSE_FILL_MAX_S:
-                continue
-            for i in range(a + 1, b):
-                if not all(values[f][i] is None for f in group) or not times[a] <= times[i] <= times[b]:
+
+    def fills(kept: list[int], at: list[float], chosen: list[tuple[str, ...]],
+              out: dict[int, dict[str, float]]) -> dict[int, dict[str, float]]:
+        for group in chosen:
+            ends = [n for n, k in enumerate(kept) if all(isinstance(values[k][f], float) for f in group)
+                    and not (group == ("lat", "lon") and values[k]["lat"] == 0.0 and values[k]["lon"] == 0.0)]
+            for a, b in zip(ends, ends[1:], strict=False):
+                if b - a < 2 or not 0.0 < at[b] - at[a] <= SPARSE_FILL_MAX_S:
                     continue
-                w = (times[i] - times[a]) / (times[b] - times[a])
-                for f in group:
-                    va, vb = values[f][a], values[f][b]
-                    assert va is not None and vb is not None
-                    d = (vb - va + 180.0) % 360.0 - 180.0 if f == "lon" else vb - va
-                    v = va + w * d
-                    filled.setdefault(i, {})[f] = (v + 180.0) % 360.0 - 180.0 if f == "lon" else v
+                for n in range(a + 1, b):
+                    k = kept[n]
+                    if any(values[k][f] is not None for f in group) or not at[a] <= at[n] <= at[b]:
+                        continue
+                    w = (at[n] - at[a]) / (at[b] - at[a])
+                    for f in group:
+                        va, vb = values[kept[a]][f], values[kept[b]][f]
+                        turn = f in ("lon", "heading")  # the short way round
+                        v = va + w * ((vb - va + 180.0) % 360.0 - 180.0 if turn else vb - va)
+                        out.setdefault(k, {})[f] = (v + 180.0) % 360.0 - 180.0 if f == "lon" else v
+        return out
+
+    order = sorted(range(len(full)), key=lambda k: times[full[k][0]])  # by time: merged exports need not be sorted
+    at = [times[full[k][0]] for k in order]
+    filled = fills(order, at, [g for g in groups if g[0] in ("lat", "height")], {})
+    if any("lat" in cells for cells in filled.values()):  # a sparse log: its attitude may be sparse too
+        filled = fills(order, at, [g for g in groups if g[0] not in ("lat", "height")], filled)
     if not filled:
         return rows
-    log.info("%s: %d of %d rows hold no position (a GPS slower than the rows): filled linear in time between the "
-             "rows with one", source, len(filled), len(rows))
+    log.info("%s: %d of %d rows lack a value other rows hold (a GPS slower than the rows, merged topics): filled "
+             "linear in time between the rows with one", source, len(filled), len(rows))
     out = {line: row for line, row in rows}
-    for i, cells in filled.items():
-        line, row = full[i]
+    for k, cells in filled.items():
+        line, row = full[k]
         row = list(row)
         for f, v in cells.items():
             row[columns[f].index] = repr(v / columns[f].scale)

@@ -110,6 +110,16 @@ def test_what_is_not_a_regular_hold_is_left_alone() -> None:
     assert detect_hold(t, np.round((40.0 + 0.5 * t) / 0.3048) * 0.3048) is None
     assert detect_hold(t / 3.0, np.round((40.0 + 0.5 * t / 3.0) / 0.3037) * 0.3037) is None
     assert detect_hold(t, (48.5 + 0.3 * t / 111_320.0).astype(np.float32).astype(np.float64)) is None
+    # a coarser grid written with more decimals steps a few written units at a time, never more than one apart,
+    # at whatever period its grid / speed gives (a helper's review, 1 Dec 2026: 0.078 -> 0.152 m when read as a
+    # hold): a KLV altitude (0.3037 m) written to 0.1 m and whole feet written in centimetres, climbing about
+    # 1 m/s, a float32 latitude written with 6 decimals drifting 0.5 m/s
+    tt = np.arange(0.0, 120.0, 1.0 / 30.0)
+    climb = 40.0 + tt + 0.3 * np.sin(2.0 * np.pi * tt / 20.0)
+    assert detect_hold(tt, np.round(np.round(climb / (19_900 / 65_535)) * (19_900 / 65_535), 1)) is None
+    assert detect_hold(tt, np.round(np.round(climb / 0.3048) * 0.3048, 2)) is None
+    drift = 48.53 + (0.5 * tt + 0.5 * np.sin(2.0 * np.pi * tt / 30.0)) / 111_320.0
+    assert detect_hold(tt, np.round(drift.astype(np.float32).astype(np.float64), 6)) is None
     # a hold at exactly constant speed steps by one length every update: that length is the grid, as rounding's
     # one unit is, and it stands down
     assert detect_hold(t, 48.5 + 6.0 * np.floor(t) / 111_320.0) is None

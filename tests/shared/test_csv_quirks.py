@@ -172,5 +172,39 @@ def test_sparse_positions_are_not_filled_across_a_long_gap_a_no_fix_row_or_one_m
     assert kept == pytest.approx([t for k, t in enumerate(times) if k != 5 and not 30 < k < 39])
     assert [r.has_fix for r in records].count(False) == 1
     assert records[3].lat == pytest.approx(48.5 + 3e-6) and records[13].lon == pytest.approx(9.0 + 1.4e-5)
-    assert "25 of 100 rows hold no position" in caplog.text
+    assert "25 of 100 rows lack a value other rows hold" in caplog.text
     assert "9 unreadable rows skipped" in caplog.text and "gaps.csv:7: column 'longitude' is empty" in caplog.text
+
+
+def test_a_merged_export_unsorted_with_bad_cells_and_whole_second_stamps_is_filled():
+    # a merged-topics export (a helper's review, 1 Dec 2026): GPS rows at 1 Hz without the gimbal cells, written
+    # just before the gimbal row of 0.05 s earlier (not in time order), gimbal rows at 10 Hz without a position;
+    # one unreadable latitude cell and one unreadable time (each used to stop the fill for the whole file); the
+    # positions linear between the fixes, the attitude between the gimbal rows
+    rows = ["time_s,latitude,longitude,height_m,gimbal_pitch,gimbal_heading"]
+    for k in range(200):
+        t = k / 10
+        if k % 10 == 0:
+            tg = t + 0.05
+            rows.append(f"{tg:.2f},{48.53 + 3.8e-5 * tg:.8f},{9.06 + 5.7e-5 * tg:.8f},40,,")
+        rows.append(f"{'' if k == 77 else f'{t:.2f}'},{'ERR' if k == 55 else ''},,,-30,{(k * 0.5) % 360:.1f}")
+    records = sorted(parse_csv("\n".join(rows) + "\n", source="merged.csv"), key=lambda r: r.t)
+    assert len(records) == 20 + 200 - 2 - 10  # the rows after the last fix (19.1-19.9) and the two bad rows skipped
+    for r in records:
+        assert r.lat == pytest.approx(48.53 + 3.8e-5 * r.t, abs=1e-9) and r.height_m == 40.0
+        assert r.pitch_deg is not None and r.heading_deg is not None
+    gimbal = [r for r in records if round(r.t * 100) % 10 == 5]
+    assert len(gimbal) == 20 and all(r.heading_deg == pytest.approx((r.t - 0.05) * 5.0 + 0.25, abs=1e-6)
+                                     for r in gimbal[:-1])
+    # whole-second stamps, 10 rows a second, a fix at .3 of each second and none for 8 s: the filled rows get the
+    # times their records get (each second spread over all its rows, also those skipped): exact positions
+    start = dt.datetime(2026, 5, 1, 12, 0, 0)
+    rows = ["datetime(utc),latitude,longitude,height_m,gimbal_pitch"]
+    for k in range(600):
+        fix = k % 10 == 3 and not 200 < k < 280
+        stamp = (start + dt.timedelta(seconds=k // 10)).strftime("%Y-%m-%d %H:%M:%S")
+        rows.append(f"{stamp},{f'{48.53 + 5e-5 * k / 10:.8f}' if fix else ''},{'9.06' if fix else ''},40,-30")
+    t0 = start.replace(tzinfo=dt.timezone.utc).timestamp()
+    records = parse_csv("\n".join(rows) + "\n", source="ws.csv")
+    assert len(records) == 600 - 89 - 6 - 3
+    assert max(abs(r.lat - 48.53 - 5e-5 * (r.t - t0)) for r in records) < 1e-9
