@@ -9,7 +9,7 @@ import logging
 import math
 from collections import Counter, defaultdict
 from collections.abc import Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -25,7 +25,7 @@ from shared.files import listed_names
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
-from shared.telemetry.seadronessee import MetaProblem, meta_object, pitch_convention_of
+from shared.telemetry.seadronessee import MetaProblem, compass_heading_of, meta_object, pitch_convention_of
 from shared.telemetry.seadronessee_videos import (  # noqa: F401  (TIME_GAP_*, own_video_ids: re-exported, as before)
     TIME_GAP_S,
     TIME_GAP_STEPS,
@@ -368,11 +368,19 @@ class VideoTelemetry:
     #: view cuts (agent.view_cuts): telemetry intervals turning sharply enough to hide one, the cuts placed and the
     #: intervals with too few frames to judge; None when the stage did not run
     view_cuts: tuple[int, int, int] | None = None
+    #: frames without the gimbal's heading that took the aircraft's compass heading
+    compass_frames: int = 0
+    #: frames whose meta lacked a field (pitch, heading, height) given the pose interpolated between the others'
+    bridged_frames: int = 0
 
 
-def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto") -> tuple[Telemetry | None, PoseProblem | None]:
+def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto",
+                    compass_records: dict[int, Telemetry] | None = None) -> tuple[Telemetry | None, PoseProblem | None]:
     """An image's telemetry record from its meta, or (None, the problem). A frame without meta has the
-    problem "no meta"; its own date_time stands in for a meta without a time."""
+    problem "no meta"; its own date_time stands in for a meta without a time. A meta without the gimbal's heading
+    but with the aircraft's ``compass_heading`` has the problem "no heading", and its record with the compass
+    heading goes into `compass_records` (by image id; `iter_video_frames` uses them for a video with no gimbal
+    heading at all)."""
     if image.meta is None:
         return None, PoseProblem(image.id, "no meta", "no meta")
     t_default = None
@@ -392,10 +400,33 @@ def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto") -> tuple
     if tel.pitch_deg is None:
         return None, PoseProblem(image.id, "no pitch", "telemetry has no gimbal pitch")
     if tel.heading_deg is None:
+        compass = compass_heading_of(image.meta)
+        if compass is not None and compass_records is not None:
+            compass_records[image.id] = replace(tel, heading_deg=compass)  # the aircraft's
         return None, PoseProblem(image.id, "no heading", "telemetry has no gimbal heading")
     if tel.height_m is None or tel.height_m <= 0:
         return None, PoseProblem(image.id, "no height", f"height above ground {tel.height_m!r} is not > 0 m")
     return tel, None
+
+
+#: Reasons a frame's own meta gives no record though the frame may lie between others' samples (`_bridged`).
+PARTIAL_META = frozenset({"no pitch", "no heading", "no height"})
+#: Longest interval (s) between the samples either side across which such a frame is given the interpolated pose.
+BRIDGE_MAX_S = 3.0
+
+
+def _bridged(track: TelemetryTrack | None, t: float, problem: PoseProblem | None) -> Pose | None:
+    """The pose at time t interpolated between the video's samples, for a frame whose meta lacks one field
+    (`PARTIAL_META`: the others' samples around it say where the camera was, as they do for every frame at its
+    time), when samples lie on both sides at most BRIDGE_MAX_S apart; else None (no meta at all stays without pose:
+    DESIGN.md 6)."""
+    if track is None or problem is None or problem.reason not in PARTIAL_META or len(track.t) < 2:
+        return None
+    k = int(np.searchsorted(track.t, t))
+    if k == 0 or k >= len(track.t) or track.t[k] - track.t[k - 1] > BRIDGE_MAX_S:
+        return None
+    lat, lon, height, heading, pitch = (float(v) for v in track.at(t)[0])
+    return Pose(lat, lon, max(height, 0.1), min(max(pitch, 0.0), 90.0), heading, 0.0)
 
 
 def _frame_clock(image: ImageRecord) -> float | None:
@@ -428,6 +459,8 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
     zoomed = ZoomedCamera()
     records: list[Telemetry | None] = []
     clocks: list[float | None] = []
+    compass: dict[int, Telemetry] = {}
+    missing: dict[int, PoseProblem] = {}
     for image in images:
         key = (image.width, image.height)
         if key not in cameras:
@@ -435,11 +468,21 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
             if key != (camera.width, camera.height) and camera.preset is None:  # a preset has no size of its own
                 log.warning("camera is %dx%d, the frames of video %s are %dx%d: scaled the intrinsics to them",
                             camera.width, camera.height, video_id, *key)
-        tel, problem = frame_telemetry(image, info.pitch_convention)
-        if problem is not None and problems is not None:
-            problems.append(problem)
+        tel, problem = frame_telemetry(image, info.pitch_convention, compass)
+        if problem is not None:
+            missing[image.id] = problem
         records.append(tel)
         clocks.append(_frame_clock(image))
+    if compass and not any(tel is not None for tel in records):
+        # no frame has the gimbal's heading (a file without the field): the aircraft's compass heading stands in,
+        # the gimbal mostly points its way; where other frames have it, they say more (`_bridged`)
+        for i, image in enumerate(images):
+            if image.id in compass:
+                records[i] = compass[image.id]
+                del missing[image.id]
+        info.compass_frames = len(compass)
+        log.warning("video %s: no frame has a gimbal_heading: the aircraft's compass_heading stands in for %d of %d "
+                    "(the camera may point elsewhere)", video_id, len(compass), len(images))
     posed = [(tel, clocks[i]) for i, tel in enumerate(records) if tel is not None]
     track: TelemetryTrack | None = None
     zone = 0.0
@@ -475,6 +518,14 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         if tel is not None and tel.hfov_deg is not None:  # a zoom lens's frame (meta hfov_deg, `uavmm detect`)
             cam = zoomed(cam, tel.hfov_deg)
         if tel is None:
+            problem = missing.get(image.id)
+            pose = _bridged(track, t, problem) if at_frame_time else None
+            if pose is not None:
+                info.bridged_frames += 1
+                yield Frame(image, pose, t, cam, t, True, track)
+                continue
+            if problem is not None and problems is not None:
+                problems.append(problem)
             yield Frame(image, None, t, cam)
             continue
         try:
@@ -489,3 +540,6 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
                 problems.append(PoseProblem(image.id, "bad pose", str(exc)))
             frame = Frame(image, None, t, cam)
         yield frame
+    if info.bridged_frames:
+        log.warning("video %s: %d frames whose meta lacks pitch, heading or height took the pose interpolated between "
+                    "the other frames' samples", video_id, info.bridged_frames)

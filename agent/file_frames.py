@@ -83,6 +83,12 @@ def telemetry_reports(info: VideoTelemetry, offset_settings: ClockOffsetSettings
                                    if clock.samples >= 2 else "one telemetry sample"))
         out.append(dequantize_report(info.quanta, info.dequantize_off, info.holds))
         out += look_ahead_reports(info, offset_settings)
+    if info.compass_frames:
+        out.append(StageReport("compass heading", True, "frames without gimbal_heading took the aircraft's "
+                                                        "compass_heading"))
+    if info.bridged_frames:
+        out.append(StageReport("partial meta", True, "frames whose meta lacks pitch, heading or height took the pose "
+                                                     "interpolated between the others' samples"))
     return out
 
 
