@@ -172,8 +172,9 @@ def _meta(meta: Any) -> dict | None:
 
 
 def _frame(im: dict) -> int | None:
-    frame = source_of(im).get("frame_no", im.get("frame_index"))
-    return None if frame is None else _int({"frame_index": frame}, "frame_index")
+    src = source_of(im)
+    key, frame = ("source.frame_no", src["frame_no"]) if "frame_no" in src else ("frame_index", im.get("frame_index"))
+    return None if frame is None else _int({key: frame}, key)
 
 
 def _video_ids(images: list[dict], reserved: Iterable[int] = (), source: str = "<images>"
@@ -194,11 +195,22 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = (), source: str = "
     of_image = grouping.of_images(len(images))
     out: dict[int, tuple[int, int | None]] = {}
     used: set[int] = set(reserved)
+    by_id: dict[int, list[int | None]] = defaultdict(list)
     for im, group in zip(images, of_image, strict=True):
         if group.kind == "id":
             vid = _int(im, "video_id")
             used.add(vid)
             out[id(im)] = (vid, _frame(im))
+            by_id[vid].append(out[id(im)][1])
+    for vid, frames in by_id.items():
+        counts = Counter(f for f in frames if f is not None)
+        repeated = sum(n - 1 for n in counts.values() if n > 1)
+        if repeated:
+            first = min(f for f, n in counts.items() if n > 1)
+            log.warning("%s: video_id %s holds %d images whose frame index another of its images has (first: frame "
+                        "%d): two recordings or a duplicated frame under one id? They are taken as one video, and its "
+                        "tracks' MOTChallenge rows repeat those frames: give each recording its own video_id",
+                        source, vid, repeated, first)
     named = {g.order: [images[i] for i in g.images] for g in grouping.groups if g.kind == "source"}
     own = own_video_ids(named)  # (images without a source that carry the same id join it: the file says so)
     taken = used | set(own.values())
@@ -281,11 +293,18 @@ def _video_names(coco: dict, found: dict[int, str]) -> dict[int, str]:
 
 
 def _int(d: dict, key: str, default: int | None = None) -> int:
+    """d[key] as an integer: a whole number, also written as text (``"5415"``, as some tools write every field)."""
     value = d.get(key, default)
     if value is None:
         raise ValueError(f"missing field {key!r}")
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or value != int(value):
-        raise ValueError(f"field {key!r} must be an integer, got {value!r}")
+    if isinstance(value, str):
+        try:
+            value = float(value.strip())
+        except ValueError:
+            raise ValueError(f"field {key!r} must be an integer, got {d.get(key)!r}") from None
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
+            or value != int(value):
+        raise ValueError(f"field {key!r} must be an integer, got {d.get(key, default)!r}")
     return int(value)
 
 

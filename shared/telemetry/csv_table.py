@@ -25,6 +25,8 @@ _LENGTH_UNITS = {"": 1.0, "m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "
                  "ft": 0.3048, "feet": 0.3048}  # fmt: skip
 _ANGLE_UNITS = {"": 1.0, "deg": 1.0, "degree": 1.0, "degrees": 1.0}
 _SPEED_UNITS = {"": 1.0, "m/s": 1.0, "mps": 1.0, "mph": 0.44704, "km/h": 1 / 3.6, "kph": 1 / 3.6}
+#: The units a quantity may name, with their factor to SI (`split_unit`).
+UNITS = {"length": _LENGTH_UNITS, "angle": _ANGLE_UNITS, "speed": _SPEED_UNITS}
 
 #: field -> (accepted column names in order of preference, accepted units with their factor to SI)
 CSV_COLUMNS: dict[str, tuple[tuple[str, ...], Mapping[str, float]]] = {
@@ -81,6 +83,14 @@ class _CsvColumn:
     scale: float
 
 
+def split_unit(cell: str) -> tuple[str, str]:
+    """A column name or meta key as (name, unit), lower case: ``altitude(feet)`` -> ("altitude", "feet"),
+    ``speed [m/s]`` -> ("speed", "m/s"), ``altitude`` -> ("altitude", "")."""
+    match = _HEADER_RE.fullmatch(cell.strip().lower())
+    assert match is not None  # every string matches: the unit group is optional
+    return match["name"].strip(), (match["paren"] or match["bracket"] or "").strip()
+
+
 def match_column(cell: str) -> tuple[str, str, float] | None:
     """The telemetry field a column name stands for: (field, alias, factor to SI), or None for other columns.
 
@@ -88,9 +98,7 @@ def match_column(cell: str) -> tuple[str, str, float] | None:
     parentheses or brackets (``height_above_takeoff(feet)`` -> ("height", "height_above_takeoff", 0.3048)).
     ValueError when the name is known but its unit is not.
     """
-    match = _HEADER_RE.fullmatch(cell.strip().lower())
-    assert match is not None  # every string matches: the unit group is optional
-    name, unit = match["name"].strip(), (match["paren"] or match["bracket"] or "").strip()
+    name, unit = split_unit(cell)
     for fld, (aliases, units) in CSV_COLUMNS.items():
         if name not in aliases:
             continue

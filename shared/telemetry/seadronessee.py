@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from shared.telemetry.csv_table import match_column
+from shared.telemetry.csv_table import UNITS, match_column, split_unit
 from shared.telemetry.dates import format_datetime, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch
@@ -73,8 +73,29 @@ def _number(value: Any, name: str, what: str, *, required: bool) -> float | None
     return number
 
 
+#: The quantity of each field of the ``gps_latitude`` layout that may name a unit (``altitude(feet)``).
+_META_UNITS = {"altitude": "length", "gimbal_pitch": "angle", "gimbal_heading": "angle", "compass_heading": "angle",
+               "speed": "speed", "xspeed": "speed", "yspeed": "speed", "zspeed": "speed"}
+
+
 def _meta_number(meta: Mapping[str, Any], name: str, what: str, *, required: bool) -> float | None:
-    return _number(meta.get(name), name, what, required=required)
+    """A number of the ``gps_latitude`` layout: ``name`` as written, or under ``name(unit)`` / ``name [unit]``
+    with the unit's factor to SI (``altitude(feet)``: feet to metres); an unknown unit is a MetaProblem."""
+    if name in meta or name not in _META_UNITS:
+        return _number(meta.get(name), name, what, required=required)
+    units = UNITS[_META_UNITS[name]]
+    for key in meta:
+        if not isinstance(key, str):
+            continue
+        base, unit = split_unit(key)
+        if base != name:
+            continue
+        if unit not in units:
+            raise MetaProblem("bad unit", f"SeaDronesSee meta field {key!r}: unknown unit {unit!r} (accepted: "
+                                          f"{', '.join(u for u in units if u)})")
+        value = _number(meta[key], key, what, required=required)
+        return None if value is None else value * units[unit]
+    return _number(None, name, what, required=required)
 
 
 def _is_number(value: Any) -> bool:

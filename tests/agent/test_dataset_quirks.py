@@ -187,3 +187,28 @@ def test_a_frame_without_meta_gets_no_pose_between_others():
     ds = Dataset.from_dict(_coco(images))
     frames = list(iter_video_frames(ds, CAMERA, next(iter(ds.videos))))
     assert [f.pose is not None for f in frames] == [True, True, False, True, True]
+
+
+def test_whole_numbers_written_as_text_are_read_and_a_bad_one_is_named():
+    # a helper's walk-through, 1 Dec 2026: ids, sizes and frame numbers written as text were refused, the frame
+    # number under a field the file does not have ('frame_index')
+    images = [_image(k + 1, "DJI_0001.MP4", 10 + k, 0.5 * k) for k in range(3)]
+    for im in images:
+        im["id"], im["width"], im["height"] = str(im["id"]), "3840", " 2160 "
+        im["source"]["frame_no"] = str(im["source"]["frame_no"])
+    ds = Dataset.from_dict(_coco(images))
+    assert sorted(ds.images) == [1, 2, 3] and [r.frame_index for r in ds.videos[next(iter(ds.videos))]] == [10, 11, 12]
+    images[1]["source"]["frame_no"] = "eleven"
+    with pytest.raises(ValueError, match=r"field 'source.frame_no' must be an integer, got 'eleven'"):
+        Dataset.from_dict(_coco(images))
+    images[1]["source"]["frame_no"] = "11.5"
+    with pytest.raises(ValueError, match=r"'source.frame_no' must be an integer"):
+        Dataset.from_dict(_coco(images))
+
+
+def test_frame_indices_repeating_under_one_video_id_are_named(caplog):
+    # two recordings (or a duplicated frame) under one video_id: kept as the file's one video, with a warning
+    images = [{"id": k + 1, "file_name": f"{k}.jpg", "width": 3840, "height": 2160, "video_id": 7,
+               "frame_index": k % 4, "meta": _meta(0.5 * k)} for k in range(6)]
+    Dataset.from_dict(_coco(images))
+    assert "video_id 7 holds 2 images whose frame index another of its images has (first: frame 0)" in caplog.text

@@ -1,0 +1,37 @@
+"""SeaDronesSee `gps_latitude`-layout meta fields that name their unit, as the flight-log layout's do
+(`altitude(feet)`; a helper's walk-through, 1 Dec 2026: read as missing, every frame lost its pose)."""
+
+from __future__ import annotations
+
+import pytest
+
+from shared.telemetry import from_seadronessee_meta
+from shared.telemetry.seadronessee import MetaProblem, compass_heading_of
+
+META = {"gps_latitude": 47.67, "gps_latitude_ref": "N", "gps_longitude": 9.27, "gps_longitude_ref": "E",
+        "gimbal_pitch": 45.0, "gimbal_heading": 140.0, "date_time": "2020-08-24T15:45:20"}
+
+
+@pytest.mark.parametrize(("key", "value", "metres"), [("altitude", 40.0, 40.0), ("altitude(feet)", 131.234, 40.0),
+                                                      ("Altitude (ft)", "131.234", 40.0), ("altitude [m]", 40.0, 40.0),
+                                                      ("altitude(meter)", 40.0, 40.0)])
+def test_altitude_with_a_unit(key, value, metres):
+    tel = from_seadronessee_meta({**META, key: value})
+    assert tel is not None and tel.height_m == pytest.approx(metres, abs=1e-3)
+
+
+def test_speeds_with_units_and_a_bad_unit():
+    tel = from_seadronessee_meta({**META, "altitude": 40.0, "speed(km/h)": 36.0, "xspeed(mph)": 10.0,
+                                  "yspeed(m/s)": 2.0})
+    assert tel is not None and tel.speed_mps == pytest.approx(10.0) and tel.vel_en_mps == pytest.approx((2.0, 4.4704))
+    with pytest.raises(MetaProblem, match=r"'altitude\(furlongs\)': unknown unit 'furlongs'"):
+        from_seadronessee_meta({**META, "altitude(furlongs)": 1.0})
+    with pytest.raises(MetaProblem, match="'altitude' is missing"):
+        from_seadronessee_meta(META)
+
+
+def test_compass_heading_in_either_layout():
+    assert compass_heading_of({"compass_heading": -20.0}) == pytest.approx(340.0)
+    assert compass_heading_of({"compass_heading(degrees)": "181.5"}) == pytest.approx(181.5)
+    assert compass_heading_of({"compass_heading": "n/a"}) is None and compass_heading_of(None) is None
+    assert compass_heading_of({"gimbal_heading": 10.0}) is None
