@@ -157,6 +157,12 @@ class Dataset:
             if rec.id in images:
                 raise ValueError(f"{source}: images[{i}]: duplicate image id {rec.id}")
             images[rec.id] = rec
+        unread = [r.date_time for r in images.values() if r.date_time and r.date_time.strip()
+                  and parse_time(r.date_time) is None]
+        if unread:
+            log.warning("%s: %d images have a date_time that is no date and time this reader knows (first: %r): those "
+                        "frames have no clock of their own (their meta's stamps stand in)", source, len(unread),
+                        unread[0][:40])
         videos: dict[int, list[ImageRecord]] = defaultdict(list)
         for rec in images.values():
             videos[rec.video_id].append(rec)

@@ -212,3 +212,13 @@ def test_frame_indices_repeating_under_one_video_id_are_named(caplog):
                "frame_index": k % 4, "meta": _meta(0.5 * k)} for k in range(6)]
     Dataset.from_dict(_coco(images))
     assert "video_id 7 holds 2 images whose frame index another of its images has (first: frame 0)" in caplog.text
+
+
+def test_an_unreadable_date_time_is_named(caplog):
+    # a helper's walk-through: a day-first date or an epoch number as date_time was dropped without a word
+    images = [_image(k + 1, "DJI_0001.MP4", k, 0.5 * k) for k in range(3)]
+    images[0]["date_time"] = "25/08/2020 14:19:21.647133"
+    images[1]["date_time"] = "1598365161.6"
+    ds = Dataset.from_dict(_coco(images))
+    assert len(ds.images) == 3
+    assert "2 images have a date_time that is no date and time this reader knows (first: '25/08/2020" in caplog.text
