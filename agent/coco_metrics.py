@@ -10,6 +10,7 @@ from __future__ import annotations
 import contextlib
 import io
 import math
+import re
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from pathlib import Path
@@ -111,7 +112,18 @@ def _gt_dataset(gt: dict[str, Any]) -> dict[str, Any]:
                 box = a.get("bbox") or [0, 0, 0, 0]
                 a["area"] = float(box[2]) * float(box[3])
         annotations.append(a)
-    return {"images": gt["images"], "annotations": annotations, "categories": gt.get("categories", [])}
+    images = [dict(im, id=whole_number(im["id"])) if isinstance(im.get("id"), str) else im for im in gt["images"]]
+    annotations = [dict(a, image_id=whole_number(a["image_id"])) if isinstance(a.get("image_id"), str) else a
+                   for a in annotations]
+    return {"images": images, "annotations": annotations, "categories": gt.get("categories", [])}
+
+
+def whole_number(value: Any) -> Any:
+    """An id written as text (``"3464"``) as the integer it is, as the dataset reader takes it; anything else as
+    it is (pycocotools then matches it against the results' integer ids as before)."""
+    if isinstance(value, str) and re.fullmatch(r"\s*[+-]?[0-9]+\s*", value):
+        return int(value)
+    return value
 
 
 def _evaluated(gt: dict[str, Any], res: list[dict[str, Any]], ids: list[int]) -> Any:
@@ -123,7 +135,8 @@ def _evaluated(gt: dict[str, Any], res: list[dict[str, Any]], ids: list[int]) ->
         coco_gt = COCO()
         coco_gt.dataset = _gt_dataset(gt)
         coco_gt.createIndex()
-        coco_dt = coco_gt.loadRes(res)
+        coco_dt = coco_gt.loadRes([dict(r, image_id=whole_number(r["image_id"])) if isinstance(r.get("image_id"), str)
+                                   else r for r in res])
         ev = COCOeval(coco_gt, coco_dt, "bbox")
         ev.params.imgIds = ids
         ev.evaluate()

@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import logging
 import math
+import re
 from collections import Counter, defaultdict
 from collections.abc import Iterable, Iterator
 from dataclasses import dataclass, field, replace
@@ -25,7 +26,13 @@ from shared.files import listed_names
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
-from shared.telemetry.seadronessee import MetaProblem, compass_heading_of, meta_object, pitch_convention_of
+from shared.telemetry.seadronessee import (
+    MetaProblem,
+    compass_heading_of,
+    is_flight_log_meta,
+    meta_object,
+    pitch_convention_of,
+)
 from shared.telemetry.seadronessee_videos import (  # noqa: F401  (TIME_GAP_*, own_video_ids: re-exported, as before)
     TIME_GAP_S,
     TIME_GAP_STEPS,
@@ -304,10 +311,10 @@ def _int(d: dict, key: str, default: int | None = None) -> int:
     if value is None:
         raise ValueError(f"missing field {key!r}")
     if isinstance(value, str):
-        try:
-            value = float(value.strip())
-        except ValueError:
-            raise ValueError(f"field {key!r} must be an integer, got {d.get(key)!r}") from None
+        whole = re.fullmatch(r"\s*([+-]?[0-9]+)(?:\.0*)?\s*", value)  # ASCII digits, "12" or "12.0"
+        if whole is None:
+            raise ValueError(f"field {key!r} must be an integer, got {value!r}")
+        return int(whole[1])
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or value != int(value):
         raise ValueError(f"field {key!r} must be an integer, got {d.get(key, default)!r}")
@@ -424,13 +431,13 @@ def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto",
     assert tel is not None
     if tel.pitch_deg is None:
         return None, PoseProblem(image.id, "no pitch", "telemetry has no gimbal pitch")
+    if tel.height_m is None or tel.height_m <= 0:
+        return None, PoseProblem(image.id, "no height", f"height above ground {tel.height_m!r} is not > 0 m")
     if tel.heading_deg is None:
         compass = compass_heading_of(image.meta)
         if compass is not None and compass_records is not None:
             compass_records[image.id] = replace(tel, heading_deg=compass)  # the aircraft's
         return None, PoseProblem(image.id, "no heading", "telemetry has no gimbal heading")
-    if tel.height_m is None or tel.height_m <= 0:
-        return None, PoseProblem(image.id, "no height", f"height above ground {tel.height_m!r} is not > 0 m")
     return tel, None
 
 
@@ -452,6 +459,29 @@ def _bridged(track: TelemetryTrack | None, t: float, problem: PoseProblem | None
         return None
     lat, lon, height, heading, pitch = (float(v) for v in track.at(t)[0])
     return Pose(lat, lon, max(height, 0.1), min(max(pitch, 0.0), 90.0), heading, 0.0)
+
+
+def _plus(t: float | None, dt: float) -> float | None:
+    return None if t is None else t + dt
+
+
+def _meta_hfov(meta: dict | None) -> float | None:
+    """A meta's own field of view (``hfov_deg``, a zoom lens's frame as `uavmm detect` writes it), else None."""
+    if not isinstance(meta, dict) or is_flight_log_meta(meta):  # read in the gps_latitude layout only, as there
+        return None
+    value = meta.get("hfov_deg")
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < 180.0:
+        return None
+    return float(value)
+
+
+def _compass_offset(images: list[ImageRecord], records: list[Telemetry | None]) -> float | None:
+    """The gimbal's heading less the aircraft's compass heading (degrees, the circular median) over the frames of a
+    video that have both, for its frames that have only the compass and lie too far from the others' samples to
+    be interpolated (`_bridged`); None when no frame has both."""
+    diffs = [((tel.heading_deg - c + 180.0) % 360.0) - 180.0 for image, tel in zip(images, records, strict=True)
+             if tel is not None and tel.heading_deg is not None and (c := compass_heading_of(image.meta)) is not None]
+    return float(np.median(diffs)) if diffs else None
 
 
 def _frame_clock(image: ImageRecord) -> float | None:
@@ -508,6 +538,10 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         info.compass_frames = len(compass)
         log.warning("video %s: no frame has a gimbal_heading: the aircraft's compass_heading stands in for %d of %d "
                     "(the camera may point elsewhere)", video_id, len(compass), len(images))
+    # frames whose meta lacks a field: their meta's own stamp (when the frame has no clock of its own) and zoom
+    partial_t = {image.id: image_time({"meta": image.meta}) for image in images
+                 if image.id in missing and missing[image.id].reason in PARTIAL_META}
+    compass_offset = _compass_offset(images, records)
     posed = [(tel, clocks[i]) for i, tel in enumerate(records) if tel is not None]
     track: TelemetryTrack | None = None
     zone = 0.0
@@ -525,8 +559,8 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
     # The frame's own clock first (telemetry at 10 Hz repeats its time for 3 frames at 30 fps), else its telemetry
     # stamp moved onto the frame clock; such times at whole seconds that repeat are spread over their second in frame
     # order, as a log's rows are (the frames of one second shared a time: a zero step, no memory evidence, one pose)
-    stamped = [c if c is not None else (tel.t + zone if tel is not None else None) for c, tel in zip(clocks, records,
-                                                                                                      strict=True)]
+    stamped = [c if c is not None else (tel.t + zone if tel is not None else _plus(partial_t.get(image.id), zone))
+               for c, tel, image in zip(clocks, records, images, strict=True)]
     known = [i for i, v in enumerate(stamped) if v is not None and math.isfinite(v)]
     for i, v in zip(known, spread_whole_second_stamps([stamped[i] for i in known]), strict=True):  # type: ignore[misc]
         stamped[i] = v
@@ -545,9 +579,16 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         if tel is None:
             problem = missing.get(image.id)
             pose = _bridged(track, t, problem) if at_frame_time else None
+            hfov = _meta_hfov(image.meta)
             if pose is not None:
                 info.bridged_frames += 1
-                yield Frame(image, pose, t, cam, t, True, track)
+                yield Frame(image, pose, t, zoomed(cam, hfov) if hfov else cam, t, True, track)
+                continue
+            if image.id in compass and compass_offset is not None:  # too far from the gimbal's headings
+                rec = compass[image.id]
+                rec = replace(rec, heading_deg=(rec.heading_deg or 0.0) + compass_offset)
+                info.compass_frames += 1
+                yield Frame(image, rec.to_pose(), t, zoomed(cam, hfov) if hfov else cam, rec.t + zone)
                 continue
             if problem is not None and problems is not None:
                 problems.append(problem)

@@ -79,16 +79,17 @@ _META_UNITS = {"altitude": "length", "gimbal_pitch": "angle", "gimbal_heading": 
 
 
 def _meta_number(meta: Mapping[str, Any], name: str, what: str, *, required: bool) -> float | None:
-    """A number of the ``gps_latitude`` layout: ``name`` as written, or under ``name(unit)`` / ``name [unit]``
-    with the unit's factor to SI (``altitude(feet)``: feet to metres); an unknown unit is a MetaProblem."""
-    if name in meta or name not in _META_UNITS:
+    """A number of the ``gps_latitude`` layout: ``name`` as written, or (``name`` absent or null) under
+    ``name(unit)`` / ``name [unit]`` with the unit's factor to SI (``altitude(feet)``: feet to metres); an unknown
+    unit is a MetaProblem."""
+    if meta.get(name) is not None or name not in _META_UNITS:
         return _number(meta.get(name), name, what, required=required)
     units = UNITS[_META_UNITS[name]]
     for key in meta:
         if not isinstance(key, str):
             continue
         base, unit = split_unit(key)
-        if base != name:
+        if base != name or key == name:
             continue
         if unit not in units:
             raise MetaProblem("bad unit", f"SeaDronesSee meta field {key!r}: unknown unit {unit!r} (accepted: "
@@ -203,13 +204,14 @@ def raw_pitch(meta: Mapping[str, Any] | None) -> float | None:
         except MetaProblem:
             return None
         value = None if found is None else meta[found[0]]
-    else:
-        value = meta.get("gimbal_pitch")
-    try:
-        number = _number(value, "gimbal_pitch", "pitch", required=False)
+        try:
+            return _number(value, "gimbal_pitch", "pitch", required=False)
+        except MetaProblem:
+            return None
+    try:  # `gimbal_pitch`, or one naming its unit (`gimbal_pitch(degrees)`)
+        return _meta_number(meta, "gimbal_pitch", "pitch", required=False)
     except MetaProblem:
         return None
-    return number
 
 
 def pitch_convention_of(metas: Iterable[Mapping[str, Any] | None]) -> str:

@@ -222,3 +222,59 @@ def test_an_unreadable_date_time_is_named(caplog):
     ds = Dataset.from_dict(_coco(images))
     assert len(ds.images) == 3
     assert "2 images have a date_time that is no date and time this reader knows (first: '25/08/2020" in caplog.text
+
+
+def test_a_review_of_the_compass_and_partial_meta_rules():
+    """A helper's review (1 Dec 2026), each of which failed before: (a) the gimbal's heading on a few frames only
+    left the others without pose (386 of 402 dev frames): they take the compass, turned by the median difference
+    where frames have both; (b) a compass frame with no height took a pose at 0.1 m; (c) a bridged frame kept the
+    base camera where its meta has a zoom's field of view; (d) a frame without a clock of its own was bridged at a
+    guessed time, not its meta's stamp."""
+    images = [_image(k + 1, "DJI_0001.MP4", k, 5.0 * k) for k in range(8)]  # a sample every 5 s: no bridging
+    for k, image in enumerate(images):
+        image["meta"]["compass_heading(degrees)"] = 80.0 + k
+        if k >= 2:
+            del image["meta"]["gimbal_heading(degrees)"]
+    images[5]["meta"]["height_above_takeoff(meter)"] = 0.0
+    ds = Dataset.from_dict(_coco(images))
+    problems: list = []
+    frames = list(iter_video_frames(ds, CAMERA, next(iter(ds.videos)), problems=problems))
+    assert [f.pose is not None for f in frames] == [True] * 5 + [False] + [True] * 2
+    # gimbal 90 where the compass said 80 and 81: +9.5 deg
+    assert frames[3].pose.heading_deg == pytest.approx(83.0 + 9.5) and [p.reason for p in problems] == ["no height"]
+    # (c), (d): 1 image a second in the gps_latitude layout, frame 2 without heading nor clock of its own, a zoom
+    images = [{"id": k + 1, "file_name": f"{k}.jpg", "width": 3840, "height": 2160, "video_id": 3, "frame_index": k,
+               "meta": {"gps_latitude": 53.9 + 1e-5 * k, "gps_latitude_ref": "N", "gps_longitude": 8.1,
+                        "gps_longitude_ref": "E", "altitude": 40.0, "gimbal_pitch": 60.0, "gimbal_heading": 90.0,
+                        "hfov_deg": 20.0, "date_time": (START + dt.timedelta(seconds=k)).isoformat()}}
+              for k in range(5)]
+    for k, image in enumerate(images):
+        if k != 2:
+            image["date_time"] = (START + dt.timedelta(seconds=k)).isoformat()
+    del images[2]["meta"]["gimbal_heading"]
+    ds = Dataset.from_dict(_coco(images))
+    frames = list(iter_video_frames(ds, CAMERA, 3))
+    assert frames[2].pose is not None and frames[2].camera.fx == pytest.approx(frames[1].camera.fx)
+    assert frames[2].camera.fx > 2.0 * CAMERA.fx
+    assert frames[2].t == pytest.approx(frames[1].t + 1.0)  # its meta's stamp, not a guess at 30 frames/s
+    assert frames[2].pose.lat == pytest.approx(53.9 + 2e-5, abs=1e-9)
+
+
+def test_image_ids_written_as_text_are_scored_and_only_plain_whole_numbers_are_taken():
+    from agent.coco_metrics import coco_detection_metrics
+
+    images = [_image(k + 1, "DJI_0001.MP4", k, 0.5 * k) for k in range(2)]
+    for im in images:
+        im["id"] = str(im["id"])
+    gt = _coco(images)
+    gt["annotations"] = [{"id": 1, "image_id": "1", "category_id": 1, "bbox": [10, 10, 20, 20]}]
+    ds = Dataset.from_dict(gt)
+    assert sorted(ds.images) == [1, 2]
+    metrics = coco_detection_metrics(gt, [{"image_id": 1, "category_id": 1, "bbox": [10, 10, 20, 20], "score": 0.9}])
+    assert metrics["AP50"] == pytest.approx(1.0, abs=1e-6)
+    for bad in ("1e3", "1_000", "0x10", "١٢", "12.5"):
+        images[0]["id"] = bad
+        with pytest.raises(ValueError, match="field 'id' must be an integer"):
+            Dataset.from_dict(_coco(images))
+    images[0]["id"], images[1]["id"] = "9007199254740993", "9007199254740992"  # beyond a float's integers
+    assert sorted(Dataset.from_dict(_coco(images)).images) == [9007199254740992, 9007199254740993]

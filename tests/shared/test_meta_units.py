@@ -35,3 +35,19 @@ def test_compass_heading_in_either_layout():
     assert compass_heading_of({"compass_heading(degrees)": "181.5"}) == pytest.approx(181.5)
     assert compass_heading_of({"compass_heading": "n/a"}) is None and compass_heading_of(None) is None
     assert compass_heading_of({"gimbal_heading": 10.0}) is None
+
+
+def test_a_dji_pitch_naming_its_unit_sets_the_convention():
+    # a helper's review: `gimbal_pitch(degrees)` negative (DJI) in the gps_latitude layout was judged "depression"
+    # and every frame refused as out of range
+    from shared.telemetry.seadronessee import pitch_convention_of, raw_pitch
+
+    metas = [{**META, "altitude": 40.0, "gimbal_pitch(degrees)": -30.0} for _ in range(3)]
+    for m in metas:
+        del m["gimbal_pitch"]
+    assert raw_pitch(metas[0]) == -30.0 and pitch_convention_of(metas) == "dji"
+    tel = from_seadronessee_meta(metas[0], pitch_convention="dji")
+    assert tel is not None and tel.pitch_deg == pytest.approx(30.0)
+    # a null plain field beside one naming its unit: the one with a value
+    tel = from_seadronessee_meta({**META, "altitude": None, "altitude(ft)": 131.234})
+    assert tel is not None and tel.height_m == pytest.approx(40.0, abs=1e-3)
