@@ -20,19 +20,14 @@ from numpy.typing import NDArray
 from agent.candidates import Candidates  # noqa: F401  (re-exported: agent.dataset.Candidates, as before)
 from agent.field_of_view import ZoomedCamera
 from agent.json_files import read_json
+from agent.partial_meta import PARTIAL_META, bridged_pose, gimbal_less_compass, meta_hfov, plus
 from agent.telemetry_clock import ClockReport, TelemetryClockSettings, TelemetryTrack, reconcile_clock
 from agent.telemetry_dequantize import DEQUANTIZE_OFF, dequantize_track
 from shared.files import listed_names
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
-from shared.telemetry.seadronessee import (
-    MetaProblem,
-    compass_heading_of,
-    is_flight_log_meta,
-    meta_object,
-    pitch_convention_of,
-)
+from shared.telemetry.seadronessee import MetaProblem, compass_heading_of, meta_object, pitch_convention_of
 from shared.telemetry.seadronessee_videos import (  # noqa: F401  (TIME_GAP_*, own_video_ids: re-exported, as before)
     TIME_GAP_S,
     TIME_GAP_STEPS,
@@ -441,49 +436,6 @@ def frame_telemetry(image: ImageRecord, pitch_convention: str = "auto",
     return tel, None
 
 
-#: Reasons a frame's own meta gives no record though the frame may lie between others' samples (`_bridged`).
-PARTIAL_META = frozenset({"no pitch", "no heading", "no height"})
-#: Longest interval (s) between the samples either side across which such a frame is given the interpolated pose.
-BRIDGE_MAX_S = 3.0
-
-
-def _bridged(track: TelemetryTrack | None, t: float, problem: PoseProblem | None) -> Pose | None:
-    """The pose at time t interpolated between the video's samples, for a frame whose meta lacks one field
-    (`PARTIAL_META`: the others' samples around it say where the camera was, as they do for every frame at its
-    time), when samples lie on both sides at most BRIDGE_MAX_S apart; else None (no meta at all stays without pose:
-    DESIGN.md 6)."""
-    if track is None or problem is None or problem.reason not in PARTIAL_META or len(track.t) < 2:
-        return None
-    k = int(np.searchsorted(track.t, t))
-    if k == 0 or k >= len(track.t) or track.t[k] - track.t[k - 1] > BRIDGE_MAX_S:
-        return None
-    lat, lon, height, heading, pitch = (float(v) for v in track.at(t)[0])
-    return Pose(lat, lon, max(height, 0.1), min(max(pitch, 0.0), 90.0), heading, 0.0)
-
-
-def _plus(t: float | None, dt: float) -> float | None:
-    return None if t is None else t + dt
-
-
-def _meta_hfov(meta: dict | None) -> float | None:
-    """A meta's own field of view (``hfov_deg``, a zoom lens's frame as `uavmm detect` writes it), else None."""
-    if not isinstance(meta, dict) or is_flight_log_meta(meta):  # read in the gps_latitude layout only, as there
-        return None
-    value = meta.get("hfov_deg")
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not 0.0 < value < 180.0:
-        return None
-    return float(value)
-
-
-def _compass_offset(images: list[ImageRecord], records: list[Telemetry | None]) -> float | None:
-    """The gimbal's heading less the aircraft's compass heading (degrees, the circular median) over the frames of a
-    video that have both, for its frames that have only the compass and lie too far from the others' samples to
-    be interpolated (`_bridged`); None when no frame has both."""
-    diffs = [((tel.heading_deg - c + 180.0) % 360.0) - 180.0 for image, tel in zip(images, records, strict=True)
-             if tel is not None and tel.heading_deg is not None and (c := compass_heading_of(image.meta)) is not None]
-    return float(np.median(diffs)) if diffs else None
-
-
 def _frame_clock(image: ImageRecord) -> float | None:
     return parse_time(image.date_time)
 
@@ -530,7 +482,7 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
         clocks.append(_frame_clock(image))
     if compass and not any(tel is not None for tel in records):
         # no frame has the gimbal's heading (a file without the field): the aircraft's compass heading stands in,
-        # the gimbal mostly points its way; where other frames have it, they say more (`_bridged`)
+        # the gimbal mostly points its way; where other frames have it, they say more (`bridged_pose`)
         for i, image in enumerate(images):
             if image.id in compass:
                 records[i] = compass[image.id]
@@ -541,7 +493,8 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
     # frames whose meta lacks a field: their meta's own stamp (when the frame has no clock of its own) and zoom
     partial_t = {image.id: image_time({"meta": image.meta}) for image in images
                  if image.id in missing and missing[image.id].reason in PARTIAL_META}
-    compass_offset = _compass_offset(images, records)
+    compass_offset = gimbal_less_compass([image.meta for image in images],
+                                         [None if tel is None else tel.heading_deg for tel in records])
     posed = [(tel, clocks[i]) for i, tel in enumerate(records) if tel is not None]
     track: TelemetryTrack | None = None
     zone = 0.0
@@ -559,7 +512,7 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
     # The frame's own clock first (telemetry at 10 Hz repeats its time for 3 frames at 30 fps), else its telemetry
     # stamp moved onto the frame clock; such times at whole seconds that repeat are spread over their second in frame
     # order, as a log's rows are (the frames of one second shared a time: a zero step, no memory evidence, one pose)
-    stamped = [c if c is not None else (tel.t + zone if tel is not None else _plus(partial_t.get(image.id), zone))
+    stamped = [c if c is not None else (tel.t + zone if tel is not None else plus(partial_t.get(image.id), zone))
                for c, tel, image in zip(clocks, records, images, strict=True)]
     known = [i for i, v in enumerate(stamped) if v is not None and math.isfinite(v)]
     for i, v in zip(known, spread_whole_second_stamps([stamped[i] for i in known]), strict=True):  # type: ignore[misc]
@@ -578,8 +531,8 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
             cam = zoomed(cam, tel.hfov_deg)
         if tel is None:
             problem = missing.get(image.id)
-            pose = _bridged(track, t, problem) if at_frame_time else None
-            hfov = _meta_hfov(image.meta)
+            pose = bridged_pose(track, t, None if problem is None else problem.reason) if at_frame_time else None
+            hfov = meta_hfov(image.meta)
             if pose is not None:
                 info.bridged_frames += 1
                 yield Frame(image, pose, t, zoomed(cam, hfov) if hfov else cam, t, True, track)
