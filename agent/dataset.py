@@ -161,6 +161,8 @@ class Dataset:
             images[rec.id] = rec
         unread = [r.date_time for r in images.values() if r.date_time and r.date_time.strip()
                   and parse_time(r.date_time) is None]
+        unread += [str(im["date_time"]) for im in coco["images"] if isinstance(im, dict)
+                   and im.get("date_time") is not None and not isinstance(im.get("date_time"), str)]
         if unread:
             log.warning("%s: %d images have a date_time that is no date and time this reader knows (first: %r): those "
                         "frames have no clock of their own (their meta's stamps stand in)", source, len(unread),
@@ -203,22 +205,11 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = (), source: str = "
     of_image = grouping.of_images(len(images))
     out: dict[int, tuple[int, int | None]] = {}
     used: set[int] = set(reserved)
-    by_id: dict[int, list[int | None]] = defaultdict(list)
     for im, group in zip(images, of_image, strict=True):
         if group.kind == "id":
             vid = _int(im, "video_id")
             used.add(vid)
             out[id(im)] = (vid, _frame(im))
-            by_id[vid].append(out[id(im)][1])
-    for vid, frames in by_id.items():
-        counts = Counter(f for f in frames if f is not None)
-        repeated = sum(n - 1 for n in counts.values() if n > 1)
-        if repeated:
-            first = min(f for f, n in counts.items() if n > 1)
-            log.warning("%s: video_id %s holds %d images whose frame index another of its images has (first: frame "
-                        "%d): two recordings or a duplicated frame under one id? They are taken as one video, and its "
-                        "tracks' MOTChallenge rows repeat those frames: give each recording its own video_id",
-                        source, vid, repeated, first)
     named = {g.order: [images[i] for i in g.images] for g in grouping.groups if g.kind == "source"}
     own = own_video_ids(named)  # (images without a source that carry the same id join it: the file says so)
     taken = used | set(own.values())
@@ -244,7 +235,25 @@ def _video_ids(images: list[dict], reserved: Iterable[int] = (), source: str = "
             if group.name is not None:
                 names[next_id] = group.name if len(pieces) == 1 else f"{group.name}_{n + 1}"
             next_id += 1
+    _warn_repeated_frames(out, names, source)
     return _ranked_by_time(images, out), names
+
+
+def _warn_repeated_frames(out: dict[int, tuple[int, int | None]], names: dict[int, str], source: str) -> None:
+    """One warning per video two of whose images have one frame number (two recordings under one `video_id`, a
+    duplicated frame, ...): taken as one video, its tracks' MOTChallenge rows repeat those frames."""
+    frames: dict[int, list[int]] = defaultdict(list)
+    for vid, frame in out.values():
+        if frame is not None:
+            frames[vid].append(frame)
+    for vid, found in frames.items():
+        counts = Counter(found)
+        repeated = sum(n - 1 for n in counts.values() if n > 1)
+        if repeated:
+            log.warning("%s: video %s holds %d images whose frame number another of its images has (first: frame %d): "
+                        "two recordings or a duplicated frame under one video? They are taken as one video, and its "
+                        "tracks' MOTChallenge rows repeat those frames: give each recording its own video",
+                        source, names.get(vid, f"id {vid}"), repeated, min(f for f, n in counts.items() if n > 1))
 
 
 def _ranked_by_time(images: list[dict], out: dict[int, tuple[int, int | None]]) -> dict[int, tuple[int, int | None]]:

@@ -211,7 +211,13 @@ def test_frame_indices_repeating_under_one_video_id_are_named(caplog):
     images = [{"id": k + 1, "file_name": f"{k}.jpg", "width": 3840, "height": 2160, "video_id": 7,
                "frame_index": k % 4, "meta": _meta(0.5 * k)} for k in range(6)]
     Dataset.from_dict(_coco(images))
-    assert "video_id 7 holds 2 images whose frame index another of its images has (first: frame 0)" in caplog.text
+    assert "video id 7 holds 2 images whose frame number another of its images has (first: frame 0)" in caplog.text
+    # a duplicated frame under source.video / frame_no, the dev set's layout, at one clock (a helper's review)
+    caplog.clear()
+    images = [_image(k + 1, "DJI_0001.MP4", 10 + k, 0.5 * k) for k in range(4)] + [_image(9, "DJI_0001.MP4", 11, 0.5)]
+    Dataset.from_dict(_coco(images))
+    assert "video DJI_0001.MP4 holds 1 images whose frame number another of its images has (first: frame 11)" \
+        in caplog.text
 
 
 def test_an_unreadable_date_time_is_named(caplog):
@@ -219,9 +225,10 @@ def test_an_unreadable_date_time_is_named(caplog):
     images = [_image(k + 1, "DJI_0001.MP4", k, 0.5 * k) for k in range(3)]
     images[0]["date_time"] = "25/08/2020 14:19:21.647133"
     images[1]["date_time"] = "1598365161.6"
+    images[2]["date_time"] = 1598365161.6  # a JSON number
     ds = Dataset.from_dict(_coco(images))
     assert len(ds.images) == 3
-    assert "2 images have a date_time that is no date and time this reader knows (first: '25/08/2020" in caplog.text
+    assert "3 images have a date_time that is no date and time this reader knows (first: '25/08/2020" in caplog.text
 
 
 def test_a_review_of_the_compass_and_partial_meta_rules():
