@@ -10,13 +10,12 @@ from __future__ import annotations
 import contextlib
 import io
 import math
-import re
 from collections import Counter
 from collections.abc import Iterable, Sequence
 from pathlib import Path
 from typing import Any
 
-from agent.dataset import read_json
+from agent.dataset import int_text, read_json
 
 __all__ = ["coco_detection_metrics", "load_images", "load_results", "per_class_metrics"]
 
@@ -121,9 +120,8 @@ def _gt_dataset(gt: dict[str, Any]) -> dict[str, Any]:
 def whole_number(value: Any) -> Any:
     """An id written as text (``"3464"``) as the integer it is, as the dataset reader takes it; anything else as
     it is (pycocotools then matches it against the results' integer ids as before)."""
-    if isinstance(value, str) and re.fullmatch(r"\s*[+-]?[0-9]+\s*", value):
-        return int(value)
-    return value
+    number = int_text(value) if isinstance(value, str) else None
+    return value if number is None else number
 
 
 def _evaluated(gt: dict[str, Any], res: list[dict[str, Any]], ids: list[int]) -> Any:

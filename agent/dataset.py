@@ -309,16 +309,22 @@ def _video_names(coco: dict, found: dict[int, str]) -> dict[int, str]:
     return names | {vid: name for vid, name in found.items() if vid not in names}
 
 
+def int_text(text: str) -> int | None:
+    """A whole number written as text (ASCII digits, ``"12"`` or ``"12.0"``, spaces around), else None."""
+    whole = re.fullmatch(r"\s*([+-]?[0-9]+)(?:\.0*)?\s*", text)
+    return None if whole is None else int(whole[1])
+
+
 def _int(d: dict, key: str, default: int | None = None) -> int:
     """d[key] as an integer: a whole number, also written as text (``"5415"``, as some tools write every field)."""
     value = d.get(key, default)
     if value is None:
         raise ValueError(f"missing field {key!r}")
     if isinstance(value, str):
-        whole = re.fullmatch(r"\s*([+-]?[0-9]+)(?:\.0*)?\s*", value)  # ASCII digits, "12" or "12.0"
-        if whole is None:
+        number = int_text(value)
+        if number is None:
             raise ValueError(f"field {key!r} must be an integer, got {value!r}")
-        return int(whole[1])
+        return number
     if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
             or value != int(value):
         raise ValueError(f"field {key!r} must be an integer, got {d.get(key, default)!r}")
@@ -502,8 +508,8 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
     # frames whose meta lacks a field: their meta's own stamp (when the frame has no clock of its own) and zoom
     partial_t = {image.id: image_time({"meta": image.meta}) for image in images
                  if image.id in missing and missing[image.id].reason in PARTIAL_META}
-    compass_offset = gimbal_less_compass([image.meta for image in images],
-                                         [None if tel is None else tel.heading_deg for tel in records])
+    compass_offset = None if not compass else gimbal_less_compass(
+        [image.meta for image in images], [None if tel is None else tel.heading_deg for tel in records])
     posed = [(tel, clocks[i]) for i, tel in enumerate(records) if tel is not None]
     track: TelemetryTrack | None = None
     zone = 0.0
@@ -542,15 +548,16 @@ def iter_video_frames(dataset: Dataset, camera: Camera, video_id: int, *, fps: f
             problem = missing.get(image.id)
             pose = bridged_pose(track, t, None if problem is None else problem.reason) if at_frame_time else None
             hfov = meta_hfov(image.meta)
+            own_cam = zoomed(cam, hfov) if hfov else cam
             if pose is not None:
                 info.bridged_frames += 1
-                yield Frame(image, pose, t, zoomed(cam, hfov) if hfov else cam, t, True, track)
+                yield Frame(image, pose, t, own_cam, t, True, track)
                 continue
             if image.id in compass and compass_offset is not None:  # too far from the gimbal's headings
                 rec = compass[image.id]
                 rec = replace(rec, heading_deg=(rec.heading_deg or 0.0) + compass_offset)
                 info.compass_frames += 1
-                yield Frame(image, rec.to_pose(), t, zoomed(cam, hfov) if hfov else cam, rec.t + zone)
+                yield Frame(image, rec.to_pose(), t, own_cam, rec.t + zone)
                 continue
             if problem is not None and problems is not None:
                 problems.append(problem)

@@ -37,7 +37,14 @@ from numpy.typing import NDArray
 
 from agent.stage_report import StageReport
 from agent.telemetry_clock import TelemetryTrack
-from agent.telemetry_holds import changes, detect_hold, held_with, interpolate_holds, phase_locked_period
+from agent.telemetry_holds import (
+    changes,
+    detect_hold,
+    held_with,
+    interpolate_holds,
+    phase_locked_period,
+    update_times,
+)
 from shared.telemetry import Telemetry
 
 __all__ = ["DEQUANTIZE_OFF", "GPS_QUANTA_DEG", "HEIGHT_QUANTA_M", "dequantize", "dequantize_records",
@@ -127,11 +134,11 @@ def dequantize(t: NDArray, x: NDArray, q: float) -> NDArray:
     """
     t = np.asarray(t, dtype=np.float64)
     x = np.asarray(x, dtype=np.float64)
-    steps = np.flatnonzero(x[1:] != x[:-1]) + 1
+    steps = changes(x)
     if not len(steps):
         return x.copy()
     out = _moving_average(t, x, AVERAGE_S)
-    tau = (t[steps - 1] + t[steps]) / 2.0
+    tau = update_times(t, steps)
     mid = (x[steps - 1] + x[steps]) / 2.0
     if len(tau) >= 3:
         moved, took = np.diff(mid), np.diff(tau)
@@ -296,8 +303,8 @@ def dequantize_records(records: list[Telemetry]) -> tuple[list[Telemetry], dict[
         fixed_values["lat"] = np.clip(fixed_values["lat"], -90.0, 90.0)
     out = list(records)
     for k, i in enumerate(fixed):
-        changes: dict[str, Any] = {name: float(v[k]) for name, v in fixed_values.items()}
-        out[i] = replace(records[i], **changes)
+        updated: dict[str, Any] = {name: float(v[k]) for name, v in fixed_values.items()}
+        out[i] = replace(records[i], **updated)
     return out, quanta, holds
 
 

@@ -48,7 +48,7 @@ __all__ = ["LONG_HOLD", "MAX_SPREAD", "MIN_HELD_STEP_UNITS", "MIN_LOCKED_STEPS",
            "MIN_PARTNER_CHANGES", "MIN_PARTNER_SHARE", "MIN_PHASE_LOCK", "MIN_RECORDS_PER_PERIOD",
            "MIN_SAMPLES_PER_UPDATE", "MIN_UPDATES", "PHASE_PERIODS_S", "RECEIVER_PERIODS_S", "RECEIVER_PERIOD_MATCH",
            "TAIL_SPREAD", "TAIL_UPDATES", "changes", "detect_hold", "grid_unit", "held_with", "interpolate_holds",
-           "phase_locked_period", "varied"]
+           "phase_locked_period", "update_times", "varied"]
 
 #: Updates (changes of the value) needed to judge a period.
 MIN_UPDATES = 5
@@ -150,15 +150,11 @@ def phase_locked_period(t: NDArray, x: NDArray, partner: NDArray | None = None) 
         return None
     record = float(np.median(np.diff(t)))
 
-    def step_times(values: NDArray) -> NDArray:
-        k = changes(values)
-        return (t[k - 1] + t[k]) / 2.0
-
     def locked(u: NDArray, period: float) -> bool:
         return bool(abs(np.mean(np.exp(2j * np.pi * u / period))) >= MIN_PHASE_LOCK)
 
-    own = step_times(x)
-    theirs = None if partner is None else step_times(np.asarray(partner, dtype=np.float64).reshape(-1))
+    own = update_times(t, changes(x))
+    theirs = None if partner is None else update_times(t, changes(partner))
     if len(own) < (MIN_LOCKED_STEPS if theirs is None else MIN_PARTNER_CHANGES):
         return None
     for period in PHASE_PERIODS_S:
@@ -206,6 +202,12 @@ def changes(x: NDArray) -> NDArray:
     return np.flatnonzero(x[1:] != x[:-1]) + 1
 
 
+def update_times(t: NDArray, idx: NDArray) -> NDArray:
+    """When the values new at samples `idx` (>= 1) arrived: halfway between the sample before and the first with
+    them (the update came in between)."""
+    return (t[idx - 1] + t[idx]) / 2.0
+
+
 def held_with(x: NDArray, updates: NDArray) -> NDArray | None:
     """The samples where x took new values when it changes at `updates` (the samples where a partner coordinate
     held between updates takes its new value) at least MIN_PARTNER_SHARE of the times, and at least
@@ -245,7 +247,7 @@ def interpolate_holds(t: NDArray, x: NDArray, period: float, updates: NDArray | 
             raise ValueError("interpolate_holds: the values change where no update is given")
     if not len(updates):
         return out
-    u = (t[updates - 1] + t[updates]) / 2.0  # each update came between the two records: halfway is the estimate
+    u = update_times(t, updates)
     interval = np.diff(np.concatenate([[-np.inf], u]))  # since the update before (the first: unknown)
     step = np.abs(x[updates] - x[updates - 1])
     regular = interval <= LONG_HOLD * period

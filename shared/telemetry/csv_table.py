@@ -274,13 +274,16 @@ def _row_times(rows: list[tuple[int, list[str]]], header: list[str], columns: di
             return False
         return True
 
-    ok = [(line, row) for line, row in rows if len(row) == len(header) and timed(line, row)]
-    if not ok:
-        return None
-    try:
-        return dict(zip([line for line, _ in ok], _csv_times(ok, columns, source, utc_offset_s), strict=True))
-    except ValueError:
-        return None
+    full = [(line, row) for line, row in rows if len(row) == len(header)]
+    for attempt in range(2):  # all at once; else without the rows whose own time cannot be read
+        ok = full if attempt == 0 else [(line, row) for line, row in full if timed(line, row)]
+        if not ok:
+            return None
+        try:
+            return dict(zip([line for line, _ in ok], _csv_times(ok, columns, source, utc_offset_s), strict=True))
+        except (ValueError, IndexError):
+            continue
+    return None
 
 
 def _records(rows: list[tuple[int, list[str]]], columns: dict[str, _CsvColumn], source: str, utc_offset_s: float,
@@ -450,13 +453,12 @@ def _fill_sparse_positions(rows: list[tuple[int, list[str]]], header: list[str],
     an export that merges topics, its GPS rows without the gimbal and its gimbal rows without a position): the
     empty cells of latitude and longitude (together) and height, and in such a log (some position filled) those of
     pitch, heading (the short way round) and roll, filled linear in time between the rows before and after that
-    have them, when those are at most `SPARSE_FILL_MAX_S`
-    apart, so that each row is a record with its own values (a value is where its row is), at its time in `times`
-    (`_row_times`, as the records get). A row whose position is (0, 0) (no fix), or whose cell or time cannot be
-    read, is no end of such an interval; the rows are taken in time order (merged exports need not be sorted).
-    Rows whose position or height cannot be filled (before the first fix,
-    after the last, across a longer gap) stay as they are, and `_usable_rows` skips and counts them. One log line
-    says how many rows were filled."""
+    have them, when those are at most `SPARSE_FILL_MAX_S` apart, so that each row is a record with its own values
+    (a value is where its row is), at its time in `times` (`_row_times`, as the records get). A row whose position
+    is (0, 0) (no fix), or whose cell or time cannot be read, is no end of such an interval; the rows are taken in
+    time order (merged exports need not be sorted). Rows whose position or height cannot be filled (before the
+    first fix, after the last, across a longer gap) stay as they are, and `_usable_rows` skips and counts them. One
+    log line says how many rows were filled."""
     full = [(line, row) for line, row in rows if line in times]
     groups = [g for g in (("lat", "lon"), ("height",), ("pitch",), ("heading",), ("roll",))
               if all(f in columns for f in g)]
@@ -472,31 +474,31 @@ def _fill_sparse_positions(rows: list[tuple[int, list[str]]], header: list[str],
     if not any(v[f] is None for v in values for g in groups for f in g):
         return rows
 
-    def fills(kept: list[int], at: list[float], chosen: list[tuple[str, ...]],
-              out: dict[int, dict[str, float]]) -> dict[int, dict[str, float]]:
+    order = sorted(range(len(full)), key=lambda k: times[full[k][0]])  # by time: merged exports need not be sorted
+    at = [times[full[k][0]] for k in order]
+    filled: dict[int, dict[str, float]] = {}
+
+    def fill(chosen: list[tuple[str, ...]]) -> None:
         for group in chosen:
-            ends = [n for n, k in enumerate(kept) if all(isinstance(values[k][f], float) for f in group)
+            ends = [n for n, k in enumerate(order) if all(isinstance(values[k][f], float) for f in group)
                     and not (group == ("lat", "lon") and values[k]["lat"] == 0.0 and values[k]["lon"] == 0.0)]
             for a, b in zip(ends, ends[1:], strict=False):
                 if b - a < 2 or not 0.0 < at[b] - at[a] <= SPARSE_FILL_MAX_S:
                     continue
                 for n in range(a + 1, b):
-                    k = kept[n]
-                    if any(values[k][f] is not None for f in group) or not at[a] <= at[n] <= at[b]:
+                    k = order[n]
+                    if any(values[k][f] is not None for f in group):
                         continue
                     w = (at[n] - at[a]) / (at[b] - at[a])
                     for f in group:
-                        va, vb = values[kept[a]][f], values[kept[b]][f]
+                        va, vb = values[order[a]][f], values[order[b]][f]
                         turn = f in ("lon", "heading")  # the short way round
                         v = va + w * ((vb - va + 180.0) % 360.0 - 180.0 if turn else vb - va)
-                        out.setdefault(k, {})[f] = (v + 180.0) % 360.0 - 180.0 if f == "lon" else v
-        return out
+                        filled.setdefault(k, {})[f] = (v + 180.0) % 360.0 - 180.0 if f == "lon" else v
 
-    order = sorted(range(len(full)), key=lambda k: times[full[k][0]])  # by time: merged exports need not be sorted
-    at = [times[full[k][0]] for k in order]
-    filled = fills(order, at, [g for g in groups if g[0] in ("lat", "height")], {})
+    fill([g for g in groups if g[0] in ("lat", "height")])
     if any("lat" in cells for cells in filled.values()):  # a sparse log: its attitude may be sparse too
-        filled = fills(order, at, [g for g in groups if g[0] not in ("lat", "height")], filled)
+        fill([g for g in groups if g[0] not in ("lat", "height")])
     if not filled:
         return rows
     log.info("%s: %d of %d rows lack a value other rows hold (a GPS slower than the rows, merged topics): filled "

@@ -234,7 +234,7 @@ def compass_heading_of(meta: Mapping[str, Any] | None) -> float | None:
     if not isinstance(meta, Mapping):
         return None
     for key, value in meta.items():
-        if isinstance(key, str) and key.strip().lower().split("(")[0].strip() == "compass_heading":
+        if isinstance(key, str) and split_unit(key)[0] == "compass_heading":
             try:
                 heading = _number(value, key, "heading", required=False)
             except ValueError:
