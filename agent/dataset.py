@@ -38,6 +38,7 @@ from shared.telemetry.seadronessee_videos import (  # noqa: F401  (TIME_GAP_*, o
     source_of,
     time_gap_s,
 )
+from shared.telemetry.seadronessee_zones import harmonise_zones
 
 log = logging.getLogger(__name__)
 
@@ -140,9 +141,12 @@ class Dataset:
                 raise ValueError(f"{source}: categories[{i}] needs an integer 'id' and a string 'name'")
             categories[c["id"]] = c["name"]
         listed = [v["id"] for v in coco.get("videos") or [] if isinstance(v, dict) and isinstance(v.get("id"), int)]
-        ids, found = _video_ids([im for im in coco["images"] if isinstance(im, dict)], listed, source)
+        raw, notices = harmonise_zones(coco["images"])
+        for notice in notices:
+            log.warning("%s: %s", source, notice)
+        ids, found = _video_ids([im for im in raw if isinstance(im, dict)], listed, source)
         images: dict[int, ImageRecord] = {}
-        for i, im in enumerate(coco["images"]):
+        for i, im in enumerate(raw):
             if not isinstance(im, dict):
                 raise ValueError(f"{source}: images[{i}] is not an object")
             try:
@@ -161,7 +165,7 @@ class Dataset:
             images[rec.id] = rec
         unread = [r.date_time for r in images.values() if r.date_time and r.date_time.strip()
                   and parse_time(r.date_time) is None]
-        unread += [str(im["date_time"]) for im in coco["images"] if isinstance(im, dict)
+        unread += [str(im["date_time"]) for im in raw if isinstance(im, dict)
                    and im.get("date_time") is not None and not isinstance(im.get("date_time"), str)]
         if unread:
             log.warning("%s: %d images have a date_time that is no date and time this reader knows (first: %r): those "

@@ -31,6 +31,7 @@ from typing import Any
 from shared.telemetry import Telemetry
 from shared.telemetry.seadronessee import parse_seadronessee_coco
 from shared.telemetry.seadronessee_videos import group_videos, own_video_ids
+from shared.telemetry.seadronessee_zones import harmonise_zones
 from shared.telemetry.text import read_text
 
 __all__ = ["MAX_SPREAD_S", "on_video_frames", "read_video_json"]
@@ -53,6 +54,7 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
     images = coco.get("images") if isinstance(coco, Mapping) else None
     if not isinstance(images, list) or not all(isinstance(im, Mapping) for im in images):
         return parse_seadronessee_coco(coco, source=str(path))  # its own error for a file that is no COCO
+    images = harmonise_zones(images)[0]  # as parse_seadronessee_coco reads them (its notices are logged there)
     groups: dict[str, list[Mapping[str, Any]]] = {}
     ids: dict[str, Any] = {}
     for group in group_videos(images).groups:

@@ -7,11 +7,11 @@ import io
 import logging
 import math
 import re
-from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from shared.telemetry.columns import CSV_COLUMNS, OPTIONAL_FIELDS, UnknownUnit, match_column
 from shared.telemetry.dates import DATETIME_RE, parse_datetime, truncated_date_offset
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, pitch_or_none
@@ -19,32 +19,6 @@ from shared.telemetry.text import NUM_RE, read_text
 
 log = logging.getLogger(__name__)
 
-_TIME_UNITS = {"": 1.0, "s": 1.0, "sec": 1.0, "second": 1.0, "seconds": 1.0,
-               "ms": 1e-3, "millisecond": 1e-3, "milliseconds": 1e-3}  # fmt: skip
-_LENGTH_UNITS = {"": 1.0, "m": 1.0, "meter": 1.0, "meters": 1.0, "metre": 1.0, "metres": 1.0,
-                 "ft": 0.3048, "feet": 0.3048}  # fmt: skip
-_ANGLE_UNITS = {"": 1.0, "deg": 1.0, "degree": 1.0, "degrees": 1.0}
-_SPEED_UNITS = {"": 1.0, "m/s": 1.0, "mps": 1.0, "mph": 0.44704, "km/h": 1 / 3.6, "kph": 1 / 3.6}
-#: The units a quantity may name, with their factor to SI (`split_unit`).
-UNITS = {"length": _LENGTH_UNITS, "angle": _ANGLE_UNITS, "speed": _SPEED_UNITS}
-
-#: field -> (accepted column names in order of preference, accepted units with their factor to SI)
-CSV_COLUMNS: dict[str, tuple[tuple[str, ...], Mapping[str, float]]] = {
-    "time": (("time_s", "time", "t", "timestamp"), _TIME_UNITS),
-    "datetime": (("date_time", "datetime", "datetime_utc"), {"": 1.0, "utc": 1.0}),
-    "lat": (("lat", "latitude"), _ANGLE_UNITS),
-    "lon": (("lon", "lng", "longitude"), _ANGLE_UNITS),
-    "height": (("height_m", "rel_alt", "height_above_takeoff", "height", "altitude"), _LENGTH_UNITS),
-    "pitch": (("pitch_deg", "gimbal_pitch", "gb_pitch", "gimbal_pitch_dji", "pitch"), _ANGLE_UNITS),
-    "heading": (("heading_deg", "gimbal_heading", "gb_yaw", "heading", "yaw"), _ANGLE_UNITS),
-    "roll": (("roll_deg", "gimbal_roll", "gb_roll", "roll"), _ANGLE_UNITS),
-    "speed": (("speed_mps", "speed"), _SPEED_UNITS),
-    # DJI flight logs: x north, y east (AirData writes xSpeed(mph), ySpeed(mph))
-    "vel_north": (("vel_north_mps", "xspeed"), _SPEED_UNITS),
-    "vel_east": (("vel_east_mps", "yspeed"), _SPEED_UNITS),
-    "frame": (("frame", "frame_index", "framecnt"), {"": 1.0}),
-    "recording": (("isvideo", "is_video", "recording"), {"": 1.0}),
-}
 _DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
 #: A bare `pitch` column below this depression in every row is likely the airframe's pitch (a warning says so).
 _AIRFRAME_PITCH_DEG = 10.0
@@ -71,7 +45,6 @@ _MISSING = frozenset({"nan", "na", "n/a", "null", "none", "-"})
 #: Yes/no columns and the words they may hold (AirData's isVideo as pandas writes it: True / False).
 _BOOLEAN_COLUMNS = ("isvideo", "is_video", "recording")
 _BOOLEANS = {"true": 1.0, "false": 0.0, "yes": 1.0, "no": 0.0}
-_HEADER_RE = re.compile(r"(?P<name>.*?)\s*(?:\((?P<paren>[^()]*)\)|\[(?P<bracket>[^\[\]]*)\])?")
 
 
 @dataclass
@@ -83,39 +56,16 @@ class _CsvColumn:
     scale: float
 
 
-def split_unit(cell: str) -> tuple[str, str]:
-    """A column name or meta key as (name, unit), lower case: ``altitude(feet)`` -> ("altitude", "feet"),
-    ``speed [m/s]`` -> ("speed", "m/s"), ``altitude`` -> ("altitude", "")."""
-    match = _HEADER_RE.fullmatch(cell.strip().lower())
-    assert match is not None  # every string matches: the unit group is optional
-    return match["name"].strip(), (match["paren"] or match["bracket"] or "").strip()
-
-
-def match_column(cell: str) -> tuple[str, str, float] | None:
-    """The telemetry field a column name stands for: (field, alias, factor to SI), or None for other columns.
-
-    `cell` is a header cell or a flight-log meta key, matched case-insensitively with an optional unit in
-    parentheses or brackets (``height_above_takeoff(feet)`` -> ("height", "height_above_takeoff", 0.3048)).
-    ValueError when the name is known but its unit is not.
-    """
-    name, unit = split_unit(cell)
-    for fld, (aliases, units) in CSV_COLUMNS.items():
-        if name not in aliases:
-            continue
-        if unit not in units:
-            accepted = ", ".join(u for u in units if u) or "none"
-            raise ValueError(f"column {cell.strip()!r}: unknown unit {unit!r} (accepted: {accepted})")
-        return fld, name, units[unit]
-    return None
-
-
 def _csv_columns(header: list[str], header_line: int, source: str) -> dict[str, _CsvColumn]:
     found: dict[str, _CsvColumn] = {}
     for index, cell in enumerate(header):
         try:
             matched = match_column(cell)
-        except ValueError as err:
-            raise ValueError(f"{source}:{header_line}: {err}") from None
+        except UnknownUnit as err:
+            if err.field not in OPTIONAL_FIELDS:
+                raise ValueError(f"{source}:{header_line}: {err}") from None
+            log.warning("%s:%d: %s: the column is left out (no pose needs it)", source, header_line, err)
+            continue
         if matched is None:
             continue
         fld, name, scale = matched

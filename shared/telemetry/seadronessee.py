@@ -12,11 +12,12 @@ from typing import Any
 
 import numpy as np
 
-from shared.telemetry.csv_table import UNITS, match_column, split_unit
+from shared.telemetry.columns import OPTIONAL_FIELDS, UNITS, UnknownUnit, match_column, split_unit
 from shared.telemetry.dates import format_datetime, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch
 from shared.telemetry.seadronessee_videos import group_videos, meta_object
+from shared.telemetry.seadronessee_zones import harmonise_zones
 from shared.telemetry.text import read_text
 
 logger = logging.getLogger(__name__)
@@ -92,6 +93,8 @@ def _meta_number(meta: Mapping[str, Any], name: str, what: str, *, required: boo
         if base != name or key == name:
             continue
         if unit not in units:
+            if not required and _META_UNITS[name] == "speed":
+                continue  # no pose needs a speed: one in a unit we do not know is left out, not the frame
             raise MetaProblem("bad unit", f"SeaDronesSee meta field {key!r}: unknown unit {unit!r} (accepted: "
                                           f"{', '.join(u for u in units if u)})")
         value = _number(meta[key], key, what, required=required)
@@ -227,19 +230,23 @@ def pitch_convention_of(metas: Iterable[Mapping[str, Any] | None]) -> str:
 
 
 def compass_heading_of(meta: Mapping[str, Any] | None) -> float | None:
-    """The aircraft's compass heading a meta dict holds (``compass_heading``, or ``compass_heading(degrees)`` in the
-    flight-log layout), in [0, 360), or None when absent or not a finite number. Not the camera's heading: a
-    stand-in for a frame without ``gimbal_heading`` (on the dev set's flights the two differ by 6.5 deg in the
-    median, 22 deg at most)."""
+    """The aircraft's compass heading a meta dict holds (``compass_heading``, or with a unit:
+    ``compass_heading(degrees)`` in the flight-log layout, ``(rad)``), in degrees in [0, 360), or None when absent,
+    not a finite number or in a unit we do not know. Not the camera's heading: a stand-in for a frame without
+    ``gimbal_heading`` (on the dev set's flights the two differ by 6.5 deg in the median, 22 deg at most)."""
     if not isinstance(meta, Mapping):
         return None
     for key, value in meta.items():
-        if isinstance(key, str) and split_unit(key)[0] == "compass_heading":
-            try:
-                heading = _number(value, key, "heading", required=False)
-            except ValueError:
-                return None
-            return None if heading is None else heading % 360.0
+        if not isinstance(key, str):
+            continue
+        name, unit = split_unit(key)
+        if name != "compass_heading" or unit not in UNITS["angle"]:
+            continue
+        try:
+            heading = _number(value, key, "heading", required=False)
+        except ValueError:
+            return None
+        return None if heading is None else heading * UNITS["angle"][unit] % 360.0
     return None
 
 
@@ -260,7 +267,9 @@ def _flight_log_fields(meta: Mapping[str, Any]) -> dict[str, tuple[str, float]]:
             continue
         try:
             matched = match_column(key)
-        except ValueError as err:
+        except UnknownUnit as err:
+            if err.field in OPTIONAL_FIELDS:
+                continue  # no pose needs a speed: one in a unit we do not know is left out, not the frame
             raise MetaProblem("bad unit", f"SeaDronesSee meta field {err}") from None
         if matched is None:
             continue
@@ -488,8 +497,9 @@ def parse_seadronessee_coco(
     for image in images:
         if not isinstance(image, Mapping):
             raise ValueError(f"{source}: images must be objects, got {image!r:.80}")
+    images, notices = harmonise_zones(images)
     grouping = group_videos(images)
-    for notice in grouping.notices:
+    for notice in notices + list(grouping.notices):
         logger.warning("%s: %s", source, notice)
     videos = sorted({repr(group.name) for group in grouping.groups})
     if video_id is None and len(videos) > 1:

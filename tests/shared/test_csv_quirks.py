@@ -208,3 +208,19 @@ def test_a_merged_export_unsorted_with_bad_cells_and_whole_second_stamps_is_fill
     records = parse_csv("\n".join(rows) + "\n", source="ws.csv")
     assert len(records) == 600 - 89 - 6 - 3
     assert max(abs(r.lat - 48.53 - 5e-5 * (r.t - t0)) for r in records) < 1e-9
+
+
+def test_radians_knots_and_a_speed_in_an_unknown_unit(caplog):
+    # pitch and heading in radians are read as such; a knots speed is one; a speed in a unit we do not know leaves
+    # that column out with a warning naming it (it refused the whole file, though no pose needs a speed)
+    text = ("time,lat,lon,height,gimbal_pitch(rad),gimbal_heading [radians],speed(knots),xspeed(ft/s)\n"
+            "0,48.5,9.1,40,-0.5,1.0,10,3\n1,48.5,9.1,40,-0.5,1.0,10,3\n")
+    with caplog.at_level(logging.WARNING):
+        records = parse_csv(text, source="log.csv")
+    assert records[0].pitch_deg == pytest.approx(math.degrees(0.5))
+    assert records[0].heading_deg == pytest.approx(math.degrees(1.0))
+    assert records[0].speed_mps == pytest.approx(5.1444, abs=1e-4)
+    assert records[0].vel_en_mps is None
+    assert "'xspeed(ft/s)': unknown unit 'ft/s'" in caplog.text and "left out" in caplog.text
+    with pytest.raises(ValueError, match=r"'gimbal_pitch\(gradians\)': unknown unit"):
+        parse_csv("time,lat,lon,height,gimbal_pitch(gradians)\n0,48.5,9.1,40,-50\n", source="log.csv")

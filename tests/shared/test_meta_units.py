@@ -51,3 +51,31 @@ def test_a_dji_pitch_naming_its_unit_sets_the_convention():
     # a null plain field beside one naming its unit: the one with a value
     tel = from_seadronessee_meta({**META, "altitude": None, "altitude(ft)": 131.234})
     assert tel is not None and tel.height_m == pytest.approx(40.0, abs=1e-3)
+
+
+def test_radians_and_knots_are_units():
+    # the dataset walk-through's left items: compass_heading(rad) was read as degrees (2.5 rad -> 2.5 deg), and
+    # speed(knots) was an unknown unit that cost the frame its pose
+    assert compass_heading_of({"compass_heading(rad)": 2.5}) == pytest.approx(143.2394, abs=1e-3)
+    assert compass_heading_of({"compass_heading [radians]": -0.5}) == pytest.approx(331.3521, abs=1e-3)
+    assert compass_heading_of({"compass_heading(gradians)": 100.0}) is None  # unknown: not read as degrees
+    tel = from_seadronessee_meta({**META, "altitude": 40.0, "speed(knots)": 10.0, "gimbal_heading": None,
+                                  "gimbal_heading(rad)": 1.0})
+    assert tel is not None and tel.speed_mps == pytest.approx(5.1444, abs=1e-4)
+    assert tel.heading_deg == pytest.approx(57.2958, abs=1e-4)
+
+
+@pytest.mark.parametrize("layout", ["gps", "flight-log"])
+def test_a_speed_in_an_unknown_unit_is_left_out_not_the_frame(layout):
+    if layout == "gps":
+        meta = {**META, "altitude": 40.0, "speed(furlongs/fortnight)": 3.0}
+    else:
+        meta = {"latitude": 47.67, "longitude": 9.27, "height_above_takeoff(meter)": 40.0, "gimbal_pitch": -45.0,
+                "gimbal_heading": 140.0, "datetime(utc)": "2020-08-24 13:45:20", "xspeed(ft/s)": 3.0,
+                "yspeed(ft/s)": 1.0, "speed(furlongs)": 1.0}
+    tel = from_seadronessee_meta(meta)
+    assert tel is not None and tel.speed_mps is None and tel.vel_en_mps is None
+    assert tel.height_m == pytest.approx(40.0)
+    # a pose field in an unknown unit still costs the frame, named
+    with pytest.raises(MetaProblem, match="gradians"):
+        from_seadronessee_meta({**meta, "gimbal_heading": None, "gimbal_heading(gradians)": 10.0})
