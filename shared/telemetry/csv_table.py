@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from shared.telemetry.columns import CSV_COLUMNS, OPTIONAL_FIELDS, UnknownUnit, match_column
+from shared.telemetry.columns import CSV_COLUMNS, OPTIONAL_FIELDS, UnknownUnit, match_column, unit_rank
 from shared.telemetry.dates import DATETIME_RE, parse_datetime, truncated_date_offset
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, pitch_or_none
@@ -19,7 +19,7 @@ from shared.telemetry.text import NUM_RE, read_text
 
 log = logging.getLogger(__name__)
 
-_DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji")
+_DJI_PITCH_COLUMNS = ("gb_pitch", "gimbal_pitch_dji", "gimbal.pitch", "gimbalpitchraw")
 #: A bare `pitch` column below this depression in every row is likely the airframe's pitch (a warning says so).
 _AIRFRAME_PITCH_DEG = 10.0
 #: Columns that name the drone a row belongs to (a log of several drones): one drone per file is read.
@@ -43,8 +43,8 @@ _RESET_S = 1.0
 #: Cells that say a value is missing (pandas writes NaN, R NA, JSON-minded tools null): read as an empty cell.
 _MISSING = frozenset({"nan", "na", "n/a", "null", "none", "-"})
 #: Yes/no columns and the words they may hold (AirData's isVideo as pandas writes it: True / False).
-_BOOLEAN_COLUMNS = ("isvideo", "is_video", "recording")
-_BOOLEANS = {"true": 1.0, "false": 0.0, "yes": 1.0, "no": 0.0}
+_BOOLEAN_COLUMNS = ("isvideo", "is_video", "recording", "istakingvideo", "custom.isvideo", "camera.isvideo")
+_BOOLEANS = {"true": 1.0, "false": 0.0, "yes": 1.0, "no": 0.0, "recording": 1.0}  # CUSTOM.isVideo: "Recording" or empty
 
 
 @dataclass
@@ -73,9 +73,14 @@ def _csv_columns(header: list[str], header_line: int, source: str) -> dict[str, 
         column = _CsvColumn(fld, cell.strip(), name, index, scale)
         previous = found.get(fld)
         if previous is not None and previous.alias == name:
-            raise ValueError(
-                f"{source}:{header_line}: columns {previous.name!r} and {cell.strip()!r} are the same field"
-            )
+            ranks = unit_rank(fld, previous.name), unit_rank(fld, cell)
+            if ranks[0] == ranks[1]:
+                raise ValueError(
+                    f"{source}:{header_line}: columns {previous.name!r} and {cell.strip()!r} are the same field"
+                )
+            if ranks[1] < ranks[0]:  # one name in two units (height [m] and [ft]): the preferred unit
+                found[fld] = column
+            continue
         if previous is None or aliases.index(name) < aliases.index(previous.alias):
             found[fld] = column
     for required in ("lat", "lon", "height"):
@@ -127,6 +132,10 @@ def parse_csv(
       ``speed_mps, speed``; velocity ``vel_north_mps, xspeed`` and ``vel_east_mps, yspeed`` (DJI flight logs:
       x north, y east); ``frame, frame_index, framecnt``; ``isvideo, is_video, recording`` (AirData: 1 while
       the camera records). An empty optional cell is None.
+    - Litchi's and converted DJI logs' names too (`shared.telemetry.columns.CSV_COLUMNS`: ``gimbalPitchRaw`` in
+      tenths of a degree, ``isTakingVideo``, ``OSD.latitude``, ``GIMBAL.yaw [360]``, ``OSD.flyTime [s]``, ...). One
+      name in two units (``OSD.height [m]`` and ``[ft]``, ``datetime(utc)`` and ``datetime(local)``): the first
+      unit of `UNITS`' order (metres, UTC).
 
     When several names of one field are present the earlier one in these lists wins (a gimbal column
     beats the aircraft's ``pitch``/``yaw``/``roll``).

@@ -7,16 +7,21 @@ from collections.abc import Sequence
 from datetime import datetime, timedelta, timezone
 
 # 2020-08-24T15:45:20 | 2017.07.29 15:18:50 | 2020:08:24 15:45:20 (EXIF) | 2022-08-07 13:40:40,774,808 (DJI ms,us)
+# | 2024-05-01 01:01:53.100 PM (Litchi's local time)
 DATETIME_RE = re.compile(
     r"(?P<y>\d{4})[-.:/](?P<mo>\d{1,2})[-.:/](?P<d>\d{1,2})(?:T|\s+)(?P<h>\d{1,2}):(?P<mi>\d{1,2}):(?P<s>\d{1,2})"
-    r"(?:[.,](?P<frac>\d{1,9}))?(?:,(?P<us>\d{3}))?(?:\s*(?P<tz>Z|[+-]\d{2}:?\d{2}))?"
+    r"(?:[.,](?P<frac>\d{1,9}))?(?:,(?P<us>\d{3}))?(?:\s*(?P<ampm>[AaPp][Mm]))?(?:\s*(?P<tz>Z|[+-]\d{2}:?\d{2}))?"
 )
 DATE_START_RE = re.compile(r"(?<![\d.])\d{4}[-./]\d{1,2}[-./]\d{1,2}(?![\d.])")
 
 
 def epoch_from_match(match: re.Match[str], utc_offset_s: float) -> float:
     """Seconds since the epoch; a naive time is the drone clock at UTC + utc_offset_s."""
-    fields = {k: int(v) for k, v in match.groupdict().items() if v is not None and k not in ("frac", "tz")}
+    fields = {k: int(v) for k, v in match.groupdict().items() if v is not None and k not in ("frac", "tz", "ampm")}
+    if match["ampm"]:  # a 12-hour clock (Litchi's datetime(local): 2024-05-01 01:01:53.000 PM)
+        if not 1 <= fields["h"] <= 12:
+            raise ValueError(f"hour {fields['h']} is not on a 12-hour clock")
+        fields["h"] = fields["h"] % 12 + (12 if match["ampm"].lower() == "pm" else 0)
     stamp = datetime(
         fields["y"], fields["mo"], fields["d"], fields["h"], fields["mi"], fields["s"], tzinfo=timezone.utc
     )

@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from shared.telemetry.columns import OPTIONAL_FIELDS, UNITS, UnknownUnit, match_column, split_unit
+from shared.telemetry.columns import OPTIONAL_FIELDS, UNITS, UnknownUnit, match_column, split_unit, unit_rank
 from shared.telemetry.dates import format_datetime, parse_datetime
 from shared.telemetry.interpolation import spread_whole_second_stamps
 from shared.telemetry.record import PITCH_TOLERANCE_DEG, Telemetry, clamp_pitch
@@ -261,7 +261,7 @@ def is_flight_log_meta(meta: Mapping[str, Any]) -> bool:
 
 def _flight_log_fields(meta: Mapping[str, Any]) -> dict[str, tuple[str, float]]:
     """field -> (meta key, factor to SI) of the flight-log keys present (the earlier alias wins)."""
-    found: dict[str, tuple[str, float, int]] = {}
+    found: dict[str, tuple[str, float, tuple[int, int]]] = {}
     for key in meta:
         if not isinstance(key, str):
             continue
@@ -277,7 +277,7 @@ def _flight_log_fields(meta: Mapping[str, Any]) -> dict[str, tuple[str, float]]:
         aliases = _FLIGHT_LOG_ALIASES.get(fld, ())
         if alias not in aliases:
             continue
-        rank = aliases.index(alias)
+        rank = (aliases.index(alias), unit_rank(fld, key))  # datetime(utc) before datetime(local)
         if fld not in found or rank < found[fld][2]:
             found[fld] = (key, scale, rank)
     return {fld: (key, scale) for fld, (key, scale, _) in found.items()}

@@ -224,3 +224,77 @@ def test_radians_knots_and_a_speed_in_an_unknown_unit(caplog):
     assert "'xspeed(ft/s)': unknown unit 'ft/s'" in caplog.text and "left out" in caplog.text
     with pytest.raises(ValueError, match=r"'gimbal_pitch\(gradians\)': unknown unit"):
         parse_csv("time,lat,lon,height,gimbal_pitch(gradians)\n0,48.5,9.1,40,-50\n", source="log.csv")
+
+
+def _litchi(rows: int = 30) -> str:
+    # Litchi's flight log (a subset of its columns, in its order): the aircraft's pitch(deg)/yaw(deg) beside the
+    # gimbal's raw angles in tenths of a degree, isTakingVideo, datetime(utc) beside a 12-hour datetime(local)
+    head = ("latitude,longitude,altitude(m),speed(mps),time(millisecond),datetime(utc),datetime(local),pitch(deg),"
+            "roll(deg),yaw(deg),isTakingVideo,pitchRaw,yawRaw,gimbalPitchRaw,gimbalRollRaw,gimbalYawRaw")
+    out = [head]
+    start = dt.datetime(2024, 5, 1, 10, 1, 53, tzinfo=dt.timezone.utc)
+    for k in range(rows):
+        t = start + dt.timedelta(milliseconds=100 * k)
+        local = t.astimezone(dt.timezone(dt.timedelta(hours=2)))
+        out.append(f"{47.67 + 1e-6 * k:.8f},9.27,{40 + 0.1 * k:.1f},3.0,{100 * k},{t:%Y-%m-%d %H:%M:%S}.{k % 10}00,"
+                   f"{local:%Y-%m-%d %I:%M:%S}.{k % 10}00 {local:%p},-4.2,0.3,10.0,{int(k >= 10)},-42,100,"
+                   f"{-450 - k},0,{300 + 2 * k}")
+    return "\n".join(out) + "\n"
+
+
+def test_a_litchi_log_reads_the_gimbal_and_the_recording_flag():
+    # the telemetry walk-through (1 Dec 2026): refused for datetime(local)'s unit; without that column, the
+    # aircraft's yaw (31 deg off) and pitch (63 deg off) were read and isTakingVideo ignored (video 20 s early)
+    records = parse_csv(_litchi(), source="litchi.csv")
+    assert len(records) == 30
+    r = records[12]
+    assert r.t == pytest.approx(dt.datetime(2024, 5, 1, 10, 1, 54, 200000, tzinfo=dt.timezone.utc).timestamp())
+    assert r.pitch_deg == pytest.approx(46.2) and r.heading_deg == pytest.approx(32.4)
+    assert r.height_m == pytest.approx(41.2)
+    assert [rec.recording for rec in records[9:11]] == [False, True]
+    # with only the local column, its 12-hour clock is read (in the zone the caller gives)
+    only_local = "\n".join(",".join(c for i, c in enumerate(line.split(",")) if i != 5)
+                           for line in _litchi().splitlines())
+    local = parse_csv(only_local, source="litchi.csv", utc_offset_s=7200.0)
+    assert local[12].t == pytest.approx(r.t)
+
+
+def test_a_converted_dji_log_reads_osd_and_gimbal_columns():
+    # DJI logs converted by TXTlogToCSVtool / Flight Reader: refused ("missing required column 'lat'")
+    head = ("CUSTOM.date [local],CUSTOM.updateTime [local],OSD.flyTime [s],OSD.latitude,OSD.longitude,OSD.height [ft],"
+            "OSD.height [m],OSD.hSpeed [MPH],OSD.pitch,OSD.yaw,GIMBAL.pitch,GIMBAL.roll,GIMBAL.yaw,GIMBAL.yaw [360],"
+            "CAMERA.isVideo,CUSTOM.isVideo")
+    lines = [head]
+    for k in range(20):
+        rec = k >= 5
+        lines.append(f"5/1/2024,12:01:5{k % 10}.00 PM,{0.1 * k:.1f},{47.67 + 1e-6 * k:.8f},9.27,{131.2 + k:.1f},"
+                     f"{(131.2 + k) * 0.3048:.3f},6.7,-4.2,10.0,-45.0,0.0,-150.0,210.0,{'TRUE' if rec else 'FALSE'},"
+                     f"{'Recording' if rec else ''}")
+    records = parse_csv("\n".join(lines) + "\n", source="fly.csv")
+    assert len(records) == 20
+    assert records[3].t == pytest.approx(0.3) and records[3].height_m == pytest.approx(40.904)  # the [m] column
+    assert records[3].pitch_deg == pytest.approx(45.0) and records[3].heading_deg == pytest.approx(210.0)
+    assert records[3].speed_mps == pytest.approx(6.7 * 0.44704)
+    assert [r.recording for r in records[4:6]] == [False, True]
+    # the flag written only as "Recording" or empty (no CAMERA.isVideo)
+    custom = "\n".join(line.rsplit(",", 2)[0] + "," + line.rsplit(",", 1)[1] for line in lines)
+    from shared.telemetry.record import recording_start
+
+    assert recording_start(parse_csv(custom + "\n", source="fly.csv")) == (pytest.approx(0.5), 1)
+
+
+def test_one_name_in_two_units_takes_the_preferred_and_the_same_unit_twice_is_refused():
+    text = "time,lat,lon,height [ft],height [m]\n0,48.5,9.1,131.2,40.0\n"
+    assert parse_csv(text, source="a.csv")[0].height_m == pytest.approx(40.0)
+    with pytest.raises(ValueError, match="are the same field"):
+        parse_csv("time,lat,lon,height [m],height(m)\n0,48.5,9.1,40,40\n", source="a.csv")
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.datetimes(min_value=dt.datetime(1990, 1, 1), max_value=dt.datetime(2090, 1, 1)))
+def test_a_twelve_hour_clock_reads_as_the_twenty_four_hour_one(when):
+    from shared.telemetry.dates import parse_datetime
+
+    frac = f"{when.microsecond // 1000:03d}"
+    assert parse_datetime(f"{when:%Y-%m-%d %I:%M:%S}.{frac} {when:%p}") == parse_datetime(
+        f"{when:%Y-%m-%d %H:%M:%S}.{frac}")
