@@ -21,6 +21,7 @@ from numpy.typing import NDArray
 
 from shared.geo import Camera, Pose
 from shared.telemetry import Telemetry, from_seadronessee_meta, interpolate, recording_start
+from shared.telemetry.recording import no_start_placement
 
 if TYPE_CHECKING:
     from agent.detector import Detections
@@ -30,6 +31,8 @@ if TYPE_CHECKING:
     from shared.telemetry import KlvReport
 
 log = logging.getLogger(__name__)
+#: Flight controllers' logs (MAVLink, PX4): they start at connection or arming and may say when recording started.
+FLIGHT_LOG_SUFFIXES = (".tlog", ".ulg")
 
 
 __all__ = [
@@ -212,7 +215,8 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
     video_start_t : float or None
         The telemetry time of the video's first frame when the file tells it (KLV in a transport stream: from
         the PTS of the samples and the video; DJI SRT: from the first usable block's subtitle timing,
-        `SrtReport.video_start_t`), else None.
+        `SrtReport.video_start_t`; a ``.tlog`` / ``.ulg``: where the log says the camera started recording,
+        `shared.telemetry.recording.LogRecording.start_t`), else None.
 
     Raises
     ------
@@ -222,7 +226,14 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         and ``height_m`` is not given (the line says to pass ``--height-m`` or ``--height-offset-m``), or no
         record has a gimbal pitch (heading) and ``pitch_deg`` (``heading_deg``) is not given.
     """
-    from shared.telemetry import KLV_FILE_SUFFIXES, read_klv_report, read_srt_report, read_telemetry
+    from shared.telemetry import (
+        KLV_FILE_SUFFIXES,
+        read_klv_report,
+        read_srt_report,
+        read_telemetry,
+        read_tlog_report,
+        read_ulog_report,
+    )
 
     suffix = Path(path).suffix.lower()
     if height_m is not None and not (math.isfinite(height_m) and height_m > 0.0):
@@ -254,6 +265,9 @@ def video_telemetry(path: str | Path, *, height_m: float | None = None, height_o
         klv = read_klv_report(path, **kw)  # logs what it skipped
         records, video_start_t = klv.records, klv.video_start_t
         above_sea_level_only, sea_level_name = klv.heights_above_sea_level_only, "KLV sensor altitude, no frame centre"
+    elif suffix in FLIGHT_LOG_SUFFIXES:  # a flight controller's log: where it says the camera started recording
+        flight_log = (read_tlog_report if suffix == ".tlog" else read_ulog_report)(path, **kw)
+        records, video_start_t = flight_log.records, flight_log.recording.start_t
     elif suffix == ".json":
         from agent.json_video import read_video_json
 
@@ -319,17 +333,25 @@ def video_start_time(records: list[Telemetry], telemetry: str | Path, *, telemet
     video_start_t: what the file tells (`video_telemetry`: KLV in a transport stream by its PTS, an SRT by its
     subtitle timing). Without either:
     where the log says the camera started recording (AirData's isVideo; the first such start when it marks
-    several, with a warning), else the first record's time. telemetry: the name used in the log lines.
+    several, with a warning), else the first record's time (for a flight controller's ``.tlog`` / ``.ulg``, which
+    starts well before the video, with a warning). telemetry: the name used in the log lines.
     """
     if telemetry_offset_s is not None:
         return float(telemetry_offset_s)
-    if video_start_t is not None:  # the file's own video clock: KLV's PTS, an SRT's subtitle timing
-        clock = {".srt": "the SRT's subtitle timing", ".json": "the JSON's frame numbers"}.get(
-            Path(str(telemetry)).suffix.lower(), "the KLV PTS")
-        log.info("telemetry %s: video time 0 is telemetry time %.3f (from %s)", telemetry, video_start_t, clock)
+    suffix = Path(str(telemetry)).suffix.lower()
+    if video_start_t is not None:  # the file's own video clock: KLV's PTS, an SRT's subtitle timing, a log's start
+        clock = {".srt": "the SRT's subtitle timing", ".json": "the JSON's frame numbers", **dict.fromkeys(
+            FLIGHT_LOG_SUFFIXES, "the log's camera recording start")}.get(suffix, "the KLV PTS")
+        starts = recording_start(records)[1] if suffix in FLIGHT_LOG_SUFFIXES else 0
+        (log.warning if starts > 1 else log.info)(
+            "telemetry %s: video time 0 is telemetry time %.3f (from %s%s)", telemetry, video_start_t, clock,
+            f"; it marks {starts} recordings: the video is taken to be the first, pass --telemetry-offset-s for "
+            "another" if starts > 1 else "")
         return video_start_t
     start, starts = recording_start(records)
     if start is None:
+        if suffix in FLIGHT_LOG_SUFFIXES:  # it starts at connection or arming: seconds to minutes before the video
+            log.warning("telemetry %s: %s", telemetry, no_start_placement(records))
         return records[0].t
     if starts > 1:
         log.warning("telemetry %s marks %d recordings: the video is taken to be the first (t=%.3f); pass "
@@ -356,8 +378,8 @@ class VideoSource:
         Camera JSON; rescaled when the video's frame size differs.
     telemetry_offset_s : float, optional
         Telemetry time of video time 0, seconds (default: what the telemetry says: KLV in a transport stream
-        by its PTS, a log that marks the recording (AirData's isVideo) where it starts; else the first record's
-        time).
+        by its PTS, a log that marks the recording (AirData's isVideo, a flight controller's camera messages)
+        where it starts; else the first record's time).
     class_names : path or list, optional
         Overrides the model's class names.
     conf_threshold : float

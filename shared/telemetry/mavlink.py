@@ -1,7 +1,8 @@
-"""MAVLink telemetry (PX4, ArduPilot): decoded messages to `Telemetry` records, and `.tlog` files read from bytes.
+"""MAVLink telemetry (PX4, ArduPilot): decoded messages to `MavlinkSample`s (a ``.tlog`` file is read in
+`shared.telemetry.tlog`, the live UDP link in `agent.mavlink_feed`).
 
-No sockets here (the live UDP link is `agent.mavlink_feed`); the bytes are decoded by pymavlink's generated
-parser (optional extra ``mavlink``), imported when first needed.
+No sockets here; the bytes are decoded by pymavlink's generated parser (optional extra ``mavlink``), imported when
+first needed.
 
 Messages used (one record per ``GLOBAL_POSITION_INT`` of the vehicle, with its attitude and the latest gimbal):
 - ``GLOBAL_POSITION_INT``: lat, lon (1e-7 deg), ``relative_alt`` (mm above home: the height above the ground
@@ -26,24 +27,12 @@ from __future__ import annotations
 
 import logging
 import math
-import statistics
-import struct
 from collections import deque
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
-from datetime import datetime, timezone
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
-import numpy as np
-
-from shared.telemetry.mavlink_clock import (
-    BootTimeUnwrap,
-    UnixClock,
-    boot_segments,
-    interpolate_yaw_deg,
-    yaw_between_deg,
-)
+from shared.telemetry.mavlink_clock import BootTimeUnwrap, UnixClock, yaw_between_deg
 from shared.telemetry.record import Telemetry, pitch_or_none
 
 __all__ = [
@@ -52,8 +41,7 @@ __all__ = [
     "MavlinkAssembler",
     "MavlinkByteParser",
     "MavlinkSample",
-    "parse_tlog",
-    "read_tlog",
+    "quaternion_to_euler_deg",
 ]
 
 log = logging.getLogger(__name__)
@@ -105,7 +93,8 @@ class MavlinkSample:
     boot_s: seconds since the autopilot booted (on past a wrap of ``time_boot_ms``); pitch_deg: depression 0..90 or
     None (no gimbal message, or the camera looking up); heading_deg: camera heading or None; vel_en: (east, north)
     m/s; yaw_rel_deg: the camera's yaw relative to the vehicle when the heading is the vehicle's yaw plus it (0 for a
-    fixed camera, a gimbal's vehicle-frame yaw), None when the heading is in the earth frame or unknown.
+    fixed camera, a gimbal's vehicle-frame yaw), None when the heading is in the earth frame or unknown;
+    vehicle_yaw_deg: the vehicle's yaw used (ATTITUDE, else the position's ``hdg``), None when unknown.
     """
 
     boot_s: float
@@ -118,6 +107,7 @@ class MavlinkSample:
     vel_en: tuple[float, float]
     yaw_rel_deg: float | None = None
     hfov_deg: float | None = None
+    vehicle_yaw_deg: float | None = None
 
     def to_telemetry(self, clock_offset_s: float = 0.0, height_offset_m: float = 0.0) -> Telemetry:
         """The record at time ``boot_s + clock_offset_s`` with ``height_offset_m`` added to the height."""
@@ -153,7 +143,8 @@ class MavlinkAssembler:
 
     Of several gimbals (``GIMBAL_DEVICE_ATTITUDE_STATUS`` of several ``gimbal_device_id``, or of several components
     when the id is 0) the first seen is used (``gimbal_used``); ``gimbals_ignored`` counts the others' messages.
-    ``keep_attitudes`` keeps every ``ATTITUDE`` as (boot s, yaw deg) in ``attitudes`` (a log read as a whole).
+    ``keep_attitudes`` keeps every ``ATTITUDE`` as (boot s, yaw deg) in ``attitudes`` and every reading of the gimbal
+    used in ``gimbal_samples`` (a log read as a whole: `shared.telemetry.tlog` interpolates them to the positions).
     ``time_boot_ms`` is unwrapped per sender (`BootTimeUnwrap`, on ``add``'s receive times ``rx_s`` where given).
     """
 
@@ -172,6 +163,10 @@ class MavlinkAssembler:
         self.position_counts: dict[int, int] = {}
         self.counts: dict[str, int] = {}
         self.attitudes: list[tuple[float, float]] | None = [] if keep_attitudes else None
+        #: (receive s or NaN, the message's own time_boot_ms in s or NaN, pitch, roll, yaw deg, yaw in earth frame)
+        self.gimbal_samples: list[tuple[float, float, float, float, float, bool]] | None = (
+            [] if keep_attitudes else None)
+        self._rx_s: float | None = None
         self._attitude_prev: tuple[float, float] | None = None  # (boot s, yaw deg) of the two latest ATTITUDEs
         self._attitude_last: tuple[float, float] | None = None
         self._clocks: dict[tuple[int | None, int | None], UnixClock] = {}
@@ -236,7 +231,7 @@ class MavlinkAssembler:
         if handler is None:
             return None
         self.counts[msg_type] = self.counts.get(msg_type, 0) + 1
-        self._src = (src_system, src_component)
+        self._src, self._rx_s = (src_system, src_component), rx_s
         return handler(self, self._unwrapped(msg_type, fields, self._src, rx_s))
 
     def _unwrapped(self, msg_type: str, f: Mapping[str, Any], src: tuple[int | None, int | None],
@@ -292,7 +287,15 @@ class MavlinkAssembler:
             earth = False
         else:
             earth = bool(flags & _YAW_LOCK)
-        self.gimbal = _Gimbal(pitch, roll, yaw, earth)
+        self._set_gimbal(_Gimbal(pitch, roll, yaw, earth), f)
+
+    def _set_gimbal(self, gimbal: _Gimbal, f: Mapping[str, Any]) -> None:
+        self.gimbal = gimbal
+        if self.gimbal_samples is not None:
+            own = f.get("time_boot_ms")
+            self.gimbal_samples.append((math.nan if self._rx_s is None else self._rx_s,
+                                        math.nan if own is None else own / 1e3, gimbal.pitch_deg, gimbal.roll_deg,
+                                        gimbal.yaw_deg, gimbal.earth_frame))
 
     def _mount_orientation(self, f: Mapping[str, Any]) -> None:
         absolute = float(f.get("yaw_absolute", math.nan))
@@ -301,10 +304,10 @@ class MavlinkAssembler:
         pitch, roll = float(f["pitch"]), float(f["roll"])
         if not (math.isfinite(pitch) and math.isfinite(yaw)):  # NaN: invalid (ardupilotmega.xml): no reading
             return None
-        self.gimbal = _Gimbal(pitch, roll if math.isfinite(roll) else 0.0, yaw, earth)
+        self._set_gimbal(_Gimbal(pitch, roll if math.isfinite(roll) else 0.0, yaw, earth), f)
 
     def _mount_status(self, f: Mapping[str, Any]) -> None:
-        self.gimbal = _Gimbal(f["pointing_a"] / 100.0, f["pointing_b"] / 100.0, f["pointing_c"] / 100.0, False)
+        self._set_gimbal(_Gimbal(f["pointing_a"] / 100.0, f["pointing_b"] / 100.0, f["pointing_c"] / 100.0, False), f)
 
     def _camera_fov(self, f: Mapping[str, Any]) -> None:
         camera = (int(f.get("camera_device_id") or 0), self._src[1])
@@ -337,12 +340,14 @@ class MavlinkAssembler:
         return MavlinkSample(boot_s=boot_s, lat=lat, lon=lon, height_m=f["relative_alt"] / 1e3,
                              pitch_deg=pitch, heading_deg=None if heading is None else heading % 360.0,
                              roll_deg=roll, vel_en=(f["vy"] / 100.0, f["vx"] / 100.0), yaw_rel_deg=yaw_rel,
-                             hfov_deg=self.hfov_deg)
+                             hfov_deg=self.hfov_deg, vehicle_yaw_deg=vehicle_yaw)
 
 
 #: The flags PX4's gimbal module sends for a servo (RC/AUX) gimbal whatever its mode: NEUTRAL and the three locks,
 #: with the servo outputs' angles, relative to the vehicle (src/modules/gimbal/output_rc.cpp).
 _PX4_RC_FLAGS = 2 | 4 | 8 | 16
+#: Messages stamped with the autopilot's boot clock (a gimbal device's ``time_boot_ms`` is its own clock).
+_BOOT_CLOCKED = frozenset({"GLOBAL_POSITION_INT", "ATTITUDE", "SYSTEM_TIME"})
 _HANDLERS = {
     "GLOBAL_POSITION_INT": MavlinkAssembler._position,
     "ATTITUDE": MavlinkAssembler._attitude,
@@ -380,191 +385,3 @@ class MavlinkByteParser:
         return None if msg is None or msg.get_type() == "BAD_DATA" else msg
 
 
-def _packet_size(data: bytes, at: int) -> int | None:
-    """Length of the MAVLink packet starting at `at` (v1 0xFE or v2 0xFD), or None."""
-    if at + 3 > len(data):
-        return None
-    if data[at] == 0xFD:
-        return 12 + data[at + 1] + (13 if data[at + 2] & 0x01 else 0)
-    if data[at] == 0xFE:
-        return 8 + data[at + 1]
-    return None
-
-
-def parse_tlog(data: bytes, *, source: str = "<tlog>", height_offset_m: float = 0.0,
-               system_id: int | None = None) -> list[Telemetry]:
-    """Records of a ``.tlog`` (what QGroundControl and MAVProxy write: per packet a big-endian uint64 UNIX time
-    in microseconds, then the MAVLink packet), sorted by time.
-
-    The vehicle: ``system_id``, else the system with the most ``GLOBAL_POSITION_INT`` (a warning names every system
-    that sent positions, with its count, when there are several; ties go to the first to send one). Of several
-    gimbals the first seen is used (a warning names the others).
-
-    Times: per boot of the autopilot (a reboot restarts ``time_boot_ms``; a warning names it) its boot clock,
-    anchored to UNIX by its own ``SYSTEM_TIME`` (the clock after its last jump: a warning gives the jumps), else by
-    the log's receive times (the median over the positions: a ground station's clock). ``height_offset_m`` is added
-    to every height (e.g. the take-off point's height above the ground under the flight).
-
-    Raises ValueError naming `source` when no position of a vehicle (of ``system_id``) is in the log.
-    """
-    messages = _tlog_messages(data)
-    vehicle, autopilot = _choose_vehicle(messages, system_id, source)
-    messages = [m for m in messages if m.system == vehicle]
-    clock = BootTimeUnwrap()  # as each boot's assembler unwraps it (a wrap is no reboot)
-    boots = np.array([clock.unwrap(m.values[_BOOT_MS_AT[m.type]], m.stamp_s) / 1e3
-                      if m.type in _BOOT_CLOCKED and m.component in (autopilot, None) else math.nan for m in messages])
-    stamps = np.array([m.stamp_s for m in messages])
-    segment_of = boot_segments(stamps, boots)
-    starts = [0, *(np.flatnonzero(np.diff(segment_of)) + 1).tolist(), len(messages)]
-    if len(starts) > 2:
-        _warn_reboots(source, stamps, boots, starts)
-    records: list[Telemetry] = []
-    jumps: list[tuple[float, float]] = []
-    gimbal_used: str | None = None
-    gimbals_ignored: dict[str, int] = {}
-    for a, b in zip(starts[:-1], starts[1:], strict=True):
-        assembler = MavlinkAssembler(vehicle, keep_attitudes=True, component_id=autopilot)
-        assembler.gimbal_used = gimbal_used  # one gimbal for the whole log
-        samples = [(m.stamp_s, s) for m in messages[a:b]
-                   if (s := assembler.add(m.type, m.fields, m.system, m.component, m.stamp_s)) is not None]
-        gimbal_used = assembler.gimbal_used
-        for key, count in assembler.gimbals_ignored.items():
-            gimbals_ignored[key] = gimbals_ignored.get(key, 0) + count
-        if not samples:
-            continue
-        samples = _with_attitude_yaw(samples, assembler.attitudes or [])
-        offset = assembler.unix_offset_s
-        if offset is None:
-            offset = statistics.median(stamp - s.boot_s for stamp, s in samples)
-        jumps.extend(assembler.clock_jumps)
-        by_boot: dict[float, Telemetry] = {}
-        for _, s in samples:  # one record per boot time (a position repeated by a router counts once)
-            by_boot.setdefault(s.boot_s, s.to_telemetry(offset, height_offset_m))
-        records.extend(by_boot.values())
-    if not records:
-        raise ValueError(f"{source}: no vehicle position (GLOBAL_POSITION_INT) in the MAVLink log")
-    if jumps:
-        log.warning("%s: the vehicle's UNIX clock (SYSTEM_TIME) jumped %s (first set from the ground station, then "
-                    "from GPS?): times use its clock after the last jump", source,
-                    ", ".join(f"by {step:+.3f} s at boot {boot:.1f} s" for boot, step in jumps))
-    if gimbals_ignored:
-        log.warning("%s: several gimbals: using %s (the first seen), ignoring %s", source, gimbal_used,
-                    ", ".join(f"{key} ({count} messages)" for key, count in gimbals_ignored.items()))
-    return sorted(records, key=lambda r: r.t)
-
-
-def read_tlog(path: str | Path, **kw: Any) -> list[Telemetry]:
-    """`parse_tlog` of a file."""
-    return parse_tlog(Path(path).read_bytes(), source=str(path), **kw)
-
-
-@dataclass(frozen=True, slots=True)
-class _Message:
-    stamp_s: float  # the log's receive time, UNIX seconds
-    type: str
-    values: tuple[Any, ...]  # of _FIELDS[type], None where the message lacks the field (an older dialect)
-    system: int
-    component: int
-
-    @property
-    def fields(self) -> dict[str, Any]:
-        return {name: v for name, v in zip(_FIELDS[self.type], self.values, strict=True) if v is not None}
-
-
-#: Messages stamped with the autopilot's boot clock (a gimbal device's ``time_boot_ms`` is its own clock).
-_BOOT_CLOCKED = frozenset({"GLOBAL_POSITION_INT", "ATTITUDE", "SYSTEM_TIME"})
-#: The fields the assembler reads, per message it uses: a log is held decoded before the vehicle is chosen, and
-#: pymavlink's whole dict of a message cost ~0.8 kB (a 30-minute log with 50 Hz ATTITUDE: 290k of them); a tuple
-#: of these values ~0.2 kB.
-_FIELDS: dict[str, tuple[str, ...]] = {
-    "GLOBAL_POSITION_INT": ("time_boot_ms", "lat", "lon", "relative_alt", "vx", "vy", "hdg"),
-    "ATTITUDE": ("time_boot_ms", "yaw"),
-    "GIMBAL_DEVICE_ATTITUDE_STATUS": ("q", "flags", "gimbal_device_id"),
-    "MOUNT_ORIENTATION": ("pitch", "roll", "yaw", "yaw_absolute"),
-    "MOUNT_STATUS": ("pointing_a", "pointing_b", "pointing_c"),
-    "CAMERA_FOV_STATUS": ("hfov", "camera_device_id"),
-    "SYSTEM_TIME": ("time_unix_usec", "time_boot_ms"),
-}
-_USED = frozenset(_HANDLERS) | {"SYSTEM_TIME"}
-_BOOT_MS_AT = {kind: _FIELDS[kind].index("time_boot_ms") for kind in _BOOT_CLOCKED}
-
-
-def _tlog_messages(data: bytes) -> list[_Message]:
-    """The messages of a ``.tlog`` that the assembler uses, in log order; noise and broken packets skipped."""
-    parser = MavlinkByteParser()
-    out: list[_Message] = []
-    pos = 0
-    while pos + 8 < len(data):
-        size = _packet_size(data, pos + 8)
-        if size is None or pos + 8 + size > len(data):
-            pos += 1  # not a record start: resynchronise byte by byte
-            continue
-        msg = parser.decode_packet(data[pos + 8:pos + 8 + size])
-        if msg is None:
-            pos += 1
-            continue
-        kind = msg.get_type()
-        if kind in _USED:
-            (stamp_us,) = struct.unpack(">Q", data[pos:pos + 8])
-            values = tuple(getattr(msg, name, None) for name in _FIELDS[kind])
-            out.append(_Message(stamp_us / 1e6, kind, values, msg.get_srcSystem(), msg.get_srcComponent()))
-        pos += 8 + size
-    return out
-
-
-def _choose_vehicle(messages: list[_Message], system_id: int | None, source: str) -> tuple[int, int]:
-    """(system id, autopilot component id) of the vehicle: `system_id`, else the system with the most positions."""
-    counts: dict[int, int] = {}
-    components: dict[int, int] = {}
-    for m in messages:
-        if m.type == "GLOBAL_POSITION_INT":
-            counts[m.system] = counts.get(m.system, 0) + 1
-            components.setdefault(m.system, m.component)
-    named = ", ".join(f"system {sysid} ({n} positions)" for sysid, n in counts.items())
-    if system_id is not None:
-        if system_id not in counts:
-            raise ValueError(f"{source}: no vehicle position (GLOBAL_POSITION_INT) of system {system_id} in the "
-                             f"MAVLink log ({named or 'no system sent one'})")
-        return system_id, components[system_id]
-    if not counts:
-        raise ValueError(f"{source}: no vehicle position (GLOBAL_POSITION_INT) in the MAVLink log")
-    chosen = max(counts, key=lambda sysid: counts[sysid])  # the first of equal counts: the first to send one
-    if len(counts) > 1:
-        log.warning("%s: positions (GLOBAL_POSITION_INT) of %d vehicles: %s; reading system %d (the most positions; "
-                    "read_tlog's system_id chooses another)", source, len(counts), named, chosen)
-    return chosen, components[chosen]
-
-
-def _warn_reboots(source: str, stamps: np.ndarray, boots: np.ndarray, starts: list[int]) -> None:
-    """One warning naming each reboot: the log time and the boot time before and after."""
-    parts = []
-    for a, b, c in zip(starts[:-2], starts[1:-1], starts[2:], strict=True):
-        before, after = np.nanmax(boots[a:b]), boots[b:c][np.isfinite(boots[b:c])][0]
-        parts.append(f"at {_utc(stamps[b])} (time_boot_ms {before:.1f} s -> {after:.1f} s)")
-    log.warning("%s: the autopilot rebooted %d time(s) %s: each boot is read on its own clock (its own SYSTEM_TIME, "
-                "else the log's receive times)", source, len(parts), ", ".join(parts))
-
-
-def _utc(stamp_s: float) -> str:
-    try:
-        return datetime.fromtimestamp(stamp_s, timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC")
-    except (OverflowError, OSError, ValueError):
-        return f"log time {stamp_s:.3f} s"
-
-
-def _with_attitude_yaw(samples: list[tuple[float, MavlinkSample]],
-                       attitudes: list[tuple[float, float]]) -> list[tuple[float, MavlinkSample]]:
-    """Samples whose heading follows the vehicle's yaw get the yaw interpolated to their boot time where two
-    ``ATTITUDE`` bracket it (messages come at their own rates); others keep theirs (the latest attitude, held)."""
-    if not attitudes:
-        return samples
-    t_att, yaw_att = np.array(attitudes, dtype=float).T
-    rel = np.array([math.nan if s.yaw_rel_deg is None else s.yaw_rel_deg for _, s in samples])
-    heading = (interpolate_yaw_deg(t_att, yaw_att, [s.boot_s for _, s in samples]) + rel) % 360.0
-    held = np.array([math.nan if s.heading_deg is None else s.heading_deg for _, s in samples])
-    moved = np.isfinite(heading) & ~(np.abs((heading - held + 180.0) % 360.0 - 180.0) < 1e-9)  # NaN held: moved
-    out = list(samples)
-    for i in np.flatnonzero(moved):  # only those that change: most logs stream ATTITUDE with each position
-        stamp, s = samples[i]
-        out[i] = (stamp, replace(s, heading_deg=float(heading[i])))
-    return out

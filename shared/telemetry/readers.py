@@ -8,10 +8,10 @@ from typing import Any
 
 from shared.telemetry.csv_table import read_csv
 from shared.telemetry.klv import KLV_FILE_SUFFIXES, read_klv
-from shared.telemetry.mavlink import read_tlog
 from shared.telemetry.record import Telemetry
 from shared.telemetry.seadronessee import read_seadronessee_json
 from shared.telemetry.srt import read_srt
+from shared.telemetry.tlog import read_tlog
 from shared.telemetry.ulog import read_ulog
 
 

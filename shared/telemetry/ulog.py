@@ -3,7 +3,9 @@
 Topics used, all on the log's microsecond boot clock and interpolated to the times of the positions:
 - ``vehicle_global_position``: lat, lon (one record per sample);
 - ``vehicle_local_position``: ``z`` (metres down from the local origin, where the EKF started) and ``vx, vy``
-  (north, east m/s); without it the records have no height (``--height-m``);
+  (north, east m/s); without it the records have no height (``--height-m``). Positions next to a sample whose
+  ``z`` is NaN or whose ``z_valid`` is false (the estimate not converged yet, or lost) are dropped, with one warning
+  counting them; when (nearly) every one would be, none is and the heights are unknown;
 - ``home_position``: ``z`` of home (the take-off point, set at arming) in the same local frame: the height is
   ``-(z - home z)``, above the take-off point, with the latest home before each position (home may be reset; the
   first one before it is set). Without ``home_position`` the height is ``-z``, above the EKF origin (where PX4
@@ -12,10 +14,15 @@ Topics used, all on the log's microsecond boot clock and interpolated to the tim
 - ``vehicle_attitude``: quaternion ``q[0..3]`` (w, x, y, z): the vehicle's yaw;
 - ``gimbal_device_attitude_status``: quaternion and ``device_flags`` (yaw in the earth or the vehicle frame, as
   in MAVLink's GIMBAL_DEVICE_ATTITUDE_STATUS; each sample's own, as the pilot may switch follow and lock in
-  flight); without it the camera is taken as fixed, facing forward (heading = the vehicle's yaw, pitch from
+  flight); interpolated to each position (`shared.telemetry.gimbal_track.camera_angles`: pitch and roll linearly,
+  heading on the short arc) and carried no more than `hold_limit_s` beyond its samples (a gimbal that starts late,
+  pauses or stops reporting: one warning counts the positions beyond, which get no gimbal pitch and the vehicle's yaw
+  as heading); without it the camera is taken as fixed, facing forward (heading = the vehicle's yaw, pitch from
   ``--pitch-deg``);
 - ``vehicle_gps_position`` or ``sensor_gps`` (the first instance with UTC time): ``time_utc_usec`` anchors the
-  boot clock to UNIX time; without it times are seconds since boot, and a warning says so.
+  boot clock to UNIX time; without it times are seconds since boot, and a warning says so;
+- ``vehicle_command`` (and ``vehicle_command_ack``): MAV_CMD_VIDEO_START_CAPTURE / STOP_CAPTURE, when the camera
+  recorded (`_recording`; `Telemetry.recording`, `FlightLogReport.recording`).
 
 A damaged log is read as far as pyulog gets, with a warning (`_warn_if_damaged`); pyulog's own messages go to the
 log, not stdout.
@@ -33,16 +40,22 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
+from shared.telemetry.gimbal_track import camera_angles, describe_spans, hold_limit_s, unwrapped_deg
 from shared.telemetry.mavlink import quaternion_to_euler_deg
 from shared.telemetry.record import Telemetry, pitch_or_none
+from shared.telemetry.recording import FlightLogReport, LogRecording, from_commands, mark_recording
 
-__all__ = ["ULOG_EXTRA_HINT", "read_ulog"]
+__all__ = ["ULOG_EXTRA_HINT", "read_ulog", "read_ulog_report"]
 
 log = logging.getLogger(__name__)
 
 ULOG_EXTRA_HINT = "PX4 .ulg logs need pyulog: pip install 'uav-memory-maps[ulog]'"
 _TOPICS = ["vehicle_global_position", "vehicle_local_position", "vehicle_attitude",
-           "gimbal_device_attitude_status", "vehicle_gps_position", "sensor_gps", "home_position"]
+           "gimbal_device_attitude_status", "vehicle_gps_position", "sensor_gps", "home_position", "vehicle_command",
+           "vehicle_command_ack"]
+#: MAV_CMD_VIDEO_START_CAPTURE, MAV_CMD_VIDEO_STOP_CAPTURE; an acknowledgement this long after a command is its.
+_VIDEO_COMMANDS = (2500, 2501)
+_ACK_S = 3.0
 _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
 #: The flags PX4's gimbal module publishes for a servo (RC/AUX) gimbal: NEUTRAL | ROLL_LOCK | PITCH_LOCK | YAW_LOCK,
 #: whatever the mode, with the servo outputs' angles, relative to the vehicle (src/modules/gimbal/output_rc.cpp).
@@ -113,18 +126,19 @@ def _interp(t: NDArray, t_src: NDArray, values: NDArray) -> NDArray:
     return np.interp(t, t_src, values)
 
 
-def _interp_finite(t: NDArray, t_src: NDArray, values: NDArray) -> NDArray:
-    """`values` (M,) at times `t_src` (M,) interpolated to `t` (N,) over their finite entries; all NaN without any."""
-    ok = np.isfinite(values)
-    return np.interp(t, t_src[ok], values[ok]) if ok.any() else np.full(len(t), np.nan)
-
-
-def _unwrapped_deg(yaw_deg: NDArray) -> NDArray:
-    """Angles (degrees) with their 360-degree jumps removed over the finite entries, for interpolation."""
-    out = np.array(yaw_deg, dtype=np.float64)
-    ok = np.isfinite(out)
-    out[ok] = np.degrees(np.unwrap(np.radians(out[ok])))
-    return out
+def _valid_heights(local: dict[str, NDArray], t: NDArray) -> tuple[NDArray, NDArray]:
+    """(heights -z, valid) at the position times `t` (N,) from ``vehicle_local_position``: interpolated over its
+    samples with a finite ``z`` (and ``z_valid`` where logged); valid False at a time next to an invalid sample
+    (the estimate not yet converged, or lost: its neighbours say nothing better)."""
+    t_local = local["timestamp"].astype(np.float64)
+    z = local["z"].astype(np.float64)
+    ok = np.isfinite(z)
+    if "z_valid" in local:
+        ok &= local["z_valid"].astype(bool)
+    if not ok.any():
+        return np.full(len(t), np.nan), np.zeros(len(t), dtype=bool)
+    valid = np.interp(t, t_local, ok.astype(np.float64)) == 1.0
+    return -np.interp(t, t_local[ok], z[ok]), valid
 
 
 def _home_z_at(home: dict[str, NDArray] | None, t: NDArray) -> NDArray | None:
@@ -151,7 +165,7 @@ def _yaws_deg(data: dict[str, NDArray]) -> tuple[NDArray, NDArray, NDArray]:
     # a zero or NaN quaternion (a gimbal not ready, a MAVLink gimbal's invalid reading copied in) is no reading
     euler = np.array([quaternion_to_euler_deg(tuple(row)) if np.any(row) and np.all(np.isfinite(row)) else
                       (np.nan,) * 3 for row in q])
-    return euler[:, 0], euler[:, 1], _unwrapped_deg(euler[:, 2])
+    return euler[:, 0], euler[:, 1], unwrapped_deg(euler[:, 2])
 
 
 def _yaw_in_earth_frame(device_flags: NDArray) -> NDArray:
@@ -163,31 +177,14 @@ def _yaw_in_earth_frame(device_flags: NDArray) -> NDArray:
     return earth | (~vehicle & ((flags & _YAW_LOCK) != 0))
 
 
-def _camera_heading_deg(t: NDArray, t_gimbal: NDArray, yaw_gimbal: NDArray, earth_gimbal: NDArray,
-                        t_vehicle: NDArray, yaw_vehicle: NDArray) -> NDArray:
-    """The camera heading (degrees, not wrapped; NaN where unknown) at times `t` (N,).
-
-    t_gimbal, yaw_gimbal, earth_gimbal: (M,) gimbal samples, their yaw in the earth frame where earth_gimbal, else
-    relative to the vehicle; t_vehicle, yaw_vehicle: (K,) the vehicle's yaw (K may be 0). Each time takes the frame
-    of the gimbal sample in effect (the latest at or before it, the first before any): the pilot may switch the
-    gimbal between follow (vehicle frame) and lock (earth frame) mid-flight. The samples are brought into that frame
-    with the vehicle's yaw at their own time before interpolating, so no interpolation mixes the two frames.
-    """
-    def vehicle_yaw_at(times: NDArray) -> NDArray:
-        return _interp_finite(times, t_vehicle, yaw_vehicle) if len(t_vehicle) else np.full(len(times), np.nan)
-
-    vehicle_at_gimbal = vehicle_yaw_at(t_gimbal)
-    in_earth = _unwrapped_deg(np.where(earth_gimbal, yaw_gimbal, yaw_gimbal + vehicle_at_gimbal))
-    relative = _unwrapped_deg(np.where(earth_gimbal, yaw_gimbal - vehicle_at_gimbal, yaw_gimbal))
-    earth = earth_gimbal[np.clip(np.searchsorted(t_gimbal, t, side="right") - 1, 0, None)]
-    heading = np.full(len(t), np.nan)
-    heading[earth] = _interp_finite(t[earth], t_gimbal, in_earth)
-    heading[~earth] = vehicle_yaw_at(t[~earth]) + _interp_finite(t[~earth], t_gimbal, relative)
-    return heading
+def read_ulog(path: str | Path, **kw: Any) -> list[Telemetry]:
+    """The records of `read_ulog_report`."""
+    return read_ulog_report(path, **kw).records
 
 
-def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemetry]:
-    """Records of a PX4 ULog file, one per ``vehicle_global_position`` sample (see the module docstring).
+def read_ulog_report(path: str | Path, *, height_offset_m: float = 0.0) -> FlightLogReport:
+    """Records of a PX4 ULog file, one per ``vehicle_global_position`` sample with a height (see the module
+    docstring), and what the log says about the camera's recording (`_recording`).
 
     height_offset_m is added to every height. Raises ValueError naming the file when pyulog rejects it or it
     has no ``vehicle_global_position``; ImportError with the install hint without pyulog.
@@ -211,12 +208,13 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
     _warn_if_damaged(path, ulog, handle.unread_bytes, float(t_us[-1]))
     n = len(t_us)
     height = np.full(n, np.nan)
+    has_height = np.ones(n, dtype=bool)  # False: dropped (the estimate gave no valid height there)
     vel_e = np.full(n, np.nan)
     vel_n = np.full(n, np.nan)
     local = _topic(ulog, "vehicle_local_position")
     if local is not None:
         t_local = local["timestamp"].astype(np.float64)
-        height = -_interp(t_us, t_local, local["z"].astype(np.float64))
+        height, has_height = _valid_heights(local, t_us)
         home_z = _home_z_at(_topic(ulog, "home_position"), t_us)
         if home_z is None:
             log.warning("%s: no home_position in the log: heights are above the EKF origin (where PX4 started its "
@@ -227,33 +225,9 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
         if "vx" in local and "vy" in local:
             vel_n = _interp(t_us, t_local, local["vx"].astype(np.float64))
             vel_e = _interp(t_us, t_local, local["vy"].astype(np.float64))
-    t_vehicle, yaw_vehicle = np.zeros(0), np.zeros(0)
-    attitude = _topic(ulog, "vehicle_attitude")
-    if attitude is not None:
-        t_vehicle, yaw_vehicle = attitude["timestamp"].astype(np.float64), _yaws_deg(attitude)[2]
-    vehicle_yaw = _interp_finite(t_us, t_vehicle, yaw_vehicle)
-    pitch = np.full(n, np.nan)
-    roll = np.zeros(n)
-    heading = vehicle_yaw.copy()  # a fixed camera looks where the vehicle heads
-    gimbal = _topic(ulog, "gimbal_device_attitude_status")
-    if gimbal is not None:
-        g_roll, g_pitch, g_yaw = _yaws_deg(gimbal)
-        ok = np.isfinite(g_yaw)
-        if ok.any():
-            t_g = gimbal["timestamp"][ok].astype(np.float64)
-            pitch = _interp(t_us, t_g, g_pitch[ok])
-            roll = _interp(t_us, t_g, g_roll[ok])
-            flags = gimbal["device_flags"][ok] if "device_flags" in gimbal else np.full(len(t_g), _YAW_LOCK)
-            earth = _yaw_in_earth_frame(flags)
-            if "received_from_mavlink" in gimbal:  # PX4's own servo (RC/AUX) output: flags fixed at NEUTRAL and the
-                # three locks, angles the servo outputs, relative to the vehicle (gimbal/output_rc.cpp)
-                own = np.asarray(gimbal["received_from_mavlink"])[ok] == 0
-                servo = own & (flags.astype(np.int64) == _PX4_RC_FLAGS)
-                if servo.any():
-                    log.info("%s: %d gimbal samples of PX4's own servo output (flags %d, not from a MAVLink gimbal): "
-                             "their yaw is relative to the vehicle", path, int(servo.sum()), _PX4_RC_FLAGS)
-                earth = earth & ~servo
-            heading = _camera_heading_deg(t_us, t_g, g_yaw[ok], earth, t_vehicle, yaw_vehicle)
+        height[~has_height] = np.nan
+        has_height = _drop_without_height(path, t_us, has_height)
+    pitch, roll, heading = _camera(ulog, path, t_us)
     offset_s = _utc_offset_s(ulog)
     if offset_s is None:
         log.warning("%s: no GPS UTC time in the log (time_utc_usec of vehicle_gps_position or sensor_gps, any "
@@ -261,7 +235,7 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
                     "--telemetry-offset-s in UNIX time will not match them", path)
         offset_s = 0.0
     records: list[Telemetry] = []
-    for i in range(n):
+    for i in np.flatnonzero(has_height):
         lat, lon = float(position["lat"][i]), float(position["lon"][i])
         if not (math.isfinite(lat) and math.isfinite(lon)) or (lat, lon) == (0.0, 0.0):
             continue
@@ -276,4 +250,90 @@ def read_ulog(path: str | Path, *, height_offset_m: float = 0.0) -> list[Telemet
         ))
     if not records:
         raise ValueError(f"{path}: vehicle_global_position has no valid fix")
-    return records
+    recording = _recording(ulog, offset_s)
+    if recording.note:
+        log.warning("%s: %s", path, recording.note)
+    return FlightLogReport(mark_recording(records, recording), recording)
+
+
+#: Keep the positions with a valid height only when at least this share of them has one; fewer: the log has no
+#: usable height (the run needs --height-m, as without vehicle_local_position).
+_MIN_HEIGHT_SHARE = 0.1
+
+
+def _drop_without_height(path: str | Path, t_us: NDArray, valid: NDArray) -> NDArray:
+    """Which positions to keep: all of them when every one has a valid height or (nearly) none has (those without
+    have no height, None: the run asks for --height-m), else those with one, and one warning counts the others and
+    names when they are."""
+    if valid.all():
+        return valid
+    if valid.mean() < _MIN_HEIGHT_SHARE or valid.sum() < 2:
+        log.warning("%s: vehicle_local_position gives a valid height (finite z, z_valid) at only %d of %d positions: "
+                    "none is dropped, the others have no height", path, int(valid.sum()), len(valid))
+        return np.ones(len(valid), dtype=bool)
+    log.warning("%s: %d of %d positions have no valid height (vehicle_local_position z NaN or z_valid false: %s "
+                "after the log's first position): dropped, no pose there", path, int((~valid).sum()), len(valid),
+                describe_spans(t_us / 1e6, ~valid, t_us[0] / 1e6))
+    return valid
+
+
+def _camera(ulog: Any, path: str | Path, t_us: NDArray) -> tuple[NDArray, NDArray, NDArray]:
+    """(pitch up, roll, heading) in degrees at the position times (N,) from the gimbal's samples (`camera_angles`:
+    interpolated, carried no further than `hold_limit_s`; one warning counts the positions beyond), else a fixed
+    camera facing forward: pitch NaN, roll 0, the vehicle's yaw (NaN without ``vehicle_attitude``)."""
+    t_vehicle, yaw_vehicle = np.zeros(0), np.zeros(0)
+    attitude = _topic(ulog, "vehicle_attitude")
+    if attitude is not None:
+        t_vehicle, yaw_vehicle = attitude["timestamp"].astype(np.float64), _yaws_deg(attitude)[2]
+    ok_v = np.isfinite(yaw_vehicle)
+    heading = np.interp(t_us, t_vehicle[ok_v], yaw_vehicle[ok_v]) if ok_v.any() else np.full(len(t_us), np.nan)
+    pitch, roll = np.full(len(t_us), np.nan), np.zeros(len(t_us))
+    gimbal = _topic(ulog, "gimbal_device_attitude_status")
+    if gimbal is None:
+        return pitch, roll, heading
+    g_roll, g_pitch, g_yaw = _yaws_deg(gimbal)
+    ok = np.isfinite(g_yaw)
+    if not ok.any():
+        return pitch, roll, heading
+    t_g = gimbal["timestamp"][ok].astype(np.float64)
+    flags = gimbal["device_flags"][ok] if "device_flags" in gimbal else np.full(len(t_g), _YAW_LOCK)
+    earth = _yaw_in_earth_frame(flags)
+    if "received_from_mavlink" in gimbal:  # PX4's own servo (RC/AUX) output: flags fixed at NEUTRAL and the three
+        # locks, angles the servo outputs, relative to the vehicle (gimbal/output_rc.cpp)
+        own = np.asarray(gimbal["received_from_mavlink"])[ok] == 0
+        servo = own & (flags.astype(np.int64) == _PX4_RC_FLAGS)
+        if servo.any():
+            log.info("%s: %d gimbal samples of PX4's own servo output (flags %d, not from a MAVLink gimbal): their yaw "
+                     "is relative to the vehicle", path, int(servo.sum()), _PX4_RC_FLAGS)
+        earth = earth & ~servo
+    hold_us = hold_limit_s(t_g / 1e6) * 1e6
+    pitch, roll, heading, stale = camera_angles(t_us, t_g, g_pitch[ok], g_roll[ok], g_yaw[ok], earth, t_vehicle,
+                                                yaw_vehicle, hold_us)
+    if stale.any():
+        log.warning("%s: the gimbal's samples (gimbal_device_attitude_status, %.1f s to %.1f s after boot) are more "
+                    "than %.1f s away from %d of %d positions (%s after the log's first position): they get no gimbal "
+                    "pitch (pass --pitch-deg for a fixed camera) and the vehicle's yaw as heading", path,
+                    t_g[0] / 1e6, t_g[-1] / 1e6, hold_us / 1e6, int(stale.sum()), len(t_us),
+                    describe_spans(t_us / 1e6, stale, t_us[0] / 1e6))
+    return pitch, roll, heading
+
+
+def _recording(ulog: Any, offset_s: float) -> LogRecording:
+    """When the camera recorded, from ``vehicle_command`` (PX4 logs every command it handles or forwards:
+    MAV_CMD_VIDEO_START_CAPTURE 2500, MAV_CMD_VIDEO_STOP_CAPTURE 2501), less those ``vehicle_command_ack`` refused
+    (an acknowledgement of the command with a result other than ACCEPTED within `_ACK_S` after it). PX4's
+    ``camera_trigger`` and ``camera_capture`` are photos, not video: not used. Times on the records' clock."""
+    commands = _topic(ulog, "vehicle_command")
+    if commands is None or "command" not in commands:
+        return LogRecording()
+    t_s = commands["timestamp"].astype(np.float64) / 1e6 + offset_s
+    kind = commands["command"].astype(np.int64)
+    refused = np.zeros(0)
+    acks = _topic(ulog, "vehicle_command_ack")
+    if acks is not None and {"command", "result"} <= set(acks):
+        no = (np.isin(acks["command"].astype(np.int64), _VIDEO_COMMANDS)) & (acks["result"].astype(np.int64) != 0)
+        refused = acks["timestamp"][no].astype(np.float64) / 1e6 + offset_s
+    accepted = np.array([not np.any((refused >= t) & (refused <= t + _ACK_S)) for t in t_s], dtype=bool)
+    return from_commands(t_s[(kind == _VIDEO_COMMANDS[0]) & accepted].tolist(),
+                         t_s[(kind == _VIDEO_COMMANDS[1]) & accepted].tolist(),
+                         "vehicle_command MAV_CMD_VIDEO_START_CAPTURE")

@@ -118,7 +118,8 @@ def replay_udp(packets: Sequence[tuple[float, bytes]], port: int, *, wait_bound_
 
 _ULOG_MAGIC = b"ULog\x01\x12\x35"
 SYNC_MAGIC = bytes([0x2F, 0x73, 0x13, 0x20, 0x25, 0x0C, 0xBB, 0x12])
-_TYPES = {"uint64_t": "Q", "double": "d", "float": "f", "uint32_t": "I", "uint8_t": "B", "int32_t": "i"}
+_TYPES = {"uint64_t": "Q", "double": "d", "float": "f", "uint32_t": "I", "uint16_t": "H", "uint8_t": "B",
+          "int32_t": "i", "bool": "?"}
 
 
 def ulog_bytes(topics: dict[str | tuple[str, int], tuple[list[tuple[str, str]], list[tuple]]], start_us: int = 0,

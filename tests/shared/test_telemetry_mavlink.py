@@ -14,7 +14,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from shared.telemetry import Telemetry, read_telemetry
-from shared.telemetry.mavlink import parse_tlog, quaternion_to_euler_deg
+from shared.telemetry.mavlink import quaternion_to_euler_deg
+from shared.telemetry.tlog import parse_tlog
 from tests.shared.mavlink_writer import BOOT_MS0, euler_to_quaternion, flight_packets, ulog_bytes, write_tlog
 
 pytest.importorskip("pymavlink")
