@@ -163,6 +163,7 @@ class MavlinkUdpFeed:
         self.reboots = 0
         self.late_repeats = 0  # pending boots that turned out to be old positions received late
         self._warned_jumps = self._warned_gimbals = 0  # clock jumps, ignored gimbals already warned about
+        self._warned_stale = False  # a gimbal that stopped reporting
         self._warned_systems = 1  # systems with positions: the vehicle alone needs no warning
         self.datagrams = 0
         self._closed = threading.Event()
@@ -263,6 +264,11 @@ class MavlinkUdpFeed:
                             "--telemetry-offset-s read from the new clock is %+.3f s off", self.spec, step_s, boot_s,
                             step_s)
             self._warned_jumps = len(jumps)
+        if a.gimbal_stale and not self._warned_stale:
+            log.warning("MAVLink on %s: the gimbal stopped reporting (its last reading is older than 3 of its "
+                        "intervals, at least 1 s): positions go without its angles (no pitch: no pose unless "
+                        "--pitch-deg; heading: the vehicle's yaw) until it reports again", self.spec)
+            self._warned_stale = True
         if len(gimbals) > self._warned_gimbals:
             log.warning("MAVLink on %s: several gimbals: using %s (the first seen), ignoring %s", self.spec,
                         a.gimbal_used, ", ".join(gimbals))

@@ -32,6 +32,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from shared.telemetry.gimbal_track import hold_limit_s
 from shared.telemetry.mavlink_clock import BootTimeUnwrap, UnixClock, yaw_between_deg
 from shared.telemetry.record import Telemetry, pitch_or_none
 
@@ -166,6 +167,10 @@ class MavlinkAssembler:
         #: (receive s or NaN, the message's own time_boot_ms in s or NaN, pitch, roll, yaw deg, yaw in earth frame)
         self.gimbal_samples: list[tuple[float, float, float, float, float, bool]] | None = (
             [] if keep_attitudes else None)
+        #: Positions taken without the gimbal because its latest reading was older than `hold_limit_s` of its own
+        #: intervals (a gimbal that stopped reporting: its last angles are not carried on), on a live stream.
+        self.gimbal_stale = 0
+        self._gimbal_rx: deque[float] = deque(maxlen=16)  # receive times of the gimbal's latest readings
         self._rx_s: float | None = None
         self._attitude_prev: tuple[float, float] | None = None  # (boot s, yaw deg) of the two latest ATTITUDEs
         self._attitude_last: tuple[float, float] | None = None
@@ -291,6 +296,8 @@ class MavlinkAssembler:
 
     def _set_gimbal(self, gimbal: _Gimbal, f: Mapping[str, Any]) -> None:
         self.gimbal = gimbal
+        if self._rx_s is not None:
+            self._gimbal_rx.append(self._rx_s)
         if self.gimbal_samples is not None:
             own = f.get("time_boot_ms")
             self.gimbal_samples.append((math.nan if self._rx_s is None else self._rx_s,
@@ -327,6 +334,10 @@ class MavlinkAssembler:
         if vehicle_yaw is None and int(f.get("hdg", _UNKNOWN_HDG)) != _UNKNOWN_HDG:
             vehicle_yaw = f["hdg"] / 100.0
         gimbal = self.gimbal
+        if gimbal is not None and self.gimbal_samples is None and self._rx_s is not None \
+                and len(self._gimbal_rx) >= 3 and self._rx_s - self._gimbal_rx[-1] > hold_limit_s(self._gimbal_rx):
+            gimbal = None  # live, its last reading is stale: not carried on (a log read whole interpolates instead;
+            self.gimbal_stale += 1  # fewer than 3 readings tell no interval to judge by)
         pitch: float | None
         yaw_rel: float | None
         if gimbal is None:  # a fixed camera: it looks where the vehicle heads; its tilt comes from --pitch-deg

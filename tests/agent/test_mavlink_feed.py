@@ -247,3 +247,20 @@ def test_a_boot_keeps_the_last_minutes_of_positions_not_the_whole_flight():
     assert boot.first_boot == 12.0  # where the boot began, for the reboot rules
     boot.add(sample(11.0), None)  # a late straggler from before: filed, and the boot's start moves back
     assert boot.first_boot == 11.0
+
+
+def test_a_gimbal_that_stops_reporting_is_warned_and_not_carried_on(feed, caplog):
+    """Live: the latest gimbal reading was held for the rest of the flight (the telemetry walk-through's left item:
+    a .tlog gimbal silent after 5 s gave 44 deg heading and 17.6 deg pitch error; the log reader now bounds it)."""
+    flight = _flight()
+    replay_udp(flight_packets(flight), feed.port, rounds=1)
+    first = feed.start(timeout_s=5.0)
+    assert first[-1].pitch_deg == pytest.approx(45.0)
+    threading.Event().wait(1.3)  # the gimbal falls silent for longer than its bound (1 s at least)
+    later = _flight(12, T0 + 1.2)
+    with caplog.at_level("WARNING"):
+        replay_udp(flight_packets(later, gimbal="none", boot_ms0=21_200, system_time=False), feed.port, rounds=1)
+        wait_until(lambda: "the gimbal stopped reporting" in caplog.text, 5.0, "the stale gimbal's warning")
+    wait_until(lambda: len(feed.records()) >= 24, 5.0, "the later positions")
+    assert all(r.pitch_deg is None for r in feed.records()[12:])
+    assert caplog.text.count("the gimbal stopped reporting") == 1

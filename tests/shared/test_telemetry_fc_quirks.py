@@ -147,3 +147,32 @@ def test_the_vehicles_early_gimbal_and_field_of_view_outlast_a_burst_of_attitude
     sample = assembler.add("GLOBAL_POSITION_INT", position, 1, 1)
     assert sample.pitch_deg == pytest.approx(60.0) and sample.hfov_deg == pytest.approx(60.0)
     assert sample.heading_deg == pytest.approx(30.0)
+
+
+def test_live_a_gimbal_that_stops_reporting_is_not_carried_on():
+    """Live (the assembler without keep_attitudes, as agent.mavlink_feed runs it): a gimbal silent after 2 s was held
+    for the rest of the flight (a log read whole interpolates and bounds it: shared.telemetry.gimbal_track)."""
+    assembler = MavlinkAssembler(1, component_id=1)
+    down45 = {"flags": 16 | 64, "q": euler_to_quaternion(0, -45, 100), "gimbal_device_id": 0}
+    out = []
+    for i in range(60):  # 10 Hz for 6 s; the gimbal reports for the first 2 s only
+        rx, boot = T0 + 0.1 * i, 60_000 + 100 * i
+        assembler.add("ATTITUDE", {"time_boot_ms": boot, "roll": 0.0, "pitch": 0.0, "yaw": math.radians(30)}, 1, 1, rx)
+        if i < 20:
+            assembler.add("GIMBAL_DEVICE_ATTITUDE_STATUS", down45, 1, 154, rx)
+        position = {"time_boot_ms": boot, "lat": 470000000, "lon": 80000000, "relative_alt": 50_000, "vx": 0,
+                    "vy": 0, "hdg": 3000}
+        out.append(assembler.add("GLOBAL_POSITION_INT", position, 1, 1, rx))
+    # carried 1 s (3 intervals of 0.1 s, at least 1 s) past the last reading at 1.9 s, then not
+    assert all(s.pitch_deg == pytest.approx(45.0) and s.heading_deg == pytest.approx(100.0) for s in out[:30])
+    assert all(s.pitch_deg is None and s.heading_deg == pytest.approx(30.0) for s in out[30:])
+    assert assembler.gimbal_stale == 30
+    # it reports again: taken again at once
+    assembler.add("GIMBAL_DEVICE_ATTITUDE_STATUS", down45, 1, 154, T0 + 6.0)
+    again = assembler.add("GLOBAL_POSITION_INT", {**position, "time_boot_ms": 66_000}, 1, 1, T0 + 6.0)
+    assert again is not None and again.pitch_deg == pytest.approx(45.0)
+    # without receive times, or with fewer than 3 readings to judge the interval by, it stands down
+    quiet = MavlinkAssembler(1, component_id=1)
+    quiet.add("GIMBAL_DEVICE_ATTITUDE_STATUS", down45, 1, 154, T0)
+    late = quiet.add("GLOBAL_POSITION_INT", position, 1, 1, T0 + 10.0)
+    assert late is not None and late.pitch_deg == pytest.approx(45.0) and quiet.gimbal_stale == 0
