@@ -24,7 +24,7 @@ from agent.telemetry_correction import GroundCorrection
 from agent.tracking.config import TrackerConfig
 from agent.tracking.image_motion import FloatArray, common_shift
 from agent.tracking.state import FrameDetections, TrackState
-from shared.geo import Camera, Pose, local_to_latlon, pixel_to_local
+from shared.geo import Camera, Pose, horizon_distance_m, local_to_latlon, pixel_to_local
 
 __all__ = ["fill_far_points", "far_reach_m", "measure_image_shift", "place_far_tracks", "placed_rows"]
 
@@ -57,7 +57,10 @@ def fill_far_points(dets: FrameDetections, pose: Pose, camera: Camera, correctio
     moved = pose if correction is None else correction.moved(pose)
     uv = box_anchor_points(dets.boxes[miss], config.far_anchor, pose.pitch_deg)
     loose_on = config.far_loose_gate > 0 and not math.isinf(reach)
-    east, north, ok = pixel_to_local(uv, camera, moved, max_range_m=None if math.isinf(reach) or loose_on else reach)
+    # no farther than the visible horizon: a flat-ground point beyond it lies past the earth's curve (a gimbal near
+    # level put loose points 1e9 m out, and the tracker's k-d tree overflowed: the contract audit of 1 Dec 2026)
+    east, north, ok = pixel_to_local(uv, camera, moved, max_range_m=horizon_distance_m(pose.height_m)
+                                     if math.isinf(reach) or loose_on else reach)
     if not ok.any():
         return filled
     if loose_on:

@@ -13,11 +13,11 @@ from numpy.typing import NDArray
 
 from agent.boxes import paired_iou
 from agent.tracking.assignment import near_pairs
-from shared.geo import GroundSurface, Pose
+from shared.geo import EARTH_MEAN_RADIUS_M, GroundSurface, Pose
 from shared.terrain import effective_height_m
 
-__all__ = ["anchored_offset", "correction_jacobian", "fit_pose_correction", "image_pairs", "model_heights",
-           "point_heights", "track_offset"]
+__all__ = ["anchored_offset", "correction_jacobian", "correction_offset", "fit_pose_correction", "image_pairs",
+           "model_heights", "point_heights", "track_offset"]
 
 
 def track_offset(det_xy: NDArray, track_xy: NDArray, gate_m: float, min_pairs: int,
@@ -136,6 +136,24 @@ def correction_jacobian(rel_xy: NDArray, height_m: float | NDArray) -> NDArray[n
     J[:, 0, 2], J[:, 1, 2] = n, -e
     J[:, :, 3] = -along[:, None] * unit
     return J
+
+
+def correction_offset(rel_xy: NDArray, height_m: float | NDArray, correction: NDArray) -> NDArray[np.float64]:
+    """How far ground points (N, 2, relative to the point below the UAV) move with a pose correction (east m, north
+    m, heading rad, pitch rad): `correction_jacobian` @ correction, with the pitch part's new range no farther out
+    than the visible horizon (or the point's own range beyond it). The linear pitch part, slant^2 / h * d_beta,
+    is unbounded: near a level gimbal, applied frame after frame, it threw tracks 1e300 m out (the contract audit
+    of 1 Dec 2026: `uavmm track` at pitch 0). Within the horizon it is the Jacobian's move, as before."""
+    rel = np.asarray(rel_xy, dtype=np.float64).reshape(-1, 2)
+    p = np.asarray(correction, dtype=np.float64)
+    J = correction_jacobian(rel, height_m)
+    out = J[:, :, :3] @ p[:3]
+    h = np.broadcast_to(np.asarray(height_m, dtype=np.float64), (len(rel),))
+    r = np.hypot(rel[:, 0], rel[:, 1])
+    limit = np.maximum(r, np.sqrt(2.0 * EARTH_MEAN_RADIUS_M * h + h * h))
+    moved = np.clip(r - (r * r + h * h) / h * p[3], -limit, limit)  # (negative: through the nadir)
+    unit = np.where(r[:, None] > 1e-9, rel / np.where(r > 1e-9, r, 1.0)[:, None], 0.0)
+    return out + (moved - r)[:, None] * unit
 
 
 def model_heights(effective_m: NDArray, height_m: float) -> NDArray[np.float64]:

@@ -32,7 +32,13 @@ from agent.tracking.far_points import fill_far_points, measure_image_shift, plac
 from agent.tracking.gimbal_rates import GimbalRates
 from agent.tracking.lifecycle import birth, decay_unseen_quality, merge_duplicates, reanchor, retire
 from agent.tracking.model import FloatArray, MotionModels, ground_measurement_cov, predict_constant_velocity
-from agent.tracking.registration import correction_jacobian, fit_pose_correction, image_pairs, track_offset
+from agent.tracking.registration import (
+    correction_jacobian,
+    correction_offset,
+    fit_pose_correction,
+    image_pairs,
+    track_offset,
+)
 from agent.tracking.state import EvidenceFn, FrameDetections, TrackState
 from agent.tracking.view_jump import ViewJumpGuard
 from shared.geo import Camera, GroundSurface, Pose, latlon_to_local, local_to_latlon
@@ -455,7 +461,7 @@ class GpsTracker:
             return None
         correction, cov, scale = fit
         J = correction_jacobian(rel, h)
-        dets.z[geo] += J @ correction
+        dets.z[geo] += correction_offset(rel, h, correction)
         a = 1.0 if self._scale_t is None else 1.0 - math.exp(-max(t - self._scale_t, 0.0)
                                                            / max(cfg.registered_scale_s, 1e-6))
         self._log_scale += a * (math.log(scale) - self._log_scale)
@@ -533,7 +539,7 @@ class GpsTracker:
         last. Returns True when applied."""
         if abs(self._rates.lp_heading_deg_s) > self.config.register_max_turn_deg_s:
             return False  # a turning gimbal: the correction's angle part was the telemetry's lag, not lasting
-        dets.z[geo] += correction_jacobian(rel, h) @ self._pending
+        dets.z[geo] += correction_offset(rel, h, self._pending)
         out = (float(self._pending[0]), float(self._pending[1]), math.degrees(self._pending[2]),
                math.degrees(self._pending[3]))
         self.last_correction = out
@@ -557,7 +563,7 @@ class GpsTracker:
         # the heights of the flat model: the pose's, or each track's effective one over a terrain (--dem)
         for pts in (state.active.cols["x"][:, :2], state.lost.cols["pos"]):
             if len(pts):
-                pts -= correction_jacobian(pts - uav, registration.point_heights(pts - uav, *self._ground)) @ p
+                pts += correction_offset(pts - uav, registration.point_heights(pts - uav, *self._ground), -p)
 
     def _outputs(self) -> list[TrackOutput]:
         act = self._state.active

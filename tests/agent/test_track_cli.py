@@ -251,3 +251,25 @@ def test_no_track_file_is_written_through_a_link_planted_at_its_old_temporary_na
                  "--registrations-out", str(tmp_path / "registrations.csv")) == 0
     assert outside.read_text() == "precious\n"
     assert all(not (tmp_path / name).is_symlink() and (tmp_path / name).stat().st_size for name in outputs)
+
+
+@pytest.mark.parametrize("pitch", [0.0, 0.1])
+def test_a_gimbal_near_level_tracks_without_running_away(data, tmp_path, pitch):
+    """DESIGN 2: pitch 0..90. At 0-0.1 deg the pose correction's linear pitch term (slant^2 / h * d_beta), applied to
+    the tracks frame after frame, threw them 1e300 m out and the k-d tree overflowed: exit 2 with SciPy's "value
+    of p too large" as if the input were bad (the contract audit of 1 Dec 2026)."""
+    coco = json.loads((data / "images.json").read_text())
+    for im in coco["images"]:
+        if im.get("meta"):
+            im["meta"]["gimbal_pitch"] = pitch
+    frames = tmp_path / "level.json"
+    frames.write_text(json.dumps(coco))
+    out = tmp_path / "level.txt"
+    geo = tmp_path / "level.geojson"
+    assert main(["track", "--frames", str(frames), "--candidates", str(data / "pre_nms.json"), "--camera",
+                 str(data / "camera.json"), "--out", str(out), "--video-id", "1", "--geojson", str(geo)]) == 0
+    assert out.read_text().splitlines()  # the boxes are still tracked, in the image
+    for feature in json.loads(geo.read_text())["features"]:
+        for lon, lat in feature["geometry"]["coordinates"] if feature["geometry"]["type"] == "LineString" else [
+                feature["geometry"]["coordinates"]]:
+            assert abs(lat) <= 90 and abs(lon) <= 180

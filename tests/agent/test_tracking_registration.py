@@ -305,8 +305,42 @@ def test_the_tracks_follow_a_pose_correction_with_their_height_on_the_terrain() 
     tracker._uav_en, tracker._correction = (0.0, 0.0), p.copy()
     tracker._ground = (pose, Terrain(grid, 100.0))
     tracker._follow_telemetry(0.1)
+    from agent.tracking.registration import correction_offset
+
     expected = rel - correction_jacobian(rel, 40.0 / np.sqrt(1.64)) @ p
+    assert expected == pytest.approx(rel + correction_offset(rel, 40.0 / np.sqrt(1.64), -p), abs=1e-9)
     assert state.active["x"][:, :2] == pytest.approx(expected, abs=1e-9)
     assert state.lost["pos"] == pytest.approx(expected, abs=1e-9)
     flat = rel - correction_jacobian(rel, 40.0) @ p
     assert np.abs(flat - expected).max() > 0.1  # the pose's height would put them elsewhere
+
+
+@settings(max_examples=200, deadline=None)
+@given(east=st.floats(-3e4, 3e4), north=st.floats(-3e4, 3e4), h=st.floats(2.0, 500.0),
+       d_beta=st.floats(-0.05, 0.05), d_theta=st.floats(-0.05, 0.05))
+def test_a_correction_moves_points_as_the_jacobian_within_the_horizon_and_never_past_it(east, north, h, d_beta,
+                                                                                        d_theta):
+    from agent.tracking.registration import correction_jacobian, correction_offset
+    from shared.geo import horizon_distance_m
+
+    rel = np.array([[east, north]])
+    p = np.array([0.5, -0.3, d_theta, d_beta])
+    step = correction_offset(rel, h, p)[0]
+    r = float(np.hypot(east, north))
+    limit = max(r, horizon_distance_m(h))
+    assert np.isfinite(step).all()
+    assert float(np.hypot(*(rel[0] + step))) <= limit * (1 + abs(d_theta)) + 1.0
+    if abs(r - (r * r + h * h) / h * d_beta) <= limit:  # the linear move stays within: it is the move
+        assert step == pytest.approx((correction_jacobian(rel, h) @ p)[0], rel=1e-9, abs=1e-9)
+
+
+def test_a_correction_applied_frame_after_frame_stays_bounded():
+    # the tracker's _follow_telemetry moves its tracks by the pending correction every frame: near a level gimbal
+    # the linear pitch term grew them superexponentially (1e4 -> 1e292 m in 11 frames at 30 m up)
+    from agent.tracking.registration import correction_offset
+    from shared.geo import horizon_distance_m
+
+    pts = np.array([[10_000.0, 11_000.0]])
+    for _ in range(200):
+        pts = pts + correction_offset(pts, 30.0, np.array([0.0, 0.0, 0.0, -0.004]))
+    assert np.hypot(*pts[0]) <= max(np.hypot(10_000.0, 11_000.0), horizon_distance_m(30.0)) + 1e-6
