@@ -265,7 +265,12 @@ class OnnxYoloDetector:
         options.execution_mode = ort.ExecutionMode.ORT_SEQUENTIAL
         options.graph_optimization_level = ort.GraphOptimizationLevel.ORT_ENABLE_ALL
         self.providers = resolve_providers(providers, ort.get_available_providers())
-        self._session = ort.InferenceSession(str(self.model_path), options, providers=self.providers)
+        try:
+            self._session = ort.InferenceSession(str(self.model_path), options, providers=self.providers)
+        except Exception as exc:  # onnxruntime's own types (InvalidProtobuf, Fail, ...) for a file it cannot load
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise ValueError(f"model {self.model_path}: onnxruntime cannot load it as an ONNX model ({first[:200]}): "
+                             "give a YOLO export (.onnx)") from None
 
         inputs = self._session.get_inputs()
         model_input = inputs[0]

@@ -35,6 +35,12 @@ class _Open(BaseModel):
 
 # ---- /healthz ------------------------------------------------------------------------------------------------
 
+class HttpError(BaseModel):
+    """An error answer: FastAPI's ``{"detail": ...}`` naming what is wrong."""
+
+    detail: str
+
+
 class DbHealth(_Open):
     """The SQLite history's health: ``off`` without ``--db``."""
 

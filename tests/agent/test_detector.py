@@ -600,3 +600,13 @@ def test_providers_by_alias_and_an_unavailable_one_named_with_the_available():
         resolve_providers(["tensorrt", "cpu"], ["CPUExecutionProvider"])
     with pytest.raises(ValueError, match="no onnxruntime execution provider given"):
         resolve_providers([" "], ["CPUExecutionProvider"])
+
+
+@pytest.mark.parametrize("content", [b"not an onnx model", b"", b'{"images": []}'])
+def test_a_file_that_is_no_onnx_model_is_a_value_error_naming_it(tmp_path, content):
+    # the contract audit (1 Dec 2026): onnxruntime's InvalidProtobuf went up as a traceback, exit 1, from uavmm detect
+    # and uavmm agent --video (README: exit 2 and one line naming the bad file)
+    bad = tmp_path / "model.onnx"
+    bad.write_bytes(content)
+    with pytest.raises(ValueError, match=r"model .*model\.onnx: onnxruntime cannot load it as an ONNX model"):
+        OnnxYoloDetector(bad)

@@ -61,6 +61,11 @@ def test_the_page_shell_schema_and_healthz_stay_public(secured):
     assert http.get("/healthz").json()["status"] in ("ok", "degraded")
     page = http.get("/static/map.js").text
     assert "access_token" in page and "Authorization" in page  # the page passes its token on
+    # the schema says which operations answer 401 (the contract audit: none was declared)
+    paths = http.get("/openapi.json").json()["paths"]
+    assert "401" in paths["/v1/map"]["get"]["responses"] and "401" in paths["/metrics"]["get"]["responses"]
+    assert "401" not in paths["/healthz"]["get"]["responses"]
+    assert http.head("/healthz").status_code == 200
 
 
 def test_without_tokens_the_loopback_api_is_open(server_factory):
