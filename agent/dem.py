@@ -143,6 +143,9 @@ def read_npz(path: str | Path) -> ElevationGrid:
     """A DEM written by write_npz."""
     path = Path(path)
     try:
+        with path.open("rb") as f:
+            if f.read(4) != b"PK\x03\x04":  # numpy took any other bytes for a pickle and said so, confusingly
+                raise ValueError(f"not a .npz archive (a zip; {NPZ_FORMAT} writes one)")
         with np.load(path, allow_pickle=False) as data:
             if str(data.get("format", "")) != NPZ_FORMAT:
                 raise ValueError(f"not a {NPZ_FORMAT} file (no format field)")

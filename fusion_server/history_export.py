@@ -57,6 +57,8 @@ class HistoryExport:
 
 
 def _connect(path: Path) -> sqlite3.Connection:
+    if path.is_dir():
+        raise ValueError(f"database {path} is a folder: give the fusion server's --db file (e.g. {path}/fusion.sqlite)")
     if not path.is_file():
         raise ValueError(f"database {path} does not exist")
     try:

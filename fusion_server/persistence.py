@@ -104,8 +104,13 @@ class FusionStore:
         if problem is not None:
             raise DatabaseProblem(f"database {self.path} {problem}; run with --db-recover to move it aside and "
                                   "start a new one, or --no-db")
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        conn = _connect(self.path)
+        try:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            conn = _connect(self.path)
+        except (OSError, sqlite3.Error) as exc:  # a folder that cannot be made (a file on the way), /proc, ...
+            reason = exc.strerror if isinstance(exc, OSError) and exc.strerror else str(exc)
+            raise DatabaseProblem(f"database {self.path} cannot be opened: {reason}; give --db a file in a "
+                                  "writable folder, or --no-db") from None
         try:
             conn.executescript(_SCHEMA)
             row = conn.execute("SELECT value FROM meta WHERE key = 'schema_version'").fetchone()

@@ -158,9 +158,13 @@ class Camera:
         """Read a camera JSON file (see from_dict). Errors name the file."""
         path = Path(path)
         try:
-            d = json.loads(path.read_text())
+            d = json.loads(path.read_text(encoding="utf-8"))
         except FileNotFoundError:
             raise ValueError(f"camera file {path} does not exist") from None
+        except UnicodeDecodeError:
+            raise ValueError(f"camera file {path} is not text (UTF-8 JSON): a binary file?") from None
+        except OSError as exc:  # a folder, no permission
+            raise ValueError(f"camera file {path} cannot be read: {exc.strerror or exc}") from None
         except json.JSONDecodeError as exc:
             raise ValueError(f"camera file {path} is not valid JSON: {exc}") from None
         try:

@@ -35,6 +35,8 @@ from sim.simulator import FrameSample, Simulation
 logger = logging.getLogger(__name__)
 
 DATASET_FILES = ("images.json", "camera.json", "pre_nms.json", "truth.json")
+#: How the images.json `write_dataset` writes begins its info.description (`require_output_folder` replaces only such)
+SIM_DESCRIPTION = "uav-memory-maps simulated scenario"
 #: The terrain's DEM (agent.dem's .npz), written beside the dataset when the scenario has a terrain.
 TERRAIN_DEM_FILE = "dem.npz"
 #: What a render (`sim.render`) writes beside each video's image folder and <name>.mp4/.srt/.csv; render.json,
@@ -135,6 +137,11 @@ def require_output_folder(out: str | Path) -> None:
     render, other = existing_outputs(folder)
     other = [name for name in other if not name.startswith(".")]
 
+    images = folder / "images.json"
+    if images.is_file() and not _written_by_sim(images):
+        raise ValueError(f"output directory {folder} holds an images.json that is not a uavmm sim dataset's (its "
+                         f"info.description does not start {SIM_DESCRIPTION!r}): it is not ours to replace; give a "
+                         "new or empty folder")
     holds_dataset = any((folder / name).is_file() for name in DATASET_FILES)
     if other and not holds_dataset:
         raise ValueError(f"output directory {folder} holds files that are not a uavmm sim dataset "
@@ -144,6 +151,16 @@ def require_output_folder(out: str | Path) -> None:
         logger.warning("output directory %s holds an earlier render's frames (%s): they stay beside the new dataset "
                        "and no longer show it; render again (uavmm render) or remove them", folder,
                        listed_names(frames))
+
+
+def _written_by_sim(images: Path) -> bool:
+    """Whether an images.json is one `write_dataset` wrote (its info.description), not a user's own dataset."""
+    try:
+        with images.open(encoding="utf-8") as f:
+            head = f.read(4096)  # "info" comes first in what write_dataset writes
+    except (OSError, UnicodeDecodeError):
+        return False
+    return f'"description": "{SIM_DESCRIPTION}' in head
 
 
 def _prepare_output(out: Path) -> tuple[bool, Path]:
@@ -250,7 +267,7 @@ def write_dataset(scenario: str | Scenario, out_dir: str | Path, *, seed: int = 
         facts = sim.facts()
         sc = sim.scenario
         coco = {
-            "info": {"description": f"uav-memory-maps simulated scenario {sc.name!r} (seed {sim.seed})",
+            "info": {"description": f"{SIM_DESCRIPTION} {sc.name!r} (seed {sim.seed})",
                      "version": "1", "date_created": format_time(START_UNIX_S)},
             "images": images, "annotations": annotations, "categories": sim.categories,
             "videos": [{"id": v.id, "name": v.name, "uav": v.uav} for v in sim.videos],

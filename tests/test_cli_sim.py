@@ -82,6 +82,22 @@ def test_an_out_folder_holding_other_files_is_refused_and_left_as_it_was(tmp_pat
     assert [p.name for p in out.iterdir()] == ["notes.txt"]
 
 
+@pytest.mark.parametrize("beside", [[], ["notes.txt"]])
+def test_an_out_folder_holding_someone_elses_images_json_is_refused_and_left_as_it_was(tmp_path, capsys, beside):
+    """The contract audit (1 Dec 2026): a folder with the user's own dataset as images.json (the real dev file) was
+    taken for an earlier sim dataset by the name alone and replaced, exit 0, no warning."""
+    out = tmp_path / "mine"
+    out.mkdir()
+    own = json.dumps({"info": {"description": "SeaDronesSee v2"}, "images": [], "annotations": [], "categories": []})
+    (out / "images.json").write_text(own)
+    for name in beside:
+        (out / name).write_text("precious")
+    _one_line_error(capsys, ["sim", "grass", "--out", str(out), *SMALL],
+                    f"output directory {out} holds an images.json that is not a uavmm sim dataset's")
+    assert (out / "images.json").read_text() == own
+    assert sorted(p.name for p in out.iterdir()) == sorted(["images.json", *beside])
+
+
 def test_an_out_folder_holding_a_rendered_dataset_is_replaced_without_its_marks_and_says_so(tmp_path, caplog):
     """`uavmm sim grass --out D` over a rendered sea dataset left render.json (the mark of a complete render) beside
     the grass dataset. The dataset is replaced as before (the docs' commands re-run into their folder: the second

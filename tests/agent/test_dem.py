@@ -102,6 +102,10 @@ def test_npz_round_trip_and_bad_files(tmp_path):
     (tmp_path / "junk.tif").write_text("not a raster")
     with pytest.raises(ValueError, match="junk.tif"):
         read_dem(tmp_path / "junk.tif")
+    # text named .npz: numpy's "pickled (object) data ... allow_pickle" message (the contract audit, 1 Dec 2026)
+    (tmp_path / "junk.npz").write_text("garbage\n")
+    with pytest.raises(ValueError, match=r"DEM file .*junk\.npz: not a \.npz archive"):
+        read_dem(tmp_path / "junk.npz")
 
 
 def test_load_terrain_carries_the_takeoff_elevation(tmp_path):

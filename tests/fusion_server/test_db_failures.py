@@ -136,3 +136,20 @@ def test_a_database_that_cannot_even_be_opened_still_drains_the_tracker_into_a_b
     alive = {gid for (gid,) in conn.execute("SELECT gid FROM tracks WHERE ended IS NULL")}
     conn.close()
     assert alive == {r.gid for r in tracker.records()}  # every track that ended says so in the database
+
+
+@pytest.mark.parametrize("where", ["under-a-file", "proc"])
+def test_a_db_path_sqlite_cannot_open_is_one_line_naming_it(tmp_path, where):
+    # the contract audit (1 Dec 2026): --db /proc/x.sqlite ended in a traceback (sqlite3.OperationalError), exit 1;
+    # a --db whose parent is a file said only "[Errno 17] File exists: ..." without naming --db's file
+    from fusion_server.persistence import DatabaseProblem, FusionStore
+
+    if where == "under-a-file":
+        (tmp_path / "camera.json").write_text("{}")
+        path = tmp_path / "camera.json" / "x.sqlite"
+    else:
+        path = Path("/proc/uavmm-test.sqlite")
+    with pytest.raises(DatabaseProblem, match=rf"database {path} cannot be opened: .*--no-db"):
+        FusionStore(path)
+    if where == "under-a-file":
+        assert (tmp_path / "camera.json").read_text() == "{}"  # nothing already stored is touched

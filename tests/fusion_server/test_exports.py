@@ -125,6 +125,7 @@ def test_kmz_export_is_the_kml_zipped_as_doc_kml(history_db, tmp_path):
 
 @pytest.mark.parametrize(("argv", "problem"), [
     (["--db", "{tmp}/missing.sqlite", "--out", "{tmp}/x.gpkg"], "does not exist"),
+    (["--db", "{tmp}", "--out", "{tmp}/x.gpkg"], "is a folder: give the fusion server's --db file"),
     (["--db", "{tmp}/notes.txt", "--out", "{tmp}/x.gpkg"], "is not a uavmm fusion database"),
     (["--db", "{db}", "--out", "{tmp}/x.shp"], "--out must end in .gpkg, .kml, .kmz, .geojson"),
     (["--db", "{db}", "--out", "{tmp}/no/such/dir/x.gpkg"], "output directory"),

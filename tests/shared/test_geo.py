@@ -149,6 +149,13 @@ def test_camera_file_round_trip_and_errors(tmp_path):
         Camera.from_file(tmp_path / "missing.json")
     with pytest.raises(ValueError, match="does not exist"):
         Camera.from_file(tmp_path / "nope.json")
+    # binary bytes and a folder: named (the contract audit, 1 Dec 2026: "'utf-8' codec can't decode byte 0xff")
+    (tmp_path / "bin.json").write_bytes(b"\xff\xfe\x00garbage")
+    with pytest.raises(ValueError, match=r"camera file .*bin\.json is not text"):
+        Camera.from_file(tmp_path / "bin.json")
+    (tmp_path / "dir.json").mkdir()
+    with pytest.raises(ValueError, match=r"camera file .*dir\.json cannot be read"):
+        Camera.from_file(tmp_path / "dir.json")
 
 
 def test_presets_match_published_fov():
