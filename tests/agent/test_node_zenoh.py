@@ -13,7 +13,7 @@ import json
 import math
 import threading
 import time
-from collections import defaultdict
+from collections import Counter, defaultdict
 from collections.abc import Callable, Iterator
 
 import msgpack
@@ -519,3 +519,26 @@ def test_the_agent_says_why_frames_of_a_dataset_had_no_pose(server, server_port,
         reasons = summary["frames_without_pose_by_reason"]
         assert summary["frames_without_pose"] > 0 and sum(reasons.values()) == summary["frames_without_pose"]
         assert all(isinstance(k, str) and k for k in reasons)
+
+
+def test_a_looped_recording_writes_each_frame_once(server, server_port, recording, tmp_path, caplog):
+    """The contract audit (1 Dec 2026): with --loop, every pass wrote its detections under the same image ids (573
+    frames, 20 distinct ids), which a COCO scorer takes as one image each; the MOT rows repeated too."""
+    from agent.dataset_source import DatasetSource
+
+    dets, tracks = tmp_path / "detections.json", tmp_path / "tracks.geojson"
+    node = AgentNode(agent_settings(server_port, speed=0.0, loop=True, duration_s=4.0, detections_out=dets,
+                                    tracks_out=tracks), DatasetSource(recording, video_id=1, use_images=False))
+    with caplog.at_level("WARNING"):
+        summary = node.run()
+    coco = json.loads((recording / "images.json").read_text())
+    images = {im["id"] for im in coco["images"] if im["video_id"] == 1}
+    written = json.loads(dets.read_text())
+    assert summary["frames"] > len(images) and summary["frames_not_written"] == summary["frames"] - len(images)
+    assert {d["image_id"] for d in written} <= images
+    per_image = Counter(d["image_id"] for d in written)
+    assert max(per_image.values()) < 300  # one pass's detections, not every pass's
+    assert caplog.text.count("came again") == 1
+    for feature in json.loads(tracks.read_text())["features"]:
+        frames = feature["properties"]["frames"]
+        assert len(frames) == len(set(frames))
