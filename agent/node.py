@@ -33,7 +33,7 @@ from agent.size_filter import SizeFilter
 from agent.sources import FrameSource, SourceFrame
 from agent.stage_report import StageSummary
 from agent.tile_updates import TileChangeTracker
-from agent.track_rows import TrackRowLog
+from agent.track_rows import FirstPass, TrackRowLog
 from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
 from agent.zenoh_config import ZenohOptions, agent_zenoh_config
@@ -278,9 +278,8 @@ class AgentNode:
                                        "publish_cycles": 0, "joint_tiles_applied": 0, "footprints_applied": 0,
                                        "joint_query_replies": 0, "joint_detections": 0, "behind_s_max": 0.0,
                                        "replay_sync_s": 0.0, "frames_not_written": 0}
-        self._written: set[int] = set()  # image ids the output files hold (--loop: the first pass)
+        self._written = FirstPass()  # the image ids the output files hold (--loop: the first pass)
         self._rows = TrackRowLog()  # for settings.tracks_out, as columns (104 B a row; 538 B as objects)
-        # COCO results for settings.detections_out, written as they come
         self._detections = None if settings.detections_out is None else StreamedResults(settings.detections_out)
         self._last_pose: tuple[float, Pose, Camera] | None = None
         self._t_frame: float | None = None
@@ -288,21 +287,6 @@ class AgentNode:
         self._clock0: tuple[float, float] | None = None  # (frame t, monotonic) of the first frame
         self._zone_warned: set[str] = set()  # UAVs whose clock was named as another time zone
         self._started = 0.0
-
-    def _first_pass(self, image: int) -> bool:
-        """Whether a frame's detections and track rows go to the output files: not when the file already holds that
-        image (--loop started the source again: its ids repeat, and a COCO result list or MOT file with each
-        frame twice scores as one image; the contract audit of 1 Dec 2026), said once."""
-        if self._detections is None and self.settings.tracks_out is None:
-            return False
-        if image not in self._written:
-            self._written.add(image)
-            return True
-        if not self.counts["frames_not_written"]:
-            log.warning("frame %s came again (--loop started the source over): --detections-out / --tracks-out "
-                        "hold the first pass; the later passes are not written", image)
-        self.counts["frames_not_written"] += 1
-        return False
 
     # ---- evidence for the tracker's re-identification ------------------------------------------
     def _evidence_at(self, class_id: int, lat: np.ndarray, lon: np.ndarray) -> np.ndarray:
@@ -489,7 +473,9 @@ class AgentNode:
         self.counts["detections"] += len(result)
         if result.from_joint is not None:  # detections the other UAVs' evidence added or promoted
             self.counts["joint_detections"] += int(result.from_joint.sum())
-        written = self._first_pass(frame.index if frame.image_id is None else frame.image_id)
+        written = (self._detections is not None or self.settings.tracks_out is not None) and self._written.take(
+            frame.index if frame.image_id is None else frame.image_id)
+        self.counts["frames_not_written"] = self._written.skipped
         if self._detections is not None and written:
             self._detections.extend(results_to_coco(frame.index if frame.image_id is None else frame.image_id, result))
         if self.settings.tracks_out is not None and written:

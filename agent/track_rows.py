@@ -9,6 +9,7 @@ byte.
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Iterable, Iterator
 from pathlib import Path
 from typing import Any
@@ -18,7 +19,9 @@ import numpy as np
 from agent.tracking import TrackOutput
 from shared.files import collection_chunks, write_chunks_atomic  # re-exported: agent.offline.outputs uses them
 
-__all__ = ["ROW_DTYPE", "TrackRowLog", "collection_chunks", "write_chunks_atomic"]
+log = logging.getLogger("agent.node")  # its messages, under the agent's name
+
+__all__ = ["ROW_DTYPE", "FirstPass", "TrackRowLog", "collection_chunks", "write_chunks_atomic"]
 
 ROW_DTYPE = np.dtype([("frame", "<i8"), ("t", "<f8"), ("id", "<i8"), ("cls", "<i8"), ("lat", "<f8"),
                       ("lon", "<f8"), ("score", "<f8"), ("ve", "<f8"), ("vn", "<f8"), ("x1", "<f8"), ("y1", "<f8"),
@@ -117,3 +120,23 @@ class TrackRowLog:
 
         write_chunks_atomic(Path(path), collection_chunks(counted()))
         return n
+
+
+class FirstPass:
+    """The image ids an agent's output files hold: `take` says whether a frame goes to them, not when they hold
+    its image already (--loop played the source again: a COCO result list with each frame twice scores as one
+    image; the contract audit of 1 Dec 2026), said once; `skipped` counts those frames."""
+
+    def __init__(self) -> None:
+        self.seen: set[int] = set()
+        self.skipped = 0
+
+    def take(self, image: int) -> bool:
+        if image not in self.seen:
+            self.seen.add(image)
+            return True
+        if not self.skipped:
+            log.warning("frame %s came again (--loop started the source over): --detections-out / --tracks-out "
+                        "hold the first pass; the later passes are not written", image)
+        self.skipped += 1
+        return False

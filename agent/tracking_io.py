@@ -36,6 +36,7 @@ from agent.file_frames import prepared_frames, telemetry_reports
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
+from agent.pixel_tracker import ImageOnlyTracks
 from agent.size_filter import SizeFilter
 from agent.stage_report import StageSummary
 from agent.tracking import ClassMotion, GpsTracker, TrackerConfig, TrackOutput
@@ -103,6 +104,19 @@ class TrackRow:
     image_id: int
     t: float
     track: TrackOutput
+
+
+def _image_only_rows(image_only: ImageOnlyTracks, video: object, frames: int) -> list[TrackRow]:
+    """A video none of whose frames had a pose: its tracks in the image alone (`agent.pixel_tracker`), said in a
+    warning; the GPS tracker starts no track without a ground point, and the MOT file was empty, silently."""
+    if image_only.unavailable is not None:
+        log.warning("video %s: none of its %d frames has a pose: no track (the image-only fallback needs norfair: "
+                    "%s)", video, frames, image_only.unavailable)
+        return []
+    log.warning("video %s: none of its %d frames has a pose (see the reasons below): tracked in the image alone "
+                "(norfair, as the evaluation's pixel baseline), without ground positions or re-identification",
+                video, frames)
+    return [TrackRow(*row) for row in image_only.rows]
 
 
 def frame_time_s(frame: Frame) -> float:
@@ -175,6 +189,7 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
     t_prev = -math.inf
     problems: list[PoseProblem] = []
     telemetry = VideoTelemetry()
+    image_only: ImageOnlyTracks | None = ImageOnlyTracks()  # while no frame has had a pose
     for frame, offset in prepared_frames(dataset, camera, video_id, candidates, pipeline_config, pipe,
                                          problems=problems, report=telemetry):
         if clock_offsets is not None and pipeline_config.estimate_clock_offset:
@@ -221,8 +236,15 @@ def track_video(dataset: Dataset, candidates: Candidates, camera: Camera, video_
             counts["confident_posed"] += int(confident.sum())
             counts["confident_without_ground_point"] += int((confident & ~tracker.last_grounded).sum())
         rows.extend(TrackRow(frame.image.frame_index, frame.image.id, t, tr) for tr in tracker.report(tracks))
+        if frame.pose is not None:
+            image_only = None
+        elif image_only is not None:
+            image_only.add(frame.image.frame_index, frame.image.id, t, result)
         if on_frame is not None:
             on_frame(frame, result, tracks)
+    if image_only is not None and counts["frames"] and not rows:
+        rows = _image_only_rows(image_only, dataset.video_names.get(video_id, video_id), int(counts["frames"]))
+        counts["videos_tracked_in_image"] = int(bool(rows))
     far, posed = counts["confident_without_ground_point"], counts["confident_posed"]
     if posed and far * 2 >= posed:
         log.warning("video %s: %d of %d confident detections in frames with a pose have no ground point (at or "

@@ -29,6 +29,12 @@ from agent.file_frames import prepared_frames
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
+from agent.pixel_tracker import (  # noqa: F401  (NODEPS_INSTALL, PixelTracker: re-exported, as before)
+    NODEPS_INSTALL,
+    PixelBaselineConfig,
+    PixelTracker,
+)
+from agent.pixel_tracker import import_baseline as _import_baseline
 from agent.size_filter import SizeFilter
 from agent.tracking import GpsTracker, TrackerConfig
 from agent.tracking_io import frame_time_s
@@ -44,77 +50,6 @@ MATCH_IOU = 0.5
 # ---------------------------------------------------------------------------------------------
 # The pixel-space baseline
 # ---------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True, slots=True)
-class PixelBaselineConfig:
-    """norfair in image space, set up like DeepSORT/SORT without appearance.
-
-    det_score: detections below are not given to the tracker; iou_distance: norfair's IoU distance
-    threshold (1 - IoU, 0.7 accepts IoU > 0.3); max_age_s: a track survives this long unmatched
-    (norfair's hit_counter_max in frames at the video's rate); init_frames: hits before a track is
-    reported (norfair initialization_delay + 1).
-    """
-
-    det_score: float = 0.4
-    iou_distance: float = 0.7
-    max_age_s: float = 1.0
-    init_frames: int = 3
-
-
-#: the evaluation-only packages pip cannot install with their declared dependencies (they pin numpy<2 or
-#: would replace the headless OpenCV); the Makefile installs them with --no-deps from requirements-nodeps.txt
-NODEPS_INSTALL = "pip install --no-deps trackeval==1.3.0 norfair==2.3.0 tabulate rich filterpy"
-
-
-def _import_baseline(module: str, what: str) -> Any:
-    """Import an evaluation-only package, or raise ImportError saying in one line how to install it."""
-    import importlib
-
-    try:
-        return importlib.import_module(module)
-    except ImportError:
-        raise ImportError(f"{what} needs the {module.split('.')[0]} package, which plain `pip install` of uavmm "
-                          f"does not bring (its declared dependencies would break the headless OpenCV): run "
-                          f"`{NODEPS_INSTALL}` (or `make setup`, which does)") from None
-
-
-class PixelTracker:
-    """norfair's Tracker on box corners with its Kalman filter, one instance per video.
-
-    `update(boxes_xyxy (K, 4), scores (K,), class_ids (K,))` returns the reported tracks of the frame
-    as (ids (M,) int, boxes (M, 4), scores (M,)): tracks that are initialised and took a detection
-    in this frame, with that detection's box (as our tracker reports).
-    """
-
-    def __init__(self, config: PixelBaselineConfig, fps: float) -> None:
-        norfair = _import_baseline("norfair", "the pixel-tracker baseline (norfair)")
-
-        self.config = config
-        # at low frame rates (2 fps) max_age_s is fewer frames than init_frames: norfair needs its delay below
-        # the counter's maximum, so the age is floored to init_frames
-        hits = max(1, round(config.max_age_s * fps), config.init_frames)
-        self._tracker = norfair.Tracker(distance_function="iou", distance_threshold=config.iou_distance,
-                                hit_counter_max=hits, initialization_delay=min(max(0, config.init_frames - 1),
-                                                                               hits - 1))
-
-    def update(self, boxes_xyxy: np.ndarray, scores: np.ndarray,
-               class_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        from norfair import Detection
-
-        keep = np.flatnonzero(scores >= self.config.det_score)
-        dets = [Detection(boxes_xyxy[k].reshape(2, 2).astype(np.float64), scores=np.full(2, float(scores[k])),
-                          label=int(class_ids[k]), data=int(k)) for k in keep]
-        objects = self._tracker.update(dets)
-        this_frame = {id(d) for d in dets}
-        ids, rows = [], []
-        for obj in objects:
-            det = obj.last_detection
-            if det is not None and id(det) in this_frame:
-                ids.append(obj.id)
-                rows.append(det.data)
-        idx = np.asarray(rows, dtype=np.int64)
-        return np.asarray(ids, dtype=np.int64), boxes_xyxy[idx].reshape(-1, 4), scores[idx].reshape(-1)
-
 
 # ---------------------------------------------------------------------------------------------
 # Running the trackers

@@ -526,17 +526,25 @@ def test_a_looped_recording_writes_each_frame_once(server, server_port, recordin
     frames, 20 distinct ids), which a COCO scorer takes as one image each; the MOT rows repeated too."""
     from agent.dataset_source import DatasetSource
 
+    coco = json.loads((recording / "images.json").read_text())
+    coco["images"] = [im for im in coco["images"] if im["video_id"] == 1 and im["frame_index"] < 40]
+    images = {im["id"] for im in coco["images"]}
+    short = tmp_path / "short"
+    short.mkdir()
+    (short / "images.json").write_text(json.dumps(coco))
+    (short / "camera.json").write_bytes((recording / "camera.json").read_bytes())
+    candidates = json.loads((recording / "pre_nms.json").read_text())
+    (short / "pre_nms.json").write_text(json.dumps([c for c in candidates if c["image_id"] in images]))
     dets, tracks = tmp_path / "detections.json", tmp_path / "tracks.geojson"
     node = AgentNode(agent_settings(server_port, speed=0.0, loop=True, duration_s=4.0, detections_out=dets,
-                                    tracks_out=tracks), DatasetSource(recording, video_id=1, use_images=False))
+                                    tracks_out=tracks), DatasetSource(short, video_id=1, use_images=False))
     with caplog.at_level("WARNING"):
         summary = node.run()
-    coco = json.loads((recording / "images.json").read_text())
-    images = {im["id"] for im in coco["images"] if im["video_id"] == 1}
     written = json.loads(dets.read_text())
     assert summary["frames"] > len(images) and summary["frames_not_written"] == summary["frames"] - len(images)
     assert {d["image_id"] for d in written} <= images
     per_image = Counter(d["image_id"] for d in written)
+    assert summary["frames"] >= 2 * len(images)  # looped at least once
     assert max(per_image.values()) < 300  # one pass's detections, not every pass's
     assert caplog.text.count("came again") == 1
     for feature in json.loads(tracks.read_text())["features"]:
