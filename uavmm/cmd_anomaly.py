@@ -11,6 +11,7 @@ import time
 from pathlib import Path
 
 from uavmm.cli import CliError, add_terrain_options, require_outputs_apart, terrain_from_args
+from uavmm.cmd_detect import ProgressLine
 from uavmm.dataset_inputs import DatasetImages
 
 
@@ -141,6 +142,8 @@ def run_anomaly(args: argparse.Namespace) -> int:
         dequantize=not args.telemetry_as_written)
     frames = dataset_frames(args.frames, camera) if video_frames is None else iter(video_frames)
     detector = AnomalyDetector(cfg, method)
+    # as uavmm detect's: redrawn on a terminal, a line now and then in a pipe or file (it was "\r" redraws there)
+    progress = ProgressLine("anomaly:", enabled=not args.quiet)
     video = None
     n = without_pose = 0
     started = time.perf_counter()
@@ -157,9 +160,9 @@ def run_anomaly(args: argparse.Namespace) -> int:
                                                              strict=True)])
             n += 1
             without_pose += frame.pose is None
-            if not args.quiet and n % 50 == 0:
-                print(f"\ranomaly: {n} frames", end="", file=sys.stderr, flush=True)
+            progress(n, None)
     except KeyboardInterrupt:
+        progress.close()
         spool.close()
         print(f"\nstopped: wrote {spool.count} regions of interest for the {n} frames done to {args.out}",
               file=sys.stderr)
@@ -168,8 +171,7 @@ def run_anomaly(args: argparse.Namespace) -> int:
         spool.abort()
         raise
     spool.close()
-    if not args.quiet and n >= 50:
-        print(file=sys.stderr)
+    progress.close()
     seconds = time.perf_counter() - started
     mode = ("per-frame" if args.no_memory else "memory map") + (f", terrain {args.dem.name}" if args.dem else "")
     # the telemetry file's GPS steps and holds

@@ -183,3 +183,13 @@ def test_regions_are_written_as_they_come_and_ctrl_c_keeps_those_of_the_frames_d
     partial = json.loads(out.read_text())
     assert partial and "stopped: wrote" in err and not list(tmp_path.glob(".partial.json.*"))
     assert {r["image_id"] for r in partial} < {im["id"] for im in coco["images"]}
+
+
+def test_progress_in_a_pipe_is_lines_not_carriage_returns(rendered, tmp_path, capsys):
+    # the docs walk-through (1 Dec 2026): "\ranomaly: 50 frames\ranomaly: 100 frames..." on one line in a log file;
+    # now as uavmm detect's progress: redrawn on a terminal only, lines elsewhere
+    out = tmp_path / "rois.json"
+    assert main(["anomaly", "--frames", str(rendered / "images.json"), "--camera", str(rendered / "camera.json"),
+                 "--out", str(out), "--method", "median"]) == 0
+    err = capsys.readouterr().err
+    assert "\r" not in err and "anomaly: 1 frames" in err
