@@ -50,6 +50,22 @@ class ZenohOptions:
                 raise ValueError(f"--cfg expects KEY:VALUE, got {item!r}")
 
 
+def _refuse_non_object(path: Path) -> None:
+    """ValueError for a config file that is plain JSON but no object (a list: Zenoh took it silently as an empty
+    config, the contract audit of 1 Dec 2026) or one of `uavmm boost`'s pipeline settings (Zenoh called it an
+    invalid config). JSON5 with comments, or an unreadable file, is left to Zenoh, which names its problem."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError):
+        return
+    if not isinstance(data, dict):
+        raise ValueError(f"zenoh config {path}: a Zenoh config is a JSON5 object, got a {type(data).__name__}")
+    if data and ("memory" in data or "nms_iou" in data) and not {"mode", "connect", "listen"} & set(data):
+        raise ValueError(f"zenoh config {path}: these are pipeline settings (as uavmm boost --config reads; the agent "
+                         "takes them with --pipeline-config), not a Zenoh config (nor a uavmm tune parameters "
+                         "file)")
+
+
 def zenoh_config(options: ZenohOptions) -> zenoh.Config:
     """A ``zenoh.Config`` from the file (if any) with the options' overrides applied.
 
@@ -57,6 +73,8 @@ def zenoh_config(options: ZenohOptions) -> zenoh.Config:
     """
     import zenoh  # only here: the value object above is usable (and testable) without zenoh
 
+    if options.config_file:
+        _refuse_non_object(Path(options.config_file))
     try:
         conf = zenoh.Config.from_file(str(options.config_file)) if options.config_file else zenoh.Config()
     except zenoh.ZError as exc:

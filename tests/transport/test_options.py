@@ -49,6 +49,16 @@ def test_bad_files_and_cfg_values_are_value_errors(tmp_path):
         zenoh_config(ZenohOptions(config_file=tmp_path / "missing.json5"))
     with pytest.raises(ValueError, match="--cfg"):
         zenoh_config(ZenohOptions(cfg=("mode:{not json5",)))
+    # the contract audit (1 Dec 2026): a JSON list was taken silently (an empty config); a pipeline config given as
+    # the Zenoh config was called an invalid Zenoh config, without saying what it is
+    (tmp_path / "list.json").write_text("[1, 2]")
+    with pytest.raises(ValueError, match=r"list\.json: a Zenoh config is a JSON5 object, got a list"):
+        zenoh_config(ZenohOptions(config_file=tmp_path / "list.json"))
+    (tmp_path / "pipeline.json").write_text(json.dumps({"memory": {"half_life_s": 0.5}, "nms_iou": 0.5}))
+    with pytest.raises(ValueError, match="pipeline settings .*--pipeline-config"):
+        zenoh_config(ZenohOptions(config_file=tmp_path / "pipeline.json"))
+    (tmp_path / "ok.json5").write_text('{mode: "peer", // a comment\n}')
+    assert zenoh_config(ZenohOptions(config_file=tmp_path / "ok.json5")) is not None  # JSON5: Zenoh reads it
 
 
 @pytest.mark.parametrize(("kwargs", "message"), [
