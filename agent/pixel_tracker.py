@@ -14,6 +14,8 @@ from typing import Any
 
 import numpy as np
 
+from agent.tracking import TrackOutput
+
 __all__ = ["NODEPS_INSTALL", "PixelBaselineConfig", "PixelTracker", "import_baseline"]
 
 
@@ -122,8 +124,6 @@ class ImageOnlyTracks:
         self._feed(frame_index, image_id, t, result)
 
     def _feed(self, frame_index: int, image_id: int, t: float, result: Any) -> None:
-        from agent.tracking.tracker import TrackOutput
-
         assert self._tracker is not None
         ids, boxes, scores = self._tracker.update(np.asarray(result.boxes_xyxy, dtype=np.float64),
                                                   np.asarray(result.scores, dtype=np.float64),

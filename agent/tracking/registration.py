@@ -138,15 +138,17 @@ def correction_jacobian(rel_xy: NDArray, height_m: float | NDArray) -> NDArray[n
     return J
 
 
-def correction_offset(rel_xy: NDArray, height_m: float | NDArray, correction: NDArray) -> NDArray[np.float64]:
+def correction_offset(rel_xy: NDArray, height_m: float | NDArray, correction: NDArray,
+                      jacobian: NDArray | None = None) -> NDArray[np.float64]:
     """How far ground points (N, 2, relative to the point below the UAV) move with a pose correction (east m, north
     m, heading rad, pitch rad): `correction_jacobian` @ correction, with the pitch part's new range no farther out
     than the visible horizon (or the point's own range beyond it). The linear pitch part, slant^2 / h * d_beta,
     is unbounded: near a level gimbal, applied frame after frame, it threw tracks 1e300 m out (the contract audit
-    of 1 Dec 2026: `uavmm track` at pitch 0). Within the horizon it is the Jacobian's move, as before."""
+    of 1 Dec 2026: `uavmm track` at pitch 0). Within the horizon it is the Jacobian's move, as before. jacobian:
+    `correction_jacobian(rel_xy, height_m)` when the caller has it already."""
     rel = np.asarray(rel_xy, dtype=np.float64).reshape(-1, 2)
     p = np.asarray(correction, dtype=np.float64)
-    J = correction_jacobian(rel, height_m)
+    J = correction_jacobian(rel, height_m) if jacobian is None else jacobian
     out = J[:, :, :3] @ p[:3]
     h = np.broadcast_to(np.asarray(height_m, dtype=np.float64), (len(rel),))
     r = np.hypot(rel[:, 0], rel[:, 1])

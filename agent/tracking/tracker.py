@@ -461,7 +461,7 @@ class GpsTracker:
             return None
         correction, cov, scale = fit
         J = correction_jacobian(rel, h)
-        dets.z[geo] += correction_offset(rel, h, correction)
+        dets.z[geo] += correction_offset(rel, h, correction, J)
         a = 1.0 if self._scale_t is None else 1.0 - math.exp(-max(t - self._scale_t, 0.0)
                                                            / max(cfg.registered_scale_s, 1e-6))
         self._log_scale += a * (math.log(scale) - self._log_scale)

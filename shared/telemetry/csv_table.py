@@ -43,7 +43,7 @@ _RESET_S = 1.0
 #: Cells that say a value is missing (pandas writes NaN, R NA, JSON-minded tools null): read as an empty cell.
 _MISSING = frozenset({"nan", "na", "n/a", "null", "none", "-"})
 #: Yes/no columns and the words they may hold (AirData's isVideo as pandas writes it: True / False).
-_BOOLEAN_COLUMNS = ("isvideo", "is_video", "recording", "istakingvideo", "custom.isvideo", "camera.isvideo")
+_BOOLEAN_COLUMNS = CSV_COLUMNS["recording"][0]
 _BOOLEANS = {"true": 1.0, "false": 0.0, "yes": 1.0, "no": 0.0, "recording": 1.0}  # CUSTOM.isVideo: "Recording" or empty
 
 

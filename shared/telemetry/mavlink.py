@@ -334,9 +334,9 @@ class MavlinkAssembler:
         if vehicle_yaw is None and int(f.get("hdg", _UNKNOWN_HDG)) != _UNKNOWN_HDG:
             vehicle_yaw = f["hdg"] / 100.0
         gimbal = self.gimbal
-        if gimbal is not None and self.gimbal_samples is None and self._rx_s is not None and len(self._gimbal_rx) >= 3 \
-                and self._rx_s - self._gimbal_rx[-1] > MIN_HOLD_S \
-                and self._rx_s - self._gimbal_rx[-1] > hold_limit_s(self._gimbal_rx):  # (the limit is >= MIN_HOLD_S)
+        age = math.nan if self._rx_s is None or not self._gimbal_rx else self._rx_s - self._gimbal_rx[-1]
+        if gimbal is not None and self.gimbal_samples is None and len(self._gimbal_rx) >= 3 \
+                and age > MIN_HOLD_S and age > hold_limit_s(self._gimbal_rx):  # (the limit is >= MIN_HOLD_S)
             gimbal = None  # live, its last reading is stale: not carried on (a log read whole interpolates instead;
             self.gimbal_stale += 1  # fewer than 3 readings tell no interval to judge by)
         pitch: float | None
