@@ -33,6 +33,7 @@ from agent.size_filter import SizeFilter
 from agent.sources import FrameSource, SourceFrame
 from agent.stage_report import StageSummary
 from agent.tile_updates import TileChangeTracker
+from agent.track_lending import TrackLending
 from agent.track_rows import FirstPass, TrackRowLog
 from agent.tracking import GpsTracker, TrackerConfig, TrackOutput
 from agent.tracking.appearance import with_image_descriptors
@@ -269,6 +270,7 @@ class AgentNode:
             settings.uav_id, ["anomaly"], grid, refresh_s=settings.refresh_s, min_value=settings.tile_min_value,
             budget_bytes_per_s=settings.tile_budget_bytes_per_s)
         self.adopter = GlobalIdAdopter(settings.uav_id, gate_m=settings.gid_gate_m, window_s=settings.gid_window_s)
+        self.lending = TrackLending(settings.uav_id, self.pipeline.config.track_lending)
         self.on_frame = on_frame
         self.on_ready = on_ready
         prepare = getattr(source, "prepare", None)
@@ -461,6 +463,8 @@ class AgentNode:
             result = with_image_descriptors(result, frame.image)
         tracks = self.tracker.update(result, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
                                      pose_retimed=frame.pose_retimed, terrain=self.pipeline.terrain_for(frame.pose))
+        if self.lending.weight:  # the output takes the partners' confidences along shared global tracks
+            result = self.lending.apply(result, tracks, self._joint_tracks())
         if self.anomaly is not None and frame.image is not None:
             self.anomaly.process(frame.image, frame.pose, frame.t, frame.camera)
             self.counts["anomaly_frames"] = self.counts.get("anomaly_frames", 0) + 1
@@ -538,6 +542,7 @@ class AgentNode:
             messages.append(("state", self.link.state_key(), encode_state(state)))
         names = self.pipeline.class_names
         msg = tracks_message(s.uav_id, t, self._tracks, names)
+        self.lending.reported(msg)
         gids = self.adopter.update([(i.id, i.cls, i.lat, i.lon) for i in msg.tracks], self._joint_tracks())
         messages.append(("tracks", self.link.tracks_key(), encode_tracks_with_gid(msg, gids)))
         self.link.submit(messages)
@@ -560,6 +565,7 @@ class AgentNode:
             "tiles_unchanged_skipped": self.tiles.n_skipped,
             "tiles_deferred_by_budget": self.tiles.n_deferred,
             "gids_adopted_by_position": self.adopter.n_adopted_by_position,
+            "detections_lent": self.lending.lent_detections,
             "sent_bytes_per_s": round(sent / elapsed, 1),
             "link": link,
             "stages": self.stage_summary().as_dict(),

@@ -43,6 +43,7 @@ _JOINT_TUNING_RANGES = (
     ("joint_carry_velocity_gain", 0.0, 1.0, False),
     ("joint_absent_value", 0.0, 1.0, False),
     ("joint_absent_logit", 0.0, math.inf, False),
+    ("track_lending", 0.0, 1.0, False),
 )
 
 
@@ -107,6 +108,10 @@ class PipelineConfig:
         on the coop tuning domains (the weaker UAV's joint AP50 +0.38, the others +0.31), it held out at +0.12 /
         +0.05 with `coop-high-low` -0.4 / -0.2 and fewer hidden objects found by the stronger UAVs, where the
         registration leaves most (docs/simulator.md, "Fourth measurement"; 28 Nov 2026).
+    track_lending: with another UAV on the same global track (the fusion server's ``joint/tracks``), a detection
+        of that track moves this share of the way, in log-odds, to the confidence the other UAV reports for it,
+        where that is higher (agent.track_lending; the output only: the agent's written and published detections;
+        0 = off).
 
     correct_telemetry: before boosting and stamping, register the frame's confident boxes to the memory
         map and move all its ground points by the common offset found (agent.telemetry_correction; needs
@@ -250,6 +255,7 @@ class PipelineConfig:
     joint_register_boost: bool = False
     joint_absent_value: float = 0.05
     joint_absent_logit: float = 2.0
+    track_lending: float = 0.0
     size_check_min_score: float = 0.5
     size_check_min_boxes: int = 15
     size_check_max_shift: float = 3.0

@@ -30,12 +30,13 @@ from agent.pipeline import DetectionPipeline
 from agent.pipeline_config import PipelineConfig
 from agent.size_filter import SizeFilter
 from agent.tile_updates import TileChangeTracker
+from agent.track_lending import TrackLending
 from agent.tracking import GpsTracker
 from agent.tracking_io import memory_evidence
 from fusion_server.joint_map import JointMap
 from fusion_server.rules import get_fusion_rule
 from shared.geo import Camera, Pose
-from shared.messages import TracksMessage
+from shared.messages import JointTracksMessage, TracksMessage
 from shared.tilecodec import decode_tile
 from sim.coop_peaks import PEAK_BAR_M, PeakSampler, standing_objects
 from sim.coop_registration import RegistrationRecord, registration_errors
@@ -149,8 +150,12 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
              for vid in dataset.videos}
     fusion = CoopFusion([uav_of[v] for v in pipes], list(dict.fromkeys(dataset.categories.values())),
                         {uav_of[v]: p for v, p in pipes.items()}, rule=rule, coverage=coverage) if share else None
+    # the fusion server's global tracks as each agent receives them, for lending a partner's confidence along them
+    server = ServerTracks() if share and any(c.track_lending > 0 for c in configs.values()) else None
+    lending = {vid: TrackLending(uav_of[vid], configs[vid].track_lending) for vid in dataset.videos} if server else {}
     trackers = {vid: GpsTracker(None, dataset.categories, evidence_at=memory_evidence(pipes[vid]))
-                for vid in dataset.videos} if any(x is not None for x in (track_boxes, tracks_out, on_tracks)) else {}
+                for vid in dataset.videos} if server is not None or any(
+        x is not None for x in (track_boxes, tracks_out, on_tracks)) else {}
     if tracks_out is not None:
         tracks_out.update({vid: SequenceTracks() for vid in dataset.videos})
     # as `uavmm agent --dataset` reads a recording: the telemetry stages over the whole video, the pipeline primed
@@ -173,7 +178,6 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
         for vid, frame in step.items():
             pipes[vid].camera = frame.camera
             res = pipes[vid].process(*candidates.get(frame.image.id), frame.pose, frame.t)
-            results[vid].extend(results_to_coco(frame.image.id, res))
             if registration_out is not None and frame.pose is not None:
                 offset = pipes[vid].joint_registration_offset_px()
                 if offset is not None:
@@ -184,6 +188,9 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                 tracks = trackers[vid].update(res, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
                                               pose_retimed=frame.pose_retimed,
                                               terrain=pipes[vid].terrain_for(frame.pose))
+                if server is not None:  # as `uavmm agent` writes its detections: after the tracker, lent
+                    res = lending[vid].apply(res, tracks, server.joint)
+                    server.latest[vid] = tracks_message(uav_of[vid], frame.t, tracks, pipes[vid].class_names)
                 if track_boxes is not None:
                     track_boxes[frame.image.id] = [[b[0], b[1], b[2] - b[0], b[3] - b[1]] for b in
                                                    (tr.box_xyxy for tr in tracks if tr.confirmed and tr.matched)]
@@ -192,6 +199,7 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                 if on_tracks is not None:
                     on_tracks(vid, frame.image.frame_index,
                               tracks_message(uav_of[vid], frame.t, tracks, pipes[vid].class_names))
+            results[vid].extend(results_to_coco(frame.image.id, res))
             if frame.pose is not None:
                 poses[uav_of[vid]] = (frame.pose, frame.camera)
                 if poses_out is not None:
@@ -207,10 +215,40 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                 for uav, footprint in fusion.footprints.items():
                     if uav != uav_of[vid]:
                         joint.put_footprint(uav, footprint, t)
+            if server is not None:  # each agent's tracks message of this cycle, and the server's answer
+                server.publish(t, lending)
             if on_publish is not None:
                 on_publish(t, fusion.joint, [f.image.id for f in step.values()])
             next_publish = t + PUBLISH_PERIOD_S
     return results
+
+
+class ServerTracks:
+    """The fusion server's global tracker (`uavmm fusion`'s defaults) on the frame clock of an in-process run:
+    `latest` holds each UAV's newest tracks message; `publish` sends them (each agent's publish cycle), tells each
+    UAV's TrackLending what it reported, and makes `joint` the ``joint/tracks`` message the agents then hold."""
+
+    def __init__(self) -> None:
+        from fusion_server.config import FusionSettings
+        from fusion_server.global_tracks import GlobalTracker
+
+        s = FusionSettings(db_path=None)
+        self.now = float("-inf")
+        self.tracker = GlobalTracker(gate_m=s.track_gate_m, hold_s=s.track_hold_s, member_ttl_s=s.ttl_s,
+                                     history_len=s.track_history_len, history_interval_s=s.track_history_interval_s,
+                                     reassociate_m=s.track_reassociate_m, keep_changes=False,
+                                     clock=lambda: self.now, wall=lambda: self.now)
+        self.latest: dict[int, TracksMessage] = {}
+        self.joint: JointTracksMessage | None = None
+
+    def publish(self, t: float, lending: dict[int, TrackLending]) -> None:
+        self.now = max(self.now, t)
+        self.tracker.expire(self.now)
+        for vid, msg in self.latest.items():
+            self.tracker.update(msg, self.now)
+            lending[vid].reported(msg)
+        self.latest = {}
+        self.joint = self.tracker.joint_message()
 
 
 def _record_tracks(seq: SequenceTracks, frame_index: int, reported: list) -> None:

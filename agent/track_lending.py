@@ -1,0 +1,132 @@
+"""A partner's confidence lent along a shared global track (issue 30, part 2).
+
+The memory map's log-odds boost keeps the detector's order among candidates whose evidence has saturated: an
+object this UAV sees weakly (glare, thin foliage) is found, but ranks below everything it sees well, false
+positives included, while another UAV that sees the object clearly reports it with a high confidence. Lending
+that confidence box by box, at the partner's detection's registered spot, lifted this UAV's fragments and
+displaced boxes beside a person as much as the person (docs/simulator.md, "Fifth measurement"). Here it goes
+along tracks instead: the fusion server joins this UAV's local track and the partner's into one global track
+only after seconds of agreement on the ground, and a fragment seldom holds a track of its own.
+
+Each frame, a detection the tracker assigned to a local track that the latest ``joint/tracks`` message lists as
+an active member of a global track beside another UAV's active member takes, in log-odds, the share `weight` of
+the way from its own confidence to the global track's (the highest confidence among the members still reporting
+it), when that is above the confidence this UAV itself last reported for the track (so the lent confidence is
+another UAV's). Only the output changes (the detections written and published); the tracker and the memory map
+have already taken the frame as the pipeline scored it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+
+from agent.frame_result import FrameResult
+from agent.tracking.tracker import TrackOutput
+from shared.messages import JointTracksMessage, TracksMessage
+
+__all__ = ["TrackLending", "lend_scores", "partner_scores"]
+
+_EPS = 1e-6
+#: Fields of FrameResult with one row per detection (reordered with the scores).
+_ROWS = ("boxes_xyxy", "scores", "raw_scores", "class_ids", "lat", "lon", "embeddings", "from_joint", "view_height_m",
+         "alt_latlon")
+
+
+def partner_scores(joint: JointTracksMessage | None, uav: str, own: Mapping[int, float]) -> dict[int, float]:
+    """Local track id -> the confidence another UAV reports for its object.
+
+    joint: the latest ``joint/tracks`` message (None: nothing known); uav: this UAV's id; own: the confidence this
+    UAV last reported per local track (its tracks message). A local track qualifies when a global track lists it
+    and another UAV's member as active (the members still reporting it) and the global track's score, the highest
+    of those members', is above `own` for it: then that score is another UAV's.
+    """
+    out: dict[int, float] = {}
+    if joint is None:
+        return out
+    for track in joint.tracks:
+        active = track.active_members
+        mine = [lid for u, lid in active if u == uav]
+        if not mine or all(u == uav for u, _ in active):
+            continue
+        for lid in mine:
+            if track.score > own.get(lid, 1.0) + _EPS:
+                out[lid] = max(out.get(lid, 0.0), float(track.score))
+    return out
+
+
+def lend_scores(result: FrameResult, tracks: Sequence[TrackOutput], lent: Mapping[int, float],
+                weight: float) -> FrameResult:
+    """`result` with each detection of a track in `lent` moved, in log-odds, `weight` of the way to the lent
+    confidence where that is higher (`partner_scores`); reordered highest score first. A detection belongs to the
+    track matched to it in this frame (the track's box is the detection's). weight 0 or nothing lent: `result`."""
+    return _lend(result, tracks, lent, weight)[0]
+
+
+def _lend(result: FrameResult, tracks: Sequence[TrackOutput], lent: Mapping[int, float],
+          weight: float) -> tuple[FrameResult, int]:
+    """`lend_scores` and how many detections it raised."""
+    if not (0.0 <= weight <= 1.0) or not math.isfinite(weight):
+        raise ValueError(f"lend_scores: weight must be in [0, 1], got {weight!r}")
+    if weight == 0.0 or not lent or not len(result):
+        return result, 0
+    boxes = np.asarray(result.boxes_xyxy, dtype=np.float64)
+    scores = np.asarray(result.scores, dtype=np.float64).copy()
+    changed = 0
+    for track in tracks:
+        target = lent.get(track.id)
+        if target is None or not track.matched:
+            continue
+        hit = np.flatnonzero(np.all(np.abs(boxes - np.asarray(track.box_xyxy, dtype=np.float64)) <= 1e-3, axis=1))
+        for k in hit.tolist():
+            own = float(np.clip(scores[k], _EPS, 1.0 - _EPS))
+            goal = float(np.clip(target, _EPS, 1.0 - _EPS))
+            if goal <= own:
+                continue
+            lo, lg = math.log(own / (1.0 - own)), math.log(goal / (1.0 - goal))
+            scores[k] = 1.0 / (1.0 + math.exp(-(lo + weight * (lg - lo))))
+            changed += 1
+    if not changed:
+        return result, 0
+    order = np.argsort(-scores, kind="stable")
+    rows: dict[str, object] = {}
+    for name in _ROWS:
+        value = scores.astype(np.float32) if name == "scores" else getattr(result, name)
+        rows[name] = None if value is None else np.asarray(value)[order]
+    return dataclasses.replace(result, **rows), changed  # type: ignore[arg-type]
+
+
+class TrackLending:
+    """`lend_scores` for one UAV fed with what it publishes and receives: `reported` with each tracks message it
+    sends (its own confidences), `apply` each frame with the latest ``joint/tracks`` message (or None).
+    weight: PipelineConfig.track_lending (0: off). `lent_detections` counts the detections whose score rose."""
+
+    def __init__(self, uav: str, weight: float) -> None:
+        if not (0.0 <= weight <= 1.0) or not math.isfinite(weight):
+            raise ValueError(f"track lending: weight must be in [0, 1], got {weight!r}")
+        self.uav = uav
+        self.weight = weight
+        self.lent_detections = 0
+        self._own: dict[int, float] = {}
+        self._joint: JointTracksMessage | None = None
+        self._lent: dict[int, float] = {}
+
+    def reported(self, msg: TracksMessage) -> None:
+        """This UAV's tracks message just sent: the confidences the server now has of it."""
+        self._own = {item.id: float(item.score) for item in msg.tracks}
+        self._lent = partner_scores(self._joint, self.uav, self._own)
+
+    def apply(self, result: FrameResult, tracks: Sequence[TrackOutput],
+              joint: JointTracksMessage | None) -> FrameResult:
+        """The frame's result with the partners' confidences lent (see the module docstring)."""
+        if self.weight == 0.0:
+            return result
+        if joint is not self._joint:
+            self._joint = joint
+            self._lent = partner_scores(joint, self.uav, self._own)
+        out, raised = _lend(result, tracks, self._lent, self.weight)
+        self.lent_detections += raised
+        return out
