@@ -135,7 +135,8 @@ class Camera:
             if both:  # which one was meant? the preset would win silently over measured intrinsics
                 raise ValueError(f"camera gives both a preset ({d['preset']!r}) and intrinsics ({', '.join(both)}): "
                                  "keep one")
-            return cls.from_preset(str(d["preset"]), int(d.get("width", 3840)), int(d.get("height", 2160)))
+            return cls.from_preset(str(d["preset"]), _as_int("width", d.get("width", 3840)),
+                                   _as_int("height", d.get("height", 2160)))
         missing = [k for k in ("width", "height", "fx") if k not in d]
         if missing:
             raise ValueError(f"camera is missing field(s) {', '.join(missing)}")
@@ -233,6 +234,13 @@ class Camera:
 
 
 def _as_int(name: str, value: Any) -> int:
-    if isinstance(value, bool) or float(value) != int(float(value)):
+    """A whole number written as an int, a whole float or text; ValueError naming `name` for anything else
+    (null, a list, inf and NaN included: int(inf) is an OverflowError, int(None) a TypeError)."""
+    try:
+        number = float(value)
+        whole = not isinstance(value, bool) and math.isfinite(number) and number == int(number)
+    except (TypeError, ValueError):
+        whole = False
+    if not whole:
         raise ValueError(f"{name} must be an integer, got {value!r}")
-    return int(float(value))
+    return int(number)
