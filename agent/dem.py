@@ -10,6 +10,9 @@ from __future__ import annotations
 import logging
 import math
 import re
+import tokenize
+import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -139,6 +142,10 @@ def write_npz(path: str | Path, grid: ElevationGrid) -> None:
                         format=NPZ_FORMAT, version=1)
 
 
+#: What zipfile, zlib and numpy's .npy header parser raise on a damaged archive, besides OSError and ValueError.
+_DAMAGED_ZIP = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, tokenize.TokenError, SyntaxError)
+
+
 def read_npz(path: str | Path) -> ElevationGrid:
     """A DEM written by write_npz."""
     path = Path(path)
@@ -154,6 +161,8 @@ def read_npz(path: str | Path) -> ElevationGrid:
         raise ValueError(f"DEM file {path}: missing field {exc}") from None
     except (OSError, ValueError) as exc:
         raise ValueError(f"DEM file {path}: {exc}") from None
+    except _DAMAGED_ZIP as exc:  # a damaged archive: zipfile, zlib and numpy's header parser raise their own
+        raise ValueError(f"DEM file {path}: a damaged .npz archive ({type(exc).__name__}: {exc})") from None
     try:
         return ElevationGrid(np.asarray(fields["heights_m"], dtype=np.float64),
                              **{k: float(v) for k, v in fields.items() if k != "heights_m"})

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from agent.dem import HGT_VOID, load_terrain, read_dem, read_hgt, read_npz, write_npz
 from shared.terrain import ElevationGrid
@@ -106,6 +108,25 @@ def test_npz_round_trip_and_bad_files(tmp_path):
     (tmp_path / "junk.npz").write_text("garbage\n")
     with pytest.raises(ValueError, match=r"DEM file .*junk\.npz: not a \.npz archive"):
         read_dem(tmp_path / "junk.npz")
+
+
+@settings(max_examples=120, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.lists(st.tuples(st.integers(0, 10**6), st.integers(0, 255)), max_size=4), st.integers(0, 16))
+def test_a_damaged_npz_is_a_grid_or_a_value_error_naming_the_file(tmp_path, flips, cut_16ths):
+    """Fuzzing (1 Dec 2026): bytes flipped or cut in a written .npz raised zipfile.BadZipFile, zlib.error, EOFError,
+    NotImplementedError ("zip file version") or tokenize.TokenError (numpy's header parser): tracebacks from the
+    CLI's --dem; now ValueError naming the file."""
+    path = tmp_path / "dem.npz"
+    write_npz(path, ElevationGrid(np.arange(12.0).reshape(3, 4), lat0_deg=47.001, lon0_deg=9.0,
+                                  lat_step_deg=-0.001, lon_step_deg=0.001))
+    data = bytearray(path.read_bytes())
+    for at, value in flips:
+        data[at % len(data)] = value
+    path.write_bytes(bytes(data[:len(data) * cut_16ths // 16]))
+    try:
+        read_npz(path)
+    except ValueError as exc:
+        assert "dem.npz" in str(exc)
 
 
 def test_load_terrain_carries_the_takeoff_elevation(tmp_path):
