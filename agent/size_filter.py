@@ -237,7 +237,7 @@ class SizeFilter:
                 for name, b in d["classes"].items()
             }
             return cls(bands, float(d.get("k", 3.0)))
-        except (KeyError, TypeError, AttributeError, ValueError) as exc:
+        except (KeyError, TypeError, AttributeError, ValueError, OverflowError) as exc:  # int(inf): OverflowError
             raise ValueError(f"{source}: malformed size-filter file: {exc!r}") from None
 
     def save(self, path: str | Path, *, evidence: dict[str, Any] | None = None) -> None:

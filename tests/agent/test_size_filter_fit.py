@@ -15,7 +15,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
+from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from agent.dataset import Dataset, iter_video_frames
@@ -282,6 +282,23 @@ def test_fitted_deg_in_a_file_is_read_or_refused_naming_the_file(value):
     else:
         span = loaded.bands["person"].fitted_deg
         assert span is None or (len(span) == 2 and span[0] <= span[1])
+
+
+@settings(max_examples=80, deadline=None)
+@given(st.sampled_from(["samples", "k", "std_log", "mean_log_m"]),
+       st.one_of(st.floats(allow_nan=True, allow_infinity=True), st.integers(-10**30, 10**30), st.none()))
+@example("samples", math.inf)
+def test_any_number_in_a_band_or_k_is_read_or_refused_naming_the_file(field, value):
+    """Fuzzing (1 Dec 2026): ``"samples": 1e999`` (json reads Infinity) raised OverflowError from int(), a traceback
+    from boost/track --config PARAMS.json; now the file's ValueError."""
+    band = fit_band(np.linspace(20, 60, 100), np.full(100, 0.5))
+    doc = SizeFilter({"person": band}).to_dict()
+    target = doc if field == "k" else doc["classes"]["person"]
+    target[field] = value if field in ("samples", "k") else [value] * len(target[field])
+    try:
+        SizeFilter.from_dict(doc, source="f.json")
+    except ValueError as exc:
+        assert str(exc).startswith("f.json: malformed size-filter file")
 
 
 def test_a_band_round_trips_through_its_file(tmp_path):
