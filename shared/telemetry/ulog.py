@@ -34,6 +34,7 @@ import contextlib
 import io
 import logging
 import math
+import os
 from pathlib import Path
 from typing import Any
 
@@ -62,10 +63,28 @@ _YAW_LOCK, _YAW_IN_VEHICLE_FRAME, _YAW_IN_EARTH_FRAME = 16, 32, 64
 _PX4_RC_FLAGS = 2 | 4 | 8 | 16
 
 
-def _topic(ulog: Any, name: str) -> dict[str, NDArray] | None:
-    """The first instance of a topic as {field: array}, or None when the log lacks it or it is empty."""
+_QUATERNION = ("timestamp", "q[0]", "q[1]", "q[2]", "q[3]")
+#: The fields a topic is read for (the optional ones are looked up where used).
+_FIELDS = {"vehicle_global_position": ("timestamp", "lat", "lon"), "vehicle_local_position": ("timestamp", "z"),
+           "vehicle_attitude": _QUATERNION, "gimbal_device_attitude_status": _QUATERNION}
+
+
+def _topic(ulog: Any, name: str, path: str | Path) -> dict[str, NDArray] | None:
+    """The first instance of a topic as {field: array}, or None when the log lacks it or it is empty. One whose format
+    lacks a field it is read for (a damaged format definition: pyulog reads the bytes of a flipped name as another
+    field) is not used, with a warning; for ``vehicle_global_position`` that is a ValueError naming the field."""
     for dataset in ulog.data_list:
-        if dataset.name == name and dataset.multi_id == 0 and len(dataset.data["timestamp"]):
+        if dataset.name != name or dataset.multi_id != 0:
+            continue
+        missing = [f for f in _FIELDS.get(name, ("timestamp",)) if f not in dataset.data]
+        if missing:
+            fields = ", ".join(sorted(dataset.data))
+            if name == "vehicle_global_position":
+                raise ValueError(f"{path}: {name} has no field {missing[0]!r} (its fields: {fields}; a damaged log?)")
+            log.warning("%s: %s has no field %r (its fields: %s; a damaged log?): the topic is not used", path, name,
+                        missing[0], fields)
+            return None
+        if len(dataset.data["timestamp"]):
             return dataset.data
     return None
 
@@ -77,7 +96,9 @@ _EARLY_END_US = 2_000_000
 class _ReadWatch(io.BufferedReader):
     """The file pyulog reads. pyulog stops at the first read that comes back short: at the end of the file that
     read finds 0 bytes, in a log cut mid-message or at a message length it cannot trust (corrupt data without a
-    sync marker after it) it finds the rest of the file, which it then drops. ``unread_bytes`` counts those."""
+    sync marker after it) it finds the rest of the file, which it then drops. ``unread_bytes`` counts those. It also
+    stops without a short read, at a data message of a topic whose format has no ``timestamp`` (a damaged format
+    definition): `close` adds the bytes it never asked for."""
 
     unread_bytes = 0
 
@@ -86,6 +107,11 @@ class _ReadWatch(io.BufferedReader):
         if size is not None and 0 <= size and len(data) < size:
             self.unread_bytes = len(data)
         return data
+
+    def close(self) -> None:  # pyulog closes the file when it is done: the bytes it never asked for, before that
+        if not self.closed:
+            self.unread_bytes += max(os.fstat(self.fileno()).st_size - self.tell(), 0)
+        super().close()
 
 
 def _warn_if_damaged(path: str | Path, ulog: Any, unread_bytes: int, last_position_us: float) -> None:
@@ -113,7 +139,7 @@ def _utc_offset_s(ulog: Any) -> float | None:
     for name in ("vehicle_gps_position", "sensor_gps"):
         for dataset in sorted((d for d in ulog.data_list if d.name == name), key=lambda d: d.multi_id):
             gps = dataset.data
-            if "time_utc_usec" not in gps:
+            if "time_utc_usec" not in gps or "timestamp" not in gps:
                 continue
             utc = gps["time_utc_usec"].astype(np.float64)
             valid = utc > 0
@@ -197,11 +223,12 @@ def read_ulog_report(path: str | Path, *, height_offset_m: float = 0.0) -> Fligh
     try:
         with _ReadWatch(io.FileIO(path, "rb")) as handle, contextlib.redirect_stdout(said):
             ulog = ULog(handle, _TOPICS)  # pyulog prints its warnings: logged below, stdout is the CLI's
+            handle.close()
     except Exception as exc:  # pyulog raises its own and struct/IO errors for damaged files
         raise ValueError(f"{path}: not a readable ULog file ({exc})") from None
     for line in dict.fromkeys(said.getvalue().splitlines()):
         log.warning("%s: pyulog: %s", path, line)
-    position = _topic(ulog, "vehicle_global_position")
+    position = _topic(ulog, "vehicle_global_position", path)
     if position is None:
         raise ValueError(f"{path}: no vehicle_global_position in the ULog (was the position logged?)")
     t_us = position["timestamp"].astype(np.float64)
@@ -211,11 +238,11 @@ def read_ulog_report(path: str | Path, *, height_offset_m: float = 0.0) -> Fligh
     has_height = np.ones(n, dtype=bool)  # False: dropped (the estimate gave no valid height there)
     vel_e = np.full(n, np.nan)
     vel_n = np.full(n, np.nan)
-    local = _topic(ulog, "vehicle_local_position")
+    local = _topic(ulog, "vehicle_local_position", path)
     if local is not None:
         t_local = local["timestamp"].astype(np.float64)
         height, has_height = _valid_heights(local, t_us)
-        home_z = _home_z_at(_topic(ulog, "home_position"), t_us)
+        home_z = _home_z_at(_topic(ulog, "home_position", path), t_us)
         if home_z is None:
             log.warning("%s: no home_position in the log: heights are above the EKF origin (where PX4 started its "
                         "estimate), which is the take-off point only if PX4 was powered on there; correct with "
@@ -250,7 +277,7 @@ def read_ulog_report(path: str | Path, *, height_offset_m: float = 0.0) -> Fligh
         ))
     if not records:
         raise ValueError(f"{path}: vehicle_global_position has no valid fix")
-    recording = _recording(ulog, offset_s)
+    recording = _recording(ulog, offset_s, path)
     if recording.note:
         log.warning("%s: %s", path, recording.note)
     return FlightLogReport(mark_recording(records, recording), recording)
@@ -282,13 +309,13 @@ def _camera(ulog: Any, path: str | Path, t_us: NDArray) -> tuple[NDArray, NDArra
     interpolated, carried no further than `hold_limit_s`; one warning counts the positions beyond), else a fixed
     camera facing forward: pitch NaN, roll 0, the vehicle's yaw (NaN without ``vehicle_attitude``)."""
     t_vehicle, yaw_vehicle = np.zeros(0), np.zeros(0)
-    attitude = _topic(ulog, "vehicle_attitude")
+    attitude = _topic(ulog, "vehicle_attitude", path)
     if attitude is not None:
         t_vehicle, yaw_vehicle = attitude["timestamp"].astype(np.float64), _yaws_deg(attitude)[2]
     ok_v = np.isfinite(yaw_vehicle)
     heading = np.interp(t_us, t_vehicle[ok_v], yaw_vehicle[ok_v]) if ok_v.any() else np.full(len(t_us), np.nan)
     pitch, roll = np.full(len(t_us), np.nan), np.zeros(len(t_us))
-    gimbal = _topic(ulog, "gimbal_device_attitude_status")
+    gimbal = _topic(ulog, "gimbal_device_attitude_status", path)
     if gimbal is None:
         return pitch, roll, heading
     g_roll, g_pitch, g_yaw = _yaws_deg(gimbal)
@@ -318,18 +345,18 @@ def _camera(ulog: Any, path: str | Path, t_us: NDArray) -> tuple[NDArray, NDArra
     return pitch, roll, heading
 
 
-def _recording(ulog: Any, offset_s: float) -> LogRecording:
+def _recording(ulog: Any, offset_s: float, path: str | Path) -> LogRecording:
     """When the camera recorded, from ``vehicle_command`` (PX4 logs every command it handles or forwards:
     MAV_CMD_VIDEO_START_CAPTURE 2500, MAV_CMD_VIDEO_STOP_CAPTURE 2501), less those ``vehicle_command_ack`` refused
     (an acknowledgement of the command with a result other than ACCEPTED within `_ACK_S` after it). PX4's
     ``camera_trigger`` and ``camera_capture`` are photos, not video: not used. Times on the records' clock."""
-    commands = _topic(ulog, "vehicle_command")
+    commands = _topic(ulog, "vehicle_command", path)
     if commands is None or "command" not in commands:
         return LogRecording()
     t_s = commands["timestamp"].astype(np.float64) / 1e6 + offset_s
     kind = commands["command"].astype(np.int64)
     refused = np.zeros(0)
-    acks = _topic(ulog, "vehicle_command_ack")
+    acks = _topic(ulog, "vehicle_command_ack", path)
     if acks is not None and {"command", "result"} <= set(acks):
         no = (np.isin(acks["command"].astype(np.int64), _VIDEO_COMMANDS)) & (acks["result"].astype(np.int64) != 0)
         refused = acks["timestamp"][no].astype(np.float64) / 1e6 + offset_s

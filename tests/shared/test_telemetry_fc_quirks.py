@@ -6,9 +6,12 @@ Each failed before (a helper's audit, proof scripts in the commit's note)."""
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from shared.telemetry import read_telemetry
 from shared.telemetry.mavlink import MavlinkAssembler
@@ -176,3 +179,41 @@ def test_live_a_gimbal_that_stops_reporting_is_not_carried_on():
     quiet.add("GIMBAL_DEVICE_ATTITUDE_STATUS", down45, 1, 154, T0)
     late = quiet.add("GLOBAL_POSITION_INT", position, 1, 1, T0 + 10.0)
     assert late is not None and late.pitch_deg == pytest.approx(45.0) and quiet.gimbal_stale == 0
+
+
+_LOCAL = [("uint64_t", "timestamp"), ("float", "z"), ("float", "vx"), ("float", "vy")]
+_GPS = [("uint64_t", "timestamp"), ("uint64_t", "time_utc_usec")]
+
+
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.sampled_from([("vehicle_global_position", f) for _, f in _POSITION]
+                       + [("vehicle_local_position", f) for _, f in _LOCAL]
+                       + [("vehicle_attitude", f) for _, f in _ATTITUDE]
+                       + [("gimbal_device_attitude_status", f) for _, f in _ATTITUDE]
+                       + [("vehicle_gps_position", f) for _, f in _GPS]))
+def test_a_ulog_field_name_damaged_in_its_format_is_refused_or_not_used_never_a_key_error(tmp_path, caplog,
+                                                                                         topic_field):
+    """Fuzzing (1 Dec 2026): a byte flipped in a topic's format definition ('timgstamp', 'lPt', 'q[1\\0') renamed the
+    field, and read_ulog raised KeyError (a traceback from --telemetry F.ulg). Now the position topic without lat,
+    lon or timestamp is a ValueError naming the field, any other topic is not used, with a warning. A topic without
+    its timestamp makes pyulog stop reading without a word (11 of 12 positions lost): now a warning says so."""
+    topic, field = topic_field
+    rows = [(10_000_000 + i * 100_000, 47.0 + i * 1e-5, 8.0, 500.0) for i in range(12)]
+    topics = {"vehicle_global_position": (_POSITION, rows),
+              "vehicle_local_position": (_LOCAL, [(t + 50, -30.0, 0.0, 0.0) for t, *_ in rows]),
+              "vehicle_attitude": (_ATTITUDE, [(t, *euler_to_quaternion(0, 0, 30)) for t, *_ in rows]),
+              "gimbal_device_attitude_status": (_ATTITUDE, [(t, *euler_to_quaternion(0, -60, 10)) for t, *_ in rows]),
+              "vehicle_gps_position": (_GPS, [(t, int(T0 * 1e6) + t) for t, *_ in rows])}
+    definition = f"{topic}:".encode() + b"".join(f"{t} {f};".encode() for t, f in topics[topic][0])
+    data = ulog_bytes(topics)
+    assert data.count(definition) == 1
+    damaged = definition.replace(f" {field};".encode(), f" {field[:-1]}\x01;".encode())
+    path = tmp_path / "damaged.ulg"
+    path.write_bytes(data.replace(definition, damaged))
+    if topic == "vehicle_global_position" and field != "alt":
+        with pytest.raises(ValueError, match=f"vehicle_global_position has no field '{re.escape(field)}'"):
+            read_telemetry(path)
+    else:  # pyulog itself stops at a data message of a topic without its timestamp: the records before it, said
+        caplog.clear()
+        records = read_telemetry(path)
+        assert len(records) == 12 or (records and "pyulog stopped reading" in caplog.text)
