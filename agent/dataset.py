@@ -144,7 +144,10 @@ class Dataset:
         raw, notices = harmonise_zones(coco["images"])
         for notice in notices:
             log.warning("%s: %s", source, notice)
-        ids, found = _video_ids([im for im in raw if isinstance(im, dict)], listed, source)
+        try:  # a video_id or frame number that is no integer: named with the file
+            ids, found = _video_ids([im for im in raw if isinstance(im, dict)], listed, source)
+        except ValueError as exc:
+            raise ValueError(f"{source}: {exc}") from None
         images: dict[int, ImageRecord] = {}
         for i, im in enumerate(raw):
             if not isinstance(im, dict):
@@ -152,7 +155,7 @@ class Dataset:
             try:
                 video_id, frame_index = ids[id(im)]
                 rec = ImageRecord(
-                    id=_int(im, "id"), width=_int(im, "width"), height=_int(im, "height"),
+                    id=_int(im, "id"), width=_side(im, "width"), height=_side(im, "height"),
                     video_id=video_id, frame_index=i if frame_index is None else frame_index,
                     date_time=im.get("date_time") if isinstance(im.get("date_time"), str) else None,
                     meta=_meta(im.get("meta")),
@@ -319,6 +322,18 @@ def int_text(text: str) -> int | None:
     return None if whole is None else int(whole[1])
 
 
+#: The largest image side read (px): larger is no camera's frame (and 1e400 overflowed float arithmetic).
+MAX_SIDE_PX = 1_000_000
+
+
+def _side(d: dict, key: str) -> int:
+    """An image's width or height, in 1..MAX_SIDE_PX (0 divided the camera's aspect ratio by zero)."""
+    side = _int(d, key)
+    if not 1 <= side <= MAX_SIDE_PX:
+        raise ValueError(f"field {key!r} must be a number of pixels in 1..{MAX_SIDE_PX}, got {side!r}")
+    return side
+
+
 def _int(d: dict, key: str, default: int | None = None) -> int:
     """d[key] as an integer: a whole number, also written as text (``"5415"``, as some tools write every field)."""
     value = d.get(key, default)
@@ -329,8 +344,8 @@ def _int(d: dict, key: str, default: int | None = None) -> int:
         if number is None:
             raise ValueError(f"field {key!r} must be an integer, got {value!r}")
         return number
-    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value) \
-            or value != int(value):
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or (isinstance(value, float) and not (
+            math.isfinite(value) and value == int(value))):  # an int of any size is whole (isfinite would overflow)
         raise ValueError(f"field {key!r} must be an integer, got {d.get(key, default)!r}")
     return int(value)
 

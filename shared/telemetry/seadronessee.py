@@ -69,6 +69,8 @@ def _number(value: Any, name: str, what: str, *, required: bool) -> float | None
         number = float(value)
     except ValueError:
         raise MetaProblem(f"bad {what}", f"SeaDronesSee meta field {name!r}={value!r} is not a number") from None
+    except OverflowError:  # a JSON integer beyond float's range (json reads any number of digits)
+        number = math.inf
     if not math.isfinite(number):
         raise MetaProblem(f"bad {what}", f"SeaDronesSee meta field {name!r}={value!r} is not finite")
     return number

@@ -61,7 +61,7 @@ def _frame_no(image: Mapping[str, Any]) -> float | None:
         return None
     try:
         number = float(frame)
-    except ValueError:
+    except (ValueError, OverflowError):  # OverflowError: a JSON integer beyond float's range
         return None
     return number if np.isfinite(number) else None
 

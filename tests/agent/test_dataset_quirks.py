@@ -8,6 +8,8 @@ import datetime as dt
 import json
 
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from agent.dataset import Dataset, iter_video_frames
 from shared.geo import Camera
@@ -285,3 +287,33 @@ def test_image_ids_written_as_text_are_scored_and_only_plain_whole_numbers_are_t
             Dataset.from_dict(_coco(images))
     images[0]["id"], images[1]["id"] = "9007199254740993", "9007199254740992"  # beyond a float's integers
     assert sorted(Dataset.from_dict(_coco(images)).images) == [9007199254740992, 9007199254740993]
+
+
+_ODD = st.sampled_from([10**400, -10**400, 0, -1, 2**64, 1e308, [1, 2], {"a": 1}, None, "", "12", True, 1.5])
+
+
+@settings(max_examples=120, deadline=None)
+@given(st.sampled_from(["id", "width", "height", "video_id", "frame_index", "source.frame_no", "source.video",
+                        "meta.latitude", "meta.gimbal_pitch(degrees)", "meta.height_above_takeoff(meter)"]),
+       _ODD, st.booleans())
+def test_an_odd_value_in_an_image_field_is_read_counted_or_a_value_error(field, value, every_image):
+    """Fuzzing (1 Dec 2026): a JSON integer beyond float's range (1e400 written out: json reads any number of digits)
+    raised OverflowError in the meta's numbers, frame numbers (seadronessee_zones) and image sizes (_int's isfinite,
+    then the camera's aspect ratio), and ``"height": 0`` ZeroDivisionError: tracebacks from track/boost/eval.
+    Now a meta value is a problem counted for its frame, and the rest a ValueError naming the field (and the file:
+    a video_id that is no integer did not name it)."""
+    images = [_image(k, "DJI_0032.MP4", 5415 + 15 * k, 0.5 * k, video_id=1, frame_index=k) for k in range(6)]
+    for image in images if every_image else images[2:3]:
+        where, _, key = field.rpartition(".")
+        (image[where] if where else image)[key] = value
+    try:
+        dataset = Dataset.from_dict(_coco(images))
+        for video in dataset.videos:
+            list(iter_video_frames(dataset, CAMERA, video))
+    except ValueError:
+        pass
+    with pytest.raises(ValueError, match=r"images\[0\]: field 'height' must be a number of pixels in 1\.\.1000000"):
+        Dataset.from_dict(_coco([_image(0, "DJI_0032.MP4", 5415, 0.0, height=0)]))
+    loose = {k: v for k, v in _image(0, "DJI_0032.MP4", 5415, 0.0).items() if k != "source"}
+    with pytest.raises(ValueError, match=r"^f\.json: field 'video_id' must be an integer, got \[1, 2\]"):
+        Dataset.from_dict(_coco([{**loose, "video_id": [1, 2]}]), source="f.json")
