@@ -66,21 +66,33 @@ def read_video_json(path: str | Path, video: str | Path | None) -> list[Telemetr
     stem = Path(str(video)).stem.lower()
     # a video's names: its own (group_videos'), and the `videos` entry of the video_id its images carry
     # (only where all of a video's images carry one id that no other video claims, as agent.dataset decides)
-    listed = {key: {Path(str(names.get(ids[key], ids[key]))).stem.lower()} for key in groups}
+    listed = {key: {Path(str(_name(names, ids[key]))).stem.lower()} for key in groups}
     for key, vid_id in own_video_ids(groups).items():
-        if isinstance(name := names.get(vid_id), str):
+        if isinstance(name := _name(names, vid_id, None), str):
             listed[key].add(Path(name).stem.lower())
     matching = [vid for key, vid in ids.items() if stem in listed[key]]
     if len(matching) != 1:
-        shown = ", ".join(sorted({str(names.get(v, v)) for v in ids.values()})[:12])
+        shown = ", ".join(sorted({str(_name(names, v)) for v in ids.values()})[:12])
         raise ValueError(f"telemetry {path} holds {len(ids)} videos ({shown}) and "
                          f"{'none' if not matching else 'several'} named like the video {Path(str(video)).name}: "
                          "name the video file as its entry in the JSON (e.g. DJI_0032.MP4 for source.video "
                          "DJI_0032.MP4, mavic_DJI_0001.MP4 where two drones wrote DJI_0001.MP4), or give a JSON of "
                          "that video alone")
-    log.info("telemetry %s: video %s of %d (named like %s)", path, names.get(matching[0], matching[0]), len(ids),
+    log.info("telemetry %s: video %s of %d (named like %s)", path, _name(names, matching[0]), len(ids),
              Path(str(video)).name)
     return parse_seadronessee_coco(coco, video_id=matching[0], source=str(path))
+
+
+_OWN = object()
+
+
+def _name(names: Mapping[Any, Any], video: Any, default: Any = _OWN) -> Any:
+    """The ``videos`` entry's name of a video id, else `default` (the id itself): an id the file wrote as a list or
+    an object (``"video_id": [1, 2]``) names no entry (``names.get`` raised TypeError: unhashable)."""
+    try:
+        return names.get(video, video if default is _OWN else default)
+    except TypeError:
+        return video if default is _OWN else default
 
 
 def _values(r: Telemetry) -> tuple[Any, ...]:

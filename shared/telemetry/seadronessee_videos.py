@@ -83,8 +83,9 @@ def own_video_ids(groups: Mapping[K, Sequence[Mapping[str, Any]]]) -> dict[K, in
     that no other group carries (DESIGN 6's layout with v2's ``source`` kept); groups without one are absent."""
     claims: dict[int, list[K]] = defaultdict(list)
     for key, group in groups.items():
-        ids = {im.get("video_id") for im in group}
-        if len(ids) == 1 and isinstance(vid := next(iter(ids)), int) and not isinstance(vid, bool):
+        ids = [im.get("video_id") for im in group]  # not a set: an id written as a list is unhashable
+        vid = ids[0] if ids else None
+        if isinstance(vid, int) and not isinstance(vid, bool) and all(v == vid for v in ids):
             claims[vid].append(key)
     return {keys[0]: vid for vid, keys in claims.items() if len(keys) == 1}
 

@@ -123,3 +123,24 @@ def test_frame_numbers_that_do_not_follow_the_stamps_are_not_used(caplog):
         out, start = on_video_frames(records, 30.0, "seq.json")
     assert (out, start) == (records, None)
     assert "its frame numbers do not follow its stamps at the video's 30 frames/s" in caplog.text
+
+
+@settings(max_examples=60, deadline=None)
+@given(st.sampled_from(["video_id", "frame_no", "latitude"]),
+       st.sampled_from([[1, 2], {"a": 1}, 10**400, -10**400, None, "x"]))
+def test_an_odd_video_id_frame_number_or_meta_value_is_read_or_a_value_error(tmp_path_factory, field, value):
+    """Fuzzing (1 Dec 2026): ``"video_id": [1, 2]`` on one image raised TypeError (unhashable) in read_video_json and
+    own_video_ids, a frame number or a meta value of 1e400 written out OverflowError: tracebacks from --telemetry."""
+    path = tmp_path_factory.mktemp("odd") / "instances.json"
+    images = _images(0, 40, 5, "DJI_0032.MP4") + _images(0, 40, 5, "DJI_0099.MP4", ids=100)
+    for image in images:
+        image["video_id"] = 1 if image["id"] < 100 else 2
+    target = images[3]
+    {"video_id": target, "frame_no": target["source"], "latitude": target["meta"]}[field][field] = value
+    path.write_text(json.dumps({"images": images, "annotations": [], "categories": [],
+                                "videos": [{"id": 1, "name": "DJI_0032.MP4"}, {"id": 2, "name": "DJI_0099.MP4"}]}))
+    try:
+        records = read_video_json(path, "DJI_0032.MP4")
+    except ValueError:
+        return
+    assert records
