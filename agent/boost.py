@@ -22,7 +22,7 @@ from agent.frame_result import FrameResult
 from agent.memory_map import MemoryMapConfig
 from agent.params_file import is_params, split_params
 from agent.pipeline import DetectionPipeline
-from agent.pipeline_config import PipelineConfig
+from agent.pipeline_config import PipelineConfig, refuse_huge_int
 from agent.size_filter import SizeFilter
 from agent.stage_report import StageSummary
 from shared.files import PendingFile, write_chunks_atomic
@@ -44,12 +44,14 @@ def config_from_dict(d: dict[str, Any], base: PipelineConfig | None = None) -> P
     mem_kw: dict[str, Any] = {}
     pipe_kw: dict[str, Any] = {}
     for key, value in d.items():
+        refuse_huge_int(key, value)
         if key == "memory":
             if not isinstance(value, dict):
                 raise ValueError("config 'memory' must be an object")
             for k2, v2 in value.items():
                 if k2 not in mem_fields:
                     raise ValueError(f"unknown memory setting {k2!r}; valid: {', '.join(sorted(mem_fields))}")
+                refuse_huge_int(f"memory.{k2}", v2)
                 mem_kw[k2] = v2
         elif key in mem_fields:
             mem_kw[key] = value

@@ -7,6 +7,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import numbers
+import sys
 from dataclasses import dataclass, field
 
 from agent.boxes import ANCHORS
@@ -17,7 +18,7 @@ from agent.size_filter_check import SizeCheckSettings
 from agent.telemetry_correction import CorrectionSettings
 from shared.terrain import Terrain
 
-__all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig"]
+__all__ = ["BOOST_MODES", "JOINT_MODES", "PipelineConfig", "refuse_huge_int"]
 
 JOINT_MODES = ("max", "local", "joint", "mean")
 BOOST_MODES = ("add", "logodds")
@@ -374,3 +375,10 @@ class PipelineConfig:
     @property
     def range_limit_m(self) -> float:
         return self.memory.window_m / 2.0 if self.max_range_m is None else self.max_range_m
+
+
+def refuse_huge_int(key: str, value: object) -> None:
+    """ValueError naming the setting `key` of a JSON settings file when `value` is an integer beyond float's range
+    (json reads any number of digits; the settings' own checks raised OverflowError converting it)."""
+    if isinstance(value, int) and not isinstance(value, bool) and abs(value) > sys.float_info.max:
+        raise ValueError(f"setting {key!r} is a number of {len(str(abs(value)))} digits, beyond any float")

@@ -35,7 +35,7 @@ from agent.dataset import (
 from agent.file_frames import prepared_frames, telemetry_reports
 from agent.frame_result import FrameResult
 from agent.pipeline import DetectionPipeline
-from agent.pipeline_config import PipelineConfig
+from agent.pipeline_config import PipelineConfig, refuse_huge_int
 from agent.pixel_tracker import ImageOnlyTracks
 from agent.size_filter import SizeFilter
 from agent.stage_report import StageSummary
@@ -66,12 +66,15 @@ def tracker_config_from_dict(d: Any, base: TrackerConfig | None = None) -> Track
         unknown = set(value) - motion_fields
         if unknown:
             raise ValueError(f"unknown {what} setting(s) {sorted(unknown)}; valid: {', '.join(sorted(motion_fields))}")
+        for k, v in value.items():
+            refuse_huge_int(f"{what}.{k}", v)
         return dataclasses.replace(start, **value)
 
     kw: dict[str, Any] = {}
     for key, value in d.items():
         if key not in names:
             raise ValueError(f"unknown tracker setting {key!r}; valid: {', '.join(sorted(names))}")
+        refuse_huge_int(key, value)
         if key == "class_motion":
             if not isinstance(value, dict):
                 raise ValueError("tracker setting 'class_motion' must be an object {class name: {...}}")
@@ -90,7 +93,13 @@ def load_tracker_config(path: str | Path | None, overrides: dict[str, Any] | Non
     """Tracker settings file (JSON) then command-line overrides (None values ignored)."""
     cfg = TrackerConfig()
     if path is not None:
-        cfg = tracker_config_from_dict(read_json(path, "tracker config"), cfg)
+        data = read_json(path, "tracker config")
+        try:
+            cfg = tracker_config_from_dict(data, cfg)
+        except ValueError as exc:
+            raise ValueError(f"tracker config {path}: {exc}") from None
+        except TypeError as exc:  # a value of another JSON type ([1] for a number) in the settings' own checks
+            raise ValueError(f"tracker config {path}: a setting of the wrong type ({exc})") from None
     if overrides:
         cfg = tracker_config_from_dict({k: v for k, v in overrides.items() if v is not None}, cfg)
     return cfg
