@@ -151,7 +151,7 @@ class Camera:
                 cy=float(d.get("cy", d["height"] / 2.0)),
                 dist=None if dist is None else tuple(float(x) for x in np.ravel(dist)),
             )
-        except (TypeError, ValueError) as exc:
+        except (TypeError, ValueError, OverflowError) as exc:  # OverflowError: float() of a 400-digit integer
             raise ValueError(f"bad camera: {exc}") from None
 
     @classmethod
@@ -239,7 +239,7 @@ def _as_int(name: str, value: Any) -> int:
     try:
         number = float(value)
         whole = not isinstance(value, bool) and math.isfinite(number) and number == int(number)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):  # OverflowError: a JSON integer beyond float's range
         whole = False
     if not whole:
         raise ValueError(f"{name} must be an integer, got {value!r}")

@@ -188,6 +188,7 @@ def test_a_camera_file_with_a_preset_and_intrinsics_is_refused(tmp_path):
 
 
 _JSON_ODD = st.one_of(st.none(), st.booleans(), st.integers(-10**30, 10**30), st.floats(allow_nan=True),
+                      st.sampled_from([10**400, -10**400]),
                       st.text(max_size=5), st.lists(st.integers(), max_size=2),
                       st.dictionaries(st.text(max_size=2), st.integers(), max_size=1))
 
@@ -196,7 +197,8 @@ _JSON_ODD = st.one_of(st.none(), st.booleans(), st.integers(-10**30, 10**30), st
 @given(st.sampled_from(["width", "height", "fx", "fy", "cx", "cy", "dist"]), _JSON_ODD, st.booleans())
 def test_any_value_in_a_camera_field_is_a_camera_or_a_value_error(field, value, preset):
     """Fuzzing (1 Dec 2026): ``"width": Infinity`` (json reads it) raised OverflowError and a preset's ``"width": null``
-    TypeError, both tracebacks from the CLI; now ValueError naming the field."""
+    TypeError, both tracebacks from the CLI, and an integer beyond float's range (1e400 written out) OverflowError
+    in fx and width; now ValueError naming the field."""
     base = ({"preset": "dji-mavic2-pro", "width": 1920, "height": 1080} if preset else
             {"width": 320, "height": 180, "fx": 250.0, "cx": 160.0, "cy": 90.0})
     if preset and field not in ("width", "height"):
