@@ -78,7 +78,7 @@ def _topic(ulog: Any, name: str, path: str | Path) -> dict[str, NDArray] | None:
             continue
         missing = [f for f in _FIELDS.get(name, ("timestamp",)) if f not in dataset.data]
         if missing:
-            fields = ", ".join(sorted(dataset.data))
+            fields = ", ".join(repr(f) for f in sorted(dataset.data))
             if name == "vehicle_global_position":
                 raise ValueError(f"{path}: {name} has no field {missing[0]!r} (its fields: {fields}; a damaged log?)")
             log.warning("%s: %s has no field %r (its fields: %s; a damaged log?): the topic is not used", path, name,
