@@ -464,7 +464,7 @@ class AgentNode:
         tracks = self.tracker.update(result, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
                                      pose_retimed=frame.pose_retimed, terrain=self.pipeline.terrain_for(frame.pose))
         if self.lending.weight:  # the output takes the partners' confidences along shared global tracks
-            result = self.lending.apply(result, tracks, self._joint_tracks())
+            result = self.lending.apply(result, tracks, self._joint_tracks(), frame.t)
         if self.anomaly is not None and frame.image is not None:
             self.anomaly.process(frame.image, frame.pose, frame.t, frame.camera)
             self.counts["anomaly_frames"] = self.counts.get("anomaly_frames", 0) + 1

@@ -110,9 +110,10 @@ class PipelineConfig:
         +0.05 with `coop-high-low` -0.4 / -0.2 and fewer hidden objects found by the stronger UAVs, where the
         registration leaves most (docs/simulator.md, "Fourth measurement"; 28 Nov 2026).
     track_lending: with another UAV on the same global track (the fusion server's ``joint/tracks``), a detection
-        of that track moves this share of the way, in log-odds, to the confidence the other UAV reports for it,
-        where that is higher (agent.track_lending; the output only: the agent's written and published detections;
-        0 = off).
+        of that track moves this share of the way, in log-odds, to the confidence the other UAV reports for it
+        (the highest over the last agent.track_lending.MEMORY_S, 2 s), where that is higher (agent.track_lending;
+        the output only: the detections the agent writes; 0 = off). 0.5 since 1 Dec 2026, chosen on the coop tuning
+        domains among 0.5, 0.75 and 1.0 (docs/simulator.md, "Eighth measurement").
 
     correct_telemetry: before boosting and stamping, register the frame's confident boxes to the memory
         map and move all its ground points by the common offset found (agent.telemetry_correction; needs
@@ -256,7 +257,7 @@ class PipelineConfig:
     joint_register_boost: bool = False
     joint_absent_value: float = 0.05
     joint_absent_logit: float = 2.0
-    track_lending: float = 0.0
+    track_lending: float = 0.5
     size_check_min_score: float = 0.5
     size_check_min_boxes: int = 15
     size_check_max_shift: float = 3.0

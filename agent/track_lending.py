@@ -28,9 +28,12 @@ from agent.frame_result import FrameResult
 from agent.tracking.tracker import TrackOutput
 from shared.messages import JointTracksMessage, TracksMessage
 
-__all__ = ["TrackLending", "lend_scores", "partner_scores"]
+__all__ = ["MEMORY_S", "TrackLending", "lend_scores", "partner_scores"]
 
 _EPS = 1e-6
+#: A track keeps the highest confidence lent to it over this many seconds of frame time: a partner that saw the
+#: object clearly a moment ago still vouches for it when its latest frame saw it less well.
+MEMORY_S = 2.0
 #: Fields of FrameResult with one row per detection (reordered with the scores).
 _ROWS = ("boxes_xyxy", "scores", "raw_scores", "class_ids", "lat", "lon", "embeddings", "from_joint", "view_height_m",
          "alt_latlon")
@@ -101,32 +104,53 @@ def _lend(result: FrameResult, tracks: Sequence[TrackOutput], lent: Mapping[int,
 
 class TrackLending:
     """`lend_scores` for one UAV fed with what it publishes and receives: `reported` with each tracks message it
-    sends (its own confidences), `apply` each frame with the latest ``joint/tracks`` message (or None).
+    sends (its own confidences), `apply` each frame with its time and the latest ``joint/tracks`` message (or
+    None). A track takes the highest confidence lent to it within the last `memory_s` seconds of frame time.
     weight: PipelineConfig.track_lending (0: off). `lent_detections` counts the detections whose score rose."""
 
-    def __init__(self, uav: str, weight: float) -> None:
+    def __init__(self, uav: str, weight: float, memory_s: float = MEMORY_S) -> None:
         if not (0.0 <= weight <= 1.0) or not math.isfinite(weight):
             raise ValueError(f"track lending: weight must be in [0, 1], got {weight!r}")
+        if not (memory_s >= 0.0 and math.isfinite(memory_s)):
+            raise ValueError(f"track lending: memory_s must be >= 0, got {memory_s!r}")
         self.uav = uav
         self.weight = weight
+        self.memory_s = memory_s
         self.lent_detections = 0
         self._own: dict[int, float] = {}
         self._joint: JointTracksMessage | None = None
-        self._lent: dict[int, float] = {}
+        self._fresh = False  # a message or report not yet taken into the memory
+        self._memory: dict[int, list[tuple[float, float]]] = {}  # local id -> (frame time, lent score), oldest first
 
     def reported(self, msg: TracksMessage) -> None:
         """This UAV's tracks message just sent: the confidences the server now has of it."""
         self._own = {item.id: float(item.score) for item in msg.tracks}
-        self._lent = partner_scores(self._joint, self.uav, self._own)
+        self._fresh = True
 
-    def apply(self, result: FrameResult, tracks: Sequence[TrackOutput],
-              joint: JointTracksMessage | None) -> FrameResult:
-        """The frame's result with the partners' confidences lent (see the module docstring)."""
+    def lent(self, t: float) -> dict[int, float]:
+        """Local id -> the highest confidence lent to the track within memory_s before frame time t."""
+        if self._fresh:
+            self._fresh = False
+            for lid, score in partner_scores(self._joint, self.uav, self._own).items():
+                self._memory.setdefault(lid, []).append((t, score))
+        out = {}
+        for lid in list(self._memory):
+            kept = [(tt, s) for tt, s in self._memory[lid] if t - self.memory_s <= tt <= t]
+            if kept:
+                self._memory[lid] = kept
+                out[lid] = max(s for _, s in kept)
+            else:
+                del self._memory[lid]
+        return out
+
+    def apply(self, result: FrameResult, tracks: Sequence[TrackOutput], joint: JointTracksMessage | None,
+              t: float) -> FrameResult:
+        """The frame's result (at frame time t) with the partners' confidences lent (see the module docstring)."""
         if self.weight == 0.0:
             return result
         if joint is not self._joint:
             self._joint = joint
-            self._lent = partner_scores(joint, self.uav, self._own)
-        out, raised = _lend(result, tracks, self._lent, self.weight)
+            self._fresh = True
+        out, raised = _lend(result, tracks, self.lent(t), self.weight)
         self.lent_detections += raised
         return out

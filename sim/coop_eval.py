@@ -189,7 +189,7 @@ def run_coop(data_dir: Path, config: PipelineConfig, *, share: bool, rule: str =
                                               pose_retimed=frame.pose_retimed,
                                               terrain=pipes[vid].terrain_for(frame.pose))
                 if server is not None:  # as `uavmm agent` writes its detections: after the tracker, lent
-                    res = lending[vid].apply(res, tracks, server.joint)
+                    res = lending[vid].apply(res, tracks, server.joint, frame.t)
                     server.latest[vid] = tracks_message(uav_of[vid], frame.t, tracks, pipes[vid].class_names)
                 if track_boxes is not None:
                     track_boxes[frame.image.id] = [[b[0], b[1], b[2] - b[0], b[3] - b[1]] for b in

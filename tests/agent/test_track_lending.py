@@ -102,12 +102,26 @@ def test_track_lending_follows_what_the_uav_reported():
     lending = TrackLending("uav1", 1.0)
     msg = joint((0.95, (("uav1", 7), ("uav2", 3)), None))
     res = result(BOXES[:1], [0.3])
-    assert lending.apply(res, [track(7, BOXES[0])], msg) is res  # nothing reported yet: its own score unknown
+    assert lending.apply(res, [track(7, BOXES[0])], msg, 0.0) is res  # nothing reported yet: its own score unknown
     lending.reported(TracksMessage(uav="uav1", t=0.0, tracks=()))
-    assert lending.apply(res, [track(7, BOXES[0])], msg) is res
+    assert lending.apply(res, [track(7, BOXES[0])], msg, 0.1) is res
     lending.reported(TracksMessage(uav="uav1", t=0.0, tracks=(TrackItem(7, "person", 48.5, 9.0, 0.3, (0.0, 0.0)),)))
-    out = lending.apply(res, [track(7, BOXES[0])], msg)
+    out = lending.apply(res, [track(7, BOXES[0])], msg, 0.2)
     assert out.scores[0] == pytest.approx(0.95, abs=1e-6) and lending.lent_detections == 1
+
+
+def test_a_track_keeps_the_best_lent_score_for_memory_s_of_frame_time():
+    lending = TrackLending("uav1", 1.0, memory_s=2.0)
+    lending.reported(TracksMessage(uav="uav1", t=0.0, tracks=(TrackItem(7, "person", 48.5, 9.0, 0.3, (0.0, 0.0)),)))
+    res, tracks = result(BOXES[:1], [0.3]), [track(7, BOXES[0])]
+    assert lending.apply(res, tracks, joint((0.95, (("uav1", 7), ("uav2", 3)), None)), 10.0).scores[0] == \
+        pytest.approx(0.95, abs=1e-6)
+    weaker = joint((0.6, (("uav1", 7), ("uav2", 3)), None))  # the partner's latest frame saw it less well
+    assert lending.apply(res, tracks, weaker, 11.9).scores[0] == pytest.approx(0.95, abs=1e-6)
+    assert lending.apply(res, tracks, weaker, 12.1).scores[0] == pytest.approx(0.6, abs=1e-6)
+    gone = joint((0.95, (("uav1", 7),), None))  # no partner on the track any more
+    assert lending.apply(res, tracks, gone, 14.2) is res
+    assert lending.apply(res, tracks, gone, 5.0) is res  # a replay starting again: nothing from its future
 
 
 # ---- an agent on Zenoh ---------------------------------------------------------------------------------
