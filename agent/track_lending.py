@@ -12,8 +12,9 @@ Each frame, a detection the tracker assigned to a local track that the latest ``
 an active member of a global track beside another UAV's active member takes, in log-odds, the share `weight` of
 the way from its own confidence to the global track's (the highest confidence among the members still reporting
 it), when that is above the confidence this UAV itself last reported for the track (so the lent confidence is
-another UAV's). Only the output changes (the detections written and published); the tracker and the memory map
-have already taken the frame as the pipeline scored it.
+another UAV's); a track keeps the best confidence lent to it over the last MEMORY_S seconds. Only the output
+changes (the detections the agent writes): the tracker, the memory map and the tracks it publishes take the frame
+as the pipeline scored it, so no UAV's confidence comes back to it through the server.
 """
 
 from __future__ import annotations
@@ -76,22 +77,25 @@ def _lend(result: FrameResult, tracks: Sequence[TrackOutput], lent: Mapping[int,
         raise ValueError(f"lend_scores: weight must be in [0, 1], got {weight!r}")
     if weight == 0.0 or not lent or not len(result):
         return result, 0
+    pairs = [(track.box_xyxy, lent[track.id]) for track in tracks if track.matched and track.id in lent]
+    if not pairs:
+        return result, 0
     boxes = np.asarray(result.boxes_xyxy, dtype=np.float64)
+    wanted = np.asarray([box for box, _ in pairs], dtype=np.float64).reshape(-1, 4)
+    # each lent track's detection: the box the tracker matched (a track's box is its detection's), all at once
+    same = np.all(np.abs(boxes[:, None, :] - wanted[None, :, :]) <= 1e-3, axis=2)  # (K detections, T tracks)
+    goal = np.full(len(boxes), -np.inf)
+    rows_hit, cols_hit = np.nonzero(same)
+    np.maximum.at(goal, rows_hit, np.asarray([score for _, score in pairs], dtype=np.float64)[cols_hit])
     scores = np.asarray(result.scores, dtype=np.float64).copy()
-    changed = 0
-    for track in tracks:
-        target = lent.get(track.id)
-        if target is None or not track.matched:
-            continue
-        hit = np.flatnonzero(np.all(np.abs(boxes - np.asarray(track.box_xyxy, dtype=np.float64)) <= 1e-3, axis=1))
-        for k in hit.tolist():
-            own = float(np.clip(scores[k], _EPS, 1.0 - _EPS))
-            goal = float(np.clip(target, _EPS, 1.0 - _EPS))
-            if goal <= own:
-                continue
-            lo, lg = math.log(own / (1.0 - own)), math.log(goal / (1.0 - goal))
-            scores[k] = 1.0 / (1.0 + math.exp(-(lo + weight * (lg - lo))))
-            changed += 1
+    own = np.clip(scores, _EPS, 1.0 - _EPS)
+    raise_ = goal > own
+    changed = int(np.count_nonzero(raise_))
+    if changed:
+        lo = np.log(own[raise_] / (1.0 - own[raise_]))
+        g = np.clip(goal[raise_], _EPS, 1.0 - _EPS)
+        lg = np.log(g / (1.0 - g))
+        scores[raise_] = 1.0 / (1.0 + np.exp(-(lo + weight * (lg - lo))))
     if not changed:
         return result, 0
     order = np.argsort(-scores, kind="stable")
@@ -121,6 +125,8 @@ class TrackLending:
         self._joint: JointTracksMessage | None = None
         self._fresh = False  # a message or report not yet taken into the memory
         self._memory: dict[int, list[tuple[float, float]]] = {}  # local id -> (frame time, lent score), oldest first
+        self._best: dict[int, float] = {}
+        self._valid = (math.inf, math.inf)  # frame times for which _best holds: [since, until)
 
     def reported(self, msg: TracksMessage) -> None:
         """This UAV's tracks message just sent: the confidences the server now has of it."""
@@ -133,15 +139,20 @@ class TrackLending:
             self._fresh = False
             for lid, score in partner_scores(self._joint, self.uav, self._own).items():
                 self._memory.setdefault(lid, []).append((t, score))
-        out = {}
+        elif self._valid[0] <= t < self._valid[1]:
+            return self._best  # nothing came in or expired since it was computed
+        best: dict[int, float] = {}
+        until = math.inf
         for lid in list(self._memory):
             kept = [(tt, s) for tt, s in self._memory[lid] if t - self.memory_s <= tt <= t]
             if kept:
                 self._memory[lid] = kept
-                out[lid] = max(s for _, s in kept)
+                best[lid] = max(s for _, s in kept)
+                until = min(until, kept[0][0] + self.memory_s)
             else:
                 del self._memory[lid]
-        return out
+        self._best, self._valid = best, (t, until if until > t else math.nextafter(t, math.inf))
+        return best
 
     def apply(self, result: FrameResult, tracks: Sequence[TrackOutput], joint: JointTracksMessage | None,
               t: float) -> FrameResult:

@@ -20,7 +20,8 @@ from agent.tracking import GpsTracker
 from benchmarks.timing import median_time_s
 from shared.geo import Camera, Pose, local_to_latlon
 
-DESCRIPTION = "GpsTracker.update ms/frame at 10/100/1000 tracks vs linear_sum_assignment and norfair"
+DESCRIPTION = ("GpsTracker.update ms/frame at 10/100/1000 tracks vs linear_sum_assignment and norfair; track "
+               "lending's cost vs the tracker")
 
 _CAMERA = Camera(width=3840, height=2160, fx=2985.0, fy=2985.0, cx=1920.0, cy=1080.0)
 _POSE = Pose(lat=48.53, lon=9.06, height_m=200.0, pitch_deg=90.0, heading_deg=0.0)
@@ -82,6 +83,40 @@ def _tracker_ms(n: int) -> tuple[float, int]:
     return 1000 * median_time_s(step, repeat=5, min_time_s=0.0) / k, confirmed
 
 
+def _lending_ms(n: int) -> float:
+    """`TrackLending.apply` ms/frame when every one of n confirmed tracks shares its global track with another UAV
+    that reports it at 0.97 (each detection's score moves): a new joint/tracks message every 6 frames (5 Hz)."""
+    from agent.track_lending import TrackLending
+    from shared.messages import JointTrackItem, JointTracksMessage, TrackItem, TracksMessage
+
+    scene = _Scene(n)
+    tracker = GpsTracker(class_names={1: "person"})
+    for _ in range(10):
+        result, t = scene.frame()
+        tracks = tracker.update(result, _POSE, t, _CAMERA)
+    lending = TrackLending("uav1", 0.5)
+    lending.reported(TracksMessage(uav="uav1", t=t, tracks=tuple(
+        TrackItem(tr.id, "person", float(tr.lat), float(tr.lon), 0.9, (0.0, 0.0)) for tr in tracks)))
+    k = _frames_per_call(n)
+    frames = []
+    for i in range(8 * k):
+        result, t = scene.frame()
+        frames.append((result, tracker.update(result, _POSE, t, _CAMERA), t, JointTracksMessage(t=t, tracks=tuple(
+            JointTrackItem(gid=tr.id, cls="person", lat=float(tr.lat), lon=float(tr.lon), score=0.97, vel_en=(0.0, 0.0),
+                           members=(("uav1", tr.id), ("uav2", tr.id))) for tr in tracks)) if i % 6 == 0 else None))
+    it = iter(frames)
+    joint = None
+
+    def step() -> None:
+        nonlocal joint
+        for _ in range(k):
+            result, tracks, t, msg = next(it)
+            joint = msg or joint
+            lending.apply(result, tracks, joint, t)
+
+    return 1000 * median_time_s(step, repeat=5, min_time_s=0.0) / k
+
+
 def _lsa_ms(n: int) -> float:
     cost = np.random.default_rng(1).random((n, n))
     return 1000 * median_time_s(lambda: linear_sum_assignment(cost), repeat=5)
@@ -140,4 +175,8 @@ def run(quick: bool = False) -> list[dict[str, Any]]:
             rows.append({"case": f"norfair Tracker.update (IoU), {n} objects", "value": nf, "unit": "ms/frame"})
             rows.append({"case": f"GpsTracker.update, {n} tracks, against norfair", "value": ms, "unit": "ms/frame",
                          "baseline_name": "norfair Tracker.update", "ratio": ms / nf})
+        if n <= 100:  # a partner's confidence lent to every track (agent.track_lending), against the tracker
+            lent = _lending_ms(n)
+            rows.append({"case": f"TrackLending.apply, {n} tracks all lent", "value": lent, "unit": "ms/frame",
+                         "baseline_name": "GpsTracker.update", "ratio": lent / ms})
     return rows

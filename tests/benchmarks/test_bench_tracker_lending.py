@@ -1,0 +1,10 @@
+"""The tracker benchmark's track-lending row: every track lent, timed against the tracker of the same run."""
+
+import math
+
+from benchmarks.bench_tracker import _lending_ms
+
+
+def test_lending_every_track_is_timed_per_frame():
+    ms = _lending_ms(10)
+    assert math.isfinite(ms) and ms > 0
