@@ -119,8 +119,8 @@ class FusionView(Protocol):
         ...
 
     def cluster_health(self) -> dict[str, Any]:
-        """Extra /healthz fields of a sharded deployment (``shard``; a gateway's ``shards``); ``degraded``
-        True turns the status to degraded. Empty for a single server."""
+        """Extra /healthz fields: a fusion server's ``inbox``, a shard's ``shard``, a gateway's ``shards``;
+        ``degraded`` True turns the status to degraded."""
         ...
 
 __all__ = ["create_app"]

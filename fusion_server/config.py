@@ -81,6 +81,9 @@ class FusionSettings:
     max_clock_skew_s: float = 30.0
     uav_max_msgs_per_s: float = 500.0
     uav_max_bytes_per_s: float = 4 * 1024 * 1024
+    #: a UAV message that waited longer than this for the fusion thread is dropped unread ("overloaded"),
+    #: so a server that fell behind catches up on fresh data and holds a few seconds of backlog, not a minute
+    inbox_max_age_s: float = 5.0
     #: REST bearer tokens; required when ``http_host`` is not loopback, unless ``insecure_public``
     http_tokens: tuple[HttpToken, ...] = ()
     insecure_public: bool = False
@@ -131,7 +134,8 @@ class FusionSettings:
                              "with --insecure-public")
         for name in ("ttl_s", "joint_max_hz", "tracks_max_hz", "track_gate_m", "track_hold_s",
                      "track_history_interval_s", "persist_interval_s", "max_clock_skew_s",
-                     "uav_max_msgs_per_s", "uav_max_bytes_per_s", "restore_keep_s", "uav_keep_s", "cot_interval_s"):
+                     "uav_max_msgs_per_s", "uav_max_bytes_per_s", "restore_keep_s", "uav_keep_s", "cot_interval_s",
+                     "inbox_max_age_s"):
             _positive(name, getattr(self, name))
         if self.restore_grace_s is not None:
             _positive("restore_grace_s", self.restore_grace_s)

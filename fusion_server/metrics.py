@@ -120,11 +120,11 @@ class FusionMetrics:
                 window = self.rates[kind] = RateWindow()
             window.add(now, count, nbytes)
 
-    def reject(self, kind: str, reason: str) -> None:
-        """Count one dropped message."""
+    def reject(self, kind: str, reason: str, count: int = 1) -> None:
+        """Count ``count`` dropped messages (one by default)."""
         with self._lock:
-            self.rejected[(kind, reason)] = self.rejected.get((kind, reason), 0) + 1
-            self.rejected_rate.add(self._clock())
+            self.rejected[(kind, reason)] = self.rejected.get((kind, reason), 0) + count
+            self.rejected_rate.add(self._clock(), count)
 
     def published(self, latency_s: float | None, dropped: bool = False) -> None:
         """Count one joint tile publication and its fusion latency (receive -> publish)."""

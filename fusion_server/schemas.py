@@ -69,6 +69,8 @@ class Health(_Open):
     coverage_masks: int
     footprints: int
     global_tracks: int
+    inbox: dict[str, float] | None = Field(None, description="a fusion server: UAV messages waiting for its fusion "
+                                                            "thread (samples) and the oldest one's wait (oldest_s)")
     shard: str | None = Field(None, description="a shard: K/N (`uavmm fusion --shard K/N`)")
     shards: dict[str, Any] | None = Field(None, description="a gateway: each shard's liveliness and regions")
     degraded: bool | None = Field(None, description="a gateway: True while a shard is missing")

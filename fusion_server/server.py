@@ -118,7 +118,7 @@ class FusionServer:
             self.uavs, self.metrics, self.store,
             UavRateLimiter(settings.uav_max_msgs_per_s, settings.uav_max_bytes_per_s, max_uavs=4 * settings.max_uavs),
             tracks_max_hz=settings.tracks_max_hz,
-            uav_keep_s=settings.uav_keep_s, shard=shard,
+            uav_keep_s=settings.uav_keep_s, inbox_max_age_s=settings.inbox_max_age_s, shard=shard,
         )
         if self.node.handover is not None:
             self.tracker.adopt = self.node.handover.adopt
@@ -224,7 +224,12 @@ class FusionServer:
     def prometheus(self) -> str:
         """Prometheus text of all metrics, with the gauges of the joint map, UAVs and tracks."""
         stats = self.joint.stats()
+        inbox = self.node.inbox_health()
         gauges: dict[str, tuple[str, float]] = {
+            "uavmm_fusion_inbox_samples": ("UAV messages waiting for the fusion thread.", inbox["samples"]),
+            "uavmm_fusion_inbox_oldest_seconds": ("How long the oldest waiting UAV message has waited (beyond "
+                                                  "inbox_max_age_s it is dropped unread as overloaded).",
+                                                  inbox["oldest_s"]),
             "uavmm_fusion_uavs_online": ("UAVs whose liveliness token is present.", len(self.uavs.online())),
             "uavmm_fusion_joint_tiles": ("Joint tiles currently published.", stats["joint_tiles"]),
             "uavmm_fusion_uav_tiles": ("Fresh UAV tiles held for fusion.", stats["uav_tiles"]),
@@ -271,12 +276,14 @@ class FusionServer:
         return self.metrics.prometheus(gauges, reasons, labelled)
 
     def cluster_health(self) -> dict[str, Any]:
-        """``shard`` (K/N), what crossed its borders and the ``fusion/tracks`` queries it answered and
-        refused, for /healthz of a shard; empty when unsharded."""
+        """Extra /healthz fields: ``inbox`` (UAV messages waiting for the fusion thread and how long the
+        oldest has waited); of a shard also ``shard`` (K/N), what crossed its borders and the
+        ``fusion/tracks`` queries it answered and refused."""
+        inbox = self.node.inbox_health()
         handover = self.node.handover
         if handover is None:
-            return {}
-        body = {"shard": self.settings.shard.label(), "region_zoom": self.settings.region_zoom,
+            return {"inbox": inbox}
+        body = {"inbox": inbox, "shard": self.settings.shard.label(), "region_zoom": self.settings.region_zoom,
                 "skipped_tiles": self.node.skipped, "handovers": dict(self.tracker.handovers),
                 "foreign_region_messages": handover.received}
         queryable = self.node.tracks_queryable

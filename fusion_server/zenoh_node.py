@@ -1,7 +1,9 @@
 """The fusion server's Zenoh side: subscriptions, liveliness, the joint queryable and the fusion thread.
 
-The data subscriber's callback only enqueues the sample (a bounded inbox: beyond it samples are
-dropped and counted as "overloaded"). One thread drains the inbox in batches, validates every
+The data subscriber's callback only enqueues the sample with its arrival time (a bounded inbox: beyond
+it samples are dropped and counted as "overloaded", and so are samples that waited in it longer than
+``inbox_max_age_s``: every UAV message is a snapshot its UAV sends again within a second or so, and an
+old backlog only pins memory and delays the fresh ones). One thread drains the inbox in batches, validates every
 sample and feeds the joint map (one lock per batch), the global tracker and the UAV registry,
 counting and logging (rate-limited) what it drops; between batches it fuses and publishes joint
 tiles and joint tracks (``CongestionControl.BLOCK``) and hands the joint tiles to persistence, whose
@@ -86,7 +88,10 @@ class FusionNode:
     max_tracks_bytes: largest joint tracks message (fewer tracks are sent beyond it, tracked ones
     first). store: persistence, or None. limiter: per-UAV rate limits checked before decoding, or
     None. uav_keep_s: offline UAVs not seen for this long are forgotten. inbox_max: samples waiting
-    for the fusion thread (beyond: dropped, counted as "overloaded"; 65,536 are ~7 s of 200 UAVs).
+    for the fusion thread (beyond: dropped, counted as "overloaded"; 65,536 are ~7 s of 200 UAVs of
+    `uavmm bench fusion`, ~36 s of 50 UAVs sending states, tracks and moving footprints, and up to
+    ~20 kB of memory each). inbox_max_age_s: a sample that waited longer than this is dropped unread
+    when the fusion thread reaches it (counted as "overloaded"): it catches up on fresh data at once.
     The components are shared with the REST API.
     """
 
@@ -106,6 +111,7 @@ class FusionNode:
         max_tracks_bytes: int = 1024 * 1024,
         uav_keep_s: float = 3600.0,
         inbox_max: int = 65_536,
+        inbox_max_age_s: float = 5.0,
         shard: ShardSpec | None = None,
     ) -> None:
         self.conf = conf
@@ -135,7 +141,8 @@ class FusionNode:
         self._intake = UavIntake(keys, uavs, metrics, log)
         self._step_log = RateLimitedLog(log)
         self.inbox_max = int(inbox_max)
-        self._inbox: deque[zenoh.Sample] = deque()
+        self.inbox_max_age_s = float(inbox_max_age_s)
+        self._inbox: deque[tuple[float, zenoh.Sample]] = deque()  # (monotonic arrival, sample), oldest first
         self._wakeup = threading.Event()
         self._sessions: dict[bytes, str] = {}  # attachment bytes -> session id (bounded cache)
         # region -> (its tracks, payload, monotonic time) as last published on region/tracks/{z}/{x}/{y}
@@ -228,7 +235,7 @@ class FusionNode:
                     "overloaded", "fusion inbox full (%d samples): dropped a sample on %.120s", self.inbox_max,
                     str(sample.key_expr))
                 return
-            self._inbox.append(sample)
+            self._inbox.append((time.monotonic(), sample))
             self._wake()
         except Exception:
             self.metrics.reject("unknown", "internal_error")
@@ -465,12 +472,33 @@ class FusionNode:
         uavs, forgotten = self.uavs.drain_changes()
         self.store.save_uavs(uavs, forgotten)
 
-    def _drain(self) -> list[zenoh.Sample]:
-        """Up to _BATCH samples from the inbox, oldest first."""
+    def inbox_health(self) -> dict[str, Any]:
+        """``{"samples": waiting, "oldest_s": how long the oldest has waited (0.0: none)}`` (no lock: reads)."""
         inbox = self._inbox
-        batch = []
-        for _ in range(min(len(inbox), _BATCH)):
-            batch.append(inbox.popleft())
+        try:
+            oldest = time.monotonic() - inbox[0][0] if inbox else 0.0
+        except IndexError:  # the fusion thread took it meanwhile
+            oldest = 0.0
+        return {"samples": len(inbox), "oldest_s": round(max(oldest, 0.0), 3)}
+
+    def _drain(self) -> list[zenoh.Sample]:
+        """Up to _BATCH samples from the inbox, oldest first; those that waited longer than
+        ``inbox_max_age_s`` are dropped unread and counted as "overloaded"."""
+        inbox = self._inbox
+        batch: list[zenoh.Sample] = []
+        stale = 0
+        cutoff = time.monotonic() - self.inbox_max_age_s
+        while inbox and len(batch) < _BATCH:
+            arrived, sample = inbox.popleft()
+            if arrived < cutoff:
+                stale += 1
+                continue
+            batch.append(sample)
+        if stale:
+            self.metrics.reject("unknown", "overloaded", stale)
+            self._intake.warnings.warning(
+                "overloaded_age", "fusion thread behind: dropped %d samples that waited more than %.1f s", stale,
+                self.inbox_max_age_s)
         return batch
 
     def _run(self) -> None:

@@ -99,6 +99,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="per-UAV message rate limit, messages/s (500; bursts of 2 s)")
     p.add_argument("--uav-max-bytes-per-s", type=float, default=4 * 1024 * 1024,
                    help="per-UAV payload rate limit, bytes/s (4 MiB; bursts of 2 s)")
+    p.add_argument("--inbox-max-age-s", type=float, default=5.0,
+                   help="a UAV message that waited longer than this for the fusion thread (the server fell "
+                        "behind) is dropped unread as 'overloaded': it catches up on fresh data (5)")
     p.add_argument("--grid-z", type=int, default=18, help="zoom of the shared tile grid (18)")
     p.add_argument("--grid-n", type=int, default=256, help="cells per tile edge of the shared grid (256)")
     add_map_max_cells_argument(p)
@@ -191,7 +194,7 @@ def settings_from_args(args: argparse.Namespace):
         track_gate_m=args.track_gate_m, track_hold_s=args.track_hold_s, track_reassociate_m=args.track_reassociate_m,
         max_clock_skew_s=args.max_clock_skew_s,
         uav_max_msgs_per_s=args.uav_max_msgs_per_s, uav_max_bytes_per_s=args.uav_max_bytes_per_s,
-        db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
+        inbox_max_age_s=args.inbox_max_age_s, db_recover=args.db_recover, restore_keep_s=args.restore_keep_s,
         http_tokens=tokens, insecure_public=args.insecure_public, cors_origins=tuple(args.cors_origin),
         cot_url=args.cot_url, cot_objects_min_score=None if args.no_cot_objects else args.cot_objects_min_score,
         basemap=args.basemap, basemap_attribution=args.basemap_attribution, map_max_cells=args.map_max_cells,

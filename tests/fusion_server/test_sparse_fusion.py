@@ -4,6 +4,7 @@ tracks per region."""
 
 from __future__ import annotations
 
+import threading
 import time
 
 import msgpack
@@ -165,6 +166,41 @@ def test_a_full_inbox_drops_and_counts_samples_as_overloaded(server_factory, age
     assert wait_until(lambda: server.metrics.rejected.get(("unknown", "overloaded"), 0) == 3)
     assert server.joint.tiles() == []
     assert 'reason="overloaded"' in server.prometheus()
+
+
+def test_samples_that_waited_too_long_are_dropped_unread_and_the_wait_is_reported(server_factory, agent_factory):
+    # A soak of 50 UAVs on a shared 2-core machine: the fusion thread fell behind, the inbox held up to
+    # 65,536 samples (~36 s of them, RssAnon 0.43 -> 1.83 GB), and what it then fused was that old while
+    # /healthz and the latency metric showed nothing.
+    server = server_factory(inbox_max_age_s=1.0)
+    node = server.node
+    entered, gate = threading.Event(), threading.Event()
+    ingest = node._ingest
+
+    def stalled_ingest(batch):  # the fusion thread stalls in its first batch (a busy CPU, a long GC)
+        entered.set()
+        gate.wait(10.0)
+        return ingest(batch)
+
+    node._ingest = stalled_ingest
+    agent = agent_factory("u1")
+    values = np.full((GRID_FULL.n, GRID_FULL.n), 0.5, np.float32)
+    try:
+        agent.tile(values, x=TILE_X)
+        assert entered.wait(5.0)
+        agent.tile(values, x=TILE_X + 1)
+        agent.tile(values, x=TILE_X + 2)
+        assert wait_until(lambda: node.inbox_health()["samples"] == 2)
+        time.sleep(1.2)
+        inbox = server.cluster_health()["inbox"]
+        assert inbox["samples"] == 2 and inbox["oldest_s"] >= 1.0
+        assert "uavmm_fusion_inbox_samples 2" in server.prometheus()
+    finally:
+        gate.set()
+    assert wait_until(lambda: server.metrics.rejected.get(("unknown", "overloaded"), 0) == 2)
+    agent.tile(values, x=TILE_X + 3)  # fresh data is fused at once
+    assert wait_until(lambda: {t.x for t in server.joint.tiles()} == {TILE_X, TILE_X + 3})
+    assert node.inbox_health() == {"samples": 0, "oldest_s": 0.0}
 
 
 # ---- joint tracks per region ---------------------------------------------------------------------
