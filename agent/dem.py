@@ -142,7 +142,8 @@ def write_npz(path: str | Path, grid: ElevationGrid) -> None:
                         format=NPZ_FORMAT, version=1)
 
 
-#: What zipfile, zlib and numpy's .npy header parser raise on a damaged archive, besides OSError and ValueError.
+#: What zipfile, zlib and numpy's .npy header parser raise on a damaged archive, besides OSError and ValueError
+#: (zipfile's NotImplementedError: an entry asking for a newer zip version or an unknown compression).
 _DAMAGED_ZIP = (zipfile.BadZipFile, zlib.error, EOFError, NotImplementedError, tokenize.TokenError, SyntaxError)
 
 

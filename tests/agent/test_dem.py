@@ -172,3 +172,18 @@ def test_klv_heights_on_a_dem_are_altitudes_above_sea_level(tmp_path, caplog, te
     assert (args.height_offset_m, args.takeoff_elevation_m) == expected
     assert terrain.takeoff_elevation_m == expected[1]
     assert ("--takeoff-elevation-m alone" in caplog.text) == ("takeoff_elevation_m" in given)
+
+
+def test_a_npz_needing_a_newer_zip_version_is_a_value_error_naming_the_file(tmp_path):
+    """zipfile raises NotImplementedError ("zip file version") for an entry that asks for a newer extractor: read_npz
+    turns it into a ValueError naming the file (the fuzzing's reproducer, made deterministic)."""
+    path = tmp_path / "dem.npz"
+    write_npz(path, ElevationGrid(np.arange(12.0).reshape(3, 4), lat0_deg=47.001, lon0_deg=9.0,
+                                  lat_step_deg=-0.001, lon_step_deg=0.001))
+    data = bytearray(path.read_bytes())
+    central = data.find(b"PK\x01\x02")  # the first central directory entry; its "version needed" at offset 6
+    assert central > 0
+    data[central + 6:central + 8] = (99).to_bytes(2, "little")
+    path.write_bytes(bytes(data))
+    with pytest.raises(ValueError, match=r"dem\.npz: a damaged \.npz archive \(NotImplementedError"):
+        read_npz(path)
