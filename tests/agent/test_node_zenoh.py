@@ -38,7 +38,7 @@ from shared.messages import (
 from shared.tilecodec import TileMessage, decode_tile, encode_tile
 from shared.tiles import TileGrid
 from sim.source import SimSource
-from tests.netutil import free_port, wait_until
+from tests.netutil import wait_until
 
 KEYS = KeySpace()
 GRID = TileGrid()
@@ -201,18 +201,6 @@ def joint_tile_with_blob(lat: float, lon: float, value: float = 0.8, cls: str = 
 
 def scores_of(result, box: tuple) -> list[float]:
     return [float(s) for b, s in zip(result.boxes_xyxy, result.scores, strict=True) if np.allclose(b, box)]
-
-
-@pytest.fixture
-def server_port() -> int:
-    return free_port()
-
-
-@pytest.fixture
-def server(server_port) -> Iterator[FakeServer]:
-    fake = FakeServer(server_port)
-    yield fake
-    fake.close()
 
 
 # ---- what the agent publishes ------------------------------------------------------------------

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import threading
-from collections.abc import Iterator
 
 import msgpack
 import numpy as np
@@ -19,8 +18,8 @@ from agent.pipeline_config import PipelineConfig
 from agent.track_lending import TrackLending, lend_scores, partner_scores
 from agent.tracking.tracker import TrackOutput
 from shared.messages import JointTrackItem, JointTracksMessage, TrackItem, TracksMessage, encode_joint_tracks
-from tests.agent.test_node_zenoh import BOX_A, KEYS, FakeServer, RunningAgent, ScriptedSource, agent_settings
-from tests.netutil import free_port, wait_until
+from tests.agent.test_node_zenoh import BOX_A, KEYS, RunningAgent, ScriptedSource, agent_settings
+from tests.netutil import wait_until
 
 
 def logit(p: float) -> float:
@@ -125,18 +124,6 @@ def test_a_track_keeps_the_best_lent_score_for_memory_s_of_frame_time():
 
 
 # ---- an agent on Zenoh ---------------------------------------------------------------------------------
-@pytest.fixture
-def server_port() -> int:
-    return free_port()
-
-
-@pytest.fixture
-def server(server_port) -> Iterator[FakeServer]:
-    fake = FakeServer(server_port)
-    yield fake
-    fake.close()
-
-
 def test_the_agent_writes_its_detection_with_the_confidence_a_partner_reports_on_the_shared_track(server, server_port):
     seen: list[float] = []
     source = ScriptedSource(150, lambda i: [(BOX_A, 0.6)])  # no memory map: its score stays the detector's
