@@ -40,7 +40,7 @@ from shared.messages import JointTracksMessage, TracksMessage
 from shared.tilecodec import decode_tile
 from sim.coop_peaks import PEAK_BAR_M, PeakSampler, standing_objects
 from sim.coop_registration import RegistrationRecord, registration_errors
-from sim.cross_uav import CROSS_METRICS, CrossUavRecorder, cross_uav_metrics
+from sim.cross_uav import CROSS_METRICS, CrossUavRecorder, cross_uav_metrics, frame_clock_tracker
 from sim.position_error import summarise_position_errors
 from sim.terrain_eval import DEM_SUFFIX, terrain_of
 from sim.track_eval import (
@@ -229,15 +229,8 @@ class ServerTracks:
     UAV's TrackLending what it reported, and makes `joint` the ``joint/tracks`` message the agents then hold."""
 
     def __init__(self) -> None:
-        from fusion_server.config import FusionSettings
-        from fusion_server.global_tracks import GlobalTracker
-
-        s = FusionSettings(db_path=None)
         self.now = float("-inf")
-        self.tracker = GlobalTracker(gate_m=s.track_gate_m, hold_s=s.track_hold_s, member_ttl_s=s.ttl_s,
-                                     history_len=s.track_history_len, history_interval_s=s.track_history_interval_s,
-                                     reassociate_m=s.track_reassociate_m, keep_changes=False,
-                                     clock=lambda: self.now, wall=lambda: self.now)
+        self.tracker = frame_clock_tracker(lambda: self.now)
         self.latest: dict[int, TracksMessage] = {}
         self.joint: JointTracksMessage | None = None
 

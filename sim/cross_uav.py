@@ -23,6 +23,7 @@ server, at most one publish period) carry that first id: the figure measures the
 from __future__ import annotations
 
 from collections import Counter
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -38,7 +39,7 @@ from sim.track_eval import (
     trackeval_data,
 )
 
-__all__ = ["CROSS_METRICS", "CrossUavRecorder", "cross_uav_metrics"]
+__all__ = ["CROSS_METRICS", "CrossUavRecorder", "cross_uav_metrics", "frame_clock_tracker"]
 
 PUBLISH_PERIOD_S = 0.2  # the agent's default 5 Hz
 #: The figures of `cross_uav_metrics`, in report order.
@@ -47,6 +48,17 @@ CROSS_METRICS = ("IDF1", "IDF1_first_look", "IDF1_separate", "HOTA", "HOTA_first
                  "same_id", "same_id_first_look")
 #: Local ids of different UAVs kept apart: video index x this + local id (local ids of a sequence stay below it).
 _ID_SPAN = 1 << 32
+
+
+def frame_clock_tracker(clock: Callable[[], float], settings: FusionSettings | None = None, *,
+                        reassociate_m: float | None = None) -> GlobalTracker:
+    """The fusion server's global tracker with its settings' tracker options (default `uavmm fusion`'s) on an
+    in-process run's frame clock (`clock`, also its wall clock); reassociate_m: None for the settings' own."""
+    s = settings or FusionSettings(db_path=None)
+    return GlobalTracker(gate_m=s.track_gate_m, hold_s=s.track_hold_s, member_ttl_s=s.ttl_s,
+                         history_len=s.track_history_len, history_interval_s=s.track_history_interval_s,
+                         reassociate_m=s.track_reassociate_m if reassociate_m is None else reassociate_m,
+                         keep_changes=False, clock=clock, wall=clock)
 
 
 class CrossUavRecorder:
@@ -63,12 +75,8 @@ class CrossUavRecorder:
         s = settings or FusionSettings(db_path=None)
         self.now = float("-inf")
         self.period_s = period_s
-        self.tracker, self.first_look = (
-            GlobalTracker(gate_m=s.track_gate_m, hold_s=s.track_hold_s, member_ttl_s=s.ttl_s,
-                          history_len=s.track_history_len, history_interval_s=s.track_history_interval_s,
-                          reassociate_m=reassociate_m, keep_changes=False, clock=lambda: self.now,
-                          wall=lambda: self.now)
-            for reassociate_m in (s.track_reassociate_m, 0.0))
+        self.tracker, self.first_look = (frame_clock_tracker(lambda: self.now, s, reassociate_m=reassociate_m)
+                                         for reassociate_m in (s.track_reassociate_m, 0.0))
         self.gids: dict[int, dict[int, dict[int, int]]] = {}
         self.first_look_gids: dict[int, dict[int, dict[int, int]]] = {}
         self._next: dict[int, float] = {}
