@@ -463,7 +463,7 @@ class AgentNode:
             result = with_image_descriptors(result, frame.image)
         tracks = self.tracker.update(result, frame.pose, frame.t, frame.camera, pose_t=frame.pose_t,
                                      pose_retimed=frame.pose_retimed, terrain=self.pipeline.terrain_for(frame.pose))
-        if self.lending.weight:  # the output takes the partners' confidences along shared global tracks
+        if self.lending.weight and (self._detections is not None or self.on_frame is not None):  # the output only
             result = self.lending.apply(result, tracks, self._joint_tracks(), frame.t)
         if self.anomaly is not None and frame.image is not None:
             self.anomaly.process(frame.image, frame.pose, frame.t, frame.camera)
