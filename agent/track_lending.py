@@ -67,14 +67,18 @@ def lend_scores(result: FrameResult, tracks: Sequence[TrackOutput], lent: Mappin
     """`result` with each detection of a track in `lent` moved, in log-odds, `weight` of the way to the lent
     confidence where that is higher (`partner_scores`); reordered highest score first. A detection belongs to the
     track matched to it in this frame (the track's box is the detection's). weight 0 or nothing lent: `result`."""
+    _check_weight(weight)
     return _lend(result, tracks, lent, weight)[0]
+
+
+def _check_weight(weight: float) -> None:
+    if not (0.0 <= weight <= 1.0) or not math.isfinite(weight):
+        raise ValueError(f"track lending: weight must be in [0, 1], got {weight!r}")
 
 
 def _lend(result: FrameResult, tracks: Sequence[TrackOutput], lent: Mapping[int, float],
           weight: float) -> tuple[FrameResult, int]:
-    """`lend_scores` and how many detections it raised."""
-    if not (0.0 <= weight <= 1.0) or not math.isfinite(weight):
-        raise ValueError(f"lend_scores: weight must be in [0, 1], got {weight!r}")
+    """`lend_scores` (weight checked by the caller) and how many detections it raised."""
     if weight == 0.0 or not lent or not len(result):
         return result, 0
     pairs = [(track.box_xyxy, lent[track.id]) for track in tracks if track.matched and track.id in lent]
@@ -113,8 +117,7 @@ class TrackLending:
     weight: PipelineConfig.track_lending (0: off). `lent_detections` counts the detections whose score rose."""
 
     def __init__(self, uav: str, weight: float, memory_s: float = MEMORY_S) -> None:
-        if not (0.0 <= weight <= 1.0) or not math.isfinite(weight):
-            raise ValueError(f"track lending: weight must be in [0, 1], got {weight!r}")
+        _check_weight(weight)
         if not (memory_s >= 0.0 and math.isfinite(memory_s)):
             raise ValueError(f"track lending: memory_s must be >= 0, got {memory_s!r}")
         self.uav = uav
